@@ -1,0 +1,4 @@
+[
+  inputs: ["mix.exs", "config/*.exs", "test/**/*.{ex,exs}", "scripts/*.exs"],
+  subdirectories: ["apps/*"]
+]

@@ -1,0 +1,303 @@
+defmodule Tartarus.Agent do
+  @moduledoc """
+  The agent behaviour: static and mobile agents that live on hosts and migrate between them.
+
+  ## Glossary
+
+    * **agent** - a supervised process on a host running a module that `use`s this module.
+      Its identity (id, name), state and payload travel; its stack does not (weak mobility).
+    * **action** - what a callback returns; the platform carries it out.
+    * **arrival** - an agent starting on a host after a migration (or a clone). It resumes in
+      `c:handle_arrival/2`.
+
+  ## Example
+
+      defmodule Pinger do
+        use Tartarus.Agent
+
+        @impl true
+        def init(laps), do: {:move, :conscientious, laps}
+
+        @impl true
+        def handle_arrival(_ctx, 0), do: {:return, Tartarus.Agent.hops(), 0}
+        def handle_arrival(_ctx, laps), do: {:move, :conscientious, laps - 1}
+      end
+
+      {:ok, id} = Tartarus.create_mobile_agent(:a, Pinger, 10, owner: self())
+      receive do
+        {:tartarus_result, ^id, hops} -> hops
+      end
+
+  ## Actions
+
+    * `{:stay, state}` - remain on this host and wait for messages;
+    * `{:move, dest, state}` - migrate to `dest`: a host, or a strategy (`:random`,
+      `:conscientious`, `{:gradient, signal}`, `{:strategy, module, arg}`; see
+      `Tartarus.Strategy`);
+    * `{:clone, dest, state}` - start a copy at `dest` (a host, a strategy, or `:here`); the
+      copy gets a new id and name and starts in `c:handle_arrival/2` with `ctx.clone_of` set;
+      the original keeps running here;
+    * `{:return, result, state}` - deliver `result` to the owner as
+      `{:tartarus_result, id, result}` and stop;
+    * `{:stop, reason, state}` - stop (a normal exit: the agent is not restarted).
+
+  ## What a move guarantees
+
+  A move is a two-phase hand-off (DESIGN §6). If anything fails before the destination has
+  the agent paused and ready (unknown or dead host, refused admission, code conflict, state
+  that cannot travel, link loss, timeout), the agent stays here, running, and
+  `c:handle_move_failed/4` decides what to do next. Once the source commits, the agent
+  exists at the destination only. Messages sent to the agent while it moves are not lost:
+  a sender whose message was not yet taken by the agent retries along the forwarding
+  pointer the source leaves behind. Timers and links of the agent's process do not travel.
+
+  State must be plain data: funs and ports cannot travel and make the move fail with
+  `{:not_portable, :fun, path}`.
+
+  ## Supervision
+
+  Agents run under their host's supervisor. A crashing agent is restarted from the
+  snapshot taken when it arrived on the host (it re-runs `c:handle_arrival/2` with
+  `ctx.restarts` counting restarts), at most `:max_restarts` times (a host option), then
+  removed; its owner then receives `{:tartarus_removed, id, reason}`.
+
+  ## Inside callbacks
+
+  Callbacks run in the agent's process and may use the functions of this module: `id/0`,
+  `name/0`, `host/0`, `hops/0`, `neighbours/0`, the payload functions, the host store and
+  the host's plugins (`read/2`, `write/2`, `subscribe/1`), and `reply/2`.
+
+  ## Options of `use Tartarus.Agent`
+
+    * `:ships` - other modules the agent needs wherever it goes (shipped with it, like its
+      own module).
+
+  Agent modules compiled while the application runs (typed in iex, or compiled by a test)
+  are registered with `Tartarus.CodeCache`, so they ship to nodes that never had them.
+  """
+
+  alias Tartarus.Envelope
+
+  @typedoc "An agent's state."
+  @type state :: term()
+
+  @typedoc "Where to go: a host or a migration strategy."
+  @type dest :: Tartarus.host_ref() | Tartarus.Strategy.t()
+
+  @typedoc "What a callback returns."
+  @type action ::
+          {:stay, state()}
+          | {:move, dest(), state()}
+          | {:clone, dest() | :here, state()}
+          | {:return, term(), state()}
+          | {:stop, term(), state()}
+
+  @typedoc """
+  What the platform tells an agent about its arrival: the host, where it came from, its hop
+  count, the id of the agent it was cloned from (if it is a clone) and how many times it was
+  restarted on this host.
+  """
+  @type ctx :: %{
+          host: Tartarus.host(),
+          from: Tartarus.host() | nil,
+          hops: non_neg_integer(),
+          clone_of: String.t() | nil,
+          restarts: non_neg_integer()
+        }
+
+  @typedoc "Whom to reply to, or nil for a one-way post."
+  @type from :: {pid(), reference()} | nil
+
+  @doc "Starts the agent on the host where it is created; returns its first action."
+  @callback init(args :: term()) :: action()
+
+  @doc "The agent arrived on a host (after a move, as a clone, or after a restart)."
+  @callback handle_arrival(ctx(), state()) :: action()
+
+  @doc """
+  A message posted to the agent (`from` is nil) or a request (`from` is set: answer with
+  `reply/2`, from this callback or later, from wherever the agent is by then).
+  """
+  @callback handle_message(message :: term(), from(), state()) :: action()
+
+  @doc "A move or clone to `dest` failed with `reason`; the agent is still here."
+  @callback handle_move_failed(dest(), reason :: term(), ctx(), state()) :: action()
+
+  @doc "Any other message to the agent's process (timers, plugin events)."
+  @callback handle_info(message :: term(), state()) :: action()
+
+  @optional_callbacks handle_info: 2
+
+  @doc false
+  defmacro __using__(opts) do
+    ships = Keyword.get(opts, :ships, [])
+
+    quote do
+      @behaviour Tartarus.Agent
+      @after_compile Tartarus.Agent
+
+      @doc false
+      def __tartarus_agent__(:ships), do: unquote(ships)
+
+      @impl Tartarus.Agent
+      def handle_arrival(_ctx, state), do: {:stay, state}
+
+      @impl Tartarus.Agent
+      def handle_message(_message, _from, state), do: {:stay, state}
+
+      @impl Tartarus.Agent
+      def handle_move_failed(_dest, _reason, _ctx, state), do: {:stay, state}
+
+      defoverridable handle_arrival: 2, handle_message: 3, handle_move_failed: 4
+    end
+  end
+
+  @doc false
+  def __after_compile__(env, bytecode) do
+    Tartarus.CodeCache.remember(env.module, bytecode)
+  end
+
+  @doc "True if `module` is an agent module."
+  @spec agent_module?(module()) :: boolean()
+  def agent_module?(module) when is_atom(module) do
+    Code.ensure_loaded?(module) and function_exported?(module, :__tartarus_agent__, 1)
+  end
+
+  def agent_module?(_), do: false
+
+  # -- inside callbacks ----------------------------------------------------------
+
+  @ctx :"$tartarus_envelope"
+  @host :"$tartarus_host"
+
+  @doc "The id of the calling agent."
+  @spec id() :: String.t()
+  def id, do: envelope().id
+
+  @doc "The name of the calling agent."
+  @spec name() :: String.t()
+  def name, do: envelope().name
+
+  @doc "The host the calling agent is on."
+  @spec host() :: Tartarus.host()
+  def host, do: host_info().ref
+
+  @doc "How many migrations the calling agent has made."
+  @spec hops() :: non_neg_integer()
+  def hops, do: envelope().hops
+
+  @doc "How many times the calling agent has visited each host."
+  @spec visits() :: %{Tartarus.host() => pos_integer()}
+  def visits, do: envelope().visits
+
+  @doc "The neighbours of the calling agent's host."
+  @spec neighbours() :: [Tartarus.host()]
+  def neighbours, do: Tartarus.Ledger.neighbours(host_info())
+
+  @doc "The calling agent's data payload."
+  @spec payload() :: map()
+  def payload, do: envelope().payload.data
+
+  @doc "Adds (or replaces) `key` in the calling agent's payload; it travels with the agent."
+  @spec put_payload(term(), term()) :: :ok
+  def put_payload(key, value), do: update_payload(&Map.put(&1, key, value))
+
+  @doc "Removes `key` from the calling agent's payload."
+  @spec remove_payload(term()) :: :ok
+  def remove_payload(key), do: update_payload(&Map.delete(&1, key))
+
+  @doc """
+  Sheds `key` from the payload to the host store: the value stays on this host (readable
+  by other agents with `store_get/2`) and no longer travels. Returns `{:error, :not_found}`
+  if the payload has no such key.
+  """
+  @spec shed_payload(term()) :: :ok | {:error, :not_found}
+  def shed_payload(key) do
+    case Map.fetch(payload(), key) do
+      {:ok, value} ->
+        store_put(key, value)
+        remove_payload(key)
+
+      :error ->
+        {:error, :not_found}
+    end
+  end
+
+  @doc "Copies `key` of the payload to the host store; the agent keeps it too."
+  @spec copy_payload(term()) :: :ok | {:error, :not_found}
+  def copy_payload(key) do
+    case Map.fetch(payload(), key) do
+      {:ok, value} -> store_put(key, value)
+      :error -> {:error, :not_found}
+    end
+  end
+
+  @doc "Adds `module` to the modules that travel with the calling agent."
+  @spec add_module(module()) :: :ok
+  def add_module(module) when is_atom(module) do
+    env = envelope()
+    put_envelope(%{env | payload: %{env.payload | modules: Enum.uniq([module | env.payload.modules])}})
+  end
+
+  @doc "Reads `key` from the store of the calling agent's host."
+  @spec store_get(term(), term()) :: term()
+  def store_get(key, default \\ nil) do
+    case :ets.lookup(host_info().store, key) do
+      [{_, v}] -> v
+      [] -> default
+    end
+  end
+
+  @doc "Writes `key` in the store of the calling agent's host."
+  @spec store_put(term(), term()) :: :ok
+  def store_put(key, value) do
+    :ets.insert(host_info().store, {key, value})
+    :ok
+  end
+
+  @doc """
+  Reads from plugin `plugin` of the calling agent's host. Agents reach only the plugins of
+  the host they are on. See `Tartarus.Plugin`.
+  """
+  @spec read(atom(), term()) :: {:ok, term()} | {:error, term()}
+  def read(plugin, args \\ nil), do: Tartarus.Plugin.call(host(), plugin, {:read, args})
+
+  @doc "Writes to (actuates) plugin `plugin` of the calling agent's host."
+  @spec write(atom(), term()) :: :ok | {:error, term()}
+  def write(plugin, args), do: Tartarus.Plugin.call(host(), plugin, {:write, args})
+
+  @doc """
+  Subscribes the calling agent to the events of plugin `plugin` on its host. Events arrive
+  in `c:handle_info/2` as `{:plugin_event, plugin, event}`. The subscription ends when the
+  agent leaves the host.
+  """
+  @spec subscribe(atom()) :: :ok | {:error, term()}
+  def subscribe(plugin), do: Tartarus.Plugin.call(host(), plugin, {:subscribe, self()})
+
+  @doc "Answers a request (see `c:handle_message/3`). Works from any host."
+  @spec reply(from(), term()) :: :ok
+  def reply(nil, _value), do: :ok
+
+  def reply({pid, ref}, value) do
+    send(pid, {ref, {:reply, value}})
+    :ok
+  end
+
+  defp update_payload(fun) do
+    env = envelope()
+    put_envelope(%{env | payload: %{env.payload | data: fun.(env.payload.data)}})
+  end
+
+  defp envelope do
+    Process.get(@ctx) || raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
+  end
+
+  defp host_info do
+    Process.get(@host) || raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
+  end
+
+  defp put_envelope(%Envelope{} = env) do
+    Process.put(@ctx, env)
+    :ok
+  end
+end

@@ -1,0 +1,464 @@
+defmodule Tartarus.Agent.Server do
+  @moduledoc false
+  # The process of one agent. It runs the agent's callbacks, carries out their actions and,
+  # for a move or a clone, runs the source side of the hand-off itself (so hand-offs of many
+  # agents proceed in parallel; the host server is involved only at the destination, to
+  # admit and create the paused copy). See Tartarus.Host.Server for the wire protocol.
+  use GenServer, restart: :temporary
+
+  alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
+
+  @ctx :"$tartarus_envelope"
+  @host :"$tartarus_host"
+  # Paused copies ask the source host for its decision at this interval while in doubt.
+  @doubt_retry 1_000
+
+  def start_link({_host, _env, _mode} = arg), do: GenServer.start_link(__MODULE__, arg)
+
+  # -- start ---------------------------------------------------------------------
+
+  @impl true
+  def init({host, env, {:create, args}}) do
+    data = %{host: host, env: env, paused: nil}
+    Process.put(@host, host)
+
+    case callback(data, fn -> env.module.init(args) end) do
+      {:ok, action, data} ->
+        case Ledger.register_resident(host, data.env, self()) do
+          :ok ->
+            emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
+            {:ok, data, {:continue, {:act, action}}}
+
+          {:error, reason} ->
+            {:stop, reason}
+        end
+
+      {:error, reason, _data} ->
+        {:stop, {:init_failed, reason}}
+    end
+  end
+
+  def init({host, env, {:paused, mig, src, src_pid, kind}}) do
+    Process.put(@host, host)
+    timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
+    {:ok, %{host: host, env: env, paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer}}}
+  end
+
+  def init({host, env, {:restart, n}}) do
+    Process.put(@host, host)
+    data = %{host: host, env: env, paused: nil}
+
+    case Ledger.register_resident(host, env, self()) do
+      :ok -> {:ok, data, {:continue, {:arrive, %{ctx(data) | restarts: n}}}}
+      {:error, reason} -> {:stop, reason}
+    end
+  end
+
+  @impl true
+  def handle_continue({:act, action}, data), do: act(action, data)
+
+  def handle_continue({:arrive, ctx}, data) do
+    run(data, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+  end
+
+  # -- commit (destination side) -------------------------------------------------------
+
+  @impl true
+  def handle_info({:"$tartarus_commit", mig}, %{paused: %{mig: mig}} = data), do: commit(data)
+
+  def handle_info({:commit_timeout, mig}, %{paused: %{mig: mig} = p} = data) do
+    send(p.src_pid, {:"$tartarus_decision?", mig, self()})
+    {:noreply, data}
+  end
+
+  def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig} = p} = data) do
+    case decision do
+      :committed ->
+        commit(data)
+
+      :aborted ->
+        {:stop, {:shutdown, :aborted}, data}
+
+      :unknown ->
+        # The source has not decided yet (its `prepared` may still be on the way): wait.
+        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
+        {:noreply, %{data | paused: %{p | timer: timer}}}
+    end
+  end
+
+  # While paused, everything else waits in the mailbox until the agent starts.
+  def handle_info(_msg, %{paused: p} = data) when p != nil, do: {:noreply, data}
+
+  # -- messages --------------------------------------------------------------------
+
+  def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
+    send(pid, {ref, :delivered})
+    bytes = :erlang.external_size(msg)
+    emit(data, %{type: :message, agent: data.env.id, bytes: bytes}, messages: 1, message_bytes: bytes)
+    from = if kind == :request, do: {pid, ref}
+    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
+  end
+
+  def handle_info(msg, data) when is_tuple(msg) and elem(msg, 0) in [:"$tartarus_prepared", :"$tartarus_need", :"$tartarus_refused", :"$tartarus_decision"] do
+    # A late reply to a hand-off this agent already gave up on.
+    {:noreply, data}
+  end
+
+  def handle_info(msg, data) do
+    if function_exported?(data.env.module, :handle_info, 2) do
+      run(data, fn -> data.env.module.handle_info(msg, data.env.state) end)
+    else
+      {:noreply, data}
+    end
+  end
+
+  # -- control (from Tartarus facade) ----------------------------------------------
+
+  @impl true
+  def handle_call(_op, _from, %{paused: p} = data) when p != nil do
+    {:reply, {:error, :in_transit}, data}
+  end
+
+  def handle_call(:info, _from, data), do: {:reply, info(data), data}
+
+  def handle_call({:payload, op}, _from, data) do
+    {result, data} = callback_raw(data, fn -> payload_op(op) end)
+    {:reply, result, data}
+  end
+
+  def handle_call({:move, dest}, from, data) do
+    case attempt(data, :move, dest) do
+      {:moved, data} ->
+        GenServer.reply(from, :ok)
+        {:stop, {:shutdown, :migrated}, data}
+
+      {:failed, reason, data} ->
+        GenServer.reply(from, {:error, reason})
+        failed(data, dest, reason)
+    end
+  end
+
+  def handle_call({:clone, dest}, _from, data) do
+    case attempt(data, :clone, dest) do
+      {:cloned, clone_id, data} -> {:reply, {:ok, clone_id}, data}
+      {:failed, reason, data} -> {:reply, {:error, reason}, data}
+    end
+  end
+
+  # -- actions -------------------------------------------------------------------
+
+  defp run(data, fun) do
+    case callback(data, fun) do
+      {:ok, action, data} -> act(action, data)
+      {:error, reason, data} -> {:stop, reason, data}
+    end
+  end
+
+  defp act({:stay, s}, data), do: {:noreply, put_state(data, s)}
+
+  defp act({:move, dest, s}, data) do
+    data = put_state(data, s)
+
+    case attempt(data, :move, dest) do
+      {:moved, data} -> {:stop, {:shutdown, :migrated}, data}
+      {:failed, reason, data} -> failed(data, dest, reason)
+    end
+  end
+
+  defp act({:clone, dest, s}, data) do
+    data = put_state(data, s)
+
+    case attempt(data, :clone, dest) do
+      {:cloned, _id, data} -> {:noreply, data}
+      {:failed, reason, data} -> failed(data, dest, {:clone_failed, reason})
+    end
+  end
+
+  defp act({:return, result, s}, data) do
+    data = put_state(data, s)
+    if is_pid(data.env.owner), do: send(data.env.owner, {:tartarus_result, data.env.id, result})
+    stop(data, :returned)
+  end
+
+  defp act({:stop, reason, s}, data), do: stop(put_state(data, s), reason)
+  defp act(other, data), do: {:stop, {:bad_action, other}, data}
+
+  defp stop(data, reason) do
+    emit(data, %{type: :stopped, agent: data.env.id, reason: reason}, stopped: 1)
+    {:stop, {:shutdown, {:stopped, reason}}, data}
+  end
+
+  defp failed(data, dest, reason) do
+    emit(data, %{type: :move_failed, agent: data.env.id, to: dest, reason: reason}, move_failed: 1)
+    run(data, fn -> data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state) end)
+  end
+
+  # -- hand-off (source side) ------------------------------------------------------
+
+  defp attempt(data, kind, dest_spec) do
+    env = data.env
+
+    with :ok <- movable(env, kind),
+         {:ok, dest, data} <- resolve(data, dest_spec),
+         :ok <- linked(data, dest),
+         :ok <- Envelope.portable?({env.state, env.payload.data}),
+         {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
+         {:ok, dest_pid} <- Tartarus.Host.whereis(dest),
+         {:ok, data} <- link_loss(data, dest) do
+      handoff(data, kind, dest, dest_pid, manifest)
+    else
+      {:error, reason} -> {:failed, reason, data}
+      {:error, reason, data} -> {:failed, reason, data}
+    end
+  end
+
+  defp movable(%Envelope{static: true}, :move), do: {:error, :static_agent}
+  defp movable(_env, _kind), do: :ok
+
+  defp resolve(data, :here), do: {:ok, data.host.ref, data}
+
+  defp resolve(data, spec) do
+    if Strategy.strategy?(spec) do
+      info = %{
+        here: data.host.ref,
+        neighbours: Ledger.neighbours(data.host),
+        visits: data.env.visits,
+        gradients: gradients(data, spec)
+      }
+
+      rng = :rand.seed_s(data.env.rng)
+
+      case Strategy.choose(spec, info, rng) do
+        {:ok, dest, rng} -> {:ok, dest, %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}}
+        {:error, reason} -> {:error, reason}
+      end
+    else
+      if Tartarus.Host.address?(spec),
+        do: {:ok, Tartarus.Host.address(spec), data},
+        else: {:error, {:bad_destination, spec}}
+    end
+  end
+
+  defp gradients(data, {:gradient, signal}) do
+    case :ets.lookup(data.host.store, {:gradient, signal}) do
+      [{_, strengths}] when is_map(strengths) -> %{signal => strengths}
+      _ -> %{}
+    end
+  end
+
+  defp gradients(_data, _spec), do: %{}
+
+  defp linked(%{host: %{ref: ref}}, ref), do: :ok
+
+  defp linked(data, dest) do
+    if data.host.opts.strict_links and dest not in Ledger.neighbours(data.host),
+      do: {:error, {:no_link, dest}},
+      else: :ok
+  end
+
+  # Emulated link properties: latency delays the hand-off, loss makes it fail (the agent's
+  # own random state decides, so runs are reproducible).
+  defp link_loss(data, dest) do
+    case Ledger.link(data.host, dest) do
+      %{} = props ->
+        latency = Map.get(props, :latency_ms, 0)
+        if latency > 0, do: Process.sleep(latency)
+        loss = Map.get(props, :loss, 0)
+
+        if loss > 0 do
+          {x, rng} = :rand.uniform_s(:rand.seed_s(data.env.rng))
+          data = %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}
+          if x < loss, do: {:error, :link_loss, data}, else: {:ok, data}
+        else
+          {:ok, data}
+        end
+
+      nil ->
+        {:ok, data}
+    end
+  end
+
+  defp handoff(data, kind, dest, dest_pid, manifest) do
+    host = data.host
+    mig = Envelope.new_id()
+    out = outgoing(data.env, kind, host.ref)
+    if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
+    mref = Process.monitor(dest_pid)
+    prepare = {:"$tartarus_prepare", self(), mig, host.ref, host.pid, kind, out, manifest}
+    send(dest_pid, Tuple.append(prepare, []))
+
+    case await_prepared(prepare, mig, mref, dest_pid, manifest, host.opts.migration_timeout, 0) do
+      {:prepared, new_pid, code_bytes} ->
+        Process.demonitor(mref, [:flush])
+        true = Ledger.decide(host, mig, :committed)
+        bytes = :erlang.external_size(out)
+
+        if kind == :move do
+          Ledger.depart(host, data.env.id, data.env.name, dest)
+
+          emit(data, %{type: :departure, agent: data.env.id, to: dest, bytes: bytes, code_bytes: code_bytes},
+            departures: 1,
+            bytes: bytes + code_bytes,
+            code_bytes: code_bytes
+          )
+        else
+          emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: dest, bytes: bytes}, clones: 1, bytes: bytes + code_bytes)
+        end
+
+        send(new_pid, {:"$tartarus_commit", mig})
+        if kind == :move, do: {:moved, data}, else: {:cloned, out.id, data}
+
+      {:error, reason} ->
+        Process.demonitor(mref, [:flush])
+        # Abort: written before the agent goes on here, so a paused copy that asks learns it.
+        Ledger.decide(host, mig, :aborted)
+        if kind == :move, do: Ledger.end_handoff(host, data.env.id)
+        if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(dest)
+        {:failed, reason, data}
+    end
+  end
+
+  defp await_prepared(prepare, mig, mref, dest_pid, manifest, timeout, code_bytes) do
+    receive do
+      {:"$tartarus_prepared", ^mig, new_pid} ->
+        {:prepared, new_pid, code_bytes}
+
+      {:"$tartarus_refused", ^mig, reason} ->
+        {:error, reason}
+
+      {:"$tartarus_need", ^mig, mods} when code_bytes == 0 ->
+        case binaries(manifest, mods) do
+          {:ok, code} ->
+            send(dest_pid, Tuple.append(prepare, code))
+            bytes = :erlang.external_size(code)
+            await_prepared(prepare, mig, mref, dest_pid, manifest, timeout, max(bytes, 1))
+
+          {:error, _} = error ->
+            error
+        end
+
+      {:"$tartarus_need", ^mig, mods} ->
+        {:error, {:code_not_accepted, mods}}
+
+      {:DOWN, ^mref, :process, _, reason} ->
+        {:error, {:host_down, reason}}
+    after
+      timeout -> {:error, :timeout}
+    end
+  end
+
+  defp binaries(manifest, mods) do
+    Enum.reduce_while(mods, {:ok, []}, fn mod, {:ok, acc} ->
+      with {_, md5} <- List.keyfind(manifest, mod, 0),
+           {:ok, bin} <- CodeCache.fetch_binary(mod, md5) do
+        {:cont, {:ok, [{mod, md5, bin} | acc]}}
+      else
+        nil -> {:halt, {:error, {:not_in_manifest, mod}}}
+        error -> {:halt, error}
+      end
+    end)
+  end
+
+  defp outgoing(env, :move, _here) do
+    %{env | departed_at: System.system_time(:microsecond)}
+  end
+
+  defp outgoing(env, :clone, _here) do
+    id = Envelope.new_id()
+
+    %{
+      env
+      | id: id,
+        name: "#{env.name}/#{binary_part(id, 0, 6)}",
+        clone_of: env.id,
+        rng: Envelope.seed_rng({env.rng, id}),
+        departed_at: System.system_time(:microsecond)
+    }
+  end
+
+  # -- arrival (destination side) ----------------------------------------------------
+
+  defp commit(%{paused: p} = data) do
+    Process.cancel_timer(p.timer)
+    host = data.host
+    now = System.system_time(:microsecond)
+    hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
+    hops = if p.kind == :move, do: data.env.hops + 1, else: data.env.hops
+
+    env = %{
+      data.env
+      | hops: hops,
+        from: p.src,
+        visits: Map.update(data.env.visits, host.ref, 1, &(&1 + 1))
+    }
+
+    data = %{data | env: env, paused: nil}
+
+    case Ledger.register_resident(host, env, self()) do
+      :ok ->
+        send(p.src_pid, {:"$tartarus_ack", p.mig})
+        Ledger.record_hop(host, hop_us)
+
+        emit(data, %{type: :arrival, agent: env.id, from: p.src, hop_us: hop_us, hops: hops}, arrivals: 1)
+
+        ctx = ctx(data)
+        run(data, fn -> env.module.handle_arrival(ctx, env.state) end)
+
+      {:error, reason} ->
+        {:stop, reason, data}
+    end
+  end
+
+  # -- helpers ---------------------------------------------------------------------
+
+  defp ctx(data) do
+    %{host: data.host.ref, from: data.env.from, hops: data.env.hops, clone_of: data.env.clone_of, restarts: 0}
+  end
+
+  defp put_state(data, s), do: %{data | env: %{data.env | state: s}}
+
+  # Runs a callback with the agent's envelope in the process dictionary (so the functions
+  # of Tartarus.Agent can read and change payload), catching crashes so they become exits
+  # with a readable reason.
+  defp callback(data, fun) do
+    {result, data} = callback_raw(data, fun)
+    {:ok, result, data}
+  catch
+    kind, reason -> {:error, {kind, reason, __STACKTRACE__}, data}
+  end
+
+  defp callback_raw(data, fun) do
+    Process.put(@ctx, data.env)
+    result = fun.()
+    {result, %{data | env: Process.get(@ctx)}}
+  end
+
+  defp payload_op({:add, key, value}), do: Tartarus.Agent.put_payload(key, value)
+  defp payload_op({:remove, key}), do: Tartarus.Agent.remove_payload(key)
+  defp payload_op({:shed, key}), do: Tartarus.Agent.shed_payload(key)
+  defp payload_op({:copy, key}), do: Tartarus.Agent.copy_payload(key)
+  defp payload_op({:add_module, mod}), do: Tartarus.Agent.add_module(mod)
+  defp payload_op(:get), do: {:ok, Tartarus.Agent.payload()}
+
+  defp info(data) do
+    env = data.env
+
+    %{
+      id: env.id,
+      name: env.name,
+      module: env.module,
+      host: data.host.ref,
+      home: env.home,
+      hops: env.hops,
+      static: env.static,
+      state: env.state,
+      payload: env.payload,
+      clone_of: env.clone_of,
+      pid: self()
+    }
+  end
+
+  defp emit(data, event, counts) do
+    Events.emit(data.host.ledger, Map.put(event, :host, data.host.ref), counts)
+  end
+end

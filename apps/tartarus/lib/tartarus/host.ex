@@ -1,0 +1,131 @@
+defmodule Tartarus.Host do
+  @moduledoc """
+  Hosts: where agents live and what they migrate between (DESIGN §4).
+
+  A host is addressed by `{name, node}`; on its own node a bare `name` is enough. Names are
+  atoms or strings. A host has:
+
+    * an **overlay neighbour set**, with optional per-link properties (`:latency_ms`,
+      `:loss`) that emulations use; agents usually move to neighbours;
+    * a **ledger**: resident agents, arrival and departure counts, recent hop times, visit
+      count, forwarding pointers for departed agents, and migration decisions;
+    * a **store**: a small key-value table that agents on the host read and write
+      (`Tartarus.Agent.store_get/2`, `store_put/2`);
+    * **plugins**: device drivers reachable by the agents on the host (`Tartarus.Plugin`).
+
+  Users go through the `Tartarus` facade; this module holds the host options and the few
+  helpers the other platform modules share.
+  """
+
+  alias Tartarus.Options
+
+  @typedoc "A host's name: an atom or a string."
+  @type name :: atom() | String.t()
+
+  @typedoc "A host's address."
+  @type t :: {name(), node()}
+
+  @schema [
+    neighbours: [
+      type: {:list, :host},
+      default: [],
+      doc: "hosts to link to at start (links are symmetric; remote hosts must be running)"
+    ],
+    migration_timeout: [
+      type: :pos_integer,
+      default: 5_000,
+      doc: "ms to wait for each reply of the hand-off before the source decides to abort"
+    ],
+    max_restarts: [
+      type: :non_neg_integer,
+      default: 3,
+      doc: "times a crashing agent is restarted from its arrival snapshot before removal"
+    ],
+    strict_links: [
+      type: :boolean,
+      default: false,
+      doc: "refuse directed moves to hosts that are not neighbours (emulated links)"
+    ],
+    plugins: [
+      type: :keyword,
+      default: [],
+      doc: "plugins to attach at start, as `name: {module, opts}`"
+    ],
+    store: [type: :any, default: %{}, doc: "initial contents of the host store (a map)"]
+  ]
+
+  @doc false
+  def schema, do: @schema
+
+  @doc false
+  @spec validate_opts(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate_opts(opts), do: Options.validate(opts, @schema, "Tartarus.start_host/2")
+
+  @doc """
+  True if `term` is a host name or address.
+
+      iex> Tartarus.Host.address?(:a)
+      true
+      iex> Tartarus.Host.address?({"lab-3", :"n1@pi"})
+      true
+      iex> Tartarus.Host.address?(3)
+      false
+  """
+  @spec address?(term()) :: boolean()
+  def address?({name, node}), do: name?(name) and is_atom(node) and node != nil
+  def address?(name), do: name?(name)
+
+  defp name?(name) when is_boolean(name) or is_nil(name), do: false
+  defp name?(name), do: is_atom(name) or (is_binary(name) and byte_size(name) in 1..255)
+
+  @doc """
+  The full address of a host: a bare name means a host on this node.
+
+      iex> Tartarus.Host.address(:a)
+      {:a, node()}
+  """
+  @spec address(name() | t()) :: t()
+  def address({_name, _node} = host), do: host
+  def address(name), do: {name, node()}
+
+  @doc false
+  # The pid of a host's server, local or remote.
+  @spec whereis(name() | t()) :: {:ok, pid()} | {:error, {:unknown_host, term()}}
+  def whereis(host) do
+    if address?(host),
+      do: Tartarus.Host.Directory.whereis(address(host)),
+      else: {:error, {:unknown_host, host}}
+  end
+
+  @doc false
+  # The tables and settings of a host on this node, read without calling its server.
+  @spec local(name() | t()) :: {:ok, map()} | {:error, {:unknown_host, term()}}
+  def local(host) do
+    {name, node} = if address?(host), do: address(host), else: {host, nil}
+
+    with true <- node == node(),
+         [{_pid, %{} = info}] <- Registry.lookup(Tartarus.HostRegistry, {:host, name}) do
+      {:ok, info}
+    else
+      _ -> {:error, {:unknown_host, host}}
+    end
+  end
+
+  @doc false
+  # Calls a host's server, turning a dead host or node into an error.
+  @spec call(name() | t(), term(), timeout()) :: term()
+  def call(host, request, timeout \\ 5_000) do
+    with {:ok, pid} <- whereis(host) do
+      try do
+        GenServer.call(pid, request, timeout)
+      catch
+        :exit, {:timeout, _} ->
+          {:error, {:timeout, address(host)}}
+
+        :exit, _ ->
+          Tartarus.Host.Directory.forget(address(host))
+          {:error, {:unknown_host, address(host)}}
+      end
+    end
+  end
+end

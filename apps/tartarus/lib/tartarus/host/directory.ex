@@ -1,0 +1,76 @@
+defmodule Tartarus.Host.Directory do
+  @moduledoc false
+  # Resolves host addresses `{name, node}` to the pid of the host's server.
+  #
+  # Local hosts are found in Tartarus.HostRegistry. Remote hosts are asked for once over
+  # :erpc and cached in an ETS table owned by this process, which monitors every cached pid
+  # and drops the entry when the host (or the connection to its node) goes down, so a
+  # restarted host is found again. Host names are never turned into atoms here: remote data
+  # creates no atoms.
+  use GenServer
+
+  @table __MODULE__
+  @rpc_timeout 5_000
+
+  def start_link(_), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
+
+  @doc false
+  @spec whereis(Tartarus.host()) :: {:ok, pid()} | {:error, {:unknown_host, term()}}
+  def whereis({name, node}) when node == node() do
+    case Registry.lookup(Tartarus.HostRegistry, {:host, name}) do
+      [{pid, _}] -> {:ok, pid}
+      [] -> {:error, {:unknown_host, {name, node}}}
+    end
+  end
+
+  def whereis({_name, node} = host) when is_atom(node) do
+    case :ets.lookup(@table, host) do
+      [{_, pid}] ->
+        {:ok, pid}
+
+      [] ->
+        try do
+          :erpc.call(node, __MODULE__, :whereis, [host], @rpc_timeout)
+        catch
+          _, _ -> {:error, {:unknown_host, host}}
+        else
+          {:ok, pid} ->
+            GenServer.cast(__MODULE__, {:watch, host, pid})
+            :ets.insert(@table, {host, pid})
+            {:ok, pid}
+
+          error ->
+            error
+        end
+    end
+  end
+
+  def whereis(other), do: {:error, {:unknown_host, other}}
+
+  @doc false
+  # Forget a cached pid (used when a send to it failed).
+  def forget(host), do: :ets.delete(@table, host)
+
+  @impl true
+  def init(nil) do
+    :ets.new(@table, [:named_table, :public, :set, read_concurrency: true])
+    {:ok, %{}}
+  end
+
+  @impl true
+  def handle_cast({:watch, host, pid}, monitors) do
+    if Map.has_key?(monitors, pid) do
+      {:noreply, monitors}
+    else
+      Process.monitor(pid)
+      {:noreply, Map.put(monitors, pid, host)}
+    end
+  end
+
+  @impl true
+  def handle_info({:DOWN, _ref, :process, pid, _}, monitors) do
+    {host, monitors} = Map.pop(monitors, pid)
+    if host, do: :ets.match_delete(@table, {host, pid})
+    {:noreply, monitors}
+  end
+end

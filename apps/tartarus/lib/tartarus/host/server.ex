@@ -1,0 +1,256 @@
+defmodule Tartarus.Host.Server do
+  @moduledoc false
+  # The server of one host. It owns the host's two ETS tables (ledger and store), admits
+  # arriving agents (phase 1–2 of the hand-off, DESIGN §6), answers decision queries for
+  # migrations that left from here, and watches its agents to restart crashed ones from
+  # their arrival snapshot.
+  #
+  # Wire protocol (maintainer notes). S = source agent process, H = this server,
+  # A = the paused agent H creates:
+  #
+  #   S -> H  {:"$tartarus_prepare", s_pid, mig, src_host, src_host_pid, kind, envelope, manifest, code}
+  #   H -> S  {:"$tartarus_need", mig, [module]}            modules H lacks; S resends with code
+  #   H -> S  {:"$tartarus_prepared", mig, a_pid}           A exists, paused
+  #   H -> S  {:"$tartarus_refused", mig, reason}           nothing was created
+  #   S -> A  {:"$tartarus_commit", mig}                    A becomes the agent
+  #   A -> Hs {:"$tartarus_ack", mig}                       source host forgets the decision
+  #   A -> Hs {:"$tartarus_decision?", mig, a_pid}          A timed out waiting for commit
+  #   Hs -> A {:"$tartarus_decision", mig, :committed | :aborted | :unknown}
+  #
+  # The decision is the entry {{:decision, mig}, :committed | :aborted} in the source host's
+  # ledger, written once with :ets.insert_new/2 by the source agent (or by the source host
+  # when that agent crashed mid-hand-off). Neither side guesses: A waits for commit or for an
+  # answer from the source host, however long that takes.
+  use GenServer
+
+  alias Tartarus.{CodeCache, Envelope, Events}
+
+  @hop_slots 1024
+
+  def start_link({name, opts}) do
+    GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.Supervisor.via(:host, name))
+  end
+
+  @impl true
+  def init({name, opts}) do
+    Process.flag(:trap_exit, true)
+    ledger = :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
+    store = :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
+    :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
+    :ets.insert(store, Enum.to_list(opts[:store] || %{}))
+
+    host = %{
+      ref: {name, node()},
+      pid: self(),
+      ledger: ledger,
+      store: store,
+      opts: Map.new(opts)
+    }
+
+    # Local callers read the host's tables without a call (see Tartarus.Host.local/1).
+    {_, _} = Registry.update_value(Tartarus.HostRegistry, {:host, name}, fn _ -> host end)
+    {:ok, %{host: host, monitors: %{}, killing: MapSet.new()}}
+  end
+
+  @impl true
+  def handle_call(:info, _from, state), do: {:reply, state.host, state}
+
+  def handle_call({:create, envelope, args}, _from, state) do
+    case start_agent(state, envelope, {:create, args}) do
+      {:ok, _pid, state} -> {:reply, {:ok, envelope.id}, state}
+      {:error, reason, state} -> {:reply, {:error, reason}, state}
+    end
+  end
+
+  def handle_call({:connect, other, props}, _from, state) do
+    ledger = state.host.ledger
+    [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
+    :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+    {:reply, :ok, state}
+  end
+
+  def handle_call({:disconnect, other}, _from, state) do
+    ledger = state.host.ledger
+    [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
+    :ets.insert(ledger, {:neighbours, List.delete(ns, other)})
+    :ets.delete(ledger, {:link, other})
+    {:reply, :ok, state}
+  end
+
+  def handle_call({:locate, agent}, _from, state) do
+    {:reply, Tartarus.Ledger.locate(state.host, agent), state}
+  end
+
+  def handle_call({:kill, agent}, _from, state) do
+    case Tartarus.Ledger.locate(state.host, agent) do
+      {:here, pid, id} ->
+        state = %{state | killing: MapSet.put(state.killing, pid)}
+        DynamicSupervisor.terminate_child(Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0)), pid)
+        {:reply, {:killed, id}, state}
+
+      other ->
+        {:reply, other, state}
+    end
+  end
+
+  def handle_call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
+
+  @impl true
+  def handle_info({:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}, state) do
+    case prepare(state, env, manifest, code) do
+      :ok ->
+        case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
+          {:ok, pid, state} ->
+            send(s_pid, {:"$tartarus_prepared", mig, pid})
+            {:noreply, state}
+
+          {:error, reason, state} ->
+            refuse(state, s_pid, mig, env, src, reason)
+        end
+
+      {:need, mods} ->
+        send(s_pid, {:"$tartarus_need", mig, mods})
+        {:noreply, state}
+
+      {:error, reason} ->
+        refuse(state, s_pid, mig, env, src, reason)
+    end
+  end
+
+  def handle_info({:"$tartarus_decision?", mig, a_pid}, state) do
+    decision =
+      case :ets.lookup(state.host.ledger, {:decision, mig}) do
+        [{_, d}] -> d
+        [] -> :unknown
+      end
+
+    send(a_pid, {:"$tartarus_decision", mig, decision})
+    {:noreply, state}
+  end
+
+  def handle_info({:"$tartarus_ack", mig}, state) do
+    :ets.delete(state.host.ledger, {:decision, mig})
+    {:noreply, state}
+  end
+
+  def handle_info({:DOWN, mref, :process, pid, reason}, state) do
+    {entry, monitors} = Map.pop(state.monitors, mref)
+    killed? = MapSet.member?(state.killing, pid)
+    state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
+    resident? = Tartarus.Ledger.forget_resident(state.host, pid)
+    {:noreply, agent_down(state, entry, reason, resident?, killed?)}
+  end
+
+  def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
+  def handle_info(_other, state), do: {:noreply, state}
+
+  # -- admission ---------------------------------------------------------------
+
+  defp prepare(state, env, manifest, code) do
+    with :ok <- validate_envelope(env),
+         :ok <- check_ttl(env),
+         :ok <- load_code(code) do
+      _ = state
+      CodeCache.check(manifest)
+    end
+  end
+
+  defp validate_envelope(%Envelope{id: id, module: m}) when is_binary(id) and is_atom(m), do: :ok
+  defp validate_envelope(_), do: {:error, :bad_envelope}
+
+  defp check_ttl(%Envelope{ttl: :infinity}), do: :ok
+  defp check_ttl(%Envelope{hops: hops, ttl: ttl}) when hops < ttl, do: :ok
+  defp check_ttl(%Envelope{hops: hops}), do: {:error, {:ttl_expired, hops}}
+
+  defp load_code([]), do: :ok
+  defp load_code(code), do: CodeCache.load(code)
+
+  defp refuse(state, s_pid, mig, env, src, reason) do
+    send(s_pid, {:"$tartarus_refused", mig, reason})
+    agent = if is_struct(env, Envelope), do: env.id
+
+    Events.emit(state.host.ledger, %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
+      refused: 1
+    )
+
+    {:noreply, state}
+  end
+
+  # -- agents ------------------------------------------------------------------
+
+  defp start_agent(state, env, mode, restarts \\ 0) do
+    sup = Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0))
+
+    case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, env, mode}}) do
+      {:ok, pid} ->
+        mref = Process.monitor(pid)
+        entry = %{id: env.id, pid: pid, snapshot: env, restarts: restarts, owner: env.owner}
+        {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
+
+      {:error, reason} ->
+        {:error, unwrap(reason), state}
+    end
+  end
+
+  defp unwrap({:bad_init, reason}), do: reason
+  defp unwrap(reason), do: reason
+
+  defp agent_down(state, nil, _reason, _resident?, _killed?), do: state
+
+  defp agent_down(state, entry, reason, resident?, killed?) do
+    host = state.host
+
+    cond do
+      killed? ->
+        Events.emit(host.ledger, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
+        state
+
+      normal_exit?(reason) ->
+        state
+
+      not resident? ->
+        # A paused copy that died before its commit: the source still decides; nothing to do.
+        state
+
+      not Tartarus.Ledger.abort_pending(host, entry.id) ->
+        # It crashed after committing a migration: it lives on at the destination.
+        state
+
+      entry.restarts < host.opts.max_restarts ->
+        n = entry.restarts + 1
+
+        Events.emit(host.ledger, %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
+          crashes: 1
+        )
+
+        case start_agent(state, entry.snapshot, {:restart, n}, n) do
+          {:ok, _pid, state} -> state
+          {:error, why, state} -> removed(state, entry, {:restart_failed, why})
+        end
+
+      true ->
+        Events.emit(host.ledger, %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: entry.restarts},
+          crashes: 1
+        )
+
+        removed(state, entry, {:too_many_restarts, reason})
+    end
+  end
+
+  defp removed(state, entry, reason) do
+    Events.emit(state.host.ledger, %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
+      removed: 1
+    )
+
+    if is_pid(entry.owner), do: send(entry.owner, {:tartarus_removed, entry.id, reason})
+    state
+  end
+
+  defp normal_exit?(:normal), do: true
+  defp normal_exit?(:shutdown), do: true
+  defp normal_exit?({:shutdown, _}), do: true
+  defp normal_exit?(_), do: false
+
+  @doc false
+  def hop_slots, do: @hop_slots
+end

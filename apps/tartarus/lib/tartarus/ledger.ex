@@ -1,0 +1,136 @@
+defmodule Tartarus.Ledger do
+  @moduledoc false
+  # Reads and writes of a host's ledger table. The host server owns the table; agents write
+  # their own residence and departure records (public table), so the hot path of a migration
+  # does not go through the host server.
+  #
+  # Keys:
+  #   :neighbours                 [host]
+  #   {:link, host}               %{latency_ms:, loss:}
+  #   {:agent, pid}               {_, id, name, module}      a resident agent
+  #   {:fwd, id | name}           {_, dest_host, at_us}      forwarding pointer
+  #   {:migrating, id}            {_, mig}                   a hand-off in progress
+  #   {:decision, mig}            {_, :committed | :aborted}
+  #   :resident, :visits, :hop_seq, {:count, name}           counters
+  #   {:hop, slot}                {_, hop_us}                ring of recent hop times
+
+  @slots 1024
+
+  def neighbours(%{ledger: l}) do
+    case :ets.lookup(l, :neighbours) do
+      [{_, ns}] -> ns
+      [] -> []
+    end
+  end
+
+  def link(%{ledger: l}, dest) do
+    case :ets.lookup(l, {:link, dest}) do
+      [{_, props}] -> props
+      [] -> nil
+    end
+  end
+
+  def register_resident(host, env, pid) do
+    {name, _node} = host.ref
+
+    case Registry.register(Tartarus.AgentRegistry, env.id, {name, env.name, env.module}) do
+      {:ok, _} ->
+        :ets.insert(host.ledger, {{:agent, pid}, env.id, env.name, env.module})
+        :ets.delete(host.ledger, {:fwd, env.id})
+        if env.name, do: :ets.delete(host.ledger, {:fwd, env.name})
+        :ets.update_counter(host.ledger, :resident, 1)
+        :ets.update_counter(host.ledger, :visits, 1)
+        :ok
+
+      {:error, {:already_registered, other}} ->
+        {:error, {:duplicate_agent, env.id, other}}
+    end
+  end
+
+  def forget_resident(host, pid) do
+    case :ets.take(host.ledger, {:agent, pid}) do
+      [_] ->
+        :ets.update_counter(host.ledger, :resident, -1)
+        true
+
+      [] ->
+        false
+    end
+  end
+
+  def begin_handoff(host, id, mig), do: :ets.insert(host.ledger, {{:migrating, id}, mig})
+  def end_handoff(host, id), do: :ets.delete(host.ledger, {:migrating, id})
+
+  # The source agent's decision. Returns false if the migration was decided otherwise.
+  def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
+
+  def depart(host, id, name, dest) do
+    now = System.system_time(:microsecond)
+    :ets.insert(host.ledger, {{:fwd, id}, dest, now})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now})
+    Registry.unregister(Tartarus.AgentRegistry, id)
+    forget_resident(host, self())
+    end_handoff(host, id)
+  end
+
+  # After a crash of agent `id`: abort its pending hand-off if there is one. True if the agent
+  # is still ours to restart, false if it had committed a migration (it lives elsewhere).
+  def abort_pending(host, id) do
+    case :ets.take(host.ledger, {:migrating, id}) do
+      [{_, mig}] ->
+        decide(host, mig, :aborted) or
+          :ets.lookup(host.ledger, {:decision, mig}) == [{{:decision, mig}, :aborted}]
+
+      [] ->
+        true
+    end
+  end
+
+  def record_hop(host, hop_us) do
+    seq = :ets.update_counter(host.ledger, :hop_seq, 1)
+    :ets.insert(host.ledger, {{:hop, rem(seq, @slots)}, hop_us})
+  end
+
+  def hop_times(%{ledger: l}) do
+    :ets.select(l, [{{{:hop, :_}, :"$1"}, [], [:"$1"]}])
+  end
+
+  def counter(%{ledger: l}, key) do
+    case :ets.lookup(l, key) do
+      [{_, n}] -> n
+      [] -> 0
+    end
+  end
+
+  def residents(%{ledger: l}) do
+    :ets.select(l, [{{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$2", :"$3", :"$4", :"$1"}}]}])
+  end
+
+  def forwarding_pointers(%{ledger: l}) do
+    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_}, [], [{{:"$1", :"$2"}}]}])
+    |> Enum.filter(fn {key, _} -> is_binary(key) and byte_size(key) == 16 end)
+  end
+
+  # Where is `agent` (an id or a name) as far as this host knows.
+  def locate(host, agent) do
+    {name, _} = host.ref
+
+    case Registry.lookup(Tartarus.AgentRegistry, agent) do
+      [{pid, {^name, _, _}}] ->
+        {:here, pid, agent}
+
+      _ ->
+        case :ets.lookup(host.ledger, {:fwd, agent}) do
+          [{_, dest, _}] -> {:moved, dest}
+          [] -> locate_by_name(host, agent)
+        end
+    end
+  end
+
+  defp locate_by_name(host, agent) do
+    case :ets.match(host.ledger, {{:agent, :"$1"}, :"$2", agent, :_}, 1) do
+      {[[pid, id] | _], _} -> {:here, pid, id}
+      _ -> :not_found
+    end
+  end
+end

@@ -1,0 +1,148 @@
+defmodule Tartarus.Plugin do
+  @moduledoc """
+  The plugin channel (Tartarus Plugin Channel): device drivers that agents reach through the
+  host they are on.
+
+  A plugin is a module implementing this behaviour, attached to a host under a name with
+  `Tartarus.attach_plugin/3`. The host runs it in a process of its own. Agents use
+  `Tartarus.Agent.read/2`, `Tartarus.Agent.write/2` and `Tartarus.Agent.subscribe/1`, which
+  only ever reach the plugins of the host the agent is on: an agent that wants another
+  node's sensor has to go there.
+
+  Errors are values: `{:error, {:no_such_plugin, name}}` when the host has no such device,
+  `{:error, {:bad_argument, arg}}` (returned by plugins) for arguments they do not take,
+  `{:error, {:plugin_down, name}}` if the device's process died.
+
+  ## Example
+
+      Tartarus.attach_plugin(:a, :temp, {Tartarus.Plugin.SimSensor, signal: [20.5, 21.0]})
+      # inside an agent on :a
+      {:ok, 20.5} = Tartarus.Agent.read(:temp)
+
+  Real devices (BLE receivers over UART, GPIO) implement the same behaviour in the firmware;
+  `Tartarus.Plugin.SimSensor` is a simulated sensor with a scripted signal.
+  """
+  use GenServer
+
+  @typedoc "What a plugin says about itself."
+  @type description :: %{
+          required(:kind) => atom(),
+          optional(:reads) => [term()],
+          optional(:writes) => [term()],
+          optional(:events) => [term()],
+          optional(atom()) => term()
+        }
+
+  @doc "Opens the device."
+  @callback init(opts :: keyword()) :: {:ok, state :: term()} | {:error, term()}
+
+  @doc "Describes the device's capabilities."
+  @callback describe(state :: term()) :: description()
+
+  @doc "Senses: reads a value."
+  @callback read(args :: term(), state :: term()) :: {:ok, term(), term()} | {:error, term(), term()}
+
+  @doc "Actuates: writes a value."
+  @callback write(args :: term(), state :: term()) :: {:ok, term()} | {:error, term(), term()}
+
+  @doc """
+  Handles a message to the plugin's process (e.g. a timer, or data from a UART) and may
+  produce events for subscribers.
+  """
+  @callback handle_info(msg :: term(), state :: term()) :: {:events, [term()], term()}
+
+  @optional_callbacks handle_info: 2
+
+  @doc false
+  def child_spec({host_name, name, module, opts}) do
+    %{id: {:plugin, name}, start: {__MODULE__, :start_link, [{host_name, name, module, opts}]}, restart: :transient}
+  end
+
+  @doc false
+  def start_link({host_name, name, module, opts}) do
+    GenServer.start_link(__MODULE__, {name, module, opts},
+      name: {:via, Registry, {Tartarus.HostRegistry, {:plugin, host_name, name}}}
+    )
+  end
+
+  @doc false
+  # Calls plugin `name` on `host` (which must be on this node).
+  @spec call(Tartarus.host(), atom(), term()) :: term()
+  def call({host_name, node}, name, request) when node == node() do
+    case Registry.lookup(Tartarus.HostRegistry, {:plugin, host_name, name}) do
+      [{pid, _}] ->
+        try do
+          GenServer.call(pid, request)
+        catch
+          :exit, _ -> {:error, {:plugin_down, name}}
+        end
+
+      [] ->
+        {:error, {:no_such_plugin, name}}
+    end
+  end
+
+  def call(host, name, _request), do: {:error, {:not_local, host, name}}
+
+  @doc false
+  @spec list(Tartarus.host_name()) :: [{atom(), description()}]
+  def list(host_name) do
+    Registry.select(Tartarus.HostRegistry, [
+      {{{:plugin, :"$1", :"$2"}, :"$3", :_}, [{:==, :"$1", host_name}], [{{:"$2", :"$3"}}]}
+    ])
+    |> Enum.map(fn {name, pid} -> {name, GenServer.call(pid, :describe)} end)
+    |> Enum.sort()
+  end
+
+  @impl true
+  def init({name, module, opts}) do
+    case module.init(opts) do
+      {:ok, state} -> {:ok, %{name: name, module: module, state: state, subscribers: %{}}}
+      {:error, reason} -> {:stop, reason}
+    end
+  end
+
+  @impl true
+  def handle_call(:describe, _from, s), do: {:reply, s.module.describe(s.state), s}
+
+  def handle_call({:read, args}, _from, s) do
+    case s.module.read(args, s.state) do
+      {:ok, value, state} -> {:reply, {:ok, value}, %{s | state: state}}
+      {:error, reason, state} -> {:reply, {:error, reason}, %{s | state: state}}
+    end
+  end
+
+  def handle_call({:write, args}, _from, s) do
+    case s.module.write(args, s.state) do
+      {:ok, state} -> {:reply, :ok, %{s | state: state}}
+      {:error, reason, state} -> {:reply, {:error, reason}, %{s | state: state}}
+    end
+  end
+
+  def handle_call({:subscribe, pid}, _from, s) do
+    if Map.has_key?(s.subscribers, pid) do
+      {:reply, :ok, s}
+    else
+      {:reply, :ok, %{s | subscribers: Map.put(s.subscribers, pid, Process.monitor(pid))}}
+    end
+  end
+
+  @impl true
+  def handle_info({:DOWN, _ref, :process, pid, _}, s) do
+    {:noreply, %{s | subscribers: Map.delete(s.subscribers, pid)}}
+  end
+
+  def handle_info(msg, s) do
+    if function_exported?(s.module, :handle_info, 2) do
+      {:events, events, state} = s.module.handle_info(msg, s.state)
+
+      for event <- events, pid <- Map.keys(s.subscribers) do
+        send(pid, {:plugin_event, s.name, event})
+      end
+
+      {:noreply, %{s | state: state}}
+    else
+      {:noreply, s}
+    end
+  end
+end

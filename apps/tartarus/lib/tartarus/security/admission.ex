@@ -1,0 +1,350 @@
+defmodule Tartarus.Security.Admission do
+  @moduledoc """
+  A host's admission policy for arriving agents, as pure data and one pure decision function.
+
+  The host keeps an `Admission` state, asks `admit/3` about every arriving agent *after* its
+  signature was checked (see `Tartarus.Security.Signer`), and keeps the new state only when the
+  agent is admitted. Nothing here runs a process or reads a clock: the caller passes `now_ms`
+  (any monotonic millisecond clock, e.g. `System.monotonic_time(:millisecond)`).
+
+      {:ok, admission} = Tartarus.Security.Admission.new(max_resident_agents: 100, rate: {10, 1_000})
+
+      request = %{source: :"host_a@lab", envelope_bytes: 2_048, payload_bytes: 512, hops: 3, resident: 12}
+
+      case Tartarus.Security.Admission.admit(admission, request, System.monotonic_time(:millisecond)) do
+        {:ok, admission} -> admission
+        {:error, reason} -> # refuse: send reason back to the sender, emit an event
+      end
+
+  ## Options
+
+    * `:max_resident_agents` - agents a host may hold at once; an arrival is refused when
+      `resident` (agents already on the host) has reached it. Default `1000`.
+    * `:max_envelope_bytes` - size of the whole wire envelope (state + metadata + code
+      references). Default `1_048_576` (1 MiB).
+    * `:max_payload_bytes` - size of the agent's state alone. Default `262_144` (256 KiB).
+    * `:max_hops` - how many migrations an agent may make in its life; `hops` counts them
+      including the current one, so an arrival with `hops > max_hops` is refused. Default `64`.
+    * `:max_heap_size` - per-agent heap limit in words, not checked here but carried for the
+      spawner (`Process.flag(:max_heap_size, ...)`). Default `:infinity`.
+    * `:rate` - admissions per source: `{count, interval_ms}` allows bursts of `count` and
+      refills `count` tokens every `interval_ms` (token bucket, one per source); `:infinity`
+      turns it off. Default `:infinity`.
+
+  Every option takes a positive integer or `:infinity` (`:rate` takes a pair of positive
+  integers or `:infinity`). Bad options are refused with a message naming the option, what was
+  expected and what arrived:
+
+      iex> Tartarus.Security.Admission.new(max_hops: -1)
+      {:error, "invalid option :max_hops: expected a positive integer or :infinity, got: -1"}
+
+  ## Decisions
+
+  `admit/3` checks, in this order, and answers the first failure:
+
+    1. `{:envelope_too_large, bytes, max}`, then `{:payload_too_large, bytes, max}`;
+    2. `{:ttl_expired, hops}`;
+    3. `{:too_many_agents, max}` - `max` is the host's limit;
+    4. `{:rate_limited, source}`.
+
+  A refused arrival consumes no token: only admissions count against a source's rate.
+  A request that is not a map with the five fields gets
+  `{:error, {:invalid_request, message}}`; it never raises.
+
+  ## Token buckets
+
+  Buckets are kept per source in the state. A bucket that has refilled is the same as no bucket,
+  so `prune/2` drops those; a host calls it now and then to bound memory. Token arithmetic is in
+  integers (scaled by `interval_ms`), so refills are exact.
+  """
+
+  defmodule Policy do
+    @moduledoc """
+    The validated limits of a `Tartarus.Security.Admission` policy; see that module for each
+    field.
+    """
+    @enforce_keys [
+      :max_resident_agents,
+      :max_envelope_bytes,
+      :max_payload_bytes,
+      :max_hops,
+      :max_heap_size,
+      :rate
+    ]
+    defstruct @enforce_keys
+
+    @typedoc "A limit: a positive integer or `:infinity`."
+    @type limit :: pos_integer() | :infinity
+
+    @typedoc "Validated admission limits."
+    @type t :: %__MODULE__{
+            max_resident_agents: limit(),
+            max_envelope_bytes: limit(),
+            max_payload_bytes: limit(),
+            max_hops: limit(),
+            max_heap_size: limit(),
+            rate: {pos_integer(), pos_integer()} | :infinity
+          }
+  end
+
+  defstruct [:policy, buckets: %{}]
+
+  @typedoc "A policy with the token buckets of the sources seen so far."
+  @type t :: %__MODULE__{
+          policy: Policy.t(),
+          buckets: %{term() => {scaled_tokens :: non_neg_integer(), at_ms :: integer()}}
+        }
+
+  @typedoc "What `admit/3` needs to know about one arrival."
+  @type request :: %{
+          required(:source) => term(),
+          required(:envelope_bytes) => non_neg_integer(),
+          required(:payload_bytes) => non_neg_integer(),
+          required(:hops) => non_neg_integer(),
+          required(:resident) => non_neg_integer(),
+          optional(atom()) => term()
+        }
+
+  @typedoc "Why an arrival was refused."
+  @type refusal ::
+          {:too_many_agents, pos_integer()}
+          | {:envelope_too_large, non_neg_integer(), pos_integer()}
+          | {:payload_too_large, non_neg_integer(), pos_integer()}
+          | {:ttl_expired, non_neg_integer()}
+          | {:rate_limited, term()}
+          | {:invalid_request, String.t()}
+
+  @defaults [
+    max_resident_agents: 1000,
+    max_envelope_bytes: 1_048_576,
+    max_payload_bytes: 262_144,
+    max_hops: 64,
+    max_heap_size: :infinity,
+    rate: :infinity
+  ]
+
+  @doc """
+  Validates `opts` (see "Options") and builds an admission state with no buckets.
+
+  ## Examples
+
+      iex> {:ok, adm} = Tartarus.Security.Admission.new(max_hops: 3)
+      iex> {adm.policy.max_hops, adm.policy.max_resident_agents}
+      {3, 1000}
+      iex> Tartarus.Security.Admission.new(rate: {0, 10})
+      {:error, "invalid option :rate: expected {count, interval_ms} with positive integers or :infinity, got: {0, 10}"}
+      iex> Tartarus.Security.Admission.new(max_agents: 3)
+      {:error, "unknown option :max_agents; known options: :max_resident_agents, :max_envelope_bytes, :max_payload_bytes, :max_hops, :max_heap_size, :rate"}
+  """
+  @spec new(keyword()) :: {:ok, t()} | {:error, String.t()}
+  def new(opts \\ []) do
+    with :ok <- check_keyword(opts),
+         :ok <- check_known(opts),
+         :ok <- check_values(Keyword.merge(@defaults, opts)) do
+      {:ok, %__MODULE__{policy: struct!(Policy, Keyword.merge(@defaults, opts))}}
+    end
+  end
+
+  @doc "Like `new/1` but raises `ArgumentError` on a bad option."
+  @spec new!(keyword()) :: t()
+  def new!(opts \\ []) do
+    case new(opts) do
+      {:ok, state} -> state
+      {:error, message} -> raise ArgumentError, message
+    end
+  end
+
+  @doc """
+  Decides whether one arriving agent is admitted at `now_ms`.
+
+  On `{:ok, state}` the source's bucket lost one token; on an error the state is unchanged,
+  so the caller keeps its old state.
+
+  ## Examples
+
+      iex> adm = Tartarus.Security.Admission.new!(max_hops: 2, rate: {1, 1_000})
+      iex> req = %{source: :a, envelope_bytes: 10, payload_bytes: 5, hops: 1, resident: 0}
+      iex> {:ok, adm} = Tartarus.Security.Admission.admit(adm, req, 0)
+      iex> Tartarus.Security.Admission.admit(adm, req, 10)
+      {:error, {:rate_limited, :a}}
+      iex> Tartarus.Security.Admission.admit(adm, %{req | hops: 3}, 2_000)
+      {:error, {:ttl_expired, 3}}
+  """
+  @spec admit(t(), request(), integer()) :: {:ok, t()} | {:error, refusal()}
+  def admit(%__MODULE__{policy: policy} = state, request, now_ms) when is_integer(now_ms) do
+    with :ok <- check_request(request),
+         :ok <- within(request.envelope_bytes, policy.max_envelope_bytes, :envelope_too_large),
+         :ok <- within(request.payload_bytes, policy.max_payload_bytes, :payload_too_large),
+         :ok <- check_hops(request.hops, policy.max_hops),
+         :ok <- check_resident(request.resident, policy.max_resident_agents) do
+      take_token(state, request.source, now_ms)
+    end
+  end
+
+  @doc """
+  The whole tokens left to `source` at `now_ms` (`:infinity` when there is no rate limit).
+
+  ## Examples
+
+      iex> adm = Tartarus.Security.Admission.new!(rate: {4, 1_000})
+      iex> Tartarus.Security.Admission.tokens(adm, :a, 0)
+      4
+  """
+  @spec tokens(t(), term(), integer()) :: non_neg_integer() | :infinity
+  def tokens(%__MODULE__{policy: %Policy{rate: :infinity}}, _source, _now_ms), do: :infinity
+
+  def tokens(%__MODULE__{policy: %Policy{rate: {_count, interval}}} = state, source, now_ms) do
+    div(current(state, source, now_ms), interval)
+  end
+
+  @doc """
+  Drops the buckets that are full again at `now_ms`; they mean the same as no bucket.
+  """
+  @spec prune(t(), integer()) :: t()
+  def prune(%__MODULE__{policy: %Policy{rate: :infinity}} = state, _now_ms),
+    do: %{state | buckets: %{}}
+
+  def prune(
+        %__MODULE__{policy: %Policy{rate: {count, interval}}, buckets: buckets} = state,
+        now_ms
+      ) do
+    full = count * interval
+
+    kept =
+      for {source, _} = entry <- buckets,
+          current(state, source, now_ms) < full,
+          into: %{},
+          do: entry
+
+    %{state | buckets: kept}
+  end
+
+  @doc "Turns a refusal into a sentence, for logs and the sender."
+  @spec format_refusal(refusal()) :: String.t()
+  def format_refusal({:too_many_agents, max}), do: "host is full: at most #{max} resident agents"
+
+  def format_refusal({:envelope_too_large, bytes, max}),
+    do: "envelope too large: #{bytes} bytes, at most #{max}"
+
+  def format_refusal({:payload_too_large, bytes, max}),
+    do: "payload too large: #{bytes} bytes, at most #{max}"
+
+  def format_refusal({:ttl_expired, hops}), do: "agent made too many hops: #{hops}"
+  def format_refusal({:rate_limited, source}), do: "too many arrivals from #{inspect(source)}"
+  def format_refusal({:invalid_request, message}), do: message
+
+  ## Token bucket (tokens scaled by interval_ms: +count per ms, -interval per admission)
+
+  defp take_token(%__MODULE__{policy: %Policy{rate: :infinity}} = state, _source, _now),
+    do: {:ok, state}
+
+  defp take_token(%__MODULE__{policy: %Policy{rate: {_, interval}}} = state, source, now_ms) do
+    available = current(state, source, now_ms)
+
+    if available >= interval do
+      {:ok, %{state | buckets: Map.put(state.buckets, source, {available - interval, now_ms})}}
+    else
+      {:error, {:rate_limited, source}}
+    end
+  end
+
+  defp current(
+         %__MODULE__{policy: %Policy{rate: {count, interval}}, buckets: buckets},
+         source,
+         now
+       ) do
+    full = count * interval
+
+    case buckets do
+      %{^source => {scaled, at}} -> min(full, scaled + count * max(now - at, 0))
+      %{} -> full
+    end
+  end
+
+  ## Request checks
+
+  @request_fields [:source, :envelope_bytes, :payload_bytes, :hops, :resident]
+
+  defp check_request(%{} = request) do
+    case Enum.reject(@request_fields, &Map.has_key?(request, &1)) do
+      [] ->
+        Enum.find_value([:envelope_bytes, :payload_bytes, :hops, :resident], :ok, fn key ->
+          value = Map.fetch!(request, key)
+
+          unless is_integer(value) and value >= 0 do
+            {:error,
+             {:invalid_request,
+              "invalid admission request field #{inspect(key)}: " <>
+                "expected a non-negative integer, got: #{inspect(value)}"}}
+          end
+        end)
+
+      missing ->
+        {:error,
+         {:invalid_request,
+          "invalid admission request: missing #{Enum.map_join(missing, ", ", &inspect/1)}"}}
+    end
+  end
+
+  defp check_request(other) do
+    {:error,
+     {:invalid_request,
+      "invalid admission request: expected a map with #{Enum.map_join(@request_fields, ", ", &inspect/1)}, got: #{inspect(other)}"}}
+  end
+
+  defp within(_value, :infinity, _tag), do: :ok
+  defp within(value, max, _tag) when value <= max, do: :ok
+  defp within(value, max, tag), do: {:error, {tag, value, max}}
+
+  defp check_hops(_hops, :infinity), do: :ok
+  defp check_hops(hops, max) when hops <= max, do: :ok
+  defp check_hops(hops, _max), do: {:error, {:ttl_expired, hops}}
+
+  defp check_resident(_resident, :infinity), do: :ok
+  defp check_resident(resident, max) when resident < max, do: :ok
+  defp check_resident(_resident, max), do: {:error, {:too_many_agents, max}}
+
+  ## Option validation
+
+  defp check_keyword(opts) do
+    if is_list(opts) and Enum.all?(opts, &match?({key, _} when is_atom(key), &1)),
+      do: :ok,
+      else: {:error, "invalid options: expected a keyword list, got: #{inspect(opts)}"}
+  end
+
+  defp check_known(opts) do
+    known = Keyword.keys(@defaults)
+
+    case Enum.find(Keyword.keys(opts), &(&1 not in known)) do
+      nil ->
+        :ok
+
+      key ->
+        {:error,
+         "unknown option #{inspect(key)}; known options: " <>
+           Enum.map_join(known, ", ", &inspect/1)}
+    end
+  end
+
+  defp check_values(opts) do
+    Enum.find_value(opts, :ok, fn {key, value} ->
+      if valid?(key, value), do: nil, else: {:error, invalid(key, value)}
+    end)
+  end
+
+  defp valid?(_key, :infinity), do: true
+  defp valid?(:rate, {count, interval}), do: pos_int?(count) and pos_int?(interval)
+  defp valid?(:rate, _), do: false
+  defp valid?(_key, value), do: pos_int?(value)
+
+  defp pos_int?(value), do: is_integer(value) and value > 0
+
+  defp invalid(:rate, value) do
+    "invalid option :rate: expected {count, interval_ms} with positive integers or :infinity, " <>
+      "got: #{inspect(value)}"
+  end
+
+  defp invalid(key, value) do
+    "invalid option #{inspect(key)}: expected a positive integer or :infinity, got: #{inspect(value)}"
+  end
+end

@@ -1,0 +1,125 @@
+defmodule Tartarus.Security.TLSDistPeerTest do
+  # Real BEAM nodes over TLS distribution with mutual certificate authentication.
+  #
+  # The test node itself is not distributed. It starts three peers with OTP's :peer and
+  # `connection: :standard_io`, so it controls them over their stdin/stdout (a control
+  # connection that needs no distribution) while the peers use TLS distribution among
+  # themselves:
+  #
+  #   * A and B hold certificates from our CA: A connects to B and :erpc works;
+  #   * C holds a certificate from a foreign CA. It trusts our CA, so the refusal of C -> A is
+  #     A's own (as TLS server, `verify_peer` + `fail_if_no_peer_cert`); A -> C is refused by
+  #     A as TLS client. C never shows up in A's nodes().
+  #
+  # All peers use the same cookie, so every refusal is TLS's, not the cookie's.
+  use ExUnit.Case, async: false
+
+  alias Tartarus.Security.{Certs, TLSDist}
+
+  @moduletag :peer
+  @moduletag timeout: 120_000
+
+  @cookie "tartarus_tls_test"
+
+  setup_all do
+    epmd =
+      System.find_executable("epmd") ||
+        raise "the :peer tests need epmd (part of OTP) on the PATH to start named nodes; not found"
+
+    {_, 0} = System.cmd(epmd, ["-daemon"])
+
+    dir = Path.join(System.tmp_dir!(), "tartarus_tls_#{System.unique_integer([:positive])}")
+    ours = Path.join(dir, "ours")
+    foreign = Path.join(dir, "foreign")
+
+    {:ok, _} = Certs.generate(ours, nodes: ["a", "b"], days: 1)
+    {:ok, _} = Certs.generate(foreign, nodes: ["c"], days: 1)
+
+    # C: a foreign certificate, but it trusts our CA (so only A can refuse it).
+    trust_ours = String.to_charlist(Path.join(ours, "ca.pem"))
+
+    terms =
+      for {side, opts} <- TLSDist.optfile_terms("c", foreign),
+          do: {side, Keyword.put(opts, :cacertfile, trust_ours)}
+
+    File.write!(TLSDist.optfile_path("c", foreign), :io_lib.format(~c"~tp.~n", [terms]))
+
+    on_exit(fn -> File.rm_rf!(dir) end)
+    %{ours: ours, foreign: foreign}
+  end
+
+  setup %{ours: ours, foreign: foreign} do
+    suffix = System.unique_integer([:positive])
+
+    peers =
+      for {role, certs} <- [a: ours, b: ours, c: foreign], into: %{} do
+        {:ok, pid, node} =
+          :peer.start(%{
+            name: :"tls_#{role}_#{suffix}",
+            args: peer_args(Atom.to_string(role), certs),
+            connection: :standard_io
+          })
+
+        {role, %{pid: pid, node: node}}
+      end
+
+    on_exit(fn ->
+      for {_role, %{pid: pid}} <- peers, Process.alive?(pid), do: :peer.stop(pid)
+
+      for {_role, %{pid: pid, node: node}} <- peers do
+        refute Process.alive?(pid), "peer #{node} is still running"
+        assert wait_unregistered(node), "peer #{node} is still registered with epmd"
+      end
+    end)
+
+    %{peers: peers}
+  end
+
+  test "nodes with certificates from our CA connect over TLS; a foreign certificate is refused",
+       %{peers: %{a: a, b: b, c: c}} do
+    # Every peer really runs TLS distribution.
+    for %{pid: pid} <- [a, b, c] do
+      assert {:ok, [[~c"inet_tls"]]} = :peer.call(pid, :init, :get_argument, [:proto_dist])
+      assert :peer.call(pid, :erlang, :nodes, []) == []
+    end
+
+    # A <-> B: mutual authentication succeeds, and :erpc works across.
+    assert :peer.call(a.pid, :net_kernel, :connect_node, [b.node]) == true
+    assert :peer.call(a.pid, :erpc, :call, [b.node, :erlang, :node, []]) == b.node
+    assert :peer.call(b.pid, :erlang, :nodes, []) == [a.node]
+
+    # C -> A: A (TLS server) refuses C's foreign certificate.
+    assert :peer.call(c.pid, :net_kernel, :connect_node, [a.node]) == false
+    # A -> C: A (TLS client) refuses C's certificate too.
+    assert :peer.call(a.pid, :net_kernel, :connect_node, [c.node]) == false
+
+    assert :peer.call(a.pid, :erlang, :nodes, []) == [b.node]
+    assert :peer.call(c.pid, :erlang, :nodes, []) == []
+
+    assert {:badrpc, _} = :peer.call(c.pid, :rpc, :call, [a.node, :erlang, :node, []])
+  end
+
+  defp peer_args(name, certs) do
+    # `logger_level error` keeps the peers' TLS alert notices out of the test output.
+    (["-setcookie", @cookie, "-kernel", "logger_level", "error"] ++ TLSDist.erl_flags(name, certs))
+    |> Enum.map(&String.to_charlist/1)
+  end
+
+  # A stopped peer leaves epmd when its VM exits, a moment after :peer.stop/1 returns.
+  defp wait_unregistered(node, attempts \\ 50) do
+    [name, _host] = node |> Atom.to_string() |> String.split("@")
+    {:ok, names} = :erl_epmd.names()
+
+    cond do
+      not Enum.any?(names, fn {n, _port} -> List.to_string(n) == name end) ->
+        true
+
+      attempts == 0 ->
+        false
+
+      true ->
+        Process.sleep(100)
+        wait_unregistered(node, attempts - 1)
+    end
+  end
+end

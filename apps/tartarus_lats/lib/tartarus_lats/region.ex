@@ -1,0 +1,116 @@
+defmodule TartarusLats.Region do
+  @moduledoc """
+  The three regions of a zone and the calibration that separates them.
+
+  The thesis (§3.3.3) describes a tag's position relative to one Pi-node by
+  three regions instead of the noisy RSSI itself:
+
+    * `:near` - closer than 2 m (strong signal);
+    * `:far` - between 2 m and 5 m (weak signal);
+    * `:beyond` - not detected, or farther than 5 m.
+
+  A `calibration` holds the two thresholds in dBm: an average RSSI at or above
+  `near_dbm` is near, at or above `far_dbm` is far, anything lower (or no
+  signal at all) is beyond. Thresholds come either from the log-distance
+  path-loss model (`calibrate/1`, the same model `TartarusLats.Radio`
+  simulates) or are given explicitly (`calibration/2`, e.g. measured on site
+  as in the thesis).
+
+      iex> cal = TartarusLats.Region.calibrate(tx_power: -59, exponent: 2.0)
+      iex> {Float.round(cal.near_dbm, 1), Float.round(cal.far_dbm, 1)}
+      {-65.0, -73.0}
+      iex> TartarusLats.Region.classify(-62.5, cal)
+      :near
+      iex> TartarusLats.Region.classify(-70.0, cal)
+      :far
+      iex> TartarusLats.Region.classify(:none, cal)
+      :beyond
+  """
+
+  @enforce_keys [:near_dbm, :far_dbm]
+  defstruct [:near_dbm, :far_dbm]
+
+  @typedoc "A region of a zone, nearest first."
+  @type t :: :near | :far | :beyond
+
+  @typedoc "Thresholds in dBm, `near_dbm > far_dbm`."
+  @type calibration :: %__MODULE__{near_dbm: number(), far_dbm: number()}
+
+  @doc """
+  Thresholds from the log-distance model: the mean RSSI at `near_m` and `far_m`.
+
+  `rssi(d) = tx_power - 10 * exponent * log10(d)`.
+
+  Options (all optional): `:tx_power` (dBm at 1 m, default -59), `:exponent`
+  (path-loss exponent, default 2.0), `:near_m` (default 2.0), `:far_m`
+  (default 5.0). Raises `ArgumentError` on bad values.
+
+      iex> TartarusLats.Region.calibrate(near_m: 6.0, far_m: 5.0)
+      ** (ArgumentError) invalid options given to TartarusLats.Region.calibrate/1: expected 0 < near_m < far_m, got: near_m: 6.0, far_m: 5.0
+  """
+  @spec calibrate(keyword()) :: calibration()
+  def calibrate(opts \\ []) do
+    tx = Keyword.get(opts, :tx_power, -59)
+    n = Keyword.get(opts, :exponent, 2.0)
+    near_m = Keyword.get(opts, :near_m, 2.0)
+    far_m = Keyword.get(opts, :far_m, 5.0)
+
+    for {key, value} <- [tx_power: tx, exponent: n, near_m: near_m, far_m: far_m],
+        not is_number(value) do
+      raise ArgumentError,
+            "invalid options given to TartarusLats.Region.calibrate/1 for key #{inspect(key)}: " <>
+              "expected a number, got: #{inspect(value)}"
+    end
+
+    unless n > 0 do
+      raise ArgumentError,
+            "invalid options given to TartarusLats.Region.calibrate/1 for key :exponent: " <>
+              "expected a positive number, got: #{inspect(n)}"
+    end
+
+    unless near_m > 0 and near_m < far_m do
+      raise ArgumentError,
+            "invalid options given to TartarusLats.Region.calibrate/1: expected 0 < near_m < far_m, " <>
+              "got: near_m: #{inspect(near_m)}, far_m: #{inspect(far_m)}"
+    end
+
+    %__MODULE__{
+      near_dbm: tx - 10 * n * :math.log10(near_m),
+      far_dbm: tx - 10 * n * :math.log10(far_m)
+    }
+  end
+
+  @doc """
+  Explicit thresholds (dBm). Raises `ArgumentError` unless `near_dbm > far_dbm`.
+
+      iex> TartarusLats.Region.calibration(-60, -75)
+      %TartarusLats.Region{near_dbm: -60, far_dbm: -75}
+  """
+  @spec calibration(number(), number()) :: calibration()
+  def calibration(near_dbm, far_dbm)
+      when is_number(near_dbm) and is_number(far_dbm) and near_dbm > far_dbm,
+      do: %__MODULE__{near_dbm: near_dbm, far_dbm: far_dbm}
+
+  def calibration(near_dbm, far_dbm) do
+    raise ArgumentError,
+          "invalid thresholds given to TartarusLats.Region.calibration/2: expected numbers with " <>
+            "near_dbm > far_dbm, got: #{inspect(near_dbm)}, #{inspect(far_dbm)}"
+  end
+
+  @doc """
+  The region for a (filtered) RSSI; `:none` or `nil` (no signal) is beyond.
+
+      iex> cal = TartarusLats.Region.calibration(-65, -73)
+      iex> Enum.map([-64, -65, -66, -73, -74, nil], &TartarusLats.Region.classify(&1, cal))
+      [:near, :near, :far, :far, :beyond, :beyond]
+  """
+  @spec classify(number() | :none | nil, calibration()) :: t()
+  def classify(rssi, %__MODULE__{near_dbm: near, far_dbm: far}) do
+    cond do
+      not is_number(rssi) -> :beyond
+      rssi >= near -> :near
+      rssi >= far -> :far
+      true -> :beyond
+    end
+  end
+end

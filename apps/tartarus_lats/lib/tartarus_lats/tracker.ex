@@ -1,0 +1,265 @@
+defmodule TartarusLats.Tracker do
+  @moduledoc """
+  Per-node, per-tag state machine: raw RSSI in, region changes out.
+
+  One tracker runs on each node (it is a plain value; the node's database
+  agent keeps it). Feed it once a second, for every tag, either the RSSI the
+  receiver reported or `:missing`; it filters, classifies and tells you what
+  to store and whom to tell:
+
+      iex> t = TartarusLats.Tracker.new(window: 2)
+      iex> tag = {"12121212b64445208f0c720eaf059935", 1234, 1111}
+      iex> {[], t} = TartarusLats.Tracker.observe(t, 100, tag, -60)
+      iex> {events, t} = TartarusLats.Tracker.observe(t, 101, tag, -60)
+      iex> events
+      [
+        {:record, %{time: 100, uuid: "12121212b64445208f0c720eaf059935", major: 1234, minor: 1111, rssi: -80, region: :far}},
+        {:entered_zone, tag, 100}
+      ]
+      iex> TartarusLats.Tracker.region(t, tag)
+      :far
+
+  (With a window of 2 the first average is (-100 + -60) / 2 = -80: a tag the
+  tracker has not heard starts with its filter full of the `:missing_rssi`
+  floor, see below.)
+
+  ## The exact rule
+
+  For each sample `(time, tag, rssi | :missing)`:
+
+    1. A `:missing` sample counts as the receiver's floor, `:missing_rssi`
+       (default -100 dBm). A tag the tracker does not know yet starts with
+       its filter full of that floor: it was beyond before.
+    2. The sample goes through a `TartarusLats.RSSIFilter` (window
+       `:window`, default 6) and the average is classified by
+       `TartarusLats.Region.classify/2` into a *candidate* region.
+    3. Debounce: the candidate replaces the tag's current region only after
+       it has been the candidate for `:confirm` consecutive samples
+       (default 2, i.e. it held for more than one second at 1 Hz). A
+       different candidate in between restarts the count. So a spike that
+       crosses beyond -> far and back within a second writes nothing.
+    4. When a change is confirmed the tracker emits, in this order:
+       * `{:record, record}` - the row for the node's durable store, with
+         `time` and `rssi` (rounded average, dBm) of the **first** sample of
+         the change, so the debounce delays the write but not the timestamp;
+       * `{:entered_zone, tag, time}` if the tag was `:beyond`;
+       * `{:left_zone, tag, time}` if the tag is now `:beyond` (normally
+         from `:far`; a direct near -> beyond change counts too). This is
+         the trigger of the motion-vector handshake
+         (`TartarusLats.MotionVectors`).
+    5. A tag that is beyond and whose filter holds only floor samples is
+       forgotten (it is indistinguishable from a tag never heard), so the
+       tracker's size is bounded by the tags recently heard.
+
+  Nothing else is recorded: a tag staying in one region writes no rows.
+  Samples are expected at 1 Hz; the tracker counts samples, it does not
+  look at the gaps between timestamps.
+  """
+
+  alias TartarusLats.{Beacon, Region, RSSIFilter}
+
+  defstruct calibration: nil, window: 6, confirm: 2, missing_rssi: -100, tags: %{}
+
+  @typedoc "A row for the node's durable store (thesis Figure 3.4)."
+  @type record :: %{
+          time: number(),
+          uuid: Beacon.uuid(),
+          major: non_neg_integer(),
+          minor: non_neg_integer(),
+          rssi: integer(),
+          region: Region.t()
+        }
+
+  @typedoc "What the caller must do after a sample."
+  @type event ::
+          {:record, record()}
+          | {:entered_zone, Beacon.tag_id(), number()}
+          | {:left_zone, Beacon.tag_id(), number()}
+
+  @typedoc false
+  @type tag_state :: %{
+          filter: RSSIFilter.t(),
+          region: Region.t(),
+          pending: nil | {Region.t(), number(), pos_integer(), integer()}
+        }
+
+  @type t :: %__MODULE__{
+          calibration: Region.calibration(),
+          window: pos_integer(),
+          confirm: pos_integer(),
+          missing_rssi: number(),
+          tags: %{Beacon.tag_id() => tag_state()}
+        }
+
+  @doc """
+  A new tracker.
+
+  Options:
+
+    * `:calibration` - a `t:TartarusLats.Region.calibration/0`
+      (default `TartarusLats.Region.calibrate/0`: -65 / -73 dBm);
+    * `:window` - moving-average window (default 6);
+    * `:confirm` - consecutive samples that confirm a change (default 2);
+    * `:missing_rssi` - value of a `:missing` sample in dBm (default -100).
+
+  Raises `ArgumentError` naming the key on a bad option.
+
+      iex> TartarusLats.Tracker.new(confirm: 0)
+      ** (ArgumentError) invalid options given to TartarusLats.Tracker.new/1 for key :confirm: expected a positive integer, got: 0
+  """
+  @spec new(keyword()) :: t()
+  def new(opts \\ []) do
+    cal = Keyword.get_lazy(opts, :calibration, fn -> Region.calibrate() end)
+    window = Keyword.get(opts, :window, 6)
+    confirm = Keyword.get(opts, :confirm, 2)
+    floor = Keyword.get(opts, :missing_rssi, -100)
+
+    check!(:calibration, cal, match?(%Region{}, cal), "a TartarusLats.Region calibration")
+    check!(:window, window, is_integer(window) and window > 0, "a positive integer")
+    check!(:confirm, confirm, is_integer(confirm) and confirm > 0, "a positive integer")
+    check!(:missing_rssi, floor, is_number(floor), "a number")
+
+    %__MODULE__{calibration: cal, window: window, confirm: confirm, missing_rssi: floor}
+  end
+
+  defp check!(_key, _value, true, _expected), do: :ok
+
+  defp check!(key, value, false, expected) do
+    raise ArgumentError,
+          "invalid options given to TartarusLats.Tracker.new/1 for key #{inspect(key)}: " <>
+            "expected #{expected}, got: #{inspect(value)}"
+  end
+
+  @doc """
+  Feeds one sample for one tag; returns the events (in order) and the new tracker.
+
+  `rssi` is the receiver's RSSI in dBm or `:missing` when the tag was not
+  heard this second.
+  """
+  @spec observe(t(), number(), Beacon.tag_id(), number() | :missing) :: {[event()], t()}
+  def observe(%__MODULE__{} = t, time, {uuid, major, minor} = tag, rssi)
+      when is_number(time) and is_binary(uuid) and is_integer(major) and is_integer(minor) and
+             (is_number(rssi) or rssi == :missing) do
+    state = Map.get_lazy(t.tags, tag, fn -> fresh(t) end)
+    value = if rssi == :missing, do: t.missing_rssi, else: rssi
+    {avg, filter} = RSSIFilter.push(state.filter, value)
+    candidate = Region.classify(avg, t.calibration)
+    state = %{state | filter: filter}
+
+    {events, state} =
+      cond do
+        candidate == state.region ->
+          {[], %{state | pending: nil}}
+
+        match?({^candidate, _, _, _}, state.pending) ->
+          {^candidate, since, count, first_avg} = state.pending
+          maybe_confirm(t, tag, %{state | pending: {candidate, since, count + 1, first_avg}})
+
+        true ->
+          maybe_confirm(t, tag, %{state | pending: {candidate, time, 1, round(avg)}})
+      end
+
+    {events, %{t | tags: store(t, tag, state)}}
+  end
+
+  def observe(%__MODULE__{}, time, tag, rssi) do
+    raise ArgumentError,
+          "invalid sample given to TartarusLats.Tracker.observe/4: expected a numeric time, " <>
+            "a {uuid, major, minor} tag and an RSSI number or :missing, got: " <>
+            "#{inspect(time)}, #{inspect(tag)}, #{inspect(rssi)}"
+  end
+
+  @doc """
+  Feeds one second of readings: `readings` maps tags to RSSI or `:missing`.
+
+  Tags the tracker knows but that are absent from `readings` get a
+  `:missing` sample, so a node can pass only what its receiver heard. Tags
+  are processed in sorted order, so the event list is deterministic.
+
+      iex> t = TartarusLats.Tracker.new()
+      iex> tag = {"00000000000000000000000000000001", 1, 1}
+      iex> {_events, t} = Enum.reduce(1..8, {[], t}, fn s, {_, t} ->
+      ...>   TartarusLats.Tracker.tick(t, s, %{tag => -60}) end)
+      iex> TartarusLats.Tracker.region(t, tag)
+      :near
+      iex> {events, t} = Enum.reduce(9..20, {[], t}, fn s, {acc, t} ->
+      ...>   {ev, t} = TartarusLats.Tracker.tick(t, s, %{}); {acc ++ ev, t} end)
+      iex> for {kind, _, _} <- events, kind != :record, do: kind
+      [:left_zone]
+      iex> TartarusLats.Tracker.tags(t)
+      []
+  """
+  @spec tick(t(), number(), %{Beacon.tag_id() => number() | :missing}) :: {[event()], t()}
+  def tick(%__MODULE__{} = t, time, readings) when is_map(readings) do
+    tags = (Map.keys(readings) ++ Map.keys(t.tags)) |> Enum.uniq() |> Enum.sort()
+
+    Enum.reduce(tags, {[], t}, fn tag, {acc, t} ->
+      {events, t} = observe(t, time, tag, Map.get(readings, tag, :missing))
+      {[events | acc], t}
+    end)
+    |> then(fn {acc, t} -> {acc |> Enum.reverse() |> List.flatten(), t} end)
+  end
+
+  @doc """
+  The confirmed region of a tag (`:beyond` for a tag the tracker does not know).
+  """
+  @spec region(t(), Beacon.tag_id()) :: Region.t()
+  def region(%__MODULE__{tags: tags}, tag) do
+    case tags do
+      %{^tag => %{region: region}} -> region
+      _ -> :beyond
+    end
+  end
+
+  @doc """
+  The current filtered RSSI of a tag, or `nil` for a tag the tracker does not know.
+  """
+  @spec average(t(), Beacon.tag_id()) :: float() | nil
+  def average(%__MODULE__{tags: tags}, tag) do
+    case tags do
+      %{^tag => %{filter: f}} -> RSSIFilter.average(f)
+      _ -> nil
+    end
+  end
+
+  @doc "The tags the tracker currently keeps state for, sorted."
+  @spec tags(t()) :: [Beacon.tag_id()]
+  def tags(%__MODULE__{tags: tags}), do: tags |> Map.keys() |> Enum.sort()
+
+  @doc "Tags whose confirmed region is near or far (present in this zone), sorted."
+  @spec present(t()) :: [Beacon.tag_id()]
+  def present(%__MODULE__{tags: tags}) do
+    Enum.sort(for {tag, %{region: r}} <- tags, r != :beyond, do: tag)
+  end
+
+  defp fresh(t) do
+    %{
+      filter: RSSIFilter.new(window: t.window, fill: t.missing_rssi),
+      region: :beyond,
+      pending: nil
+    }
+  end
+
+  defp maybe_confirm(t, {uuid, major, minor} = tag, %{pending: {new, since, count, avg}} = state)
+       when count >= t.confirm do
+    old = state.region
+    record = %{time: since, uuid: uuid, major: major, minor: minor, rssi: avg, region: new}
+
+    events =
+      [{:record, record}] ++
+        if(old == :beyond, do: [{:entered_zone, tag, since}], else: []) ++
+        if(new == :beyond, do: [{:left_zone, tag, since}], else: [])
+
+    {events, %{state | region: new, pending: nil}}
+  end
+
+  defp maybe_confirm(_t, _tag, state), do: {[], state}
+
+  defp store(t, tag, %{region: :beyond, pending: nil, filter: filter} = state) do
+    if Enum.all?(RSSIFilter.samples(filter), &(&1 == t.missing_rssi)),
+      do: Map.delete(t.tags, tag),
+      else: Map.put(t.tags, tag, state)
+  end
+
+  defp store(t, tag, state), do: Map.put(t.tags, tag, state)
+end
