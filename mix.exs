@@ -12,8 +12,32 @@ defmodule TartarusUmbrella.MixProject do
     ]
   end
 
-  # `mix test` runs every app's unit tests, then the top-level multi-node tests in test/.
+  # `mix test` runs every app's unit tests, then the top-level multi-node tests in test/
+  # (`mix test.top` runs only those; both take ExUnit's flags, e.g. `--only peer`).
   defp aliases do
-    [test: ["test", "test.top"]]
+    [test: ["test", &top_level_tests/1], "test.top": &top_level_tests/1]
+  end
+
+  defp top_level_tests(args) do
+    Mix.Task.run("compile", [])
+
+    for app <- [:tartarus, :tartarus_emu, :tartarus_lats] do
+      {:ok, _} = Application.ensure_all_started(app)
+    end
+
+    {opts, _, _} = OptionParser.parse(args, switches: [seed: :integer, only: :keep, exclude: :keep, trace: :boolean])
+    Code.require_file("test/test_helper.exs")
+
+    ExUnit.configure(
+      Enum.flat_map(opts, fn
+        {:only, tag} -> [include: [String.to_atom(tag)], exclude: [:test]]
+        {:exclude, tag} -> [exclude: [String.to_atom(tag)]]
+        other -> [other]
+      end)
+    )
+
+    Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs"))
+    %{failures: failures} = ExUnit.run()
+    if failures > 0, do: Mix.raise("top-level tests failed")
   end
 end

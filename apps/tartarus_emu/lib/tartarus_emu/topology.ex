@@ -146,6 +146,8 @@ defmodule TartarusEmu.Topology do
   @doc """
   Returns the sorted neighbours of `node` (`[]` for an unknown or isolated node).
 
+  This scans every edge; to get the neighbours of all nodes, call `adjacency/1` once.
+
   ## Examples
 
       iex> TartarusEmu.Topology.line(3) |> TartarusEmu.Topology.neighbours(:h2)

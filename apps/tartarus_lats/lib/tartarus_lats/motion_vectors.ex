@@ -58,6 +58,15 @@ defmodule TartarusLats.MotionVectors do
   records a loop (MVF `{px, px}` for the old stay, MVB `{px, px}` for the
   new one); `trace/3` merges such consecutive stays.
 
+  A notice also resolves the origin of a stay that already ended, if that
+  origin is still `:pending` (the tag passed through this zone faster than
+  the previous zone noticed it leaving).
+
+  Ghosts: noise can make a node see a tag that never left its neighbour's
+  zone. When a stay whose origin is unknown ends and the neighbour that
+  acknowledges had the tag since *before* the stay began, the stay was not
+  a move and is forgotten (the tracker's records still show it).
+
   ## History
 
   Besides the current vectors the table keeps every stay ("segment") of
@@ -227,14 +236,15 @@ defmodule TartarusLats.MotionVectors do
     case segments(mv, tag) do
       [%{to: nil} = stay | rest] ->
         mv =
-          if stay.from in [:pending, :infinity] or stay.from == px do
-            mv
-            |> put_segments(tag, [%{stay | from: px, from_left_at: t_left} | rest])
-            |> unwait({tag, :arrival, stay.arrived_at})
-          else
-            mv
-          end
+          if stay.from in [:pending, :infinity],
+            do: link_from(mv, tag, stay, rest, px, t_left),
+            else: mv
 
+        {mv, [{:send, px, {:ack, tag, mv.node, t_left, stay.arrived_at}}]}
+
+      [%{from: :pending} = stay | rest] ->
+        # The tag passed through faster than the notice: still our origin.
+        mv = link_from(mv, tag, stay, rest, px, t_left)
         {mv, [{:send, px, {:ack, tag, mv.node, t_left, stay.arrived_at}}]}
 
       _ ->
@@ -247,6 +257,18 @@ defmodule TartarusLats.MotionVectors do
     list = segments(mv, tag)
 
     case Enum.split_while(list, &(&1.left_at != t_left)) do
+      {before, [%{from: from, arrived_at: arrived} | rest]}
+      when from in [:pending, :infinity] and t_arrived < arrived ->
+        # A ghost: the neighbour had the tag since before we noticed it and
+        # still has it, so the tag never came here. Forget this stay.
+        mv =
+          mv
+          |> put_segments(tag, before ++ rest)
+          |> unwait({tag, :departure, t_left})
+          |> unwait({tag, :arrival, arrived})
+
+        {mv, []}
+
       {before, [%{to: to} = stay | rest]} when to in [:pending, :infinity] ->
         stay = %{stay | to: py, to_arrived_at: t_arrived}
 
@@ -285,6 +307,12 @@ defmodule TartarusLats.MotionVectors do
   defp do_handle(_mv, _now, event) do
     raise ArgumentError,
           "invalid event given to TartarusLats.MotionVectors.handle/3: #{inspect(event)}"
+  end
+
+  defp link_from(mv, tag, stay, rest, px, t_left) do
+    mv
+    |> put_segments(tag, [%{stay | from: px, from_left_at: t_left} | rest])
+    |> unwait({tag, :arrival, stay.arrived_at})
   end
 
   defp expire({tag, :arrival, t}, mv) do

@@ -30,15 +30,20 @@ defmodule TartarusLats.Tracker do
     1. A `:missing` sample counts as the receiver's floor, `:missing_rssi`
        (default -100 dBm). A tag the tracker does not know yet starts with
        its filter full of that floor: it was beyond before.
-    2. The sample goes through a `TartarusLats.RSSIFilter` (window
+    2. Spike rejection: the median of the last `:median` samples
+       (default 3; 1 turns it off) goes on, so one wild sample never
+       reaches the average at all.
+    3. That value goes through a `TartarusLats.RSSIFilter` (window
        `:window`, default 6) and the average is classified by
        `TartarusLats.Region.classify/2` into a *candidate* region.
-    3. Debounce: the candidate replaces the tag's current region only after
+    4. Debounce: the candidate replaces the tag's current region only after
        it has been the candidate for `:confirm` consecutive samples
        (default 2, i.e. it held for more than one second at 1 Hz). A
        different candidate in between restarts the count. So a spike that
-       crosses beyond -> far and back within a second writes nothing.
-    4. When a change is confirmed the tracker emits, in this order:
+       crosses beyond -> far and back within a second writes nothing (the
+       median removes single-sample spikes; the debounce removes what is
+       left of a short excursion of the average).
+    5. When a change is confirmed the tracker emits, in this order:
        * `{:record, record}` - the row for the node's durable store, with
          `time` and `rssi` (rounded average, dBm) of the **first** sample of
          the change, so the debounce delays the write but not the timestamp;
@@ -47,7 +52,7 @@ defmodule TartarusLats.Tracker do
          from `:far`; a direct near -> beyond change counts too). This is
          the trigger of the motion-vector handshake
          (`TartarusLats.MotionVectors`).
-    5. A tag that is beyond and whose filter holds only floor samples is
+    6. A tag that is beyond and whose filter holds only floor samples is
        forgotten (it is indistinguishable from a tag never heard), so the
        tracker's size is bounded by the tags recently heard.
 
@@ -58,7 +63,7 @@ defmodule TartarusLats.Tracker do
 
   alias TartarusLats.{Beacon, Region, RSSIFilter}
 
-  defstruct calibration: nil, window: 6, confirm: 2, missing_rssi: -100, tags: %{}
+  defstruct calibration: nil, window: 6, median: 3, confirm: 2, missing_rssi: -100, tags: %{}
 
   @typedoc "A row for the node's durable store (thesis Figure 3.4)."
   @type record :: %{
@@ -79,6 +84,7 @@ defmodule TartarusLats.Tracker do
   @typedoc false
   @type tag_state :: %{
           filter: RSSIFilter.t(),
+          raw: [number()],
           region: Region.t(),
           pending: nil | {Region.t(), number(), pos_integer(), integer()}
         }
@@ -86,6 +92,7 @@ defmodule TartarusLats.Tracker do
   @type t :: %__MODULE__{
           calibration: Region.calibration(),
           window: pos_integer(),
+          median: pos_integer(),
           confirm: pos_integer(),
           missing_rssi: number(),
           tags: %{Beacon.tag_id() => tag_state()}
@@ -99,6 +106,8 @@ defmodule TartarusLats.Tracker do
     * `:calibration` - a `t:TartarusLats.Region.calibration/0`
       (default `TartarusLats.Region.calibrate/0`: -65 / -73 dBm);
     * `:window` - moving-average window (default 6);
+    * `:median` - spike-rejecting median over this many raw samples before
+      the average (odd positive integer, default 3; 1 disables it);
     * `:confirm` - consecutive samples that confirm a change (default 2);
     * `:missing_rssi` - value of a `:missing` sample in dBm (default -100).
 
@@ -111,15 +120,30 @@ defmodule TartarusLats.Tracker do
   def new(opts \\ []) do
     cal = Keyword.get_lazy(opts, :calibration, fn -> Region.calibrate() end)
     window = Keyword.get(opts, :window, 6)
+    median = Keyword.get(opts, :median, 3)
     confirm = Keyword.get(opts, :confirm, 2)
     floor = Keyword.get(opts, :missing_rssi, -100)
 
     check!(:calibration, cal, match?(%Region{}, cal), "a TartarusLats.Region calibration")
     check!(:window, window, is_integer(window) and window > 0, "a positive integer")
+
+    check!(
+      :median,
+      median,
+      is_integer(median) and median > 0 and rem(median, 2) == 1,
+      "an odd positive integer"
+    )
+
     check!(:confirm, confirm, is_integer(confirm) and confirm > 0, "a positive integer")
     check!(:missing_rssi, floor, is_number(floor), "a number")
 
-    %__MODULE__{calibration: cal, window: window, confirm: confirm, missing_rssi: floor}
+    %__MODULE__{
+      calibration: cal,
+      window: window,
+      median: median,
+      confirm: confirm,
+      missing_rssi: floor
+    }
   end
 
   defp check!(_key, _value, true, _expected), do: :ok
@@ -142,9 +166,10 @@ defmodule TartarusLats.Tracker do
              (is_number(rssi) or rssi == :missing) do
     state = Map.get_lazy(t.tags, tag, fn -> fresh(t) end)
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
-    {avg, filter} = RSSIFilter.push(state.filter, value)
+    raw = Enum.take([value | state.raw], t.median)
+    {avg, filter} = RSSIFilter.push(state.filter, median(raw))
     candidate = Region.classify(avg, t.calibration)
-    state = %{state | filter: filter}
+    state = %{state | filter: filter, raw: raw}
 
     {events, state} =
       cond do
@@ -235,9 +260,15 @@ defmodule TartarusLats.Tracker do
   defp fresh(t) do
     %{
       filter: RSSIFilter.new(window: t.window, fill: t.missing_rssi),
+      raw: List.duplicate(t.missing_rssi, t.median),
       region: :beyond,
       pending: nil
     }
+  end
+
+  defp median(values) do
+    sorted = Enum.sort(values)
+    Enum.at(sorted, div(length(sorted), 2))
   end
 
   defp maybe_confirm(t, {uuid, major, minor} = tag, %{pending: {new, since, count, avg}} = state)
@@ -256,7 +287,7 @@ defmodule TartarusLats.Tracker do
   defp maybe_confirm(_t, _tag, state), do: {[], state}
 
   defp store(t, tag, %{region: :beyond, pending: nil, filter: filter} = state) do
-    if Enum.all?(RSSIFilter.samples(filter), &(&1 == t.missing_rssi)),
+    if Enum.all?(RSSIFilter.samples(filter) ++ state.raw, &(&1 == t.missing_rssi)),
       do: Map.delete(t.tags, tag),
       else: Map.put(t.tags, tag, state)
   end

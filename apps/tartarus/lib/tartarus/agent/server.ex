@@ -19,6 +19,7 @@ defmodule Tartarus.Agent.Server do
 
   @impl true
   def init({host, env, {:create, args}}) do
+    env = %{env | visits: %{host.ref => 1}}
     data = %{host: host, env: env, paused: nil}
     Process.put(@host, host)
 

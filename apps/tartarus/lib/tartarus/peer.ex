@@ -1,0 +1,147 @@
+defmodule Tartarus.Peer do
+  @moduledoc """
+  Real BEAM nodes on this machine, started with OTP's `:peer`, running Tartarus.
+
+  Used by the multi-node tests, the benchmarks, the demo and the emulator's `:peer` mode.
+  Each peer gets this node's code path (so it runs the same platform code), its cookie, and
+  `-connect_all false`: it connects only to the nodes its hosts talk to, never a full mesh.
+  Peers are linked to the process that starts them and die with it.
+
+  Code that is compiled at run time on the origin (e.g. an agent typed in iex) is *not* on
+  the peers' code path: it reaches them only by migration, which is the point of
+  on-the-fly programming.
+
+  ## Example
+
+      {:ok, peer, node} = Tartarus.Peer.start(:p1)
+      {:ok, _} = :erpc.call(node, Tartarus, :start_host, [:h1])
+      Tartarus.Peer.stop(peer)
+  """
+
+  @typedoc "A peer's controlling process."
+  @type peer :: pid()
+
+  @doc """
+  Makes this node distributed if it is not already (starting `epmd` if needed), with a
+  short name `prefix_<unique>`.
+  """
+  @spec ensure_distributed(String.t()) :: :ok | {:error, term()}
+  def ensure_distributed(prefix \\ "tartarus") do
+    if Node.alive?() do
+      :ok
+    else
+      _ = System.cmd("epmd", ["-daemon"], stderr_to_stdout: true)
+      name = :"#{prefix}_#{System.unique_integer([:positive])}_#{:os.getpid()}"
+
+      case Node.start(name, :shortnames) do
+        {:ok, _} -> :ok
+        {:error, {:already_started, _}} -> :ok
+        {:error, reason} -> {:error, {:distribution_failed, reason}}
+      end
+    end
+  end
+
+  @doc """
+  Starts a peer node named `name` (an atom, unique on this machine) running Tartarus.
+
+  Options:
+
+    * `:args` - extra command-line arguments (strings) for the peer's `erl`;
+    * `:apps` - applications to start on the peer (default `[:tartarus]`);
+    * `:log_level` - the peer's Logger level (default `:warning`);
+    * `:connection` - `:standard_io` to control the peer without distribution (default:
+      distribution).
+  """
+  @spec start(atom(), keyword()) :: {:ok, peer(), node()} | {:error, term()}
+  def start(name, opts \\ []) do
+    with :ok <- ensure_distributed() do
+      args =
+        ["-connect_all", "false", "-setcookie", Atom.to_string(Node.get_cookie())] ++
+          code_path_args() ++ Keyword.get(opts, :args, [])
+
+      spec = %{name: name, args: Enum.map(args, &String.to_charlist/1), wait_boot: 60_000}
+
+      spec =
+        case Keyword.get(opts, :connection) do
+          nil -> spec
+          conn -> Map.put(spec, :connection, conn)
+        end
+
+      case :peer.start_link(spec) do
+        {:ok, pid, node} ->
+          boot = [Keyword.get(opts, :apps, [:tartarus]), Keyword.get(opts, :log_level, :warning)]
+
+          result =
+            if Map.has_key?(spec, :connection),
+              do: :peer.call(pid, __MODULE__, :boot, boot, 60_000),
+              else: :erpc.call(node, __MODULE__, :boot, boot, 60_000)
+
+          case result do
+            :ok ->
+              {:ok, pid, node}
+
+            error ->
+              stop(pid)
+              {:error, {:boot_failed, error}}
+          end
+
+        {:error, reason} ->
+          {:error, reason}
+      end
+    end
+  end
+
+  @doc "Starts `n` peers named `prefix1..prefixN`; stops them all if one fails."
+  @spec start_many(String.t(), pos_integer(), keyword()) :: {:ok, [{peer(), node()}]} | {:error, term()}
+  def start_many(prefix, n, opts \\ []) do
+    tag = System.unique_integer([:positive])
+
+    Enum.reduce_while(1..n, {:ok, []}, fn i, {:ok, acc} ->
+      case start(:"#{prefix}#{i}_#{tag}", opts) do
+        {:ok, pid, node} ->
+          {:cont, {:ok, [{pid, node} | acc]}}
+
+        error ->
+          Enum.each(acc, fn {pid, _} -> stop(pid) end)
+          {:halt, error}
+      end
+    end)
+    |> case do
+      {:ok, list} -> {:ok, Enum.reverse(list)}
+      error -> error
+    end
+  end
+
+  @doc "Stops a peer. Stopping a peer that is already gone is fine."
+  @spec stop(peer()) :: :ok
+  def stop(pid) do
+    :peer.stop(pid)
+  catch
+    _, _ -> :ok
+  end
+
+  @doc false
+  # Runs on the peer.
+  def boot(apps, level) do
+    Application.put_env(:logger, :level, level)
+    {:ok, _} = Application.ensure_all_started(:logger)
+    Logger.configure(level: level)
+
+    Enum.reduce_while(apps, :ok, fn app, :ok ->
+      case Application.ensure_all_started(app) do
+        {:ok, _} -> {:cont, :ok}
+        error -> {:halt, error}
+      end
+    end)
+  end
+
+  # This node's code path minus OTP's own libraries (the peer's erl finds those itself).
+  defp code_path_args do
+    otp = List.to_string(:code.lib_dir())
+
+    :code.get_path()
+    |> Enum.map(&List.to_string/1)
+    |> Enum.reject(&(String.starts_with?(&1, otp) or &1 == "."))
+    |> Enum.flat_map(&["-pa", &1])
+  end
+end
