@@ -25,7 +25,11 @@ defmodule TartarusUmbrella.MixProject do
       {:ok, _} = Application.ensure_all_started(app)
     end
 
-    {opts, _, _} = OptionParser.parse(args, switches: [seed: :integer, only: :keep, exclude: :keep, trace: :boolean])
+    {opts, _, _} =
+      OptionParser.parse(args,
+        switches: [seed: :integer, only: :keep, exclude: :keep, trace: :boolean]
+      )
+
     Code.require_file("test/test_helper.exs")
 
     ExUnit.configure(

@@ -61,7 +61,8 @@ defmodule Tartarus.PlatformPeerTest do
     refute :erpc.call(b, :code, :is_loaded, [mod])
     refute :erpc.call(c, :code, :is_loaded, [mod])
 
-    {:ok, id} = :erpc.call(a, Tartarus, :create_mobile_agent, [:ha, mod, self(), [payload: %{note: "hi"}]])
+    {:ok, id} =
+      :erpc.call(a, Tartarus, :create_mobile_agent, [:ha, mod, self(), [payload: %{note: "hi"}]])
 
     assert :ok = Tartarus.move({id, ha}, hb)
     assert :ok = Tartarus.move({id, ha}, hc)

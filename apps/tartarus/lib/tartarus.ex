@@ -117,7 +117,9 @@ defmodule Tartarus do
   defp check_name(name) do
     if Host.address?(name) and not is_tuple(name),
       do: :ok,
-      else: {:error, "invalid host name given to Tartarus.start_host/2: expected an atom or a string, got: #{inspect(name)}"}
+      else:
+        {:error,
+         "invalid host name given to Tartarus.start_host/2: expected an atom or a string, got: #{inspect(name)}"}
   end
 
   defp attach_all(host, plugins) do
@@ -231,9 +233,11 @@ defmodule Tartarus do
   Returns `{:ok, id}`, or `{:error, reason}`: `{:not_an_agent, module}`,
   `{:unknown_host, host}`, `{:init_failed, reason}`, or a message for bad options.
   """
-  @spec create_agent(host_ref(), module(), term(), keyword()) :: {:ok, agent_id()} | {:error, term()}
+  @spec create_agent(host_ref(), module(), term(), keyword()) ::
+          {:ok, agent_id()} | {:error, term()}
   def create_agent(host, module, args, opts \\ []) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @create_schema, "Tartarus.create_agent/4"),
+    with {:ok, opts} <-
+           Tartarus.Options.validate(opts, @create_schema, "Tartarus.create_agent/4"),
          :ok <- check_agent_module(module),
          :ok <- check_payload(opts[:payload]),
          host = Host.address(host),
@@ -244,12 +248,14 @@ defmodule Tartarus do
   end
 
   @doc "Creates a static agent (one that never moves). See `create_agent/4`."
-  @spec create_static_agent(host_ref(), module(), term(), keyword()) :: {:ok, agent_id()} | {:error, term()}
+  @spec create_static_agent(host_ref(), module(), term(), keyword()) ::
+          {:ok, agent_id()} | {:error, term()}
   def create_static_agent(host, module, args, opts \\ []),
     do: create_agent(host, module, args, Keyword.put(opts, :static, true))
 
   @doc "Creates a mobile agent. See `create_agent/4`."
-  @spec create_mobile_agent(host_ref(), module(), term(), keyword()) :: {:ok, agent_id()} | {:error, term()}
+  @spec create_mobile_agent(host_ref(), module(), term(), keyword()) ::
+          {:ok, agent_id()} | {:error, term()}
   def create_mobile_agent(host, module, args, opts \\ []),
     do: create_agent(host, module, args, Keyword.put(opts, :static, false))
 
@@ -287,7 +293,12 @@ defmodule Tartarus do
           :ok
 
         {:need, mods} ->
-          code = for m <- mods, {_, md5} = List.keyfind(manifest, m, 0), {:ok, bin} = CodeCache.fetch_binary(m, md5), do: {m, md5, bin}
+          code =
+            for m <- mods,
+                {_, md5} = List.keyfind(manifest, m, 0),
+                {:ok, bin} = CodeCache.fetch_binary(m, md5),
+                do: {m, md5, bin}
+
           :erpc.call(node, CodeCache, :load, [code], 30_000)
 
         error ->
@@ -305,7 +316,46 @@ defmodule Tartarus do
   was called).
   """
   @spec move(agent_ref(), Tartarus.Agent.dest()) :: :ok | {:error, term()}
-  def move(agent, dest), do: control(agent, {:move, dest})
+  def move(agent, dest), do: do_move(agent, dest, @max_chase)
+
+  defp do_move(_agent, _dest, 0), do: {:error, :too_many_hops}
+
+  defp do_move(agent, dest, n) do
+    # Not a GenServer.call: the agent's process ends when the move commits, and the answer
+    # then comes from its new process at the destination.
+    with {:ok, pid, ref} <- locate(agent) do
+      mref = Process.monitor(pid)
+      send(pid, {:"$gen_call", {self(), mref}, {:move, dest}})
+      await_move(mref, ref, dest, n)
+    end
+  end
+
+  defp await_move(mref, ref, dest, n) do
+    receive do
+      {^mref, {:error, :in_transit}} ->
+        Process.demonitor(mref, [:flush])
+        Process.sleep(5)
+        do_move(ref, dest, n - 1)
+
+      {^mref, reply} ->
+        Process.demonitor(mref, [:flush])
+        reply
+
+      {:DOWN, ^mref, :process, _, {:shutdown, :migrated}} ->
+        receive do
+          {^mref, reply} -> reply
+        after
+          60_000 -> {:error, :timeout}
+        end
+
+      {:DOWN, ^mref, :process, _, _} ->
+        do_move(ref, dest, n - 1)
+    after
+      60_000 ->
+        Process.demonitor(mref, [:flush])
+        {:error, :timeout}
+    end
+  end
 
   @doc """
   Clones an agent to `dest` (a host, a strategy, or `:here`). The clone gets a new id and
@@ -337,14 +387,16 @@ defmodule Tartarus do
   `{:error, :not_found}` if no such agent exists where the search leads.
   """
   @spec post(agent_ref(), term(), timeout()) :: :ok | {:error, term()}
-  def post(agent, message, timeout \\ 5_000), do: deliver(agent, :post, message, timeout, @max_chase)
+  def post(agent, message, timeout \\ 5_000),
+    do: deliver(agent, :post, message, timeout, @max_chase)
 
   @doc """
   Sends `message` to an agent and waits for its reply (the agent answers with
   `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`.
   """
   @spec request(agent_ref(), term(), timeout()) :: {:ok, term()} | {:error, term()}
-  def request(agent, message, timeout \\ 5_000), do: deliver(agent, :request, message, timeout, @max_chase)
+  def request(agent, message, timeout \\ 5_000),
+    do: deliver(agent, :request, message, timeout, @max_chase)
 
   defp deliver(_agent, _kind, _msg, _timeout, 0), do: {:error, :too_many_hops}
 
@@ -464,7 +516,9 @@ defmodule Tartarus do
   end
 
   defp normalize({agent, host}) do
-    if Host.address?(host), do: {:ok, {agent, Host.address(host)}}, else: {:error, {:unknown_host, host}}
+    if Host.address?(host),
+      do: {:ok, {agent, Host.address(host)}},
+      else: {:error, {:unknown_host, host}}
   end
 
   defp normalize(id) when is_binary(id) do
@@ -487,7 +541,9 @@ defmodule Tartarus do
     with {:ok, h} <- Host.local(host) do
       h
       |> Ledger.residents()
-      |> Enum.map(fn {id, name, module, pid} -> %{id: id, name: name, module: module, pid: pid} end)
+      |> Enum.map(fn {id, name, module, pid} ->
+        %{id: id, name: name, module: module, pid: pid}
+      end)
       |> Enum.sort_by(& &1.name)
     end
   end
@@ -525,7 +581,8 @@ defmodule Tartarus do
   def hop_stats(host), do: on_node(host, :local_hop_stats, [])
 
   @doc false
-  def local_hop_stats(host), do: with({:ok, h} <- Host.local(host), do: hop_summary(Ledger.hop_times(h)))
+  def local_hop_stats(host),
+    do: with({:ok, h} <- Host.local(host), do: hop_summary(Ledger.hop_times(h)))
 
   @doc false
   def hop_summary([]), do: %{count: 0, median_us: nil, p99_us: nil, mean_us: nil, max_us: nil}
@@ -550,7 +607,8 @@ defmodule Tartarus do
       3
   """
   @spec percentile([number()], float()) :: number()
-  def percentile(sorted, q), do: Enum.at(sorted, min(length(sorted) - 1, max(0, ceil(q * length(sorted)) - 1)))
+  def percentile(sorted, q),
+    do: Enum.at(sorted, min(length(sorted) - 1, max(0, ceil(q * length(sorted)) - 1)))
 
   @doc "Reads `key` from a host's store."
   @spec store_get(host_ref(), term(), term()) :: term()
@@ -589,9 +647,12 @@ defmodule Tartarus do
   def attach_plugin(host, name, spec), do: on_node(host, :local_attach_plugin, [name, spec])
 
   @doc false
-  def local_attach_plugin({host_name, _} = host, name, {module, opts}) when is_atom(name) and is_atom(module) do
+  def local_attach_plugin({host_name, _} = host, name, {module, opts})
+      when is_atom(name) and is_atom(module) do
     with {:ok, _} <- Host.local(host),
-         true <- Code.ensure_loaded?(module) and function_exported?(module, :read, 2) || {:error, {:not_a_plugin, module}} do
+         true <-
+           (Code.ensure_loaded?(module) and function_exported?(module, :read, 2)) ||
+             {:error, {:not_a_plugin, module}} do
       sup = Tartarus.Host.Supervisor.via(:plugins, host_name)
 
       case DynamicSupervisor.start_child(sup, {Tartarus.Plugin, {host_name, name, module, opts}}) do
@@ -609,7 +670,8 @@ defmodule Tartarus do
   def plugins(host), do: on_node(host, :local_plugins, [])
 
   @doc false
-  def local_plugins(host), do: with({:ok, h} <- Host.local(host), do: Tartarus.Plugin.list(elem(h.ref, 0)))
+  def local_plugins(host),
+    do: with({:ok, h} <- Host.local(host), do: Tartarus.Plugin.list(elem(h.ref, 0)))
 
   # -- code --------------------------------------------------------------------------
 

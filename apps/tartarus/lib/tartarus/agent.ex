@@ -236,7 +236,11 @@ defmodule Tartarus.Agent do
   @spec add_module(module()) :: :ok
   def add_module(module) when is_atom(module) do
     env = envelope()
-    put_envelope(%{env | payload: %{env.payload | modules: Enum.uniq([module | env.payload.modules])}})
+
+    put_envelope(%{
+      env
+      | payload: %{env.payload | modules: Enum.uniq([module | env.payload.modules])}
+    })
   end
 
   @doc "Reads `key` from the store of the calling agent's host."
@@ -289,11 +293,13 @@ defmodule Tartarus.Agent do
   end
 
   defp envelope do
-    Process.get(@ctx) || raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
+    Process.get(@ctx) ||
+      raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
   end
 
   defp host_info do
-    Process.get(@host) || raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
+    Process.get(@host) ||
+      raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
   end
 
   defp put_envelope(%Envelope{} = env) do

@@ -73,7 +73,8 @@ defmodule Tartarus.CodeCache do
   @doc """
   The BEAM binary of `module` with md5 `md5`, from the cache or the code path.
   """
-  @spec fetch_binary(module(), binary()) :: {:ok, binary()} | {:error, {:no_object_code, module()}}
+  @spec fetch_binary(module(), binary()) ::
+          {:ok, binary()} | {:error, {:no_object_code, module()}}
   def fetch_binary(module, md5) do
     case :ets.lookup(@table, module) do
       [{^module, ^md5, bin}] ->

@@ -59,11 +59,18 @@ defmodule Tartarus.Events do
   @type counter :: atom()
 
   @typedoc "An event as delivered to subscribers."
-  @type event :: %{required(:type) => atom(), required(:host) => term(), optional(atom()) => term()}
+  @type event :: %{
+          required(:type) => atom(),
+          required(:host) => term(),
+          optional(atom()) => term()
+        }
 
   @doc false
   def setup do
-    :persistent_term.put({__MODULE__, :counters}, :counters.new(map_size(@index), [:write_concurrency]))
+    :persistent_term.put(
+      {__MODULE__, :counters},
+      :counters.new(map_size(@index), [:write_concurrency])
+    )
   end
 
   @doc "The names of all counters."

@@ -103,7 +103,9 @@ defmodule Tartarus.Ledger do
   end
 
   def residents(%{ledger: l}) do
-    :ets.select(l, [{{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$2", :"$3", :"$4", :"$1"}}]}])
+    :ets.select(l, [
+      {{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$2", :"$3", :"$4", :"$1"}}]}
+    ])
   end
 
   def forwarding_pointers(%{ledger: l}) do
@@ -115,15 +117,20 @@ defmodule Tartarus.Ledger do
   def locate(host, agent) do
     {name, _} = host.ref
 
+    # The registry drops a dead agent's entry asynchronously: check it is alive.
     case Registry.lookup(Tartarus.AgentRegistry, agent) do
-      [{pid, {^name, _, _}}] ->
-        {:here, pid, agent}
+      [{pid, {^name, _, _}}] when node(pid) == node() ->
+        if Process.alive?(pid), do: {:here, pid, agent}, else: locate_elsewhere(host, agent)
 
       _ ->
-        case :ets.lookup(host.ledger, {:fwd, agent}) do
-          [{_, dest, _}] -> {:moved, dest}
-          [] -> locate_by_name(host, agent)
-        end
+        locate_elsewhere(host, agent)
+    end
+  end
+
+  defp locate_elsewhere(host, agent) do
+    case :ets.lookup(host.ledger, {:fwd, agent}) do
+      [{_, dest, _}] -> {:moved, dest}
+      [] -> locate_by_name(host, agent)
     end
   end
 

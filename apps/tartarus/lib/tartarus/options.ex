@@ -42,9 +42,14 @@ defmodule Tartarus.Options do
 
             :error ->
               cond do
-                Keyword.has_key?(spec, :default) -> {:cont, {:ok, [{key, spec[:default]} | acc]}}
-                spec[:required] -> {:halt, {:error, "required option #{inspect(key)} not given to #{where}"}}
-                true -> {:cont, {:ok, acc}}
+                Keyword.has_key?(spec, :default) ->
+                  {:cont, {:ok, [{key, spec[:default]} | acc]}}
+
+                spec[:required] ->
+                  {:halt, {:error, "required option #{inspect(key)} not given to #{where}"}}
+
+                true ->
+                  {:cont, {:ok, acc}}
               end
           end
         end)
@@ -54,12 +59,15 @@ defmodule Tartarus.Options do
         end
       end
     else
-      {:error, "invalid options given to #{where}: expected a keyword list, got: #{inspect(opts)}"}
+      {:error,
+       "invalid options given to #{where}: expected a keyword list, got: #{inspect(opts)}"}
     end
   end
 
   def validate(opts, _schema, where),
-    do: {:error, "invalid options given to #{where}: expected a keyword list, got: #{inspect(opts)}"}
+    do:
+      {:error,
+       "invalid options given to #{where}: expected a keyword list, got: #{inspect(opts)}"}
 
   @doc "Like `validate/3` but raises `ArgumentError`."
   @spec validate!(keyword(), schema(), String.t()) :: keyword()
@@ -74,7 +82,11 @@ defmodule Tartarus.Options do
   @spec docs(schema()) :: String.t()
   def docs(schema) do
     Enum.map_join(schema, "\n", fn {key, spec} ->
-      default = if Keyword.has_key?(spec, :default), do: " Defaults to `#{inspect(spec[:default])}`.", else: ""
+      default =
+        if Keyword.has_key?(spec, :default),
+          do: " Defaults to `#{inspect(spec[:default])}`.",
+          else: ""
+
       required = if spec[:required], do: " Required.", else: ""
       "  * `#{inspect(key)}` - #{spec[:doc]}#{required}#{default}"
     end)
@@ -82,8 +94,12 @@ defmodule Tartarus.Options do
 
   defp check_unknown(opts, known, where) do
     case Enum.find(Keyword.keys(opts), &(&1 not in known)) do
-      nil -> :ok
-      key -> {:error, "invalid options given to #{where}: unknown key #{inspect(key)}, known keys: #{inspect(known)}"}
+      nil ->
+        :ok
+
+      key ->
+        {:error,
+         "invalid options given to #{where}: unknown key #{inspect(key)}, known keys: #{inspect(known)}"}
     end
   end
 

@@ -92,7 +92,8 @@ defmodule Tartarus.Peer do
   end
 
   @doc "Starts `n` peers named `prefix1..prefixN`; stops them all if one fails."
-  @spec start_many(String.t(), pos_integer(), keyword()) :: {:ok, [{peer(), node()}]} | {:error, term()}
+  @spec start_many(String.t(), pos_integer(), keyword()) ::
+          {:ok, [{peer(), node()}]} | {:error, term()}
   def start_many(prefix, n, opts \\ []) do
     tag = System.unique_integer([:positive])
 

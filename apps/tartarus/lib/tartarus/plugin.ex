@@ -40,7 +40,8 @@ defmodule Tartarus.Plugin do
   @callback describe(state :: term()) :: description()
 
   @doc "Senses: reads a value."
-  @callback read(args :: term(), state :: term()) :: {:ok, term(), term()} | {:error, term(), term()}
+  @callback read(args :: term(), state :: term()) ::
+              {:ok, term(), term()} | {:error, term(), term()}
 
   @doc "Actuates: writes a value."
   @callback write(args :: term(), state :: term()) :: {:ok, term()} | {:error, term(), term()}
@@ -55,7 +56,11 @@ defmodule Tartarus.Plugin do
 
   @doc false
   def child_spec({host_name, name, module, opts}) do
-    %{id: {:plugin, name}, start: {__MODULE__, :start_link, [{host_name, name, module, opts}]}, restart: :transient}
+    %{
+      id: {:plugin, name},
+      start: {__MODULE__, :start_link, [{host_name, name, module, opts}]},
+      restart: :transient
+    }
   end
 
   @doc false

@@ -43,7 +43,8 @@ defmodule Tartarus.Strategy do
       iex> dest
       {:c, :n}
   """
-  @spec choose(t(), info(), :rand.state()) :: {:ok, Tartarus.host(), :rand.state()} | {:error, term()}
+  @spec choose(t(), info(), :rand.state()) ::
+          {:ok, Tartarus.host(), :rand.state()} | {:error, term()}
   def choose(_strategy, %{neighbours: []}, _rng), do: {:error, :no_neighbours}
 
   def choose(:random, %{neighbours: ns}, rng) do
@@ -60,7 +61,9 @@ defmodule Tartarus.Strategy do
   def choose({:gradient, signal}, %{neighbours: ns} = info, rng) do
     strengths = info |> Map.get(:gradients, %{}) |> Map.get(signal, %{})
 
-    case ns |> Enum.filter(&Map.has_key?(strengths, &1)) |> Enum.max_by(&strengths[&1], fn -> nil end) do
+    case ns
+         |> Enum.filter(&Map.has_key?(strengths, &1))
+         |> Enum.max_by(&strengths[&1], fn -> nil end) do
       nil -> choose(:conscientious, info, rng)
       dest -> {:ok, dest, rng}
     end

@@ -22,7 +22,7 @@ defmodule TartarusLats.MotionVectors do
   |----------------------------------------------|------------------------|
   | `{:entered_zone, tag, t}`                    | this node's tracker    |
   | `{:left_zone, tag, t}`                       | this node's tracker    |
-  | `{:leaving, tag, px, t_left}`                | neighbour `px`         |
+  | `{:leaving, tag, px, t_left, px_arrived}`    | neighbour `px`         |
   | `{:ack, tag, py, t_left, t_arrived}`         | neighbour `py`         |
   | `:tick`                                      | a 1 s timer            |
 
@@ -32,11 +32,18 @@ defmodule TartarusLats.MotionVectors do
   ## The handshake
 
   When the tag goes far -> beyond at `px` (`:left_zone`), `px` marks MVF
-  `{px, :pending}` and broadcasts `{:leaving, tag, px, t_left}`. A neighbour
-  `py` that has the tag in its zone (now, or within `timeout` seconds of the
-  notice, because zones overlap and either node may notice first) sets
+  `{px, :pending}` and broadcasts `{:leaving, tag, px, t_left, px_arrived}`
+  (`px_arrived`: when this stay at `px` began). A neighbour `py` that has
+  the tag in its zone (now, or within `timeout` seconds of the notice,
+  because zones overlap and either node may notice first) sets
   MVB = `{px, py}`, MVF = `{py, py}` and answers
   `{:ack, tag, py, t_left, t_arrived}`; `px` then sets MVF = `{px, py}`.
+
+  A neighbour only acknowledges a stay that began *after* `px_arrived`: if
+  `py` has had the tag since before `px` saw it, `px`'s stay was an overlap
+  (or noise) inside `py`'s stay, not a move to `py`, and `py` stays silent.
+  When several notices wait for the same tag, the latest departure (then
+  the latest stay) is taken as the origin.
 
   Timeouts (default 15 s, option `:timeout`), checked on `:tick`:
 
@@ -62,10 +69,10 @@ defmodule TartarusLats.MotionVectors do
   origin is still `:pending` (the tag passed through this zone faster than
   the previous zone noticed it leaving).
 
-  Ghosts: noise can make a node see a tag that never left its neighbour's
-  zone. When a stay whose origin is unknown ends and the neighbour that
-  acknowledges had the tag since *before* the stay began, the stay was not
-  a move and is forgotten (the tracker's records still show it).
+  Known limit: noise can make a node see a tag for a few seconds that never
+  left a neighbour's zone (a "ghost" stay). Nobody acknowledges it, so it
+  reads as entered from and left to INFINITY; it does not break the chain
+  of the real stays, but a trace *started* at that node begins there.
 
   ## History
 
@@ -124,7 +131,7 @@ defmodule TartarusLats.MotionVectors do
 
   @typedoc "Handshake messages between neighbouring nodes."
   @type message ::
-          {:leaving, Beacon.tag_id(), node_name(), number()}
+          {:leaving, Beacon.tag_id(), node_name(), number(), number()}
           | {:ack, Beacon.tag_id(), node_name(), number(), number()}
 
   @type event ::
@@ -139,7 +146,7 @@ defmodule TartarusLats.MotionVectors do
           node: node_name(),
           timeout: pos_integer(),
           tags: %{Beacon.tag_id() => [segment()]},
-          notices: %{Beacon.tag_id() => [{node_name(), number(), number()}]},
+          notices: %{Beacon.tag_id() => [{node_name(), number(), number(), number()}]},
           waiting: %{{Beacon.tag_id(), :arrival | :departure, number()} => number()}
         }
 
@@ -202,7 +209,7 @@ defmodule TartarusLats.MotionVectors do
 
       list ->
         case take_notice(mv, tag) do
-          {{px, t_left, _received}, mv} ->
+          {{px, t_left}, mv} ->
             mv = put_segments(mv, tag, [new_segment(t, px, t_left) | list])
             {mv, [{:send, px, {:ack, tag, here, t_left, t}}]}
 
@@ -225,31 +232,37 @@ defmodule TartarusLats.MotionVectors do
           |> put_segments(tag, [%{stay | left_at: t, to: :pending} | rest])
           |> wait({tag, :departure, t}, t + mv.timeout)
 
-        {mv, [{:broadcast, {:leaving, tag, mv.node, t}}]}
+        {mv, [{:broadcast, {:leaving, tag, mv.node, t, stay.arrived_at}}]}
 
       _ ->
         {mv, []}
     end
   end
 
-  defp do_handle(mv, now, {:leaving, tag, px, t_left}) do
+  defp do_handle(mv, now, {:leaving, tag, px, t_left, px_arrived}) do
     case segments(mv, tag) do
-      [%{to: nil} = stay | rest] ->
+      [%{to: nil, arrived_at: arrived} = stay | rest] when arrived > px_arrived ->
         mv =
           if stay.from in [:pending, :infinity],
             do: link_from(mv, tag, stay, rest, px, t_left),
             else: mv
 
-        {mv, [{:send, px, {:ack, tag, mv.node, t_left, stay.arrived_at}}]}
+        {mv, [{:send, px, {:ack, tag, mv.node, t_left, arrived}}]}
 
-      [%{from: :pending} = stay | rest] ->
-        # The tag passed through faster than the notice: still our origin.
+      [%{to: nil} | _] ->
+        # We had the tag before px did and still have it: px's stay was an
+        # overlap (or a ghost) inside ours, not a move to us.
+        {mv, []}
+
+      [%{from: :pending, to: to, arrived_at: arrived} = stay | rest]
+      when arrived > px_arrived and to != px ->
+        # The tag passed through here faster than px noticed it leaving.
         mv = link_from(mv, tag, stay, rest, px, t_left)
-        {mv, [{:send, px, {:ack, tag, mv.node, t_left, stay.arrived_at}}]}
+        {mv, [{:send, px, {:ack, tag, mv.node, t_left, arrived}}]}
 
       _ ->
-        notices = Map.update(mv.notices, tag, [{px, t_left, now}], &[{px, t_left, now} | &1])
-        {%{mv | notices: notices}, []}
+        notice = {px, t_left, px_arrived, now}
+        {%{mv | notices: Map.update(mv.notices, tag, [notice], &[notice | &1])}, []}
     end
   end
 
@@ -257,18 +270,6 @@ defmodule TartarusLats.MotionVectors do
     list = segments(mv, tag)
 
     case Enum.split_while(list, &(&1.left_at != t_left)) do
-      {before, [%{from: from, arrived_at: arrived} | rest]}
-      when from in [:pending, :infinity] and t_arrived < arrived ->
-        # A ghost: the neighbour had the tag since before we noticed it and
-        # still has it, so the tag never came here. Forget this stay.
-        mv =
-          mv
-          |> put_segments(tag, before ++ rest)
-          |> unwait({tag, :departure, t_left})
-          |> unwait({tag, :arrival, arrived})
-
-        {mv, []}
-
       {before, [%{to: to} = stay | rest]} when to in [:pending, :infinity] ->
         stay = %{stay | to: py, to_arrived_at: t_arrived}
 
@@ -296,7 +297,7 @@ defmodule TartarusLats.MotionVectors do
 
     notices =
       for {tag, list} <- mv.notices,
-          kept = Enum.filter(list, fn {_, _, received} -> now - received < mv.timeout end),
+          kept = Enum.filter(list, fn {_, _, _, received} -> now - received < mv.timeout end),
           kept != [],
           into: %{},
           do: {tag, kept}
@@ -345,8 +346,14 @@ defmodule TartarusLats.MotionVectors do
 
   defp take_notice(mv, tag) do
     case Map.pop(mv.notices, tag) do
-      {[newest | _], notices} -> {newest, %{mv | notices: notices}}
-      {nil, _} -> {nil, mv}
+      {[_ | _] = list, notices} ->
+        {px, t_left, _, _} =
+          Enum.max_by(list, fn {_, t_left, arrived, _} -> {t_left, arrived} end)
+
+        {{px, t_left}, %{mv | notices: notices}}
+
+      {nil, _} ->
+        {nil, mv}
     end
   end
 

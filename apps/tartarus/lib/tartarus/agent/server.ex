@@ -42,7 +42,13 @@ defmodule Tartarus.Agent.Server do
   def init({host, env, {:paused, mig, src, src_pid, kind}}) do
     Process.put(@host, host)
     timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
-    {:ok, %{host: host, env: env, paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer}}}
+
+    {:ok,
+     %{
+       host: host,
+       env: env,
+       paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer}
+     }}
   end
 
   def init({host, env, {:restart, n}}) do
@@ -65,7 +71,8 @@ defmodule Tartarus.Agent.Server do
   # -- commit (destination side) -------------------------------------------------------
 
   @impl true
-  def handle_info({:"$tartarus_commit", mig}, %{paused: %{mig: mig}} = data), do: commit(data)
+  def handle_info({:"$tartarus_commit", mig, notify}, %{paused: %{mig: mig}} = data),
+    do: commit(data, notify)
 
   def handle_info({:commit_timeout, mig}, %{paused: %{mig: mig} = p} = data) do
     send(p.src_pid, {:"$tartarus_decision?", mig, self()})
@@ -75,7 +82,7 @@ defmodule Tartarus.Agent.Server do
   def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig} = p} = data) do
     case decision do
       :committed ->
-        commit(data)
+        commit(data, nil)
 
       :aborted ->
         {:stop, {:shutdown, :aborted}, data}
@@ -95,12 +102,24 @@ defmodule Tartarus.Agent.Server do
   def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
     send(pid, {ref, :delivered})
     bytes = :erlang.external_size(msg)
-    emit(data, %{type: :message, agent: data.env.id, bytes: bytes}, messages: 1, message_bytes: bytes)
+
+    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
+      messages: 1,
+      message_bytes: bytes
+    )
+
     from = if kind == :request, do: {pid, ref}
     run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
   end
 
-  def handle_info(msg, data) when is_tuple(msg) and elem(msg, 0) in [:"$tartarus_prepared", :"$tartarus_need", :"$tartarus_refused", :"$tartarus_decision"] do
+  def handle_info(msg, data)
+      when is_tuple(msg) and
+             elem(msg, 0) in [
+               :"$tartarus_prepared",
+               :"$tartarus_need",
+               :"$tartarus_refused",
+               :"$tartarus_decision"
+             ] do
     # A late reply to a hand-off this agent already gave up on.
     {:noreply, data}
   end
@@ -128,9 +147,9 @@ defmodule Tartarus.Agent.Server do
   end
 
   def handle_call({:move, dest}, from, data) do
-    case attempt(data, :move, dest) do
+    # The destination answers the caller once the agent runs there.
+    case attempt(data, :move, dest, from) do
       {:moved, data} ->
-        GenServer.reply(from, :ok)
         {:stop, {:shutdown, :migrated}, data}
 
       {:failed, reason, data} ->
@@ -139,9 +158,10 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  def handle_call({:clone, dest}, _from, data) do
-    case attempt(data, :clone, dest) do
-      {:cloned, clone_id, data} -> {:reply, {:ok, clone_id}, data}
+  def handle_call({:clone, dest}, from, data) do
+    # The clone answers the caller once it runs.
+    case attempt(data, :clone, dest, from) do
+      {:cloned, _clone_id, data} -> {:noreply, data}
       {:failed, reason, data} -> {:reply, {:error, reason}, data}
     end
   end
@@ -191,12 +211,15 @@ defmodule Tartarus.Agent.Server do
 
   defp failed(data, dest, reason) do
     emit(data, %{type: :move_failed, agent: data.env.id, to: dest, reason: reason}, move_failed: 1)
-    run(data, fn -> data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state) end)
+
+    run(data, fn ->
+      data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state)
+    end)
   end
 
   # -- hand-off (source side) ------------------------------------------------------
 
-  defp attempt(data, kind, dest_spec) do
+  defp attempt(data, kind, dest_spec, notify \\ nil) do
     env = data.env
 
     with :ok <- movable(env, kind),
@@ -206,7 +229,7 @@ defmodule Tartarus.Agent.Server do
          {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
          {:ok, dest_pid} <- Tartarus.Host.whereis(dest),
          {:ok, data} <- link_loss(data, dest) do
-      handoff(data, kind, dest, dest_pid, manifest)
+      handoff(data, kind, dest, dest_pid, manifest, notify)
     else
       {:error, reason} -> {:failed, reason, data}
       {:error, reason, data} -> {:failed, reason, data}
@@ -230,8 +253,11 @@ defmodule Tartarus.Agent.Server do
       rng = :rand.seed_s(data.env.rng)
 
       case Strategy.choose(spec, info, rng) do
-        {:ok, dest, rng} -> {:ok, dest, %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}}
-        {:error, reason} -> {:error, reason}
+        {:ok, dest, rng} ->
+          {:ok, dest, %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}}
+
+        {:error, reason} ->
+          {:error, reason}
       end
     else
       if Tartarus.Host.address?(spec),
@@ -279,7 +305,7 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  defp handoff(data, kind, dest, dest_pid, manifest) do
+  defp handoff(data, kind, dest, dest_pid, manifest, notify) do
     host = data.host
     mig = Envelope.new_id()
     out = outgoing(data.env, kind, host.ref)
@@ -297,16 +323,27 @@ defmodule Tartarus.Agent.Server do
         if kind == :move do
           Ledger.depart(host, data.env.id, data.env.name, dest)
 
-          emit(data, %{type: :departure, agent: data.env.id, to: dest, bytes: bytes, code_bytes: code_bytes},
+          emit(
+            data,
+            %{
+              type: :departure,
+              agent: data.env.id,
+              to: dest,
+              bytes: bytes,
+              code_bytes: code_bytes
+            },
             departures: 1,
             bytes: bytes + code_bytes,
             code_bytes: code_bytes
           )
         else
-          emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: dest, bytes: bytes}, clones: 1, bytes: bytes + code_bytes)
+          emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: dest, bytes: bytes},
+            clones: 1,
+            bytes: bytes + code_bytes
+          )
         end
 
-        send(new_pid, {:"$tartarus_commit", mig})
+        send(new_pid, {:"$tartarus_commit", mig, notify})
         if kind == :move, do: {:moved, data}, else: {:cloned, out.id, data}
 
       {:error, reason} ->
@@ -379,7 +416,7 @@ defmodule Tartarus.Agent.Server do
 
   # -- arrival (destination side) ----------------------------------------------------
 
-  defp commit(%{paused: p} = data) do
+  defp commit(%{paused: p} = data, notify) do
     Process.cancel_timer(p.timer)
     host = data.host
     now = System.system_time(:microsecond)
@@ -398,9 +435,12 @@ defmodule Tartarus.Agent.Server do
     case Ledger.register_resident(host, env, self()) do
       :ok ->
         send(p.src_pid, {:"$tartarus_ack", p.mig})
+        if notify, do: GenServer.reply(notify, if(p.kind == :move, do: :ok, else: {:ok, env.id}))
         Ledger.record_hop(host, hop_us)
 
-        emit(data, %{type: :arrival, agent: env.id, from: p.src, hop_us: hop_us, hops: hops}, arrivals: 1)
+        emit(data, %{type: :arrival, agent: env.id, from: p.src, hop_us: hop_us, hops: hops},
+          arrivals: 1
+        )
 
         ctx = ctx(data)
         run(data, fn -> env.module.handle_arrival(ctx, env.state) end)
@@ -413,7 +453,13 @@ defmodule Tartarus.Agent.Server do
   # -- helpers ---------------------------------------------------------------------
 
   defp ctx(data) do
-    %{host: data.host.ref, from: data.env.from, hops: data.env.hops, clone_of: data.env.clone_of, restarts: 0}
+    %{
+      host: data.host.ref,
+      from: data.env.from,
+      hops: data.env.hops,
+      clone_of: data.env.clone_of,
+      restarts: 0
+    }
   end
 
   defp put_state(data, s), do: %{data | env: %{data.env | state: s}}

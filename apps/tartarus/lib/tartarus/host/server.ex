@@ -12,7 +12,8 @@ defmodule Tartarus.Host.Server do
   #   H -> S  {:"$tartarus_need", mig, [module]}            modules H lacks; S resends with code
   #   H -> S  {:"$tartarus_prepared", mig, a_pid}           A exists, paused
   #   H -> S  {:"$tartarus_refused", mig, reason}           nothing was created
-  #   S -> A  {:"$tartarus_commit", mig}                    A becomes the agent
+  #   S -> A  {:"$tartarus_commit", mig, notify}            A becomes the agent (and answers
+  #                                                         `notify`, a GenServer from, if set)
   #   A -> Hs {:"$tartarus_ack", mig}                       source host forgets the decision
   #   A -> Hs {:"$tartarus_decision?", mig, a_pid}          A timed out waiting for commit
   #   Hs -> A {:"$tartarus_decision", mig, :committed | :aborted | :unknown}
@@ -34,8 +35,13 @@ defmodule Tartarus.Host.Server do
   @impl true
   def init({name, opts}) do
     Process.flag(:trap_exit, true)
-    ledger = :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
-    store = :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
+
+    ledger =
+      :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
+
+    store =
+      :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
+
     :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
 
@@ -85,7 +91,14 @@ defmodule Tartarus.Host.Server do
     case Tartarus.Ledger.locate(state.host, agent) do
       {:here, pid, id} ->
         state = %{state | killing: MapSet.put(state.killing, pid)}
-        DynamicSupervisor.terminate_child(Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0)), pid)
+
+        DynamicSupervisor.terminate_child(
+          Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0)),
+          pid
+        )
+
+        # Gone from the ledger before the caller hears back.
+        Tartarus.Ledger.forget_resident(state.host, pid)
         {:reply, {:killed, id}, state}
 
       other ->
@@ -96,7 +109,10 @@ defmodule Tartarus.Host.Server do
   def handle_call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
 
   @impl true
-  def handle_info({:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}, state) do
+  def handle_info(
+        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
+        state
+      ) do
     case prepare(state, env, manifest, code) do
       :ok ->
         case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
@@ -169,7 +185,9 @@ defmodule Tartarus.Host.Server do
     send(s_pid, {:"$tartarus_refused", mig, reason})
     agent = if is_struct(env, Envelope), do: env.id
 
-    Events.emit(state.host.ledger, %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
+    Events.emit(
+      state.host.ledger,
+      %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
       refused: 1
     )
 
@@ -219,7 +237,9 @@ defmodule Tartarus.Host.Server do
       entry.restarts < host.opts.max_restarts ->
         n = entry.restarts + 1
 
-        Events.emit(host.ledger, %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
+        Events.emit(
+          host.ledger,
+          %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
           crashes: 1
         )
 
@@ -229,7 +249,15 @@ defmodule Tartarus.Host.Server do
         end
 
       true ->
-        Events.emit(host.ledger, %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: entry.restarts},
+        Events.emit(
+          host.ledger,
+          %{
+            type: :crash,
+            host: host.ref,
+            agent: entry.id,
+            reason: reason,
+            restarts: entry.restarts
+          },
           crashes: 1
         )
 
@@ -238,7 +266,9 @@ defmodule Tartarus.Host.Server do
   end
 
   defp removed(state, entry, reason) do
-    Events.emit(state.host.ledger, %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
+    Events.emit(
+      state.host.ledger,
+      %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
       removed: 1
     )
 

@@ -19,12 +19,14 @@ defmodule Tartarus.Host.Supervisor do
       {Tartarus.Host.Server, {name, opts}},
       %{
         id: :agents,
-        start: {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:agents, name)]]},
+        start:
+          {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:agents, name)]]},
         type: :supervisor
       },
       %{
         id: :plugins,
-        start: {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:plugins, name)]]},
+        start:
+          {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:plugins, name)]]},
         type: :supervisor
       }
     ]

@@ -25,13 +25,20 @@ defmodule Tartarus.Plugin.SimSensor do
         {:ok, %{signal: List.to_tuple(signal), i: 0, unit: Keyword.get(opts, :unit, "unit")}}
 
       other ->
-        {:error, {:bad_option, :signal, "expected a non-empty list of readings, got: #{inspect(other)}"}}
+        {:error,
+         {:bad_option, :signal, "expected a non-empty list of readings, got: #{inspect(other)}"}}
     end
   end
 
   @impl true
   def describe(s) do
-    %{kind: :sensor, unit: s.unit, reads: [:value, :peek], writes: [:script, :reset], events: [:reading]}
+    %{
+      kind: :sensor,
+      unit: s.unit,
+      reads: [:value, :peek],
+      writes: [:script, :reset],
+      events: [:reading]
+    }
   end
 
   @impl true
