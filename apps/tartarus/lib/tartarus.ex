@@ -522,9 +522,9 @@ defmodule Tartarus do
   end
 
   defp normalize(id) when is_binary(id) do
-    case Registry.lookup(Tartarus.AgentRegistry, id) do
-      [{_pid, {host_name, _, _}}] -> {:ok, {id, Host.address(host_name)}}
-      [] -> {:error, :not_found}
+    case Tartarus.AgentTable.lookup(id) do
+      {:ok, _pid, host_name} -> {:ok, {id, Host.address(host_name)}}
+      :error -> {:error, :not_found}
     end
   end
 
@@ -563,7 +563,7 @@ defmodule Tartarus do
         resident: Ledger.counter(h, :resident),
         visits: Ledger.counter(h, :visits),
         neighbours: Ledger.neighbours(h),
-        counts: Tartarus.Events.host_counts(h.ledger),
+        counts: Tartarus.Events.host_counts(h),
         hops: hop_summary(Ledger.hop_times(h)),
         forwarding_pointers: length(Ledger.forwarding_pointers(h)),
         plugins: Tartarus.Plugin.list(elem(h.ref, 0))
@@ -579,6 +579,9 @@ defmodule Tartarus do
   """
   @spec hop_stats(host_ref()) :: map() | {:error, term()}
   def hop_stats(host), do: on_node(host, :local_hop_stats, [])
+
+  @doc false
+  def local_hop_times(host), do: with({:ok, h} <- Host.local(host), do: Ledger.hop_times(h))
 
   @doc false
   def local_hop_stats(host),

@@ -11,8 +11,7 @@ defmodule Tartarus.Application do
 
     children = [
       {Registry, keys: :unique, name: Tartarus.HostRegistry},
-      {Registry,
-       keys: :unique, name: Tartarus.AgentRegistry, partitions: System.schedulers_online()},
+      Tartarus.AgentTable,
       {Registry, keys: :duplicate, name: Tartarus.Events.Registry},
       Tartarus.CodeCache,
       Tartarus.Host.Directory,

@@ -180,7 +180,6 @@ defmodule Tartarus.CodeCache do
   # A loaded module may be replaced only if no live agent of this node runs it and no process
   # still runs its old code (so loading cannot kill anybody).
   defp replaceable?(mod) do
-    spec = [{{:_, :_, {:_, :_, :"$1"}}, [{:==, :"$1", mod}], [true]}]
-    Registry.select(Tartarus.AgentRegistry, spec) == [] and :code.soft_purge(mod)
+    not Tartarus.AgentTable.running?(mod) and :code.soft_purge(mod)
   end
 end

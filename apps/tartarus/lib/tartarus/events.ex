@@ -85,6 +85,11 @@ defmodule Tartarus.Events do
   @spec subscribe() :: :ok
   def subscribe do
     {:ok, _} = Registry.register(Tartarus.Events.Registry, :events, nil)
+    # Emitters look for subscribers only once somebody has subscribed (a persistent_term
+    # flag: free to read, written once).
+    unless :persistent_term.get({__MODULE__, :subscribed}, false),
+      do: :persistent_term.put({__MODULE__, :subscribed}, true)
+
     :ok
   end
 
@@ -107,37 +112,41 @@ defmodule Tartarus.Events do
   end
 
   @doc false
-  # Counts `amounts` (a keyword list of counter => increment) for `ledger` (a host's table)
-  # and node-wide, and hands the event to subscribers if there are any.
-  @spec emit(:ets.tid() | nil, map(), keyword()) :: :ok
-  def emit(ledger, event, amounts) do
+  # Counts `amounts` (a keyword list of counter => increment) for `host` (a host's info map,
+  # or nil) and node-wide, and hands the event to subscribers if there are any.
+  @spec emit(map() | nil, map(), keyword()) :: :ok
+  def emit(host, event, amounts) do
     ref = counters()
 
     Enum.each(amounts, fn {name, n} ->
-      :counters.add(ref, Map.fetch!(@index, name), n)
-      if ledger, do: :ets.update_counter(ledger, {:count, name}, n, {{:count, name}, 0})
+      i = Map.fetch!(@index, name)
+      :counters.add(ref, i, n)
+      if host, do: :counters.add(host.counters, i, n)
     end)
 
-    case Registry.lookup(Tartarus.Events.Registry, :events) do
-      [] ->
-        :ok
+    if :persistent_term.get({__MODULE__, :subscribed}, false) do
+      case Registry.lookup(Tartarus.Events.Registry, :events) do
+        [] ->
+          :ok
 
-      subscribers ->
-        event = Map.put_new(event, :time, System.system_time(:microsecond))
-        Enum.each(subscribers, fn {pid, _} -> send(pid, {:tartarus_event, event}) end)
+        subscribers ->
+          event = Map.put_new(event, :time, System.system_time(:microsecond))
+          Enum.each(subscribers, fn {pid, _} -> send(pid, {:tartarus_event, event}) end)
+      end
     end
+
+    :ok
   end
 
   @doc false
-  # Per-host counts read from a ledger table.
-  @spec host_counts(:ets.tid()) :: %{counter() => non_neg_integer()}
-  def host_counts(ledger) do
-    Map.new(@counter_names, fn name ->
-      case :ets.lookup(ledger, {:count, name}) do
-        [{_, n}] -> {name, n}
-        [] -> {name, 0}
-      end
-    end)
+  # A fresh counter array for one host.
+  def new_counters, do: :counters.new(map_size(@index), [:write_concurrency])
+
+  @doc false
+  # Per-host counts.
+  @spec host_counts(map()) :: %{counter() => non_neg_integer()}
+  def host_counts(%{counters: ref}) do
+    Map.new(@index, fn {name, i} -> {name, :counters.get(ref, i)} end)
   end
 
   defp counters, do: :persistent_term.get({__MODULE__, :counters})

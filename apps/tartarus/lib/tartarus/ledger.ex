@@ -8,9 +8,11 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id | name}           {_, dest_host, at_us}      forwarding pointer
+  #   {:fwd, id | name}           {_, dest_host, at_us, mig} forwarding pointer (and the
+  #                                                          record of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress
-  #   {:decision, mig}            {_, :committed | :aborted}
+  #   {:decision, mig}            {_, :committed | :aborted} (committed: only until the
+  #                                                          forwarding pointer is written)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
 
@@ -33,8 +35,8 @@ defmodule Tartarus.Ledger do
   def register_resident(host, env, pid) do
     {name, _node} = host.ref
 
-    case Registry.register(Tartarus.AgentRegistry, env.id, {name, env.name, env.module}) do
-      {:ok, _} ->
+    case Tartarus.AgentTable.register(env.id, pid, name, env.name, env.module) do
+      :ok ->
         :ets.insert(host.ledger, {{:agent, pid}, env.id, env.name, env.module})
         :ets.delete(host.ledger, {:fwd, env.id})
         if env.name, do: :ets.delete(host.ledger, {:fwd, env.name})
@@ -42,14 +44,15 @@ defmodule Tartarus.Ledger do
         :ets.update_counter(host.ledger, :visits, 1)
         :ok
 
-      {:error, {:already_registered, other}} ->
-        {:error, {:duplicate_agent, env.id, other}}
+      {:error, _} = error ->
+        error
     end
   end
 
   def forget_resident(host, pid) do
     case :ets.take(host.ledger, {:agent, pid}) do
-      [_] ->
+      [{_, id, _, _}] ->
+        Tartarus.AgentTable.unregister(id, pid)
         :ets.update_counter(host.ledger, :resident, -1)
         true
 
@@ -64,13 +67,30 @@ defmodule Tartarus.Ledger do
   # The source agent's decision. Returns false if the migration was decided otherwise.
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
-  def depart(host, id, name, dest) do
+  # The agent committed migration `mig` to `dest`: leave a forwarding pointer (which also
+  # records the commit for a destination that asks, see decision/3) and stop being resident.
+  def depart(host, id, name, dest, mig) do
     now = System.system_time(:microsecond)
-    :ets.insert(host.ledger, {{:fwd, id}, dest, now})
-    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now})
-    Registry.unregister(Tartarus.AgentRegistry, id)
+    :ets.insert(host.ledger, {{:fwd, id}, dest, now, mig})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, mig})
     forget_resident(host, self())
     end_handoff(host, id)
+    # The forwarding pointer now stands for the decision.
+    :ets.delete(host.ledger, {:decision, mig})
+  end
+
+  # The outcome of migration `mig` of agent `id` as this (source) host knows it.
+  def decision(host, mig, id) do
+    case :ets.lookup(host.ledger, {:decision, mig}) do
+      [{_, d}] ->
+        d
+
+      [] ->
+        case :ets.lookup(host.ledger, {:fwd, id}) do
+          [{_, _dest, _at, ^mig}] -> :committed
+          _ -> :unknown
+        end
+    end
   end
 
   # After a crash of agent `id`: abort its pending hand-off if there is one. True if the agent
@@ -109,7 +129,7 @@ defmodule Tartarus.Ledger do
   end
 
   def forwarding_pointers(%{ledger: l}) do
-    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_}, [], [{{:"$1", :"$2"}}]}])
+    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :_}, [], [{{:"$1", :"$2"}}]}])
     |> Enum.filter(fn {key, _} -> is_binary(key) and byte_size(key) == 16 end)
   end
 
@@ -117,19 +137,15 @@ defmodule Tartarus.Ledger do
   def locate(host, agent) do
     {name, _} = host.ref
 
-    # The registry drops a dead agent's entry asynchronously: check it is alive.
-    case Registry.lookup(Tartarus.AgentRegistry, agent) do
-      [{pid, {^name, _, _}}] when node(pid) == node() ->
-        if Process.alive?(pid), do: {:here, pid, agent}, else: locate_elsewhere(host, agent)
-
-      _ ->
-        locate_elsewhere(host, agent)
+    case Tartarus.AgentTable.lookup(agent) do
+      {:ok, pid, ^name} -> {:here, pid, agent}
+      _ -> locate_elsewhere(host, agent)
     end
   end
 
   defp locate_elsewhere(host, agent) do
     case :ets.lookup(host.ledger, {:fwd, agent}) do
-      [{_, dest, _}] -> {:moved, dest}
+      [{_, dest, _, _}] -> {:moved, dest}
       [] -> locate_by_name(host, agent)
     end
   end

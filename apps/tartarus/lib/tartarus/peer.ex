@@ -30,7 +30,7 @@ defmodule Tartarus.Peer do
     if Node.alive?() do
       :ok
     else
-      _ = System.cmd("epmd", ["-daemon"], stderr_to_stdout: true)
+      :ok = start_epmd()
       name = :"#{prefix}_#{System.unique_integer([:positive])}_#{:os.getpid()}"
 
       case Node.start(name, :shortnames) do
@@ -49,15 +49,23 @@ defmodule Tartarus.Peer do
     * `:args` - extra command-line arguments (strings) for the peer's `erl`;
     * `:apps` - applications to start on the peer (default `[:tartarus]`);
     * `:log_level` - the peer's Logger level (default `:warning`);
+    * `:busy_wait` - let the peer's schedulers busy-wait (default `false`: nodes sharing
+      a machine's cores would otherwise steal each other's CPU);
     * `:connection` - `:standard_io` to control the peer without distribution (default:
       distribution).
   """
   @spec start(atom(), keyword()) :: {:ok, peer(), node()} | {:error, term()}
   def start(name, opts \\ []) do
-    with :ok <- ensure_distributed() do
+    # Over :standard_io the origin controls the peer without distribution (so the peers
+    # may use a distribution the origin does not speak, e.g. TLS); they still need epmd.
+    standard_io? = Keyword.get(opts, :connection) == :standard_io
+
+    with :ok <- if(standard_io?, do: start_epmd(), else: ensure_distributed()) do
+      cookie = if standard_io?, do: [], else: ["-setcookie", Atom.to_string(Node.get_cookie())]
+
       args =
-        ["-connect_all", "false", "-setcookie", Atom.to_string(Node.get_cookie())] ++
-          code_path_args() ++ Keyword.get(opts, :args, [])
+        ["-connect_all", "false"] ++
+          cookie ++ scheduler_args(opts) ++ code_path_args() ++ Keyword.get(opts, :args, [])
 
       spec = %{name: name, args: Enum.map(args, &String.to_charlist/1), wait_boot: 60_000}
 
@@ -88,6 +96,17 @@ defmodule Tartarus.Peer do
         {:error, reason} ->
           {:error, reason}
       end
+    end
+  end
+
+  defp start_epmd do
+    case System.find_executable("epmd") do
+      nil ->
+        {:error, :epmd_not_found}
+
+      epmd ->
+        _ = System.cmd(epmd, ["-daemon"], stderr_to_stdout: true)
+        :ok
     end
   end
 
@@ -134,6 +153,14 @@ defmodule Tartarus.Peer do
         error -> {:halt, error}
       end
     end)
+  end
+
+  # Several BEAM nodes share this machine's cores: schedulers that busy-wait for work would
+  # steal the CPU the other nodes need, so peers do not busy-wait unless asked to.
+  defp scheduler_args(opts) do
+    if Keyword.get(opts, :busy_wait, false),
+      do: [],
+      else: ["+sbwt", "none", "+sbwtdcpu", "none", "+sbwtdio", "none"]
   end
 
   # This node's code path minus OTP's own libraries (the peer's erl finds those itself).

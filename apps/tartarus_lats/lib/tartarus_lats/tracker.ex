@@ -7,21 +7,24 @@ defmodule TartarusLats.Tracker do
   receiver reported or `:missing`; it filters, classifies and tells you what
   to store and whom to tell:
 
-      iex> t = TartarusLats.Tracker.new(window: 2)
+      iex> t = TartarusLats.Tracker.new(window: 2, median: 1)
       iex> tag = {"12121212b64445208f0c720eaf059935", 1234, 1111}
-      iex> {[], t} = TartarusLats.Tracker.observe(t, 100, tag, -60)
-      iex> {events, t} = TartarusLats.Tracker.observe(t, 101, tag, -60)
+      iex> {[], t} = TartarusLats.Tracker.observe(t, 100, tag, -70)
+      iex> {[], t} = TartarusLats.Tracker.observe(t, 101, tag, -70)
+      iex> {events, t} = TartarusLats.Tracker.observe(t, 102, tag, -70)
       iex> events
       [
-        {:record, %{time: 100, uuid: "12121212b64445208f0c720eaf059935", major: 1234, minor: 1111, rssi: -80, region: :far}},
-        {:entered_zone, tag, 100}
+        {:record, %{time: 101, uuid: "12121212b64445208f0c720eaf059935", major: 1234, minor: 1111, rssi: -70, region: :far}},
+        {:entered_zone, tag, 101}
       ]
       iex> TartarusLats.Tracker.region(t, tag)
       :far
 
-  (With a window of 2 the first average is (-100 + -60) / 2 = -80: a tag the
-  tracker has not heard starts with its filter full of the `:missing_rssi`
-  floor, see below.)
+  (A tag the tracker has not heard starts with its filter full of the
+  `:missing_rssi` floor, so with a window of 2 the first average is
+  (-100 + -70) / 2 = -85, beyond; the second, -70, is far, and the third
+  confirms it, dated from the second. `median: 1` turns the spike-rejecting
+  median off to keep the example short.)
 
   ## The exact rule
 

@@ -75,7 +75,7 @@ defmodule Tartarus.Agent.Server do
     do: commit(data, notify)
 
   def handle_info({:commit_timeout, mig}, %{paused: %{mig: mig} = p} = data) do
-    send(p.src_pid, {:"$tartarus_decision?", mig, self()})
+    send(p.src_pid, {:"$tartarus_decision?", mig, data.env.id, self()})
     {:noreply, data}
   end
 
@@ -307,21 +307,21 @@ defmodule Tartarus.Agent.Server do
 
   defp handoff(data, kind, dest, dest_pid, manifest, notify) do
     host = data.host
-    mig = Envelope.new_id()
+    mig = make_ref()
     out = outgoing(data.env, kind, host.ref)
     if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
-    mref = Process.monitor(dest_pid)
+    mref = watch(dest_pid)
     prepare = {:"$tartarus_prepare", self(), mig, host.ref, host.pid, kind, out, manifest}
     send(dest_pid, Tuple.append(prepare, []))
 
     case await_prepared(prepare, mig, mref, dest_pid, manifest, host.opts.migration_timeout, 0) do
       {:prepared, new_pid, code_bytes} ->
-        Process.demonitor(mref, [:flush])
+        unwatch(mref)
         true = Ledger.decide(host, mig, :committed)
         bytes = :erlang.external_size(out)
 
         if kind == :move do
-          Ledger.depart(host, data.env.id, data.env.name, dest)
+          Ledger.depart(host, data.env.id, data.env.name, dest, mig)
 
           emit(
             data,
@@ -344,10 +344,11 @@ defmodule Tartarus.Agent.Server do
         end
 
         send(new_pid, {:"$tartarus_commit", mig, notify})
+        # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
         if kind == :move, do: {:moved, data}, else: {:cloned, out.id, data}
 
       {:error, reason} ->
-        Process.demonitor(mref, [:flush])
+        unwatch(mref)
         # Abort: written before the agent goes on here, so a paused copy that asks learns it.
         Ledger.decide(host, mig, :aborted)
         if kind == :move, do: Ledger.end_handoff(host, data.env.id)
@@ -380,10 +381,35 @@ defmodule Tartarus.Agent.Server do
 
       {:DOWN, ^mref, :process, _, reason} ->
         {:error, {:host_down, reason}}
+
+      {:nodedown, node} when mref == {:node, node} ->
+        {:error, {:host_down, :noconnection}}
     after
       timeout -> {:error, :timeout}
     end
   end
+
+  # A local destination host is monitored; for a remote one the node is (a node monitor
+  # costs no messages on the wire, a remote process monitor two per hand-off). A host that
+  # dies while its node lives is caught by the timeout.
+  defp watch(pid) when node(pid) == node(), do: Process.monitor(pid)
+
+  defp watch(pid) do
+    Node.monitor(node(pid), true)
+    {:node, node(pid)}
+  end
+
+  defp unwatch({:node, node}) do
+    Node.monitor(node, false)
+
+    receive do
+      {:nodedown, ^node} -> :ok
+    after
+      0 -> :ok
+    end
+  end
+
+  defp unwatch(mref), do: Process.demonitor(mref, [:flush])
 
   defp binaries(manifest, mods) do
     Enum.reduce_while(mods, {:ok, []}, fn mod, {:ok, acc} ->
@@ -434,7 +460,6 @@ defmodule Tartarus.Agent.Server do
 
     case Ledger.register_resident(host, env, self()) do
       :ok ->
-        send(p.src_pid, {:"$tartarus_ack", p.mig})
         if notify, do: GenServer.reply(notify, if(p.kind == :move, do: :ok, else: {:ok, env.id}))
         Ledger.record_hop(host, hop_us)
 
@@ -506,6 +531,6 @@ defmodule Tartarus.Agent.Server do
   end
 
   defp emit(data, event, counts) do
-    Events.emit(data.host.ledger, Map.put(event, :host, data.host.ref), counts)
+    Events.emit(data.host, Map.put(event, :host, data.host.ref), counts)
   end
 end

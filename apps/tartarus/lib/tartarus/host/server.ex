@@ -14,14 +14,15 @@ defmodule Tartarus.Host.Server do
   #   H -> S  {:"$tartarus_refused", mig, reason}           nothing was created
   #   S -> A  {:"$tartarus_commit", mig, notify}            A becomes the agent (and answers
   #                                                         `notify`, a GenServer from, if set)
-  #   A -> Hs {:"$tartarus_ack", mig}                       source host forgets the decision
-  #   A -> Hs {:"$tartarus_decision?", mig, a_pid}          A timed out waiting for commit
+  #   A -> Hs {:"$tartarus_decision?", mig, id, a_pid}      A timed out waiting for commit
   #   Hs -> A {:"$tartarus_decision", mig, :committed | :aborted | :unknown}
   #
   # The decision is the entry {{:decision, mig}, :committed | :aborted} in the source host's
   # ledger, written once with :ets.insert_new/2 by the source agent (or by the source host
-  # when that agent crashed mid-hand-off). Neither side guesses: A waits for commit or for an
-  # answer from the source host, however long that takes.
+  # when that agent crashed mid-hand-off). Once a committed agent has left, its forwarding
+  # pointer (which names `mig`) stands for the decision, so no acknowledgement crosses the
+  # link. Neither side guesses: A waits for commit or for an answer from the source host,
+  # however long that takes.
   use GenServer
 
   alias Tartarus.{CodeCache, Envelope, Events}
@@ -50,6 +51,7 @@ defmodule Tartarus.Host.Server do
       pid: self(),
       ledger: ledger,
       store: store,
+      counters: Tartarus.Events.new_counters(),
       opts: Map.new(opts)
     }
 
@@ -133,19 +135,8 @@ defmodule Tartarus.Host.Server do
     end
   end
 
-  def handle_info({:"$tartarus_decision?", mig, a_pid}, state) do
-    decision =
-      case :ets.lookup(state.host.ledger, {:decision, mig}) do
-        [{_, d}] -> d
-        [] -> :unknown
-      end
-
-    send(a_pid, {:"$tartarus_decision", mig, decision})
-    {:noreply, state}
-  end
-
-  def handle_info({:"$tartarus_ack", mig}, state) do
-    :ets.delete(state.host.ledger, {:decision, mig})
+  def handle_info({:"$tartarus_decision?", mig, id, a_pid}, state) do
+    send(a_pid, {:"$tartarus_decision", mig, Tartarus.Ledger.decision(state.host, mig, id)})
     {:noreply, state}
   end
 
@@ -186,7 +177,7 @@ defmodule Tartarus.Host.Server do
     agent = if is_struct(env, Envelope), do: env.id
 
     Events.emit(
-      state.host.ledger,
+      state.host,
       %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
       refused: 1
     )
@@ -220,7 +211,7 @@ defmodule Tartarus.Host.Server do
 
     cond do
       killed? ->
-        Events.emit(host.ledger, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
+        Events.emit(host, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
         state
 
       normal_exit?(reason) ->
@@ -238,7 +229,7 @@ defmodule Tartarus.Host.Server do
         n = entry.restarts + 1
 
         Events.emit(
-          host.ledger,
+          host,
           %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
           crashes: 1
         )
@@ -250,7 +241,7 @@ defmodule Tartarus.Host.Server do
 
       true ->
         Events.emit(
-          host.ledger,
+          host,
           %{
             type: :crash,
             host: host.ref,
@@ -267,7 +258,7 @@ defmodule Tartarus.Host.Server do
 
   defp removed(state, entry, reason) do
     Events.emit(
-      state.host.ledger,
+      state.host,
       %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
       removed: 1
     )

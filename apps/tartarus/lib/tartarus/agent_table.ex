@@ -1,0 +1,62 @@
+defmodule Tartarus.AgentTable do
+  @moduledoc false
+  # The node's table of resident agents: id -> {pid, host name, name, module}. Agents write
+  # their own entries (on arrival and departure); host servers remove the entries of agents
+  # that crash or are killed. A plain ETS table rather than a Registry: no link per agent and
+  # no cleanup message per exit, which matters on the migration hot path.
+  use GenServer
+
+  @table __MODULE__
+
+  def start_link(_), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
+
+  @impl true
+  def init(nil) do
+    :ets.new(@table, [:named_table, :public, :set, read_concurrency: true, write_concurrency: true])
+    {:ok, nil}
+  end
+
+  # Registers `pid` as agent `id`. An entry of a dead process (not yet cleaned) is replaced.
+  def register(id, pid, host_name, name, module) do
+    entry = {id, pid, host_name, name, module}
+
+    if :ets.insert_new(@table, entry) do
+      :ok
+    else
+      case :ets.lookup(@table, id) do
+        [{^id, other, _, _, _}] when other != pid ->
+          if alive?(other) do
+            {:error, {:duplicate_agent, id, other}}
+          else
+            :ets.insert(@table, entry)
+            :ok
+          end
+
+        _ ->
+          :ets.insert(@table, entry)
+          :ok
+      end
+    end
+  end
+
+  # Removes `id` if it is still registered to `pid`.
+  def unregister(id, pid) do
+    :ets.select_delete(@table, [{{id, pid, :_, :_, :_}, [], [true]}])
+    :ok
+  end
+
+  # {:ok, pid, host_name} for a live agent of this node.
+  def lookup(id) do
+    case :ets.lookup(@table, id) do
+      [{^id, pid, host_name, _name, _module}] -> if alive?(pid), do: {:ok, pid, host_name}, else: :error
+      [] -> :error
+    end
+  end
+
+  def count, do: :ets.info(@table, :size)
+
+  def running?(module), do: :ets.match(@table, {:_, :_, :_, :_, module}, 1) != :"$end_of_table"
+
+  defp alive?(pid) when node(pid) == node(), do: Process.alive?(pid)
+  defp alive?(_pid), do: true
+end
