@@ -70,7 +70,8 @@ defmodule TartarusTest do
                 "invalid options given to Tartarus.start_host/2: unknown key :colour, known keys: [:neighbours, :migration_timeout, :max_restarts, :strict_links, :plugins, :store]"}
 
       assert Tartarus.start_host(name, :nope) ==
-               {:error, "invalid options given to Tartarus.start_host/2: expected a keyword list, got: :nope"}
+               {:error,
+                "invalid options given to Tartarus.start_host/2: expected a keyword list, got: :nope"}
 
       refute addr(name) in Tartarus.hosts()
     end
@@ -78,7 +79,10 @@ defmodule TartarusTest do
     test "an unknown neighbour fails the start and leaves no host behind" do
       name = unique_name()
       missing = unique_name("missing")
-      assert Tartarus.start_host(name, neighbours: [missing]) == {:error, {:unknown_host, addr(missing)}}
+
+      assert Tartarus.start_host(name, neighbours: [missing]) ==
+               {:error, {:unknown_host, addr(missing)}}
+
       assert eventually(fn -> addr(name) not in Tartarus.hosts() end)
     end
 
@@ -88,7 +92,9 @@ defmodule TartarusTest do
       assert Tartarus.start_host(name, plugins: [dev: {Tartarus.Test.NotAPlugin, []}]) ==
                {:error, {:not_a_plugin, Tartarus.Test.NotAPlugin}}
 
-      assert Tartarus.start_host(name, plugins: [dev: :nope]) == {:error, {:bad_plugin, :dev, :nope}}
+      assert Tartarus.start_host(name, plugins: [dev: :nope]) ==
+               {:error, {:bad_plugin, :dev, :nope}}
+
       assert eventually(fn -> addr(name) not in Tartarus.hosts() end)
     end
 
@@ -253,7 +259,10 @@ defmodule TartarusTest do
       assert [%{id: ^id, name: "probe-one", module: Probe, pid: pid}] = Tartarus.agents(h)
       assert is_pid(pid)
       assert {:ok, info} = Tartarus.agent_info({id, h})
-      assert %{id: ^id, name: "probe-one", module: Probe, static: false, hops: 0, clone_of: nil} = info
+
+      assert %{id: ^id, name: "probe-one", module: Probe, static: false, hops: 0, clone_of: nil} =
+               info
+
       assert info.host == addr(h)
       assert info.home == addr(h)
       assert info.state.tag == 1
@@ -314,7 +323,10 @@ defmodule TartarusTest do
     test "a module that is not an agent is refused" do
       h = host!()
       assert Tartarus.create_agent(h, String, nil) == {:error, {:not_an_agent, String}}
-      assert Tartarus.create_agent(h, NoSuchModule, nil) == {:error, {:not_an_agent, NoSuchModule}}
+
+      assert Tartarus.create_agent(h, NoSuchModule, nil) ==
+               {:error, {:not_an_agent, NoSuchModule}}
+
       assert Tartarus.create_agent(h, "Probe", nil) == {:error, {:not_an_agent, "Probe"}}
     end
 
@@ -343,13 +355,15 @@ defmodule TartarusTest do
                 "invalid options given to Tartarus.create_agent/4 for key :ttl: expected a positive integer or :infinity, got: 0"}
 
       assert Tartarus.create_agent(h, Probe, %{}, static: 1) ==
-               {:error, "invalid options given to Tartarus.create_agent/4 for key :static: expected a boolean, got: 1"}
+               {:error,
+                "invalid options given to Tartarus.create_agent/4 for key :static: expected a boolean, got: 1"}
 
       assert Tartarus.create_agent(h, Probe, %{}, modules: ["x"]) ==
                {:error,
                 "invalid options given to Tartarus.create_agent/4 for key :modules: expected a list of an atom, got: [\"x\"]"}
 
-      assert {:error, "invalid options given to Tartarus.create_agent/4: unknown key :colour" <> _} =
+      assert {:error,
+              "invalid options given to Tartarus.create_agent/4: unknown key :colour" <> _} =
                Tartarus.create_agent(h, Probe, %{}, colour: :red)
     end
 
@@ -359,7 +373,6 @@ defmodule TartarusTest do
       assert {:ok, %{k: 1}} = Tartarus.payload(id)
       assert {:ok, %{payload: %{modules: [Tartarus.Test.PickStrategy]}}} = Tartarus.agent_info(id)
     end
-
   end
 
   describe "move/2" do
@@ -404,7 +417,9 @@ defmodule TartarusTest do
       a = host!()
       id = agent!(a)
       assert Tartarus.move({id, a}, 42) == {:error, {:bad_destination, 42}}
-      assert Tartarus.move({id, a}, {:bogus_strategy, 1}) == {:error, {:bad_destination, {:bogus_strategy, 1}}}
+
+      assert Tartarus.move({id, a}, {:bogus_strategy, 1}) ==
+               {:error, {:bad_destination, {:bogus_strategy, 1}}}
     end
 
     test "a strategy with no neighbours fails with :no_neighbours" do
@@ -736,7 +751,16 @@ defmodule TartarusTest do
       status = Tartarus.status(b)
 
       assert Map.keys(status) |> Enum.sort() ==
-               [:counts, :forwarding_pointers, :hops, :host, :neighbours, :plugins, :resident, :visits]
+               [
+                 :counts,
+                 :forwarding_pointers,
+                 :hops,
+                 :host,
+                 :neighbours,
+                 :plugins,
+                 :resident,
+                 :visits
+               ]
 
       assert status.host == addr(b)
       assert status.resident == 1
@@ -757,12 +781,20 @@ defmodule TartarusTest do
 
     test "hop_stats of a host without arrivals" do
       h = host!()
-      assert Tartarus.hop_stats(h) == %{count: 0, median_us: nil, p99_us: nil, mean_us: nil, max_us: nil}
+
+      assert Tartarus.hop_stats(h) == %{
+               count: 0,
+               median_us: nil,
+               p99_us: nil,
+               mean_us: nil,
+               max_us: nil
+             }
     end
 
     test "hop_stats after arrivals" do
       [a, b] = line!(2)
       id = agent!(a)
+
       for _ <- 1..3 do
         :ok = Tartarus.move({id, a}, b)
         :ok = Tartarus.move({id, a}, a)
@@ -784,7 +816,13 @@ defmodule TartarusTest do
     end
 
     test "hop_summary/1" do
-      assert Tartarus.hop_summary([30, 10, 20]) == %{count: 3, median_us: 20, p99_us: 30, mean_us: 20.0, max_us: 30}
+      assert Tartarus.hop_summary([30, 10, 20]) == %{
+               count: 3,
+               median_us: 20,
+               p99_us: 30,
+               mean_us: 20.0,
+               max_us: 30
+             }
     end
 
     test "percentile/2 by nearest rank" do
@@ -828,7 +866,9 @@ defmodule TartarusTest do
     test "compiles modules and registers their code in the code cache" do
       mod = Module.concat(Tartarus.Test.Runtime, "Helper#{System.unique_integer([:positive])}")
 
-      assert Tartarus.compile_string("defmodule #{inspect(mod)} do def hi, do: :hi end") == {:ok, [mod]}
+      assert Tartarus.compile_string("defmodule #{inspect(mod)} do def hi, do: :hi end") ==
+               {:ok, [mod]}
+
       assert mod.hi() == :hi
       assert {:ok, md5} = Tartarus.CodeCache.md5(mod)
       # Not on the code path: the binary can only come from the cache.
@@ -864,7 +904,9 @@ defmodule TartarusTest do
         assert is_binary(message)
 
         assert {:error, {:compile_error, _}} =
-                 Tartarus.compile_string("defmodule Tartarus.Test.Runtime.Broken do def f, do: undefined_thing() end")
+                 Tartarus.compile_string(
+                   "defmodule Tartarus.Test.Runtime.Broken do def f, do: undefined_thing() end"
+                 )
       end)
     end
   end

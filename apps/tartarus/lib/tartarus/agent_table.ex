@@ -12,7 +12,14 @@ defmodule Tartarus.AgentTable do
 
   @impl true
   def init(nil) do
-    :ets.new(@table, [:named_table, :public, :set, read_concurrency: true, write_concurrency: true])
+    :ets.new(@table, [
+      :named_table,
+      :public,
+      :set,
+      read_concurrency: true,
+      write_concurrency: true
+    ])
+
     {:ok, nil}
   end
 
@@ -48,8 +55,11 @@ defmodule Tartarus.AgentTable do
   # {:ok, pid, host_name} for a live agent of this node.
   def lookup(id) do
     case :ets.lookup(@table, id) do
-      [{^id, pid, host_name, _name, _module}] -> if alive?(pid), do: {:ok, pid, host_name}, else: :error
-      [] -> :error
+      [{^id, pid, host_name, _name, _module}] ->
+        if alive?(pid), do: {:ok, pid, host_name}, else: :error
+
+      [] ->
+        :error
     end
   end
 

@@ -75,7 +75,9 @@ defmodule Tartarus.Bench do
 
     args =
       if tls do
-        {:ok, _} = Tartarus.Security.Certs.generate(dir, nodes: Enum.map(names, &Atom.to_string/1), days: 1)
+        {:ok, _} =
+          Tartarus.Security.Certs.generate(dir, nodes: Enum.map(names, &Atom.to_string/1), days: 1)
+
         fn name -> Tartarus.Security.TLSDist.erl_flags(Atom.to_string(name), dir) end
       else
         fn _ -> [] end
@@ -84,7 +86,10 @@ defmodule Tartarus.Bench do
     peers =
       for name <- names do
         {:ok, pid, node} =
-          Tartarus.Peer.start(name, args: ["-setcookie", "tartarus_bench" | args.(name)], connection: :standard_io)
+          Tartarus.Peer.start(name,
+            args: ["-setcookie", "tartarus_bench" | args.(name)],
+            connection: :standard_io
+          )
 
         {pid, node}
       end
@@ -113,7 +118,10 @@ defmodule Tartarus.Bench do
 
       # Warm-up: one agent crosses both ways, so the code is cached at both ends.
       run_agents(module, h1, h2, 1, 2, blob)
-      code_bytes = Enum.sum(for n <- nodes, do: :erpc.call(n, Tartarus.Events, :totals, []).code_bytes)
+
+      code_bytes =
+        Enum.sum(for n <- nodes, do: :erpc.call(n, Tartarus.Events, :totals, []).code_bytes)
+
       for h <- [h1, h2], do: :erpc.call(elem(h, 1), __MODULE__, :reset_local_ring, [h])
 
       t0 = System.monotonic_time(:microsecond)
@@ -198,6 +206,7 @@ defmodule Tartarus.Bench do
     count = Keyword.get(opts, :count, 100_000)
     creators = Keyword.get(opts, :creators, System.schedulers_online())
     limit = max(count * 2 + 100_000, 262_144)
+
     {:ok, pid, _node} =
       Tartarus.Peer.start(:"bench_agents_#{System.unique_integer([:positive])}",
         args: ["+P", "#{limit}"],
@@ -224,7 +233,8 @@ defmodule Tartarus.Bench do
       n = if i == creators, do: count - per * (creators - 1), else: per
 
       Task.async(fn ->
-        for _ <- 1..n//1, do: {:ok, _} = Tartarus.create_mobile_agent(host, Tartarus.Bench.Idle, nil)
+        for _ <- 1..n//1,
+            do: {:ok, _} = Tartarus.create_mobile_agent(host, Tartarus.Bench.Idle, nil)
       end)
     end)
     |> Task.await_many(:infinity)

@@ -50,7 +50,11 @@ defmodule Tartarus.HostCase do
   @doc "Starts `n` hosts linked in a line: h1 - h2 - ... - hn."
   def line!(n, opts \\ []) do
     hosts = hosts!(n, opts)
-    hosts |> Enum.chunk_every(2, 1, :discard) |> Enum.each(fn [a, b] -> :ok = Tartarus.connect(a, b) end)
+
+    hosts
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.each(fn [a, b] -> :ok = Tartarus.connect(a, b) end)
+
     hosts
   end
 
@@ -114,7 +118,9 @@ defmodule Tartarus.HostCase do
 
     eventually(fn -> residents() == agents_before end)
     agents = residents()
-    assert agents == agents_before, "agents leaked by the test: #{inspect(agents -- agents_before)}"
+
+    assert agents == agents_before,
+           "agents leaked by the test: #{inspect(agents -- agents_before)}"
   end
 
   # The ids of the agents on every host of this node.

@@ -36,7 +36,13 @@ defmodule Mix.Tasks.Tartarus.Bench do
   @impl true
   def run(argv) do
     {opts, args, invalid} = OptionParser.parse(argv, strict: @switches)
-    if invalid != [], do: Mix.raise("mix tartarus.bench: invalid options #{inspect(invalid)}; see `mix help tartarus.bench`")
+
+    if invalid != [],
+      do:
+        Mix.raise(
+          "mix tartarus.bench: invalid options #{inspect(invalid)}; see `mix help tartarus.bench`"
+        )
+
     Mix.Task.run("app.start")
 
     result =
@@ -44,9 +50,14 @@ defmodule Mix.Tasks.Tartarus.Bench do
         ["migration"] ->
           mode =
             case opts[:mode] || "virtual" do
-              "virtual" -> :virtual
-              "peer" -> :peer
-              other -> Mix.raise("mix tartarus.bench: --mode must be virtual or peer, got: #{other}")
+              "virtual" ->
+                :virtual
+
+              "peer" ->
+                :peer
+
+              other ->
+                Mix.raise("mix tartarus.bench: --mode must be virtual or peer, got: #{other}")
             end
 
           positive!(opts, [:hops, :agents, :state_bytes])
@@ -63,10 +74,16 @@ defmodule Mix.Tasks.Tartarus.Bench do
         ["agents"] ->
           positive!(opts, [:count, :creators])
           unless opts[:json], do: Mix.shell().info("resident agents benchmark...")
-          Tartarus.Bench.agents(count: opts[:count] || 100_000, creators: opts[:creators] || System.schedulers_online())
+
+          Tartarus.Bench.agents(
+            count: opts[:count] || 100_000,
+            creators: opts[:creators] || System.schedulers_online()
+          )
 
         _ ->
-          Mix.raise("usage: mix tartarus.bench migration|agents [options]; see `mix help tartarus.bench`")
+          Mix.raise(
+            "usage: mix tartarus.bench migration|agents [options]; see `mix help tartarus.bench`"
+          )
       end
 
     json = Tartarus.JSON.encode!(result)
@@ -81,7 +98,9 @@ defmodule Mix.Tasks.Tartarus.Bench do
 
   defp positive!(opts, keys) do
     for k <- keys, v = opts[k], v != nil, v <= 0 do
-      Mix.raise("mix tartarus.bench: --#{String.replace(to_string(k), "_", "-")} must be a positive integer, got: #{v}")
+      Mix.raise(
+        "mix tartarus.bench: --#{String.replace(to_string(k), "_", "-")} must be a positive integer, got: #{v}"
+      )
     end
   end
 end

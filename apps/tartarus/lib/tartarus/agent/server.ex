@@ -13,12 +13,17 @@ defmodule Tartarus.Agent.Server do
   # Paused copies ask the source host for its decision at this interval while in doubt.
   @doubt_retry 1_000
 
-  def start_link({_host, _env, _mode} = arg), do: GenServer.start_link(__MODULE__, arg)
+  def start_link({_host, _key, _mode} = arg), do: GenServer.start_link(__MODULE__, arg)
 
   # -- start ---------------------------------------------------------------------
 
   @impl true
-  def init({host, env, {:create, args}}) do
+  def init({host, key, mode}) do
+    [{_, env}] = :ets.lookup(host.ledger, {:snapshot, key})
+    start(host, env, mode)
+  end
+
+  defp start(host, env, {:create, args}) do
     env = %{env | visits: %{host.ref => 1}}
     data = %{host: host, env: env, paused: nil}
     Process.put(@host, host)
@@ -39,7 +44,7 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  def init({host, env, {:paused, mig, src, src_pid, kind}}) do
+  defp start(host, env, {:paused, mig, src, src_pid, kind}) do
     Process.put(@host, host)
     timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
 
@@ -51,7 +56,7 @@ defmodule Tartarus.Agent.Server do
      }}
   end
 
-  def init({host, env, {:restart, n}}) do
+  defp start(host, env, {:restart, n}) do
     Process.put(@host, host)
     data = %{host: host, env: env, paused: nil}
 

@@ -187,16 +187,22 @@ defmodule Tartarus.Host.Server do
 
   # -- agents ------------------------------------------------------------------
 
+  # The envelope an agent starts from is its arrival snapshot: kept in the ledger table (not
+  # in this server's or the supervisor's heap, which would then hold and garbage-collect
+  # every resident's state) for restarts, and read by the agent's process when it starts.
   defp start_agent(state, env, mode, restarts \\ 0) do
     sup = Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0))
+    key = make_ref()
+    :ets.insert(state.host.ledger, {{:snapshot, key}, env})
 
-    case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, env, mode}}) do
+    case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
       {:ok, pid} ->
         mref = Process.monitor(pid)
-        entry = %{id: env.id, pid: pid, snapshot: env, restarts: restarts, owner: env.owner}
+        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner}
         {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
 
       {:error, reason} ->
+        :ets.delete(state.host.ledger, {:snapshot, key})
         {:error, unwrap(reason), state}
     end
   end
@@ -208,6 +214,7 @@ defmodule Tartarus.Host.Server do
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host
+    [{_, snapshot}] = :ets.take(host.ledger, {:snapshot, entry.key})
 
     cond do
       killed? ->
@@ -234,7 +241,7 @@ defmodule Tartarus.Host.Server do
           crashes: 1
         )
 
-        case start_agent(state, entry.snapshot, {:restart, n}, n) do
+        case start_agent(state, snapshot, {:restart, n}, n) do
           {:ok, _pid, state} -> state
           {:error, why, state} -> removed(state, entry, {:restart_failed, why})
         end
