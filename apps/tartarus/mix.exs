@@ -17,7 +17,11 @@ defmodule Tartarus.MixProject do
   end
 
   def application do
-    [extra_applications: [:logger, :crypto, :public_key, :ssl], mod: {Tartarus.Application, []}]
+    [
+      extra_applications: [:logger, :crypto, :public_key, :ssl],
+      mod: {Tartarus.Application, []},
+      env: [tartarus_demo: [Tartarus.Demo.Platform]]
+    ]
   end
 
   defp elixirc_paths(:test), do: ["lib", "test/support"]

@@ -14,6 +14,7 @@ defmodule Tartarus.Test.Probe do
   #                         {:return, result} | {:stop, reason} | :stay
   #   :crash                raises
   #   :ignore               never replies
+  #   {:answer_from, dest}  moves to dest and answers the request from there with its host
   #
   # Init args: a map merged into the default state; `init_action:` is carried out at once,
   # `arrival_action:` on every arrival.
@@ -43,6 +44,8 @@ defmodule Tartarus.Test.Probe do
     case s do
       %{arrivals: arrivals} ->
         s = %{s | ctx: ctx, arrivals: arrivals ++ [ctx.host]}
+        {pending, s} = Map.pop(s, :pending)
+        if pending, do: A.reply(pending, A.host())
 
         case s do
           %{arrival_action: action} -> action(action, s)
@@ -61,6 +64,7 @@ defmodule Tartarus.Test.Probe do
   def handle_message({:set, key, value}, from, s), do: reply(from, :ok, Map.put(s, key, value))
   def handle_message(:crash, _from, _s), do: raise("probe crash on purpose")
   def handle_message(:ignore, _from, s), do: {:stay, s}
+  def handle_message({:answer_from, dest}, from, s), do: {:move, dest, Map.put(s, :pending, from)}
 
   def handle_message({:do, action}, from, s) do
     A.reply(from, :ok)

@@ -1,0 +1,97 @@
+defmodule Mix.Tasks.Tartarus.Node do
+  @shortdoc "Starts a named node with a Tartarus host, for iex --remsh"
+  @moduledoc """
+  Starts this VM as a named BEAM node running one Tartarus host, links it to neighbour
+  hosts on other nodes, and keeps running until interrupted.
+
+      ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n1 --host h1
+      ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n2 --host h2 --neighbours h1:n1@$(hostname -s)
+
+  Options:
+
+    * `--name NAME` - the node's short name (required); the node is `NAME@<hostname>`
+    * `--host HOST` - the host's name (default: `main`)
+    * `--neighbours LIST` - comma-separated `host:node` addresses to link to
+    * `--cookie COOKIE` - the distribution cookie (default: `tartarus`)
+    * `--sensor NAME` - attach a simulated sensor plugin under NAME (a sine-like script)
+
+  Then attach a shell and drive it with the `Tartarus` API:
+
+      iex --sname me --cookie tartarus --remsh n1@<hostname>
+      iex> Tartarus.status(:h1)
+
+  `-connect_all false` keeps nodes from forming a full mesh (they connect only to the nodes
+  their hosts talk to); it must be given to the VM at boot, hence `ELIXIR_ERL_OPTIONS`.
+  """
+  use Mix.Task
+
+  @switches [name: :string, host: :string, neighbours: :string, cookie: :string, sensor: :string]
+
+  @impl true
+  def run(argv) do
+    {opts, _, invalid} = OptionParser.parse(argv, strict: @switches)
+    if invalid != [], do: Mix.raise("mix tartarus.node: invalid options #{inspect(invalid)}")
+    name = opts[:name] || Mix.raise("mix tartarus.node: --name NAME is required")
+    _ = System.cmd("epmd", ["-daemon"])
+
+    case Node.start(String.to_atom(name), :shortnames) do
+      {:ok, _} ->
+        :ok
+
+      {:error, reason} ->
+        Mix.raise("mix tartarus.node: cannot start node #{name}: #{inspect(reason)}")
+    end
+
+    Node.set_cookie(String.to_atom(opts[:cookie] || "tartarus"))
+    Mix.Task.run("app.start")
+
+    unless :init.get_argument(:connect_all) == {:ok, [[~c"false"]]} do
+      Mix.shell().info("note: started without -connect_all false; nodes may form a full mesh")
+    end
+
+    host_name = String.to_atom(opts[:host] || "main")
+    neighbours = parse_neighbours(opts[:neighbours])
+
+    plugins =
+      case opts[:sensor] do
+        nil ->
+          []
+
+        s ->
+          [
+            {String.to_atom(s),
+             {Tartarus.Plugin.SimSensor,
+              signal: Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)), unit: "°C"}}
+          ]
+      end
+
+    case Tartarus.start_host(host_name, neighbours: neighbours, plugins: plugins) do
+      {:ok, host} ->
+        Mix.shell().info(
+          "host #{inspect(host)} running; neighbours: #{inspect(Tartarus.neighbours(host))}"
+        )
+
+        Mix.shell().info(
+          "attach with: iex --sname me --cookie #{Node.get_cookie()} --remsh #{node()}"
+        )
+
+        Process.sleep(:infinity)
+
+      {:error, reason} ->
+        Mix.raise("mix tartarus.node: cannot start host: #{inspect(reason)}")
+    end
+  end
+
+  defp parse_neighbours(nil), do: []
+
+  defp parse_neighbours(list) do
+    list
+    |> String.split(",", trim: true)
+    |> Enum.map(fn item ->
+      case String.split(item, ":", parts: 2) do
+        [h, n] -> {String.to_atom(h), String.to_atom(n)}
+        _ -> Mix.raise("mix tartarus.node: --neighbours expects host:node items, got: #{item}")
+      end
+    end)
+  end
+end

@@ -1,0 +1,139 @@
+defmodule Tartarus.EventsTest do
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.Events
+
+  doctest Events
+
+  setup do
+    :ok = Events.subscribe()
+  end
+
+  # The next event of `type` about agent `id`.
+  defmacrop assert_event(type, id) do
+    quote do
+      assert_receive {:tartarus_event, %{type: unquote(type), agent: ^unquote(id)} = event}, 1_000
+      assert is_integer(event.time)
+      event
+    end
+  end
+
+  test "counter_names/0 lists the documented counters" do
+    assert Events.counter_names() ==
+             [:created, :arrivals, :departures, :move_failed, :clones, :kills, :stopped, :crashes] ++
+               [:removed, :messages, :message_bytes, :bytes, :code_bytes, :refused]
+
+    assert Map.keys(Events.totals()) |> Enum.sort() == Enum.sort(Events.counter_names())
+  end
+
+  test "created, departure and arrival events carry the documented keys" do
+    [a, b] = line!(2)
+    before = Events.totals()
+    id = agent!(a)
+
+    created = assert_event(:created, id)
+    assert Map.keys(created) |> Enum.sort() == [:agent, :host, :module, :time, :type]
+    assert created.host == addr(a)
+    assert created.module == Probe
+
+    :ok = Tartarus.move({id, a}, b)
+    departure = assert_event(:departure, id)
+
+    assert Map.keys(departure) |> Enum.sort() == [
+             :agent,
+             :bytes,
+             :code_bytes,
+             :host,
+             :time,
+             :to,
+             :type
+           ]
+
+    assert departure.host == addr(a)
+    assert departure.to == addr(b)
+    assert departure.bytes > 0
+    assert departure.code_bytes >= 0
+
+    arrival = assert_event(:arrival, id)
+
+    assert Map.keys(arrival) |> Enum.sort() == [
+             :agent,
+             :from,
+             :hop_us,
+             :hops,
+             :host,
+             :time,
+             :type
+           ]
+
+    assert arrival.host == addr(b)
+    assert arrival.from == addr(a)
+    assert arrival.hops == 1
+    assert arrival.hop_us >= 0
+
+    now = Events.totals()
+    assert now.created >= before.created + 1
+    assert now.departures >= before.departures + 1
+    assert now.arrivals >= before.arrivals + 1
+    assert now.bytes >= before.bytes + departure.bytes
+  end
+
+  test "move_failed, clone, message, kill events" do
+    [a, b] = line!(2)
+    x = unique_name()
+    id = agent!(a)
+
+    {:error, _} = Tartarus.move({id, a}, x)
+    failed = assert_event(:move_failed, id)
+    assert failed.to == x
+    assert failed.reason == {:unknown_host, addr(x)}
+    assert failed.host == addr(a)
+
+    {:ok, clone} = Tartarus.clone({id, a}, b)
+    event = assert_event(:clone, id)
+    assert %{clone: ^clone, host: {^a, _}, to: {^b, _}} = event
+
+    :ok = Tartarus.post({id, a}, :inc)
+    message = assert_event(:message, id)
+    assert message.bytes == :erlang.external_size(:inc)
+
+    :ok = Tartarus.kill({id, a})
+    assert %{host: {^a, _}} = assert_event(:kill, id)
+
+    counts = Tartarus.status(a).counts
+    assert counts.move_failed == 1
+    assert counts.clones == 1
+    assert counts.messages == 1
+    assert counts.message_bytes == :erlang.external_size(:inc)
+    assert counts.kills == 1
+  end
+
+  test "stopped, crash, removed, refused events" do
+    [a, b] = line!(2)
+    h = host!(max_restarts: 0)
+    id = agent!(a, %{}, ttl: 1)
+
+    :ok = Tartarus.move({id, a}, b)
+    {:error, {:ttl_expired, 1}} = Tartarus.move({id, a}, a)
+    refused = assert_event(:refused, id)
+    assert %{host: {^a, _}, from: {^b, _}, reason: {:ttl_expired, 1}} = refused
+
+    :ok = Tartarus.post({id, a}, {:do, {:stop, :enough}})
+    assert %{reason: :enough, host: {^b, _}} = assert_event(:stopped, id)
+
+    doomed = agent!(h)
+    :ok = Tartarus.post({doomed, h}, :crash)
+    crash = assert_event(:crash, doomed)
+    assert crash.restarts == 0
+    assert {:error, %RuntimeError{}, _} = crash.reason
+    removed = assert_event(:removed, doomed)
+    assert {:too_many_restarts, _} = removed.reason
+  end
+
+  test "unsubscribe/0 ends the subscription" do
+    :ok = Events.unsubscribe()
+    h = host!()
+    id = agent!(h)
+    refute_receive {:tartarus_event, %{agent: ^id}}, 50
+  end
+end

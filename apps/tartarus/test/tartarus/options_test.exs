@@ -1,0 +1,95 @@
+defmodule Tartarus.OptionsTest do
+  use ExUnit.Case, async: true
+
+  alias Tartarus.Options
+
+  doctest Options
+
+  @where "f/1"
+
+  defp check(type, value), do: Options.validate([k: value], [k: [type: type]], @where)
+
+  test "defaults fill in; keys keep the schema's order" do
+    schema = [a: [type: :integer, default: 1], b: [type: :atom], c: [type: :any, default: nil]]
+    assert Options.validate([], schema, @where) == {:ok, [a: 1, c: nil]}
+    assert Options.validate([c: 3, b: :x], schema, @where) == {:ok, [a: 1, b: :x, c: 3]}
+  end
+
+  test "required options" do
+    schema = [a: [type: :integer, required: true]]
+    assert Options.validate([], schema, @where) == {:error, "required option :a not given to f/1"}
+    assert Options.validate([a: 1], schema, @where) == {:ok, [a: 1]}
+  end
+
+  test "unknown keys and non-keyword options" do
+    schema = [a: [type: :any], b: [type: :any]]
+
+    assert Options.validate([c: 1], schema, @where) ==
+             {:error, "invalid options given to f/1: unknown key :c, known keys: [:a, :b]"}
+
+    assert Options.validate([1, 2], schema, @where) ==
+             {:error, "invalid options given to f/1: expected a keyword list, got: [1, 2]"}
+
+    assert Options.validate(%{a: 1}, schema, @where) ==
+             {:error, "invalid options given to f/1: expected a keyword list, got: %{a: 1}"}
+  end
+
+  test "every type accepts what it should and names what it expected" do
+    cases = [
+      {:any, [nil, 1, "x"], [], "any term"},
+      {:atom, [:a, nil, true], [1, "a"], "an atom"},
+      {:boolean, [true, false], [nil, 1], "a boolean"},
+      {:integer, [-1, 0, 5], [1.0, "1"], "an integer"},
+      {:pos_integer, [1, 9], [0, -1, 1.5], "a positive integer"},
+      {:non_neg_integer, [0, 9], [-1, 0.5], "a non-negative integer"},
+      {:number, [1, 1.5, -2], [:a, "1"], "a number"},
+      {:probability, [0, 0.5, 1, 1.0], [-0.1, 1.01, :a], "a number between 0 and 1"},
+      {:timeout, [0, 10, :infinity], [-1, :never], "a non-negative integer or :infinity"},
+      {:pos_integer_or_infinity, [1, :infinity], [0, :never], "a positive integer or :infinity"},
+      {:string, ["", "x"], [:x, ~c"x"], "a string"},
+      {:keyword, [[], [a: 1]], [[1], %{}], "a keyword list"},
+      {:host, [:a, "a", {:a, :n@h}], [3, nil, {:a, "n"}], "a host (a name, or {name, node})"},
+      {{:list, :host}, [[], [:a, {:b, :n@h}]], [:a, [3]],
+       "a list of hosts (names, or {name, node})"},
+      {{:list, :integer}, [[], [1, 2]], [[1, :a], 1], "a list of an integer"},
+      {{:in, [:x, :y]}, [:x, :y], [:z], "one of [:x, :y]"},
+      {{:fun, 1}, [&Function.identity/1], [&Enum.map/2, :f], "a function of arity 1"}
+    ]
+
+    for {type, goods, bads, expected} <- cases do
+      for good <- goods,
+          do: assert(check(type, good) == {:ok, [k: good]}, "#{inspect(type)} #{inspect(good)}")
+
+      for bad <- bads do
+        assert check(type, bad) ==
+                 {:error,
+                  "invalid options given to f/1 for key :k: expected #{expected}, got: #{inspect(bad)}"}
+      end
+    end
+  end
+
+  test "a key without a type accepts anything" do
+    assert Options.validate([k: 1], [k: [doc: "x"]], @where) == {:ok, [k: 1]}
+  end
+
+  test "validate!/3 raises ArgumentError with the message" do
+    schema = [n: [type: :pos_integer]]
+    assert Options.validate!([n: 1], schema, @where) == [n: 1]
+
+    assert_raise ArgumentError,
+                 "invalid options given to f/1 for key :n: expected a positive integer, got: 0",
+                 fn ->
+                   Options.validate!([n: 0], schema, @where)
+                 end
+  end
+
+  test "docs/1 renders one line per key" do
+    schema = [
+      hops: [type: :pos_integer, default: 10, doc: "number of hops"],
+      name: [type: :string, required: true, doc: "a name"]
+    ]
+
+    assert Options.docs(schema) ==
+             "  * `:hops` - number of hops. Defaults to `10`.\n  * `:name` - a name. Required."
+  end
+end
