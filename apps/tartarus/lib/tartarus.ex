@@ -49,6 +49,7 @@ defmodule Tartarus do
   see `Tartarus.Events`.
   """
 
+  import Bitwise, only: [<<<: 2]
   alias Tartarus.{CodeCache, Envelope, Host, Ledger}
 
   @typedoc "A host's name: an atom or a string."
@@ -94,7 +95,8 @@ defmodule Tartarus do
           host = Host.address(name)
 
           with :ok <- attach_all(host, opts[:plugins]),
-               :ok <- connect_all(host, opts[:neighbours]) do
+               :ok <- connect_all(host, opts[:neighbours]),
+               {:ok, _agents, _in_doubt} <- Host.call(host, :restore, 60_000) do
             {:ok, host}
           else
             error ->
@@ -180,7 +182,10 @@ defmodule Tartarus do
       a = Host.address(a)
       b = Host.address(b)
 
-      with :ok <- Host.call(a, {:connect, b, props}),
+      # Both ends must exist before either records the link.
+      with {:ok, _} <- Host.whereis(a),
+           {:ok, _} <- Host.whereis(b),
+           :ok <- Host.call(a, {:connect, b, props}),
            :ok <- Host.call(b, {:connect, a, props}) do
         :ok
       end
@@ -421,6 +426,7 @@ defmodule Tartarus do
 
         {:DOWN, ^tag, :process, _, _} ->
           # The agent left (or died) before taking the message: look again.
+          backoff(n)
           deliver(ref, kind, msg, timeout, n - 1)
       after
         timeout ->
@@ -509,10 +515,17 @@ defmodule Tartarus do
       case result do
         {:here, pid, id} -> {:ok, pid, {id, host}}
         {:moved, next} -> locate({a, next}, n - 1)
+        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1)
         :not_found -> {:error, :not_found}
         error -> error
       end
     end
+  end
+
+  # Between retries of an agent caught in a hand-off: 1, 2, 4 ... 64 ms, about 3 s in all.
+  defp backoff(n) do
+    Process.sleep(min(1 <<< max(@max_chase - n, 0), 64))
+    true
   end
 
   defp normalize({agent, host}) do
@@ -523,12 +536,26 @@ defmodule Tartarus do
 
   defp normalize(id) when is_binary(id) do
     case Tartarus.AgentTable.lookup(id) do
-      {:ok, _pid, host_name} -> {:ok, {id, Host.address(host_name)}}
-      :error -> {:error, :not_found}
+      {:ok, _pid, host_name} ->
+        {:ok, {id, Host.address(host_name)}}
+
+      :error ->
+        # Perhaps in a hand-off between two hosts of this node: the destination knows.
+        case Enum.find(hosts(), &local_arriving?(&1, id)) do
+          nil -> {:error, :not_found}
+          host -> {:ok, {id, host}}
+        end
     end
   end
 
   defp normalize(other), do: {:error, {:bad_agent_ref, other}}
+
+  defp local_arriving?(host, id) do
+    case Host.local(host) do
+      {:ok, h} -> :ets.member(h.ledger, {:arriving, id})
+      _ -> false
+    end
+  end
 
   @doc """
   The agents resident on a host, as maps with `:id`, `:name`, `:module`, `:pid`.

@@ -65,9 +65,11 @@ defmodule TartarusTest do
                {:error,
                 "invalid options given to Tartarus.start_host/2 for key :plugins: expected a keyword list, got: [1]"}
 
+      known = inspect(Keyword.keys(Tartarus.Host.schema()))
+
       assert Tartarus.start_host(name, colour: :red) ==
                {:error,
-                "invalid options given to Tartarus.start_host/2: unknown key :colour, known keys: [:neighbours, :migration_timeout, :max_restarts, :strict_links, :plugins, :store]"}
+                "invalid options given to Tartarus.start_host/2: unknown key :colour, known keys: #{known}"}
 
       assert Tartarus.start_host(name, :nope) ==
                {:error,
@@ -199,7 +201,6 @@ defmodule TartarusTest do
       assert Tartarus.connect(a, x) == {:error, {:unknown_host, addr(x)}}
     end
 
-    @tag :known_bug
     test "a failed connect leaves no half link behind" do
       # Tartarus.connect/3 links `a` to `b` before it finds out that `b` does not exist.
       a = host!()
@@ -437,6 +438,17 @@ defmodule TartarusTest do
       assert Tartarus.whereis(id) == {:ok, addr(a)}
     end
 
+    test "an agent whose state holds structs can move" do
+      # Envelope.portable?/1 raises on structs (see envelope_test.exs); the raise happens in
+      # the agent's process outside any callback, so the agent crashes instead of moving.
+      [a, b] = line!(2)
+      id = agent!(a)
+      {:ok, :ok} = Tartarus.request({id, a}, {:set, :seen, MapSet.new([1])})
+      {:ok, :ok} = Tartarus.request({id, a}, {:set, :day, ~D[2024-01-01]})
+      assert Tartarus.move({id, a}, b) == :ok
+      assert %{seen: %MapSet{}, day: ~D[2024-01-01]} = probe_state({id, b})
+    end
+
     test "an agent followed along several hops keeps its reference valid" do
       [a, b, c, d] = line!(4)
       id = agent!(a, %{}, name: "traveller")
@@ -620,18 +632,20 @@ defmodule TartarusTest do
       assert probe_state({id, a}).count == posts[:ok]
     end
 
-    @tag :known_bug
     test "no post and no move fails while the agent moves back and forth" do
       # Between the source's Ledger.depart/4 and the destination's commit the agent is in
       # no registry; the destination still holds the forwarding pointer of the agent's
       # previous visit, which points back to the source: locate/2 ping-pongs 64 times in
       # microseconds and gives {:error, :too_many_hops} (or :not_found on a fresh host).
-      [a, b] = line!(2)
-      id = agent!(a)
-      {posts, moves} = post_while_moving({id, a}, a, b)
-      assert posts == %{ok: 400}
-      assert moves == %{ok: 30}
-      assert probe_state({id, a}).count == 400
+      # The window is short: try a few times.
+      for _ <- 1..10 do
+        [a, b] = line!(2)
+        id = agent!(a)
+        {posts, moves} = post_while_moving({id, a}, a, b)
+        assert posts == %{ok: 400}
+        assert moves == %{ok: 30}
+        assert probe_state({id, a}).count == 400
+      end
     end
   end
 

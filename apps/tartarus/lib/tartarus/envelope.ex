@@ -87,8 +87,11 @@ defmodule Tartarus.Envelope do
     walk_list(t, 0, path)
   end
 
+  # :maps.to_list/1, not Enum: structs (dates, MapSets, ...) are plain data here.
   defp walk(t, path) when is_map(t) do
-    Enum.reduce_while(t, :ok, fn {k, v}, :ok ->
+    t
+    |> :maps.to_list()
+    |> Enum.reduce_while(:ok, fn {k, v}, :ok ->
       with :ok <- walk(k, [{:key, k} | path]), :ok <- walk(v, [k | path]) do
         {:cont, :ok}
       else

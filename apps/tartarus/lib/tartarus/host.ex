@@ -51,7 +51,29 @@ defmodule Tartarus.Host do
       default: [],
       doc: "plugins to attach at start, as `name: {module, opts}`"
     ],
-    store: [type: :any, default: %{}, doc: "initial contents of the host store (a map)"]
+    store: [type: :any, default: %{}, doc: "initial contents of the host store (a map)"],
+    admission: [
+      type: :keyword,
+      doc:
+        "an admission policy for arriving agents (see `Tartarus.Security.Admission`: " <>
+          "`:max_resident_agents`, `:max_envelope_bytes`, `:max_payload_bytes`, `:max_hops`, `:rate`)"
+    ],
+    max_envelope_bytes: [
+      type: :pos_integer,
+      default: Tartarus.Wire.default_max_bytes(),
+      doc: "largest hand-off message (envelope and code) the host accepts"
+    ],
+    max_heap_size: [
+      type: :pos_integer_or_infinity,
+      default: :infinity,
+      doc: "per-agent heap limit in words; an agent that exceeds it is killed (and restarted)"
+    ],
+    data_dir: [
+      type: :string,
+      doc:
+        "persistence: checkpoint agents and in-doubt migrations in this directory and " <>
+          "restore them when a host of the same name starts on it again"
+    ]
   ]
 
   @doc false
@@ -59,7 +81,24 @@ defmodule Tartarus.Host do
 
   @doc false
   @spec validate_opts(keyword()) :: {:ok, keyword()} | {:error, String.t()}
-  def validate_opts(opts), do: Options.validate(opts, @schema, "Tartarus.start_host/2")
+  def validate_opts(opts) do
+    with {:ok, opts} <- Options.validate(opts, @schema, "Tartarus.start_host/2") do
+      case opts[:admission] do
+        nil ->
+          {:ok, opts}
+
+        policy ->
+          case Tartarus.Security.Admission.new(policy) do
+            {:ok, admission} ->
+              {:ok, Keyword.put(opts, :admission, admission)}
+
+            {:error, message} ->
+              {:error,
+               "invalid options given to Tartarus.start_host/2 for key :admission: " <> message}
+          end
+      end
+    end
+  end
 
   @doc """
   True if `term` is a host name or address.

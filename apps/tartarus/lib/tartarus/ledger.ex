@@ -10,7 +10,8 @@ defmodule Tartarus.Ledger do
   #   {:agent, pid}               {_, id, name, module}      a resident agent
   #   {:fwd, id | name}           {_, dest_host, at_us, mig} forwarding pointer (and the
   #                                                          record of a committed migration)
-  #   {:migrating, id}            {_, mig}                   a hand-off in progress
+  #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
+  #   {:arriving, id}             {_, pid}                   a paused copy (destination)
   #   {:decision, mig}            {_, :committed | :aborted} (committed: only until the
   #                                                          forwarding pointer is written)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
@@ -80,15 +81,29 @@ defmodule Tartarus.Ledger do
   end
 
   # The outcome of migration `mig` of agent `id` as this (source) host knows it.
-  def decision(host, mig, id) do
+  #
+  # A migration started by an earlier run of this host (the host crashed or was restarted)
+  # that left no committed record: with persistence, the agent was restored here from its
+  # checkpoint, so the migration is aborted; without persistence, the source's copy died with
+  # the earlier run, so the destination's copy is the only one and must start (committed).
+  # Neither answer can make a duplicate.
+  def decision(host, {incarnation, _} = mig, id) do
     case :ets.lookup(host.ledger, {:decision, mig}) do
       [{_, d}] ->
         d
 
       [] ->
         case :ets.lookup(host.ledger, {:fwd, id}) do
-          [{_, _dest, _at, ^mig}] -> :committed
-          _ -> :unknown
+          [{_, _dest, _at, ^mig}] ->
+            :committed
+
+          _ ->
+            cond do
+              Tartarus.Host.Persistence.committed?(host, mig) -> :committed
+              incarnation == host.incarnation -> :unknown
+              host.dets != nil -> :aborted
+              true -> :committed
+            end
         end
     end
   end
@@ -144,9 +159,15 @@ defmodule Tartarus.Ledger do
   end
 
   defp locate_elsewhere(host, agent) do
-    case :ets.lookup(host.ledger, {:fwd, agent}) do
-      [{_, dest, _, _}] -> {:moved, dest}
-      [] -> locate_by_name(host, agent)
+    case :ets.lookup(host.ledger, {:arriving, agent}) do
+      [{_, pid}] ->
+        {:arriving, pid}
+
+      [] ->
+        case :ets.lookup(host.ledger, {:fwd, agent}) do
+          [{_, dest, _, _}] -> {:moved, dest}
+          [] -> locate_by_name(host, agent)
+        end
     end
   end
 

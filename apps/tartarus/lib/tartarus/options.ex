@@ -88,7 +88,8 @@ defmodule Tartarus.Options do
           else: ""
 
       required = if spec[:required], do: " Required.", else: ""
-      "  * `#{inspect(key)}` - #{spec[:doc]}#{required}#{default}"
+
+      "  * `#{inspect(key)}` - #{String.trim_trailing(spec[:doc] || "", ".")}.#{required}#{default}"
     end)
   end
 

@@ -95,7 +95,14 @@ defmodule Tartarus.Plugin do
     Registry.select(Tartarus.HostRegistry, [
       {{{:plugin, :"$1", :"$2"}, :"$3", :_}, [{:==, :"$1", host_name}], [{{:"$2", :"$3"}}]}
     ])
-    |> Enum.map(fn {name, pid} -> {name, GenServer.call(pid, :describe)} end)
+    |> Enum.flat_map(fn {name, pid} ->
+      try do
+        [{name, GenServer.call(pid, :describe)}]
+      catch
+        # A plugin stopping with its host.
+        :exit, _ -> []
+      end
+    end)
     |> Enum.sort()
   end
 

@@ -148,7 +148,6 @@ defmodule Tartarus.AgentTest do
       Tartarus.kill({id, h})
     end
 
-    @tag :known_bug
     test "an agent that returns or stops from init is gone, not restarted" do
       # Host.Server.start_agent/4 monitors the agent only after DynamicSupervisor.start_child
       # returns. An agent whose first action (run in handle_continue right after init) stops
@@ -212,7 +211,6 @@ defmodule Tartarus.AgentTest do
       refute_received {:tartarus_removed, ^id, _}
     end
 
-    @tag :known_bug
     test "a restarted agent keeps the hop count and origin of its arrival" do
       # Host.Server keeps as snapshot the envelope of the prepare message, before commit/1
       # (Agent.Server) adds the hop, `from` and the visit; a restart runs with those lost.
@@ -228,7 +226,6 @@ defmodule Tartarus.AgentTest do
       assert inside({id, a}, :visits) == %{addr(a) => 1, addr(b) => 1}
     end
 
-    @tag :known_bug
     test "a created agent that crashes restarts from the state its init returned" do
       # Host.Server snapshots the envelope before init/1 runs (state nil), so a created
       # agent that crashes before its first move re-runs handle_arrival/2 with state nil.

@@ -40,7 +40,19 @@ defmodule Tartarus.EnvelopeTest do
     test "plain data is portable" do
       assert Envelope.portable?(nil) == :ok
       assert Envelope.portable?(%{a: [1, {2, "x"}], b: %{c: self()}, d: make_ref()}) == :ok
+    end
+
+    test "structs are portable (and are searched for funs)" do
+      # walk/2 enumerates maps with Enum.reduce_while/3, which goes through the Enumerable
+      # protocol: a struct without it (Date, URI, Envelope, ...) raises
+      # Protocol.UndefinedError, and a MapSet yields its elements, not {key, value} pairs
+      # (FunctionClauseError). Agents whose state holds such a struct crash when they move.
+      assert Envelope.portable?(%{d: ~D[2024-01-01]}) == :ok
+      assert Envelope.portable?(MapSet.new([1, 2])) == :ok
       assert Envelope.portable?(%Envelope{id: "x", module: M}) == :ok
+
+      assert Envelope.portable?(%Envelope{id: "x", module: M, state: fn -> 1 end}) ==
+               {:error, {:not_portable, :fun, [:state]}}
     end
 
     test "funs are found with their path" do
@@ -55,7 +67,7 @@ defmodule Tartarus.EnvelopeTest do
     end
 
     test "ports are found" do
-      port = Port.open({:spawn, "true"}, [])
+      port = Port.open({:spawn, "cat"}, [])
 
       try do
         assert Envelope.portable?(%{p: port}) == {:error, {:not_portable, :port, [:p]}}

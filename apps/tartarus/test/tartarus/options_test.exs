@@ -83,7 +83,20 @@ defmodule Tartarus.OptionsTest do
                  end
   end
 
-  test "docs/1 renders one line per key" do
+  test "docs/1 renders one line per key with its doc, requirement and default" do
+    schema = [
+      hops: [type: :pos_integer, default: 10, doc: "number of hops"],
+      name: [type: :string, required: true, doc: "a name"]
+    ]
+
+    assert [hops, name] = String.split(Options.docs(schema), "\n")
+    assert hops =~ ~r/^  \* `:hops` - number of hops.*Defaults to `10`\.$/
+    assert name =~ ~r/^  \* `:name` - a name.*Required\.$/
+  end
+
+  test "docs/1 separates the doc from what follows" do
+    # Options.docs/1 appends " Defaults to ..." / " Required." straight after the doc text,
+    # so the generated docs read "number of hops Defaults to `10`.".
     schema = [
       hops: [type: :pos_integer, default: 10, doc: "number of hops"],
       name: [type: :string, required: true, doc: "a name"]

@@ -242,12 +242,23 @@ defmodule TartarusLats.MotionVectors do
   defp do_handle(mv, now, {:leaving, tag, px, t_left, px_arrived}) do
     case segments(mv, tag) do
       [%{to: nil, arrived_at: arrived} = stay | rest] when arrived > px_arrived ->
-        mv =
-          if stay.from in [:pending, :infinity],
-            do: link_from(mv, tag, stay, rest, px, t_left),
-            else: mv
+        case loop_root(mv.node, [stay | rest]) do
+          {newer, %{from: from, arrived_at: root_arrived} = root, older}
+          when from in [:pending, :infinity] and root_arrived > px_arrived ->
+            # The stay here (possibly a chain of stays joined by short
+            # excursions out of range, here -> here) has no known origin:
+            # px is it. Link the chain's first stay, so that the chain
+            # stays whole and a short first stay is not left as a ghost.
+            mv =
+              mv
+              |> put_segments(tag, newer ++ [%{root | from: px, from_left_at: t_left} | older])
+              |> unwait({tag, :arrival, root_arrived})
 
-        {mv, [{:send, px, {:ack, tag, mv.node, t_left, arrived}}]}
+            {mv, [{:send, px, {:ack, tag, mv.node, t_left, root_arrived}}]}
+
+          _ ->
+            {mv, [{:send, px, {:ack, tag, mv.node, t_left, arrived}}]}
+        end
 
       [%{to: nil} | _] ->
         # We had the tag before px did and still have it: px's stay was an
@@ -309,6 +320,21 @@ defmodule TartarusLats.MotionVectors do
     raise ArgumentError,
           "invalid event given to TartarusLats.MotionVectors.handle/3: #{inspect(event)}"
   end
+
+  # Splits a newest-first list of stays into the chain of stays joined by
+  # here -> here loops that ends with the newest one: `{newer, root, older}`
+  # where `root` is the chain's first stay.
+  defp loop_root(here, [stay | rest]), do: loop_root(here, stay, rest, [])
+
+  defp loop_root(
+         here,
+         %{from: here, from_left_at: t} = stay,
+         [%{to: here, left_at: t} = prev | rest],
+         acc
+       ),
+       do: loop_root(here, prev, rest, acc ++ [stay])
+
+  defp loop_root(_here, stay, rest, acc), do: {acc, stay, rest}
 
   defp link_from(mv, tag, stay, rest, px, t_left) do
     mv

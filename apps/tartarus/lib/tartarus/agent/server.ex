@@ -13,13 +13,23 @@ defmodule Tartarus.Agent.Server do
   # Paused copies ask the source host for its decision at this interval while in doubt.
   @doubt_retry 1_000
 
-  def start_link({_host, _key, _mode} = arg), do: GenServer.start_link(__MODULE__, arg)
+  def start_link({host, _key, _mode} = arg) do
+    case host.opts.max_heap_size do
+      :infinity ->
+        GenServer.start_link(__MODULE__, arg)
+
+      words ->
+        spawn_opt = [max_heap_size: %{size: words, kill: true, error_logger: false}]
+        GenServer.start_link(__MODULE__, arg, spawn_opt: spawn_opt)
+    end
+  end
 
   # -- start ---------------------------------------------------------------------
 
   @impl true
   def init({host, key, mode}) do
     [{_, env}] = :ets.lookup(host.ledger, {:snapshot, key})
+    Process.put(:"$tartarus_snapshot_key", key)
     start(host, env, mode)
   end
 
@@ -32,6 +42,7 @@ defmodule Tartarus.Agent.Server do
       {:ok, action, data} ->
         case Ledger.register_resident(host, data.env, self()) do
           :ok ->
+            arrived(put_state(data, action_state(action)))
             emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
             {:ok, data, {:continue, {:act, action}}}
 
@@ -52,10 +63,12 @@ defmodule Tartarus.Agent.Server do
      %{
        host: host,
        env: env,
-       paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer}
+       paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer, stash: []}
      }}
   end
 
+  # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
+  # host started again on its data directory.
   defp start(host, env, {:restart, n}) do
     Process.put(@host, host)
     data = %{host: host, env: env, paused: nil}
@@ -65,6 +78,8 @@ defmodule Tartarus.Agent.Server do
       {:error, reason} -> {:stop, reason}
     end
   end
+
+  defp start(host, env, :restore), do: start(host, env, {:restart, 0})
 
   @impl true
   def handle_continue({:act, action}, data), do: act(action, data)
@@ -80,8 +95,17 @@ defmodule Tartarus.Agent.Server do
     do: commit(data, notify)
 
   def handle_info({:commit_timeout, mig}, %{paused: %{mig: mig} = p} = data) do
-    send(p.src_pid, {:"$tartarus_decision?", mig, data.env.id, self()})
-    {:noreply, data}
+    # In doubt: ask the source host (found again by address if it restarted) and wait.
+    case source_pid(p) do
+      {:ok, pid} ->
+        send(pid, {:"$tartarus_decision?", mig, data.env.id, self()})
+        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
+        {:noreply, %{data | paused: %{p | src_pid: pid, timer: timer}}}
+
+      :error ->
+        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
+        {:noreply, %{data | paused: %{p | src_pid: nil, timer: timer}}}
+    end
   end
 
   def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig} = p} = data) do
@@ -90,17 +114,22 @@ defmodule Tartarus.Agent.Server do
         commit(data, nil)
 
       :aborted ->
+        Tartarus.Host.Persistence.resolved(data.host, mig)
         {:stop, {:shutdown, :aborted}, data}
 
       :unknown ->
-        # The source has not decided yet (its `prepared` may still be on the way): wait.
-        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
-        {:noreply, %{data | paused: %{p | timer: timer}}}
+        # The source has not decided yet (its `prepared` may still be on the way): the
+        # next commit_timeout asks again.
+        _ = p
+        {:noreply, data}
     end
   end
 
-  # While paused, everything else waits in the mailbox until the agent starts.
-  def handle_info(_msg, %{paused: p} = data) when p != nil, do: {:noreply, data}
+  # While paused, messages for the agent are kept and handled once it starts (senders wait
+  # for delivery, so each sender's order is kept).
+  def handle_info(msg, %{paused: p} = data) when p != nil do
+    {:noreply, %{data | paused: %{p | stash: [msg | p.stash]}}}
+  end
 
   # -- messages --------------------------------------------------------------------
 
@@ -210,6 +239,9 @@ defmodule Tartarus.Agent.Server do
   defp act(other, data), do: {:stop, {:bad_action, other}, data}
 
   defp stop(data, reason) do
+    # No longer resident: the host must not take the exit for a crash to restart from.
+    Ledger.forget_resident(data.host, self())
+    Tartarus.Host.Persistence.forget(data.host, data.env.id)
     emit(data, %{type: :stopped, agent: data.env.id, reason: reason}, stopped: 1)
     {:stop, {:shutdown, {:stopped, reason}}, data}
   end
@@ -312,7 +344,7 @@ defmodule Tartarus.Agent.Server do
 
   defp handoff(data, kind, dest, dest_pid, manifest, notify) do
     host = data.host
-    mig = make_ref()
+    mig = {host.incarnation, make_ref()}
     out = outgoing(data.env, kind, host.ref)
     if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)
@@ -326,6 +358,9 @@ defmodule Tartarus.Agent.Server do
         bytes = :erlang.external_size(out)
 
         if kind == :move do
+          # Durable before the commit leaves: a restarted host must not restore the agent.
+          Tartarus.Host.Persistence.committed(host, mig, data.env.id)
+          Tartarus.Host.Persistence.forget(host, data.env.id)
           Ledger.depart(host, data.env.id, data.env.name, dest, mig)
 
           emit(
@@ -447,8 +482,22 @@ defmodule Tartarus.Agent.Server do
 
   # -- arrival (destination side) ----------------------------------------------------
 
+  defp source_pid(%{src_pid: pid}) when is_pid(pid) and node(pid) == node() do
+    if Process.alive?(pid), do: {:ok, pid}, else: :error
+  end
+
+  defp source_pid(%{src_pid: pid}) when is_pid(pid), do: {:ok, pid}
+
+  defp source_pid(%{src: src}) do
+    case Tartarus.Host.whereis(src) do
+      {:ok, pid} -> {:ok, pid}
+      _ -> :error
+    end
+  end
+
   defp commit(%{paused: p} = data, notify) do
     Process.cancel_timer(p.timer)
+    Enum.each(Enum.reverse(p.stash), &send(self(), &1))
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
@@ -465,6 +514,9 @@ defmodule Tartarus.Agent.Server do
 
     case Ledger.register_resident(host, env, self()) do
       :ok ->
+        arrived(data)
+        :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
+        Tartarus.Host.Persistence.resolved(host, p.mig)
         if notify, do: GenServer.reply(notify, if(p.kind == :move, do: :ok, else: {:ok, env.id}))
         Ledger.record_hop(host, hop_us)
 
@@ -482,6 +534,13 @@ defmodule Tartarus.Agent.Server do
 
   # -- helpers ---------------------------------------------------------------------
 
+  # The agent is resident here as `data.env`: that is its arrival snapshot, for restarts
+  # after a crash and (with persistence) after the host's restart.
+  defp arrived(data) do
+    :ets.insert(data.host.ledger, {{:snapshot, Process.get(:"$tartarus_snapshot_key")}, data.env})
+    Tartarus.Host.Persistence.checkpoint(data.host, data.env)
+  end
+
   defp ctx(data) do
     %{
       host: data.host.ref,
@@ -491,6 +550,10 @@ defmodule Tartarus.Agent.Server do
       restarts: 0
     }
   end
+
+  defp action_state({_, s}), do: s
+  defp action_state({_, _, s}), do: s
+  defp action_state(_), do: nil
 
   defp put_state(data, s), do: %{data | env: %{data.env | state: s}}
 

@@ -52,32 +52,42 @@ defmodule Tartarus.Host.Server do
       ledger: ledger,
       store: store,
       counters: Tartarus.Events.new_counters(),
+      # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
+      incarnation: :crypto.strong_rand_bytes(8),
+      dets: Tartarus.Host.Persistence.open(name, opts[:data_dir]),
       opts: Map.new(opts)
     }
 
     # Local callers read the host's tables without a call (see Tartarus.Host.local/1).
     {_, _} = Registry.update_value(Tartarus.HostRegistry, {:host, name}, fn _ -> host end)
-    {:ok, %{host: host, monitors: %{}, killing: MapSet.new()}}
+    {:ok, %{host: host, monitors: %{}, killing: MapSet.new(), admission: opts[:admission]}}
   end
 
   @impl true
-  def handle_call(:info, _from, state), do: {:reply, state.host, state}
+  def handle_call(request, from, state) do
+    case Tartarus.Wire.check_call(request) do
+      :ok -> call(request, from, state)
+      error -> {:reply, error, state}
+    end
+  end
 
-  def handle_call({:create, envelope, args}, _from, state) do
+  defp call(:info, _from, state), do: {:reply, state.host, state}
+
+  defp call({:create, envelope, args}, _from, state) do
     case start_agent(state, envelope, {:create, args}) do
       {:ok, _pid, state} -> {:reply, {:ok, envelope.id}, state}
       {:error, reason, state} -> {:reply, {:error, reason}, state}
     end
   end
 
-  def handle_call({:connect, other, props}, _from, state) do
+  defp call({:connect, other, props}, _from, state) do
     ledger = state.host.ledger
     [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
     :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
     {:reply, :ok, state}
   end
 
-  def handle_call({:disconnect, other}, _from, state) do
+  defp call({:disconnect, other}, _from, state) do
     ledger = state.host.ledger
     [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
     :ets.insert(ledger, {:neighbours, List.delete(ns, other)})
@@ -85,11 +95,11 @@ defmodule Tartarus.Host.Server do
     {:reply, :ok, state}
   end
 
-  def handle_call({:locate, agent}, _from, state) do
+  defp call({:locate, agent}, _from, state) do
     {:reply, Tartarus.Ledger.locate(state.host, agent), state}
   end
 
-  def handle_call({:kill, agent}, _from, state) do
+  defp call({:kill, agent}, _from, state) do
     case Tartarus.Ledger.locate(state.host, agent) do
       {:here, pid, id} ->
         state = %{state | killing: MapSet.put(state.killing, pid)}
@@ -99,8 +109,9 @@ defmodule Tartarus.Host.Server do
           pid
         )
 
-        # Gone from the ledger before the caller hears back.
+        # Gone from the ledger (and the checkpoints) before the caller hears back.
         Tartarus.Ledger.forget_resident(state.host, pid)
+        Tartarus.Host.Persistence.forget(state.host, id)
         {:reply, {:killed, id}, state}
 
       other ->
@@ -108,24 +119,86 @@ defmodule Tartarus.Host.Server do
     end
   end
 
-  def handle_call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
+  defp call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
+
+  # Restores checkpointed agents and in-doubt copies (persistence); called once by
+  # Tartarus.start_host/2 after the host's supervisors are up.
+  defp call(:restore, _from, state) do
+    {agents, in_doubt} = Tartarus.Host.Persistence.restore(state.host)
+
+    state =
+      Enum.reduce(agents, state, fn env, state ->
+        case start_agent(state, env, :restore) do
+          {:ok, _pid, state} -> state
+          {:error, _reason, state} -> state
+        end
+      end)
+
+    state =
+      Enum.reduce(in_doubt, state, fn {mig, env, src, kind}, state ->
+        case start_agent(state, env, {:paused, mig, src, nil, kind}) do
+          {:ok, _pid, state} -> state
+          {:error, _reason, state} -> state
+        end
+      end)
+
+    {:reply, {:ok, length(agents), length(in_doubt)}, state}
+  end
+
+  defp call(:paused, _from, state) do
+    {:reply, map_size(state.monitors) - Tartarus.Ledger.counter(state.host, :resident), state}
+  end
 
   @impl true
-  def handle_info(
-        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
-        state
-      ) do
-    case prepare(state, env, manifest, code) do
-      :ok ->
-        case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
-          {:ok, pid, state} ->
-            send(s_pid, {:"$tartarus_prepared", mig, pid})
-            {:noreply, state}
+  def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
+    case Tartarus.Wire.check_prepare(msg, state.host.opts.max_envelope_bytes) do
+      :ok -> admit(state, msg)
+      {:error, reason} -> refuse(state, s_pid, mig, env, src, reason)
+    end
+  end
 
-          {:error, reason, state} ->
-            refuse(state, s_pid, mig, env, src, reason)
-        end
+  def handle_info({:"$tartarus_decision?", mig, id, a_pid} = msg, state) do
+    if Tartarus.Wire.check_decision_query(msg) == :ok do
+      send(a_pid, {:"$tartarus_decision", mig, Tartarus.Ledger.decision(state.host, mig, id)})
+    end
 
+    {:noreply, state}
+  end
+
+  def handle_info({:DOWN, mref, :process, pid, reason}, state) do
+    {entry, monitors} = Map.pop(state.monitors, mref)
+    killed? = MapSet.member?(state.killing, pid)
+    state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
+    resident? = Tartarus.Ledger.forget_resident(state.host, pid)
+    if entry, do: :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
+    {:noreply, agent_down(state, entry, reason, resident?, killed?)}
+  end
+
+  def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
+
+  def handle_info(_other, state), do: {:noreply, state}
+
+  @impl true
+  def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.dets)
+
+  # -- admission ---------------------------------------------------------------
+
+  defp admit(state, {_, s_pid, mig, src, src_pid, kind, env, manifest, code}) do
+    with :ok <- prepare(state, env, manifest, code),
+         {:ok, state} <- policy(state, src, env) do
+      case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
+        {:ok, pid, state} ->
+          # Findable (messages to it wait until it starts) and durable before the source
+          # may commit.
+          :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+          Tartarus.Host.Persistence.in_doubt(state.host, mig, env, src, kind)
+          send(s_pid, {:"$tartarus_prepared", mig, pid})
+          {:noreply, state}
+
+        {:error, reason, state} ->
+          refuse(state, s_pid, mig, env, src, reason)
+      end
+    else
       {:need, mods} ->
         send(s_pid, {:"$tartarus_need", mig, mods})
         {:noreply, state}
@@ -135,35 +208,34 @@ defmodule Tartarus.Host.Server do
     end
   end
 
-  def handle_info({:"$tartarus_decision?", mig, id, a_pid}, state) do
-    send(a_pid, {:"$tartarus_decision", mig, Tartarus.Ledger.decision(state.host, mig, id)})
-    {:noreply, state}
-  end
+  # The host's admission policy (Tartarus.Security.Admission), if it has one.
+  defp policy(%{admission: nil} = state, _src, _env), do: {:ok, state}
 
-  def handle_info({:DOWN, mref, :process, pid, reason}, state) do
-    {entry, monitors} = Map.pop(state.monitors, mref)
-    killed? = MapSet.member?(state.killing, pid)
-    state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
-    resident? = Tartarus.Ledger.forget_resident(state.host, pid)
-    {:noreply, agent_down(state, entry, reason, resident?, killed?)}
-  end
+  defp policy(state, src, env) do
+    request = %{
+      source: src,
+      envelope_bytes: :erlang.external_size(env),
+      payload_bytes: :erlang.external_size({env.state, env.payload}),
+      hops: env.hops + 1,
+      resident: Tartarus.Ledger.counter(state.host, :resident)
+    }
 
-  def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
-  def handle_info(_other, state), do: {:noreply, state}
-
-  # -- admission ---------------------------------------------------------------
-
-  defp prepare(state, env, manifest, code) do
-    with :ok <- validate_envelope(env),
-         :ok <- check_ttl(env),
-         :ok <- load_code(code) do
-      _ = state
-      CodeCache.check(manifest)
+    case Tartarus.Security.Admission.admit(
+           state.admission,
+           request,
+           System.monotonic_time(:millisecond)
+         ) do
+      {:ok, admission} -> {:ok, %{state | admission: admission}}
+      {:error, _} = error -> error
     end
   end
 
-  defp validate_envelope(%Envelope{id: id, module: m}) when is_binary(id) and is_atom(m), do: :ok
-  defp validate_envelope(_), do: {:error, :bad_envelope}
+  defp prepare(_state, env, manifest, code) do
+    with :ok <- check_ttl(env),
+         :ok <- load_code(code) do
+      CodeCache.check(manifest)
+    end
+  end
 
   defp check_ttl(%Envelope{ttl: :infinity}), do: :ok
   defp check_ttl(%Envelope{hops: hops, ttl: ttl}) when hops < ttl, do: :ok

@@ -1,0 +1,180 @@
+defmodule Tartarus.Wire do
+  @moduledoc """
+  Checks of what a host receives from other nodes, before any of it is used.
+
+  Every hand-off message and every request to a host's server is checked for shape, types
+  and size here; a message that fails is refused with `{:bad_message, what}` (and an event)
+  and never reaches code that could crash on it. These functions are pure and total: they
+  return `:ok` or `{:error, reason}` for any term, which the property tests check with
+  thousands of generated malformed messages.
+
+  What this cannot do: distributed Erlang decodes a message, creating any atoms in it,
+  before we see it. Nothing here turns remote data into atoms (`String.to_atom/1`,
+  `binary_to_term/1` without `:safe` are not used on remote data), but a connected node can
+  still send atoms; only TLS distribution with certificates (DESIGN §7) decides who may
+  connect at all.
+  """
+
+  alias Tartarus.Envelope
+
+  @max_name_bytes 256
+  @max_modules 64
+  @default_max_bytes 8 * 1024 * 1024
+
+  @doc "The default upper bound of a hand-off message's size, in bytes (8 MiB)."
+  @spec default_max_bytes() :: pos_integer()
+  def default_max_bytes, do: @default_max_bytes
+
+  @doc """
+  Checks a prepare message's fields (see `Tartarus.Host.Server` for the protocol).
+
+      iex> Tartarus.Wire.check_prepare(:nonsense, 1_000)
+      {:error, {:bad_message, :not_a_prepare}}
+  """
+  @spec check_prepare(term(), pos_integer()) :: :ok | {:error, {:bad_message, term()}}
+  def check_prepare(
+        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
+        max_bytes
+      ) do
+    with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
+         :ok <- check(migration_id?(mig), :migration_id),
+         :ok <- check(Tartarus.Host.address?(src) and is_tuple(src), :source_host),
+         :ok <- check(kind in [:move, :clone], :kind),
+         :ok <- check_envelope(env),
+         :ok <- check_manifest(manifest),
+         :ok <- check_code(code) do
+      size = :erlang.external_size({env, manifest, code})
+      check(size <= max_bytes, {:too_large, size, max_bytes})
+    end
+  end
+
+  def check_prepare(_other, _max), do: {:error, {:bad_message, :not_a_prepare}}
+
+  @doc """
+  Checks an envelope: a `Tartarus.Envelope` with every field of the right type.
+
+      iex> Tartarus.Wire.check_envelope(%{__struct__: Tartarus.Envelope, id: 1})
+      {:error, {:bad_message, {:envelope, :fields}}}
+  """
+  @spec check_envelope(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_envelope(%{__struct__: Envelope} = env) do
+    keys = Map.keys(%Envelope{id: nil, module: nil})
+
+    if map_size(env) == length(keys) and Enum.all?(keys, &is_map_key(env, &1)) do
+      Enum.find_value(field_checks(), :ok, fn {field, ok?} ->
+        if ok?.(Map.fetch!(env, field)),
+          do: nil,
+          else: {:error, {:bad_message, {:envelope, field}}}
+      end)
+    else
+      {:error, {:bad_message, {:envelope, :fields}}}
+    end
+  end
+
+  def check_envelope(_other), do: {:error, {:bad_message, {:envelope, :not_an_envelope}}}
+
+  defp field_checks do
+    [
+      id: &(is_binary(&1) and byte_size(&1) == 16),
+      name: &(is_nil(&1) or is_atom(&1) or (is_binary(&1) and byte_size(&1) <= @max_name_bytes)),
+      module: &(is_atom(&1) and not is_nil(&1)),
+      ships: &module_list?/1,
+      payload: &payload?/1,
+      owner: &(is_nil(&1) or is_pid(&1)),
+      home: &(is_nil(&1) or Tartarus.Host.address?(&1)),
+      hops: &(is_integer(&1) and &1 >= 0),
+      ttl: &(&1 == :infinity or (is_integer(&1) and &1 > 0)),
+      visits: &visits?/1,
+      from: &(is_nil(&1) or Tartarus.Host.address?(&1)),
+      departed_at: &(is_nil(&1) or is_integer(&1)),
+      static: &is_boolean/1,
+      rng: &rng?/1,
+      clone_of: &(is_nil(&1) or (is_binary(&1) and byte_size(&1) == 16)),
+      issuer: &(is_nil(&1) or is_binary(&1)),
+      signature: &(is_nil(&1) or is_binary(&1) or is_map(&1))
+    ]
+  end
+
+  defp module_list?(l),
+    do: is_list(l) and length(l) <= @max_modules and Enum.all?(l, &(is_atom(&1) and &1 != nil))
+
+  defp payload?(%{data: data, modules: mods} = p) when map_size(p) == 2,
+    do: is_map(data) and module_list?(mods)
+
+  defp payload?(_), do: false
+
+  defp visits?(v) when is_map(v) do
+    Enum.all?(v, fn {h, n} -> Tartarus.Host.address?(h) and is_integer(n) and n >= 0 end)
+  end
+
+  defp visits?(_), do: false
+
+  # An exported :rand state: {algorithm, state}; :rand.seed_s/1 checks the rest when used.
+  defp rng?({alg, _state})
+       when alg in [:exsss, :exsplus, :exrop, :exs1024s, :exs64, :exs1024, :exsp, :exro928ss],
+       do: true
+
+  defp rng?(_), do: false
+
+  @doc "Checks a manifest: a list of `{module, md5}` pairs."
+  @spec check_manifest(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_manifest(m) when is_list(m) and length(m) <= @max_modules do
+    check(
+      Enum.all?(m, &match?({mod, <<_::128>>} when is_atom(mod) and mod != nil, &1)),
+      :manifest
+    )
+  end
+
+  def check_manifest(_), do: {:error, {:bad_message, :manifest}}
+
+  @doc "Checks shipped code: a list of `{module, md5, beam_binary}`."
+  @spec check_code(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_code(c) when is_list(c) and length(c) <= @max_modules do
+    ok =
+      Enum.all?(
+        c,
+        &match?({mod, <<_::128>>, bin} when is_atom(mod) and mod != nil and is_binary(bin), &1)
+      )
+
+    check(ok, :code)
+  end
+
+  def check_code(_), do: {:error, {:bad_message, :code}}
+
+  @doc "Checks a decision query `{:\"$tartarus_decision?\", mig, id, pid}`."
+  @spec check_decision_query(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_decision_query({:"$tartarus_decision?", mig, id, pid}) do
+    check(migration_id?(mig) and is_binary(id) and is_pid(pid), :decision_query)
+  end
+
+  def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
+
+  @doc "Checks a call to a host's server."
+  @spec check_call(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_call(:info), do: :ok
+  def check_call(:monitored), do: :ok
+  def check_call(:restore), do: :ok
+  def check_call(:paused), do: :ok
+  def check_call({:create, env, _args}), do: check_envelope(env)
+
+  def check_call({:connect, host, props}),
+    do: check(Tartarus.Host.address?(host) and is_tuple(host) and link_props?(props), :connect)
+
+  def check_call({:disconnect, host}), do: check(Tartarus.Host.address?(host), :disconnect)
+  def check_call({:locate, agent}), do: check(agent_key?(agent), :locate)
+  def check_call({:kill, agent}), do: check(agent_key?(agent), :kill)
+  def check_call(_), do: {:error, {:bad_message, :unknown_call}}
+
+  defp link_props?(%{latency_ms: l, loss: p} = m) when map_size(m) == 2,
+    do: is_integer(l) and l >= 0 and is_number(p) and p >= 0 and p <= 1
+
+  defp link_props?(_), do: false
+
+  defp agent_key?(a), do: (is_binary(a) and byte_size(a) <= @max_name_bytes) or is_atom(a)
+
+  defp migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
+  defp migration_id?(_), do: false
+
+  defp check(true, _what), do: :ok
+  defp check(false, what), do: {:error, {:bad_message, what}}
+end

@@ -1,0 +1,256 @@
+defmodule TartarusLats.DatabaseAgent do
+  @moduledoc """
+  The static Database agent of a LATS node (thesis §3.3.3): one per host,
+  named `"lats-db"` on every host so that neighbours address it as
+  `{"lats-db", host}`.
+
+  It reads its node's BLE receiver through the plugin channel
+  (`TartarusLats.BeaconPlugin`, attached as `:beacon`), runs the pure
+  `TartarusLats.Tracker` and `TartarusLats.MotionVectors`, keeps the node's
+  log of records and its motion-vector table, and exchanges the handshake
+  messages with the database agents of the neighbouring hosts
+  (`Tartarus.post/3`).
+
+  ## What it publishes in the host store
+
+  Query agents read these locally with `Tartarus.Agent.store_get/2`:
+
+    * `{:lats, :node}` - this node's (zone's) name;
+    * `{:lats, :neighbours}` - `%{neighbour_node => host}`;
+    * `{:lats, :mv}` - the `TartarusLats.MotionVectors` table;
+    * `{:lats, :log}` - the log of records (`t:TartarusLats.Tracker.record/0`),
+      newest first;
+    * `{:lats, :clock}` - the last world second processed;
+    * `{:lats, :cloud}` - the cloud host, or `nil`;
+    * `{:lats, :filtered}` - `%{tag => filtered RSSI}` of the last second.
+
+  ## Driven in world seconds
+
+  The agent does nothing by itself: the scenario driver (see
+  `TartarusLats.Deployment`) advances the world one second at a time and
+  then asks every database agent, in phases, with `Tartarus.request/3`:
+
+    1. `{:sense, t}` - scan the receiver, run the tracker, log records, feed
+       `:entered_zone` / `:left_zone` to the motion vectors and post the
+       handshake messages to the neighbours;
+    2. `{:deliver, t}` (repeated while messages flow) - apply the handshake
+       messages received since the last phase, in a fixed order (sorted), and
+       post the answers;
+    3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
+       wall time) and publishing.
+
+  Each request is answered only after every message it caused has been
+  taken by its receiver, so when all answers are in, the phase is complete
+  everywhere: runs are deterministic for a seed however the hosts are
+  scheduled. Messages received are buffered until the next `{:deliver, t}`.
+
+  ## Durable log
+
+  With `data_dir` set, the log and the motion-vector table are written to a
+  DETS file `<data_dir>/<node>.dets` (synced after every change) and
+  reloaded when the agent starts again, e.g. after a host restart. The
+  tracker's filter state is not kept (after a restart every tag starts
+  "beyond"). The platform has no generic persistence of host stores yet, so
+  this lives inside LATS.
+
+  ## The cloud (centralized design, thesis Scenario 1)
+
+  With `centralized: true` the agent uploads, in one post to the cloud agent
+  (`TartarusLats.Cloud`) per phase that produced anything, every new record
+  and every changed vector: one connection per upload.
+
+  ## Arguments of `init/1`
+
+  A map with `:node` (required), `:neighbours` (`%{node => host}`),
+  `:cloud` (host or nil), `:centralized` (boolean), `:data_dir` (path or
+  nil), `:tracker` (options of `TartarusLats.Tracker.new/1`), `:timeout`
+  (handshake timeout in seconds, default 15).
+  """
+  use Tartarus.Agent
+
+  alias Tartarus.Agent, as: A
+  alias TartarusLats.{MotionVectors, Tracker}
+
+  @name "lats-db"
+
+  @doc "The name of the database agent on every host."
+  @spec agent_name() :: String.t()
+  def agent_name, do: @name
+
+  @impl true
+  def init(args) when is_map(args) do
+    node = Map.fetch!(args, :node)
+
+    s = %{
+      node: node,
+      neighbours: Map.get(args, :neighbours, %{}),
+      cloud: Map.get(args, :cloud),
+      centralized: Map.get(args, :centralized, false),
+      tracker: Tracker.new(Map.get(args, :tracker, [])),
+      mv: MotionVectors.new(node, timeout: Map.get(args, :timeout, 15)),
+      log: [],
+      seq: 0,
+      clock: 0,
+      inbox: [],
+      dets: nil
+    }
+
+    s = open_log(s, Map.get(args, :data_dir))
+    A.store_put({:lats, :node}, node)
+    A.store_put({:lats, :neighbours}, s.neighbours)
+    A.store_put({:lats, :cloud}, s.cloud)
+    A.store_put({:lats, :filtered}, %{})
+    publish(s)
+    {:stay, s}
+  end
+
+  @impl true
+  def handle_message({:mv, msg}, _from, s), do: {:stay, %{s | inbox: [msg | s.inbox]}}
+
+  def handle_message({:sense, t}, from, s) do
+    readings =
+      case A.read(:beacon, {:scan, t}) do
+        {:ok, readings} -> readings
+        {:error, _} -> %{}
+      end
+
+    {events, tracker} = Tracker.tick(s.tracker, t, readings)
+
+    A.store_put(
+      {:lats, :filtered},
+      Map.new(Tracker.tags(tracker), &{&1, Tracker.average(tracker, &1)})
+    )
+
+    records = for {:record, r} <- events, do: r
+    mv_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
+    s = %{s | tracker: tracker, clock: t} |> append_log(records)
+    {s, out, changed} = apply_events(s, t, mv_events)
+    send_all(s, from, t, out, records, changed)
+    {:stay, s}
+  end
+
+  def handle_message({:deliver, t}, from, s) do
+    inbox = Enum.sort(s.inbox)
+    {s, out, changed} = apply_events(%{s | inbox: []}, t, inbox)
+    send_all(s, from, t, out, [], changed)
+    {:stay, s}
+  end
+
+  def handle_message({:tick, t}, from, s) do
+    {s, [], changed} = apply_events(%{s | clock: t}, t, [:tick])
+    A.store_put({:lats, :clock}, t)
+    send_all(s, from, t, [], [], changed)
+    {:stay, s}
+  end
+
+  def handle_message(:state, from, s) do
+    A.reply(from, %{node: s.node, mv: s.mv, log: s.log, clock: s.clock})
+    {:stay, s}
+  end
+
+  def handle_message(_other, _from, s), do: {:stay, s}
+
+  # -- events -----------------------------------------------------------------
+
+  defp apply_events(s, _t, []), do: {s, [], []}
+
+  defp apply_events(s, t, events) do
+    before = s.mv.tags
+
+    {mv, actions} =
+      Enum.reduce(events, {s.mv, []}, fn event, {mv, acc} ->
+        {mv, actions} = MotionVectors.handle(mv, t, event)
+        {mv, acc ++ actions}
+      end)
+
+    out =
+      Enum.flat_map(actions, fn
+        {:broadcast, msg} -> for {_n, host} <- Enum.sort(s.neighbours), do: {host, msg}
+        {:send, node, msg} -> if h = s.neighbours[node], do: [{h, msg}], else: []
+      end)
+
+    changed = for {tag, segs} <- mv.tags, Map.get(before, tag) != segs, do: {tag, segs}
+    s = %{s | mv: mv}
+
+    if changed != [] do
+      persist(s, :mv, mv)
+      A.store_put({:lats, :mv}, mv)
+    end
+
+    {s, out, changed}
+  end
+
+  # Posts the handshake messages and the upload from a separate process (two database
+  # agents posting to each other from their callbacks would wait for each other), and
+  # answers the driver once every message has been taken.
+  defp send_all(s, from, t, out, records, changed) do
+    db = @name
+    upload = upload(s, t, records, changed)
+
+    spawn(fn ->
+      sent = Enum.count(out, fn {host, msg} -> Tartarus.post({db, host}, {:mv, msg}) == :ok end)
+
+      if upload, do: Tartarus.post({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
+      A.reply(from, {:ok, sent})
+    end)
+  end
+
+  defp upload(%{centralized: true, cloud: cloud} = s, t, records, changed)
+       when cloud != nil and (records != [] or changed != []) do
+    {:upload, %{node: s.node, time: t, records: records, vectors: changed}}
+  end
+
+  defp upload(_s, _t, _records, _changed), do: nil
+
+  # -- log and persistence ------------------------------------------------------
+
+  defp append_log(s, []), do: s
+
+  defp append_log(s, records) do
+    {log, seq} =
+      Enum.reduce(records, {s.log, s.seq}, fn r, {log, seq} ->
+        persist(s, {:record, seq + 1}, r)
+        {[r | log], seq + 1}
+      end)
+
+    A.store_put({:lats, :log}, log)
+    %{s | log: log, seq: seq}
+  end
+
+  defp open_log(s, nil), do: s
+
+  defp open_log(s, dir) do
+    File.mkdir_p!(dir)
+    file = Path.join(dir, "#{s.node}.dets") |> String.to_charlist()
+    name = {__MODULE__, A.host()}
+    {:ok, ^name} = :dets.open_file(name, file: file, type: :set)
+
+    records =
+      :dets.select(name, [{{{:record, :"$1"}, :"$2"}, [], [{{:"$1", :"$2"}}]}])
+      |> Enum.sort()
+
+    mv =
+      case :dets.lookup(name, :mv) do
+        [{:mv, %MotionVectors{} = mv}] -> mv
+        _ -> s.mv
+      end
+
+    log = records |> Enum.map(&elem(&1, 1)) |> Enum.reverse()
+    seq = if records == [], do: 0, else: records |> List.last() |> elem(0)
+    A.store_put({:lats, :log}, log)
+    %{s | dets: name, log: log, seq: seq, mv: mv}
+  end
+
+  defp persist(%{dets: nil}, _key, _value), do: :ok
+
+  defp persist(%{dets: name}, key, value) do
+    :ok = :dets.insert(name, {key, value})
+    :dets.sync(name)
+  end
+
+  defp publish(s) do
+    A.store_put({:lats, :mv}, s.mv)
+    A.store_put({:lats, :log}, s.log)
+    A.store_put({:lats, :clock}, s.clock)
+  end
+end
