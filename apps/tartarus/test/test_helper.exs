@@ -1,3 +1,3 @@
-# :known_bug tests show bugs in lib/ that are not fixed yet; run them with
-# `mix test --only known_bug`.
+# Tests tagged :known_bug show a bug in lib/ that is not fixed yet (none at the moment); run
+# them with `mix test --only known_bug`.
 ExUnit.start(capture_log: true, exclude: [:known_bug])

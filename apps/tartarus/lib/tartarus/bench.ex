@@ -240,6 +240,8 @@ defmodule Tartarus.Bench do
     |> Task.await_many(:infinity)
 
     wall_us = max(System.monotonic_time(:microsecond) - t0, 1)
+    # Resident and idle: let the agents hibernate (they do after 1 s without messages).
+    Process.sleep(3_000)
     mem1 = :erlang.memory(:total)
     resident = Tartarus.status(host).resident
 

@@ -49,6 +49,8 @@ defmodule Tartarus.Peer do
     * `:args` - extra command-line arguments (strings) for the peer's `erl`;
     * `:apps` - applications to start on the peer (default `[:tartarus]`);
     * `:log_level` - the peer's Logger level (default `:warning`);
+    * `:link` - link the peer to the caller (default `true`); unlinked peers can be killed
+      (`kill/1`) without taking the caller down;
     * `:busy_wait` - let the peer's schedulers busy-wait (default `false`: nodes sharing
       a machine's cores would otherwise steal each other's CPU);
     * `:connection` - `:standard_io` to control the peer without distribution (default:
@@ -75,7 +77,9 @@ defmodule Tartarus.Peer do
           conn -> Map.put(spec, :connection, conn)
         end
 
-      case :peer.start_link(spec) do
+      start = if Keyword.get(opts, :link, true), do: &:peer.start_link/1, else: &:peer.start/1
+
+      case start.(spec) do
         {:ok, pid, node} ->
           boot = [Keyword.get(opts, :apps, [:tartarus]), Keyword.get(opts, :log_level, :warning)]
 
@@ -130,6 +134,58 @@ defmodule Tartarus.Peer do
       {:ok, list} -> {:ok, Enum.reverse(list)}
       error -> error
     end
+  end
+
+  @doc """
+  Kills a peer's operating-system process with SIGKILL: no clean shutdown, no goodbye to
+  other nodes, like a power cut. Returns once the node is gone.
+  """
+  @spec kill(node()) :: :ok
+  def kill(node) do
+    os_pid = :erpc.call(node, :os, :getpid, [], 5_000)
+    Node.monitor(node, true)
+    {_, 0} = System.cmd("kill", ["-9", List.to_string(os_pid)])
+
+    receive do
+      {:nodedown, ^node} -> :ok
+    after
+      10_000 -> :ok
+    end
+  catch
+    _, _ -> :ok
+  end
+
+  @doc """
+  Cuts distribution between nodes `a` and `b` (both reachable from here): each side gets a
+  wrong cookie for the other and the connection is closed, so reconnection fails until
+  `heal/2`.
+  """
+  @spec partition(node(), node()) :: :ok
+  def partition(a, b) do
+    # Two different wrong cookies: each side's handshake fails whoever dials.
+    tag = System.unique_integer([:positive])
+    :ok = :erpc.call(a, __MODULE__, :cut_local, [b, :"tartarus_partitioned_#{tag}_a"])
+    :ok = :erpc.call(b, __MODULE__, :cut_local, [a, :"tartarus_partitioned_#{tag}_b"])
+  end
+
+  @doc "Heals a partition made by `partition/2`."
+  @spec heal(node(), node()) :: :ok
+  def heal(a, b) do
+    :ok = :erpc.call(a, __MODULE__, :heal_local, [b])
+    :ok = :erpc.call(b, __MODULE__, :heal_local, [a])
+  end
+
+  @doc false
+  def cut_local(other, bad) do
+    true = :erlang.set_cookie(other, bad)
+    _ = :erlang.disconnect_node(other)
+    :ok
+  end
+
+  @doc false
+  def heal_local(other) do
+    true = :erlang.set_cookie(other, :erlang.get_cookie())
+    :ok
   end
 
   @doc "Stops a peer. Stopping a peer that is already gone is fine."

@@ -144,7 +144,7 @@ defmodule Tartarus.AgentTest do
       h = host!()
       id = agent!(h, %{init_action: {:return, 42}}, owner: self())
       assert_receive {:tartarus_result, ^id, 42}
-      # (That it is then gone is the :known_bug test below.)
+      # (That it is then gone is checked below.)
       Tartarus.kill({id, h})
     end
 

@@ -105,7 +105,8 @@ defmodule TartarusEmu.Network do
     prefix: [
       type: :any,
       default: "emu",
-      doc: "host names are `\"<prefix><unique>-<node>\"` (strings); `nil` uses the topology names"
+      doc:
+        "host names are `\"<prefix><tag>-<node>\"` (strings, `<tag>` unique per network); `nil` keeps the topology names"
     ],
     peer_args: [type: {:list, :string}, default: [], doc: "extra `erl` arguments of peers"],
     max_processes: [type: :pos_integer, default: 32_768, doc: "`+P` of each peer node"],
@@ -133,7 +134,14 @@ defmodule TartarusEmu.Network do
              [latency_ms: [type: :non_neg_integer], loss: [type: :probability]],
              "TartarusEmu.Network.start/2 (:link)"
            ) do
-      tag = System.unique_integer([:positive])
+      # Fixed width (6 base-36 digits, unique for 2 billion networks per VM), so that host
+      # names, and the bytes of envelopes that carry them, have the same size on every run.
+      tag =
+        System.unique_integer([:positive])
+        |> rem(2_176_782_336)
+        |> Integer.to_string(36)
+        |> String.pad_leading(6, "0")
+
       names = Map.new(topo.nodes, &{&1, host_name(opts[:prefix], tag, &1)})
       {:ok, keeper, table} = Keeper.start(self())
 
@@ -215,7 +223,7 @@ defmodule TartarusEmu.Network do
       |> Enum.with_index(1)
       |> Enum.map(fn {members, i} ->
         %{
-          name: :"#{opts[:prefix] || "emu"}#{tag}_#{i}",
+          name: :"#{opts[:prefix] || "emu"}#{String.downcase(tag)}_#{i}",
           args: peer_args,
           hosts: Enum.map(members, &{&1, Map.fetch!(names, &1)}),
           host_opts: host_opts
@@ -473,23 +481,37 @@ defmodule TartarusEmu.Network do
 
   @doc """
   Sends `message` as a plain Erlang message to every agent resident on the network's hosts
-  (it arrives in the agent's `handle_info/2`). One remote call per BEAM node, so it stays
-  cheap for 100,000 agents. Returns how many agents it reached. Agents in the middle of a
+  (it arrives in the agent's `handle_info/2`). Returns how many agents it reached.
+
+  The resident agents of every host are listed first (one remote call per BEAM node), then
+  the messages are sent, so an agent that moves on receiving the message is not reached a
+  second time at its new host. Cheap enough for 100,000 agents. Agents in the middle of a
   migration are not reached (their paused copy drops plain messages).
   """
   @spec broadcast(t(), term()) :: non_neg_integer()
   def broadcast(net, message) do
     net
+    |> resident_pids()
+    |> Enum.reduce(0, fn pids, acc ->
+      Enum.each(pids, &send(&1, message))
+      acc + length(pids)
+    end)
+  end
+
+  @doc "The pids of the agents resident on the network's hosts now, as a list per host."
+  @spec resident_pids(t()) :: [[pid()]]
+  def resident_pids(net) do
+    net
     |> hosts_by_node()
     |> Task.async_stream(
       fn {node, names} ->
         if node == node() do
-          local_broadcast(names, message)
+          local_pids(names)
         else
           try do
-            :erpc.call(node, __MODULE__, :local_broadcast, [names, message], 60_000)
+            :erpc.call(node, __MODULE__, :local_pids, [names], 60_000)
           catch
-            _, _ -> 0
+            _, _ -> []
           end
         end
       end,
@@ -497,20 +519,16 @@ defmodule TartarusEmu.Network do
       timeout: :infinity,
       ordered: false
     )
-    |> Enum.reduce(0, fn {:ok, n}, acc -> acc + n end)
+    |> Enum.flat_map(fn {:ok, lists} -> lists end)
   end
 
   @doc false
   # Runs on the hosts' node.
-  def local_broadcast(names, message) do
-    Enum.reduce(names, 0, fn name, acc ->
+  def local_pids(names) do
+    Enum.map(names, fn name ->
       case Tartarus.agents({name, node()}) do
-        list when is_list(list) ->
-          Enum.each(list, &send(&1.pid, message))
-          acc + length(list)
-
-        _ ->
-          acc
+        list when is_list(list) -> Enum.map(list, & &1.pid)
+        _ -> []
       end
     end)
   end

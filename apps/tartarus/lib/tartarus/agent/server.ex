@@ -13,14 +13,22 @@ defmodule Tartarus.Agent.Server do
   # Paused copies ask the source host for its decision at this interval while in doubt.
   @doubt_retry 1_000
 
+  # Idle agents hibernate (their heap shrinks to what their state needs): a host may hold a
+  # million of them.
+  @hibernate_after 1_000
+
   def start_link({host, _key, _mode} = arg) do
     case host.opts.max_heap_size do
       :infinity ->
-        GenServer.start_link(__MODULE__, arg)
+        GenServer.start_link(__MODULE__, arg, hibernate_after: @hibernate_after)
 
       words ->
         spawn_opt = [max_heap_size: %{size: words, kill: true, error_logger: false}]
-        GenServer.start_link(__MODULE__, arg, spawn_opt: spawn_opt)
+
+        GenServer.start_link(__MODULE__, arg,
+          spawn_opt: spawn_opt,
+          hibernate_after: @hibernate_after
+        )
     end
   end
 
@@ -124,6 +132,9 @@ defmodule Tartarus.Agent.Server do
         {:noreply, data}
     end
   end
+
+  # A commit delivered twice (or after the agent resolved its doubt by asking) changes nothing.
+  def handle_info({:"$tartarus_commit", _mig, _notify}, data), do: {:noreply, data}
 
   # While paused, messages for the agent are kept and handled once it starts (senders wait
   # for delivery, so each sender's order is kept).
@@ -345,7 +356,7 @@ defmodule Tartarus.Agent.Server do
   defp handoff(data, kind, dest, dest_pid, manifest, notify) do
     host = data.host
     mig = {host.incarnation, make_ref()}
-    out = outgoing(data.env, kind, host.ref)
+    out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind, host.ref))
     if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)
     prepare = {:"$tartarus_prepare", self(), mig, host.ref, host.pid, kind, out, manifest}
@@ -354,6 +365,7 @@ defmodule Tartarus.Agent.Server do
     case await_prepared(prepare, mig, mref, dest_pid, manifest, host.opts.migration_timeout, 0) do
       {:prepared, new_pid, code_bytes} ->
         unwatch(mref)
+        Tartarus.Fault.point(:prepared, new_pid)
         true = Ledger.decide(host, mig, :committed)
         bytes = :erlang.external_size(out)
 
@@ -383,6 +395,7 @@ defmodule Tartarus.Agent.Server do
           )
         end
 
+        Tartarus.Fault.point(:committing, new_pid)
         send(new_pid, {:"$tartarus_commit", mig, notify})
         # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
         if kind == :move, do: {:moved, data}, else: {:cloned, out.id, data}
@@ -482,12 +495,8 @@ defmodule Tartarus.Agent.Server do
 
   # -- arrival (destination side) ----------------------------------------------------
 
-  defp source_pid(%{src_pid: pid}) when is_pid(pid) and node(pid) == node() do
-    if Process.alive?(pid), do: {:ok, pid}, else: :error
-  end
-
-  defp source_pid(%{src_pid: pid}) when is_pid(pid), do: {:ok, pid}
-
+  # The source host's server, found by address each time (the source may have restarted
+  # since it sent `prepare`; the directory drops pids of hosts that went down).
   defp source_pid(%{src: src}) do
     case Tartarus.Host.whereis(src) do
       {:ok, pid} -> {:ok, pid}

@@ -184,6 +184,8 @@ defmodule Tartarus.Host.Server do
   # -- admission ---------------------------------------------------------------
 
   defp admit(state, {_, s_pid, mig, src, src_pid, kind, env, manifest, code}) do
+    env = Tartarus.Fault.point(:admitting, env)
+
     with :ok <- prepare(state, env, manifest, code),
          {:ok, state} <- policy(state, src, env) do
       case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do

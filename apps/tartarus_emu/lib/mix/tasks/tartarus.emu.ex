@@ -1,0 +1,143 @@
+defmodule Mix.Tasks.Tartarus.Emu do
+  @shortdoc "Runs the generic emulation: agents walking a topology"
+  @moduledoc """
+  Runs the generic walk scenario (`TartarusEmu.Walk`): mobile agents random-walking or
+  conscientiously exploring a topology whose nodes break off and reconnect.
+
+      mix tartarus.emu [--topology grid|ring|line|random|FILE] [--hosts N] [--agents N]
+                       [--steps N] [--mode virtual|peer] [--group K]
+                       [--strategy random|conscientious] [--p P] [--latency-ms MS]
+                       [--loss P] [--seed N] [--out DIR] [--until-covered]
+                       [--keep-events] [--quiet] [--json]
+
+  Defaults: a 16-host grid, 4 agents, 100 steps, virtual mode, random walk, `p = 0`, a random
+  seed (recorded in the summary), output in `results/walk-<timestamp>/`.
+
+  Each step, every agent makes one move (see `TartarusEmu.Walk` for the step model), so a
+  run is deterministic for a given `--seed`. `--mode peer` puts each host (or each group of
+  `--group K` hosts) in its own BEAM node, connected only to its neighbours' nodes.
+
+  The output directory gets `series.csv` and one CSV and SVG per series (`coverage`,
+  `migrations`, `failed_moves`, `down_nodes`, `bytes`), `walk.svg`, the log's CSVs
+  (`log_steps.csv`, `log_hosts.csv`, `log_links.csv`, `log_events.csv` with
+  `--keep-events`), `summary.md` and `summary.json`.
+
+  With `--json` the last line printed is one JSON object with the summary keys: `hosts,
+  agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
+  failed_moves, messages, bytes, energy_mj, wall_ms, coverage, ...` (see `TartarusEmu.Walk`).
+
+  Large virtual runs (more processes or ETS tables than this VM allows, e.g. 10,000 hosts
+  and 100,000 agents) run in a fresh BEAM node started with `+P` and `+e` large enough, so
+  no `ELIXIR_ERL_OPTIONS` are needed; the summary's `runner` says where the run ran.
+  """
+  use Mix.Task
+
+  @switches [
+    topology: :string,
+    hosts: :integer,
+    agents: :integer,
+    steps: :integer,
+    mode: :string,
+    group: :integer,
+    strategy: :string,
+    p: :float,
+    latency_ms: :integer,
+    loss: :float,
+    seed: :integer,
+    out: :string,
+    until_covered: :boolean,
+    keep_events: :boolean,
+    quiet: :boolean,
+    json: :boolean
+  ]
+
+  @impl true
+  def run(argv) do
+    {opts, args, invalid} = OptionParser.parse(argv, strict: @switches)
+
+    if invalid != [] or args != [],
+      do:
+        Mix.raise(
+          "mix tartarus.emu: invalid arguments #{inspect(invalid ++ args)}; see `mix help tartarus.emu`"
+        )
+
+    opts = check!(opts)
+    Mix.Task.run("app.start")
+
+    progress = Process.whereis(:standard_error)
+
+    run_opts =
+      [
+        topology: opts[:topology] || "grid",
+        hosts: opts[:hosts] || 16,
+        agents: opts[:agents] || 4,
+        steps: opts[:steps] || 100,
+        mode: opts[:mode],
+        group: opts[:group] || 1,
+        strategy: opts[:strategy],
+        p: opts[:p] || 0,
+        latency_ms: opts[:latency_ms],
+        loss: opts[:loss],
+        seed: opts[:seed],
+        out: Path.expand(opts[:out] || TartarusEmu.Report.default_out_dir("walk")),
+        until_covered: opts[:until_covered] || false,
+        keep_events: opts[:keep_events] || false,
+        quiet: opts[:quiet] || opts[:json] || false,
+        progress_device: progress
+      ]
+      |> Enum.reject(fn {_, v} -> is_nil(v) end)
+
+    summary =
+      case TartarusEmu.Walk.run(run_opts) do
+        {:ok, summary} -> summary
+        {:error, reason} -> Mix.raise("mix tartarus.emu: #{format(reason)}")
+      end
+
+    unless opts[:json] do
+      Mix.shell().info(
+        "#{summary.hosts} hosts, #{summary.agents} agents, #{summary.steps} steps (#{summary.mode}): " <>
+          "#{summary.migrations} migrations in #{summary.wall_ms} ms " <>
+          "(#{summary.migrations_per_s}/s), coverage #{Float.round(summary.coverage * 1.0, 3)}, " <>
+          "#{summary.energy_mj} mJ; results in #{run_opts[:out]}"
+      )
+    end
+
+    if opts[:json], do: IO.puts(Tartarus.JSON.encode!(summary))
+  end
+
+  defp format(reason) when is_binary(reason), do: reason
+  defp format(reason), do: inspect(reason)
+
+  defp check!(opts) do
+    for key <- [:hosts, :agents, :steps, :group],
+        v = opts[key],
+        v != nil and v < 1,
+        do: Mix.raise("mix tartarus.emu: --#{key} must be a positive integer, got: #{v}")
+
+    for key <- [:p, :loss],
+        v = opts[key],
+        v != nil and (v < 0 or v > 1),
+        do: Mix.raise("mix tartarus.emu: --#{key} must be between 0 and 1, got: #{v}")
+
+    mode =
+      case opts[:mode] || "virtual" do
+        "virtual" -> :virtual
+        "peer" -> :peer
+        other -> Mix.raise("mix tartarus.emu: --mode must be virtual or peer, got: #{other}")
+      end
+
+    strategy =
+      case opts[:strategy] || "random" do
+        "random" ->
+          :random
+
+        "conscientious" ->
+          :conscientious
+
+        other ->
+          Mix.raise("mix tartarus.emu: --strategy must be random or conscientious, got: #{other}")
+      end
+
+    Keyword.merge(opts, mode: mode, strategy: strategy)
+  end
+end

@@ -1,0 +1,241 @@
+defmodule TartarusEmu.Scenario do
+  @moduledoc """
+  One way to write an experiment: a behaviour for the scenario and a runner that seeds it,
+  steps it, shows progress and writes its results.
+
+  ## Writing a scenario
+
+      defmodule MyScenario do
+        @behaviour TartarusEmu.Scenario
+
+        @impl true
+        def name, do: "my_scenario"
+
+        @impl true
+        def setup(opts), do: {:ok, %{rng: opts.rng, series: TartarusEmu.Series.new(), x: 0}}
+
+        @impl true
+        def step(state, step) do
+          {dx, rng} = :rand.uniform_s(6, state.rng)
+          x = state.x + dx
+          %{state | rng: rng, x: x, series: TartarusEmu.Series.record(state.series, :x, step, x)}
+        end
+
+        @impl true
+        def done?(state, _step), do: state.x > 100
+
+        @impl true
+        def series(state), do: state.series
+
+        @impl true
+        def summary(state), do: %{x: state.x}
+      end
+
+      {:ok, result} = TartarusEmu.Scenario.run(MyScenario, seed: 7, steps: 50, out: "results/x")
+
+  ## What the runner does
+
+    1. picks the seed (`:seed`, else a random one, recorded in the summary) and passes
+       `opts.rng`, an `:exsss` state made from it: a scenario draws all its randomness from
+       `opts.rng` (or from `opts.seed`, e.g. agents' `seed:` options), so a run is
+       reproducible;
+    2. calls `c:setup/1` with the options as a map (`:seed`, `:rng`, `:steps` and whatever
+       the caller passed);
+    3. calls `c:step/2` for steps `1..steps`, stopping early when `c:done?/2` is true, with a
+       progress line on standard error (`TartarusEmu.Progress`, hidden when not a terminal
+       or with `quiet: true`);
+    4. writes into `:out` (default `TartarusEmu.Report.default_out_dir/1`; `out: false`
+       writes nothing): `series.csv` (every series, one column each), one CSV and one SVG
+       line chart per series, the scenario's `c:charts/1`, `summary.json` and `summary.md`,
+       plus whatever `c:write/2` writes (before teardown, so it may read live processes);
+    5. calls `c:teardown/1`, also when a step raises.
+
+  The summary gets the runner's keys `scenario`, `seed`, `steps` (steps run), `setup_ms`
+  and `run_ms` unless the scenario sets them itself.
+  """
+
+  alias TartarusEmu.{Progress, Report, Series, SVG}
+
+  @typedoc "A scenario's state (anything)."
+  @type state :: term()
+
+  @typedoc """
+  An extra chart: `file` (without `.svg`), `title`, `series` (names of series to draw
+  together) and optional `x_label`, `y_label`.
+  """
+  @type chart :: %{
+          required(:file) => String.t(),
+          required(:title) => String.t(),
+          required(:series) => [Series.name()],
+          optional(:x_label) => String.t(),
+          optional(:y_label) => String.t()
+        }
+
+  @typedoc "What `run/2` returns."
+  @type result :: %{summary: map(), series: Series.t(), out: Path.t() | nil, files: [Path.t()]}
+
+  @doc "A plain name (letters, digits, `_ - .`), used for the default output directory."
+  @callback name() :: String.t()
+
+  @doc "Sets the scenario up. `opts` has `:seed`, `:rng`, `:steps` and the caller's options."
+  @callback setup(opts :: map()) :: {:ok, state()} | {:error, term()}
+
+  @doc "Runs step `step` (1-based)."
+  @callback step(state(), step :: pos_integer()) :: state()
+
+  @doc "True to stop after step `step` (optional; default: run all steps)."
+  @callback done?(state(), step :: pos_integer()) :: boolean()
+
+  @doc "The series recorded so far."
+  @callback series(state()) :: Series.t()
+
+  @doc "The summary: a JSON-encodable map."
+  @callback summary(state()) :: map()
+
+  @doc "Extra charts (optional)."
+  @callback charts(state()) :: [chart()]
+
+  @doc "Writes extra files into `dir` before teardown; returns their paths (optional)."
+  @callback write(state(), dir :: Path.t()) :: [Path.t()]
+
+  @doc "Stops what setup started (optional)."
+  @callback teardown(state()) :: any()
+
+  @optional_callbacks done?: 2, charts: 1, write: 2, teardown: 1
+
+  @schema [
+    seed: [type: :integer, doc: "seed of all randomness (default: a random one)"],
+    steps: [type: :pos_integer, default: 100, doc: "steps to run at most"],
+    out: [type: :any, doc: "output directory, or `false` for none"],
+    quiet: [type: :boolean, default: false, doc: "no progress line"],
+    progress_device: [type: :any, default: :standard_error, doc: "where progress goes"]
+  ]
+
+  @doc """
+  Runs a scenario. Runner options (the others are passed to `c:setup/1`):
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, %{summary:, series:, out:, files:}}` or `{:error, reason}` from setup.
+  """
+  @spec run(module(), keyword()) :: {:ok, result()} | {:error, term()}
+  def run(module, opts \\ []) do
+    {runner, rest} = Keyword.split(opts, Keyword.keys(@schema))
+
+    with {:ok, runner} <-
+           Tartarus.Options.validate(runner, @schema, "TartarusEmu.Scenario.run/2") do
+      Code.ensure_loaded(module)
+      seed = runner[:seed] || :rand.uniform(1_000_000_000)
+      steps = runner[:steps]
+
+      setup_opts =
+        rest
+        |> Map.new()
+        |> Map.merge(%{seed: seed, rng: :rand.seed_s(:exsss, seed), steps: steps})
+
+      t0 = System.monotonic_time(:millisecond)
+
+      case module.setup(setup_opts) do
+        {:ok, state} ->
+          try do
+            t1 = System.monotonic_time(:millisecond)
+            {state, ran} = loop(module, state, steps, runner)
+            t2 = System.monotonic_time(:millisecond)
+
+            runner_keys = %{
+              scenario: module.name(),
+              seed: seed,
+              steps: ran,
+              setup_ms: t1 - t0,
+              run_ms: t2 - t1
+            }
+
+            summary = Map.merge(runner_keys, module.summary(state))
+            series = module.series(state)
+            {dir, files} = write(module, state, runner[:out], summary, series)
+            {:ok, %{summary: summary, series: series, out: dir, files: files}}
+          after
+            if function_exported?(module, :teardown, 1), do: module.teardown(state)
+          end
+
+        {:error, _} = error ->
+          error
+      end
+    end
+  end
+
+  defp loop(module, state, steps, runner) do
+    progress =
+      Progress.new(steps,
+        label: module.name(),
+        quiet: runner[:quiet],
+        device: runner[:progress_device]
+      )
+
+    done? = function_exported?(module, :done?, 2)
+
+    {state, ran, progress} =
+      Enum.reduce_while(1..steps, {state, 0, progress}, fn step, {state, _, progress} ->
+        state = module.step(state, step)
+        progress = Progress.advance(progress)
+
+        if done? and module.done?(state, step),
+          do: {:halt, {state, step, progress}},
+          else: {:cont, {state, step, progress}}
+      end)
+
+    Progress.finish(progress)
+    {state, ran}
+  end
+
+  defp write(_module, _state, false, _summary, _series), do: {nil, []}
+
+  defp write(module, state, out, summary, series) do
+    dir = out || Report.default_out_dir(module.name())
+    File.mkdir_p!(dir)
+
+    csvs =
+      [Report.write_csv!(dir, "series", Series.header(series), Series.to_rows(series))] ++
+        Enum.map(Series.names(series), fn name ->
+          Report.write_csv!(dir, to_string(name), ["step", to_string(name)], rows(series, name))
+        end)
+
+    charts =
+      Enum.map(Series.to_chart(series), fn chart ->
+        svg =
+          SVG.line_chart([chart],
+            title: "#{module.name()}: #{chart.name}",
+            x_label: "step",
+            y_label: chart.name
+          )
+
+        SVG.write!(Path.join(dir, "#{chart.name}.svg"), svg)
+      end)
+
+    extra_charts =
+      if function_exported?(module, :charts, 1) do
+        all = Map.new(Series.to_chart(series), &{&1.name, &1})
+
+        Enum.map(module.charts(state), fn c ->
+          lines = for name <- c.series, line = all[to_string(name)], do: line
+
+          svg =
+            SVG.line_chart(lines,
+              title: c.title,
+              x_label: Map.get(c, :x_label, "step"),
+              y_label: Map.get(c, :y_label, "")
+            )
+
+          SVG.write!(Path.join(dir, "#{c.file}.svg"), svg)
+        end)
+      else
+        []
+      end
+
+    extra = if function_exported?(module, :write, 2), do: module.write(state, dir), else: []
+    summaries = Report.write_summary!(dir, summary, title: module.name())
+    {dir, csvs ++ charts ++ extra_charts ++ extra ++ summaries}
+  end
+
+  defp rows(series, name), do: Enum.map(Series.points(series, name), fn {s, v} -> [s, v] end)
+end

@@ -1,0 +1,411 @@
+defmodule TartarusLats.Experiment do
+  @moduledoc """
+  The thesis's comparison (§3.4.2-3.4.5) on one emulated building: the
+  centralized cloud design (Scenario 1) and the agent design (Scenario 2)
+  run on the same world and answer the same queries. `mix tartarus.lats`
+  runs it and writes the report.
+
+  ## One world, both designs
+
+  One `TartarusLats.Deployment` runs the world; its database agents upload
+  every new record and vector to the cloud (Scenario 1's traffic, counted
+  as `:centralized`). At each query instant the world is paused (between
+  two driver steps), the query agents are released together on their start
+  nodes (Scenario 2; they contact the cloud once each, counted as
+  `:agents`), and the same queries are put to the cloud, which answers from
+  its mirror (Scenario 1). Agents never read the cloud's mirror.
+
+  ## Queries and ground truth
+
+  Queries come in batches of three, one of each type, released at once, at
+  `ceil(queries / 3)` instants evenly spread after a 120 s warm-up. Targets
+  and start nodes are drawn from the seed: Trace targets rotate over the
+  scripted bearers (Head, Janitor, Guard, Professor: the thesis's Fig. 3.9),
+  Where is X over all bearers, Where am I over bearers inside the building
+  (released on a neighbour of the bearer's zone); Where is X and Trace start
+  on a random node.
+
+  The ground truth is the world's (`TartarusLats.World.current_zone/2`,
+  `TartarusLats.World.visited_path/2`). The trackers see a move a few
+  seconds late (moving average of 6 samples, median of 3, 2-sample debounce)
+  and an exit is decided by a 15 s handshake timeout, so a query about X is
+  released only at an instant when X's ground truth is **settled**: X has
+  been in its current zone for at least `#{20}` s, or left the building at
+  least `#{30}` s ago. When no bearer is settled for a query, it waits for
+  the next second. With that:
+
+    * Where am I / Where is X is correct when the answer is `{:in_zone, z}`
+      with `z` the current zone, or `:left_building` for a bearer who left;
+    * Trace(X) is correct when the answer's zone sequence equals the
+      visited path's zone sequence exactly (every zone, pass-through zones
+      included) and its status is `:present` for a bearer inside,
+      `:exited` for one who left. Entry/exit times are reported beside the
+      truth (`trace_time_error_s`: median absolute difference of entry times).
+  """
+
+  alias TartarusLats.{Building, Cloud, Deployment, World, WorldServer}
+
+  @settle_inside 20
+  @settle_outside 30
+  @warmup 120
+
+  @doc """
+  Runs the experiment. Options: `:nodes` (50), `:bearers` (10), `:minutes`
+  (20), `:queries` (30), `:seed` (1), `:mode` (`:virtual` or `:peer`),
+  `:group` (topology nodes per BEAM node in peer mode, default 10),
+  `:progress` (a `TartarusEmu.Progress` options list, or false).
+
+  Returns a map with `:summary` (the summary keys), `:queries` (one map per
+  query), `:cloud_log`, `:rssi` and `:meta`.
+  """
+  @spec run(keyword()) :: map()
+  def run(opts \\ []) do
+    nodes = Keyword.get(opts, :nodes, 50)
+    bearers = Keyword.get(opts, :bearers, 10)
+    minutes = Keyword.get(opts, :minutes, 20)
+    n_queries = Keyword.get(opts, :queries, 30)
+    seed = Keyword.get(opts, :seed, 1)
+    mode = Keyword.get(opts, :mode, :virtual)
+    duration = minutes * 60
+    started = System.monotonic_time(:millisecond)
+
+    building = building(nodes)
+    world = world(building, bearers)
+    {net, dep_opts} = network(mode, building, opts)
+    prefix = "lats#{System.unique_integer([:positive])}"
+    dep = Deployment.start([seed: seed, world: world, prefix: prefix] ++ dep_opts)
+
+    try do
+      progress =
+        case Keyword.get(opts, :progress, []) do
+          false -> nil
+          popts -> TartarusEmu.Progress.new(duration, [label: "lats"] ++ popts)
+        end
+
+      schedule = schedule(n_queries, duration)
+      rng = :rand.seed_s(:exsss, seed * 7919 + 11)
+      janitor = if :janitor in World.names(world), do: World.tag(world, :janitor)
+
+      acc = %{dep: dep, rng: rng, pending: [], results: [], rssi: [], progress: progress, k: 0}
+
+      acc =
+        Enum.reduce(1..duration//1, acc, fn _, acc ->
+          dep = Deployment.step(acc.dep)
+          acc = %{acc | dep: dep}
+          acc = record_rssi(acc, janitor)
+          due = Map.get(schedule, dep.time, [])
+          acc = fire(%{acc | pending: acc.pending ++ due})
+          %{acc | progress: acc.progress && TartarusEmu.Progress.advance(acc.progress)}
+        end)
+
+      if acc.progress, do: TartarusEmu.Progress.finish(acc.progress)
+      stats = Cloud.stats(acc.dep.cloud)
+      results = Enum.reverse(acc.results)
+      wall = System.monotonic_time(:millisecond) - started
+
+      summary =
+        summarize(
+          results,
+          stats,
+          acc.dep,
+          opts_map(opts, nodes, bearers, minutes, seed, mode),
+          wall
+        )
+
+      %{
+        summary: summary,
+        queries: results,
+        cloud_log: stats.log,
+        rssi: Enum.reverse(acc.rssi),
+        meta: %{world: acc.dep.world_value, building: building}
+      }
+    after
+      Deployment.stop(dep)
+      if net, do: TartarusEmu.Network.stop(net)
+    end
+  end
+
+  defp opts_map(_opts, nodes, bearers, minutes, seed, mode),
+    do: %{nodes: nodes, bearers: bearers, minutes: minutes, seed: seed, mode: mode}
+
+  @doc """
+  The building for `nodes` nodes: the thesis's 50 (2 floors of 5 x 5) by
+  default; otherwise 2 floors of `rows x 5` (rounded to a multiple of 10, at
+  least 10).
+  """
+  @spec building(pos_integer()) :: Building.t()
+  def building(50), do: Building.new()
+
+  def building(nodes) when is_integer(nodes) and nodes > 0 do
+    Building.new(floors: 2, cols: 5, rows: max(1, div(nodes + 5, 10)))
+  end
+
+  defp world(building, bearers) do
+    scripts = World.default_scripts(building)
+
+    if bearers >= length(scripts) do
+      World.new(building: building, walkers: bearers - length(scripts), scripts: scripts)
+    else
+      World.new(building: building, walkers: 0, scripts: Enum.take(scripts, bearers))
+    end
+  end
+
+  defp network(:virtual, _building, _opts), do: {nil, []}
+
+  defp network(:peer, building, opts) do
+    unless Code.ensure_loaded?(TartarusEmu.Network) do
+      raise ArgumentError, "--mode peer needs TartarusEmu.Network, which is not available"
+    end
+
+    nodes = Building.nodes(building)
+    edges = for n <- nodes, m <- Building.neighbours(building, n), n < m, do: {n, m}
+    topo = TartarusEmu.Topology.new(nodes, edges)
+
+    {:ok, net} =
+      TartarusEmu.Network.start(topo, mode: :peer, group: Keyword.get(opts, :group, 10))
+
+    {net, [hosts: net.hosts]}
+  end
+
+  # Query instants: %{second => [type]}.
+  defp schedule(n, duration) do
+    instants = max(1, div(n + 2, 3))
+    span = max(duration - @warmup, 1)
+
+    for k <- 0..(instants - 1), reduce: %{} do
+      acc ->
+        t = min(duration, @warmup + div(k * span, instants))
+        types = Enum.take([:trace, :where_is, :where_am_i], min(3, n - 3 * k))
+        Map.update(acc, t, types, &(&1 ++ types))
+    end
+  end
+
+  # -- firing --------------------------------------------------------------------
+
+  defp fire(%{pending: []} = acc), do: acc
+
+  defp fire(acc) do
+    world = acc.dep.world_value
+
+    {batch, waiting, rng, k} =
+      Enum.reduce(acc.pending, {[], [], acc.rng, acc.k}, fn type, {batch, waiting, rng, k} ->
+        case pick(type, world, acc.dep, rng, k) do
+          {nil, rng} -> {batch, waiting ++ [type], rng, k}
+          {q, rng} -> {batch ++ [q], waiting, rng, k + 1}
+        end
+      end)
+
+    results = run_batch(batch, acc.dep)
+    %{acc | pending: waiting, rng: rng, k: k, results: Enum.reverse(results) ++ acc.results}
+  end
+
+  defp settled?(world, name) do
+    case World.visited_path(world, name) do
+      [] ->
+        false
+
+      path ->
+        last = List.last(path)
+        t = world.time
+
+        if last.left_at == nil,
+          do: t - last.entered_at >= @settle_inside,
+          else: t - last.left_at >= @settle_outside
+    end
+  end
+
+  defp inside?(world, name), do: World.current_zone(world, name) != :outside
+
+  defp pick(type, world, dep, rng, k) do
+    names = World.names(world)
+    scripted = Enum.filter(names, &(Map.fetch!(world.bearers, &1).kind == :scripted))
+    nodes = Building.nodes(world.building)
+
+    candidates =
+      case type do
+        :trace ->
+          # Rotate over the scripted bearers (Fig. 3.9), starting with the k-th.
+          rot = rotate(scripted, div(k, 3))
+          rot |> Enum.filter(&settled?(world, &1)) |> Enum.take(1)
+
+        :where_is ->
+          Enum.filter(names, &settled?(world, &1))
+
+        :where_am_i ->
+          Enum.filter(names, &(settled?(world, &1) and inside?(world, &1)))
+      end
+
+    case candidates do
+      [] ->
+        {nil, rng}
+
+      _ ->
+        {i, rng} = :rand.uniform_s(length(candidates), rng)
+        name = Enum.at(candidates, i - 1)
+
+        {start, rng} =
+          case type do
+            :where_am_i ->
+              ns = Building.neighbours(world.building, World.current_zone(world, name))
+              {j, rng} = :rand.uniform_s(length(ns), rng)
+              {Enum.at(ns, j - 1), rng}
+
+            _ ->
+              {j, rng} = :rand.uniform_s(length(nodes), rng)
+              {Enum.at(nodes, j - 1), rng}
+          end
+
+        q = %{
+          id: k + 1,
+          type: type,
+          person: name,
+          tag: World.tag(world, name),
+          start: start,
+          host: dep.hosts[start],
+          time: world.time,
+          truth: truth(type, world, name)
+        }
+
+        {q, rng}
+    end
+  end
+
+  defp rotate([], _n), do: []
+
+  defp rotate(list, n) do
+    n = rem(n, length(list))
+    Enum.drop(list, n) ++ Enum.take(list, n)
+  end
+
+  defp truth(:trace, world, name) do
+    path = World.visited_path(world, name)
+
+    %{
+      zones: Enum.map(path, & &1.zone),
+      path: path,
+      status: if(inside?(world, name), do: :present, else: :exited)
+    }
+  end
+
+  defp truth(_type, world, name) do
+    case World.current_zone(world, name) do
+      :outside -> :left_building
+      zone -> {:in_zone, zone}
+    end
+  end
+
+  # Releases the batch's agents together, then asks the cloud the same questions.
+  defp run_batch([], _dep), do: []
+
+  defp run_batch(batch, dep) do
+    released =
+      Enum.map(batch, fn q ->
+        {:ok, id} =
+          TartarusLats.release(q.host, q.type, q.tag,
+            label: "#{q.type}(#{q.person})#{q.id}",
+            seed: {:lats_query, q.id, q.time}
+          )
+
+        {q, id}
+      end)
+
+    Enum.map(released, fn {q, id} ->
+      {:ok, r} = TartarusLats.await(id, 120_000)
+      central = Cloud.query(dep.cloud, q.type, q.start, q.tag)
+
+      Map.merge(q, %{
+        answer: r.answer,
+        hops: r.hops,
+        ms: r.elapsed_us / 1000,
+        route: r.route,
+        answered_at: r.answered_at,
+        central: central,
+        correct: correct?(q.type, r.answer, q.truth),
+        correct_centralized: correct?(q.type, central, q.truth),
+        time_error: time_error(q.type, r.answer, q.truth)
+      })
+    end)
+  end
+
+  @doc false
+  def correct?(:trace, {:ok, %{path: path, status: status}}, truth),
+    do: Enum.map(path, & &1.node) == truth.zones and status == truth.status
+
+  def correct?(:trace, _answer, _truth), do: false
+  def correct?(_type, answer, truth), do: answer == truth
+
+  defp time_error(:trace, {:ok, %{path: path}}, %{path: truth})
+       when length(path) == length(truth) do
+    errors = Enum.zip_with(path, truth, fn p, t -> abs(p.arrived_at - t.entered_at) end)
+    median(errors)
+  end
+
+  defp time_error(_type, _answer, _truth), do: nil
+
+  # -- RSSI (Fig. 3.6/3.7) ----------------------------------------------------------
+
+  @rssi_seconds 400
+
+  defp record_rssi(acc, nil), do: acc
+  defp record_rssi(%{dep: %{time: t}} = acc, _tag) when t > @rssi_seconds, do: acc
+
+  defp record_rssi(acc, tag) do
+    raw = WorldServer.all_readings(acc.dep.world)
+
+    row =
+      Map.new(acc.dep.hosts, fn {node, host} ->
+        filtered = Tartarus.store_get(host, {:lats, :filtered}, %{}) |> Map.get(tag)
+        r = get_in(raw, [node, tag])
+        {node, {if(is_number(r), do: r, else: nil), filtered}}
+      end)
+
+    %{acc | rssi: [{acc.dep.time, row} | acc.rssi]}
+  end
+
+  # -- summary -------------------------------------------------------------------------
+
+  defp summarize(results, stats, dep, meta, wall) do
+    hops = results |> Enum.map(& &1.hops) |> Enum.sort()
+    ms = results |> Enum.map(& &1.ms) |> Enum.sort()
+    c = stats.connections.centralized
+    a = stats.connections.agents
+
+    by_type =
+      results
+      |> Enum.group_by(& &1.type)
+      |> Map.new(fn {type, rs} ->
+        {type,
+         %{
+           queries: length(rs),
+           correct: Enum.count(rs, & &1.correct),
+           median_hops: median(Enum.map(rs, & &1.hops))
+         }}
+      end)
+
+    Map.merge(meta, %{
+      queries: length(results),
+      correct: Enum.count(results, & &1.correct),
+      correct_centralized: Enum.count(results, & &1.correct_centralized),
+      cloud_connections_centralized: c,
+      cloud_connections_agents: a,
+      cloud_connection_ratio: if(c > 0, do: Float.round(a / c, 4), else: nil),
+      cloud_bytes_centralized: stats.bytes.centralized,
+      cloud_bytes_agents: stats.bytes.agents,
+      median_query_hops: median(hops),
+      max_query_hops: List.last(hops),
+      median_query_ms: median(ms) && Float.round(median(ms) * 1.0, 3),
+      trace_time_error_s: median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
+      by_type: by_type,
+      world_seconds: dep.time,
+      wall_ms: wall
+    })
+  end
+
+  @doc false
+  def median([]), do: nil
+
+  def median(list) do
+    sorted = Enum.sort(list)
+    Enum.at(sorted, div(length(sorted) - 1, 2))
+  end
+end

@@ -1,0 +1,125 @@
+defmodule TartarusLats.Query.Trace do
+  @moduledoc """
+  Trace(X) (thesis §3.3.5, query 3; Algorithm 1; Appendix .2) as an ordinary
+  mobile agent: the ordered list of zones X visited, with the time X entered
+  and left each.
+
+  Released on any host with `%{tag: tag}`:
+
+    1. **search** - while the node it is on has no (confirmed) trace of X it
+       migrates conscientiously; it answers `:not_found` once every node it
+       has heard of was visited;
+    2. at the first node `v` with a trace, if `v` is where X's path ends
+       (MVF `{v, v}`: X is here, or `{v, INFINITY}`: X left from here), it
+       **walks back** along MVB to the entry, pushing every stay on a stack:
+       the stack is the path (Algorithm 1, first branch);
+    3. otherwise (MVF `{v, w}`) it walks back along MVB to the entry without
+       collecting, then **walks forward** along MVF from the entry to the
+       last node, queueing every stay: the queue is the path (second
+       branch; Appendix .2: fired at `e`, the agent goes to `d`, then
+       follows `d -> e -> f -> i -> h`).
+
+  Every hop of the walks follows a link between two stays (the timestamps
+  of `TartarusLats.MotionVectors`), so a tag that visited a node several
+  times is traced exactly. Consecutive stays at the same node are merged.
+
+  The answer is `{:ok, %{path: [%{node, arrived_at, left_at}], entry,
+  status}}` (as `TartarusLats.MotionVectors.trace/3`; `status` `:present`,
+  `:exited`, `:in_transit`, or `:broken` if a link could not be followed) or
+  `:not_found`. The agent contacts the cloud once, from the node where it
+  completed the path, and returns the same map as
+  `TartarusLats.Query.WhereIs`.
+
+  Arguments: `:tag` (required), `:label`, `:report`, `:max_hops`.
+  """
+  use Tartarus.Agent, ships: [TartarusLats.Query, TartarusLats.Query.Walk]
+
+  alias TartarusLats.{MotionVectors, Query}
+  alias TartarusLats.Query.Walk
+
+  @impl true
+  def init(args) do
+    s = args |> Walk.new(:trace) |> Map.merge(%{phase: :search, branch: nil, at: nil, path: []})
+    step(s)
+  end
+
+  @impl true
+  def handle_arrival(_ctx, s), do: step(s)
+
+  @impl true
+  def handle_move_failed(_dest, _reason, _ctx, s), do: Walk.move_failed(s, &step/1)
+
+  defp step(s) do
+    {node, mv, neighbours, s} = Walk.look(s)
+    act(s.phase, node, mv, neighbours, s)
+  end
+
+  defp act(:search, node, mv, neighbours, s) do
+    case Query.latest(mv, s.tag) do
+      nil ->
+        Walk.search(s, :not_found)
+
+      stay ->
+        branch = if stay.to in [nil, :infinity], do: :last, else: :middle
+        s = Map.put(%{s | branch: branch, phase: :back}, :final, status(stay))
+        back(node, stay, neighbours, s)
+    end
+  end
+
+  defp act(:back, node, mv, neighbours, s) do
+    case mv && MotionVectors.departure(mv, s.tag, s.at) do
+      %{} = stay -> back(node, stay, neighbours, s)
+      _ -> done(:broken, s)
+    end
+  end
+
+  defp act(:forward, node, mv, neighbours, s) do
+    case mv && MotionVectors.arrival(mv, s.tag, s.at) do
+      %{} = stay -> forward(node, stay, neighbours, s)
+      _ -> done(:broken, s)
+    end
+  end
+
+  # Walking back: the stack collects stays only on the first branch.
+  defp back(node, stay, neighbours, s) do
+    s = if s.branch == :last, do: %{s | path: [entry(node, stay) | s.path]}, else: s
+
+    case stay.from do
+      from when from in [:infinity, :pending] ->
+        s = Map.put(s, :entry, from)
+
+        if s.branch == :last,
+          do: done(s.final, s),
+          else: forward(node, stay, neighbours, %{s | phase: :forward})
+
+      prev ->
+        Walk.go(neighbours, prev, %{s | at: stay.from_left_at}, fn -> done(:broken, s) end)
+    end
+  end
+
+  defp forward(node, stay, neighbours, s) do
+    s = %{s | path: s.path ++ [entry(node, stay)]}
+
+    case stay.to do
+      next when next in [nil, :infinity, :pending] ->
+        done(status(stay), s)
+
+      next ->
+        Walk.go(neighbours, next, %{s | at: stay.to_arrived_at}, fn -> done(:broken, s) end)
+    end
+  end
+
+  defp entry(node, stay), do: %{node: node, arrived_at: stay.arrived_at, left_at: stay.left_at}
+
+  defp status(%{to: nil}), do: :present
+  defp status(%{to: :infinity}), do: :exited
+  defp status(%{to: :pending}), do: :in_transit
+  defp status(_), do: :broken
+
+  defp done(status, s) do
+    answer =
+      {:ok, %{path: Query.merge(s.path), entry: Map.get(s, :entry, :broken), status: status}}
+
+    Walk.finish(answer, s, true)
+  end
+end
