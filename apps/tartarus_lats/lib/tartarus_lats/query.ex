@@ -99,14 +99,20 @@ defmodule TartarusLats.Query do
         do: MotionVectors.arrival(mv, tag, arrived_at) || latest(mv, tag),
         else: latest(mv, tag)
 
-    case stay do
-      nil -> :no_trace
-      %{to: nil} -> {:found, mv.node}
-      %{to: :infinity} -> :left_building
-      %{to: :pending} -> :in_transit
-      %{to: node, to_arrived_at: t} -> {:next, node, t}
-    end
+    follow_stay(mv, tag, stay, 64)
   end
+
+  defp follow_stay(_mv, _tag, nil, _n), do: :no_trace
+  defp follow_stay(_mv, _tag, _stay, 0), do: :in_transit
+  defp follow_stay(mv, _tag, %{to: nil}, _n), do: {:found, mv.node}
+  defp follow_stay(_mv, _tag, %{to: :infinity}, _n), do: :left_building
+  defp follow_stay(_mv, _tag, %{to: :pending}, _n), do: :in_transit
+
+  # A loop here -> here (the tag stepped out of range and came back): follow it locally.
+  defp follow_stay(%{node: here} = mv, tag, %{to: here, to_arrived_at: t}, n),
+    do: follow_stay(mv, tag, MotionVectors.arrival(mv, tag, t), n - 1)
+
+  defp follow_stay(_mv, _tag, %{to: node, to_arrived_at: t}, _n), do: {:next, node, t}
 
   @doc """
   Answers Where is X over a whole map of tables (the centralized design):

@@ -247,8 +247,9 @@ defmodule Tartarus.Host.Server do
   defp load_code(code), do: CodeCache.load(code)
 
   defp refuse(state, s_pid, mig, env, src, reason) do
-    send(s_pid, {:"$tartarus_refused", mig, reason})
-    agent = if is_struct(env, Envelope), do: env.id
+    if is_pid(s_pid), do: send(s_pid, {:"$tartarus_refused", mig, reason})
+    agent = with %{id: id} when is_binary(id) <- env, do: id, else: (_ -> nil)
+    src = if Tartarus.Host.address?(src), do: src
 
     Events.emit(
       state.host,

@@ -92,6 +92,14 @@ defmodule TartarusLats.Query.Trace do
           do: done(s.final, s),
           else: forward(node, stay, neighbours, %{s | phase: :forward})
 
+      ^node ->
+        # A loop here -> here: the previous stay is on this node too.
+        local(
+          MotionVectors.departure(mv(), s.tag, stay.from_left_at),
+          s,
+          &back(node, &1, neighbours, &2)
+        )
+
       prev ->
         Walk.go(neighbours, prev, %{s | at: stay.from_left_at}, fn -> done(:broken, s) end)
     end
@@ -104,10 +112,22 @@ defmodule TartarusLats.Query.Trace do
       next when next in [nil, :infinity, :pending] ->
         done(status(stay), s)
 
+      ^node ->
+        local(
+          MotionVectors.arrival(mv(), s.tag, stay.to_arrived_at),
+          s,
+          &forward(node, &1, neighbours, &2)
+        )
+
       next ->
         Walk.go(neighbours, next, %{s | at: stay.to_arrived_at}, fn -> done(:broken, s) end)
     end
   end
+
+  defp mv, do: Tartarus.Agent.store_get({:lats, :mv})
+
+  defp local(nil, s, _fun), do: done(:broken, s)
+  defp local(stay, s, fun), do: fun.(stay, s)
 
   defp entry(node, stay), do: %{node: node, arrived_at: stay.arrived_at, left_at: stay.left_at}
 
