@@ -346,11 +346,26 @@ defmodule Tartarus do
         Process.demonitor(mref, [:flush])
         reply
 
-      {:DOWN, ^mref, :process, _, {:shutdown, :migrated}} ->
+      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, new_pid}}} ->
+        # Committed: the answer comes from the new process once it runs; if its node dies
+        # first, the agent went down with it.
+        new_ref = Process.monitor(new_pid)
+
         receive do
-          {^mref, reply} -> reply
+          {^mref, reply} ->
+            Process.demonitor(new_ref, [:flush])
+            reply
+
+          {:DOWN, ^new_ref, :process, _, reason} ->
+            receive do
+              {^mref, reply} -> reply
+            after
+              0 -> {:error, {:destination_down, reason}}
+            end
         after
-          60_000 -> {:error, :timeout}
+          60_000 ->
+            Process.demonitor(new_ref, [:flush])
+            {:error, :timeout}
         end
 
       {:DOWN, ^mref, :process, _, _} ->

@@ -8,8 +8,9 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id | name}           {_, dest_host, at_us, mig} forwarding pointer (and the
-  #                                                          record of a committed migration)
+  #   {:fwd, id | name}           {_, dest_host, at_us, mig, notify}
+  #                                                          forwarding pointer (and the record
+  #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
   #   {:arriving, id}             {_, pid}                   a paused copy (destination)
   #   {:decision, mig}            {_, :committed | :aborted} (committed: only until the
@@ -70,10 +71,12 @@ defmodule Tartarus.Ledger do
 
   # The agent committed migration `mig` to `dest`: leave a forwarding pointer (which also
   # records the commit for a destination that asks, see decision/3) and stop being resident.
-  def depart(host, id, name, dest, mig) do
+  # `notify` (a GenServer from, or nil) is who waits for the move to finish: a destination
+  # that learns of the commit by asking (the commit message was lost) answers it.
+  def depart(host, id, name, dest, mig, notify) do
     now = System.system_time(:microsecond)
-    :ets.insert(host.ledger, {{:fwd, id}, dest, now, mig})
-    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, mig})
+    :ets.insert(host.ledger, {{:fwd, id}, dest, now, mig, notify})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, mig, nil})
     forget_resident(host, self())
     end_handoff(host, id)
     # The forwarding pointer now stands for the decision.
@@ -94,14 +97,13 @@ defmodule Tartarus.Ledger do
 
       [] ->
         case :ets.lookup(host.ledger, {:fwd, id}) do
-          [{_, _dest, _at, ^mig}] ->
-            :committed
+          [{_, _dest, _at, ^mig, notify}] ->
+            {:committed, notify}
 
           _ ->
             cond do
-              Tartarus.Host.Persistence.committed?(host, mig) -> :committed
               incarnation == host.incarnation -> :unknown
-              host.dets != nil -> :aborted
+              host.journal != nil -> :aborted
               true -> :committed
             end
         end
@@ -144,7 +146,7 @@ defmodule Tartarus.Ledger do
   end
 
   def forwarding_pointers(%{ledger: l}) do
-    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :_}, [], [{{:"$1", :"$2"}}]}])
+    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :_, :_}, [], [{{:"$1", :"$2"}}]}])
     |> Enum.filter(fn {key, _} -> is_binary(key) and byte_size(key) == 16 end)
   end
 
@@ -165,7 +167,7 @@ defmodule Tartarus.Ledger do
 
       [] ->
         case :ets.lookup(host.ledger, {:fwd, agent}) do
-          [{_, dest, _, _}] -> {:moved, dest}
+          [{_, dest, _, _, _}] -> {:moved, dest}
           [] -> locate_by_name(host, agent)
         end
     end

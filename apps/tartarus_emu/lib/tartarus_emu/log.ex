@@ -185,6 +185,7 @@ defmodule TartarusEmu.Log do
 
   @impl true
   def init({hosts, opts}) do
+    Process.flag(:message_queue_data, :off_heap)
     by_node = Enum.group_by(hosts, &elem(&1, 1))
     if Enum.any?(Map.keys(by_node), &(&1 != node())), do: :net_kernel.monitor_nodes(true)
 

@@ -31,6 +31,9 @@ defmodule TartarusEmu.Walk do
     * `:p` - node dynamism per step (default 0); `:latency_ms`, `:loss` - per link;
     * `:until_covered` - stop once every host was visited;
     * `:step_timeout_ms` - how long a step waits for its agents (default 60 s);
+    * `:migration_timeout_ms` - the hosts' `:migration_timeout` (default 60 s: with
+      100,000 agents moving at once on two cores, a hand-off can wait longer than the
+      platform's default 5 s for its destination host, and then fails);
     * `:keep_events` - keep raw events in the log (for `log_events.csv`).
 
   ## Series
@@ -42,8 +45,9 @@ defmodule TartarusEmu.Walk do
 
   `hosts, agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
   failed_moves, messages, bytes, energy_mj, energy_params, wall_ms, coverage,
-  covered_at_step, memory_mb, processes, lost_reports`; `wall_ms` is the time of the
-  steps (setup excluded) and `migrations_per_s` is over it.
+  covered_at_step, memory_mb, processes, lost_reports, network_ms, agents_ms`; `wall_ms` is
+  the time of the steps (setup excluded) and `migrations_per_s` is over it; `network_ms` and
+  `agents_ms` are the setup times of the network and of the agents.
   """
 
   @behaviour TartarusEmu.Scenario
@@ -120,6 +124,7 @@ defmodule TartarusEmu.Walk do
     strategy = opt(opts, :strategy, :random)
     p = opt(opts, :p, 0)
     seed = opts.seed
+    t_start = System.monotonic_time(:millisecond)
 
     with {:ok, topo} <- topology(opts),
          :ok <- check(strategy in [:random, :conscientious], "strategy", strategy),
@@ -128,14 +133,17 @@ defmodule TartarusEmu.Walk do
            Network.start(topo,
              mode: mode,
              group: opt(opts, :group, 1),
-             link: link_opts(opts)
+             link: link_opts(opts),
+             host_opts: [migration_timeout: opt(opts, :migration_timeout_ms, 60_000)]
            ) do
+      t_net = System.monotonic_time(:millisecond)
       {:ok, log} = Log.start(net, keep_events: opt(opts, :keep_events, false))
       place_rng = :rand.seed_s(:exsss, {seed, 1, 0})
       agents = opt(opts, :agents, 4)
       {homes, _} = homes(topo, agents, place_rng)
       :ok = create_agents(net, homes, strategy, seed)
       1 = Log.tick(log)
+      t_agents = System.monotonic_time(:millisecond)
 
       {:ok,
        %{
@@ -158,7 +166,9 @@ defmodule TartarusEmu.Walk do
          wall_us: 0,
          migrations: 0,
          failed: 0,
-         topology_name: topology_name(opts)
+         topology_name: topology_name(opts),
+         network_ms: t_net - t_start,
+         agents_ms: t_agents - t_net
        }}
     end
   end
@@ -379,6 +389,8 @@ defmodule TartarusEmu.Walk do
       energy_mj: Float.round(energy * 1.0, 3),
       energy_params: %{per_message_mj: params.per_message, per_byte_mj: params.per_byte},
       wall_ms: wall_ms,
+      network_ms: s.network_ms,
+      agents_ms: s.agents_ms,
       coverage: MapSet.size(s.visited) / Topology.size(s.topo),
       covered_at_step: s.covered_at,
       lost_reports: s.lost,

@@ -118,6 +118,9 @@ defmodule Tartarus.Agent.Server do
 
   def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig} = p} = data) do
     case decision do
+      {:committed, notify} ->
+        commit(data, notify)
+
       :committed ->
         commit(data, nil)
 
@@ -194,8 +197,8 @@ defmodule Tartarus.Agent.Server do
   def handle_call({:move, dest}, from, data) do
     # The destination answers the caller once the agent runs there.
     case attempt(data, :move, dest, from) do
-      {:moved, data} ->
-        {:stop, {:shutdown, :migrated}, data}
+      {:moved, new_pid, data} ->
+        {:stop, {:shutdown, {:migrated, new_pid}}, data}
 
       {:failed, reason, data} ->
         GenServer.reply(from, {:error, reason})
@@ -226,7 +229,7 @@ defmodule Tartarus.Agent.Server do
     data = put_state(data, s)
 
     case attempt(data, :move, dest) do
-      {:moved, data} -> {:stop, {:shutdown, :migrated}, data}
+      {:moved, new_pid, data} -> {:stop, {:shutdown, {:migrated, new_pid}}, data}
       {:failed, reason, data} -> failed(data, dest, reason)
     end
   end
@@ -373,7 +376,7 @@ defmodule Tartarus.Agent.Server do
           # Durable before the commit leaves: a restarted host must not restore the agent.
           Tartarus.Host.Persistence.committed(host, mig, data.env.id)
           Tartarus.Host.Persistence.forget(host, data.env.id)
-          Ledger.depart(host, data.env.id, data.env.name, dest, mig)
+          Ledger.depart(host, data.env.id, data.env.name, dest, mig, notify)
 
           emit(
             data,
@@ -398,7 +401,7 @@ defmodule Tartarus.Agent.Server do
         Tartarus.Fault.point(:committing, new_pid)
         send(new_pid, {:"$tartarus_commit", mig, notify})
         # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
-        if kind == :move, do: {:moved, data}, else: {:cloned, out.id, data}
+        if kind == :move, do: {:moved, new_pid, data}, else: {:cloned, out.id, data}
 
       {:error, reason} ->
         unwatch(mref)

@@ -1,106 +1,119 @@
 defmodule Tartarus.Host.Persistence do
   @moduledoc false
-  # A host's durable checkpoints (host option :data_dir), in one DETS file per host.
+  # A host's durable journal (host option :data_dir): one append-only file per host,
+  # `host-<name>.journal`, of length-prefixed terms:
   #
-  # Records (seq is a per-host counter that orders writes, so a restore can tell which of two
-  # records about the same agent is newer even if the host died between two writes):
+  #   {:agent, id, env}                  agent arrived (or was created): its snapshot
+  #   {:forget, id}                      agent stopped, or was killed
+  #   {:in_doubt, mig, env, src, kind}   this host prepared a paused copy (destination)
+  #   {:resolved, mig}                   that copy was committed or aborted
+  #   {:decision, mig, id}               this host committed a migration of agent id (source)
   #
-  #   {{:agent, id}, seq, env}                 resident agent, snapshot taken on arrival
-  #   {{:in_doubt, mig}, seq, env, src, kind}  a paused copy this host prepared (destination)
-  #   {{:decision, mig}, seq, id}              a migration of agent id this host committed (source)
-  #   {:seq, n}
+  # Replaying the journal in order gives the state to restore; a `decision` or a later
+  # `agent` record supersedes earlier records about the same agent, so a host that died
+  # between two writes restores nothing twice. On open the journal is compacted (rewritten
+  # with the live records and renamed over the old one).
   #
-  # Writes that matter for the guarantees happen before the message that depends on them:
-  # the destination records the in-doubt copy before answering `prepared`; the source records
-  # its commit decision before sending `commit`; an arrival is checkpointed before the agent
-  # runs. DETS delays writes in its own cache (up to 3 s), so each of these writes is followed
-  # by :dets.sync/1, which hands them to the OS: they survive the node's OS process being
-  # killed (a power cut before the OS flushes its page cache is another matter).
+  # Each write goes to the file with write(2) before the host sends the message that depends
+  # on it (the destination records the in-doubt copy before answering `prepared`; the source
+  # records its decision before sending `commit`; an arrival is recorded before the agent
+  # runs), so it survives the node's OS process being killed. It is not fsync'ed: a power cut
+  # before the OS writes its page cache back may lose the last records.
 
   @doc false
-  def open(_name, nil), do: nil
+  # Opens (creating or compacting) the journal of host `name` in `dir`. Returns nil without a
+  # directory, else `{journal, restored}` where restored is {agents, in_doubt, decided_migs}.
+  def open(_name, nil), do: {nil, {[], [], []}}
 
   def open(name, dir) do
     File.mkdir_p!(dir)
-    file = Path.join(dir, "host-#{safe(name)}.dets") |> String.to_charlist()
-
-    case :dets.open_file({:tartarus_host, name}, file: file, type: :set, repair: true) do
-      {:ok, tab} ->
-        :dets.insert_new(tab, {:seq, 0})
-        tab
-
-      {:error, reason} ->
-        raise ArgumentError, "cannot open the data directory #{dir}: #{inspect(reason)}"
-    end
+    path = Path.join(dir, "host-#{safe(name)}.journal")
+    state = replay(path)
+    tmp = path <> ".tmp"
+    File.write!(tmp, Enum.map(records(state), &frame/1))
+    File.rename!(tmp, path)
+    {:ok, io} = File.open(path, [:append, :binary])
+    {%{io: io, path: path}, restored(state)}
   end
 
   def close(nil), do: :ok
-  def close(tab), do: :dets.close(tab)
+  def close(%{io: io}), do: File.close(io)
 
-  def checkpoint(%{dets: nil}, _env), do: :ok
-  def checkpoint(%{dets: tab}, env), do: durable(tab, {{:agent, env.id}, next(tab), env})
+  def checkpoint(%{journal: nil}, _env), do: :ok
+  def checkpoint(%{journal: j}, env), do: append(j, {:agent, env.id, env})
 
-  def forget(%{dets: nil}, _id), do: :ok
+  def forget(%{journal: nil}, _id), do: :ok
+  def forget(%{journal: j}, id), do: append(j, {:forget, id})
 
-  def forget(%{dets: tab}, id) do
-    :dets.delete(tab, {:agent, id})
-    :dets.sync(tab)
+  def in_doubt(%{journal: nil}, _mig, _env, _src, _kind), do: :ok
+
+  def in_doubt(%{journal: j}, mig, env, src, kind),
+    do: append(j, {:in_doubt, mig, env, src, kind})
+
+  def resolved(%{journal: nil}, _mig), do: :ok
+  def resolved(%{journal: j}, mig), do: append(j, {:resolved, mig})
+
+  def committed(%{journal: nil}, _mig, _id), do: :ok
+  def committed(%{journal: j}, mig, id), do: append(j, {:decision, mig, id})
+
+  defp append(%{io: io}, record), do: :ok = IO.binwrite(io, frame(record))
+
+  defp frame(record) do
+    bin = :erlang.term_to_binary(record)
+    <<byte_size(bin)::32, bin::binary>>
   end
 
-  def in_doubt(%{dets: nil}, _mig, _env, _src, _kind), do: :ok
+  # -- replay ------------------------------------------------------------------------
 
-  def in_doubt(%{dets: tab}, mig, env, src, kind),
-    do: durable(tab, {{:in_doubt, mig}, next(tab), env, src, kind})
+  defp replay(path) do
+    empty = %{agents: %{}, in_doubt: %{}, decisions: %{}}
 
-  def resolved(%{dets: nil}, _mig), do: :ok
-  def resolved(%{dets: tab}, mig), do: :dets.delete(tab, {:in_doubt, mig})
-
-  def committed(%{dets: nil}, _mig, _id), do: :ok
-  def committed(%{dets: tab}, mig, id), do: durable(tab, {{:decision, mig}, next(tab), id})
-
-  def committed?(%{dets: nil}, _mig), do: false
-  def committed?(%{dets: tab}, mig), do: :dets.member(tab, {:decision, mig})
-
-  @doc false
-  # What to restore: agents to restart and in-doubt copies to recreate, dropping records that
-  # a newer record about the same agent supersedes.
-  def restore(%{dets: nil}), do: {[], []}
-
-  def restore(%{dets: tab}) do
-    records = :dets.foldl(fn r, acc -> [r | acc] end, [], tab)
-
-    decided =
-      for {{:decision, _}, seq, id} <- records,
-          reduce: %{},
-          do: (acc -> Map.update(acc, id, seq, &max(&1, seq)))
-
-    arrived = for {{:agent, id}, seq, _} <- records, into: %{}, do: {id, seq}
-
-    agents = for {{:agent, id}, seq, env} <- records, seq > Map.get(decided, id, -1), do: env
-
-    in_doubt =
-      for {{:in_doubt, mig}, seq, env, src, kind} <- records,
-          seq > Map.get(arrived, env.id, -1),
-          do: {mig, env, src, kind}
-
-    # Superseded records are dropped from the file.
-    for {{:agent, id}, seq, _} <- records,
-        seq <= Map.get(decided, id, -1),
-        do: :dets.delete(tab, {:agent, id})
-
-    for {{:in_doubt, mig}, seq, env, _, _} <- records,
-        seq <= Map.get(arrived, env.id, -1),
-        do: :dets.delete(tab, {:in_doubt, mig})
-
-    {agents, in_doubt}
+    case File.read(path) do
+      {:ok, bin} -> frames(bin, empty)
+      {:error, :enoent} -> empty
+    end
   end
 
-  defp durable(tab, record) do
-    :ok = :dets.insert(tab, record)
-    :dets.sync(tab)
+  # A torn last frame (the node died mid-write) ends the replay.
+  defp frames(<<size::32, bin::binary-size(size), rest::binary>>, state) do
+    frames(rest, apply_record(:erlang.binary_to_term(bin), state))
   end
 
-  defp next(tab), do: :dets.update_counter(tab, :seq, 1)
+  defp frames(_torn_or_empty, state), do: state
+
+  defp apply_record({:agent, id, env}, s),
+    do: %{s | agents: Map.put(s.agents, id, env), in_doubt: drop_agent(s.in_doubt, id)}
+
+  defp apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
+
+  defp apply_record({:in_doubt, mig, env, src, kind}, s),
+    do: %{s | in_doubt: Map.put(s.in_doubt, mig, {env, src, kind})}
+
+  defp apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
+
+  defp apply_record({:decision, mig, id}, s) do
+    %{
+      s
+      | agents: Map.delete(s.agents, id),
+        in_doubt: drop_agent(s.in_doubt, id),
+        decisions: Map.put(s.decisions, mig, id)
+    }
+  end
+
+  defp drop_agent(in_doubt, id),
+    do: Map.reject(in_doubt, fn {_mig, {env, _, _}} -> env.id == id end)
+
+  defp records(s) do
+    Enum.map(s.decisions, fn {mig, id} -> {:decision, mig, id} end) ++
+      Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {:in_doubt, mig, env, src, kind} end) ++
+      Enum.map(s.agents, fn {id, env} -> {:agent, id, env} end)
+  end
+
+  defp restored(s) do
+    {Map.values(s.agents),
+     Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {mig, env, src, kind} end),
+     Map.keys(s.decisions)}
+  end
 
   defp safe(name), do: name |> to_string() |> String.replace(~r/[^A-Za-z0-9_.-]/, "_")
 end

@@ -15,7 +15,7 @@ defmodule Tartarus.Host.Server do
   #   S -> A  {:"$tartarus_commit", mig, notify}            A becomes the agent (and answers
   #                                                         `notify`, a GenServer from, if set)
   #   A -> Hs {:"$tartarus_decision?", mig, id, a_pid}      A timed out waiting for commit
-  #   Hs -> A {:"$tartarus_decision", mig, :committed | :aborted | :unknown}
+  #   Hs -> A {:"$tartarus_decision", mig, :committed | {:committed, notify} | :aborted | :unknown}
   #
   # The decision is the entry {{:decision, mig}, :committed | :aborted} in the source host's
   # ledger, written once with :ets.insert_new/2 by the source agent (or by the source host
@@ -45,6 +45,9 @@ defmodule Tartarus.Host.Server do
 
     :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
+    {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
+    # Migrations an earlier run of this host committed: answers for destinations in doubt.
+    :ets.insert(ledger, for(mig <- decided, do: {{:decision, mig}, :committed}))
 
     host = %{
       ref: {name, node()},
@@ -54,13 +57,21 @@ defmodule Tartarus.Host.Server do
       counters: Tartarus.Events.new_counters(),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
-      dets: Tartarus.Host.Persistence.open(name, opts[:data_dir]),
+      journal: journal,
       opts: Map.new(opts)
     }
 
     # Local callers read the host's tables without a call (see Tartarus.Host.local/1).
     {_, _} = Registry.update_value(Tartarus.HostRegistry, {:host, name}, fn _ -> host end)
-    {:ok, %{host: host, monitors: %{}, killing: MapSet.new(), admission: opts[:admission]}}
+
+    {:ok,
+     %{
+       host: host,
+       monitors: %{},
+       killing: MapSet.new(),
+       admission: opts[:admission],
+       restore: {agents, in_doubt}
+     }}
   end
 
   @impl true
@@ -124,7 +135,8 @@ defmodule Tartarus.Host.Server do
   # Restores checkpointed agents and in-doubt copies (persistence); called once by
   # Tartarus.start_host/2 after the host's supervisors are up.
   defp call(:restore, _from, state) do
-    {agents, in_doubt} = Tartarus.Host.Persistence.restore(state.host)
+    {agents, in_doubt} = state.restore
+    state = %{state | restore: {[], []}}
 
     state =
       Enum.reduce(agents, state, fn env, state ->
@@ -179,7 +191,7 @@ defmodule Tartarus.Host.Server do
   def handle_info(_other, state), do: {:noreply, state}
 
   @impl true
-  def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.dets)
+  def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.journal)
 
   # -- admission ---------------------------------------------------------------
 

@@ -13,11 +13,16 @@ defmodule TartarusLats.Query.Trace do
        (MVF `{v, v}`: X is here, or `{v, INFINITY}`: X left from here), it
        **walks back** along MVB to the entry, pushing every stay on a stack:
        the stack is the path (Algorithm 1, first branch);
-    3. otherwise (MVF `{v, w}`) it walks back along MVB to the entry without
-       collecting, then **walks forward** along MVF from the entry to the
-       last node, queueing every stay: the queue is the path (second
-       branch; Appendix .2: fired at `e`, the agent goes to `d`, then
-       follows `d -> e -> f -> i -> h`).
+    3. otherwise (MVF `{v, w}`) it walks back along MVB to the entry (stacking
+       the stays), returns along the stack to `v`, then **walks forward** along
+       MVF to the last node, queueing every stay: stack then queue is the path
+       (Algorithm 1's second branch; Appendix .2: fired at `e`, the agent goes
+       to `d`, then follows `d -> e -> f -> i -> h`). Algorithm 1 re-reads the
+       first part from the MVFs on the way forward; we return along the stack
+       instead, because the MVB and MVF of one hand-over can disagree when a
+       tag bounced at a zone boundary (the neighbour acknowledged after this
+       node had already seen the tag come back), and the MVB walk is the one
+       that already succeeded.
 
   Every hop of the walks follows a link between two stays (the timestamps
   of `TartarusLats.MotionVectors`), so a tag that visited a node several
@@ -39,7 +44,11 @@ defmodule TartarusLats.Query.Trace do
 
   @impl true
   def init(args) do
-    s = args |> Walk.new(:trace) |> Map.merge(%{phase: :search, branch: nil, at: nil, path: []})
+    s =
+      args
+      |> Walk.new(:trace)
+      |> Map.merge(%{phase: :search, branch: nil, at: nil, path: [], found: nil, back_to: []})
+
     step(s)
   end
 
@@ -61,7 +70,7 @@ defmodule TartarusLats.Query.Trace do
 
       stay ->
         branch = if stay.to in [nil, :infinity], do: :last, else: :middle
-        s = Map.put(%{s | branch: branch, phase: :back}, :final, status(stay))
+        s = %{s | branch: branch, phase: :back, found: {node, stay}}
         back(node, stay, neighbours, s)
     end
   end
@@ -73,24 +82,31 @@ defmodule TartarusLats.Query.Trace do
     end
   end
 
+  defp act(:return, node, _mv, neighbours, s), do: return(node, neighbours, s)
+
   defp act(:forward, node, mv, neighbours, s) do
     case mv && MotionVectors.arrival(mv, s.tag, s.at) do
-      %{} = stay -> forward(node, stay, neighbours, s)
+      %{} = stay -> forward(node, stay, neighbours, %{s | path: s.path ++ [entry(node, stay)]})
       _ -> done(:broken, s)
     end
   end
 
-  # Walking back: the stack collects stays only on the first branch.
+  # Walking back along MVB, pushing every stay on the stack (the path so far).
   defp back(node, stay, neighbours, s) do
-    s = if s.branch == :last, do: %{s | path: [entry(node, stay) | s.path]}, else: s
+    s = %{s | path: [entry(node, stay) | s.path]}
 
     case stay.from do
       from when from in [:infinity, :pending] ->
         s = Map.put(s, :entry, from)
+        {_, found} = s.found
 
-        if s.branch == :last,
-          do: done(s.final, s),
-          else: forward(node, stay, neighbours, %{s | phase: :forward})
+        if s.branch == :last do
+          done(status(found), s)
+        else
+          # Back to the first node with a trace, along the stack, then forward from there.
+          nodes = s.path |> Enum.map(& &1.node) |> Enum.dedup() |> tl()
+          return(node, neighbours, %{s | phase: :return, back_to: nodes})
+        end
 
       ^node ->
         # A loop here -> here: the previous stay is on this node too.
@@ -105,19 +121,24 @@ defmodule TartarusLats.Query.Trace do
     end
   end
 
-  defp forward(node, stay, neighbours, s) do
-    s = %{s | path: s.path ++ [entry(node, stay)]}
+  defp return(node, neighbours, %{back_to: []} = s) do
+    {_, found} = s.found
+    forward(node, found, neighbours, %{s | phase: :forward})
+  end
 
+  defp return(_node, neighbours, %{back_to: [next | rest]} = s),
+    do: Walk.go(neighbours, next, %{s | back_to: rest}, fn -> done(:broken, s) end)
+
+  # Walking forward along MVF from `stay` (already on the path), queueing every stay.
+  defp forward(node, stay, neighbours, s) do
     case stay.to do
       next when next in [nil, :infinity, :pending] ->
         done(status(stay), s)
 
       ^node ->
-        local(
-          MotionVectors.arrival(mv(), s.tag, stay.to_arrived_at),
-          s,
-          &forward(node, &1, neighbours, &2)
-        )
+        local(MotionVectors.arrival(mv(), s.tag, stay.to_arrived_at), s, fn next, s ->
+          forward(node, next, neighbours, %{s | path: s.path ++ [entry(node, next)]})
+        end)
 
       next ->
         Walk.go(neighbours, next, %{s | at: stay.to_arrived_at}, fn -> done(:broken, s) end)

@@ -1,0 +1,184 @@
+defmodule TartarusEmu.NetworkTest do
+  use ExUnit.Case, async: true
+
+  import TartarusEmu.EmuCase
+  alias TartarusEmu.{Dynamics, Network, Topology}
+
+  doctest TartarusEmu.Network
+
+  test "virtual mode: a host per topology node, linked along the edges" do
+    topo = Topology.grid(3, 4)
+    net = start_network!(topo)
+
+    assert map_size(net.hosts) == 12
+    assert net.nodes == [node()]
+
+    for n <- topo.nodes do
+      assert neighbour_nodes(net, n) == Topology.neighbours(topo, n)
+      assert Network.topo_node(net, Network.host(net, n)) == n
+    end
+
+    assert length(Network.live_links(net)) == Topology.edge_count(topo)
+  end
+
+  test "link latency and loss come from the topology (or the :link default)" do
+    topo = Topology.new([:a, :b, :c], [{:a, :b}, {:b, :c}], links: %{{:a, :b} => %{loss: 1.0}})
+    net = start_network!(topo, link: [latency_ms: 3])
+
+    defmodule Hop do
+      use Tartarus.Agent
+      def init(to), do: {:stay, to}
+    end
+
+    {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :b), Hop, nil)
+
+    assert {:error, :link_loss} =
+             Tartarus.move({id, Network.host(net, :b)}, Network.host(net, :a))
+
+    assert :ok = Tartarus.move({id, Network.host(net, :b)}, Network.host(net, :c))
+  end
+
+  test "break and heal a link" do
+    net = start_network!(Topology.line(3))
+    assert neighbour_nodes(net, :h2) == [:h1, :h3]
+
+    assert :ok = Network.break_link(net, :h2, :h1)
+    assert neighbour_nodes(net, :h1) == []
+    assert neighbour_nodes(net, :h2) == [:h3]
+    refute Network.live?(net, :h1, :h2)
+    assert Network.live_links(net) == [{:h2, :h3}]
+
+    # Strict links: an agent cannot cross a broken link.
+    defmodule Still do
+      use Tartarus.Agent
+      def init(_), do: {:stay, nil}
+    end
+
+    {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :h1), Still, nil)
+    h2 = Network.host(net, :h2)
+    assert {:error, {:no_link, ^h2}} = Tartarus.move({id, Network.host(net, :h1)}, h2)
+
+    assert :ok = Network.heal_link(net, :h1, :h2)
+    assert neighbour_nodes(net, :h1) == [:h2]
+    assert :ok = Tartarus.move({id, Network.host(net, :h1)}, h2)
+
+    assert {:error, {:no_such_link, :h1, :h3}} = Network.break_link(net, :h1, :h3)
+  end
+
+  test "isolate and rejoin; a broken link stays down when its node rejoins" do
+    net = start_network!(Topology.grid(3, 3))
+    :ok = Network.break_link(net, :h5, :h6)
+    :ok = Network.isolate(net, :h5)
+
+    assert neighbour_nodes(net, :h5) == []
+    assert neighbour_nodes(net, :h2) == [:h1, :h3]
+    assert Network.isolated(net) == [:h5]
+
+    # Healing a link of an isolated node brings it back only with the node.
+    :ok = Network.heal_link(net, :h5, :h6)
+    assert neighbour_nodes(net, :h5) == []
+    :ok = Network.break_link(net, :h5, :h6)
+
+    :ok = Network.rejoin(net, :h5)
+    assert neighbour_nodes(net, :h5) == [:h2, :h4, :h8]
+    assert Network.isolated(net) == []
+  end
+
+  test "p-dynamics: the network's overlay follows the Dynamics state, down half the time" do
+    topo = Topology.ring(20)
+    net = start_network!(topo)
+    state = Dynamics.new(topo.nodes)
+
+    {down_fraction, _, _} =
+      Enum.reduce(1..200, {0, state, Dynamics.rng(5)}, fn _, {acc, st, rng} ->
+        {events, st, rng} = Dynamics.step(st, 0.2, rng)
+        Network.apply_dynamics(net, events)
+        {acc + length(Dynamics.down(st)) / 20, st, rng}
+      end)
+      |> then(fn {acc, st, rng} -> {acc / 200, st, rng} end)
+
+    # Two-state chain with p_break = p_heal: down half of the time in the long run.
+    assert_in_delta down_fraction, 0.5, 0.1
+
+    # The platform's overlay is exactly the live links.
+    live = Network.live_links(net)
+
+    overlay = for n <- topo.nodes, m <- neighbour_nodes(net, n), n < m, do: {n, m}
+
+    assert Enum.sort(overlay) == live
+
+    for {a, b} <- live do
+      assert Network.up?(net, a) and Network.up?(net, b)
+    end
+  end
+
+  test "kill and restart a node in virtual mode: it restarts empty and relinked" do
+    net = start_network!(Topology.line(3))
+
+    defmodule Idle do
+      use Tartarus.Agent
+      def init(_), do: {:stay, nil}
+    end
+
+    {:ok, _} = Tartarus.create_mobile_agent(Network.host(net, :h2), Idle, nil)
+    assert :ok = Network.kill_node(net, :h2)
+    assert {:error, _} = Tartarus.status(Network.host(net, :h2))
+    refute Network.up?(net, :h2)
+    assert Network.broadcast(net, :hello) == 0
+
+    assert :ok = Network.restart_node(net, :h2)
+    assert Tartarus.agents(Network.host(net, :h2)) == []
+    assert neighbour_nodes(net, :h2) == [:h1, :h3]
+  end
+
+  test "broadcast reaches each resident agent once" do
+    net = start_network!(Topology.ring(5))
+
+    defmodule Counter do
+      use Tartarus.Agent
+      def init(owner), do: {:stay, owner}
+
+      def handle_info(:ping, owner) do
+        send(owner, {:pong, self()})
+        {:stay, owner}
+      end
+    end
+
+    for n <- [:h1, :h1, :h3],
+        do: {:ok, _} = Tartarus.create_mobile_agent(Network.host(net, n), Counter, self())
+
+    assert Network.broadcast(net, :ping) == 3
+    for _ <- 1..3, do: assert_receive({:pong, _})
+    refute_receive {:pong, _}, 50
+  end
+
+  test "stop removes every host; a dead caller takes its network with it" do
+    net = start_network!(Topology.line(4))
+    hosts = Network.host_list(net)
+    assert :ok = Network.stop(net)
+    # (The host registry forgets stopped hosts asynchronously.)
+    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+
+    test = self()
+
+    pid =
+      spawn(fn ->
+        {:ok, net} = Network.start(Topology.line(3))
+        send(test, {:hosts, Network.host_list(net), net.keeper})
+        Process.sleep(:infinity)
+      end)
+
+    assert_receive {:hosts, hosts, keeper}
+    ref = Process.monitor(keeper)
+    Process.exit(pid, :kill)
+    assert_receive {:DOWN, ^ref, _, _, _}, 5_000
+    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+  end
+
+  test "bad options are reported with the key" do
+    assert {:error, msg} = Network.start(Topology.line(2), mode: :cloud)
+    assert msg =~ "for key :mode"
+    assert {:error, msg} = Network.start(Topology.line(2), prefix: 3)
+    assert msg =~ ":prefix"
+  end
+end

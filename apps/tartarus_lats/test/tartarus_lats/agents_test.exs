@@ -1,0 +1,228 @@
+defmodule TartarusLats.AgentsTest do
+  use ExUnit.Case, async: false
+  doctest TartarusLats.Query
+
+  alias TartarusLats.{Building, Cloud, Deployment, MotionVectors, World}
+
+  # Thesis Appendix .2: ten nodes a..j; X walks d -> e -> f -> i -> h and stays at h.
+  #
+  #   b
+  #   a   c
+  #   d - e - f - g
+  #       h - i - j
+  defp appendix_world do
+    positions = %{
+      b: {0, 18, 0},
+      a: {0, 9, 0},
+      c: {9, 9, 0},
+      d: {0, 0, 0},
+      e: {9, 0, 0},
+      f: {18, 0, 0},
+      g: {27, 0, 0},
+      h: {9, -9, 0},
+      i: {18, -9, 0},
+      j: {27, -9, 0}
+    }
+
+    adjacency = %{a: [:b, :c, :d], d: [:e], e: [:f], f: [:g, :i], i: [:h, :j]}
+    building = Building.custom(positions: positions, adjacency: adjacency, entrances: [:d])
+
+    script = %{
+      name: :x,
+      enter_at: 0,
+      entrance: :d,
+      route: [{:d, 20}, {:e, 20}, {:f, 20}, {:i, 20}, {:h, 10_000}],
+      exit: :h
+    }
+
+    World.new(building: building, walkers: 0, scripts: [script])
+  end
+
+  defp nodes(path), do: Enum.map(path, & &1.node)
+
+  setup_all do
+    dep =
+      Deployment.start(seed: 1, world: appendix_world(), prefix: "appx") |> Deployment.run(150)
+
+    on_exit(fn -> Deployment.stop(dep) end)
+    %{dep: dep, tag: World.tag(dep.world_value, :x)}
+  end
+
+  test "ground truth of the Appendix .2 walk", %{dep: dep} do
+    assert Enum.map(World.visited_path(dep.world_value, :x), & &1.zone) == [:d, :e, :f, :i, :h]
+  end
+
+  test "Trace(X) fired at a searches conscientiously, then follows the vectors", %{
+    dep: dep,
+    tag: tag
+  } do
+    assert {:ok, r} = TartarusLats.query(dep.hosts[:a], :trace, tag, seed: 3)
+    assert {:ok, %{path: path, entry: :infinity, status: :present}} = r.answer
+    assert nodes(path) == [:d, :e, :f, :i, :h]
+    # entry/exit times within a few seconds of the truth
+    for {p, t} <- Enum.zip(path, World.visited_path(dep.world_value, :x)),
+        do: assert(abs(p.arrived_at - t.entered_at) <= 8)
+
+    assert hd(r.route) == :a
+    assert Enum.take(r.route, -5) == [:d, :e, :f, :i, :h]
+    assert r.hops == length(r.route) - 1
+  end
+
+  test "Trace(X) fired at e goes back to d, then forward (Appendix .2)", %{dep: dep, tag: tag} do
+    assert {:ok, r} = TartarusLats.query(dep.hosts[:e], :trace, tag)
+    assert r.route == [:e, :d, :e, :f, :i, :h]
+    assert {:ok, %{path: path, status: :present}} = r.answer
+    assert nodes(path) == [:d, :e, :f, :i, :h]
+  end
+
+  test "Trace(X) fired where X is walks back only (Algorithm 1, first branch)", %{
+    dep: dep,
+    tag: tag
+  } do
+    assert {:ok, r} = TartarusLats.query(dep.hosts[:h], :trace, tag)
+    assert r.route == [:h, :i, :f, :e, :d]
+    assert {:ok, %{path: path}} = r.answer
+    assert nodes(path) == [:d, :e, :f, :i, :h]
+  end
+
+  test "Where is X follows MVF; Where am I from a neighbour", %{dep: dep, tag: tag} do
+    assert {:ok, %{answer: {:in_zone, :h}, route: route}} =
+             TartarusLats.query(dep.hosts[:d], :where_is, tag)
+
+    assert route == [:d, :e, :f, :i, :h]
+
+    assert {:ok, %{answer: {:in_zone, :h}, hops: 1}} =
+             TartarusLats.query(dep.hosts[:i], :where_am_i, tag)
+  end
+
+  test "an unknown tag is not found once the network is exhausted", %{dep: dep} do
+    assert {:ok, r} = TartarusLats.query(dep.hosts[:a], :where_is, {"00", 9, 9}, report: false)
+    assert r.answer == :not_found
+    assert Enum.sort(Enum.uniq(r.route)) == Building.nodes(dep.building)
+    assert {:ok, %{answer: :not_found}} = TartarusLats.query(dep.hosts[:j], :trace, {"00", 9, 9})
+  end
+
+  test "many queries at once, and the cloud answers the same centrally", %{dep: dep, tag: tag} do
+    ids =
+      for n <- [:a, :b, :c, :g, :j], type <- [:where_is, :trace] do
+        {:ok, id} = TartarusLats.release(dep.hosts[n], type, tag, report: false)
+        {type, id}
+      end
+
+    for {type, id} <- ids do
+      assert {:ok, r} = TartarusLats.await(id)
+      central = Cloud.query(dep.cloud, type, :a, tag)
+      assert r.answer == central
+    end
+
+    stats = Cloud.stats(dep.cloud)
+    assert stats.connections.centralized > 10
+    assert stats.bytes.centralized > 0
+  end
+
+  test "a query written at run time is released like the built-in ones", %{dep: dep, tag: tag} do
+    {:ok, [mod]} =
+      Tartarus.compile_string("""
+      defmodule TartarusLats.AgentsTest.Census do
+        use Tartarus.Agent
+        def init(n), do: visit(%{left: n, seen: %{}})
+        def handle_arrival(_ctx, s), do: visit(s)
+
+        defp visit(s) do
+          mv = Tartarus.Agent.store_get({:lats, :mv})
+          node = Tartarus.Agent.store_get({:lats, :node})
+          s = %{s | seen: Map.put(s.seen, node, TartarusLats.MotionVectors.tags(mv))}
+          if s.left == 0, do: {:return, s.seen, s}, else: {:move, :conscientious, %{s | left: s.left - 1}}
+        end
+      end
+      """)
+
+    assert {:ok, seen} = TartarusLats.query(dep.hosts[:d], mod, 3)
+    assert seen[:d] == [tag]
+  end
+
+  describe "a neighbour that never acknowledges" do
+    test "the tag reads as gone from the last node, after the timeout in world seconds" do
+      positions = %{a: {0, 0, 0}, b: {9, 0, 0}, c: {18, 0, 0}}
+
+      building =
+        Building.custom(positions: positions, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
+
+      script = %{name: :y, enter_at: 0, entrance: :a, route: [{:a, 25}, {:b, 10_000}], exit: :b}
+      world = World.new(building: building, walkers: 0, scripts: [script])
+      dep = Deployment.start(seed: 2, world: world, prefix: "noack")
+
+      try do
+        # b's database agent is gone: b hears X but nobody there answers a's notice.
+        :ok = Tartarus.kill({"lats-db", dep.hosts[:b]})
+        dep = Deployment.run(dep, 40)
+        tag = World.tag(dep.world_value, :y)
+        mv = Tartarus.store_get(dep.hosts[:a], {:lats, :mv})
+        assert {:a, :pending} = MotionVectors.mvf(mv, tag)
+
+        dep = Deployment.run(dep, 20)
+        mv = Tartarus.store_get(dep.hosts[:a], {:lats, :mv})
+        assert MotionVectors.mvf(mv, tag) == {:a, :infinity}
+
+        assert {:ok, %{answer: :left_building}} =
+                 TartarusLats.query(dep.hosts[:a], :where_is, tag, report: false)
+      after
+        Deployment.stop(dep)
+      end
+    end
+  end
+
+  describe "persistence" do
+    @tag :tmp_dir
+    test "a node's log and vectors survive a host restart", %{tmp_dir: dir} do
+      world = appendix_world()
+      dep = Deployment.start(seed: 1, world: world, prefix: "persist", data_dir: dir)
+
+      try do
+        dep = Deployment.run(dep, 60)
+        host = dep.hosts[:d]
+        log = Tartarus.store_get(host, {:lats, :log})
+        mv = Tartarus.store_get(host, {:lats, :mv})
+        assert length(log) >= 2
+
+        :ok = Deployment.restart_node(dep, :d, data_dir: dir)
+        assert Tartarus.store_get(host, {:lats, :log}) == log
+        assert Tartarus.store_get(host, {:lats, :mv}).tags == mv.tags
+
+        # and the node goes on working: the trace still reaches through d
+        dep = Deployment.run(dep, 90)
+        tag = World.tag(dep.world_value, :x)
+
+        assert {:ok, %{answer: {:ok, %{path: path}}}} =
+                 TartarusLats.query(dep.hosts[:h], :trace, tag)
+
+        assert nodes(path) == [:d, :e, :f, :i, :h]
+      after
+        Deployment.stop(dep)
+      end
+    end
+  end
+
+  test "the beacon plugin attaches, describes itself and needs a source" do
+    {:ok, host} = Tartarus.start_host("beacon-test")
+
+    try do
+      tag = {"aa", 1, 1}
+
+      :ok =
+        Tartarus.attach_plugin(
+          host,
+          :beacon,
+          {TartarusLats.BeaconPlugin, node: :n, script: %{1 => %{tag => -60}}}
+        )
+
+      [{:beacon, desc}] = Tartarus.plugins(host)
+      assert desc.kind == :ble_receiver
+
+      assert {:error, _} =
+               Tartarus.attach_plugin(host, :bad, {TartarusLats.BeaconPlugin, node: :n})
+    after
+      Tartarus.stop_host(host)
+    end
+  end
+end
