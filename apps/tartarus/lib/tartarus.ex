@@ -225,7 +225,11 @@ defmodule Tartarus do
     ttl: [type: :pos_integer_or_infinity, default: :infinity, doc: "maximum number of hops"],
     seed: [type: :any, doc: "seed of the agent's random choices (defaults to its id)"],
     payload: [type: :any, default: %{}, doc: "initial data payload (a map)"],
-    modules: [type: {:list, :atom}, default: [], doc: "extra modules to carry in the payload"]
+    modules: [type: {:list, :atom}, default: [], doc: "extra modules to carry in the payload"],
+    issuer: [
+      type: :any,
+      doc: "a key pair (`Tartarus.Security.Keys.generate/0`) to sign the agent with"
+    ]
   ]
 
   @doc """
@@ -246,7 +250,7 @@ defmodule Tartarus do
          :ok <- check_agent_module(module),
          :ok <- check_payload(opts[:payload]),
          host = Host.address(host),
-         env = new_envelope(host, module, opts),
+         {:ok, env} <- sign(new_envelope(host, module, opts), opts[:issuer]),
          :ok <- ensure_code(host, env) do
       Host.call(host, {:create, env, args}, 30_000)
     end
@@ -266,6 +270,18 @@ defmodule Tartarus do
 
   defp check_agent_module(module) do
     if Tartarus.Agent.agent_module?(module), do: :ok, else: {:error, {:not_an_agent, module}}
+  end
+
+  defp sign(env, nil), do: {:ok, env}
+
+  defp sign(env, keys) do
+    if Tartarus.Security.keys?(keys) do
+      with {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
+           do: {:ok, Tartarus.Security.issue(env, manifest, keys)}
+    else
+      {:error,
+       "invalid options given to Tartarus.create_agent/4 for key :issuer: expected a key pair, got: #{inspect(keys)}"}
+    end
   end
 
   defp check_payload(p) when is_map(p), do: Envelope.portable?(p)

@@ -68,6 +68,13 @@ defmodule Tartarus.Host do
       default: :infinity,
       doc: "per-agent heap limit in words; an agent that exceeds it is killed (and restarted)"
     ],
+    security: [
+      type: :keyword,
+      doc:
+        "signed agents (see `Tartarus.Security`): `keys:` the host's key pair, to seal " <>
+          "departing agents; `trust:` a trust list, to admit only agents whose issuer and " <>
+          "sending host it contains"
+    ],
     data_dir: [
       type: :string,
       doc:
@@ -82,7 +89,8 @@ defmodule Tartarus.Host do
   @doc false
   @spec validate_opts(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate_opts(opts) do
-    with {:ok, opts} <- Options.validate(opts, @schema, "Tartarus.start_host/2") do
+    with {:ok, opts} <- Options.validate(opts, @schema, "Tartarus.start_host/2"),
+         {:ok, opts} <- validate_security(opts) do
       case opts[:admission] do
         nil ->
           {:ok, opts}
@@ -97,6 +105,16 @@ defmodule Tartarus.Host do
                "invalid options given to Tartarus.start_host/2 for key :admission: " <> message}
           end
       end
+    end
+  end
+
+  defp validate_security(opts) do
+    case Tartarus.Security.validate_host_opts(opts[:security] || []) do
+      {:ok, security} ->
+        {:ok, Keyword.put(opts, :security, security)}
+
+      {:error, message} ->
+        {:error, "invalid options given to Tartarus.start_host/2 for key :security: " <> message}
     end
   end
 

@@ -360,6 +360,7 @@ defmodule Tartarus.Agent.Server do
     host = data.host
     mig = {host.incarnation, make_ref()}
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind, host.ref))
+    out = seal(out, manifest, mig, host)
     if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)
     prepare = {:"$tartarus_prepare", self(), mig, host.ref, host.pid, kind, out, manifest}
@@ -442,6 +443,13 @@ defmodule Tartarus.Agent.Server do
         {:error, {:host_down, :noconnection}}
     after
       timeout -> {:error, :timeout}
+    end
+  end
+
+  defp seal(env, manifest, mig, host) do
+    case host.opts.security do
+      %{keys: keys} -> Tartarus.Security.seal(env, manifest, mig, keys)
+      _ -> env
     end
   end
 

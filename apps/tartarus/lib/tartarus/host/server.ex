@@ -198,7 +198,8 @@ defmodule Tartarus.Host.Server do
   defp admit(state, {_, s_pid, mig, src, src_pid, kind, env, manifest, code}) do
     env = Tartarus.Fault.point(:admitting, env)
 
-    with :ok <- prepare(state, env, manifest, code),
+    with :ok <- trusted(state, env, manifest, mig),
+         :ok <- prepare(state, env, manifest, code),
          {:ok, state} <- policy(state, src, env) do
       case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
         {:ok, pid, state} ->
@@ -219,6 +220,13 @@ defmodule Tartarus.Host.Server do
 
       {:error, reason} ->
         refuse(state, s_pid, mig, env, src, reason)
+    end
+  end
+
+  defp trusted(state, env, manifest, mig) do
+    case state.host.opts.security do
+      %{trust: trust} -> Tartarus.Security.check(env, manifest, mig, trust)
+      _ -> :ok
     end
   end
 
