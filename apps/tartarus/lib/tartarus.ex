@@ -362,7 +362,7 @@ defmodule Tartarus do
         Process.demonitor(mref, [:flush])
         reply
 
-      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, new_pid}}} ->
+      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, new_pid, {_, ^mref}}}} ->
         # Committed: the answer comes from the new process once it runs; if its node dies
         # first, the agent went down with it.
         new_ref = Process.monitor(new_pid)

@@ -128,7 +128,9 @@ defmodule Tartarus.Chaos do
           locate(world, id, dest)
 
         {:error, {:destination_down, _}} ->
-          locate(world, id, dest)
+          # Committed to a node that died before the agent started there: lost with it.
+          :ets.insert(world.table, {{:loc, id}, dest})
+          :ets.insert(world.table, {{:on_dead, id}, true})
 
         _failed ->
           :ok

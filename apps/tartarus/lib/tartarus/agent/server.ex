@@ -198,7 +198,8 @@ defmodule Tartarus.Agent.Server do
     # The destination answers the caller once the agent runs there.
     case attempt(data, :move, dest, from) do
       {:moved, new_pid, data} ->
-        {:stop, {:shutdown, {:migrated, new_pid}}, data}
+        # The exit names whose move this was: other callers waiting on this process retry.
+        {:stop, {:shutdown, {:migrated, new_pid, from}}, data}
 
       {:failed, reason, data} ->
         GenServer.reply(from, {:error, reason})
@@ -229,7 +230,7 @@ defmodule Tartarus.Agent.Server do
     data = put_state(data, s)
 
     case attempt(data, :move, dest) do
-      {:moved, new_pid, data} -> {:stop, {:shutdown, {:migrated, new_pid}}, data}
+      {:moved, new_pid, data} -> {:stop, {:shutdown, {:migrated, new_pid, nil}}, data}
       {:failed, reason, data} -> failed(data, dest, reason)
     end
   end
