@@ -168,8 +168,20 @@ defmodule Tartarus.Ledger do
       [] ->
         case :ets.lookup(host.ledger, {:fwd, agent}) do
           [{_, dest, _, _, _}] -> {:moved, dest}
-          [] -> locate_by_name(host, agent)
+          [] -> just_arrived(host, agent)
         end
+    end
+  end
+
+  # An arriving agent registers before it drops its `arriving` entry (and the forwarding
+  # pointer of its previous visit): a reader that missed it in the table and then found
+  # neither entry looks again.
+  defp just_arrived(host, agent) do
+    {name, _} = host.ref
+
+    case Tartarus.AgentTable.lookup(agent) do
+      {:ok, pid, ^name} -> {:here, pid, agent}
+      _ -> locate_by_name(host, agent)
     end
   end
 

@@ -52,7 +52,7 @@ defmodule Tartarus.Agent.Server do
           :ok ->
             arrived(put_state(data, action_state(action)))
             emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
-            {:ok, data, {:continue, {:act, action}}}
+            {:ok, data, {:continue, {:go, {:act, action}}}}
 
           {:error, reason} ->
             {:stop, reason}
@@ -82,7 +82,7 @@ defmodule Tartarus.Agent.Server do
     data = %{host: host, env: env, paused: nil}
 
     case Ledger.register_resident(host, env, self()) do
-      :ok -> {:ok, data, {:continue, {:arrive, %{ctx(data) | restarts: n}}}}
+      :ok -> {:ok, data, {:continue, {:go, {:arrive, %{ctx(data) | restarts: n}}}}}
       {:error, reason} -> {:stop, reason}
     end
   end
@@ -90,6 +90,16 @@ defmodule Tartarus.Agent.Server do
   defp start(host, env, :restore), do: start(host, env, {:restart, 0})
 
   @impl true
+  # The agent's code runs only once its host watches it (the host sends :"$tartarus_go" right
+  # after it monitors the new process), so an immediate crash or stop is seen for what it is.
+  def handle_continue({:go, next}, data) do
+    receive do
+      :"$tartarus_go" -> handle_continue(next, data)
+    after
+      5_000 -> handle_continue(next, data)
+    end
+  end
+
   def handle_continue({:act, action}, data), do: act(action, data)
 
   def handle_continue({:arrive, ctx}, data) do

@@ -293,6 +293,8 @@ defmodule Tartarus.Host.Server do
     case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
       {:ok, pid} ->
         mref = Process.monitor(pid)
+        # Paused copies run nothing until their commit; the others wait for this.
+        unless match?({:paused, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
         entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner}
         {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
 
