@@ -17,7 +17,11 @@ defmodule TartarusEmu.MixProject do
   end
 
   def application do
-    [extra_applications: [:logger], mod: {TartarusEmu.Application, []}]
+    [
+      extra_applications: [:logger],
+      mod: {TartarusEmu.Application, []},
+      env: [tartarus_demo: [TartarusEmu.Demo]]
+    ]
   end
 
   defp elixirc_paths(:test), do: ["lib", "test/support"]

@@ -17,7 +17,11 @@ defmodule TartarusLats.MixProject do
   end
 
   def application do
-    [extra_applications: [:logger], mod: {TartarusLats.Application, []}]
+    [
+      extra_applications: [:logger],
+      mod: {TartarusLats.Application, []},
+      env: [tartarus_demo: [TartarusLats.Demo]]
+    ]
   end
 
   defp elixirc_paths(:test), do: ["lib", "test/support"]

@@ -35,13 +35,13 @@ defmodule Mix.Tasks.Tartarus.Bench do
 
   @impl true
   def run(argv) do
-    {opts, args, invalid} = OptionParser.parse(argv, strict: @switches)
+    {opts, args} = Tartarus.CLI.parse!(argv, @switches, "tartarus.bench", args: true)
 
-    if invalid != [],
-      do:
-        Mix.raise(
-          "mix tartarus.bench: invalid options #{inspect(invalid)}; see `mix help tartarus.bench`"
-        )
+    Tartarus.CLI.positive!(
+      opts,
+      [:hops, :agents, :state_bytes, :count, :creators],
+      "tartarus.bench"
+    )
 
     Mix.Task.run("app.start")
 
@@ -49,18 +49,14 @@ defmodule Mix.Tasks.Tartarus.Bench do
       case args do
         ["migration"] ->
           mode =
-            case opts[:mode] || "virtual" do
-              "virtual" ->
-                :virtual
+            Tartarus.CLI.choice!(
+              opts[:mode],
+              [:virtual, :peer],
+              :mode,
+              "tartarus.bench",
+              :virtual
+            )
 
-              "peer" ->
-                :peer
-
-              other ->
-                Mix.raise("mix tartarus.bench: --mode must be virtual or peer, got: #{other}")
-            end
-
-          positive!(opts, [:hops, :agents, :state_bytes])
           unless opts[:json], do: Mix.shell().info("migration benchmark (#{mode})...")
 
           Tartarus.Bench.migration(
@@ -72,7 +68,6 @@ defmodule Mix.Tasks.Tartarus.Bench do
           )
 
         ["agents"] ->
-          positive!(opts, [:count, :creators])
           unless opts[:json], do: Mix.shell().info("resident agents benchmark...")
 
           Tartarus.Bench.agents(
@@ -86,21 +81,6 @@ defmodule Mix.Tasks.Tartarus.Bench do
           )
       end
 
-    json = Tartarus.JSON.encode!(result)
-    if opts[:out], do: File.write!(opts[:out], json <> "\n")
-
-    if opts[:json] do
-      Mix.shell().info(json)
-    else
-      Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
-    end
-  end
-
-  defp positive!(opts, keys) do
-    for k <- keys, v = opts[k], v != nil, v <= 0 do
-      Mix.raise(
-        "mix tartarus.bench: --#{String.replace(to_string(k), "_", "-")} must be a positive integer, got: #{v}"
-      )
-    end
+    Tartarus.CLI.report(result, json: opts[:json], out_file: opts[:out])
   end
 end

@@ -27,20 +27,9 @@ defmodule Mix.Tasks.Tartarus.Chaos do
 
   @impl true
   def run(argv) do
-    {opts, _, invalid} = OptionParser.parse(argv, strict: @switches)
-    if invalid != [], do: Mix.raise("mix tartarus.chaos: invalid options #{inspect(invalid)}")
-
-    for k <- [:nodes, :agents, :migrations],
-        v = opts[k],
-        v != nil,
-        v <= 0,
-        do: Mix.raise("mix tartarus.chaos: --#{k} must be a positive integer, got: #{v}")
-
-    for k <- [:kills, :partitions],
-        v = opts[k],
-        v != nil,
-        v < 0,
-        do: Mix.raise("mix tartarus.chaos: --#{k} must be a non-negative integer, got: #{v}")
+    opts = Tartarus.CLI.parse!(argv, @switches, "tartarus.chaos")
+    Tartarus.CLI.positive!(opts, [:nodes, :agents, :migrations], "tartarus.chaos")
+    Tartarus.CLI.non_negative!(opts, [:kills, :partitions], "tartarus.chaos")
 
     Mix.Task.run("app.start")
     Logger.configure(level: :error)
@@ -65,13 +54,6 @@ defmodule Mix.Tasks.Tartarus.Chaos do
         progress: progress
       )
 
-    json = Tartarus.JSON.encode!(result)
-    if opts[:out], do: File.write!(opts[:out], json <> "\n")
-
-    if opts[:json] do
-      Mix.shell().info(json)
-    else
-      Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
-    end
+    Tartarus.CLI.report(result, json: opts[:json], out_file: opts[:out])
   end
 end

@@ -53,15 +53,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
 
   @impl true
   def run(argv) do
-    {opts, args, invalid} = OptionParser.parse(argv, strict: @switches)
-
-    if invalid != [] or args != [],
-      do:
-        Mix.raise(
-          "mix tartarus.emu: invalid arguments #{inspect(invalid ++ args)}; see `mix help tartarus.emu`"
-        )
-
-    opts = check!(opts)
+    opts = argv |> Tartarus.CLI.parse!(@switches, "tartarus.emu") |> check!()
     Mix.Task.run("app.start")
 
     progress = Process.whereis(:standard_error)
@@ -109,34 +101,18 @@ defmodule Mix.Tasks.Tartarus.Emu do
   defp format(reason), do: inspect(reason)
 
   defp check!(opts) do
-    for key <- [:hosts, :agents, :steps, :group],
-        v = opts[key],
-        v != nil and v < 1,
-        do: Mix.raise("mix tartarus.emu: --#{key} must be a positive integer, got: #{v}")
-
-    for key <- [:p, :loss],
-        v = opts[key],
-        v != nil and (v < 0 or v > 1),
-        do: Mix.raise("mix tartarus.emu: --#{key} must be between 0 and 1, got: #{v}")
-
-    mode =
-      case opts[:mode] || "virtual" do
-        "virtual" -> :virtual
-        "peer" -> :peer
-        other -> Mix.raise("mix tartarus.emu: --mode must be virtual or peer, got: #{other}")
-      end
+    Tartarus.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
+    Tartarus.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
+    mode = Tartarus.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.emu", :virtual)
 
     strategy =
-      case opts[:strategy] || "random" do
-        "random" ->
-          :random
-
-        "conscientious" ->
-          :conscientious
-
-        other ->
-          Mix.raise("mix tartarus.emu: --strategy must be random or conscientious, got: #{other}")
-      end
+      Tartarus.CLI.choice!(
+        opts[:strategy],
+        [:random, :conscientious],
+        :strategy,
+        "tartarus.emu",
+        :random
+      )
 
     Keyword.merge(opts, mode: mode, strategy: strategy)
   end

@@ -47,27 +47,13 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
   @impl true
   def run(argv) do
-    {opts, args, invalid} = OptionParser.parse(argv, strict: @switches)
-
-    if invalid != [] or args != [],
-      do:
-        Mix.raise(
-          "mix tartarus.lats: invalid options #{inspect(invalid ++ args)}; see `mix help tartarus.lats`"
-        )
-
-    for k <- [:nodes, :bearers, :minutes, :queries, :group], v = opts[k], v != nil, v <= 0 do
-      Mix.raise("mix tartarus.lats: --#{k} must be a positive integer, got: #{v}")
-    end
+    opts = Tartarus.CLI.parse!(argv, @switches, "tartarus.lats")
+    Tartarus.CLI.positive!(opts, [:nodes, :bearers, :minutes, :queries, :group], "tartarus.lats")
 
     if (opts[:nodes] || 50) < 10,
       do: Mix.raise("mix tartarus.lats: --nodes must be at least 10, got: #{opts[:nodes]}")
 
-    mode =
-      case opts[:mode] || "virtual" do
-        "virtual" -> :virtual
-        "peer" -> :peer
-        other -> Mix.raise("mix tartarus.lats: --mode must be virtual or peer, got: #{other}")
-      end
+    mode = Tartarus.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.lats", :virtual)
 
     Mix.Task.run("app.start")
     dir = opts[:out] || Report.default_out_dir("lats")
