@@ -48,7 +48,14 @@ defmodule Tartarus.AgentTable do
 
   # Removes `id` if it is still registered to `pid`.
   def unregister(id, pid) do
-    :ets.select_delete(@table, [{{id, pid, :_, :_, :_}, [], [true]}])
+    # Only the registered process (or its host, once it is dead) removes its entry, and an id
+    # is registered again only after its previous holder unregistered: lookup-then-delete
+    # cannot remove somebody else's entry.
+    case :ets.lookup(@table, id) do
+      [{^id, ^pid, _, _, _}] -> :ets.delete(@table, id)
+      _ -> true
+    end
+
     :ok
   end
 

@@ -222,7 +222,7 @@ defmodule Tartarus.Bench do
 
   @doc false
   def agents_local(count, creators) do
-    {:ok, host} = Tartarus.start_host(:bench_residents)
+    {:ok, host} = Tartarus.start_host(:bench_residents, hibernate_after: 1_000)
     :erlang.garbage_collect()
     mem0 = :erlang.memory(:total)
     t0 = System.monotonic_time(:microsecond)

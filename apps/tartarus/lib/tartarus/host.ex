@@ -75,6 +75,13 @@ defmodule Tartarus.Host do
           "departing agents; `trust:` a trust list, to admit only agents whose issuer and " <>
           "sending host it contains"
     ],
+    hibernate_after: [
+      type: :timeout,
+      default: :infinity,
+      doc:
+        "ms an agent may idle before it hibernates (shrinking its memory; for hosts holding " <>
+          "very many idle agents; it costs throughput on busy hosts)"
+    ],
     data_dir: [
       type: :string,
       doc:

@@ -18,6 +18,7 @@ defmodule Tartarus.Wire do
   alias Tartarus.Envelope
 
   @max_name_bytes 256
+  @envelope_size map_size(%Envelope{id: nil, module: nil})
   @max_modules 64
   @default_max_bytes 8 * 1024 * 1024
 
@@ -57,43 +58,92 @@ defmodule Tartarus.Wire do
       {:error, {:bad_message, {:envelope, :fields}}}
   """
   @spec check_envelope(term()) :: :ok | {:error, {:bad_message, term()}}
-  def check_envelope(%{__struct__: Envelope} = env) do
-    keys = Map.keys(%Envelope{id: nil, module: nil})
+  def check_envelope(
+        %{
+          __struct__: Envelope,
+          id: id,
+          name: name,
+          module: module,
+          ships: ships,
+          payload: payload,
+          owner: owner,
+          home: home,
+          hops: hops,
+          ttl: ttl,
+          visits: visits,
+          from: from,
+          departed_at: departed_at,
+          static: static,
+          rng: rng,
+          clone_of: clone_of,
+          issuer: issuer,
+          signature: signature
+        } = env
+      )
+      when map_size(env) == @envelope_size do
+    # One pass of plain checks: this runs for every arriving agent.
+    cond do
+      not (is_binary(id) and byte_size(id) == 16) ->
+        bad(:id)
 
-    if map_size(env) == length(keys) and Enum.all?(keys, &is_map_key(env, &1)) do
-      Enum.find_value(field_checks(), :ok, fn {field, ok?} ->
-        if ok?.(Map.fetch!(env, field)),
-          do: nil,
-          else: {:error, {:bad_message, {:envelope, field}}}
-      end)
-    else
-      {:error, {:bad_message, {:envelope, :fields}}}
+      not (is_nil(name) or is_atom(name) or
+               (is_binary(name) and byte_size(name) <= @max_name_bytes)) ->
+        bad(:name)
+
+      not (is_atom(module) and module != nil) ->
+        bad(:module)
+
+      not module_list?(ships) ->
+        bad(:ships)
+
+      not payload?(payload) ->
+        bad(:payload)
+
+      not (is_nil(owner) or is_pid(owner)) ->
+        bad(:owner)
+
+      not (is_nil(home) or Tartarus.Host.address?(home)) ->
+        bad(:home)
+
+      not (is_integer(hops) and hops >= 0) ->
+        bad(:hops)
+
+      not (ttl == :infinity or (is_integer(ttl) and ttl > 0)) ->
+        bad(:ttl)
+
+      not visits?(visits) ->
+        bad(:visits)
+
+      not (is_nil(from) or Tartarus.Host.address?(from)) ->
+        bad(:from)
+
+      not (is_nil(departed_at) or is_integer(departed_at)) ->
+        bad(:departed_at)
+
+      not is_boolean(static) ->
+        bad(:static)
+
+      not rng?(rng) ->
+        bad(:rng)
+
+      not (is_nil(clone_of) or (is_binary(clone_of) and byte_size(clone_of) == 16)) ->
+        bad(:clone_of)
+
+      not (is_nil(issuer) or is_binary(issuer)) ->
+        bad(:issuer)
+
+      not (is_nil(signature) or is_binary(signature) or is_map(signature)) ->
+        bad(:signature)
+
+      true ->
+        :ok
     end
   end
 
+  def check_envelope(%{__struct__: Envelope}), do: {:error, {:bad_message, {:envelope, :fields}}}
   def check_envelope(_other), do: {:error, {:bad_message, {:envelope, :not_an_envelope}}}
 
-  defp field_checks do
-    [
-      id: &(is_binary(&1) and byte_size(&1) == 16),
-      name: &(is_nil(&1) or is_atom(&1) or (is_binary(&1) and byte_size(&1) <= @max_name_bytes)),
-      module: &(is_atom(&1) and not is_nil(&1)),
-      ships: &module_list?/1,
-      payload: &payload?/1,
-      owner: &(is_nil(&1) or is_pid(&1)),
-      home: &(is_nil(&1) or Tartarus.Host.address?(&1)),
-      hops: &(is_integer(&1) and &1 >= 0),
-      ttl: &(&1 == :infinity or (is_integer(&1) and &1 > 0)),
-      visits: &visits?/1,
-      from: &(is_nil(&1) or Tartarus.Host.address?(&1)),
-      departed_at: &(is_nil(&1) or is_integer(&1)),
-      static: &is_boolean/1,
-      rng: &rng?/1,
-      clone_of: &(is_nil(&1) or (is_binary(&1) and byte_size(&1) == 16)),
-      issuer: &(is_nil(&1) or is_binary(&1)),
-      signature: &(is_nil(&1) or is_binary(&1) or is_map(&1))
-    ]
-  end
+  defp bad(field), do: {:error, {:bad_message, {:envelope, field}}}
 
   defp module_list?(l),
     do: is_list(l) and length(l) <= @max_modules and Enum.all?(l, &(is_atom(&1) and &1 != nil))
@@ -104,7 +154,11 @@ defmodule Tartarus.Wire do
   defp payload?(_), do: false
 
   defp visits?(v) when is_map(v) do
-    Enum.all?(v, fn {h, n} -> Tartarus.Host.address?(h) and is_integer(n) and n >= 0 end)
+    :maps.fold(
+      fn h, n, ok -> ok and is_integer(n) and n >= 0 and Tartarus.Host.address?(h) end,
+      true,
+      v
+    )
   end
 
   defp visits?(_), do: false

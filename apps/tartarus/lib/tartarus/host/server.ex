@@ -311,7 +311,16 @@ defmodule Tartarus.Host.Server do
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host
-    [{_, snapshot}] = :ets.take(host.ledger, {:snapshot, entry.key})
+    # Read the snapshot only to restart from it: copying it here on every departure would
+    # fill this process's heap with every passing agent's state.
+    snapshot = fn -> :ets.lookup_element(host.ledger, {:snapshot, entry.key}, 2) end
+    state = after_down(state, entry, reason, resident?, killed?, snapshot)
+    :ets.delete(host.ledger, {:snapshot, entry.key})
+    state
+  end
+
+  defp after_down(state, entry, reason, resident?, killed?, snapshot) do
+    host = state.host
 
     cond do
       killed? ->
@@ -338,7 +347,7 @@ defmodule Tartarus.Host.Server do
           crashes: 1
         )
 
-        case start_agent(state, snapshot, {:restart, n}, n) do
+        case start_agent(state, snapshot.(), {:restart, n}, n) do
           {:ok, _pid, state} -> state
           {:error, why, state} -> removed(state, entry, {:restart_failed, why})
         end
