@@ -183,10 +183,12 @@ defmodule Tartarus.Chaos do
   end
 
   defp kill_and_restart(world, node) do
-    # Agents recorded on the node now go down with it (unless persistence brings them back).
+    # The agents resident on the node (asked just before the kill, so an agent lost earlier
+    # elsewhere is not excused by this kill) go down with it, unless persistence brings them
+    # back; so do agents that arrive while the node is marked dead.
     :ets.insert(world.table, {{:dead, node}, true})
 
-    for {{:loc, id}, {_, ^node}} <- :ets.tab2list(world.table),
+    for %{id: id} <- List.wrap(Tartarus.agents({:h, node})),
         do: :ets.insert(world.table, {{:on_dead, id}, true})
 
     Peer.kill(node)
