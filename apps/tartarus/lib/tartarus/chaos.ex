@@ -52,7 +52,15 @@ defmodule Tartarus.Chaos do
     tag = "#{System.unique_integer([:positive])}"
     dir = Path.join(System.tmp_dir!(), "tartarus_chaos_#{tag}")
     names = for i <- 1..n, do: :"chaos#{i}_#{tag}"
-    world = %{names: names, dir: dir, persist: persist, table: :ets.new(:chaos, [:public, :set])}
+
+    world = %{
+      names: names,
+      dir: dir,
+      persist: persist,
+      migrations: migrations,
+      table: :ets.new(:chaos, [:public, :set])
+    }
+
     t0 = System.monotonic_time(:millisecond)
 
     try do
@@ -68,9 +76,10 @@ defmodule Tartarus.Chaos do
         end
 
       rng = :rand.seed_s(:exsss, {seed, 7, 11})
-      faults = schedule(migrations, kills, partitions, rng)
-      # 1: migrations attempted, 2: migrations done
-      counter = :atomics.new(2, [])
+      # Marks in successful migrations, spread over the first two thirds of the run.
+      faults = schedule(div(migrations * 2, 3), kills, partitions, rng)
+      # 1: migrations attempted, 2: migrations done, 3: 1 while a killed node restarts
+      counter = :atomics.new(3, [])
 
       workers =
         for w <- 1..@workers do
@@ -113,30 +122,48 @@ defmodule Tartarus.Chaos do
   end
 
   defp loop(world, ids, hosts, migrations, counter, rng) do
-    if :atomics.add_get(counter, 1, 1) > migrations do
-      :ok
-    else
-      {i, rng} = :rand.uniform_s(tuple_size(ids), rng)
-      {j, rng} = :rand.uniform_s(tuple_size(hosts), rng)
-      id = elem(ids, i - 1)
-      dest = elem(hosts, j - 1)
-      [{_, here}] = :ets.lookup(world.table, {:loc, id})
+    # Workers hold off while a killed node restarts: failed attempts are quick, and without
+    # this the schedule's later faults would all fall due at once, with nobody moving.
+    if :atomics.get(counter, 3) == 1, do: Process.sleep(20)
 
-      case safe_move({id, here}, dest) do
-        :ok ->
-          :atomics.add(counter, 2, 1)
-          locate(world, id, dest)
+    {i, rng} = :rand.uniform_s(tuple_size(ids), rng)
+    {j, rng} = :rand.uniform_s(tuple_size(hosts), rng)
+    id = elem(ids, i - 1)
+    dest = elem(hosts, j - 1)
 
-        {:error, {:destination_down, _}} ->
-          # Committed to a node that died before the agent started there: lost with it.
-          :ets.insert(world.table, {{:loc, id}, dest})
-          :ets.insert(world.table, {{:on_dead, id}, true})
+    cond do
+      # Agents known to have gone down with a node are not picked (without persistence they
+      # are gone; with it they are picked again once their node restored them).
+      :ets.member(world.table, {:on_dead, id}) and not all_dead?(world, ids) ->
+        loop(world, ids, hosts, migrations, counter, rng)
 
-        _failed ->
-          :ok
-      end
+      :atomics.add_get(counter, 1, 1) > migrations ->
+        :ok
 
-      loop(world, ids, hosts, migrations, counter, rng)
+      true ->
+        move_one(world, id, dest, counter)
+        loop(world, ids, hosts, migrations, counter, rng)
+    end
+  end
+
+  defp all_dead?(world, ids),
+    do: :ets.select_count(world.table, [{{{:on_dead, :_}, :_}, [], [true]}]) >= tuple_size(ids)
+
+  defp move_one(world, id, dest, counter) do
+    [{_, here}] = :ets.lookup(world.table, {:loc, id})
+
+    case safe_move({id, here}, dest) do
+      :ok ->
+        :atomics.add(counter, 2, 1)
+        locate(world, id, dest)
+
+      {:error, {:destination_down, _}} ->
+        # Committed to a node that died before the agent started there: lost with it.
+        :ets.insert(world.table, {{:loc, id}, dest})
+        :ets.insert(world.table, {{:on_dead, id}, true})
+
+      _failed ->
+        :ok
     end
   end
 
@@ -157,7 +184,7 @@ defmodule Tartarus.Chaos do
   defp run_faults(_world, [], _counter, _nodes, progress, _seed), do: progress.(:done)
 
   defp run_faults(world, [{mark, kind} | rest], counter, nodes, progress, {seed, k}) do
-    wait_for(counter, mark, progress)
+    wait_for(counter, mark, world.migrations, progress)
     rng = :rand.seed_s(:exsss, {seed, k, 3})
     {a, rng} = :rand.uniform_s(length(nodes), rng)
     {b, _} = :rand.uniform_s(length(nodes) - 1, rng)
@@ -165,24 +192,27 @@ defmodule Tartarus.Chaos do
     node_b = Enum.at(nodes -- [node_a], b - 1)
 
     case kind do
-      :kill -> kill_and_restart(world, node_a)
+      :kill -> kill_and_restart(world, node_a, counter)
       :partition -> partition_for_a_while(node_a, node_b)
     end
 
     run_faults(world, rest, counter, nodes, progress, {seed, k + 1})
   end
 
-  defp wait_for(counter, mark, progress) do
-    done = :atomics.get(counter, 1)
-    progress.(done)
+  # A fault falls due when that many migrations have *succeeded* (failed attempts are quick,
+  # so counting attempts would bunch the faults up once agents start to be lost), or when the
+  # workers are done.
+  defp wait_for(counter, mark, migrations, progress) do
+    attempted = :atomics.get(counter, 1)
+    progress.(attempted)
 
-    if done < mark do
+    if :atomics.get(counter, 2) < mark and attempted <= migrations do
       Process.sleep(10)
-      wait_for(counter, mark, progress)
+      wait_for(counter, mark, migrations, progress)
     end
   end
 
-  defp kill_and_restart(world, node) do
+  defp kill_and_restart(world, node, counter) do
     # The agents resident on the node (asked just before the kill, so an agent lost earlier
     # elsewhere is not excused by this kill) go down with it, unless persistence brings them
     # back; so do agents that arrive while the node is marked dead.
@@ -192,19 +222,31 @@ defmodule Tartarus.Chaos do
         do: :ets.insert(world.table, {{:on_dead, id}, true})
 
     Peer.kill(node)
+    :atomics.put(counter, 3, 1)
     Process.sleep(100)
     name = node |> Atom.to_string() |> String.split("@") |> hd() |> String.to_atom()
     ^node = start_node(world, name)
     :ets.delete(world.table, {:dead, node})
+
+    # With persistence the node restored its agents: they are alive again.
+    for %{id: id} <- List.wrap(Tartarus.agents({:h, node})),
+        do: :ets.delete(world.table, {:on_dead, id})
+
+    # Nobody keeps a partition against the new incarnation.
+    for other <- nodes_of(world), other != node, do: Peer.heal(node, other)
+    :atomics.put(counter, 3, 0)
   end
 
   defp partition_for_a_while(a, b) do
-    Peer.partition(a, b)
+    try do
+      Peer.partition(a, b)
+    catch
+      # One of them may be down (restarting): nothing to cut.
+      _, _ -> :ok
+    end
+
     Process.sleep(300)
     Peer.heal(a, b)
-  catch
-    # One of them may be down (restarting): nothing to cut.
-    _, _ -> :ok
   end
 
   defp start_node(world, name) do
@@ -217,6 +259,8 @@ defmodule Tartarus.Chaos do
     {:ok, _} = :erpc.call(node, Tartarus, :start_host, [:h, host_opts])
     node
   end
+
+  defp nodes_of(world), do: Enum.map(world.names, &node_of/1)
 
   defp node_of(name) do
     [_, host] = node() |> Atom.to_string() |> String.split("@")

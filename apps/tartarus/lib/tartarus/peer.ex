@@ -171,8 +171,17 @@ defmodule Tartarus.Peer do
   @doc "Heals a partition made by `partition/2`."
   @spec heal(node(), node()) :: :ok
   def heal(a, b) do
-    :ok = :erpc.call(a, __MODULE__, :heal_local, [b])
-    :ok = :erpc.call(b, __MODULE__, :heal_local, [a])
+    # Each side on its own: a side that is down (or restarting) has nothing to heal, and
+    # must not keep the other from healing.
+    for {x, y} <- [{a, b}, {b, a}] do
+      try do
+        :erpc.call(x, __MODULE__, :heal_local, [y])
+      catch
+        _, _ -> :ok
+      end
+    end
+
+    :ok
   end
 
   @doc false
