@@ -427,6 +427,28 @@ defmodule Tartarus do
     do: deliver(agent, :post, message, timeout, @max_chase)
 
   @doc """
+  Posts `message` to an agent without waiting: a short-lived process delivers it with the
+  same guarantees as `post/3` (it follows the agent if it moves). Use it from an agent's
+  callbacks to message other agents: two agents that `post/3` to each other from their
+  callbacks would wait for each other. The outcome, if not `:ok`, is sent to `reply_to`
+  (when given) as `{:tartarus_cast_failed, agent, reason}`.
+  """
+  @spec cast(agent_ref(), term(), pid() | nil) :: :ok
+  def cast(agent, message, reply_to \\ nil) do
+    spawn(fn ->
+      case post(agent, message) do
+        :ok ->
+          :ok
+
+        {:error, reason} ->
+          if reply_to, do: send(reply_to, {:tartarus_cast_failed, agent, reason})
+      end
+    end)
+
+    :ok
+  end
+
+  @doc """
   Sends `message` to an agent and waits for its reply (the agent answers with
   `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`.
   """
@@ -725,6 +747,22 @@ defmodule Tartarus do
   end
 
   def local_attach_plugin(_host, name, spec), do: {:error, {:bad_plugin, name, spec}}
+
+  @doc """
+  Reads from plugin `name` of a host, from outside any agent (an operator in iex, a test,
+  an emulation driver feeding simulated devices). Agents use `Tartarus.Agent.read/2`.
+  """
+  @spec read_plugin(host_ref(), atom(), term()) :: {:ok, term()} | {:error, term()}
+  def read_plugin(host, name, args \\ nil),
+    do: on_node(host, :local_plugin_call, [name, {:read, args}])
+
+  @doc "Writes to plugin `name` of a host, from outside any agent. See `read_plugin/3`."
+  @spec write_plugin(host_ref(), atom(), term()) :: :ok | {:error, term()}
+  def write_plugin(host, name, args),
+    do: on_node(host, :local_plugin_call, [name, {:write, args}])
+
+  @doc false
+  def local_plugin_call(host, name, request), do: Tartarus.Plugin.call(host, name, request)
 
   @doc "The plugins attached to a host, with their descriptions."
   @spec plugins(host_ref()) :: [{atom(), map()}] | {:error, term()}
