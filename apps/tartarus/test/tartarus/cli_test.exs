@@ -6,7 +6,7 @@ defmodule Tartarus.CLITest do
     assert_raise Mix.Error,
                  "mix tartarus.x: invalid arguments --nope; see `mix help tartarus.x`",
                  fn ->
-                   Tartarus.CLI.parse!(["--nope", "1"], [hosts: :integer], "tartarus.x")
+                   Tartarus.CLI.parse!(["--nope"], [hosts: :integer], "tartarus.x")
                  end
 
     assert_raise Mix.Error, ~r/invalid arguments extra/, fn ->
