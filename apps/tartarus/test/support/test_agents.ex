@@ -83,6 +83,8 @@ defmodule Tartarus.Test.Probe do
     {:stay, s}
   end
 
+  # Ballast, to outgrow a host's max_heap_size.
+  def handle_info({:grow, n}, s), do: {:stay, Map.put(s, :ballast, Enum.to_list(1..n))}
   def handle_info(_other, s), do: {:stay, s}
 
   defp action({:move, dest}, s), do: {:move, dest, s}

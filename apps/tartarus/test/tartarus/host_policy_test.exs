@@ -1,0 +1,62 @@
+defmodule Tartarus.HostPolicyTest do
+  # Host options that protect a host: admission policy, per-agent heap limit, and
+  # persistence across a host restart (in this VM; the multi-node kills are in test/).
+  use Tartarus.HostCase, async: false
+
+  test "an admission policy refuses arrivals beyond its limits, and the agent stays home" do
+    a = host!()
+    b = host!(admission: [max_resident_agents: 1, max_hops: 2])
+    :ok = Tartarus.connect(a, b)
+    [one, two] = for _ <- 1..2, do: agent!(a)
+
+    assert :ok = Tartarus.move({one, a}, b)
+    assert {:error, {:too_many_agents, 1}} = Tartarus.move({two, a}, b)
+    assert {:ok, {^a, _}} = Tartarus.whereis({two, a})
+    assert Tartarus.status(b).counts.refused == 1
+
+    # Hops: one has made 1 hop; coming back to b would be its 3rd.
+    assert :ok = Tartarus.move({one, b}, a)
+    :ok = Tartarus.kill({two, a})
+    assert {:error, {:ttl_expired, 3}} = Tartarus.move({one, a}, b)
+  end
+
+  test "bad admission options are refused with the option named" do
+    assert {:error, "invalid options given to Tartarus.start_host/2 for key :admission: " <> rest} =
+             Tartarus.start_host(unique_name(), admission: [max_hops: -1])
+
+    assert rest =~ "max_hops"
+  end
+
+  test "an agent that outgrows max_heap_size is killed, restarted, then removed" do
+    a = host!(max_heap_size: 50_000, max_restarts: 1)
+    id = agent!(a, %{}, owner: self())
+    {:ok, pid, _} = Tartarus.AgentTable.lookup(id)
+    ref = Process.monitor(pid)
+    send(pid, {:grow, 1_000_000})
+    assert_receive {:DOWN, ^ref, :process, ^pid, :killed}, 5_000
+
+    # Restarted once from its snapshot (max_restarts: 1); killed again, it is removed.
+    assert eventually(fn -> match?({:ok, p, _} when p != pid, Tartarus.AgentTable.lookup(id)) end)
+    {:ok, pid2, _} = Tartarus.AgentTable.lookup(id)
+    send(pid2, {:grow, 1_000_000})
+    assert_receive {:tartarus_removed, ^id, {:too_many_restarts, :killed}}, 5_000
+  end
+
+  test "with a data directory, a host restarted on it gets its agents back" do
+    dir = Path.join(System.tmp_dir!(), "policy_#{System.unique_integer([:positive])}")
+    name = unique_name()
+    {:ok, h} = Tartarus.start_host(name, data_dir: dir)
+    ids = for n <- 1..3, do: elem(Tartarus.create_mobile_agent(h, Tartarus.Examples.Echo, n), 1)
+    {:ok, gone} = Tartarus.create_mobile_agent(h, Tartarus.Examples.Echo, :bye)
+    :ok = Tartarus.kill({gone, h})
+    :ok = Tartarus.stop_host(h)
+    assert Tartarus.agents(h) == {:error, {:unknown_host, h}}
+
+    {:ok, ^h} = Tartarus.start_host(name, data_dir: dir)
+    restored = h |> Tartarus.agents() |> Enum.map(& &1.id) |> Enum.sort()
+    assert restored == Enum.sort(ids)
+    assert {:ok, 2} = Tartarus.request({Enum.at(ids, 1), h}, :state)
+    :ok = Tartarus.stop_host(h)
+    File.rm_rf!(dir)
+  end
+end
