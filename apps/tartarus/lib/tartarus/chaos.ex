@@ -268,14 +268,7 @@ defmodule Tartarus.Chaos do
   end
 
   defp heal_all(_world, nodes) do
-    for a <- nodes, b <- nodes, a < b do
-      try do
-        Peer.heal(a, b)
-      catch
-        _, _ -> :ok
-      end
-    end
-
+    for a <- nodes, b <- nodes, a < b, do: Peer.heal(a, b)
     :ok
   end
 
