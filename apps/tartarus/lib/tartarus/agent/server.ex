@@ -124,7 +124,7 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig} = p} = data) do
+  def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig}} = data) do
     case decision do
       {:committed, notify} ->
         commit(data, notify)
@@ -139,7 +139,6 @@ defmodule Tartarus.Agent.Server do
       :unknown ->
         # The source has not decided yet (its `prepared` may still be on the way): the
         # next commit_timeout asks again.
-        _ = p
         {:noreply, data}
     end
   end
@@ -174,9 +173,11 @@ defmodule Tartarus.Agent.Server do
                :"$tartarus_prepared",
                :"$tartarus_need",
                :"$tartarus_refused",
-               :"$tartarus_decision"
+               :"$tartarus_decision",
+               :commit_timeout
              ] do
-    # A late reply to a hand-off this agent already gave up on.
+    # A late reply to a hand-off this agent already gave up on (or a timer that fired as it
+    # committed).
     {:noreply, data}
   end
 
