@@ -75,6 +75,14 @@ defmodule Tartarus.Host do
           "departing agents; `trust:` a trust list, to admit only agents whose issuer and " <>
           "sending host it contains"
     ],
+    forward_ttl: [
+      type: :timeout,
+      default: :infinity,
+      doc:
+        "ms a forwarding pointer (and the record of a committed migration it holds) is kept " <>
+          "after its agent left; older ones are swept, so messages addressed through this " <>
+          "host to an agent that left longer ago get `{:error, :not_found}`"
+    ],
     hibernate_after: [
       type: :timeout,
       default: :infinity,

@@ -145,6 +145,11 @@ defmodule Tartarus.Ledger do
     ])
   end
 
+  # Drops forwarding pointers written before `cutoff_us` (system time).
+  def sweep_pointers(%{ledger: l}, cutoff_us) do
+    :ets.select_delete(l, [{{{:fwd, :_}, :_, :"$1", :_, :_}, [{:<, :"$1", cutoff_us}], [true]}])
+  end
+
   def forwarding_pointers(%{ledger: l}) do
     :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :_, :_}, [], [{{:"$1", :"$2"}}]}])
     |> Enum.filter(fn {key, _} -> is_binary(key) and byte_size(key) == 16 end)

@@ -59,4 +59,20 @@ defmodule Tartarus.HostPolicyTest do
     :ok = Tartarus.stop_host(h)
     File.rm_rf!(dir)
   end
+
+  test "forward_ttl sweeps old forwarding pointers; without it they stay" do
+    a = host!(forward_ttl: 50)
+    b = host!()
+    :ok = Tartarus.connect(a, b)
+    id = agent!(a)
+    :ok = Tartarus.move({id, a}, b)
+    assert Tartarus.status(a).forwarding_pointers >= 1
+    assert eventually(fn -> Tartarus.status(a).forwarding_pointers == 0 end, 2_000)
+    assert {:error, :not_found} = Tartarus.whereis({id, a})
+    assert {:ok, {^b, _}} = Tartarus.whereis({id, b})
+
+    :ok = Tartarus.move({id, b}, a)
+    Process.sleep(100)
+    assert Tartarus.status(b).forwarding_pointers >= 1
+  end
 end

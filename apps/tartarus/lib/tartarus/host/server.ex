@@ -61,6 +61,8 @@ defmodule Tartarus.Host.Server do
       opts: Map.new(opts)
     }
 
+    schedule_sweep(opts[:forward_ttl])
+
     # Local callers read the host's tables without a call (see Tartarus.Host.local/1).
     {_, _} = Registry.update_value(Tartarus.HostRegistry, {:host, name}, fn _ -> host end)
 
@@ -186,6 +188,13 @@ defmodule Tartarus.Host.Server do
     {:noreply, agent_down(state, entry, reason, resident?, killed?)}
   end
 
+  def handle_info(:sweep, state) do
+    ttl = state.host.opts.forward_ttl
+    Tartarus.Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
+    schedule_sweep(ttl)
+    {:noreply, state}
+  end
+
   def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
 
   def handle_info(_other, state), do: {:noreply, state}
@@ -303,6 +312,9 @@ defmodule Tartarus.Host.Server do
         {:error, unwrap(reason), state}
     end
   end
+
+  defp schedule_sweep(:infinity), do: :ok
+  defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
 
   defp unwrap({:bad_init, reason}), do: reason
   defp unwrap(reason), do: reason
