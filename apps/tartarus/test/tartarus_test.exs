@@ -434,7 +434,7 @@ defmodule TartarusTest do
       [a, b] = line!(2)
       id = agent!(a)
       {:ok, :ok} = Tartarus.request({id, a}, {:set, :f, fn -> :x end})
-      assert Tartarus.move({id, a}, b) == {:error, {:not_portable, :fun, [0, :f]}}
+      assert Tartarus.move({id, a}, b) == {:error, {:not_portable, :fun, [:state, :f]}}
       assert Tartarus.whereis(id) == {:ok, addr(a)}
     end
 

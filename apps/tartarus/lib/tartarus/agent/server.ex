@@ -286,7 +286,7 @@ defmodule Tartarus.Agent.Server do
     with :ok <- movable(env, kind),
          {:ok, dest, data} <- resolve(data, dest_spec),
          :ok <- linked(data, dest),
-         :ok <- Envelope.portable?({env.state, env.payload.data}),
+         :ok <- Envelope.portable?(%{state: env.state, payload: env.payload.data}),
          {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
          {:ok, dest_pid} <- Tartarus.Host.whereis(dest),
          {:ok, data} <- link_loss(data, dest) do
