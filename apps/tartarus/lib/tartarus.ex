@@ -80,6 +80,9 @@ defmodule Tartarus do
 
   Returns `{:ok, {name, node()}}`, or `{:error, {:already_started, host}}`, or
   `{:error, message}` for bad options.
+
+  A host whose process tree crashes is not restarted by itself (its agents died with it):
+  start it again — on the same `:data_dir` to get its agents back.
   """
   @spec start_host(host_name(), keyword()) :: {:ok, host()} | {:error, term()}
   def start_host(name, opts \\ []) do
@@ -89,7 +92,7 @@ defmodule Tartarus do
              id: name,
              start: {Tartarus.Host.Supervisor, :start_link, [{name, opts}]},
              type: :supervisor,
-             restart: :transient
+             restart: :temporary
            }) do
         {:ok, _} ->
           host = Host.address(name)
@@ -395,10 +398,46 @@ defmodule Tartarus do
 
   @doc """
   Clones an agent to `dest` (a host, a strategy, or `:here`). The clone gets a new id and
-  name and starts in `handle_arrival/2` with `ctx.clone_of` set. Returns `{:ok, clone_id}`.
+  name and starts in `handle_arrival/2` with `ctx.clone_of` set. Returns `{:ok, clone_id}`
+  once the clone runs. If the agent's process ends (it moved on) before an answer comes,
+  the request is not repeated — that could make two clones — and the result is
+  `{:error, {:outcome_unknown, reason}}` when no clone answered within 10 s.
   """
   @spec clone(agent_ref(), Tartarus.Agent.dest() | :here) :: {:ok, agent_id()} | {:error, term()}
-  def clone(agent, dest), do: control(agent, {:clone, dest})
+  def clone(agent, dest), do: do_clone(agent, dest, @max_chase)
+
+  # Never retried once the agent may have taken the request (a retry could make a second
+  # clone): if the agent's process ends first, the answer can still come from the clone.
+  defp do_clone(_agent, _dest, 0), do: {:error, :too_many_hops}
+
+  defp do_clone(agent, dest, n) do
+    with {:ok, pid, ref} <- locate(agent) do
+      mref = Process.monitor(pid)
+      send(pid, {:"$gen_call", {self(), mref}, {:clone, dest}})
+
+      receive do
+        {^mref, {:error, :in_transit}} ->
+          Process.demonitor(mref, [:flush])
+          backoff(n)
+          do_clone(ref, dest, n - 1)
+
+        {^mref, reply} ->
+          Process.demonitor(mref, [:flush])
+          reply
+
+        {:DOWN, ^mref, :process, _, reason} ->
+          receive do
+            {^mref, reply} -> reply
+          after
+            10_000 -> {:error, {:outcome_unknown, reason}}
+          end
+      after
+        60_000 ->
+          Process.demonitor(mref, [:flush])
+          {:error, :timeout}
+      end
+    end
+  end
 
   @doc "Kills an agent wherever it is now. It is not restarted."
   @spec kill(agent_ref()) :: :ok | {:error, term()}
@@ -411,6 +450,7 @@ defmodule Tartarus do
       case Host.call(host, {:kill, a}) do
         {:killed, _id} -> :ok
         {:moved, next} -> kill({a, next}, n - 1)
+        {:arriving, _pid} -> backoff(n) && kill({a, host}, n - 1)
         :not_found -> {:error, :not_found}
         error -> error
       end
@@ -575,9 +615,10 @@ defmodule Tartarus do
     end
   end
 
-  # Between retries of an agent caught in a hand-off: 1, 2, 4 ... 64 ms, about 3 s in all.
+  # Between retries of an agent caught in a hand-off: 1, 2, 4 ... 200 ms, about 12 s in all
+  # (a paused copy in doubt waits for the migration timeout, 5 s by default, then asks).
   defp backoff(n) do
-    Process.sleep(min(1 <<< max(@max_chase - n, 0), 64))
+    Process.sleep(min(1 <<< min(max(@max_chase - n, 0), 8), 200))
     true
   end
 

@@ -48,11 +48,9 @@ defmodule Tartarus.AgentTable do
 
   # Removes `id` if it is still registered to `pid`.
   def unregister(id, pid) do
-    # Only the registered process (or its host, once it is dead) removes its entry, and an id
-    # is registered again only after its previous holder unregistered: lookup-then-delete
-    # cannot remove somebody else's entry.
+    # delete_object removes exactly this entry: if it was replaced meanwhile, nothing.
     case :ets.lookup(@table, id) do
-      [{^id, ^pid, _, _, _}] -> :ets.delete(@table, id)
+      [{^id, ^pid, _, _, _} = entry] -> :ets.delete_object(@table, entry)
       _ -> true
     end
 

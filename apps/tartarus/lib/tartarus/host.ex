@@ -81,7 +81,9 @@ defmodule Tartarus.Host do
       doc:
         "ms a forwarding pointer (and the record of a committed migration it holds) is kept " <>
           "after its agent left; older ones are swept, so messages addressed through this " <>
-          "host to an agent that left longer ago get `{:error, :not_found}`"
+          "host to an agent that left longer ago get `{:error, :not_found}`. The pointer is " <>
+          "also what a destination in doubt asks about: keep it well above the longest " <>
+          "partition you expect, or such an agent never starts"
     ],
     hibernate_after: [
       type: :timeout,

@@ -86,10 +86,10 @@ defmodule Tartarus.Ledger do
   # The outcome of migration `mig` of agent `id` as this (source) host knows it.
   #
   # A migration started by an earlier run of this host (the host crashed or was restarted)
-  # that left no committed record: with persistence, the agent was restored here from its
-  # checkpoint, so the migration is aborted; without persistence, the source's copy died with
-  # the earlier run, so the destination's copy is the only one and must start (committed).
-  # Neither answer can make a duplicate.
+  # that left no committed record is aborted: with persistence the agent was restored here
+  # from its checkpoint; without, the earlier run may have aborted it and sent the agent
+  # elsewhere, so starting the copy could duplicate it. (Without persistence an agent whose
+  # commit was decided but not recorded dies with the earlier run, like every agent there.)
   def decision(host, {incarnation, _} = mig, id) do
     case :ets.lookup(host.ledger, {:decision, mig}) do
       [{_, d}] ->
@@ -103,8 +103,7 @@ defmodule Tartarus.Ledger do
           _ ->
             cond do
               incarnation == host.incarnation -> :unknown
-              host.journal != nil -> :aborted
-              true -> :committed
+              true -> :aborted
             end
         end
     end
@@ -191,8 +190,14 @@ defmodule Tartarus.Ledger do
   end
 
   defp locate_by_name(host, agent) do
-    case :ets.match(host.ledger, {{:agent, :"$1"}, :"$2", agent, :_}, 1) do
-      {[[pid, id] | _], _} -> {:here, pid, id}
+    # A select with the name as a constant: a name such as :_ or :"$1" is not a pattern.
+    spec = [
+      {{{:agent, :"$1"}, :"$2", :"$3", :_}, [{:"=:=", :"$3", {:const, agent}}],
+       [{{:"$1", :"$2"}}]}
+    ]
+
+    case :ets.select(host.ledger, spec, 1) do
+      {[{pid, id} | _], _} -> {:here, pid, id}
       _ -> :not_found
     end
   end

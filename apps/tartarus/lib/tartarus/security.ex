@@ -74,6 +74,8 @@ defmodule Tartarus.Security do
       :ok
     else
       {:error, reason} -> {:error, {:untrusted, reason}}
+      # A seal of the wrong shape (anything can arrive over the wire).
+      _malformed -> {:error, {:untrusted, :bad_signature}}
     end
   end
 

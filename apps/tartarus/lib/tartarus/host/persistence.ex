@@ -92,16 +92,18 @@ defmodule Tartarus.Host.Persistence do
   defp apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
 
   defp apply_record({:decision, mig, id}, s) do
+    # A move to this same host has its in-doubt copy here too: that one stays (it asks, finds
+    # the decision and starts).
     %{
       s
       | agents: Map.delete(s.agents, id),
-        in_doubt: drop_agent(s.in_doubt, id),
+        in_doubt: drop_agent(s.in_doubt, id, mig),
         decisions: Map.put(s.decisions, mig, id)
     }
   end
 
-  defp drop_agent(in_doubt, id),
-    do: Map.reject(in_doubt, fn {_mig, {env, _, _}} -> env.id == id end)
+  defp drop_agent(in_doubt, id, keep \\ nil),
+    do: Map.reject(in_doubt, fn {mig, {env, _, _}} -> env.id == id and mig != keep end)
 
   defp records(s) do
     Enum.map(s.decisions, fn {mig, id} -> {:decision, mig, id} end) ++

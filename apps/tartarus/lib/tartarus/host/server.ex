@@ -124,8 +124,16 @@ defmodule Tartarus.Host.Server do
 
         # Gone from the ledger (and the checkpoints) before the caller hears back.
         Tartarus.Ledger.forget_resident(state.host, pid)
-        Tartarus.Host.Persistence.forget(state.host, id)
-        {:reply, {:killed, id}, state}
+
+        # Killed in the middle of a hand-off: abort it (the destination's paused copy learns
+        # so when it asks), unless the move had already committed: then the agent lives on
+        # at its destination and the kill follows it there.
+        if Tartarus.Ledger.abort_pending(state.host, id) do
+          Tartarus.Host.Persistence.forget(state.host, id)
+          {:reply, {:killed, id}, state}
+        else
+          {:reply, Tartarus.Ledger.locate(state.host, id), state}
+        end
 
       other ->
         {:reply, other, state}
@@ -208,6 +216,7 @@ defmodule Tartarus.Host.Server do
     env = Tartarus.Fault.point(:admitting, env)
 
     with :ok <- trusted(state, env, manifest, mig),
+         :ok <- heap_fits(state, env),
          :ok <- prepare(state, env, manifest, code),
          {:ok, state} <- policy(state, src, env) do
       case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
@@ -230,6 +239,15 @@ defmodule Tartarus.Host.Server do
       {:error, reason} ->
         refuse(state, s_pid, mig, env, src, reason)
     end
+  end
+
+  # An agent whose state alone would not fit in the host's per-agent heap limit is refused
+  # here, not killed after its source committed.
+  defp heap_fits(%{host: %{opts: %{max_heap_size: :infinity}}}, _env), do: :ok
+
+  defp heap_fits(%{host: %{opts: %{max_heap_size: words}}}, env) do
+    size = :erts_debug.flat_size(env)
+    if size * 2 <= words, do: :ok, else: {:error, {:too_large_for_heap, size, words}}
   end
 
   defp trusted(state, env, manifest, mig) do
@@ -388,6 +406,7 @@ defmodule Tartarus.Host.Server do
       removed: 1
     )
 
+    Tartarus.Host.Persistence.forget(state.host, entry.id)
     if is_pid(entry.owner), do: send(entry.owner, {:tartarus_removed, entry.id, reason})
     state
   end
