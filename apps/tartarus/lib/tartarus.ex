@@ -838,7 +838,12 @@ defmodule Tartarus do
       {_, node} = host = Host.address(host)
 
       if node == node() do
-        apply(__MODULE__, fun, [host | args])
+        try do
+          apply(__MODULE__, fun, [host | args])
+        rescue
+          # The host stopped while we read its tables.
+          ArgumentError -> {:error, {:unknown_host, host}}
+        end
       else
         try do
           :erpc.call(node, __MODULE__, fun, [host | args], 10_000)

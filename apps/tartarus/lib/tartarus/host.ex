@@ -177,8 +177,10 @@ defmodule Tartarus.Host do
   def local(host) do
     {name, node} = if address?(host), do: address(host), else: {host, nil}
 
+    # The registry forgets a stopped host asynchronously: check that it is alive.
     with true <- node == node(),
-         [{_pid, %{} = info}] <- Registry.lookup(Tartarus.HostRegistry, {:host, name}) do
+         [{pid, %{} = info}] <- Registry.lookup(Tartarus.HostRegistry, {:host, name}),
+         true <- Process.alive?(pid) do
       {:ok, info}
     else
       _ -> {:error, {:unknown_host, host}}
