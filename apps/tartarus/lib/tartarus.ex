@@ -340,61 +340,7 @@ defmodule Tartarus do
   was called).
   """
   @spec move(agent_ref(), Tartarus.Agent.dest()) :: :ok | {:error, term()}
-  def move(agent, dest), do: do_move(agent, dest, @max_chase)
-
-  defp do_move(_agent, _dest, 0), do: {:error, :too_many_hops}
-
-  defp do_move(agent, dest, n) do
-    # Not a GenServer.call: the agent's process ends when the move commits, and the answer
-    # then comes from its new process at the destination.
-    with {:ok, pid, ref} <- locate(agent) do
-      mref = Process.monitor(pid)
-      send(pid, {:"$gen_call", {self(), mref}, {:move, dest}})
-      await_move(mref, ref, dest, n)
-    end
-  end
-
-  defp await_move(mref, ref, dest, n) do
-    receive do
-      {^mref, {:error, :in_transit}} ->
-        Process.demonitor(mref, [:flush])
-        Process.sleep(5)
-        do_move(ref, dest, n - 1)
-
-      {^mref, reply} ->
-        Process.demonitor(mref, [:flush])
-        reply
-
-      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, new_pid, {_, ^mref}}}} ->
-        # Committed: the answer comes from the new process once it runs; if its node dies
-        # first, the agent went down with it.
-        new_ref = Process.monitor(new_pid)
-
-        receive do
-          {^mref, reply} ->
-            Process.demonitor(new_ref, [:flush])
-            reply
-
-          {:DOWN, ^new_ref, :process, _, reason} ->
-            receive do
-              {^mref, reply} -> reply
-            after
-              0 -> {:error, {:destination_down, reason}}
-            end
-        after
-          60_000 ->
-            Process.demonitor(new_ref, [:flush])
-            {:error, :timeout}
-        end
-
-      {:DOWN, ^mref, :process, _, _} ->
-        do_move(ref, dest, n - 1)
-    after
-      60_000 ->
-        Process.demonitor(mref, [:flush])
-        {:error, :timeout}
-    end
-  end
+  def move(agent, dest), do: handoff_call(agent, {:move, dest}, @max_chase)
 
   @doc """
   Clones an agent to `dest` (a host, a strategy, or `:here`). The clone gets a new id and
@@ -404,38 +350,72 @@ defmodule Tartarus do
   `{:error, {:outcome_unknown, reason}}` when no clone answered within 10 s.
   """
   @spec clone(agent_ref(), Tartarus.Agent.dest() | :here) :: {:ok, agent_id()} | {:error, term()}
-  def clone(agent, dest), do: do_clone(agent, dest, @max_chase)
+  def clone(agent, dest), do: handoff_call(agent, {:clone, dest}, @max_chase)
 
-  # Never retried once the agent may have taken the request (a retry could make a second
-  # clone): if the agent's process ends first, the answer can still come from the clone.
-  defp do_clone(_agent, _dest, 0), do: {:error, :too_many_hops}
+  # A move or clone ordered from outside. Not a GenServer.call: the agent's process may end
+  # before it answers (its move commits, or it moves on after starting a clone), and the
+  # answer then comes from the agent's, or the clone's, new process.
+  defp handoff_call(_agent, _op, 0), do: {:error, :too_many_hops}
 
-  defp do_clone(agent, dest, n) do
+  defp handoff_call(agent, op, n) do
     with {:ok, pid, ref} <- locate(agent) do
       mref = Process.monitor(pid)
-      send(pid, {:"$gen_call", {self(), mref}, {:clone, dest}})
+      send(pid, {:"$gen_call", {self(), mref}, op})
 
       receive do
         {^mref, {:error, :in_transit}} ->
           Process.demonitor(mref, [:flush])
           backoff(n)
-          do_clone(ref, dest, n - 1)
+          handoff_call(ref, op, n - 1)
 
         {^mref, reply} ->
           Process.demonitor(mref, [:flush])
           reply
 
         {:DOWN, ^mref, :process, _, reason} ->
-          receive do
-            {^mref, reply} -> reply
-          after
-            10_000 -> {:error, {:outcome_unknown, reason}}
-          end
+          after_down(op, mref, reason, ref, n)
       after
         60_000 ->
           Process.demonitor(mref, [:flush])
           {:error, :timeout}
       end
+    end
+  end
+
+  # This move committed (the exit names our request): the answer comes from the new process
+  # once it runs; if its node dies first, the agent went down with it.
+  defp after_down({:move, _}, mref, {:shutdown, {:migrated, new_pid, {_, tag}}}, _ref, _n)
+       when tag == mref do
+    new_ref = Process.monitor(new_pid)
+
+    receive do
+      {^mref, reply} ->
+        Process.demonitor(new_ref, [:flush])
+        reply
+
+      {:DOWN, ^new_ref, :process, _, reason} ->
+        receive do
+          {^mref, reply} -> reply
+        after
+          0 -> {:error, {:destination_down, reason}}
+        end
+    after
+      60_000 ->
+        Process.demonitor(new_ref, [:flush])
+        {:error, :timeout}
+    end
+  end
+
+  # The agent's process ended before it took our move: look for the agent again.
+  defp after_down({:move, _} = op, _mref, _reason, ref, n), do: handoff_call(ref, op, n - 1)
+
+  # A clone is never retried (that could make a second clone): if the agent took the
+  # request, the answer still comes from the clone.
+  defp after_down({:clone, _}, mref, reason, _ref, _n) do
+    receive do
+      {^mref, reply} -> reply
+    after
+      10_000 -> {:error, {:outcome_unknown, reason}}
     end
   end
 
