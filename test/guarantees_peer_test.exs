@@ -5,7 +5,8 @@ defmodule Tartarus.GuaranteesPeerTest do
   use ExUnit.Case, async: false
 
   @moduletag :peer
-  alias Tartarus.{Fault, Peer}
+  alias Tartarus.Fault
+  alias TartarusTools.Peer
   alias Tartarus.Examples.Echo
 
   setup do

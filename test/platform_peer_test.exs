@@ -39,7 +39,7 @@ defmodule Tartarus.PlatformPeerTest do
   """
 
   setup do
-    {:ok, peers} = Tartarus.Peer.start_many("plat", 3)
+    {:ok, peers} = TartarusTools.Peer.start_many("plat", 3)
     [a, b, c] = nodes = Enum.map(peers, &elem(&1, 1))
     hosts = for {n, name} <- Enum.zip(nodes, [:ha, :hb, :hc]), do: {name, n}
     for {name, n} <- hosts, do: {:ok, _} = :erpc.call(n, Tartarus, :start_host, [name])
@@ -49,7 +49,7 @@ defmodule Tartarus.PlatformPeerTest do
     {:ok, [mod]} = :erpc.call(a, Tartarus, :compile_string, [@source])
 
     on_exit(fn ->
-      Enum.each(peers, fn {pid, _} -> Tartarus.Peer.stop(pid) end)
+      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
       for n <- nodes, do: refute(n in Node.list())
     end)
 
@@ -110,7 +110,7 @@ defmodule Tartarus.PlatformPeerTest do
     assert :ok = Tartarus.move({id, hb}, hc)
     assert :ok = Tartarus.move({id, hc}, hb)
     {c_peer, ^c} = List.last(peers)
-    Tartarus.Peer.stop(c_peer)
+    TartarusTools.Peer.stop(c_peer)
 
     assert {:error, reason} = Tartarus.move({id, hb}, hc)
     assert match?({:host_down, _}, reason) or match?({:unknown_host, _}, reason)

@@ -1,5 +1,5 @@
 # Top-level acceptance tests: real BEAM nodes started with :peer. Run by `mix test` at the
 # umbrella root after every app's unit tests, or alone with `mix test.top`.
 {_, 0} = System.cmd("epmd", ["-daemon"])
-:ok = Tartarus.Peer.ensure_distributed("tartarus_top")
+:ok = TartarusTools.Peer.ensure_distributed("tartarus_top")
 ExUnit.start(capture_log: true, timeout: 300_000, autorun: false)

@@ -19,8 +19,7 @@ defmodule Tartarus.MixProject do
   def application do
     [
       extra_applications: [:logger, :crypto, :public_key, :ssl],
-      mod: {Tartarus.Application, []},
-      env: [tartarus_demo: [Tartarus.Demo.Platform]]
+      mod: {Tartarus.Application, []}
     ]
   end
 

@@ -2,8 +2,8 @@ defmodule TartarusEmu.Demo do
   @moduledoc false
   # The emulator's part of `mix tartarus.demo`: conscientious agents exploring a grid whose
   # nodes break off and reconnect, with the report written to disk.
-  @behaviour Tartarus.Demo
-  import Tartarus.Demo, only: [say: 1]
+  @behaviour TartarusTools.Demo
+  import TartarusTools.Demo, only: [say: 1]
 
   @impl true
   def title, do: "Emulation: agents exploring a 6x6 grid whose nodes come and go"

@@ -37,7 +37,7 @@ defmodule TartarusEmu.Log do
   use GenServer
 
   alias TartarusEmu.Log.{Counts, Forwarder}
-  alias TartarusEmu.Report
+  alias TartarusTools.Report
 
   @typedoc "A running log."
   @type t :: pid()

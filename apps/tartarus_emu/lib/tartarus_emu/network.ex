@@ -11,7 +11,7 @@ defmodule TartarusEmu.Network do
       (`host/2` translates).
     * **BEAM node** - an Erlang node. In `:virtual` mode every host lives in this VM; in
       `:peer` mode each group of `:group` consecutive topology nodes gets its own BEAM node,
-      started with `:peer` (`Tartarus.Peer`), `-connect_all false`.
+      started with `:peer` (`TartarusTools.Peer`), `-connect_all false`.
     * **origin** - the node that called `start/2`. It is connected to every peer (that is how
       it controls them); peers are connected only to the nodes of their overlay neighbours.
     * **live link** - a topology edge that is not broken and whose two ends are neither

@@ -12,13 +12,13 @@ defmodule TartarusEmu.Scenario do
         def name, do: "my_scenario"
 
         @impl true
-        def setup(opts), do: {:ok, %{rng: opts.rng, series: TartarusEmu.Series.new(), x: 0}}
+        def setup(opts), do: {:ok, %{rng: opts.rng, series: TartarusTools.Series.new(), x: 0}}
 
         @impl true
         def step(state, step) do
           {dx, rng} = :rand.uniform_s(6, state.rng)
           x = state.x + dx
-          %{state | rng: rng, x: x, series: TartarusEmu.Series.record(state.series, :x, step, x)}
+          %{state | rng: rng, x: x, series: TartarusTools.Series.record(state.series, :x, step, x)}
         end
 
         @impl true
@@ -42,9 +42,9 @@ defmodule TartarusEmu.Scenario do
     2. calls `c:setup/1` with the options as a map (`:seed`, `:rng`, `:steps` and whatever
        the caller passed);
     3. calls `c:step/2` for steps `1..steps`, stopping early when `c:done?/2` is true, with a
-       progress line on standard error (`TartarusEmu.Progress`, hidden when not a terminal
+       progress line on standard error (`TartarusTools.Progress`, hidden when not a terminal
        or with `quiet: true`);
-    4. writes into `:out` (default `TartarusEmu.Report.default_out_dir/1`; `out: false`
+    4. writes into `:out` (default `TartarusTools.Report.default_out_dir/1`; `out: false`
        writes nothing): `series.csv` (every series, one column each), one CSV and one SVG
        line chart per series, the scenario's `c:charts/1`, `summary.json` and `summary.md`,
        plus whatever `c:write/2` writes (before teardown, so it may read live processes);
@@ -54,7 +54,7 @@ defmodule TartarusEmu.Scenario do
   and `run_ms` unless the scenario sets them itself.
   """
 
-  alias TartarusEmu.{Progress, Report, Series, SVG}
+  alias TartarusTools.{Progress, Report, Series, SVG}
 
   @typedoc "A scenario's state (anything)."
   @type state :: term()

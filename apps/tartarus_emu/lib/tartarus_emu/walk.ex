@@ -52,7 +52,8 @@ defmodule TartarusEmu.Walk do
 
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusEmu.{Dynamics, Energy, Log, Network, Series, Topology}
+  alias TartarusEmu.{Dynamics, Energy, Log, Network, Topology}
+  alias TartarusTools.Series
 
   @impl true
   def name, do: "walk"
@@ -73,7 +74,7 @@ defmodule TartarusEmu.Walk do
         name = :"emu_runner_#{System.unique_integer([:positive])}"
         args = ["+P", Integer.to_string(procs), "+e", Integer.to_string(tables)]
 
-        case Tartarus.Peer.start(name, args: args, apps: [:tartarus, :tartarus_emu]) do
+        case TartarusTools.Peer.start(name, args: args, apps: [:tartarus, :tartarus_emu]) do
           {:ok, peer, node} ->
             try do
               result = :erpc.call(node, __MODULE__, :run_here, [opts], :infinity)
@@ -81,7 +82,7 @@ defmodule TartarusEmu.Walk do
               with {:ok, summary} <- result,
                    do: {:ok, Map.put(summary, :runner, "peer node +P #{procs} +e #{tables}")}
             after
-              Tartarus.Peer.stop(peer)
+              TartarusTools.Peer.stop(peer)
             end
 
           error ->

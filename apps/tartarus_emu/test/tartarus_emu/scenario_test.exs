@@ -1,7 +1,8 @@
 defmodule TartarusEmu.ScenarioTest do
   use ExUnit.Case, async: true
 
-  alias TartarusEmu.{Energy, Scenario, Series, Walk}
+  alias TartarusEmu.{Energy, Scenario, Walk}
+  alias TartarusTools.Series
 
   doctest TartarusEmu.Walk
 
@@ -78,7 +79,7 @@ defmodule TartarusEmu.ScenarioTest do
       assert elem(doc, 1) == :svg
     end
 
-    json = dir |> Path.join("summary.json") |> File.read!() |> Tartarus.JSON.decode!()
+    json = dir |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
 
     for k <- ~w(hosts agents steps mode migrations migrations_per_s messages bytes wall_ms
                 coverage energy_mj seed topology),

@@ -1,8 +1,8 @@
 defmodule TartarusLats.Demo do
   @moduledoc false
   # LATS's part of `mix tartarus.demo`: a short run of both designs on the 50-node building.
-  @behaviour Tartarus.Demo
-  import Tartarus.Demo, only: [say: 1]
+  @behaviour TartarusTools.Demo
+  import TartarusTools.Demo, only: [say: 1]
 
   @impl true
   def title, do: "LATS: location queries as agents vs a cloud, 50-node building"

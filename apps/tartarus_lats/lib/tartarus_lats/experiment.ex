@@ -53,7 +53,7 @@ defmodule TartarusLats.Experiment do
   Runs the experiment. Options: `:nodes` (50), `:bearers` (10), `:minutes`
   (20), `:queries` (30), `:seed` (1), `:mode` (`:virtual` or `:peer`),
   `:group` (topology nodes per BEAM node in peer mode, default 10),
-  `:progress` (a `TartarusEmu.Progress` options list, or false).
+  `:progress` (a `TartarusTools.Progress` options list, or false).
 
   Returns a map with `:summary` (the summary keys), `:queries` (one map per
   query), `:cloud_log`, `:rssi` and `:meta`.
@@ -79,7 +79,7 @@ defmodule TartarusLats.Experiment do
       progress =
         case Keyword.get(opts, :progress, []) do
           false -> nil
-          popts -> TartarusEmu.Progress.new(duration, [label: "lats"] ++ popts)
+          popts -> TartarusTools.Progress.new(duration, [label: "lats"] ++ popts)
         end
 
       schedule = schedule(n_queries, duration)
@@ -95,10 +95,10 @@ defmodule TartarusLats.Experiment do
           acc = record_rssi(acc, janitor)
           due = Map.get(schedule, dep.time, [])
           acc = fire(%{acc | pending: acc.pending ++ due})
-          %{acc | progress: acc.progress && TartarusEmu.Progress.advance(acc.progress)}
+          %{acc | progress: acc.progress && TartarusTools.Progress.advance(acc.progress)}
         end)
 
-      if acc.progress, do: TartarusEmu.Progress.finish(acc.progress)
+      if acc.progress, do: TartarusTools.Progress.finish(acc.progress)
       stats = Cloud.stats(acc.dep.cloud)
       results = Enum.reverse(acc.results)
       wall = System.monotonic_time(:millisecond) - started

@@ -53,7 +53,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
 
   @impl true
   def run(argv) do
-    opts = argv |> Tartarus.CLI.parse!(@switches, "tartarus.emu") |> check!()
+    opts = argv |> TartarusTools.CLI.parse!(@switches, "tartarus.emu") |> check!()
     Mix.Task.run("app.start")
 
     progress = Process.whereis(:standard_error)
@@ -71,7 +71,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
         latency_ms: opts[:latency_ms],
         loss: opts[:loss],
         seed: opts[:seed],
-        out: Path.expand(opts[:out] || TartarusEmu.Report.default_out_dir("walk")),
+        out: Path.expand(opts[:out] || TartarusTools.Report.default_out_dir("walk")),
         until_covered: opts[:until_covered] || false,
         keep_events: opts[:keep_events] || false,
         quiet: opts[:quiet] || opts[:json] || false,
@@ -94,19 +94,21 @@ defmodule Mix.Tasks.Tartarus.Emu do
       )
     end
 
-    if opts[:json], do: IO.puts(Tartarus.JSON.encode!(summary))
+    if opts[:json], do: IO.puts(TartarusTools.JSON.encode!(summary))
   end
 
   defp format(reason) when is_binary(reason), do: reason
   defp format(reason), do: inspect(reason)
 
   defp check!(opts) do
-    Tartarus.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
-    Tartarus.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
-    mode = Tartarus.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.emu", :virtual)
+    TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
+    TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
+
+    mode =
+      TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.emu", :virtual)
 
     strategy =
-      Tartarus.CLI.choice!(
+      TartarusTools.CLI.choice!(
         opts[:strategy],
         [:random, :conscientious],
         :strategy,

@@ -117,7 +117,7 @@ defmodule TartarusEmu.Network.Keeper do
   end
 
   defp boot(spec) do
-    case Tartarus.Peer.start(spec.name, args: spec.args) do
+    case TartarusTools.Peer.start(spec.name, args: spec.args) do
       {:ok, peer, node} ->
         case :erpc.call(
                node,
@@ -130,7 +130,7 @@ defmodule TartarusEmu.Network.Keeper do
             {:ok, peer, node}
 
           error ->
-            Tartarus.Peer.stop(peer)
+            TartarusTools.Peer.stop(peer)
             error
         end
 
@@ -144,20 +144,20 @@ defmodule TartarusEmu.Network.Keeper do
 
     receive do
       {:stop, _from, _ref} ->
-        if s.peer, do: Tartarus.Peer.stop(s.peer)
+        if s.peer, do: TartarusTools.Peer.stop(s.peer)
         :ok
 
       {:DOWN, ^kref, _, _, _} ->
-        if s.peer, do: Tartarus.Peer.stop(s.peer)
+        if s.peer, do: TartarusTools.Peer.stop(s.peer)
         :ok
 
       {:kill, from, ref} ->
-        if s.peer, do: Tartarus.Peer.stop(s.peer)
+        if s.peer, do: TartarusTools.Peer.stop(s.peer)
         send(from, {ref, :ok})
         owner_loop(%{s | peer: nil})
 
       {:restart, from, ref} ->
-        if s.peer, do: Tartarus.Peer.stop(s.peer)
+        if s.peer, do: TartarusTools.Peer.stop(s.peer)
 
         case boot(s.spec) do
           {:ok, peer, _node} ->

@@ -30,7 +30,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   """
   use Mix.Task
 
-  alias TartarusEmu.{Report, SVG}
+  alias TartarusTools.{Report, SVG}
   alias TartarusLats.{Experiment, Region, World}
 
   @switches [
@@ -47,13 +47,19 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
   @impl true
   def run(argv) do
-    opts = Tartarus.CLI.parse!(argv, @switches, "tartarus.lats")
-    Tartarus.CLI.positive!(opts, [:nodes, :bearers, :minutes, :queries, :group], "tartarus.lats")
+    opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.lats")
+
+    TartarusTools.CLI.positive!(
+      opts,
+      [:nodes, :bearers, :minutes, :queries, :group],
+      "tartarus.lats"
+    )
 
     if (opts[:nodes] || 50) < 10,
       do: Mix.raise("mix tartarus.lats: --nodes must be at least 10, got: #{opts[:nodes]}")
 
-    mode = Tartarus.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.lats", :virtual)
+    mode =
+      TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.lats", :virtual)
 
     Mix.Task.run("app.start")
     dir = opts[:out] || Report.default_out_dir("lats")
@@ -78,7 +84,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
     summary = result.summary
 
     if opts[:json] do
-      Mix.shell().info(Tartarus.JSON.encode!(summary))
+      Mix.shell().info(TartarusTools.JSON.encode!(summary))
     else
       Mix.shell().info("""
       queries: #{summary.queries}, correct: #{summary.correct} (centralized: #{summary.correct_centralized})

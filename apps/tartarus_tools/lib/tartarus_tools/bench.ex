@@ -1,0 +1,266 @@
+defmodule TartarusTools.Bench do
+  @moduledoc """
+  Benchmarks of the platform's real paths, run by `mix tartarus.bench`.
+
+    * `migration/1` - agents bouncing between two hosts: in `:virtual` mode both hosts are
+      in this VM; in `:peer` mode each host is on its own BEAM node (two `:peer` nodes on
+      this machine, over distributed Erlang on loopback, optionally TLS). The agent module is
+      compiled at run time on this node, so its code really ships (once per link).
+    * `agents/1` - creating many idle agents on one host (in a peer node started with a
+      process limit large enough), measuring the spawn rate and memory per agent.
+
+  Results are maps (the JSON keys are documented in the README). Figures are medians of
+  per-hop times from the hosts' ledgers (the most recent 1,024 arrivals per host) and
+  throughput from wall-clock time of the whole run.
+  """
+
+  @bouncer """
+  defmodule TartarusTools.Bench.Bouncer do
+    @moduledoc false
+    use Tartarus.Agent
+
+    def init(state), do: {:stay, state}
+
+    def handle_message(:go, _from, s), do: {:move, s.b, s}
+
+    def handle_arrival(ctx, s) do
+      left = s.left - 1
+      if left <= 0, do: {:return, :done, %{s | left: 0}}, else: {:move, ctx.from, %{s | left: left}}
+    end
+  end
+  """
+
+  @doc """
+  Runs the migration benchmark. Options: `:mode` (`:virtual` | `:peer`), `:hops` (per
+  agent), `:agents`, `:state_bytes` (size of each agent's state, default 1024), `:tls`
+  (peer mode over TLS distribution with mutual certificate authentication; certificates
+  are made in a temporary directory).
+
+  In peer mode the benchmark is driven from the first peer (which hosts the agents'
+  home), so the origin needs no distribution to the peers and TLS covers all the traffic
+  that is measured.
+  """
+  @spec migration(keyword()) :: map()
+  def migration(opts) do
+    mode = Keyword.get(opts, :mode, :virtual)
+    tls = Keyword.get(opts, :tls, false)
+    if tls and mode != :peer, do: raise(ArgumentError, "--tls needs --mode peer")
+
+    result =
+      case mode do
+        :virtual ->
+          tag = System.unique_integer([:positive])
+          {:ok, h2} = Tartarus.start_host(:"bench_b#{tag}")
+
+          try do
+            drive(h2, opts)
+          after
+            Tartarus.stop_host(h2)
+          end
+
+        :peer ->
+          with_peers(tls, fn {pa, _a}, {pb, _b} ->
+            {:ok, h2} = :peer.call(pb, Tartarus, :start_host, [:bench_b], 30_000)
+            :peer.call(pa, __MODULE__, :drive, [h2, opts], :infinity)
+          end)
+      end
+
+    Map.merge(result, %{mode: mode, tls: tls})
+  end
+
+  defp with_peers(tls, fun) do
+    tag = System.unique_integer([:positive])
+    dir = Path.join(System.tmp_dir!(), "tartarus_bench_#{tag}")
+    names = [:"bench_a#{tag}", :"bench_b#{tag}"]
+
+    args =
+      if tls do
+        {:ok, _} =
+          Tartarus.Security.Certs.generate(dir, nodes: Enum.map(names, &Atom.to_string/1), days: 1)
+
+        fn name -> Tartarus.Security.TLSDist.erl_flags(Atom.to_string(name), dir) end
+      else
+        fn _ -> [] end
+      end
+
+    peers =
+      for name <- names do
+        {:ok, pid, node} =
+          TartarusTools.Peer.start(name,
+            args: ["-setcookie", "tartarus_bench" | args.(name)],
+            connection: :standard_io
+          )
+
+        {pid, node}
+      end
+
+    try do
+      apply(fun, peers)
+    after
+      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
+      File.rm_rf(dir)
+    end
+  end
+
+  @doc false
+  # Runs on the node that hosts the agents' home; `h2` is the other end (here or remote).
+  def drive(h2, opts) do
+    hops = Keyword.get(opts, :hops, 1_000)
+    agents = Keyword.get(opts, :agents, 1)
+    state_bytes = Keyword.get(opts, :state_bytes, 1024)
+    module = compile_bouncer()
+    {:ok, h1} = Tartarus.start_host(:"bench_a#{System.unique_integer([:positive])}")
+
+    try do
+      :ok = Tartarus.connect(h1, h2)
+      blob = :crypto.strong_rand_bytes(state_bytes)
+      nodes = Enum.uniq([node(), elem(h2, 1)])
+
+      # Warm-up: one agent crosses both ways, so the code is cached at both ends.
+      run_agents(module, h1, h2, 1, 2, blob)
+
+      code_bytes =
+        Enum.sum(for n <- nodes, do: :erpc.call(n, Tartarus.Events, :totals, []).code_bytes)
+
+      for h <- [h1, h2], do: :erpc.call(elem(h, 1), __MODULE__, :reset_local_ring, [h])
+
+      t0 = System.monotonic_time(:microsecond)
+      run_agents(module, h1, h2, agents, hops, blob)
+      wall_us = max(System.monotonic_time(:microsecond) - t0, 1)
+
+      times =
+        [h1, h2]
+        |> Enum.flat_map(fn h -> :erpc.call(elem(h, 1), Tartarus, :local_hop_times, [h]) end)
+        |> Enum.sort()
+
+      total_hops = agents * hops
+
+      %{
+        hops: hops,
+        agents: agents,
+        state_bytes: state_bytes,
+        total_hops: total_hops,
+        wall_ms: div(wall_us, 1000),
+        median_us: Tartarus.percentile(times, 0.5),
+        p99_us: Tartarus.percentile(times, 0.99),
+        samples: length(times),
+        hops_per_s: round(total_hops * 1_000_000 / wall_us),
+        module_bytes_shipped: code_bytes,
+        otp_release: List.to_string(:erlang.system_info(:otp_release)),
+        schedulers: System.schedulers_online(),
+        distribution: distribution()
+      }
+    after
+      Tartarus.stop_host(h1)
+    end
+  end
+
+  defp distribution do
+    case :init.get_argument(:proto_dist) do
+      {:ok, [[proto]]} -> List.to_string(proto)
+      _ -> "inet_tcp"
+    end
+  end
+
+  defp compile_bouncer do
+    if Code.ensure_loaded?(TartarusTools.Bench.Bouncer) do
+      TartarusTools.Bench.Bouncer
+    else
+      {:ok, [module]} = Tartarus.compile_string(@bouncer)
+      module
+    end
+  end
+
+  defp run_agents(module, h1, h2, n, hops, blob) do
+    ids =
+      for _ <- 1..n do
+        state = %{left: hops, b: h2, blob: blob}
+        {:ok, id} = Tartarus.create_mobile_agent(h1, module, state, owner: self())
+        id
+      end
+
+    Enum.each(ids, fn id -> :ok = Tartarus.post({id, h1}, :go) end)
+
+    Enum.each(ids, fn id ->
+      receive do
+        {:tartarus_result, ^id, :done} -> :ok
+      after
+        300_000 -> raise "agent #{id} did not finish its hops within 5 minutes"
+      end
+    end)
+  end
+
+  @doc false
+  def reset_local_ring(host) do
+    {:ok, info} = Tartarus.Host.local(host)
+    :ets.match_delete(info.ledger, {{:hop, :_}, :_})
+  end
+
+  @doc """
+  Runs the resident-agents benchmark on a fresh peer node: creates `:count` idle agents on
+  one host with `:creators` concurrent creators and measures the creation rate and the
+  node's memory growth per agent.
+  """
+  @spec agents(keyword()) :: map()
+  def agents(opts) do
+    count = Keyword.get(opts, :count, 100_000)
+    creators = Keyword.get(opts, :creators, System.schedulers_online())
+    limit = max(count * 2 + 100_000, 262_144)
+
+    {:ok, pid, _node} =
+      TartarusTools.Peer.start(:"bench_agents_#{System.unique_integer([:positive])}",
+        args: ["+P", "#{limit}"],
+        connection: :standard_io
+      )
+
+    try do
+      :peer.call(pid, __MODULE__, :agents_local, [count, creators], :infinity)
+    after
+      TartarusTools.Peer.stop(pid)
+    end
+  end
+
+  @doc false
+  def agents_local(count, creators) do
+    {:ok, host} = Tartarus.start_host(:bench_residents, hibernate_after: 1_000)
+    :erlang.garbage_collect()
+    mem0 = :erlang.memory(:total)
+    t0 = System.monotonic_time(:microsecond)
+    per = div(count, creators)
+
+    1..creators
+    |> Enum.map(fn i ->
+      n = if i == creators, do: count - per * (creators - 1), else: per
+
+      Task.async(fn ->
+        for _ <- 1..n//1,
+            do: {:ok, _} = Tartarus.create_mobile_agent(host, TartarusTools.Bench.Idle, nil)
+      end)
+    end)
+    |> Task.await_many(:infinity)
+
+    wall_us = max(System.monotonic_time(:microsecond) - t0, 1)
+    # Resident and idle: let the agents hibernate (they do after 1 s without messages).
+    Process.sleep(3_000)
+    mem1 = :erlang.memory(:total)
+    resident = Tartarus.status(host).resident
+
+    %{
+      agents: count,
+      resident: resident,
+      creators: creators,
+      wall_ms: div(wall_us, 1000),
+      spawn_per_s: round(count * 1_000_000 / wall_us),
+      bytes_per_agent: div(mem1 - mem0, max(count, 1)),
+      memory_mb: div(mem1, 1_048_576),
+      process_limit: :erlang.system_info(:process_limit)
+    }
+  end
+end
+
+defmodule TartarusTools.Bench.Idle do
+  @moduledoc false
+  # An agent that does nothing: the unit of the resident-agents benchmark.
+  use Tartarus.Agent
+  def init(_), do: {:stay, nil}
+end

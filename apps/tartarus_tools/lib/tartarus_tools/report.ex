@@ -1,0 +1,218 @@
+defmodule TartarusTools.Report do
+  @moduledoc """
+  Writes the results of a scenario run into its output directory.
+
+  A run writes, into one directory (by default `default_out_dir/1`):
+
+    * one CSV per series (`write_csv!/4`), RFC 4180 quoting;
+    * SVG plots (see `TartarusTools.SVG.write!/2`);
+    * `summary.json` and `summary.md` (`write_summary!/3`): the machine-readable keys, and the
+      same as a Markdown table with our numbers beside the thesis's.
+
+  Example:
+
+      dir = TartarusTools.Report.default_out_dir("lats")
+      TartarusTools.Report.write_csv!(dir, "hops", ["step", "hops"], [[1, 3], [2, 4]])
+
+      TartarusTools.Report.write_summary!(dir, %{seed: 1, queries: 200, mean_hops: 3.4},
+        title: "LATS: Where is X",
+        comparisons: [%{metric: "mean hops", ours: 3.4, thesis: 3.9}]
+      )
+
+  All writers create the directory if needed and return the paths written.
+  """
+
+  alias TartarusTools.JSON
+
+  @typedoc "One row of an \"ours vs thesis\" table; `:note` is optional."
+  @type comparison :: %{metric: term, ours: term, thesis: term}
+
+  @doc """
+  Renders rows as CSV text (RFC 4180 quoting: a field containing a comma, quote, CR or LF is
+  wrapped in quotes with inner quotes doubled). Lines end in `\\n`; pass
+  `line_ending: "\\r\\n"` for strict RFC 4180. Fields may be strings, atoms, numbers or
+  `nil` (empty). Every row must have as many fields as the header.
+
+  ## Examples
+
+      iex> TartarusTools.Report.to_csv(["name", "note"], [["a", ~s(say "hi", twice)], [:b, nil]])
+      ~s(name,note\\na,"say ""hi"", twice"\\nb,\\n)
+  """
+  @spec to_csv([term], [[term]], keyword) :: String.t()
+  def to_csv(header, rows, opts \\ []) when is_list(header) and is_list(rows) do
+    eol = Keyword.get(opts, :line_ending, "\n")
+    width = length(header)
+
+    body =
+      rows
+      |> Enum.with_index(1)
+      |> Enum.map(fn
+        {row, _i} when is_list(row) and length(row) == width ->
+          csv_line(row, eol)
+
+        {row, i} ->
+          raise ArgumentError,
+                "Report.to_csv/3: expected row #{i} to be a list of #{width} fields " <>
+                  "(as many as the header), got: #{inspect(row)}"
+      end)
+
+    IO.iodata_to_binary([csv_line(header, eol), body])
+  end
+
+  defp csv_line(fields, eol), do: [Enum.map_intersperse(fields, ",", &csv_field/1), eol]
+
+  defp csv_field(nil), do: ""
+  defp csv_field(v) when is_integer(v), do: Integer.to_string(v)
+  defp csv_field(v) when is_float(v), do: Float.to_string(v)
+  defp csv_field(v) when is_atom(v), do: csv_field(Atom.to_string(v))
+
+  defp csv_field(v) when is_binary(v) do
+    if String.contains?(v, [",", "\"", "\r", "\n"]),
+      do: [?", String.replace(v, "\"", "\"\""), ?"],
+      else: v
+  end
+
+  defp csv_field(v) do
+    raise ArgumentError,
+          "Report.to_csv/3: expected fields to be strings, atoms, numbers or nil, got: #{inspect(v)}"
+  end
+
+  @doc """
+  Writes `dir/name.csv` (`.csv` is added unless `name` has it) and returns its path.
+  Options as in `to_csv/3`.
+  """
+  @spec write_csv!(Path.t(), String.t(), [term], [[term]], keyword) :: Path.t()
+  def write_csv!(dir, name, header, rows, opts \\ []) do
+    file = if String.ends_with?(name, ".csv"), do: name, else: name <> ".csv"
+    write!(dir, safe_name!(file, "write_csv!/5"), to_csv(header, rows, opts))
+  end
+
+  @doc """
+  Writes `summary.json` and `summary.md` into `dir`; returns `[json_path, md_path]`.
+
+  `summary` is a map of JSON-encodable values (see `TartarusTools.JSON`). Options:
+
+    * `:title` - heading of `summary.md` (default `"Summary"`);
+    * `:comparisons` - rows `%{metric:, ours:, thesis:}` (optional `:note`) shown in an
+      "Ours vs thesis" table and stored under `"comparisons"` in the JSON.
+  """
+  @spec write_summary!(Path.t(), map, keyword) :: [Path.t()]
+  def write_summary!(dir, summary, opts \\ []) when is_map(summary) do
+    comparisons = Keyword.get(opts, :comparisons, [])
+    Enum.each(comparisons, &check_comparison!/1)
+
+    json =
+      case comparisons do
+        [] ->
+          summary
+
+        _ ->
+          if Map.has_key?(summary, :comparisons) or Map.has_key?(summary, "comparisons") do
+            raise ArgumentError,
+                  "Report.write_summary!/3: expected the summary to have no \"comparisons\" key " <>
+                    "when the :comparisons option is given"
+          end
+
+          Map.put(summary, "comparisons", comparisons)
+      end
+
+    [
+      write!(dir, "summary.json", [JSON.encode_to_iodata!(json, pretty: true), "\n"]),
+      write!(dir, "summary.md", summary_markdown(summary, opts))
+    ]
+  end
+
+  @doc """
+  Renders the Markdown of `summary.md` (see `write_summary!/3`). Keys are sorted; nested
+  values are shown as compact JSON; `|` in cells is escaped.
+
+  ## Examples
+
+      iex> TartarusTools.Report.summary_markdown(%{seed: 1, hops: 3.5}, comparisons: [%{metric: "hops", ours: 3.5, thesis: 4}])
+      "# Summary\\n\\n| key | value |\\n|---|---|\\n| hops | 3.5 |\\n| seed | 1 |\\n\\n## Ours vs thesis\\n\\n| metric | ours | thesis |\\n|---|---|---|\\n| hops | 3.5 | 4 |\\n"
+  """
+  @spec summary_markdown(map, keyword) :: String.t()
+  def summary_markdown(summary, opts \\ []) when is_map(summary) do
+    title = Keyword.get(opts, :title, "Summary")
+    comparisons = Keyword.get(opts, :comparisons, [])
+
+    rows =
+      summary
+      |> Enum.map(fn {k, v} -> {to_string(k), v} end)
+      |> Enum.sort()
+      |> Enum.map(fn {k, v} -> ["| ", cell(k), " | ", cell(v), " |\n"] end)
+
+    compare =
+      case comparisons do
+        [] ->
+          []
+
+        _ ->
+          notes? = Enum.any?(comparisons, &Map.has_key?(&1, :note))
+
+          head =
+            if notes?,
+              do: "| metric | ours | thesis | note |\n|---|---|---|---|\n",
+              else: "| metric | ours | thesis |\n|---|---|---|\n"
+
+          lines =
+            Enum.map(comparisons, fn c ->
+              note = if notes?, do: [" | ", cell(Map.get(c, :note, ""))], else: []
+              ["| ", cell(c.metric), " | ", cell(c.ours), " | ", cell(c.thesis), note, " |\n"]
+            end)
+
+          ["\n## Ours vs thesis\n\n", head, lines]
+      end
+
+    IO.iodata_to_binary(["# ", title, "\n\n| key | value |\n|---|---|\n", rows, compare])
+  end
+
+  defp check_comparison!(%{metric: _, ours: _, thesis: _}), do: :ok
+
+  defp check_comparison!(other) do
+    raise ArgumentError,
+          "Report.write_summary!/3: expected comparisons %{metric:, ours:, thesis:}, got: " <>
+            inspect(other)
+  end
+
+  defp cell(v) when is_binary(v),
+    do: v |> String.replace("|", "\\|") |> String.replace(~r/\R/, " ")
+
+  defp cell(nil), do: ""
+  defp cell(v) when is_atom(v) or is_number(v), do: cell(to_string(v))
+  defp cell(v) when is_map(v) or is_list(v), do: cell(JSON.encode!(v))
+  defp cell(v), do: cell(inspect(v))
+
+  @doc """
+  The default output directory of a run, `results/<scenario>-<UTC timestamp>`. `scenario`
+  must be a plain name (letters, digits, `_`, `-`, `.`), so it can never escape `results/`.
+
+  ## Examples
+
+      iex> TartarusTools.Report.default_out_dir("lats", ~U[2024-03-01 09:05:07Z])
+      "results/lats-20240301-090507"
+  """
+  @spec default_out_dir(String.t() | atom, DateTime.t()) :: Path.t()
+  def default_out_dir(scenario, now \\ DateTime.utc_now()) do
+    name = safe_name!(to_string(scenario), "default_out_dir/2")
+    stamp = Calendar.strftime(now, "%Y%m%d-%H%M%S")
+    Path.join("results", "#{name}-#{stamp}")
+  end
+
+  defp safe_name!(name, fun) do
+    if Regex.match?(~r/\A[A-Za-z0-9_.\-]+\z/, name) and name not in [".", ".."] do
+      name
+    else
+      raise ArgumentError,
+            "Report.#{fun}: expected a plain name of letters, digits, _ - and ., got: " <>
+              inspect(name)
+    end
+  end
+
+  defp write!(dir, file, content) do
+    File.mkdir_p!(dir)
+    path = Path.join(dir, file)
+    File.write!(path, content)
+    path
+  end
+end

@@ -1,0 +1,766 @@
+defmodule TartarusTools.SVG do
+  @moduledoc """
+  Small plain-SVG charts for experiment reports: line charts, bar charts, box plots and
+  Gantt charts, with no dependency beyond Elixir.
+
+  Every chart function takes data and a keyword list of options and returns a standalone SVG
+  document as a binary: valid XML (all text is escaped), with a `<title>`, readable in any
+  browser. `write!/2` saves it.
+
+      iex> svg = TartarusTools.SVG.line_chart(
+      ...>   [%{name: "population", points: [{0, 10}, {1, 14}, {2, 13}]}],
+      ...>   title: "Antibodies", x_label: "step", y_label: "count"
+      ...> )
+      iex> String.starts_with?(svg, "<?xml") and svg =~ "<title>Antibodies</title>"
+      true
+
+  ## Common options
+
+    * `:title` - chart title, shown on top and as the document `<title>` (default `"chart"`);
+    * `:x_label`, `:y_label` - axis labels; `:x_unit`, `:y_unit` - appended as `"label (unit)"`;
+    * `:width`, `:height` - pixels (defaults 720 x 420; a Gantt chart grows with its rows).
+
+  Axes get "nice" ticks (1, 2 or 5 times a power of ten, see `nice_ticks/3`). Charts never
+  crash on edge cases: an empty data set draws empty axes with a "no data" note, a single
+  point draws a marker, equal values get a small range around them. Malformed data (a point
+  that is not `{number, number}`, a span that ends before it starts) raises `ArgumentError`
+  naming the chart, what was expected and what arrived.
+
+  Labels and names may be strings, atoms or numbers; anything else is shown with `inspect/1`.
+  """
+
+  @palette ~w(#4e79a7 #f28e2b #e15759 #76b7b2 #59a14f #edc948 #b07aa1 #ff9da7 #9c755f #bab0ac)
+
+  @typedoc "One line of a line chart."
+  @type series :: %{name: term, points: [{number, number}]}
+
+  @typedoc "One bar: a map with `:label` and `:value` (and optional `:color`), or `{label, value}`."
+  @type bar :: %{label: term, value: number} | {term, number}
+
+  @typedoc "One box of a box plot: `%{name: term, samples: [number]}` or `{name, samples}`."
+  @type group :: %{name: term, samples: [number]} | {term, [number]}
+
+  @typedoc "One span of a Gantt row; `:label` and `:group` are optional."
+  @type span :: %{start: number, stop: number, label: term, group: term}
+
+  @typedoc "One Gantt row."
+  @type row :: %{label: term, spans: [span]}
+
+  @typedoc "Summary statistics of one box (Tukey: whiskers reach 1.5 IQR)."
+  @type box_stats :: %{
+          n: pos_integer,
+          min: number,
+          max: number,
+          q1: float,
+          median: float,
+          q3: float,
+          whisker_low: number,
+          whisker_high: number,
+          outliers: [number]
+        }
+
+  ## Public helpers
+
+  @doc """
+  "Nice" tick values covering `[min, max]`: about `target` ticks at 1, 2 or 5 times a power
+  of ten. Integers when the step is whole. Equal bounds are widened.
+
+  ## Examples
+
+      iex> TartarusTools.SVG.nice_ticks(0, 97)
+      [0, 20, 40, 60, 80, 100]
+      iex> TartarusTools.SVG.nice_ticks(0.12, 0.31, 4)
+      [0.1, 0.15, 0.2, 0.25, 0.3, 0.35]
+      iex> TartarusTools.SVG.nice_ticks(5, 5)
+      [4.4, 4.6, 4.8, 5.0, 5.2, 5.4, 5.6]
+  """
+  @spec nice_ticks(number, number, pos_integer) :: [number]
+  def nice_ticks(min, max, target \\ 5) when is_number(min) and is_number(max) and target > 0 do
+    {lo, hi} = if min <= max, do: {min, max}, else: {max, min}
+
+    {lo, hi} =
+      cond do
+        lo != hi -> {lo, hi}
+        lo == 0 -> {-1, 1}
+        true -> {lo - abs(lo) * 0.1, hi + abs(hi) * 0.1}
+      end
+
+    raw = (hi - lo) / target
+    mag = :math.pow(10, Float.floor(:math.log10(raw)))
+
+    nice =
+      case raw / mag do
+        r when r < 1.5 -> 1
+        r when r < 3 -> 2
+        r when r < 7 -> 5
+        _ -> 10
+      end
+
+    step = nice * mag
+    first = Float.floor(lo / step + 1.0e-9)
+    last = Float.ceil(hi / step - 1.0e-9)
+    decimals = max(0, -trunc(Float.floor(:math.log10(step) + 1.0e-9)))
+
+    for k <- trunc(first)..trunc(last) do
+      value = k * step
+
+      if decimals == 0 and step >= 1,
+        do: round(value),
+        else: Float.round(value * 1.0, decimals)
+    end
+  end
+
+  @doc """
+  Box-plot statistics of a list of numbers, or `nil` for an empty list. Quartiles are
+  linearly interpolated (the common "type 7" definition); whiskers reach the most extreme
+  samples within 1.5 IQR of the box; samples beyond are outliers.
+
+  ## Examples
+
+      iex> TartarusTools.SVG.box_stats([1, 2, 3, 4, 100])
+      %{n: 5, min: 1, max: 100, q1: 2.0, median: 3.0, q3: 4.0, whisker_low: 1, whisker_high: 4, outliers: [100]}
+      iex> TartarusTools.SVG.box_stats([])
+      nil
+  """
+  @spec box_stats([number]) :: box_stats | nil
+  def box_stats([]), do: nil
+
+  def box_stats(samples) when is_list(samples) do
+    Enum.each(samples, fn s ->
+      if not is_number(s) do
+        raise ArgumentError,
+              "SVG.box_stats/1: expected a list of numbers, got an element: #{inspect(s)}"
+      end
+    end)
+
+    sorted = Enum.sort(samples)
+    tuple = List.to_tuple(sorted)
+    n = tuple_size(tuple)
+    q = fn p -> quantile(tuple, n, p) end
+    {q1, median, q3} = {q.(0.25), q.(0.5), q.(0.75)}
+    iqr = q3 - q1
+    {low_fence, high_fence} = {q1 - 1.5 * iqr, q3 + 1.5 * iqr}
+    inside = Enum.filter(sorted, &(&1 >= low_fence and &1 <= high_fence))
+
+    %{
+      n: n,
+      min: hd(sorted),
+      max: List.last(sorted),
+      q1: q1,
+      median: median,
+      q3: q3,
+      whisker_low: hd(inside),
+      whisker_high: List.last(inside),
+      outliers: Enum.reject(sorted, &(&1 >= low_fence and &1 <= high_fence))
+    }
+  end
+
+  defp quantile(tuple, n, p) do
+    h = (n - 1) * p
+    lo = trunc(Float.floor(h))
+    hi = min(lo + 1, n - 1)
+    a = elem(tuple, lo)
+    (a + (h - lo) * (elem(tuple, hi) - a)) * 1.0
+  end
+
+  @doc """
+  Writes an SVG document to `path`, creating parent directories. Returns `path`.
+  """
+  @spec write!(Path.t(), iodata) :: Path.t()
+  def write!(path, svg) do
+    File.mkdir_p!(Path.dirname(path))
+    File.write!(path, svg)
+    path
+  end
+
+  ## Line chart
+
+  @doc """
+  A line chart of one or more series `%{name: term, points: [{x, y}]}`, drawn in the given
+  order with a legend. Extra options: `:x_min`, `:x_max`, `:y_min`, `:y_max` (force the
+  range to include these), `:markers` (draw points; default when a series has at most 60).
+
+  ## Examples
+
+      iex> svg = TartarusTools.SVG.line_chart([%{name: "a<b", points: [{1, 1}]}], title: "one point")
+      iex> svg =~ "a&lt;b"
+      true
+  """
+  @spec line_chart([series], keyword) :: binary
+  def line_chart(series, opts \\ []) when is_list(series) do
+    series = Enum.map(series, &check_series!/1)
+    points = Enum.flat_map(series, & &1.points)
+    names = Enum.map(series, & &1.name)
+    layout = layout(opts, legend: names)
+
+    {xs, ys} = Enum.unzip(points)
+    x_ticks = ticks(xs ++ bounds(opts, :x_min, :x_max))
+    y_ticks = ticks(ys ++ bounds(opts, :y_min, :y_max))
+    sx = scale(x_ticks, layout.left, layout.left + layout.plot_w)
+    sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
+
+    lines =
+      series
+      |> Enum.with_index()
+      |> Enum.map(fn {%{name: name, points: pts}, i} ->
+        color = color(i)
+        coords = Enum.map(pts, fn {x, y} -> [num(sx.(x)), ",", num(sy.(y)), " "] end)
+        markers? = Keyword.get(opts, :markers, length(pts) <= 60) or length(pts) == 1
+
+        circles =
+          if markers?,
+            do:
+              Enum.map(pts, fn {x, y} ->
+                [
+                  ~s(<circle cx="#{num(sx.(x))}" cy="#{num(sy.(y))}" r="2.5" fill="#{color}">),
+                  "<title>",
+                  esc(name),
+                  ": (",
+                  fmt(x),
+                  ", ",
+                  fmt(y),
+                  ")</title></circle>\n"
+                ]
+              end),
+            else: []
+
+        polyline =
+          if length(pts) > 1,
+            do: [
+              ~s(<polyline fill="none" stroke="#{color}" stroke-width="2" points="),
+              coords,
+              ~s("><title>),
+              esc(name),
+              "</title></polyline>\n"
+            ],
+            else: []
+
+        [~s(<g class="series">\n), polyline, circles, "</g>\n"]
+      end)
+
+    body = [
+      axes(layout, x_ticks, y_ticks, sx, sy, opts),
+      lines,
+      if(points == [], do: no_data(layout), else: []),
+      legend(layout, Enum.with_index(names, fn name, i -> {name, color(i), :line} end))
+    ]
+
+    document(layout, opts, body)
+  end
+
+  defp check_series!(%{name: name, points: points}) when is_list(points) do
+    Enum.each(points, fn
+      {x, y} when is_number(x) and is_number(y) ->
+        :ok
+
+      other ->
+        raise ArgumentError,
+              "SVG.line_chart/2: expected points {x, y} of numbers in series #{inspect(name)}, " <>
+                "got: #{inspect(other)}"
+    end)
+
+    %{name: name, points: points}
+  end
+
+  defp check_series!(other) do
+    raise ArgumentError,
+          "SVG.line_chart/2: expected series %{name: term, points: [{x, y}]}, got: #{inspect(other)}"
+  end
+
+  ## Bar chart
+
+  @doc """
+  A bar chart, one bar per entry, in the given order. Bars may carry their own `:color`;
+  values are printed above the bars. Negative values hang below the zero line.
+
+  ## Examples
+
+      iex> svg = TartarusTools.SVG.bar_chart([{"ours", 12}, {"thesis", 15}], title: "Hops")
+      iex> svg =~ "thesis"
+      true
+  """
+  @spec bar_chart([bar], keyword) :: binary
+  def bar_chart(bars, opts \\ []) when is_list(bars) do
+    bars = Enum.map(bars, &check_bar!/1)
+    layout = layout(opts, [])
+    values = Enum.map(bars, & &1.value)
+    y_ticks = ticks([0 | values] ++ bounds(opts, :y_min, :y_max))
+    sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
+    n = length(bars)
+    band = if n > 0, do: layout.plot_w / n, else: layout.plot_w
+    rotate? = n > 12
+
+    rects =
+      bars
+      |> Enum.with_index()
+      |> Enum.map(fn {%{label: label, value: value} = bar, i} ->
+        x = layout.left + i * band + band * 0.15
+        w = band * 0.7
+        {y0, y1} = {sy.(max(value, 0)), sy.(min(value, 0))}
+        cx = x + w / 2
+        label_y = layout.top + layout.plot_h + 16
+
+        [
+          ~s(<rect x="#{num(x)}" y="#{num(y0)}" width="#{num(w)}" height="#{num(max(y1 - y0, 0.5))}" ),
+          ~s(fill="#{Map.get(bar, :color) || color(0)}"><title>),
+          esc(label),
+          ": ",
+          fmt(value),
+          "</title></rect>\n",
+          ~s(<text x="#{num(cx)}" y="#{num(if value < 0, do: y1 + 13, else: y0 - 4)}" ),
+          ~s(text-anchor="middle" font-size="11">),
+          fmt(value),
+          "</text>\n",
+          if rotate? do
+            ~s(<text x="#{num(cx)}" y="#{num(label_y)}" text-anchor="end" ) <>
+              ~s[transform="rotate(-45 #{num(cx)} #{num(label_y)})">]
+          else
+            ~s(<text x="#{num(cx)}" y="#{num(label_y)}" text-anchor="middle">)
+          end,
+          esc(label),
+          "</text>\n"
+        ]
+      end)
+
+    body = [
+      y_axis(layout, y_ticks, sy, opts),
+      x_baseline(layout, sy.(0)),
+      x_title(layout, opts),
+      rects,
+      if(bars == [], do: no_data(layout), else: [])
+    ]
+
+    document(layout, opts, body)
+  end
+
+  defp check_bar!({label, value}), do: check_bar!(%{label: label, value: value})
+  defp check_bar!(%{label: _, value: v} = bar) when is_number(v), do: bar
+
+  defp check_bar!(other) do
+    raise ArgumentError,
+          "SVG.bar_chart/2: expected bars %{label: term, value: number} or {label, value}, " <>
+            "got: #{inspect(other)}"
+  end
+
+  ## Box plot
+
+  @doc """
+  A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
+  as circles; see `box_stats/1`). Each group is labelled with its name and sample count.
+
+  ## Examples
+
+      iex> svg = TartarusTools.SVG.box_plot([{"ring", [1, 2, 3, 10]}, %{name: "grid", samples: []}])
+      iex> svg =~ "n=4" and svg =~ "n=0"
+      true
+  """
+  @spec box_plot([group], keyword) :: binary
+  def box_plot(groups, opts \\ []) when is_list(groups) do
+    groups =
+      Enum.map(groups, fn
+        {name, samples} when is_list(samples) ->
+          {name, box_stats(samples)}
+
+        %{name: name, samples: samples} when is_list(samples) ->
+          {name, box_stats(samples)}
+
+        other ->
+          raise ArgumentError,
+                "SVG.box_plot/2: expected groups %{name: term, samples: [number]} or {name, samples}, got: #{inspect(other)}"
+      end)
+
+    layout = layout(opts, [])
+    all = for {_, %{} = s} <- groups, v <- [s.whisker_low, s.whisker_high | s.outliers], do: v
+    y_ticks = ticks(all ++ bounds(opts, :y_min, :y_max))
+    sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
+    n = length(groups)
+    band = if n > 0, do: layout.plot_w / n, else: layout.plot_w
+
+    boxes =
+      groups
+      |> Enum.with_index()
+      |> Enum.map(fn {{name, stats}, i} ->
+        x = layout.left + i * band + band * 0.2
+        w = band * 0.6
+        cx = x + w / 2
+        label_y = layout.top + layout.plot_h + 16
+
+        label = [
+          ~s(<text x="#{num(cx)}" y="#{num(label_y)}" text-anchor="middle">),
+          esc(name),
+          "</text>\n",
+          ~s(<text x="#{num(cx)}" y="#{num(label_y + 14)}" text-anchor="middle" font-size="10" fill="#555">n=),
+          Integer.to_string(if(stats, do: stats.n, else: 0)),
+          "</text>\n"
+        ]
+
+        [label, if(stats, do: box(stats, name, x, w, cx, sy, color(i)), else: [])]
+      end)
+
+    body = [
+      y_axis(layout, y_ticks, sy, opts),
+      x_title(layout, opts),
+      boxes,
+      if(all == [], do: no_data(layout), else: [])
+    ]
+
+    document(layout, opts, body)
+  end
+
+  defp box(s, name, x, w, cx, sy, color) do
+    tip = [
+      esc(name),
+      ": median ",
+      fmt(s.median),
+      ", Q1 ",
+      fmt(s.q1),
+      ", Q3 ",
+      fmt(s.q3),
+      ", n=",
+      Integer.to_string(s.n)
+    ]
+
+    {q1, q3} = {sy.(s.q1), sy.(s.q3)}
+    cap = w / 4
+
+    [
+      line(cx, sy.(s.whisker_low), cx, q1, "#333"),
+      line(cx, q3, cx, sy.(s.whisker_high), "#333"),
+      line(cx - cap, sy.(s.whisker_low), cx + cap, sy.(s.whisker_low), "#333"),
+      line(cx - cap, sy.(s.whisker_high), cx + cap, sy.(s.whisker_high), "#333"),
+      ~s(<rect x="#{num(x)}" y="#{num(q3)}" width="#{num(w)}" height="#{num(max(q1 - q3, 0.5))}" ),
+      ~s(fill="#{color}" fill-opacity="0.6" stroke="#333"><title>),
+      tip,
+      "</title></rect>\n",
+      line(x, sy.(s.median), x + w, sy.(s.median), "#000", 2),
+      Enum.map(s.outliers, fn o ->
+        [
+          ~s(<circle cx="#{num(cx)}" cy="#{num(sy.(o))}" r="3" fill="none" stroke="#{color}">),
+          "<title>",
+          fmt(o),
+          "</title></circle>\n"
+        ]
+      end)
+    ]
+  end
+
+  ## Gantt chart
+
+  @doc """
+  A Gantt chart: one lane per row, one bar per span from `start` to `stop`, coloured by
+  `:group` with a legend of groups (spans without a group are grey). Span labels are drawn
+  inside bars wide enough to hold them and always shown as tooltips. The height grows with
+  the number of rows unless `:height` is given.
+
+  ## Examples
+
+      iex> rows = [%{label: "robot 1", spans: [%{start: 0, stop: 4, label: "t1", group: :pick}]}]
+      iex> svg = TartarusTools.SVG.gantt(rows, title: "Tasks", x_label: "step")
+      iex> svg =~ "robot 1" and svg =~ "pick"
+      true
+  """
+  @spec gantt([row], keyword) :: binary
+  def gantt(rows, opts \\ []) when is_list(rows) do
+    rows = Enum.map(rows, &check_row!/1)
+    spans = Enum.flat_map(rows, & &1.spans)
+    groups = spans |> Enum.map(&Map.get(&1, :group)) |> Enum.reject(&is_nil/1) |> Enum.uniq()
+    group_color = groups |> Enum.with_index() |> Map.new(fn {g, i} -> {g, color(i)} end)
+
+    label_w = rows |> Enum.map(&text_width(&1.label)) |> Enum.max(fn -> 0 end)
+    lane = 26
+    height = Keyword.get(opts, :height, 45 + 60 + max(length(rows), 1) * lane)
+
+    layout =
+      layout(Keyword.put(opts, :height, height),
+        legend: groups,
+        left: min(max(70, label_w + 16), 240)
+      )
+
+    lane_h = layout.plot_h / max(length(rows), 1)
+    x_ticks = ticks(Enum.flat_map(spans, &[&1.start, &1.stop]) ++ bounds(opts, :x_min, :x_max))
+    sx = scale(x_ticks, layout.left, layout.left + layout.plot_w)
+
+    lanes =
+      rows
+      |> Enum.with_index()
+      |> Enum.map(fn {row, i} ->
+        y = layout.top + i * lane_h
+        mid = y + lane_h / 2
+
+        [
+          ~s(<text x="#{num(layout.left - 8)}" y="#{num(mid + 4)}" text-anchor="end">),
+          esc(row.label),
+          "</text>\n",
+          Enum.map(row.spans, fn span ->
+            x0 = sx.(span.start)
+            w = max(sx.(span.stop) - x0, 1)
+            group = Map.get(span, :group)
+            label = Map.get(span, :label)
+            fill = Map.get(group_color, group, "#999999")
+
+            tip = [
+              if(label != nil, do: [esc(label), " "], else: []),
+              if(group != nil, do: ["(", esc(group), ") "], else: []),
+              fmt(span.start),
+              "–",
+              fmt(span.stop)
+            ]
+
+            inner =
+              if label != nil and text_width(label) + 6 < w,
+                do: [
+                  ~s(<text x="#{num(x0 + w / 2)}" y="#{num(mid + 4)}" text-anchor="middle" ),
+                  ~s(font-size="11" fill="#fff">),
+                  esc(label),
+                  "</text>\n"
+                ],
+                else: []
+
+            [
+              ~s(<rect x="#{num(x0)}" y="#{num(y + lane_h * 0.15)}" width="#{num(w)}" ),
+              ~s(height="#{num(lane_h * 0.7)}" fill="#{fill}"><title>),
+              tip,
+              "</title></rect>\n",
+              inner
+            ]
+          end)
+        ]
+      end)
+
+    body = [
+      x_axis(layout, x_ticks, sx, opts),
+      y_title(layout, opts),
+      lanes,
+      if(spans == [], do: no_data(layout), else: []),
+      legend(layout, Enum.map(groups, &{&1, Map.fetch!(group_color, &1), :box}))
+    ]
+
+    document(layout, opts, body)
+  end
+
+  defp check_row!(%{label: label, spans: spans}) when is_list(spans) do
+    Enum.each(spans, fn
+      %{start: a, stop: b} when is_number(a) and is_number(b) and a <= b ->
+        :ok
+
+      other ->
+        raise ArgumentError,
+              "SVG.gantt/2: expected spans %{start: number, stop: number} with start <= stop " <>
+                "in row #{inspect(label)}, got: #{inspect(other)}"
+    end)
+
+    %{label: label, spans: spans}
+  end
+
+  defp check_row!(other) do
+    raise ArgumentError,
+          "SVG.gantt/2: expected rows %{label: term, spans: [span]}, got: #{inspect(other)}"
+  end
+
+  ## Layout and drawing helpers
+
+  defp layout(opts, extra) do
+    width = Keyword.get(opts, :width, 720)
+    height = Keyword.get(opts, :height, 420)
+    legend = Keyword.get(extra, :legend, [])
+
+    legend_w =
+      if legend == [],
+        do: 0,
+        else: min(240, 40 + (legend |> Enum.map(&text_width/1) |> Enum.max()))
+
+    left = Keyword.get(extra, :left, 70)
+    top = 45
+    bottom = 60
+    right = 20 + legend_w
+
+    %{
+      width: width,
+      height: height,
+      left: left,
+      top: top,
+      plot_w: max(width - left - right, 10),
+      plot_h: max(height - top - bottom, 10)
+    }
+  end
+
+  defp document(layout, opts, body) do
+    title = Keyword.get(opts, :title, "chart")
+    %{width: w, height: h} = layout
+
+    IO.iodata_to_binary([
+      ~s(<?xml version="1.0" encoding="UTF-8"?>\n),
+      ~s(<svg xmlns="http://www.w3.org/2000/svg" width="#{w}" height="#{h}" viewBox="0 0 #{w} #{h}" ),
+      ~s(font-family="Helvetica, Arial, sans-serif" font-size="12">\n),
+      "<title>",
+      esc(title),
+      "</title>\n",
+      ~s(<rect width="#{w}" height="#{h}" fill="#ffffff"/>\n),
+      ~s(<text x="#{num(w / 2)}" y="26" text-anchor="middle" font-size="16" font-weight="bold">),
+      esc(title),
+      "</text>\n",
+      body,
+      "</svg>\n"
+    ])
+  end
+
+  defp axes(layout, x_ticks, y_ticks, sx, sy, opts) do
+    [x_axis(layout, x_ticks, sx, opts), y_axis(layout, y_ticks, sy, opts)]
+  end
+
+  defp x_axis(layout, ticks, sx, opts) do
+    bottom = layout.top + layout.plot_h
+
+    [
+      Enum.map(ticks, fn t ->
+        x = sx.(t)
+
+        [
+          line(x, layout.top, x, bottom, "#e5e5e5"),
+          ~s(<text x="#{num(x)}" y="#{num(bottom + 16)}" text-anchor="middle">#{fmt(t)}</text>\n)
+        ]
+      end),
+      line(layout.left, bottom, layout.left + layout.plot_w, bottom, "#333"),
+      x_title(layout, opts)
+    ]
+  end
+
+  defp x_title(layout, opts) do
+    case axis_label(opts, :x_label, :x_unit) do
+      nil ->
+        []
+
+      label ->
+        x = layout.left + layout.plot_w / 2
+        y = layout.top + layout.plot_h + 44
+        [~s(<text x="#{num(x)}" y="#{num(y)}" text-anchor="middle">), label, "</text>\n"]
+    end
+  end
+
+  defp y_axis(layout, ticks, sy, opts) do
+    [
+      Enum.map(ticks, fn t ->
+        y = sy.(t)
+
+        [
+          line(layout.left, y, layout.left + layout.plot_w, y, "#e5e5e5"),
+          ~s(<text x="#{num(layout.left - 6)}" y="#{num(y + 4)}" text-anchor="end">#{fmt(t)}</text>\n)
+        ]
+      end),
+      line(layout.left, layout.top, layout.left, layout.top + layout.plot_h, "#333"),
+      y_title(layout, opts)
+    ]
+  end
+
+  defp y_title(layout, opts) do
+    case axis_label(opts, :y_label, :y_unit) do
+      nil ->
+        []
+
+      label ->
+        y = layout.top + layout.plot_h / 2
+
+        [
+          ~s[<text x="16" y="#{num(y)}" text-anchor="middle" transform="rotate(-90 16 #{num(y)})">],
+          label,
+          "</text>\n"
+        ]
+    end
+  end
+
+  defp x_baseline(layout, y), do: line(layout.left, y, layout.left + layout.plot_w, y, "#333")
+
+  defp axis_label(opts, label_key, unit_key) do
+    case {Keyword.get(opts, label_key), Keyword.get(opts, unit_key)} do
+      {nil, nil} -> nil
+      {label, nil} -> esc(label)
+      {nil, unit} -> ["(", esc(unit), ")"]
+      {label, unit} -> [esc(label), " (", esc(unit), ")"]
+    end
+  end
+
+  defp legend(_layout, []), do: []
+
+  defp legend(layout, entries) do
+    x = layout.left + layout.plot_w + 16
+
+    entries
+    |> Enum.with_index()
+    |> Enum.map(fn {{name, color, kind}, i} ->
+      y = layout.top + 10 + i * 18
+
+      swatch =
+        case kind do
+          :line ->
+            line(x, y, x + 18, y, color, 3)
+
+          :box ->
+            ~s(<rect x="#{num(x)}" y="#{num(y - 6)}" width="18" height="12" fill="#{color}"/>\n)
+        end
+
+      [swatch, ~s(<text x="#{num(x + 24)}" y="#{num(y + 4)}">), esc(name), "</text>\n"]
+    end)
+    |> then(&[~s(<g class="legend">\n), &1, "</g>\n"])
+  end
+
+  defp no_data(layout) do
+    x = layout.left + layout.plot_w / 2
+    y = layout.top + layout.plot_h / 2
+    ~s(<text x="#{num(x)}" y="#{num(y)}" text-anchor="middle" fill="#888">no data</text>\n)
+  end
+
+  defp line(x1, y1, x2, y2, color, width \\ 1) do
+    ~s(<line x1="#{num(x1)}" y1="#{num(y1)}" x2="#{num(x2)}" y2="#{num(y2)}" stroke="#{color}" stroke-width="#{width}"/>\n)
+  end
+
+  defp ticks([]), do: nice_ticks(0, 1)
+  defp ticks(values), do: nice_ticks(Enum.min(values), Enum.max(values))
+
+  defp bounds(opts, min_key, max_key) do
+    for key <- [min_key, max_key], v = Keyword.get(opts, key), is_number(v), do: v
+  end
+
+  # Maps the range of `ticks` linearly onto pixels [p0, p1].
+  defp scale(ticks, p0, p1) do
+    {d0, d1} = {hd(ticks), List.last(ticks)}
+    span = if d1 == d0, do: 1, else: d1 - d0
+    fn v -> p0 + (v - d0) / span * (p1 - p0) end
+  end
+
+  defp color(i), do: Enum.at(@palette, rem(i, length(@palette)))
+
+  defp text_width(text), do: 7 * String.length(plain(text))
+
+  defp num(x) when is_integer(x), do: Integer.to_string(x)
+  defp num(x), do: :erlang.float_to_binary(x * 1.0, decimals: 2)
+
+  # Human-readable numbers for labels and tooltips.
+  defp fmt(x) when is_integer(x), do: Integer.to_string(x)
+
+  defp fmt(x) when is_float(x) do
+    cond do
+      x == Float.round(x) and abs(x) < 1.0e15 -> Integer.to_string(round(x))
+      abs(x) >= 1.0e6 or abs(x) < 1.0e-3 -> :erlang.float_to_binary(x, [{:scientific, 3}])
+      true -> x |> Float.round(4) |> Float.to_string()
+    end
+  end
+
+  defp plain(text) when is_binary(text) do
+    if String.valid?(text), do: text, else: inspect(text)
+  end
+
+  defp plain(text) when is_atom(text) or is_number(text), do: to_string(text)
+  defp plain(text), do: inspect(text)
+
+  # XML-escapes text and drops characters XML 1.0 cannot hold.
+  defp esc(text) do
+    text
+    |> plain()
+    |> String.replace(~r/[\x00-\x08\x0B\x0C\x0E-\x1F\x{FFFE}\x{FFFF}]/u, "")
+    |> String.replace("&", "&amp;")
+    |> String.replace("<", "&lt;")
+    |> String.replace(">", "&gt;")
+    |> String.replace("\"", "&quot;")
+    |> String.replace("'", "&apos;")
+  end
+end

@@ -1,0 +1,56 @@
+defmodule Tartarus.CLITest do
+  use ExUnit.Case, async: true
+  doctest TartarusTools.CLI
+
+  test "unknown flags and stray arguments are refused naming the task" do
+    assert_raise Mix.Error,
+                 "mix tartarus.x: invalid arguments --nope; see `mix help tartarus.x`",
+                 fn ->
+                   TartarusTools.CLI.parse!(["--nope"], [hosts: :integer], "tartarus.x")
+                 end
+
+    assert_raise Mix.Error, ~r/invalid arguments extra/, fn ->
+      TartarusTools.CLI.parse!(["extra"], [hosts: :integer], "tartarus.x")
+    end
+
+    assert {[hosts: 3], ["run"]} =
+             TartarusTools.CLI.parse!(["run", "--hosts", "3"], [hosts: :integer], "tartarus.x",
+               args: true
+             )
+  end
+
+  test "checks name the flag, the expectation and the value" do
+    assert_raise Mix.Error,
+                 "mix tartarus.x: --state-bytes must be a positive integer, got: 0",
+                 fn ->
+                   TartarusTools.CLI.positive!([state_bytes: 0], [:state_bytes], "tartarus.x")
+                 end
+
+    assert_raise Mix.Error,
+                 "mix tartarus.x: --p must be a number between 0 and 1, got: 1.5",
+                 fn ->
+                   TartarusTools.CLI.probability!([p: 1.5], [:p], "tartarus.x")
+                 end
+
+    assert :ok = TartarusTools.CLI.non_negative!([kills: 0], [:kills], "tartarus.x")
+
+    assert_raise Mix.Error, "mix tartarus.x: --mode must be virtual or peer, got: cloud", fn ->
+      TartarusTools.CLI.choice!("cloud", [:virtual, :peer], :mode, "tartarus.x", :virtual)
+    end
+  end
+
+  test "report prints one JSON object as the last line and can write it to a file" do
+    path = Path.join(System.tmp_dir!(), "cli_#{System.unique_integer([:positive])}.json")
+    Mix.shell(Mix.Shell.Process)
+
+    try do
+      TartarusTools.CLI.report(%{b: 2, a: "x"}, json: true, out_file: path)
+      assert_received {:mix_shell, :info, [json]}
+      assert {:ok, %{"a" => "x", "b" => 2}} = TartarusTools.JSON.decode(json)
+      assert File.read!(path) == json <> "\n"
+    after
+      Mix.shell(Mix.Shell.IO)
+      File.rm(path)
+    end
+  end
+end
