@@ -6,10 +6,10 @@ defmodule Tartarus.Security.Admission do
     max_resident_agents: [
       type: @limit,
       expected: @limit_words,
-      default: 2_000,
+      default: 1_000,
       doc:
         "agents a host may hold at once; an arrival is refused when `resident` (agents " <>
-          "already on the host) has reached it"
+          "already on the host) has reached it. This is what stops a clone storm"
     ],
     max_message_bytes: [
       type: @limit,
@@ -46,7 +46,8 @@ defmodule Tartarus.Security.Admission do
       doc:
         "admissions per source host: `{count, interval_ms}` allows bursts of `count` and " <>
           "refills `count` tokens every `interval_ms` (a token bucket per source); " <>
-          "`:infinity` turns it off"
+          "`:infinity` turns it off. The default is above the 13,000 hops/s per source of " <>
+          "`mix tartarus.bench migration --agents 1000`"
     ]
   ]
 
@@ -175,7 +176,7 @@ defmodule Tartarus.Security.Admission do
 
       iex> {:ok, adm} = Tartarus.Security.Admission.new(max_hops: 3)
       iex> {adm.policy.max_hops, adm.policy.max_resident_agents}
-      {3, 2000}
+      {3, 1000}
       iex> Tartarus.Security.Admission.new(rate: {0, 10})
       {:error, "invalid options given to Tartarus.Security.Admission.new/1 for key :rate: expected {count, interval_ms} with positive integers, or :infinity, got: {0, 10}"}
       iex> Tartarus.Security.Admission.new(max_agents: 3)
