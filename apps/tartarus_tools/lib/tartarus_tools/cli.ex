@@ -8,7 +8,104 @@ defmodule TartarusTools.CLI do
       opts = TartarusTools.CLI.parse!(argv, [hosts: :integer, json: :boolean], "tartarus.x")
       TartarusTools.CLI.positive!(opts, [:hosts], "tartarus.x")
       TartarusTools.CLI.report(%{hosts: 3}, opts)
+
+  ## Tasks
+
+  A task writes `use TartarusTools.CLI` instead of `use Mix.Task`: it is then a Mix task
+  that answers `--help` (or `-h`) anywhere in its arguments by printing its `@moduledoc`,
+  without running.
+
+  A task whose options are a `Tartarus.Options` schema parses them with `options!/3`: the
+  flags come from the schema's keys (`state_bytes` is `--state-bytes`), the defaults from
+  the schema (the scenario's own, when it has one), and errors use the schema's words.
   """
+
+  @doc false
+  defmacro __using__(_opts) do
+    quote do
+      use Mix.Task
+      @before_compile TartarusTools.CLI
+    end
+  end
+
+  @doc false
+  defmacro __before_compile__(_env) do
+    quote do
+      defoverridable run: 1
+
+      @impl Mix.Task
+      def run(argv) do
+        if TartarusTools.CLI.help?(argv),
+          do: TartarusTools.CLI.help(__MODULE__),
+          else: super(argv)
+      end
+    end
+  end
+
+  @doc """
+  True if `argv` asks for help (`--help` or `-h`).
+
+      iex> TartarusTools.CLI.help?(["--seed", "3", "--help"])
+      true
+      iex> TartarusTools.CLI.help?(["--seed", "3"])
+      false
+  """
+  @spec help?([String.t()]) :: boolean()
+  def help?(argv), do: Enum.any?(argv, &(&1 in ["--help", "-h"]))
+
+  @doc """
+  Prints the documentation of the task `module` (its `@moduledoc`, after a line with its
+  name and `@shortdoc`), as `mix help TASK` would.
+  """
+  @spec help(module()) :: :ok
+  def help(module) do
+    name = Mix.Task.task_name(module)
+
+    doc =
+      case Mix.Task.moduledoc(module) do
+        doc when is_binary(doc) -> doc
+        _ -> "(no documentation)"
+      end
+
+    short = Mix.Task.shortdoc(module)
+    Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
+  end
+
+  @doc """
+  Parses `argv` against a `Tartarus.Options` schema: each key is a flag (`:state_bytes` is
+  `--state-bytes`; `:integer`-like types parse as integers, `:number` and `:probability` as
+  floats, `:boolean` as a switch, the rest as strings), then the values are validated with
+  `Tartarus.Options.validate/3` and the schema's defaults filled in. Raises `Mix.Error`
+  naming the task, the flag, what was expected and what arrived.
+
+      iex> schema = [seed: [type: :pos_integer, default: 1], out: [type: :string, default: "results"]]
+      iex> TartarusTools.CLI.options!(["--seed", "3"], schema, "tartarus.x")
+      [seed: 3, out: "results"]
+  """
+  @spec options!([String.t()], Tartarus.Options.schema(), String.t()) :: keyword()
+  def options!(argv, schema, task) do
+    switches = for {key, spec} <- schema, do: {key, switch(spec[:type])}
+    opts = parse!(argv, switches, task)
+
+    case Tartarus.Options.validate(opts, schema, "mix #{task}") do
+      {:ok, opts} -> opts
+      {:error, message} -> Mix.raise(flags(message))
+    end
+  end
+
+  defp switch(t) when t in [:integer, :pos_integer, :non_neg_integer, :pos_integer_or_infinity],
+    do: :integer
+
+  defp switch(t) when t in [:number, :probability], do: :float
+  defp switch(:boolean), do: :boolean
+  defp switch(_), do: :string
+
+  # "for key :state_bytes" reads "for --state-bytes" on a command line.
+  defp flags(message) do
+    Regex.replace(~r/(for key|option) :(\w+)/, message, fn _, word, key ->
+      "#{if word == "option", do: "option", else: "for"} --#{dash(String.to_atom(key))}"
+    end)
+  end
 
   @doc """
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
@@ -23,7 +120,9 @@ defmodule TartarusTools.CLI do
 
     if invalid != [] or (args != [] and not args_ok?) do
       bad = Enum.map(invalid, &elem(&1, 0)) ++ if(args_ok?, do: [], else: args)
-      Mix.raise("mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}`")
+      Mix.raise(
+        "mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}` or --help"
+      )
     end
 
     if args_ok?, do: {parsed, args}, else: parsed

@@ -24,12 +24,13 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
     * `--hosts h1,h2` - host names or IP addresses the node certificates are valid for, default
       this machine's host name and `localhost`; TLS distribution checks the host part of the
       node name it dials against them;
-    * `--days N` - validity in days, default 365.
+    * `--days N` - validity in days, default 365;
+    * `--help` - prints this documentation.
 
   See `Tartarus.Security.Certs` for what the certificates contain and prove.
   """
 
-  use Mix.Task
+  use TartarusTools.CLI
 
   alias Tartarus.Security.Certs
 
