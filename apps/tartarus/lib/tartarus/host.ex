@@ -52,6 +52,14 @@ defmodule Tartarus.Host do
   def address(name), do: {name, node()}
 
   @doc false
+  # The registered name of one process of a host's tree on this node (`:host_sup`, `:host`,
+  # `:agents`, `:plugins`), in `Tartarus.HostRegistry`. Here rather than in
+  # `Tartarus.Host.Supervisor`, so the host's server can name its siblings without depending
+  # on the supervisor that starts it.
+  @spec via(atom(), name()) :: {:via, Registry, {Tartarus.HostRegistry, {atom(), name()}}}
+  def via(kind, name), do: {:via, Registry, {Tartarus.HostRegistry, {kind, name}}}
+
+  @doc false
   # The pid of a host's server, local or remote.
   @spec whereis(name() | t()) :: {:ok, pid()} | {:error, {:unknown_host, term()}}
   def whereis(host) do

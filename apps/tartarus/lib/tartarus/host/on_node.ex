@@ -110,7 +110,7 @@ defmodule Tartarus.Host.OnNode do
          true <-
            (Code.ensure_loaded?(module) and function_exported?(module, :read, 2)) ||
              {:error, {:not_a_plugin, module}} do
-      sup = Tartarus.Host.Supervisor.via(:plugins, host_name)
+      sup = Host.via(:plugins, host_name)
 
       case DynamicSupervisor.start_child(sup, {Tartarus.Plugin, {host_name, name, module, opts}}) do
         {:ok, _} -> :ok
