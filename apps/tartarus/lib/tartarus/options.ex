@@ -117,6 +117,26 @@ defmodule Tartarus.Options do
     end
   end
 
+  @doc """
+  The defaults of a schema, in its order (keys without a default are left out), for callers
+  that show or reuse them, such as a mix task driving a scenario.
+
+      iex> Tartarus.Options.defaults(seed: [type: :integer, default: 1], out: [type: :string])
+      [seed: 1]
+  """
+  @spec defaults(schema()) :: keyword()
+  def defaults(schema) do
+    for {key, spec} <- schema, Keyword.has_key?(spec, :default) do
+      case {spec[:type], spec[:default]} do
+        {{:keyword, sub}, default} when is_list(default) ->
+          {key, Keyword.merge(defaults(sub), default)}
+
+        {_, default} ->
+          {key, default}
+      end
+    end
+  end
+
   @doc "Markdown documentation of a schema, for `@doc` strings."
   @spec docs(schema()) :: String.t()
   def docs(schema) do
@@ -134,8 +154,13 @@ defmodule Tartarus.Options do
           _ -> ""
         end
 
-      "  * `#{inspect(key)}` - #{String.trim_trailing(spec[:doc] || "", ".")}.#{required}#{default}" <>
-        nested
+      doc =
+        case String.trim_trailing(spec[:doc] || "", ".") do
+          "" -> ""
+          text -> " - #{text}."
+        end
+
+      "  * `#{inspect(key)}`#{doc}#{required}#{default}" <> nested
     end)
   end
 
