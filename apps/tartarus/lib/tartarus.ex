@@ -45,11 +45,14 @@ defmodule Tartarus do
 
   ## Where the work is done
 
-  This module only checks what it is given and delegates: `Tartarus.Options.Platform`
-  validates every option list, `Tartarus.Host.Starter` builds a host's process tree,
-  `Tartarus.Host.Links` keeps the overlay, `Tartarus.Agent.Creator` builds and signs new
-  agents, `Tartarus.CodeShipping` ships code to other nodes, `Tartarus.Locator` finds and
-  chases agents, and `Tartarus.Host.OnNode` runs reads and writes of a host on its node.
+  This module checks nothing itself and only delegates, so it reads as the list of what the
+  platform offers. `Tartarus.Options.Platform` validates every option list (the admission
+  policy's limits are `Tartarus.Security.Admission`'s). Internal modules do the rest:
+  Tartarus.Host.Starter builds a host's process tree, Tartarus.Host.Links keeps the overlay,
+  Tartarus.Agent.Creator builds (and signs) new agents, Tartarus.CodeShipping ships code to
+  other nodes (for creations here and, in the agent server, for migrations),
+  Tartarus.Locator finds and chases agents, and Tartarus.Host.OnNode runs reads and writes
+  of a host on the host's node.
 
   ## Events
 
