@@ -4,6 +4,7 @@ defmodule Tartarus.OptionsTest do
   alias Tartarus.Options
 
   doctest Options
+  doctest Tartarus.Options.Platform
 
   @where "f/1"
 

@@ -8,8 +8,9 @@ defmodule Tartarus.Security.Admission do
       expected: @limit_words,
       default: 1_000,
       doc:
-        "agents a host may hold at once; an arrival is refused when `resident` (agents " <>
-          "already on the host) has reached it. This is what stops a clone storm"
+        "agents a host may hold at once; an arrival is refused when `resident` (the " <>
+          "agents the host already holds, as the host counts them) has reached it. This " <>
+          "is what stops a clone storm"
     ],
     max_message_bytes: [
       type: @limit,
