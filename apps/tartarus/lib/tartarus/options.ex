@@ -18,7 +18,9 @@ defmodule Tartarus.Options do
   (non-negative integer or `:infinity`), `:pos_integer_or_infinity`, `:host`, `:map`,
   `:string`, `:keyword`, `{:list, type}`, `{:in, values}`, `{:fun, arity}`,
   `{:tuple, [type]}` (a tuple of that size, element by element), `{:or, [type]}` (any of the
-  types), or `{:keyword, schema}`: a nested keyword list validated against its own schema
+  types), `{:struct, module}`, `{:custom, predicate}` (a 1-arity function that says whether
+  a value is valid; give the spec an `:expected` to say what it wants), or
+  `{:keyword, schema}`: a nested keyword list validated against its own schema
   (defaults filled in; errors name the key path, e.g. `[:admission, :max_hops]`).
   """
   @type type ::
@@ -28,6 +30,8 @@ defmodule Tartarus.Options do
           | {:fun, non_neg_integer()}
           | {:tuple, [type()]}
           | {:or, [type()]}
+          | {:struct, module()}
+          | {:custom, (term() -> boolean())}
           | {:keyword, schema()}
 
   @typedoc """
@@ -216,6 +220,8 @@ defmodule Tartarus.Options do
         Enum.all?(Enum.zip(ts, Tuple.to_list(v)), fn {t, x} -> valid?(t, x) end)
 
   def valid?({:or, ts}, v), do: Enum.any?(ts, &valid?(&1, v))
+  def valid?({:struct, module}, v), do: is_struct(v, module)
+  def valid?({:custom, predicate}, v), do: predicate.(v) == true
   def valid?({:keyword, schema}, v), do: match?({:ok, _}, validate(v, schema, ""))
   def valid?(nil, _), do: true
 
@@ -247,5 +253,7 @@ defmodule Tartarus.Options do
   def describe({:tuple, ts}), do: "a tuple {#{Enum.map_join(ts, ", ", &describe/1)}}"
   def describe({:or, ts}), do: Enum.map_join(ts, " or ", &describe/1)
   def describe({:keyword, _}), do: "a keyword list"
+  def describe({:struct, module}), do: "a %#{inspect(module)}{}"
+  def describe({:custom, _}), do: "a valid value"
   def describe(nil), do: "any term"
 end

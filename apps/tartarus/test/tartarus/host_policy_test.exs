@@ -32,6 +32,18 @@ defmodule Tartarus.HostPolicyTest do
                 ":max_agents, known keys: #{inspect(Keyword.keys(Tartarus.Security.Admission.schema()))}"}
   end
 
+  test "bad security options are refused with the key path named" do
+    assert Tartarus.start_host(unique_name(), security: [keys: :nope]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key [:security, :keys]: " <>
+                "expected a key pair from Tartarus.Security.Keys.generate/0, got: :nope"}
+
+    assert Tartarus.start_host(unique_name(), security: [trust: []]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key [:security, :trust]: " <>
+                "expected a %Tartarus.Security.TrustList{}, got: []"}
+  end
+
   test "an agent that outgrows max_heap_size is killed, restarted, then removed" do
     a = host!(max_heap_size: 50_000, max_restarts: 1)
     id = agent!(a, %{}, owner: self())

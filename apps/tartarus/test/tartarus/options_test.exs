@@ -160,6 +160,21 @@ defmodule Tartarus.OptionsTest do
 
       assert check(:map, %{}) == {:ok, [k: %{}]}
       assert {:error, _} = check(:map, [])
+
+      assert check({:struct, MapSet}, MapSet.new()) == {:ok, [k: MapSet.new()]}
+
+      assert check({:struct, MapSet}, %{}) ==
+               {:error, "invalid options given to f/1 for key :k: expected a %MapSet{}, got: %{}"}
+
+      even = [
+        k: [type: {:custom, &(is_integer(&1) and rem(&1, 2) == 0)}, expected: "an even integer"]
+      ]
+
+      assert Options.validate([k: 4], even, @where) == {:ok, [k: 4]}
+
+      assert Options.validate([k: 3], even, @where) ==
+               {:error,
+                "invalid options given to f/1 for key :k: expected an even integer, got: 3"}
     end
 
     test "docs/1 lists a nested schema's keys under its key" do

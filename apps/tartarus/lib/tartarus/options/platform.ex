@@ -61,11 +61,21 @@ defmodule Tartarus.Options.Platform do
       doc: "per-agent heap limit in words; an agent that exceeds it is killed (and restarted)"
     ],
     security: [
-      type: :keyword,
-      doc:
-        "signed agents (see `Tartarus.Security`): `keys:` the host's key pair, to seal " <>
-          "departing agents; `trust:` a trust list, to admit only agents whose issuer and " <>
-          "sending host it contains"
+      type:
+        {:keyword,
+         [
+           keys: [
+             type: {:custom, &Tartarus.Security.keys?/1},
+             expected: "a key pair from Tartarus.Security.Keys.generate/0",
+             doc: "the host's key pair, to seal departing agents"
+           ],
+           trust: [
+             type: {:struct, Tartarus.Security.TrustList},
+             doc: "a trust list, to admit only agents whose issuer and sending host it contains"
+           ]
+         ]},
+      default: [],
+      doc: "signed agents (see `Tartarus.Security`)"
     ],
     forward_ttl: [
       type: :timeout,
@@ -125,8 +135,8 @@ defmodule Tartarus.Options.Platform do
 
   @doc """
   Validates `Tartarus.start_host/2`'s options. On success the options have their defaults,
-  `:admission` holds a `Tartarus.Security.Admission` state and `:security` the validated
-  security settings.
+  `:admission` holds a `Tartarus.Security.Admission` state and `:security` a map of the
+  security settings given.
   """
   @spec host(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def host(opts) do
@@ -134,13 +144,10 @@ defmodule Tartarus.Options.Platform do
 
     with {:ok, opts} <- Options.validate(opts, @host, where),
          {:ok, admission} <- Admission.new(opts[:admission], where) do
-      case Tartarus.Security.validate_host_opts(opts[:security] || []) do
-        {:ok, security} ->
-          {:ok, opts |> Keyword.put(:admission, admission) |> Keyword.put(:security, security)}
-
-        {:error, message} ->
-          {:error, "invalid options given to #{where} for key :security: " <> message}
-      end
+      {:ok,
+       opts
+       |> Keyword.put(:admission, admission)
+       |> Keyword.put(:security, Map.new(opts[:security]))}
     end
   end
 
