@@ -106,7 +106,8 @@ defmodule Tartarus.Security.Admission do
   ## Token buckets
 
   Buckets are kept per source in the state. A bucket that has refilled is the same as no bucket,
-  so `prune/2` drops those; a host calls it now and then to bound memory. Token arithmetic is in
+  so `prune/2` drops those; `admit/3` does so itself once it tracks more than 1,024 sources,
+  so memory stays bounded by the sources active within one refill. Token arithmetic is in
   integers (scaled by `interval_ms`), so refills are exact.
   """
 
@@ -261,19 +262,16 @@ defmodule Tartarus.Security.Admission do
   def prune(%__MODULE__{policy: %Policy{rate: :infinity}} = state, _now_ms),
     do: %{state | buckets: %{}}
 
-  def prune(
-        %__MODULE__{policy: %Policy{rate: {count, interval}}, buckets: buckets} = state,
-        now_ms
-      ) do
+  def prune(%__MODULE__{policy: %Policy{rate: rate}, buckets: buckets} = state, now_ms),
+    do: %{state | buckets: prune_buckets(buckets, rate, now_ms)}
+
+  defp prune_buckets(buckets, {count, interval}, now_ms) do
     full = count * interval
 
-    kept =
-      for {source, _} = entry <- buckets,
-          current(state, source, now_ms) < full,
-          into: %{},
-          do: entry
-
-    %{state | buckets: kept}
+    for {_source, {scaled, at}} = entry <- buckets,
+        min(full, scaled + count * max(now_ms - at, 0)) < full,
+        into: %{},
+        do: entry
   end
 
   @doc "Turns a refusal into a sentence, for logs and the sender."
@@ -299,10 +297,25 @@ defmodule Tartarus.Security.Admission do
     available = current(state, source, now_ms)
 
     if available >= interval do
-      {:ok, %{state | buckets: Map.put(state.buckets, source, {available - interval, now_ms})}}
+      buckets = Map.put(state.buckets, source, {available - interval, now_ms})
+      {:ok, %{state | buckets: bound(buckets, state.policy.rate, now_ms)}}
     else
       {:error, {:rate_limited, source}}
     end
+  end
+
+  # Every host has a rate limit by default, and nothing else prunes its buckets: past
+  # @prune_above sources, full buckets are dropped (every @prune_every admissions of a new
+  # source, so the cost stays amortized).
+  @prune_above 1_024
+  @prune_every 256
+
+  defp bound(buckets, rate, now_ms) do
+    size = map_size(buckets)
+
+    if size > @prune_above and rem(size, @prune_every) == 0,
+      do: prune_buckets(buckets, rate, now_ms),
+      else: buckets
   end
 
   defp current(

@@ -152,6 +152,22 @@ defmodule Tartarus.Security.AdmissionTest do
       assert {:error, {:rate_limited, :a}} = Admission.admit(adm, @ok, 0)
     end
 
+    test "admit/3 keeps the buckets bounded by the sources active within one refill" do
+      # One token per 10 ms: a bucket is full again 10 ms after its admission.
+      adm = Admission.new!(rate: {1, 10})
+
+      adm =
+        Enum.reduce(1..5_000, adm, fn i, adm ->
+          {:ok, adm} = Admission.admit(adm, %{@ok | source: {:h, i}}, i * 20)
+          adm
+        end)
+
+      assert map_size(adm.buckets) <= 1_024 + 256
+      # The latest source still has its (empty) bucket.
+      assert {:error, {:rate_limited, {:h, 5_000}}} =
+               Admission.admit(adm, %{@ok | source: {:h, 5_000}}, 5_000 * 20)
+    end
+
     test "prune drops the buckets that are full again" do
       # 2 tokens per 1000 ms: a bucket one token short is full again 500 ms later.
       adm = Admission.new!(rate: {2, 1_000})
