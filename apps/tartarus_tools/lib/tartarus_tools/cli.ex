@@ -118,6 +118,13 @@ defmodule TartarusTools.CLI do
     {parsed, args, invalid} = OptionParser.parse(argv, strict: switches)
     args_ok? = Keyword.get(opts, :args, false)
 
+    # A known flag with a value of the wrong type: name the flag, the type and the value.
+    for {flag, value} <- invalid, value != nil, type = switch_type(switches, flag), type do
+      Mix.raise(
+        "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
+      )
+    end
+
     if invalid != [] or (args != [] and not args_ok?) do
       bad = Enum.map(invalid, &elem(&1, 0)) ++ if(args_ok?, do: [], else: args)
       Mix.raise(
@@ -179,6 +186,16 @@ defmodule TartarusTools.CLI do
         Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
     end
   end
+
+  defp switch_type(switches, "--" <> flag) do
+    Enum.find_value(switches, fn {key, type} -> if dash(key) == flag, do: type end)
+  end
+
+  defp switch_type(_switches, _flag), do: nil
+
+  defp type_words(:integer), do: "an integer"
+  defp type_words(:float), do: "a number"
+  defp type_words(type), do: "a #{type}"
 
   defp check!(opts, keys, task, ok?, what) do
     for key <- keys, v = opts[key], v != nil, not (is_number(v) and ok?.(v)) do

@@ -59,18 +59,20 @@ defmodule TartarusTools.MixTasksTest do
                ~w(a.key a.pem a.ssl_dist.conf b.key b.pem b.ssl_dist.conf ca.key ca.pem)
     end
 
-    test "refuses bad arguments with usage", %{dir: dir} do
-      assert_raise Mix.Error, ~r/^missing --nodes: expected a comma-separated list/, fn ->
+    test "refuses bad arguments naming the flag, the expectation and the value", %{dir: dir} do
+      assert_raise Mix.Error, "required option --nodes not given to mix tartarus.gen.certs", fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir])
       end
 
       assert_raise Mix.Error,
-                   ~r/^invalid value for --days: expected a positive integer, got: "x"/,
-                   fn ->
-                     Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "x"])
-                   end
+                   ~s(mix tartarus.gen.certs: invalid value for --days: expected an integer, got: "x"),
+                   fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "x"]) end
 
-      assert_raise Mix.Error, ~r/^unknown option --bogus/, fn ->
+      assert_raise Mix.Error,
+                   "invalid options given to mix tartarus.gen.certs for --days: expected a positive integer, got: 0",
+                   fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "0"]) end
+
+      assert_raise Mix.Error, ~r/^mix tartarus.gen.certs: invalid arguments --bogus/, fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--bogus", "1"])
       end
     end
