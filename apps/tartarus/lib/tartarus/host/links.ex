@@ -1,7 +1,8 @@
 defmodule Tartarus.Host.Links do
   @moduledoc false
   # The overlay's links: `connect/3` records a symmetric link at both ends (both must
-  # exist first), `disconnect/2` removes it.
+  # exist first), `disconnect/2` removes it. Each end is asked on its own node
+  # (`Tartarus.Host.OnNode.link/2`), so a host can take overlay changes only from there.
 
   alias Tartarus.Host
 
@@ -17,8 +18,8 @@ defmodule Tartarus.Host.Links do
       # Both ends must exist before either records the link.
       with {:ok, _} <- Host.whereis(a),
            {:ok, _} <- Host.whereis(b),
-           :ok <- Host.call(a, {:connect, b, props}),
-           :ok <- Host.call(b, {:connect, a, props}) do
+           :ok <- Host.OnNode.run(a, :link, [{:connect, b, props}]),
+           :ok <- Host.OnNode.run(b, :link, [{:connect, a, props}]) do
         :ok
       end
     end
@@ -29,8 +30,8 @@ defmodule Tartarus.Host.Links do
   def disconnect(a, b) do
     a = Host.address(a)
     b = Host.address(b)
-    r1 = Host.call(a, {:disconnect, b})
-    r2 = Host.call(b, {:disconnect, a})
+    r1 = Host.OnNode.run(a, :link, [{:disconnect, b}])
+    r2 = Host.OnNode.run(b, :link, [{:disconnect, a}])
     if r1 == :ok or r2 == :ok, do: :ok, else: r1
   end
 end

@@ -48,6 +48,11 @@ defmodule Tartarus.Host.OnNode do
   end
 
   @doc false
+  # A change of the host's links (`{:connect, other, props}` or `{:disconnect, other}`),
+  # made by a caller on the host's own node.
+  def link(host, request), do: Host.call(host, request)
+
+  @doc false
   def neighbours(host), do: with({:ok, h} <- Host.local(host), do: Ledger.neighbours(h))
 
   @doc false
