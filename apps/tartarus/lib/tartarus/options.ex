@@ -10,6 +10,28 @@ defmodule Tartarus.Options do
       {:error, "invalid options given to bench/1 for key :hops: expected a positive integer, got: 0"}
       iex> Tartarus.Options.validate([hop: 1], schema, "bench/1")
       {:error, "invalid options given to bench/1: unknown key :hop, known keys: [:hops]"}
+
+  ## One dialect for the umbrella
+
+  The platform's constructors (`Tartarus.Options.Platform`), the admission policy
+  (`Tartarus.Security.Admission`), the emulator and the applications all describe their
+  options this way, so every error reads the same. A module keeps its schema in an
+  attribute, documents it from there and validates with it:
+
+      @schema [
+        hosts: [type: :pos_integer, default: 16, doc: "hosts in the topology"],
+        limits: [type: {:keyword, [max: [type: :pos_integer, default: 5]]}, default: []]
+      ]
+
+      @doc \"""
+      Starts a run. Options:
+
+      \#{Tartarus.Options.docs(@schema)}
+      \"""
+      def start(opts), do: Tartarus.Options.validate(opts, @schema, "MyApp.start/1")
+
+  A mix task reads its flags and defaults from the same schema with
+  `TartarusTools.CLI.options!/3`; `defaults/1` gives the defaults to whoever shows them.
   """
 
   @typedoc """
