@@ -52,6 +52,9 @@ defmodule Tartarus.SafeDefaultsTest do
     assert Enum.sum(Enum.map(counts, & &1.clones)) > 3
     assert Enum.sum(Enum.map(counts, & &1.refused)) > 0
 
+    # Strict only when a host counts paused (arriving) copies against the limit, as the
+    # migration-protocol rework does; without that, concurrent arrivals overshoot by a few
+    # dozen.
     for %{resident: resident} <- counts, do: assert(resident <= limit)
   end
 
