@@ -65,7 +65,7 @@ defmodule TartarusTest do
                {:error,
                 "invalid options given to Tartarus.start_host/2 for key :plugins: expected a keyword list, got: [1]"}
 
-      known = inspect(Keyword.keys(Tartarus.Host.schema()))
+      known = inspect(Keyword.keys(Tartarus.Options.Platform.host_schema()))
 
       assert Tartarus.start_host(name, colour: :red) ==
                {:error,
@@ -343,7 +343,8 @@ defmodule TartarusTest do
                {:error, {:not_portable, :fun, [:f]}}
 
       assert Tartarus.create_agent(h, Probe, %{}, payload: [1]) ==
-               {:error, "invalid payload: expected a map, got: [1]"}
+               {:error,
+                "invalid options given to Tartarus.create_agent/4 for key :payload: expected a map, got: [1]"}
 
       assert Tartarus.agents(h) == []
     end
@@ -830,7 +831,7 @@ defmodule TartarusTest do
     end
 
     test "hop_summary/1" do
-      assert Tartarus.hop_summary([30, 10, 20]) == %{
+      assert Tartarus.Host.OnNode.hop_summary([30, 10, 20]) == %{
                count: 3,
                median_us: 20,
                p99_us: 30,

@@ -130,7 +130,7 @@ defmodule TartarusTools.Bench do
 
       times =
         [h1, h2]
-        |> Enum.flat_map(fn h -> :erpc.call(elem(h, 1), Tartarus, :local_hop_times, [h]) end)
+        |> Enum.flat_map(&Tartarus.hop_times/1)
         |> Enum.sort()
 
       total_hops = agents * hops

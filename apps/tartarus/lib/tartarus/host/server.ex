@@ -173,7 +173,10 @@ defmodule Tartarus.Host.Server do
 
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
-    case Tartarus.Wire.check_prepare(msg, state.host.opts.max_envelope_bytes) do
+    case Tartarus.Wire.check_prepare(
+           msg,
+           Tartarus.Security.Admission.max_message_bytes(state.admission)
+         ) do
       :ok -> admit(state, msg)
       {:error, reason} -> refuse(state, s_pid, mig, env, src, reason)
     end

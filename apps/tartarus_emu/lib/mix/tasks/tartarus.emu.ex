@@ -30,7 +30,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
   and 100,000 agents) run in a fresh BEAM node started with `+P` and `+e` large enough, so
   no `ELIXIR_ERL_OPTIONS` are needed; the summary's `runner` says where the run ran.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     topology: :string,

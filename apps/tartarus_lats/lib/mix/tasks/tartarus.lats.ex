@@ -28,7 +28,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   world_seconds, wall_ms`. With `--json` the last line printed is the summary as one
   JSON object.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   alias TartarusTools.{Report, SVG}
   alias TartarusLats.{Experiment, Region, World}

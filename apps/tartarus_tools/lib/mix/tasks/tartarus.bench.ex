@@ -1,4 +1,4 @@
-defmodule Mix.Tasks.TartarusTools.Bench do
+defmodule Mix.Tasks.Tartarus.Bench do
   @shortdoc "Benchmarks migration and resident agents"
   @moduledoc """
   Benchmarks the platform's real paths.
@@ -19,7 +19,7 @@ defmodule Mix.Tasks.TartarusTools.Bench do
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     mode: :string,

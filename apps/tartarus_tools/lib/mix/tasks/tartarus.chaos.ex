@@ -1,4 +1,4 @@
-defmodule Mix.Tasks.TartarusTools.Chaos do
+defmodule Mix.Tasks.Tartarus.Chaos do
   @shortdoc "Migrates agents among real nodes while killing and partitioning them"
   @moduledoc """
   Runs the fault-injection harness (`TartarusTools.Chaos`) and reports whether any agent was
@@ -11,7 +11,7 @@ defmodule Mix.Tasks.TartarusTools.Chaos do
   agents_start, agents_end, duplicates, lost, lost_on_dead_hosts, migrations_done, kills,
   partitions, persist, seed, still_in_doubt, wall_ms`.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     nodes: :integer,
