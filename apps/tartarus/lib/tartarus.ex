@@ -88,7 +88,7 @@ defmodule Tartarus do
   def start_host(name, opts \\ []) do
     with :ok <- check_name(name),
          {:ok, opts} <- Host.validate_opts(opts) do
-      case DynamicSupervisor.start_child(Tartarus.Hosts, %{
+      case DynamicSupervisor.start_child(Tartarus.Application.hosts(), %{
              id: name,
              start: {Tartarus.Host.Supervisor, :start_link, [{name, opts}]},
              type: :supervisor,
@@ -157,7 +157,7 @@ defmodule Tartarus do
   def stop_local_host({name, _}) do
     case Registry.lookup(Tartarus.HostRegistry, {:host_sup, name}) do
       [{pid, _}] ->
-        _ = DynamicSupervisor.terminate_child(Tartarus.Hosts, pid)
+        _ = DynamicSupervisor.terminate_child(Tartarus.Application.hosts(), pid)
         :ok
 
       [] ->
