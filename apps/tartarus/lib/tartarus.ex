@@ -295,7 +295,7 @@ defmodule Tartarus do
 
     %Envelope{
       id: id,
-      name: opts[:name] || "#{inspect(module)}-#{binary_part(id, 0, 6)}",
+      name: opts[:name] || Envelope.default_name(module, id),
       module: module,
       ships: module.__tartarus_agent__(:ships),
       payload: %{data: opts[:payload], modules: opts[:modules]},
