@@ -186,10 +186,12 @@ defmodule Tartarus do
       b = Host.address(b)
 
       # Both ends must exist before either records the link.
+      # Each end is asked on its own node: hosts take overlay changes only from there
+      # (or from nodes their trust list names).
       with {:ok, _} <- Host.whereis(a),
            {:ok, _} <- Host.whereis(b),
-           :ok <- Host.call(a, {:connect, b, props}),
-           :ok <- Host.call(b, {:connect, a, props}) do
+           :ok <- on_node(a, :local_link, [{:connect, b, props}]),
+           :ok <- on_node(b, :local_link, [{:connect, a, props}]) do
         :ok
       end
     end
@@ -207,10 +209,13 @@ defmodule Tartarus do
   def disconnect(a, b) do
     a = Host.address(a)
     b = Host.address(b)
-    r1 = Host.call(a, {:disconnect, b})
-    r2 = Host.call(b, {:disconnect, a})
+    r1 = on_node(a, :local_link, [{:disconnect, b}])
+    r2 = on_node(b, :local_link, [{:disconnect, a}])
     if r1 == :ok or r2 == :ok, do: :ok, else: r1
   end
+
+  @doc false
+  def local_link(host, request), do: Host.call(host, request)
 
   @doc "The neighbours of a host."
   @spec neighbours(host_ref()) :: [host()] | {:error, term()}

@@ -31,6 +31,12 @@ defmodule Tartarus.Host do
       default: [],
       doc: "hosts to link to at start (links are symmetric; remote hosts must be running)"
     ],
+    max_neighbours: [
+      type: :pos_integer,
+      default: 256,
+      doc:
+        "most overlay links the host keeps; more are refused with `{:too_many_neighbours, max}`"
+    ],
     migration_timeout: [
       type: :pos_integer,
       default: 5_000,
