@@ -34,9 +34,10 @@ defmodule Tartarus.AgentTable do
   def init(nil), do: {:ok, nil}
 
   @impl true
-  def handle_call(msg, _from, state) do
+  def handle_call(msg, from, state) do
     Tartarus.Events.drop(__MODULE__, :call, msg)
-    {:reply, {:error, :unexpected_call}, state}
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
   end
 
   @impl true

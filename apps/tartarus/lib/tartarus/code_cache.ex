@@ -145,13 +145,15 @@ defmodule Tartarus.CodeCache do
   # Anything else, from this node or another, is dropped and counted (Tartarus.Events.drop/3):
   # a junk message never stops the cache.
   @impl true
-  def handle_call({:load, modules}, _from, state) when is_list(modules) do
-    {:reply, do_load(modules), state}
+  def handle_call({:load, modules}, from, state) when is_list(modules) do
+    Tartarus.Events.reply(from, do_load(modules))
+    {:noreply, state}
   end
 
-  def handle_call(msg, _from, state) do
+  def handle_call(msg, from, state) do
     Tartarus.Events.drop(__MODULE__, :call, msg)
-    {:reply, {:error, :unexpected_call}, state}
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
   end
 
   @impl true

@@ -198,6 +198,20 @@ defmodule Tartarus.Events do
     :ok
   end
 
+  @doc false
+  # Answers a call whose `from` came with the message: a junk `{:"$gen_call", from, msg}` sent
+  # by hand may carry a `from` that is no `{pid, tag}`, and gen_server's own reply would crash
+  # the server on it. Use as `{:noreply, state}` after `reply(from, answer)`.
+  @spec reply(term(), term()) :: :ok
+  def reply({to, _tag} = from, answer) when is_pid(to) do
+    GenServer.reply(from, answer)
+    :ok
+  catch
+    _, _ -> :ok
+  end
+
+  def reply(_from, _answer), do: :ok
+
   # The registry restarts on its own (Tartarus.Application); meanwhile nobody is subscribed.
   defp subscribers do
     Registry.lookup(Tartarus.Events.Registry, :events)

@@ -62,9 +62,10 @@ defmodule Tartarus.Host.Directory do
   end
 
   @impl true
-  def handle_call(msg, _from, monitors) do
+  def handle_call(msg, from, monitors) do
     Tartarus.Events.drop(__MODULE__, :call, msg)
-    {:reply, {:error, :unexpected_call}, monitors}
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, monitors}
   end
 
   @impl true

@@ -101,9 +101,10 @@ defmodule Tartarus.Host.Keeper do
   end
 
   @impl true
-  def handle_call(msg, _from, state) do
+  def handle_call(msg, from, state) do
     Tartarus.Events.drop(__MODULE__, :call, msg)
-    {:reply, {:error, :unexpected_call}, state}
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
   end
 
   @impl true
