@@ -85,16 +85,16 @@ defmodule Tartarus.Host.Keeper do
 
   @impl true
   def handle_continue(:recover, %{host: host, opts: opts} = state) do
-    results =
-      Enum.map(opts[:plugins] || [], fn {name, spec} ->
-        Tartarus.attach_plugin(host, name, spec)
-      end) ++
-        Enum.map(opts[:neighbours] || [], fn n -> Tartarus.connect(host, n) end) ++
-        [Tartarus.Host.call(host, :restore, 60_000)]
+    plugins =
+      Enum.map(opts[:plugins] || [], fn {n, spec} -> Tartarus.attach_plugin(host, n, spec) end)
+
+    links = Enum.map(opts[:neighbours] || [], fn n -> Tartarus.connect(host, n) end)
+    restored = Tartarus.Host.call(host, :restore, 60_000)
 
     Logger.warning(
-      "host #{inspect(host)} restarted after a crash: " <>
-        inspect(Enum.reject(results, &(&1 == :ok)), limit: 8)
+      "host #{inspect(host)} restarted after a crash; restored (agents, in doubt): " <>
+        "#{inspect(restored)}; failed plugins and links: " <>
+        inspect(Enum.reject(plugins ++ links, &(&1 == :ok)), limit: 8)
     )
 
     {:noreply, state}
