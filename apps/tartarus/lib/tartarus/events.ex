@@ -111,10 +111,11 @@ defmodule Tartarus.Events do
 
   @doc false
   # Drops `message` (of `kind` :info, :cast or :call) that `service` did not expect: counts
-  # it (node-wide `:dropped` counter and per service), tells subscribers, and logs at most
-  # one line per second per service. Never raises.
-  @spec drop(term(), :info | :cast | :call, term()) :: :ok
-  def drop(service, kind, message) do
+  # it (node-wide `:dropped` counter, per service, and in `host`'s counters when a host's
+  # info map is given), tells subscribers, and logs at most one line per second per service.
+  # Never raises.
+  @spec drop(term(), :info | :cast | :call, term(), map() | nil) :: :ok
+  def drop(service, kind, message, host \\ nil) do
     n = :ets.update_counter(@dropped_table, service, {2, 1}, {service, 0, -@log_interval_ms})
     now = System.monotonic_time(:millisecond)
     last = :ets.lookup_element(@dropped_table, service, 3)
@@ -128,7 +129,8 @@ defmodule Tartarus.Events do
       )
     end
 
-    emit(nil, %{type: :dropped, host: nil, service: service, kind: kind}, dropped: 1)
+    ref = if is_map(host), do: host[:ref]
+    emit(host, %{type: :dropped, host: ref, service: service, kind: kind}, dropped: 1)
   rescue
     _ -> :ok
   end
