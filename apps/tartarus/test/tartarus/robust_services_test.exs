@@ -104,6 +104,22 @@ defmodule Tartarus.RobustServicesTest do
     assert Tartarus.neighbours(name) == [addr(b)]
   end
 
+  test "dropping logs at most one line per second per service" do
+    start = System.monotonic_time(:millisecond)
+
+    log =
+      ExUnit.CaptureLog.capture_log(fn ->
+        for i <- 1..200, do: send(Tartarus.CodeCache, {:junk, i})
+        # A call after the sends: every send was handled before it returns.
+        assert {:error, :unexpected_call} = GenServer.call(Tartarus.CodeCache, :junk)
+      end)
+
+    elapsed_s = div(System.monotonic_time(:millisecond) - start, 1_000)
+    lines = log |> String.split("\n") |> Enum.count(&(&1 =~ "Tartarus.CodeCache dropped"))
+    assert lines <= elapsed_s + 2
+    assert Map.fetch!(Tartarus.Events.dropped(), Tartarus.CodeCache) >= 201
+  end
+
   defp wait_until(fun, attempts \\ 100) do
     cond do
       fun.() ->
