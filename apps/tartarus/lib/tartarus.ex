@@ -91,8 +91,10 @@ defmodule Tartarus do
   Returns `{:ok, {name, node()}}`, or `{:error, {:already_started, host}}`, or
   `{:error, message}` for bad options.
 
-  A host whose process tree crashes is not restarted by itself (its agents died with it):
-  start it again — on the same `:data_dir` to get its agents back.
+  A host whose process tree crashes is restarted (up to 3 times in 5 seconds, then it stops
+  for good): its plugins are attached again, the neighbours of its start options linked
+  again, and, with `:data_dir`, its agents restored from the journal (without persistence
+  its agents died with it). Links added later by `connect/3` are not remembered.
   """
   @spec start_host(host_name(), keyword()) :: {:ok, host()} | {:error, term()}
   def start_host(name, opts \\ []), do: Host.Starter.start(name, opts)

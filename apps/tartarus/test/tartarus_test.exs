@@ -272,11 +272,11 @@ defmodule TartarusTest do
       assert Tartarus.whereis({id, h}) == {:ok, addr(h)}
     end
 
-    test "default names name the module and part of the id" do
+    test "default names name the module and the whole id" do
       h = host!()
       {:ok, id} = Tartarus.create_agent(h, Probe, %{})
       assert [%{name: name}] = Tartarus.agents(h)
-      assert name == "Tartarus.Test.Probe-" <> binary_part(id, 0, 6)
+      assert name == "Tartarus.Test.Probe-" <> id
     end
 
     test "agents/1 lists every resident, sorted by name" do
@@ -507,7 +507,7 @@ defmodule TartarusTest do
       assert state.count == 1
 
       assert [%{id: ^clone, name: "orig/" <> suffix}] = Tartarus.agents(b)
-      assert suffix == binary_part(clone, 0, 6)
+      assert suffix == clone
       assert [%{id: ^id, name: "orig"}] = Tartarus.agents(a)
       assert {:ok, %{clone_of: ^id}} = Tartarus.agent_info(clone)
 

@@ -42,7 +42,7 @@ defmodule Tartarus.Agent.Creator do
 
     %Envelope{
       id: id,
-      name: opts[:name] || "#{inspect(module)}-#{binary_part(id, 0, 6)}",
+      name: opts[:name] || Tartarus.Envelope.default_name(module, id),
       module: module,
       ships: module.__tartarus_agent__(:ships),
       payload: %{data: opts[:payload], modules: opts[:modules]},

@@ -507,7 +507,7 @@ defmodule Tartarus.Agent.Server do
     %{
       env
       | id: id,
-        name: "#{env.name}/#{binary_part(id, 0, 6)}",
+        name: Envelope.clone_name(env.name, id),
         clone_of: env.id,
         rng: Envelope.seed_rng({env.rng, id}),
         departed_at: System.system_time(:microsecond)

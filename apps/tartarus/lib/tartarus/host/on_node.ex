@@ -39,7 +39,7 @@ defmodule Tartarus.Host.OnNode do
   def stop_host({name, _}) do
     case Registry.lookup(Tartarus.HostRegistry, {:host_sup, name}) do
       [{pid, _}] ->
-        _ = DynamicSupervisor.terminate_child(Tartarus.Hosts, pid)
+        _ = DynamicSupervisor.terminate_child(Tartarus.Application.hosts(), pid)
         :ok
 
       [] ->

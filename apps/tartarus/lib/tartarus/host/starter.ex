@@ -1,7 +1,7 @@
 defmodule Tartarus.Host.Starter do
   @moduledoc false
   # Builds and tears down a host's process tree (`Tartarus.Host.Supervisor` under the node's
-  # `Tartarus.Hosts`), then brings the new host up to its options: plugins attached,
+  # `Tartarus.Application.hosts/0`), then brings the new host up to its options: plugins attached,
   # neighbours linked, agents restored from its data directory. Options are validated by
   # `Tartarus.Options.Platform.host/1` before the tree is built, so a bad option starts
   # nothing.
@@ -13,7 +13,7 @@ defmodule Tartarus.Host.Starter do
   def start(name, opts) do
     with :ok <- check_name(name),
          {:ok, opts} <- Tartarus.Options.Platform.host(opts) do
-      case DynamicSupervisor.start_child(Tartarus.Hosts, %{
+      case DynamicSupervisor.start_child(Tartarus.Application.hosts(), %{
              id: name,
              start: {Tartarus.Host.Supervisor, :start_link, [{name, opts}]},
              type: :supervisor,

@@ -27,6 +27,12 @@ defmodule Tartarus.Options.Platform do
       default: [],
       doc: "hosts to link to at start (links are symmetric; remote hosts must be running)"
     ],
+    max_neighbours: [
+      type: :pos_integer,
+      default: 256,
+      doc:
+        "most overlay links the host keeps; more are refused with `{:too_many_neighbours, max}`"
+    ],
     migration_timeout: [
       type: :pos_integer,
       default: 5_000,
