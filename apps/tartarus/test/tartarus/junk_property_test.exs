@@ -79,8 +79,12 @@ defmodule Tartarus.JunkPropertyTest do
 
   defp stop_node(hosts), do: for({name, _} <- hosts, do: Tartarus.stop_host(name))
 
+  # The registered processes of the tartarus application (in an umbrella test run, other
+  # apps' processes are registered too).
   defp registered do
-    Enum.filter(Process.registered(), &String.starts_with?(Atom.to_string(&1), "Elixir.Tartarus"))
+    Enum.filter(Process.registered(), fn name ->
+      :application.get_application(Process.whereis(name)) == {:ok, :tartarus}
+    end)
   end
 
   defp host_pid(name), do: elem(Tartarus.Host.Directory.whereis(addr(name)), 1)

@@ -7,8 +7,12 @@ defmodule Tartarus.RobustServicesTest do
 
   @services [Tartarus.AgentTable, Tartarus.CodeCache, Tartarus.Host.Directory]
 
+  # The registered processes of the tartarus application (in an umbrella test run, other
+  # apps' processes are registered too).
   defp tartarus_registered do
-    Enum.filter(Process.registered(), &String.starts_with?(Atom.to_string(&1), "Elixir.Tartarus"))
+    Enum.filter(Process.registered(), fn name ->
+      :application.get_application(Process.whereis(name)) == {:ok, :tartarus}
+    end)
   end
 
   defp echo!(host) do
