@@ -119,8 +119,9 @@ defmodule TartarusEmu.Network do
         }
 
   @typedoc """
-  A per-node setup hook: called as `setup.(topo_node, host)` for every topology node once
-  the hosts are up and linked (and again for the nodes of a restarted BEAM node or host).
+  A per-node setup hook: called as `setup.(topo_node, host)` (or, for a 3-ary function,
+  `setup.(topo_node, host, network)`, when the node needs to know the others, e.g. its
+  neighbours' hosts) for every topology node once the hosts are up and linked (and again for the nodes of a restarted BEAM node or host).
   It attaches plugins, creates static agents, fills the host store: whatever the
   application needs on every node. It returns `:ok` or `{:ok, _}`; anything else stops
   `start/2` with `{:error, {:setup_failed, topo_node, returned}}`.
@@ -130,7 +131,9 @@ defmodule TartarusEmu.Network do
   which work the same on a local and a remote host, so one hook serves virtual and peer
   mode alike.
   """
-  @type setup :: (Topology.name(), Tartarus.host() -> :ok | {:ok, term()} | term())
+  @type setup ::
+          (Topology.name(), Tartarus.host() -> :ok | {:ok, term()} | term())
+          | (Topology.name(), Tartarus.host(), t() -> :ok | {:ok, term()} | term())
 
   @schema [
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
@@ -147,9 +150,9 @@ defmodule TartarusEmu.Network do
     concurrency: [type: :pos_integer, default: 6, doc: "peers started at once"],
     link: [type: :keyword, default: [], doc: "default `:latency_ms`/`:loss` of every link"],
     setup: [
-      type: {:fun, 2},
+      type: :any,
       doc:
-        "per-node setup hook `fn topo_node, host -> :ok end`, run in topology order after linking (see `t:setup/0`)"
+        "per-node setup hook `fn topo_node, host -> :ok end` (or `fn topo_node, host, net -> ... end`), run in topology order after linking (see `t:setup/0`)"
     ]
   ]
 
@@ -167,6 +170,7 @@ defmodule TartarusEmu.Network do
   def start(%Topology{} = topo, opts \\ []) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusEmu.Network.start/2"),
          :ok <- check_prefix(opts[:prefix]),
+         :ok <- check_setup(opts[:setup]),
          {:ok, link_defaults} <-
            Tartarus.Options.validate(
              opts[:link],
@@ -216,6 +220,14 @@ defmodule TartarusEmu.Network do
       end
     end
   end
+
+  defp check_setup(nil), do: :ok
+  defp check_setup(f) when is_function(f, 2) or is_function(f, 3), do: :ok
+
+  defp check_setup(f),
+    do:
+      {:error,
+       "invalid options given to TartarusEmu.Network.start/2 for key :setup: expected a function of 2 or 3 arguments, got: #{inspect(f)}"}
 
   defp check_prefix(nil), do: :ok
   defp check_prefix(p) when is_binary(p), do: :ok
@@ -307,7 +319,10 @@ defmodule TartarusEmu.Network do
 
   defp run_setup(%{setup: setup} = net, nodes) do
     Enum.reduce_while(nodes, :ok, fn n, :ok ->
-      case setup.(n, host(net, n)) do
+      result =
+        if is_function(setup, 3), do: setup.(n, host(net, n), net), else: setup.(n, host(net, n))
+
+      case result do
         :ok -> {:cont, :ok}
         {:ok, _} -> {:cont, :ok}
         other -> {:halt, {:error, {:setup_failed, n, other}}}

@@ -39,10 +39,16 @@ defmodule TartarusLats.DatabaseAgent do
     3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
        wall time) and publishing.
 
-  Each request is answered only after every message it caused has been
-  taken by its receiver, so when all answers are in, the phase is complete
-  everywhere: runs are deterministic for a seed however the hosts are
-  scheduled. Messages received are buffered until the next `{:deliver, t}`.
+  The agent posts its handshake messages (and its upload) with
+  `Tartarus.cast/3`, so two database agents never wait for each other, and
+  answers the phase with what it sent: `{:ok, %{sent: %{host => n},
+  uploads: 0 | 1}}`. The driver then closes the phase with a barrier: it
+  asks every receiver `{:sync, n}` (answered once the agent has taken `n`
+  handshake messages in all since it started) and the cloud the same
+  (`TartarusLats.Cloud`), so when the barrier is passed, every message of
+  the phase is where it belongs: runs are deterministic for a seed however
+  the hosts are scheduled. Messages received are buffered until the next
+  `{:deliver, t}`.
 
   ## Durable log
 
@@ -92,6 +98,8 @@ defmodule TartarusLats.DatabaseAgent do
       seq: 0,
       clock: 0,
       inbox: [],
+      received: 0,
+      waiting: [],
       dets: nil
     }
 
@@ -105,7 +113,11 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   @impl true
-  def handle_message({:mv, msg}, _from, s), do: {:stay, %{s | inbox: [msg | s.inbox]}}
+  def handle_message({:mv, msg}, _from, s),
+    do: {:stay, release(%{s | inbox: [msg | s.inbox], received: s.received + 1})}
+
+  def handle_message({:sync, n}, from, s),
+    do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
 
   def handle_message({:sense, t}, from, s) do
     readings =
@@ -150,6 +162,13 @@ defmodule TartarusLats.DatabaseAgent do
 
   def handle_message(_other, _from, s), do: {:stay, s}
 
+  # Answers the `{:sync, n}` requests whose count has been reached.
+  defp release(s) do
+    {done, waiting} = Enum.split_with(s.waiting, fn {n, _} -> s.received >= n end)
+    Enum.each(done, fn {_, from} -> A.reply(from, :ok) end)
+    %{s | waiting: waiting}
+  end
+
   # -- events -----------------------------------------------------------------
 
   defp apply_events(s, _t, []), do: {s, [], []}
@@ -180,19 +199,14 @@ defmodule TartarusLats.DatabaseAgent do
     {s, out, changed}
   end
 
-  # Posts the handshake messages and the upload from a separate process (two database
-  # agents posting to each other from their callbacks would wait for each other), and
-  # answers the driver once every message has been taken.
+  # Casts the handshake messages and the upload, and tells the driver what went where
+  # (the driver's barrier waits for them, see the moduledoc).
   defp send_all(s, from, t, out, records, changed) do
-    db = @name
+    Enum.each(out, fn {host, msg} -> :ok = Tartarus.cast({@name, host}, {:mv, msg}) end)
     upload = upload(s, t, records, changed)
-
-    spawn(fn ->
-      sent = Enum.count(out, fn {host, msg} -> Tartarus.post({db, host}, {:mv, msg}) == :ok end)
-
-      if upload, do: Tartarus.post({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
-      A.reply(from, {:ok, sent})
-    end)
+    if upload, do: :ok = Tartarus.cast({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
+    sent = Enum.frequencies_by(out, fn {host, _} -> host end)
+    A.reply(from, {:ok, %{sent: sent, uploads: if(upload, do: 1, else: 0)}})
   end
 
   defp upload(%{centralized: true, cloud: cloud} = s, t, records, changed)

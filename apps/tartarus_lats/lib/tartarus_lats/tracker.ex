@@ -269,10 +269,9 @@ defmodule TartarusLats.Tracker do
     }
   end
 
-  defp median(values) do
-    sorted = Enum.sort(values)
-    Enum.at(sorted, div(length(sorted), 2))
-  end
+  # The window is odd (checked in new/1): the middle sample. Computed by the platform's
+  # one percentile definition, which the tooling's medians also use.
+  defp median(values), do: Tartarus.percentile(Enum.sort(values), 0.5)
 
   defp maybe_confirm(t, {uuid, major, minor} = tag, %{pending: {new, since, count, avg}} = state)
        when count >= t.confirm do
