@@ -239,11 +239,13 @@ defmodule TartarusEmu.Scenario do
       end
 
     extra = if function_exported?(module, :write, 2), do: module.write(state, dir), else: []
+
     comparisons =
       if function_exported?(module, :comparisons, 1), do: module.comparisons(state), else: []
 
     summaries =
       Report.write_summary!(dir, summary, title: module.name(), comparisons: comparisons)
+
     {dir, csvs ++ charts ++ extra_charts ++ extra ++ summaries}
   end
 

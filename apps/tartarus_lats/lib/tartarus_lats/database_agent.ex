@@ -33,9 +33,9 @@ defmodule TartarusLats.DatabaseAgent do
     1. `{:sense, t}` - scan the receiver, run the tracker, log records, feed
        `:entered_zone` / `:left_zone` to the motion vectors and post the
        handshake messages to the neighbours;
-    2. `{:deliver, t}` (repeated while messages flow) - apply the handshake
-       messages received since the last phase, in a fixed order (sorted), and
-       post the answers;
+    2. `{:deliver, t, j}` for `j = 1, 2, ...` while messages flow - apply the
+       handshake messages sent in earlier phases, in a fixed order (sorted),
+       and post the answers;
     3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
        wall time) and publishing.
 
@@ -47,8 +47,11 @@ defmodule TartarusLats.DatabaseAgent do
   handshake messages in all since it started) and the cloud the same
   (`TartarusLats.Cloud`), so when the barrier is passed, every message of
   the phase is where it belongs: runs are deterministic for a seed however
-  the hosts are scheduled. Messages received are buffered until the next
-  `{:deliver, t}`.
+  the hosts are scheduled. Every message carries the phase it was sent in
+  (`{t, 0}` for the sense phase, `{t, j}` for delivery `j`) and is applied
+  at the first delivery of a later phase: a fast neighbour's message of
+  delivery `j` that arrives before this agent's own delivery `j` waits for
+  delivery `j + 1`, as it would if the neighbour had been slow.
 
   ## Durable log
 
@@ -113,8 +116,8 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   @impl true
-  def handle_message({:mv, msg}, _from, s),
-    do: {:stay, release(%{s | inbox: [msg | s.inbox], received: s.received + 1})}
+  def handle_message({:mv, stamp, msg}, _from, s),
+    do: {:stay, release(%{s | inbox: [{stamp, msg} | s.inbox], received: s.received + 1})}
 
   def handle_message({:sync, n}, from, s),
     do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
@@ -137,21 +140,22 @@ defmodule TartarusLats.DatabaseAgent do
     mv_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
     s = %{s | tracker: tracker, clock: t} |> append_log(records)
     {s, out, changed} = apply_events(s, t, mv_events)
-    send_all(s, from, t, out, records, changed)
+    send_all(s, from, {t, 0}, out, records, changed)
     {:stay, s}
   end
 
-  def handle_message({:deliver, t}, from, s) do
-    inbox = Enum.sort(s.inbox)
-    {s, out, changed} = apply_events(%{s | inbox: []}, t, inbox)
-    send_all(s, from, t, out, [], changed)
+  def handle_message({:deliver, t, j}, from, s) do
+    {ready, later} = Enum.split_with(s.inbox, fn {stamp, _} -> stamp < {t, j} end)
+    inbox = ready |> Enum.map(&elem(&1, 1)) |> Enum.sort()
+    {s, out, changed} = apply_events(%{s | inbox: later}, t, inbox)
+    send_all(s, from, {t, j}, out, [], changed)
     {:stay, s}
   end
 
   def handle_message({:tick, t}, from, s) do
     {s, [], changed} = apply_events(%{s | clock: t}, t, [:tick])
     A.store_put({:lats, :clock}, t)
-    send_all(s, from, t, [], [], changed)
+    send_all(s, from, {t, :tick}, [], [], changed)
     {:stay, s}
   end
 
@@ -201,8 +205,8 @@ defmodule TartarusLats.DatabaseAgent do
 
   # Casts the handshake messages and the upload, and tells the driver what went where
   # (the driver's barrier waits for them, see the moduledoc).
-  defp send_all(s, from, t, out, records, changed) do
-    Enum.each(out, fn {host, msg} -> :ok = Tartarus.cast({@name, host}, {:mv, msg}) end)
+  defp send_all(s, from, {t, _} = stamp, out, records, changed) do
+    Enum.each(out, fn {host, msg} -> :ok = Tartarus.cast({@name, host}, {:mv, stamp, msg}) end)
     upload = upload(s, t, records, changed)
     if upload, do: :ok = Tartarus.cast({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
     sent = Enum.frequencies_by(out, fn {host, _} -> host end)

@@ -18,7 +18,7 @@ defmodule TartarusLats.Deployment do
   `step/1` advances the world one second, writes every node's readings of
   that second into its receiver (`Tartarus.write_plugin/3`), and then drives
   every database agent through the phases of that second (`{:sense, t}`,
-  `{:deliver, t}` while handshake messages flow, `{:tick, t}`). Each phase
+  `{:deliver, t, j}` while handshake messages flow, `{:tick, t}`). Each phase
   ends with a barrier: the agents cast their messages
   (`Tartarus.cast/3`) and say how many went where; the driver waits until
   every receiver (and the cloud) has taken them (`{:sync, n}` requests). So
@@ -181,7 +181,7 @@ defmodule TartarusLats.Deployment do
     dep = %{dep | world: world, rng: rng, readings: readings, time: t}
     write_readings(dep, t)
     {dep, sent} = phase(dep, {:sense, t})
-    dep = deliver(dep, t, sent, 10)
+    dep = deliver(dep, t, sent, 1)
     {dep, _} = phase(dep, {:tick, t})
     dep
   end
@@ -208,12 +208,13 @@ defmodule TartarusLats.Deployment do
     end)
   end
 
-  defp deliver(dep, _t, 0, _n), do: dep
-  defp deliver(dep, _t, _sent, 0), do: dep
+  # At most 10 deliveries a second; what is left waits for the next second's first.
+  defp deliver(dep, _t, 0, _j), do: dep
+  defp deliver(dep, _t, _sent, j) when j > 10, do: dep
 
-  defp deliver(dep, t, _sent, n) do
-    {dep, sent} = phase(dep, {:deliver, t})
-    deliver(dep, t, sent, n - 1)
+  defp deliver(dep, t, _sent, j) do
+    {dep, sent} = phase(dep, {:deliver, t, j})
+    deliver(dep, t, sent, j + 1)
   end
 
   # Sends `msg` to every database agent at once, then waits until every message the phase
