@@ -64,9 +64,14 @@ defmodule TartarusLats.Building do
     floors: [type: :pos_integer, default: 2, doc: "floors"],
     rows: [type: :pos_integer, default: 5, doc: "rows of zones per floor"],
     cols: [type: :pos_integer, default: 5, doc: "columns of zones per floor"],
-    spacing: [type: :number, default: 9.0, doc: "metres between neighbouring zones (> 0)"],
-    floor_height: [type: :number, default: 4.0, doc: "metres between floors (> 0)"],
-    floor_loss_db: [type: :number, default: 15.0, doc: "extra attenuation per floor (>= 0)"],
+    spacing: [type: :any, default: 9.0, check: :positive, doc: "metres between zones"],
+    floor_height: [type: :any, default: 4.0, check: :positive, doc: "metres between floors"],
+    floor_loss_db: [
+      type: :any,
+      default: 15.0,
+      check: :at_least_zero,
+      doc: "extra attenuation per floor (dB)"
+    ],
     stairs: [type: {:list, :any}, doc: "`{row, col}` cells with stairs"],
     entrances: [type: {:list, :any}, doc: "`{row, col}` cells on floor 0 where people enter"]
   ]
@@ -88,11 +93,12 @@ defmodule TartarusLats.Building do
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
     where = "TartarusLats.Building.new/1"
-    opts = Tartarus.Options.validate!(opts, @schema, where)
+    opts = TartarusLats.Options.validate!(opts, @schema, where)
     [floors, rows, cols] = Enum.map([:floors, :rows, :cols], &opts[&1])
-    spacing = check!(opts, :spacing, &(&1 > 0), "a positive number", where)
-    floor_height = check!(opts, :floor_height, &(&1 > 0), "a positive number", where)
-    floor_loss = check!(opts, :floor_loss_db, &(&1 >= 0), "a number >= 0", where)
+
+    [spacing, floor_height, floor_loss] =
+      Enum.map([:spacing, :floor_height, :floor_loss_db], &opts[&1])
+
     cell? = &match?({r, c} when r in 0..(rows - 1) and c in 0..(cols - 1), &1)
     opts = Keyword.put_new(opts, :stairs, Enum.uniq([{0, 0}, {rows - 1, cols - 1}]))
     opts = Keyword.put_new(opts, :entrances, [{0, div(cols, 2)}])
@@ -332,9 +338,7 @@ defmodule TartarusLats.Building do
     if valid?.(value) do
       value
     else
-      raise ArgumentError,
-            "invalid options given to #{where} for key #{inspect(key)}: " <>
-              "expected #{expected}, got: #{inspect(value)}"
+      raise ArgumentError, TartarusLats.Options.message(where, key, expected, value)
     end
   end
 end

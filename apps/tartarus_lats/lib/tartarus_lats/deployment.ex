@@ -85,6 +85,10 @@ defmodule TartarusLats.Deployment do
 
     building = world.building
 
+    # Peer mode makes this VM a distributed node; the cloud host, started here before the
+    # network, must get its address under the node's final name.
+    if opts[:mode] == :peer, do: :ok = TartarusTools.Peer.ensure_distributed()
+
     {cloud, owns} =
       case opts[:cloud] do
         nil ->
