@@ -79,11 +79,29 @@ defmodule TartarusLats.Experiment do
   """
   @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
   def run(opts \\ []) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.Experiment.run/1"),
-         :ok <- check_nodes(opts[:nodes]) do
+    with {:ok, opts} <- validate(opts) do
       {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet])
       runner = if Keyword.has_key?(runner, :out), do: runner, else: Keyword.delete(runner, :out)
       TartarusEmu.Scenario.run(__MODULE__, runner ++ [steps: opts[:minutes] * 60] ++ rest)
+    end
+  end
+
+  @doc """
+  Checks `run/1`'s options against `schema/0` (and `:nodes` >= 10); returns them with the
+  defaults filled in, or `{:error, message}` naming the key, what was expected and what
+  arrived.
+
+      iex> {:ok, opts} = TartarusLats.Experiment.validate(nodes: 20)
+      iex> {opts[:nodes], opts[:minutes], opts[:mode]}
+      {20, 20, :virtual}
+      iex> TartarusLats.Experiment.validate(nodes: 5)
+      {:error, "invalid options given to TartarusLats.Experiment.run/1 for key :nodes: expected an integer >= 10, got: 5"}
+  """
+  @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.Experiment.run/1"),
+         :ok <- check_nodes(opts[:nodes]) do
+      {:ok, opts}
     end
   end
 

@@ -1,5 +1,6 @@
 defmodule TartarusLats.ExperimentTest do
   use ExUnit.Case, async: false
+  doctest TartarusLats.Experiment
 
   @tag timeout: 120_000
   @tag :tmp_dir

@@ -74,8 +74,12 @@ defmodule Mix.Tasks.Tartarus.Lats do
       |> then(&if(mode, do: Keyword.put(&1, :mode, mode), else: &1))
       |> Keyword.put(:quiet, json?)
 
-    defaults = Keyword.new(Experiment.schema(), fn {k, spec} -> {k, spec[:default]} end)
-    shown = Keyword.merge(defaults, exp_opts)
+    shown =
+      case Experiment.validate(exp_opts) do
+        {:ok, shown} -> shown
+        {:error, message} -> Mix.raise("mix tartarus.lats: #{message}")
+      end
+
     Mix.Task.run("app.start")
 
     unless json?,
