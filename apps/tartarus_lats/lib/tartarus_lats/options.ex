@@ -35,6 +35,5 @@ defmodule TartarusLats.Options do
       {match?({lo, hi} when is_number(lo) and is_number(hi) and lo <= hi, v),
        "a {low, high} range of dB"}
 
-  defp check(:calibration, v),
-    do: {match?(%TartarusLats.Region{}, v), "a TartarusLats.Region calibration"}
+  defp check({:struct, module, what}, v), do: {is_struct(v, module), what}
 end

@@ -104,7 +104,7 @@ defmodule TartarusLats.Tracker do
   @schema [
     calibration: [
       type: :any,
-      check: :calibration,
+      check: {:struct, Region, "a TartarusLats.Region calibration"},
       doc: "a calibration (default `TartarusLats.Region.calibrate/0`)"
     ],
     window: [type: :pos_integer, default: 6, doc: "moving-average window"],
