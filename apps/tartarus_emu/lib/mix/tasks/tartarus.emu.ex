@@ -8,7 +8,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--steps N] [--mode virtual|peer] [--group K]
                        [--strategy random|conscientious] [--p P] [--latency-ms MS]
                        [--loss P] [--seed N] [--out DIR] [--until-covered]
-                       [--keep-events] [--quiet] [--json]
+                       [--keep-events] [--quiet] [--json] [--help]
 
   Defaults: a 16-host grid, 4 agents, 100 steps, virtual mode, random walk, `p = 0`, a random
   seed (recorded in the summary), output in `results/walk-<timestamp>/`.
@@ -48,12 +48,17 @@ defmodule Mix.Tasks.Tartarus.Emu do
     until_covered: :boolean,
     keep_events: :boolean,
     quiet: :boolean,
-    json: :boolean
+    json: :boolean,
+    help: :boolean
   ]
 
   @impl true
   def run(argv) do
-    opts = argv |> TartarusTools.CLI.parse!(@switches, "tartarus.emu") |> check!()
+    opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.emu")
+    if opts[:help], do: Mix.shell().info(@moduledoc), else: run_walk(check!(opts))
+  end
+
+  defp run_walk(opts) do
     Mix.Task.run("app.start")
 
     progress = Process.whereis(:standard_error)
