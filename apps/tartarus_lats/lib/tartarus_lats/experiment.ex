@@ -81,7 +81,6 @@ defmodule TartarusLats.Experiment do
   def run(opts \\ []) do
     with {:ok, opts} <- validate(opts) do
       {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet])
-      runner = if Keyword.has_key?(runner, :out), do: runner, else: Keyword.delete(runner, :out)
       TartarusEmu.Scenario.run(__MODULE__, runner ++ [steps: opts[:minutes] * 60] ++ rest)
     end
   end
