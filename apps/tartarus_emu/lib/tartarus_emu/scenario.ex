@@ -101,13 +101,16 @@ defmodule TartarusEmu.Scenario do
   """
   @callback comparisons(state()) :: [TartarusTools.Report.comparison()]
 
+  @doc "The title of `summary.md` (optional; default `c:name/0`)."
+  @callback title() :: String.t()
+
   @doc "Writes extra files into `dir` before teardown; returns their paths (optional)."
   @callback write(state(), dir :: Path.t()) :: [Path.t()]
 
   @doc "Stops what setup started (optional)."
   @callback teardown(state()) :: any()
 
-  @optional_callbacks done?: 2, charts: 1, comparisons: 1, write: 2, teardown: 1
+  @optional_callbacks done?: 2, charts: 1, comparisons: 1, title: 0, write: 2, teardown: 1
 
   @schema [
     seed: [type: :integer, doc: "seed of all randomness (default: a random one)"],
@@ -244,7 +247,10 @@ defmodule TartarusEmu.Scenario do
       if function_exported?(module, :comparisons, 1), do: module.comparisons(state), else: []
 
     summaries =
-      Report.write_summary!(dir, summary, title: module.name(), comparisons: comparisons)
+      Report.write_summary!(dir, summary,
+        title: if(function_exported?(module, :title, 0), do: module.title(), else: module.name()),
+        comparisons: comparisons
+      )
 
     {dir, csvs ++ charts ++ extra_charts ++ extra ++ summaries}
   end

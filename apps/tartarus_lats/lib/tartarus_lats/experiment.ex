@@ -117,6 +117,9 @@ defmodule TartarusLats.Experiment do
   def name, do: "lats"
 
   @impl TartarusEmu.Scenario
+  def title, do: "LATS (thesis ch. 3): agents vs cloud"
+
+  @impl TartarusEmu.Scenario
   def setup(opts) do
     building = building(opts.nodes)
     world = world(building, opts.bearers)
