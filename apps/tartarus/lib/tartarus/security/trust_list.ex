@@ -14,7 +14,7 @@ defmodule Tartarus.Security.TrustList do
   `Tartarus.Security.Keys.save/3`); other files are ignored.
   """
 
-  alias Tartarus.Security.{Keys, Signer}
+  alias Tartarus.Security.Keys
 
   defstruct keys: %{}, nodes: MapSet.new()
 
@@ -147,7 +147,7 @@ defmodule Tartarus.Security.TrustList do
           :ok | {:error, {:unknown_issuer, String.t()}} | {:error, :bad_signature}
   def check(%__MODULE__{} = trust, issuer, term, signature) do
     with :ok <- check_issuer(trust, issuer) do
-      Signer.verify(term, signature, issuer)
+      Keys.verify(term, signature, issuer)
     end
   end
 end
