@@ -10,7 +10,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
                                 [--out FILE]
       mix tartarus.bench churn [--migrations N] [--agents K] [--hops H] [--no-persist]
                                [--json] [--out FILE]
-      mix tartarus.bench busy [--messages N] [--senders S] [--json] [--out FILE]
+      mix tartarus.bench busy [--messages N] [--senders S] [--dwell-ms D]
+                              [--max-seconds T] [--json] [--out FILE]
 
   `migration` runs, in one run between the same two hosts, the platform and the floor
   (three distribution messages and a spawn of a paused process carrying the same state, no
@@ -39,7 +40,9 @@ defmodule Mix.Tasks.Tartarus.Bench do
   `busy` has S senders (default 4) post N messages in all (default 50,000) to one agent
   hopping continuously between two peer nodes, and reports messages delivered exactly
   once, duplicates, acknowledged but missing, failure reasons with counts and per-sender
-  order. See `TartarusTools.Bench.Busy`.
+  order. The agent moves on at once at every arrival, or after D ms (`--dwell-ms`);
+  senders stop after T seconds (default 120; the rest counts as not sent). See
+  `TartarusTools.Bench.Busy`.
 
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.
@@ -60,6 +63,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
     persist: :boolean,
     messages: :integer,
     senders: :integer,
+    dwell_ms: :integer,
+    max_seconds: :integer,
     json: :boolean,
     out: :string
   ]
@@ -81,11 +86,13 @@ defmodule Mix.Tasks.Tartarus.Bench do
         :creators,
         :migrations,
         :messages,
-        :senders
+        :senders,
+        :max_seconds
       ],
       @task
     )
 
+    TartarusTools.CLI.non_negative!(opts, [:dwell_ms], @task)
     profile = TartarusTools.CLI.choice!(opts[:profile], [:eprof], :profile, @task, nil)
     Mix.Task.run("app.start")
     say = fn text -> unless opts[:json], do: Mix.shell().info(text) end
@@ -131,7 +138,9 @@ defmodule Mix.Tasks.Tartarus.Bench do
 
           TartarusTools.Bench.Busy.run(
             messages: opts[:messages] || 50_000,
-            senders: opts[:senders] || 4
+            senders: opts[:senders] || 4,
+            dwell_ms: opts[:dwell_ms] || 0,
+            max_seconds: opts[:max_seconds] || 120
           )
 
         _ ->

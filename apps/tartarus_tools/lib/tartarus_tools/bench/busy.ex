@@ -28,8 +28,9 @@ defmodule TartarusTools.Bench.Busy do
   @doc """
   Runs the busy-agent benchmark on two fresh peer nodes. Options: `:messages` (default
   50,000), `:senders` (4), `:timeout` (per post, ms, default 5,000), `:max_seconds`
-  (time budget for sending, default 600: senders stop there and the rest counts as not
-  sent).
+  (time budget for sending, default 120: senders stop there and the rest counts as not
+  sent), `:dwell_ms` (how long the agent stays on each host before it moves on, default 0:
+  it moves on at once).
   """
   @spec run(keyword()) :: map()
   def run(opts) do
@@ -45,13 +46,13 @@ defmodule TartarusTools.Bench.Busy do
     messages = Keyword.get(opts, :messages, 50_000)
     senders = Keyword.get(opts, :senders, 4)
     timeout = Keyword.get(opts, :timeout, 5_000)
-    budget_ms = Keyword.get(opts, :max_seconds, 600) * 1000
+    budget_ms = Keyword.get(opts, :max_seconds, 120) * 1000
     {:ok, h1} = Tartarus.start_host(:"busy_a#{System.unique_integer([:positive])}")
 
     try do
       :ok = Tartarus.connect(h1, h2)
       per = for s <- 1..senders, do: div(messages, senders) + if(s <= rem(messages, senders), do: 1, else: 0)
-      state = Hopper.new(h1, h2, per)
+      state = Hopper.new(h1, h2, per, Keyword.get(opts, :dwell_ms, 0))
       {:ok, id} = Tartarus.create_mobile_agent(h1, Hopper, state)
       :ok = Tartarus.post({id, h1}, :go)
       t0 = System.monotonic_time(:millisecond)
@@ -142,6 +143,7 @@ defmodule TartarusTools.Bench.Busy do
       out_of_order: final.out_of_order,
       delivered_pct: Float.round(100 * once / max(messages, 1), 3),
       hops: final.hops,
+      dwell_ms: final.dwell_ms,
       wall_ms: wall_ms,
       posts_per_s: round(sum.(:sent) * 1000 / wall_ms)
     }
@@ -159,7 +161,7 @@ defmodule TartarusTools.Bench.Busy.Hopper do
 
   @doc "The initial state for two hosts and, per sender (0, 1, ...), its message count."
   @spec new(Tartarus.host(), Tartarus.host(), [non_neg_integer()]) :: map()
-  def new(a, b, per) do
+  def new(a, b, per, dwell_ms \\ 0) do
     bits = per |> Enum.with_index() |> Map.new(fn {n, s} -> {s, <<0::size(n)>>} end)
 
     %{
@@ -170,6 +172,7 @@ defmodule TartarusTools.Bench.Busy.Hopper do
       duplicates: 0,
       dup_messages: 0,
       out_of_order: 0,
+      dwell_ms: dwell_ms,
       stopped: false
     }
   end
@@ -187,11 +190,31 @@ defmodule TartarusTools.Bench.Busy.Hopper do
   def init(s), do: {:stay, s}
 
   @impl true
-  def handle_arrival(_ctx, s), do: next(s)
+  def handle_arrival(_ctx, %{dwell_ms: 0} = s), do: next(s)
+
+  def handle_arrival(_ctx, s) do
+    Process.send_after(self(), :hop, s.dwell_ms)
+    {:stay, s}
+  end
 
   @impl true
-  def handle_message({:m, sender, seq}, _from, s), do: next(record(s, sender, seq))
-  def handle_message(_other, _from, s), do: next(s)
+  def handle_message({:m, sender, seq}, _from, s), do: after_message(record(s, sender, seq))
+  def handle_message(:go, _from, s), do: next(s)
+  def handle_message(_other, _from, s), do: after_message(s)
+
+  @impl true
+  def handle_info(:hop, s), do: next(s)
+  def handle_info(_other, s), do: {:stay, s}
+
+  # Without a dwell time every message is followed by a hop; with one, the timer set on
+  # arrival makes the next hop.
+  defp after_message(%{dwell_ms: 0} = s), do: next(s)
+
+  defp after_message(s) do
+    if Tartarus.Agent.store_get(:busy_stop, false),
+      do: {:stay, %{s | stopped: true}},
+      else: {:stay, s}
+  end
 
   defp next(s) do
     if Tartarus.Agent.store_get(:busy_stop, false) do
