@@ -87,7 +87,8 @@ defmodule TartarusTools.Bench do
   # Two fresh peer nodes (over TLS distribution if `tls`), controlled over standard I/O;
   # calls `fun.({pid_a, node_a}, {pid_b, node_b})` and stops them.
   def with_peers(tls, fun) do
-    tag = System.unique_integer([:positive])
+    # Unique on this machine: other benchmarks may start peers at the same time.
+    tag = "#{System.unique_integer([:positive])}_#{:os.getpid()}"
     dir = Path.join(System.tmp_dir!(), "tartarus_bench_#{tag}")
     names = [:"bench_a#{tag}", :"bench_b#{tag}"]
 
@@ -270,7 +271,7 @@ defmodule TartarusTools.Bench do
     limit = max(count * 2 + 100_000, 262_144)
 
     {:ok, pid, _node} =
-      TartarusTools.Peer.start(:"bench_agents_#{System.unique_integer([:positive])}",
+      TartarusTools.Peer.start(:"bench_agents_#{System.unique_integer([:positive])}_#{:os.getpid()}",
         args: ["+P", "#{limit}"],
         connection: :standard_io
       )

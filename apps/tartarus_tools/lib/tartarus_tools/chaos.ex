@@ -84,7 +84,8 @@ defmodule TartarusTools.Chaos do
     progress = Keyword.get(opts, :progress, fn _ -> :ok end)
     if n < 2, do: raise(ArgumentError, "a chaos run needs at least 2 nodes, got: #{n}")
 
-    tag = "#{System.unique_integer([:positive])}"
+    # Unique on this machine: several harnesses (a test, a run) may start nodes at once.
+    tag = "#{System.unique_integer([:positive])}_#{:os.getpid()}"
     dir = Path.join(System.tmp_dir!(), "tartarus_chaos_#{tag}")
     names = for i <- 1..n, do: :"chaos#{i}_#{tag}"
 
