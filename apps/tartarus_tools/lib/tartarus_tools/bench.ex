@@ -44,8 +44,13 @@ defmodule TartarusTools.Bench do
   `ratio_latency` is `us_per_hop / floor_us_per_hop` and `ratio_throughput` is
   `hops_per_s / floor_hops_per_s`.
 
+  Each phase runs in `:rounds` rounds (default 4: the hops are split among them, e.g. 4 x
+  500 hops of one agent, 4 x 25 hops of 1,000 agents), each round running the floor and
+  the platform one after the other, alternating which goes first, so that a change in the
+  machine's load weighs on both alike; the wall times are summed.
+
   Options: `:mode` (`:virtual`: both hosts in this VM | `:peer`: each on its own BEAM
-  node), `:latency_hops`, `:agents`, `:hops`, `:state_bytes` (default 1024), `:tls`
+  node), `:latency_hops`, `:agents`, `:hops`, `:rounds`, `:state_bytes` (default 1024), `:tls`
   (peer mode over TLS distribution with mutual certificate authentication; certificates
   are made in a temporary directory), `:profile` (`:eprof`: profile the platform's
   throughput phase on the receiving node - the second peer - and return its costliest
@@ -129,6 +134,7 @@ defmodule TartarusTools.Bench do
     agents = Keyword.get(opts, :agents, 1_000)
     state_bytes = Keyword.get(opts, :state_bytes, 1024)
     profile = Keyword.get(opts, :profile)
+    rounds = if profile, do: 1, else: Keyword.get(opts, :rounds, 4)
     module = compile_bouncer()
     {:ok, h1} = Tartarus.start_host(:"bench_a#{System.unique_integer([:positive])}")
     other = elem(h2, 1)
@@ -149,19 +155,32 @@ defmodule TartarusTools.Bench do
 
       for h <- [h1, h2], do: :erpc.call(elem(h, 1), __MODULE__, :reset_local_ring, [h])
 
-      # Latency: one agent, floor then platform.
-      floor_lat_us = TartarusTools.Bench.Floor.run(other, 1, latency_hops, floor_state)
-      lat_us = run_agents(module, h1, h2, 1, latency_hops, blob)
+      # Latency: one agent at a time, in rounds alternating floor and platform (and which
+      # goes first), so a change of the machine's load weighs on both alike.
+      {floor_lat_us, lat_us} =
+        alternate(split(latency_hops, rounds), fn h ->
+          {fn -> TartarusTools.Bench.Floor.run(other, 1, h, floor_state) end,
+           fn -> run_agents(module, h1, h2, 1, h, blob) end}
+        end)
 
       times =
         [h1, h2]
         |> Enum.flat_map(fn h -> :erpc.call(elem(h, 1), Tartarus, :local_hop_times, [h]) end)
         |> Enum.sort()
 
-      # Throughput: many agents at once, floor then platform.
-      floor_tp_us = TartarusTools.Bench.Floor.run(other, agents, hops, floor_state)
-      if profile, do: :ok = :erpc.call(other, TartarusTools.Bench.Profile, :start, [])
-      tp_us = run_agents(module, h1, h2, agents, hops, blob)
+      # Throughput: `agents` at once, `hops` each, in rounds likewise (a profile is taken in
+      # one round, platform only).
+      {floor_tp_us, tp_us} =
+        if profile do
+          floor_us = TartarusTools.Bench.Floor.run(other, agents, hops, floor_state)
+          :ok = :erpc.call(other, TartarusTools.Bench.Profile, :start, [])
+          {floor_us, run_agents(module, h1, h2, agents, hops, blob)}
+        else
+          alternate(split(hops, rounds), fn h ->
+            {fn -> TartarusTools.Bench.Floor.run(other, agents, h, floor_state) end,
+             fn -> run_agents(module, h1, h2, agents, h, blob) end}
+          end)
+        end
 
       profiled =
         if profile,
@@ -177,6 +196,7 @@ defmodule TartarusTools.Bench do
       Map.merge(profiled, %{
         latency_hops: latency_hops,
         hops: hops,
+        rounds: rounds,
         agents: agents,
         state_bytes: state_bytes,
         total_hops: total_hops,
@@ -199,6 +219,30 @@ defmodule TartarusTools.Bench do
     after
       Tartarus.stop_host(h1)
     end
+  end
+
+  # `n` in `rounds` parts (the first ones one larger), none empty.
+  defp split(n, rounds) do
+    rounds = max(min(rounds, n), 1)
+    for i <- 1..rounds, do: div(n, rounds) + if(i <= rem(n, rounds), do: 1, else: 0)
+  end
+
+  # Runs each part's floor and platform funs, alternating which goes first; returns the
+  # summed wall times {floor_us, platform_us}.
+  defp alternate(parts, funs) do
+    parts
+    |> Enum.with_index()
+    |> Enum.reduce({0, 0}, fn {part, i}, {f, p} ->
+      {floor, platform} = funs.(part)
+
+      if rem(i, 2) == 0 do
+        df = floor.()
+        {f + df, p + platform.()}
+      else
+        dp = platform.()
+        {f + floor.(), p + dp}
+      end
+    end)
   end
 
   defp distribution do

@@ -4,7 +4,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
   Benchmarks the platform's real paths.
 
       mix tartarus.bench migration [--mode virtual|peer] [--latency-hops N] [--agents K]
-                                   [--hops H] [--state-bytes B] [--tls] [--profile eprof]
+                                   [--hops H] [--rounds R] [--state-bytes B] [--tls]
+                                   [--profile eprof]
                                    [--json] [--out FILE]
       mix tartarus.bench agents [--count N] [--creators C] [--profile eprof] [--json]
                                 [--out FILE]
@@ -16,12 +17,14 @@ defmodule Mix.Tasks.Tartarus.Bench do
   `migration` runs, in one run between the same two hosts, the platform and the floor
   (three distribution messages and a spawn of a paused process carrying the same state, no
   platform; see `TartarusTools.Bench.Floor`): one agent making N hops (default 2000:
-  latency) and K agents (default 1000) making H hops each (default 100: throughput). Both
+  latency) and K agents (default 1000) making H hops each (default 100: throughput), each
+  split in R rounds (default 4) alternating floor and platform so load changes of a shared
+  machine weigh on both alike. Both
   hosts are in this VM (`--mode virtual`, default) or each on its own BEAM node (`--mode
   peer`, two `:peer` nodes on loopback; `--tls` runs their distribution over TLS with
   mutual certificate authentication). `--profile eprof` profiles the platform's
-  throughput phase on the receiving node and prints its costliest functions. Keys: `mode,
-  tls, latency_hops, hops, agents, state_bytes, total_hops, latency_wall_ms, wall_ms,
+  throughput phase on the receiving node (in one round) and prints its costliest
+  functions. Keys: `mode, tls, latency_hops, hops, rounds, agents, state_bytes, total_hops, latency_wall_ms, wall_ms,
   us_per_hop, floor_us_per_hop, ratio_latency, median_us, p99_us, samples, hops_per_s,
   floor_hops_per_s, ratio_throughput, module_bytes_shipped, distribution, otp_release,
   schedulers` (and `profile`).
@@ -52,6 +55,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
   @switches [
     mode: :string,
     latency_hops: :integer,
+    rounds: :integer,
     hops: :integer,
     agents: :integer,
     state_bytes: :integer,
@@ -79,6 +83,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
       opts,
       [
         :latency_hops,
+        :rounds,
         :hops,
         :agents,
         :state_bytes,
@@ -108,6 +113,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
             latency_hops: opts[:latency_hops] || 2_000,
             hops: opts[:hops] || 100,
             agents: opts[:agents] || 1_000,
+            rounds: opts[:rounds] || 4,
             state_bytes: opts[:state_bytes] || 1024,
             tls: opts[:tls] || false,
             profile: profile
