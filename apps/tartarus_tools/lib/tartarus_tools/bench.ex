@@ -165,7 +165,7 @@ defmodule TartarusTools.Bench do
 
       times =
         [h1, h2]
-        |> Enum.flat_map(fn h -> :erpc.call(elem(h, 1), Tartarus, :local_hop_times, [h]) end)
+        |> Enum.flat_map(&hop_times/1)
         |> Enum.sort()
 
       # Throughput: `agents` at once, `hops` each, in rounds likewise (a profile is taken in
@@ -219,6 +219,14 @@ defmodule TartarusTools.Bench do
     after
       Tartarus.stop_host(h1)
     end
+  end
+
+  # The recent hop times of a host: `Tartarus.hop_times/1` where the facade has it, else the
+  # older `local_hop_times` on the host's node.
+  defp hop_times(host) do
+    if function_exported?(Tartarus, :hop_times, 1),
+      do: apply(Tartarus, :hop_times, [host]),
+      else: :erpc.call(elem(host, 1), Tartarus, :local_hop_times, [host])
   end
 
   # `n` in `rounds` parts (the first ones one larger), none empty.

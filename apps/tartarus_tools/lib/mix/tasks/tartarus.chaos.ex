@@ -77,11 +77,17 @@ defmodule Mix.Tasks.Tartarus.Chaos do
 
   # `--durable` is passed to every host as `durable: true`, if the platform has that option.
   defp durable_opts(true) do
-    case Tartarus.Host.validate_opts(durable: true) do
-      {:ok, _} ->
+    # Asked of the platform itself: a host started with the option, then stopped.
+    probe = :"tartarus_chaos_durable_probe_#{System.unique_integer([:positive])}"
+
+    case Tartarus.start_host(probe, durable: true) do
+      {:ok, host} ->
+        Tartarus.stop_host(host)
         [durable: true]
 
-      {:error, message} ->
+      {:error, reason} ->
+        message = if is_binary(reason), do: reason, else: inspect(reason)
+
         Mix.raise(
           "mix tartarus.chaos: --durable needs a platform whose hosts take the option " <>
             "`durable: true`; this one does not (#{message})"
