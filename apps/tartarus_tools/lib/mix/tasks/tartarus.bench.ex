@@ -50,7 +50,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     mode: :string,
