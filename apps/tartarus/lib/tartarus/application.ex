@@ -15,6 +15,7 @@ defmodule Tartarus.Application do
       {Registry, keys: :duplicate, name: Tartarus.Events.Registry},
       Tartarus.CodeCache,
       Tartarus.Host.Directory,
+      Tartarus.Overlay,
       {DynamicSupervisor, name: Tartarus.Hosts, strategy: :one_for_one}
     ]
 

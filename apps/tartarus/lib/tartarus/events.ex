@@ -25,6 +25,10 @@ defmodule Tartarus.Events do
   | `:removed`     | `:agent`, `:reason` (restart limit reached)  | `:removed`        |
   | `:message`     | `:agent`, `:bytes`                           | `:messages`, `:message_bytes` |
   | `:refused`     | `:agent`, `:from`, `:reason`                 | `:refused`        |
+  | `:broadcast`   | `:to`, `:messages`, `:bytes` (see `Tartarus.Broadcast`) | `:broadcasts`, `:broadcast_messages`, `:broadcast_bytes` |
+  | `:broadcast_received` | `:from`, `:bytes`                     | `:broadcasts_received` |
+  | `:signal`      | `:name`, `:strength`, `:span` (see `Tartarus.Signal`) | `:signals`  |
+  | `:signal_relay` | `:name`, `:source`, `:to`, `:messages`, `:bytes` | `:signal_messages`, `:signal_bytes` |
 
   Bytes are `:erlang.external_size/1` of what crosses a link (the envelope, shipped code,
   a posted message): what distributed Erlang would carry, also in virtual mode where nothing
@@ -51,7 +55,14 @@ defmodule Tartarus.Events do
     :message_bytes,
     :bytes,
     :code_bytes,
-    :refused
+    :refused,
+    :broadcasts,
+    :broadcast_messages,
+    :broadcast_bytes,
+    :broadcasts_received,
+    :signals,
+    :signal_messages,
+    :signal_bytes
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
 
