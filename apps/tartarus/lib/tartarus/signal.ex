@@ -448,9 +448,11 @@ defmodule Tartarus.Signal do
   end
 
   @doc """
-  Waits until the signal process of this node has no pending signal message, so every
-  field that only involves this node's hosts is complete (for tests and emulations that
-  run all hosts in one VM). Returns `:ok`.
+  Waits until this node's `Tartarus.Overlay` process has no pending message (signal
+  relays, broadcasts), so every field that only involves this node's hosts is complete and
+  every broadcast between them delivered (for tests and step-driven emulations that run all
+  hosts in one VM; it does not wait for other nodes). Returns `:ok`, also when `timeout`
+  ms pass first.
   """
   @spec settle(timeout()) :: :ok
   def settle(timeout \\ 30_000) do
