@@ -87,7 +87,7 @@ defmodule Tartarus.Signal do
 
   @typedoc """
   What travels with a signal: the emission's parameters (strength, span, lifetime in ms,
-  laws, data).
+  laws, data) and, once emitted, its `:id`.
   """
   @type emission :: %{
           strength: number(),
@@ -100,11 +100,13 @@ defmodule Tartarus.Signal do
         }
 
   @typedoc """
-  A contribution as a host keeps it: the source, hops from it, the base strength at those
-  hops, when it was born (this node's monotonic µs), its lifetime here (µs) and laws.
+  A contribution as a host keeps it: the source and the emission's id, hops from the
+  source, the base strength at those hops, when it was born (this node's monotonic µs),
+  its lifetime here (µs) and laws.
   """
   @type contribution :: %{
           source: Tartarus.host(),
+          emission: term(),
           hops: non_neg_integer(),
           base: float(),
           born: integer(),
@@ -260,6 +262,7 @@ defmodule Tartarus.Signal do
 
     %{
       source: source,
+      emission: Map.get(e, :id),
       hops: hops,
       base: decay(e.decay, e.strength, hops, e.span),
       born: born,
@@ -276,11 +279,17 @@ defmodule Tartarus.Signal do
   def worth(c, now), do: evaporate(c.evaporation, c.base, (now - c.born) / 1000, c.life / 1000)
 
   @doc """
-  True if contribution `new` should replace `old` at time `now`: it is worth more, or as
-  much and lasts longer.
+  True if contribution `new` should replace `old` at time `now`. Of one emission (arriving
+  by several paths) the one from fewer hops wins; of different emissions of a source (a
+  re-emission) the one worth more now, or as much and lasting longer.
   """
   @spec better?(contribution(), contribution() | nil, integer()) :: boolean()
   def better?(_new, nil, _now), do: true
+
+  # The same emission by another path: only a shorter path counts (transit time must not
+  # make a longer path look fresher).
+  def better?(%{emission: id, hops: h}, %{emission: id, hops: old_h}, _now) when id != nil,
+    do: h < old_h
 
   def better?(new, old, now) do
     wn = worth(new, now)
@@ -477,6 +486,7 @@ defmodule Tartarus.Signal do
   # info map. Returns :ok.
   def handle_emit(info, name, e) do
     now = now_us()
+    e = Map.put(e, :id, {info.ref, System.unique_integer([:monotonic])})
 
     Events.emit(
       info,

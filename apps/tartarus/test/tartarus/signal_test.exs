@@ -89,6 +89,19 @@ defmodule Tartarus.SignalTest do
     assert c.hops == 2 and c.source == addr(hd(hosts))
   end
 
+  test "one emission is relayed at most once per host, even around a cycle" do
+    hosts = ring!(6)
+    :ok = Tartarus.emit_signal(hd(hosts), :flat, 10, span: 5, decay: :none, lifetime: 600_000)
+    Signal.settle()
+    assert Enum.all?(values(hosts, :flat), &(&1 > 9.0 and &1 <= 10.0))
+    sent = Enum.map(hosts, &counts(&1).signal_messages)
+    # The emitter sends to its two neighbours; every other host relays at most once, to
+    # its one other neighbour; the host opposite takes the first copy only.
+    assert hd(sent) == 2
+    assert Enum.all?(tl(sent), &(&1 <= 1))
+    assert Enum.sum(sent) <= 7
+  end
+
   test "contributions of several sources combine by max (default) or sum, and carry data" do
     [a, b, c] = line!(3)
     :ok = Tartarus.emit_signal(a, :d, 10, span: 2, decay: :none, data: [0.1, 0.2])
