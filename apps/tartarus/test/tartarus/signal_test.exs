@@ -73,7 +73,8 @@ defmodule Tartarus.SignalTest do
     assert counts(d).signal_messages == 0
     assert counts(a).signals == 1
     assert counts(a).signal_bytes > 0
-    assert counts(b).signal_bytes == counts(a).signal_bytes
+    # One message each: the same size but for the host names and the age it carries.
+    assert abs(counts(b).signal_bytes - counts(a).signal_bytes) < 16
     # d knows nothing; c knows b's value (b relayed to it), b knows a's.
     assert Signal.neighbour_values(d, :s) == %{}
     assert Signal.neighbour_values(c, :s) == %{addr(b) => 100.0}
