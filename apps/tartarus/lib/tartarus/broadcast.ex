@@ -38,11 +38,22 @@ defmodule Tartarus.Broadcast do
 
   ## Example
 
-      {:ok, _} = Tartarus.start_host(:a)
-      {:ok, _} = Tartarus.start_host(:b, neighbours: [:a])
-      :ok = Tartarus.Broadcast.subscribe(:b)
-      {:ok, 1} = Tartarus.broadcast(:a, {:antibody, [0.1, 0.7]})
-      # receive {:tartarus_broadcast, {:a, _}, {:antibody, [0.1, 0.7]}} -> ...
+      iex> {:ok, _} = Tartarus.start_host(:bc_a)
+      iex> {:ok, _} = Tartarus.start_host(:bc_b, neighbours: [:bc_a])
+      iex> Tartarus.Broadcast.subscribe(:bc_b)
+      :ok
+      iex> Tartarus.broadcast(:bc_a, {:antibody, [0.1, 0.7]})
+      {:ok, 1}
+      iex> receive do
+      ...>   {:tartarus_broadcast, {:bc_a, _}, message} -> message
+      ...> end
+      {:antibody, [0.1, 0.7]}
+      iex> Tartarus.status(:bc_a).counts.broadcast_messages
+      1
+      iex> Tartarus.stop_host(:bc_a)
+      :ok
+      iex> Tartarus.stop_host(:bc_b)
+      :ok
   """
 
   alias Tartarus.{Events, Host, Ledger}

@@ -66,12 +66,22 @@ defmodule Tartarus.Signal do
 
   ## Example
 
-      {:ok, _} = Tartarus.start_host(:a)
-      {:ok, _} = Tartarus.start_host(:b, neighbours: [:a])
-      :ok = Tartarus.emit_signal(:a, :danger, 100, span: 2, lifetime: 60_000)
-      Tartarus.Signal.settle()
-      Tartarus.signal(:b, :danger)
-      #=> about 50.0 (half the strength at one hop of two, minus evaporation)
+      iex> {:ok, _} = Tartarus.start_host(:sig_a)
+      iex> {:ok, _} = Tartarus.start_host(:sig_b, neighbours: [:sig_a])
+      iex> {:ok, _} = Tartarus.start_host(:sig_c, neighbours: [:sig_b])
+      iex> Tartarus.emit_signal(:sig_a, :danger, 100, span: 2, data: %{problem: 7})
+      :ok
+      iex> Tartarus.Signal.settle()
+      iex> for h <- [:sig_a, :sig_b, :sig_c], do: Tartarus.signal(h, :danger)
+      [100.0, 50.0, 0.0]
+      iex> [%{hops: 1, data: %{problem: 7}}] = Tartarus.Signal.contributions(:sig_b, :danger)
+      iex> Tartarus.Signal.neighbour_values(:sig_b, :danger)
+      %{{:sig_a, node()} => 100.0}
+      iex> Enum.each([:sig_a, :sig_b, :sig_c], &Tartarus.stop_host/1)
+      :ok
+
+  (Without a `:lifetime` the signal does not evaporate; with one, reads made later give
+  less.)
   """
 
   alias Tartarus.{Events, Host, Ledger, Options}

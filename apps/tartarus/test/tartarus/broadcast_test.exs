@@ -5,6 +5,8 @@ defmodule Tartarus.BroadcastTest do
 
   alias Tartarus.Events
 
+  doctest Tartarus.Broadcast
+
   defmodule Listener do
     @moduledoc false
     # Subscribes to broadcasts on every host it arrives at and forwards them to the test.
