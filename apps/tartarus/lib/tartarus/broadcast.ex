@@ -101,7 +101,7 @@ defmodule Tartarus.Broadcast do
     bytes =
       Enum.reduce(targets, 0, fn {_, node} = to, acc ->
         msg = {:"$tartarus_broadcast", to, info.ref, message}
-        send({Tartarus.Overlay, node}, msg)
+        send({:tartarus_overlay, node}, msg)
         acc + :erlang.external_size(msg)
       end)
 
@@ -134,7 +134,7 @@ defmodule Tartarus.Broadcast do
   @spec subscribers(Tartarus.host_ref()) :: [pid()]
   def subscribers(host) do
     {name, _} = Host.address(host)
-    for {_, pid} <- :ets.lookup(Tartarus.Overlay.Subscribers, name), do: pid
+    for {_, pid} <- :ets.lookup(:tartarus_broadcast_subscribers, name), do: pid
   end
 
   defp overlay_call(host, request) do
@@ -142,7 +142,7 @@ defmodule Tartarus.Broadcast do
       {_, node} = host = Host.address(host)
 
       try do
-        GenServer.call({Tartarus.Overlay, node}, {request, host}, 10_000)
+        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
       catch
         :exit, _ -> {:error, {:unknown_host, host}}
       end
@@ -162,7 +162,7 @@ defmodule Tartarus.Broadcast do
       broadcasts_received: 1
     )
 
-    for {_, pid} <- :ets.lookup(Tartarus.Overlay.Subscribers, name) do
+    for {_, pid} <- :ets.lookup(:tartarus_broadcast_subscribers, name) do
       send(pid, {:tartarus_broadcast, from, message})
     end
 

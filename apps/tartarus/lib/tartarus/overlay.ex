@@ -3,10 +3,12 @@ defmodule Tartarus.Overlay do
   The node-level process for what hosts send to their neighbours without an agent: signal
   relays (`Tartarus.Signal`) and neighbour broadcasts (`Tartarus.Broadcast`).
 
-  It is registered as `Tartarus.Overlay` on every node, so a host addresses a neighbour's
-  node as `{Tartarus.Overlay, node}`. It owns two ETS tables, read directly by everyone:
-  `Tartarus.Overlay.Signals` (the signal fields of this node's hosts) and
-  `Tartarus.Overlay.Subscribers` (broadcast subscriptions). It monitors the hosts it holds
+  It is registered as `:tartarus_overlay` on every node, so a host addresses a neighbour's
+  node as `{:tartarus_overlay, node}` (an atom, not this module's name, so that
+  `Tartarus.Signal` and `Tartarus.Broadcast`, which this module calls, do not depend on it
+  back: no xref cycle). It owns two ETS tables, read directly by everyone:
+  `:tartarus_signals` (the signal fields of this node's hosts) and
+  `:tartarus_broadcast_subscribers` (broadcast subscriptions). It monitors the hosts it holds
   fields for and the subscribers, and forgets them when they go.
 
   Wire messages (maintainer notes):
@@ -21,13 +23,13 @@ defmodule Tartarus.Overlay do
   alias Tartarus.{Broadcast, Host, Signal}
 
   @doc false
-  def start_link(_opts), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
+  def start_link(_opts), do: GenServer.start_link(__MODULE__, nil, name: :tartarus_overlay)
 
   @impl true
   def init(nil) do
-    :ets.new(Tartarus.Overlay.Signals, [:set, :protected, :named_table, read_concurrency: true])
+    :ets.new(:tartarus_signals, [:set, :protected, :named_table, read_concurrency: true])
 
-    :ets.new(Tartarus.Overlay.Subscribers, [
+    :ets.new(:tartarus_broadcast_subscribers, [
       :bag,
       :protected,
       :named_table,
@@ -59,8 +61,8 @@ defmodule Tartarus.Overlay do
       {:ok, info} ->
         {name, _} = info.ref
 
-        if :ets.match_object(Tartarus.Overlay.Subscribers, {name, pid}) == [] do
-          :ets.insert(Tartarus.Overlay.Subscribers, {name, pid})
+        if :ets.match_object(:tartarus_broadcast_subscribers, {name, pid}) == [] do
+          :ets.insert(:tartarus_broadcast_subscribers, {name, pid})
           mref = Process.monitor(pid)
           {:reply, :ok, %{state | subs: Map.put(state.subs, mref, {name, pid})}}
         else
@@ -74,7 +76,7 @@ defmodule Tartarus.Overlay do
 
   def handle_call({{:unsubscribe, pid}, host}, _from, state) do
     {name, _} = Host.address(host)
-    :ets.delete_object(Tartarus.Overlay.Subscribers, {name, pid})
+    :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
 
     {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub == {name, pid} end)
     Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
@@ -106,7 +108,7 @@ defmodule Tartarus.Overlay do
   def handle_info({:DOWN, mref, :process, _pid, _reason}, state) do
     case Map.pop(state.subs, mref) do
       {{name, pid}, subs} ->
-        :ets.delete_object(Tartarus.Overlay.Subscribers, {name, pid})
+        :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
         {:noreply, %{state | subs: subs}}
 
       {nil, _} ->
@@ -137,7 +139,7 @@ defmodule Tartarus.Overlay do
   defp forget_host(state, mref) do
     case Enum.find(state.hosts, fn {_, {m, _}} -> m == mref end) do
       {name, _} ->
-        :ets.select_delete(Tartarus.Overlay.Signals, [
+        :ets.select_delete(:tartarus_signals, [
           {{{:"$1", :_}, :_}, [{:"=:=", :"$1", {:const, name}}], [true]}
         ])
 

@@ -430,7 +430,7 @@ defmodule Tartarus.Signal do
   end
 
   defp lookup(host_name, name) do
-    case :ets.lookup(Tartarus.Overlay.Signals, {host_name, name}) do
+    case :ets.lookup(:tartarus_signals, {host_name, name}) do
       [{_, field}] -> field
       [] -> nil
     end
@@ -456,7 +456,7 @@ defmodule Tartarus.Signal do
         {_, node} = host = Host.address(host)
 
         try do
-          GenServer.call({Tartarus.Overlay, node}, {:emit, host, name, e}, 10_000)
+          GenServer.call({:tartarus_overlay, node}, {:emit, host, name, e}, 10_000)
         catch
           :exit, _ -> {:error, {:unknown_host, host}}
         end
@@ -480,7 +480,7 @@ defmodule Tartarus.Signal do
   end
 
   defp do_settle(deadline) do
-    case GenServer.call(Tartarus.Overlay, :idle?, 30_000) do
+    case GenServer.call(:tartarus_overlay, :idle?, 30_000) do
       true ->
         :ok
 
@@ -523,7 +523,7 @@ defmodule Tartarus.Signal do
         by_source |> Map.put(source, said) |> prune(now)
       end)
 
-    :ets.insert(Tartarus.Overlay.Signals, {{host_name, name}, field})
+    :ets.insert(:tartarus_signals, {{host_name, name}, field})
     take(info, name, source, from, e, from_hops + 1, born, now)
   end
 
@@ -534,7 +534,7 @@ defmodule Tartarus.Signal do
 
     if hops <= e.span and worth(c, now) > 0 and better?(c, field.own[source], now) do
       own = field.own |> Map.put(source, c) |> prune(now)
-      :ets.insert(Tartarus.Overlay.Signals, {{host_name, name}, %{field | own: own}})
+      :ets.insert(:tartarus_signals, {{host_name, name}, %{field | own: own}})
       if hops < e.span, do: relay(info, name, source, from, e, hops, now - born)
     end
 
@@ -547,7 +547,7 @@ defmodule Tartarus.Signal do
     bytes =
       Enum.reduce(targets, 0, fn {_, node} = to, acc ->
         msg = {:"$tartarus_signal", to, info.ref, name, source, e, hops, age_us}
-        send({Tartarus.Overlay, node}, msg)
+        send({:tartarus_overlay, node}, msg)
         acc + :erlang.external_size(msg)
       end)
 

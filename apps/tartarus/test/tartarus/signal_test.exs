@@ -234,6 +234,6 @@ defmodule Tartarus.SignalTest do
     :ok = Tartarus.emit_signal(name, :gone, 5)
     assert Tartarus.signal(name, :gone) == 5.0
     :ok = Tartarus.stop_host(name)
-    assert eventually(fn -> :ets.lookup(Tartarus.Overlay.Signals, {name, :gone}) == [] end)
+    assert eventually(fn -> :ets.lookup(:tartarus_signals, {name, :gone}) == [] end)
   end
 end
