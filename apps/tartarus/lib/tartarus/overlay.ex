@@ -14,6 +14,8 @@ defmodule Tartarus.Overlay do
   Wire messages (maintainer notes):
 
       {:"$tartarus_signal", to_host, from_host, name, source, emission, from_hops, age_us}
+        (emission packed as {id, strength, span, lifetime, decay, lifetime_decay,
+         evaporation, data})
       {:"$tartarus_broadcast", to_host, from_host, message}
 
   A message for a host that does not run on this node is dropped.
@@ -85,7 +87,7 @@ defmodule Tartarus.Overlay do
 
   @impl true
   def handle_info({:"$tartarus_signal", to, from, name, source, e, hops, age}, state)
-      when is_map(e) and is_integer(hops) and is_integer(age) do
+      when is_tuple(e) and tuple_size(e) == 8 and is_integer(hops) and is_integer(age) do
     case local(to) do
       {:ok, info} ->
         Signal.handle_relay(info, from, name, source, e, hops, age)

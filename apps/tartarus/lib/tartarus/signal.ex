@@ -510,7 +510,8 @@ defmodule Tartarus.Signal do
   @doc false
   # A relay arrived at `info`'s host from neighbour `from`, which holds the signal at
   # `from_hops` hops from `source`, aged `age_us`.
-  def handle_relay(info, from, name, source, e, from_hops, age_us) do
+  def handle_relay(info, from, name, source, packed, from_hops, age_us) do
+    e = unpack(packed)
     now = now_us()
     born = now - age_us
     {host_name, _} = info.ref
@@ -546,7 +547,7 @@ defmodule Tartarus.Signal do
 
     bytes =
       Enum.reduce(targets, 0, fn {_, node} = to, acc ->
-        msg = {:"$tartarus_signal", to, info.ref, name, source, e, hops, age_us}
+        msg = {:"$tartarus_signal", to, info.ref, name, source, pack(e), hops, age_us}
         send({:tartarus_overlay, node}, msg)
         acc + :erlang.external_size(msg)
       end)
@@ -569,6 +570,24 @@ defmodule Tartarus.Signal do
         signal_bytes: bytes
       )
     end
+  end
+
+  # The emission on the wire: a tuple (a map would repeat its keys in every message).
+  defp pack(e),
+    do: {e.id, e.strength, e.span, e.lifetime, e.decay, e.lifetime_decay, e.evaporation, e.data}
+
+  @doc false
+  def unpack({id, strength, span, lifetime, decay, lifetime_decay, evaporation, data}) do
+    %{
+      id: id,
+      strength: strength,
+      span: span,
+      lifetime: lifetime,
+      decay: decay,
+      lifetime_decay: lifetime_decay,
+      evaporation: evaporation,
+      data: data
+    }
   end
 
   # Drops contributions that evaporated.
