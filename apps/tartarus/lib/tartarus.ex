@@ -356,4 +356,24 @@ defmodule Tartarus do
   rescue
     e -> {:error, {:compile_error, Exception.message(e)}}
   end
+
+  # -- signals and broadcasts (see Tartarus.Signal, Tartarus.Broadcast) ---------------
+
+  @doc """
+  Emits signal `name` of strength `strength` at `host`; it spreads to the hosts around it,
+  decaying with hops and evaporating with time. See `Tartarus.Signal.emit/4`.
+  """
+  @spec emit_signal(host_ref(), term(), number(), keyword()) :: :ok | {:error, term()}
+  defdelegate emit_signal(host, name, strength, opts \\ []), to: Tartarus.Signal, as: :emit
+
+  @doc "The value of signal `name` at `host` now. See `Tartarus.Signal.value/3`."
+  @spec signal(host_ref(), term(), keyword()) :: float() | {:error, term()}
+  defdelegate signal(host, name, opts \\ []), to: Tartarus.Signal, as: :value
+
+  @doc """
+  Sends `message` to every neighbour of `host`, counted like migrations. See
+  `Tartarus.Broadcast`.
+  """
+  @spec broadcast(host_ref(), term()) :: {:ok, non_neg_integer()} | {:error, term()}
+  defdelegate broadcast(host, message), to: Tartarus.Broadcast
 end

@@ -44,7 +44,8 @@ defmodule Tartarus.Application do
       registry(keys: :duplicate, name: Tartarus.Events.Registry),
       Tartarus.AgentTable,
       Tartarus.CodeCache,
-      Tartarus.Host.Directory
+      Tartarus.Host.Directory,
+      Tartarus.Overlay
     ]
 
     host_tree = [

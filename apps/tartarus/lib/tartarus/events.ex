@@ -26,6 +26,10 @@ defmodule Tartarus.Events do
   | `:message`     | `:agent`, `:bytes`                           | `:messages`, `:message_bytes` |
   | `:refused`     | `:agent`, `:from`, `:reason`                 | `:refused`        |
   | `:dropped`     | `:service`, `:kind`                          | `:dropped`        |
+  | `:broadcast`   | `:to`, `:messages`, `:bytes` (see `Tartarus.Broadcast`) | `:broadcasts`, `:broadcast_messages`, `:broadcast_bytes` |
+  | `:broadcast_received` | `:from`, `:bytes`                     | `:broadcasts_received` |
+  | `:signal`      | `:name`, `:strength`, `:span` (see `Tartarus.Signal`) | `:signals`  |
+  | `:signal_relay` | `:name`, `:source`, `:to`, `:messages`, `:bytes` | `:signal_messages`, `:signal_bytes` |
 
   A `:dropped` event is a message, cast or call that a platform process did not expect (from
   another node, well-formed or not) and dropped instead of crashing (`:host` is `nil` for the
@@ -61,7 +65,14 @@ defmodule Tartarus.Events do
     :bytes,
     :code_bytes,
     :refused,
-    :dropped
+    :dropped,
+    :broadcasts,
+    :broadcast_messages,
+    :broadcast_bytes,
+    :broadcasts_received,
+    :signals,
+    :signal_messages,
+    :signal_bytes
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
 

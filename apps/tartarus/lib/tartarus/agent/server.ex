@@ -327,12 +327,8 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  defp gradients(data, {:gradient, signal}) do
-    case :ets.lookup(data.host.store, {:gradient, signal}) do
-      [{_, strengths}] when is_map(strengths) -> %{signal => strengths}
-      _ -> %{}
-    end
-  end
+  defp gradients(data, {:gradient, signal}),
+    do: %{signal => Tartarus.Signal.strategy_gradient(data.host, signal)}
 
   defp gradients(_data, _spec), do: %{}
 
@@ -412,7 +408,10 @@ defmodule Tartarus.Agent.Server do
         Tartarus.Fault.point(:committing, new_pid)
         send(new_pid, {:"$tartarus_commit", mig, notify})
         # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
-        if kind == :move, do: {:moved, new_pid, data}, else: {:cloned, out.id, data}
+        if kind == :move,
+          do: {:moved, new_pid, data},
+          else:
+            {:cloned, out.id, put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))}
 
       {:error, reason} ->
         unwatch(mref)
@@ -509,7 +508,7 @@ defmodule Tartarus.Agent.Server do
       | id: id,
         name: Envelope.clone_name(env.name, id),
         clone_of: env.id,
-        rng: Envelope.seed_rng({env.rng, id}),
+        rng: elem(Tartarus.Random.fork(env.rng), 0),
         departed_at: System.system_time(:microsecond)
     }
   end
