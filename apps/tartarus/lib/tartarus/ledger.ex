@@ -8,13 +8,15 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id | name}           {_, dest_host, at_us, mig, notify}
+  #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy}, notify}
   #                                                          forwarding pointer (and the record
   #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
   #   {:arriving, id}             {_, pid}                   a paused copy (destination)
-  #   {:decision, mig}            {_, :committed | :aborted} (committed: only until the
-  #                                                          forwarding pointer is written)
+  #   {:decision, mig}            {_, {:committed, copy} | :aborted} (a committed move's:
+  #                                                          only until the forwarding pointer
+  #                                                          is written)
+  #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
 
@@ -69,45 +71,45 @@ defmodule Tartarus.Ledger do
   # The source agent's decision. Returns false if the migration was decided otherwise.
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
-  # The agent committed migration `mig` to `dest`: leave a forwarding pointer (which also
-  # records the commit for a destination that asks, see decision/3) and stop being resident.
-  # `notify` (a GenServer from, or nil) is who waits for the move to finish: a destination
-  # that learns of the commit by asking (the commit message was lost) answers it.
-  def depart(host, id, name, dest, mig, notify) do
+  # The agent committed migration `mig` (copy `copy`) to `dest`: leave a forwarding pointer
+  # (which also records the commit for a destination that asks, see decision/4) and stop
+  # being resident. `notify` (a GenServer from, or nil) is who waits for the move to finish:
+  # a destination that learns of the commit by asking (the commit message was lost) answers it.
+  def depart(host, id, name, dest, mig, copy, notify) do
     now = System.system_time(:microsecond)
-    :ets.insert(host.ledger, {{:fwd, id}, dest, now, mig, notify})
-    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, mig, nil})
+    :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, {mig, copy}, nil})
     forget_resident(host, self())
     end_handoff(host, id)
     # The forwarding pointer now stands for the decision.
     :ets.delete(host.ledger, {:decision, mig})
   end
 
-  # The outcome of migration `mig` of agent `id` as this (source) host knows it.
-  #
-  # A migration started by an earlier run of this host (the host crashed or was restarted)
-  # that left no committed record is aborted: with persistence the agent was restored here
-  # from its checkpoint; without, the earlier run may have aborted it and sent the agent
-  # elsewhere, so starting the copy could duplicate it. (Without persistence an agent whose
-  # commit was decided but not recorded dies with the earlier run, like every agent there.)
-  def decision(host, {incarnation, _} = mig, id) do
-    case :ets.lookup(host.ledger, {:decision, mig}) do
-      [{_, d}] ->
-        d
+  # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
+  # (source) host: Tartarus.Migration.Protocol.answer/4 over what the ledger holds.
+  def decision(host, mig, id, copy) do
+    decision =
+      case :ets.lookup(host.ledger, {:decision, mig}) do
+        [{_, d}] -> d
+        [] -> nil
+      end
 
-      [] ->
-        case :ets.lookup(host.ledger, {:fwd, id}) do
-          [{_, _dest, _at, ^mig, notify}] ->
-            {:committed, notify}
+    pointer =
+      case :ets.lookup(host.ledger, {:fwd, id}) do
+        [{_, _dest, _at, {m, c}, notify}] -> {m, c, notify}
+        _ -> nil
+      end
 
-          _ ->
-            cond do
-              incarnation == host.incarnation -> :unknown
-              true -> :aborted
-            end
-        end
-    end
+    Tartarus.Migration.Protocol.answer(
+      %{decision: decision, pointer: pointer},
+      mig,
+      copy,
+      host.incarnation
+    )
   end
+
+  def count(%{ledger: l}, name),
+    do: :ets.update_counter(l, {:count, name}, 1, {{:count, name}, 0})
 
   # After a crash of agent `id`: abort its pending hand-off if there is one. True if the agent
   # is still ours to restart, false if it had committed a migration (it lives elsewhere).

@@ -27,29 +27,13 @@ defmodule Tartarus.Wire do
   def default_max_bytes, do: @default_max_bytes
 
   @doc """
-  Checks a prepare message's fields (see `Tartarus.Host.Server` for the protocol).
+  Checks a prepare message's fields (`Tartarus.Migration.Protocol.check_prepare/2`).
 
       iex> Tartarus.Wire.check_prepare(:nonsense, 1_000)
       {:error, {:bad_message, :not_a_prepare}}
   """
   @spec check_prepare(term(), pos_integer()) :: :ok | {:error, {:bad_message, term()}}
-  def check_prepare(
-        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
-        max_bytes
-      ) do
-    with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
-         :ok <- check(migration_id?(mig), :migration_id),
-         :ok <- check(Tartarus.Host.address?(src) and is_tuple(src), :source_host),
-         :ok <- check(kind in [:move, :clone], :kind),
-         :ok <- check_envelope(env),
-         :ok <- check_manifest(manifest),
-         :ok <- check_code(code) do
-      size = :erlang.external_size({env, manifest, code})
-      check(size <= max_bytes, {:too_large, size, max_bytes})
-    end
-  end
-
-  def check_prepare(_other, _max), do: {:error, {:bad_message, :not_a_prepare}}
+  defdelegate check_prepare(msg, max_bytes), to: Tartarus.Migration.Protocol
 
   @doc """
   Checks an envelope: a `Tartarus.Envelope` with every field of the right type.
@@ -170,38 +154,17 @@ defmodule Tartarus.Wire do
 
   defp rng?(_), do: false
 
-  @doc "Checks a manifest: a list of `{module, md5}` pairs."
+  @doc "Checks a manifest (`Tartarus.Migration.Protocol.check_manifest/1`)."
   @spec check_manifest(term()) :: :ok | {:error, {:bad_message, term()}}
-  def check_manifest(m) when is_list(m) and length(m) <= @max_modules do
-    check(
-      Enum.all?(m, &match?({mod, <<_::128>>} when is_atom(mod) and mod != nil, &1)),
-      :manifest
-    )
-  end
+  defdelegate check_manifest(m), to: Tartarus.Migration.Protocol
 
-  def check_manifest(_), do: {:error, {:bad_message, :manifest}}
-
-  @doc "Checks shipped code: a list of `{module, md5, beam_binary}`."
+  @doc "Checks shipped code (`Tartarus.Migration.Protocol.check_code/1`)."
   @spec check_code(term()) :: :ok | {:error, {:bad_message, term()}}
-  def check_code(c) when is_list(c) and length(c) <= @max_modules do
-    ok =
-      Enum.all?(
-        c,
-        &match?({mod, <<_::128>>, bin} when is_atom(mod) and mod != nil and is_binary(bin), &1)
-      )
+  defdelegate check_code(c), to: Tartarus.Migration.Protocol
 
-    check(ok, :code)
-  end
-
-  def check_code(_), do: {:error, {:bad_message, :code}}
-
-  @doc "Checks a decision query `{:\"$tartarus_decision?\", mig, id, pid}`."
+  @doc "Checks a decision query (`Tartarus.Migration.Protocol.check_decision_query/1`)."
   @spec check_decision_query(term()) :: :ok | {:error, {:bad_message, term()}}
-  def check_decision_query({:"$tartarus_decision?", mig, id, pid}) do
-    check(migration_id?(mig) and is_binary(id) and is_pid(pid), :decision_query)
-  end
-
-  def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
+  defdelegate check_decision_query(q), to: Tartarus.Migration.Protocol
 
   @doc "Checks a call to a host's server."
   @spec check_call(term()) :: :ok | {:error, {:bad_message, term()}}
@@ -225,9 +188,6 @@ defmodule Tartarus.Wire do
   defp link_props?(_), do: false
 
   defp agent_key?(a), do: (is_binary(a) and byte_size(a) <= @max_name_bytes) or is_atom(a)
-
-  defp migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
-  defp migration_id?(_), do: false
 
   defp check(true, _what), do: :ok
   defp check(false, what), do: {:error, {:bad_message, what}}

@@ -5,9 +5,10 @@ defmodule Tartarus.Host.Persistence do
   #
   #   {:agent, id, env}                  agent arrived (or was created): its snapshot
   #   {:forget, id}                      agent stopped, or was killed
-  #   {:in_doubt, mig, env, src, kind}   this host prepared a paused copy (destination)
+  #   {:in_doubt, mig, env, src, kind, copy}  this host prepared paused copy `copy` (destination)
   #   {:resolved, mig}                   that copy was committed or aborted
-  #   {:decision, mig, id}               this host committed a migration of agent id (source)
+  #   {:decision, mig, id, copy}         this host committed migration mig of agent id to the
+  #                                      paused copy `copy` (source)
   #
   # Replaying the journal in order gives the state to restore; a `decision` or a later
   # `agent` record supersedes earlier records about the same agent, so a host that died
@@ -45,16 +46,16 @@ defmodule Tartarus.Host.Persistence do
   def forget(%{journal: nil}, _id), do: :ok
   def forget(%{journal: j}, id), do: append(j, {:forget, id})
 
-  def in_doubt(%{journal: nil}, _mig, _env, _src, _kind), do: :ok
+  def in_doubt(%{journal: nil}, _mig, _env, _src, _kind, _copy), do: :ok
 
-  def in_doubt(%{journal: j}, mig, env, src, kind),
-    do: append(j, {:in_doubt, mig, env, src, kind})
+  def in_doubt(%{journal: j}, mig, env, src, kind, copy),
+    do: append(j, {:in_doubt, mig, env, src, kind, copy})
 
   def resolved(%{journal: nil}, _mig), do: :ok
   def resolved(%{journal: j}, mig), do: append(j, {:resolved, mig})
 
-  def committed(%{journal: nil}, _mig, _id), do: :ok
-  def committed(%{journal: j}, mig, id), do: append(j, {:decision, mig, id})
+  def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
+  def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
 
   defp append(%{io: io}, record), do: :ok = IO.binwrite(io, frame(record))
 
@@ -66,13 +67,16 @@ defmodule Tartarus.Host.Persistence do
   # -- replay ------------------------------------------------------------------------
 
   defp replay(path) do
-    empty = %{agents: %{}, in_doubt: %{}, decisions: %{}}
-
     case File.read(path) do
-      {:ok, bin} -> frames(bin, empty)
-      {:error, :enoent} -> empty
+      {:ok, bin} -> frames(bin, empty())
+      {:error, :enoent} -> empty()
     end
   end
+
+  @doc false
+  # The replayed state of an empty journal (the fold of apply_record/2 over the records;
+  # the protocol model folds the same way).
+  def empty, do: %{agents: %{}, in_doubt: %{}, decisions: %{}}
 
   # A torn last frame (the node died mid-write) ends the replay.
   defp frames(<<size::32, bin::binary-size(size), rest::binary>>, state) do
@@ -81,40 +85,48 @@ defmodule Tartarus.Host.Persistence do
 
   defp frames(_torn_or_empty, state), do: state
 
-  defp apply_record({:agent, id, env}, s),
+  @doc false
+  def apply_record({:agent, id, env}, s),
     do: %{s | agents: Map.put(s.agents, id, env), in_doubt: drop_agent(s.in_doubt, id)}
 
-  defp apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
+  def apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
 
-  defp apply_record({:in_doubt, mig, env, src, kind}, s),
-    do: %{s | in_doubt: Map.put(s.in_doubt, mig, {env, src, kind})}
+  def apply_record({:in_doubt, mig, env, src, kind, copy}, s),
+    do: %{s | in_doubt: Map.put(s.in_doubt, mig, {env, src, kind, copy})}
 
-  defp apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
+  def apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
 
-  defp apply_record({:decision, mig, id}, s) do
+  def apply_record({:decision, mig, id, copy}, s) do
     # A move to this same host has its in-doubt copy here too: that one stays (it asks, finds
     # the decision and starts).
     %{
       s
       | agents: Map.delete(s.agents, id),
         in_doubt: drop_agent(s.in_doubt, id, mig),
-        decisions: Map.put(s.decisions, mig, id)
+        decisions: Map.put(s.decisions, mig, {id, copy})
     }
   end
 
+  # A record of an earlier format: skipped.
+  def apply_record(_other, s), do: s
+
   defp drop_agent(in_doubt, id, keep \\ nil),
-    do: Map.reject(in_doubt, fn {mig, {env, _, _}} -> env.id == id and mig != keep end)
+    do: Map.reject(in_doubt, fn {mig, {env, _, _, _}} -> env.id == id and mig != keep end)
 
   defp records(s) do
-    Enum.map(s.decisions, fn {mig, id} -> {:decision, mig, id} end) ++
-      Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {:in_doubt, mig, env, src, kind} end) ++
+    Enum.map(s.decisions, fn {mig, {id, copy}} -> {:decision, mig, id, copy} end) ++
+      Enum.map(s.in_doubt, fn {mig, {env, src, kind, copy}} ->
+        {:in_doubt, mig, env, src, kind, copy}
+      end) ++
       Enum.map(s.agents, fn {id, env} -> {:agent, id, env} end)
   end
 
-  defp restored(s) do
+  @doc false
+  # {agents, in_doubt as [{mig, env, src, kind, copy}], decisions as [{mig, copy}]}.
+  def restored(s) do
     {Map.values(s.agents),
-     Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {mig, env, src, kind} end),
-     Map.keys(s.decisions)}
+     Enum.map(s.in_doubt, fn {mig, {env, src, kind, copy}} -> {mig, env, src, kind, copy} end),
+     Enum.map(s.decisions, fn {mig, {_id, copy}} -> {mig, copy} end)}
   end
 
   defp safe(name), do: name |> to_string() |> String.replace(~r/[^A-Za-z0-9_.-]/, "_")

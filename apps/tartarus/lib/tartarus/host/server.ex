@@ -5,27 +5,17 @@ defmodule Tartarus.Host.Server do
   # migrations that left from here, and watches its agents to restart crashed ones from
   # their arrival snapshot.
   #
-  # Wire protocol (maintainer notes). S = source agent process, H = this server,
-  # A = the paused agent H creates:
+  # The hand-off protocol (messages, decision rule, guarantees) is specified and decided in
+  # Tartarus.Migration.Protocol; this server runs its destination side (admission) and
+  # answers decision queries as the source host, carrying out the protocol's actions.
   #
-  #   S -> H  {:"$tartarus_prepare", s_pid, mig, src_host, src_host_pid, kind, envelope, manifest, code}
-  #   H -> S  {:"$tartarus_need", mig, [module]}            modules H lacks; S resends with code
-  #   H -> S  {:"$tartarus_prepared", mig, a_pid}           A exists, paused
-  #   H -> S  {:"$tartarus_refused", mig, reason}           nothing was created
-  #   S -> A  {:"$tartarus_commit", mig, notify}            A becomes the agent (and answers
-  #                                                         `notify`, a GenServer from, if set)
-  #   A -> Hs {:"$tartarus_decision?", mig, id, a_pid}      A timed out waiting for commit
-  #   Hs -> A {:"$tartarus_decision", mig, :committed | {:committed, notify} | :aborted | :unknown}
-  #
-  # The decision is the entry {{:decision, mig}, :committed | :aborted} in the source host's
-  # ledger, written once with :ets.insert_new/2 by the source agent (or by the source host
-  # when that agent crashed mid-hand-off). Once a committed agent has left, its forwarding
-  # pointer (which names `mig`) stands for the decision, so no acknowledgement crosses the
-  # link. Neither side guesses: A waits for commit or for an answer from the source host,
-  # however long that takes.
+  # Nothing any node sends crashes it: unexpected calls are answered
+  # {:error, {:bad_message, _}}, unexpected casts and messages are dropped and counted in
+  # the ledger ({:count, :dropped}), and a :DOWN counts only for a monitor this server made.
   use GenServer
 
-  alias Tartarus.{CodeCache, Envelope, Events}
+  alias Tartarus.{CodeCache, Envelope, Events, Ledger}
+  alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
 
@@ -47,7 +37,7 @@ defmodule Tartarus.Host.Server do
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
     {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
     # Migrations an earlier run of this host committed: answers for destinations in doubt.
-    :ets.insert(ledger, for(mig <- decided, do: {{:decision, mig}, :committed}))
+    :ets.insert(ledger, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
 
     host = %{
       ref: {name, node()},
@@ -72,6 +62,7 @@ defmodule Tartarus.Host.Server do
        monitors: %{},
        killing: MapSet.new(),
        admission: opts[:admission],
+       dest: Protocol.destination(),
        restore: {agents, in_doubt}
      }}
   end
@@ -157,8 +148,8 @@ defmodule Tartarus.Host.Server do
       end)
 
     state =
-      Enum.reduce(in_doubt, state, fn {mig, env, src, kind}, state ->
-        case start_agent(state, env, {:paused, mig, src, nil, kind}) do
+      Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
+        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
           {:ok, _pid, state} -> state
           {:error, _reason, state} -> state
         end
@@ -167,79 +158,126 @@ defmodule Tartarus.Host.Server do
     {:reply, {:ok, length(agents), length(in_doubt)}, state}
   end
 
-  defp call(:paused, _from, state) do
-    {:reply, map_size(state.monitors) - Tartarus.Ledger.counter(state.host, :resident), state}
-  end
+  defp call(:paused, _from, state), do: {:reply, paused(state), state}
 
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
-    case Tartarus.Wire.check_prepare(msg, state.host.opts.max_envelope_bytes) do
-      :ok -> admit(state, msg)
-      {:error, reason} -> refuse(state, s_pid, mig, env, src, reason)
+    case Protocol.check_prepare(msg, state.host.opts.max_envelope_bytes) do
+      :ok ->
+        {:prepare, p} = Protocol.classify(msg)
+        {:noreply, admission(state, {:prepare, p})}
+
+      {:error, reason} ->
+        {:noreply, refuse(state, s_pid, mig, env, src, reason)}
     end
   end
 
-  def handle_info({:"$tartarus_decision?", mig, id, a_pid} = msg, state) do
-    if Tartarus.Wire.check_decision_query(msg) == :ok do
-      send(a_pid, {:"$tartarus_decision", mig, Tartarus.Ledger.decision(state.host, mig, id)})
+  def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
+    if Protocol.check_decision_query(msg) == :ok do
+      send(a_pid, Protocol.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
+    else
+      Ledger.count(state.host, :dropped)
     end
 
     {:noreply, state}
   end
 
-  def handle_info({:DOWN, mref, :process, pid, reason}, state) do
+  # Only a monitor this server made counts: a forged :DOWN changes nothing.
+  def handle_info({:DOWN, mref, :process, pid, reason}, state)
+      when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
     killed? = MapSet.member?(state.killing, pid)
     state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
-    resident? = Tartarus.Ledger.forget_resident(state.host, pid)
-    if entry, do: :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
+    resident? = Ledger.forget_resident(state.host, pid)
+    :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
     {:noreply, agent_down(state, entry, reason, resident?, killed?)}
   end
 
-  def handle_info(:sweep, state) do
-    ttl = state.host.opts.forward_ttl
-    Tartarus.Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
+  def handle_info(:sweep, %{host: %{opts: %{forward_ttl: ttl}}} = state) when is_integer(ttl) do
+    Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
     schedule_sweep(ttl)
     {:noreply, state}
   end
 
   def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
 
-  def handle_info(_other, state), do: {:noreply, state}
+  def handle_info(_other, state) do
+    Ledger.count(state.host, :dropped)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_cast(_other, state) do
+    Ledger.count(state.host, :dropped)
+    {:noreply, state}
+  end
 
   @impl true
   def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.journal)
 
-  # -- admission ---------------------------------------------------------------
+  # -- admission (the destination side of the protocol) -----------------------------
 
-  defp admit(state, {_, s_pid, mig, src, src_pid, kind, env, manifest, code}) do
-    env = Tartarus.Fault.point(:admitting, env)
+  # Paused copies a host without an admission policy holds at most (with a policy they count
+  # against its max_resident_agents).
+  @max_paused 10_000
 
-    with :ok <- trusted(state, env, manifest, mig),
-         :ok <- heap_fits(state, env),
-         :ok <- prepare(state, env, manifest, code),
-         {:ok, state} <- policy(state, src, env) do
-      case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
-        {:ok, pid, state} ->
-          # Findable (messages to it wait until it starts) and durable before the source
-          # may commit.
-          :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
-          Tartarus.Host.Persistence.in_doubt(state.host, mig, env, src, kind)
-          send(s_pid, {:"$tartarus_prepared", mig, pid})
-          {:noreply, state}
+  defp admission(state, event) do
+    {dest, actions} = Protocol.destination_step(state.dest, event)
+    Enum.reduce(actions, %{state | dest: dest}, &admission_action/2)
+  end
 
-        {:error, reason, state} ->
-          refuse(state, s_pid, mig, env, src, reason)
+  defp admission_action({:check, p}, state) do
+    env = Tartarus.Fault.point(:admitting, p.env)
+    p = %{p | env: env}
+
+    {verdict, state} =
+      with :ok <- trusted(state, p),
+           :ok <- heap_fits(state, env),
+           :ok <- capacity(state),
+           :ok <- prepare(state, env, p.manifest, p.code),
+           {:ok, state} <- policy(state, p.src, env) do
+        {:ok, state}
+      else
+        {:need, mods} -> {{:need, mods}, state}
+        {:error, reason} -> {{:error, reason}, state}
       end
-    else
-      {:need, mods} ->
-        send(s_pid, {:"$tartarus_need", mig, mods})
-        {:noreply, state}
 
-      {:error, reason} ->
-        refuse(state, s_pid, mig, env, src, reason)
+    admission(state, {:checked, p, verdict, :crypto.strong_rand_bytes(16)})
+  end
+
+  defp admission_action({:create, p, copy}, state) do
+    case start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind}) do
+      {:ok, pid, state} ->
+        # Findable (messages to it wait until it starts).
+        :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
+        admission(state, {:created, p, copy, pid})
+
+      {:error, reason, state} ->
+        admission(state, {:create_failed, p, reason})
     end
   end
+
+  # Durable before `prepared` leaves.
+  defp admission_action({:journal_in_doubt, p, copy}, state) do
+    Tartarus.Host.Persistence.in_doubt(state.host, p.mig, p.env, p.src, p.kind, copy)
+    state
+  end
+
+  defp admission_action({:send, pid, msg}, state) do
+    if is_pid(pid), do: send(pid, msg)
+    state
+  end
+
+  defp admission_action({:refuse, p, reason}, state),
+    do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
+
+  defp paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
+
+  defp capacity(%{admission: nil} = state) do
+    if paused(state) < @max_paused, do: :ok, else: {:error, {:busy, :paused_copies}}
+  end
+
+  defp capacity(_state), do: :ok
 
   # An agent whose state alone would not fit in the host's per-agent heap limit is refused
   # here, not killed after its source committed.
@@ -250,9 +288,9 @@ defmodule Tartarus.Host.Server do
     if size * 2 <= words, do: :ok, else: {:error, {:too_large_for_heap, size, words}}
   end
 
-  defp trusted(state, env, manifest, mig) do
+  defp trusted(state, p) do
     case state.host.opts.security do
-      %{trust: trust} -> Tartarus.Security.check(env, manifest, mig, trust)
+      %{trust: trust} -> Tartarus.Security.check_prepare(p, trust)
       _ -> :ok
     end
   end
@@ -266,7 +304,8 @@ defmodule Tartarus.Host.Server do
       envelope_bytes: :erlang.external_size(env),
       payload_bytes: :erlang.external_size({env.state, env.payload}),
       hops: env.hops + 1,
-      resident: Tartarus.Ledger.counter(state.host, :resident)
+      # Paused copies count: a stranger's prepares cannot hold more than the limit.
+      resident: map_size(state.monitors)
     }
 
     case Tartarus.Security.Admission.admit(
@@ -304,7 +343,7 @@ defmodule Tartarus.Host.Server do
       refused: 1
     )
 
-    {:noreply, state}
+    state
   end
 
   # -- agents ------------------------------------------------------------------
@@ -336,8 +375,6 @@ defmodule Tartarus.Host.Server do
 
   defp unwrap({:bad_init, reason}), do: reason
   defp unwrap(reason), do: reason
-
-  defp agent_down(state, nil, _reason, _resident?, _killed?), do: state
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host

@@ -1,0 +1,490 @@
+defmodule Tartarus.Migration.Protocol do
+  @moduledoc """
+  The hand-off protocol of a migration (move or clone), as pure functions: its messages,
+  their validators, and the three parties' state machines written as
+  `(state, event) -> {state, actions}`. The processes that run it
+  (`Tartarus.Agent.Server` for the source and for the in-doubt copy, `Tartarus.Host.Server`
+  for admission and decision queries) only turn messages into events and carry out the
+  actions (send, journal, create a paused copy, reply, emit). The model-checked property
+  `Tartarus.Migration.ProtocolModelTest` drives these same functions over a network that
+  drops, duplicates, delays, reorders and replays messages, with crashes and partitions.
+
+  ## Parties
+
+    * **S**, the source: the agent's own process, for one attempt (`source/4`,
+      `source_step/2`). It writes the decision.
+    * **H**, the destination host's server: admits or refuses (`destination/1`,
+      `destination_step/2`), creates a paused copy **A** and answers `prepared`.
+    * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
+      nothing until it learns the decision.
+    * **Hs**, the source host's server: answers decision queries (`answer/4`).
+
+  ## Messages
+
+      S  -> H   {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
+      H  -> S   {:"$tartarus_need", mig, [module]}        modules H lacks; S resends with code
+      H  -> S   {:"$tartarus_prepared", mig, copy, a_pid} A exists, paused, journaled
+      H  -> S   {:"$tartarus_refused", mig, reason}       nothing was created
+      S  -> A   {:"$tartarus_commit", mig, copy, notify}  A becomes the agent
+      A  -> Hs  {:"$tartarus_decision?", mig, id, copy, a_pid}
+      Hs -> A   {:"$tartarus_decision", mig, copy, :committed | {:committed, notify} | :aborted | :unknown}
+
+  `mig` is `{source_incarnation, ref}`, unique per attempt. `copy` is a token H draws at
+  random for the one paused copy it creates for `mig` (16 bytes; it survives H's restart
+  through the journal).
+
+  ## Decision rule
+
+  The decision of `mig` is written once, by S (or by Hs when the agent is killed mid
+  hand-off), with an atomic insert-if-absent in Hs's ledger: `{:committed, copy}` naming
+  the one copy S chose, or `:aborted`. After a committed move the agent's forwarding pointer
+  (which names `{mig, copy}`) stands for the decision. Hs answers a query for `(mig, copy)`:
+
+    * a decision or forwarding pointer names `mig` and this `copy`: committed;
+    * a decision or pointer names `mig` with another copy, or `:aborted`: aborted;
+    * nothing, and `mig` is of an earlier incarnation of Hs: aborted (that run's record is
+      gone: with persistence, journaled commits are reloaded, so a missing one never
+      committed; without, the agent died with that run);
+    * nothing, same incarnation: unknown (S has not decided yet); A asks again later.
+
+  A starts only on a `commit` naming its `(mig, copy)` or a committed answer for it.
+
+  ## Guarantees and what each rests on
+
+    * **At most one running copy.** Per `mig` at most one copy is committed, because the
+      decision is written once and names the copy; S stops itself (or, for a clone, the
+      clone has a new id) in the same step that sends `commit`. A replayed or duplicated
+      `prepare` either meets H's memory of `mig` (H answers with the same copy, or refuses
+      it) or, once that bounded memory forgot it or H restarted, creates a copy with a new
+      token, which no decision names: it is told aborted. Replayed `commit`s and answers
+      name a token only the first copy holds.
+    * **A decision never changes.** Insert-if-absent; a forwarding pointer is written only
+      by the committing S, after the decision, and is deleted only when the agent arrives
+      back (then no copy of `mig` can still be paused: that copy was the agent).
+    * **No sealed field is forged.** With security on, the sending host's seal covers the
+      envelope, the manifest, `mig`, `kind`, `src`, and both reply-to pids (`seal_fields/1`).
+    * **Bounded cost of a stranger's prepares.** Paused copies count against admission
+      (`max_resident_agents`), and a paused copy stashes at most `stash_max` messages (the
+      rest are dropped and counted; their senders time out).
+    * **In doubt, never a guess.** A copy whose source does not answer keeps asking, with a
+      back-off capped at `max_ask_interval`; it never starts or drops itself on a timer. It
+      is dropped only on an `:aborted` answer (or a host kill), started only on a committed
+      one. A source that never returns leaves it paused — unreachable but recorded, bounded
+      by admission — never duplicated.
+  """
+
+  @typedoc "A migration id: the source host's incarnation and a unique reference."
+  @type mig :: term()
+  @typedoc "The token of one paused copy."
+  @type copy_token :: term()
+  @typedoc "An action for the executing process."
+  @type action :: tuple() | atom()
+
+  @max_name_bytes 256
+  @max_modules 64
+
+  # -- messages -------------------------------------------------------------------------
+
+  @doc "The `prepare` message."
+  @spec prepare(pid(), mig(), term(), pid(), :move | :clone, term(), list(), list()) :: tuple()
+  def prepare(s_pid, mig, src, src_pid, kind, env, manifest, code),
+    do: {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
+
+  @doc "A `prepare` sent again, now with code."
+  @spec with_code(tuple(), list()) :: tuple()
+  def with_code(prepare, code), do: put_elem(prepare, 8, code)
+
+  @doc "The `need` message."
+  @spec need(mig(), [module()]) :: tuple()
+  def need(mig, mods), do: {:"$tartarus_need", mig, mods}
+
+  @doc "The `prepared` message."
+  @spec prepared(mig(), copy_token(), pid()) :: tuple()
+  def prepared(mig, copy, pid), do: {:"$tartarus_prepared", mig, copy, pid}
+
+  @doc "The `refused` message."
+  @spec refused(mig(), term()) :: tuple()
+  def refused(mig, reason), do: {:"$tartarus_refused", mig, reason}
+
+  @doc "The `commit` message."
+  @spec commit(mig(), copy_token(), term()) :: tuple()
+  def commit(mig, copy, notify), do: {:"$tartarus_commit", mig, copy, notify}
+
+  @doc "The decision query of a paused copy."
+  @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
+  def decision_query(mig, id, copy, pid), do: {:"$tartarus_decision?", mig, id, copy, pid}
+
+  @doc "The answer to a decision query."
+  @spec decision(mig(), copy_token(), term()) :: tuple()
+  def decision(mig, copy, d), do: {:"$tartarus_decision", mig, copy, d}
+
+  @doc """
+  What a message is to the protocol: `{:prepare, fields}`, `{:prepared, mig, copy, pid}`,
+  `{:need, mig, mods}`, `{:refused, mig, reason}`, `{:commit, mig, copy, notify}`,
+  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, or `:other`. Total.
+
+      iex> Tartarus.Migration.Protocol.classify(:hello)
+      :other
+  """
+  @spec classify(term()) :: tuple() | :other
+  def classify({:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}),
+    do:
+      {:prepare,
+       %{
+         s_pid: s_pid,
+         mig: mig,
+         src: src,
+         src_pid: src_pid,
+         kind: kind,
+         env: env,
+         manifest: manifest,
+         code: code
+       }}
+
+  def classify({:"$tartarus_prepared", mig, copy, pid}), do: {:prepared, mig, copy, pid}
+  def classify({:"$tartarus_need", mig, mods}), do: {:need, mig, mods}
+  def classify({:"$tartarus_refused", mig, reason}), do: {:refused, mig, reason}
+  def classify({:"$tartarus_commit", mig, copy, notify}), do: {:commit, mig, copy, notify}
+  def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
+  def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
+  def classify(_), do: :other
+
+  @doc """
+  True for a message of the hand-off protocol (any of the above, well-formed or not).
+
+      iex> Tartarus.Migration.Protocol.protocol_message?({:"$tartarus_need", 1, []})
+      true
+  """
+  @spec protocol_message?(term()) :: boolean()
+  def protocol_message?(msg) when is_tuple(msg) and tuple_size(msg) > 0,
+    do:
+      elem(msg, 0) in [
+        :"$tartarus_prepare",
+        :"$tartarus_need",
+        :"$tartarus_prepared",
+        :"$tartarus_refused",
+        :"$tartarus_commit",
+        :"$tartarus_decision?",
+        :"$tartarus_decision"
+      ]
+
+  def protocol_message?(_), do: false
+
+  @doc """
+  The fields of a `prepare` a receiver acts on besides the envelope: what the sending
+  host's seal covers (with the manifest and the envelope).
+  """
+  @spec seal_fields(map()) :: tuple()
+  def seal_fields(p), do: {p.mig, p.kind, p.src, p.s_pid, p.src_pid}
+
+  # -- validators -----------------------------------------------------------------------
+
+  @doc """
+  Checks a prepare message's fields (not the seal: `Tartarus.Security.check_prepare/2`).
+
+      iex> Tartarus.Migration.Protocol.check_prepare(:nonsense, 1_000)
+      {:error, {:bad_message, :not_a_prepare}}
+  """
+  @spec check_prepare(term(), pos_integer()) :: :ok | {:error, {:bad_message, term()}}
+  def check_prepare(
+        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
+        max_bytes
+      ) do
+    with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
+         :ok <- check(migration_id?(mig), :migration_id),
+         :ok <- check(Tartarus.Host.address?(src) and is_tuple(src), :source_host),
+         :ok <- check(kind in [:move, :clone], :kind),
+         :ok <- Tartarus.Wire.check_envelope(env),
+         :ok <- check_manifest(manifest),
+         :ok <- check_code(code) do
+      size = :erlang.external_size({env, manifest, code})
+      check(size <= max_bytes, {:too_large, size, max_bytes})
+    end
+  end
+
+  def check_prepare(_other, _max), do: {:error, {:bad_message, :not_a_prepare}}
+
+  @doc "Checks a manifest: a list of `{module, md5}` pairs."
+  @spec check_manifest(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_manifest(m) when is_list(m) and length(m) <= @max_modules do
+    check(
+      Enum.all?(m, &match?({mod, <<_::128>>} when is_atom(mod) and mod != nil, &1)),
+      :manifest
+    )
+  end
+
+  def check_manifest(_), do: {:error, {:bad_message, :manifest}}
+
+  @doc "Checks shipped code: a list of `{module, md5, beam_binary}`."
+  @spec check_code(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_code(c) when is_list(c) and length(c) <= @max_modules do
+    ok =
+      Enum.all?(
+        c,
+        &match?({mod, <<_::128>>, bin} when is_atom(mod) and mod != nil and is_binary(bin), &1)
+      )
+
+    check(ok, :code)
+  end
+
+  def check_code(_), do: {:error, {:bad_message, :code}}
+
+  @doc """
+  Checks a decision query.
+
+      iex> Tartarus.Migration.Protocol.check_decision_query({:"$tartarus_decision?", 1, 2, 3, 4})
+      {:error, {:bad_message, :decision_query}}
+  """
+  @spec check_decision_query(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_decision_query({:"$tartarus_decision?", mig, id, copy, pid}) do
+    check(
+      migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+        copy_token?(copy) and is_pid(pid),
+      :decision_query
+    )
+  end
+
+  def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
+
+  @doc "True for a migration id as hosts make them."
+  @spec migration_id?(term()) :: boolean()
+  def migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
+  def migration_id?(_), do: false
+
+  @doc "True for a copy token as hosts make them."
+  @spec copy_token?(term()) :: boolean()
+  def copy_token?(t), do: is_binary(t) and byte_size(t) == 16
+
+  defp check(true, _what), do: :ok
+  defp check(false, what), do: {:error, {:bad_message, what}}
+
+  # -- source -----------------------------------------------------------------------
+
+  @doc """
+  The source's state for one attempt: migration `mig` of kind `kind` to host pid `dest`,
+  `notify` the caller waiting for the outcome (or nil).
+  """
+  @spec source(mig(), :move | :clone, term(), term()) :: map()
+  def source(mig, kind, dest, notify),
+    do: %{mig: mig, kind: kind, dest: dest, notify: notify, phase: :preparing, code: :none}
+
+  @doc """
+  One step of the source. Events: `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
+  `{:refused, mig, reason}`, `:timeout`, `{:down, reason}`, `{:decided, boolean}` (the
+  outcome of a `:decide` action), `{:code, {:ok, code} | {:error, reason}}` (the outcome of a
+  `:fetch_code` action). Actions: `{:decide, mig, decision}` (insert-if-absent; answer with
+  `:decided`), `{:fetch_code, mods}`, `{:resend, code}`, `{:record_commit, kind, mig, copy}`
+  (journal, and for a move the forwarding pointer), `{:send, pid, msg}`,
+  `{:done, {:committed, copy, pid} | {:failed, reason}}`.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> s = P.source(:m, :move, :h, nil)
+      iex> {s, acts} = P.source_step(s, {:prepared, :m, :c, :a})
+      iex> acts
+      [{:decide, :m, {:committed, :c}}]
+      iex> {_s, acts} = P.source_step(s, {:decided, true})
+      iex> acts
+      [{:record_commit, :move, :m, :c}, {:send, :a, {:"$tartarus_commit", :m, :c, nil}}, {:done, {:committed, :c, :a}}]
+  """
+  @spec source_step(map(), term()) :: {map(), [action()]}
+  def source_step(%{phase: :preparing, mig: mig} = s, {:prepared, mig, copy, pid}),
+    do: {%{s | phase: {:deciding, copy, pid}}, [{:decide, mig, {:committed, copy}}]}
+
+  def source_step(%{phase: {:deciding, copy, pid}, mig: mig} = s, {:decided, true}) do
+    {%{s | phase: {:committed, copy, pid}},
+     [
+       {:record_commit, s.kind, mig, copy},
+       {:send, pid, commit(mig, copy, s.notify)},
+       {:done, {:committed, copy, pid}}
+     ]}
+  end
+
+  # The host decided otherwise first (the agent was killed mid hand-off).
+  def source_step(%{phase: {:deciding, _, _}} = s, {:decided, false}),
+    do: {%{s | phase: :failed}, [{:done, {:failed, :aborted}}]}
+
+  def source_step(%{phase: :preparing, mig: mig} = s, {:refused, mig, reason}),
+    do: abort(s, reason)
+
+  def source_step(%{phase: :preparing, mig: mig, code: :none} = s, {:need, mig, mods}),
+    do: {%{s | code: :fetching}, [{:fetch_code, mods}]}
+
+  def source_step(%{phase: :preparing, mig: mig} = s, {:need, mig, mods}),
+    do: abort(s, {:code_not_accepted, mods})
+
+  def source_step(%{phase: :preparing, code: :fetching} = s, {:code, {:ok, code}}),
+    do: {%{s | code: :sent}, [{:resend, code}]}
+
+  def source_step(%{phase: :preparing, code: :fetching} = s, {:code, {:error, reason}}),
+    do: abort(s, reason)
+
+  def source_step(%{phase: :preparing} = s, :timeout), do: abort(s, :timeout)
+  def source_step(%{phase: :preparing} = s, {:down, reason}), do: abort(s, {:host_down, reason})
+  def source_step(s, _event), do: {s, []}
+
+  # Written before the agent goes on at the source, so a copy that asks learns it.
+  defp abort(s, reason),
+    do: {%{s | phase: :failed}, [{:decide, s.mig, :aborted}, {:done, {:failed, reason}}]}
+
+  @doc "True once the source's attempt has ended."
+  @spec source_done?(map()) :: boolean()
+  def source_done?(%{phase: phase}), do: phase == :failed or match?({:committed, _, _}, phase)
+
+  # -- destination host: admission ----------------------------------------------------
+
+  @doc """
+  The admission state of a destination host. Option `:seen_max`: how many migrations it
+  remembers (default 100_000).
+  """
+  @spec destination(keyword()) :: map()
+  def destination(opts \\ []),
+    do: %{seen: %{}, order: :queue.new(), seen_max: Keyword.get(opts, :seen_max, 100_000)}
+
+  @doc """
+  One step of admission. Events: `{:prepare, fields}` (a well-formed prepare,
+  `classify/1`), `{:checked, fields, :ok | {:need, mods} | {:error, reason}, copy}` (the
+  outcome of a `:check` action, with a fresh copy token), `{:created, fields, copy, pid}`,
+  `{:create_failed, fields, reason}`. Actions: `{:check, fields}` (trust, size, code,
+  capacity), `{:create, fields, copy}` (a paused copy; answer `:created`),
+  `{:journal_in_doubt, fields, copy}`, `{:send, pid, msg}`, `{:refuse, fields, reason}`.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> p = %{mig: :m, s_pid: :s}
+      iex> {d, [{:check, ^p}]} = P.destination_step(P.destination(), {:prepare, p})
+      iex> {d, [{:create, ^p, :c}]} = P.destination_step(d, {:checked, p, :ok, :c})
+      iex> {d, acts} = P.destination_step(d, {:created, p, :c, :a})
+      iex> acts
+      [{:journal_in_doubt, %{mig: :m, s_pid: :s}, :c}, {:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+      iex> {_d, acts} = P.destination_step(d, {:prepare, p})
+      iex> acts
+      [{:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+  """
+  @spec destination_step(map(), term()) :: {map(), [action()]}
+  def destination_step(d, {:prepare, p}) do
+    {d, [{:check, p}]}
+  end
+
+  def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
+
+  def destination_step(d, {:checked, p, {:need, mods}, _copy}),
+    do: {d, [{:send, p.s_pid, need(p.mig, mods)}]}
+
+  def destination_step(d, {:checked, p, {:error, reason}, _copy}),
+    do: {remember(d, p.mig, :refused), [{:refuse, p, reason}]}
+
+  def destination_step(d, {:created, p, copy, pid}) do
+    {remember(d, p.mig, {:copy, copy, pid}),
+     [{:journal_in_doubt, p, copy}, {:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+  end
+
+  def destination_step(d, {:create_failed, p, reason}),
+    do: {remember(d, p.mig, :refused), [{:refuse, p, reason}]}
+
+  def destination_step(d, _event), do: {d, []}
+
+  # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
+  # makes a copy with a new token, which no decision names); memory only spares the work.
+  defp remember(d, mig, what) do
+    if Map.has_key?(d.seen, mig) do
+      %{d | seen: Map.put(d.seen, mig, what)}
+    else
+      d = %{d | seen: Map.put(d.seen, mig, what), order: :queue.in(mig, d.order)}
+
+      if map_size(d.seen) > d.seen_max do
+        {{:value, old}, order} = :queue.out(d.order)
+        %{d | seen: Map.delete(d.seen, old), order: order}
+      else
+        d
+      end
+    end
+  end
+
+  # -- the in-doubt copy ------------------------------------------------------------
+
+  @doc """
+  The state of a paused copy `copy` of migration `mig` from source host `src`. Options:
+  `:stash_max` (messages kept while paused, default 1_000), `:ask_after` (first query, in
+  ms, default 1_000), `:max_ask_interval` (cap of the back-off, default 30_000).
+  """
+  @spec copy(mig(), copy_token(), term(), :move | :clone, keyword()) :: map()
+  def copy(mig, copy, src, kind, opts \\ []) do
+    %{
+      mig: mig,
+      copy: copy,
+      src: src,
+      kind: kind,
+      stashed: 0,
+      dropped: 0,
+      asks: 0,
+      stash_max: Keyword.get(opts, :stash_max, 1_000),
+      ask_after: Keyword.get(opts, :ask_after, 1_000),
+      max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000)
+    }
+  end
+
+  @doc """
+  One step of a paused copy. Events: `{:commit, mig, copy, notify}`, `:timeout` (its timer),
+  `{:decision, mig, copy, d}`, `{:message, msg}` (anything else sent to it). Actions:
+  `{:start, notify}` (become the agent), `:abort` (stop; the migration was aborted),
+  `{:ask, src, mig, copy}`, `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> c = P.copy(:m, :c, :src, :move)
+      iex> P.copy_step(c, {:commit, :m, :other, nil}) |> elem(1)
+      []
+      iex> P.copy_step(c, {:commit, :m, :c, nil}) |> elem(1)
+      [{:start, nil}]
+  """
+  @spec copy_step(map(), term()) :: {map(), [action()]}
+  def copy_step(%{mig: mig, copy: copy} = c, {:commit, mig, copy, notify}),
+    do: {c, [{:start, notify}]}
+
+  def copy_step(c, :timeout) do
+    interval = min(c.ask_after * Integer.pow(2, min(c.asks, 16)), c.max_ask_interval)
+    {%{c | asks: c.asks + 1}, [{:ask, c.src, c.mig, c.copy}, {:timer, interval}]}
+  end
+
+  def copy_step(%{mig: mig, copy: copy} = c, {:decision, mig, copy, d}) do
+    case d do
+      {:committed, notify} -> {c, [{:start, notify}]}
+      :committed -> {c, [{:start, nil}]}
+      :aborted -> {c, [:abort]}
+      _unknown -> {c, []}
+    end
+  end
+
+  def copy_step(c, {:message, msg}) do
+    if c.stashed < c.stash_max,
+      do: {%{c | stashed: c.stashed + 1}, [{:stash, msg}]},
+      else: {%{c | dropped: c.dropped + 1}, [{:drop, msg}]}
+  end
+
+  def copy_step(c, _event), do: {c, []}
+
+  # -- source host: decision queries -------------------------------------------------
+
+  @doc """
+  The source host's answer to a query for `(mig, copy)`, from what its ledger holds:
+  `decision` (the decision entry of `mig`, or nil) and `pointer` (the agent's forwarding
+  pointer as `{mig, copy, notify}`, or nil); `incarnation` is this run of the host's.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> P.answer(%{decision: {:committed, :c}, pointer: nil}, {"i", 1}, :c, "i")
+      :committed
+      iex> P.answer(%{decision: nil, pointer: {{"i", 1}, :c, :n}}, {"i", 1}, :other, "i")
+      :aborted
+      iex> P.answer(%{decision: nil, pointer: nil}, {"old", 1}, :c, "i")
+      :aborted
+  """
+  @spec answer(map(), mig(), copy_token(), term()) ::
+          :committed | {:committed, term()} | :aborted | :unknown
+  def answer(%{decision: decision, pointer: pointer}, {incarnation, _} = mig, _copy, here) do
+    case {decision, pointer} do
+      {{:committed, _}, _} -> :committed
+      {:aborted, _} -> :aborted
+      {nil, {^mig, _copy, notify}} -> {:committed, notify}
+      {nil, _} when incarnation == here -> :unknown
+      {nil, _} -> :aborted
+    end
+  end
+end
