@@ -169,7 +169,7 @@ defmodule Tartarus.Agent.Server do
   defp paused_actions([{:start, notify} | _], data), do: commit(data, notify)
 
   defp paused_actions([:abort | _], data) do
-    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig)
+    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig, data.paused.c.copy)
     {:stop, {:shutdown, :aborted}, data}
   end
 
@@ -481,7 +481,10 @@ defmodule Tartarus.Agent.Server do
         code_bytes: code_bytes
       )
     else
-      # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
+      # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask,
+      # and (with persistence) the journal keeps it for a clone that asks a restarted host.
+      Tartarus.Host.Persistence.committed(host, mig, out.id, copy)
+
       emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: x.dest, bytes: bytes},
         clones: 1,
         bytes: bytes + code_bytes
@@ -590,7 +593,7 @@ defmodule Tartarus.Agent.Server do
       :ok ->
         arrived(data)
         :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
-        Tartarus.Host.Persistence.resolved(host, c.mig)
+        Tartarus.Host.Persistence.resolved(host, c.mig, c.copy)
 
         with {pid, _tag} when is_pid(pid) <- notify,
              do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))

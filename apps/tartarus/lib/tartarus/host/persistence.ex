@@ -6,7 +6,10 @@ defmodule Tartarus.Host.Persistence do
   #   {:agent, id, env}                  agent arrived (or was created): its snapshot
   #   {:forget, id}                      agent stopped, or was killed
   #   {:in_doubt, mig, env, src, kind, copy}  this host prepared paused copy `copy` (destination)
-  #   {:resolved, mig}                   that copy was committed or aborted
+  #   {:resolved, mig, copy}             that copy was committed or aborted
+  #
+  # In-doubt copies are keyed by {mig, copy}: a second copy of one migration (a duplicated or
+  # replayed prepare the host no longer remembered) must not replace the first's record.
   #   {:decision, mig, id, copy}         this host committed migration mig of agent id to the
   #                                      paused copy `copy` (source)
   #
@@ -51,8 +54,8 @@ defmodule Tartarus.Host.Persistence do
   def in_doubt(%{journal: j}, mig, env, src, kind, copy),
     do: append(j, {:in_doubt, mig, env, src, kind, copy})
 
-  def resolved(%{journal: nil}, _mig), do: :ok
-  def resolved(%{journal: j}, mig), do: append(j, {:resolved, mig})
+  def resolved(%{journal: nil}, _mig, _copy), do: :ok
+  def resolved(%{journal: j}, mig, copy), do: append(j, {:resolved, mig, copy})
 
   def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
   def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
@@ -92,9 +95,10 @@ defmodule Tartarus.Host.Persistence do
   def apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
 
   def apply_record({:in_doubt, mig, env, src, kind, copy}, s),
-    do: %{s | in_doubt: Map.put(s.in_doubt, mig, {env, src, kind, copy})}
+    do: %{s | in_doubt: Map.put(s.in_doubt, {mig, copy}, {env, src, kind})}
 
-  def apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
+  def apply_record({:resolved, mig, copy}, s),
+    do: %{s | in_doubt: Map.delete(s.in_doubt, {mig, copy})}
 
   def apply_record({:decision, mig, id, copy}, s) do
     # A move to this same host has its in-doubt copy here too: that one stays (it asks, finds
@@ -111,11 +115,11 @@ defmodule Tartarus.Host.Persistence do
   def apply_record(_other, s), do: s
 
   defp drop_agent(in_doubt, id, keep \\ nil),
-    do: Map.reject(in_doubt, fn {mig, {env, _, _, _}} -> env.id == id and mig != keep end)
+    do: Map.reject(in_doubt, fn {{mig, _copy}, {env, _, _}} -> env.id == id and mig != keep end)
 
   defp records(s) do
     Enum.map(s.decisions, fn {mig, {id, copy}} -> {:decision, mig, id, copy} end) ++
-      Enum.map(s.in_doubt, fn {mig, {env, src, kind, copy}} ->
+      Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} ->
         {:in_doubt, mig, env, src, kind, copy}
       end) ++
       Enum.map(s.agents, fn {id, env} -> {:agent, id, env} end)
@@ -125,7 +129,7 @@ defmodule Tartarus.Host.Persistence do
   # {agents, in_doubt as [{mig, env, src, kind, copy}], decisions as [{mig, copy}]}.
   def restored(s) do
     {Map.values(s.agents),
-     Enum.map(s.in_doubt, fn {mig, {env, src, kind, copy}} -> {mig, env, src, kind, copy} end),
+     Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} -> {mig, env, src, kind, copy} end),
      Enum.map(s.decisions, fn {mig, {_id, copy}} -> {mig, copy} end)}
   end
 

@@ -150,8 +150,12 @@ defmodule Tartarus.Host.Server do
     state =
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
         case start_agent(state, env, {:paused, mig, copy, src, kind}) do
-          {:ok, _pid, state} -> state
-          {:error, _reason, state} -> state
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            %{state | dest: Protocol.restore_seen(state.dest, mig, copy, pid)}
+
+          {:error, _reason, state} ->
+            state
         end
       end)
 

@@ -54,10 +54,15 @@ defmodule Tartarus.Migration.Protocol do
     * **At most one running copy.** Per `mig` at most one copy is committed, because the
       decision is written once and names the copy; S stops itself (or, for a clone, the
       clone has a new id) in the same step that sends `commit`. A replayed or duplicated
-      `prepare` either meets H's memory of `mig` (H answers with the same copy, or refuses
-      it) or, once that bounded memory forgot it or H restarted, creates a copy with a new
-      token, which no decision names: it is told aborted. Replayed `commit`s and answers
-      name a token only the first copy holds.
+      `prepare` either meets H's memory of `mig` (H answers again with the same copy) or,
+      once that bounded memory forgot it (`seen_max`) or H restarted, creates a copy with a
+      new token, which no decision names: it is told aborted. Replayed `commit`s and
+      answers name a token only the first copy holds. Safety never rests on H's memory
+      (the model checks it with a memory of one migration).
+    * **Every commit survives a restart (with persistence).** S journals `{:decision, mig,
+      id, copy}` for moves and clones before `commit` leaves; H journals each in-doubt copy
+      under `{mig, copy}` before `prepared` leaves, so a second copy of one migration never
+      replaces the first's record.
     * **A decision never changes.** Insert-if-absent; a forwarding pointer is written only
       by the committing S, after the decision, and is deleted only when the agent arrives
       back (then no copy of `mig` can still be paused: that copy was the agent).
@@ -361,7 +366,11 @@ defmodule Tartarus.Migration.Protocol do
   """
   @spec destination_step(map(), term()) :: {map(), [action()]}
   def destination_step(d, {:prepare, p}) do
-    {d, [{:check, p}]}
+    case Map.fetch(d.seen, p.mig) do
+      # A duplicate (or a replay) of a prepare whose copy exists: the same answer.
+      {:ok, {:copy, copy, pid}} -> {d, [{:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+      :error -> {d, [{:check, p}]}
+    end
   end
 
   def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
@@ -369,18 +378,25 @@ defmodule Tartarus.Migration.Protocol do
   def destination_step(d, {:checked, p, {:need, mods}, _copy}),
     do: {d, [{:send, p.s_pid, need(p.mig, mods)}]}
 
+  # A refusal is not remembered: a forged prepare naming a real migration must not make the
+  # real one refused. (Nothing was created; checking again costs only the check.)
   def destination_step(d, {:checked, p, {:error, reason}, _copy}),
-    do: {remember(d, p.mig, :refused), [{:refuse, p, reason}]}
+    do: {d, [{:refuse, p, reason}]}
 
   def destination_step(d, {:created, p, copy, pid}) do
     {remember(d, p.mig, {:copy, copy, pid}),
      [{:journal_in_doubt, p, copy}, {:send, p.s_pid, prepared(p.mig, copy, pid)}]}
   end
 
-  def destination_step(d, {:create_failed, p, reason}),
-    do: {remember(d, p.mig, :refused), [{:refuse, p, reason}]}
+  def destination_step(d, {:create_failed, p, reason}), do: {d, [{:refuse, p, reason}]}
 
   def destination_step(d, _event), do: {d, []}
+
+  @doc """
+  Admission's memory of a paused copy restored from the journal (the host restarted).
+  """
+  @spec restore_seen(map(), mig(), copy_token(), term()) :: map()
+  def restore_seen(d, mig, copy, pid), do: remember(d, mig, {:copy, copy, pid})
 
   # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
   # makes a copy with a new token, which no decision names); memory only spares the work.
@@ -478,11 +494,13 @@ defmodule Tartarus.Migration.Protocol do
   """
   @spec answer(map(), mig(), copy_token(), term()) ::
           :committed | {:committed, term()} | :aborted | :unknown
-  def answer(%{decision: decision, pointer: pointer}, {incarnation, _} = mig, _copy, here) do
+  def answer(%{decision: decision, pointer: pointer}, {incarnation, _} = mig, copy, here) do
     case {decision, pointer} do
-      {{:committed, _}, _} -> :committed
+      {{:committed, ^copy}, _} -> :committed
+      {{:committed, _other}, _} -> :aborted
       {:aborted, _} -> :aborted
-      {nil, {^mig, _copy, notify}} -> {:committed, notify}
+      {nil, {^mig, ^copy, notify}} -> {:committed, notify}
+      {nil, {^mig, _other, _}} -> :aborted
       {nil, _} when incarnation == here -> :unknown
       {nil, _} -> :aborted
     end

@@ -118,11 +118,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   # What the host's admission remembers of a restored copy (as Tartarus.Host.Server does).
-  defp restored_seen(w, h, mig, copy, pid) do
-    if function_exported?(Protocol, :restore_seen, 4),
-      do: update_in(w.hosts[h].dest, &apply(Protocol, :restore_seen, [&1, mig, copy, pid])),
-      else: w
-  end
+  defp restored_seen(w, h, mig, copy, pid),
+    do: update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
 
   defp start_resident(w, h, pid, env) do
     if Map.has_key?(w.hosts[h].residents, env.id) do
@@ -383,7 +380,8 @@ defmodule Tartarus.Migration.ProtocolModel do
         w = update_in(w.hosts[h].decisions, &Map.delete(&1, mig))
         source_actions(w, pid, rest)
 
-      {:record_commit, :clone, _mig, _copy} ->
+      {:record_commit, :clone, mig, copy} ->
+        w = journal(w, h, {:decision, mig, proc.src.out.id, copy})
         source_actions(w, pid, rest)
 
       {:send, to, msg} ->
@@ -483,7 +481,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       # The agent is already resident here (register fails): this copy stops.
       {:halt, %{w | procs: Map.delete(w.procs, pid)}}
     else
-      w = journal(w, h, {:resolved, c.mig})
+      w = journal(w, h, {:resolved, c.mig, c.copy})
       w = journal(w, h, {:agent, env.id, env})
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
@@ -492,7 +490,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp copy_action(w, pid, :abort) do
-    w = journal(w, w.procs[pid].host, {:resolved, w.procs[pid].c.mig})
+    %{c: c, host: h} = w.procs[pid]
+    w = journal(w, h, {:resolved, c.mig, c.copy})
     {:halt, %{w | procs: Map.delete(w.procs, pid)}}
   end
 
