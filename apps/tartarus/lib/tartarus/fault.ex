@@ -16,7 +16,9 @@ defmodule Tartarus.Fault do
     * `:outgoing` - the source's envelope just before `prepare` is sent (value: the envelope);
     * `:prepared` - the source got `prepared`, before it decides (value: the new pid);
     * `:committing` - the source decided to commit, before `commit` is sent (value: the new pid);
-    * `:admitting` - the destination host's server is about to create the paused copy (value: the envelope).
+    * `:admitting` - the destination host's server is about to create the paused copy (value: the envelope);
+    * `:prepare_received` - a destination host's server received a `prepare`, before any check
+      (value: the whole message, as sent: e.g. to capture a sealed prepare and replay it).
   """
 
   @typedoc "A hook."

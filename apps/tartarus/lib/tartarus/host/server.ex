@@ -166,6 +166,8 @@ defmodule Tartarus.Host.Server do
 
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
+    msg = Tartarus.Fault.point(:prepare_received, msg)
+
     case Protocol.check_prepare(msg, state.host.opts.max_envelope_bytes) do
       :ok ->
         {:prepare, p} = Protocol.classify(msg)
@@ -247,6 +249,13 @@ defmodule Tartarus.Host.Server do
       end
 
     admission(state, {:checked, p, verdict, :crypto.strong_rand_bytes(16)})
+  end
+
+  defp admission_action({:probe, p, copy, pid}, state) do
+    paused? =
+      :ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}]
+
+    admission(state, {:probed, p, copy, pid, paused?})
   end
 
   defp admission_action({:create, p, copy}, state) do

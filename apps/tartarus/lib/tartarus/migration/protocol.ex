@@ -54,7 +54,8 @@ defmodule Tartarus.Migration.Protocol do
     * **At most one running copy.** Per `mig` at most one copy is committed, because the
       decision is written once and names the copy; S stops itself (or, for a clone, the
       clone has a new id) in the same step that sends `commit`. A replayed or duplicated
-      `prepare` either meets H's memory of `mig` (H answers again with the same copy) or,
+      `prepare` either meets H's memory of `mig` (H answers again with the same copy while
+      it is paused, and refuses it once the copy started or was aborted) or,
       once that bounded memory forgot it (`seen_max`) or H restarted, creates a copy with a
       new token, which no decision names: it is told aborted. Replayed `commit`s and
       answers name a token only the first copy holds. Safety never rests on H's memory
@@ -349,8 +350,10 @@ defmodule Tartarus.Migration.Protocol do
   One step of admission. Events: `{:prepare, fields}` (a well-formed prepare,
   `classify/1`), `{:checked, fields, :ok | {:need, mods} | {:error, reason}, copy}` (the
   outcome of a `:check` action, with a fresh copy token), `{:created, fields, copy, pid}`,
-  `{:create_failed, fields, reason}`. Actions: `{:check, fields}` (trust, size, code,
-  capacity), `{:create, fields, copy}` (a paused copy; answer `:created`),
+  `{:create_failed, fields, reason}`, `{:probed, fields, copy, pid, still_paused?}` (the
+  outcome of a `:probe`). Actions: `{:check, fields}` (trust, size, code, capacity),
+  `{:probe, fields, copy, pid}` (is that copy still paused?), `{:create, fields, copy}` (a
+  paused copy; answer `:created`),
   `{:journal_in_doubt, fields, copy}`, `{:send, pid, msg}`, `{:refuse, fields, reason}`.
 
       iex> alias Tartarus.Migration.Protocol, as: P
@@ -360,18 +363,27 @@ defmodule Tartarus.Migration.Protocol do
       iex> {d, acts} = P.destination_step(d, {:created, p, :c, :a})
       iex> acts
       [{:journal_in_doubt, %{mig: :m, s_pid: :s}, :c}, {:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
-      iex> {_d, acts} = P.destination_step(d, {:prepare, p})
-      iex> acts
+      iex> {d, [{:probe, ^p, :c, :a}]} = P.destination_step(d, {:prepare, p})
+      iex> P.destination_step(d, {:probed, p, :c, :a, true}) |> elem(1)
       [{:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+      iex> P.destination_step(d, {:probed, p, :c, :a, false}) |> elem(1)
+      [{:refuse, %{mig: :m, s_pid: :s}, :duplicate}]
   """
   @spec destination_step(map(), term()) :: {map(), [action()]}
   def destination_step(d, {:prepare, p}) do
     case Map.fetch(d.seen, p.mig) do
-      # A duplicate (or a replay) of a prepare whose copy exists: the same answer.
-      {:ok, {:copy, copy, pid}} -> {d, [{:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+      # A duplicate (or a replay) of a prepare this host made a copy for: is it still paused?
+      {:ok, {:copy, copy, pid}} -> {d, [{:probe, p, copy, pid}]}
       :error -> {d, [{:check, p}]}
     end
   end
+
+  # Still paused: the same answer again (the first may have been lost). Resolved (it started
+  # or was aborted): a replay, refused.
+  def destination_step(d, {:probed, p, copy, pid, true}),
+    do: {d, [{:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+
+  def destination_step(d, {:probed, p, _copy, _pid, false}), do: {d, [{:refuse, p, :duplicate}]}
 
   def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
 

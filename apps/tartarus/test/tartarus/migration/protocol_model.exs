@@ -32,7 +32,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @doc false
   # Runs one walk. Options: :events (fault phase length), :persist, :seen_max (passed to the
   # destination state), :trace (keep the last N events for the report).
-  # Returns {:ok, events_executed} or {:violation, what, trace}.
+  # Returns {:ok, events_executed, stats} or {:violation, what, trace}.
   def walk(seed, opts \\ []) do
     persist = Keyword.get(opts, :persist, rem(seed, 2) == 0)
     n = Keyword.get(opts, :events, 200)
@@ -42,7 +42,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       w = Enum.reduce(1..n, w, fn _, w -> w |> fault_step() |> check() end)
       w = quiesce(w)
       check_final(w)
-      {:ok, w.events}
+      {:ok, w.events, w.stats}
     rescue
       e in Violation -> {:violation, e.what, e.trace}
     end
@@ -61,6 +61,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       trace_n: Keyword.get(opts, :trace, 60),
       trace: [],
       events: 0,
+      stats: %{},
       n: 0,
       hosts: %{},
       procs: %{},
@@ -177,8 +178,13 @@ defmodule Tartarus.Migration.ProtocolModel do
     {Enum.at(list, i - 1), %{w | rng: rng}}
   end
 
-  defp note(w, event),
-    do: %{w | events: w.events + 1, trace: Enum.take([event | w.trace], w.trace_n)}
+  defp note(w, event) do
+    stats = Map.update(w.stats, elem(event, 0), 1, &(&1 + 1))
+    %{w | events: w.events + 1, stats: stats, trace: Enum.take([event | w.trace], w.trace_n)}
+  end
+
+  # Counted, not an event of the walk.
+  defp count(w, what), do: %{w | stats: Map.update(w.stats, what, 1, &(&1 + 1))}
 
   defp deliver_random(w) do
     case w.net do
@@ -412,10 +418,15 @@ defmodule Tartarus.Migration.ProtocolModel do
     admission(w, h, {:checked, p, verdict, copy})
   end
 
+  defp admission_action(w, h, {:probe, p, copy, pid}) do
+    paused? = match?(%{role: :copy, host: ^h}, w.procs[pid])
+    admission(w, h, {:probed, p, copy, pid, paused?})
+  end
+
   defp admission_action(w, h, {:create, p, copy}) do
     {pid, w} = fresh(w, :pid)
     c = Protocol.copy(p.mig, copy, p.src, p.kind)
-    w = put_in(w.procs[pid], %{role: :copy, host: h, env: p.env, c: c})
+    w = put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
     admission(w, h, {:created, p, copy, pid})
   end
 
@@ -425,7 +436,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp admission_action(w, h, {:send, to, msg}), do: send_msg(w, h, to, msg)
 
   defp admission_action(w, h, {:refuse, p, reason}),
-    do: send_msg(w, h, p.s_pid, Protocol.refused(p.mig, reason))
+    do: send_msg(count(w, {:refused, reason}), h, p.s_pid, Protocol.refused(p.mig, reason))
 
   # -- decision queries (source host) ---------------------------------------------------
 
@@ -440,7 +451,11 @@ defmodule Tartarus.Migration.ProtocolModel do
         host.inc
       )
 
-    w = check_answer(w, h, mig, copy, a)
+    w =
+      w
+      |> check_answer(h, mig, copy, a)
+      |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+
     send_msg(w, h, a_pid, Protocol.decision(mig, copy, a))
   end
 
@@ -490,6 +505,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp copy_action(w, pid, :abort) do
+    w = count(w, :copy_aborted)
     %{c: c, host: h} = w.procs[pid]
     w = journal(w, h, {:resolved, c.mig, c.copy})
     {:halt, %{w | procs: Map.delete(w.procs, pid)}}

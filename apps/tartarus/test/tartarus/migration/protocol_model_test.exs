@@ -12,13 +12,13 @@ defmodule Tartarus.Migration.ProtocolModelTest do
   @moduletag timeout: 600_000
 
   # Walks per default run, events per walk (fault phase; quiescence adds more).
-  @walks 600
+  @walks 1_000
   @events 200
 
   defp explore(seeds, opts) do
     Enum.reduce(seeds, 0, fn seed, total ->
       case Model.walk(seed, opts) do
-        {:ok, n} ->
+        {:ok, n, _stats} ->
           total + n
 
         {:violation, what, trace} ->
@@ -54,27 +54,27 @@ defmodule Tartarus.Migration.ProtocolModelTest do
     # the first and, asked by the second, confirmed it too (its forwarding pointer named the
     # migration): the answer contradicted the decision.
     test "seed 1: a second copy of one migration is told committed" do
-      assert {:ok, _} = Model.walk(1, events: @events)
+      assert {:ok, _, _} = Model.walk(1, events: @events)
     end
 
     # The same bug seen through its consequence (decision checks off): the replayed copy
     # started while the agent ran elsewhere.
     test "seed 84: two running copies after a replayed prepare" do
-      assert {:ok, _} = Model.walk(84, events: @events, check_decisions: false)
+      assert {:ok, _, _} = Model.walk(84, events: @events, check_decisions: false)
     end
 
     # With persistence, a committed clone whose source host restarted was told aborted: a
     # clone's decision was kept in the ledger only, never journaled.
     test "seed 22: a committed clone survives its source's restart" do
-      assert {:ok, _} = Model.walk(22, events: @events)
-      assert {:ok, _} = Model.walk(22, events: @events, check_decisions: false)
+      assert {:ok, _, _} = Model.walk(22, events: @events)
+      assert {:ok, _, _} = Model.walk(22, events: @events, check_decisions: false)
     end
 
     # With persistence, the journal kept in-doubt copies by migration: a second copy of one
     # migration (a replayed prepare the destination no longer remembered) replaced the
     # record of the first, committed one, and a restart lost the agent.
     test "seed 64 (admission remembering one migration): a replay's copy does not erase the first" do
-      assert {:ok, _} = Model.walk(64, events: @events, seen_max: 1)
+      assert {:ok, _, _} = Model.walk(64, events: @events, seen_max: 1)
     end
   end
 end
