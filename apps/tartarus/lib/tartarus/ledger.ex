@@ -8,14 +8,17 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy}, notify}
+  #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy} | :acked | :name, notify}
+  #                               (an id's pointer names its migration until the copy
+  #                               acknowledges; a name's pointer never stands for a decision)
+  #   {:handoff, mig}             {_, source_pid}            an undecided hand-off (source)
   #                                                          forwarding pointer (and the record
   #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
   #   {:arriving, id}             {_, pid}                   a paused copy (destination)
-  #   {:decision, mig}            {_, {:committed, copy} | :aborted} (a committed move's:
-  #                                                          only until the forwarding pointer
-  #                                                          is written)
+  #   {:decision, mig}            {_, {:committed, copy}}    (a move's: only until the
+  #                                                          forwarding pointer is written; a
+  #                                                          clone's: until the clone's ack)
   #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
@@ -65,10 +68,20 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  def begin_handoff(host, id, mig), do: :ets.insert(host.ledger, {{:migrating, id}, mig})
-  def end_handoff(host, id), do: :ets.delete(host.ledger, {:migrating, id})
+  # Before `prepare` leaves: the migration is undecided (Protocol.answer/3 says :unknown).
+  # `{:migrating, id}` (moves) lets a kill or crash of the agent find its hand-off.
+  def begin_handoff(host, id, mig, kind) do
+    if kind == :move, do: :ets.insert(host.ledger, {{:migrating, id}, mig})
+    :ets.insert(host.ledger, {{:handoff, mig}, self()})
+  end
 
-  # The source agent's decision. Returns false if the migration was decided otherwise.
+  # After the decision (an abort is this with no commit written).
+  def end_handoff(host, id, mig) do
+    :ets.delete(host.ledger, {:handoff, mig})
+    :ets.delete_object(host.ledger, {{:migrating, id}, mig})
+  end
+
+  # The source's commit. Returns false if one was already written (never: one writer).
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
   # The agent committed migration `mig` (copy `copy`) to `dest`: leave a forwarding pointer
@@ -78,16 +91,18 @@ defmodule Tartarus.Ledger do
   def depart(host, id, name, dest, mig, copy, notify) do
     now = System.system_time(:microsecond)
     :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
-    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, {mig, copy}, nil})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
     forget_resident(host, self())
-    end_handoff(host, id)
-    # The forwarding pointer now stands for the decision.
+    # The forwarding pointer now stands for the decision (written before this is dropped).
     :ets.delete(host.ledger, {:decision, mig})
   end
 
   # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
-  # (source) host: Tartarus.Migration.Protocol.answer/4 over what the ledger holds.
+  # (source) host: Tartarus.Migration.Protocol.answer/3 over what the ledger holds, read in
+  # the protocol's order (hand-off record first).
   def decision(host, mig, id, copy) do
+    handoff? = :ets.member(host.ledger, {:handoff, mig})
+
     decision =
       case :ets.lookup(host.ledger, {:decision, mig}) do
         [{_, d}] -> d
@@ -101,27 +116,49 @@ defmodule Tartarus.Ledger do
       end
 
     Tartarus.Migration.Protocol.answer(
-      %{decision: decision, pointer: pointer},
+      %{handoff?: handoff?, decision: decision, pointer: pointer},
       mig,
-      copy,
-      host.incarnation
+      copy
     )
+  end
+
+  # The committed copy `copy` of `mig` (agent `id`) runs: its commit record is no longer
+  # needed. A clone's decision goes; a move's pointer stays for forwarding, marked :acked
+  # (sweepable).
+  def acknowledge(host, mig, id, copy) do
+    l = host.ledger
+    :ets.delete_object(l, {{:decision, mig}, {:committed, copy}})
+
+    case :ets.lookup(l, {:fwd, id}) do
+      [{key, dest, at, {^mig, ^copy}, _notify}] -> :ets.insert(l, {key, dest, at, :acked, nil})
+      _ -> true
+    end
+
+    :ok
   end
 
   def count(%{ledger: l}, name),
     do: :ets.update_counter(l, {:count, name}, 1, {{:count, name}, 0})
 
-  # After a crash of agent `id`: abort its pending hand-off if there is one. True if the agent
-  # is still ours to restart, false if it had committed a migration (it lives elsewhere).
-  def abort_pending(host, id) do
-    case :ets.take(host.ledger, {:migrating, id}) do
-      [{_, mig}] ->
-        decide(host, mig, :aborted) or
-          :ets.lookup(host.ledger, {:decision, mig}) == [{{:decision, mig}, :aborted}]
+  # After the agent `id` (process `pid`) died or was killed: its undecided hand-offs are
+  # aborted (their records go; the process that could have committed them is dead). True if
+  # the agent is still ours to restart, false if it had committed a move (it lives on at
+  # the destination).
+  def abort_pending(host, id, pid) do
+    drop_handoffs(host, pid)
 
-      [] ->
-        true
+    case :ets.take(host.ledger, {:migrating, id}) do
+      [{_, mig}] -> not committed?(host, mig, id)
+      [] -> true
     end
+  end
+
+  # The hand-off records of a source process that is gone.
+  def drop_handoffs(host, pid), do: :ets.match_delete(host.ledger, {{:handoff, :_}, pid})
+
+  defp committed?(host, mig, id) do
+    :ets.member(host.ledger, {:decision, mig}) or
+      match?([{_, _, _, {^mig, _}, _}], :ets.lookup(host.ledger, {:fwd, id}))
   end
 
   def record_hop(host, hop_us) do
@@ -146,9 +183,12 @@ defmodule Tartarus.Ledger do
     ])
   end
 
-  # Drops forwarding pointers written before `cutoff_us` (system time).
+  # Drops forwarding pointers written before `cutoff_us` (system time) that no longer
+  # stand for a decision (acknowledged, or a name's): never one a paused copy may still need.
   def sweep_pointers(%{ledger: l}, cutoff_us) do
-    :ets.select_delete(l, [{{{:fwd, :_}, :_, :"$1", :_, :_}, [{:<, :"$1", cutoff_us}], [true]}])
+    :ets.select_delete(l, [
+      {{{:fwd, :_}, :_, :"$1", :"$2", :_}, [{:<, :"$1", cutoff_us}, {:is_atom, :"$2"}], [true]}
+    ])
   end
 
   def forwarding_pointers(%{ledger: l}) do

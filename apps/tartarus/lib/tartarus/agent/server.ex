@@ -397,7 +397,7 @@ defmodule Tartarus.Agent.Server do
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind, host.ref))
     prepare = Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, [])
     prepare = seal(prepare, host)
-    if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
+    Ledger.begin_handoff(host, data.env.id, mig, kind)
     mref = watch(dest_pid)
     send(dest_pid, prepare)
     deadline = System.monotonic_time(:millisecond) + host.opts.migration_timeout
@@ -445,10 +445,14 @@ defmodule Tartarus.Agent.Server do
 
     decided = Ledger.decide(x.data.host, mig, decision)
 
-    {s, actions} =
-      if decision == :aborted, do: {s, []}, else: Protocol.source_step(s, {:decided, decided})
-
+    {s, actions} = Protocol.source_step(s, {:decided, decided})
     source_actions(actions ++ rest, s, x)
+  end
+
+  defp source_actions([{:end_handoff, mig} | rest], s, x) do
+    if s.phase == :failed, do: unwatch(x.mref)
+    Ledger.end_handoff(x.data.host, x.data.env.id, mig)
+    source_actions(rest, s, x)
   end
 
   defp source_actions([{:fetch_code, mods} | rest], s, x) do
@@ -506,8 +510,7 @@ defmodule Tartarus.Agent.Server do
   defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x),
     do: {:cloned, x.out.id, x.data}
 
-  defp source_actions([{:done, {:failed, reason}} | _], %{kind: kind}, x) do
-    if kind == :move, do: Ledger.end_handoff(x.data.host, x.data.env.id)
+  defp source_actions([{:done, {:failed, reason}} | _], _s, x) do
     if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
     {:failed, reason, x.data}
   end
@@ -597,6 +600,10 @@ defmodule Tartarus.Agent.Server do
 
         with {pid, _tag} when is_pid(pid) <- notify,
              do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
+
+        # Running: the source host may forget its record of the commit.
+        with {:ok, src} <- Tartarus.Host.whereis(c.src),
+             do: send(src, Protocol.ack(c.mig, env.id, c.copy))
 
         Ledger.record_hop(host, hop_us)
 

@@ -7,6 +7,8 @@ defmodule Tartarus.Host.Persistence do
   #   {:forget, id}                      agent stopped, or was killed
   #   {:in_doubt, mig, env, src, kind, copy}  this host prepared paused copy `copy` (destination)
   #   {:resolved, mig, copy}             that copy was committed or aborted
+  #   {:acked, mig}                      the committed copy of mig runs: its decision record
+  #                                      is no longer needed (source)
   #
   # In-doubt copies are keyed by {mig, copy}: a second copy of one migration (a duplicated or
   # replayed prepare the host no longer remembered) must not replace the first's record.
@@ -56,6 +58,9 @@ defmodule Tartarus.Host.Persistence do
 
   def resolved(%{journal: nil}, _mig, _copy), do: :ok
   def resolved(%{journal: j}, mig, copy), do: append(j, {:resolved, mig, copy})
+
+  def acked(%{journal: nil}, _mig), do: :ok
+  def acked(%{journal: j}, mig), do: append(j, {:acked, mig})
 
   def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
   def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
@@ -110,6 +115,8 @@ defmodule Tartarus.Host.Persistence do
         decisions: Map.put(s.decisions, mig, {id, copy})
     }
   end
+
+  def apply_record({:acked, mig}, s), do: %{s | decisions: Map.delete(s.decisions, mig)}
 
   # A record of an earlier format: skipped.
   def apply_record(_other, s), do: s

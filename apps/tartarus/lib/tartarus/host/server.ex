@@ -119,7 +119,7 @@ defmodule Tartarus.Host.Server do
         # Killed in the middle of a hand-off: abort it (the destination's paused copy learns
         # so when it asks), unless the move had already committed: then the agent lives on
         # at its destination and the kill follows it there.
-        if Tartarus.Ledger.abort_pending(state.host, id) do
+        if Tartarus.Ledger.abort_pending(state.host, id, pid) do
           Tartarus.Host.Persistence.forget(state.host, id)
           {:reply, {:killed, id}, state}
         else
@@ -188,6 +188,17 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
+  def handle_info({:"$tartarus_ack", mig, id, copy} = msg, state) do
+    if Protocol.check_ack(msg) == :ok do
+      Ledger.acknowledge(state.host, mig, id, copy)
+      Tartarus.Host.Persistence.acked(state.host, mig)
+    else
+      Ledger.count(state.host, :dropped)
+    end
+
+    {:noreply, state}
+  end
+
   # Only a monitor this server made counts: a forged :DOWN changes nothing.
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
@@ -195,6 +206,8 @@ defmodule Tartarus.Host.Server do
     killed? = MapSet.member?(state.killing, pid)
     state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
     resident? = Ledger.forget_resident(state.host, pid)
+    # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
+    Ledger.drop_handoffs(state.host, pid)
     :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
     {:noreply, agent_down(state, entry, reason, resident?, killed?)}
   end
@@ -414,7 +427,7 @@ defmodule Tartarus.Host.Server do
         # A paused copy that died before its commit: the source still decides; nothing to do.
         state
 
-      not Tartarus.Ledger.abort_pending(host, entry.id) ->
+      not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
         # It crashed after committing a migration: it lives on at the destination.
         state
 

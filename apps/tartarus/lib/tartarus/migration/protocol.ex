@@ -28,6 +28,7 @@ defmodule Tartarus.Migration.Protocol do
       S  -> A   {:"$tartarus_commit", mig, copy, notify}  A becomes the agent
       A  -> Hs  {:"$tartarus_decision?", mig, id, copy, a_pid}
       Hs -> A   {:"$tartarus_decision", mig, copy, :committed | {:committed, notify} | :aborted | :unknown}
+      A  -> Hs  {:"$tartarus_ack", mig, id, copy}              A runs: Hs may forget the decision
 
   `mig` is `{source_incarnation, ref}`, unique per attempt. `copy` is a token H draws at
   random for the one paused copy it creates for `mig` (16 bytes; it survives H's restart
@@ -35,19 +36,28 @@ defmodule Tartarus.Migration.Protocol do
 
   ## Decision rule
 
-  The decision of `mig` is written once, by S (or by Hs when the agent is killed mid
-  hand-off), with an atomic insert-if-absent in Hs's ledger: `{:committed, copy}` naming
-  the one copy S chose, or `:aborted`. After a committed move the agent's forwarding pointer
-  (which names `{mig, copy}`) stands for the decision. Hs answers a query for `(mig, copy)`:
+  While S's attempt is undecided, Hs's ledger holds a hand-off record of `mig` (written
+  before `prepare` leaves, removed only after the decision, by S, or by Hs once S's process
+  is dead). The only decision ever written is a commit: `{:committed, copy}`, naming the one
+  copy S chose, written once (insert-if-absent) before `commit` leaves. An abort is the
+  removal of the hand-off record with no commit written: nothing is stored for it. After a
+  committed move the agent's forwarding pointer (which names `{mig, copy}`) stands for the
+  decision. Hs answers a query for `(mig, copy)`, reading in this order:
 
-    * a decision or forwarding pointer names `mig` and this `copy`: committed;
-    * a decision or pointer names `mig` with another copy, or `:aborted`: aborted;
-    * nothing, and `mig` is of an earlier incarnation of Hs: aborted (that run's record is
-      gone: with persistence, journaled commits are reloaded, so a missing one never
-      committed; without, the agent died with that run);
-    * nothing, same incarnation: unknown (S has not decided yet); A asks again later.
+    1. a hand-off record of `mig`: unknown (S has not decided yet); A asks again later;
+    2. a decision or forwarding pointer names `mig` and this `copy`: committed;
+    3. anything else: aborted. Either S aborted, or it committed another copy, or the
+       record of its commit is gone, which happens only once nothing can still need it:
+       the committed copy acknowledged it (`ack`), or the agent came back (a pointer is
+       deleted when its agent arrives again), or Hs restarted (with persistence journaled
+       commits are reloaded, so a missing one never committed; without, the agent died
+       with that run).
 
-  A starts only on a `commit` naming its `(mig, copy)` or a committed answer for it.
+  A starts only on a `commit` naming its `(mig, copy)` or a committed answer for it. Once
+  it runs it acknowledges (`ack`) to Hs, which then drops a clone's decision (a move's is
+  already replaced by the pointer) and marks the pointer acknowledged: it no longer stands
+  for a decision, only for the agent's whereabouts, and `forward_ttl` may sweep it. Nothing
+  that stands for an undecided or unacknowledged decision is ever removed by a timer.
 
   ## Guarantees and what each rests on
 
@@ -64,9 +74,15 @@ defmodule Tartarus.Migration.Protocol do
       id, copy}` for moves and clones before `commit` leaves; H journals each in-doubt copy
       under `{mig, copy}` before `prepared` leaves, so a second copy of one migration never
       replaces the first's record.
-    * **A decision never changes.** Insert-if-absent; a forwarding pointer is written only
-      by the committing S, after the decision, and is deleted only when the agent arrives
-      back (then no copy of `mig` can still be paused: that copy was the agent).
+    * **A decision never changes.** A commit is insert-if-absent by the only writer (S), an
+      abort is the absence of a commit after the hand-off record is gone (S is then done
+      or dead: nobody writes a commit later). Hs reads the hand-off record first: S writes
+      its decision before removing the record, and a move's pointer before dropping the
+      decision, so a reader never sees "nothing" while a commit is on its way. Records of
+      commits are removed only when no copy can still need them (above).
+    * **Bounded records.** Aborts store nothing; a clone's commit is freed by its `ack`; a
+      move's is its forwarding pointer, sweepable (`forward_ttl`) once acknowledged; the
+      journal records `{:acked, mig}` so compaction drops the commit.
     * **No sealed field is forged.** With security on, the sending host's seal covers the
       envelope, the manifest, `mig`, `kind`, `src`, and both reply-to pids (`seal_fields/1`).
     * **Bounded cost of a stranger's prepares.** Paused copies count against admission
@@ -120,6 +136,10 @@ defmodule Tartarus.Migration.Protocol do
   @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
   def decision_query(mig, id, copy, pid), do: {:"$tartarus_decision?", mig, id, copy, pid}
 
+  @doc "The acknowledgement of a committed copy that runs."
+  @spec ack(mig(), binary(), copy_token()) :: tuple()
+  def ack(mig, id, copy), do: {:"$tartarus_ack", mig, id, copy}
+
   @doc "The answer to a decision query."
   @spec decision(mig(), copy_token(), term()) :: tuple()
   def decision(mig, copy, d), do: {:"$tartarus_decision", mig, copy, d}
@@ -127,7 +147,8 @@ defmodule Tartarus.Migration.Protocol do
   @doc """
   What a message is to the protocol: `{:prepare, fields}`, `{:prepared, mig, copy, pid}`,
   `{:need, mig, mods}`, `{:refused, mig, reason}`, `{:commit, mig, copy, notify}`,
-  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, or `:other`. Total.
+  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, `{:ack, mig, id, copy}`, or
+  `:other`. Total.
 
       iex> Tartarus.Migration.Protocol.classify(:hello)
       :other
@@ -153,6 +174,7 @@ defmodule Tartarus.Migration.Protocol do
   def classify({:"$tartarus_commit", mig, copy, notify}), do: {:commit, mig, copy, notify}
   def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
   def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
+  def classify({:"$tartarus_ack", mig, id, copy}), do: {:ack, mig, id, copy}
   def classify(_), do: :other
 
   @doc """
@@ -171,7 +193,8 @@ defmodule Tartarus.Migration.Protocol do
         :"$tartarus_refused",
         :"$tartarus_commit",
         :"$tartarus_decision?",
-        :"$tartarus_decision"
+        :"$tartarus_decision",
+        :"$tartarus_ack"
       ]
 
   def protocol_message?(_), do: false
@@ -252,6 +275,18 @@ defmodule Tartarus.Migration.Protocol do
 
   def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
 
+  @doc "Checks an acknowledgement."
+  @spec check_ack(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_ack({:"$tartarus_ack", mig, id, copy}) do
+    check(
+      migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+        copy_token?(copy),
+      :ack
+    )
+  end
+
+  def check_ack(_), do: {:error, {:bad_message, :ack}}
+
   @doc "True for a migration id as hosts make them."
   @spec migration_id?(term()) :: boolean()
   def migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
@@ -275,12 +310,14 @@ defmodule Tartarus.Migration.Protocol do
     do: %{mig: mig, kind: kind, dest: dest, notify: notify, phase: :preparing, code: :none}
 
   @doc """
-  One step of the source. Events: `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
+  One step of the source. Its executor writes the hand-off record of `mig` before it sends
+  `prepare`. Events: `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
   `{:refused, mig, reason}`, `:timeout`, `{:down, reason}`, `{:decided, boolean}` (the
   outcome of a `:decide` action), `{:code, {:ok, code} | {:error, reason}}` (the outcome of a
-  `:fetch_code` action). Actions: `{:decide, mig, decision}` (insert-if-absent; answer with
-  `:decided`), `{:fetch_code, mods}`, `{:resend, code}`, `{:record_commit, kind, mig, copy}`
-  (journal, and for a move the forwarding pointer), `{:send, pid, msg}`,
+  `:fetch_code` action). Actions: `{:decide, mig, {:committed, copy}}` (insert-if-absent;
+  answer with `:decided`), `{:fetch_code, mods}`, `{:resend, code}`,
+  `{:record_commit, kind, mig, copy}` (journal, and for a move the forwarding pointer),
+  `{:end_handoff, mig}` (remove the hand-off record), `{:send, pid, msg}`,
   `{:done, {:committed, copy, pid} | {:failed, reason}}`.
 
       iex> alias Tartarus.Migration.Protocol, as: P
@@ -290,7 +327,7 @@ defmodule Tartarus.Migration.Protocol do
       [{:decide, :m, {:committed, :c}}]
       iex> {_s, acts} = P.source_step(s, {:decided, true})
       iex> acts
-      [{:record_commit, :move, :m, :c}, {:send, :a, {:"$tartarus_commit", :m, :c, nil}}, {:done, {:committed, :c, :a}}]
+      [{:record_commit, :move, :m, :c}, {:end_handoff, :m}, {:send, :a, {:"$tartarus_commit", :m, :c, nil}}, {:done, {:committed, :c, :a}}]
   """
   @spec source_step(map(), term()) :: {map(), [action()]}
   def source_step(%{phase: :preparing, mig: mig} = s, {:prepared, mig, copy, pid}),
@@ -300,14 +337,15 @@ defmodule Tartarus.Migration.Protocol do
     {%{s | phase: {:committed, copy, pid}},
      [
        {:record_commit, s.kind, mig, copy},
+       {:end_handoff, mig},
        {:send, pid, commit(mig, copy, s.notify)},
        {:done, {:committed, copy, pid}}
      ]}
   end
 
-  # The host decided otherwise first (the agent was killed mid hand-off).
+  # A commit was already written (never happens: S is the only writer; kept total).
   def source_step(%{phase: {:deciding, _, _}} = s, {:decided, false}),
-    do: {%{s | phase: :failed}, [{:done, {:failed, :aborted}}]}
+    do: {%{s | phase: :failed}, [{:end_handoff, s.mig}, {:done, {:failed, :aborted}}]}
 
   def source_step(%{phase: :preparing, mig: mig} = s, {:refused, mig, reason}),
     do: abort(s, reason)
@@ -328,9 +366,10 @@ defmodule Tartarus.Migration.Protocol do
   def source_step(%{phase: :preparing} = s, {:down, reason}), do: abort(s, {:host_down, reason})
   def source_step(s, _event), do: {s, []}
 
-  # Written before the agent goes on at the source, so a copy that asks learns it.
+  # An abort writes nothing: the hand-off record goes, with no commit, before the agent goes
+  # on at the source, so a copy that asks from then on learns it.
   defp abort(s, reason),
-    do: {%{s | phase: :failed}, [{:decide, s.mig, :aborted}, {:done, {:failed, reason}}]}
+    do: {%{s | phase: :failed}, [{:end_handoff, s.mig}, {:done, {:failed, reason}}]}
 
   @doc "True once the source's attempt has ended."
   @spec source_done?(map()) :: boolean()
@@ -492,29 +531,32 @@ defmodule Tartarus.Migration.Protocol do
   # -- source host: decision queries -------------------------------------------------
 
   @doc """
-  The source host's answer to a query for `(mig, copy)`, from what its ledger holds:
-  `decision` (the decision entry of `mig`, or nil) and `pointer` (the agent's forwarding
-  pointer as `{mig, copy, notify}`, or nil); `incarnation` is this run of the host's.
+  The source host's answer to a query for `(mig, copy)`, from what its ledger holds, read
+  in this order: `handoff?` (a hand-off record of `mig` exists), `decision` (the commit of
+  `mig`, or nil) and `pointer` (the agent's forwarding pointer as `{mig, copy, notify}`, or
+  anything else).
 
       iex> alias Tartarus.Migration.Protocol, as: P
-      iex> P.answer(%{decision: {:committed, :c}, pointer: nil}, {"i", 1}, :c, "i")
+      iex> P.answer(%{handoff?: true, decision: nil, pointer: nil}, :m, :c)
+      :unknown
+      iex> P.answer(%{handoff?: false, decision: {:committed, :c}, pointer: nil}, :m, :c)
       :committed
-      iex> P.answer(%{decision: nil, pointer: {{"i", 1}, :c, :n}}, {"i", 1}, :other, "i")
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: {:m, :c, :n}}, :m, :c)
+      {:committed, :n}
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: {:m, :c, :n}}, :m, :other)
       :aborted
-      iex> P.answer(%{decision: nil, pointer: nil}, {"old", 1}, :c, "i")
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: nil}, :m, :c)
       :aborted
   """
-  @spec answer(map(), mig(), copy_token(), term()) ::
+  @spec answer(map(), mig(), copy_token()) ::
           :committed | {:committed, term()} | :aborted | :unknown
-  def answer(%{decision: decision, pointer: pointer}, {incarnation, _} = mig, copy, here) do
+  def answer(%{handoff?: true}, _mig, _copy), do: :unknown
+
+  def answer(%{decision: decision, pointer: pointer}, mig, copy) do
     case {decision, pointer} do
       {{:committed, ^copy}, _} -> :committed
-      {{:committed, _other}, _} -> :aborted
-      {:aborted, _} -> :aborted
-      {nil, {^mig, ^copy, notify}} -> {:committed, notify}
-      {nil, {^mig, _other, _}} -> :aborted
-      {nil, _} when incarnation == here -> :unknown
-      {nil, _} -> :aborted
+      {_, {^mig, ^copy, notify}} -> {:committed, notify}
+      _ -> :aborted
     end
   end
 end

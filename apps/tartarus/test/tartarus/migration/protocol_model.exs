@@ -96,6 +96,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       alive: true,
       inc: inc,
       decisions: Map.new(decided, fn {mig, copy} -> {mig, {:committed, copy}} end),
+      handoffs: %{},
       fwd: %{},
       residents: %{},
       dest: Protocol.destination(seen_max: w.seen_max),
@@ -260,6 +261,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     case Protocol.classify(msg) do
       {:prepare, p} -> admission(w, h, {:prepare, p})
       {:query, mig, id, copy, a_pid} -> answer_query(w, h, mig, id, copy, a_pid)
+      {:ack, mig, id, copy} -> acknowledge(w, h, mig, id, copy)
       _ -> w
     end
   end
@@ -321,6 +323,7 @@ defmodule Tartarus.Migration.ProtocolModel do
         s = Protocol.source(mig, kind, server(w, dest), nil)
         prepare = Protocol.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
+        w = put_in(w.hosts[h].handoffs[mig], pid)
         w = note(w, {:start, pid, proc.env.id, kind, h, dest, mig})
         send_msg(w, h, server(w, dest), prepare)
     end
@@ -360,13 +363,13 @@ defmodule Tartarus.Migration.ProtocolModel do
             {true, w}
           end
 
-        if d == :aborted do
-          source_actions(w, pid, rest)
-        else
-          {s, more} = Protocol.source_step(w.procs[pid].src.s, {:decided, decided})
-          w = put_in(w.procs[pid].src.s, s)
-          source_actions(w, pid, more ++ rest)
-        end
+        {s, more} = Protocol.source_step(w.procs[pid].src.s, {:decided, decided})
+        w = put_in(w.procs[pid].src.s, s)
+        source_actions(w, pid, more ++ rest)
+
+      {:end_handoff, mig} ->
+        w = update_in(w.hosts[h].handoffs, &Map.delete(&1, mig))
+        source_actions(w, pid, rest)
 
       {:fetch_code, _mods} ->
         {s, more} = Protocol.source_step(proc.src.s, {:code, {:ok, [:code]}})
@@ -445,10 +448,13 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     a =
       Protocol.answer(
-        %{decision: Map.get(host.decisions, mig), pointer: Map.get(host.fwd, id)},
+        %{
+          handoff?: Map.has_key?(host.handoffs, mig),
+          decision: Map.get(host.decisions, mig),
+          pointer: Map.get(host.fwd, id)
+        },
         mig,
-        copy,
-        host.inc
+        copy
       )
 
     w =
@@ -459,20 +465,42 @@ defmodule Tartarus.Migration.ProtocolModel do
     send_msg(w, h, a_pid, Protocol.decision(mig, copy, a))
   end
 
-  defp check_answer(w, h, {inc, _} = mig, copy, a) do
+  # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
+  defp acknowledge(w, h, mig, id, copy) do
+    w = count(w, :ack)
+
+    w =
+      if Map.get(w.hosts[h].decisions, mig) == {:committed, copy},
+        do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
+        else: w
+
+    w =
+      if Map.get(w.hosts[h].fwd, id) == {mig, copy, nil},
+        do: put_in(w.hosts[h].fwd[id], :acked),
+        else: w
+
+    journal(w, h, {:acked, mig})
+  end
+
+  # A committed answer must name the committed copy. (An aborted answer is checked when a
+  # copy acts on it: a late answer to a copy that already runs changes nothing.)
+  defp check_answer(w, _h, mig, copy, a) do
     made = Map.get(w.decisions, mig)
-    excused = not w.persist and w.hosts[h].inc != inc
 
-    ok =
-      case a do
-        :unknown -> true
-        :aborted -> made != {:committed, copy} or excused
-        _committed -> made == {:committed, copy}
-      end
-
-    if ok or not w.check_decisions,
+    if a in [:unknown, :aborted] or made == {:committed, copy} or not w.check_decisions,
       do: w,
       else: violation(w, {:answer_contradicts_decision, mig, copy, a, made})
+  end
+
+  # A copy aborts: its migration must not have been committed to it (without persistence a
+  # source that crashed since forgot its commit: the agent died with it).
+  defp check_abort(w, %{mig: {inc, _} = mig, copy: copy, src: src}) do
+    made = Map.get(w.decisions, mig)
+    excused = not w.persist and w.hosts[src].inc != inc
+
+    if made != {:committed, copy} or excused or not w.check_decisions,
+      do: w,
+      else: violation(w, {:committed_copy_aborted, mig, copy})
   end
 
   # -- paused copies -----------------------------------------------------------------
@@ -500,12 +528,20 @@ defmodule Tartarus.Migration.ProtocolModel do
       w = journal(w, h, {:agent, env.id, env})
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
-      {:halt, put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})}
+      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+
+      # Running: acknowledge to the source host.
+      w =
+        if alive_host?(w, c.src),
+          do: send_msg(w, h, server(w, c.src), Protocol.ack(c.mig, env.id, c.copy)),
+          else: w
+
+      {:halt, w}
     end
   end
 
   defp copy_action(w, pid, :abort) do
-    w = count(w, :copy_aborted)
+    w = w |> count(:copy_aborted) |> check_abort(w.procs[pid].c)
     %{c: c, host: h} = w.procs[pid]
     w = journal(w, h, {:resolved, c.mig, c.copy})
     {:halt, %{w | procs: Map.delete(w.procs, pid)}}
