@@ -172,6 +172,7 @@ defmodule Tartarus.Wire do
   def check_call(:monitored), do: :ok
   def check_call(:restore), do: :ok
   def check_call(:paused), do: :ok
+  def check_call(:parked), do: :ok
   def check_call({:create, env, _args}), do: check_envelope(env)
 
   def check_call({:connect, host, props}),
@@ -180,6 +181,7 @@ defmodule Tartarus.Wire do
   def check_call({:disconnect, host}), do: check(Tartarus.Host.address?(host), :disconnect)
   def check_call({:locate, agent}), do: check(agent_key?(agent), :locate)
   def check_call({:kill, agent}), do: check(agent_key?(agent), :kill)
+  def check_call({:park, _mig, _copy, _env, _src, _kind}), do: :ok
   def check_call(_), do: {:error, {:bad_message, :unknown_call}}
 
   defp link_props?(%{latency_ms: l, loss: p} = m) when map_size(m) == 2,

@@ -173,6 +173,14 @@ defmodule Tartarus.Agent.Server do
     {:stop, {:shutdown, :aborted}, data}
   end
 
+  # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
+  # its stash go (the senders waiting on stashed messages time out).
+  defp paused_actions([:park | _], data) do
+    %{c: c} = data.paused
+    :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
+    {:stop, {:shutdown, :parked}, data}
+  end
+
   defp paused_actions([{:ask, src, mig, copy} | rest], data) do
     # The source host's server, found by address each time (the source may have restarted
     # since it sent `prepare`; the directory drops pids of hosts that went down).

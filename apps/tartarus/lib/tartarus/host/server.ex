@@ -18,6 +18,8 @@ defmodule Tartarus.Host.Server do
   alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
+  # How often a host asks the sources of its parked copies.
+  @ask_parked_every 30_000
 
   def start_link({name, opts}) do
     GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.Supervisor.via(:host, name))
@@ -133,6 +135,20 @@ defmodule Tartarus.Host.Server do
 
   defp call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
 
+  # A paused copy that waited too long parks (Protocol.copy_step/2): only the copy itself,
+  # found as its agent's arriving process here, may hand over its record.
+  defp call({:park, mig, copy, env, src, kind}, {pid, _}, state) do
+    if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
+      :ets.insert(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind})
+      if parked(state) == 1, do: schedule_parked()
+      {:reply, :ok, state}
+    else
+      {:reply, {:error, :not_paused_here}, state}
+    end
+  end
+
+  defp call(:parked, _from, state), do: {:reply, parked(state), state}
+
   # Restores checkpointed agents and in-doubt copies (persistence); called once by
   # Tartarus.start_host/2 after the host's supervisors are up.
   defp call(:restore, _from, state) do
@@ -199,6 +215,33 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
+  # Asks the sources of parked copies (a timer that only asks: it never decides anything).
+  def handle_info(:"$tartarus_ask_parked", state) do
+    host = state.host
+
+    for {{mig, copy}, env, _src, _kind} = rec <-
+          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}])
+          |> Enum.map(fn {{:parked, k}, e, s, kd} -> {k, e, s, kd} end),
+        {:ok, pid} <- [Tartarus.Host.whereis(elem(rec, 2))] do
+      send(pid, Protocol.decision_query(mig, env.id, copy, self()))
+    end
+
+    if parked(state) > 0, do: schedule_parked()
+    {:noreply, state}
+  end
+
+  # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
+  def handle_info({:"$tartarus_decision", mig, copy, d}, state) do
+    case :ets.lookup(state.host.ledger, {:parked, {mig, copy}}) do
+      [{key, env, src, kind}] ->
+        {:noreply, unpark(state, key, mig, copy, env, src, kind, d)}
+
+      [] ->
+        Ledger.count(state.host, :dropped)
+        {:noreply, state}
+    end
+  end
+
   # Only a monitor this server made counts: a forged :DOWN changes nothing.
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
@@ -234,10 +277,45 @@ defmodule Tartarus.Host.Server do
   @impl true
   def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.journal)
 
+  # -- parked copies -------------------------------------------------------------------
+
+  defp parked(state),
+    do: :ets.select_count(state.host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [true]}])
+
+  defp schedule_parked,
+    do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_parked_every)
+
+  defp unpark(state, key, mig, copy, env, src, kind, d) do
+    case Protocol.parked(d) do
+      :keep ->
+        state
+
+      :drop ->
+        :ets.delete(state.host.ledger, key)
+        Tartarus.Host.Persistence.resolved(state.host, mig, copy)
+        state
+
+      :revive ->
+        :ets.delete(state.host.ledger, key)
+
+        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            send(pid, Protocol.decision(mig, copy, d))
+            state
+
+          {:error, _reason, state} ->
+            # Kept for the next answer.
+            :ets.insert(state.host.ledger, {key, env, src, kind})
+            state
+        end
+    end
+  end
+
   # -- admission (the destination side of the protocol) -----------------------------
 
-  # Paused copies a host without an admission policy holds at most (with a policy they count
-  # against its max_resident_agents).
+  # Paused (and parked) copies a host without an admission policy holds at most (with a
+  # policy they count against its max_resident_agents).
   @max_paused 10_000
 
   defp admission(state, event) do
@@ -300,7 +378,9 @@ defmodule Tartarus.Host.Server do
   defp paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
 
   defp capacity(%{admission: nil} = state) do
-    if paused(state) < @max_paused, do: :ok, else: {:error, {:busy, :paused_copies}}
+    if paused(state) + parked(state) < @max_paused,
+      do: :ok,
+      else: {:error, {:busy, :paused_copies}}
   end
 
   defp capacity(_state), do: :ok
@@ -331,7 +411,7 @@ defmodule Tartarus.Host.Server do
       payload_bytes: :erlang.external_size({env.state, env.payload}),
       hops: env.hops + 1,
       # Paused copies count: a stranger's prepares cannot hold more than the limit.
-      resident: map_size(state.monitors)
+      resident: map_size(state.monitors) + parked(state)
     }
 
     case Tartarus.Security.Admission.admit(

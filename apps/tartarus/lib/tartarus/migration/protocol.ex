@@ -91,8 +91,11 @@ defmodule Tartarus.Migration.Protocol do
     * **In doubt, never a guess.** A copy whose source does not answer keeps asking, with a
       back-off capped at `max_ask_interval`; it never starts or drops itself on a timer. It
       is dropped only on an `:aborted` answer (or a host kill), started only on a committed
-      one. A source that never returns leaves it paused — unreachable but recorded, bounded
-      by admission — never duplicated.
+      one. After `park_after` queries it parks: its process (and stash) goes, its record
+      stays with the host (and in the journal), which asks the source on its behalf at a
+      low rate and revives or drops it only on an answer (`parked/1`). A source that never
+      returns leaves a row — unreachable but recorded, counted by admission — never a
+      duplicate.
   """
 
   @typedoc "A migration id: the source host's incarnation and a unique reference."
@@ -471,7 +474,9 @@ defmodule Tartarus.Migration.Protocol do
   @doc """
   The state of a paused copy `copy` of migration `mig` from source host `src`. Options:
   `:stash_max` (messages kept while paused, default 1_000), `:ask_after` (first query, in
-  ms, default 1_000), `:max_ask_interval` (cap of the back-off, default 30_000).
+  ms, default 1_000), `:max_ask_interval` (cap of the back-off, default 30_000),
+  `:park_after` (queries without a decisive answer before the copy parks, default 20:
+  about eight minutes).
   """
   @spec copy(mig(), copy_token(), term(), :move | :clone, keyword()) :: map()
   def copy(mig, copy, src, kind, opts \\ []) do
@@ -485,7 +490,8 @@ defmodule Tartarus.Migration.Protocol do
       asks: 0,
       stash_max: Keyword.get(opts, :stash_max, 1_000),
       ask_after: Keyword.get(opts, :ask_after, 1_000),
-      max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000)
+      max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000),
+      park_after: Keyword.get(opts, :park_after, 20)
     }
   end
 
@@ -493,7 +499,9 @@ defmodule Tartarus.Migration.Protocol do
   One step of a paused copy. Events: `{:commit, mig, copy, notify}`, `:timeout` (its timer),
   `{:decision, mig, copy, d}`, `{:message, msg}` (anything else sent to it). Actions:
   `{:start, notify}` (become the agent), `:abort` (stop; the migration was aborted),
-  `{:ask, src, mig, copy}`, `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`.
+  `{:ask, src, mig, copy}`, `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`, `:park` (hand
+  the record to the host, which keeps asking, `parked/1`, and stop: the copy's process and
+  stash go, its record stays, in the journal too).
 
       iex> alias Tartarus.Migration.Protocol, as: P
       iex> c = P.copy(:m, :c, :src, :move)
@@ -505,6 +513,8 @@ defmodule Tartarus.Migration.Protocol do
   @spec copy_step(map(), term()) :: {map(), [action()]}
   def copy_step(%{mig: mig, copy: copy} = c, {:commit, mig, copy, notify}),
     do: {c, [{:start, notify}]}
+
+  def copy_step(%{asks: asks, park_after: n} = c, :timeout) when asks >= n, do: {c, [:park]}
 
   def copy_step(c, :timeout) do
     interval = min(c.ask_after * Integer.pow(2, min(c.asks, 16)), c.max_ask_interval)
@@ -527,6 +537,21 @@ defmodule Tartarus.Migration.Protocol do
   end
 
   def copy_step(c, _event), do: {c, []}
+
+  @doc """
+  What a host does with a parked copy's record on an answer from its source: `:revive` (a
+  paused copy again, which starts: committed), `:drop` (aborted), `:keep` (unknown: ask
+  again later). A parked record is never dropped or revived otherwise, so parking cannot
+  duplicate an agent; it only trades a waiting process for a row.
+
+      iex> Tartarus.Migration.Protocol.parked({:committed, nil})
+      :revive
+  """
+  @spec parked(term()) :: :revive | :drop | :keep
+  def parked(:committed), do: :revive
+  def parked({:committed, _}), do: :revive
+  def parked(:aborted), do: :drop
+  def parked(_), do: :keep
 
   # -- source host: decision queries -------------------------------------------------
 

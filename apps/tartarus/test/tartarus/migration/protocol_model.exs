@@ -58,6 +58,8 @@ defmodule Tartarus.Migration.ProtocolModel do
       persist: persist,
       seen_max: Keyword.get(opts, :seen_max, 100_000),
       check_decisions: Keyword.get(opts, :check_decisions, true),
+      # Copies park after this many unanswered queries (small: parking is explored often).
+      park_after: Keyword.get(opts, :park_after, 2),
       trace_n: Keyword.get(opts, :trace, 60),
       trace: [],
       events: 0,
@@ -97,6 +99,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       inc: inc,
       decisions: Map.new(decided, fn {mig, copy} -> {mig, {:committed, copy}} end),
       handoffs: %{},
+      parked: %{},
       fwd: %{},
       residents: %{},
       dest: Protocol.destination(seen_max: w.seen_max),
@@ -113,7 +116,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
       {pid, w} = fresh(w, :pid)
-      c = Protocol.copy(mig, copy, src, kind)
+      c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
       w = put_in(w.procs[pid], %{role: :copy, host: h, env: env, c: c})
       restored_seen(w, h, mig, copy, pid)
     end)
@@ -262,6 +265,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:prepare, p} -> admission(w, h, {:prepare, p})
       {:query, mig, id, copy, a_pid} -> answer_query(w, h, mig, id, copy, a_pid)
       {:ack, mig, id, copy} -> acknowledge(w, h, mig, id, copy)
+      {:decision, mig, copy, d} -> parked_answer(w, h, mig, copy, d)
       _ -> w
     end
   end
@@ -428,7 +432,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp admission_action(w, h, {:create, p, copy}) do
     {pid, w} = fresh(w, :pid)
-    c = Protocol.copy(p.mig, copy, p.src, p.kind)
+    c = Protocol.copy(p.mig, copy, p.src, p.kind, park_after: w.park_after)
     w = put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
     admission(w, h, {:created, p, copy, pid})
   end
@@ -564,7 +568,53 @@ defmodule Tartarus.Migration.ProtocolModel do
     {:cont, w}
   end
 
+  # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
+  defp copy_action(w, pid, :park) do
+    %{host: h, env: env, c: c} = w.procs[pid]
+    w = put_in(count(w, :parked).hosts[h].parked[{c.mig, c.copy}], {env, c.src, c.kind})
+    {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+  end
+
   defp copy_action(w, _pid, _other), do: {:cont, w}
+
+  # The host asks the sources of its parked copies.
+  defp ask_parked(w, h) do
+    Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
+                                                                                      w ->
+      {env, src, _kind} = w.hosts[h].parked[{mig, copy}]
+
+      if alive_host?(w, src),
+        do:
+          send_msg(w, h, server(w, src), Protocol.decision_query(mig, env.id, copy, server(w, h))),
+        else: w
+    end)
+  end
+
+  defp parked_answer(w, h, mig, copy, d) do
+    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
+      :error ->
+        w
+
+      {:ok, {env, src, kind}} ->
+        w = update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy}))
+
+        case Protocol.parked(d) do
+          :keep ->
+            put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind})
+
+          :drop ->
+            c = Protocol.copy(mig, copy, src, kind)
+            w = check_abort(count(w, :parked_dropped), c)
+            journal(w, h, {:resolved, mig, copy})
+
+          :revive ->
+            {pid, w} = fresh(w, :pid)
+            c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
+            w = put_in(count(w, :revived).procs[pid], %{role: :copy, host: h, env: env, c: c})
+            copy_event(w, pid, {:decision, mig, copy, d})
+        end
+    end
+  end
 
   # -- timers, failures --------------------------------------------------------------
 
@@ -575,10 +625,12 @@ defmodule Tartarus.Migration.ProtocolModel do
           p.role == :copy or (p.role == :agent and p.src != nil),
           do: pid
 
-    {pid, w} = pick(w, Enum.sort(timers))
+    parked = for h <- @hosts, alive_host?(w, h), w.hosts[h].parked != %{}, do: {:parked, h}
+    {pid, w} = pick(w, Enum.sort(timers) ++ parked)
 
-    case pid && w.procs[pid] do
+    case pid && (match?({:parked, _}, pid) || w.procs[pid]) do
       nil -> w
+      true -> ask_parked(w, elem(pid, 1))
       %{role: :copy} -> copy_event(note(w, {:timer, pid}), pid, :timeout)
       %{role: :agent} -> source_event(note(w, {:timeout, pid}), pid, :timeout)
     end
@@ -605,11 +657,16 @@ defmodule Tartarus.Migration.ProtocolModel do
       w = note(w, {:crash, h})
 
       exposed =
-        for {_pid, p} <- w.procs,
-            p.host == h or (p.role == :copy and p.c.src == h),
-            do: p.env.id
+        for({_pid, p} <- w.procs, p.host == h or (p.role == :copy and p.c.src == h), do: p.env.id) ++
+          for(
+            {g, host} <- w.hosts,
+            {_, {env, src, _}} <- host.parked,
+            g == h or src == h,
+            do: env.id
+          )
 
       procs = Map.reject(w.procs, fn {_, p} -> p.host == h end)
+      w = put_in(w.hosts[h].parked, %{})
 
       %{w | procs: procs, exposed: MapSet.union(w.exposed, MapSet.new(exposed))}
       |> put_in([:hosts, h, :alive], false)
@@ -658,7 +715,9 @@ defmodule Tartarus.Migration.ProtocolModel do
     waiting =
       for {pid, p} <- w.procs, p.role == :copy or (p.role == :agent and p.src != nil), do: pid
 
-    if waiting == [] do
+    parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
+
+    if waiting == [] and parked == [] do
       w
     else
       w =
@@ -675,6 +734,7 @@ defmodule Tartarus.Migration.ProtocolModel do
           end
         end)
 
+      w = Enum.reduce(parked, w, &ask_parked(&2, &1))
       quiesce(w, rounds - 1)
     end
   end

@@ -89,3 +89,84 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
     assert Tartarus.Host.call(b, :paused) == 2
   end
 end
+
+defmodule Tartarus.Migration.ParkingTest do
+  # A paused copy whose source does not answer parks (Protocol.copy_step/2): its process
+  # goes, the host keeps its record and revives or drops it only on the source's answer.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.{CodeCache, Envelope}
+  alias Tartarus.Examples.Echo
+  alias Tartarus.Migration.Protocol
+
+  # A prepare from `a` (its incarnation, no hand-off there) admitted by `b`: the paused copy.
+  defp paused_copy(a, b) do
+    {:ok, ha} = Tartarus.Host.local(a)
+    {:ok, server} = Tartarus.Host.whereis(b)
+    {:ok, manifest} = CodeCache.manifest([Echo])
+    mig = {ha.incarnation, make_ref()}
+
+    env = %Envelope{
+      id: Envelope.new_id(),
+      module: Echo,
+      state: :parked,
+      rng: Envelope.seed_rng(1)
+    }
+
+    send(server, Protocol.prepare(self(), mig, {a, node()}, self(), :move, env, manifest, []))
+    assert_receive {:"$tartarus_prepared", ^mig, copy, pid}, 2_000
+    {ha, server, mig, copy, pid, env.id}
+  end
+
+  # Its queries are answered :unknown meanwhile (a hand-off record of `mig` at the source).
+  defp park(ha, pid, mig) do
+    :ets.insert(ha.ledger, {{:handoff, mig}, self()})
+    ref = Process.monitor(pid)
+    for _ <- 1..21, do: send(pid, {:commit_timeout, mig})
+    assert_receive {:DOWN, ^ref, :process, ^pid, {:shutdown, :parked}}, 5_000
+    :ets.delete(ha.ledger, {:handoff, mig})
+  end
+
+  test "a parked copy is revived on a committed answer and runs once" do
+    [a, b] = [host!(), host!()]
+    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig)
+    assert Tartarus.Host.call(b, :parked) == 1 and Tartarus.Host.call(b, :paused) == 0
+
+    # Unknown (the source has a hand-off record): kept.
+    :ets.insert(ha.ledger, {{:handoff, mig}, self()})
+    send(server, :"$tartarus_ask_parked")
+    assert Tartarus.Host.call(b, :parked) == 1
+
+    # Committed to this copy: revived, it starts.
+    :ets.delete(ha.ledger, {:handoff, mig})
+    :ets.insert(ha.ledger, {{:decision, mig}, {:committed, copy}})
+    send(server, :"$tartarus_ask_parked")
+    assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
+    assert Tartarus.Host.call(b, :parked) == 0
+    assert {:ok, :parked} = Tartarus.request({id, b}, :state)
+  end
+
+  test "a parked copy is dropped on an aborted answer" do
+    [a, b] = [host!(), host!()]
+    {ha, server, mig, _copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig)
+    send(server, :"$tartarus_ask_parked")
+    assert eventually(fn -> Tartarus.Host.call(b, :parked) == 0 end, 2_000)
+    assert Tartarus.agents(b) == []
+    assert {:error, :not_found} = Tartarus.request({id, b}, :state)
+  end
+
+  test "only the copy itself may park its record" do
+    b = host!()
+    {:ok, server} = Tartarus.Host.whereis(b)
+    env = %Envelope{id: Envelope.new_id(), module: Echo, rng: Envelope.seed_rng(1)}
+    mig = {"incarnat", make_ref()}
+    copy = :crypto.strong_rand_bytes(16)
+
+    assert {:error, :not_paused_here} =
+             GenServer.call(server, {:park, mig, copy, env, {:x, node()}, :move})
+
+    assert Tartarus.Host.call(b, :parked) == 0
+  end
+end
