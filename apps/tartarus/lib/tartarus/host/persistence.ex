@@ -17,8 +17,12 @@ defmodule Tartarus.Host.Persistence do
   #
   # Replaying the journal in order gives the state to restore; a `decision` or a later
   # `agent` record supersedes earlier records about the same agent, so a host that died
-  # between two writes restores nothing twice. On open the journal is compacted (rewritten
-  # with the live records and renamed over the old one).
+  # between two writes restores nothing twice. The journal is compacted (rewritten with the
+  # live records and renamed over the old one) on open and while the host runs: its writer
+  # (Tartarus.Host.Persistence.Writer, one process per host, owning the file) compacts it
+  # between two writes once it has grown by more than twice its live size (at least
+  # @compact_min bytes), so its size stays proportional to what is live (resident agents,
+  # in-doubt copies, unacknowledged commits), not to the migrations that passed.
   #
   # Each write goes to the file with write(2) before the host sends the message that depends
   # on it (the destination records the in-doubt copy before answering `prepared`; the source
@@ -34,16 +38,29 @@ defmodule Tartarus.Host.Persistence do
   def open(name, dir) do
     File.mkdir_p!(dir)
     path = Path.join(dir, "host-#{safe(name)}.journal")
-    state = replay(path)
-    tmp = path <> ".tmp"
-    File.write!(tmp, Enum.map(records(state), &frame/1))
-    File.rename!(tmp, path)
-    {:ok, io} = File.open(path, [:append, :binary])
-    {%{io: io, path: path}, restored(state)}
+    {state, live} = compact(path)
+    {:ok, pid} = Tartarus.Host.Persistence.Writer.start_link(path, live)
+    {%{io: pid, path: path}, restored(state)}
   end
 
   def close(nil), do: :ok
-  def close(%{io: io}), do: File.close(io)
+  def close(%{io: pid}), do: GenServer.stop(pid)
+
+  @doc false
+  # Rewrites the journal at `path` with its live records. Returns {replayed state, bytes}.
+  def compact(path) do
+    state = replay(path)
+    tmp = path <> ".tmp"
+    bin = IO.iodata_to_binary(Enum.map(records(state), &frame/1))
+    File.write!(tmp, bin)
+    File.rename!(tmp, path)
+    {state, byte_size(bin)}
+  end
+
+  @doc false
+  # The journal's size on disk, in bytes (0 without one).
+  def size(%{journal: nil}), do: 0
+  def size(%{journal: %{path: path}}), do: File.stat!(path).size
 
   def checkpoint(%{journal: nil}, _env), do: :ok
   def checkpoint(%{journal: j}, env), do: append(j, {:agent, env.id, env})
@@ -65,7 +82,9 @@ defmodule Tartarus.Host.Persistence do
   def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
   def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
 
-  defp append(%{io: io}, record), do: :ok = IO.binwrite(io, frame(record))
+  # Returns once the record is written (write(2)), before the caller sends what depends on it.
+  defp append(%{io: pid}, record),
+    do: :ok = GenServer.call(pid, {:append, frame(record)}, :infinity)
 
   defp frame(record) do
     bin = :erlang.term_to_binary(record)
@@ -141,4 +160,48 @@ defmodule Tartarus.Host.Persistence do
   end
 
   defp safe(name), do: name |> to_string() |> String.replace(~r/[^A-Za-z0-9_.-]/, "_")
+end
+
+defmodule Tartarus.Host.Persistence.Writer do
+  @moduledoc false
+  # The one process that writes a host's journal: appends in the order they come, each
+  # answered once written, and compaction between two appends (nothing is appended while it
+  # runs), when the file has grown by more than twice its live size.
+  use GenServer
+
+  @compact_min 256 * 1024
+
+  def start_link(path, live), do: GenServer.start_link(__MODULE__, {path, live})
+
+  @impl true
+  def init({path, live}) do
+    {:ok, fd} = :file.open(path, [:append, :raw, :binary])
+    {:ok, %{fd: fd, path: path, live: live, grown: 0}}
+  end
+
+  @impl true
+  def handle_call({:append, bin}, _from, s) when is_binary(bin) do
+    :ok = :file.write(s.fd, bin)
+    s = %{s | grown: s.grown + byte_size(bin)}
+    {:reply, :ok, if(s.grown > max(@compact_min, 2 * s.live), do: compact(s), else: s)}
+  end
+
+  def handle_call(:compact, _from, s), do: {:reply, :ok, compact(s)}
+  def handle_call(_other, _from, s), do: {:reply, {:error, :unexpected}, s}
+
+  @impl true
+  def handle_cast(_other, s), do: {:noreply, s}
+
+  @impl true
+  def handle_info(_other, s), do: {:noreply, s}
+
+  @impl true
+  def terminate(_reason, s), do: :file.close(s.fd)
+
+  defp compact(s) do
+    :ok = :file.close(s.fd)
+    {_state, live} = Tartarus.Host.Persistence.compact(s.path)
+    {:ok, fd} = :file.open(s.path, [:append, :raw, :binary])
+    %{s | fd: fd, live: live, grown: 0}
+  end
 end

@@ -261,6 +261,10 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
+  # The journal's writer died: this host cannot keep its promises without it.
+  def handle_info({:EXIT, pid, reason}, %{host: %{journal: %{io: pid}}} = state),
+    do: {:stop, {:journal, reason}, state}
+
   def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
 
   def handle_info(_other, state) do
@@ -275,7 +279,11 @@ defmodule Tartarus.Host.Server do
   end
 
   @impl true
-  def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.journal)
+  def terminate(_reason, state) do
+    Tartarus.Host.Persistence.close(state.host.journal)
+  catch
+    :exit, _ -> :ok
+  end
 
   # -- parked copies -------------------------------------------------------------------
 

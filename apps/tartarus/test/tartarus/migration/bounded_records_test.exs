@@ -1,0 +1,71 @@
+defmodule Tartarus.Migration.BoundedRecordsTest do
+  # Records of migrations do not grow with the migrations that pass: aborts store nothing,
+  # acknowledged commits are freed (a move's pointer only marked), the journal is compacted
+  # while the host runs.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.Examples.Echo
+
+  defp ledger(host) do
+    {:ok, h} = Tartarus.Host.local(host)
+    h
+  end
+
+  defp decisions(host), do: :ets.match(ledger(host).ledger, {{:decision, :"$1"}, :_})
+  defp handoffs(host), do: :ets.match(ledger(host).ledger, {{:handoff, :"$1"}, :_})
+
+  defp unacked_pointers(host),
+    do: :ets.select(ledger(host).ledger, [{{{:fwd, :_}, :_, :_, {:_, :_}, :_}, [], [true]}])
+
+  test "moves and clones leave no decision behind once their copies run" do
+    [a, b] = [host!(), host!()]
+    {:ok, id} = Tartarus.create_mobile_agent(a, Echo, :s)
+
+    for _ <- 1..20 do
+      :ok = Tartarus.move({id, a}, b)
+      :ok = Tartarus.move({id, b}, a)
+    end
+
+    for _ <- 1..5, do: {:ok, _clone} = Tartarus.clone({id, a}, b)
+    # Moves refused at the destination: aborted migrations.
+    tiny = host!(max_envelope_bytes: 1)
+
+    for _ <- 1..3,
+        do: assert({:error, {:bad_message, {:too_large, _, 1}}} = Tartarus.move({id, a}, tiny))
+
+    assert eventually(fn -> decisions(a) == [] and decisions(b) == [] end)
+    assert eventually(fn -> unacked_pointers(a) == [] and unacked_pointers(b) == [] end)
+    assert handoffs(a) == [] and handoffs(b) == []
+    assert length(Tartarus.agents(b)) == 5
+  end
+
+  test "the journal stays bounded while the host runs, and a restart restores the agent once" do
+    dir = Path.join(System.tmp_dir!(), "bounded_#{System.unique_integer([:positive])}")
+    on_exit(fn -> File.rm_rf!(dir) end)
+    [na, nb] = [unique_name(), unique_name()]
+    {:ok, a} = Tartarus.start_host(na, data_dir: dir)
+    {:ok, b} = Tartarus.start_host(nb, data_dir: dir)
+    {:ok, id} = Tartarus.create_mobile_agent(a, Echo, String.duplicate("x", 1_000))
+
+    for _ <- 1..200 do
+      :ok = Tartarus.move({id, a}, b)
+      :ok = Tartarus.move({id, b}, a)
+    end
+
+    size = fn name -> File.stat!(Path.join(dir, "host-#{name}.journal")).size end
+    # 400 arrivals of a 1 KB agent wrote far more than this; compaction keeps what is live.
+    assert size.(na) < 320 * 1024 and size.(nb) < 320 * 1024
+
+    :ok = Tartarus.stop_host(a)
+    :ok = Tartarus.stop_host(b)
+    {:ok, ^a} = Tartarus.start_host(na, data_dir: dir)
+    {:ok, ^b} = Tartarus.start_host(nb, data_dir: dir)
+    assert size.(na) < 8 * 1024 and size.(nb) < 8 * 1024
+    assert eventually(fn -> length(Tartarus.agents(a)) == 1 end)
+    assert Tartarus.agents(b) == []
+    assert {:ok, state} = Tartarus.request({id, a}, :state)
+    assert byte_size(state) == 1_000
+    :ok = Tartarus.stop_host(a)
+    :ok = Tartarus.stop_host(b)
+  end
+end
