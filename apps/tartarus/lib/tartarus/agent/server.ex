@@ -375,25 +375,37 @@ defmodule Tartarus.Agent.Server do
       else: :ok
   end
 
-  # Emulated link properties: latency delays the hand-off, loss makes it fail (the agent's
-  # own random state decides, so runs are reproducible).
+  # Link emulation is a transport hook (Tartarus.Fault point :link), installed on a node the
+  # first time a host there links with latency or loss (Tartarus.connect/3 with props): a
+  # node that never emulates links pays one :persistent_term read per hand-off.
   defp link_loss(data, dest) do
-    case Ledger.link(data.host, dest) do
+    case Tartarus.Fault.point(:link, {data.host, dest, data.env.rng}) do
+      {:ok, rng} -> {:ok, %{data | env: %{data.env | rng: rng}}}
+      {:error, :link_loss, rng} -> {:error, :link_loss, %{data | env: %{data.env | rng: rng}}}
+      {_host, _dest, _rng} -> {:ok, data}
+    end
+  end
+
+  @doc false
+  # The :link hook: the link's properties from the ledger. Latency delays the hand-off, loss
+  # makes it fail (the agent's own random state decides, so runs are reproducible).
+  def emulate_link({host, dest, rng}) do
+    case Ledger.link(host, dest) do
       %{} = props ->
         latency = Map.get(props, :latency_ms, 0)
         if latency > 0, do: Process.sleep(latency)
         loss = Map.get(props, :loss, 0)
 
         if loss > 0 do
-          {x, rng} = :rand.uniform_s(:rand.seed_s(data.env.rng))
-          data = %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}
-          if x < loss, do: {:error, :link_loss, data}, else: {:ok, data}
+          {x, state} = :rand.uniform_s(:rand.seed_s(rng))
+          rng = :rand.export_seed_s(state)
+          if x < loss, do: {:error, :link_loss, rng}, else: {:ok, rng}
         else
-          {:ok, data}
+          {:ok, rng}
         end
 
       nil ->
-        {:ok, data}
+        {:ok, rng}
     end
   end
 

@@ -90,6 +90,7 @@ defmodule Tartarus.Host.Server do
     ledger = state.host.ledger
     [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
     :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+    if emulated?(props), do: install_link_hook()
     {:reply, :ok, state}
   end
 
@@ -179,6 +180,16 @@ defmodule Tartarus.Host.Server do
   end
 
   defp call(:paused, _from, state), do: {:reply, paused(state), state}
+
+  defp emulated?(props), do: Map.get(props, :latency_ms, 0) > 0 or Map.get(props, :loss, 0) > 0
+
+  # Once per node (a :persistent_term write is costly; reads are free).
+  defp install_link_hook do
+    hook = {:transform, {Tartarus.Agent.Server, :emulate_link, []}}
+
+    if :persistent_term.get({Tartarus.Fault, :link}, nil) != hook,
+      do: Tartarus.Fault.install(:link, hook)
+  end
 
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
