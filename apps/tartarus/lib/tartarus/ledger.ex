@@ -12,6 +12,7 @@ defmodule Tartarus.Ledger do
   #                               (an id's pointer names its migration until the copy
   #                               acknowledges; a name's pointer never stands for a decision)
   #   {:handoff, mig}             {_, source_pid}            an undecided hand-off (source)
+  #   {:handoff_by, pid}          {_, mig}                   the same, by its source process
   #                                                          forwarding pointer (and the record
   #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
@@ -70,14 +71,16 @@ defmodule Tartarus.Ledger do
 
   # Before `prepare` leaves: the migration is undecided (Protocol.answer/3 says :unknown).
   # `{:migrating, id}` (moves) lets a kill or crash of the agent find its hand-off.
+  # A source process runs one hand-off at a time: {:handoff_by, pid} finds it after a crash.
   def begin_handoff(host, id, mig, kind) do
     if kind == :move, do: :ets.insert(host.ledger, {{:migrating, id}, mig})
-    :ets.insert(host.ledger, {{:handoff, mig}, self()})
+    :ets.insert(host.ledger, [{{:handoff, mig}, self()}, {{:handoff_by, self()}, mig}])
   end
 
   # After the decision (an abort is this with no commit written).
   def end_handoff(host, id, mig) do
     :ets.delete(host.ledger, {:handoff, mig})
+    :ets.delete(host.ledger, {:handoff_by, self()})
     :ets.delete_object(host.ledger, {{:migrating, id}, mig})
   end
 
@@ -153,8 +156,15 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # The hand-off records of a source process that is gone.
-  def drop_handoffs(host, pid), do: :ets.match_delete(host.ledger, {{:handoff, :_}, pid})
+  # The hand-off record of a source process that is gone.
+  def drop_handoffs(_host, nil), do: :ok
+
+  def drop_handoffs(host, pid) do
+    case :ets.take(host.ledger, {:handoff_by, pid}) do
+      [{_, mig}] -> :ets.delete_object(host.ledger, {{:handoff, mig}, pid})
+      [] -> true
+    end
+  end
 
   defp committed?(host, mig, id) do
     :ets.member(host.ledger, {:decision, mig}) or

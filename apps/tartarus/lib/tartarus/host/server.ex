@@ -140,8 +140,11 @@ defmodule Tartarus.Host.Server do
   # found as its agent's arriving process here, may hand over its record.
   defp call({:park, mig, copy, env, src, kind}, {pid, _}, state) do
     if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
-      :ets.insert(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind})
-      if parked(state) == 1, do: schedule_parked()
+      if :ets.insert_new(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
+        :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+        if parked(state) == 1, do: schedule_parked()
+      end
+
       {:reply, :ok, state}
     else
       {:reply, {:error, :not_paused_here}, state}
@@ -298,8 +301,12 @@ defmodule Tartarus.Host.Server do
 
   # -- parked copies -------------------------------------------------------------------
 
-  defp parked(state),
-    do: :ets.select_count(state.host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [true]}])
+  defp parked(state), do: Ledger.counter(state.host, :parked)
+
+  defp unparked(state, key) do
+    :ets.delete(state.host.ledger, key)
+    :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
+  end
 
   defp schedule_parked,
     do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_parked_every)
@@ -310,12 +317,12 @@ defmodule Tartarus.Host.Server do
         state
 
       :drop ->
-        :ets.delete(state.host.ledger, key)
+        unparked(state, key)
         Tartarus.Host.Persistence.resolved(state.host, mig, copy)
         state
 
       :revive ->
-        :ets.delete(state.host.ledger, key)
+        unparked(state, key)
 
         case start_agent(state, env, {:paused, mig, copy, src, kind}) do
           {:ok, pid, state} ->
@@ -326,6 +333,7 @@ defmodule Tartarus.Host.Server do
           {:error, _reason, state} ->
             # Kept for the next answer.
             :ets.insert(state.host.ledger, {key, env, src, kind})
+            :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
             state
         end
     end
