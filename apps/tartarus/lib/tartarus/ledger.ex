@@ -13,6 +13,8 @@ defmodule Tartarus.Ledger do
   #                               acknowledges; a name's pointer never stands for a decision)
   #   {:handoff, mig}             {_, source_pid}            an undecided hand-off (source)
   #   {:handoff_by, pid}          {_, mig}                   the same, by its source process
+  #   {:parked, {mig, copy}}      {_, env, src, kind}        a parked in-doubt copy (destination)
+  #   :parked                     n                          how many
   #                                                          forwarding pointer (and the record
   #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)

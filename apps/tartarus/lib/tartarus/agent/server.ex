@@ -621,9 +621,17 @@ defmodule Tartarus.Agent.Server do
         with {pid, _tag} when is_pid(pid) <- notify,
              do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
 
-        # Running: the source host may forget its record of the commit.
-        with {:ok, src} <- Tartarus.Host.whereis(c.src),
-             do: send(src, Protocol.ack(c.mig, env.id, c.copy))
+        # Running: the source host may forget its record of the commit (acknowledged
+        # lazily: this host sends its acknowledgements in batches, see Host.Server).
+        :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
+
+        if :ets.update_counter(host.ledger, :acks_armed, 1, {:acks_armed, 0}) == 1,
+          do:
+            Process.send_after(
+              host.pid,
+              :"$tartarus_flush_acks",
+              Tartarus.Host.Server.ack_every()
+            )
 
         Ledger.record_hop(host, hop_us)
 

@@ -18,6 +18,9 @@ defmodule Tartarus.Host.Server do
   alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
+  # How often a host sends the acknowledgements of its arrivals (one message per source host).
+  @ack_every 200
+  @ack_batch 1_000
   # How often a host asks the sources of its parked copies.
   @ask_parked_every 30_000
 
@@ -35,6 +38,9 @@ defmodule Tartarus.Host.Server do
     store =
       :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
 
+    # Acknowledgements of arrived copies, by source host, until the next batch leaves.
+    acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
+
     :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
     {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
@@ -46,6 +52,7 @@ defmodule Tartarus.Host.Server do
       pid: self(),
       ledger: ledger,
       store: store,
+      acks: acks,
       counters: Tartarus.Events.new_counters(),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
@@ -218,14 +225,24 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
-  def handle_info({:"$tartarus_ack", mig, id, copy} = msg, state) do
-    if Protocol.check_ack(msg) == :ok do
-      Ledger.acknowledge(state.host, mig, id, copy)
-      Tartarus.Host.Persistence.acked(state.host, mig)
+  def handle_info({:"$tartarus_acks", acks} = msg, state) do
+    if Protocol.check_acks(msg) == :ok do
+      for {mig, id, copy} <- acks do
+        Ledger.acknowledge(state.host, mig, id, copy)
+        Tartarus.Host.Persistence.acked(state.host, mig)
+      end
     else
       Ledger.count(state.host, :dropped)
     end
 
+    {:noreply, state}
+  end
+
+  # A timer that only sends acknowledgements (lazily, batched): it decides nothing. The first
+  # arrival after a flush arms it (so an idle host has no timer).
+  def handle_info(:"$tartarus_flush_acks", state) do
+    :ets.insert(state.host.ledger, {:acks_armed, 0})
+    flush_acks(state.host.acks, :ets.first(state.host.acks))
     {:noreply, state}
   end
 
@@ -299,6 +316,22 @@ defmodule Tartarus.Host.Server do
     :exit, _ -> :ok
   end
 
+  defp flush_acks(_table, :"$end_of_table"), do: :ok
+
+  defp flush_acks(table, src) do
+    next = :ets.next(table, src)
+
+    acks = table |> :ets.take(src) |> Enum.map(&elem(&1, 1))
+
+    # A source host that is gone needs no acknowledgement (a restarted one keeps the commits
+    # it journaled: they then stay, which is safe).
+    with {:ok, pid} <- Tartarus.Host.whereis(src) do
+      acks |> Enum.chunk_every(@ack_batch) |> Enum.each(&send(pid, Protocol.acks(&1)))
+    end
+
+    flush_acks(table, next)
+  end
+
   # -- parked copies -------------------------------------------------------------------
 
   defp parked(state), do: Ledger.counter(state.host, :parked)
@@ -366,7 +399,7 @@ defmodule Tartarus.Host.Server do
         {:error, reason} -> {{:error, reason}, state}
       end
 
-    admission(state, {:checked, p, verdict, :crypto.strong_rand_bytes(16)})
+    admission(state, {:checked, p, verdict, copy_token(state.host)})
   end
 
   defp admission_action({:probe, p, copy, pid}, state) do
@@ -403,6 +436,11 @@ defmodule Tartarus.Host.Server do
     do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
 
   defp paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
+
+  # Unique across this host's runs (its incarnation is random per run); it names a copy, it
+  # does not authenticate anyone (the seal does, for the prepare).
+  defp copy_token(host),
+    do: <<binary_part(host.incarnation, 0, 8)::binary, :erlang.unique_integer([:positive])::64>>
 
   defp capacity(%{admission: nil} = state) do
     if paused(state) + parked(state) < @max_paused,
@@ -588,4 +626,7 @@ defmodule Tartarus.Host.Server do
 
   @doc false
   def hop_slots, do: @hop_slots
+
+  @doc false
+  def ack_every, do: @ack_every
 end

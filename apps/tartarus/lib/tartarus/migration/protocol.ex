@@ -28,11 +28,12 @@ defmodule Tartarus.Migration.Protocol do
       S  -> A   {:"$tartarus_commit", mig, copy, notify}  A becomes the agent
       A  -> Hs  {:"$tartarus_decision?", mig, id, copy, a_pid}
       Hs -> A   {:"$tartarus_decision", mig, copy, :committed | {:committed, notify} | :aborted | :unknown}
-      A  -> Hs  {:"$tartarus_ack", mig, id, copy}              A runs: Hs may forget the decision
+      A  -> Hs  {:"$tartarus_acks", [{mig, id, copy}]}         A runs: Hs may forget the decision
+                                                             (A's host batches them, lazily)
 
-  `mig` is `{source_incarnation, ref}`, unique per attempt. `copy` is a token H draws at
-  random for the one paused copy it creates for `mig` (16 bytes; it survives H's restart
-  through the journal).
+  `mig` is `{source_incarnation, ref}`, unique per attempt. `copy` is a token H makes for
+  the one paused copy it creates for `mig`, unique across H's runs (16 bytes; it survives
+  H's restart through the journal). It names a copy; it authenticates nobody.
 
   ## Decision rule
 
@@ -139,9 +140,9 @@ defmodule Tartarus.Migration.Protocol do
   @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
   def decision_query(mig, id, copy, pid), do: {:"$tartarus_decision?", mig, id, copy, pid}
 
-  @doc "The acknowledgement of a committed copy that runs."
-  @spec ack(mig(), binary(), copy_token()) :: tuple()
-  def ack(mig, id, copy), do: {:"$tartarus_ack", mig, id, copy}
+  @doc "Acknowledgements of committed copies that run, each `{mig, id, copy}`."
+  @spec acks([{mig(), binary(), copy_token()}]) :: tuple()
+  def acks(list), do: {:"$tartarus_acks", list}
 
   @doc "The answer to a decision query."
   @spec decision(mig(), copy_token(), term()) :: tuple()
@@ -150,8 +151,8 @@ defmodule Tartarus.Migration.Protocol do
   @doc """
   What a message is to the protocol: `{:prepare, fields}`, `{:prepared, mig, copy, pid}`,
   `{:need, mig, mods}`, `{:refused, mig, reason}`, `{:commit, mig, copy, notify}`,
-  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, `{:ack, mig, id, copy}`, or
-  `:other`. Total.
+  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, `{:acks, [{mig, id, copy}]}`,
+  or `:other`. Total.
 
       iex> Tartarus.Migration.Protocol.classify(:hello)
       :other
@@ -177,7 +178,7 @@ defmodule Tartarus.Migration.Protocol do
   def classify({:"$tartarus_commit", mig, copy, notify}), do: {:commit, mig, copy, notify}
   def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
   def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
-  def classify({:"$tartarus_ack", mig, id, copy}), do: {:ack, mig, id, copy}
+  def classify({:"$tartarus_acks", list}), do: {:acks, list}
   def classify(_), do: :other
 
   @doc """
@@ -197,7 +198,7 @@ defmodule Tartarus.Migration.Protocol do
         :"$tartarus_commit",
         :"$tartarus_decision?",
         :"$tartarus_decision",
-        :"$tartarus_ack"
+        :"$tartarus_acks"
       ]
 
   def protocol_message?(_), do: false
@@ -278,17 +279,29 @@ defmodule Tartarus.Migration.Protocol do
 
   def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
 
-  @doc "Checks an acknowledgement."
-  @spec check_ack(term()) :: :ok | {:error, {:bad_message, term()}}
-  def check_ack({:"$tartarus_ack", mig, id, copy}) do
+  @doc """
+  Checks a batch of acknowledgements (at most 1_000).
+
+      iex> Tartarus.Migration.Protocol.check_acks({:"$tartarus_acks", [:x]})
+      {:error, {:bad_message, :acks}}
+  """
+  @spec check_acks(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_acks({:"$tartarus_acks", list}) when is_list(list) do
     check(
-      migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
-        copy_token?(copy),
-      :ack
+      length(list) <= 1_000 and
+        Enum.all?(list, fn
+          {mig, id, copy} ->
+            migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+              copy_token?(copy)
+
+          _ ->
+            false
+        end),
+      :acks
     )
   end
 
-  def check_ack(_), do: {:error, {:bad_message, :ack}}
+  def check_acks(_), do: {:error, {:bad_message, :acks}}
 
   @doc "True for a migration id as hosts make them."
   @spec migration_id?(term()) :: boolean()
@@ -382,11 +395,11 @@ defmodule Tartarus.Migration.Protocol do
 
   @doc """
   The admission state of a destination host. Option `:seen_max`: how many migrations it
-  remembers (default 100_000).
+  remembers (default 10_000).
   """
   @spec destination(keyword()) :: map()
   def destination(opts \\ []),
-    do: %{seen: %{}, order: :queue.new(), seen_max: Keyword.get(opts, :seen_max, 100_000)}
+    do: %{seen: %{}, order: :queue.new(), seen_max: Keyword.get(opts, :seen_max, 10_000)}
 
   @doc """
   One step of admission. Events: `{:prepare, fields}` (a well-formed prepare,

@@ -17,6 +17,13 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
   defp unacked_pointers(host),
     do: :ets.select(ledger(host).ledger, [{{{:fwd, :_}, :_, :_, {:_, :_}, :_}, [], [true]}])
 
+  # Acknowledgements leave in batches: until both hosts' outboxes are empty and each server
+  # has handled what the other sent before (a call to each, in turn, after the flush).
+  defp settle(hosts) do
+    assert eventually(fn -> Enum.all?(hosts, &(:ets.info(ledger(&1).acks, :size) == 0)) end)
+    for _ <- 1..2, h <- hosts, do: Tartarus.Host.call(h, :paused)
+  end
+
   test "moves and clones leave no decision behind once their copies run" do
     [a, b] = [host!(), host!()]
     {:ok, id} = Tartarus.create_mobile_agent(a, Echo, :s)
@@ -52,6 +59,7 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
       :ok = Tartarus.move({id, b}, a)
     end
 
+    settle([na, nb])
     size = fn name -> File.stat!(Path.join(dir, "host-#{name}.journal")).size end
     # 400 arrivals of a 1 KB agent wrote far more than this; compaction keeps what is live.
     assert size.(na) < 320 * 1024 and size.(nb) < 320 * 1024

@@ -7,13 +7,16 @@ defmodule Tartarus.Migration.ProtocolModel do
   # interleaves protocol steps with faults: the network drops, duplicates, delays and
   # reorders messages and replays any message it ever carried (to the current server of
   # the host it was sent to, from an attacker outside every partition); hosts crash and
-  # restart (with or without persistence); links partition and heal.
+  # restart (with or without persistence); links partition and heal. Running copies
+  # acknowledge their commits (which frees the source's records); copies left in doubt park
+  # after a few unanswered queries (small park_after) and their host asks for them.
   #
   # Invariants, after every event:
   #   * never two running copies of one agent;
-  #   * no decision changes once made: a decision is written once per migration, and every
-  #     answer and every started copy agrees with it (without persistence, an answer from a
-  #     later incarnation of a crashed source may say aborted: the agent died with it);
+  #   * no decision changes once made: a commit is written once per migration and names one
+  #     copy; every committed answer names that copy, a copy starts only if it is that copy,
+  #     and a copy aborts only if it is not (without persistence, a later incarnation of a
+  #     crashed source may say aborted to it: the agent died with that source);
   # and after the faults stop (partitions healed, crashed hosts restarted, messages
   # delivered, timers fired): every agent runs exactly once, except, without persistence,
   # agents a crash could take (they were on, or in doubt about, a host when it crashed).
@@ -262,11 +265,20 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp receive_msg(w, {:hs, h, _}, h, msg) do
     case Protocol.classify(msg) do
-      {:prepare, p} -> admission(w, h, {:prepare, p})
-      {:query, mig, id, copy, a_pid} -> answer_query(w, h, mig, id, copy, a_pid)
-      {:ack, mig, id, copy} -> acknowledge(w, h, mig, id, copy)
-      {:decision, mig, copy, d} -> parked_answer(w, h, mig, copy, d)
-      _ -> w
+      {:prepare, p} ->
+        admission(w, h, {:prepare, p})
+
+      {:query, mig, id, copy, a_pid} ->
+        answer_query(w, h, mig, id, copy, a_pid)
+
+      {:acks, list} ->
+        Enum.reduce(list, w, fn {mig, id, copy}, w -> acknowledge(w, h, mig, id, copy) end)
+
+      {:decision, mig, copy, d} ->
+        parked_answer(w, h, mig, copy, d)
+
+      _ ->
+        w
     end
   end
 
@@ -537,7 +549,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       # Running: acknowledge to the source host.
       w =
         if alive_host?(w, c.src),
-          do: send_msg(w, h, server(w, c.src), Protocol.ack(c.mig, env.id, c.copy)),
+          do: send_msg(w, h, server(w, c.src), Protocol.acks([{c.mig, env.id, c.copy}])),
           else: w
 
       {:halt, w}
