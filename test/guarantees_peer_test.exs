@@ -167,7 +167,11 @@ defmodule Tartarus.GuaranteesPeerTest do
         do:
           :erpc.call(a, Kernel, :send, [
             new_pid,
-            Tartarus.Migration.Protocol.commit({"x", make_ref()}, :crypto.strong_rand_bytes(16), nil)
+            Tartarus.Migration.Protocol.commit(
+              {"x", make_ref()},
+              :crypto.strong_rand_bytes(16),
+              nil
+            )
           ])
 
     assert {:ok, ^hops} = Tartarus.request({id, hb}, :hops)

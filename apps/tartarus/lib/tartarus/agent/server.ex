@@ -11,6 +11,10 @@ defmodule Tartarus.Agent.Server do
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
   alias Tartarus.Migration.Protocol
 
+  # How long a host waits before it sends the acknowledgements of its arrivals (one batch per
+  # source host, see Host.Server).
+  @ack_every 200
+
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
 
@@ -626,12 +630,7 @@ defmodule Tartarus.Agent.Server do
         :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
 
         if :ets.update_counter(host.ledger, :acks_armed, 1, {:acks_armed, 0}) == 1,
-          do:
-            Process.send_after(
-              host.pid,
-              :"$tartarus_flush_acks",
-              Tartarus.Host.Server.ack_every()
-            )
+          do: Process.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
 
         Ledger.record_hop(host, hop_us)
 

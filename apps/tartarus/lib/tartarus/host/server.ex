@@ -18,8 +18,8 @@ defmodule Tartarus.Host.Server do
   alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
-  # How often a host sends the acknowledgements of its arrivals (one message per source host).
-  @ack_every 200
+  # Acknowledgements per message (the first arrival after a flush arms the next, see
+  # Agent.Server).
   @ack_batch 1_000
   # How often a host asks the sources of its parked copies.
   @ask_parked_every 30_000
@@ -626,7 +626,4 @@ defmodule Tartarus.Host.Server do
 
   @doc false
   def hop_slots, do: @hop_slots
-
-  @doc false
-  def ack_every, do: @ack_every
 end

@@ -106,8 +106,11 @@ defmodule Tartarus.Migration.Protocol do
   @typedoc "An action for the executing process."
   @type action :: tuple() | atom()
 
+  alias Tartarus.Envelope
+
   @max_name_bytes 256
   @max_modules 64
+  @envelope_size map_size(%Envelope{id: nil, module: nil})
 
   # -- messages -------------------------------------------------------------------------
 
@@ -225,9 +228,9 @@ defmodule Tartarus.Migration.Protocol do
       ) do
     with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
          :ok <- check(migration_id?(mig), :migration_id),
-         :ok <- check(Tartarus.Host.address?(src) and is_tuple(src), :source_host),
+         :ok <- check(address?(src) and is_tuple(src), :source_host),
          :ok <- check(kind in [:move, :clone], :kind),
-         :ok <- Tartarus.Wire.check_envelope(env),
+         :ok <- check_envelope(env),
          :ok <- check_manifest(manifest),
          :ok <- check_code(code) do
       size = :erlang.external_size({env, manifest, code})
@@ -236,6 +239,133 @@ defmodule Tartarus.Migration.Protocol do
   end
 
   def check_prepare(_other, _max), do: {:error, {:bad_message, :not_a_prepare}}
+
+  @doc """
+  Checks an envelope: a `Tartarus.Envelope` with every field of the right type.
+
+      iex> Tartarus.Migration.Protocol.check_envelope(%{__struct__: Tartarus.Envelope, id: 1})
+      {:error, {:bad_message, {:envelope, :fields}}}
+  """
+  @spec check_envelope(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_envelope(
+        %{
+          __struct__: Envelope,
+          id: id,
+          name: name,
+          module: module,
+          ships: ships,
+          payload: payload,
+          owner: owner,
+          home: home,
+          hops: hops,
+          ttl: ttl,
+          visits: visits,
+          from: from,
+          departed_at: departed_at,
+          static: static,
+          rng: rng,
+          clone_of: clone_of,
+          issuer: issuer,
+          signature: signature
+        } = env
+      )
+      when map_size(env) == @envelope_size do
+    # One pass of plain checks: this runs for every arriving agent.
+    cond do
+      not (is_binary(id) and byte_size(id) == 16) ->
+        bad(:id)
+
+      not (is_nil(name) or is_atom(name) or
+               (is_binary(name) and byte_size(name) <= @max_name_bytes)) ->
+        bad(:name)
+
+      not (is_atom(module) and module != nil) ->
+        bad(:module)
+
+      not module_list?(ships) ->
+        bad(:ships)
+
+      not payload?(payload) ->
+        bad(:payload)
+
+      not (is_nil(owner) or is_pid(owner)) ->
+        bad(:owner)
+
+      not (is_nil(home) or address?(home)) ->
+        bad(:home)
+
+      not (is_integer(hops) and hops >= 0) ->
+        bad(:hops)
+
+      not (ttl == :infinity or (is_integer(ttl) and ttl > 0)) ->
+        bad(:ttl)
+
+      not visits?(visits) ->
+        bad(:visits)
+
+      not (is_nil(from) or address?(from)) ->
+        bad(:from)
+
+      not (is_nil(departed_at) or is_integer(departed_at)) ->
+        bad(:departed_at)
+
+      not is_boolean(static) ->
+        bad(:static)
+
+      not rng?(rng) ->
+        bad(:rng)
+
+      not (is_nil(clone_of) or (is_binary(clone_of) and byte_size(clone_of) == 16)) ->
+        bad(:clone_of)
+
+      not (is_nil(issuer) or is_binary(issuer)) ->
+        bad(:issuer)
+
+      not (is_nil(signature) or is_binary(signature) or is_map(signature)) ->
+        bad(:signature)
+
+      true ->
+        :ok
+    end
+  end
+
+  def check_envelope(%{__struct__: Envelope}), do: {:error, {:bad_message, {:envelope, :fields}}}
+  def check_envelope(_other), do: {:error, {:bad_message, {:envelope, :not_an_envelope}}}
+
+  defp bad(field), do: {:error, {:bad_message, {:envelope, field}}}
+
+  defp module_list?(l),
+    do: is_list(l) and length(l) <= @max_modules and Enum.all?(l, &(is_atom(&1) and &1 != nil))
+
+  defp payload?(%{data: data, modules: mods} = p) when map_size(p) == 2,
+    do: is_map(data) and module_list?(mods)
+
+  defp payload?(_), do: false
+
+  defp visits?(v) when is_map(v) do
+    :maps.fold(
+      fn h, n, ok -> ok and is_integer(n) and n >= 0 and address?(h) end,
+      true,
+      v
+    )
+  end
+
+  defp visits?(_), do: false
+
+  # An exported :rand state: {algorithm, state}; :rand.seed_s/1 checks the rest when used.
+  defp rng?({alg, _state})
+       when alg in [:exsss, :exsplus, :exrop, :exs1024s, :exs64, :exs1024, :exsp, :exro928ss],
+       do: true
+
+  defp rng?(_), do: false
+
+  # As Tartarus.Host.address?/1 (kept here so that the protocol depends on no other module
+  # of the platform but the envelope).
+  defp address?({name, node}), do: name?(name) and is_atom(node) and node != nil
+  defp address?(name), do: name?(name)
+
+  defp name?(name) when is_boolean(name) or is_nil(name), do: false
+  defp name?(name), do: is_atom(name) or (is_binary(name) and byte_size(name) in 1..255)
 
   @doc "Checks a manifest: a list of `{module, md5}` pairs."
   @spec check_manifest(term()) :: :ok | {:error, {:bad_message, term()}}
