@@ -77,3 +77,42 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
     :ok = Tartarus.stop_host(b)
   end
 end
+
+defmodule Tartarus.Migration.CloneRestartTest do
+  # Regression of a bug the protocol model found (seed 22): a clone's commit lived only in
+  # the source's ledger, so a clone whose commit message was lost was told aborted by its
+  # restarted source. It is journaled now.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.Fault
+
+  test "a committed clone runs although its source host died before sending the commit" do
+    dir = Path.join(System.tmp_dir!(), "clone_restart_#{System.unique_integer([:positive])}")
+    on_exit(fn -> File.rm_rf!(dir) end)
+    name = unique_name()
+    {:ok, a} = Tartarus.start_host(name, data_dir: dir, migration_timeout: 300)
+    # The clone first asks after 1 s: by then its source has restarted.
+    b = host!(migration_timeout: 1_000)
+    {:ok, id} = Tartarus.create_mobile_agent(a, Tartarus.Examples.Echo, :original)
+
+    Fault.install(:committing, {:once, {:pause, self()}})
+    on_exit(fn -> Fault.clear(:committing) end)
+    _cloner = Task.async(fn -> Tartarus.clone({id, a}, b) end)
+    assert_receive {:fault_paused, :committing, _s_pid, _copy_pid}, 2_000
+
+    # The source host dies between its (journaled) decision and the commit message.
+    [{sup, _}] = Registry.lookup(Tartarus.HostRegistry, {:host_sup, name})
+    Process.flag(:trap_exit, true)
+    Process.exit(sup, :kill)
+    assert eventually(fn -> Enum.all?(Tartarus.hosts(), &(&1 != a)) end, 2_000)
+    {:ok, ^a} = Tartarus.start_host(name, data_dir: dir, migration_timeout: 300)
+
+    # The clone asks the restarted source, learns of the commit and starts; the original is
+    # restored at its source.
+    assert eventually(fn -> length(Tartarus.agents(b)) == 1 end, 5_000)
+    [%{id: clone}] = Tartarus.agents(b)
+    assert {:ok, %{clone_of: ^id}} = Tartarus.agent_info({clone, b})
+    assert eventually(fn -> match?([%{id: ^id}], Tartarus.agents(a)) end, 5_000)
+    :ok = Tartarus.stop_host(a)
+  end
+end

@@ -77,4 +77,59 @@ defmodule Tartarus.Migration.ProtocolModelTest do
       assert {:ok, _, _} = Model.walk(64, events: @events, seen_max: 1)
     end
   end
+
+  describe "the bugs the explorer found, scripted" do
+    alias Tartarus.Host.Persistence
+    alias Tartarus.Migration.Protocol
+
+    defp admit(d, p, copy) do
+      {d, [{:check, ^p}]} = Protocol.destination_step(d, {:prepare, p})
+      {d, [{:create, ^p, ^copy}]} = Protocol.destination_step(d, {:checked, p, :ok, copy})
+      {d, _} = Protocol.destination_step(d, {:created, p, copy, {:pid, copy}})
+      d
+    end
+
+    test "a prepare replayed after the agent moved on: refused, or its copy told aborted" do
+      p = %{mig: {"src", 1}, s_pid: :s}
+      d = admit(Protocol.destination(), p, :c1)
+      # The source commits c1; the copy runs and the agent moves on (the pointer stays).
+      ledger = %{handoff?: false, decision: nil, pointer: {p.mig, :c1, nil}}
+      assert Protocol.answer(ledger, p.mig, :c1) == {:committed, nil}
+
+      # Remembered: the copy no longer paused, the replay is refused.
+      {d, [{:probe, ^p, :c1, _}]} = Protocol.destination_step(d, {:prepare, p})
+
+      assert {_, [{:refuse, ^p, :duplicate}]} =
+               Protocol.destination_step(d, {:probed, p, :c1, {:pid, :c1}, false})
+
+      # Forgotten (restart): a second copy is made, and the source tells it aborted.
+      _d = admit(Protocol.destination(), p, :c2)
+      assert Protocol.answer(ledger, p.mig, :c2) == :aborted
+
+      assert Protocol.answer(%{ledger | pointer: nil, decision: {:committed, :c1}}, p.mig, :c2) ==
+               :aborted
+    end
+
+    test "a clone's commit is journaled and answered after its source restarts" do
+      s = Persistence.apply_record({:decision, {"src", 1}, "clone-id", :c1}, Persistence.empty())
+      assert {[], [], [{{"src", 1}, :c1}]} = Persistence.restored(s)
+    end
+
+    test "a second copy of one migration does not erase the first's journal record" do
+      env = %{id: "agent"}
+
+      s =
+        Enum.reduce(
+          [
+            {:in_doubt, {"src", 1}, env, :src, :move, :c1},
+            {:in_doubt, {"src", 1}, env, :src, :move, :c2},
+            {:resolved, {"src", 1}, :c2}
+          ],
+          Persistence.empty(),
+          &Persistence.apply_record/2
+        )
+
+      assert {[], [{{"src", 1}, ^env, :src, :move, :c1}], []} = Persistence.restored(s)
+    end
+  end
 end
