@@ -164,7 +164,15 @@ defmodule Tartarus.GuaranteesPeerTest do
 
     # The same commit again, from the source's node.
     for _ <- 1..3,
-        do: :erpc.call(a, Kernel, :send, [new_pid, {:"$tartarus_commit", {"x", make_ref()}, nil}])
+        do:
+          :erpc.call(a, Kernel, :send, [
+            new_pid,
+            Tartarus.Migration.Protocol.commit(
+              {"x", make_ref()},
+              :crypto.strong_rand_bytes(16),
+              nil
+            )
+          ])
 
     assert {:ok, ^hops} = Tartarus.request({id, hb}, :hops)
     assert copies(id, [ha, hb]) == 1

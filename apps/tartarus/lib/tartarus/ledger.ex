@@ -8,13 +8,21 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id | name}           {_, dest_host, at_us, mig, notify}
+  #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy} | :acked | :name, notify}
+  #                               (an id's pointer names its migration until the copy
+  #                               acknowledges; a name's pointer never stands for a decision)
+  #   {:handoff, mig}             {_, source_pid}            an undecided hand-off (source)
+  #   {:handoff_by, pid}          {_, mig}                   the same, by its source process
+  #   {:parked, {mig, copy}}      {_, env, src, kind}        a parked in-doubt copy (destination)
+  #   :parked                     n                          how many
   #                                                          forwarding pointer (and the record
   #                                                          of a committed migration)
   #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
   #   {:arriving, id}             {_, pid}                   a paused copy (destination)
-  #   {:decision, mig}            {_, :committed | :aborted} (committed: only until the
-  #                                                          forwarding pointer is written)
+  #   {:decision, mig}            {_, {:committed, copy}}    (a move's: only until the
+  #                                                          forwarding pointer is written; a
+  #                                                          clone's: until the clone's ack)
+  #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
 
@@ -63,63 +71,106 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  def begin_handoff(host, id, mig), do: :ets.insert(host.ledger, {{:migrating, id}, mig})
-  def end_handoff(host, id), do: :ets.delete(host.ledger, {:migrating, id})
+  # Before `prepare` leaves: the migration is undecided (Protocol.answer/3 says :unknown).
+  # `{:migrating, id}` (moves) lets a kill or crash of the agent find its hand-off.
+  # A source process runs one hand-off at a time: {:handoff_by, pid} finds it after a crash.
+  def begin_handoff(host, id, mig, kind) do
+    if kind == :move, do: :ets.insert(host.ledger, {{:migrating, id}, mig})
+    :ets.insert(host.ledger, [{{:handoff, mig}, self()}, {{:handoff_by, self()}, mig}])
+  end
 
-  # The source agent's decision. Returns false if the migration was decided otherwise.
+  # After the decision (an abort is this with no commit written).
+  def end_handoff(host, id, mig) do
+    :ets.delete(host.ledger, {:handoff, mig})
+    :ets.delete(host.ledger, {:handoff_by, self()})
+    :ets.delete_object(host.ledger, {{:migrating, id}, mig})
+  end
+
+  # The source's commit. Returns false if one was already written (never: one writer).
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
-  # The agent committed migration `mig` to `dest`: leave a forwarding pointer (which also
-  # records the commit for a destination that asks, see decision/3) and stop being resident.
-  # `notify` (a GenServer from, or nil) is who waits for the move to finish: a destination
-  # that learns of the commit by asking (the commit message was lost) answers it.
-  def depart(host, id, name, dest, mig, notify) do
+  # The agent committed migration `mig` (copy `copy`) to `dest`: leave a forwarding pointer
+  # (which also records the commit for a destination that asks, see decision/4) and stop
+  # being resident. `notify` (a GenServer from, or nil) is who waits for the move to finish:
+  # a destination that learns of the commit by asking (the commit message was lost) answers it.
+  def depart(host, id, name, dest, mig, copy, notify) do
     now = System.system_time(:microsecond)
-    :ets.insert(host.ledger, {{:fwd, id}, dest, now, mig, notify})
-    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, mig, nil})
+    :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
+    if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
     forget_resident(host, self())
-    end_handoff(host, id)
-    # The forwarding pointer now stands for the decision.
+    # The forwarding pointer now stands for the decision (written before this is dropped).
     :ets.delete(host.ledger, {:decision, mig})
   end
 
-  # The outcome of migration `mig` of agent `id` as this (source) host knows it.
-  #
-  # A migration started by an earlier run of this host (the host crashed or was restarted)
-  # that left no committed record is aborted: with persistence the agent was restored here
-  # from its checkpoint; without, the earlier run may have aborted it and sent the agent
-  # elsewhere, so starting the copy could duplicate it. (Without persistence an agent whose
-  # commit was decided but not recorded dies with the earlier run, like every agent there.)
-  def decision(host, {incarnation, _} = mig, id) do
-    case :ets.lookup(host.ledger, {:decision, mig}) do
-      [{_, d}] ->
-        d
+  # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
+  # (source) host: Tartarus.Migration.Protocol.answer/3 over what the ledger holds, read in
+  # the protocol's order (hand-off record first).
+  def decision(host, mig, id, copy) do
+    handoff? = :ets.member(host.ledger, {:handoff, mig})
 
-      [] ->
-        case :ets.lookup(host.ledger, {:fwd, id}) do
-          [{_, _dest, _at, ^mig, notify}] ->
-            {:committed, notify}
+    decision =
+      case :ets.lookup(host.ledger, {:decision, mig}) do
+        [{_, d}] -> d
+        [] -> nil
+      end
 
-          _ ->
-            cond do
-              incarnation == host.incarnation -> :unknown
-              true -> :aborted
-            end
-        end
+    pointer =
+      case :ets.lookup(host.ledger, {:fwd, id}) do
+        [{_, _dest, _at, {m, c}, notify}] -> {m, c, notify}
+        _ -> nil
+      end
+
+    Tartarus.Migration.Protocol.answer(
+      %{handoff?: handoff?, decision: decision, pointer: pointer},
+      mig,
+      copy
+    )
+  end
+
+  # The committed copy `copy` of `mig` (agent `id`) runs: its commit record is no longer
+  # needed. A clone's decision goes; a move's pointer stays for forwarding, marked :acked
+  # (sweepable).
+  def acknowledge(host, mig, id, copy) do
+    l = host.ledger
+    :ets.delete_object(l, {{:decision, mig}, {:committed, copy}})
+
+    case :ets.lookup(l, {:fwd, id}) do
+      [{key, dest, at, {^mig, ^copy}, _notify}] -> :ets.insert(l, {key, dest, at, :acked, nil})
+      _ -> true
+    end
+
+    :ok
+  end
+
+  def count(%{ledger: l}, name),
+    do: :ets.update_counter(l, {:count, name}, 1, {{:count, name}, 0})
+
+  # After the agent `id` (process `pid`) died or was killed: its undecided hand-offs are
+  # aborted (their records go; the process that could have committed them is dead). True if
+  # the agent is still ours to restart, false if it had committed a move (it lives on at
+  # the destination).
+  def abort_pending(host, id, pid) do
+    drop_handoffs(host, pid)
+
+    case :ets.take(host.ledger, {:migrating, id}) do
+      [{_, mig}] -> not committed?(host, mig, id)
+      [] -> true
     end
   end
 
-  # After a crash of agent `id`: abort its pending hand-off if there is one. True if the agent
-  # is still ours to restart, false if it had committed a migration (it lives elsewhere).
-  def abort_pending(host, id) do
-    case :ets.take(host.ledger, {:migrating, id}) do
-      [{_, mig}] ->
-        decide(host, mig, :aborted) or
-          :ets.lookup(host.ledger, {:decision, mig}) == [{{:decision, mig}, :aborted}]
+  # The hand-off record of a source process that is gone.
+  def drop_handoffs(_host, nil), do: :ok
 
-      [] ->
-        true
+  def drop_handoffs(host, pid) do
+    case :ets.take(host.ledger, {:handoff_by, pid}) do
+      [{_, mig}] -> :ets.delete_object(host.ledger, {{:handoff, mig}, pid})
+      [] -> true
     end
+  end
+
+  defp committed?(host, mig, id) do
+    :ets.member(host.ledger, {:decision, mig}) or
+      match?([{_, _, _, {^mig, _}, _}], :ets.lookup(host.ledger, {:fwd, id}))
   end
 
   def record_hop(host, hop_us) do
@@ -144,9 +195,12 @@ defmodule Tartarus.Ledger do
     ])
   end
 
-  # Drops forwarding pointers written before `cutoff_us` (system time).
+  # Drops forwarding pointers written before `cutoff_us` (system time) that no longer
+  # stand for a decision (acknowledged, or a name's): never one a paused copy may still need.
   def sweep_pointers(%{ledger: l}, cutoff_us) do
-    :ets.select_delete(l, [{{{:fwd, :_}, :_, :"$1", :_, :_}, [{:<, :"$1", cutoff_us}], [true]}])
+    :ets.select_delete(l, [
+      {{{:fwd, :_}, :_, :"$1", :"$2", :_}, [{:<, :"$1", cutoff_us}, {:is_atom, :"$2"}], [true]}
+    ])
   end
 
   def forwarding_pointers(%{ledger: l}) do

@@ -30,8 +30,8 @@ defmodule Tartarus.Options do
       \"""
       def start(opts), do: Tartarus.Options.validate(opts, @schema, "MyApp.start/1")
 
-  A mix task reads its flags and defaults from the same schema with
-  `TartarusTools.CLI.options!/3`; `defaults/1` gives the defaults to whoever shows them.
+  A mix task reads its flags and defaults from the same schema (the tooling app's CLI
+  helpers do it); `defaults/1` gives the defaults to whoever shows them.
   """
 
   @typedoc """

@@ -10,8 +10,12 @@ defmodule Tartarus.Security do
       every module it carries. Tampered code changes an md5 (the destination checks each
       shipped binary against its md5), so it no longer matches what the issuer signed;
     * the sending **host's**, made at every hop (host option `security: [keys: keys, ...]`):
-      over the whole envelope (state, payload, hop count ...), the module list and the
-      migration id. Tampered state, or a replayed hand-off, no longer matches.
+      over the whole envelope (state, payload, hop count ...), the module list, and every
+      other field of the `prepare` a receiver acts on: the migration id, its kind, the
+      source host and both reply-to pids (`Tartarus.Migration.Protocol.seal_fields/1`).
+      Tampered state or a redirected reply no longer matches. A replayed `prepare` still
+      matches its seal; what makes a replay harmless is the protocol's decision rule
+      (`Tartarus.Migration.Protocol`).
 
   A host with `security: [trust: trust_list]` admits an agent only if both signatures are
   valid and both signers are in its trust list (`Tartarus.Security.TrustList`); otherwise the
@@ -38,28 +42,28 @@ defmodule Tartarus.Security do
     %{env | issuer: keys.public, signature: %{issuer: sig}}
   end
 
-  @doc "Seals an envelope for one hop with the sending host's keys."
-  @spec seal(
-          Tartarus.Envelope.t(),
-          Tartarus.CodeCache.manifest(),
-          term(),
-          Tartarus.Security.Keys.t()
-        ) ::
-          Tartarus.Envelope.t()
-  def seal(env, manifest, mig, keys) do
+  @doc """
+  Seals a `prepare` message (`Tartarus.Migration.Protocol.prepare/8`) for one hop with the
+  sending host's keys: the seal, put in the envelope, covers the envelope, the manifest and
+  `Tartarus.Migration.Protocol.seal_fields/1`.
+  """
+  @spec seal_prepare(tuple(), Tartarus.Security.Keys.t()) :: tuple()
+  def seal_prepare(prepare, keys) do
+    {:prepare, p} = Tartarus.Migration.Protocol.classify(prepare)
+    env = p.env
     sigs = if is_map(env.signature), do: Map.delete(env.signature, :hop), else: %{}
     body = %{env | signature: sigs}
-    hop = {keys.public, Signer.sign({mig, manifest, body}, keys)}
-    %{env | signature: Map.put(sigs, :hop, hop)}
+    hop = {keys.public, Signer.sign(sealed(p, body), keys)}
+    put_elem(prepare, 6, %{env | signature: Map.put(sigs, :hop, hop)})
   end
 
   @doc """
-  Checks an arriving envelope against a trust list: the issuer's signature over identity
-  and code, and the sending host's seal over everything.
+  Checks an arriving `prepare` (its fields as `Tartarus.Migration.Protocol.classify/1`
+  gives them) against a trust list: the issuer's signature over identity and code, and the
+  sending host's seal over everything a receiver acts on.
   """
-  @spec check(Tartarus.Envelope.t(), Tartarus.CodeCache.manifest(), term(), TrustList.t()) ::
-          :ok | {:error, {:untrusted, term()}}
-  def check(env, manifest, mig, trust) do
+  @spec check_prepare(map(), TrustList.t()) :: :ok | {:error, {:untrusted, term()}}
+  def check_prepare(%{env: env, manifest: manifest} = p, trust) do
     with {:ok, sigs} <- signatures(env),
          {:ok, issuer_sig} <- fetch(sigs, :issuer),
          {:ok, {host_key, hop_sig}} <- fetch(sigs, :hop),
@@ -68,7 +72,7 @@ defmodule Tartarus.Security do
            TrustList.check(
              trust,
              host_key,
-             {mig, manifest, %{env | signature: Map.delete(sigs, :hop)}},
+             sealed(p, %{env | signature: Map.delete(sigs, :hop)}),
              hop_sig
            ) do
       :ok
@@ -78,6 +82,9 @@ defmodule Tartarus.Security do
       _malformed -> {:error, {:untrusted, :bad_signature}}
     end
   end
+
+  defp sealed(p, body),
+    do: {Tartarus.Migration.Protocol.seal_fields(p), Enum.sort(p.manifest), body}
 
   defp signatures(%{issuer: issuer, signature: %{} = sigs}) when is_binary(issuer),
     do: {:ok, sigs}

@@ -20,7 +20,21 @@ defmodule Tartarus.ReviewRegressionsTest do
     }
 
     mig = {"incarnat", make_ref()}
-    send(pid, {:"$tartarus_prepare", self(), mig, {:x, node()}, self(), :move, env, manifest, []})
+
+    send(
+      pid,
+      Tartarus.Migration.Protocol.prepare(
+        self(),
+        mig,
+        {:x, node()},
+        self(),
+        :move,
+        env,
+        manifest,
+        []
+      )
+    )
+
     assert_receive {:"$tartarus_refused", ^mig, {:untrusted, :bad_signature}}, 2_000
     assert Process.alive?(pid)
   end

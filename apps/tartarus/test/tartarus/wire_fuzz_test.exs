@@ -128,7 +128,7 @@ defmodule Tartarus.WireFuzzTest do
               {:"$tartarus_refused", _, _other} ->
                 true
 
-              {:"$tartarus_prepared", _, _} ->
+              {:"$tartarus_prepared", _, _, _} ->
                 not malformed?
 
               {:"$tartarus_need", _, _} ->

@@ -3,15 +3,20 @@ defmodule Tartarus.Agent.Server do
   # The process of one agent. It runs the agent's callbacks, carries out their actions and,
   # for a move or a clone, runs the source side of the hand-off itself (so hand-offs of many
   # agents proceed in parallel; the host server is involved only at the destination, to
-  # admit and create the paused copy). See Tartarus.Host.Server for the wire protocol.
+  # admit and create the paused copy). The hand-off's decisions are Tartarus.Migration.Protocol's
+  # (its moduledoc is the specification); this process runs them in three roles, each in its
+  # own section below: the agent, the source of a hand-off, the paused copy at a destination.
   use GenServer, restart: :temporary
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
+  alias Tartarus.Migration.Protocol
+
+  # How long a host waits before it sends the acknowledgements of its arrivals (one batch per
+  # source host, see Host.Server).
+  @ack_every 200
 
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
-  # Paused copies ask the source host for its decision at this interval while in doubt.
-  @doubt_retry 1_000
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
@@ -61,16 +66,14 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  defp start(host, env, {:paused, mig, src, src_pid, kind}) do
+  defp start(host, env, {:paused, mig, copy, src, kind}) do
     Process.put(@host, host)
-    timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
 
-    {:ok,
-     %{
-       host: host,
-       env: env,
-       paused: %{mig: mig, src: src, src_pid: src_pid, kind: kind, timer: timer, stash: []}
-     }}
+    c =
+      Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
+
+    timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
+    {:ok, %{host: host, env: env, paused: %{c: c, timer: timer, stash: []}}}
   end
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
@@ -104,57 +107,35 @@ defmodule Tartarus.Agent.Server do
     run(data, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
   end
 
-  # -- commit (destination side) -------------------------------------------------------
+  # -- the paused copy (destination side) ---------------------------------------------
+  # While paused, every message is an event of Protocol.copy_step/2; this process only
+  # carries out the actions.
 
   @impl true
-  def handle_info({:"$tartarus_commit", mig, notify}, %{paused: %{mig: mig}} = data),
-    do: commit(data, notify)
-
-  def handle_info({:commit_timeout, mig}, %{paused: %{mig: mig} = p} = data) do
-    # In doubt: ask the source host (found again by address if it restarted) and wait.
-    case source_pid(p) do
-      {:ok, pid} ->
-        send(pid, {:"$tartarus_decision?", mig, data.env.id, self()})
-        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
-        {:noreply, %{data | paused: %{p | src_pid: pid, timer: timer}}}
-
-      :error ->
-        timer = Process.send_after(self(), {:commit_timeout, mig}, @doubt_retry)
-        {:noreply, %{data | paused: %{p | src_pid: nil, timer: timer}}}
-    end
-  end
-
-  def handle_info({:"$tartarus_decision", mig, decision}, %{paused: %{mig: mig}} = data) do
-    case decision do
-      {:committed, notify} ->
-        commit(data, notify)
-
-      :committed ->
-        commit(data, nil)
-
-      :aborted ->
-        Tartarus.Host.Persistence.resolved(data.host, mig)
-        {:stop, {:shutdown, :aborted}, data}
-
-      :unknown ->
-        # The source has not decided yet (its `prepared` may still be on the way): the
-        # next commit_timeout asks again.
-        {:noreply, data}
-    end
-  end
-
-  # A commit delivered twice (or after the agent resolved its doubt by asking) changes nothing.
-  def handle_info({:"$tartarus_commit", _mig, _notify}, data), do: {:noreply, data}
-
-  # While paused, messages for the agent are kept and handled once it starts (senders wait
-  # for delivery, so each sender's order is kept).
   def handle_info(msg, %{paused: p} = data) when p != nil do
-    {:noreply, %{data | paused: %{p | stash: [msg | p.stash]}}}
+    event =
+      case msg do
+        {:commit_timeout, mig} when mig == p.c.mig ->
+          :timeout
+
+        _ ->
+          case Protocol.classify(msg) do
+            {:commit, _, _, _} = commit -> commit
+            {:decision, _, _, _} = decision -> decision
+            :other -> {:message, msg}
+            # Stray hand-off messages (of an earlier attempt) are not for the agent.
+            _ -> :ignore
+          end
+      end
+
+    {c, actions} = Protocol.copy_step(p.c, event)
+    paused_actions(actions, %{data | paused: %{p | c: c}})
   end
 
   # -- messages --------------------------------------------------------------------
 
-  def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
+  def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data)
+      when is_pid(pid) and kind in [:post, :request] do
     send(pid, {ref, :delivered})
     bytes = :erlang.external_size(msg)
 
@@ -167,26 +148,71 @@ defmodule Tartarus.Agent.Server do
     run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
   end
 
-  def handle_info(msg, data)
-      when is_tuple(msg) and
-             elem(msg, 0) in [
-               :"$tartarus_prepared",
-               :"$tartarus_need",
-               :"$tartarus_refused",
-               :"$tartarus_decision",
-               :commit_timeout
-             ] do
-    # A late reply to a hand-off this agent already gave up on (or a timer that fired as it
-    # committed).
-    {:noreply, data}
+  # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
+  # twice, or a timer that fired as it committed: not for the agent's code.
+  def handle_info({:commit_timeout, _}, data), do: {:noreply, data}
+
+  def handle_info(msg, data) when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
+    do: dropped(data, msg)
+
+  def handle_info(msg, data) when is_tuple(msg) and tuple_size(msg) > 0 do
+    if Protocol.protocol_message?(msg), do: {:noreply, data}, else: user_info(msg, data)
   end
 
-  def handle_info(msg, data) do
+  def handle_info(msg, data), do: user_info(msg, data)
+
+  defp user_info(msg, data) do
     if function_exported?(data.env.module, :handle_info, 2) do
       run(data, fn -> data.env.module.handle_info(msg, data.env.state) end)
     else
       {:noreply, data}
     end
+  end
+
+  defp paused_actions([], data), do: {:noreply, data}
+  defp paused_actions([{:start, notify} | _], data), do: commit(data, notify)
+
+  defp paused_actions([:abort | _], data) do
+    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig, data.paused.c.copy)
+    {:stop, {:shutdown, :aborted}, data}
+  end
+
+  # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
+  # its stash go (the senders waiting on stashed messages time out).
+  defp paused_actions([:park | _], data) do
+    %{c: c} = data.paused
+    :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
+    {:stop, {:shutdown, :parked}, data}
+  end
+
+  defp paused_actions([{:ask, src, mig, copy} | rest], data) do
+    # The source host's server, found by address each time (the source may have restarted
+    # since it sent `prepare`; the directory drops pids of hosts that went down).
+    with {:ok, pid} <- Tartarus.Host.whereis(src),
+         do: send(pid, Protocol.decision_query(mig, data.env.id, copy, self()))
+
+    paused_actions(rest, data)
+  end
+
+  defp paused_actions([{:timer, ms} | rest], data) do
+    timer = Process.send_after(self(), {:commit_timeout, data.paused.c.mig}, ms)
+    paused_actions(rest, %{data | paused: %{data.paused | timer: timer}})
+  end
+
+  # Kept and handled once the agent starts (senders wait for delivery, so each sender's
+  # order is kept).
+  defp paused_actions([{:stash, msg} | rest], data),
+    do: paused_actions(rest, %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}})
+
+  # Over the bound: dropped and counted; a sender waiting for delivery times out.
+  defp paused_actions([{:drop, msg} | rest], data) do
+    {:noreply, data} = dropped(data, msg)
+    paused_actions(rest, data)
+  end
+
+  defp dropped(data, _msg) do
+    Ledger.count(data.host, :dropped)
+    {:noreply, data}
   end
 
   # -- control (from Tartarus facade) ----------------------------------------------
@@ -223,6 +249,15 @@ defmodule Tartarus.Agent.Server do
       {:failed, reason, data} -> {:reply, {:error, reason}, data}
     end
   end
+
+  # Anything else (from anywhere): answered, counted, never a crash.
+  def handle_call(_other, _from, data) do
+    {:noreply, data} = dropped(data, :call)
+    {:reply, {:error, :unexpected}, data}
+  end
+
+  @impl true
+  def handle_cast(_other, data), do: dropped(data, :cast)
 
   # -- actions -------------------------------------------------------------------
 
@@ -340,125 +375,170 @@ defmodule Tartarus.Agent.Server do
       else: :ok
   end
 
-  # Emulated link properties: latency delays the hand-off, loss makes it fail (the agent's
-  # own random state decides, so runs are reproducible).
+  # Link emulation is a transport hook (Tartarus.Fault point :link), installed on a node the
+  # first time a host there links with latency or loss (Tartarus.connect/3 with props): a
+  # node that never emulates links pays one :persistent_term read per hand-off.
   defp link_loss(data, dest) do
-    case Ledger.link(data.host, dest) do
+    case Tartarus.Fault.point(:link, {data.host, dest, data.env.rng}) do
+      {:ok, rng} -> {:ok, %{data | env: %{data.env | rng: rng}}}
+      {:error, :link_loss, rng} -> {:error, :link_loss, %{data | env: %{data.env | rng: rng}}}
+      {_host, _dest, _rng} -> {:ok, data}
+    end
+  end
+
+  @doc false
+  # The :link hook: the link's properties from the ledger. Latency delays the hand-off, loss
+  # makes it fail (the agent's own random state decides, so runs are reproducible).
+  def emulate_link({host, dest, rng}) do
+    case Ledger.link(host, dest) do
       %{} = props ->
         latency = Map.get(props, :latency_ms, 0)
         if latency > 0, do: Process.sleep(latency)
         loss = Map.get(props, :loss, 0)
 
         if loss > 0 do
-          {x, rng} = :rand.uniform_s(:rand.seed_s(data.env.rng))
-          data = %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}
-          if x < loss, do: {:error, :link_loss, data}, else: {:ok, data}
+          {x, state} = :rand.uniform_s(:rand.seed_s(rng))
+          rng = :rand.export_seed_s(state)
+          if x < loss, do: {:error, :link_loss, rng}, else: {:ok, rng}
         else
-          {:ok, data}
+          {:ok, rng}
         end
 
       nil ->
-        {:ok, data}
+        {:ok, rng}
     end
   end
 
+  # The source side: Protocol.source_step/2 decides, this function carries out its actions
+  # (the agent's process blocks in the hand-off, so hand-offs of many agents run in parallel).
   defp handoff(data, kind, dest, dest_pid, manifest, notify) do
     host = data.host
     mig = {host.incarnation, make_ref()}
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind, host.ref))
-    out = seal(out, manifest, mig, host)
-    if kind == :move, do: Ledger.begin_handoff(host, data.env.id, mig)
+    prepare = Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, [])
+    prepare = seal(prepare, host)
+    Ledger.begin_handoff(host, data.env.id, mig, kind)
     mref = watch(dest_pid)
-    prepare = {:"$tartarus_prepare", self(), mig, host.ref, host.pid, kind, out, manifest}
-    send(dest_pid, Tuple.append(prepare, []))
+    send(dest_pid, prepare)
+    deadline = System.monotonic_time(:millisecond) + host.opts.migration_timeout
 
-    case await_prepared(prepare, mig, mref, dest_pid, manifest, host.opts.migration_timeout, 0) do
-      {:prepared, new_pid, code_bytes} ->
-        unwatch(mref)
-        Tartarus.Fault.point(:prepared, new_pid)
-        true = Ledger.decide(host, mig, :committed)
-        bytes = :erlang.external_size(out)
+    x = %{
+      data: data,
+      dest: dest,
+      dest_pid: dest_pid,
+      mref: mref,
+      manifest: manifest,
+      prepare: prepare,
+      out: out,
+      code_bytes: 0,
+      deadline: deadline
+    }
 
-        if kind == :move do
-          # Durable before the commit leaves: a restarted host must not restore the agent.
-          Tartarus.Host.Persistence.committed(host, mig, data.env.id)
-          Tartarus.Host.Persistence.forget(host, data.env.id)
-          Ledger.depart(host, data.env.id, data.env.name, dest, mig, notify)
-
-          emit(
-            data,
-            %{
-              type: :departure,
-              agent: data.env.id,
-              to: dest,
-              bytes: bytes,
-              code_bytes: code_bytes
-            },
-            departures: 1,
-            bytes: bytes + code_bytes,
-            code_bytes: code_bytes
-          )
-        else
-          emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: dest, bytes: bytes},
-            clones: 1,
-            bytes: bytes + code_bytes
-          )
-        end
-
-        Tartarus.Fault.point(:committing, new_pid)
-        send(new_pid, {:"$tartarus_commit", mig, notify})
-        # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask.
-        if kind == :move,
-          do: {:moved, new_pid, data},
-          else:
-            {:cloned, out.id, put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))}
-
-      {:error, reason} ->
-        unwatch(mref)
-        # Abort: written before the agent goes on here, so a paused copy that asks learns it.
-        Ledger.decide(host, mig, :aborted)
-        if kind == :move, do: Ledger.end_handoff(host, data.env.id)
-        if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(dest)
-        {:failed, reason, data}
-    end
+    source_loop(Protocol.source(mig, kind, dest_pid, notify), x)
   end
 
-  defp await_prepared(prepare, mig, mref, dest_pid, manifest, timeout, code_bytes) do
-    receive do
-      {:"$tartarus_prepared", ^mig, new_pid} ->
-        {:prepared, new_pid, code_bytes}
+  defp source_loop(s, x) do
+    mig = s.mig
+    mref = x.mref
+    timeout = max(x.deadline - System.monotonic_time(:millisecond), 0)
 
-      {:"$tartarus_refused", ^mig, reason} ->
-        {:error, reason}
+    event =
+      receive do
+        {:"$tartarus_prepared", ^mig, _, _} = m -> Protocol.classify(m)
+        {:"$tartarus_refused", ^mig, _} = m -> Protocol.classify(m)
+        {:"$tartarus_need", ^mig, _} = m -> Protocol.classify(m)
+        {:DOWN, ^mref, :process, _, reason} -> {:down, reason}
+        {:nodedown, node} when mref == {:node, node} -> {:down, :noconnection}
+      after
+        timeout -> :timeout
+      end
 
-      {:"$tartarus_need", ^mig, mods} when code_bytes == 0 ->
-        case binaries(manifest, mods) do
-          {:ok, code} ->
-            send(dest_pid, Tuple.append(prepare, code))
-            bytes = :erlang.external_size(code)
-            await_prepared(prepare, mig, mref, dest_pid, manifest, timeout, max(bytes, 1))
-
-          {:error, _} = error ->
-            error
-        end
-
-      {:"$tartarus_need", ^mig, mods} ->
-        {:error, {:code_not_accepted, mods}}
-
-      {:DOWN, ^mref, :process, _, reason} ->
-        {:error, {:host_down, reason}}
-
-      {:nodedown, node} when mref == {:node, node} ->
-        {:error, {:host_down, :noconnection}}
-    after
-      timeout -> {:error, :timeout}
-    end
+    {s, actions} = Protocol.source_step(s, event)
+    source_actions(actions, s, x)
   end
 
-  defp seal(env, manifest, mig, host) do
+  defp source_actions([], s, x), do: source_loop(s, x)
+
+  defp source_actions([{:decide, mig, decision} | rest], s, x) do
+    unwatch(x.mref)
+    with {:deciding, _copy, pid} <- s.phase, do: Tartarus.Fault.point(:prepared, pid)
+
+    decided = Ledger.decide(x.data.host, mig, decision)
+
+    {s, actions} = Protocol.source_step(s, {:decided, decided})
+    source_actions(actions ++ rest, s, x)
+  end
+
+  defp source_actions([{:end_handoff, mig} | rest], s, x) do
+    if s.phase == :failed, do: unwatch(x.mref)
+    Ledger.end_handoff(x.data.host, x.data.env.id, mig)
+    source_actions(rest, s, x)
+  end
+
+  defp source_actions([{:fetch_code, mods} | rest], s, x) do
+    result = binaries(x.manifest, mods)
+    {s, actions} = Protocol.source_step(s, {:code, result})
+    source_actions(actions ++ rest, s, x)
+  end
+
+  defp source_actions([{:resend, code} | rest], s, x) do
+    send(x.dest_pid, Protocol.with_code(x.prepare, code))
+    source_actions(rest, s, %{x | code_bytes: max(:erlang.external_size(code), 1)})
+  end
+
+  defp source_actions([{:record_commit, kind, mig, copy} | rest], s, x) do
+    %{data: data, out: out, code_bytes: code_bytes} = x
+    host = data.host
+    bytes = :erlang.external_size(out)
+
+    if kind == :move do
+      # Durable before the commit leaves: a restarted host must not restore the agent.
+      Tartarus.Host.Persistence.committed(host, mig, data.env.id, copy)
+      Tartarus.Host.Persistence.forget(host, data.env.id)
+      Ledger.depart(host, data.env.id, data.env.name, x.dest, mig, copy, s.notify)
+
+      emit(
+        data,
+        %{type: :departure, agent: data.env.id, to: x.dest, bytes: bytes, code_bytes: code_bytes},
+        departures: 1,
+        bytes: bytes + code_bytes,
+        code_bytes: code_bytes
+      )
+    else
+      # A clone leaves no forwarding pointer: its decision entry stays for the clone to ask,
+      # and (with persistence) the journal keeps it for a clone that asks a restarted host.
+      Tartarus.Host.Persistence.committed(host, mig, out.id, copy)
+
+      emit(data, %{type: :clone, agent: data.env.id, clone: out.id, to: x.dest, bytes: bytes},
+        clones: 1,
+        bytes: bytes + code_bytes
+      )
+    end
+
+    source_actions(rest, s, x)
+  end
+
+  defp source_actions([{:send, pid, msg} | rest], s, x) do
+    if elem(msg, 0) == :"$tartarus_commit", do: Tartarus.Fault.point(:committing, pid)
+    send(pid, msg)
+    source_actions(rest, s, x)
+  end
+
+  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x),
+    do: {:moved, new_pid, x.data}
+
+  defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x),
+    do: {:cloned, x.out.id, put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))}
+
+  defp source_actions([{:done, {:failed, reason}} | _], _s, x) do
+    if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
+    {:failed, reason, x.data}
+  end
+
+  defp seal(prepare, host) do
     case host.opts.security do
-      %{keys: keys} -> Tartarus.Security.seal(env, manifest, mig, keys)
-      _ -> env
+      %{keys: keys} -> Tartarus.Security.seal_prepare(prepare, keys)
+      _ -> prepare
     end
   end
 
@@ -515,27 +595,18 @@ defmodule Tartarus.Agent.Server do
 
   # -- arrival (destination side) ----------------------------------------------------
 
-  # The source host's server, found by address each time (the source may have restarted
-  # since it sent `prepare`; the directory drops pids of hosts that went down).
-  defp source_pid(%{src: src}) do
-    case Tartarus.Host.whereis(src) do
-      {:ok, pid} -> {:ok, pid}
-      _ -> :error
-    end
-  end
-
-  defp commit(%{paused: p} = data, notify) do
+  defp commit(%{paused: %{c: c} = p} = data, notify) do
     Process.cancel_timer(p.timer)
     Enum.each(Enum.reverse(p.stash), &send(self(), &1))
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
-    hops = if p.kind == :move, do: data.env.hops + 1, else: data.env.hops
+    hops = if c.kind == :move, do: data.env.hops + 1, else: data.env.hops
 
     env = %{
       data.env
       | hops: hops,
-        from: p.src,
+        from: c.src,
         visits: Map.update(data.env.visits, host.ref, 1, &(&1 + 1))
     }
 
@@ -545,11 +616,21 @@ defmodule Tartarus.Agent.Server do
       :ok ->
         arrived(data)
         :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
-        Tartarus.Host.Persistence.resolved(host, p.mig)
-        if notify, do: GenServer.reply(notify, if(p.kind == :move, do: :ok, else: {:ok, env.id}))
+        Tartarus.Host.Persistence.resolved(host, c.mig, c.copy)
+
+        with {pid, _tag} when is_pid(pid) <- notify,
+             do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
+
+        # Running: the source host may forget its record of the commit (acknowledged
+        # lazily: this host sends its acknowledgements in batches, see Host.Server).
+        :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
+
+        if :ets.update_counter(host.ledger, :acks_armed, 1, {:acks_armed, 0}) == 1,
+          do: Process.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
+
         Ledger.record_hop(host, hop_us)
 
-        emit(data, %{type: :arrival, agent: env.id, from: p.src, hop_us: hop_us, hops: hops},
+        emit(data, %{type: :arrival, agent: env.id, from: c.src, hop_us: hop_us, hops: hops},
           arrivals: 1
         )
 

@@ -5,14 +5,24 @@ defmodule Tartarus.Host.Persistence do
   #
   #   {:agent, id, env}                  agent arrived (or was created): its snapshot
   #   {:forget, id}                      agent stopped, or was killed
-  #   {:in_doubt, mig, env, src, kind}   this host prepared a paused copy (destination)
-  #   {:resolved, mig}                   that copy was committed or aborted
-  #   {:decision, mig, id}               this host committed a migration of agent id (source)
+  #   {:in_doubt, mig, env, src, kind, copy}  this host prepared paused copy `copy` (destination)
+  #   {:resolved, mig, copy}             that copy was committed or aborted
+  #   {:acked, mig}                      the committed copy of mig runs: its decision record
+  #                                      is no longer needed (source)
+  #
+  # In-doubt copies are keyed by {mig, copy}: a second copy of one migration (a duplicated or
+  # replayed prepare the host no longer remembered) must not replace the first's record.
+  #   {:decision, mig, id, copy}         this host committed migration mig of agent id to the
+  #                                      paused copy `copy` (source)
   #
   # Replaying the journal in order gives the state to restore; a `decision` or a later
   # `agent` record supersedes earlier records about the same agent, so a host that died
-  # between two writes restores nothing twice. On open the journal is compacted (rewritten
-  # with the live records and renamed over the old one).
+  # between two writes restores nothing twice. The journal is compacted (rewritten with the
+  # live records and renamed over the old one) on open and while the host runs: its writer
+  # (Tartarus.Host.Persistence.Writer, one process per host, owning the file) compacts it
+  # between two writes once it has grown by more than twice its live size (at least
+  # @compact_min bytes), so its size stays proportional to what is live (resident agents,
+  # in-doubt copies, unacknowledged commits), not to the migrations that passed.
   #
   # Each write goes to the file with write(2) before the host sends the message that depends
   # on it (the destination records the in-doubt copy before answering `prepared`; the source
@@ -28,16 +38,29 @@ defmodule Tartarus.Host.Persistence do
   def open(name, dir) do
     File.mkdir_p!(dir)
     path = Path.join(dir, "host-#{safe(name)}.journal")
-    state = replay(path)
-    tmp = path <> ".tmp"
-    File.write!(tmp, Enum.map(records(state), &frame/1))
-    File.rename!(tmp, path)
-    {:ok, io} = File.open(path, [:append, :binary])
-    {%{io: io, path: path}, restored(state)}
+    {state, live} = compact(path)
+    {:ok, pid} = Tartarus.Host.Persistence.Writer.start_link(path, live)
+    {%{io: pid, path: path}, restored(state)}
   end
 
   def close(nil), do: :ok
-  def close(%{io: io}), do: File.close(io)
+  def close(%{io: pid}), do: GenServer.stop(pid)
+
+  @doc false
+  # Rewrites the journal at `path` with its live records. Returns {replayed state, bytes}.
+  def compact(path) do
+    state = replay(path)
+    tmp = path <> ".tmp"
+    bin = IO.iodata_to_binary(Enum.map(records(state), &frame/1))
+    File.write!(tmp, bin)
+    File.rename!(tmp, path)
+    {state, byte_size(bin)}
+  end
+
+  @doc false
+  # The journal's size on disk, in bytes (0 without one).
+  def size(%{journal: nil}), do: 0
+  def size(%{journal: %{path: path}}), do: File.stat!(path).size
 
   def checkpoint(%{journal: nil}, _env), do: :ok
   def checkpoint(%{journal: j}, env), do: append(j, {:agent, env.id, env})
@@ -45,18 +68,23 @@ defmodule Tartarus.Host.Persistence do
   def forget(%{journal: nil}, _id), do: :ok
   def forget(%{journal: j}, id), do: append(j, {:forget, id})
 
-  def in_doubt(%{journal: nil}, _mig, _env, _src, _kind), do: :ok
+  def in_doubt(%{journal: nil}, _mig, _env, _src, _kind, _copy), do: :ok
 
-  def in_doubt(%{journal: j}, mig, env, src, kind),
-    do: append(j, {:in_doubt, mig, env, src, kind})
+  def in_doubt(%{journal: j}, mig, env, src, kind, copy),
+    do: append(j, {:in_doubt, mig, env, src, kind, copy})
 
-  def resolved(%{journal: nil}, _mig), do: :ok
-  def resolved(%{journal: j}, mig), do: append(j, {:resolved, mig})
+  def resolved(%{journal: nil}, _mig, _copy), do: :ok
+  def resolved(%{journal: j}, mig, copy), do: append(j, {:resolved, mig, copy})
 
-  def committed(%{journal: nil}, _mig, _id), do: :ok
-  def committed(%{journal: j}, mig, id), do: append(j, {:decision, mig, id})
+  def acked(%{journal: nil}, _mig), do: :ok
+  def acked(%{journal: j}, mig), do: append(j, {:acked, mig})
 
-  defp append(%{io: io}, record), do: :ok = IO.binwrite(io, frame(record))
+  def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
+  def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
+
+  # Returns once the record is written (write(2)), before the caller sends what depends on it.
+  defp append(%{io: pid}, record),
+    do: :ok = GenServer.call(pid, {:append, frame(record)}, :infinity)
 
   defp frame(record) do
     bin = :erlang.term_to_binary(record)
@@ -66,13 +94,16 @@ defmodule Tartarus.Host.Persistence do
   # -- replay ------------------------------------------------------------------------
 
   defp replay(path) do
-    empty = %{agents: %{}, in_doubt: %{}, decisions: %{}}
-
     case File.read(path) do
-      {:ok, bin} -> frames(bin, empty)
-      {:error, :enoent} -> empty
+      {:ok, bin} -> frames(bin, empty())
+      {:error, :enoent} -> empty()
     end
   end
+
+  @doc false
+  # The replayed state of an empty journal (the fold of apply_record/2 over the records;
+  # the protocol model folds the same way).
+  def empty, do: %{agents: %{}, in_doubt: %{}, decisions: %{}}
 
   # A torn last frame (the node died mid-write) ends the replay.
   defp frames(<<size::32, bin::binary-size(size), rest::binary>>, state) do
@@ -81,41 +112,96 @@ defmodule Tartarus.Host.Persistence do
 
   defp frames(_torn_or_empty, state), do: state
 
-  defp apply_record({:agent, id, env}, s),
+  @doc false
+  def apply_record({:agent, id, env}, s),
     do: %{s | agents: Map.put(s.agents, id, env), in_doubt: drop_agent(s.in_doubt, id)}
 
-  defp apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
+  def apply_record({:forget, id}, s), do: %{s | agents: Map.delete(s.agents, id)}
 
-  defp apply_record({:in_doubt, mig, env, src, kind}, s),
-    do: %{s | in_doubt: Map.put(s.in_doubt, mig, {env, src, kind})}
+  def apply_record({:in_doubt, mig, env, src, kind, copy}, s),
+    do: %{s | in_doubt: Map.put(s.in_doubt, {mig, copy}, {env, src, kind})}
 
-  defp apply_record({:resolved, mig}, s), do: %{s | in_doubt: Map.delete(s.in_doubt, mig)}
+  def apply_record({:resolved, mig, copy}, s),
+    do: %{s | in_doubt: Map.delete(s.in_doubt, {mig, copy})}
 
-  defp apply_record({:decision, mig, id}, s) do
+  def apply_record({:decision, mig, id, copy}, s) do
     # A move to this same host has its in-doubt copy here too: that one stays (it asks, finds
     # the decision and starts).
     %{
       s
       | agents: Map.delete(s.agents, id),
         in_doubt: drop_agent(s.in_doubt, id, mig),
-        decisions: Map.put(s.decisions, mig, id)
+        decisions: Map.put(s.decisions, mig, {id, copy})
     }
   end
 
+  def apply_record({:acked, mig}, s), do: %{s | decisions: Map.delete(s.decisions, mig)}
+
+  # A record of an earlier format: skipped.
+  def apply_record(_other, s), do: s
+
   defp drop_agent(in_doubt, id, keep \\ nil),
-    do: Map.reject(in_doubt, fn {mig, {env, _, _}} -> env.id == id and mig != keep end)
+    do: Map.reject(in_doubt, fn {{mig, _copy}, {env, _, _}} -> env.id == id and mig != keep end)
 
   defp records(s) do
-    Enum.map(s.decisions, fn {mig, id} -> {:decision, mig, id} end) ++
-      Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {:in_doubt, mig, env, src, kind} end) ++
+    Enum.map(s.decisions, fn {mig, {id, copy}} -> {:decision, mig, id, copy} end) ++
+      Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} ->
+        {:in_doubt, mig, env, src, kind, copy}
+      end) ++
       Enum.map(s.agents, fn {id, env} -> {:agent, id, env} end)
   end
 
-  defp restored(s) do
+  @doc false
+  # {agents, in_doubt as [{mig, env, src, kind, copy}], decisions as [{mig, copy}]}.
+  def restored(s) do
     {Map.values(s.agents),
-     Enum.map(s.in_doubt, fn {mig, {env, src, kind}} -> {mig, env, src, kind} end),
-     Map.keys(s.decisions)}
+     Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} -> {mig, env, src, kind, copy} end),
+     Enum.map(s.decisions, fn {mig, {_id, copy}} -> {mig, copy} end)}
   end
 
   defp safe(name), do: name |> to_string() |> String.replace(~r/[^A-Za-z0-9_.-]/, "_")
+end
+
+defmodule Tartarus.Host.Persistence.Writer do
+  @moduledoc false
+  # The one process that writes a host's journal: appends in the order they come, each
+  # answered once written, and compaction between two appends (nothing is appended while it
+  # runs), when the file has grown by more than twice its live size.
+  use GenServer
+
+  @compact_min 256 * 1024
+
+  def start_link(path, live), do: GenServer.start_link(__MODULE__, {path, live})
+
+  @impl true
+  def init({path, live}) do
+    {:ok, fd} = :file.open(path, [:append, :raw, :binary])
+    {:ok, %{fd: fd, path: path, live: live, grown: 0}}
+  end
+
+  @impl true
+  def handle_call({:append, bin}, _from, s) when is_binary(bin) do
+    :ok = :file.write(s.fd, bin)
+    s = %{s | grown: s.grown + byte_size(bin)}
+    {:reply, :ok, if(s.grown > max(@compact_min, 2 * s.live), do: compact(s), else: s)}
+  end
+
+  def handle_call(:compact, _from, s), do: {:reply, :ok, compact(s)}
+  def handle_call(_other, _from, s), do: {:reply, {:error, :unexpected}, s}
+
+  @impl true
+  def handle_cast(_other, s), do: {:noreply, s}
+
+  @impl true
+  def handle_info(_other, s), do: {:noreply, s}
+
+  @impl true
+  def terminate(_reason, s), do: :file.close(s.fd)
+
+  defp compact(s) do
+    :ok = :file.close(s.fd)
+    {_state, live} = Tartarus.Host.Persistence.compact(s.path)
+    {:ok, fd} = :file.open(s.path, [:append, :raw, :binary])
+    %{s | fd: fd, live: live, grown: 0}
+  end
 end

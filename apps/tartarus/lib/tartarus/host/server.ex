@@ -5,32 +5,27 @@ defmodule Tartarus.Host.Server do
   # migrations that left from here, and watches its agents to restart crashed ones from
   # their arrival snapshot.
   #
-  # Wire protocol (maintainer notes). S = source agent process, H = this server,
-  # A = the paused agent H creates:
+  # The hand-off protocol (messages, decision rule, guarantees) is specified and decided in
+  # Tartarus.Migration.Protocol; this server runs its destination side (admission) and
+  # answers decision queries as the source host, carrying out the protocol's actions.
   #
-  #   S -> H  {:"$tartarus_prepare", s_pid, mig, src_host, src_host_pid, kind, envelope, manifest, code}
-  #   H -> S  {:"$tartarus_need", mig, [module]}            modules H lacks; S resends with code
-  #   H -> S  {:"$tartarus_prepared", mig, a_pid}           A exists, paused
-  #   H -> S  {:"$tartarus_refused", mig, reason}           nothing was created
-  #   S -> A  {:"$tartarus_commit", mig, notify}            A becomes the agent (and answers
-  #                                                         `notify`, a GenServer from, if set)
-  #   A -> Hs {:"$tartarus_decision?", mig, id, a_pid}      A timed out waiting for commit
-  #   Hs -> A {:"$tartarus_decision", mig, :committed | {:committed, notify} | :aborted | :unknown}
-  #
-  # The decision is the entry {{:decision, mig}, :committed | :aborted} in the source host's
-  # ledger, written once with :ets.insert_new/2 by the source agent (or by the source host
-  # when that agent crashed mid-hand-off). Once a committed agent has left, its forwarding
-  # pointer (which names `mig`) stands for the decision, so no acknowledgement crosses the
-  # link. Neither side guesses: A waits for commit or for an answer from the source host,
-  # however long that takes.
+  # Nothing any node sends crashes it: unexpected calls are answered
+  # {:error, {:bad_message, _}}, unexpected casts and messages are dropped and counted in
+  # the ledger ({:count, :dropped}), and a :DOWN counts only for a monitor this server made.
   use GenServer
 
-  alias Tartarus.{CodeCache, Envelope, Events}
+  alias Tartarus.{CodeCache, Envelope, Events, Ledger}
+  alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
+  # Acknowledgements per message (the first arrival after a flush arms the next, see
+  # Agent.Server).
+  @ack_batch 1_000
+  # How often a host asks the sources of its parked copies.
+  @ask_parked_every 30_000
 
   def start_link({name, opts}) do
-    GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.Supervisor.via(:host, name))
+    GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.via(:host, name))
   end
 
   @impl true
@@ -43,17 +38,21 @@ defmodule Tartarus.Host.Server do
     store =
       :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
 
+    # Acknowledgements of arrived copies, by source host, until the next batch leaves.
+    acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
+
     :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
     {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
     # Migrations an earlier run of this host committed: answers for destinations in doubt.
-    :ets.insert(ledger, for(mig <- decided, do: {{:decision, mig}, :committed}))
+    :ets.insert(ledger, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
 
     host = %{
       ref: {name, node()},
       pid: self(),
       ledger: ledger,
       store: store,
+      acks: acks,
       counters: Tartarus.Events.new_counters(),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
@@ -72,6 +71,7 @@ defmodule Tartarus.Host.Server do
        monitors: %{},
        killing: MapSet.new(),
        admission: opts[:admission],
+       dest: Protocol.destination(),
        restore: {agents, in_doubt}
      }}
   end
@@ -105,6 +105,7 @@ defmodule Tartarus.Host.Server do
          :ok <- link_target(other, from),
          :ok <- neighbour_room(state, ns, other) do
       :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+      if emulated?(props), do: install_link_hook()
       {:reply, :ok, state}
     else
       error -> {:reply, error, state}
@@ -135,7 +136,7 @@ defmodule Tartarus.Host.Server do
         state = %{state | killing: MapSet.put(state.killing, pid)}
 
         DynamicSupervisor.terminate_child(
-          Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0)),
+          Tartarus.Host.via(:agents, elem(state.host.ref, 0)),
           pid
         )
 
@@ -145,7 +146,7 @@ defmodule Tartarus.Host.Server do
         # Killed in the middle of a hand-off: abort it (the destination's paused copy learns
         # so when it asks), unless the move had already committed: then the agent lives on
         # at its destination and the kill follows it there.
-        if Tartarus.Ledger.abort_pending(state.host, id) do
+        if Tartarus.Ledger.abort_pending(state.host, id, pid) do
           Tartarus.Host.Persistence.forget(state.host, id)
           {:reply, {:killed, id}, state}
         else
@@ -158,6 +159,23 @@ defmodule Tartarus.Host.Server do
   end
 
   defp call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
+
+  # A paused copy that waited too long parks (Protocol.copy_step/2): only the copy itself,
+  # found as its agent's arriving process here, may hand over its record.
+  defp call({:park, mig, copy, env, src, kind}, {pid, _}, state) do
+    if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
+      if :ets.insert_new(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
+        :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+        if parked(state) == 1, do: schedule_parked()
+      end
+
+      {:reply, :ok, state}
+    else
+      {:reply, {:error, :not_paused_here}, state}
+    end
+  end
+
+  defp call(:parked, _from, state), do: {:reply, parked(state), state}
 
   # Restores checkpointed agents and in-doubt copies (persistence); called once by
   # Tartarus.start_host/2 after the host's supervisors are up.
@@ -174,18 +192,30 @@ defmodule Tartarus.Host.Server do
       end)
 
     state =
-      Enum.reduce(in_doubt, state, fn {mig, env, src, kind}, state ->
-        case start_agent(state, env, {:paused, mig, src, nil, kind}) do
-          {:ok, _pid, state} -> state
-          {:error, _reason, state} -> state
+      Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
+        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            %{state | dest: Protocol.restore_seen(state.dest, mig, copy, pid)}
+
+          {:error, _reason, state} ->
+            state
         end
       end)
 
     {:reply, {:ok, length(agents), length(in_doubt)}, state}
   end
 
-  defp call(:paused, _from, state) do
-    {:reply, map_size(state.monitors) - Tartarus.Ledger.counter(state.host, :resident), state}
+  defp call(:paused, _from, state), do: {:reply, paused(state), state}
+
+  defp emulated?(props), do: Map.get(props, :latency_ms, 0) > 0 or Map.get(props, :loss, 0) > 0
+
+  # Once per node (a :persistent_term write is costly; reads are free).
+  defp install_link_hook do
+    hook = {:transform, {Tartarus.Agent.Server, :emulate_link, []}}
+
+    if :persistent_term.get({Tartarus.Fault, :link}, nil) != hook,
+      do: Tartarus.Fault.install(:link, hook)
   end
 
   # -- overlay (connect/disconnect) ----------------------------------------------
@@ -223,76 +253,255 @@ defmodule Tartarus.Host.Server do
 
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
-    case Tartarus.Wire.check_prepare(
+    msg = Tartarus.Fault.point(:prepare_received, msg)
+
+    case Protocol.check_prepare(
            msg,
            Tartarus.Security.Admission.max_message_bytes(state.admission)
          ) do
-      :ok -> admit(state, msg)
-      {:error, reason} -> refuse(state, s_pid, mig, env, src, reason)
+      :ok ->
+        {:prepare, p} = Protocol.classify(msg)
+        {:noreply, admission(state, {:prepare, p})}
+
+      {:error, reason} ->
+        {:noreply, refuse(state, s_pid, mig, env, src, reason)}
     end
   end
 
-  def handle_info({:"$tartarus_decision?", mig, id, a_pid} = msg, state) do
-    if Tartarus.Wire.check_decision_query(msg) == :ok do
-      send(a_pid, {:"$tartarus_decision", mig, Tartarus.Ledger.decision(state.host, mig, id)})
+  def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
+    if Protocol.check_decision_query(msg) == :ok do
+      send(a_pid, Protocol.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
+    else
+      Ledger.count(state.host, :dropped)
     end
 
     {:noreply, state}
   end
 
-  def handle_info({:DOWN, mref, :process, pid, reason}, state) do
+  def handle_info({:"$tartarus_acks", acks} = msg, state) do
+    if Protocol.check_acks(msg) == :ok do
+      for {mig, id, copy} <- acks do
+        Ledger.acknowledge(state.host, mig, id, copy)
+        Tartarus.Host.Persistence.acked(state.host, mig)
+      end
+    else
+      Ledger.count(state.host, :dropped)
+    end
+
+    {:noreply, state}
+  end
+
+  # A timer that only sends acknowledgements (lazily, batched): it decides nothing. The first
+  # arrival after a flush arms it (so an idle host has no timer).
+  def handle_info(:"$tartarus_flush_acks", state) do
+    :ets.insert(state.host.ledger, {:acks_armed, 0})
+    flush_acks(state.host.acks, :ets.first(state.host.acks))
+    {:noreply, state}
+  end
+
+  # Asks the sources of parked copies (a timer that only asks: it never decides anything).
+  def handle_info(:"$tartarus_ask_parked", state) do
+    host = state.host
+
+    for {{mig, copy}, env, _src, _kind} = rec <-
+          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}])
+          |> Enum.map(fn {{:parked, k}, e, s, kd} -> {k, e, s, kd} end),
+        {:ok, pid} <- [Tartarus.Host.whereis(elem(rec, 2))] do
+      send(pid, Protocol.decision_query(mig, env.id, copy, self()))
+    end
+
+    if parked(state) > 0, do: schedule_parked()
+    {:noreply, state}
+  end
+
+  # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
+  def handle_info({:"$tartarus_decision", mig, copy, d}, state) do
+    case :ets.lookup(state.host.ledger, {:parked, {mig, copy}}) do
+      [{key, env, src, kind}] ->
+        {:noreply, unpark(state, key, mig, copy, env, src, kind, d)}
+
+      [] ->
+        Ledger.count(state.host, :dropped)
+        {:noreply, state}
+    end
+  end
+
+  # Only a monitor this server made counts: a forged :DOWN changes nothing.
+  def handle_info({:DOWN, mref, :process, pid, reason}, state)
+      when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
     killed? = MapSet.member?(state.killing, pid)
     state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
-    resident? = Tartarus.Ledger.forget_resident(state.host, pid)
-    if entry, do: :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
+    resident? = Ledger.forget_resident(state.host, pid)
+    # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
+    Ledger.drop_handoffs(state.host, pid)
+    :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
     {:noreply, agent_down(state, entry, reason, resident?, killed?)}
   end
 
-  def handle_info(:sweep, state) do
-    ttl = state.host.opts.forward_ttl
-    Tartarus.Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
+  def handle_info(:sweep, %{host: %{opts: %{forward_ttl: ttl}}} = state) when is_integer(ttl) do
+    Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
     schedule_sweep(ttl)
     {:noreply, state}
   end
 
+  # The journal's writer died: this host cannot keep its promises without it.
+  def handle_info({:EXIT, pid, reason}, %{host: %{journal: %{io: pid}}} = state),
+    do: {:stop, {:journal, reason}, state}
+
   def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
 
-  def handle_info(_other, state), do: {:noreply, state}
+  def handle_info(_other, state) do
+    Ledger.count(state.host, :dropped)
+    {:noreply, state}
+  end
 
   @impl true
-  def terminate(_reason, state), do: Tartarus.Host.Persistence.close(state.host.journal)
+  def handle_cast(_other, state) do
+    Ledger.count(state.host, :dropped)
+    {:noreply, state}
+  end
 
-  # -- admission ---------------------------------------------------------------
+  @impl true
+  def terminate(_reason, state) do
+    Tartarus.Host.Persistence.close(state.host.journal)
+  catch
+    :exit, _ -> :ok
+  end
 
-  defp admit(state, {_, s_pid, mig, src, src_pid, kind, env, manifest, code}) do
-    env = Tartarus.Fault.point(:admitting, env)
+  defp flush_acks(_table, :"$end_of_table"), do: :ok
 
-    with :ok <- trusted(state, env, manifest, mig),
-         :ok <- heap_fits(state, env),
-         :ok <- prepare(state, env, manifest, code),
-         {:ok, state} <- policy(state, src, env) do
-      case start_agent(state, env, {:paused, mig, src, src_pid, kind}) do
-        {:ok, pid, state} ->
-          # Findable (messages to it wait until it starts) and durable before the source
-          # may commit.
-          :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
-          Tartarus.Host.Persistence.in_doubt(state.host, mig, env, src, kind)
-          send(s_pid, {:"$tartarus_prepared", mig, pid})
-          {:noreply, state}
+  defp flush_acks(table, src) do
+    next = :ets.next(table, src)
 
-        {:error, reason, state} ->
-          refuse(state, s_pid, mig, env, src, reason)
-      end
-    else
-      {:need, mods} ->
-        send(s_pid, {:"$tartarus_need", mig, mods})
-        {:noreply, state}
+    acks = table |> :ets.take(src) |> Enum.map(&elem(&1, 1))
 
-      {:error, reason} ->
-        refuse(state, s_pid, mig, env, src, reason)
+    # A source host that is gone needs no acknowledgement (a restarted one keeps the commits
+    # it journaled: they then stay, which is safe).
+    with {:ok, pid} <- Tartarus.Host.whereis(src) do
+      acks |> Enum.chunk_every(@ack_batch) |> Enum.each(&send(pid, Protocol.acks(&1)))
+    end
+
+    flush_acks(table, next)
+  end
+
+  # -- parked copies -------------------------------------------------------------------
+
+  defp parked(state), do: Ledger.counter(state.host, :parked)
+
+  defp unparked(state, key) do
+    :ets.delete(state.host.ledger, key)
+    :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
+  end
+
+  defp schedule_parked,
+    do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_parked_every)
+
+  defp unpark(state, key, mig, copy, env, src, kind, d) do
+    case Protocol.parked(d) do
+      :keep ->
+        state
+
+      :drop ->
+        unparked(state, key)
+        Tartarus.Host.Persistence.resolved(state.host, mig, copy)
+        state
+
+      :revive ->
+        unparked(state, key)
+
+        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            send(pid, Protocol.decision(mig, copy, d))
+            state
+
+          {:error, _reason, state} ->
+            # Kept for the next answer.
+            :ets.insert(state.host.ledger, {key, env, src, kind})
+            :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+            state
+        end
     end
   end
+
+  # -- admission (the destination side of the protocol) -----------------------------
+
+  # Paused (and parked) copies a host without an admission policy holds at most (with a
+  # policy they count against its max_resident_agents).
+  @max_paused 10_000
+
+  defp admission(state, event) do
+    {dest, actions} = Protocol.destination_step(state.dest, event)
+    Enum.reduce(actions, %{state | dest: dest}, &admission_action/2)
+  end
+
+  defp admission_action({:check, p}, state) do
+    env = Tartarus.Fault.point(:admitting, p.env)
+    p = %{p | env: env}
+
+    {verdict, state} =
+      with :ok <- trusted(state, p),
+           :ok <- heap_fits(state, env),
+           :ok <- capacity(state),
+           :ok <- prepare(state, env, p.manifest, p.code),
+           {:ok, state} <- policy(state, p.src, env) do
+        {:ok, state}
+      else
+        {:need, mods} -> {{:need, mods}, state}
+        {:error, reason} -> {{:error, reason}, state}
+      end
+
+    admission(state, {:checked, p, verdict, copy_token(state.host)})
+  end
+
+  defp admission_action({:probe, p, copy, pid}, state) do
+    paused? =
+      :ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}]
+
+    admission(state, {:probed, p, copy, pid, paused?})
+  end
+
+  defp admission_action({:create, p, copy}, state) do
+    case start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind}) do
+      {:ok, pid, state} ->
+        # Findable (messages to it wait until it starts).
+        :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
+        admission(state, {:created, p, copy, pid})
+
+      {:error, reason, state} ->
+        admission(state, {:create_failed, p, reason})
+    end
+  end
+
+  # Durable before `prepared` leaves.
+  defp admission_action({:journal_in_doubt, p, copy}, state) do
+    Tartarus.Host.Persistence.in_doubt(state.host, p.mig, p.env, p.src, p.kind, copy)
+    state
+  end
+
+  defp admission_action({:send, pid, msg}, state) do
+    if is_pid(pid), do: send(pid, msg)
+    state
+  end
+
+  defp admission_action({:refuse, p, reason}, state),
+    do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
+
+  defp paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
+
+  # Unique across this host's runs (its incarnation is random per run); it names a copy, it
+  # does not authenticate anyone (the seal does, for the prepare).
+  defp copy_token(host),
+    do: <<binary_part(host.incarnation, 0, 8)::binary, :erlang.unique_integer([:positive])::64>>
+
+  defp capacity(%{admission: nil} = state) do
+    if paused(state) + parked(state) < @max_paused,
+      do: :ok,
+      else: {:error, {:busy, :paused_copies}}
+  end
+
+  defp capacity(_state), do: :ok
 
   # An agent whose state alone would not fit in the host's per-agent heap limit is refused
   # here, not killed after its source committed.
@@ -303,9 +512,9 @@ defmodule Tartarus.Host.Server do
     if size * 2 <= words, do: :ok, else: {:error, {:too_large_for_heap, size, words}}
   end
 
-  defp trusted(state, env, manifest, mig) do
+  defp trusted(state, p) do
     case state.host.opts.security do
-      %{trust: trust} -> Tartarus.Security.check(env, manifest, mig, trust)
+      %{trust: trust} -> Tartarus.Security.check_prepare(p, trust)
       _ -> :ok
     end
   end
@@ -319,7 +528,8 @@ defmodule Tartarus.Host.Server do
       envelope_bytes: :erlang.external_size(env),
       payload_bytes: :erlang.external_size({env.state, env.payload}),
       hops: env.hops + 1,
-      resident: Tartarus.Ledger.counter(state.host, :resident)
+      # Paused copies count: a stranger's prepares cannot hold more than the limit.
+      resident: map_size(state.monitors) + parked(state)
     }
 
     case Tartarus.Security.Admission.admit(
@@ -357,7 +567,7 @@ defmodule Tartarus.Host.Server do
       refused: 1
     )
 
-    {:noreply, state}
+    state
   end
 
   # -- agents ------------------------------------------------------------------
@@ -366,7 +576,7 @@ defmodule Tartarus.Host.Server do
   # in this server's or the supervisor's heap, which would then hold and garbage-collect
   # every resident's state) for restarts, and read by the agent's process when it starts.
   defp start_agent(state, env, mode, restarts \\ 0) do
-    sup = Tartarus.Host.Supervisor.via(:agents, elem(state.host.ref, 0))
+    sup = Tartarus.Host.via(:agents, elem(state.host.ref, 0))
     key = make_ref()
     :ets.insert(state.host.ledger, {{:snapshot, key}, env})
 
@@ -389,8 +599,6 @@ defmodule Tartarus.Host.Server do
 
   defp unwrap({:bad_init, reason}), do: reason
   defp unwrap(reason), do: reason
-
-  defp agent_down(state, nil, _reason, _resident?, _killed?), do: state
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host
@@ -417,7 +625,7 @@ defmodule Tartarus.Host.Server do
         # A paused copy that died before its commit: the source still decides; nothing to do.
         state
 
-      not Tartarus.Ledger.abort_pending(host, entry.id) ->
+      not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
         # It crashed after committing a migration: it lives on at the destination.
         state
 

@@ -3,6 +3,8 @@ defmodule Tartarus.Security.SignedMigrationTest do
   # unsigned agents, tampered state and tampered code are refused and stay at the source.
   use ExUnit.Case, async: false
 
+  alias Tartarus.Migration.Protocol
+
   alias Tartarus.{CodeCache, Envelope}
   alias Tartarus.Security.{Keys, TrustList}
   alias Tartarus.Examples.Echo
@@ -51,12 +53,12 @@ defmodule Tartarus.Security.SignedMigrationTest do
 
     send(
       pid,
-      {:"$tartarus_prepare", self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, []}
+      Protocol.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
     )
 
     receive do
       {:"$tartarus_refused", ^mig, reason} -> {:refused, reason}
-      {:"$tartarus_prepared", ^mig, pid} -> {:prepared, pid}
+      {:"$tartarus_prepared", ^mig, _copy, pid} -> {:prepared, pid}
     after
       2_000 -> :timeout
     end
@@ -73,7 +75,11 @@ defmodule Tartarus.Security.SignedMigrationTest do
 
     {:ok, manifest} = CodeCache.manifest([Echo])
     env = Tartarus.Security.issue(env, manifest, issuer)
-    {Tartarus.Security.seal(env, manifest, mig, host_keys), manifest}
+
+    prepare =
+      Protocol.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
+
+    {elem(Tartarus.Security.seal_prepare(prepare, host_keys), 6), manifest}
   end
 
   test "tampered state is refused", %{b: b, issuer: issuer, host_keys: host_keys} do

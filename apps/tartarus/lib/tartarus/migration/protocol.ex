@@ -1,0 +1,730 @@
+defmodule Tartarus.Migration.Protocol do
+  @moduledoc """
+  The hand-off protocol of a migration (move or clone), as pure functions: its messages,
+  their validators, and the three parties' state machines written as
+  `(state, event) -> {state, actions}`. The processes that run it
+  (`Tartarus.Agent.Server` for the source and for the in-doubt copy, `Tartarus.Host.Server`
+  for admission and decision queries) only turn messages into events and carry out the
+  actions (send, journal, create a paused copy, reply, emit). The model-checked property
+  `Tartarus.Migration.ProtocolModelTest` drives these same functions over a network that
+  drops, duplicates, delays, reorders and replays messages, with crashes and partitions.
+
+  ## Parties
+
+    * **S**, the source: the agent's own process, for one attempt (`source/4`,
+      `source_step/2`). It writes the decision.
+    * **H**, the destination host's server: admits or refuses (`destination/1`,
+      `destination_step/2`), creates a paused copy **A** and answers `prepared`.
+    * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
+      nothing until it learns the decision.
+    * **Hs**, the source host's server: answers decision queries (`answer/4`).
+
+  ## Messages
+
+      S  -> H   {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
+      H  -> S   {:"$tartarus_need", mig, [module]}        modules H lacks; S resends with code
+      H  -> S   {:"$tartarus_prepared", mig, copy, a_pid} A exists, paused, journaled
+      H  -> S   {:"$tartarus_refused", mig, reason}       nothing was created
+      S  -> A   {:"$tartarus_commit", mig, copy, notify}  A becomes the agent
+      A  -> Hs  {:"$tartarus_decision?", mig, id, copy, a_pid}
+      Hs -> A   {:"$tartarus_decision", mig, copy, :committed | {:committed, notify} | :aborted | :unknown}
+      A  -> Hs  {:"$tartarus_acks", [{mig, id, copy}]}         A runs: Hs may forget the decision
+                                                             (A's host batches them, lazily)
+
+  `mig` is `{source_incarnation, ref}`, unique per attempt. `copy` is a token H makes for
+  the one paused copy it creates for `mig`, unique across H's runs (16 bytes; it survives
+  H's restart through the journal). It names a copy; it authenticates nobody.
+
+  ## Decision rule
+
+  While S's attempt is undecided, Hs's ledger holds a hand-off record of `mig` (written
+  before `prepare` leaves, removed only after the decision, by S, or by Hs once S's process
+  is dead). The only decision ever written is a commit: `{:committed, copy}`, naming the one
+  copy S chose, written once (insert-if-absent) before `commit` leaves. An abort is the
+  removal of the hand-off record with no commit written: nothing is stored for it. After a
+  committed move the agent's forwarding pointer (which names `{mig, copy}`) stands for the
+  decision. Hs answers a query for `(mig, copy)`, reading in this order:
+
+    1. a hand-off record of `mig`: unknown (S has not decided yet); A asks again later;
+    2. a decision or forwarding pointer names `mig` and this `copy`: committed;
+    3. anything else: aborted. Either S aborted, or it committed another copy, or the
+       record of its commit is gone, which happens only once nothing can still need it:
+       the committed copy acknowledged it (`ack`), or the agent came back (a pointer is
+       deleted when its agent arrives again), or Hs restarted (with persistence journaled
+       commits are reloaded, so a missing one never committed; without, the agent died
+       with that run).
+
+  A starts only on a `commit` naming its `(mig, copy)` or a committed answer for it. Once
+  it runs it acknowledges (`ack`) to Hs, which then drops a clone's decision (a move's is
+  already replaced by the pointer) and marks the pointer acknowledged: it no longer stands
+  for a decision, only for the agent's whereabouts, and `forward_ttl` may sweep it. Nothing
+  that stands for an undecided or unacknowledged decision is ever removed by a timer.
+
+  ## Guarantees and what each rests on
+
+    * **At most one running copy.** Per `mig` at most one copy is committed, because the
+      decision is written once and names the copy; S stops itself (or, for a clone, the
+      clone has a new id) in the same step that sends `commit`. A replayed or duplicated
+      `prepare` either meets H's memory of `mig` (H answers again with the same copy while
+      it is paused, and refuses it once the copy started or was aborted) or,
+      once that bounded memory forgot it (`seen_max`) or H restarted, creates a copy with a
+      new token, which no decision names: it is told aborted. Replayed `commit`s and
+      answers name a token only the first copy holds. Safety never rests on H's memory
+      (the model checks it with a memory of one migration).
+    * **Every commit survives a restart (with persistence).** S journals `{:decision, mig,
+      id, copy}` for moves and clones before `commit` leaves; H journals each in-doubt copy
+      under `{mig, copy}` before `prepared` leaves, so a second copy of one migration never
+      replaces the first's record.
+    * **A decision never changes.** A commit is insert-if-absent by the only writer (S), an
+      abort is the absence of a commit after the hand-off record is gone (S is then done
+      or dead: nobody writes a commit later). Hs reads the hand-off record first: S writes
+      its decision before removing the record, and a move's pointer before dropping the
+      decision, so a reader never sees "nothing" while a commit is on its way. Records of
+      commits are removed only when no copy can still need them (above).
+    * **Bounded records.** Aborts store nothing; a clone's commit is freed by its `ack`; a
+      move's is its forwarding pointer, sweepable (`forward_ttl`) once acknowledged; the
+      journal records `{:acked, mig}` so compaction drops the commit.
+    * **No sealed field is forged.** With security on, the sending host's seal covers the
+      envelope, the manifest, `mig`, `kind`, `src`, and both reply-to pids (`seal_fields/1`).
+    * **Bounded cost of a stranger's prepares.** Paused copies count against admission
+      (`max_resident_agents`), and a paused copy stashes at most `stash_max` messages (the
+      rest are dropped and counted; their senders time out).
+    * **In doubt, never a guess.** A copy whose source does not answer keeps asking, with a
+      back-off capped at `max_ask_interval`; it never starts or drops itself on a timer. It
+      is dropped only on an `:aborted` answer (or a host kill), started only on a committed
+      one. After `park_after` queries it parks: its process (and stash) goes, its record
+      stays with the host (and in the journal), which asks the source on its behalf at a
+      low rate and revives or drops it only on an answer (`parked/1`). A source that never
+      returns leaves a row — unreachable but recorded, counted by admission — never a
+      duplicate.
+  """
+
+  @typedoc "A migration id: the source host's incarnation and a unique reference."
+  @type mig :: term()
+  @typedoc "The token of one paused copy."
+  @type copy_token :: term()
+  @typedoc "An action for the executing process."
+  @type action :: tuple() | atom()
+
+  alias Tartarus.Envelope
+
+  @max_name_bytes 256
+  @max_modules 64
+  @envelope_size map_size(%Envelope{id: nil, module: nil})
+
+  # -- messages -------------------------------------------------------------------------
+
+  @doc "The `prepare` message."
+  @spec prepare(pid(), mig(), term(), pid(), :move | :clone, term(), list(), list()) :: tuple()
+  def prepare(s_pid, mig, src, src_pid, kind, env, manifest, code),
+    do: {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
+
+  @doc "A `prepare` sent again, now with code."
+  @spec with_code(tuple(), list()) :: tuple()
+  def with_code(prepare, code), do: put_elem(prepare, 8, code)
+
+  @doc "The `need` message."
+  @spec need(mig(), [module()]) :: tuple()
+  def need(mig, mods), do: {:"$tartarus_need", mig, mods}
+
+  @doc "The `prepared` message."
+  @spec prepared(mig(), copy_token(), pid()) :: tuple()
+  def prepared(mig, copy, pid), do: {:"$tartarus_prepared", mig, copy, pid}
+
+  @doc "The `refused` message."
+  @spec refused(mig(), term()) :: tuple()
+  def refused(mig, reason), do: {:"$tartarus_refused", mig, reason}
+
+  @doc "The `commit` message."
+  @spec commit(mig(), copy_token(), term()) :: tuple()
+  def commit(mig, copy, notify), do: {:"$tartarus_commit", mig, copy, notify}
+
+  @doc "The decision query of a paused copy."
+  @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
+  def decision_query(mig, id, copy, pid), do: {:"$tartarus_decision?", mig, id, copy, pid}
+
+  @doc "Acknowledgements of committed copies that run, each `{mig, id, copy}`."
+  @spec acks([{mig(), binary(), copy_token()}]) :: tuple()
+  def acks(list), do: {:"$tartarus_acks", list}
+
+  @doc "The answer to a decision query."
+  @spec decision(mig(), copy_token(), term()) :: tuple()
+  def decision(mig, copy, d), do: {:"$tartarus_decision", mig, copy, d}
+
+  @doc """
+  What a message is to the protocol: `{:prepare, fields}`, `{:prepared, mig, copy, pid}`,
+  `{:need, mig, mods}`, `{:refused, mig, reason}`, `{:commit, mig, copy, notify}`,
+  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, `{:acks, [{mig, id, copy}]}`,
+  or `:other`. Total.
+
+      iex> Tartarus.Migration.Protocol.classify(:hello)
+      :other
+  """
+  @spec classify(term()) :: tuple() | :other
+  def classify({:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}),
+    do:
+      {:prepare,
+       %{
+         s_pid: s_pid,
+         mig: mig,
+         src: src,
+         src_pid: src_pid,
+         kind: kind,
+         env: env,
+         manifest: manifest,
+         code: code
+       }}
+
+  def classify({:"$tartarus_prepared", mig, copy, pid}), do: {:prepared, mig, copy, pid}
+  def classify({:"$tartarus_need", mig, mods}), do: {:need, mig, mods}
+  def classify({:"$tartarus_refused", mig, reason}), do: {:refused, mig, reason}
+  def classify({:"$tartarus_commit", mig, copy, notify}), do: {:commit, mig, copy, notify}
+  def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
+  def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
+  def classify({:"$tartarus_acks", list}), do: {:acks, list}
+  def classify(_), do: :other
+
+  @doc """
+  True for a message of the hand-off protocol (any of the above, well-formed or not).
+
+      iex> Tartarus.Migration.Protocol.protocol_message?({:"$tartarus_need", 1, []})
+      true
+  """
+  @spec protocol_message?(term()) :: boolean()
+  def protocol_message?(msg) when is_tuple(msg) and tuple_size(msg) > 0,
+    do:
+      elem(msg, 0) in [
+        :"$tartarus_prepare",
+        :"$tartarus_need",
+        :"$tartarus_prepared",
+        :"$tartarus_refused",
+        :"$tartarus_commit",
+        :"$tartarus_decision?",
+        :"$tartarus_decision",
+        :"$tartarus_acks"
+      ]
+
+  def protocol_message?(_), do: false
+
+  @doc """
+  The fields of a `prepare` a receiver acts on besides the envelope: what the sending
+  host's seal covers (with the manifest and the envelope).
+  """
+  @spec seal_fields(map()) :: tuple()
+  def seal_fields(p), do: {p.mig, p.kind, p.src, p.s_pid, p.src_pid}
+
+  # -- validators -----------------------------------------------------------------------
+
+  @doc """
+  Checks a prepare message's fields (not the seal: `Tartarus.Security.check_prepare/2`).
+
+      iex> Tartarus.Migration.Protocol.check_prepare(:nonsense, 1_000)
+      {:error, {:bad_message, :not_a_prepare}}
+  """
+  @spec check_prepare(term(), pos_integer()) :: :ok | {:error, {:bad_message, term()}}
+  def check_prepare(
+        {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code},
+        max_bytes
+      ) do
+    with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
+         :ok <- check(migration_id?(mig), :migration_id),
+         :ok <- check(address?(src) and is_tuple(src), :source_host),
+         :ok <- check(kind in [:move, :clone], :kind),
+         :ok <- check_envelope(env),
+         :ok <- check_manifest(manifest),
+         :ok <- check_code(code) do
+      size = :erlang.external_size({env, manifest, code})
+      check(size <= max_bytes, {:too_large, size, max_bytes})
+    end
+  end
+
+  def check_prepare(_other, _max), do: {:error, {:bad_message, :not_a_prepare}}
+
+  @doc """
+  Checks an envelope: a `Tartarus.Envelope` with every field of the right type.
+
+      iex> Tartarus.Migration.Protocol.check_envelope(%{__struct__: Tartarus.Envelope, id: 1})
+      {:error, {:bad_message, {:envelope, :fields}}}
+  """
+  @spec check_envelope(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_envelope(
+        %{
+          __struct__: Envelope,
+          id: id,
+          name: name,
+          module: module,
+          ships: ships,
+          payload: payload,
+          owner: owner,
+          home: home,
+          hops: hops,
+          ttl: ttl,
+          visits: visits,
+          from: from,
+          departed_at: departed_at,
+          static: static,
+          rng: rng,
+          clone_of: clone_of,
+          issuer: issuer,
+          signature: signature
+        } = env
+      )
+      when map_size(env) == @envelope_size do
+    # One pass of plain checks: this runs for every arriving agent.
+    cond do
+      not (is_binary(id) and byte_size(id) == 16) ->
+        bad(:id)
+
+      not (is_nil(name) or is_atom(name) or
+               (is_binary(name) and byte_size(name) <= @max_name_bytes)) ->
+        bad(:name)
+
+      not (is_atom(module) and module != nil) ->
+        bad(:module)
+
+      not module_list?(ships) ->
+        bad(:ships)
+
+      not payload?(payload) ->
+        bad(:payload)
+
+      not (is_nil(owner) or is_pid(owner)) ->
+        bad(:owner)
+
+      not (is_nil(home) or address?(home)) ->
+        bad(:home)
+
+      not (is_integer(hops) and hops >= 0) ->
+        bad(:hops)
+
+      not (ttl == :infinity or (is_integer(ttl) and ttl > 0)) ->
+        bad(:ttl)
+
+      not visits?(visits) ->
+        bad(:visits)
+
+      not (is_nil(from) or address?(from)) ->
+        bad(:from)
+
+      not (is_nil(departed_at) or is_integer(departed_at)) ->
+        bad(:departed_at)
+
+      not is_boolean(static) ->
+        bad(:static)
+
+      not rng?(rng) ->
+        bad(:rng)
+
+      not (is_nil(clone_of) or (is_binary(clone_of) and byte_size(clone_of) == 16)) ->
+        bad(:clone_of)
+
+      not (is_nil(issuer) or is_binary(issuer)) ->
+        bad(:issuer)
+
+      not (is_nil(signature) or is_binary(signature) or is_map(signature)) ->
+        bad(:signature)
+
+      true ->
+        :ok
+    end
+  end
+
+  def check_envelope(%{__struct__: Envelope}), do: {:error, {:bad_message, {:envelope, :fields}}}
+  def check_envelope(_other), do: {:error, {:bad_message, {:envelope, :not_an_envelope}}}
+
+  defp bad(field), do: {:error, {:bad_message, {:envelope, field}}}
+
+  defp module_list?(l),
+    do: is_list(l) and length(l) <= @max_modules and Enum.all?(l, &(is_atom(&1) and &1 != nil))
+
+  defp payload?(%{data: data, modules: mods} = p) when map_size(p) == 2,
+    do: is_map(data) and module_list?(mods)
+
+  defp payload?(_), do: false
+
+  defp visits?(v) when is_map(v) do
+    :maps.fold(
+      fn h, n, ok -> ok and is_integer(n) and n >= 0 and address?(h) end,
+      true,
+      v
+    )
+  end
+
+  defp visits?(_), do: false
+
+  # An exported :rand state: {algorithm, state}; :rand.seed_s/1 checks the rest when used.
+  defp rng?({alg, _state})
+       when alg in [:exsss, :exsplus, :exrop, :exs1024s, :exs64, :exs1024, :exsp, :exro928ss],
+       do: true
+
+  defp rng?(_), do: false
+
+  # As Tartarus.Host.address?/1 (kept here so that the protocol depends on no other module
+  # of the platform but the envelope).
+  defp address?({name, node}), do: name?(name) and is_atom(node) and node != nil
+  defp address?(name), do: name?(name)
+
+  defp name?(name) when is_boolean(name) or is_nil(name), do: false
+  defp name?(name), do: is_atom(name) or (is_binary(name) and byte_size(name) in 1..255)
+
+  @doc "Checks a manifest: a list of `{module, md5}` pairs."
+  @spec check_manifest(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_manifest(m) when is_list(m) and length(m) <= @max_modules do
+    check(
+      Enum.all?(m, &match?({mod, <<_::128>>} when is_atom(mod) and mod != nil, &1)),
+      :manifest
+    )
+  end
+
+  def check_manifest(_), do: {:error, {:bad_message, :manifest}}
+
+  @doc "Checks shipped code: a list of `{module, md5, beam_binary}`."
+  @spec check_code(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_code(c) when is_list(c) and length(c) <= @max_modules do
+    ok =
+      Enum.all?(
+        c,
+        &match?({mod, <<_::128>>, bin} when is_atom(mod) and mod != nil and is_binary(bin), &1)
+      )
+
+    check(ok, :code)
+  end
+
+  def check_code(_), do: {:error, {:bad_message, :code}}
+
+  @doc """
+  Checks a decision query.
+
+      iex> Tartarus.Migration.Protocol.check_decision_query({:"$tartarus_decision?", 1, 2, 3, 4})
+      {:error, {:bad_message, :decision_query}}
+  """
+  @spec check_decision_query(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_decision_query({:"$tartarus_decision?", mig, id, copy, pid}) do
+    check(
+      migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+        copy_token?(copy) and is_pid(pid),
+      :decision_query
+    )
+  end
+
+  def check_decision_query(_), do: {:error, {:bad_message, :decision_query}}
+
+  @doc """
+  Checks a batch of acknowledgements (at most 1_000).
+
+      iex> Tartarus.Migration.Protocol.check_acks({:"$tartarus_acks", [:x]})
+      {:error, {:bad_message, :acks}}
+  """
+  @spec check_acks(term()) :: :ok | {:error, {:bad_message, term()}}
+  def check_acks({:"$tartarus_acks", list}) when is_list(list) do
+    check(
+      length(list) <= 1_000 and
+        Enum.all?(list, fn
+          {mig, id, copy} ->
+            migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+              copy_token?(copy)
+
+          _ ->
+            false
+        end),
+      :acks
+    )
+  end
+
+  def check_acks(_), do: {:error, {:bad_message, :acks}}
+
+  @doc "True for a migration id as hosts make them."
+  @spec migration_id?(term()) :: boolean()
+  def migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
+  def migration_id?(_), do: false
+
+  @doc "True for a copy token as hosts make them."
+  @spec copy_token?(term()) :: boolean()
+  def copy_token?(t), do: is_binary(t) and byte_size(t) == 16
+
+  defp check(true, _what), do: :ok
+  defp check(false, what), do: {:error, {:bad_message, what}}
+
+  # -- source -----------------------------------------------------------------------
+
+  @doc """
+  The source's state for one attempt: migration `mig` of kind `kind` to host pid `dest`,
+  `notify` the caller waiting for the outcome (or nil).
+  """
+  @spec source(mig(), :move | :clone, term(), term()) :: map()
+  def source(mig, kind, dest, notify),
+    do: %{mig: mig, kind: kind, dest: dest, notify: notify, phase: :preparing, code: :none}
+
+  @doc """
+  One step of the source. Its executor writes the hand-off record of `mig` before it sends
+  `prepare`. Events: `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
+  `{:refused, mig, reason}`, `:timeout`, `{:down, reason}`, `{:decided, boolean}` (the
+  outcome of a `:decide` action), `{:code, {:ok, code} | {:error, reason}}` (the outcome of a
+  `:fetch_code` action). Actions: `{:decide, mig, {:committed, copy}}` (insert-if-absent;
+  answer with `:decided`), `{:fetch_code, mods}`, `{:resend, code}`,
+  `{:record_commit, kind, mig, copy}` (journal, and for a move the forwarding pointer),
+  `{:end_handoff, mig}` (remove the hand-off record), `{:send, pid, msg}`,
+  `{:done, {:committed, copy, pid} | {:failed, reason}}`.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> s = P.source(:m, :move, :h, nil)
+      iex> {s, acts} = P.source_step(s, {:prepared, :m, :c, :a})
+      iex> acts
+      [{:decide, :m, {:committed, :c}}]
+      iex> {_s, acts} = P.source_step(s, {:decided, true})
+      iex> acts
+      [{:record_commit, :move, :m, :c}, {:end_handoff, :m}, {:send, :a, {:"$tartarus_commit", :m, :c, nil}}, {:done, {:committed, :c, :a}}]
+  """
+  @spec source_step(map(), term()) :: {map(), [action()]}
+  def source_step(%{phase: :preparing, mig: mig} = s, {:prepared, mig, copy, pid}),
+    do: {%{s | phase: {:deciding, copy, pid}}, [{:decide, mig, {:committed, copy}}]}
+
+  def source_step(%{phase: {:deciding, copy, pid}, mig: mig} = s, {:decided, true}) do
+    {%{s | phase: {:committed, copy, pid}},
+     [
+       {:record_commit, s.kind, mig, copy},
+       {:end_handoff, mig},
+       {:send, pid, commit(mig, copy, s.notify)},
+       {:done, {:committed, copy, pid}}
+     ]}
+  end
+
+  # A commit was already written (never happens: S is the only writer; kept total).
+  def source_step(%{phase: {:deciding, _, _}} = s, {:decided, false}),
+    do: {%{s | phase: :failed}, [{:end_handoff, s.mig}, {:done, {:failed, :aborted}}]}
+
+  def source_step(%{phase: :preparing, mig: mig} = s, {:refused, mig, reason}),
+    do: abort(s, reason)
+
+  def source_step(%{phase: :preparing, mig: mig, code: :none} = s, {:need, mig, mods}),
+    do: {%{s | code: :fetching}, [{:fetch_code, mods}]}
+
+  def source_step(%{phase: :preparing, mig: mig} = s, {:need, mig, mods}),
+    do: abort(s, {:code_not_accepted, mods})
+
+  def source_step(%{phase: :preparing, code: :fetching} = s, {:code, {:ok, code}}),
+    do: {%{s | code: :sent}, [{:resend, code}]}
+
+  def source_step(%{phase: :preparing, code: :fetching} = s, {:code, {:error, reason}}),
+    do: abort(s, reason)
+
+  def source_step(%{phase: :preparing} = s, :timeout), do: abort(s, :timeout)
+  def source_step(%{phase: :preparing} = s, {:down, reason}), do: abort(s, {:host_down, reason})
+  def source_step(s, _event), do: {s, []}
+
+  # An abort writes nothing: the hand-off record goes, with no commit, before the agent goes
+  # on at the source, so a copy that asks from then on learns it.
+  defp abort(s, reason),
+    do: {%{s | phase: :failed}, [{:end_handoff, s.mig}, {:done, {:failed, reason}}]}
+
+  @doc "True once the source's attempt has ended."
+  @spec source_done?(map()) :: boolean()
+  def source_done?(%{phase: phase}), do: phase == :failed or match?({:committed, _, _}, phase)
+
+  # -- destination host: admission ----------------------------------------------------
+
+  @doc """
+  The admission state of a destination host. Option `:seen_max`: how many migrations it
+  remembers (default 10_000).
+  """
+  @spec destination(keyword()) :: map()
+  def destination(opts \\ []),
+    do: %{seen: %{}, order: :queue.new(), seen_max: Keyword.get(opts, :seen_max, 10_000)}
+
+  @doc """
+  One step of admission. Events: `{:prepare, fields}` (a well-formed prepare,
+  `classify/1`), `{:checked, fields, :ok | {:need, mods} | {:error, reason}, copy}` (the
+  outcome of a `:check` action, with a fresh copy token), `{:created, fields, copy, pid}`,
+  `{:create_failed, fields, reason}`, `{:probed, fields, copy, pid, still_paused?}` (the
+  outcome of a `:probe`). Actions: `{:check, fields}` (trust, size, code, capacity),
+  `{:probe, fields, copy, pid}` (is that copy still paused?), `{:create, fields, copy}` (a
+  paused copy; answer `:created`),
+  `{:journal_in_doubt, fields, copy}`, `{:send, pid, msg}`, `{:refuse, fields, reason}`.
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> p = %{mig: :m, s_pid: :s}
+      iex> {d, [{:check, ^p}]} = P.destination_step(P.destination(), {:prepare, p})
+      iex> {d, [{:create, ^p, :c}]} = P.destination_step(d, {:checked, p, :ok, :c})
+      iex> {d, acts} = P.destination_step(d, {:created, p, :c, :a})
+      iex> acts
+      [{:journal_in_doubt, %{mig: :m, s_pid: :s}, :c}, {:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+      iex> {d, [{:probe, ^p, :c, :a}]} = P.destination_step(d, {:prepare, p})
+      iex> P.destination_step(d, {:probed, p, :c, :a, true}) |> elem(1)
+      [{:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+      iex> P.destination_step(d, {:probed, p, :c, :a, false}) |> elem(1)
+      [{:refuse, %{mig: :m, s_pid: :s}, :duplicate}]
+  """
+  @spec destination_step(map(), term()) :: {map(), [action()]}
+  def destination_step(d, {:prepare, p}) do
+    case Map.fetch(d.seen, p.mig) do
+      # A duplicate (or a replay) of a prepare this host made a copy for: is it still paused?
+      {:ok, {:copy, copy, pid}} -> {d, [{:probe, p, copy, pid}]}
+      :error -> {d, [{:check, p}]}
+    end
+  end
+
+  # Still paused: the same answer again (the first may have been lost). Resolved (it started
+  # or was aborted): a replay, refused.
+  def destination_step(d, {:probed, p, copy, pid, true}),
+    do: {d, [{:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+
+  def destination_step(d, {:probed, p, _copy, _pid, false}), do: {d, [{:refuse, p, :duplicate}]}
+
+  def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
+
+  def destination_step(d, {:checked, p, {:need, mods}, _copy}),
+    do: {d, [{:send, p.s_pid, need(p.mig, mods)}]}
+
+  # A refusal is not remembered: a forged prepare naming a real migration must not make the
+  # real one refused. (Nothing was created; checking again costs only the check.)
+  def destination_step(d, {:checked, p, {:error, reason}, _copy}),
+    do: {d, [{:refuse, p, reason}]}
+
+  def destination_step(d, {:created, p, copy, pid}) do
+    {remember(d, p.mig, {:copy, copy, pid}),
+     [{:journal_in_doubt, p, copy}, {:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+  end
+
+  def destination_step(d, {:create_failed, p, reason}), do: {d, [{:refuse, p, reason}]}
+
+  def destination_step(d, _event), do: {d, []}
+
+  @doc """
+  Admission's memory of a paused copy restored from the journal (the host restarted).
+  """
+  @spec restore_seen(map(), mig(), copy_token(), term()) :: map()
+  def restore_seen(d, mig, copy, pid), do: remember(d, mig, {:copy, copy, pid})
+
+  # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
+  # makes a copy with a new token, which no decision names); memory only spares the work.
+  defp remember(d, mig, what) do
+    if Map.has_key?(d.seen, mig) do
+      %{d | seen: Map.put(d.seen, mig, what)}
+    else
+      d = %{d | seen: Map.put(d.seen, mig, what), order: :queue.in(mig, d.order)}
+
+      if map_size(d.seen) > d.seen_max do
+        {{:value, old}, order} = :queue.out(d.order)
+        %{d | seen: Map.delete(d.seen, old), order: order}
+      else
+        d
+      end
+    end
+  end
+
+  # -- the in-doubt copy ------------------------------------------------------------
+
+  @doc """
+  The state of a paused copy `copy` of migration `mig` from source host `src`. Options:
+  `:stash_max` (messages kept while paused, default 1_000), `:ask_after` (first query, in
+  ms, default 1_000), `:max_ask_interval` (cap of the back-off, default 30_000),
+  `:park_after` (queries without a decisive answer before the copy parks, default 20:
+  about eight minutes).
+  """
+  @spec copy(mig(), copy_token(), term(), :move | :clone, keyword()) :: map()
+  def copy(mig, copy, src, kind, opts \\ []) do
+    %{
+      mig: mig,
+      copy: copy,
+      src: src,
+      kind: kind,
+      stashed: 0,
+      dropped: 0,
+      asks: 0,
+      stash_max: Keyword.get(opts, :stash_max, 1_000),
+      ask_after: Keyword.get(opts, :ask_after, 1_000),
+      max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000),
+      park_after: Keyword.get(opts, :park_after, 20)
+    }
+  end
+
+  @doc """
+  One step of a paused copy. Events: `{:commit, mig, copy, notify}`, `:timeout` (its timer),
+  `{:decision, mig, copy, d}`, `{:message, msg}` (anything else sent to it). Actions:
+  `{:start, notify}` (become the agent), `:abort` (stop; the migration was aborted),
+  `{:ask, src, mig, copy}`, `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`, `:park` (hand
+  the record to the host, which keeps asking, `parked/1`, and stop: the copy's process and
+  stash go, its record stays, in the journal too).
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> c = P.copy(:m, :c, :src, :move)
+      iex> P.copy_step(c, {:commit, :m, :other, nil}) |> elem(1)
+      []
+      iex> P.copy_step(c, {:commit, :m, :c, nil}) |> elem(1)
+      [{:start, nil}]
+  """
+  @spec copy_step(map(), term()) :: {map(), [action()]}
+  def copy_step(%{mig: mig, copy: copy} = c, {:commit, mig, copy, notify}),
+    do: {c, [{:start, notify}]}
+
+  def copy_step(%{asks: asks, park_after: n} = c, :timeout) when asks >= n, do: {c, [:park]}
+
+  def copy_step(c, :timeout) do
+    interval = min(c.ask_after * Integer.pow(2, min(c.asks, 16)), c.max_ask_interval)
+    {%{c | asks: c.asks + 1}, [{:ask, c.src, c.mig, c.copy}, {:timer, interval}]}
+  end
+
+  def copy_step(%{mig: mig, copy: copy} = c, {:decision, mig, copy, d}) do
+    case d do
+      {:committed, notify} -> {c, [{:start, notify}]}
+      :committed -> {c, [{:start, nil}]}
+      :aborted -> {c, [:abort]}
+      _unknown -> {c, []}
+    end
+  end
+
+  def copy_step(c, {:message, msg}) do
+    if c.stashed < c.stash_max,
+      do: {%{c | stashed: c.stashed + 1}, [{:stash, msg}]},
+      else: {%{c | dropped: c.dropped + 1}, [{:drop, msg}]}
+  end
+
+  def copy_step(c, _event), do: {c, []}
+
+  @doc """
+  What a host does with a parked copy's record on an answer from its source: `:revive` (a
+  paused copy again, which starts: committed), `:drop` (aborted), `:keep` (unknown: ask
+  again later). A parked record is never dropped or revived otherwise, so parking cannot
+  duplicate an agent; it only trades a waiting process for a row.
+
+      iex> Tartarus.Migration.Protocol.parked({:committed, nil})
+      :revive
+  """
+  @spec parked(term()) :: :revive | :drop | :keep
+  def parked(:committed), do: :revive
+  def parked({:committed, _}), do: :revive
+  def parked(:aborted), do: :drop
+  def parked(_), do: :keep
+
+  # -- source host: decision queries -------------------------------------------------
+
+  @doc """
+  The source host's answer to a query for `(mig, copy)`, from what its ledger holds, read
+  in this order: `handoff?` (a hand-off record of `mig` exists), `decision` (the commit of
+  `mig`, or nil) and `pointer` (the agent's forwarding pointer as `{mig, copy, notify}`, or
+  anything else).
+
+      iex> alias Tartarus.Migration.Protocol, as: P
+      iex> P.answer(%{handoff?: true, decision: nil, pointer: nil}, :m, :c)
+      :unknown
+      iex> P.answer(%{handoff?: false, decision: {:committed, :c}, pointer: nil}, :m, :c)
+      :committed
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: {:m, :c, :n}}, :m, :c)
+      {:committed, :n}
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: {:m, :c, :n}}, :m, :other)
+      :aborted
+      iex> P.answer(%{handoff?: false, decision: nil, pointer: nil}, :m, :c)
+      :aborted
+  """
+  @spec answer(map(), mig(), copy_token()) ::
+          :committed | {:committed, term()} | :aborted | :unknown
+  def answer(%{handoff?: true}, _mig, _copy), do: :unknown
+
+  def answer(%{decision: decision, pointer: pointer}, mig, copy) do
+    case {decision, pointer} do
+      {{:committed, ^copy}, _} -> :committed
+      {_, {^mig, ^copy, notify}} -> {:committed, notify}
+      _ -> :aborted
+    end
+  end
+end

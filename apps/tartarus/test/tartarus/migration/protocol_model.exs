@@ -1,0 +1,786 @@
+defmodule Tartarus.Migration.ProtocolModel do
+  @moduledoc false
+  # An explorer of Tartarus.Migration.Protocol with no nodes and no processes: hosts,
+  # agents, paused copies and a network are plain data; every protocol decision is made by
+  # the protocol's own pure functions (and the journal is folded by
+  # Tartarus.Host.Persistence.apply_record/2, as a host replays it). A random walk (seeded)
+  # interleaves protocol steps with faults: the network drops, duplicates, delays and
+  # reorders messages and replays any message it ever carried (to the current server of
+  # the host it was sent to, from an attacker outside every partition); hosts crash and
+  # restart (with or without persistence); links partition and heal. Running copies
+  # acknowledge their commits (which frees the source's records); copies left in doubt park
+  # after a few unanswered queries (small park_after) and their host asks for them.
+  #
+  # Invariants, after every event:
+  #   * never two running copies of one agent;
+  #   * no decision changes once made: a commit is written once per migration and names one
+  #     copy; every committed answer names that copy, a copy starts only if it is that copy,
+  #     and a copy aborts only if it is not (without persistence, a later incarnation of a
+  #     crashed source may say aborted to it: the agent died with that source);
+  # and after the faults stop (partitions healed, crashed hosts restarted, messages
+  # delivered, timers fired): every agent runs exactly once, except, without persistence,
+  # agents a crash could take (they were on, or in doubt about, a host when it crashed).
+
+  alias Tartarus.Host.Persistence
+  alias Tartarus.Migration.Protocol
+
+  @hosts [:h1, :h2, :h3]
+
+  defmodule Violation do
+    @moduledoc false
+    defexception [:what, :trace]
+    def message(%{what: what}), do: inspect(what)
+  end
+
+  @doc false
+  # Runs one walk. Options: :events (fault phase length), :persist, :seen_max (passed to the
+  # destination state), :trace (keep the last N events for the report).
+  # Returns {:ok, events_executed, stats} or {:violation, what, trace}.
+  def walk(seed, opts \\ []) do
+    persist = Keyword.get(opts, :persist, rem(seed, 2) == 0)
+    n = Keyword.get(opts, :events, 200)
+    w = init(seed, persist, opts)
+
+    try do
+      w = Enum.reduce(1..n, w, fn _, w -> w |> fault_step() |> check() end)
+      w = quiesce(w)
+      check_final(w)
+      {:ok, w.events, w.stats}
+    rescue
+      e in Violation -> {:violation, e.what, e.trace}
+    end
+  end
+
+  # -- world -------------------------------------------------------------------------
+
+  defp init(seed, persist, opts) do
+    rng = :rand.seed_s(:exsss, {seed, 17, 4711})
+
+    w = %{
+      rng: rng,
+      persist: persist,
+      seen_max: Keyword.get(opts, :seen_max, 100_000),
+      check_decisions: Keyword.get(opts, :check_decisions, true),
+      # Copies park after this many unanswered queries (small: parking is explored often).
+      park_after: Keyword.get(opts, :park_after, 2),
+      trace_n: Keyword.get(opts, :trace, 60),
+      trace: [],
+      events: 0,
+      stats: %{},
+      n: 0,
+      hosts: %{},
+      procs: %{},
+      net: [],
+      archive: {0, %{}},
+      partitions: MapSet.new(),
+      decisions: %{},
+      known: MapSet.new(),
+      exposed: MapSet.new()
+    }
+
+    w = Enum.reduce(@hosts, w, fn h, w -> boot(w, h, nil) end)
+
+    # One agent per host to begin with.
+    Enum.reduce(@hosts, w, fn h, w ->
+      {id, w} = fresh(w, :agent)
+      env = %{id: id}
+      {pid, w} = fresh(w, :pid)
+      w = journal(w, h, {:agent, id, env})
+      w = put_in(w.hosts[h].residents[id], pid)
+      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+      %{w | known: MapSet.put(w.known, id)}
+    end)
+  end
+
+  defp boot(w, h, journal) do
+    {inc, w} = fresh(w, :inc)
+    restored = journal || Persistence.empty()
+    {agents, in_doubt, decided} = Persistence.restored(restored)
+
+    host = %{
+      alive: true,
+      inc: inc,
+      decisions: Map.new(decided, fn {mig, copy} -> {mig, {:committed, copy}} end),
+      handoffs: %{},
+      parked: %{},
+      fwd: %{},
+      residents: %{},
+      dest: Protocol.destination(seen_max: w.seen_max),
+      journal: if(w.persist, do: restored)
+    }
+
+    w = put_in(w.hosts[h], host)
+
+    w =
+      Enum.reduce(agents, w, fn env, w ->
+        {pid, w} = fresh(w, :pid)
+        start_resident(w, h, pid, env)
+      end)
+
+    Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
+      {pid, w} = fresh(w, :pid)
+      c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
+      w = put_in(w.procs[pid], %{role: :copy, host: h, env: env, c: c})
+      restored_seen(w, h, mig, copy, pid)
+    end)
+  end
+
+  # What the host's admission remembers of a restored copy (as Tartarus.Host.Server does).
+  defp restored_seen(w, h, mig, copy, pid),
+    do: update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
+
+  defp start_resident(w, h, pid, env) do
+    if Map.has_key?(w.hosts[h].residents, env.id) do
+      w
+    else
+      w = put_in(w.hosts[h].residents[env.id], pid)
+      w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
+      put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+    end
+  end
+
+  defp fresh(w, tag), do: {{tag, w.n}, %{w | n: w.n + 1}}
+
+  defp journal(%{persist: false} = w, _h, _rec), do: w
+
+  defp journal(w, h, rec),
+    do: update_in(w.hosts[h].journal, &Persistence.apply_record(rec, &1))
+
+  defp server(w, h), do: {:hs, h, w.hosts[h].inc}
+
+  defp alive_host?(w, h), do: w.hosts[h].alive
+
+  defp pid_host({:hs, h, _}), do: h
+  defp pid_host(_), do: nil
+
+  # -- events ------------------------------------------------------------------------
+
+  defp fault_step(w) do
+    {x, w} = uniform(w)
+
+    cond do
+      x < 0.30 -> deliver_random(w)
+      x < 0.40 -> start_handoff(w)
+      x < 0.50 -> fire_timer(w)
+      x < 0.55 -> net_fault(w, :drop)
+      x < 0.60 -> net_fault(w, :dup)
+      x < 0.70 -> replay(w)
+      x < 0.73 -> crash(w)
+      x < 0.80 -> restart(w)
+      x < 0.84 -> partition(w)
+      x < 0.90 -> heal(w)
+      true -> down(w)
+    end
+  end
+
+  defp uniform(w) do
+    {x, rng} = :rand.uniform_s(w.rng)
+    {x, %{w | rng: rng}}
+  end
+
+  defp pick(w, []), do: {nil, w}
+
+  defp pick(w, list) do
+    {i, rng} = :rand.uniform_s(length(list), w.rng)
+    {Enum.at(list, i - 1), %{w | rng: rng}}
+  end
+
+  defp note(w, event) do
+    stats = Map.update(w.stats, elem(event, 0), 1, &(&1 + 1))
+    %{w | events: w.events + 1, stats: stats, trace: Enum.take([event | w.trace], w.trace_n)}
+  end
+
+  # Counted, not an event of the walk.
+  defp count(w, what), do: %{w | stats: Map.update(w.stats, what, 1, &(&1 + 1))}
+
+  defp deliver_random(w) do
+    case w.net do
+      [] ->
+        w
+
+      net ->
+        {i, rng} = :rand.uniform_s(length(net), w.rng)
+        {m, net} = List.pop_at(net, i - 1)
+        deliver(%{w | rng: rng, net: net}, m)
+    end
+  end
+
+  defp net_fault(w, kind) do
+    case w.net do
+      [] ->
+        w
+
+      net ->
+        {i, rng} = :rand.uniform_s(length(net), w.rng)
+        m = Enum.at(net, i - 1)
+        w = %{w | rng: rng}
+
+        case kind do
+          :drop -> note(%{w | net: List.delete_at(net, i - 1)}, {:drop, m})
+          :dup -> note(%{w | net: [m | net]}, {:dup, m})
+        end
+    end
+  end
+
+  # Any message the network ever carried, again, from outside every partition; a message
+  # for a host's server goes to its current server (the attacker finds it by address).
+  defp replay(w) do
+    {count, archive} = w.archive
+
+    if count == 0 do
+      w
+    else
+      {i, rng} = :rand.uniform_s(count, w.rng)
+      {to, msg, _from} = Map.fetch!(archive, rem(i - 1, 256))
+      w = %{w | rng: rng}
+      to = if h = pid_host(to), do: server(w, h), else: to
+      note(%{w | net: [{to, msg, :attacker} | w.net]}, {:replay, to, msg})
+    end
+  end
+
+  defp send_msg(w, from_host, to, msg) do
+    {count, archive} = w.archive
+    archive = Map.put(archive, rem(count, 256), {to, msg, from_host})
+    %{w | net: [{to, msg, from_host} | w.net], archive: {count + 1, archive}}
+  end
+
+  defp partitioned?(_w, :attacker, _to), do: false
+
+  defp partitioned?(w, a, b),
+    do: a != b and MapSet.member?(w.partitions, Enum.sort([a, b]))
+
+  defp deliver(w, {to, msg, from} = m) do
+    w = note(w, {:deliver, m})
+    to_host = dest_host(w, to)
+
+    cond do
+      to_host == nil or not alive_host?(w, to_host) -> w
+      partitioned?(w, from, to_host) -> w
+      true -> receive_msg(w, to, to_host, msg)
+    end
+  end
+
+  defp dest_host(w, {:hs, h, inc}), do: if(w.hosts[h].inc == inc, do: h)
+  defp dest_host(w, pid), do: with(%{host: h} <- w.procs[pid], do: h)
+
+  defp receive_msg(w, {:hs, h, _}, h, msg) do
+    case Protocol.classify(msg) do
+      {:prepare, p} ->
+        admission(w, h, {:prepare, p})
+
+      {:query, mig, id, copy, a_pid} ->
+        answer_query(w, h, mig, id, copy, a_pid)
+
+      {:acks, list} ->
+        Enum.reduce(list, w, fn {mig, id, copy}, w -> acknowledge(w, h, mig, id, copy) end)
+
+      {:decision, mig, copy, d} ->
+        parked_answer(w, h, mig, copy, d)
+
+      _ ->
+        w
+    end
+  end
+
+  defp receive_msg(w, pid, _h, msg) do
+    proc = w.procs[pid]
+
+    case {proc.role, Protocol.classify(msg)} do
+      {:copy, {:commit, _, _, _} = e} ->
+        copy_event(w, pid, e)
+
+      {:copy, {:decision, _, _, _} = e} ->
+        copy_event(w, pid, e)
+
+      {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
+        source_event(w, pid, e)
+
+      {:agent, {tag, _, _} = e} when tag in [:refused, :need] and proc.src != nil ->
+        source_event(w, pid, e)
+
+      _ ->
+        w
+    end
+  end
+
+  # -- source --------------------------------------------------------------------------
+
+  defp start_handoff(w) do
+    candidates =
+      for {pid, %{role: :agent, src: nil, host: h}} <- w.procs, alive_host?(w, h), do: pid
+
+    {pid, w} = pick(w, Enum.sort(candidates))
+    {dest, w} = pick(w, @hosts)
+    {x, w} = uniform(w)
+    agents = Enum.count(w.procs, fn {_, p} -> p.role == :agent end)
+    kind = if x < 0.2 and agents < 6, do: :clone, else: :move
+
+    cond do
+      pid == nil ->
+        w
+
+      not alive_host?(w, dest) ->
+        w
+
+      true ->
+        proc = w.procs[pid]
+        h = proc.host
+        {ref, w} = fresh(w, :ref)
+        mig = {w.hosts[h].inc, ref}
+
+        {env, w} =
+          if kind == :clone do
+            {id, w} = fresh(w, :agent)
+            {%{id: id, clone_of: proc.env.id}, w}
+          else
+            {proc.env, w}
+          end
+
+        s = Protocol.source(mig, kind, server(w, dest), nil)
+        prepare = Protocol.prepare(pid, mig, h, server(w, h), kind, env, [], [])
+        w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
+        w = put_in(w.hosts[h].handoffs[mig], pid)
+        w = note(w, {:start, pid, proc.env.id, kind, h, dest, mig})
+        send_msg(w, h, server(w, dest), prepare)
+    end
+  end
+
+  defp source_event(w, pid, event) do
+    %{src: src} = w.procs[pid]
+    {s, actions} = Protocol.source_step(src.s, event)
+    w = put_in(w.procs[pid].src.s, s)
+    source_actions(w, pid, actions)
+  end
+
+  defp source_actions(w, _pid, []), do: w
+
+  defp source_actions(w, pid, [action | rest]) do
+    proc = w.procs[pid]
+    h = proc.host
+
+    case action do
+      {:decide, mig, d} ->
+        {decided, w} =
+          if Map.has_key?(w.hosts[h].decisions, mig) do
+            {false, w}
+          else
+            w = put_in(w.hosts[h].decisions[mig], d)
+
+            if Map.has_key?(w.decisions, mig),
+              do: violation(w, {:decision_written_twice, mig, w.decisions[mig], d})
+
+            w = %{w | decisions: Map.put(w.decisions, mig, d)}
+
+            w =
+              if proc.src.s.kind == :clone and match?({:committed, _}, d),
+                do: %{w | known: MapSet.put(w.known, proc.src.out.id)},
+                else: w
+
+            {true, w}
+          end
+
+        {s, more} = Protocol.source_step(w.procs[pid].src.s, {:decided, decided})
+        w = put_in(w.procs[pid].src.s, s)
+        source_actions(w, pid, more ++ rest)
+
+      {:end_handoff, mig} ->
+        w = update_in(w.hosts[h].handoffs, &Map.delete(&1, mig))
+        source_actions(w, pid, rest)
+
+      {:fetch_code, _mods} ->
+        {s, more} = Protocol.source_step(proc.src.s, {:code, {:ok, [:code]}})
+        w = put_in(w.procs[pid].src.s, s)
+        source_actions(w, pid, more ++ rest)
+
+      {:resend, code} ->
+        w = send_msg(w, h, server(w, proc.src.dest), Protocol.with_code(proc.src.prepare, code))
+        source_actions(w, pid, rest)
+
+      {:record_commit, :move, mig, copy} ->
+        id = proc.env.id
+        w = journal(w, h, {:decision, mig, id, copy})
+        w = journal(w, h, {:forget, id})
+        w = put_in(w.hosts[h].fwd[id], {mig, copy, nil})
+        w = update_in(w.hosts[h].residents, &Map.delete(&1, id))
+        w = update_in(w.hosts[h].decisions, &Map.delete(&1, mig))
+        source_actions(w, pid, rest)
+
+      {:record_commit, :clone, mig, copy} ->
+        w = journal(w, h, {:decision, mig, proc.src.out.id, copy})
+        source_actions(w, pid, rest)
+
+      {:send, to, msg} ->
+        source_actions(send_msg(w, h, to, msg), pid, rest)
+
+      {:done, {:committed, _copy, _pid}} ->
+        if proc.src.s.kind == :move,
+          do: %{w | procs: Map.delete(w.procs, pid)},
+          else: put_in(w.procs[pid].src, nil)
+
+      {:done, {:failed, _reason}} ->
+        put_in(w.procs[pid].src, nil)
+    end
+  end
+
+  # -- destination -----------------------------------------------------------------------
+
+  defp admission(w, h, event) do
+    {d, actions} = Protocol.destination_step(w.hosts[h].dest, event)
+    w = put_in(w.hosts[h].dest, d)
+    Enum.reduce(actions, w, &admission_action(&2, h, &1))
+  end
+
+  defp admission_action(w, h, {:check, p}) do
+    {x, w} = uniform(w)
+    {copy, w} = fresh(w, :copy)
+    verdict = if p.code == [] and x < 0.2, do: {:need, [:mod]}, else: :ok
+    admission(w, h, {:checked, p, verdict, copy})
+  end
+
+  defp admission_action(w, h, {:probe, p, copy, pid}) do
+    paused? = match?(%{role: :copy, host: ^h}, w.procs[pid])
+    admission(w, h, {:probed, p, copy, pid, paused?})
+  end
+
+  defp admission_action(w, h, {:create, p, copy}) do
+    {pid, w} = fresh(w, :pid)
+    c = Protocol.copy(p.mig, copy, p.src, p.kind, park_after: w.park_after)
+    w = put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
+    admission(w, h, {:created, p, copy, pid})
+  end
+
+  defp admission_action(w, h, {:journal_in_doubt, p, copy}),
+    do: journal(w, h, {:in_doubt, p.mig, p.env, p.src, p.kind, copy})
+
+  defp admission_action(w, h, {:send, to, msg}), do: send_msg(w, h, to, msg)
+
+  defp admission_action(w, h, {:refuse, p, reason}),
+    do: send_msg(count(w, {:refused, reason}), h, p.s_pid, Protocol.refused(p.mig, reason))
+
+  # -- decision queries (source host) ---------------------------------------------------
+
+  defp answer_query(w, h, mig, id, copy, a_pid) do
+    host = w.hosts[h]
+
+    a =
+      Protocol.answer(
+        %{
+          handoff?: Map.has_key?(host.handoffs, mig),
+          decision: Map.get(host.decisions, mig),
+          pointer: Map.get(host.fwd, id)
+        },
+        mig,
+        copy
+      )
+
+    w =
+      w
+      |> check_answer(h, mig, copy, a)
+      |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+
+    send_msg(w, h, a_pid, Protocol.decision(mig, copy, a))
+  end
+
+  # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
+  defp acknowledge(w, h, mig, id, copy) do
+    w = count(w, :ack)
+
+    w =
+      if Map.get(w.hosts[h].decisions, mig) == {:committed, copy},
+        do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
+        else: w
+
+    w =
+      if Map.get(w.hosts[h].fwd, id) == {mig, copy, nil},
+        do: put_in(w.hosts[h].fwd[id], :acked),
+        else: w
+
+    journal(w, h, {:acked, mig})
+  end
+
+  # A committed answer must name the committed copy. (An aborted answer is checked when a
+  # copy acts on it: a late answer to a copy that already runs changes nothing.)
+  defp check_answer(w, _h, mig, copy, a) do
+    made = Map.get(w.decisions, mig)
+
+    if a in [:unknown, :aborted] or made == {:committed, copy} or not w.check_decisions,
+      do: w,
+      else: violation(w, {:answer_contradicts_decision, mig, copy, a, made})
+  end
+
+  # A copy aborts: its migration must not have been committed to it (without persistence a
+  # source that crashed since forgot its commit: the agent died with it).
+  defp check_abort(w, %{mig: {inc, _} = mig, copy: copy, src: src}) do
+    made = Map.get(w.decisions, mig)
+    excused = not w.persist and w.hosts[src].inc != inc
+
+    if made != {:committed, copy} or excused or not w.check_decisions,
+      do: w,
+      else: violation(w, {:committed_copy_aborted, mig, copy})
+  end
+
+  # -- paused copies -----------------------------------------------------------------
+
+  defp copy_event(w, pid, event) do
+    proc = w.procs[pid]
+    {c, actions} = Protocol.copy_step(proc.c, event)
+    w = put_in(w.procs[pid].c, c)
+    Enum.reduce_while(actions, w, fn a, w -> copy_action(w, pid, a) end)
+  end
+
+  defp copy_action(w, pid, {:start, _notify}) do
+    %{host: h, env: env, c: c} = w.procs[pid]
+
+    if w.check_decisions and Map.get(w.decisions, c.mig) != {:committed, c.copy},
+      do: violation(w, {:copy_started_without_its_decision, c.mig, c.copy, w.decisions[c.mig]})
+
+    w = note(w, {:copy_starts, pid, env.id, h, c.mig})
+
+    if Map.has_key?(w.hosts[h].residents, env.id) do
+      # The agent is already resident here (register fails): this copy stops.
+      {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+    else
+      w = journal(w, h, {:resolved, c.mig, c.copy})
+      w = journal(w, h, {:agent, env.id, env})
+      w = put_in(w.hosts[h].residents[env.id], pid)
+      w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
+      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+
+      # Running: acknowledge to the source host.
+      w =
+        if alive_host?(w, c.src),
+          do: send_msg(w, h, server(w, c.src), Protocol.acks([{c.mig, env.id, c.copy}])),
+          else: w
+
+      {:halt, w}
+    end
+  end
+
+  defp copy_action(w, pid, :abort) do
+    w = w |> count(:copy_aborted) |> check_abort(w.procs[pid].c)
+    %{c: c, host: h} = w.procs[pid]
+    w = journal(w, h, {:resolved, c.mig, c.copy})
+    {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+  end
+
+  defp copy_action(w, pid, {:ask, src, mig, copy}) do
+    proc = w.procs[pid]
+
+    w =
+      if alive_host?(w, src),
+        do:
+          send_msg(
+            w,
+            proc.host,
+            server(w, src),
+            Protocol.decision_query(mig, proc.env.id, copy, pid)
+          ),
+        else: w
+
+    {:cont, w}
+  end
+
+  # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
+  defp copy_action(w, pid, :park) do
+    %{host: h, env: env, c: c} = w.procs[pid]
+    w = put_in(count(w, :parked).hosts[h].parked[{c.mig, c.copy}], {env, c.src, c.kind})
+    {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+  end
+
+  defp copy_action(w, _pid, _other), do: {:cont, w}
+
+  # The host asks the sources of its parked copies.
+  defp ask_parked(w, h) do
+    Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
+                                                                                      w ->
+      {env, src, _kind} = w.hosts[h].parked[{mig, copy}]
+
+      if alive_host?(w, src),
+        do:
+          send_msg(w, h, server(w, src), Protocol.decision_query(mig, env.id, copy, server(w, h))),
+        else: w
+    end)
+  end
+
+  defp parked_answer(w, h, mig, copy, d) do
+    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
+      :error ->
+        w
+
+      {:ok, {env, src, kind}} ->
+        w = update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy}))
+
+        case Protocol.parked(d) do
+          :keep ->
+            put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind})
+
+          :drop ->
+            c = Protocol.copy(mig, copy, src, kind)
+            w = check_abort(count(w, :parked_dropped), c)
+            journal(w, h, {:resolved, mig, copy})
+
+          :revive ->
+            {pid, w} = fresh(w, :pid)
+            c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
+            w = put_in(count(w, :revived).procs[pid], %{role: :copy, host: h, env: env, c: c})
+            copy_event(w, pid, {:decision, mig, copy, d})
+        end
+    end
+  end
+
+  # -- timers, failures --------------------------------------------------------------
+
+  defp fire_timer(w) do
+    timers =
+      for {pid, p} <- w.procs,
+          alive_host?(w, p.host),
+          p.role == :copy or (p.role == :agent and p.src != nil),
+          do: pid
+
+    parked = for h <- @hosts, alive_host?(w, h), w.hosts[h].parked != %{}, do: {:parked, h}
+    {pid, w} = pick(w, Enum.sort(timers) ++ parked)
+
+    case pid && (match?({:parked, _}, pid) || w.procs[pid]) do
+      nil -> w
+      true -> ask_parked(w, elem(pid, 1))
+      %{role: :copy} -> copy_event(note(w, {:timer, pid}), pid, :timeout)
+      %{role: :agent} -> source_event(note(w, {:timeout, pid}), pid, :timeout)
+    end
+  end
+
+  # A source whose destination host is gone or cut off may see it go down.
+  defp down(w) do
+    sources =
+      for {pid, %{role: :agent, src: %{dest: d, s: s}, host: h}} <- w.procs,
+          alive_host?(w, h),
+          s.dest != server(w, d) or not alive_host?(w, d) or partitioned?(w, h, d),
+          do: pid
+
+    {pid, w} = pick(w, Enum.sort(sources))
+    if pid, do: source_event(note(w, {:down, pid}), pid, {:down, :noconnection}), else: w
+  end
+
+  defp crash(w) do
+    {h, w} = pick(w, Enum.filter(@hosts, &alive_host?(w, &1)))
+
+    if h == nil do
+      w
+    else
+      w = note(w, {:crash, h})
+
+      exposed =
+        for({_pid, p} <- w.procs, p.host == h or (p.role == :copy and p.c.src == h), do: p.env.id) ++
+          for(
+            {g, host} <- w.hosts,
+            {_, {env, src, _}} <- host.parked,
+            g == h or src == h,
+            do: env.id
+          )
+
+      procs = Map.reject(w.procs, fn {_, p} -> p.host == h end)
+      w = put_in(w.hosts[h].parked, %{})
+
+      %{w | procs: procs, exposed: MapSet.union(w.exposed, MapSet.new(exposed))}
+      |> put_in([:hosts, h, :alive], false)
+    end
+  end
+
+  defp restart(w) do
+    {h, w} = pick(w, Enum.reject(@hosts, &alive_host?(w, &1)))
+    if h, do: boot(note(w, {:restart, h}), h, w.hosts[h].journal), else: w
+  end
+
+  defp partition(w) do
+    {a, w} = pick(w, @hosts)
+    {b, w} = pick(w, @hosts -- [a])
+    note(%{w | partitions: MapSet.put(w.partitions, Enum.sort([a, b]))}, {:partition, a, b})
+  end
+
+  defp heal(w) do
+    {pair, w} = pick(w, Enum.sort(MapSet.to_list(w.partitions)))
+
+    if pair,
+      do: note(%{w | partitions: MapSet.delete(w.partitions, pair)}, {:heal, pair}),
+      else: w
+  end
+
+  # -- after the faults ----------------------------------------------------------------
+
+  # Partitions heal, crashed hosts restart, every message is delivered and every timer
+  # fires, until nothing is in flight and no copy or source is waiting (or 40 rounds).
+  defp quiesce(w) do
+    w = %{w | partitions: MapSet.new()}
+
+    w =
+      Enum.reduce(@hosts, w, fn h, w ->
+        if alive_host?(w, h), do: w, else: boot(w, h, w.hosts[h].journal)
+      end)
+
+    quiesce(w, 40)
+  end
+
+  defp quiesce(w, 0), do: w
+
+  defp quiesce(w, rounds) do
+    w = drain(w)
+
+    waiting =
+      for {pid, p} <- w.procs, p.role == :copy or (p.role == :agent and p.src != nil), do: pid
+
+    parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
+
+    if waiting == [] and parked == [] do
+      w
+    else
+      w =
+        Enum.reduce(Enum.sort(waiting), w, fn pid, w ->
+          case w.procs[pid] do
+            %{role: :copy} ->
+              copy_event(note(w, {:timer, pid}), pid, :timeout) |> check()
+
+            %{role: :agent, src: %{}} ->
+              source_event(note(w, {:timeout, pid}), pid, :timeout) |> check()
+
+            _ ->
+              w
+          end
+        end)
+
+      w = Enum.reduce(parked, w, &ask_parked(&2, &1))
+      quiesce(w, rounds - 1)
+    end
+  end
+
+  defp drain(%{net: []} = w), do: w
+
+  defp drain(%{net: net} = w) do
+    w = %{w | net: []}
+    w = Enum.reduce(Enum.reverse(net), w, fn m, w -> w |> deliver(m) |> check() end)
+    drain(w)
+  end
+
+  # -- invariants ----------------------------------------------------------------------
+
+  defp check(w) do
+    running =
+      for {_pid, %{role: :agent, host: h, env: env}} <- w.procs, alive_host?(w, h), do: env.id
+
+    dup = running |> Enum.frequencies() |> Enum.find(fn {_, n} -> n > 1 end)
+    if dup, do: violation(w, {:two_running_copies, elem(dup, 0)})
+    w
+  end
+
+  defp check_final(w) do
+    running = for({_pid, %{role: :agent, env: env}} <- w.procs, do: env.id) |> Enum.frequencies()
+
+    for id <- w.known do
+      n = Map.get(running, id, 0)
+      excused = not w.persist and MapSet.member?(w.exposed, id)
+      if n != 1 and not excused, do: violation(w, {:not_running_exactly_once, id, n})
+    end
+
+    :ok
+  end
+
+  defp violation(w, what), do: raise(Violation, what: what, trace: Enum.reverse(w.trace))
+end

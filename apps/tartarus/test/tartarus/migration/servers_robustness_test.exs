@@ -1,0 +1,172 @@
+defmodule Tartarus.Migration.ServersRobustnessTest do
+  # The host and agent servers against messages nobody should send them (issue 9, item 1,
+  # for these two servers): dropped and counted, never a crash; a forged :DOWN changes
+  # nothing; paused copies count against admission.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.{CodeCache, Envelope}
+  alias Tartarus.Examples.Echo
+  alias Tartarus.Migration.Protocol
+
+  defp dropped(host) do
+    {:ok, h} = Tartarus.Host.local(host)
+    Tartarus.Ledger.counter(h, {:count, :dropped})
+  end
+
+  defp agent_pid(host, id) do
+    [%{pid: pid}] = Enum.filter(Tartarus.agents(host), &(&1.id == id))
+    pid
+  end
+
+  test "casts, junk messages and :sweep without forward_ttl leave a host up and its agents reachable" do
+    a = host!()
+    {:ok, id} = Tartarus.create_mobile_agent(a, Echo, :kept)
+    {:ok, pid} = Tartarus.Host.whereis(a)
+
+    GenServer.cast(pid, :junk)
+    send(pid, :sweep)
+    send(pid, {:"$tartarus_decision?", :not, :a, :query, :at_all})
+    send(pid, :hello)
+    assert {:error, {:bad_message, :unknown_call}} = GenServer.call(pid, {:what, :ever})
+
+    assert {:ok, ^pid} = Tartarus.Host.whereis(a)
+    assert dropped(a) == 4
+    assert {:ok, :kept} = Tartarus.request({id, a}, :state)
+  end
+
+  test "a forged :DOWN for a live agent changes nothing" do
+    a = host!()
+    {:ok, id} = Tartarus.create_mobile_agent(a, Echo, :alive)
+    {:ok, server} = Tartarus.Host.whereis(a)
+    apid = agent_pid(a, id)
+
+    send(server, {:DOWN, make_ref(), :process, apid, :killed})
+
+    assert GenServer.call(server, :monitored) == 1
+    assert [%{id: ^id}] = Tartarus.agents(a)
+    assert {:ok, :alive} = Tartarus.request({id, a}, :state)
+  end
+
+  test "junk calls, casts and malformed messages to an agent are answered or dropped, not a crash" do
+    a = host!()
+    {:ok, id} = Tartarus.create_mobile_agent(a, Echo, :steady)
+    apid = agent_pid(a, id)
+
+    for _ <- 1..5, do: assert({:error, :unexpected} = GenServer.call(apid, {:junk, self()}))
+    GenServer.cast(apid, :junk)
+    send(apid, {:"$tartarus_msg", {:not_a_pid, make_ref()}, :post, :x})
+    send(apid, Protocol.commit({"x", make_ref()}, :crypto.strong_rand_bytes(16), nil))
+
+    assert {:ok, :steady} = Tartarus.request({id, a}, :state)
+    assert agent_pid(a, id) == apid
+  end
+
+  test "paused copies count against max_resident_agents" do
+    b = host!(admission: [max_resident_agents: 2])
+    {:ok, server} = Tartarus.Host.whereis(b)
+    {:ok, manifest} = CodeCache.manifest([Echo])
+
+    # Prepares naming a source that never answers: each would leave a paused copy.
+    replies =
+      for n <- 1..3 do
+        mig = {"incarnat", make_ref()}
+        env = %Envelope{id: Envelope.new_id(), module: Echo, rng: Envelope.seed_rng(n)}
+
+        send(
+          server,
+          Protocol.prepare(self(), mig, {:nowhere, node()}, self(), :move, env, manifest, [])
+        )
+
+        receive do
+          {:"$tartarus_prepared", ^mig, _copy, _pid} -> :prepared
+          {:"$tartarus_refused", ^mig, reason} -> {:refused, reason}
+        after
+          2_000 -> :timeout
+        end
+      end
+
+    assert [:prepared, :prepared, {:refused, _}] = replies
+    assert Tartarus.Host.call(b, :paused) == 2
+  end
+end
+
+defmodule Tartarus.Migration.ParkingTest do
+  # A paused copy whose source does not answer parks (Protocol.copy_step/2): its process
+  # goes, the host keeps its record and revives or drops it only on the source's answer.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.{CodeCache, Envelope}
+  alias Tartarus.Examples.Echo
+  alias Tartarus.Migration.Protocol
+
+  # A prepare from `a` (its incarnation, no hand-off there) admitted by `b`: the paused copy.
+  defp paused_copy(a, b) do
+    {:ok, ha} = Tartarus.Host.local(a)
+    {:ok, server} = Tartarus.Host.whereis(b)
+    {:ok, manifest} = CodeCache.manifest([Echo])
+    mig = {ha.incarnation, make_ref()}
+
+    env = %Envelope{
+      id: Envelope.new_id(),
+      module: Echo,
+      state: :parked,
+      rng: Envelope.seed_rng(1)
+    }
+
+    send(server, Protocol.prepare(self(), mig, {a, node()}, self(), :move, env, manifest, []))
+    assert_receive {:"$tartarus_prepared", ^mig, copy, pid}, 2_000
+    {ha, server, mig, copy, pid, env.id}
+  end
+
+  # Its queries are answered :unknown meanwhile (a hand-off record of `mig` at the source).
+  defp park(ha, pid, mig) do
+    :ets.insert(ha.ledger, {{:handoff, mig}, self()})
+    ref = Process.monitor(pid)
+    for _ <- 1..21, do: send(pid, {:commit_timeout, mig})
+    assert_receive {:DOWN, ^ref, :process, ^pid, {:shutdown, :parked}}, 5_000
+    :ets.delete(ha.ledger, {:handoff, mig})
+  end
+
+  test "a parked copy is revived on a committed answer and runs once" do
+    [a, b] = [host!(), host!()]
+    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig)
+    assert Tartarus.Host.call(b, :parked) == 1 and Tartarus.Host.call(b, :paused) == 0
+
+    # Unknown (the source has a hand-off record): kept.
+    :ets.insert(ha.ledger, {{:handoff, mig}, self()})
+    send(server, :"$tartarus_ask_parked")
+    assert Tartarus.Host.call(b, :parked) == 1
+
+    # Committed to this copy: revived, it starts.
+    :ets.delete(ha.ledger, {:handoff, mig})
+    :ets.insert(ha.ledger, {{:decision, mig}, {:committed, copy}})
+    send(server, :"$tartarus_ask_parked")
+    assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
+    assert Tartarus.Host.call(b, :parked) == 0
+    assert {:ok, :parked} = Tartarus.request({id, b}, :state)
+  end
+
+  test "a parked copy is dropped on an aborted answer" do
+    [a, b] = [host!(), host!()]
+    {ha, server, mig, _copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig)
+    send(server, :"$tartarus_ask_parked")
+    assert eventually(fn -> Tartarus.Host.call(b, :parked) == 0 end, 2_000)
+    assert Tartarus.agents(b) == []
+    assert {:error, :not_found} = Tartarus.request({id, b}, :state)
+  end
+
+  test "only the copy itself may park its record" do
+    b = host!()
+    {:ok, server} = Tartarus.Host.whereis(b)
+    env = %Envelope{id: Envelope.new_id(), module: Echo, rng: Envelope.seed_rng(1)}
+    mig = {"incarnat", make_ref()}
+    copy = :crypto.strong_rand_bytes(16)
+
+    assert {:error, :not_paused_here} =
+             GenServer.call(server, {:park, mig, copy, env, {:x, node()}, :move})
+
+    assert Tartarus.Host.call(b, :parked) == 0
+  end
+end
