@@ -527,8 +527,11 @@ defmodule Tartarus.Agent.Server do
   defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x),
     do: {:moved, new_pid, x.data}
 
-  defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x),
-    do: {:cloned, x.out.id, put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))}
+  # The parent's stream advanced by the fork that seeded the clone's (see outgoing/3).
+  defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x) do
+    data = x.data
+    {:cloned, x.out.id, put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))}
+  end
 
   defp source_actions([{:done, {:failed, reason}} | _], _s, x) do
     if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
