@@ -81,7 +81,12 @@ defmodule Tartarus.CallbacksTest do
     test "a wedged init/1 leaves its host working: create, kill, start_host, stop_host answer" do
       h = host!(callback_timeout: :infinity)
       me = self()
-      creating = Task.async(fn -> Tartarus.create_agent(h, Stuck, %{test: me, wedge: :init}) end)
+      # It traps exits, too: stop_host must not wait for it.
+      creating =
+        Task.async(fn ->
+          Tartarus.create_agent(h, Stuck, %{test: me, wedge: :init, trap: true})
+        end)
+
       assert_receive {:in_init, wedged}, 5_000
 
       # All of this happens while init/1 is provably still running (no budget ends it).

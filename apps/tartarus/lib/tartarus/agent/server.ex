@@ -34,7 +34,10 @@ defmodule Tartarus.Agent.Server do
   # (whatever the agent's code would say) when the mark is there, and ignores a forged one;
   # an agent stuck in a callback is stopped by the watchdog, and the host kills it anyway
   # after the callback budget (5 s with :infinity).
-  use GenServer, restart: :temporary
+  #
+  # Stopping a host kills its agents outright (shutdown: :brutal_kill): this process has no
+  # terminate work, and an agent that traps exits must not hold up stop_host.
+  use GenServer, restart: :temporary, shutdown: :brutal_kill
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
   alias Tartarus.Migration.Protocol

@@ -550,7 +550,7 @@ defmodule Tartarus.Host.Server do
         %{state | killing: %{state.killing | pid => {tref, [from | callers]}}}
 
       _ ->
-        :ets.insert(state.host.ledger, {{:kill, pid}})
+        :ets.insert(state.host.ledger, {{:kill, pid}, true})
         Process.exit(pid, :shutdown)
 
         grace =
@@ -584,6 +584,8 @@ defmodule Tartarus.Host.Server do
   end
 
   # An agent whose init/1 never answered its creator: the host does.
+  defp not_created(_state, %{create: false}, _reason), do: :ok
+
   defp not_created(state, entry, reason) do
     case :ets.take(state.host.ledger, {:creating, entry.key}) do
       [{_, from}] ->
@@ -614,7 +616,7 @@ defmodule Tartarus.Host.Server do
         mref = Process.monitor(pid)
         # Paused copies run nothing until their commit; the others wait for this.
         unless match?({:paused, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
-        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner}
+        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
         {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
 
       {:error, reason} ->
