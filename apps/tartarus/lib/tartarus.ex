@@ -419,7 +419,11 @@ defmodule Tartarus do
     end
   end
 
-  @doc "Kills an agent wherever it is now. It is not restarted."
+  @doc """
+  Kills an agent wherever it is now. It is not restarted. Returns once the agent is down:
+  at once, unless it traps exits and is inside a callback; then when the callback returns or
+  its budget runs out (the host option `:callback_timeout`; see `Tartarus.Agent`).
+  """
   @spec kill(agent_ref()) :: :ok | {:error, term()}
   def kill(agent), do: kill(agent, @max_chase)
 
@@ -427,7 +431,8 @@ defmodule Tartarus do
 
   defp kill(agent, n) do
     with {:ok, {a, host}} <- normalize(agent) do
-      case Host.call(host, {:kill, a}) do
+      # The host answers once the agent is down, within its callback budget.
+      case Host.call(host, {:kill, a}, :infinity) do
         {:killed, _id} -> :ok
         {:moved, next} -> kill({a, next}, n - 1)
         {:arriving, _pid} -> backoff(n) && kill({a, host}, n - 1)
