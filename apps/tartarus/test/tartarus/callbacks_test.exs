@@ -52,6 +52,11 @@ defmodule Tartarus.CallbacksTest do
       Process.sleep(:infinity)
     end
 
+    def handle_message({:sleep, ms}, _from, s) do
+      Process.sleep(ms)
+      {:stay, Map.put(s, :slept, ms)}
+    end
+
     def handle_message(_msg, _from, s), do: {:stay, s}
 
     @impl true
@@ -165,6 +170,24 @@ defmodule Tartarus.CallbacksTest do
       assert_receive {:blocked, stuck}
       assert_receive {:tartarus_removed, ^id, {:callback_timeout, :handle_message, 200}}, 5_000
       refute Process.alive?(stuck)
+      assert Tartarus.agents(h) == []
+    end
+
+    test "a callback that returns after its budget ran out counts as an overrun" do
+      h = host!(callback_timeout: 100)
+      {:ok, id} = Tartarus.create_agent(h, Stuck, %{test: self()}, owner: self())
+      {:ok, %{pid: pid}} = Tartarus.agent_info(id)
+      mref = Process.monitor(pid)
+      # The watchdog (the host server) is held back: the callback returns late, and the
+      # agent stops itself, its result ignored.
+      :ok = :sys.suspend(host_pid(h))
+      assert :ok = Tartarus.post(id, {:sleep, 300})
+
+      assert_receive {:DOWN, ^mref, :process, ^pid, {:callback_timeout, :handle_message, 100}},
+                     5_000
+
+      :ok = :sys.resume(host_pid(h))
+      assert_receive {:tartarus_removed, ^id, {:callback_timeout, :handle_message, 100}}, 5_000
       assert Tartarus.agents(h) == []
     end
 
