@@ -475,7 +475,9 @@ defmodule Tartarus do
 
   @doc """
   Sends `message` to an agent and waits for its reply (the agent answers with
-  `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`.
+  `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`, or
+  `{:error, {:callback_timeout, :handle_message, ms}}` if the agent's `handle_message/3`
+  overran its host's callback budget (the agent is then removed, see `Tartarus.Agent`).
   """
   @spec request(agent_ref(), term(), timeout()) :: {:ok, term()} | {:error, term()}
   def request(agent, message, timeout \\ 5_000),
@@ -497,6 +499,7 @@ defmodule Tartarus do
           else
             receive do
               {^tag, {:reply, value}} -> {:ok, value}
+              {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
             after
               timeout -> {:error, :timeout}
             end

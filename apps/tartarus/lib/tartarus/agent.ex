@@ -74,7 +74,8 @@ defmodule Tartarus.Agent do
     * any other callback (`c:handle_arrival/2` after a move or a clone, `c:handle_message/3`,
       `c:handle_move_failed/4`, `c:handle_info/2`): the agent is removed from its host and
       its owner receives `{:tartarus_removed, id, {:callback_timeout, callback, ms}}`; a
-      request it was handling gets no reply (its sender times out).
+      request it was handling gets `{:error, {:callback_timeout, :handle_message, ms}}`
+      from `Tartarus.request/3`.
 
   A callback that returns after its budget ran out counts as an overrun (its action is not
   carried out). An agent killed with `Tartarus.kill/1` stops at once unless it traps exits;

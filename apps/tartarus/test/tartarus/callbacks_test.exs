@@ -163,10 +163,13 @@ defmodule Tartarus.CallbacksTest do
       refute_received {:arrived, _}
     end
 
-    test "a wedged handle_message/3: the agent is removed, its owner told" do
+    test "a wedged handle_message/3: the agent is removed, its requester and owner told" do
       h = host!(callback_timeout: 200)
       {:ok, id} = Tartarus.create_agent(h, Stuck, %{test: self()}, owner: self())
-      assert :ok = Tartarus.post(id, :block_forever)
+      # Its requester is told.
+      assert Tartarus.request(id, :block_forever, 60_000) ==
+               {:error, {:callback_timeout, :handle_message, 200}}
+
       assert_receive {:blocked, stuck}
       assert_receive {:tartarus_removed, ^id, {:callback_timeout, :handle_message, 200}}, 5_000
       refute Process.alive?(stuck)
@@ -181,7 +184,9 @@ defmodule Tartarus.CallbacksTest do
       # The watchdog (the host server) is held back: the callback returns late, and the
       # agent stops itself, its result ignored.
       :ok = :sys.suspend(host_pid(h))
-      assert :ok = Tartarus.post(id, {:sleep, 300})
+
+      assert Tartarus.request(id, {:sleep, 300}, 60_000) ==
+               {:error, {:callback_timeout, :handle_message, 100}}
 
       assert_receive {:DOWN, ^mref, :process, ^pid, {:callback_timeout, :handle_message, 100}},
                      5_000

@@ -18,14 +18,17 @@ defmodule Tartarus.Agent.Server do
   #
   # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
   # this process arms :erlang.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
-  # records {tref, callback, ms} under @watchdog in its dictionary; after it, it erases the
+  # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
+  # handle_message/3 answers, or nil); after it, it erases the
   # entry and cancels the timer. The host server is the watchdog: when the timer message
   # arrives it reads this process's dictionary and, if the same tref is still there (the
   # callback has not returned; a forged message cannot name it), stops the process with
   # exit reason {:callback_timeout, callback, ms} (:kill if it traps exits), then removes
   # the agent (no restart: the same callback would hang again). A callback that returns
   # after its timer fired (cancel_timer answers false) stops this process with the same
-  # reason, its result ignored. A host watches only overruns: the cost per callback is one
+  # reason, its result ignored. Either way a waiting requester gets
+  # {ref, {:error, {:callback_timeout, :handle_message, ms}}} (Tartarus.request/3 returns
+  # the error). A host watches only overruns: the cost per callback is one
   # timer armed and cancelled.
   #
   # A kill never blocks the host server either: it marks {:kill, pid} in its ledger, sends
@@ -188,7 +191,9 @@ defmodule Tartarus.Agent.Server do
 
     from = if kind == :request, do: {pid, ref}
 
-    run(data, :handle_message, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
+    run(data, {:handle_message, from}, fn ->
+      data.env.module.handle_message(msg, from, data.env.state)
+    end)
   end
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
@@ -750,14 +755,16 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
+  # `cb` is the callback's name, or {:handle_message, from} for a message.
   defp arm(host, cb) do
     case Map.get(host.opts, :callback_timeout, :infinity) do
       :infinity ->
         nil
 
       ms ->
+        {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
         tref = :erlang.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
-        dog = {tref, cb, ms}
+        dog = {tref, name, ms, from}
         Process.put(@watchdog, dog)
         dog
     end
@@ -765,18 +772,31 @@ defmodule Tartarus.Agent.Server do
 
   defp disarm(nil), do: :ok
 
-  defp disarm({tref, cb, ms}) do
+  defp disarm({tref, cb, ms, from}) do
     Process.delete(@watchdog)
-    if :erlang.cancel_timer(tref), do: :ok, else: {:callback_timeout, cb, ms}
+
+    if :erlang.cancel_timer(tref) do
+      :ok
+    else
+      reason = {:callback_timeout, cb, ms}
+      overran(from, reason)
+      reason
+    end
   end
 
   @doc false
-  # For the host's watchdog: the callback `pid` runs under the timer `tref`, or nil.
+  # Tells a requester that the callback handling its request overran (Tartarus.request/3).
+  def overran({pid, ref}, reason) when is_pid(pid), do: send(pid, {ref, {:error, reason}})
+  def overran(_from, _reason), do: :ok
+
+  @doc false
+  # For the host's watchdog: {exit reason, traps exits?, requester} if `pid` is still in the
+  # callback it armed the timer `tref` for, else nil.
   def overrun(pid, tref) when node(pid) == node() do
     case Process.info(pid, [:dictionary, :trap_exit]) do
       [dictionary: dict, trap_exit: trap?] ->
         case List.keyfind(dict, @watchdog, 0) do
-          {_, {^tref, cb, ms}} -> {{:callback_timeout, cb, ms}, trap?}
+          {_, {^tref, cb, ms, from}} -> {{:callback_timeout, cb, ms}, trap?, from}
           _ -> nil
         end
 

@@ -267,9 +267,10 @@ defmodule Tartarus.Host.Server do
   def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state)
       when is_reference(tref) and is_pid(pid) do
     case Tartarus.Agent.Server.overrun(pid, tref) do
-      {reason, trap?} ->
+      {reason, trap?, from} ->
         # An agent that traps exits would take any other signal as a message.
         Process.exit(pid, if(trap?, do: :kill, else: reason))
+        Tartarus.Agent.Server.overran(from, reason)
         {:noreply, %{state | overran: Map.put(state.overran, pid, reason)}}
 
       nil ->
