@@ -181,7 +181,11 @@ defmodule Tartarus do
   @spec clone(agent_ref(), Tartarus.Agent.dest() | :here) :: {:ok, agent_id()} | {:error, term()}
   def clone(agent, dest), do: Locator.handoff(agent, {:clone, dest})
 
-  @doc "Kills an agent wherever it is now. It is not restarted."
+  @doc """
+  Kills an agent wherever it is now. It is not restarted. Returns once the agent is down:
+  at once, unless it traps exits and is inside a callback; then when the callback returns or
+  its budget runs out (the host option `:callback_timeout`; see `Tartarus.Agent`).
+  """
   @spec kill(agent_ref()) :: :ok | {:error, term()}
   def kill(agent), do: Locator.kill(agent)
 
@@ -217,7 +221,9 @@ defmodule Tartarus do
 
   @doc """
   Sends `message` to an agent and waits for its reply (the agent answers with
-  `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`.
+  `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`, or
+  `{:error, {:callback_timeout, :handle_message, ms}}` if the agent's `handle_message/3`
+  overran its host's callback budget (the agent is then removed, see `Tartarus.Agent`).
   """
   @spec request(agent_ref(), term(), timeout()) :: {:ok, term()} | {:error, term()}
   def request(agent, message, timeout \\ 5_000),

@@ -61,6 +61,27 @@ defmodule Tartarus.Agent do
   `ctx.restarts` counting restarts), at most `:max_restarts` times (a host option), then
   removed; its owner then receives `{:tartarus_removed, id, reason}`.
 
+  ## Time budget
+
+  Callbacks (`c:init/1` included) run in the agent's own process, never in its host's: an
+  agent that computes, sleeps or waits does not hold up its host, its other agents, or
+  `Tartarus.kill/1`. Each callback may run for at most the host option `:callback_timeout`
+  (10 s by default; `:infinity` switches the bound off). An agent whose callback overruns
+  is stopped (its exit reason is `{:callback_timeout, callback, ms}`) and not restarted:
+
+    * an `c:init/1` that overruns: `Tartarus.create_agent/4` returns
+      `{:error, {:callback_timeout, :init, ms}}`;
+    * any other callback (`c:handle_arrival/2` after a move or a clone, `c:handle_message/3`,
+      `c:handle_move_failed/4`, `c:handle_info/2`): the agent is removed from its host and
+      its owner receives `{:tartarus_removed, id, {:callback_timeout, callback, ms}}`; a
+      request it was handling gets `{:error, {:callback_timeout, :handle_message, ms}}`
+      from `Tartarus.request/3`.
+
+  A callback that returns after its budget ran out counts as an overrun (its action is not
+  carried out). An agent killed with `Tartarus.kill/1` stops at once unless it traps exits;
+  then it stops as soon as it waits for its next message (its code cannot keep it alive), or
+  is killed at the end of its callback's budget if it does not.
+
   ## Inside callbacks
 
   Callbacks run in the agent's process and may use the functions of this module: `id/0`,

@@ -115,7 +115,8 @@ defmodule Tartarus.Locator do
 
   defp kill(agent, n) do
     with {:ok, {a, host}} <- normalize(agent) do
-      case Host.call(host, {:kill, a}) do
+      # The host answers once the agent is down, within its callback budget.
+      case Host.call(host, {:kill, a}, :infinity) do
         {:killed, _id} -> :ok
         {:moved, next} -> kill({a, next}, n - 1)
         {:arriving, _pid} -> backoff(n) && kill({a, host}, n - 1)
@@ -146,6 +147,7 @@ defmodule Tartarus.Locator do
           else
             receive do
               {^tag, {:reply, value}} -> {:ok, value}
+              {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
             after
               timeout -> {:error, :timeout}
             end

@@ -6,7 +6,40 @@ defmodule Tartarus.Agent.Server do
   # admit and create the paused copy). The hand-off's decisions are Tartarus.Migration.Protocol's
   # (its moduledoc is the specification); this process runs them in three roles, each in its
   # own section below: the agent, the source of a hand-off, the paused copy at a destination.
-  use GenServer, restart: :temporary
+  #
+  # Callbacks never block the host. The agent's code (init/1 included) runs only in this
+  # process, after it started: GenServer.init/1 here reads the snapshot and returns, so the
+  # host's DynamicSupervisor.start_child (called by the host server) never waits for user code.
+  # A create is answered by whoever settles it first, through an ETS entry
+  # {{:creating, key}, from} the host writes before it starts the process (:ets.take makes
+  # the answer exactly-once): this process once init/1 returned and the agent is resident
+  # ({:ok, id}) or failed ({:error, {:init_failed, _}}), else the host when the process
+  # goes down ({:error, {:callback_timeout, :init, ms}} or {:error, {:init_failed, reason}}).
+  #
+  # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
+  # this process arms :erlang.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
+  # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
+  # handle_message/3 answers, or nil); after it, it erases the entry and cancels the timer.
+  # The host server is the watchdog: when the timer message arrives it reads this process's
+  # dictionary and, if the same tref is still there (the callback has not returned; a forged
+  # message cannot name it), stops the process with exit reason {:callback_timeout,
+  # callback, ms} (:kill if it traps exits), then removes the agent (no restart: the same
+  # callback would hang again). A callback that returns after its timer fired (cancel_timer
+  # answers false) stops this process with the same reason, its result ignored. Either way
+  # a waiting requester gets {ref, {:error, {:callback_timeout, :handle_message, ms}}}
+  # (Tartarus.request/3 returns the error). The host hears only of overruns: the cost per
+  # callback is one timer armed and cancelled (about 1.6 µs).
+  #
+  # A kill never blocks the host server either: it marks {:kill, pid} in its ledger, sends
+  # exit signal :shutdown, and answers the caller when the process is down. An agent that
+  # traps exits gets the signal as {:EXIT, host_pid, :shutdown}: this process stops on it
+  # (whatever the agent's code would say) when the mark is there, and ignores a forged one;
+  # an agent stuck in a callback is stopped by the watchdog, and the host kills it anyway
+  # after the callback budget (5 s with :infinity).
+  #
+  # Stopping a host kills its agents outright (shutdown: :brutal_kill): this process has no
+  # terminate work, and an agent that traps exits must not hold up stop_host.
+  use GenServer, restart: :temporary, shutdown: :brutal_kill
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
   alias Tartarus.Migration.Protocol
@@ -17,6 +50,7 @@ defmodule Tartarus.Agent.Server do
 
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
+  @watchdog :"$tartarus_watchdog"
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
@@ -44,26 +78,11 @@ defmodule Tartarus.Agent.Server do
     start(host, env, mode)
   end
 
+  # The agent's init/1 runs after this process started (see handle_continue({:init, _})).
   defp start(host, env, {:create, args}) do
     env = %{env | visits: %{host.ref => 1}}
-    data = %{host: host, env: env, paused: nil}
     Process.put(@host, host)
-
-    case callback(data, fn -> env.module.init(args) end) do
-      {:ok, action, data} ->
-        case Ledger.register_resident(host, data.env, self()) do
-          :ok ->
-            arrived(put_state(data, action_state(action)))
-            emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
-            {:ok, data, {:continue, {:go, {:act, action}}}}
-
-          {:error, reason} ->
-            {:stop, reason}
-        end
-
-      {:error, reason, _data} ->
-        {:stop, {:init_failed, reason}}
-    end
+    {:ok, %{host: host, env: env, paused: nil}, {:continue, {:go, {:init, args}}}}
   end
 
   defp start(host, env, {:paused, mig, copy, src, kind}) do
@@ -101,10 +120,35 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  def handle_continue({:act, action}, data), do: act(action, data)
+  def handle_continue({:init, args}, data) do
+    env = data.env
+
+    case callback(data, :init, fn -> env.module.init(args) end) do
+      {:ok, action, data} ->
+        case Ledger.register_resident(data.host, data.env, self()) do
+          :ok ->
+            arrived(put_state(data, action_state(action)))
+            emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
+            created(data, {:ok, env.id})
+            act(action, data)
+
+          {:error, reason} ->
+            created(data, {:error, reason})
+            {:stop, {:shutdown, {:create_failed, reason}}, data}
+        end
+
+      # Answered by the host, which sees the exit.
+      {:error, {:callback_timeout, _, _} = reason, data} ->
+        {:stop, reason, data}
+
+      {:error, reason, data} ->
+        created(data, {:error, {:init_failed, reason}})
+        {:stop, {:shutdown, {:init_failed, reason}}, data}
+    end
+  end
 
   def handle_continue({:arrive, ctx}, data) do
-    run(data, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+    run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
   end
 
   # -- the paused copy (destination side) ---------------------------------------------
@@ -145,7 +189,18 @@ defmodule Tartarus.Agent.Server do
     )
 
     from = if kind == :request, do: {pid, ref}
-    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
+
+    run(data, {:handle_message, from}, fn ->
+      data.env.module.handle_message(msg, from, data.env.state)
+    end)
+  end
+
+  # Its host kills it (see the top of this module): an agent that traps exits stops too. The
+  # mark in the host's ledger tells the host's signal from a forged message.
+  def handle_info({:EXIT, pid, :shutdown} = msg, %{host: %{pid: pid}} = data) do
+    if :ets.member(data.host.ledger, {:kill, self()}),
+      do: {:stop, :shutdown, data},
+      else: user_info(msg, data)
   end
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
@@ -163,7 +218,7 @@ defmodule Tartarus.Agent.Server do
 
   defp user_info(msg, data) do
     if function_exported?(data.env.module, :handle_info, 2) do
-      run(data, fn -> data.env.module.handle_info(msg, data.env.state) end)
+      run(data, :handle_info, fn -> data.env.module.handle_info(msg, data.env.state) end)
     else
       {:noreply, data}
     end
@@ -261,8 +316,8 @@ defmodule Tartarus.Agent.Server do
 
   # -- actions -------------------------------------------------------------------
 
-  defp run(data, fun) do
-    case callback(data, fun) do
+  defp run(data, cb, fun) do
+    case callback(data, cb, fun) do
       {:ok, action, data} -> act(action, data)
       {:error, reason, data} -> {:stop, reason, data}
     end
@@ -308,7 +363,7 @@ defmodule Tartarus.Agent.Server do
   defp failed(data, dest, reason) do
     emit(data, %{type: :move_failed, agent: data.env.id, to: dest, reason: reason}, move_failed: 1)
 
-    run(data, fn ->
+    run(data, :handle_move_failed, fn ->
       data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state)
     end)
   end
@@ -638,7 +693,7 @@ defmodule Tartarus.Agent.Server do
         )
 
         ctx = ctx(data)
-        run(data, fn -> env.module.handle_arrival(ctx, env.state) end)
+        run(data, :handle_arrival, fn -> env.module.handle_arrival(ctx, env.state) end)
 
       {:error, reason} ->
         {:stop, reason, data}
@@ -670,15 +725,85 @@ defmodule Tartarus.Agent.Server do
 
   defp put_state(data, s), do: %{data | env: %{data.env | state: s}}
 
-  # Runs a callback with the agent's envelope in the process dictionary (so the functions
-  # of Tartarus.Agent can read and change payload), catching crashes so they become exits
-  # with a readable reason.
-  defp callback(data, fun) do
-    {result, data} = callback_raw(data, fun)
-    {:ok, result, data}
-  catch
-    kind, reason -> {:error, {kind, reason, __STACKTRACE__}, data}
+  # The creator of this agent, if no one answered it yet (see the top of this module).
+  defp created(data, reply) do
+    case :ets.take(data.host.ledger, {:creating, Process.get(:"$tartarus_snapshot_key")}) do
+      [{_, from}] -> GenServer.reply(from, reply)
+      [] -> :ok
+    end
   end
+
+  # Runs callback `cb` with the agent's envelope in the process dictionary (so the functions
+  # of Tartarus.Agent can read and change payload), catching crashes so they become exits
+  # with a readable reason, within the host's callback budget (see the top of this module).
+  defp callback(data, cb, fun) do
+    dog = arm(data.host, cb)
+
+    outcome =
+      try do
+        {:ok, callback_raw(data, fun)}
+      catch
+        kind, reason -> {:error, {kind, reason, __STACKTRACE__}}
+      end
+
+    case {disarm(dog), outcome} do
+      {:ok, {:ok, {result, data}}} -> {:ok, result, data}
+      {:ok, {:error, reason}} -> {:error, reason, data}
+      {overrun, _} -> {:error, overrun, data}
+    end
+  end
+
+  # `cb` is the callback's name, or {:handle_message, from} for a message.
+  defp arm(host, cb) do
+    case Map.get(host.opts, :callback_timeout, :infinity) do
+      :infinity ->
+        nil
+
+      ms ->
+        {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
+        tref = :erlang.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
+        dog = {tref, name, ms, from}
+        Process.put(@watchdog, dog)
+        dog
+    end
+  end
+
+  defp disarm(nil), do: :ok
+
+  defp disarm({tref, cb, ms, from}) do
+    Process.delete(@watchdog)
+
+    if :erlang.cancel_timer(tref) do
+      :ok
+    else
+      reason = {:callback_timeout, cb, ms}
+      overran(from, reason)
+      reason
+    end
+  end
+
+  @doc false
+  # Tells a requester that the callback handling its request overran (Tartarus.request/3).
+  def overran({pid, ref}, reason) when is_pid(pid), do: send(pid, {ref, {:error, reason}})
+  def overran(_from, _reason), do: :ok
+
+  @doc false
+  # For the host's watchdog: {exit reason, traps exits?, requester} if `pid` is still in the
+  # callback it armed the timer `tref` for, else nil.
+  def overrun(pid, tref) when node(pid) == node() do
+    case Process.info(pid, [:dictionary, :trap_exit]) do
+      [dictionary: dict, trap_exit: trap?] ->
+        case List.keyfind(dict, @watchdog, 0) do
+          {_, {^tref, cb, ms, from}} -> {{:callback_timeout, cb, ms}, trap?, from}
+          _ -> nil
+        end
+
+      nil ->
+        nil
+    end
+  end
+
+  def overrun(_pid, _tref), do: nil
 
   defp callback_raw(data, fun) do
     Process.put(@ctx, data.env)

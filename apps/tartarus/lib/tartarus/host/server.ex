@@ -9,6 +9,11 @@ defmodule Tartarus.Host.Server do
   # Tartarus.Migration.Protocol; this server runs its destination side (admission) and
   # answers decision queries as the source host, carrying out the protocol's actions.
   #
+  # No agent's code runs in this server or blocks it (see Agent.Server's top comment): a
+  # create is answered once the agent's init/1 returned (by the agent) or it went down (by
+  # this server); a kill is answered when the agent is down; this server is the watchdog of
+  # its agents' callback budgets (:"$tartarus_overrun" timers).
+  #
   # Nothing any node sends crashes it: unexpected calls are answered
   # {:error, {:bad_message, _}}, unexpected casts and messages are dropped and counted in
   # the ledger ({:count, :dropped}), and a :DOWN counts only for a monitor this server made.
@@ -69,7 +74,10 @@ defmodule Tartarus.Host.Server do
      %{
        host: host,
        monitors: %{},
-       killing: MapSet.new(),
+       # Agents being killed: pid => {escalation timer, callers to answer}.
+       killing: %{},
+       # Agents stopped by the watchdog: pid => {:callback_timeout, callback, ms}.
+       overran: %{},
        admission: opts[:admission],
        dest: Protocol.destination(),
        restore: {agents, in_doubt}
@@ -86,9 +94,10 @@ defmodule Tartarus.Host.Server do
 
   defp call(:info, _from, state), do: {:reply, state.host, state}
 
-  defp call({:create, envelope, args}, _from, state) do
-    case start_agent(state, envelope, {:create, args}) do
-      {:ok, _pid, state} -> {:reply, {:ok, envelope.id}, state}
+  # Answered by the agent once its init/1 returned, or on its :DOWN (Agent.Server's top).
+  defp call({:create, envelope, args}, from, state) do
+    case start_agent(state, envelope, {:create, args}, 0, from) do
+      {:ok, _pid, state} -> {:noreply, state}
       {:error, reason, state} -> {:reply, {:error, reason}, state}
     end
   end
@@ -130,31 +139,11 @@ defmodule Tartarus.Host.Server do
     {:reply, Tartarus.Ledger.locate(state.host, agent), state}
   end
 
-  defp call({:kill, agent}, _from, state) do
+  # Answered when the agent is down (killed/2, then the :DOWN): never waits here.
+  defp call({:kill, agent}, from, state) do
     case Tartarus.Ledger.locate(state.host, agent) do
-      {:here, pid, id} ->
-        state = %{state | killing: MapSet.put(state.killing, pid)}
-
-        DynamicSupervisor.terminate_child(
-          Tartarus.Host.via(:agents, elem(state.host.ref, 0)),
-          pid
-        )
-
-        # Gone from the ledger (and the checkpoints) before the caller hears back.
-        Tartarus.Ledger.forget_resident(state.host, pid)
-
-        # Killed in the middle of a hand-off: abort it (the destination's paused copy learns
-        # so when it asks), unless the move had already committed: then the agent lives on
-        # at its destination and the kill follows it there.
-        if Tartarus.Ledger.abort_pending(state.host, id, pid) do
-          Tartarus.Host.Persistence.forget(state.host, id)
-          {:reply, {:killed, id}, state}
-        else
-          {:reply, Tartarus.Ledger.locate(state.host, id), state}
-        end
-
-      other ->
-        {:reply, other, state}
+      {:here, pid, _id} -> {:noreply, kill(state, pid, from)}
+      other -> {:reply, other, state}
     end
   end
 
@@ -326,17 +315,47 @@ defmodule Tartarus.Host.Server do
     end
   end
 
+  # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
+  # callback it is still in counts (Agent.Server.overrun/2 reads it from the agent).
+  def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state)
+      when is_reference(tref) and is_pid(pid) do
+    case Tartarus.Agent.Server.overrun(pid, tref) do
+      {reason, trap?, from} ->
+        # An agent that traps exits would take any other signal as a message.
+        Process.exit(pid, if(trap?, do: :kill, else: reason))
+        Tartarus.Agent.Server.overran(from, reason)
+        {:noreply, %{state | overran: Map.put(state.overran, pid, reason)}}
+
+      nil ->
+        {:noreply, state}
+    end
+  end
+
+  # A killed agent still up after its grace: killed for good.
+  def handle_info({:timeout, tref, {:"$tartarus_kill", pid}}, state) do
+    case state.killing do
+      %{^pid => {^tref, _callers}} -> Process.exit(pid, :kill)
+      _ -> Ledger.count(state.host, :dropped)
+    end
+
+    {:noreply, state}
+  end
+
   # Only a monitor this server made counts: a forged :DOWN changes nothing.
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
-    killed? = MapSet.member?(state.killing, pid)
-    state = %{state | monitors: monitors, killing: MapSet.delete(state.killing, pid)}
+    {kill, killing} = Map.pop(state.killing, pid)
+    {overrun, overran} = Map.pop(state.overran, pid)
+    reason = overrun || reason
+    state = %{state | monitors: monitors, killing: killing, overran: overran}
     resident? = Ledger.forget_resident(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, pid)
     :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
-    {:noreply, agent_down(state, entry, reason, resident?, killed?)}
+    not_created(state, entry, reason)
+    if kill, do: killed(state, pid, entry, kill)
+    {:noreply, agent_down(state, entry, reason, resident?, kill != nil)}
   end
 
   def handle_info(:sweep, %{host: %{opts: %{forward_ttl: ttl}}} = state) when is_integer(ttl) do
@@ -572,24 +591,91 @@ defmodule Tartarus.Host.Server do
 
   # -- agents ------------------------------------------------------------------
 
+  # How long a killed agent that traps exits may take to stop when its callbacks are not
+  # bounded (with a callback budget, that budget).
+  @kill_grace 5_000
+
+  # The exit signal stops an agent that does not trap exits at once; one that does stops on
+  # it when it next waits for a message (Agent.Server, top), or the watchdog or the
+  # escalation timer kills it. The mark tells the agent the signal is real.
+  defp kill(state, pid, from) do
+    case state.killing do
+      %{^pid => {tref, callers}} ->
+        %{state | killing: %{state.killing | pid => {tref, [from | callers]}}}
+
+      _ ->
+        :ets.insert(state.host.ledger, {{:kill, pid}, true})
+        Process.exit(pid, :shutdown)
+
+        grace =
+          case state.host.opts[:callback_timeout] do
+            ms when is_integer(ms) -> ms
+            _ -> @kill_grace
+          end
+
+        tref = :erlang.start_timer(grace, self(), {:"$tartarus_kill", pid})
+        %{state | killing: Map.put(state.killing, pid, {tref, [from]})}
+    end
+  end
+
+  # The killed agent is down (already gone from the ledger, and from the checkpoints now).
+  # Killed in the middle of a hand-off: abort it (the destination's paused copy learns so
+  # when it asks), unless the move had already committed: then the agent lives on at its
+  # destination and the kill follows it there.
+  defp killed(state, pid, entry, {tref, callers}) do
+    :erlang.cancel_timer(tref)
+    :ets.delete(state.host.ledger, {:kill, pid})
+
+    reply =
+      if Tartarus.Ledger.abort_pending(state.host, entry.id, pid) do
+        Tartarus.Host.Persistence.forget(state.host, entry.id)
+        {:killed, entry.id}
+      else
+        Tartarus.Ledger.locate(state.host, entry.id)
+      end
+
+    Enum.each(callers, &GenServer.reply(&1, reply))
+  end
+
+  # An agent whose init/1 never answered its creator: the host does.
+  defp not_created(_state, %{create: false}, _reason), do: :ok
+
+  defp not_created(state, entry, reason) do
+    case :ets.take(state.host.ledger, {:creating, entry.key}) do
+      [{_, from}] ->
+        GenServer.reply(
+          from,
+          case reason do
+            {:callback_timeout, :init, _} -> {:error, reason}
+            _ -> {:error, {:init_failed, reason}}
+          end
+        )
+
+      [] ->
+        :ok
+    end
+  end
+
   # The envelope an agent starts from is its arrival snapshot: kept in the ledger table (not
   # in this server's or the supervisor's heap, which would then hold and garbage-collect
   # every resident's state) for restarts, and read by the agent's process when it starts.
-  defp start_agent(state, env, mode, restarts \\ 0) do
+  defp start_agent(state, env, mode, restarts \\ 0, creator \\ nil) do
     sup = Tartarus.Host.via(:agents, elem(state.host.ref, 0))
     key = make_ref()
     :ets.insert(state.host.ledger, {{:snapshot, key}, env})
+    if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
 
     case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
       {:ok, pid} ->
         mref = Process.monitor(pid)
         # Paused copies run nothing until their commit; the others wait for this.
         unless match?({:paused, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
-        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner}
+        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
         {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
 
       {:error, reason} ->
         :ets.delete(state.host.ledger, {:snapshot, key})
+        :ets.delete(state.host.ledger, {:creating, key})
         {:error, unwrap(reason), state}
     end
   end
@@ -624,6 +710,10 @@ defmodule Tartarus.Host.Server do
       not resident? ->
         # A paused copy that died before its commit: the source still decides; nothing to do.
         state
+
+      match?({:callback_timeout, _, _}, reason) ->
+        # Not restarted: the same callback would hang again.
+        removed(state, entry, reason)
 
       not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
         # It crashed after committing a migration: it lives on at the destination.

@@ -61,6 +61,16 @@ defmodule Tartarus.Options.Platform do
         "the admission policy: every limit on one arriving agent (see " <>
           "`Tartarus.Security.Admission`); a host given none gets the finite defaults below"
     ],
+    callback_timeout: [
+      type: :pos_integer_or_infinity,
+      default: 10_000,
+      doc:
+        "ms each callback of an agent (`init/1`, `handle_arrival/2`, `handle_message/3`, " <>
+          "`handle_move_failed/4`, `handle_info/2`) may run; an agent whose callback overruns " <>
+          "is stopped and removed (its creator gets `{:error, {:callback_timeout, :init, ms}}`, " <>
+          "its owner `{:tartarus_removed, id, {:callback_timeout, callback, ms}}`); the default " <>
+          "leaves room for the 5 s calls a callback may make. With `:infinity` nothing bounds them"
+    ],
     max_heap_size: [
       type: :pos_integer_or_infinity,
       default: :infinity,
