@@ -6,11 +6,13 @@ defmodule Tartarus.Security.Admission do
     max_resident_agents: [
       type: @limit,
       expected: @limit_words,
-      default: 1_000,
+      default: 2_000,
       doc:
-        "agents a host may hold at once; an arrival is refused when `resident` (the " <>
-          "agents the host already holds, as the host counts them) has reached it. This " <>
-          "is what stops a clone storm"
+        "agents a host may hold at once, paused (arriving) copies included; an arrival is " <>
+          "refused when `resident` (the agents the host already holds, as the host counts " <>
+          "them) has reached it. This is what stops a clone storm. The default leaves room " <>
+          "for `mix tartarus.bench migration --agents 1000` (an agent briefly counts at both " <>
+          "ends of a hand-off)"
     ],
     max_message_bytes: [
       type: @limit,
@@ -43,12 +45,12 @@ defmodule Tartarus.Security.Admission do
     rate: [
       type: {:or, [{:tuple, [:pos_integer, :pos_integer]}, {:in, [:infinity]}]},
       expected: "{count, interval_ms} with positive integers, or :infinity",
-      default: {20_000, 1_000},
+      default: {100_000, 1_000},
       doc:
         "admissions per source host: `{count, interval_ms}` allows bursts of `count` and " <>
           "refills `count` tokens every `interval_ms` (a token bucket per source); " <>
-          "`:infinity` turns it off. The default is above the 13,000 hops/s per source of " <>
-          "`mix tartarus.bench migration --agents 1000`"
+          "`:infinity` turns it off. The default is well above the hops per second one " <>
+          "source host can send (the BEAM floor between two nodes here is about 25,000/s)"
     ]
   ]
 

@@ -11,12 +11,12 @@ defmodule Tartarus.Security.AdmissionTest do
     test "defaults" do
       assert {:ok, %Admission{policy: policy, buckets: %{}}} = Admission.new()
       # Safe defaults: every per-arrival limit is finite except hops (see the moduledoc).
-      assert policy.max_resident_agents == 1_000
+      assert policy.max_resident_agents == 2_000
       assert policy.max_message_bytes == 8 * 1024 * 1024
       assert policy.max_envelope_bytes == 2 * 1024 * 1024
       assert policy.max_payload_bytes == 1024 * 1024
       assert policy.max_hops == :infinity
-      assert policy.rate == {20_000, 1_000}
+      assert policy.rate == {100_000, 1_000}
     end
 
     test "every limit accepts a positive integer or :infinity" do
