@@ -102,6 +102,33 @@ defmodule Tartarus.Ledger do
     :ets.delete(host.ledger, {:decision, mig})
   end
 
+  # The agent `env` ended on this host (returned or stopped): the forwarding pointers it left
+  # on the hosts it visited lead nowhere now. Each of those hosts is told once (through its
+  # node's Tartarus.Host.Directory, without opening connections: a host on a node no longer
+  # connected keeps its pointer), and drops them (forget_pointers/3). Nothing else reclaims
+  # the pointer of an agent that ended elsewhere.
+  def gone(host, env) do
+    for {{name, node} = h, _} <- env.visits, h != host.ref do
+      :erlang.send(
+        {Tartarus.Host.Directory, node},
+        {:"$tartarus_gone", name, env.id, env.name},
+        [:noconnect]
+      )
+    end
+
+    :ok
+  end
+
+  # Drops the forwarding pointers of agent `id` (and of its name) after it ended elsewhere.
+  # An agent that ended ran as its last committed copy, so no paused copy can still ask
+  # about a pointer's migration: a copy that does (a replay) is told aborted, which is
+  # right. An agent resident here has no pointer here.
+  def forget_pointers(host, id, name) do
+    :ets.delete(host.ledger, {:fwd, id})
+    if name, do: :ets.delete(host.ledger, {:fwd, name})
+    :ok
+  end
+
   # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
   # (source) host: Tartarus.Migration.Protocol.answer/3 over what the ledger holds, read in
   # the protocol's order (hand-off record first).

@@ -356,6 +356,7 @@ defmodule Tartarus.Agent.Server do
     # No longer resident: the host must not take the exit for a crash to restart from.
     Ledger.forget_resident(data.host, self())
     Tartarus.Host.Persistence.forget(data.host, data.env.id)
+    Ledger.gone(data.host, data.env)
     emit(data, %{type: :stopped, agent: data.env.id, reason: reason}, stopped: 1)
     {:stop, {:shutdown, {:stopped, reason}}, data}
   end

@@ -97,6 +97,19 @@ defmodule Tartarus.Host.Directory do
     end
   end
 
+  # An agent ended elsewhere: a host of this node drops its forwarding pointers to it
+  # (Tartarus.Ledger.gone/2).
+  def handle_info({:"$tartarus_gone", host, id, name}, monitors)
+      when (is_atom(host) or is_binary(host)) and is_binary(id) and byte_size(id) <= 64 and
+             (is_nil(name) or (is_binary(name) and byte_size(name) <= 1024)) do
+    case Tartarus.Host.local({host, node()}) do
+      {:ok, info} -> Tartarus.Ledger.forget_pointers(info, id, name)
+      _ -> :ok
+    end
+
+    {:noreply, monitors}
+  end
+
   def handle_info(msg, monitors) do
     Tartarus.Events.drop(__MODULE__, :info, msg)
     {:noreply, monitors}
