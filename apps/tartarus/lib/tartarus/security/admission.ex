@@ -180,7 +180,7 @@ defmodule Tartarus.Security.Admission do
 
       iex> {:ok, adm} = Tartarus.Security.Admission.new(max_hops: 3)
       iex> {adm.policy.max_hops, adm.policy.max_resident_agents}
-      {3, 1000}
+      {3, 2000}
       iex> Tartarus.Security.Admission.new(rate: {0, 10})
       {:error, "invalid options given to Tartarus.Security.Admission.new/1 for key :rate: expected {count, interval_ms} with positive integers, or :infinity, got: {0, 10}"}
       iex> Tartarus.Security.Admission.new(max_agents: 3)
