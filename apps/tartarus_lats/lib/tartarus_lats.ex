@@ -15,14 +15,16 @@ defmodule TartarusLats do
       decisions they make on each node (shared with the cloud);
     * `TartarusLats.Cloud` - the cloud: counts connections and bytes per design,
       and answers queries centrally in the centralized design;
-    * `TartarusLats.Deployment` - a building's worth of hosts, driven one world
-      second at a time; `TartarusLats.Experiment` - the thesis's comparison
-      (`mix tartarus.lats`).
+    * `TartarusLats.Deployment` - a building (a `TartarusEmu.Topology`) brought
+      to life by `TartarusEmu.Network` with LATS's per-node setup hook, driven
+      one world second at a time; `TartarusLats.Experiment` - the thesis's
+      comparison as a `TartarusEmu.Scenario` (`mix tartarus.lats`), reported by
+      `TartarusLats.Report`.
 
   ## Asking from iex
 
       dep = TartarusLats.Deployment.start(seed: 1) |> TartarusLats.Deployment.run(300)
-      tag = TartarusLats.World.tag(dep.world_value, :janitor)
+      tag = TartarusLats.World.tag(dep.world, :janitor)
       TartarusLats.query(dep.hosts[:p1], :where_is, tag)
       #=> {:ok, %{answer: {:in_zone, :p16}, hops: 4, route: [...], ...}}
       TartarusLats.query(dep.hosts[:p1], :trace, tag)

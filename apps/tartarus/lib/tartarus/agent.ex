@@ -65,7 +65,11 @@ defmodule Tartarus.Agent do
 
   Callbacks run in the agent's process and may use the functions of this module: `id/0`,
   `name/0`, `host/0`, `hops/0`, `neighbours/0`, the payload functions, the host store and
-  the host's plugins (`read/2`, `write/2`, `subscribe/1`), and `reply/2`.
+  the host's plugins (`read/2`, `write/2`, `subscribe/1`), and `reply/2`; the agent's own
+  random stream (`uniform/0`, `uniform/1`, `normal/0`, `normal/2`, `shuffle/1`,
+  `random_seed/0`, `random/1`: see `Tartarus.Random`); signal fields (`signal/2`,
+  `signals/1`, `gradient/1`, `emit_signal/3`: see `Tartarus.Signal`); and neighbour
+  broadcasts (`broadcast/1`, `subscribe_broadcasts/0`: see `Tartarus.Broadcast`).
 
   ## Options of `use Tartarus.Agent`
 
@@ -123,7 +127,10 @@ defmodule Tartarus.Agent do
   @doc "A move or clone to `dest` failed with `reason`; the agent is still here."
   @callback handle_move_failed(dest(), reason :: term(), ctx(), state()) :: action()
 
-  @doc "Any other message to the agent's process (timers, plugin events)."
+  @doc """
+  Any other message to the agent's process (timers, plugin events, broadcasts the agent
+  subscribed to).
+  """
   @callback handle_info(message :: term(), state()) :: action()
 
   @optional_callbacks handle_info: 2
@@ -286,6 +293,106 @@ defmodule Tartarus.Agent do
     send(pid, {ref, {:reply, value}})
     :ok
   end
+
+  # -- the agent's random stream -----------------------------------------------------
+
+  @doc """
+  A float uniformly distributed in `[0.0, 1.0)`, drawn from the calling agent's random
+  stream (see `Tartarus.Random`): the stream travels with the agent and only the agent
+  advances it, so for one `seed:` the agent draws the same numbers wherever it goes.
+  """
+  @spec uniform() :: float()
+  def uniform, do: draw(&Tartarus.Random.uniform/1)
+
+  @doc "An integer uniformly distributed in `1..n`, from the calling agent's random stream."
+  @spec uniform(pos_integer()) :: pos_integer()
+  def uniform(n) when is_integer(n) and n > 0, do: draw(&Tartarus.Random.uniform(&1, n))
+
+  @doc "A float from N(0, 1), from the calling agent's random stream."
+  @spec normal() :: float()
+  def normal, do: draw(&Tartarus.Random.normal/1)
+
+  @doc "A float from N(`mean`, `sd`²), from the calling agent's random stream."
+  @spec normal(number(), number()) :: float()
+  def normal(mean, sd), do: draw(&Tartarus.Random.normal(&1, mean, sd))
+
+  @doc "The elements of `enumerable` in an order drawn from the calling agent's random stream."
+  @spec shuffle(Enumerable.t()) :: list()
+  def shuffle(enumerable), do: draw(&Tartarus.Random.shuffle(&1, enumerable))
+
+  @doc """
+  An integer seed drawn from the calling agent's random stream, to seed a generator for
+  a batch computation (e.g. `:rand.seed_s(:exsss, seed)` or `Tartarus.Random.new(seed)`),
+  reproducibly.
+  """
+  @spec random_seed() :: pos_integer()
+  def random_seed, do: draw(&Tartarus.Random.seed/1)
+
+  @doc """
+  Runs `fun` on the calling agent's random stream as a `:rand` state (`fun.(state)`
+  returns `{value, state}`, like the `:rand.*_s` functions) and keeps the advanced stream.
+  Returns the value.
+  """
+  @spec random((:rand.state() -> {value, :rand.state()})) :: value when value: term()
+  def random(fun) when is_function(fun, 1), do: draw(&Tartarus.Random.with_state(&1, fun))
+
+  defp draw(fun) do
+    env = envelope()
+    {value, rng} = fun.(env.rng || Tartarus.Random.new(env.id))
+    put_envelope(%{env | rng: rng})
+    value
+  end
+
+  # -- signals and broadcasts ------------------------------------------------------------
+
+  @doc """
+  The value of signal `name` on the calling agent's host now (0.0 if none reaches it).
+  See `Tartarus.Signal` (options: `combine:`).
+  """
+  @spec signal(Tartarus.Signal.name(), keyword()) :: float()
+  def signal(name, opts \\ []), do: Tartarus.Signal.local_value(host(), name, opts)
+
+  @doc """
+  The live contributions to signal `name` on the calling agent's host, strongest first:
+  maps with `:source`, `:hops`, `:value` and `:data` (what the emitter attached).
+  """
+  @spec signals(Tartarus.Signal.name()) :: [map()]
+  def signals(name), do: Tartarus.Signal.local_contributions(host(), name)
+
+  @doc """
+  The values of signal `name` at the neighbours of the calling agent's host, as the host
+  knows them: `%{neighbour => value}` (what `{:gradient, name}` climbs).
+  """
+  @spec gradient(Tartarus.Signal.name()) :: %{Tartarus.host() => float()}
+  def gradient(name), do: Tartarus.Signal.local_neighbour_values(host(), name, [])
+
+  @doc """
+  Emits signal `name` of strength `strength` from the calling agent's host (see
+  `Tartarus.Signal.emit/4` for the options).
+  """
+  @spec emit_signal(Tartarus.Signal.name(), number(), keyword()) :: :ok | {:error, term()}
+  def emit_signal(name, strength, opts \\ []),
+    do: Tartarus.Signal.emit(host(), name, strength, opts)
+
+  @doc """
+  Sends `message` to every neighbour of the calling agent's host (see `Tartarus.Broadcast`).
+  Returns the number of neighbours it went to.
+  """
+  @spec broadcast(term()) :: non_neg_integer() | {:error, term()}
+  def broadcast(message) do
+    case Tartarus.Envelope.portable?(message) do
+      :ok -> Tartarus.Broadcast.send_from(host_info(), message)
+      error -> error
+    end
+  end
+
+  @doc """
+  Subscribes the calling agent to the broadcasts that reach its host: they arrive in
+  `c:handle_info/2` as `{:tartarus_broadcast, from_host, message}`. The subscription ends
+  when the agent leaves the host.
+  """
+  @spec subscribe_broadcasts() :: :ok | {:error, term()}
+  def subscribe_broadcasts, do: Tartarus.Broadcast.subscribe(host(), self())
 
   defp update_payload(fun) do
     env = envelope()

@@ -4,23 +4,52 @@ defmodule Tartarus.AgentTable do
   # their own entries (on arrival and departure); host servers remove the entries of agents
   # that crash or are killed. A plain ETS table rather than a Registry: no link per agent and
   # no cleanup message per exit, which matters on the migration hot path.
+  #
+  # The table belongs to the application's own process (created by setup/0 from
+  # Tartarus.Application.start/2), not to this server: the server can crash and restart
+  # without the node forgetting its agents. The server only answers junk (it expects no
+  # message at all) by dropping and counting it.
   use GenServer
 
   @table __MODULE__
 
   def start_link(_), do: GenServer.start_link(__MODULE__, nil, name: __MODULE__)
 
-  @impl true
-  def init(nil) do
-    :ets.new(@table, [
-      :named_table,
-      :public,
-      :set,
-      read_concurrency: true,
-      write_concurrency: true
-    ])
+  # Creates the table (once per application start; see the note above).
+  def setup do
+    if :ets.whereis(@table) == :undefined do
+      :ets.new(@table, [
+        :named_table,
+        :public,
+        :set,
+        read_concurrency: true,
+        write_concurrency: true
+      ])
+    end
 
-    {:ok, nil}
+    :ok
+  end
+
+  @impl true
+  def init(nil), do: {:ok, nil}
+
+  @impl true
+  def handle_call(msg, from, state) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_cast(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :cast, msg)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_info(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :info, msg)
+    {:noreply, state}
   end
 
   # Registers `pid` as agent `id`. An entry of a dead process (not yet cleaned) is replaced.

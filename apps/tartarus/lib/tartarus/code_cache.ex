@@ -127,20 +127,51 @@ defmodule Tartarus.CodeCache do
   @spec load([{module(), binary(), binary()}]) :: :ok | {:error, term()}
   def load(modules), do: GenServer.call(__MODULE__, {:load, modules}, 30_000)
 
-  @impl true
-  def init(nil) do
-    :ets.new(@table, [:named_table, :public, :set, read_concurrency: true])
-    {:ok, nil}
+  @doc false
+  # Creates the cache's table, owned by the application's process (called from
+  # Tartarus.Application.start/2): binaries of modules compiled at run time survive a restart
+  # of the cache's server.
+  def setup do
+    if :ets.whereis(@table) == :undefined do
+      :ets.new(@table, [:named_table, :public, :set, read_concurrency: true])
+    end
+
+    :ok
   end
 
   @impl true
-  def handle_call({:load, modules}, _from, state) do
-    {:reply, do_load(modules), state}
+  def init(nil), do: {:ok, nil}
+
+  # Anything else, from this node or another, is dropped and counted (Tartarus.Events.drop/3):
+  # a junk message never stops the cache.
+  @impl true
+  def handle_call({:load, modules}, from, state) when is_list(modules) do
+    Tartarus.Events.reply(from, do_load(modules))
+    {:noreply, state}
+  end
+
+  def handle_call(msg, from, state) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_cast(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :cast, msg)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_info(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :info, msg)
+    {:noreply, state}
   end
 
   defp do_load([]), do: :ok
 
-  defp do_load([{mod, md5, bin} | rest]) when is_atom(mod) and is_binary(bin) do
+  defp do_load([{mod, md5, bin} | rest])
+       when is_atom(mod) and is_binary(md5) and is_binary(bin) do
     with {:ok, {^mod, ^md5}} <- safe_md5(bin),
          :ok <- load_one(mod, md5, bin) do
       :ets.insert(@table, {mod, md5, bin})
@@ -152,12 +183,15 @@ defmodule Tartarus.CodeCache do
   end
 
   defp do_load([other | _]), do: {:error, {:bad_code, other}}
+  defp do_load(other), do: {:error, {:bad_code, other}}
 
   defp safe_md5(bin) do
     case :beam_lib.md5(bin) do
       {:ok, _} = ok -> ok
       {:error, :beam_lib, reason} -> {:error, {:bad_beam, reason}}
     end
+  catch
+    kind, reason -> {:error, {:bad_beam, {kind, reason}}}
   end
 
   defp load_one(mod, md5, bin) do

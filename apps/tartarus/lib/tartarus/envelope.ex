@@ -9,7 +9,8 @@ defmodule Tartarus.Envelope do
   Fields:
 
     * `:id` - globally unique (16 hex characters from `:crypto.strong_rand_bytes/1`)
-    * `:name` - a human-readable name (not necessarily unique)
+    * `:name` - a human-readable name; the default names (`default_name/2`, `clone_name/2`)
+      contain the whole id, so they are as unique as ids (see "Uniqueness")
     * `:module` - the agent's module; `:ships` - other modules it needs wherever it goes
     * `:state` - the agent's state; `:payload` - `%{data: map, modules: [module]}`
     * `:owner` - a pid that receives `{:tartarus_result, id, result}` on `{:return, ...}`
@@ -21,6 +22,14 @@ defmodule Tartarus.Envelope do
     * `:rng` - the agent's exported `:rand` state, so its random choices travel with it
     * `:clone_of` - the id of the agent this one was cloned from (nil otherwise)
     * `:issuer`, `:signature` - who signed the envelope (see DESIGN §7)
+
+  ## Uniqueness
+
+  An id is 64 random bits. Among `n` ids the probability that any two are equal is at most
+  `n * (n - 1) / 2 / 2^64`: about 2.7e-6 for 10 million agents, 2.7e-4 for 100 million.
+  Every key derived from an agent's id (its default name, a clone's name, the forwarding
+  pointers kept under ids and names) contains the whole id, never a prefix, so it is unique
+  whenever the ids are. (Names given by users are theirs to keep apart.)
   """
 
   @enforce_keys [:id, :module]
@@ -55,6 +64,54 @@ defmodule Tartarus.Envelope do
   """
   @spec new_id() :: String.t()
   def new_id, do: Base.encode16(:crypto.strong_rand_bytes(8), case: :lower)
+
+  @doc """
+  The name of an agent created without one: its module and its whole id.
+
+      iex> Tartarus.Envelope.default_name(Tartarus.Examples.Echo, "0123456789abcdef")
+      "Tartarus.Examples.Echo-0123456789abcdef"
+  """
+  @spec default_name(module(), String.t()) :: String.t()
+  def default_name(module, id) when is_atom(module), do: module_name(module) <> "-" <> id
+
+  # inspect/1 of a module, without inspect's cost (default names are made on every create).
+  defp module_name(module) do
+    case Atom.to_string(module) do
+      "Elixir." <> name -> name
+      name -> ":" <> name
+    end
+  end
+
+  @doc """
+  The name of a clone with id `id` of an agent named `name`: the name's root (a clone's name
+  without its `/<id>` suffix, so names do not grow from clone to clone) and the clone's whole id.
+
+      iex> Tartarus.Envelope.clone_name("walker", "0123456789abcdef")
+      "walker/0123456789abcdef"
+      iex> Tartarus.Envelope.clone_name("walker/0123456789abcdef", "fedcba9876543210")
+      "walker/fedcba9876543210"
+      iex> Tartarus.Envelope.clone_name({:team, 1}, "0123456789abcdef")
+      "{:team, 1}/0123456789abcdef"
+  """
+  @spec clone_name(term(), String.t()) :: String.t()
+  def clone_name(name, id), do: root(name) <> "/" <> id
+
+  defp root(name) when is_binary(name) do
+    size = byte_size(name) - 17
+
+    with true <- size >= 0,
+         <<root::binary-size(size), ?/, suffix::binary-size(16)>> <- name,
+         true <- hex?(suffix) do
+      root
+    else
+      _ -> name
+    end
+  end
+
+  defp root(name) when is_atom(name) or is_number(name), do: to_string(name)
+  defp root(name), do: inspect(name)
+
+  defp hex?(s), do: s |> :binary.bin_to_list() |> Enum.all?(&(&1 in ?0..?9 or &1 in ?a..?f))
 
   @doc "A fresh exported `:rand` state seeded from `seed` (any term)."
   @spec seed_rng(term()) :: term()

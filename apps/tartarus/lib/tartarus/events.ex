@@ -25,6 +25,17 @@ defmodule Tartarus.Events do
   | `:removed`     | `:agent`, `:reason` (restart limit reached)  | `:removed`        |
   | `:message`     | `:agent`, `:bytes`                           | `:messages`, `:message_bytes` |
   | `:refused`     | `:agent`, `:from`, `:reason`                 | `:refused`        |
+  | `:dropped`     | `:service`, `:kind`                          | `:dropped`        |
+  | `:broadcast`   | `:to`, `:messages`, `:bytes` (see `Tartarus.Broadcast`) | `:broadcasts`, `:broadcast_messages`, `:broadcast_bytes` |
+  | `:broadcast_received` | `:from`, `:bytes`                     | `:broadcasts_received` |
+  | `:signal`      | `:name`, `:strength`, `:span` (see `Tartarus.Signal`) | `:signals`  |
+  | `:signal_relay` | `:name`, `:source`, `:to`, `:messages`, `:bytes` | `:signal_messages`, `:signal_bytes` |
+
+  A `:dropped` event is a message, cast or call that a platform process did not expect (from
+  another node, well-formed or not) and dropped instead of crashing (`:host` is `nil` for the
+  node-level services, the host's address for a host's own processes); `:service` names the
+  process (e.g. `Tartarus.CodeCache`) and `:kind` is `:info`, `:cast` or `:call`. Per-service
+  counts are in `dropped/0`. Each service logs at most one line per second about what it drops.
 
   Bytes are `:erlang.external_size/1` of what crosses a link (the envelope, shipped code,
   a posted message): what distributed Erlang would carry, also in virtual mode where nothing
@@ -36,6 +47,8 @@ defmodule Tartarus.Events do
       {:ok, _} = Tartarus.start_host(:a)
       Tartarus.Events.totals().arrivals
   """
+
+  require Logger
 
   @counter_names [
     :created,
@@ -51,7 +64,15 @@ defmodule Tartarus.Events do
     :message_bytes,
     :bytes,
     :code_bytes,
-    :refused
+    :refused,
+    :dropped,
+    :broadcasts,
+    :broadcast_messages,
+    :broadcast_bytes,
+    :broadcasts_received,
+    :signals,
+    :signal_messages,
+    :signal_bytes
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
 
@@ -65,12 +86,64 @@ defmodule Tartarus.Events do
           optional(atom()) => term()
         }
 
+  @dropped_table Tartarus.Events.Dropped
+  @log_interval_ms 1_000
+
   @doc false
+  # Called by Tartarus.Application.start/2, in the application's own process: the table of
+  # dropped-message counts lives as long as the application, whatever service restarts.
   def setup do
     :persistent_term.put(
       {__MODULE__, :counters},
       :counters.new(map_size(@index), [:write_concurrency])
     )
+
+    if :ets.whereis(@dropped_table) == :undefined do
+      :ets.new(@dropped_table, [:named_table, :public, :set, write_concurrency: true])
+    end
+
+    :ok
+  end
+
+  @doc """
+  How many unexpected messages each platform process dropped since the application started,
+  by service (the process's registered name or role, e.g. `Tartarus.CodeCache`).
+
+      iex> is_map(Tartarus.Events.dropped())
+      true
+  """
+  @spec dropped() :: %{term() => non_neg_integer()}
+  def dropped do
+    case :ets.whereis(@dropped_table) do
+      :undefined -> %{}
+      _ -> Map.new(:ets.tab2list(@dropped_table), fn {service, n, _last} -> {service, n} end)
+    end
+  end
+
+  @doc false
+  # Drops `message` (of `kind` :info, :cast or :call) that `service` did not expect: counts
+  # it (node-wide `:dropped` counter, per service, and in `host`'s counters when a host's
+  # info map is given), tells subscribers, and logs at most one line per second per service.
+  # Never raises.
+  @spec drop(term(), :info | :cast | :call, term(), map() | nil) :: :ok
+  def drop(service, kind, message, host \\ nil) do
+    n = :ets.update_counter(@dropped_table, service, {2, 1}, {service, 0, -@log_interval_ms})
+    now = System.monotonic_time(:millisecond)
+    last = :ets.lookup_element(@dropped_table, service, 3)
+
+    if now - last >= @log_interval_ms do
+      :ets.update_element(@dropped_table, service, {3, now})
+
+      Logger.warning(
+        "#{inspect(service)} dropped an unexpected #{kind} (#{n} so far): " <>
+          inspect(message, limit: 8, printable_limit: 64)
+      )
+    end
+
+    ref = if is_map(host), do: host[:ref]
+    emit(host, %{type: :dropped, host: ref, service: service, kind: kind}, dropped: 1)
+  rescue
+    _ -> :ok
   end
 
   @doc "The names of all counters."
@@ -125,7 +198,7 @@ defmodule Tartarus.Events do
     end)
 
     if :persistent_term.get({__MODULE__, :subscribed}, false) do
-      case Registry.lookup(Tartarus.Events.Registry, :events) do
+      case subscribers() do
         [] ->
           :ok
 
@@ -136,6 +209,27 @@ defmodule Tartarus.Events do
     end
 
     :ok
+  end
+
+  @doc false
+  # Answers a call whose `from` came with the message: a junk `{:"$gen_call", from, msg}` sent
+  # by hand may carry a `from` that is no `{pid, tag}`, and gen_server's own reply would crash
+  # the server on it. Use as `{:noreply, state}` after `reply(from, answer)`.
+  @spec reply(term(), term()) :: :ok
+  def reply({to, _tag} = from, answer) when is_pid(to) do
+    GenServer.reply(from, answer)
+    :ok
+  catch
+    _, _ -> :ok
+  end
+
+  def reply(_from, _answer), do: :ok
+
+  # The registry restarts on its own (Tartarus.Application); meanwhile nobody is subscribed.
+  defp subscribers do
+    Registry.lookup(Tartarus.Events.Registry, :events)
+  rescue
+    ArgumentError -> []
   end
 
   @doc false

@@ -13,127 +13,16 @@ defmodule Tartarus.Host do
       (`Tartarus.Agent.store_get/2`, `store_put/2`);
     * **plugins**: device drivers reachable by the agents on the host (`Tartarus.Plugin`).
 
-  Users go through the `Tartarus` facade; this module holds the host options and the few
-  helpers the other platform modules share.
+  Users go through the `Tartarus` facade; this module holds the few helpers the other
+  platform modules share (addresses, finding a host, calling its server). A host's options
+  are described in `Tartarus.start_host/2` and validated by `Tartarus.Options.Platform`.
   """
-
-  alias Tartarus.Options
 
   @typedoc "A host's name: an atom or a string."
   @type name :: atom() | String.t()
 
   @typedoc "A host's address."
   @type t :: {name(), node()}
-
-  @schema [
-    neighbours: [
-      type: {:list, :host},
-      default: [],
-      doc: "hosts to link to at start (links are symmetric; remote hosts must be running)"
-    ],
-    migration_timeout: [
-      type: :pos_integer,
-      default: 5_000,
-      doc: "ms to wait for each reply of the hand-off before the source decides to abort"
-    ],
-    max_restarts: [
-      type: :non_neg_integer,
-      default: 3,
-      doc: "times a crashing agent is restarted from its arrival snapshot before removal"
-    ],
-    strict_links: [
-      type: :boolean,
-      default: false,
-      doc: "refuse directed moves to hosts that are not neighbours (emulated links)"
-    ],
-    plugins: [
-      type: :keyword,
-      default: [],
-      doc: "plugins to attach at start, as `name: {module, opts}`"
-    ],
-    store: [type: :any, default: %{}, doc: "initial contents of the host store (a map)"],
-    admission: [
-      type: :keyword,
-      doc:
-        "an admission policy for arriving agents (see `Tartarus.Security.Admission`: " <>
-          "`:max_resident_agents`, `:max_envelope_bytes`, `:max_payload_bytes`, `:max_hops`, `:rate`)"
-    ],
-    max_envelope_bytes: [
-      type: :pos_integer,
-      default: Tartarus.Wire.default_max_bytes(),
-      doc: "largest hand-off message (envelope and code) the host accepts"
-    ],
-    max_heap_size: [
-      type: :pos_integer_or_infinity,
-      default: :infinity,
-      doc: "per-agent heap limit in words; an agent that exceeds it is killed (and restarted)"
-    ],
-    security: [
-      type: :keyword,
-      doc:
-        "signed agents (see `Tartarus.Security`): `keys:` the host's key pair, to seal " <>
-          "departing agents; `trust:` a trust list, to admit only agents whose issuer and " <>
-          "sending host it contains"
-    ],
-    forward_ttl: [
-      type: :timeout,
-      default: :infinity,
-      doc:
-        "ms a forwarding pointer (and the record of a committed migration it holds) is kept " <>
-          "after its agent left; older ones are swept, so messages addressed through this " <>
-          "host to an agent that left longer ago get `{:error, :not_found}`. The pointer is " <>
-          "also what a destination in doubt asks about: keep it well above the longest " <>
-          "partition you expect, or such an agent never starts"
-    ],
-    hibernate_after: [
-      type: :timeout,
-      default: :infinity,
-      doc:
-        "ms an agent may idle before it hibernates (shrinking its memory; for hosts holding " <>
-          "very many idle agents; it costs throughput on busy hosts)"
-    ],
-    data_dir: [
-      type: :string,
-      doc:
-        "persistence: checkpoint agents and in-doubt migrations in this directory and " <>
-          "restore them when a host of the same name starts on it again"
-    ]
-  ]
-
-  @doc false
-  def schema, do: @schema
-
-  @doc false
-  @spec validate_opts(keyword()) :: {:ok, keyword()} | {:error, String.t()}
-  def validate_opts(opts) do
-    with {:ok, opts} <- Options.validate(opts, @schema, "Tartarus.start_host/2"),
-         {:ok, opts} <- validate_security(opts) do
-      case opts[:admission] do
-        nil ->
-          {:ok, opts}
-
-        policy ->
-          case Tartarus.Security.Admission.new(policy) do
-            {:ok, admission} ->
-              {:ok, Keyword.put(opts, :admission, admission)}
-
-            {:error, message} ->
-              {:error,
-               "invalid options given to Tartarus.start_host/2 for key :admission: " <> message}
-          end
-      end
-    end
-  end
-
-  defp validate_security(opts) do
-    case Tartarus.Security.validate_host_opts(opts[:security] || []) do
-      {:ok, security} ->
-        {:ok, Keyword.put(opts, :security, security)}
-
-      {:error, message} ->
-        {:error, "invalid options given to Tartarus.start_host/2 for key :security: " <> message}
-    end
-  end
 
   @doc """
   True if `term` is a host name or address.
@@ -161,6 +50,14 @@ defmodule Tartarus.Host do
   @spec address(name() | t()) :: t()
   def address({_name, _node} = host), do: host
   def address(name), do: {name, node()}
+
+  @doc false
+  # The registered name of one process of a host's tree on this node (`:host_sup`, `:host`,
+  # `:agents`, `:plugins`), in `Tartarus.HostRegistry`. Here rather than in
+  # `Tartarus.Host.Supervisor`, so the host's server can name its siblings without depending
+  # on the supervisor that starts it.
+  @spec via(atom(), name()) :: {:via, Registry, {Tartarus.HostRegistry, {atom(), name()}}}
+  def via(kind, name), do: {:via, Registry, {Tartarus.HostRegistry, {kind, name}}}
 
   @doc false
   # The pid of a host's server, local or remote.

@@ -7,10 +7,14 @@ defmodule Tartarus.Strategy do
     * `:random` - a neighbour chosen uniformly at random;
     * `:conscientious` - a neighbour the agent has never visited, else the one it visited
       least (thesis Appendix .1); ties are broken at random;
-    * `{:gradient, signal}` - the neighbour with the strongest value of `signal` as this host
-      knows it (the host-store entry `{:gradient, signal}` holding
-      `%{neighbour => strength}`, kept up to date by whatever diffuses the signal, e.g. danger
-      signals); falls back to conscientious when no neighbour carries the signal;
+    * `{:gradient, signal}` - climbs the signal field `signal` (see `Tartarus.Signal`): the
+      neighbour with the highest value of `signal` as this host knows it (each neighbour
+      announces its value when it relays the signal here; a host-store entry
+      `{:gradient, signal}` holding `%{neighbour => value}`, written by hand, overrides
+      those values); ties are broken at random; falls back to conscientious when no
+      neighbour carries the signal. It moves even from the top of the field (to the
+      strongest neighbour): an agent that wants to stop at the source compares
+      `Tartarus.Agent.signal/1` with `Tartarus.Agent.gradient/1` first;
     * `{:strategy, module, arg}` - a user strategy: `module` implements this behaviour.
 
   Random choices use the agent's own random state, which travels with it, so an agent's
@@ -61,11 +65,17 @@ defmodule Tartarus.Strategy do
   def choose({:gradient, signal}, %{neighbours: ns} = info, rng) do
     strengths = info |> Map.get(:gradients, %{}) |> Map.get(signal, %{})
 
-    case ns
-         |> Enum.filter(&Map.has_key?(strengths, &1))
-         |> Enum.max_by(&strengths[&1], fn -> nil end) do
-      nil -> choose(:conscientious, info, rng)
-      dest -> {:ok, dest, rng}
+    case Enum.filter(ns, &Map.has_key?(strengths, &1)) do
+      [] ->
+        choose(:conscientious, info, rng)
+
+      carrying ->
+        best = carrying |> Enum.map(&strengths[&1]) |> Enum.max()
+
+        case Enum.filter(carrying, &(strengths[&1] == best)) do
+          [dest] -> {:ok, dest, rng}
+          tied -> choose(:random, %{neighbours: tied}, rng)
+        end
     end
   end
 

@@ -21,10 +21,27 @@ defmodule Tartarus.HostPolicyTest do
   end
 
   test "bad admission options are refused with the option named" do
-    assert {:error, "invalid options given to Tartarus.start_host/2 for key :admission: " <> rest} =
-             Tartarus.start_host(unique_name(), admission: [max_hops: -1])
+    assert Tartarus.start_host(unique_name(), admission: [max_hops: -1]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key [:admission, :max_hops]: " <>
+                "expected a positive integer or :infinity, got: -1"}
 
-    assert rest =~ "max_hops"
+    assert Tartarus.start_host(unique_name(), admission: [max_agents: 3]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key :admission: unknown key " <>
+                ":max_agents, known keys: #{inspect(Keyword.keys(Tartarus.Security.Admission.schema()))}"}
+  end
+
+  test "bad security options are refused with the key path named" do
+    assert Tartarus.start_host(unique_name(), security: [keys: :nope]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key [:security, :keys]: " <>
+                "expected a key pair from Tartarus.Security.Keys.generate/0, got: :nope"}
+
+    assert Tartarus.start_host(unique_name(), security: [trust: []]) ==
+             {:error,
+              "invalid options given to Tartarus.start_host/2 for key [:security, :trust]: " <>
+                "expected a %Tartarus.Security.TrustList{}, got: []"}
   end
 
   test "an agent that outgrows max_heap_size is killed, restarted, then removed" do

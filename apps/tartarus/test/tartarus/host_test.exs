@@ -52,6 +52,7 @@ defmodule Tartarus.HostTest do
         _ -> nil
       end)
 
-    for {key, _} <- Host.schema(), do: assert(doc =~ "`#{inspect(key)}`")
+    for {key, _} <- Tartarus.Options.Platform.host_schema(),
+        do: assert(doc =~ "`#{inspect(key)}`")
   end
 end

@@ -4,6 +4,7 @@ defmodule Tartarus.OptionsTest do
   alias Tartarus.Options
 
   doctest Options
+  doctest Tartarus.Options.Platform
 
   @where "f/1"
 
@@ -104,5 +105,83 @@ defmodule Tartarus.OptionsTest do
 
     assert Options.docs(schema) ==
              "  * `:hops` - number of hops. Defaults to `10`.\n  * `:name` - a name. Required."
+  end
+
+  describe "nested schemas, tuples and alternatives" do
+    @limits [
+      max: [type: :pos_integer, default: 5, doc: "a limit"],
+      rate: [
+        type: {:or, [{:tuple, [:pos_integer, :pos_integer]}, {:in, [:infinity]}]},
+        expected: "{count, ms} or :infinity",
+        default: :infinity
+      ]
+    ]
+    @outer [limits: [type: {:keyword, @limits}, default: [], doc: "the limits"]]
+
+    test "a nested keyword list gets its defaults, given or not" do
+      assert Options.validate([], @outer, @where) == {:ok, [limits: [max: 5, rate: :infinity]]}
+
+      assert Options.validate([limits: [rate: {1, 2}]], @outer, @where) ==
+               {:ok, [limits: [max: 5, rate: {1, 2}]]}
+
+      assert Options.defaults(@outer) == [limits: [max: 5, rate: :infinity]]
+    end
+
+    test "errors name the key path, and :expected replaces the type's words" do
+      assert Options.validate([limits: [max: 0]], @outer, @where) ==
+               {:error,
+                "invalid options given to f/1 for key [:limits, :max]: expected a positive integer, got: 0"}
+
+      assert Options.validate([limits: [rate: {1, 0}]], @outer, @where) ==
+               {:error,
+                "invalid options given to f/1 for key [:limits, :rate]: expected {count, ms} or :infinity, got: {1, 0}"}
+
+      assert Options.validate([limits: [bogus: 1]], @outer, @where) ==
+               {:error,
+                "invalid options given to f/1 for key :limits: unknown key :bogus, known keys: [:max, :rate]"}
+
+      assert Options.validate([limits: 3], @outer, @where) ==
+               {:error,
+                "invalid options given to f/1 for key :limits: expected a keyword list, got: 3"}
+    end
+
+    test "tuples, alternatives and maps" do
+      assert check({:tuple, [:atom, :integer]}, {:a, 1}) == {:ok, [k: {:a, 1}]}
+
+      assert check({:tuple, [:atom, :integer]}, {:a, 1, 2}) ==
+               {:error,
+                "invalid options given to f/1 for key :k: expected a tuple {an atom, an integer}, got: {:a, 1, 2}"}
+
+      assert check({:or, [:integer, :string]}, "x") == {:ok, [k: "x"]}
+
+      assert check({:or, [:integer, :string]}, :x) ==
+               {:error,
+                "invalid options given to f/1 for key :k: expected an integer or a string, got: :x"}
+
+      assert check(:map, %{}) == {:ok, [k: %{}]}
+      assert {:error, _} = check(:map, [])
+
+      assert check({:struct, MapSet}, MapSet.new()) == {:ok, [k: MapSet.new()]}
+
+      assert check({:struct, MapSet}, %{}) ==
+               {:error, "invalid options given to f/1 for key :k: expected a %MapSet{}, got: %{}"}
+
+      even = [
+        k: [type: {:custom, &(is_integer(&1) and rem(&1, 2) == 0)}, expected: "an even integer"]
+      ]
+
+      assert Options.validate([k: 4], even, @where) == {:ok, [k: 4]}
+
+      assert Options.validate([k: 3], even, @where) ==
+               {:error,
+                "invalid options given to f/1 for key :k: expected an even integer, got: 3"}
+    end
+
+    test "docs/1 lists a nested schema's keys under its key" do
+      assert Options.docs(@outer) ==
+               "  * `:limits` - the limits. Defaults to `[]`.\n" <>
+                 "      * `:max` - a limit. Defaults to `5`.\n" <>
+                 "      * `:rate` Defaults to `:infinity`."
+    end
   end
 end

@@ -53,7 +53,25 @@ defmodule TartarusEmu.Network do
   host. Its neighbours keep their links to it (they learn of the failure when a move fails,
   as on a real network; `isolate/2` first to take the links down too). `restart_node/2`
   starts the host(s) again **empty**: agents that were on them are lost (persistence is a
-  separate feature of the platform), and the links that are live are connected again.
+  separate feature of the platform), the links that are live are connected again, and the
+  setup hook (below) runs again on the restarted nodes.
+
+  ## Per-node setup (how an application plugs in)
+
+  `start/2` takes `setup: fn topo_node, host -> ... end`, called for every topology node
+  once all hosts are linked: the application attaches its plugins and creates its static
+  agents there. The same hook serves both modes (it runs on the origin and reaches each
+  host through the platform), so an application never starts or links hosts itself:
+
+      setup = fn n, host ->
+        Tartarus.attach_plugin(host, :sensor, {Tartarus.Plugin.SimSensor, signal: [1, 2]})
+        Tartarus.create_static_agent(host, MyApp.Counter, %{node: n}, name: "counter")
+      end
+
+      {:ok, net} = TartarusEmu.Network.start(TartarusEmu.Topology.ring(8), setup: setup)
+
+  `TartarusEmu.Scenario` drives such a network step by step; `docs/emulator.md` ("How an
+  application plugs in") walks through a complete example.
 
   ## Cleanup
 
@@ -72,6 +90,7 @@ defmodule TartarusEmu.Network do
     :nodes,
     :keeper,
     :table,
+    setup: nil,
     group: 1,
     peers: [],
     adjacency: %{},
@@ -95,8 +114,26 @@ defmodule TartarusEmu.Network do
           group: pos_integer(),
           peers: [pid()],
           adjacency: %{optional(Topology.name()) => [Topology.name()]},
-          index: %{optional(Tartarus.host()) => Topology.name()}
+          index: %{optional(Tartarus.host()) => Topology.name()},
+          setup: setup() | nil
         }
+
+  @typedoc """
+  A per-node setup hook: called as `setup.(topo_node, host)` (or, for a 3-ary function,
+  `setup.(topo_node, host, network)`, when the node needs to know the others, e.g. its
+  neighbours' hosts) for every topology node once the hosts are up and linked (and again for the nodes of a restarted BEAM node or host).
+  It attaches plugins, creates static agents, fills the host store: whatever the
+  application needs on every node. It returns `:ok` or `{:ok, _}`; anything else stops
+  `start/2` with `{:error, {:setup_failed, topo_node, returned}}`.
+
+  The hook runs in the caller's process (on the origin) in both modes and reaches the host
+  through the platform (`Tartarus.attach_plugin/3`, `Tartarus.create_static_agent/4`, ...),
+  which work the same on a local and a remote host, so one hook serves virtual and peer
+  mode alike.
+  """
+  @type setup ::
+          (Topology.name(), Tartarus.host() -> :ok | {:ok, term()} | term())
+          | (Topology.name(), Tartarus.host(), t() -> :ok | {:ok, term()} | term())
 
   @schema [
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
@@ -111,7 +148,12 @@ defmodule TartarusEmu.Network do
     peer_args: [type: {:list, :string}, default: [], doc: "extra `erl` arguments of peers"],
     max_processes: [type: :pos_integer, default: 32_768, doc: "`+P` of each peer node"],
     concurrency: [type: :pos_integer, default: 6, doc: "peers started at once"],
-    link: [type: :keyword, default: [], doc: "default `:latency_ms`/`:loss` of every link"]
+    link: [type: :keyword, default: [], doc: "default `:latency_ms`/`:loss` of every link"],
+    setup: [
+      type: :any,
+      doc:
+        "per-node setup hook `fn topo_node, host -> :ok end` (or `fn topo_node, host, net -> ... end`), run in topology order after linking (see `t:setup/0`)"
+    ]
   ]
 
   @doc """
@@ -128,6 +170,7 @@ defmodule TartarusEmu.Network do
   def start(%Topology{} = topo, opts \\ []) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusEmu.Network.start/2"),
          :ok <- check_prefix(opts[:prefix]),
+         :ok <- check_setup(opts[:setup]),
          {:ok, link_defaults} <-
            Tartarus.Options.validate(
              opts[:link],
@@ -152,6 +195,7 @@ defmodule TartarusEmu.Network do
         nodes: [],
         keeper: keeper,
         table: table,
+        setup: opts[:setup],
         group: opts[:group],
         adjacency: Topology.adjacency(topo)
       }
@@ -166,7 +210,8 @@ defmodule TartarusEmu.Network do
 
       with {:ok, net} <- result,
            net = %{net | index: Map.new(net.hosts, fn {n, h} -> {h, n} end)},
-           :ok <- connect_edges(net) do
+           :ok <- connect_edges(net),
+           :ok <- run_setup(net, net.topology.nodes) do
         {:ok, net}
       else
         error ->
@@ -175,6 +220,14 @@ defmodule TartarusEmu.Network do
       end
     end
   end
+
+  defp check_setup(nil), do: :ok
+  defp check_setup(f) when is_function(f, 2) or is_function(f, 3), do: :ok
+
+  defp check_setup(f),
+    do:
+      {:error,
+       "invalid options given to TartarusEmu.Network.start/2 for key :setup: expected a function of 2 or 3 arguments, got: #{inspect(f)}"}
 
   defp check_prefix(nil), do: :ok
   defp check_prefix(p) when is_binary(p), do: :ok
@@ -258,6 +311,21 @@ defmodule TartarusEmu.Network do
       case connect(net, a, b) do
         :ok -> {:cont, :ok}
         error -> {:halt, {:error, {:link_failed, {a, b}, error}}}
+      end
+    end)
+  end
+
+  defp run_setup(%{setup: nil}, _nodes), do: :ok
+
+  defp run_setup(%{setup: setup} = net, nodes) do
+    Enum.reduce_while(nodes, :ok, fn n, :ok ->
+      result =
+        if is_function(setup, 3), do: setup.(n, host(net, n), net), else: setup.(n, host(net, n))
+
+      case result do
+        :ok -> {:cont, :ok}
+        {:ok, _} -> {:cont, :ok}
+        other -> {:halt, {:error, {:setup_failed, n, other}}}
       end
     end)
   end
@@ -458,6 +526,7 @@ defmodule TartarusEmu.Network do
     with :ok <- Keeper.restart_peer(net.keeper, node) do
       Keeper.delete(net, {:killed, node})
       reconnect(net, members)
+      run_setup(net, Enum.filter(net.topology.nodes, &(&1 in members)))
     end
   end
 
@@ -467,6 +536,7 @@ defmodule TartarusEmu.Network do
     with {:ok, _} <- Tartarus.start_host(name, strict_links: true) do
       Keeper.delete(net, {:killed, n})
       reconnect(net, [n])
+      run_setup(net, [n])
     end
   end
 

@@ -46,8 +46,8 @@ defmodule TartarusEmu.Scenario do
        or with `quiet: true`);
     4. writes into `:out` (default `TartarusTools.Report.default_out_dir/1`; `out: false`
        writes nothing): `series.csv` (every series, one column each), one CSV and one SVG
-       line chart per series, the scenario's `c:charts/1`, `summary.json` and `summary.md`,
-       plus whatever `c:write/2` writes (before teardown, so it may read live processes);
+       line chart per series, the scenario's `c:charts/1`, `summary.json` and `summary.md`
+       (with the `c:comparisons/1` rows), plus whatever `c:write/2` writes (before teardown, so it may read live processes);
     5. calls `c:teardown/1`, also when a step raises.
 
   The summary gets the runner's keys `scenario`, `seed`, `steps` (steps run), `setup_ms`
@@ -95,13 +95,22 @@ defmodule TartarusEmu.Scenario do
   @doc "Extra charts (optional)."
   @callback charts(state()) :: [chart()]
 
+  @doc """
+  Rows "ours vs the thesis" for `summary.md` (optional; see
+  `TartarusTools.Report.write_summary!/3`).
+  """
+  @callback comparisons(state()) :: [TartarusTools.Report.comparison()]
+
+  @doc "The title of `summary.md` (optional; default `c:name/0`)."
+  @callback title() :: String.t()
+
   @doc "Writes extra files into `dir` before teardown; returns their paths (optional)."
   @callback write(state(), dir :: Path.t()) :: [Path.t()]
 
   @doc "Stops what setup started (optional)."
   @callback teardown(state()) :: any()
 
-  @optional_callbacks done?: 2, charts: 1, write: 2, teardown: 1
+  @optional_callbacks done?: 2, charts: 1, comparisons: 1, title: 0, write: 2, teardown: 1
 
   @schema [
     seed: [type: :integer, doc: "seed of all randomness (default: a random one)"],
@@ -233,7 +242,16 @@ defmodule TartarusEmu.Scenario do
       end
 
     extra = if function_exported?(module, :write, 2), do: module.write(state, dir), else: []
-    summaries = Report.write_summary!(dir, summary, title: module.name())
+
+    comparisons =
+      if function_exported?(module, :comparisons, 1), do: module.comparisons(state), else: []
+
+    summaries =
+      Report.write_summary!(dir, summary,
+        title: if(function_exported?(module, :title, 0), do: module.title(), else: module.name()),
+        comparisons: comparisons
+      )
+
     {dir, csvs ++ charts ++ extra_charts ++ extra ++ summaries}
   end
 

@@ -2,8 +2,9 @@ defmodule TartarusEmu.Topology do
   @moduledoc """
   Network topologies for emulation: plain data, built by pure functions.
 
-  A topology is an undirected graph of host names with optional drawing positions, floors
-  and per-link attributes. Scenarios build one, then start a host per node and give each host
+  A topology is an undirected graph of host names with optional positions, floors, zones,
+  per-link attributes and application attributes: the one graph type of the emulator and of
+  the applications on it (a LATS building is a topology, see `TartarusLats.Building`). Scenarios build one, then start a host per node and give each host
   its `neighbours/2` as its overlay neighbour set.
 
       iex> topo = TartarusEmu.Topology.grid(2, 3)
@@ -19,8 +20,14 @@ defmodule TartarusEmu.Topology do
     * `nodes` - node names in a stable order (`:h1, :h2, ...` for generated topologies);
     * `edges` - a `MapSet` of `{a, b}` with `a < b` (Erlang term order), so each undirected
       edge appears once;
-    * `positions` - `%{name => {x, y}}` floats, for plots (may be partial or empty);
+    * `positions` - `%{name => {x, y}}` or `%{name => {x, y, z}}` floats (metres, or plot
+      units), for plots and for applications that place things in space (may be partial or
+      empty);
     * `floors` - `%{name => integer}` for floor plans (may be empty);
+    * `zones` - `%{name => zone}`: the zone (room, aisle, area) a node stands for or belongs
+      to; several nodes may share one (may be empty);
+    * `attrs` - `%{atom => term}`: attributes of the whole topology an application keeps
+      with it (e.g. a building's entrances and floor height; may be empty);
     * `links` - `%{{a, b} => %{latency_ms: number, loss: float}}` for edges with explicit
       attributes; `fetch_link/3` fills in the defaults (`latency_ms: 0`, `loss: 0.0`);
     * `kind` - how it was made: `:line`, `:ring`, `:grid`, `:random_geometric`, `:file` or
@@ -39,14 +46,16 @@ defmodule TartarusEmu.Topology do
 
       # second floor of the lab
       floor 2                         # following nodes are on floor 2
-      node lobby 0 0                  # node NAME [X Y] [floor F]
-      node lab-1 4.5 0
-      node stairs 9 0 floor 1         # an explicit floor overrides the section
+      node lobby 0 0                  # node NAME [X Y [Z]] [floor F] [zone Z]
+      node lab-1 4.5 0 zone lab       # node NAME [X Y [Z]] [floor F] [zone Z]
+      node stairs 9 0 4 floor 1       # an explicit floor overrides the section
       edge lobby lab-1                # edge A B [latency_ms=N] [loss=P]
       edge lab-1 stairs latency_ms=12 loss=0.05
 
-    * `node NAME [X Y] [floor F]` declares a node. `NAME` is 1 to 64 characters from
-      `A-Z a-z 0-9 _ - . :`. `X Y` are numbers (position). `F` is an integer.
+    * `node NAME [X Y [Z]] [floor F] [zone Z]` declares a node. `NAME` is 1 to 64
+      characters from `A-Z a-z 0-9 _ - . :`. `X Y` (and an optional height `Z`) are numbers
+      (position). `F` is an integer. `zone Z` names the node's zone (a string, like
+      names).
     * `floor F` starts a floor section: nodes declared after it without their own `floor F`
       get floor `F`, until the next `floor` line.
     * `edge A B [latency_ms=N] [loss=P]` declares an undirected link between two declared
@@ -67,6 +76,8 @@ defmodule TartarusEmu.Topology do
             edges: MapSet.new(),
             positions: %{},
             floors: %{},
+            zones: %{},
+            attrs: %{},
             links: %{},
             kind: :custom
 
@@ -79,11 +90,16 @@ defmodule TartarusEmu.Topology do
   @typedoc "Attributes of one link."
   @type link_attrs :: %{latency_ms: number, loss: float}
 
+  @typedoc "A position: `{x, y}` or `{x, y, z}`."
+  @type position :: {float, float} | {float, float, float}
+
   @type t :: %__MODULE__{
           nodes: [name],
           edges: MapSet.t(edge),
-          positions: %{optional(name) => {float, float}},
+          positions: %{optional(name) => position},
           floors: %{optional(name) => integer},
+          zones: %{optional(name) => term},
+          attrs: %{optional(atom) => term},
           links: %{optional(edge) => link_attrs},
           kind: atom
         }
@@ -95,8 +111,8 @@ defmodule TartarusEmu.Topology do
   @doc """
   Builds a topology from a list of nodes and a list of `{a, b}` edges (any order).
 
-  Options: `:positions`, `:floors`, `:links` (maps as in the struct; link keys in any order),
-  `:kind` (default `:custom`). Raises `ArgumentError` for edges to unknown nodes, self-loops
+  Options: `:positions`, `:floors`, `:zones`, `:attrs`, `:links` (maps as in the struct;
+  link keys in any order), `:kind` (default `:custom`). Raises `ArgumentError` for edges to unknown nodes, self-loops
   or duplicate nodes.
 
   ## Examples
@@ -138,6 +154,8 @@ defmodule TartarusEmu.Topology do
       edges: edge_set,
       positions: Keyword.get(opts, :positions, %{}),
       floors: Keyword.get(opts, :floors, %{}),
+      zones: Keyword.get(opts, :zones, %{}),
+      attrs: Keyword.get(opts, :attrs, %{}),
       links: links,
       kind: Keyword.get(opts, :kind, :custom)
     }
@@ -498,7 +516,16 @@ defmodule TartarusEmu.Topology do
             "Topology.parse/2: expected :names to be a map of strings to atoms, got: #{inspect(names)}"
     end
 
-    acc = %{nodes: [], seen: %{}, positions: %{}, floors: %{}, floor: nil, edges: [], line: 0}
+    acc = %{
+      nodes: [],
+      seen: %{},
+      positions: %{},
+      floors: %{},
+      zones: %{},
+      floor: nil,
+      edges: [],
+      line: 0
+    }
 
     text
     |> String.split(["\r\n", "\n"])
@@ -537,10 +564,11 @@ defmodule TartarusEmu.Topology do
   defp parse_line(["node", raw | args], acc, names) do
     with {:ok, name} <- node_name(raw, names),
          :ok <- unique_node(name, raw, acc),
-         {:ok, pos, floor} <- node_args(args, acc.floor) do
+         {:ok, pos, floor, zone} <- node_args(args, acc.floor) do
       acc = %{acc | nodes: [name | acc.nodes], seen: Map.put(acc.seen, raw, name)}
       acc = if pos, do: %{acc | positions: Map.put(acc.positions, name, pos)}, else: acc
       acc = if floor, do: %{acc | floors: Map.put(acc.floors, name, floor)}, else: acc
+      acc = if zone, do: %{acc | zones: Map.put(acc.zones, name, zone)}, else: acc
       {:ok, acc}
     end
   end
@@ -560,7 +588,9 @@ defmodule TartarusEmu.Topology do
 
   defp parse_line([directive | _], _acc, _names) when directive in ["node", "edge"] do
     usage =
-      if directive == "node", do: "node NAME [X Y] [floor F]", else: "edge A B [attr=value ...]"
+      if directive == "node",
+        do: "node NAME [X Y [Z]] [floor F] [zone Z]",
+        else: "edge A B [attr=value ...]"
 
     {:error, "expected \"#{usage}\", got too few arguments"}
   end
@@ -592,25 +622,55 @@ defmodule TartarusEmu.Topology do
       else: :ok
   end
 
-  defp node_args([], floor), do: {:ok, nil, floor}
+  # [X Y [Z]] then any of "floor F", "zone Z" (each at most once).
+  defp node_args(args, floor) do
+    {numbers, rest} = Enum.split_while(args, &(&1 not in ["floor", "zone"]))
 
-  defp node_args(["floor", f], _floor),
-    do: with({:ok, f} <- parse_int(f, "floor"), do: {:ok, nil, f})
+    with {:ok, pos} <- node_position(numbers),
+         {:ok, attrs} <- node_attrs(rest, %{}) do
+      {:ok, pos, Map.get(attrs, "floor", floor), Map.get(attrs, "zone")}
+    end
+  end
 
-  defp node_args([x, y | rest], floor) when x != "floor" do
-    with {:ok, x} <- parse_number(x, "x coordinate"),
-         {:ok, y} <- parse_number(y, "y coordinate"),
-         {:ok, nil, floor} <- node_args(rest, floor) do
-      {:ok, {x * 1.0, y * 1.0}, floor}
-    else
-      {:ok, {_, _}, _} -> {:error, "expected at most one position, got: #{Enum.join(rest, " ")}"}
+  defp node_position([]), do: {:ok, nil}
+
+  defp node_position([_, _] = xy), do: parse_coords(xy, ["x", "y"])
+  defp node_position([_, _, _] = xyz), do: parse_coords(xyz, ["x", "y", "z"])
+
+  defp node_position(args) do
+    {:error,
+     "expected \"[X Y [Z]] [floor F] [zone Z]\" after the node name, got: #{inspect(Enum.join(args, " "))}"}
+  end
+
+  defp parse_coords(texts, axes) do
+    texts
+    |> Enum.zip(axes)
+    |> Enum.reduce_while({:ok, []}, fn {text, axis}, {:ok, acc} ->
+      case parse_number(text, "#{axis} coordinate") do
+        {:ok, v} -> {:cont, {:ok, [v * 1.0 | acc]}}
+        error -> {:halt, error}
+      end
+    end)
+    |> case do
+      {:ok, coords} -> {:ok, coords |> Enum.reverse() |> List.to_tuple()}
       error -> error
     end
   end
 
-  defp node_args(args, _floor) do
+  defp node_attrs([], acc), do: {:ok, acc}
+
+  defp node_attrs([key, _ | _], acc) when key in ["floor", "zone"] and is_map_key(acc, key),
+    do: {:error, "#{key} given twice"}
+
+  defp node_attrs(["floor", f | rest], acc) do
+    with {:ok, f} <- parse_int(f, "floor"), do: node_attrs(rest, Map.put(acc, "floor", f))
+  end
+
+  defp node_attrs(["zone", z | rest], acc), do: node_attrs(rest, Map.put(acc, "zone", z))
+
+  defp node_attrs(args, _acc) do
     {:error,
-     "expected \"[X Y] [floor F]\" after the node name, got: #{inspect(Enum.join(args, " "))}"}
+     "expected \"[X Y [Z]] [floor F] [zone Z]\" after the node name, got: #{inspect(Enum.join(args, " "))}"}
   end
 
   defp edge_attrs([], acc), do: {:ok, acc}
@@ -687,6 +747,7 @@ defmodule TartarusEmu.Topology do
            edges: edges,
            positions: acc.positions,
            floors: acc.floors,
+           zones: acc.zones,
            links: links,
            kind: :file
          }}
@@ -705,7 +766,8 @@ defmodule TartarusEmu.Topology do
 
   @doc """
   Writes `topo` in the file format, so that `parse/2` reads it back (names are written with
-  `to_string/1`; positions, floors and link attributes are kept).
+  `to_string/1`; positions, floors, zones (as strings) and link attributes are kept;
+  `attrs` are not written).
 
   ## Examples
 
@@ -719,6 +781,13 @@ defmodule TartarusEmu.Topology do
         pos =
           case Map.fetch(topo.positions, n) do
             {:ok, {x, y}} -> [" ", num(x), " ", num(y)]
+            {:ok, {x, y, z}} -> [" ", num(x), " ", num(y), " ", num(z)]
+            :error -> []
+          end
+
+        zone =
+          case Map.fetch(topo.zones, n) do
+            {:ok, z} -> [" zone ", to_string(z)]
             :error -> []
           end
 
@@ -728,7 +797,7 @@ defmodule TartarusEmu.Topology do
             :error -> []
           end
 
-        ["node ", to_string(n), pos, floor, "\n"]
+        ["node ", to_string(n), pos, floor, zone, "\n"]
       end)
 
     edge_lines =

@@ -55,6 +55,30 @@ defmodule TartarusEmu.Walk do
   alias TartarusEmu.{Dynamics, Energy, Log, Network, Topology}
   alias TartarusTools.Series
 
+  @schema [
+    topology: [type: :any, default: "grid", doc: "grid, ring, line, random, a file or a topology"],
+    hosts: [type: :pos_integer, default: 16, doc: "hosts (generated topologies)"],
+    agents: [type: :pos_integer, default: 4, doc: "walking agents"],
+    steps: [type: :pos_integer, default: 100, doc: "steps at most"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    group: [type: :pos_integer, default: 1, doc: "hosts per BEAM node in peer mode"],
+    strategy: [type: {:in, [:random, :conscientious]}, default: :random, doc: "how agents walk"],
+    p: [type: :probability, default: 0, doc: "node dynamism per step"],
+    until_covered: [type: :boolean, default: false, doc: "stop once every host was visited"],
+    keep_events: [type: :boolean, default: false, doc: "keep raw events in the log"],
+    step_timeout_ms: [type: :pos_integer, default: 60_000, doc: "wait for a step's agents"],
+    migration_timeout_ms: [type: :pos_integer, default: 60_000, doc: "hosts' hand-off timeout"]
+  ]
+
+  @doc """
+  The walk's options with their defaults (a `Tartarus.Options` schema; `mix tartarus.emu`
+  reads its defaults here):
+
+  #{Tartarus.Options.docs(@schema)}
+  """
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
   @impl true
   def name, do: "walk"
 
@@ -102,13 +126,13 @@ defmodule TartarusEmu.Walk do
   # Processes: per host a supervisor, a server and two dynamic supervisors; per agent its
   # process and, while it migrates, its paused copy at the destination.
   defp runner_limits(opts) do
-    hosts = Keyword.get(opts, :hosts, 16)
-    agents = Keyword.get(opts, :agents, 4)
+    hosts = Keyword.get(opts, :hosts, default(:hosts))
+    agents = Keyword.get(opts, :agents, default(:agents))
     procs = hosts * 5 + agents * 2 + 50_000
     tables = hosts * 2 + 2_000
 
-    virtual? = Keyword.get(opts, :mode, :virtual) == :virtual
-    topology? = is_binary(Keyword.get(opts, :topology, "grid"))
+    virtual? = Keyword.get(opts, :mode, default(:mode)) == :virtual
+    topology? = is_binary(Keyword.get(opts, :topology, default(:topology)))
 
     if virtual? and topology? and
          (procs > :erlang.system_info(:process_limit) or
@@ -121,9 +145,9 @@ defmodule TartarusEmu.Walk do
 
   @impl true
   def setup(opts) do
-    mode = opt(opts, :mode, :virtual)
-    strategy = opt(opts, :strategy, :random)
-    p = opt(opts, :p, 0)
+    mode = opt(opts, :mode)
+    strategy = opt(opts, :strategy)
+    p = opt(opts, :p)
     seed = opts.seed
     t_start = System.monotonic_time(:millisecond)
 
@@ -133,14 +157,14 @@ defmodule TartarusEmu.Walk do
          {:ok, net} <-
            Network.start(topo,
              mode: mode,
-             group: opt(opts, :group, 1),
+             group: opt(opts, :group),
              link: link_opts(opts),
-             host_opts: [migration_timeout: opt(opts, :migration_timeout_ms, 60_000)]
+             host_opts: [migration_timeout: opt(opts, :migration_timeout_ms)]
            ) do
       t_net = System.monotonic_time(:millisecond)
-      {:ok, log} = Log.start(net, keep_events: opt(opts, :keep_events, false))
+      {:ok, log} = Log.start(net, keep_events: opt(opts, :keep_events))
       place_rng = :rand.seed_s(:exsss, {seed, 1, 0})
-      agents = opt(opts, :agents, 4)
+      agents = opt(opts, :agents)
       {homes, _} = homes(topo, agents, place_rng)
       :ok = create_agents(net, homes, strategy, seed)
       1 = Log.tick(log)
@@ -159,8 +183,8 @@ defmodule TartarusEmu.Walk do
          dyn: Dynamics.new(topo.nodes),
          dyn_rng: :rand.seed_s(:exsss, {seed, 2, 0}),
          visited: MapSet.new(homes, &Network.host(net, &1)),
-         until_covered: opt(opts, :until_covered, false),
-         step_timeout: opt(opts, :step_timeout_ms, 60_000),
+         until_covered: opt(opts, :until_covered),
+         step_timeout: opt(opts, :step_timeout_ms),
          series: Series.new(),
          covered_at: nil,
          lost: 0,
@@ -174,12 +198,14 @@ defmodule TartarusEmu.Walk do
     end
   end
 
-  defp opt(opts, key, default) do
+  defp opt(opts, key) do
     case Map.get(opts, key) do
-      nil -> default
+      nil -> default(key)
       v -> v
     end
   end
+
+  defp default(key), do: @schema |> Keyword.fetch!(key) |> Keyword.fetch!(:default)
 
   defp check(true, _what, _value), do: :ok
 
@@ -191,7 +217,7 @@ defmodule TartarusEmu.Walk do
   end
 
   defp topology_name(opts) do
-    case Map.get(opts, :topology, "grid") do
+    case Map.get(opts, :topology, default(:topology)) do
       %Topology{kind: kind} -> to_string(kind)
       name -> to_string(name)
     end
@@ -206,9 +232,9 @@ defmodule TartarusEmu.Walk do
   """
   @spec topology(map()) :: {:ok, Topology.t()} | {:error, String.t()}
   def topology(opts) do
-    n = opt(opts, :hosts, 16)
+    n = opt(opts, :hosts)
 
-    case opt(opts, :topology, "grid") do
+    case opt(opts, :topology) do
       %Topology{} = topo ->
         {:ok, topo}
 

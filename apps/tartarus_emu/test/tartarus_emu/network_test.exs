@@ -21,6 +21,41 @@ defmodule TartarusEmu.NetworkTest do
     assert length(Network.live_links(net)) == Topology.edge_count(topo)
   end
 
+  test "the setup hook runs on every node after linking, and again on a restarted node" do
+    me = self()
+
+    hook = fn n, host, net ->
+      send(me, {:setup, n, length(Tartarus.neighbours(host)), map_size(net.hosts)})
+      Tartarus.attach_plugin(host, :sensor, {Tartarus.Plugin.SimSensor, signal: [n]})
+    end
+
+    net = start_network!(Topology.line(3), setup: hook)
+
+    for {n, links} <- [h1: 1, h2: 2, h3: 1], do: assert_received({:setup, ^n, ^links, 3})
+    assert {:ok, :h2} = Tartarus.read_plugin(Network.host(net, :h2), :sensor)
+
+    :ok = Network.kill_node(net, :h2)
+    :ok = Network.restart_node(net, :h2)
+    assert_received {:setup, :h2, 2, 3}
+    assert {:ok, :h2} = Tartarus.read_plugin(Network.host(net, :h2), :sensor)
+  end
+
+  test "a failing setup hook stops start/2 and names the node; a bad hook is refused" do
+    hook = fn n, _host -> if n == :h2, do: {:error, :no_sensor}, else: :ok end
+
+    assert {:error, {:setup_failed, :h2, {:error, :no_sensor}}} =
+             Network.start(Topology.line(3), setup: hook, prefix: "failsetup")
+
+    # (the host registry forgets a stopped host a moment later)
+    assert :ok =
+             wait_until(fn ->
+               not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
+             end)
+
+    assert {:error, msg} = Network.start(Topology.line(2), setup: fn -> :ok end)
+    assert msg =~ "for key :setup: expected a function of 2 or 3 arguments"
+  end
+
   test "link latency and loss come from the topology (or the :link default)" do
     topo = Topology.new([:a, :b, :c], [{:a, :b}, {:b, :c}], links: %{{:a, :b} => %{loss: 1.0}})
     net = start_network!(topo, link: [latency_ms: 3])

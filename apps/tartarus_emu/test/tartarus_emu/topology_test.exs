@@ -202,11 +202,15 @@ defmodule TartarusEmu.TopologyTest do
         {"node a\nnode b\nedge a b\nedge b a\n",
          "line 4: duplicate edge between \"b\" and \"a\""},
         {"node a x 1\n", "line 1: expected a number for x coordinate, got: \"x\""},
-        {"node a 1\n", "line 1: expected \"[X Y] [floor F]\" after the node name, got: \"1\""},
+        {"node a 1\n",
+         "line 1: expected \"[X Y [Z]] [floor F] [zone Z]\" after the node name, got: \"1\""},
         {"node a floor 1.5\n", "line 1: expected an integer floor, got: \"1.5\""},
         {"floor\n", "line 1: expected \"floor F\" with one integer, got: \"\""},
-        {"node a 1 2 3 4\n", "line 1: expected at most one position, got: 3 4"},
-        {"node\n", "line 1: expected \"node NAME [X Y] [floor F]\", got too few arguments"},
+        {"node a 1 2 3 4\n",
+         "line 1: expected \"[X Y [Z]] [floor F] [zone Z]\" after the node name, got: \"1 2 3 4\""},
+        {"node a zone x zone y\n", "line 1: zone given twice"},
+        {"node\n",
+         "line 1: expected \"node NAME [X Y [Z]] [floor F] [zone Z]\", got too few arguments"},
         {"edge a\n", "line 1: expected \"edge A B [attr=value ...]\", got too few arguments"},
         {"link a b\n",
          "line 1: unknown directive \"link\": expected \"node\", \"edge\" or \"floor\""},
@@ -223,6 +227,18 @@ defmodule TartarusEmu.TopologyTest do
       for {text, error} <- cases do
         assert Topology.parse(text) == {:error, error}
       end
+    end
+
+    test "3-D positions and zones are parsed and written back" do
+      text = "node a 0 0 4 floor 1 zone lab\nnode b 9 0 zone lab\nedge a b\n"
+      assert {:ok, topo} = Topology.parse(text)
+      assert topo.positions == %{"a" => {0.0, 0.0, 4.0}, "b" => {9.0, 0.0}}
+      assert topo.floors == %{"a" => 1}
+      assert topo.zones == %{"a" => "lab", "b" => "lab"}
+      assert {:ok, again} = Topology.parse(Topology.to_text(topo))
+
+      assert {again.positions, again.floors, again.zones} ==
+               {topo.positions, topo.floors, topo.zones}
     end
 
     test "from_file/2" do

@@ -5,44 +5,55 @@ defmodule TartarusLats.BeaconPlugin do
   A node's database agent reaches its receiver only through the platform's
   plugin channel: `Tartarus.Agent.read(:beacon, {:scan, t})` returns what the
   receiver heard in second `t` as `%{tag => rssi}` (tags not heard are
-  absent). Here the radio is simulated: the receiver asks the emulated
-  physical world (`TartarusLats.WorldServer`) what its node hears, or plays
-  a script. The real receiver (an HM-10 on the Pi's UART, packets parsed by
+  absent). Here the radio is simulated: the emulation driver
+  (`TartarusLats.Deployment`) draws every node's readings from the world
+  each second and writes them into the receiver (`Tartarus.write_plugin/3`
+  with `{:readings, t, readings}`), or the receiver plays a script. The
+  real receiver (an HM-10 on the Pi's UART, packets parsed by
   `TartarusLats.IBeacon`) implements the same reads in the firmware; it is
   not written yet.
 
-  Options (one source is required):
+  Options:
 
-    * `:node` - the node (zone) this receiver stands in;
-    * `:world` - a `TartarusLats.WorldServer` (pid, name or `{name, node}`):
-      scans ask it for this node's readings of the current second;
+    * `:node` - the node (zone) this receiver stands in (required);
     * `:script` - `%{second => %{tag => rssi}}` for tests (seconds absent
-      from the script hear nothing).
+      from the script hear nothing). Without a script the receiver hears
+      only what is written into it.
 
-  Reads: `{:scan, t}` (the readings of second `t`; with a world source the
-  world must be at second `t`, else `{:error, {:not_now, t, world_time}}`),
-  `:last` (the last scan, `{t, readings}` or `nil`). Writes:
-  `{:readings, t, readings}` injects readings for second `t` (they take
-  precedence over the source), e.g. from a test or a hardware bridge.
+  Reads: `{:scan, t}` (the readings of second `t`: those written for `t`,
+  else the script's, else nothing), `:last` (the last scan, `{t, readings}`
+  or `nil`). Writes: `{:readings, t, readings}` gives the readings of second
+  `t` (they take precedence over the script): the emulation driver, a test
+  or a hardware bridge. Readings of earlier seconds not scanned are
+  dropped at the next scan.
   """
   @behaviour Tartarus.Plugin
 
+  @schema [
+    node: [type: :any, required: true, doc: "the node this receiver stands in"],
+    script: [type: :any, default: %{}, doc: "`%{second => %{tag => rssi}}`"]
+  ]
+
   @impl true
   def init(opts) do
-    node = Keyword.get(opts, :node)
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.BeaconPlugin"),
+         :ok <- check(opts) do
+      {:ok, %{node: opts[:node], script: opts[:script], injected: %{}, last: nil}}
+    end
+  end
 
+  defp check(opts) do
     cond do
-      node == nil ->
-        {:error, {:bad_option, :node, "expected the node this receiver stands in, got: nil"}}
+      opts[:node] == nil ->
+        {:error,
+         "invalid options given to TartarusLats.BeaconPlugin for key :node: expected the node this receiver stands in, got: nil"}
 
-      Keyword.has_key?(opts, :world) ->
-        {:ok, %{node: node, source: {:world, opts[:world]}, injected: %{}, last: nil}}
-
-      is_map(Keyword.get(opts, :script)) ->
-        {:ok, %{node: node, source: {:script, opts[:script]}, injected: %{}, last: nil}}
+      not is_map(opts[:script]) ->
+        {:error,
+         "invalid options given to TartarusLats.BeaconPlugin for key :script: expected a map of second => readings, got: #{inspect(opts[:script])}"}
 
       true ->
-        {:error, {:bad_option, :source, "expected a :world or a :script option"}}
+        :ok
     end
   end
 
@@ -53,17 +64,10 @@ defmodule TartarusLats.BeaconPlugin do
 
   @impl true
   def read({:scan, t}, s) when is_integer(t) do
-    result =
-      case Map.pop(s.injected, t) do
-        {readings, injected} when is_map(readings) -> {:ok, readings, %{s | injected: injected}}
-        {nil, _} -> {source(s.source, s.node, t), s}
-      end
-
-    case result do
-      {:ok, readings, s} -> {:ok, readings, %{s | last: {t, readings}}}
-      {{:ok, readings}, s} -> {:ok, readings, %{s | last: {t, readings}}}
-      {{:error, reason}, s} -> {:error, reason, s}
-    end
+    {readings, injected} = Map.pop(s.injected, t)
+    readings = readings || Map.get(s.script, t, %{})
+    injected = Map.reject(injected, fn {second, _} -> second < t end)
+    {:ok, readings, %{s | injected: injected, last: {t, readings}}}
   end
 
   def read(:last, s), do: {:ok, s.last, s}
@@ -74,12 +78,4 @@ defmodule TartarusLats.BeaconPlugin do
     do: {:ok, %{s | injected: Map.put(s.injected, t, readings)}}
 
   def write(arg, s), do: {:error, {:bad_argument, arg}, s}
-
-  defp source({:script, script}, _node, t), do: {:ok, Map.get(script, t, %{})}
-
-  defp source({:world, world}, node, t) do
-    TartarusLats.WorldServer.readings(world, node, t)
-  catch
-    :exit, reason -> {:error, {:world_unreachable, reason}}
-  end
 end

@@ -3,6 +3,15 @@ defmodule TartarusLats.Building do
   An emulated multi-floor building: one Pi-node per zone, where each node
   stands, which nodes are neighbours, and where people come in.
 
+  A building **is** a `TartarusEmu.Topology` (kind `:building`): its nodes
+  and edges are the Pi-nodes and the corridors between zones, `positions`
+  are 3-D points in metres, `floors` the floor of each node, `zones` map
+  every node to its own zone (one node per zone), and `attrs` hold
+  `:entrances`, `:floor_height` and `:floor_loss_db`. So the same value
+  starts the hosts (`TartarusEmu.Network.start/2`) and drives the world
+  (`TartarusLats.World`). The functions here read those fields; neighbours
+  come in node order (`:p2` before `:p10`).
+
   The default (`new/0`) reproduces the thesis's experiment size (§3.4.2): 50
   nodes on 2 floors of 5 x 5 zones. Zones are 9 m apart, so a tag standing
   in a zone is near (< 2 m) or far (< 5 m) from its own node and more than
@@ -40,12 +49,7 @@ defmodule TartarusLats.Building do
   Any other plan can be given to `custom/1`.
   """
 
-  defstruct nodes: [],
-            positions: %{},
-            adjacency: %{},
-            entrances: [],
-            floor_height: 4.0,
-            floor_loss_db: 15.0
+  alias TartarusEmu.Topology
 
   @typedoc "A node (zone) name; `new/1` uses `:p1 .. :pN`."
   @type node_name :: atom()
@@ -53,20 +57,32 @@ defmodule TartarusLats.Building do
   @typedoc "A point in metres `{x, y, z}`."
   @type position :: {float(), float(), float()}
 
-  @type t :: %__MODULE__{
-          nodes: [node_name()],
-          positions: %{node_name() => position()},
-          adjacency: %{node_name() => [node_name()]},
-          entrances: [node_name()],
-          floor_height: float(),
-          floor_loss_db: float()
-        }
+  @typedoc "A building: a `TartarusEmu.Topology` of kind `:building` (see the moduledoc)."
+  @type t :: Topology.t()
+
+  @schema [
+    floors: [type: :pos_integer, default: 2, doc: "floors"],
+    rows: [type: :pos_integer, default: 5, doc: "rows of zones per floor"],
+    cols: [type: :pos_integer, default: 5, doc: "columns of zones per floor"],
+    spacing: [type: :any, default: 9.0, check: :positive, doc: "metres between zones"],
+    floor_height: [type: :any, default: 4.0, check: :positive, doc: "metres between floors"],
+    floor_loss_db: [
+      type: :any,
+      default: 15.0,
+      check: :at_least_zero,
+      doc: "extra attenuation per floor (dB)"
+    ],
+    stairs: [type: {:list, :any}, doc: "`{row, col}` cells with stairs"],
+    entrances: [type: {:list, :any}, doc: "`{row, col}` cells on floor 0 where people enter"]
+  ]
 
   @doc """
-  A grid building. Options (defaults): `floors: 2`, `rows: 5`, `cols: 5`,
-  `spacing: 9.0`, `floor_height: 4.0`, `floor_loss_db: 15.0`,
-  `stairs: [{0, 0}, {rows - 1, cols - 1}]`, `entrances: [{0, div(cols, 2)}]`
-  (`{row, col}` cells on floor 0).
+  A grid building. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  `stairs` defaults to `[{0, 0}, {rows - 1, cols - 1}]`, `entrances` to
+  `[{0, div(cols, 2)}]`.
 
       iex> b = TartarusLats.Building.new(floors: 1, rows: 2, cols: 3)
       iex> TartarusLats.Building.nodes(b)
@@ -76,31 +92,26 @@ defmodule TartarusLats.Building do
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
-    floors = opt(opts, :floors, 2, &pos_int?/1, "a positive integer")
-    rows = opt(opts, :rows, 5, &pos_int?/1, "a positive integer")
-    cols = opt(opts, :cols, 5, &pos_int?/1, "a positive integer")
-    spacing = opt(opts, :spacing, 9.0, &pos_num?/1, "a positive number")
-    floor_height = opt(opts, :floor_height, 4.0, &pos_num?/1, "a positive number")
-    floor_loss = opt(opts, :floor_loss_db, 15.0, &(is_number(&1) and &1 >= 0), "a number >= 0")
+    where = "TartarusLats.Building.new/1"
+    opts = TartarusLats.Options.validate!(opts, @schema, where)
+    [floors, rows, cols] = Enum.map([:floors, :rows, :cols], &opts[&1])
+
+    [spacing, floor_height, floor_loss] =
+      Enum.map([:spacing, :floor_height, :floor_loss_db], &opts[&1])
+
     cell? = &match?({r, c} when r in 0..(rows - 1) and c in 0..(cols - 1), &1)
-    cells? = &(is_list(&1) and Enum.all?(&1, cell?))
+    opts = Keyword.put_new(opts, :stairs, Enum.uniq([{0, 0}, {rows - 1, cols - 1}]))
+    opts = Keyword.put_new(opts, :entrances, [{0, div(cols, 2)}])
+    stairs = check!(opts, :stairs, &Enum.all?(&1, cell?), "a list of {row, col} cells", where)
 
-    stairs =
-      opt(
+    entrances =
+      check!(
         opts,
-        :stairs,
-        Enum.uniq([{0, 0}, {rows - 1, cols - 1}]),
-        cells?,
-        "a list of {row, col} cells"
+        :entrances,
+        &(&1 != [] and Enum.all?(&1, cell?)),
+        "a non-empty list of {row, col} cells",
+        where
       )
-
-    entrances = opt(opts, :entrances, [{0, div(cols, 2)}], cells?, "a list of {row, col} cells")
-
-    if entrances == [] do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.Building.new/1 for key :entrances: " <>
-              "expected at least one entrance, got: []"
-    end
 
     name = fn f, r, c -> :"p#{f * rows * cols + r * cols + c + 1}" end
     cells = for f <- 0..(floors - 1), r <- 0..(rows - 1), c <- 0..(cols - 1), do: {f, r, c}
@@ -110,27 +121,26 @@ defmodule TartarusLats.Building do
         {name.(f, r, c), {c * spacing * 1.0, r * spacing * 1.0, f * floor_height * 1.0}}
       end)
 
-    adjacency =
-      Map.new(cells, fn {f, r, c} ->
-        flat = for {dr, dc} <- [{-1, 0}, {0, -1}, {0, 1}, {1, 0}], do: {f, r + dr, c + dc}
-        vertical = if {r, c} in stairs, do: [{f - 1, r, c}, {f + 1, r, c}], else: []
+    edges =
+      for {f, r, c} <- cells,
+          {f2, r2, c2} <-
+            [{f, r, c + 1}, {f, r + 1, c}] ++ if({r, c} in stairs, do: [{f + 1, r, c}], else: []),
+          f2 < floors and r2 < rows and c2 < cols,
+          do: {name.(f, r, c), name.(f2, r2, c2)}
 
-        neighbours =
-          for {f2, r2, c2} <- flat ++ vertical,
-              f2 in 0..(floors - 1) and r2 in 0..(rows - 1) and c2 in 0..(cols - 1),
-              do: name.(f2, r2, c2)
+    nodes = Enum.map(cells, fn {f, r, c} -> name.(f, r, c) end)
 
-        {name.(f, r, c), sort_nodes(neighbours)}
-      end)
-
-    %__MODULE__{
-      nodes: Enum.map(cells, fn {f, r, c} -> name.(f, r, c) end),
+    Topology.new(nodes, edges,
       positions: positions,
-      adjacency: adjacency,
-      entrances: for({r, c} <- entrances, do: name.(0, r, c)) |> Enum.uniq(),
-      floor_height: floor_height * 1.0,
-      floor_loss_db: floor_loss * 1.0
-    }
+      floors: Map.new(cells, fn {f, r, c} -> {name.(f, r, c), f} end),
+      zones: Map.new(nodes, &{&1, &1}),
+      attrs: %{
+        entrances: for({r, c} <- entrances, do: name.(0, r, c)) |> Enum.uniq(),
+        floor_height: floor_height * 1.0,
+        floor_loss_db: floor_loss * 1.0
+      },
+      kind: :building
+    )
   end
 
   @doc """
@@ -182,43 +192,54 @@ defmodule TartarusLats.Building do
               "expected a non-empty list of known nodes, got: #{inspect(entrances)}"
     end
 
-    edges = for {n, ns} <- adjacency, m <- ns, n != m, pair <- [{n, m}, {m, n}], do: pair
+    edges =
+      for {n, ns} <- adjacency,
+          m <- ns,
+          n != m,
+          uniq: true,
+          do: if(n < m, do: {n, m}, else: {m, n})
 
-    adj =
-      Enum.reduce(edges, Map.new(Map.keys(positions), &{&1, []}), fn {n, m}, acc ->
-        Map.update!(acc, n, &[m | &1])
-      end)
-      |> Map.new(fn {n, ns} -> {n, ns |> Enum.uniq() |> sort_nodes()} end)
+    floor_height = Keyword.get(opts, :floor_height, 4.0) * 1.0
+    nodes = positions |> Map.keys() |> sort_nodes()
 
-    %__MODULE__{
-      nodes: positions |> Map.keys() |> sort_nodes(),
-      positions: Map.new(positions, fn {n, {x, y, z}} -> {n, {x * 1.0, y * 1.0, z * 1.0}} end),
-      adjacency: adj,
-      entrances: entrances,
-      floor_height: Keyword.get(opts, :floor_height, 4.0) * 1.0,
-      floor_loss_db: Keyword.get(opts, :floor_loss_db, 15.0) * 1.0
-    }
+    points = Map.new(positions, fn {n, {x, y, z}} -> {n, {x * 1.0, y * 1.0, z * 1.0}} end)
+
+    Topology.new(nodes, edges,
+      positions: points,
+      floors: Map.new(points, fn {n, {_, _, z}} -> {n, round(z / floor_height)} end),
+      zones: Map.new(nodes, &{&1, &1}),
+      attrs: %{
+        entrances: entrances,
+        floor_height: floor_height,
+        floor_loss_db: Keyword.get(opts, :floor_loss_db, 15.0) * 1.0
+      },
+      kind: :building
+    )
   end
 
   @doc "All nodes, in order (`:p1, :p2, ...` for `new/1`)."
   @spec nodes(t()) :: [node_name()]
-  def nodes(%__MODULE__{nodes: nodes}), do: nodes
+  def nodes(%Topology{nodes: nodes}), do: nodes
 
   @doc "The neighbours of a node, in node order."
   @spec neighbours(t(), node_name()) :: [node_name()]
-  def neighbours(%__MODULE__{adjacency: adj}, node), do: Map.fetch!(adj, node)
+  def neighbours(%Topology{} = b, node) do
+    unless Map.has_key?(b.positions, node), do: raise(KeyError, key: node, term: b.positions)
+    b |> Topology.neighbours(node) |> sort_nodes()
+  end
 
   @doc "The adjacency map `%{node => [node]}`."
   @spec adjacency(t()) :: %{node_name() => [node_name()]}
-  def adjacency(%__MODULE__{adjacency: adj}), do: adj
+  def adjacency(%Topology{} = b),
+    do: b |> Topology.adjacency() |> Map.new(fn {n, ns} -> {n, sort_nodes(ns)} end)
 
   @doc "The entry/exit nodes."
   @spec entrances(t()) :: [node_name()]
-  def entrances(%__MODULE__{entrances: e}), do: e
+  def entrances(%Topology{attrs: %{entrances: e}}), do: e
 
   @doc "Where a node stands, in metres."
   @spec position(t(), node_name()) :: position()
-  def position(%__MODULE__{positions: p}, node), do: Map.fetch!(p, node)
+  def position(%Topology{positions: p}, node), do: Map.fetch!(p, node)
 
   @doc """
   Euclidean distance in metres between a point and a node.
@@ -228,7 +249,7 @@ defmodule TartarusLats.Building do
       5.0
   """
   @spec distance(t(), position(), node_name()) :: float()
-  def distance(%__MODULE__{} = b, {x, y, z}, node) do
+  def distance(%Topology{} = b, {x, y, z}, node) do
     {nx, ny, nz} = position(b, node)
     :math.sqrt((x - nx) * (x - nx) + (y - ny) * (y - ny) + (z - nz) * (z - nz))
   end
@@ -242,9 +263,9 @@ defmodule TartarusLats.Building do
       15.0
   """
   @spec extra_loss(t(), position(), node_name()) :: float()
-  def extra_loss(%__MODULE__{} = b, {_, _, z}, node) do
+  def extra_loss(%Topology{} = b, {_, _, z}, node) do
     {_, _, nz} = position(b, node)
-    b.floor_loss_db * abs(z - nz) / b.floor_height
+    b.attrs.floor_loss_db * abs(z - nz) / b.attrs.floor_height
   end
 
   @doc """
@@ -255,7 +276,7 @@ defmodule TartarusLats.Building do
       :p2
   """
   @spec nearest(t(), position()) :: node_name()
-  def nearest(%__MODULE__{nodes: nodes} = b, point) do
+  def nearest(%Topology{nodes: nodes} = b, point) do
     Enum.min_by(nodes, &distance(b, point, &1))
   end
 
@@ -267,9 +288,9 @@ defmodule TartarusLats.Building do
       [:p1, :p2, :p3]
   """
   @spec shortest_path(t(), node_name(), node_name()) :: [node_name()] | nil
-  def shortest_path(%__MODULE__{}, from, from), do: [from]
+  def shortest_path(%Topology{}, from, from), do: [from]
 
-  def shortest_path(%__MODULE__{} = b, from, to) do
+  def shortest_path(%Topology{} = b, from, to) do
     bfs(b, :queue.from_list([from]), %{from => nil}, to)
   end
 
@@ -311,18 +332,13 @@ defmodule TartarusLats.Building do
 
   defp node_key(node), do: {2, node}
 
-  defp opt(opts, key, default, valid?, expected) do
-    value = Keyword.get(opts, key, default)
+  defp check!(opts, key, valid?, expected, where) do
+    value = opts[key]
 
     if valid?.(value) do
       value
     else
-      raise ArgumentError,
-            "invalid options given to TartarusLats.Building.new/1 for key #{inspect(key)}: " <>
-              "expected #{expected}, got: #{inspect(value)}"
+      raise ArgumentError, TartarusLats.Options.message(where, key, expected, value)
     end
   end
-
-  defp pos_int?(v), do: is_integer(v) and v > 0
-  defp pos_num?(v), do: is_number(v) and v > 0
 end

@@ -20,7 +20,9 @@ defmodule TartarusLats.Cloud do
   A connection is one post; its bytes are `:erlang.external_size/1` of the
   message.
 
-  Requests: `:stats` returns `%{connections: %{design => n}, bytes: %{design
+  Requests: `{:sync, n}` is answered (`:ok`) once the cloud has taken `n`
+  uploads in all (the driver's barrier, see `TartarusLats.DatabaseAgent`);
+  `:stats` returns `%{connections: %{design => n}, bytes: %{design
   => n}, log: [%{design, time, tags, bytes}]}` (log oldest first);
   `{:query, :where_is | :where_am_i | :trace, start_node, tag}` returns the
   centralized answer.
@@ -69,7 +71,8 @@ defmodule TartarusLats.Cloud do
        tables: %{},
        connections: %{centralized: 0, agents: 0},
        bytes: %{centralized: 0, agents: 0},
-       log: []
+       log: [],
+       waiting: []
      }}
   end
 
@@ -84,8 +87,11 @@ defmodule TartarusLats.Cloud do
       (Enum.map(up.records, &{&1.uuid, &1.major, &1.minor}) ++ Enum.map(up.vectors, &elem(&1, 0)))
       |> Enum.uniq()
 
-    {:stay, count(%{s | tables: tables}, :centralized, t, tags, msg)}
+    {:stay, %{s | tables: tables} |> count(:centralized, t, tags, msg) |> release()}
   end
+
+  def handle_message({:sync, n}, from, s),
+    do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
 
   def handle_message({:answer, %{time: t, tag: tag}} = msg, _from, s),
     do: {:stay, count(s, :agents, t, [tag], msg)}
@@ -109,6 +115,13 @@ defmodule TartarusLats.Cloud do
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
+
+  defp release(s) do
+    {done, waiting} = Enum.split_with(s.waiting, fn {n, _} -> s.connections.centralized >= n end)
+
+    Enum.each(done, fn {_, from} -> A.reply(from, :ok) end)
+    %{s | waiting: waiting}
+  end
 
   defp count(s, design, t, tags, msg) do
     bytes = :erlang.external_size(msg)

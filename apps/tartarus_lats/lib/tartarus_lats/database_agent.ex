@@ -33,16 +33,25 @@ defmodule TartarusLats.DatabaseAgent do
     1. `{:sense, t}` - scan the receiver, run the tracker, log records, feed
        `:entered_zone` / `:left_zone` to the motion vectors and post the
        handshake messages to the neighbours;
-    2. `{:deliver, t}` (repeated while messages flow) - apply the handshake
-       messages received since the last phase, in a fixed order (sorted), and
-       post the answers;
+    2. `{:deliver, t, j}` for `j = 1, 2, ...` while messages flow - apply the
+       handshake messages sent in earlier phases, in a fixed order (sorted),
+       and post the answers;
     3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
        wall time) and publishing.
 
-  Each request is answered only after every message it caused has been
-  taken by its receiver, so when all answers are in, the phase is complete
-  everywhere: runs are deterministic for a seed however the hosts are
-  scheduled. Messages received are buffered until the next `{:deliver, t}`.
+  The agent posts its handshake messages (and its upload) with
+  `Tartarus.cast/3`, so two database agents never wait for each other, and
+  answers the phase with what it sent: `{:ok, %{sent: %{host => n},
+  uploads: 0 | 1}}`. The driver then closes the phase with a barrier: it
+  asks every receiver `{:sync, n}` (answered once the agent has taken `n`
+  handshake messages in all since it started) and the cloud the same
+  (`TartarusLats.Cloud`), so when the barrier is passed, every message of
+  the phase is where it belongs: runs are deterministic for a seed however
+  the hosts are scheduled. Every message carries the phase it was sent in
+  (`{t, 0}` for the sense phase, `{t, j}` for delivery `j`) and is applied
+  at the first delivery of a later phase: a fast neighbour's message of
+  delivery `j` that arrives before this agent's own delivery `j` waits for
+  delivery `j + 1`, as it would if the neighbour had been slow.
 
   ## Durable log
 
@@ -92,6 +101,8 @@ defmodule TartarusLats.DatabaseAgent do
       seq: 0,
       clock: 0,
       inbox: [],
+      received: 0,
+      waiting: [],
       dets: nil
     }
 
@@ -105,7 +116,11 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   @impl true
-  def handle_message({:mv, msg}, _from, s), do: {:stay, %{s | inbox: [msg | s.inbox]}}
+  def handle_message({:mv, stamp, msg}, _from, s),
+    do: {:stay, release(%{s | inbox: [{stamp, msg} | s.inbox], received: s.received + 1})}
+
+  def handle_message({:sync, n}, from, s),
+    do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
 
   def handle_message({:sense, t}, from, s) do
     readings =
@@ -125,21 +140,22 @@ defmodule TartarusLats.DatabaseAgent do
     mv_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
     s = %{s | tracker: tracker, clock: t} |> append_log(records)
     {s, out, changed} = apply_events(s, t, mv_events)
-    send_all(s, from, t, out, records, changed)
+    send_all(s, from, {t, 0}, out, records, changed)
     {:stay, s}
   end
 
-  def handle_message({:deliver, t}, from, s) do
-    inbox = Enum.sort(s.inbox)
-    {s, out, changed} = apply_events(%{s | inbox: []}, t, inbox)
-    send_all(s, from, t, out, [], changed)
+  def handle_message({:deliver, t, j}, from, s) do
+    {ready, later} = Enum.split_with(s.inbox, fn {stamp, _} -> stamp < {t, j} end)
+    inbox = ready |> Enum.map(&elem(&1, 1)) |> Enum.sort()
+    {s, out, changed} = apply_events(%{s | inbox: later}, t, inbox)
+    send_all(s, from, {t, j}, out, [], changed)
     {:stay, s}
   end
 
   def handle_message({:tick, t}, from, s) do
     {s, [], changed} = apply_events(%{s | clock: t}, t, [:tick])
     A.store_put({:lats, :clock}, t)
-    send_all(s, from, t, [], [], changed)
+    send_all(s, from, {t, :tick}, [], [], changed)
     {:stay, s}
   end
 
@@ -149,6 +165,13 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
+
+  # Answers the `{:sync, n}` requests whose count has been reached.
+  defp release(s) do
+    {done, waiting} = Enum.split_with(s.waiting, fn {n, _} -> s.received >= n end)
+    Enum.each(done, fn {_, from} -> A.reply(from, :ok) end)
+    %{s | waiting: waiting}
+  end
 
   # -- events -----------------------------------------------------------------
 
@@ -180,19 +203,14 @@ defmodule TartarusLats.DatabaseAgent do
     {s, out, changed}
   end
 
-  # Posts the handshake messages and the upload from a separate process (two database
-  # agents posting to each other from their callbacks would wait for each other), and
-  # answers the driver once every message has been taken.
-  defp send_all(s, from, t, out, records, changed) do
-    db = @name
+  # Casts the handshake messages and the upload, and tells the driver what went where
+  # (the driver's barrier waits for them, see the moduledoc).
+  defp send_all(s, from, {t, _} = stamp, out, records, changed) do
+    Enum.each(out, fn {host, msg} -> :ok = Tartarus.cast({@name, host}, {:mv, stamp, msg}) end)
     upload = upload(s, t, records, changed)
-
-    spawn(fn ->
-      sent = Enum.count(out, fn {host, msg} -> Tartarus.post({db, host}, {:mv, msg}) == :ok end)
-
-      if upload, do: Tartarus.post({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
-      A.reply(from, {:ok, sent})
-    end)
+    if upload, do: :ok = Tartarus.cast({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
+    sent = Enum.frequencies_by(out, fn {host, _} -> host end)
+    A.reply(from, {:ok, %{sent: sent, uploads: if(upload, do: 1, else: 0)}})
   end
 
   defp upload(%{centralized: true, cloud: cloud} = s, t, records, changed)

@@ -11,11 +11,14 @@ defmodule TartarusLats.Demo do
   def run(opts) do
     out = Path.join(opts[:out], "lats")
 
-    result =
-      TartarusLats.Experiment.run(minutes: 6, queries: 9, seed: opts[:seed], progress: false)
-
-    Mix.Tasks.Tartarus.Lats.write_report(out, result)
-    s = result.summary
+    {:ok, %{summary: s}} =
+      TartarusLats.Experiment.run(
+        minutes: 6,
+        queries: 9,
+        seed: opts[:seed] || 1,
+        out: out,
+        quiet: true
+      )
 
     say(
       "#{s.queries} queries (Trace, Where is X, Where am I) on #{s.nodes} nodes with #{s.bearers} tag bearers: #{s.correct} correct (cloud: #{s.correct_centralized})"

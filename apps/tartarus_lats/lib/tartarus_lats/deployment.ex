@@ -1,177 +1,168 @@
 defmodule TartarusLats.Deployment do
   @moduledoc """
-  A LATS deployment on the platform: one host per node of a
-  `TartarusLats.Building`, linked as the building's adjacency, each with a
+  A LATS deployment on the emulator: the building (a `TartarusEmu.Topology`)
+  brought to life by `TartarusEmu.Network`, virtual or on `:peer` nodes,
+  with LATS's per-node setup hook (`node_setup/2`): every node gets a
   simulated BLE receiver (`TartarusLats.BeaconPlugin`, attached as
   `:beacon`) and a database agent (`TartarusLats.DatabaseAgent`, named
-  `"lats-db"`); a cloud host (`TartarusLats.Cloud`); and the emulated world
-  (`TartarusLats.WorldServer`) that the receivers listen to.
+  `"lats-db"`). Beside it: a cloud host (`TartarusLats.Cloud`, in this VM)
+  and the emulated world (`TartarusLats.World`, a value advanced here).
 
       dep = TartarusLats.Deployment.start(seed: 1, building: TartarusLats.Building.new(floors: 1, rows: 3, cols: 3))
       dep = TartarusLats.Deployment.run(dep, 60)
-      TartarusLats.query(dep.hosts[:p1], :where_is, TartarusLats.World.tag(dep.world_value, :janitor))
+      TartarusLats.query(dep.hosts[:p1], :where_is, TartarusLats.World.tag(dep.world, :janitor))
       TartarusLats.Deployment.stop(dep)
 
   ## The driver
 
-  `step/1` advances the world one second and then drives every database
-  agent through the phases of that second (`{:sense, t}`, `{:deliver, t}`
-  while handshake messages flow, `{:tick, t}`), waiting for all answers of
-  a phase before the next (a barrier). So a run is deterministic for its
-  seed, and between two steps the host stores are quiet: queries released
-  then see a consistent snapshot.
-
-  ## Hosts
-
-  Hosts are virtual (many hosts in this VM), started with
-  `Tartarus.start_host/2` and linked with `Tartarus.connect/2`; host names
-  are `"<prefix>-<node>"` (default prefix `"lats"`) and the cloud is
-  `"<prefix>-cloud"`. Options `:hosts` (`%{node => host}`, hosts already
-  running elsewhere, e.g. on `:peer` nodes started by `TartarusEmu.Network`)
-  and `:cloud` (a running host) make it use those instead; it then only
-  attaches the plugins and creates the agents.
+  `step/1` advances the world one second, writes every node's readings of
+  that second into its receiver (`Tartarus.write_plugin/3`), and then drives
+  every database agent through the phases of that second (`{:sense, t}`,
+  `{:deliver, t, j}` while handshake messages flow, `{:tick, t}`). Each phase
+  ends with a barrier: the agents cast their messages
+  (`Tartarus.cast/3`) and say how many went where; the driver waits until
+  every receiver (and the cloud) has taken them (`{:sync, n}` requests). So
+  a run is deterministic for its seed, and between two steps the host
+  stores are quiet: queries released then see a consistent snapshot.
   """
 
-  alias TartarusLats.{Building, Cloud, DatabaseAgent, Region, World, WorldServer}
+  alias TartarusLats.{Building, Cloud, DatabaseAgent, Radio, Region, World}
 
   defstruct building: nil,
             world: nil,
-            world_value: nil,
+            rng: nil,
+            readings: %{},
+            net: nil,
             hosts: %{},
             cloud: nil,
-            prefix: "lats",
-            owned_hosts: [],
+            owns_cloud: false,
+            expected: %{},
+            uploads: 0,
             time: 0
 
   @type t :: %__MODULE__{
           building: Building.t(),
-          world: pid(),
-          world_value: World.t() | nil,
+          world: World.t(),
+          rng: Radio.rng(),
+          readings: %{Building.node_name() => map()},
+          net: TartarusEmu.Network.t(),
           hosts: %{Building.node_name() => Tartarus.host()},
-          cloud: Tartarus.host() | nil,
-          prefix: String.t(),
-          owned_hosts: [Tartarus.host()],
+          cloud: Tartarus.host(),
+          owns_cloud: boolean(),
+          expected: %{Tartarus.host() => non_neg_integer()},
+          uploads: non_neg_integer(),
           time: non_neg_integer()
         }
+
+  @schema [
+    seed: [type: :integer, default: 0, doc: "the world's seed"],
+    world: [type: :any, doc: "a `TartarusLats.World` (default `World.new(building: building)`)"],
+    building: [type: :any, doc: "a `TartarusLats.Building` (ignored when `:world` is given)"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    group: [type: :pos_integer, default: 10, doc: "building nodes per BEAM node (peer mode)"],
+    prefix: [type: :string, default: "lats", doc: "host name prefix"],
+    centralized: [type: :boolean, default: true, doc: "database agents upload to the cloud"],
+    data_dir: [type: :any, doc: "directory of the database agents' DETS logs (default none)"],
+    timeout: [type: :pos_integer, default: 15, doc: "handshake timeout in world seconds"],
+    cloud: [type: :any, doc: "a running host to put the cloud agent on (default a new host)"]
+  ]
 
   @doc """
   Starts a deployment. Options:
 
-    * `:seed` - the world's seed (default 0);
-    * `:world` - a `TartarusLats.World` (default `World.new(building: building)`);
-    * `:building` - default `TartarusLats.Building.new/0` (ignored when `:world` is given);
-    * `:prefix` - host name prefix (default `"lats"`);
-    * `:centralized` - database agents upload to the cloud (Scenario 1; default true);
-    * `:data_dir` - directory of the database agents' DETS logs (default none);
-    * `:timeout` - handshake timeout in world seconds (default 15);
-    * `:hosts`, `:cloud` - use running hosts (see the moduledoc).
+  #{Tartarus.Options.docs(@schema)}
+
+  Raises `ArgumentError` on a bad option.
   """
   @spec start(keyword()) :: t()
   def start(opts \\ []) do
+    opts = Tartarus.Options.validate!(opts, @schema, "TartarusLats.Deployment.start/1")
+
     world =
       Keyword.get_lazy(opts, :world, fn ->
         World.new(building: Keyword.get_lazy(opts, :building, &Building.new/0))
       end)
 
     building = world.building
-    prefix = Keyword.get(opts, :prefix, "lats")
-    {:ok, server} = GenServer.start(WorldServer, seed: Keyword.get(opts, :seed, 0), world: world)
-    nodes = Building.nodes(building)
 
-    {hosts, owned} =
-      case Keyword.get(opts, :hosts) do
+    # Peer mode makes this VM a distributed node; the cloud host, started here before the
+    # network, must get its address under the node's final name.
+    if opts[:mode] == :peer, do: :ok = TartarusTools.Peer.ensure_distributed()
+
+    {cloud, owns} =
+      case opts[:cloud] do
         nil ->
-          hosts =
-            Map.new(nodes, fn n ->
-              {:ok, h} = Tartarus.start_host("#{prefix}-#{n}")
-              {n, h}
-            end)
-
-          for n <- nodes,
-              m <- Building.neighbours(building, n),
-              n < m,
-              do: :ok = Tartarus.connect(hosts[n], hosts[m])
-
-          {hosts, Map.values(hosts)}
-
-        hosts ->
-          {hosts, []}
-      end
-
-    {cloud, owned} =
-      case Keyword.get(opts, :cloud) do
-        nil ->
-          {:ok, c} = Cloud.start("#{prefix}-cloud")
-          {c, [c | owned]}
+          {:ok, c} = Cloud.start("#{opts[:prefix]}#{System.unique_integer([:positive])}-cloud")
+          {c, true}
 
         c ->
           {:ok, _} = Tartarus.create_static_agent(c, Cloud, nil, name: Cloud.agent_name())
-          {c, owned}
+          {c, false}
       end
 
-    cal = Region.calibrate(tx_power: -59, exponent: world.radio.exponent)
+    setup = node_setup(cloud, opts ++ [calibration: calibration(world)])
 
-    for n <- nodes do
-      :ok =
-        Tartarus.attach_plugin(
-          hosts[n],
-          :beacon,
-          {TartarusLats.BeaconPlugin, node: n, world: server}
-        )
-
-      {:ok, _} = start_database(hosts[n], n, building, hosts, cloud, cal, opts)
-    end
+    {:ok, net} =
+      TartarusEmu.Network.start(building,
+        mode: opts[:mode],
+        group: opts[:group],
+        prefix: opts[:prefix],
+        setup: setup
+      )
 
     %__MODULE__{
       building: building,
-      world: server,
-      world_value: world,
-      hosts: hosts,
+      world: world,
+      rng: Radio.seed(opts[:seed]),
+      net: net,
+      hosts: net.hosts,
       cloud: cloud,
-      prefix: prefix,
-      owned_hosts: owned
+      owns_cloud: owns
     }
   end
 
-  @doc false
-  def start_database(host, node, building, hosts, cloud, cal, opts) do
-    args = %{
-      node: node,
-      neighbours: Map.new(Building.neighbours(building, node), &{&1, hosts[&1]}),
-      cloud: cloud,
-      centralized: Keyword.get(opts, :centralized, true),
-      data_dir: Keyword.get(opts, :data_dir),
-      tracker: [calibration: cal],
-      timeout: Keyword.get(opts, :timeout, 15)
-    }
+  defp calibration(world), do: Region.calibrate(tx_power: -59, exponent: world.radio.exponent)
 
-    Tartarus.create_static_agent(host, DatabaseAgent, args, name: DatabaseAgent.agent_name())
+  @doc """
+  LATS's per-node setup hook for `TartarusEmu.Network.start/2`: attaches the
+  receiver (`:beacon`) and creates the database agent, which knows its
+  neighbours' hosts and the `cloud`. Options: `:centralized`, `:data_dir`,
+  `:timeout` (see `start/1`) and `:calibration` (a `TartarusLats.Region`
+  calibration).
+  """
+  @spec node_setup(Tartarus.host() | nil, keyword()) :: TartarusEmu.Network.setup()
+  def node_setup(cloud, opts) do
+    fn node, host, net ->
+      neighbours =
+        Map.new(Building.neighbours(net.topology, node), &{&1, TartarusEmu.Network.host(net, &1)})
+
+      args = %{
+        node: node,
+        neighbours: neighbours,
+        cloud: cloud,
+        centralized: Keyword.get(opts, :centralized, true),
+        data_dir: Keyword.get(opts, :data_dir),
+        tracker: [calibration: Keyword.fetch!(opts, :calibration)],
+        timeout: Keyword.get(opts, :timeout, 15)
+      }
+
+      with :ok <- Tartarus.attach_plugin(host, :beacon, {TartarusLats.BeaconPlugin, node: node}) do
+        Tartarus.create_static_agent(host, DatabaseAgent, args, name: DatabaseAgent.agent_name())
+      end
+    end
   end
 
   @doc """
-  Restarts the host of `node` (stop, start, re-link, re-attach the receiver,
-  new database agent): what a node's reboot looks like. With a `:data_dir`
-  (same options as `start/1`) the database agent reloads its log.
+  Restarts the host of `node` (what a node's reboot looks like): the
+  network kills it and starts it again empty, and the setup hook attaches a
+  new receiver and a new database agent (which reloads its log when the
+  deployment has a `:data_dir`).
   """
-  @spec restart_node(t(), Building.node_name(), keyword()) :: :ok
-  def restart_node(%__MODULE__{} = dep, node, opts \\ []) do
-    host = dep.hosts[node]
-    :ok = Tartarus.stop_host(host)
-    {:ok, ^host} = Tartarus.start_host(elem(host, 0))
-
-    for m <- Building.neighbours(dep.building, node),
-        do: :ok = Tartarus.connect(host, dep.hosts[m])
-
-    :ok =
-      Tartarus.attach_plugin(
-        host,
-        :beacon,
-        {TartarusLats.BeaconPlugin, node: node, world: dep.world}
-      )
-
-    cal = Region.calibrate(tx_power: -59, exponent: dep.world_value.radio.exponent)
-    {:ok, _} = start_database(host, node, dep.building, dep.hosts, dep.cloud, cal, opts)
-    :ok
+  @spec restart_node(t(), Building.node_name()) :: t()
+  def restart_node(%__MODULE__{} = dep, node) do
+    :ok = TartarusEmu.Network.kill_node(dep.net, node)
+    :ok = TartarusEmu.Network.restart_node(dep.net, node)
+    %{dep | expected: Map.delete(dep.expected, dep.hosts[node])}
   end
 
   @doc "Runs `seconds` steps (see `step/1`)."
@@ -180,44 +171,107 @@ defmodule TartarusLats.Deployment do
     do: Enum.reduce(1..seconds//1, dep, fn _, d -> step(d) end)
 
   @doc """
-  Advances the world by one second and drives every database agent through
-  that second (see the moduledoc). Returns the deployment with `time` and
-  `world_value` updated.
+  Advances the world by one second, writes the readings into the
+  receivers and drives every database agent through that second (see the
+  moduledoc). Returns the deployment with `time`, `world` and `readings`
+  (this second's raw readings, `%{node => %{tag => rssi | :missing}}`)
+  updated.
   """
   @spec step(t()) :: t()
   def step(%__MODULE__{} = dep) do
-    :ok = WorldServer.step(dep.world)
-    t = dep.time + 1
-    sent = phase(dep, {:sense, t})
-    deliver(dep, t, sent, 10)
-    phase(dep, {:tick, t})
-    %{dep | time: t, world_value: WorldServer.world(dep.world)}
+    {world, rng} = World.step(dep.world, dep.rng)
+    {readings, rng} = World.readings(world, rng)
+    t = world.time
+    dep = %{dep | world: world, rng: rng, readings: readings, time: t}
+    write_readings(dep, t)
+    {dep, sent} = phase(dep, {:sense, t})
+    dep = deliver(dep, t, sent, 1)
+    {dep, _} = phase(dep, {:tick, t})
+    dep
   end
 
-  defp deliver(_dep, _t, 0, _n), do: :ok
-  defp deliver(_dep, _t, _sent, 0), do: :ok
-  defp deliver(dep, t, _sent, n), do: deliver(dep, t, phase(dep, {:deliver, t}), n - 1)
-
-  # Sends `msg` to every database agent at once; returns the number of handshake
-  # messages they posted. Raises if an agent does not answer.
-  defp phase(dep, msg) do
+  defp write_readings(dep, t) do
     dep.hosts
-    |> Enum.map(fn {_n, host} ->
-      Task.async(fn -> Tartarus.request({DatabaseAgent.agent_name(), host}, msg, 60_000) end)
+    |> Task.async_stream(
+      fn {node, host} ->
+        heard =
+          for {tag, rssi} <- Map.get(dep.readings, node, %{}),
+              is_number(rssi),
+              into: %{},
+              do: {tag, rssi}
+
+        {node, Tartarus.write_plugin(host, :beacon, {:readings, t, heard})}
+      end,
+      max_concurrency: 16,
+      timeout: 60_000
+    )
+    |> Enum.each(fn
+      {:ok, {_node, :ok}} -> :ok
+      {:ok, {_node, {:error, :unknown_host}}} -> :ok
+      {:ok, {node, other}} -> raise "LATS driver: receiver of #{node} failed: #{inspect(other)}"
+    end)
+  end
+
+  # At most 10 deliveries a second; what is left waits for the next second's first.
+  defp deliver(dep, _t, 0, _j), do: dep
+  defp deliver(dep, _t, _sent, j) when j > 10, do: dep
+
+  defp deliver(dep, t, _sent, j) do
+    {dep, sent} = phase(dep, {:deliver, t, j})
+    deliver(dep, t, sent, j + 1)
+  end
+
+  # Sends `msg` to every database agent at once, then waits until every message the phase
+  # cast has been taken (the barrier). Returns the deployment and the number of handshake
+  # messages sent. Raises if an agent does not answer.
+  defp phase(dep, msg) do
+    replies =
+      dep.hosts
+      |> Enum.map(fn {_n, host} ->
+        Task.async(fn -> Tartarus.request({DatabaseAgent.agent_name(), host}, msg, 60_000) end)
+      end)
+      |> Task.await_many(120_000)
+
+    {expected, uploads, sent} =
+      Enum.reduce(replies, {dep.expected, dep.uploads, 0}, fn
+        {:ok, {:ok, %{sent: to, uploads: u}}}, {exp, ups, n} ->
+          exp = Enum.reduce(to, exp, fn {h, k}, exp -> Map.update(exp, h, k, &(&1 + k)) end)
+          {exp, ups + u, n + Enum.sum(Map.values(to))}
+
+        {:error, :not_found}, acc ->
+          acc
+
+        other, _ ->
+          raise "LATS driver: a database agent failed #{inspect(msg)}: #{inspect(other)}"
+      end)
+
+    changed = for {h, k} <- expected, Map.get(dep.expected, h) != k, do: {h, k}
+    barrier(changed, if(uploads > dep.uploads, do: {dep.cloud, uploads}))
+    {%{dep | expected: expected, uploads: uploads}, sent}
+  end
+
+  defp barrier(agents, cloud) do
+    syncs =
+      Enum.map(agents, fn {h, k} -> {DatabaseAgent.agent_name(), h, k} end) ++
+        if(cloud, do: [{Cloud.agent_name(), elem(cloud, 0), elem(cloud, 1)}], else: [])
+
+    syncs
+    |> Enum.map(fn {name, host, k} ->
+      Task.async(fn -> {host, Tartarus.request({name, host}, {:sync, k}, 60_000)} end)
     end)
     |> Task.await_many(120_000)
-    |> Enum.reduce(0, fn
-      {:ok, {:ok, n}}, acc -> acc + n
-      {:error, :not_found}, acc -> acc
-      other, _ -> raise "LATS driver: a database agent failed #{inspect(msg)}: #{inspect(other)}"
+    |> Enum.each(fn
+      {_host, {:ok, :ok}} -> :ok
+      {_host, {:error, :not_found}} -> :ok
+      {host, other} -> raise "LATS driver: barrier at #{inspect(host)} failed: #{inspect(other)}"
     end)
   end
 
-  @doc "Stops the hosts this deployment started and the world."
+  @doc "Stops the network, and the cloud host if this deployment started it."
   @spec stop(t()) :: :ok
   def stop(%__MODULE__{} = dep) do
-    Enum.each(dep.owned_hosts, &Tartarus.stop_host/1)
-    if Process.alive?(dep.world), do: GenServer.stop(dep.world)
+    TartarusEmu.Network.stop(dep.net)
+    if dep.owns_cloud, do: Tartarus.stop_host(dep.cloud)
     :ok
   end
 end

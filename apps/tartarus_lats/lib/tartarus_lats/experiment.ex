@@ -43,90 +43,160 @@ defmodule TartarusLats.Experiment do
       truth (`trace_time_error_s`: median absolute difference of entry times).
   """
 
-  alias TartarusLats.{Building, Cloud, Deployment, World, WorldServer}
+  @behaviour TartarusEmu.Scenario
+
+  alias TartarusLats.{Building, Cloud, Deployment, World}
 
   @settle_inside 20
   @settle_outside 30
   @warmup 120
 
+  @schema [
+    nodes: [type: :pos_integer, default: 50, doc: "building nodes (at least 10)"],
+    bearers: [type: :pos_integer, default: 10, doc: "tag bearers"],
+    minutes: [type: :pos_integer, default: 20, doc: "world minutes"],
+    queries: [type: :pos_integer, default: 30, doc: "queries"],
+    seed: [type: :integer, default: 1, doc: "seed of the world and of the queries"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    group: [type: :pos_integer, default: 10, doc: "building nodes per BEAM node in peer mode"],
+    out: [type: :any, doc: "output directory (default `results/lats-<UTC timestamp>`), or false"],
+    quiet: [type: :boolean, default: false, doc: "no progress line"]
+  ]
+
+  @doc "The options of `run/1` (a `Tartarus.Options` schema; `mix tartarus.lats` reads its defaults here)."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
   @doc """
-  Runs the experiment. Options: `:nodes` (50), `:bearers` (10), `:minutes`
-  (20), `:queries` (30), `:seed` (1), `:mode` (`:virtual` or `:peer`),
-  `:group` (topology nodes per BEAM node in peer mode, default 10),
-  `:progress` (a `TartarusTools.Progress` options list, or false).
+  Runs the experiment as a `TartarusEmu.Scenario` (one step per world
+  second) and writes its report (`TartarusLats.Report`). Options:
 
-  Returns a map with `:summary` (the summary keys), `:queries` (one map per
-  query), `:cloud_log`, `:rssi` and `:meta`.
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, %{summary:, series:, out:, files:}}` (see
+  `TartarusEmu.Scenario.run/2`; the summary keys are listed in `mix help
+  tartarus.lats`) or `{:error, message}` for bad options.
   """
-  @spec run(keyword()) :: map()
+  @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
   def run(opts \\ []) do
-    nodes = Keyword.get(opts, :nodes, 50)
-    bearers = Keyword.get(opts, :bearers, 10)
-    minutes = Keyword.get(opts, :minutes, 20)
-    n_queries = Keyword.get(opts, :queries, 30)
-    seed = Keyword.get(opts, :seed, 1)
-    mode = Keyword.get(opts, :mode, :virtual)
-    duration = minutes * 60
-    started = System.monotonic_time(:millisecond)
-
-    building = building(nodes)
-    world = world(building, bearers)
-    {net, dep_opts} = network(mode, building, opts)
-    prefix = "lats#{System.unique_integer([:positive])}"
-    dep = Deployment.start([seed: seed, world: world, prefix: prefix] ++ dep_opts)
-
-    try do
-      progress =
-        case Keyword.get(opts, :progress, []) do
-          false -> nil
-          popts -> TartarusTools.Progress.new(duration, [label: "lats"] ++ popts)
-        end
-
-      schedule = schedule(n_queries, duration)
-      rng = :rand.seed_s(:exsss, seed * 7919 + 11)
-      janitor = if :janitor in World.names(world), do: World.tag(world, :janitor)
-
-      acc = %{dep: dep, rng: rng, pending: [], results: [], rssi: [], progress: progress, k: 0}
-
-      acc =
-        Enum.reduce(1..duration//1, acc, fn _, acc ->
-          dep = Deployment.step(acc.dep)
-          acc = %{acc | dep: dep}
-          acc = record_rssi(acc, janitor)
-          due = Map.get(schedule, dep.time, [])
-          acc = fire(%{acc | pending: acc.pending ++ due})
-          %{acc | progress: acc.progress && TartarusTools.Progress.advance(acc.progress)}
-        end)
-
-      if acc.progress, do: TartarusTools.Progress.finish(acc.progress)
-      stats = Cloud.stats(acc.dep.cloud)
-      results = Enum.reverse(acc.results)
-      wall = System.monotonic_time(:millisecond) - started
-
-      summary =
-        summarize(
-          results,
-          stats,
-          acc.dep,
-          opts_map(opts, nodes, bearers, minutes, seed, mode),
-          wall
-        )
-
-      %{
-        summary: summary,
-        queries: results,
-        cloud_log: stats.log,
-        rssi: Enum.reverse(acc.rssi),
-        meta: %{world: acc.dep.world_value, building: building}
-      }
-    after
-      Deployment.stop(dep)
-      if net, do: TartarusEmu.Network.stop(net)
+    with {:ok, opts} <- validate(opts) do
+      {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet])
+      TartarusEmu.Scenario.run(__MODULE__, runner ++ [steps: opts[:minutes] * 60] ++ rest)
     end
   end
 
-  defp opts_map(_opts, nodes, bearers, minutes, seed, mode),
-    do: %{nodes: nodes, bearers: bearers, minutes: minutes, seed: seed, mode: mode}
+  @doc """
+  Checks `run/1`'s options against `schema/0` (and `:nodes` >= 10); returns them with the
+  defaults filled in, or `{:error, message}` naming the key, what was expected and what
+  arrived.
+
+      iex> {:ok, opts} = TartarusLats.Experiment.validate(nodes: 20)
+      iex> {opts[:nodes], opts[:minutes], opts[:mode]}
+      {20, 20, :virtual}
+      iex> TartarusLats.Experiment.validate(nodes: 5)
+      {:error, "invalid options given to TartarusLats.Experiment.run/1 for key :nodes: expected an integer >= 10, got: 5"}
+  """
+  @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.Experiment.run/1"),
+         :ok <- check_nodes(opts[:nodes]) do
+      {:ok, opts}
+    end
+  end
+
+  defp check_nodes(n) when n >= 10, do: :ok
+
+  defp check_nodes(n),
+    do:
+      {:error,
+       "invalid options given to TartarusLats.Experiment.run/1 for key :nodes: expected an integer >= 10, got: #{n}"}
+
+  # -- the scenario ------------------------------------------------------------------
+
+  @impl TartarusEmu.Scenario
+  def name, do: "lats"
+
+  @impl TartarusEmu.Scenario
+  def title, do: "LATS (thesis ch. 3): agents vs cloud"
+
+  @impl TartarusEmu.Scenario
+  def setup(opts) do
+    building = building(opts.nodes)
+    world = world(building, opts.bearers)
+    duration = opts.steps
+
+    dep =
+      Deployment.start(
+        seed: opts.seed,
+        world: world,
+        mode: opts.mode,
+        group: opts.group
+      )
+
+    {:ok,
+     %{
+       dep: dep,
+       rng: :rand.seed_s(:exsss, opts.seed * 7919 + 11),
+       schedule: schedule(opts.queries, duration),
+       janitor: if(:janitor in World.names(world), do: World.tag(world, :janitor)),
+       pending: [],
+       results: [],
+       rssi: [],
+       k: 0,
+       series: TartarusTools.Series.new(),
+       meta: %{
+         nodes: opts.nodes,
+         bearers: opts.bearers,
+         minutes: opts.minutes,
+         mode: to_string(opts.mode)
+       }
+     }}
+  end
+
+  @impl TartarusEmu.Scenario
+  def step(state, _step) do
+    dep = Deployment.step(state.dep)
+    state = %{state | dep: dep} |> record_rssi()
+    due = Map.get(state.schedule, dep.time, [])
+    state = fire(%{state | pending: state.pending ++ due})
+    record_series(state)
+  end
+
+  defp record_series(%{dep: %{time: t}} = state) when rem(t, 10) == 0 do
+    series =
+      state.series
+      |> TartarusTools.Series.record(:cloud_uploads_centralized, t, state.dep.uploads)
+      |> TartarusTools.Series.record(:queries_answered, t, length(state.results))
+
+    %{state | series: series}
+  end
+
+  defp record_series(state), do: state
+
+  @impl TartarusEmu.Scenario
+  def series(state), do: state.series
+
+  @impl TartarusEmu.Scenario
+  def summary(state) do
+    summarize(Enum.reverse(state.results), Cloud.stats(state.dep.cloud), state.dep, state.meta)
+  end
+
+  @impl TartarusEmu.Scenario
+  def comparisons(state), do: TartarusLats.Report.comparisons(summary(state))
+
+  @impl TartarusEmu.Scenario
+  def write(state, dir) do
+    TartarusLats.Report.write!(dir, %{
+      summary: summary(state),
+      queries: Enum.reverse(state.results),
+      cloud_log: Cloud.stats(state.dep.cloud).log,
+      rssi: Enum.reverse(state.rssi),
+      world: state.dep.world
+    })
+  end
+
+  @impl TartarusEmu.Scenario
+  def teardown(state), do: Deployment.stop(state.dep)
 
   @doc """
   The building for `nodes` nodes: the thesis's 50 (2 floors of 5 x 5) by
@@ -150,23 +220,6 @@ defmodule TartarusLats.Experiment do
     end
   end
 
-  defp network(:virtual, _building, _opts), do: {nil, []}
-
-  defp network(:peer, building, opts) do
-    unless Code.ensure_loaded?(TartarusEmu.Network) do
-      raise ArgumentError, "--mode peer needs TartarusEmu.Network, which is not available"
-    end
-
-    nodes = Building.nodes(building)
-    edges = for n <- nodes, m <- Building.neighbours(building, n), n < m, do: {n, m}
-    topo = TartarusEmu.Topology.new(nodes, edges)
-
-    {:ok, net} =
-      TartarusEmu.Network.start(topo, mode: :peer, group: Keyword.get(opts, :group, 10))
-
-    {net, [hosts: net.hosts]}
-  end
-
   # Query instants: %{second => [type]}.
   defp schedule(n, duration) do
     instants = max(1, div(n + 2, 3))
@@ -185,7 +238,7 @@ defmodule TartarusLats.Experiment do
   defp fire(%{pending: []} = acc), do: acc
 
   defp fire(acc) do
-    world = acc.dep.world_value
+    world = acc.dep.world
 
     {batch, waiting, rng, k} =
       Enum.reduce(acc.pending, {[], [], acc.rng, acc.k}, fn type, {batch, waiting, rng, k} ->
@@ -346,11 +399,11 @@ defmodule TartarusLats.Experiment do
 
   @rssi_seconds 400
 
-  defp record_rssi(acc, nil), do: acc
-  defp record_rssi(%{dep: %{time: t}} = acc, _tag) when t > @rssi_seconds, do: acc
+  defp record_rssi(%{janitor: nil} = acc), do: acc
+  defp record_rssi(%{dep: %{time: t}} = acc) when t > @rssi_seconds, do: acc
 
-  defp record_rssi(acc, tag) do
-    raw = WorldServer.all_readings(acc.dep.world)
+  defp record_rssi(%{janitor: tag} = acc) do
+    raw = acc.dep.readings
 
     row =
       Map.new(acc.dep.hosts, fn {node, host} ->
@@ -364,7 +417,7 @@ defmodule TartarusLats.Experiment do
 
   # -- summary -------------------------------------------------------------------------
 
-  defp summarize(results, stats, dep, meta, wall) do
+  defp summarize(results, stats, dep, meta) do
     hops = results |> Enum.map(& &1.hops) |> Enum.sort()
     ms = results |> Enum.map(& &1.ms) |> Enum.sort()
     c = stats.connections.centralized
@@ -374,7 +427,7 @@ defmodule TartarusLats.Experiment do
       results
       |> Enum.group_by(& &1.type)
       |> Map.new(fn {type, rs} ->
-        {type,
+        {to_string(type),
          %{
            queries: length(rs),
            correct: Enum.count(rs, & &1.correct),
@@ -396,16 +449,9 @@ defmodule TartarusLats.Experiment do
       median_query_ms: median(ms) && Float.round(median(ms) * 1.0, 3),
       trace_time_error_s: median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
       by_type: by_type,
-      world_seconds: dep.time,
-      wall_ms: wall
+      world_seconds: dep.time
     })
   end
 
-  @doc false
-  def median([]), do: nil
-
-  def median(list) do
-    sorted = Enum.sort(list)
-    Enum.at(sorted, div(length(sorted) - 1, 2))
-  end
+  defp median(list), do: TartarusTools.Report.median(list)
 end

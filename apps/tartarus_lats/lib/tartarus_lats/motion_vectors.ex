@@ -165,15 +165,17 @@ defmodule TartarusLats.MotionVectors do
   """
   @spec new(node_name(), keyword()) :: t()
   def new(node, opts \\ []) do
-    timeout = Keyword.get(opts, :timeout, 15)
+    schema = [
+      timeout: [
+        type: :any,
+        default: 15,
+        check: :positive,
+        doc: "handshake timeout in seconds"
+      ]
+    ]
 
-    unless is_number(timeout) and timeout > 0 do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.MotionVectors.new/2 for key :timeout: " <>
-              "expected a positive number, got: #{inspect(timeout)}"
-    end
-
-    %__MODULE__{node: node, timeout: timeout}
+    opts = TartarusLats.Options.validate!(opts, schema, "TartarusLats.MotionVectors.new/2")
+    %__MODULE__{node: node, timeout: opts[:timeout]}
   end
 
   @doc """

@@ -60,44 +60,19 @@ defmodule TartarusLats.Radio do
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
-    Enum.reduce(opts, %__MODULE__{}, fn {key, value}, radio ->
-      unless Map.has_key?(radio, key) and key != :__struct__ do
-        raise ArgumentError,
-              "invalid options given to TartarusLats.Radio.new/1: unknown key #{inspect(key)}"
-      end
+    alias TartarusLats.Options
 
-      check!(key, value)
-      Map.put(radio, key, value)
-    end)
-  end
+    schema = [
+      exponent: [type: :any, check: :positive, doc: "path-loss exponent"],
+      noise_sigma: [type: :any, check: :non_negative, doc: "noise (dB)"],
+      spike_probability: [type: :any, check: :probability, doc: "spikes"],
+      spike_db: [type: :any, check: :db_range, doc: "spike size"],
+      drop_probability: [type: :any, check: :probability, doc: "drops"],
+      sensitivity: [type: :number, doc: "weakest RSSI heard (dBm)"]
+    ]
 
-  defp check!(:exponent, v) when is_number(v) and v > 0, do: :ok
-  defp check!(:noise_sigma, v) when is_number(v) and v >= 0, do: :ok
-  defp check!(:sensitivity, v) when is_number(v), do: :ok
-
-  defp check!(key, v) when key in [:spike_probability, :drop_probability] and is_number(v),
-    do: if(v >= 0 and v <= 1, do: :ok, else: bad!(key, "a probability in 0..1", v))
-
-  defp check!(:spike_db, {lo, hi} = v) when is_number(lo) and is_number(hi),
-    do: if(lo <= hi, do: :ok, else: bad!(:spike_db, "a {low, high} range of dB", v))
-
-  defp check!(key, v) do
-    expected =
-      case key do
-        :exponent -> "a positive number"
-        :noise_sigma -> "a non-negative number"
-        :spike_db -> "a {low, high} range of dB"
-        :sensitivity -> "a number"
-        _ -> "a probability in 0..1"
-      end
-
-    bad!(key, expected, v)
-  end
-
-  defp bad!(key, expected, v) do
-    raise ArgumentError,
-          "invalid options given to TartarusLats.Radio.new/1 for key #{inspect(key)}: " <>
-            "expected #{expected}, got: #{inspect(v)}"
+    opts = Options.validate!(opts, schema, "TartarusLats.Radio.new/1")
+    struct!(__MODULE__, opts)
   end
 
   @doc """

@@ -50,23 +50,20 @@ defmodule TartarusLats.Region do
   """
   @spec calibrate(keyword()) :: calibration()
   def calibrate(opts \\ []) do
-    tx = Keyword.get(opts, :tx_power, -59)
-    n = Keyword.get(opts, :exponent, 2.0)
-    near_m = Keyword.get(opts, :near_m, 2.0)
-    far_m = Keyword.get(opts, :far_m, 5.0)
+    schema = [
+      tx_power: [type: :number, default: -59, doc: "dBm at 1 m"],
+      exponent: [
+        type: :number,
+        default: 2.0,
+        check: :positive,
+        doc: "path-loss exponent"
+      ],
+      near_m: [type: :number, default: 2.0, doc: "near distance (m)"],
+      far_m: [type: :number, default: 5.0, doc: "far distance (m)"]
+    ]
 
-    for {key, value} <- [tx_power: tx, exponent: n, near_m: near_m, far_m: far_m],
-        not is_number(value) do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.Region.calibrate/1 for key #{inspect(key)}: " <>
-              "expected a number, got: #{inspect(value)}"
-    end
-
-    unless n > 0 do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.Region.calibrate/1 for key :exponent: " <>
-              "expected a positive number, got: #{inspect(n)}"
-    end
+    opts = TartarusLats.Options.validate!(opts, schema, "TartarusLats.Region.calibrate/1")
+    [tx, n, near_m, far_m] = Enum.map([:tx_power, :exponent, :near_m, :far_m], &opts[&1])
 
     unless near_m > 0 and near_m < far_m do
       raise ArgumentError,

@@ -56,26 +56,21 @@ defmodule TartarusLats.RSSIFilter do
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
-    window = Keyword.get(opts, :window, @default_window)
+    schema = [
+      window: [type: :pos_integer, default: @default_window, doc: "samples averaged"],
+      fill: [type: :number, doc: "start with the window full of this value"]
+    ]
 
-    unless is_integer(window) and window > 0 do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.RSSIFilter.new/1 for key :window: " <>
-              "expected a positive integer, got: #{inspect(window)}"
-    end
+    opts = TartarusLats.Options.validate!(opts, schema, "TartarusLats.RSSIFilter.new/1")
+    window = opts[:window]
 
     case Keyword.fetch(opts, :fill) do
       :error ->
         %__MODULE__{window: window}
 
-      {:ok, value} when is_number(value) ->
+      {:ok, value} ->
         samples = Enum.reduce(1..window, :queue.new(), fn _, q -> :queue.in(value, q) end)
         %__MODULE__{window: window, samples: samples, count: window, sum: value * window}
-
-      {:ok, other} ->
-        raise ArgumentError,
-              "invalid options given to TartarusLats.RSSIFilter.new/1 for key :fill: " <>
-                "expected a number, got: #{inspect(other)}"
     end
   end
 

@@ -101,6 +101,23 @@ defmodule TartarusLats.Tracker do
           tags: %{Beacon.tag_id() => tag_state()}
         }
 
+  @schema [
+    calibration: [
+      type: :any,
+      check: {:struct, Region, "a TartarusLats.Region calibration"},
+      doc: "a calibration (default `TartarusLats.Region.calibrate/0`)"
+    ],
+    window: [type: :pos_integer, default: 6, doc: "moving-average window"],
+    median: [
+      type: :pos_integer,
+      default: 3,
+      check: :odd,
+      doc: "spike-rejecting median window"
+    ],
+    confirm: [type: :pos_integer, default: 2, doc: "samples that confirm a change"],
+    missing_rssi: [type: :number, default: -100, doc: "dBm of a missing sample"]
+  ]
+
   @doc """
   A new tracker.
 
@@ -121,40 +138,16 @@ defmodule TartarusLats.Tracker do
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
+    opts = TartarusLats.Options.validate!(opts, @schema, "TartarusLats.Tracker.new/1")
     cal = Keyword.get_lazy(opts, :calibration, fn -> Region.calibrate() end)
-    window = Keyword.get(opts, :window, 6)
-    median = Keyword.get(opts, :median, 3)
-    confirm = Keyword.get(opts, :confirm, 2)
-    floor = Keyword.get(opts, :missing_rssi, -100)
-
-    check!(:calibration, cal, match?(%Region{}, cal), "a TartarusLats.Region calibration")
-    check!(:window, window, is_integer(window) and window > 0, "a positive integer")
-
-    check!(
-      :median,
-      median,
-      is_integer(median) and median > 0 and rem(median, 2) == 1,
-      "an odd positive integer"
-    )
-
-    check!(:confirm, confirm, is_integer(confirm) and confirm > 0, "a positive integer")
-    check!(:missing_rssi, floor, is_number(floor), "a number")
 
     %__MODULE__{
       calibration: cal,
-      window: window,
-      median: median,
-      confirm: confirm,
-      missing_rssi: floor
+      window: opts[:window],
+      median: opts[:median],
+      confirm: opts[:confirm],
+      missing_rssi: opts[:missing_rssi]
     }
-  end
-
-  defp check!(_key, _value, true, _expected), do: :ok
-
-  defp check!(key, value, false, expected) do
-    raise ArgumentError,
-          "invalid options given to TartarusLats.Tracker.new/1 for key #{inspect(key)}: " <>
-            "expected #{expected}, got: #{inspect(value)}"
   end
 
   @doc """
@@ -269,10 +262,9 @@ defmodule TartarusLats.Tracker do
     }
   end
 
-  defp median(values) do
-    sorted = Enum.sort(values)
-    Enum.at(sorted, div(length(sorted), 2))
-  end
+  # The window is odd (checked in new/1): the middle sample. Computed by the platform's
+  # one percentile definition, which the tooling's medians also use.
+  defp median(values), do: Tartarus.percentile(Enum.sort(values), 0.5)
 
   defp maybe_confirm(t, {uuid, major, minor} = tag, %{pending: {new, since, count, avg}} = state)
        when count >= t.confirm do

@@ -94,11 +94,11 @@ defmodule TartarusLats.World do
     speed = Keyword.get(opts, :speed, 1.2)
     tx = Keyword.get(opts, :tx_power, -59)
 
-    unless is_integer(walkers) and walkers >= 0 do
-      raise ArgumentError,
-            "invalid options given to TartarusLats.World.new/1 for key :walkers: " <>
-              "expected a non-negative integer, got: #{inspect(walkers)}"
-    end
+    Tartarus.Options.validate!(
+      [walkers: walkers],
+      [walkers: [type: :non_neg_integer]],
+      "TartarusLats.World.new/1"
+    )
 
     Enum.each(scripts, &check_script!(building, &1))
     [entrance | _] = Building.entrances(building)

@@ -45,11 +45,11 @@ defmodule TartarusLats.AgentsTest do
       Deployment.start(seed: 1, world: appendix_world(), prefix: "appx") |> Deployment.run(150)
 
     on_exit(fn -> Deployment.stop(dep) end)
-    %{dep: dep, tag: World.tag(dep.world_value, :x)}
+    %{dep: dep, tag: World.tag(dep.world, :x)}
   end
 
   test "ground truth of the Appendix .2 walk", %{dep: dep} do
-    assert Enum.map(World.visited_path(dep.world_value, :x), & &1.zone) == [:d, :e, :f, :i, :h]
+    assert Enum.map(World.visited_path(dep.world, :x), & &1.zone) == [:d, :e, :f, :i, :h]
   end
 
   test "Trace(X) fired at a searches conscientiously, then follows the vectors", %{
@@ -60,7 +60,7 @@ defmodule TartarusLats.AgentsTest do
     assert {:ok, %{path: path, entry: :infinity, status: :present}} = r.answer
     assert nodes(path) == [:d, :e, :f, :i, :h]
     # entry/exit times within a few seconds of the truth
-    for {p, t} <- Enum.zip(path, World.visited_path(dep.world_value, :x)),
+    for {p, t} <- Enum.zip(path, World.visited_path(dep.world, :x)),
         do: assert(abs(p.arrived_at - t.entered_at) <= 8)
 
     assert hd(r.route) == :a
@@ -156,7 +156,7 @@ defmodule TartarusLats.AgentsTest do
         # b's database agent is gone: b hears X but nobody there answers a's notice.
         :ok = Tartarus.kill({"lats-db", dep.hosts[:b]})
         dep = Deployment.run(dep, 40)
-        tag = World.tag(dep.world_value, :y)
+        tag = World.tag(dep.world, :y)
         mv = Tartarus.store_get(dep.hosts[:a], {:lats, :mv})
         assert {:a, :pending} = MotionVectors.mvf(mv, tag)
 
@@ -185,13 +185,13 @@ defmodule TartarusLats.AgentsTest do
         mv = Tartarus.store_get(host, {:lats, :mv})
         assert length(log) >= 2
 
-        :ok = Deployment.restart_node(dep, :d, data_dir: dir)
+        dep = Deployment.restart_node(dep, :d)
         assert Tartarus.store_get(host, {:lats, :log}) == log
         assert Tartarus.store_get(host, {:lats, :mv}).tags == mv.tags
 
         # and the node goes on working: the trace still reaches through d
         dep = Deployment.run(dep, 90)
-        tag = World.tag(dep.world_value, :x)
+        tag = World.tag(dep.world, :x)
 
         assert {:ok, %{answer: {:ok, %{path: path}}}} =
                  TartarusLats.query(dep.hosts[:h], :trace, tag)
@@ -203,7 +203,7 @@ defmodule TartarusLats.AgentsTest do
     end
   end
 
-  test "the beacon plugin attaches, describes itself and needs a source" do
+  test "the beacon plugin attaches, describes itself, plays its script and takes writes" do
     {:ok, host} = Tartarus.start_host("beacon-test")
 
     try do
@@ -219,8 +219,19 @@ defmodule TartarusLats.AgentsTest do
       [{:beacon, desc}] = Tartarus.plugins(host)
       assert desc.kind == :ble_receiver
 
+      assert {:ok, %{tag => -60}} == Tartarus.read_plugin(host, :beacon, {:scan, 1})
+      :ok = Tartarus.write_plugin(host, :beacon, {:readings, 2, %{tag => -70}})
+      assert {:ok, %{tag => -70}} == Tartarus.read_plugin(host, :beacon, {:scan, 2})
+      assert {:ok, %{}} == Tartarus.read_plugin(host, :beacon, {:scan, 3})
+
+      assert {:error, _} = Tartarus.attach_plugin(host, :bad, {TartarusLats.BeaconPlugin, []})
+
       assert {:error, _} =
-               Tartarus.attach_plugin(host, :bad, {TartarusLats.BeaconPlugin, node: :n})
+               Tartarus.attach_plugin(
+                 host,
+                 :bad,
+                 {TartarusLats.BeaconPlugin, node: :n, script: 1}
+               )
     after
       Tartarus.stop_host(host)
     end

@@ -4,6 +4,21 @@ defmodule TartarusTools.Chaos do
   at random, nodes killed with SIGKILL and restarted, pairs of nodes partitioned and healed;
   at the end everything is healed and the agents are counted.
 
+  ## The workload
+
+  The agents (`TartarusTools.Chaos.Counter`) have a state that changes: each records every
+  message it takes (`{:msg, seq}`, numbered per agent by the harness). Each step of the
+  eight workers is one migration attempt - mostly a `Tartarus.move/2` ordered from outside,
+  sometimes a move the agent makes itself (it is posted `{:go, dest}` and returns
+  `{:move, dest, state}`), sometimes a `Tartarus.clone/2` (the clone is tracked like the
+  other agents) - followed by one `Tartarus.post/3` of a numbered message to a random
+  agent. A post that returned `:ok` is *acknowledged*: the harness remembers it.
+
+  While the workers run, a **census** every `:census_ms` (default 1,000) lists every
+  host's resident agents and asks each copy to answer (`Tartarus.agent_info/1` through
+  that host); an id resident and alive on two hosts at once, and still so a moment later,
+  is a *transient duplicate*.
+
   ## What it measures
 
     * `duplicates` - extra copies: an agent id found on more than one host (must be 0);
@@ -12,7 +27,25 @@ defmodule TartarusTools.Chaos do
       node when it was killed. Without persistence, killing a node loses its agents, so a
       correct platform has `lost == lost_on_dead_hosts`; with persistence (`persist: true`,
       every host checkpoints to its own data directory and is restarted on it) `lost` must
-      be 0.
+      be 0;
+    * `transient_duplicates` - copies seen running at once by the census (must be 0);
+      `census_rounds`, `census_unanswered` (a listed resident that did not answer: it may
+      have been leaving);
+    * `acknowledged` - posts that returned `:ok`; `acknowledged_missing` - of those, messages
+      not in the agent's state at the end (agents found at the end only);
+      `acknowledged_missing_after_kill` - of those, messages of agents that were on a node
+      when it was SIGKILLed: without a durability mode, persistence restores an agent as it
+      was at its last arrival, so those can be lost and are reported apart, not as a failure
+      of the default mode; `acknowledged_of_lost_agents` - acknowledged messages of agents
+      not found at the end;
+    * `clones`, `agent_moves` (moves the agents asked for themselves), `posts`,
+      `post_failures` (reason => count), `untracked_agents` (agents found at the end that
+      the harness did not create: a clone whose outcome it never learnt).
+
+  Not exercised: replaying captured hand-off messages from a rogue node. That needs the
+  protocol's messages themselves, which neither the public API nor the `Tartarus.Fault`
+  points hand out (`:outgoing` and `:admitting` give the envelope, not the message), so the
+  harness would depend on the wire format; the protocol's own tests do it.
 
   The schedule of moves, kills and partitions is drawn from `seed`; the interleaving with
   the nodes' own timing is not deterministic (that is the point of a chaos run).
@@ -27,14 +60,16 @@ defmodule TartarusTools.Chaos do
   """
 
   alias TartarusTools.Peer
-  alias Tartarus.Examples.Echo
+  alias TartarusTools.Chaos.Counter
 
   @workers 8
 
   @doc """
   Runs a chaos experiment. Options: `:nodes` (default 8), `:agents` (500), `:migrations`
   (10_000), `:kills` (20), `:partitions` (20), `:persist` (false), `:seed` (1),
-  `:progress` (a 1-arity fun called with the number of migrations attempted so far).
+  `:progress` (a 1-arity fun called with the number of migrations attempted so far),
+  `:census_ms` (1_000; 0 turns the census off), `:host_opts` (extra options for every
+  host, e.g. `[durable: true]` on a platform that has them).
   Returns a map of results (see the moduledoc).
   """
   @spec run(keyword()) :: map()
@@ -49,7 +84,8 @@ defmodule TartarusTools.Chaos do
     progress = Keyword.get(opts, :progress, fn _ -> :ok end)
     if n < 2, do: raise(ArgumentError, "a chaos run needs at least 2 nodes, got: #{n}")
 
-    tag = "#{System.unique_integer([:positive])}"
+    # Unique on this machine: several harnesses (a test, a run) may start nodes at once.
+    tag = "#{System.unique_integer([:positive])}_#{:os.getpid()}"
     dir = Path.join(System.tmp_dir!(), "tartarus_chaos_#{tag}")
     names = for i <- 1..n, do: :"chaos#{i}_#{tag}"
 
@@ -58,7 +94,9 @@ defmodule TartarusTools.Chaos do
       dir: dir,
       persist: persist,
       migrations: migrations,
-      table: :ets.new(:chaos, [:public, :set])
+      host_opts: Keyword.get(opts, :host_opts, []),
+      table: :ets.new(:chaos, [:public, :set, write_concurrency: true]),
+      acked: :ets.new(:chaos_acked, [:public, :bag, write_concurrency: true])
     }
 
     t0 = System.monotonic_time(:millisecond)
@@ -70,7 +108,7 @@ defmodule TartarusTools.Chaos do
       ids =
         for i <- 1..agents do
           host = Enum.at(hosts, rem(i, n))
-          {:ok, id} = Tartarus.create_mobile_agent(host, Echo, i)
+          {:ok, id} = Tartarus.create_mobile_agent(host, Counter, i)
           :ets.insert(world.table, {{:loc, id}, host})
           id
         end
@@ -86,12 +124,17 @@ defmodule TartarusTools.Chaos do
           Task.async(fn -> worker(world, ids, hosts, migrations, counter, {seed, w}) end)
         end
 
+      census = Task.async(fn -> census(world, hosts, Keyword.get(opts, :census_ms, 1_000)) end)
       run_faults(world, faults, counter, nodes, progress, {seed, 0})
       Task.await_many(workers, :infinity)
+      send(census.pid, :stop)
+      census_result = Task.await(census, :infinity)
 
       heal_all(world, nodes)
       settle(hosts)
-      count(world, ids, hosts, counter, kills, partitions, persist, seed, n, t0)
+      world
+      |> count(ids, hosts, counter, kills, partitions, persist, seed, n, t0)
+      |> Map.merge(census_result)
     after
       for name <- names, do: Peer.kill(node_of(name))
       File.rm_rf(dir)
@@ -141,9 +184,72 @@ defmodule TartarusTools.Chaos do
         :ok
 
       true ->
-        move_one(world, id, dest, counter)
+        {op, rng} = :rand.uniform_s(100, rng)
+        {k, rng} = :rand.uniform_s(tuple_size(ids), rng)
+
+        cond do
+          op <= 80 -> move_one(world, id, dest, counter)
+          op <= 95 -> agent_move(world, id, dest)
+          true -> clone_one(world, id, dest)
+        end
+
+        post_one(world, elem(ids, k - 1))
         loop(world, ids, hosts, migrations, counter, rng)
     end
+  end
+
+  # The agent moves itself: it is posted `{:go, dest}`; whether the move succeeds is not
+  # known here (its old host keeps a forwarding pointer if it does).
+  defp agent_move(world, id, dest) do
+    [{_, here}] = :ets.lookup(world.table, {:loc, id})
+
+    case safe_post({id, here}, {:go, dest}) do
+      :ok -> :ets.update_counter(world.table, :agent_moves, 1, {:agent_moves, 0})
+      _ -> :ok
+    end
+  end
+
+  defp clone_one(world, id, dest) do
+    [{_, here}] = :ets.lookup(world.table, {:loc, id})
+
+    case safe_call(fn -> Tartarus.clone({id, here}, dest) end) do
+      {:ok, clone} ->
+        :ets.insert(world.table, {{:clone, clone}, dest})
+        :ets.insert(world.table, {{:loc, clone}, dest})
+
+        if :ets.member(world.table, {:dead, elem(dest, 1)}),
+          do: :ets.insert(world.table, {{:on_dead, clone}, true})
+
+      _ ->
+        :ok
+    end
+  end
+
+  # One numbered message to an agent; an `:ok` is remembered as acknowledged.
+  defp post_one(world, id) do
+    if :ets.member(world.table, {:on_dead, id}) do
+      :ok
+    else
+      [{_, here}] = :ets.lookup(world.table, {:loc, id})
+      seq = :ets.update_counter(world.table, {:seq, id}, 1, {{:seq, id}, 0})
+
+      case safe_post({id, here}, {:msg, seq}) do
+        :ok ->
+          :ets.insert(world.acked, {id, seq})
+
+        {:error, reason} ->
+          key = {:post_failed, inspect(reason)}
+          :ets.update_counter(world.table, key, 1, {key, 0})
+      end
+    end
+  end
+
+  defp safe_post(ref, msg), do: safe_call(fn -> Tartarus.post(ref, msg) end)
+
+  defp safe_call(fun) do
+    fun.()
+  catch
+    _, reason -> {:error, reason}
   end
 
   defp all_dead?(world, ids),
@@ -161,6 +267,7 @@ defmodule TartarusTools.Chaos do
         # Committed to a node that died before the agent started there: lost with it.
         :ets.insert(world.table, {{:loc, id}, dest})
         :ets.insert(world.table, {{:on_dead, id}, true})
+        :ets.insert(world.table, {{:killed_on, id}, true})
 
       _failed ->
         :ok
@@ -177,8 +284,10 @@ defmodule TartarusTools.Chaos do
   defp locate(world, id, {_, node} = host) do
     :ets.insert(world.table, {{:loc, id}, host})
 
-    if :ets.member(world.table, {:dead, node}),
-      do: :ets.insert(world.table, {{:on_dead, id}, true})
+    if :ets.member(world.table, {:dead, node}) do
+      :ets.insert(world.table, {{:on_dead, id}, true})
+      :ets.insert(world.table, {{:killed_on, id}, true})
+    end
   end
 
   defp run_faults(_world, [], _counter, _nodes, progress, _seed), do: progress.(:done)
@@ -218,8 +327,10 @@ defmodule TartarusTools.Chaos do
     # back; so do agents that arrive while the node is marked dead.
     :ets.insert(world.table, {{:dead, node}, true})
 
-    for %{id: id} <- List.wrap(Tartarus.agents({:h, node})),
-        do: :ets.insert(world.table, {{:on_dead, id}, true})
+    for %{id: id} <- List.wrap(Tartarus.agents({:h, node})) do
+      :ets.insert(world.table, {{:on_dead, id}, true})
+      :ets.insert(world.table, {{:killed_on, id}, true})
+    end
 
     Peer.kill(node)
     :atomics.put(counter, 3, 1)
@@ -254,7 +365,8 @@ defmodule TartarusTools.Chaos do
 
     host_opts =
       [migration_timeout: 1_000] ++
-        if(world.persist, do: [data_dir: Path.join(world.dir, "#{name}")], else: [])
+        if(world.persist, do: [data_dir: Path.join(world.dir, "#{name}")], else: []) ++
+        world.host_opts
 
     {:ok, _} = :erpc.call(node, Tartarus, :start_host, [:h, host_opts])
     node
@@ -291,29 +403,184 @@ defmodule TartarusTools.Chaos do
     end
   end
 
-  defp count(world, ids, hosts, counter, kills, partitions, persist, seed, n, t0) do
-    found =
-      Enum.flat_map(hosts, fn h -> h |> Tartarus.agents() |> List.wrap() |> Enum.map(& &1.id) end)
+  # -- census ----------------------------------------------------------------------
 
-    freq = Enum.frequencies(found)
+  # Every `every_ms` until told to stop: each host lists its residents, each copy is asked to
+  # answer; an id resident and alive on two hosts, and still so 200 ms later, counts as a
+  # transient duplicate (a hand-off's source leaves the resident list as it commits, so a
+  # copy caught mid-move has left by then).
+  defp census(_world, _hosts, 0) do
+    receive do
+      :stop -> %{census_rounds: 0, transient_duplicates: 0, census_unanswered: 0}
+    end
+  end
+
+  defp census(world, hosts, every_ms), do: census(world, hosts, every_ms, {0, 0, 0})
+
+  defp census(world, hosts, every_ms, {rounds, dups, unanswered}) do
+    receive do
+      :stop -> %{census_rounds: rounds, transient_duplicates: dups, census_unanswered: unanswered}
+    after
+      every_ms ->
+        {d, u} = census_round(hosts)
+        census(world, hosts, every_ms, {rounds + 1, dups + d, unanswered + u})
+    end
+  end
+
+  defp census_round(hosts) do
+    listed =
+      hosts
+      |> Task.async_stream(
+        fn h ->
+          residents = residents(h)
+
+          unanswered =
+            Enum.count(residents, fn %{id: id} ->
+              not match?({:ok, _}, safe_call(fn -> Tartarus.agent_info({id, h}) end))
+            end)
+
+          {Enum.map(residents, &{&1.id, &1.pid}), unanswered}
+        end,
+        timeout: :infinity,
+        ordered: false
+      )
+      |> Enum.map(fn {:ok, r} -> r end)
+
+    unanswered = Enum.sum(Enum.map(listed, &elem(&1, 1)))
+
+    suspects =
+      listed
+      |> Enum.flat_map(&elem(&1, 0))
+      |> Enum.group_by(&elem(&1, 0), &elem(&1, 1))
+      |> Enum.filter(fn {_, pids} -> length(Enum.uniq(pids)) > 1 end)
+      |> Enum.filter(fn {_, pids} -> Enum.count(pids, &alive?/1) > 1 end)
+
+    if suspects != [], do: Process.sleep(200)
+
+    dups =
+      Enum.count(suspects, fn {id, pids} ->
+        still = hosts |> Enum.flat_map(&resident_pids(&1, id)) |> Enum.filter(&(&1 in pids))
+        Enum.count(still, &alive?/1) > 1
+      end)
+
+    {dups, unanswered}
+  end
+
+  defp resident_pids(host, id), do: for(%{id: ^id, pid: pid} <- residents(host), do: pid)
+
+  # The residents of a host; none if it does not answer.
+  defp residents(host) do
+    case safe_call(fn -> Tartarus.agents(host) end) do
+      list when is_list(list) -> list
+      _ -> []
+    end
+  end
+
+  defp alive?(pid) do
+    :erpc.call(node(pid), :erlang, :is_process_alive, [pid], 2_000)
+  catch
+    _, _ -> false
+  end
+
+  # -- the end ---------------------------------------------------------------------
+
+  defp count(world, ids, hosts, counter, kills, partitions, persist, seed, n, t0) do
+    residents =
+      Enum.flat_map(hosts, fn h -> Enum.map(residents(h), &{&1.id, h}) end)
+
+    clones = for [id] <- :ets.match(world.table, {{:clone, :"$1"}, :_}), do: id
+    tracked = ids ++ clones
+    freq = Enum.frequencies(Enum.map(residents, &elem(&1, 0)))
     duplicates = freq |> Map.values() |> Enum.map(&(&1 - 1)) |> Enum.sum()
-    lost = Enum.reject(ids, &Map.has_key?(freq, &1))
+    lost = Enum.reject(tracked, &Map.has_key?(freq, &1))
     on_dead = Enum.count(lost, &:ets.member(world.table, {:on_dead, &1}))
+    tracked_set = MapSet.new(tracked)
+    where = Map.new(residents)
+    acked = acknowledged(world, ids, where)
+
+    post_failures =
+      for {{:post_failed, reason}, n} <- :ets.tab2list(world.table), into: %{}, do: {reason, n}
 
     %{
       nodes: n,
       agents_start: length(ids),
       agents_end: map_size(freq),
+      clones: length(clones),
+      untracked_agents: Enum.count(Map.keys(freq), &(not MapSet.member?(tracked_set, &1))),
       duplicates: duplicates,
       lost: length(lost),
       lost_on_dead_hosts: on_dead,
       migrations_done: :atomics.get(counter, 2),
+      agent_moves: counter_of(world, :agent_moves),
+      posts: acked.acknowledged + Enum.sum(Map.values(post_failures)),
+      post_failures: post_failures,
+      acknowledged: acked.acknowledged,
+      acknowledged_missing: acked.missing,
+      acknowledged_missing_after_kill: acked.missing_after_kill,
+      acknowledged_of_lost_agents: acked.of_lost,
       kills: kills,
       partitions: partitions,
       persist: persist,
+      host_opts: inspect(world.host_opts),
       seed: seed,
       still_in_doubt: settle(hosts, 0),
       wall_ms: System.monotonic_time(:millisecond) - t0
     }
   end
+
+  defp counter_of(world, key) do
+    case :ets.lookup(world.table, key) do
+      [{_, n}] -> n
+      [] -> 0
+    end
+  end
+
+  # Every acknowledged message must be in its agent's state (for agents found at the end).
+  defp acknowledged(world, ids, where) do
+    Enum.reduce(ids, %{acknowledged: 0, missing: 0, missing_after_kill: 0, of_lost: 0}, fn id,
+                                                                                          acc ->
+      seqs = for {_, seq} <- :ets.lookup(world.acked, id), do: seq
+      acc = %{acc | acknowledged: acc.acknowledged + length(seqs)}
+
+      case Map.fetch(where, id) do
+        :error ->
+          %{acc | of_lost: acc.of_lost + length(seqs)}
+
+        {:ok, host} ->
+          got =
+            case safe_call(fn -> Tartarus.agent_info({id, host}) end) do
+              {:ok, %{state: %{got: got}}} -> got
+              _ -> MapSet.new()
+            end
+
+          missing = Enum.count(seqs, &(not MapSet.member?(got, &1)))
+          killed? = :ets.member(world.table, {:killed_on, id})
+
+          %{
+            acc
+            | missing: acc.missing + missing,
+              missing_after_kill: acc.missing_after_kill + if(killed?, do: missing, else: 0)
+          }
+      end
+    end)
+  end
+end
+
+defmodule TartarusTools.Chaos.Counter do
+  @moduledoc """
+  The agent of the chaos harness: its state records every message `{:msg, seq}` it takes
+  (`got`, a set of seqs; `count`, how many it took, duplicates included), so a rollback or
+  a second copy shows. `{:go, dest}` makes it move itself to `dest`.
+  """
+  use Tartarus.Agent
+
+  @impl true
+  def init(i), do: {:stay, %{i: i, got: MapSet.new(), count: 0}}
+
+  @impl true
+  def handle_message({:msg, seq}, _from, s),
+    do: {:stay, %{s | got: MapSet.put(s.got, seq), count: s.count + 1}}
+
+  def handle_message({:go, dest}, _from, s), do: {:move, dest, s}
+  def handle_message(_other, _from, s), do: {:stay, s}
 end

@@ -8,7 +8,104 @@ defmodule TartarusTools.CLI do
       opts = TartarusTools.CLI.parse!(argv, [hosts: :integer, json: :boolean], "tartarus.x")
       TartarusTools.CLI.positive!(opts, [:hosts], "tartarus.x")
       TartarusTools.CLI.report(%{hosts: 3}, opts)
+
+  ## Tasks
+
+  A task writes `use TartarusTools.CLI` instead of `use Mix.Task`: it is then a Mix task
+  that answers `--help` (or `-h`) anywhere in its arguments by printing its `@moduledoc`,
+  without running.
+
+  A task whose options are a `Tartarus.Options` schema parses them with `options!/3`: the
+  flags come from the schema's keys (`state_bytes` is `--state-bytes`), the defaults from
+  the schema (the scenario's own, when it has one), and errors use the schema's words.
   """
+
+  @doc false
+  defmacro __using__(_opts) do
+    quote do
+      use Mix.Task
+      @before_compile TartarusTools.CLI
+    end
+  end
+
+  @doc false
+  defmacro __before_compile__(_env) do
+    quote do
+      defoverridable run: 1
+
+      @impl Mix.Task
+      def run(argv) do
+        if TartarusTools.CLI.help?(argv),
+          do: TartarusTools.CLI.help(__MODULE__),
+          else: super(argv)
+      end
+    end
+  end
+
+  @doc """
+  True if `argv` asks for help (`--help` or `-h`).
+
+      iex> TartarusTools.CLI.help?(["--seed", "3", "--help"])
+      true
+      iex> TartarusTools.CLI.help?(["--seed", "3"])
+      false
+  """
+  @spec help?([String.t()]) :: boolean()
+  def help?(argv), do: Enum.any?(argv, &(&1 in ["--help", "-h"]))
+
+  @doc """
+  Prints the documentation of the task `module` (its `@moduledoc`, after a line with its
+  name and `@shortdoc`), as `mix help TASK` would.
+  """
+  @spec help(module()) :: :ok
+  def help(module) do
+    name = Mix.Task.task_name(module)
+
+    doc =
+      case Mix.Task.moduledoc(module) do
+        doc when is_binary(doc) -> doc
+        _ -> "(no documentation)"
+      end
+
+    short = Mix.Task.shortdoc(module)
+    Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
+  end
+
+  @doc """
+  Parses `argv` against a `Tartarus.Options` schema: each key is a flag (`:state_bytes` is
+  `--state-bytes`; `:integer`-like types parse as integers, `:number` and `:probability` as
+  floats, `:boolean` as a switch, the rest as strings), then the values are validated with
+  `Tartarus.Options.validate/3` and the schema's defaults filled in. Raises `Mix.Error`
+  naming the task, the flag, what was expected and what arrived.
+
+      iex> schema = [seed: [type: :pos_integer, default: 1], out: [type: :string, default: "results"]]
+      iex> TartarusTools.CLI.options!(["--seed", "3"], schema, "tartarus.x")
+      [seed: 3, out: "results"]
+  """
+  @spec options!([String.t()], Tartarus.Options.schema(), String.t()) :: keyword()
+  def options!(argv, schema, task) do
+    switches = for {key, spec} <- schema, do: {key, switch(spec[:type])}
+    opts = parse!(argv, switches, task)
+
+    case Tartarus.Options.validate(opts, schema, "mix #{task}") do
+      {:ok, opts} -> opts
+      {:error, message} -> Mix.raise(flags(message))
+    end
+  end
+
+  defp switch(t) when t in [:integer, :pos_integer, :non_neg_integer, :pos_integer_or_infinity],
+    do: :integer
+
+  defp switch(t) when t in [:number, :probability], do: :float
+  defp switch(:boolean), do: :boolean
+  defp switch(_), do: :string
+
+  # "for key :state_bytes" reads "for --state-bytes" on a command line.
+  defp flags(message) do
+    Regex.replace(~r/(for key|option) :(\w+)/, message, fn _, word, key ->
+      "#{if word == "option", do: "option", else: "for"} --#{dash(String.to_atom(key))}"
+    end)
+  end
 
   @doc """
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
@@ -21,9 +118,18 @@ defmodule TartarusTools.CLI do
     {parsed, args, invalid} = OptionParser.parse(argv, strict: switches)
     args_ok? = Keyword.get(opts, :args, false)
 
+    # A known flag with a value of the wrong type: name the flag, the type and the value.
+    for {flag, value} <- invalid, value != nil, type = switch_type(switches, flag), type do
+      Mix.raise(
+        "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
+      )
+    end
+
     if invalid != [] or (args != [] and not args_ok?) do
       bad = Enum.map(invalid, &elem(&1, 0)) ++ if(args_ok?, do: [], else: args)
-      Mix.raise("mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}`")
+      Mix.raise(
+        "mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}` or --help"
+      )
     end
 
     if args_ok?, do: {parsed, args}, else: parsed
@@ -80,6 +186,16 @@ defmodule TartarusTools.CLI do
         Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
     end
   end
+
+  defp switch_type(switches, "--" <> flag) do
+    Enum.find_value(switches, fn {key, type} -> if dash(key) == flag, do: type end)
+  end
+
+  defp switch_type(_switches, _flag), do: nil
+
+  defp type_words(:integer), do: "an integer"
+  defp type_words(:float), do: "a number"
+  defp type_words(type), do: "a #{type}"
 
   defp check!(opts, keys, task, ok?, what) do
     for key <- keys, v = opts[key], v != nil, not (is_number(v) and ok?.(v)) do

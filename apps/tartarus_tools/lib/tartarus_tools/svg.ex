@@ -51,9 +51,9 @@ defmodule TartarusTools.SVG do
           n: pos_integer,
           min: number,
           max: number,
-          q1: float,
-          median: float,
-          q3: float,
+          q1: number,
+          median: number,
+          q3: number,
           whisker_low: number,
           whisker_high: number,
           outliers: [number]
@@ -112,13 +112,14 @@ defmodule TartarusTools.SVG do
 
   @doc """
   Box-plot statistics of a list of numbers, or `nil` for an empty list. Quartiles are
-  linearly interpolated (the common "type 7" definition); whiskers reach the most extreme
+  samples by nearest rank (`TartarusTools.Report.percentile/2`, the one definition of
+  medians and percentiles in the tooling); whiskers reach the most extreme
   samples within 1.5 IQR of the box; samples beyond are outliers.
 
   ## Examples
 
       iex> TartarusTools.SVG.box_stats([1, 2, 3, 4, 100])
-      %{n: 5, min: 1, max: 100, q1: 2.0, median: 3.0, q3: 4.0, whisker_low: 1, whisker_high: 4, outliers: [100]}
+      %{n: 5, min: 1, max: 100, q1: 2, median: 3, q3: 4, whisker_low: 1, whisker_high: 4, outliers: [100]}
       iex> TartarusTools.SVG.box_stats([])
       nil
   """
@@ -134,9 +135,8 @@ defmodule TartarusTools.SVG do
     end)
 
     sorted = Enum.sort(samples)
-    tuple = List.to_tuple(sorted)
-    n = tuple_size(tuple)
-    q = fn p -> quantile(tuple, n, p) end
+    n = length(sorted)
+    q = fn p -> TartarusTools.Report.percentile(sorted, p) end
     {q1, median, q3} = {q.(0.25), q.(0.5), q.(0.75)}
     iqr = q3 - q1
     {low_fence, high_fence} = {q1 - 1.5 * iqr, q3 + 1.5 * iqr}
@@ -153,14 +153,6 @@ defmodule TartarusTools.SVG do
       whisker_high: List.last(inside),
       outliers: Enum.reject(sorted, &(&1 >= low_fence and &1 <= high_fence))
     }
-  end
-
-  defp quantile(tuple, n, p) do
-    h = (n - 1) * p
-    lo = trunc(Float.floor(h))
-    hi = min(lo + 1, n - 1)
-    a = elem(tuple, lo)
-    (a + (h - lo) * (elem(tuple, hi) - a)) * 1.0
   end
 
   @doc """

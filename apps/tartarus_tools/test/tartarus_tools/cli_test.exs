@@ -4,7 +4,7 @@ defmodule Tartarus.CLITest do
 
   test "unknown flags and stray arguments are refused naming the task" do
     assert_raise Mix.Error,
-                 "mix tartarus.x: invalid arguments --nope; see `mix help tartarus.x`",
+                 "mix tartarus.x: invalid arguments --nope; see `mix help tartarus.x` or --help",
                  fn ->
                    TartarusTools.CLI.parse!(["--nope"], [hosts: :integer], "tartarus.x")
                  end

@@ -114,7 +114,7 @@ defmodule TartarusEmu.SVGTest do
   describe "box_plot/2 and box_stats/1" do
     test "statistics" do
       s = SVG.box_stats(Enum.to_list(1..9))
-      assert {s.q1, s.median, s.q3} == {3.0, 5.0, 7.0}
+      assert {s.q1, s.median, s.q3} == {3, 5, 7}
       assert {s.whisker_low, s.whisker_high, s.outliers} == {1, 9, []}
 
       s = SVG.box_stats([10, -50, 11, 12, 13, 60])
@@ -125,9 +125,9 @@ defmodule TartarusEmu.SVGTest do
                n: 1,
                min: 4,
                max: 4,
-               q1: 4.0,
-               median: 4.0,
-               q3: 4.0,
+               q1: 4,
+               median: 4,
+               q3: 4,
                whisker_low: 4,
                whisker_high: 4,
                outliers: []

@@ -362,12 +362,8 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  defp gradients(data, {:gradient, signal}) do
-    case :ets.lookup(data.host.store, {:gradient, signal}) do
-      [{_, strengths}] when is_map(strengths) -> %{signal => strengths}
-      _ -> %{}
-    end
-  end
+  defp gradients(data, {:gradient, signal}),
+    do: %{signal => Tartarus.Signal.strategy_gradient(data.host, signal)}
 
   defp gradients(_data, _spec), do: %{}
 
@@ -532,7 +528,7 @@ defmodule Tartarus.Agent.Server do
     do: {:moved, new_pid, x.data}
 
   defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x),
-    do: {:cloned, x.out.id, x.data}
+    do: {:cloned, x.out.id, put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))}
 
   defp source_actions([{:done, {:failed, reason}} | _], _s, x) do
     if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
@@ -590,9 +586,9 @@ defmodule Tartarus.Agent.Server do
     %{
       env
       | id: id,
-        name: "#{env.name}/#{binary_part(id, 0, 6)}",
+        name: Envelope.clone_name(env.name, id),
         clone_of: env.id,
-        rng: Envelope.seed_rng({env.rng, id}),
+        rng: elem(Tartarus.Random.fork(env.rng), 0),
         departed_at: System.system_time(:microsecond)
     }
   end

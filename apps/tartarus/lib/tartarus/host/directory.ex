@@ -7,6 +7,10 @@ defmodule Tartarus.Host.Directory do
   # and drops the entry when the host (or the connection to its node) goes down, so a
   # restarted host is found again. Host names are never turned into atoms here: remote data
   # creates no atoms.
+  #
+  # Anything this server does not expect (a junk message, cast or call, from any node) is
+  # dropped and counted (Tartarus.Events.drop/3). A forged :DOWN is dropped (only the
+  # monitors this server made count). If the server restarts, its table (a cache) goes with it.
   use GenServer
 
   @table __MODULE__
@@ -58,19 +62,43 @@ defmodule Tartarus.Host.Directory do
   end
 
   @impl true
-  def handle_cast({:watch, host, pid}, monitors) do
-    if Map.has_key?(monitors, pid) do
-      {:noreply, monitors}
-    else
-      Process.monitor(pid)
-      {:noreply, Map.put(monitors, pid, host)}
-    end
+  def handle_call(msg, from, monitors) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, monitors}
   end
 
   @impl true
-  def handle_info({:DOWN, _ref, :process, pid, _}, monitors) do
-    {host, monitors} = Map.pop(monitors, pid)
-    if host, do: :ets.match_delete(@table, {host, pid})
+  def handle_cast({:watch, host, pid}, monitors) when is_pid(pid) do
+    if Map.has_key?(monitors, pid) do
+      {:noreply, monitors}
+    else
+      ref = Process.monitor(pid)
+      {:noreply, Map.put(monitors, pid, {host, ref})}
+    end
+  end
+
+  def handle_cast(msg, monitors) do
+    Tartarus.Events.drop(__MODULE__, :cast, msg)
+    {:noreply, monitors}
+  end
+
+  @impl true
+  # Only the monitors this server made count: a forged :DOWN (unknown ref) is dropped.
+  def handle_info({:DOWN, ref, :process, pid, _} = msg, monitors) do
+    case monitors do
+      %{^pid => {host, ^ref}} ->
+        :ets.match_delete(@table, {host, pid})
+        {:noreply, Map.delete(monitors, pid)}
+
+      _ ->
+        Tartarus.Events.drop(__MODULE__, :info, msg)
+        {:noreply, monitors}
+    end
+  end
+
+  def handle_info(msg, monitors) do
+    Tartarus.Events.drop(__MODULE__, :info, msg)
     {:noreply, monitors}
   end
 end

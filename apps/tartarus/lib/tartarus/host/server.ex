@@ -93,20 +93,37 @@ defmodule Tartarus.Host.Server do
     end
   end
 
-  defp call({:connect, other, props}, _from, state) do
+  # Overlay changes come only from this host's own node (Tartarus.connect/3 makes both ends'
+  # calls on their own nodes) or, when the host has a trust list, from the nodes it trusts
+  # (Tartarus.Security.TrustList.trust_node/2). A link asked for from another node must name
+  # a host that exists; the neighbour set holds at most :max_neighbours links.
+  defp call({:connect, other, props}, from, state) do
     ledger = state.host.ledger
     [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
-    :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
-    if emulated?(props), do: install_link_hook()
-    {:reply, :ok, state}
+
+    with :ok <- overlay_caller(state, from),
+         :ok <- link_target(other, from),
+         :ok <- neighbour_room(state, ns, other) do
+      :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+      if emulated?(props), do: install_link_hook()
+      {:reply, :ok, state}
+    else
+      error -> {:reply, error, state}
+    end
   end
 
-  defp call({:disconnect, other}, _from, state) do
-    ledger = state.host.ledger
-    [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
-    :ets.insert(ledger, {:neighbours, List.delete(ns, other)})
-    :ets.delete(ledger, {:link, other})
-    {:reply, :ok, state}
+  defp call({:disconnect, other}, from, state) do
+    case overlay_caller(state, from) do
+      :ok ->
+        ledger = state.host.ledger
+        [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
+        :ets.insert(ledger, {:neighbours, List.delete(ns, other)})
+        :ets.delete(ledger, {:link, other})
+        {:reply, :ok, state}
+
+      error ->
+        {:reply, error, state}
+    end
   end
 
   defp call({:locate, agent}, _from, state) do
@@ -201,11 +218,47 @@ defmodule Tartarus.Host.Server do
       do: Tartarus.Fault.install(:link, hook)
   end
 
+  # -- overlay (connect/disconnect) ----------------------------------------------
+
+  defp overlay_caller(state, {caller, _tag}) when is_pid(caller) do
+    cond do
+      node(caller) == node() -> :ok
+      trusted_node?(state.host.opts, node(caller)) -> :ok
+      true -> {:error, {:untrusted_node, node(caller)}}
+    end
+  end
+
+  defp overlay_caller(_state, _from), do: {:error, {:untrusted_node, nil}}
+
+  defp trusted_node?(%{security: %{trust: %Tartarus.Security.TrustList{} = trust}}, node),
+    do: Tartarus.Security.TrustList.node_trusted?(trust, node)
+
+  defp trusted_node?(_opts, _node), do: false
+
+  # Tartarus.connect/3 checked both ends before asking; a request from another node is
+  # checked here.
+  defp link_target(other, {caller, _}) do
+    if node(caller) == node() or match?({:ok, _}, Tartarus.Host.Directory.whereis(other)),
+      do: :ok,
+      else: {:error, {:unknown_host, other}}
+  end
+
+  defp neighbour_room(state, ns, other) do
+    max = Map.get(state.host.opts, :max_neighbours, 256)
+
+    if other in ns or length(ns) < max,
+      do: :ok,
+      else: {:error, {:too_many_neighbours, max}}
+  end
+
   @impl true
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
     msg = Tartarus.Fault.point(:prepare_received, msg)
 
-    case Protocol.check_prepare(msg, state.host.opts.max_envelope_bytes) do
+    case Protocol.check_prepare(
+           msg,
+           Tartarus.Security.Admission.max_message_bytes(state.admission)
+         ) do
       :ok ->
         {:prepare, p} = Protocol.classify(msg)
         {:noreply, admission(state, {:prepare, p})}

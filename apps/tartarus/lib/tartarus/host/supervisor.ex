@@ -1,20 +1,42 @@
 defmodule Tartarus.Host.Supervisor do
   @moduledoc false
-  # One host's process tree. The server comes first because it owns the ledger and store
-  # tables the agents and plugins use; the agents' and plugins' supervisors follow, so on
-  # shutdown agents and plugins stop before their tables disappear. :one_for_all because
-  # agents and plugins hold references to the server's tables: a restarted server means a
-  # fresh host (persistence, when enabled, restores agents from disk).
+  # One host's process tree:
+  #
+  #   Host.Supervisor        :one_for_all, at most @max_restarts restarts in @max_seconds s
+  #   ├── Host.Server        owns the ledger and store tables
+  #   ├── agents             DynamicSupervisor of the host's agents
+  #   ├── plugins            DynamicSupervisor of the host's plugins
+  #   └── Host.Keeper        brings a restarted host back (see below)
+  #
+  # The server comes first because it owns the ledger and store tables the agents and plugins
+  # use; the agents' and plugins' supervisors follow, so on shutdown agents and plugins stop
+  # before their tables disappear. :one_for_all because agents and plugins hold references to
+  # the server's tables: a restarted server means a fresh host.
+  #
+  # A host whose server (or any other child) crashes is restarted, all of it, up to
+  # @max_restarts times in @max_seconds seconds; beyond that the host stops for good (its
+  # supervisor is a temporary child of the node's hosts supervisor, so no other host is
+  # touched). The keeper, last, tells a restart from the first start (a counter shared by
+  # every incarnation of the children of this supervisor): on the first start
+  # Tartarus.start_host/2 attaches the plugins, links the neighbours and restores persisted
+  # agents itself; after a restart the keeper does the same from the host's start options, so
+  # a host with persistence gets its agents back. Links added after the start (by
+  # Tartarus.connect/3 from elsewhere) are not remembered across a restart.
   use Supervisor
+
+  @max_restarts 3
+  @max_seconds 5
 
   def start_link({name, opts}) do
     Supervisor.start_link(__MODULE__, {name, opts}, name: via(:host_sup, name))
   end
 
-  def via(kind, name), do: {:via, Registry, {Tartarus.HostRegistry, {kind, name}}}
+  def via(kind, name), do: Tartarus.Host.via(kind, name)
 
   @impl true
   def init({name, opts}) do
+    starts = :atomics.new(1, [])
+
     children = [
       {Tartarus.Host.Server, {name, opts}},
       %{
@@ -28,9 +50,76 @@ defmodule Tartarus.Host.Supervisor do
         start:
           {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:plugins, name)]]},
         type: :supervisor
-      }
+      },
+      %{id: :keeper, start: {Tartarus.Host.Keeper, :start_link, [{name, opts, starts}]}}
     ]
 
-    Supervisor.init(children, strategy: :one_for_all, max_restarts: 0)
+    Supervisor.init(children,
+      strategy: :one_for_all,
+      max_restarts: @max_restarts,
+      max_seconds: @max_seconds
+    )
+  end
+end
+
+defmodule Tartarus.Host.Keeper do
+  @moduledoc false
+  # The last child of a host's supervisor: after a restart of the host's children it restores
+  # the host (plugins, neighbours from the start options, persisted agents); see
+  # Tartarus.Host.Supervisor. It expects no message: anything it receives is dropped and
+  # counted.
+  use GenServer
+  require Logger
+
+  def start_link({name, opts, starts}), do: GenServer.start_link(__MODULE__, {name, opts, starts})
+
+  @impl true
+  def init({name, opts, starts}) do
+    state = %{host: {name, node()}, opts: opts}
+
+    case :atomics.add_get(starts, 1, 1) do
+      1 -> {:ok, state}
+      _restart -> {:ok, state, {:continue, :recover}}
+    end
+  end
+
+  @impl true
+  def handle_continue(:recover, %{host: host, opts: opts} = state) do
+    plugins =
+      Enum.map(opts[:plugins] || [], fn {n, spec} ->
+        Tartarus.Host.OnNode.attach_plugin(host, n, spec)
+      end)
+
+    links =
+      Enum.map(opts[:neighbours] || [], fn n -> Tartarus.Host.Links.connect(host, n, []) end)
+
+    restored = Tartarus.Host.call(host, :restore, 60_000)
+
+    Logger.warning(
+      "host #{inspect(host)} restarted after a crash; restored (agents, in doubt): " <>
+        "#{inspect(restored)}; failed plugins and links: " <>
+        inspect(Enum.reject(plugins ++ links, &(&1 == :ok)), limit: 8)
+    )
+
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_call(msg, from, state) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_cast(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :cast, msg)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_info(msg, state) do
+    Tartarus.Events.drop(__MODULE__, :info, msg)
+    {:noreply, state}
   end
 end

@@ -1,4 +1,57 @@
 defmodule Tartarus.Security.Admission do
+  @limit {:or, [:pos_integer, {:in, [:infinity]}]}
+  @limit_words "a positive integer or :infinity"
+
+  @schema [
+    max_resident_agents: [
+      type: @limit,
+      expected: @limit_words,
+      default: 1_000,
+      doc:
+        "agents a host may hold at once; an arrival is refused when `resident` (the " <>
+          "agents the host already holds, as the host counts them) has reached it. This " <>
+          "is what stops a clone storm"
+    ],
+    max_message_bytes: [
+      type: @limit,
+      expected: @limit_words,
+      default: 8 * 1024 * 1024,
+      doc:
+        "size of the whole hand-off message (envelope and shipped code), checked before " <>
+          "anything in it is looked at"
+    ],
+    max_envelope_bytes: [
+      type: @limit,
+      expected: @limit_words,
+      default: 2 * 1024 * 1024,
+      doc: "size of the agent's envelope alone (state, payload and metadata, without code)"
+    ],
+    max_payload_bytes: [
+      type: @limit,
+      expected: @limit_words,
+      default: 1024 * 1024,
+      doc: "size of the agent's state and data payload"
+    ],
+    max_hops: [
+      type: @limit,
+      expected: @limit_words,
+      default: :infinity,
+      doc:
+        "migrations an agent may make in its life; `hops` counts them including the " <>
+          "current one, so an arrival with `hops > max_hops` is refused"
+    ],
+    rate: [
+      type: {:or, [{:tuple, [:pos_integer, :pos_integer]}, {:in, [:infinity]}]},
+      expected: "{count, interval_ms} with positive integers, or :infinity",
+      default: {20_000, 1_000},
+      doc:
+        "admissions per source host: `{count, interval_ms}` allows bursts of `count` and " <>
+          "refills `count` tokens every `interval_ms` (a token bucket per source); " <>
+          "`:infinity` turns it off. The default is above the 13,000 hops/s per source of " <>
+          "`mix tartarus.bench migration --agents 1000`"
+    ]
+  ]
+
   @moduledoc """
   A host's admission policy for arriving agents, as pure data and one pure decision function.
 
@@ -18,25 +71,20 @@ defmodule Tartarus.Security.Admission do
 
   ## Options
 
-    * `:max_resident_agents` - agents a host may hold at once; an arrival is refused when
-      `resident` (agents already on the host) has reached it. Default `1000`.
-    * `:max_envelope_bytes` - size of the whole wire envelope (state + metadata + code
-      references). Default `1_048_576` (1 MiB).
-    * `:max_payload_bytes` - size of the agent's state alone. Default `262_144` (256 KiB).
-    * `:max_hops` - how many migrations an agent may make in its life; `hops` counts them
-      including the current one, so an arrival with `hops > max_hops` is refused. Default `64`.
-    * `:max_heap_size` - per-agent heap limit in words, not checked here but carried for the
-      spawner (`Process.flag(:max_heap_size, ...)`). Default `:infinity`.
-    * `:rate` - admissions per source: `{count, interval_ms}` allows bursts of `count` and
-      refills `count` tokens every `interval_ms` (token bucket, one per source); `:infinity`
-      turns it off. Default `:infinity`.
+  The admission policy owns every limit a host applies to one arrival; each option has one
+  meaning, and a host started with no options gets the defaults below, all finite except
+  `:max_hops` (an agent's own `ttl:` bounds its hops). They are chosen so that a clone storm
+  (an agent that clones itself on every arrival) stops at the resident limit within about a
+  second, and the workloads in the repository (tests, `mix tartarus.bench`, the emulator's
+  100,000 agents on 10,000 hosts) never meet them.
 
-  Every option takes a positive integer or `:infinity` (`:rate` takes a pair of positive
-  integers or `:infinity`). Bad options are refused with a message naming the option, what was
-  expected and what arrived:
+  #{Tartarus.Options.docs(@schema)}
+
+  Bad options are refused with a message naming the option, what was expected and what
+  arrived:
 
       iex> Tartarus.Security.Admission.new(max_hops: -1)
-      {:error, "invalid option :max_hops: expected a positive integer or :infinity, got: -1"}
+      {:error, "invalid options given to Tartarus.Security.Admission.new/1 for key :max_hops: expected a positive integer or :infinity, got: -1"}
 
   ## Decisions
 
@@ -48,13 +96,18 @@ defmodule Tartarus.Security.Admission do
     4. `{:rate_limited, source}`.
 
   A refused arrival consumes no token: only admissions count against a source's rate.
+  `:max_message_bytes` is not checked by `admit/3`: the host checks it on the raw hand-off
+  message (`Tartarus.Wire.check_prepare/2`) before it looks inside; read it with
+  `max_message_bytes/1`.
+
   A request that is not a map with the five fields gets
   `{:error, {:invalid_request, message}}`; it never raises.
 
   ## Token buckets
 
   Buckets are kept per source in the state. A bucket that has refilled is the same as no bucket,
-  so `prune/2` drops those; a host calls it now and then to bound memory. Token arithmetic is in
+  so `prune/2` drops those; `admit/3` does so itself once it tracks more than 1,024 sources,
+  so memory stays bounded by the sources active within one refill. Token arithmetic is in
   integers (scaled by `interval_ms`), so refills are exact.
   """
 
@@ -65,10 +118,10 @@ defmodule Tartarus.Security.Admission do
     """
     @enforce_keys [
       :max_resident_agents,
+      :max_message_bytes,
       :max_envelope_bytes,
       :max_payload_bytes,
       :max_hops,
-      :max_heap_size,
       :rate
     ]
     defstruct @enforce_keys
@@ -79,10 +132,10 @@ defmodule Tartarus.Security.Admission do
     @typedoc "Validated admission limits."
     @type t :: %__MODULE__{
             max_resident_agents: limit(),
+            max_message_bytes: limit(),
             max_envelope_bytes: limit(),
             max_payload_bytes: limit(),
             max_hops: limit(),
-            max_heap_size: limit(),
             rate: {pos_integer(), pos_integer()} | :infinity
           }
   end
@@ -114,14 +167,9 @@ defmodule Tartarus.Security.Admission do
           | {:rate_limited, term()}
           | {:invalid_request, String.t()}
 
-  @defaults [
-    max_resident_agents: 1000,
-    max_envelope_bytes: 1_048_576,
-    max_payload_bytes: 262_144,
-    max_hops: 64,
-    max_heap_size: :infinity,
-    rate: :infinity
-  ]
+  @doc "The schema of the options (see `Tartarus.Options`), with their defaults."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
 
   @doc """
   Validates `opts` (see "Options") and builds an admission state with no buckets.
@@ -132,18 +180,28 @@ defmodule Tartarus.Security.Admission do
       iex> {adm.policy.max_hops, adm.policy.max_resident_agents}
       {3, 1000}
       iex> Tartarus.Security.Admission.new(rate: {0, 10})
-      {:error, "invalid option :rate: expected {count, interval_ms} with positive integers or :infinity, got: {0, 10}"}
+      {:error, "invalid options given to Tartarus.Security.Admission.new/1 for key :rate: expected {count, interval_ms} with positive integers, or :infinity, got: {0, 10}"}
       iex> Tartarus.Security.Admission.new(max_agents: 3)
-      {:error, "unknown option :max_agents; known options: :max_resident_agents, :max_envelope_bytes, :max_payload_bytes, :max_hops, :max_heap_size, :rate"}
+      {:error, "invalid options given to Tartarus.Security.Admission.new/1: unknown key :max_agents, known keys: [:max_resident_agents, :max_message_bytes, :max_envelope_bytes, :max_payload_bytes, :max_hops, :rate]"}
+
+  `where` names the caller in error messages (a host passes `"Tartarus.start_host/2"`
+  with the key path `[:admission]`, see `Tartarus.Options`).
   """
-  @spec new(keyword()) :: {:ok, t()} | {:error, String.t()}
-  def new(opts \\ []) do
-    with :ok <- check_keyword(opts),
-         :ok <- check_known(opts),
-         :ok <- check_values(Keyword.merge(@defaults, opts)) do
-      {:ok, %__MODULE__{policy: struct!(Policy, Keyword.merge(@defaults, opts))}}
+  @spec new(keyword(), String.t()) :: {:ok, t()} | {:error, String.t()}
+  def new(opts \\ [], where \\ "Tartarus.Security.Admission.new/1") do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, where) do
+      {:ok, %__MODULE__{policy: struct!(Policy, opts)}}
     end
   end
+
+  @doc """
+  The largest hand-off message (envelope and code, in bytes) the policy lets a host read.
+
+      iex> Tartarus.Security.Admission.max_message_bytes(Tartarus.Security.Admission.new!())
+      8_388_608
+  """
+  @spec max_message_bytes(t()) :: Policy.limit()
+  def max_message_bytes(%__MODULE__{policy: policy}), do: policy.max_message_bytes
 
   @doc "Like `new/1` but raises `ArgumentError` on a bad option."
   @spec new!(keyword()) :: t()
@@ -204,19 +262,16 @@ defmodule Tartarus.Security.Admission do
   def prune(%__MODULE__{policy: %Policy{rate: :infinity}} = state, _now_ms),
     do: %{state | buckets: %{}}
 
-  def prune(
-        %__MODULE__{policy: %Policy{rate: {count, interval}}, buckets: buckets} = state,
-        now_ms
-      ) do
+  def prune(%__MODULE__{policy: %Policy{rate: rate}, buckets: buckets} = state, now_ms),
+    do: %{state | buckets: prune_buckets(buckets, rate, now_ms)}
+
+  defp prune_buckets(buckets, {count, interval}, now_ms) do
     full = count * interval
 
-    kept =
-      for {source, _} = entry <- buckets,
-          current(state, source, now_ms) < full,
-          into: %{},
-          do: entry
-
-    %{state | buckets: kept}
+    for {_source, {scaled, at}} = entry <- buckets,
+        min(full, scaled + count * max(now_ms - at, 0)) < full,
+        into: %{},
+        do: entry
   end
 
   @doc "Turns a refusal into a sentence, for logs and the sender."
@@ -242,10 +297,25 @@ defmodule Tartarus.Security.Admission do
     available = current(state, source, now_ms)
 
     if available >= interval do
-      {:ok, %{state | buckets: Map.put(state.buckets, source, {available - interval, now_ms})}}
+      buckets = Map.put(state.buckets, source, {available - interval, now_ms})
+      {:ok, %{state | buckets: bound(buckets, state.policy.rate, now_ms)}}
     else
       {:error, {:rate_limited, source}}
     end
+  end
+
+  # Every host has a rate limit by default, and nothing else prunes its buckets: past
+  # @prune_above sources, full buckets are dropped (every @prune_every admissions of a new
+  # source, so the cost stays amortized).
+  @prune_above 1_024
+  @prune_every 256
+
+  defp bound(buckets, rate, now_ms) do
+    size = map_size(buckets)
+
+    if size > @prune_above and rem(size, @prune_every) == 0,
+      do: prune_buckets(buckets, rate, now_ms),
+      else: buckets
   end
 
   defp current(
@@ -303,48 +373,4 @@ defmodule Tartarus.Security.Admission do
   defp check_resident(_resident, :infinity), do: :ok
   defp check_resident(resident, max) when resident < max, do: :ok
   defp check_resident(_resident, max), do: {:error, {:too_many_agents, max}}
-
-  ## Option validation
-
-  defp check_keyword(opts) do
-    if is_list(opts) and Enum.all?(opts, &match?({key, _} when is_atom(key), &1)),
-      do: :ok,
-      else: {:error, "invalid options: expected a keyword list, got: #{inspect(opts)}"}
-  end
-
-  defp check_known(opts) do
-    known = Keyword.keys(@defaults)
-
-    case Enum.find(Keyword.keys(opts), &(&1 not in known)) do
-      nil ->
-        :ok
-
-      key ->
-        {:error,
-         "unknown option #{inspect(key)}; known options: " <>
-           Enum.map_join(known, ", ", &inspect/1)}
-    end
-  end
-
-  defp check_values(opts) do
-    Enum.find_value(opts, :ok, fn {key, value} ->
-      if valid?(key, value), do: nil, else: {:error, invalid(key, value)}
-    end)
-  end
-
-  defp valid?(_key, :infinity), do: true
-  defp valid?(:rate, {count, interval}), do: pos_int?(count) and pos_int?(interval)
-  defp valid?(:rate, _), do: false
-  defp valid?(_key, value), do: pos_int?(value)
-
-  defp pos_int?(value), do: is_integer(value) and value > 0
-
-  defp invalid(:rate, value) do
-    "invalid option :rate: expected {count, interval_ms} with positive integers or :infinity, " <>
-      "got: #{inspect(value)}"
-  end
-
-  defp invalid(key, value) do
-    "invalid option #{inspect(key)}: expected a positive integer or :infinity, got: #{inspect(value)}"
-  end
 end

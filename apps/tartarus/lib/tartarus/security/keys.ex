@@ -227,4 +227,44 @@ defmodule Tartarus.Security.Keys do
 
   defp describe(bin) when is_binary(bin), do: "a binary of #{byte_size(bin)} bytes"
   defp describe(other), do: inspect(other)
+
+  @doc """
+  The canonical bytes of `term`, the ones a signature covers (deterministic external term
+  format, so equal terms give equal bytes).
+
+  ## Examples
+
+      iex> a = Tartarus.Security.Keys.canonical(%{b: 1, a: 2})
+      iex> a == Tartarus.Security.Keys.canonical(Map.new([{:a, 2}, {:b, 1}]))
+      true
+  """
+  @spec canonical(term()) :: binary()
+  def canonical(term), do: :erlang.term_to_binary(term, [:deterministic, minor_version: 2])
+
+  @doc """
+  Checks that `signature` was made over `term` by the owner of `public_key` (a signature made
+  by `Tartarus.Security.Signer.sign/2`). Returns `{:error, :bad_signature}` for any mismatch,
+  including a malformed signature or key.
+
+  ## Examples
+
+      iex> keys = Tartarus.Security.Keys.generate()
+      iex> sig = Tartarus.Security.Signer.sign(:hello, keys)
+      iex> Tartarus.Security.Keys.verify(:hello, sig, keys.public)
+      :ok
+      iex> Tartarus.Security.Keys.verify(:bye, sig, keys.public)
+      {:error, :bad_signature}
+  """
+  @spec verify(term(), binary(), public_key()) :: :ok | {:error, :bad_signature}
+  def verify(term, signature, public_key)
+      when is_binary(signature) and byte_size(signature) == 64 and is_binary(public_key) and
+             byte_size(public_key) == 32 do
+    bytes = "tartarus/term/v1" <> canonical(term)
+
+    if :crypto.verify(:eddsa, :none, bytes, signature, [public_key, :ed25519]),
+      do: :ok,
+      else: {:error, :bad_signature}
+  end
+
+  def verify(_term, _signature, _public_key), do: {:error, :bad_signature}
 end

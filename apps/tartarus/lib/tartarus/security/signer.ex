@@ -92,7 +92,7 @@ defmodule Tartarus.Security.Signer do
       true
   """
   @spec canonical(term()) :: binary()
-  def canonical(term), do: :erlang.term_to_binary(term, [:deterministic, minor_version: 2])
+  defdelegate canonical(term), to: Keys
 
   @doc """
   Signs `term` with the secret key of `keys`.
@@ -115,8 +115,7 @@ defmodule Tartarus.Security.Signer do
   Returns `{:error, :bad_signature}` for any mismatch, including a malformed signature or key.
   """
   @spec verify(term(), binary(), Keys.public_key()) :: :ok | {:error, :bad_signature}
-  def verify(term, signature, public_key),
-    do: verify_tagged(@term_tag, term, signature, public_key)
+  defdelegate verify(term, signature, public_key), to: Keys
 
   @doc """
   Signs a map: puts the issuer's public key in `:issuer`, signs every field except

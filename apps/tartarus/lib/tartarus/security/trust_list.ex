@@ -14,12 +14,15 @@ defmodule Tartarus.Security.TrustList do
   `Tartarus.Security.Keys.save/3`); other files are ignored.
   """
 
-  alias Tartarus.Security.{Keys, Signer}
+  alias Tartarus.Security.Keys
 
-  defstruct keys: %{}
+  defstruct keys: %{}, nodes: MapSet.new()
 
-  @typedoc "A trust list: trusted public keys, each with its fingerprint."
-  @type t :: %__MODULE__{keys: %{Keys.public_key() => String.t()}}
+  @typedoc """
+  A trust list: trusted public keys, each with its fingerprint, and the nodes allowed to change
+  the host's overlay links (see `trust_node/2`).
+  """
+  @type t :: %__MODULE__{keys: %{Keys.public_key() => String.t()}, nodes: MapSet.t(node())}
 
   @doc """
   Builds a trust list from public keys.
@@ -49,6 +52,27 @@ defmodule Tartarus.Security.TrustList do
   @doc "Whether `public_key` is trusted."
   @spec member?(t(), term()) :: boolean()
   def member?(%__MODULE__{keys: keys}, public_key), do: Map.has_key?(keys, public_key)
+
+  @doc """
+  Trusts `node` to change the overlay links of the host that holds this list
+  (`{:connect, ...}` and `{:disconnect, ...}` requests). A host accepts such requests from its
+  own node always, from another node only if its trust list names that node. With TLS
+  distribution (`Tartarus.Security.TLSDist`) a node's name is bound to its certificate, so
+  naming a node here names a certificate holder.
+
+      iex> trust = Tartarus.Security.TrustList.new() |> Tartarus.Security.TrustList.trust_node(:"b@host")
+      iex> Tartarus.Security.TrustList.node_trusted?(trust, :"b@host")
+      true
+      iex> Tartarus.Security.TrustList.node_trusted?(trust, :"evil@host")
+      false
+  """
+  @spec trust_node(t(), node()) :: t()
+  def trust_node(%__MODULE__{nodes: nodes} = trust, node) when is_atom(node),
+    do: %{trust | nodes: MapSet.put(nodes, node)}
+
+  @doc "Whether `node` may change the overlay links of a host holding this list."
+  @spec node_trusted?(t(), node()) :: boolean()
+  def node_trusted?(%__MODULE__{nodes: nodes}, node), do: MapSet.member?(nodes, node)
 
   @doc "How many issuers are trusted."
   @spec size(t()) :: non_neg_integer()
@@ -123,7 +147,7 @@ defmodule Tartarus.Security.TrustList do
           :ok | {:error, {:unknown_issuer, String.t()}} | {:error, :bad_signature}
   def check(%__MODULE__{} = trust, issuer, term, signature) do
     with :ok <- check_issuer(trust, issuer) do
-      Signer.verify(term, signature, issuer)
+      Keys.verify(term, signature, issuer)
     end
   end
 end

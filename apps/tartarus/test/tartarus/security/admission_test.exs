@@ -10,18 +10,22 @@ defmodule Tartarus.Security.AdmissionTest do
   describe "options" do
     test "defaults" do
       assert {:ok, %Admission{policy: policy, buckets: %{}}} = Admission.new()
-      assert policy.max_resident_agents == 1000
-      assert policy.max_heap_size == :infinity
-      assert policy.rate == :infinity
+      # Safe defaults: every per-arrival limit is finite except hops (see the moduledoc).
+      assert policy.max_resident_agents == 1_000
+      assert policy.max_message_bytes == 8 * 1024 * 1024
+      assert policy.max_envelope_bytes == 2 * 1024 * 1024
+      assert policy.max_payload_bytes == 1024 * 1024
+      assert policy.max_hops == :infinity
+      assert policy.rate == {20_000, 1_000}
     end
 
     test "every limit accepts a positive integer or :infinity" do
       for key <- [
             :max_resident_agents,
+            :max_message_bytes,
             :max_envelope_bytes,
             :max_payload_bytes,
-            :max_hops,
-            :max_heap_size
+            :max_hops
           ] do
         assert {:ok, _} = Admission.new([{key, 1}])
         assert {:ok, _} = Admission.new([{key, :infinity}])
@@ -29,7 +33,7 @@ defmodule Tartarus.Security.AdmissionTest do
         for bad <- [0, -1, 1.5, "3", nil] do
           assert Admission.new([{key, bad}]) ==
                    {:error,
-                    "invalid option #{inspect(key)}: expected a positive integer or :infinity, got: #{inspect(bad)}"}
+                    "invalid options given to Tartarus.Security.Admission.new/1 for key #{inspect(key)}: expected a positive integer or :infinity, got: #{inspect(bad)}"}
         end
       end
     end
@@ -37,22 +41,23 @@ defmodule Tartarus.Security.AdmissionTest do
     test "the message names the option, the expectation and the value" do
       assert Admission.new(max_hops: -1) ==
                {:error,
-                "invalid option :max_hops: expected a positive integer or :infinity, got: -1"}
+                "invalid options given to Tartarus.Security.Admission.new/1 for key :max_hops: expected a positive integer or :infinity, got: -1"}
 
       assert_raise ArgumentError,
-                   "invalid option :rate: expected {count, interval_ms} with positive integers or :infinity, got: 5",
+                   "invalid options given to Tartarus.Security.Admission.new/1 for key :rate: expected {count, interval_ms} with positive integers, or :infinity, got: 5",
                    fn -> Admission.new!(rate: 5) end
     end
 
     test "non-keyword options are refused" do
       assert Admission.new(%{max_hops: 1}) ==
-               {:error, "invalid options: expected a keyword list, got: %{max_hops: 1}"}
+               {:error,
+                "invalid options given to Tartarus.Security.Admission.new/1: expected a keyword list, got: %{max_hops: 1}"}
     end
   end
 
   describe "admit/3" do
     test "admits within limits and leaves the state unchanged without a rate" do
-      adm = Admission.new!()
+      adm = Admission.new!(rate: :infinity)
       assert {:ok, ^adm} = Admission.admit(adm, @ok, 0)
     end
 
@@ -145,6 +150,22 @@ defmodule Tartarus.Security.AdmissionTest do
       adm = Admission.new!(rate: {1, 1_000})
       {:ok, adm} = Admission.admit(adm, @ok, 5_000)
       assert {:error, {:rate_limited, :a}} = Admission.admit(adm, @ok, 0)
+    end
+
+    test "admit/3 keeps the buckets bounded by the sources active within one refill" do
+      # One token per 10 ms: a bucket is full again 10 ms after its admission.
+      adm = Admission.new!(rate: {1, 10})
+
+      adm =
+        Enum.reduce(1..5_000, adm, fn i, adm ->
+          {:ok, adm} = Admission.admit(adm, %{@ok | source: {:h, i}}, i * 20)
+          adm
+        end)
+
+      assert map_size(adm.buckets) <= 1_024 + 256
+      # The latest source still has its (empty) bucket.
+      assert {:error, {:rate_limited, {:h, 5_000}}} =
+               Admission.admit(adm, %{@ok | source: {:h, 5_000}}, 5_000 * 20)
     end
 
     test "prune drops the buckets that are full again" do

@@ -105,34 +105,5 @@ defmodule Tartarus.Security.CertsTest do
               "invalid CA in #{dir}: expected ca.pem with one certificate and ca.key with one EC private key"}
   end
 
-  describe "mix tartarus.gen.certs" do
-    test "writes the files", %{dir: dir} do
-      Mix.shell(Mix.Shell.Process)
-      on_exit(fn -> Mix.shell(Mix.Shell.IO) end)
-
-      Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir, "--nodes", "a, b", "--days", "2"])
-
-      assert_received {:mix_shell, :info, [message]}
-      assert message =~ "created CA #{Path.join(dir, "ca.pem")}"
-
-      assert Enum.sort(File.ls!(dir)) ==
-               ~w(a.key a.pem a.ssl_dist.conf b.key b.pem b.ssl_dist.conf ca.key ca.pem)
-    end
-
-    test "refuses bad arguments with usage", %{dir: dir} do
-      assert_raise Mix.Error, ~r/^missing --nodes: expected a comma-separated list/, fn ->
-        Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir])
-      end
-
-      assert_raise Mix.Error,
-                   ~r/^invalid value for --days: expected a positive integer, got: "x"/,
-                   fn ->
-                     Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "x"])
-                   end
-
-      assert_raise Mix.Error, ~r/^unknown option --bogus/, fn ->
-        Mix.Tasks.Tartarus.Gen.Certs.run(["--bogus", "1"])
-      end
-    end
-  end
+  # The mix task tartarus.gen.certs is tested with the tooling (apps/tartarus_tools).
 end

@@ -10,7 +10,12 @@ defmodule Tartarus.Security.TLSDistPeerTest do
   #   * C holds a certificate from a foreign CA. It trusts our CA, so the refusal of C -> A is
   #     A's own (as TLS server, `verify_peer` + `fail_if_no_peer_cert`); A -> C is refused by
   #     A as TLS client. C never shows up in A's nodes().
+  #   * EVIL holds B's certificate and key (stolen) under another node name: A refuses it
+  #     whichever side dials (names are bound to certificates, see :tartarus_tls_dist), and
+  #     the legitimate B still connects.
   #
+  # Certificates name the nodes (CN = the node name before the `@`), so the names are fixed
+  # for the module: tls_<role>_<suffix>.
   # All peers use the same cookie, so every refusal is TLS's, not the cookie's.
   use ExUnit.Case, async: false
 
@@ -32,31 +37,34 @@ defmodule Tartarus.Security.TLSDistPeerTest do
     ours = Path.join(dir, "ours")
     foreign = Path.join(dir, "foreign")
 
-    {:ok, _} = Certs.generate(ours, nodes: ["a", "b"], days: 1)
-    {:ok, _} = Certs.generate(foreign, nodes: ["c"], days: 1)
+    suffix = System.unique_integer([:positive])
+    names = Map.new([:a, :b, :c, :evil], &{&1, "tls_#{&1}_#{suffix}"})
+    {:ok, _} = Certs.generate(ours, nodes: [names.a, names.b], days: 1)
+    {:ok, _} = Certs.generate(foreign, nodes: [names.c], days: 1)
 
     # C: a foreign certificate, but it trusts our CA (so only A can refuse it).
     trust_ours = String.to_charlist(Path.join(ours, "ca.pem"))
 
     terms =
-      for {side, opts} <- TLSDist.optfile_terms("c", foreign),
+      for {side, opts} <- TLSDist.optfile_terms(names.c, foreign),
           do: {side, Keyword.put(opts, :cacertfile, trust_ours)}
 
-    File.write!(TLSDist.optfile_path("c", foreign), :io_lib.format(~c"~tp.~n", [terms]))
+    File.write!(TLSDist.optfile_path(names.c, foreign), :io_lib.format(~c"~tp.~n", [terms]))
 
     on_exit(fn -> File.rm_rf!(dir) end)
-    %{ours: ours, foreign: foreign}
+    %{ours: ours, foreign: foreign, names: names}
   end
 
-  setup %{ours: ours, foreign: foreign} do
-    suffix = System.unique_integer([:positive])
+  setup %{ours: ours, foreign: foreign, names: names} do
+    # EVIL starts under its own name with B's certificate and key.
+    roles = [a: {names.a, ours}, b: {names.b, ours}, c: {names.c, foreign}, evil: {names.b, ours}]
 
     peers =
-      for {role, certs} <- [a: ours, b: ours, c: foreign], into: %{} do
+      for {role, {cert_name, certs}} <- roles, into: %{} do
         {:ok, pid, node} =
           :peer.start(%{
-            name: :"tls_#{role}_#{suffix}",
-            args: peer_args(Atom.to_string(role), certs),
+            name: String.to_atom(names[role]),
+            args: peer_args(cert_name, certs),
             connection: :standard_io
           })
 
@@ -79,7 +87,7 @@ defmodule Tartarus.Security.TLSDistPeerTest do
        %{peers: %{a: a, b: b, c: c}} do
     # Every peer really runs TLS distribution.
     for %{pid: pid} <- [a, b, c] do
-      assert {:ok, [[~c"inet_tls"]]} = :peer.call(pid, :init, :get_argument, [:proto_dist])
+      assert {:ok, [[~c"tartarus_tls"]]} = :peer.call(pid, :init, :get_argument, [:proto_dist])
       assert :peer.call(pid, :erlang, :nodes, []) == []
     end
 
@@ -97,6 +105,43 @@ defmodule Tartarus.Security.TLSDistPeerTest do
     assert :peer.call(c.pid, :erlang, :nodes, []) == []
 
     assert {:badrpc, _} = :peer.call(c.pid, :rpc, :call, [a.node, :erlang, :node, []])
+  end
+
+  test "a stolen certificate under another node name is refused; its owner still connects",
+       %{peers: %{a: a, b: b, evil: evil}} do
+    assert {:ok, [[~c"tartarus_tls"]]} = :peer.call(evil.pid, :init, :get_argument, [:proto_dist])
+
+    # EVIL -> A: A (accepting) allows only the names B's certificate names.
+    assert :peer.call(evil.pid, :net_kernel, :connect_node, [a.node]) == false
+    assert :peer.call(a.pid, :erlang, :nodes, []) == []
+    assert {:badrpc, _} = :peer.call(evil.pid, :rpc, :call, [a.node, :erlang, :node, []])
+
+    # A -> EVIL: A (dialing) disconnects it as soon as the connection is up.
+    _ = :peer.call(a.pid, :net_kernel, :connect_node, [evil.node])
+    assert wait_until(fn -> evil.node not in :peer.call(a.pid, :erlang, :nodes, []) end)
+
+    # The legitimate B connects, both ways, and :erpc works.
+    assert :peer.call(b.pid, :net_kernel, :connect_node, [a.node]) == true
+    assert :peer.call(b.pid, :erpc, :call, [a.node, :erlang, :node, []]) == a.node
+    assert :peer.call(a.pid, :erlang, :nodes, []) == [b.node]
+    assert :peer.call(a.pid, :erlang, :disconnect_node, [b.node]) == true
+    assert wait_until(fn -> :peer.call(a.pid, :erlang, :nodes, []) == [] end)
+    assert :peer.call(a.pid, :net_kernel, :connect_node, [b.node]) == true
+    assert :peer.call(a.pid, :erlang, :nodes, []) == [b.node]
+  end
+
+  defp wait_until(fun, attempts \\ 100) do
+    cond do
+      fun.() ->
+        true
+
+      attempts == 0 ->
+        false
+
+      true ->
+        Process.sleep(50)
+        wait_until(fun, attempts - 1)
+    end
   end
 
   defp peer_args(name, certs) do

@@ -8,10 +8,11 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--steps N] [--mode virtual|peer] [--group K]
                        [--strategy random|conscientious] [--p P] [--latency-ms MS]
                        [--loss P] [--seed N] [--out DIR] [--until-covered]
-                       [--keep-events] [--quiet] [--json]
+                       [--keep-events] [--quiet] [--json] [--help]
 
-  Defaults: a 16-host grid, 4 agents, 100 steps, virtual mode, random walk, `p = 0`, a random
-  seed (recorded in the summary), output in `results/walk-<timestamp>/`.
+  Defaults (those of `TartarusEmu.Walk.schema/0`): a 16-host grid, 4 agents, 100 steps,
+  virtual mode, random walk, `p = 0`, a random seed (recorded in the summary), output in
+  `results/walk-<timestamp>/`. `--help` prints this text.
 
   Each step, every agent makes one move (see `TartarusEmu.Walk` for the step model), so a
   run is deterministic for a given `--seed`. `--mode peer` puts each host (or each group of
@@ -30,7 +31,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
   and 100,000 agents) run in a fresh BEAM node started with `+P` and `+e` large enough, so
   no `ELIXIR_ERL_OPTIONS` are needed; the summary's `runner` says where the run ran.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     topology: :string,
@@ -48,35 +49,35 @@ defmodule Mix.Tasks.Tartarus.Emu do
     until_covered: :boolean,
     keep_events: :boolean,
     quiet: :boolean,
-    json: :boolean
+    json: :boolean,
+    help: :boolean
   ]
 
   @impl true
   def run(argv) do
-    opts = argv |> TartarusTools.CLI.parse!(@switches, "tartarus.emu") |> check!()
+    opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.emu")
+    if opts[:help], do: Mix.shell().info(@moduledoc), else: run_walk(check!(opts))
+  end
+
+  defp run_walk(opts) do
     Mix.Task.run("app.start")
 
     progress = Process.whereis(:standard_error)
 
+    # Defaults are the walk's own (`TartarusEmu.Walk.schema/0`).
+    defaults = for {k, spec} <- TartarusEmu.Walk.schema(), do: {k, spec[:default]}
+
     run_opts =
-      [
-        topology: opts[:topology] || "grid",
-        hosts: opts[:hosts] || 16,
-        agents: opts[:agents] || 4,
-        steps: opts[:steps] || 100,
-        mode: opts[:mode],
-        group: opts[:group] || 1,
-        strategy: opts[:strategy],
-        p: opts[:p] || 0,
+      defaults
+      |> Keyword.merge(Keyword.take(opts, Keyword.keys(defaults)))
+      |> Keyword.merge(
         latency_ms: opts[:latency_ms],
         loss: opts[:loss],
         seed: opts[:seed],
         out: Path.expand(opts[:out] || TartarusTools.Report.default_out_dir("walk")),
-        until_covered: opts[:until_covered] || false,
-        keep_events: opts[:keep_events] || false,
         quiet: opts[:quiet] || opts[:json] || false,
         progress_device: progress
-      ]
+      )
       |> Enum.reject(fn {_, v} -> is_nil(v) end)
 
     summary =
@@ -104,18 +105,14 @@ defmodule Mix.Tasks.Tartarus.Emu do
     TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
     TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
 
-    mode =
-      TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.emu", :virtual)
+    # Absent flags stay absent: the walk's schema supplies the defaults.
+    choices = [mode: [:virtual, :peer], strategy: [:random, :conscientious]]
 
-    strategy =
-      TartarusTools.CLI.choice!(
-        opts[:strategy],
-        [:random, :conscientious],
-        :strategy,
-        "tartarus.emu",
-        :random
-      )
-
-    Keyword.merge(opts, mode: mode, strategy: strategy)
+    Enum.reduce(choices, opts, fn {flag, values}, opts ->
+      case TartarusTools.CLI.choice!(opts[flag], values, flag, "tartarus.emu", nil) do
+        nil -> opts
+        value -> Keyword.put(opts, flag, value)
+      end
+    end)
   end
 end

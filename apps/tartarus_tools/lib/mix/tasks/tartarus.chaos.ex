@@ -1,17 +1,30 @@
-defmodule Mix.Tasks.TartarusTools.Chaos do
+defmodule Mix.Tasks.Tartarus.Chaos do
   @shortdoc "Migrates agents among real nodes while killing and partitioning them"
   @moduledoc """
   Runs the fault-injection harness (`TartarusTools.Chaos`) and reports whether any agent was
   duplicated or lost.
 
       mix tartarus.chaos --nodes 8 --agents 500 --migrations 10000 --kills 20 \\
-                         --partitions 20 [--persist] --seed 1 [--json] [--out FILE]
+                         --partitions 20 [--persist] [--durable] --seed 1 \\
+                         [--census-ms 1000] [--json] [--out FILE]
+
+  Agents count the messages they take; the workers move them, let them move themselves,
+  clone them and post them numbered messages; a census during the run asks every copy to
+  answer; at the end every acknowledged message must be in its agent's state (see
+  `TartarusTools.Chaos`). `--census-ms 0` turns the census off.
+
+  `--durable` starts every host with `durable: true` (acknowledged messages journaled
+  before the sender gets `:ok`); a platform without that host option is refused with an
+  error before any node starts.
 
   With `--json` the last line printed is one JSON object with the keys `nodes,
-  agents_start, agents_end, duplicates, lost, lost_on_dead_hosts, migrations_done, kills,
-  partitions, persist, seed, still_in_doubt, wall_ms`.
+  agents_start, agents_end, clones, untracked_agents, duplicates, lost, lost_on_dead_hosts,
+  migrations_done, agent_moves, posts, post_failures, acknowledged, acknowledged_missing,
+  acknowledged_missing_after_kill, acknowledged_of_lost_agents, census_rounds,
+  transient_duplicates, census_unanswered, kills, partitions, persist, host_opts, seed,
+  still_in_doubt, wall_ms`.
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @switches [
     nodes: :integer,
@@ -20,6 +33,8 @@ defmodule Mix.Tasks.TartarusTools.Chaos do
     kills: :integer,
     partitions: :integer,
     persist: :boolean,
+    durable: :boolean,
+    census_ms: :integer,
     seed: :integer,
     json: :boolean,
     out: :string
@@ -29,9 +44,10 @@ defmodule Mix.Tasks.TartarusTools.Chaos do
   def run(argv) do
     opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.chaos")
     TartarusTools.CLI.positive!(opts, [:nodes, :agents, :migrations], "tartarus.chaos")
-    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions], "tartarus.chaos")
+    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :census_ms], "tartarus.chaos")
 
     Mix.Task.run("app.start")
+    host_opts = durable_opts(opts[:durable])
     Logger.configure(level: :error)
     :ok = TartarusTools.Peer.ensure_distributed("chaos")
     total = opts[:migrations] || 10_000
@@ -51,9 +67,33 @@ defmodule Mix.Tasks.TartarusTools.Chaos do
         partitions: opts[:partitions] || 20,
         persist: opts[:persist] || false,
         seed: opts[:seed] || 1,
+        census_ms: opts[:census_ms] || 1_000,
+        host_opts: host_opts,
         progress: progress
       )
 
     TartarusTools.CLI.report(result, json: opts[:json], out_file: opts[:out])
   end
+
+  # `--durable` is passed to every host as `durable: true`, if the platform has that option.
+  defp durable_opts(true) do
+    # Asked of the platform itself: a host started with the option, then stopped.
+    probe = :"tartarus_chaos_durable_probe_#{System.unique_integer([:positive])}"
+
+    case Tartarus.start_host(probe, durable: true) do
+      {:ok, host} ->
+        Tartarus.stop_host(host)
+        [durable: true]
+
+      {:error, reason} ->
+        message = if is_binary(reason), do: reason, else: inspect(reason)
+
+        Mix.raise(
+          "mix tartarus.chaos: --durable needs a platform whose hosts take the option " <>
+            "`durable: true`; this one does not (#{message})"
+        )
+    end
+  end
+
+  defp durable_opts(_), do: []
 end

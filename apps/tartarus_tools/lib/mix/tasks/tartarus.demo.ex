@@ -1,5 +1,12 @@
-defmodule Mix.Tasks.TartarusTools.Demo do
+defmodule Mix.Tasks.Tartarus.Demo do
   @shortdoc "Runs the demo: the platform and every scenario, briefly"
+
+  @schema [
+    seed: [type: :pos_integer, default: 1, doc: "seed of every random choice"],
+    out: [type: :string, default: "results/demo", doc: "directory of the scenarios' reports"],
+    only: [type: :string, doc: "run only the sections whose title starts with this"]
+  ]
+
   @moduledoc """
   The README's first command: a short tour of the platform and of each application.
 
@@ -7,19 +14,19 @@ defmodule Mix.Tasks.TartarusTools.Demo do
 
   It starts real BEAM nodes on this machine, so `epmd` must be available (it comes with
   Erlang/OTP). Sections come from `TartarusTools.Demo.sections/0`; scenario sections write their
-  reports under `--out` (default `results/demo`).
+  reports under `--out`.
+
+  Options (flags are the keys with dashes):
+
+  #{Tartarus.Options.docs(@schema)}
   """
-  use Mix.Task
+  use TartarusTools.CLI
 
   @impl true
   def run(argv) do
-    {opts, _, invalid} =
-      OptionParser.parse(argv, strict: [seed: :integer, out: :string, only: :string])
-
-    if invalid != [], do: Mix.raise("mix tartarus.demo: invalid options #{inspect(invalid)}")
+    opts = TartarusTools.CLI.options!(argv, @schema, "tartarus.demo")
     Mix.Task.run("app.start")
     Logger.configure(level: :warning)
-    opts = Keyword.merge([seed: 1, out: "results/demo"], opts)
 
     for section <- TartarusTools.Demo.sections(),
         opts[:only] == nil or String.starts_with?(section.title(), opts[:only]) do

@@ -1,6 +1,26 @@
 defmodule Mix.Tasks.Tartarus.Gen.Certs do
   @shortdoc "Generates a CA and per-node certificates for TLS distribution"
 
+  @schema [
+    out: [type: :string, default: "certs", doc: "output directory"],
+    nodes: [
+      type: :string,
+      required: true,
+      doc: "comma-separated node names (`name` or `name@host`)"
+    ],
+    hosts: [
+      type: :string,
+      doc:
+        "comma-separated host names or IP addresses the node certificates are valid for " <>
+          "(default: this machine's host name and `localhost`); TLS distribution checks the " <>
+          "host part of the node name it dials against them"
+    ],
+    days: [
+      type: :pos_integer,
+      doc: "validity in days (when not given, `Tartarus.Security.Certs.generate/2`'s default)"
+    ]
+  ]
+
   @moduledoc """
   Generates a certificate authority and one certificate per node for TLS distribution with
   mutual authentication, in pure OTP (no `openssl` needed).
@@ -15,57 +35,39 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
 
   Then start a node with the flags from `Tartarus.Security.TLSDist.erl_flags/2`:
 
-      elixir --sname a --erl "-proto_dist inet_tls -ssl_dist_optfile certs/a.ssl_dist.conf" ...
+      elixir --sname a --erl "-proto_dist tartarus_tls -ssl_dist_optfile certs/a.ssl_dist.conf -pa <tartarus ebin>" ...
+
+  `tartarus_tls` (`:tartarus_tls_dist`) is OTP's `inet_tls` with node names bound to
+  certificates: a node may connect only under a name its certificate names, so give `--nodes`
+  the names the nodes will run under (`a` for `a@<any listed host>`, or `a@host`).
 
   ## Options
 
-    * `--out DIR` - output directory, default `certs`;
-    * `--nodes a,b,c` - node names (`name` or `name@host`), required;
-    * `--hosts h1,h2` - host names or IP addresses the node certificates are valid for, default
-      this machine's host name and `localhost`; TLS distribution checks the host part of the
-      node name it dials against them;
-    * `--days N` - validity in days, default 365.
+  Flags are the keys with dashes; `--help` prints this documentation.
+
+  #{Tartarus.Options.docs(@schema)}
 
   See `Tartarus.Security.Certs` for what the certificates contain and prove.
   """
 
-  use Mix.Task
+  use TartarusTools.CLI
 
   alias Tartarus.Security.Certs
 
-  @switches [out: :string, nodes: :string, hosts: :string, days: :integer]
-
   @impl Mix.Task
-  def run(argv) do
-    case OptionParser.parse(argv, strict: @switches) do
-      {opts, [], []} ->
-        generate(opts)
-
-      {_opts, [extra | _], _} ->
-        Mix.raise("unexpected argument #{inspect(extra)}; usage: #{usage()}")
-
-      {_opts, _args, [{switch, nil} | _]} ->
-        Mix.raise("unknown option #{switch}; usage: #{usage()}")
-
-      {_opts, _args, [{switch, value} | _]} ->
-        Mix.raise(
-          "invalid value for #{switch}: expected #{expected(switch)}, got: #{inspect(value)}"
-        )
-    end
-  end
+  def run(argv), do: argv |> TartarusTools.CLI.options!(@schema, "tartarus.gen.certs") |> generate()
 
   defp generate(opts) do
-    out = Keyword.get(opts, :out, "certs")
-    nodes = split(Keyword.get(opts, :nodes, ""))
+    out = opts[:out]
+    nodes = split(opts[:nodes])
 
     if nodes == [] do
-      Mix.raise(
-        "missing --nodes: expected a comma-separated list of node names; usage: #{usage()}"
-      )
+      Mix.raise("mix tartarus.gen.certs: --nodes must name at least one node, got: \"\"")
     end
 
     cert_opts =
-      [nodes: nodes, days: Keyword.get(opts, :days, 365)] ++
+      [nodes: nodes] ++
+        Keyword.take(opts, [:days]) ++
         if hosts = opts[:hosts], do: [hosts: split(hosts)], else: []
 
     case Certs.generate(out, cert_opts) do
@@ -85,10 +87,4 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
   end
 
   defp split(list), do: list |> String.split(",", trim: true) |> Enum.map(&String.trim/1)
-
-  defp expected("--days"), do: "a positive integer"
-  defp expected(_), do: "a value"
-
-  defp usage,
-    do: "mix tartarus.gen.certs --nodes a,b[,...] [--out DIR] [--hosts h1,h2] [--days N]"
 end

@@ -1,5 +1,16 @@
 defmodule Mix.Tasks.Tartarus.Node do
   @shortdoc "Starts a named node with a Tartarus host, for iex --remsh"
+
+  @schema [
+    name: [type: :string, required: true, doc: "the node's short name; the node is `NAME@<hostname>`"],
+    host: [type: :string, default: "main", doc: "the host's name"],
+    neighbours: [type: :string, doc: "comma-separated `host:node` addresses to link to"],
+    cookie: [type: :string, default: "tartarus", doc: "the distribution cookie"],
+    sensor: [
+      type: :string,
+      doc: "attach a simulated sensor plugin under this name (a sine-like script)"
+    ]
+  ]
   @moduledoc """
   Starts this VM as a named BEAM node running one Tartarus host, links it to neighbour
   hosts on other nodes, and keeps running until interrupted.
@@ -7,13 +18,12 @@ defmodule Mix.Tasks.Tartarus.Node do
       ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n1 --host h1
       ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n2 --host h2 --neighbours h1:n1@$(hostname -s)
 
-  Options:
+  Options (flags are the keys with dashes):
 
-    * `--name NAME` - the node's short name (required); the node is `NAME@<hostname>`
-    * `--host HOST` - the host's name (default: `main`)
-    * `--neighbours LIST` - comma-separated `host:node` addresses to link to
-    * `--cookie COOKIE` - the distribution cookie (default: `tartarus`)
-    * `--sensor NAME` - attach a simulated sensor plugin under NAME (a sine-like script)
+  #{Tartarus.Options.docs(@schema)}
+
+  The host itself starts with `Tartarus.start_host/2`'s defaults (see its documentation),
+  among them the admission policy's finite limits.
 
   Then attach a shell and drive it with the `Tartarus` API:
 
@@ -23,15 +33,13 @@ defmodule Mix.Tasks.Tartarus.Node do
   `-connect_all false` keeps nodes from forming a full mesh (they connect only to the nodes
   their hosts talk to); it must be given to the VM at boot, hence `ELIXIR_ERL_OPTIONS`.
   """
-  use Mix.Task
-
-  @switches [name: :string, host: :string, neighbours: :string, cookie: :string, sensor: :string]
+  use TartarusTools.CLI
 
   @impl true
   def run(argv) do
-    {opts, _, invalid} = OptionParser.parse(argv, strict: @switches)
-    if invalid != [], do: Mix.raise("mix tartarus.node: invalid options #{inspect(invalid)}")
-    name = opts[:name] || Mix.raise("mix tartarus.node: --name NAME is required")
+    opts = TartarusTools.CLI.options!(argv, @schema, "tartarus.node")
+    neighbours = parse_neighbours(opts[:neighbours])
+    name = opts[:name]
     _ = System.cmd("epmd", ["-daemon"])
 
     case Node.start(String.to_atom(name), :shortnames) do
@@ -42,15 +50,14 @@ defmodule Mix.Tasks.Tartarus.Node do
         Mix.raise("mix tartarus.node: cannot start node #{name}: #{inspect(reason)}")
     end
 
-    Node.set_cookie(String.to_atom(opts[:cookie] || "tartarus"))
+    Node.set_cookie(String.to_atom(opts[:cookie]))
     Mix.Task.run("app.start")
 
     unless :init.get_argument(:connect_all) == {:ok, [[~c"false"]]} do
       Mix.shell().info("note: started without -connect_all false; nodes may form a full mesh")
     end
 
-    host_name = String.to_atom(opts[:host] || "main")
-    neighbours = parse_neighbours(opts[:neighbours])
+    host_name = String.to_atom(opts[:host])
 
     plugins =
       case opts[:sensor] do

@@ -1,0 +1,165 @@
+defmodule Tartarus.Host.OnNode do
+  @moduledoc false
+  # What the facade reads and writes of a host, run on the host's own node: `run/3` calls
+  # one of the functions below locally, or on the host's node with :erpc. Each takes the
+  # host's full address first. Remote callers (other nodes, the tooling) call them through
+  # `run/3`, or with `:erpc.call(node, Tartarus.Host.OnNode, fun, [host | args])`.
+
+  alias Tartarus.{Host, Ledger}
+
+  @doc false
+  # Runs `fun(host, args...)` of this module for a host on this node, or remotely on the
+  # host's node. A host that is gone (or whose node is) answers `{:error, {:unknown_host, host}}`.
+  @spec run(term(), atom(), list()) :: term()
+  def run(host, fun, args) do
+    if Host.address?(host) do
+      {_, node} = host = Host.address(host)
+
+      if node == node() do
+        try do
+          apply(__MODULE__, fun, [host | args])
+        rescue
+          # The host stopped while we read its tables.
+          ArgumentError -> {:error, {:unknown_host, host}}
+        end
+      else
+        try do
+          :erpc.call(node, __MODULE__, fun, [host | args], 10_000)
+        catch
+          _, _ -> {:error, {:unknown_host, host}}
+        end
+      end
+    else
+      {:error, {:unknown_host, host}}
+    end
+  end
+
+  @doc false
+  # Stops a host of this node: its tree (server, agents, plugins) goes down at once.
+  def stop_host({name, _}) do
+    case Registry.lookup(Tartarus.HostRegistry, {:host_sup, name}) do
+      [{pid, _}] ->
+        _ = DynamicSupervisor.terminate_child(Tartarus.Application.hosts(), pid)
+        :ok
+
+      [] ->
+        {:error, {:unknown_host, Host.address(name)}}
+    end
+  end
+
+  @doc false
+  # A change of the host's links (`{:connect, other, props}` or `{:disconnect, other}`),
+  # made by a caller on the host's own node.
+  def link(host, request), do: Host.call(host, request)
+
+  @doc false
+  def neighbours(host), do: with({:ok, h} <- Host.local(host), do: Ledger.neighbours(h))
+
+  @doc false
+  def agents(host) do
+    with {:ok, h} <- Host.local(host) do
+      h
+      |> Ledger.residents()
+      |> Enum.map(fn {id, name, module, pid} ->
+        %{id: id, name: name, module: module, pid: pid}
+      end)
+      |> Enum.sort_by(& &1.name)
+    end
+  end
+
+  @doc false
+  def status(host) do
+    with {:ok, h} <- Host.local(host) do
+      %{
+        host: h.ref,
+        resident: Ledger.counter(h, :resident),
+        visits: Ledger.counter(h, :visits),
+        neighbours: Ledger.neighbours(h),
+        counts: Tartarus.Events.host_counts(h),
+        hops: hop_summary(Ledger.hop_times(h)),
+        forwarding_pointers: length(Ledger.forwarding_pointers(h)),
+        plugins: Tartarus.Plugin.list(elem(h.ref, 0))
+      }
+    end
+  end
+
+  @doc false
+  def hop_times(host), do: with({:ok, h} <- Host.local(host), do: Ledger.hop_times(h))
+
+  @doc false
+  def hop_stats(host),
+    do: with({:ok, h} <- Host.local(host), do: hop_summary(Ledger.hop_times(h)))
+
+  @doc false
+  def store_get(host, key, default) do
+    with {:ok, h} <- Host.local(host) do
+      case :ets.lookup(h.store, key) do
+        [{_, v}] -> v
+        [] -> default
+      end
+    end
+  end
+
+  @doc false
+  def store_put(host, key, value) do
+    with {:ok, h} <- Host.local(host) do
+      :ets.insert(h.store, {key, value})
+      :ok
+    end
+  end
+
+  @doc false
+  def attach_plugin({host_name, _} = host, name, {module, opts})
+      when is_atom(name) and is_atom(module) do
+    with {:ok, _} <- Host.local(host),
+         true <-
+           (Code.ensure_loaded?(module) and function_exported?(module, :read, 2)) ||
+             {:error, {:not_a_plugin, module}} do
+      sup = Host.via(:plugins, host_name)
+
+      case DynamicSupervisor.start_child(sup, {Tartarus.Plugin, {host_name, name, module, opts}}) do
+        {:ok, _} -> :ok
+        {:error, {:already_started, _}} -> {:error, {:already_attached, name}}
+        {:error, reason} -> {:error, reason}
+      end
+    end
+  end
+
+  def attach_plugin(_host, name, spec), do: {:error, {:bad_plugin, name, spec}}
+
+  @doc false
+  def plugin_call(host, name, request), do: Tartarus.Plugin.call(host, name, request)
+
+  @doc false
+  def plugins(host),
+    do: with({:ok, h} <- Host.local(host), do: Tartarus.Plugin.list(elem(h.ref, 0)))
+
+  @doc false
+  # True if an agent with this id is arriving at a host of this node.
+  def arriving?(host, id) do
+    case Host.local(host) do
+      {:ok, h} -> :ets.member(h.ledger, {:arriving, id})
+      _ -> false
+    end
+  end
+
+  @doc false
+  def hop_summary([]), do: %{count: 0, median_us: nil, p99_us: nil, mean_us: nil, max_us: nil}
+
+  def hop_summary(times) do
+    sorted = Enum.sort(times)
+    n = length(sorted)
+
+    %{
+      count: n,
+      median_us: percentile(sorted, 0.5),
+      p99_us: percentile(sorted, 0.99),
+      mean_us: Enum.sum(sorted) / n,
+      max_us: List.last(sorted)
+    }
+  end
+
+  @doc false
+  def percentile(sorted, q),
+    do: Enum.at(sorted, min(length(sorted) - 1, max(0, ceil(q * length(sorted)) - 1)))
+end

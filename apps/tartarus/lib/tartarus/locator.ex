@@ -1,0 +1,219 @@
+defmodule Tartarus.Locator do
+  @moduledoc false
+  # Finding an agent and chasing it: every facade call that addresses an agent goes through
+  # here. `locate/1` follows forwarding pointers from the host a reference names to the
+  # agent's pid; the chase loops (`handoff/2`, `kill/1`, `deliver/4`, `control/2`) look again
+  # when the agent moved before it took the request, at most @max_chase times, backing off
+  # while it is caught in a hand-off.
+
+  import Bitwise, only: [<<<: 2]
+  alias Tartarus.{Host, Ledger}
+
+  @max_chase 64
+
+  @doc false
+  # Finds an agent's pid. Returns it with the reference normalized to `{id, host}`.
+  @spec locate(term()) :: {:ok, pid(), {String.t(), Host.t()}} | {:error, term()}
+  def locate(agent, n \\ @max_chase)
+  def locate(_agent, 0), do: {:error, :too_many_hops}
+
+  def locate(agent, n) do
+    with {:ok, {a, host}} <- normalize(agent) do
+      result =
+        case Host.local(host) do
+          {:ok, info} -> Ledger.locate(info, a)
+          _ -> Host.call(host, {:locate, a})
+        end
+
+      case result do
+        {:here, pid, id} -> {:ok, pid, {id, host}}
+        {:moved, next} -> locate({a, next}, n - 1)
+        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1)
+        :not_found -> {:error, :not_found}
+        error -> error
+      end
+    end
+  end
+
+  @doc false
+  # A move or clone ordered from outside. Not a GenServer.call: the agent's process may end
+  # before it answers (its move commits, or it moves on after starting a clone), and the
+  # answer then comes from the agent's, or the clone's, new process.
+  @spec handoff(term(), {:move | :clone, term()}) :: term()
+  def handoff(agent, op), do: handoff(agent, op, @max_chase)
+
+  defp handoff(_agent, _op, 0), do: {:error, :too_many_hops}
+
+  defp handoff(agent, op, n) do
+    with {:ok, pid, ref} <- locate(agent) do
+      mref = Process.monitor(pid)
+      send(pid, {:"$gen_call", {self(), mref}, op})
+
+      receive do
+        {^mref, {:error, :in_transit}} ->
+          Process.demonitor(mref, [:flush])
+          backoff(n)
+          handoff(ref, op, n - 1)
+
+        {^mref, reply} ->
+          Process.demonitor(mref, [:flush])
+          reply
+
+        {:DOWN, ^mref, :process, _, reason} ->
+          after_down(op, mref, reason, ref, n)
+      after
+        60_000 ->
+          Process.demonitor(mref, [:flush])
+          {:error, :timeout}
+      end
+    end
+  end
+
+  # This move committed (the exit names our request): the answer comes from the new process
+  # once it runs; if its node dies first, the agent went down with it.
+  defp after_down({:move, _}, mref, {:shutdown, {:migrated, new_pid, {_, tag}}}, _ref, _n)
+       when tag == mref do
+    new_ref = Process.monitor(new_pid)
+
+    receive do
+      {^mref, reply} ->
+        Process.demonitor(new_ref, [:flush])
+        reply
+
+      {:DOWN, ^new_ref, :process, _, reason} ->
+        receive do
+          {^mref, reply} -> reply
+        after
+          0 -> {:error, {:destination_down, reason}}
+        end
+    after
+      60_000 ->
+        Process.demonitor(new_ref, [:flush])
+        {:error, :timeout}
+    end
+  end
+
+  # The agent's process ended before it took our move: look for the agent again.
+  defp after_down({:move, _} = op, _mref, _reason, ref, n), do: handoff(ref, op, n - 1)
+
+  # A clone is never retried (that could make a second clone): if the agent took the
+  # request, the answer still comes from the clone.
+  defp after_down({:clone, _}, mref, reason, _ref, _n) do
+    receive do
+      {^mref, reply} -> reply
+    after
+      10_000 -> {:error, {:outcome_unknown, reason}}
+    end
+  end
+
+  @doc false
+  # Kills an agent wherever it is now.
+  @spec kill(term()) :: :ok | {:error, term()}
+  def kill(agent), do: kill(agent, @max_chase)
+
+  defp kill(_agent, 0), do: {:error, :too_many_hops}
+
+  defp kill(agent, n) do
+    with {:ok, {a, host}} <- normalize(agent) do
+      case Host.call(host, {:kill, a}) do
+        {:killed, _id} -> :ok
+        {:moved, next} -> kill({a, next}, n - 1)
+        {:arriving, _pid} -> backoff(n) && kill({a, host}, n - 1)
+        :not_found -> {:error, :not_found}
+        error -> error
+      end
+    end
+  end
+
+  @doc false
+  # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`).
+  @spec deliver(term(), :post | :request, term(), timeout()) :: term()
+  def deliver(agent, kind, msg, timeout), do: deliver(agent, kind, msg, timeout, @max_chase)
+
+  defp deliver(_agent, _kind, _msg, _timeout, 0), do: {:error, :too_many_hops}
+
+  defp deliver(agent, kind, msg, timeout, n) do
+    with {:ok, pid, ref} <- locate(agent) do
+      tag = Process.monitor(pid)
+      send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+
+      receive do
+        {^tag, :delivered} ->
+          Process.demonitor(tag, [:flush])
+
+          if kind == :post do
+            :ok
+          else
+            receive do
+              {^tag, {:reply, value}} -> {:ok, value}
+            after
+              timeout -> {:error, :timeout}
+            end
+          end
+
+        {:DOWN, ^tag, :process, _, _} ->
+          # The agent left (or died) before taking the message: look again.
+          backoff(n)
+          deliver(ref, kind, msg, timeout, n - 1)
+      after
+        timeout ->
+          Process.demonitor(tag, [:flush])
+          {:error, :timeout}
+      end
+    end
+  end
+
+  @doc false
+  # A control call to the agent's process (info, payload operations), following it.
+  @spec control(term(), term()) :: term()
+  def control(agent, op), do: control(agent, op, @max_chase)
+
+  defp control(_agent, _op, 0), do: {:error, :too_many_hops}
+
+  defp control(agent, op, n) do
+    with {:ok, pid, ref} <- locate(agent) do
+      try do
+        GenServer.call(pid, op, 60_000)
+      catch
+        :exit, {:timeout, _} -> {:error, :timeout}
+        :exit, _ -> control(ref, op, n - 1)
+      else
+        {:error, :in_transit} ->
+          Process.sleep(5)
+          control(ref, op, n - 1)
+
+        result ->
+          result
+      end
+    end
+  end
+
+  # Between retries of an agent caught in a hand-off: 1, 2, 4 ... 200 ms, about 12 s in all
+  # (a paused copy in doubt waits for the migration timeout, 5 s by default, then asks).
+  defp backoff(n) do
+    Process.sleep(min(1 <<< min(max(@max_chase - n, 0), 8), 200))
+    true
+  end
+
+  defp normalize({agent, host}) do
+    if Host.address?(host),
+      do: {:ok, {agent, Host.address(host)}},
+      else: {:error, {:unknown_host, host}}
+  end
+
+  defp normalize(id) when is_binary(id) do
+    case Tartarus.AgentTable.lookup(id) do
+      {:ok, _pid, host_name} ->
+        {:ok, {id, Host.address(host_name)}}
+
+      :error ->
+        # Perhaps in a hand-off between two hosts of this node: the destination knows.
+        case Enum.find(Host.Starter.hosts(), &Host.OnNode.arriving?(&1, id)) do
+          nil -> {:error, :not_found}
+          host -> {:ok, {id, host}}
+        end
+    end
+  end
+
+  defp normalize(other), do: {:error, {:bad_agent_ref, other}}
+end

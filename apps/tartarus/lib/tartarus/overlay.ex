@@ -1,0 +1,170 @@
+defmodule Tartarus.Overlay do
+  @moduledoc """
+  The node-level process for what hosts send to their neighbours without an agent: signal
+  relays (`Tartarus.Signal`) and neighbour broadcasts (`Tartarus.Broadcast`).
+
+  It is registered as `:tartarus_overlay` on every node, so a host addresses a neighbour's
+  node as `{:tartarus_overlay, node}` (an atom, not this module's name, so that
+  `Tartarus.Signal` and `Tartarus.Broadcast`, which this module calls, do not depend on it
+  back: no xref cycle). It owns two ETS tables, read directly by everyone:
+  `:tartarus_signals` (the signal fields of this node's hosts) and
+  `:tartarus_broadcast_subscribers` (broadcast subscriptions). It monitors the hosts it holds
+  fields for and the subscribers, and forgets them when they go.
+
+  Wire messages (maintainer notes):
+
+      {:"$tartarus_signal", to_host, from_host, name, source, emission, from_hops, age_us}
+        (emission packed as {id, strength, span, lifetime, decay, lifetime_decay,
+         evaporation, data})
+      {:"$tartarus_broadcast", to_host, from_host, message}
+
+  A message for a host that does not run on this node is dropped.
+  """
+  use GenServer
+
+  alias Tartarus.{Broadcast, Host, Signal}
+
+  @doc false
+  def start_link(_opts), do: GenServer.start_link(__MODULE__, nil, name: :tartarus_overlay)
+
+  @impl true
+  def init(nil) do
+    :ets.new(:tartarus_signals, [:set, :protected, :named_table, read_concurrency: true])
+
+    :ets.new(:tartarus_broadcast_subscribers, [
+      :bag,
+      :protected,
+      :named_table,
+      read_concurrency: true
+    ])
+
+    {:ok, %{hosts: %{}, subs: %{}}}
+  end
+
+  @impl true
+  def handle_call({:emit, host, name, e}, _from, state) do
+    case local(host) do
+      {:ok, info} ->
+        Signal.handle_emit(info, name, e)
+        {:reply, :ok, watch_host(state, info)}
+
+      error ->
+        {:reply, error, state}
+    end
+  end
+
+  def handle_call(:idle?, _from, state) do
+    {:message_queue_len, n} = Process.info(self(), :message_queue_len)
+    {:reply, n == 0, state}
+  end
+
+  def handle_call({{:subscribe, pid}, host}, _from, state) when is_pid(pid) do
+    case local(host) do
+      {:ok, info} ->
+        {name, _} = info.ref
+
+        if :ets.match_object(:tartarus_broadcast_subscribers, {name, pid}) == [] do
+          :ets.insert(:tartarus_broadcast_subscribers, {name, pid})
+          mref = Process.monitor(pid)
+          {:reply, :ok, %{state | subs: Map.put(state.subs, mref, {name, pid})}}
+        else
+          {:reply, :ok, state}
+        end
+
+      error ->
+        {:reply, error, state}
+    end
+  end
+
+  def handle_call({{:unsubscribe, pid}, host}, _from, state) when is_pid(pid) do
+    {name, _} = Host.address(host)
+    :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
+
+    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub == {name, pid} end)
+    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
+    {:reply, :ok, %{state | subs: Map.new(subs)}}
+  end
+
+  # Anything else (from another node, well-formed or not) is dropped and counted.
+  def handle_call(msg, from, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_cast(msg, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :cast, msg)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_info({:"$tartarus_signal", to, from, name, source, e, hops, age}, state)
+      when is_tuple(e) and tuple_size(e) == 8 and is_integer(hops) and is_integer(age) do
+    case local(to) do
+      {:ok, info} ->
+        Signal.handle_relay(info, from, name, source, e, hops, age)
+        {:noreply, watch_host(state, info)}
+
+      _ ->
+        {:noreply, state}
+    end
+  end
+
+  def handle_info({:"$tartarus_broadcast", to, from, message} = msg, state) do
+    case local(to) do
+      {:ok, info} -> Broadcast.deliver(info, from, message, :erlang.external_size(msg))
+      _ -> :ok
+    end
+
+    {:noreply, state}
+  end
+
+  def handle_info({:DOWN, mref, :process, _pid, _reason}, state) do
+    case Map.pop(state.subs, mref) do
+      {{name, pid}, subs} ->
+        :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
+        {:noreply, %{state | subs: subs}}
+
+      {nil, _} ->
+        {:noreply, forget_host(state, mref)}
+    end
+  end
+
+  def handle_info(other, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :info, other)
+    {:noreply, state}
+  end
+
+  defp local(host) do
+    if Host.address?(host) and elem(Host.address(host), 1) == node(),
+      do: Host.local(host),
+      else: {:error, {:unknown_host, host}}
+  end
+
+  # Fields of a host are dropped when the host's server stops.
+  defp watch_host(state, %{ref: {name, _}, pid: pid}) do
+    case state.hosts do
+      %{^name => {_mref, ^pid}} ->
+        state
+
+      _ ->
+        mref = Process.monitor(pid)
+        %{state | hosts: Map.put(state.hosts, name, {mref, pid})}
+    end
+  end
+
+  defp forget_host(state, mref) do
+    case Enum.find(state.hosts, fn {_, {m, _}} -> m == mref end) do
+      {name, _} ->
+        :ets.select_delete(:tartarus_signals, [
+          {{{:"$1", :_}, :_}, [{:"=:=", :"$1", {:const, name}}], [true]}
+        ])
+
+        %{state | hosts: Map.delete(state.hosts, name)}
+
+      nil ->
+        state
+    end
+  end
+end

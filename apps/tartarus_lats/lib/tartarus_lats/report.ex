@@ -1,0 +1,245 @@
+defmodule TartarusLats.Report do
+  @moduledoc """
+  The report of a LATS experiment (`TartarusLats.Experiment`), written into
+  the run's directory beside the runner's `summary.json`, `summary.md` and
+  series (see `TartarusEmu.Scenario`):
+
+    * `queries.csv` - every query: type, person, start node, world time, answer,
+      truth, correct (agents, centralized), hops, ms, route;
+    * `cloud_connections.csv`, `cloud_connections.svg` - cumulative connections to
+      the cloud over world time: centralized (all uploads, and per person),
+      agents (all, and per queried person): the thesis's Fig. 3.9;
+    * `rssi.csv`, `rssi.svg` - raw and filtered RSSI of the Janitor's tag at the
+      first two zones of the Janitor's path, with the near/far thresholds
+      (Fig. 3.6/3.7);
+    * `hops.svg`, `latency.svg` - box plots of query hops and latency per type.
+  """
+
+  alias TartarusTools.{Report, SVG}
+  alias TartarusLats.{Region, World}
+
+  @typedoc """
+  What the report is made of: the experiment's `summary`, its `queries` (one
+  map per query), the cloud's `cloud_log`, the recorded `rssi` rows and the
+  final `world`.
+  """
+  @type data :: %{
+          summary: map(),
+          queries: [map()],
+          cloud_log: [map()],
+          rssi: [{integer(), map()}],
+          world: World.t()
+        }
+
+  @doc "Writes the files listed in the moduledoc into `dir`; returns their paths."
+  @spec write!(Path.t(), data()) :: [Path.t()]
+  def write!(dir, data) do
+    File.mkdir_p!(dir)
+    world = data.world
+    hops = by_type(data.queries, & &1.hops)
+    ms = by_type(data.queries, & &1.ms)
+
+    [write_queries(dir, data.queries)] ++
+      write_cloud(dir, data, world) ++
+      write_rssi(dir, data, world) ++
+      [
+        SVG.write!(
+          Path.join(dir, "hops.svg"),
+          SVG.box_plot(hops, title: "Query hops per type (agent design)", y_label: "hops")
+        ),
+        SVG.write!(
+          Path.join(dir, "latency.svg"),
+          SVG.box_plot(ms, title: "Query latency per type (agent design)", y_label: "ms")
+        )
+      ]
+  end
+
+  @doc "The \"ours vs the thesis\" rows of `summary.md` for a summary."
+  @spec comparisons(map()) :: [Report.comparison()]
+  def comparisons(summary) do
+    [
+      %{
+        metric: "cloud connections, agents / centralized",
+        ours:
+          "#{summary.cloud_connections_agents} / #{summary.cloud_connections_centralized} (#{summary.cloud_connection_ratio})",
+        thesis: "agents far fewer (Fig. 3.9; no totals printed)"
+      },
+      %{
+        metric: "correct answers (agents)",
+        ours: "#{summary.correct}/#{summary.queries}",
+        thesis: "not reported"
+      },
+      %{metric: "median query hops", ours: summary.median_query_hops, thesis: "not reported"}
+    ]
+  end
+
+  defp by_type(queries, fun) do
+    for type <- [:where_am_i, :where_is, :trace] do
+      {type, queries |> Enum.filter(&(&1.type == type)) |> Enum.map(fun)}
+    end
+  end
+
+  defp write_queries(dir, queries) do
+    rows =
+      Enum.map(queries, fn q ->
+        [
+          q.id,
+          q.type,
+          q.person,
+          q.start,
+          q.time,
+          show(q.answer),
+          show(truth(q)),
+          q.correct,
+          q.correct_centralized,
+          q.hops,
+          Float.round(q.ms * 1.0, 3),
+          Enum.join(q.route, " "),
+          q.time_error
+        ]
+      end)
+
+    Report.write_csv!(
+      dir,
+      "queries",
+      ~w(id type person start time answer truth correct correct_centralized hops ms route trace_time_error_s),
+      rows
+    )
+  end
+
+  defp truth(%{type: :trace, truth: t}), do: {t.zones, t.status}
+  defp truth(q), do: q.truth
+
+  defp show({:ok, %{path: path, status: status}}),
+    do: "#{Enum.map_join(path, ">", & &1.node)} (#{status})"
+
+  defp show({zones, status}) when is_list(zones), do: "#{Enum.join(zones, ">")} (#{status})"
+  defp show({:in_zone, z}), do: "in_zone #{z}"
+  defp show(other), do: inspect(other)
+
+  defp write_cloud(dir, result, world) do
+    log = result.cloud_log
+    queried = result.queries |> Enum.map(& &1.person) |> Enum.uniq()
+    scripted = Enum.filter(World.names(world), &(Map.fetch!(world.bearers, &1).kind == :scripted))
+
+    series =
+      [{"centralized (all)", fn e -> e.design == :centralized end}] ++
+        [{"agents (all queries)", fn e -> e.design == :agents end}] ++
+        for name <- scripted, name in queried do
+          tag = World.tag(world, name)
+          {"agents: #{name}", fn e -> e.design == :agents and tag in e.tags end}
+        end
+
+    per_person =
+      for name <- queried do
+        tag = World.tag(world, name)
+        {"centralized: #{name}", fn e -> e.design == :centralized and tag in e.tags end}
+      end
+
+    curves = Enum.map(series ++ per_person, fn {name, f} -> {name, cumulative(log, f)} end)
+    seconds = result.summary.world_seconds
+
+    rows =
+      for t <- 0..seconds//10 do
+        [t | Enum.map(curves, fn {_, pts} -> value_at(pts, t) end)]
+      end
+
+    csv =
+      Report.write_csv!(
+        dir,
+        "cloud_connections",
+        ["time_s" | Enum.map(curves, &elem(&1, 0))],
+        rows
+      )
+
+    chart =
+      curves
+      |> Enum.take(length(series))
+      |> Enum.map(fn {name, pts} -> %{name: name, points: step_points(pts, seconds)} end)
+
+    svg =
+      SVG.write!(
+        Path.join(dir, "cloud_connections.svg"),
+        SVG.line_chart(chart,
+          title: "Cumulative connections to the cloud (cf. thesis Fig. 3.9)",
+          x_label: "world time",
+          x_unit: "s",
+          y_label: "connections",
+          markers: false
+        )
+      )
+
+    [csv, svg]
+  end
+
+  defp cumulative(log, f) do
+    log
+    |> Enum.filter(f)
+    |> Enum.map(& &1.time)
+    |> Enum.sort()
+    |> Enum.with_index(1)
+    |> Enum.map(fn {t, n} -> {t, n} end)
+  end
+
+  defp value_at(points, t) do
+    points
+    |> Enum.take_while(fn {pt, _} -> pt <= t end)
+    |> List.last()
+    |> then(&if(&1, do: elem(&1, 1), else: 0))
+  end
+
+  defp step_points(points, seconds) do
+    last = Map.new(points)
+    pts = Enum.sort(last)
+    [{0, 0} | pts] ++ [{seconds, if(pts == [], do: 0, else: elem(List.last(pts), 1))}]
+  end
+
+  defp write_rssi(dir, result, world) do
+    with true <- :janitor in World.names(world),
+         [%{zone: a}, %{zone: b} | _] <- World.visited_path(world, :janitor) do
+      rows =
+        for {t, row} <- result.rssi do
+          {ra, fa} = row[a]
+          {rb, fb} = row[b]
+          [t, ra, fa && Float.round(fa, 2), rb, fb && Float.round(fb, 2)]
+        end
+
+      csv =
+        Report.write_csv!(
+          dir,
+          "rssi",
+          ["time_s", "raw_#{a}", "filtered_#{a}", "raw_#{b}", "filtered_#{b}"],
+          rows
+        )
+
+      cal = Region.calibrate(tx_power: -59, exponent: world.radio.exponent)
+      last = rows |> Enum.map(&hd/1) |> Enum.max(fn -> 1 end)
+      pick = fn i -> for [t | r] <- rows, v = Enum.at(r, i), is_number(v), do: {t, v} end
+
+      svg =
+        SVG.write!(
+          Path.join(dir, "rssi.svg"),
+          SVG.line_chart(
+            [
+              %{name: "raw at #{a}", points: pick.(0)},
+              %{name: "filtered at #{a}", points: pick.(1)},
+              %{name: "raw at #{b}", points: pick.(2)},
+              %{name: "filtered at #{b}", points: pick.(3)},
+              %{name: "near threshold", points: [{0, cal.near_dbm}, {last, cal.near_dbm}]},
+              %{name: "far threshold", points: [{0, cal.far_dbm}, {last, cal.far_dbm}]}
+            ],
+            title: "Janitor's tag: raw and filtered RSSI at #{a} and #{b} (cf. Fig. 3.6/3.7)",
+            x_label: "world time",
+            x_unit: "s",
+            y_label: "RSSI",
+            y_unit: "dBm",
+            markers: false
+          )
+        )
+
+      [csv, svg]
+    else
+      _ -> []
+    end
+  end
+end

@@ -1,0 +1,166 @@
+defmodule TartarusTools.Bench.Churn do
+  @moduledoc """
+  What a host keeps of the migrations that passed through it: `mix tartarus.bench churn`.
+
+  Two hosts in this VM, started with default options, and agents passing between them in
+  batches: each batch creates `:agents` fresh agents (default 1,000) on the first host,
+  each makes `:hops` hops (default 10) between the two hosts and then ends (returns its
+  result), so the hosts see agents arrive, leave, die elsewhere, and new ones come. After
+  10,000, 100,000 and 1,000,000 migrations (those not above `:migrations`, and
+  `:migrations` itself), it measures, summed over both hosts:
+
+    * every ETS table owned by the host's server process (today the ledger and the store),
+    * the node's agent table (`Tartarus.AgentTable`), and
+    * the host servers' own process memory (after a garbage collection),
+
+  reported as `memory_bytes_at` (bytes, keyed by migration count), with the breakdown in
+  `tables_at` (per count: bytes per part and entries of the hosts' tables by kind of key,
+  the first element of a tuple key). Then (unless `persist: false`) the same with hosts
+  that journal to a data directory (`data_dir:`), whose journal files' size is added as
+  `persist.journal_bytes_at` and included in `persist.memory_bytes_at`.
+
+  Tables are found by owner, not by name, so the measure holds whatever tables the
+  platform gives a host.
+  """
+
+  @checkpoints [10_000, 100_000, 1_000_000]
+
+  @doc """
+  Runs the churn benchmark. Options: `:migrations` (default 1,000,000), `:agents`
+  (per batch, default 1,000), `:hops` (per agent, default 10), `:persist` (also the pass
+  with a journal, default true), `:progress` (a 1-arity fun called with the migration
+  count at each checkpoint).
+  """
+  @spec run(keyword()) :: map()
+  def run(opts) do
+    migrations = Keyword.get(opts, :migrations, 1_000_000)
+    agents = Keyword.get(opts, :agents, 1_000)
+    hops = Keyword.get(opts, :hops, 10)
+    progress = Keyword.get(opts, :progress, fn _ -> :ok end)
+    checkpoints = Enum.uniq(Enum.filter(@checkpoints, &(&1 < migrations)) ++ [migrations])
+    plain = pass(false, checkpoints, agents, hops, progress)
+
+    result = %{
+      migrations: migrations,
+      agents_per_batch: agents,
+      hops_per_agent: hops,
+      checkpoints: checkpoints,
+      memory_bytes_at: plain.memory,
+      tables_at: plain.tables,
+      wall_ms: plain.wall_ms,
+      migrations_per_s: plain.rate
+    }
+
+    if Keyword.get(opts, :persist, true) do
+      durable = pass(true, checkpoints, agents, hops, progress)
+
+      Map.put(result, :persist, %{
+        memory_bytes_at: durable.memory,
+        journal_bytes_at: durable.journal,
+        tables_at: durable.tables,
+        wall_ms: durable.wall_ms,
+        migrations_per_s: durable.rate
+      })
+    else
+      result
+    end
+  end
+
+  defp pass(persist, checkpoints, agents, hops, progress) do
+    tag = System.unique_integer([:positive])
+    dir = Path.join(System.tmp_dir!(), "tartarus_churn_#{tag}")
+    host_opts = fn name -> if persist, do: [data_dir: Path.join(dir, "#{name}")], else: [] end
+    {:ok, a} = Tartarus.start_host(:"churn_a#{tag}", host_opts.(:a))
+    {:ok, b} = Tartarus.start_host(:"churn_b#{tag}", host_opts.(:b))
+    module = TartarusTools.Bench.bouncer()
+    blob = :crypto.strong_rand_bytes(1024)
+    t0 = System.monotonic_time(:microsecond)
+
+    try do
+      :ok = Tartarus.connect(a, b)
+
+      {rows, _} =
+        Enum.map_reduce(checkpoints, 0, fn target, done ->
+          churn(module, a, b, target - done, agents, hops, blob)
+          progress.(target)
+          {{target, measure([a, b], if(persist, do: dir))}, target}
+        end)
+
+      wall_us = max(System.monotonic_time(:microsecond) - t0, 1)
+
+      %{
+        memory: Map.new(rows, fn {n, m} -> {Integer.to_string(n), m.total + m.journal} end),
+        journal: Map.new(rows, fn {n, m} -> {Integer.to_string(n), m.journal} end),
+        tables: Map.new(rows, fn {n, m} -> {Integer.to_string(n), Map.delete(m, :total)} end),
+        wall_ms: div(wall_us, 1000),
+        rate: round(List.last(checkpoints) * 1_000_000 / wall_us)
+      }
+    after
+      Tartarus.stop_host(a)
+      Tartarus.stop_host(b)
+      File.rm_rf(dir)
+    end
+  end
+
+  # `n` migrations in batches of `agents` agents making `hops` hops each (the last batch,
+  # and its last agent, smaller).
+  defp churn(_module, _a, _b, n, _agents, _hops, _blob) when n <= 0, do: :ok
+
+  defp churn(module, a, b, n, agents, hops, blob) do
+    batch = min(n, agents * hops)
+    plan = List.duplicate(hops, div(batch, hops)) ++ if(rem(batch, hops) > 0, do: [rem(batch, hops)], else: [])
+    TartarusTools.Bench.run_batch(module, a, b, plan, blob)
+    churn(module, a, b, n - batch, agents, hops, blob)
+  end
+
+  @doc false
+  # Memory of hosts (on this node) and of the journal files under `dir`.
+  def measure(hosts, dir) do
+    words = :erlang.system_info(:wordsize)
+
+    parts =
+      for host <- hosts do
+        {:ok, pid} = Tartarus.Host.whereis(host)
+        :erlang.garbage_collect(pid)
+        tables = Enum.filter(:ets.all(), &(:ets.info(&1, :owner) == pid))
+        {:memory, proc} = Process.info(pid, :memory)
+        {Enum.sum(Enum.map(tables, &(:ets.info(&1, :memory) * words))), proc, entries(tables)}
+      end
+
+    tables = Enum.sum(Enum.map(parts, &elem(&1, 0)))
+    procs = Enum.sum(Enum.map(parts, &elem(&1, 1)))
+    agent_table = (:ets.info(Tartarus.AgentTable, :memory) || 0) * words
+    kinds = Enum.reduce(parts, %{}, fn {_, _, e}, acc -> Map.merge(acc, e, fn _, x, y -> x + y end) end)
+    journal = if dir, do: dir_bytes(dir), else: 0
+
+    %{
+      total: tables + procs + agent_table,
+      host_tables: tables,
+      host_processes: procs,
+      agent_table: agent_table,
+      journal: journal,
+      entries: kinds
+    }
+  end
+
+  defp entries(tables) do
+    Enum.reduce(tables, %{}, fn t, acc ->
+      :ets.foldl(fn entry, acc -> Map.update(acc, kind(elem(entry, 0)), 1, &(&1 + 1)) end, acc, t)
+    end)
+  end
+
+  defp kind(key) when is_tuple(key) and tuple_size(key) > 0, do: inspect(elem(key, 0))
+  defp kind(key) when is_atom(key), do: inspect(key)
+  defp kind(_key), do: "other"
+
+  defp dir_bytes(dir) do
+    Path.wildcard(Path.join(dir, "**/*"))
+    |> Enum.map(fn p ->
+      case File.stat(p) do
+        {:ok, %{type: :regular, size: s}} -> s
+        _ -> 0
+      end
+    end)
+    |> Enum.sum()
+  end
+end

@@ -1,0 +1,55 @@
+defmodule TartarusTools.ChaosTest do
+  # The chaos harness at a tiny size on real peer nodes: its keys and the invariants the
+  # platform promises with persistence (no duplicate, no loss, no transient duplicate).
+  use ExUnit.Case, async: false
+
+  @moduletag timeout: 180_000
+
+  setup_all do
+    :ok = TartarusTools.Peer.ensure_distributed("chaos_test")
+    :ok
+  end
+
+  test "a small run with kills, partitions, clones, posts and a census" do
+    r =
+      TartarusTools.Chaos.run(
+        nodes: 2,
+        agents: 8,
+        migrations: 60,
+        kills: 1,
+        partitions: 1,
+        persist: true,
+        seed: 3,
+        census_ms: 200
+      )
+
+    assert r.duplicates == 0
+    assert r.lost == 0
+    assert r.transient_duplicates == 0
+    assert r.agents_end == r.agents_start + r.clones + r.untracked_agents
+    assert r.census_rounds > 0
+    assert r.posts == r.acknowledged + Enum.sum(Map.values(r.post_failures))
+    # Messages missing after a restart are excused (no durability mode); no other.
+    assert r.acknowledged_missing == r.acknowledged_missing_after_kill
+    assert r.acknowledged_of_lost_agents == 0
+
+    for key <- [:migrations_done, :agent_moves, :census_unanswered, :still_in_doubt, :wall_ms] do
+      assert is_integer(r[key]), "#{key}"
+    end
+  end
+
+  test "--durable is refused with a clear error on a platform without it" do
+    probe = :"chaos_test_probe_#{System.unique_integer([:positive])}"
+
+    case Tartarus.start_host(probe, durable: true) do
+      # The platform has the option: nothing to refuse.
+      {:ok, host} ->
+        Tartarus.stop_host(host)
+
+      {:error, _} ->
+        assert_raise Mix.Error, ~r/--durable needs a platform/, fn ->
+          Mix.Tasks.Tartarus.Chaos.run(["--durable", "--nodes", "2"])
+        end
+    end
+  end
+end
