@@ -134,9 +134,13 @@ defmodule Tartarus.Agent.Server do
 
   # -- messages --------------------------------------------------------------------
 
+  # Without the host option :durable a message is acknowledged as it is taken, before the
+  # agent's code runs; with it, once handled and checkpointed (journaled when the host has a
+  # data directory), so an acknowledged change survives SIGKILL and restart.
   def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data)
       when is_pid(pid) and kind in [:post, :request] do
-    send(pid, {ref, :delivered})
+    durable = Map.get(data.host.opts, :durable, false)
+    unless durable, do: send(pid, {ref, :delivered})
     bytes = :erlang.external_size(msg)
 
     emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
@@ -145,7 +149,8 @@ defmodule Tartarus.Agent.Server do
     )
 
     from = if kind == :request, do: {pid, ref}
-    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
+    ack = if durable, do: {pid, ref}
+    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, ack)
   end
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
@@ -261,12 +266,32 @@ defmodule Tartarus.Agent.Server do
 
   # -- actions -------------------------------------------------------------------
 
-  defp run(data, fun) do
+  # `ack`: the sender of a message the host option :durable makes durable before it is
+  # acknowledged (nil otherwise).
+  defp run(data, fun, ack \\ nil) do
     case callback(data, fun) do
-      {:ok, action, data} -> act(action, data)
-      {:error, reason, data} -> {:stop, reason, data}
+      {:ok, action, data} ->
+        data = checkpoint(data, action, Process.delete(:"$tartarus_checkpoint") == true or ack)
+        with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
+        act(action, data)
+
+      {:error, reason, data} ->
+        Process.delete(:"$tartarus_checkpoint")
+        {:stop, reason, data}
     end
   end
+
+  # The state the callback returned, made the agent's snapshot (Tartarus.Agent.checkpoint/0,
+  # or a message under the host option :durable). A malformed action changes nothing.
+  defp checkpoint(data, action, want)
+       when want not in [nil, false] and is_tuple(action) and
+              tuple_size(action) in [2, 3] do
+    data = put_state(data, action_state(action))
+    arrived(data)
+    data
+  end
+
+  defp checkpoint(data, _action, _want), do: data
 
   defp act({:stay, s}, data), do: {:noreply, put_state(data, s)}
 
@@ -527,8 +552,11 @@ defmodule Tartarus.Agent.Server do
   defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x),
     do: {:moved, new_pid, x.data}
 
-  defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x),
-    do: {:cloned, x.out.id, put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))}
+  defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x) do
+    # The parent's random stream moves on past the clone's.
+    data = put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))
+    {:cloned, x.out.id, data}
+  end
 
   defp source_actions([{:done, {:failed, reason}} | _], _s, x) do
     if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
