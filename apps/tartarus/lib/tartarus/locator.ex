@@ -14,10 +14,12 @@ defmodule Tartarus.Locator do
   @doc false
   # Finds an agent's pid. Returns it with the reference normalized to `{id, host}`.
   @spec locate(term()) :: {:ok, pid(), {String.t(), Host.t()}} | {:error, term()}
-  def locate(agent, n \\ @max_chase)
-  def locate(_agent, 0), do: {:error, :too_many_hops}
+  # With `:arriving_ok` (delivery), a copy still arriving is as good as a running one: it
+  # keeps the messages it gets and handles them once it runs.
+  def locate(agent, n \\ @max_chase, arriving \\ :wait)
+  def locate(_agent, 0, _arriving), do: {:error, :too_many_hops}
 
-  def locate(agent, n) do
+  def locate(agent, n, arriving) do
     with {:ok, {a, host}} <- normalize(agent) do
       result =
         case Host.local(host) do
@@ -27,8 +29,9 @@ defmodule Tartarus.Locator do
 
       case result do
         {:here, pid, id} -> {:ok, pid, {id, host}}
-        {:moved, next} -> locate({a, next}, n - 1)
-        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1)
+        {:moved, next} -> locate({a, next}, n - 1, arriving)
+        {:arriving, pid} when arriving == :arriving_ok -> {:ok, pid, {a, host}}
+        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1, arriving)
         :not_found -> {:error, :not_found}
         error -> error
       end
@@ -126,42 +129,67 @@ defmodule Tartarus.Locator do
   end
 
   @doc false
-  # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`).
+  # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`). The message
+  # follows the agent without a hop limit: when the process it was sent to moves on (its
+  # exit names its successor), it is sent there again marked as sent before, and the
+  # successor, which holds what its predecessor handed over, takes it only if it had not
+  # (see "reaching a busy agent" in Tartarus.Agent.Server). The one tag identifies the
+  # message through all its copies, so it is acknowledged once. Only an agent's end, or a
+  # process that ended otherwise (crash, aborted copy), makes the search start again, at
+  # most @max_chase times.
   @spec deliver(term(), :post | :request, term(), timeout()) :: term()
-  def deliver(agent, kind, msg, timeout), do: deliver(agent, kind, msg, timeout, @max_chase)
+  def deliver(agent, kind, msg, timeout) do
+    deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
+    deliver(agent, kind, msg, make_ref(), deadline, @max_chase)
+  end
 
-  defp deliver(_agent, _kind, _msg, _timeout, 0), do: {:error, :too_many_hops}
+  defp deliver(_agent, _kind, _msg, _tag, _deadline, 0), do: {:error, :too_many_hops}
 
-  defp deliver(agent, kind, msg, timeout, n) do
-    with {:ok, pid, ref} <- locate(agent) do
-      tag = Process.monitor(pid)
-      send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
-
-      receive do
-        {^tag, :delivered} ->
-          Process.demonitor(tag, [:flush])
-
-          if kind == :post do
-            :ok
-          else
-            receive do
-              {^tag, {:reply, value}} -> {:ok, value}
-            after
-              timeout -> {:error, :timeout}
-            end
-          end
-
-        {:DOWN, ^tag, :process, _, _} ->
-          # The agent left (or died) before taking the message: look again.
-          backoff(n)
-          deliver(ref, kind, msg, timeout, n - 1)
-      after
-        timeout ->
-          Process.demonitor(tag, [:flush])
-          {:error, :timeout}
-      end
+  defp deliver(agent, kind, msg, tag, deadline, n) do
+    with {:ok, pid, ref} <- locate(agent, @max_chase, :arriving_ok) do
+      follow(pid, nil, {kind, msg}, ref, tag, deadline, n)
     end
   end
+
+  defp follow(pid, prev, {kind, msg} = km, ref, tag, deadline, n) do
+    mref = Process.monitor(pid)
+
+    if prev,
+      do: send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg, {:after, prev}}),
+      else: send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+
+    receive do
+      {^tag, :delivered} ->
+        Process.demonitor(mref, [:flush])
+        if kind == :post, do: :ok, else: await_reply(tag, deadline)
+
+      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
+        # Moved on: perhaps with our message (handed over), perhaps not (sent too late).
+        follow(next, pid, km, ref, tag, deadline, n)
+
+      {:DOWN, ^mref, :process, _, _} ->
+        # Ended before taking the message (acknowledged messages are acknowledged before
+        # the process can end): look again.
+        backoff(n)
+        deliver(ref, kind, msg, tag, deadline, n - 1)
+    after
+      remaining(deadline) ->
+        Process.demonitor(mref, [:flush])
+        {:error, :timeout}
+    end
+  end
+
+  defp await_reply(tag, deadline) do
+    receive do
+      {^tag, {:reply, value}} -> {:ok, value}
+    after
+      remaining(deadline) -> {:error, :timeout}
+    end
+  end
+
+  defp now, do: System.monotonic_time(:millisecond)
+  defp remaining(:infinity), do: :infinity
+  defp remaining(deadline), do: max(deadline - now(), 0)
 
   @doc false
   # A control call to the agent's process (info, payload operations), following it.

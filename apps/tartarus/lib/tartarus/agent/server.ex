@@ -18,6 +18,12 @@ defmodule Tartarus.Agent.Server do
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
 
+  # Reaching a busy agent (see "messages" below): the messages this process has still to
+  # handle before it returns to its mailbox, and {pid, tags} of the process it moved from
+  # and the messages that process handed over.
+  @pending :"$tartarus_pending"
+  @pred :"$tartarus_pred"
+
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
   # the timer it arms on every wait costs about a fifth of the migration throughput.
@@ -120,11 +126,19 @@ defmodule Tartarus.Agent.Server do
 
         _ ->
           case Protocol.classify(msg) do
-            {:commit, _, _, _} = commit -> commit
-            {:decision, _, _, _} = decision -> decision
-            :other -> {:message, msg}
+            {:commit, _, _, _} = commit ->
+              Process.put(:"$tartarus_direct_commit", true)
+              commit
+
+            {:decision, _, _, _} = decision ->
+              decision
+
+            :other ->
+              {:message, msg}
+
             # Stray hand-off messages (of an earlier attempt) are not for the agent.
-            _ -> :ignore
+            _ ->
+              :ignore
           end
       end
 
@@ -152,6 +166,20 @@ defmodule Tartarus.Agent.Server do
     ack = if durable, do: {pid, ref}
     run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, ack)
   end
+
+  # A message sent again after the process it was sent to moved on (`prev`): the previous
+  # process may have handed it over to this one already (then it was, or will be, handled
+  # from there, and the sender acknowledged once); otherwise it is new here.
+  def handle_info({:"$tartarus_msg", {pid, ref} = from, kind, msg, {:after, prev}}, data)
+      when is_pid(pid) and is_reference(ref) and kind in [:post, :request] do
+    if seen?(prev, from),
+      do: {:noreply, data},
+      else: handle_info({:"$tartarus_msg", from, kind, msg}, data)
+  end
+
+  # A hand-over that came after this process stopped waiting for it (its source was slow).
+  def handle_info({:"$tartarus_handover", _mig, _pid, msgs}, data) when is_list(msgs),
+    do: handle_pending(msgs, data, fn data -> {:noreply, data} end)
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
   # twice, or a timer that fired as it committed: not for the agent's code.
@@ -549,8 +577,10 @@ defmodule Tartarus.Agent.Server do
     source_actions(rest, s, x)
   end
 
-  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x),
-    do: {:moved, new_pid, x.data}
+  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move} = s, x) do
+    hand_over(new_pid, s.mig)
+    {:moved, new_pid, x.data}
+  end
 
   defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x) do
     # The parent's random stream moves on past the clone's.
@@ -625,7 +655,14 @@ defmodule Tartarus.Agent.Server do
 
   defp commit(%{paused: %{c: c} = p} = data, notify) do
     Process.cancel_timer(p.timer)
-    Enum.each(Enum.reverse(p.stash), &send(self(), &1))
+    # Committed by its source directly (not through a decision query): the source's
+    # hand-over of the messages it held follows the commit.
+    handover =
+      if c.kind == :move and Process.delete(:"$tartarus_direct_commit") == true,
+        do: await_handover(c.mig, data.host.opts.migration_timeout),
+        else: []
+
+    pending = handover ++ Enum.reverse(p.stash)
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
@@ -662,11 +699,81 @@ defmodule Tartarus.Agent.Server do
           arrivals: 1
         )
 
-        ctx = ctx(data)
-        run(data, fn -> env.module.handle_arrival(ctx, env.state) end)
+        # Messages that reached the agent while it moved are handled first (an agent that
+        # moves on at every arrival would otherwise carry them for ever); if one of them
+        # makes it leave, the rest travel on with it.
+        handle_pending(pending, data, fn data ->
+          ctx = ctx(data)
+          run(data, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+        end)
 
       {:error, reason} ->
         {:stop, reason, data}
+    end
+  end
+
+  # -- reaching a busy agent --------------------------------------------------------
+  # A process that moved away hands the messages it had not handled (in its mailbox, or
+  # pending from its own arrival) to its successor with one message sent right after the
+  # commit; the successor handles them before anything else. A message that arrives after
+  # the hand-over is lost with the process: its sender, told by the exit reason where the
+  # agent went, sends it again there marked {:after, prev}; the successor drops it if prev
+  # had handed it over. Each message is handled once, wherever the agent runs, and a
+  # sender's messages in the order it sent them (a post waits for the previous one).
+
+  defp hand_over(new_pid, mig) do
+    msgs = (Process.delete(@pending) || []) ++ drain([])
+    send(new_pid, {:"$tartarus_handover", mig, self(), Enum.flat_map(msgs, &as_new/1)})
+  end
+
+  defp drain(acc) do
+    receive do
+      {:"$tartarus_msg", _, _, _} = m -> drain([m | acc])
+      {:"$tartarus_msg", _, _, _, _} = m -> drain([m | acc])
+    after
+      0 -> Enum.reverse(acc)
+    end
+  end
+
+  defp as_new({:"$tartarus_msg", from, kind, msg, {:after, prev}}),
+    do: if(seen?(prev, from), do: [], else: [{:"$tartarus_msg", from, kind, msg}])
+
+  defp as_new(m), do: [m]
+
+  defp seen?(prev, {_pid, tag}) do
+    case Process.get(@pred) do
+      {^prev, tags} -> MapSet.member?(tags, tag)
+      _ -> false
+    end
+  end
+
+  defp seen?(_prev, _from), do: false
+
+  defp await_handover(mig, timeout) do
+    receive do
+      {:"$tartarus_handover", ^mig, pid, msgs} when is_pid(pid) and is_list(msgs) ->
+        tags = for {:"$tartarus_msg", {_, tag}, _, _} <- msgs, into: MapSet.new(), do: tag
+        Process.put(@pred, {pid, tags})
+        msgs
+    after
+      timeout -> []
+    end
+  end
+
+  # Handles `msgs` one by one as if they came from the mailbox, then calls `next`; if one
+  # of them stops the process (a move), the others are left in @pending for hand_over/2.
+  defp handle_pending([], data, next), do: next.(data)
+
+  defp handle_pending([m | rest], data, next) do
+    Process.put(@pending, rest)
+
+    case handle_info(m, data) do
+      {:noreply, data} ->
+        Process.delete(@pending)
+        handle_pending(rest, data, next)
+
+      other ->
+        other
     end
   end
 
