@@ -584,7 +584,8 @@ defmodule Tartarus.Agent.Server do
 
   defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x) do
     # The parent's random stream moves on past the clone's.
-    data = put_in(x.data.env.rng, elem(Tartarus.Random.fork(x.data.env.rng), 1))
+    data = x.data
+    data = put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))
     {:cloned, x.out.id, data}
   end
 

@@ -35,7 +35,7 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
 
     for _ <- 1..5, do: {:ok, _clone} = Tartarus.clone({id, a}, b)
     # Moves refused at the destination: aborted migrations.
-    tiny = host!(max_envelope_bytes: 1)
+    tiny = host!(admission: [max_message_bytes: 1])
 
     for _ <- 1..3,
         do: assert({:error, {:bad_message, {:too_large, _, 1}}} = Tartarus.move({id, a}, tiny))
