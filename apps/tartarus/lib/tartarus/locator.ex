@@ -130,33 +130,31 @@ defmodule Tartarus.Locator do
 
   @doc false
   # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`). The message
-  # follows the agent without a hop limit: when the process it was sent to moves on (its
-  # exit names its successor), it is sent there again marked as sent before, and the
-  # successor, which holds what its predecessor handed over, takes it only if it had not
-  # (see "reaching a busy agent" in Tartarus.Agent.Server). The one tag identifies the
-  # message through all its copies, so it is acknowledged once. Only an agent's end, or a
-  # process that ended otherwise (crash, aborted copy), makes the search start again, at
-  # most @max_chase times.
+  # follows the agent without a hop limit: it carries one tag through all its copies, and
+  # when the process it was sent to ends having moved on (its exit names its successor) it
+  # is sent again there; the agent takes each tag once and hands what it took and had not
+  # handled to its successor (see "reaching a busy agent" in Tartarus.Agent.Server), so it
+  # is handled and acknowledged once. A process that ended otherwise (gone before we
+  # watched it, crashed, an aborted copy) makes the search start again, at most
+  # @max_chase times in a row without the agent moving.
   @spec deliver(term(), :post | :request, term(), timeout()) :: term()
   def deliver(agent, kind, msg, timeout) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
-    deliver(agent, kind, msg, make_ref(), deadline, @max_chase)
+    deliver(agent, {kind, msg}, make_ref(), deadline, @max_chase)
   end
 
-  defp deliver(_agent, _kind, _msg, _tag, _deadline, 0), do: {:error, :too_many_hops}
+  defp deliver(_agent, _km, _tag, _deadline, 0), do: {:error, :too_many_hops}
 
-  defp deliver(agent, kind, msg, tag, deadline, n) do
-    with {:ok, pid, ref} <- locate(agent, @max_chase, :arriving_ok) do
-      follow(pid, nil, {kind, msg}, ref, tag, deadline, n)
+  defp deliver(agent, km, tag, deadline, n) do
+    with :ok <- in_time(deadline),
+         {:ok, pid, ref} <- locate(agent, @max_chase, :arriving_ok) do
+      follow(pid, km, ref, tag, deadline, n)
     end
   end
 
-  defp follow(pid, prev, {kind, msg} = km, ref, tag, deadline, n) do
+  defp follow(pid, {kind, msg} = km, ref, tag, deadline, n) do
     mref = Process.monitor(pid)
-
-    if prev,
-      do: send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg, {:after, prev}}),
-      else: send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+    send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
 
     receive do
       {^tag, :delivered} ->
@@ -164,14 +162,12 @@ defmodule Tartarus.Locator do
         if kind == :post, do: :ok, else: await_reply(tag, deadline)
 
       {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
-        # Moved on: perhaps with our message (handed over), perhaps not (sent too late).
-        follow(next, pid, km, ref, tag, deadline, n)
+        # Moved on, with our message (handed over) or without it (it came too late).
+        follow(next, km, ref, tag, deadline, @max_chase)
 
       {:DOWN, ^mref, :process, _, _} ->
-        # Ended before taking the message (acknowledged messages are acknowledged before
-        # the process can end): look again.
         backoff(n)
-        deliver(ref, kind, msg, tag, deadline, n - 1)
+        deliver(ref, km, tag, deadline, n - 1)
     after
       remaining(deadline) ->
         Process.demonitor(mref, [:flush])
@@ -186,6 +182,9 @@ defmodule Tartarus.Locator do
       remaining(deadline) -> {:error, :timeout}
     end
   end
+
+  defp in_time(:infinity), do: :ok
+  defp in_time(deadline), do: if(now() < deadline, do: :ok, else: {:error, :timeout})
 
   defp now, do: System.monotonic_time(:millisecond)
   defp remaining(:infinity), do: :infinity

@@ -18,11 +18,12 @@ defmodule Tartarus.Agent.Server do
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
 
-  # Reaching a busy agent (see "messages" below): the messages this process has still to
-  # handle before it returns to its mailbox, and {pid, tags} of the process it moved from
-  # and the messages that process handed over.
+  # Reaching a busy agent (see "reaching a busy agent" below): the messages this process has
+  # still to handle before it returns to its mailbox, and the last message tag taken from
+  # each recent sender (it travels with the agent from process to process).
   @pending :"$tartarus_pending"
-  @pred :"$tartarus_pred"
+  @seen :"$tartarus_seen"
+  @seen_max 1024
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
@@ -151,35 +152,15 @@ defmodule Tartarus.Agent.Server do
   # Without the host option :durable a message is acknowledged as it is taken, before the
   # agent's code runs; with it, once handled and checkpointed (journaled when the host has a
   # data directory), so an acknowledged change survives SIGKILL and restart.
-  def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data)
+  def handle_info({:"$tartarus_msg", {pid, _ref} = from, kind, _msg} = m, data)
       when is_pid(pid) and kind in [:post, :request] do
-    durable = Map.get(data.host.opts, :durable, false)
-    unless durable, do: send(pid, {ref, :delivered})
-    bytes = :erlang.external_size(msg)
-
-    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
-      messages: 1,
-      message_bytes: bytes
-    )
-
-    from = if kind == :request, do: {pid, ref}
-    ack = if durable, do: {pid, ref}
-    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, ack)
+    if take?(from), do: handle_msg(m, data), else: {:noreply, data}
   end
 
-  # A message sent again after the process it was sent to moved on (`prev`): the previous
-  # process may have handed it over to this one already (then it was, or will be, handled
-  # from there, and the sender acknowledged once); otherwise it is new here.
-  def handle_info({:"$tartarus_msg", {pid, ref} = from, kind, msg, {:after, prev}}, data)
-      when is_pid(pid) and is_reference(ref) and kind in [:post, :request] do
-    if seen?(prev, from),
-      do: {:noreply, data},
-      else: handle_info({:"$tartarus_msg", from, kind, msg}, data)
-  end
-
-  # A hand-over that came after this process stopped waiting for it (its source was slow).
-  def handle_info({:"$tartarus_handover", _mig, _pid, msgs}, data) when is_list(msgs),
-    do: handle_pending(msgs, data, fn data -> {:noreply, data} end)
+  # A hand-over that came after this process stopped waiting for it (its source was slow):
+  # what this process took meanwhile is not taken twice.
+  def handle_info({:"$tartarus_handover", _mig, _pid, msgs, _seen}, data) when is_list(msgs),
+    do: handle_pending(Enum.filter(msgs, &take_new?/1), data, fn data -> {:noreply, data} end)
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
   # twice, or a timer that fired as it committed: not for the agent's code.
@@ -193,6 +174,21 @@ defmodule Tartarus.Agent.Server do
   end
 
   def handle_info(msg, data), do: user_info(msg, data)
+
+  defp handle_msg({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
+    durable = Map.get(data.host.opts, :durable, false)
+    unless durable, do: send(pid, {ref, :delivered})
+    bytes = :erlang.external_size(msg)
+
+    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
+      messages: 1,
+      message_bytes: bytes
+    )
+
+    from = if kind == :request, do: {pid, ref}
+    ack = if durable, do: {pid, ref}
+    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, ack)
+  end
 
   defp user_info(msg, data) do
     if function_exported?(data.env.module, :handle_info, 2) do
@@ -663,7 +659,12 @@ defmodule Tartarus.Agent.Server do
         do: await_handover(c.mig, data.host.opts.migration_timeout),
         else: []
 
-    pending = handover ++ Enum.reverse(p.stash)
+    # Messages that came while paused are new here unless the hand-over says otherwise.
+    {msgs, others} =
+      Enum.split_with(Enum.reverse(p.stash), &match?({:"$tartarus_msg", _, _, _}, &1))
+
+    Enum.each(others, &send(self(), &1))
+    pending = handover ++ Enum.filter(msgs, &take_new?/1)
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
@@ -714,47 +715,69 @@ defmodule Tartarus.Agent.Server do
   end
 
   # -- reaching a busy agent --------------------------------------------------------
-  # A process that moved away hands the messages it had not handled (in its mailbox, or
-  # pending from its own arrival) to its successor with one message sent right after the
-  # commit; the successor handles them before anything else. A message that arrives after
-  # the hand-over is lost with the process: its sender, told by the exit reason where the
-  # agent went, sends it again there marked {:after, prev}; the successor drops it if prev
-  # had handed it over. Each message is handled once, wherever the agent runs, and a
-  # sender's messages in the order it sent them (a post waits for the previous one).
+  # A sender tags each message once and sends it again, with the same tag, wherever the
+  # agent went when the process it sent it to ends (Tartarus.Locator.deliver/4). The agent
+  # takes a tag once: it remembers the last tag taken from each recent sender (a sender
+  # has one message outstanding at a time), and that memory travels with it. A process that
+  # moves away hands the messages it took and had not handled, and those in its mailbox,
+  # with its memory, to its successor in one message sent right after the commit; the
+  # successor handles them before anything else. A copy that arrives after the hand-over
+  # is lost with the process, and sent again by its sender. So each message is handled
+  # once wherever the agent runs, and a sender's messages in the order it sent them.
 
   defp hand_over(new_pid, mig) do
-    msgs = (Process.delete(@pending) || []) ++ drain([])
-    send(new_pid, {:"$tartarus_handover", mig, self(), Enum.flat_map(msgs, &as_new/1)})
+    msgs = (Process.delete(@pending) || []) ++ Enum.filter(drain([]), &take_new?/1)
+    send(new_pid, {:"$tartarus_handover", mig, self(), msgs, Process.get(@seen, %{})})
   end
 
   defp drain(acc) do
     receive do
       {:"$tartarus_msg", _, _, _} = m -> drain([m | acc])
-      {:"$tartarus_msg", _, _, _, _} = m -> drain([m | acc])
     after
       0 -> Enum.reverse(acc)
     end
   end
 
-  defp as_new({:"$tartarus_msg", from, kind, msg, {:after, prev}}),
-    do: if(seen?(prev, from), do: [], else: [{:"$tartarus_msg", from, kind, msg}])
+  defp take_new?({:"$tartarus_msg", {pid, _} = from, kind, _})
+       when is_pid(pid) and kind in [:post, :request],
+       do: take?(from)
 
-  defp as_new(m), do: [m]
+  defp take_new?(_), do: false
 
-  defp seen?(prev, {_pid, tag}) do
-    case Process.get(@pred) do
-      {^prev, tags} -> MapSet.member?(tags, tag)
-      _ -> false
+  # True (and remembered) unless `tag` is the last one taken from `pid`.
+  defp take?({pid, tag}) do
+    seen = Process.get(@seen, %{})
+
+    case seen do
+      %{^pid => {_, ^tag}} ->
+        false
+
+      _ ->
+        n = Process.get(:"$tartarus_seen_n", 0) + 1
+        Process.put(:"$tartarus_seen_n", n)
+        Process.put(@seen, trim(Map.put(seen, pid, {n, tag})))
+        true
     end
   end
 
-  defp seen?(_prev, _from), do: false
+  # At most @seen_max senders remembered: the oldest half goes when it is full.
+  defp trim(seen) when map_size(seen) <= @seen_max, do: seen
+
+  defp trim(seen) do
+    seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@seen_max, 2)) |> Map.new()
+  end
 
   defp await_handover(mig, timeout) do
     receive do
-      {:"$tartarus_handover", ^mig, pid, msgs} when is_pid(pid) and is_list(msgs) ->
-        tags = for {:"$tartarus_msg", {_, tag}, _, _} <- msgs, into: MapSet.new(), do: tag
-        Process.put(@pred, {pid, tags})
+      {:"$tartarus_handover", ^mig, pid, msgs, seen}
+      when is_pid(pid) and is_list(msgs) and is_map(seen) ->
+        Process.put(@seen, seen)
+
+        Process.put(
+          :"$tartarus_seen_n",
+          Enum.reduce(seen, 0, fn {_, {n, _}}, acc -> max(n, acc) end)
+        )
+
         msgs
     after
       timeout -> []
@@ -768,7 +791,7 @@ defmodule Tartarus.Agent.Server do
   defp handle_pending([m | rest], data, next) do
     Process.put(@pending, rest)
 
-    case handle_info(m, data) do
+    case handle_msg(m, data) do
       {:noreply, data} ->
         Process.delete(@pending)
         handle_pending(rest, data, next)
