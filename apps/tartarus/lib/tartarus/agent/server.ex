@@ -160,7 +160,7 @@ defmodule Tartarus.Agent.Server do
   # A hand-over that came after this process stopped waiting for it (its source was slow):
   # what this process took meanwhile is not taken twice.
   def handle_info({:"$tartarus_handover", _mig, _pid, msgs, _seen}, data) when is_list(msgs),
-    do: handle_pending(Enum.filter(msgs, &take_new?/1), data, fn data -> {:noreply, data} end)
+    do: handle_pending(take_new(msgs, []), data, fn data -> {:noreply, data} end)
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
   # twice, or a timer that fired as it committed: not for the agent's code.
@@ -737,6 +737,10 @@ defmodule Tartarus.Agent.Server do
       0 -> Enum.reverse(acc)
     end
   end
+
+  # The messages of a list (proper or not, from anywhere) taken now, in order.
+  defp take_new([m | rest], acc), do: take_new(rest, if(take_new?(m), do: [m | acc], else: acc))
+  defp take_new(_, acc), do: Enum.reverse(acc)
 
   defp take_new?({:"$tartarus_msg", {pid, _} = from, kind, _})
        when is_pid(pid) and kind in [:post, :request],
