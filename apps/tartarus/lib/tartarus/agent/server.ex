@@ -127,21 +127,17 @@ defmodule Tartarus.Agent.Server do
 
         _ ->
           case Protocol.classify(msg) do
-            {:commit, _, _, _} = commit ->
-              Process.put(:"$tartarus_direct_commit", true)
-              commit
-
-            {:decision, _, _, _} = decision ->
-              decision
-
-            :other ->
-              {:message, msg}
-
+            {:commit, _, _, _} = commit -> commit
+            {:decision, _, _, _} = decision -> decision
+            :other -> {:message, msg}
             # Stray hand-off messages (of an earlier attempt) are not for the agent.
-            _ ->
-              :ignore
+            _ -> :ignore
           end
       end
+
+    # Whether the event that may start the copy is its source's own commit (then the
+    # source's hand-over of messages follows it; see commit/2).
+    Process.put(:"$tartarus_direct_commit", match?({:commit, _, _, _}, event))
 
     {c, actions} = Protocol.copy_step(p.c, event)
     paused_actions(actions, %{data | paused: %{p | c: c}})
