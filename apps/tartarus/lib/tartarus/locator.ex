@@ -143,14 +143,29 @@ defmodule Tartarus.Locator do
     deliver(agent, {kind, msg}, make_ref(), deadline, @max_chase)
   end
 
-  defp deliver(_agent, _km, _tag, _deadline, 0), do: {:error, :too_many_hops}
+  defp deliver(agent, km, tag, deadline, n, crashed \\ false)
+  defp deliver(_agent, _km, _tag, _deadline, 0, _crashed), do: {:error, :too_many_hops}
 
-  defp deliver(agent, km, tag, deadline, n) do
-    with :ok <- in_time(deadline),
-         {:ok, pid, ref} <- locate(agent, @max_chase, :arriving_ok) do
-      follow(pid, km, ref, tag, deadline, n)
+  defp deliver(agent, km, tag, deadline, n, crashed) do
+    with :ok <- in_time(deadline) do
+      case locate(agent, @max_chase, :arriving_ok) do
+        {:ok, pid, ref} ->
+          follow(pid, km, ref, tag, deadline, n)
+
+        # A crashed agent is registered again once its host restarted it.
+        {:error, :not_found} when crashed ->
+          backoff(n)
+          deliver(agent, km, tag, deadline, n - 1, crashed)
+
+        error ->
+          error
+      end
     end
   end
+
+  defp crash?(reason),
+    do:
+      reason not in [:noproc, :normal, :shutdown, :killed] and not match?({:shutdown, _}, reason)
 
   defp follow(pid, {kind, msg} = km, ref, tag, deadline, n) do
     mref = Process.monitor(pid)
@@ -161,13 +176,18 @@ defmodule Tartarus.Locator do
         Process.demonitor(mref, [:flush])
         if kind == :post, do: :ok, else: await_reply(tag, deadline)
 
+      {^tag, {:failed, reason}} ->
+        # Handling it crashed the agent (host option :durable): not taken.
+        Process.demonitor(mref, [:flush])
+        {:error, reason}
+
       {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
         # Moved on, with our message (handed over) or without it (it came too late).
         follow(next, km, ref, tag, deadline, @max_chase)
 
-      {:DOWN, ^mref, :process, _, _} ->
+      {:DOWN, ^mref, :process, _, reason} ->
         backoff(n)
-        deliver(ref, km, tag, deadline, n - 1)
+        deliver(ref, km, tag, deadline, n - 1, crash?(reason))
     after
       remaining(deadline) ->
         Process.demonitor(mref, [:flush])

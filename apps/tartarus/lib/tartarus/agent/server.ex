@@ -87,6 +87,7 @@ defmodule Tartarus.Agent.Server do
   # host started again on its data directory.
   defp start(host, env, {:restart, n}) do
     Process.put(@host, host)
+    crashed_on(host, env.id)
     data = %{host: host, env: env, paused: nil}
 
     case Ledger.register_resident(host, env, self()) do
@@ -182,8 +183,38 @@ defmodule Tartarus.Agent.Server do
     )
 
     from = if kind == :request, do: {pid, ref}
-    ack = if durable, do: {pid, ref}
-    run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, ack)
+
+    if durable do
+      # Unacknowledged until handled: if handling it crashes the agent, the restarted agent
+      # tells the sender (and does not take it again) instead of taking it for good.
+      key = {:handling, data.env.id}
+      :ets.insert(data.host.ledger, {key, {pid, ref}})
+
+      result =
+        run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end, {pid, ref})
+
+      case result do
+        {:stop, {kind, _, _}, _} when kind in [:error, :exit, :throw] -> :crashed
+        _ -> :ets.delete(data.host.ledger, key)
+      end
+
+      result
+    else
+      run(data, fn -> data.env.module.handle_message(msg, from, data.env.state) end)
+    end
+  end
+
+  # After a crash: the message whose handling crashed the agent (host option :durable) is
+  # answered with an error and not taken again.
+  defp crashed_on(host, id) do
+    case :ets.take(host.ledger, {:handling, id}) do
+      [{_, {pid, ref} = from}] ->
+        take?(from)
+        send(pid, {ref, {:failed, :agent_crashed}})
+
+      [] ->
+        :ok
+    end
   end
 
   defp user_info(msg, data) do
