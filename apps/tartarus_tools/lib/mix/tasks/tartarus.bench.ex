@@ -54,7 +54,9 @@ defmodule Mix.Tasks.Tartarus.Bench do
   true` as well (K agents, default 200, making H hops each, default 50; S senders, default
   4, posting N messages in all, default 20,000, to one agent). Keys: `configs` (by
   configuration: `hops_per_s, posts_per_s, us_per_post, journal_bytes`),
-  `durable_posts_ratio`, `durable_hops_ratio`. See `TartarusTools.Bench.Durability`.
+  `durable_posts_ratio`, `durable_hops_ratio`, `journal_posts_ratio`, `journal_hops_ratio`
+  (each / the configuration without a data directory). See
+  `TartarusTools.Bench.Durability`.
 
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.

@@ -14,8 +14,9 @@ defmodule TartarusTools.Bench.Durability do
   the two hosts (`TartarusTools.Bench.run_batch/5`). Posts: `:senders` processes (default
   4) post `:messages` messages in all (default 20,000) to one agent, each waiting for its
   `:ok` before the next. Keys: `agents, hops, messages, senders, configs` (an object keyed
-  by configuration, each with `hops_per_s, posts_per_s, us_per_post, journal_bytes`) and
-  `durable_posts_ratio`, `durable_hops_ratio` (durable / memory).
+  by configuration, each with `hops_per_s, posts_per_s, us_per_post, journal_bytes`),
+  `durable_posts_ratio`, `durable_hops_ratio` (durable / memory) and `journal_posts_ratio`,
+  `journal_hops_ratio` (journal / memory).
   """
 
   alias Tartarus.Examples.Echo
@@ -44,7 +45,9 @@ defmodule TartarusTools.Bench.Durability do
       senders: senders,
       configs: configs,
       durable_posts_ratio: ratio(configs.durable.posts_per_s, configs.memory.posts_per_s),
-      durable_hops_ratio: ratio(configs.durable.hops_per_s, configs.memory.hops_per_s)
+      durable_hops_ratio: ratio(configs.durable.hops_per_s, configs.memory.hops_per_s),
+      journal_posts_ratio: ratio(configs.journal.posts_per_s, configs.memory.posts_per_s),
+      journal_hops_ratio: ratio(configs.journal.hops_per_s, configs.memory.hops_per_s)
     }
   end
 
