@@ -4,7 +4,9 @@ defmodule Tartarus.Locator do
   # here. `locate/1` follows forwarding pointers from the host a reference names to the
   # agent's pid; the chase loops (`handoff/2`, `kill/1`, `deliver/4`, `control/2`) look again
   # when the agent moved before it took the request, at most @max_chase times, backing off
-  # while it is caught in a hand-off.
+  # while it is caught in a hand-off. `deliver/4` follows a moving agent from process to
+  # process without a limit (the hand-over of messages makes that safe); only searches
+  # that start again count against @max_chase.
 
   import Bitwise, only: [<<<: 2]
   alias Tartarus.{Host, Ledger}
