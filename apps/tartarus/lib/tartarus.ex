@@ -193,6 +193,12 @@ defmodule Tartarus do
   Posts `message` to an agent. Returns `:ok` once the agent has taken the message (its
   `handle_message/3` is called with `from = nil`), following the agent if it moved;
   `{:error, :not_found}` if no such agent exists where the search leads.
+
+  The message follows an agent that keeps moving (it is handed on with the agent, and
+  taken once), and a sender's posts are handled in the order it made them. On a host
+  started with `durable: true`, `:ok` means the agent has handled the message and
+  checkpointed the resulting state (journaled with `data_dir:`); a message whose handling
+  crashes the agent returns `{:error, :agent_crashed}`.
   """
   @spec post(agent_ref(), term(), timeout()) :: :ok | {:error, term()}
   def post(agent, message, timeout \\ 5_000), do: Locator.deliver(agent, :post, message, timeout)

@@ -306,6 +306,24 @@ defmodule Tartarus.Agent do
   @spec subscribe(atom()) :: :ok | {:error, term()}
   def subscribe(plugin), do: Tartarus.Plugin.call(host(), plugin, {:subscribe, self()})
 
+  @doc """
+  Asks for the calling agent's state to be made durable: once the callback that calls this
+  returns, the state it returns (with the payload as the callback left it) is written to the
+  host's journal (host option `:data_dir`) and becomes the snapshot a restart restores, after
+  a crash of the agent or of its node. Without a journal the snapshot is kept in memory only
+  (it survives a crash of the agent, not of the node).
+
+  With the host option `durable: true` every handled message is checkpointed this way before
+  its sender gets `:ok`; this function is for agents on other hosts, or for changes made in
+  `c:handle_info/2` or `c:handle_arrival/2`.
+  """
+  @spec checkpoint() :: :ok
+  def checkpoint do
+    _ = envelope()
+    Process.put(:"$tartarus_checkpoint", true)
+    :ok
+  end
+
   @doc "Answers a request (see `c:handle_message/3`). Works from any host."
   @spec reply(from(), term()) :: :ok
   def reply(nil, _value), do: :ok

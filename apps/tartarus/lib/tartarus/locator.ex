@@ -4,7 +4,9 @@ defmodule Tartarus.Locator do
   # here. `locate/1` follows forwarding pointers from the host a reference names to the
   # agent's pid; the chase loops (`handoff/2`, `kill/1`, `deliver/4`, `control/2`) look again
   # when the agent moved before it took the request, at most @max_chase times, backing off
-  # while it is caught in a hand-off.
+  # while it is caught in a hand-off. `deliver/4` follows a moving agent from process to
+  # process without a limit (the hand-over of messages makes that safe); only searches
+  # that start again count against @max_chase.
 
   import Bitwise, only: [<<<: 2]
   alias Tartarus.{Host, Ledger}
@@ -14,10 +16,12 @@ defmodule Tartarus.Locator do
   @doc false
   # Finds an agent's pid. Returns it with the reference normalized to `{id, host}`.
   @spec locate(term()) :: {:ok, pid(), {String.t(), Host.t()}} | {:error, term()}
-  def locate(agent, n \\ @max_chase)
-  def locate(_agent, 0), do: {:error, :too_many_hops}
+  # With `:arriving_ok` (delivery), a copy still arriving is as good as a running one: it
+  # keeps the messages it gets and handles them once it runs.
+  def locate(agent, n \\ @max_chase, arriving \\ :wait)
+  def locate(_agent, 0, _arriving), do: {:error, :too_many_hops}
 
-  def locate(agent, n) do
+  def locate(agent, n, arriving) do
     with {:ok, {a, host}} <- normalize(agent) do
       result =
         case Host.local(host) do
@@ -27,8 +31,9 @@ defmodule Tartarus.Locator do
 
       case result do
         {:here, pid, id} -> {:ok, pid, {id, host}}
-        {:moved, next} -> locate({a, next}, n - 1)
-        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1)
+        {:moved, next} -> locate({a, next}, n - 1, arriving)
+        {:arriving, pid} when arriving == :arriving_ok -> {:ok, pid, {a, host}}
+        {:arriving, _pid} -> backoff(n) && locate({a, host}, n - 1, arriving)
         :not_found -> {:error, :not_found}
         error -> error
       end
@@ -127,43 +132,87 @@ defmodule Tartarus.Locator do
   end
 
   @doc false
-  # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`).
+  # Delivers a message (`:post`: `:ok` once taken; `:request`: `{:ok, reply}`). The message
+  # follows the agent without a hop limit: it carries one tag through all its copies, and
+  # when the process it was sent to ends having moved on (its exit names its successor) it
+  # is sent again there; the agent takes each tag once and hands what it took and had not
+  # handled to its successor (see "reaching a busy agent" in Tartarus.Agent.Server), so it
+  # is handled and acknowledged once. A process that ended otherwise (gone before we
+  # watched it, crashed, an aborted copy) makes the search start again, at most
+  # @max_chase times in a row without the agent moving.
   @spec deliver(term(), :post | :request, term(), timeout()) :: term()
-  def deliver(agent, kind, msg, timeout), do: deliver(agent, kind, msg, timeout, @max_chase)
+  def deliver(agent, kind, msg, timeout) do
+    deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
+    deliver(agent, {kind, msg}, make_ref(), deadline, @max_chase)
+  end
 
-  defp deliver(_agent, _kind, _msg, _timeout, 0), do: {:error, :too_many_hops}
+  defp deliver(agent, km, tag, deadline, n, crashed \\ false)
+  defp deliver(_agent, _km, _tag, _deadline, 0, _crashed), do: {:error, :too_many_hops}
 
-  defp deliver(agent, kind, msg, timeout, n) do
-    with {:ok, pid, ref} <- locate(agent) do
-      tag = Process.monitor(pid)
-      send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+  defp deliver(agent, km, tag, deadline, n, crashed) do
+    with :ok <- in_time(deadline) do
+      case locate(agent, @max_chase, :arriving_ok) do
+        {:ok, pid, ref} ->
+          follow(pid, km, ref, tag, deadline, n)
 
-      receive do
-        {^tag, :delivered} ->
-          Process.demonitor(tag, [:flush])
-
-          if kind == :post do
-            :ok
-          else
-            receive do
-              {^tag, {:reply, value}} -> {:ok, value}
-              {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
-            after
-              timeout -> {:error, :timeout}
-            end
-          end
-
-        {:DOWN, ^tag, :process, _, _} ->
-          # The agent left (or died) before taking the message: look again.
+        # A crashed agent is registered again once its host restarted it.
+        {:error, :not_found} when crashed ->
           backoff(n)
-          deliver(ref, kind, msg, timeout, n - 1)
-      after
-        timeout ->
-          Process.demonitor(tag, [:flush])
-          {:error, :timeout}
+          deliver(agent, km, tag, deadline, n - 1, crashed)
+
+        error ->
+          error
       end
     end
   end
+
+  defp crash?(reason),
+    do:
+      reason not in [:noproc, :normal, :shutdown, :killed] and not match?({:shutdown, _}, reason)
+
+  defp follow(pid, {kind, msg} = km, ref, tag, deadline, n) do
+    mref = Process.monitor(pid)
+    send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+
+    receive do
+      {^tag, :delivered} ->
+        Process.demonitor(mref, [:flush])
+        if kind == :post, do: :ok, else: await_reply(tag, deadline)
+
+      {^tag, {:failed, reason}} ->
+        # Handling it crashed the agent (host option :durable): not taken.
+        Process.demonitor(mref, [:flush])
+        {:error, reason}
+
+      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
+        # Moved on, with our message (handed over) or without it (it came too late).
+        follow(next, km, ref, tag, deadline, @max_chase)
+
+      {:DOWN, ^mref, :process, _, reason} ->
+        backoff(n)
+        deliver(ref, km, tag, deadline, n - 1, crash?(reason))
+    after
+      remaining(deadline) ->
+        Process.demonitor(mref, [:flush])
+        {:error, :timeout}
+    end
+  end
+
+  defp await_reply(tag, deadline) do
+    receive do
+      {^tag, {:reply, value}} -> {:ok, value}
+      {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
+    after
+      remaining(deadline) -> {:error, :timeout}
+    end
+  end
+
+  defp in_time(:infinity), do: :ok
+  defp in_time(deadline), do: if(now() < deadline, do: :ok, else: {:error, :timeout})
+
+  defp now, do: System.monotonic_time(:millisecond)
+  defp remaining(:infinity), do: :infinity
+  defp remaining(deadline), do: max(deadline - now(), 0)
 
   @doc false
   # A control call to the agent's process (info, payload operations), following it.

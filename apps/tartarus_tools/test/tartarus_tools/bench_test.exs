@@ -72,4 +72,17 @@ defmodule TartarusTools.BenchTest do
     refute TartarusTools.Bench.Busy.Hopper.bit(<<0b0100_0000>>, 0)
     refute TartarusTools.Bench.Busy.Hopper.bit(<<0::4>>, 9)
   end
+
+  test "durability reports hops and posts per second for memory, journal and durable" do
+    r = Bench.Durability.run(agents: 3, hops: 4, messages: 40, senders: 2)
+    assert %{agents: 3, hops: 4, messages: 40, senders: 2} = r
+
+    for c <- [:memory, :journal, :durable], key <- [:hops_per_s, :posts_per_s, :us_per_post] do
+      assert r.configs[c][key] > 0, "#{c} #{key}"
+    end
+
+    assert r.configs.memory.journal_bytes == 0
+    assert r.configs.durable.journal_bytes > 0
+    assert r.durable_posts_ratio > 0 and r.durable_hops_ratio > 0
+  end
 end

@@ -52,6 +52,13 @@ defmodule Tartarus.Agent.Server do
   @host :"$tartarus_host"
   @watchdog :"$tartarus_watchdog"
 
+  # Reaching a busy agent (see "reaching a busy agent" below): the messages this process has
+  # still to handle before it returns to its mailbox, and the last message tag taken from
+  # each recent sender (it travels with the agent from process to process).
+  @pending :"$tartarus_pending"
+  @seen :"$tartarus_seen"
+  @seen_max 1024
+
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
   # the timer it arms on every wait costs about a fifth of the migration throughput.
@@ -99,6 +106,7 @@ defmodule Tartarus.Agent.Server do
   # host started again on its data directory.
   defp start(host, env, {:restart, n}) do
     Process.put(@host, host)
+    crashed_on(host, env.id)
     data = %{host: host, env: env, paused: nil}
 
     case Ledger.register_resident(host, env, self()) do
@@ -172,27 +180,22 @@ defmodule Tartarus.Agent.Server do
           end
       end
 
+    # Whether the event that may start the copy is its source's own commit (then the
+    # source's hand-over of messages follows it; see commit/2).
+    Process.put(:"$tartarus_direct_commit", match?({:commit, _, _, _}, event))
+
     {c, actions} = Protocol.copy_step(p.c, event)
     paused_actions(actions, %{data | paused: %{p | c: c}})
   end
 
   # -- messages --------------------------------------------------------------------
 
-  def handle_info({:"$tartarus_msg", {pid, ref}, kind, msg}, data)
+  # Without the host option :durable a message is acknowledged as it is taken, before the
+  # agent's code runs; with it, once handled and checkpointed (journaled when the host has a
+  # data directory), so an acknowledged change survives SIGKILL and restart.
+  def handle_info({:"$tartarus_msg", {pid, _ref} = from, kind, _msg} = m, data)
       when is_pid(pid) and kind in [:post, :request] do
-    send(pid, {ref, :delivered})
-    bytes = :erlang.external_size(msg)
-
-    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
-      messages: 1,
-      message_bytes: bytes
-    )
-
-    from = if kind == :request, do: {pid, ref}
-
-    run(data, {:handle_message, from}, fn ->
-      data.env.module.handle_message(msg, from, data.env.state)
-    end)
+    if take?(from), do: handle_msg(m, data), else: {:noreply, data}
   end
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
@@ -202,6 +205,11 @@ defmodule Tartarus.Agent.Server do
       do: {:stop, :shutdown, data},
       else: user_info(msg, data)
   end
+
+  # A hand-over that came after this process stopped waiting for it (its source was slow):
+  # what this process took meanwhile is not taken twice.
+  def handle_info({:"$tartarus_handover", _mig, _pid, msgs, _seen}, data) when is_list(msgs),
+    do: handle_pending(take_new(msgs, []), data, fn data -> {:noreply, data} end)
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
   # twice, or a timer that fired as it committed: not for the agent's code.
@@ -215,6 +223,58 @@ defmodule Tartarus.Agent.Server do
   end
 
   def handle_info(msg, data), do: user_info(msg, data)
+
+  defp handle_msg({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
+    durable = Map.get(data.host.opts, :durable, false)
+    unless durable, do: send(pid, {ref, :delivered})
+    bytes = :erlang.external_size(msg)
+
+    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
+      messages: 1,
+      message_bytes: bytes
+    )
+
+    from = if kind == :request, do: {pid, ref}
+
+    if durable do
+      # Unacknowledged until handled: if handling it crashes the agent, the restarted agent
+      # tells the sender (and does not take it again) instead of taking it for good.
+      key = {:handling, data.env.id}
+      :ets.insert(data.host.ledger, {key, {pid, ref}})
+
+      result =
+        run(
+          data,
+          {:handle_message, from},
+          fn -> data.env.module.handle_message(msg, from, data.env.state) end,
+          {pid, ref}
+        )
+
+      case result do
+        {:stop, {kind, _, _}, _} when kind in [:error, :exit, :throw] -> :crashed
+        _ -> :ets.delete(data.host.ledger, key)
+      end
+
+      result
+    else
+      run(data, {:handle_message, from}, fn ->
+        data.env.module.handle_message(msg, from, data.env.state)
+      end)
+    end
+  end
+
+  # After a crash: the message whose handling crashed the agent (host option :durable) is
+  # answered with an error and not taken again.
+  defp crashed_on(host, id) do
+    case :ets.take(host.ledger, {:handling, id}) do
+      [{_, {pid, ref} = from}] ->
+        take?(from)
+        send(pid, {ref, {:failed, :agent_crashed}})
+
+      [] ->
+        :ok
+    end
+  end
 
   defp user_info(msg, data) do
     if function_exported?(data.env.module, :handle_info, 2) do
@@ -316,12 +376,32 @@ defmodule Tartarus.Agent.Server do
 
   # -- actions -------------------------------------------------------------------
 
-  defp run(data, cb, fun) do
+  # `ack`: the sender of a message the host option :durable makes durable before it is
+  # acknowledged (nil otherwise). `cb` names the callback for its time budget.
+  defp run(data, cb, fun, ack \\ nil) do
     case callback(data, cb, fun) do
-      {:ok, action, data} -> act(action, data)
-      {:error, reason, data} -> {:stop, reason, data}
+      {:ok, action, data} ->
+        data = checkpoint(data, action, Process.delete(:"$tartarus_checkpoint") == true or ack)
+        with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
+        act(action, data)
+
+      {:error, reason, data} ->
+        Process.delete(:"$tartarus_checkpoint")
+        {:stop, reason, data}
     end
   end
+
+  # The state the callback returned, made the agent's snapshot (Tartarus.Agent.checkpoint/0,
+  # or a message under the host option :durable). A malformed action changes nothing.
+  defp checkpoint(data, action, want)
+       when want not in [nil, false] and is_tuple(action) and
+              tuple_size(action) in [2, 3] do
+    data = put_state(data, action_state(action))
+    arrived(data)
+    data
+  end
+
+  defp checkpoint(data, _action, _want), do: data
 
   defp act({:stay, s}, data), do: {:noreply, put_state(data, s)}
 
@@ -580,8 +660,10 @@ defmodule Tartarus.Agent.Server do
     source_actions(rest, s, x)
   end
 
-  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x),
-    do: {:moved, new_pid, x.data}
+  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move} = s, x) do
+    hand_over(new_pid, s.mig)
+    {:moved, new_pid, x.data}
+  end
 
   # The parent's stream advanced by the fork that seeded the clone's (see outgoing/3).
   defp source_actions([{:done, {:committed, _copy, _pid}} | _], %{kind: :clone}, x) do
@@ -656,7 +738,19 @@ defmodule Tartarus.Agent.Server do
 
   defp commit(%{paused: %{c: c} = p} = data, notify) do
     Process.cancel_timer(p.timer)
-    Enum.each(Enum.reverse(p.stash), &send(self(), &1))
+    # Committed by its source directly (not through a decision query): the source's
+    # hand-over of the messages it held follows the commit.
+    handover =
+      if c.kind == :move and Process.delete(:"$tartarus_direct_commit") == true,
+        do: await_handover(c.mig, data.host.opts.migration_timeout),
+        else: []
+
+    # Messages that came while paused are new here unless the hand-over says otherwise.
+    {msgs, others} =
+      Enum.split_with(Enum.reverse(p.stash), &match?({:"$tartarus_msg", _, _, _}, &1))
+
+    Enum.each(others, &send(self(), &1))
+    pending = handover ++ Enum.filter(msgs, &take_new?/1)
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
@@ -693,11 +787,108 @@ defmodule Tartarus.Agent.Server do
           arrivals: 1
         )
 
-        ctx = ctx(data)
-        run(data, :handle_arrival, fn -> env.module.handle_arrival(ctx, env.state) end)
+        # Messages that reached the agent while it moved are handled first (an agent that
+        # moves on at every arrival would otherwise carry them for ever); if one of them
+        # makes it leave, the rest travel on with it.
+        handle_pending(pending, data, fn data ->
+          ctx = ctx(data)
+
+          run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+        end)
 
       {:error, reason} ->
         {:stop, reason, data}
+    end
+  end
+
+  # -- reaching a busy agent --------------------------------------------------------
+  # A sender tags each message once and sends it again, with the same tag, wherever the
+  # agent went when the process it sent it to ends (Tartarus.Locator.deliver/4). The agent
+  # takes a tag once: it remembers the last tag taken from each recent sender (a sender
+  # has one message outstanding at a time), and that memory travels with it. A process that
+  # moves away hands the messages it took and had not handled, and those in its mailbox,
+  # with its memory, to its successor in one message sent right after the commit; the
+  # successor handles them before anything else. A copy that arrives after the hand-over
+  # is lost with the process, and sent again by its sender. So each message is handled
+  # once wherever the agent runs, and a sender's messages in the order it sent them.
+
+  defp hand_over(new_pid, mig) do
+    msgs = (Process.delete(@pending) || []) ++ Enum.filter(drain([]), &take_new?/1)
+    send(new_pid, {:"$tartarus_handover", mig, self(), msgs, Process.get(@seen, %{})})
+  end
+
+  defp drain(acc) do
+    receive do
+      {:"$tartarus_msg", _, _, _} = m -> drain([m | acc])
+    after
+      0 -> Enum.reverse(acc)
+    end
+  end
+
+  # The messages of a list (proper or not, from anywhere) taken now, in order.
+  defp take_new([m | rest], acc), do: take_new(rest, if(take_new?(m), do: [m | acc], else: acc))
+  defp take_new(_, acc), do: Enum.reverse(acc)
+
+  defp take_new?({:"$tartarus_msg", {pid, _} = from, kind, _})
+       when is_pid(pid) and kind in [:post, :request],
+       do: take?(from)
+
+  defp take_new?(_), do: false
+
+  # True (and remembered) unless `tag` is the last one taken from `pid`.
+  defp take?({pid, tag}) do
+    seen = Process.get(@seen, %{})
+
+    case seen do
+      %{^pid => {_, ^tag}} ->
+        false
+
+      _ ->
+        n = Process.get(:"$tartarus_seen_n", 0) + 1
+        Process.put(:"$tartarus_seen_n", n)
+        Process.put(@seen, trim(Map.put(seen, pid, {n, tag})))
+        true
+    end
+  end
+
+  # At most @seen_max senders remembered: the oldest half goes when it is full.
+  defp trim(seen) when map_size(seen) <= @seen_max, do: seen
+
+  defp trim(seen) do
+    seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@seen_max, 2)) |> Map.new()
+  end
+
+  defp await_handover(mig, timeout) do
+    receive do
+      {:"$tartarus_handover", ^mig, pid, msgs, seen}
+      when is_pid(pid) and is_list(msgs) and is_map(seen) ->
+        Process.put(@seen, seen)
+
+        Process.put(
+          :"$tartarus_seen_n",
+          Enum.reduce(seen, 0, fn {_, {n, _}}, acc -> max(n, acc) end)
+        )
+
+        msgs
+    after
+      timeout -> []
+    end
+  end
+
+  # Handles `msgs` one by one as if they came from the mailbox, then calls `next`; if one
+  # of them stops the process (a move), the others are left in @pending for hand_over/2.
+  defp handle_pending([], data, next), do: next.(data)
+
+  defp handle_pending([m | rest], data, next) do
+    Process.put(@pending, rest)
+
+    case handle_msg(m, data) do
+      {:noreply, data} ->
+        Process.delete(@pending)
+        handle_pending(rest, data, next)
+
+      other ->
+        other
     end
   end
 

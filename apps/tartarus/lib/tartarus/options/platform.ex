@@ -115,6 +115,17 @@ defmodule Tartarus.Options.Platform do
       doc:
         "persistence: checkpoint agents and in-doubt migrations in this directory and " <>
           "restore them when a host of the same name starts on it again"
+    ],
+    durable: [
+      type: :boolean,
+      default: false,
+      doc:
+        "durable acknowledged messages: an agent acknowledges a post or request (the " <>
+          "sender's `:ok`) only once it has handled it and checkpointed the new state " <>
+          "(journaled under `:data_dir`, so SIGKILL and restart keep every acknowledged " <>
+          "change; without `:data_dir` only the in-memory snapshot an agent restarts from " <>
+          "after a crash). Off: a message is acknowledged when taken, and a restart " <>
+          "restores the state of the agent's last arrival or `Tartarus.Agent.checkpoint/0`"
     ]
   ]
 

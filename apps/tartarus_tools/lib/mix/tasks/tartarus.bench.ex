@@ -13,6 +13,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
                                [--json] [--out FILE]
       mix tartarus.bench busy [--messages N] [--senders S] [--dwell-ms D]
                               [--max-seconds T] [--json] [--out FILE]
+      mix tartarus.bench durability [--agents K] [--hops H] [--messages N] [--senders S]
+                                    [--json] [--out FILE]
 
   `migration` runs, in one run between the same two hosts, the platform and the floor
   (three distribution messages and a spawn of a paused process carrying the same state, no
@@ -46,6 +48,15 @@ defmodule Mix.Tasks.Tartarus.Bench do
   order. The agent moves on at once at every arrival, or after D ms (`--dwell-ms`);
   senders stop after T seconds (default 120; the rest counts as not sent). See
   `TartarusTools.Bench.Busy`.
+
+  `durability` measures the cost of durability: hops and posts per second between two
+  hosts of this VM without a data directory, with one (`data_dir:`), and with `durable:
+  true` as well (K agents, default 200, making H hops each, default 50; S senders, default
+  4, posting N messages in all, default 20,000, to one agent). Keys: `configs` (by
+  configuration: `hops_per_s, posts_per_s, us_per_post, journal_bytes`),
+  `durable_posts_ratio`, `durable_hops_ratio`, `journal_posts_ratio`, `journal_hops_ratio`
+  (each / the configuration without a data directory). See
+  `TartarusTools.Bench.Durability`.
 
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.
@@ -149,9 +160,19 @@ defmodule Mix.Tasks.Tartarus.Bench do
             max_seconds: opts[:max_seconds] || 120
           )
 
+        ["durability"] ->
+          say.("durability cost benchmark...")
+
+          TartarusTools.Bench.Durability.run(
+            agents: opts[:agents] || 200,
+            hops: opts[:hops] || 50,
+            messages: opts[:messages] || 20_000,
+            senders: opts[:senders] || 4
+          )
+
         _ ->
           Mix.raise(
-            "usage: mix tartarus.bench migration|agents|churn|busy [options]; " <>
+            "usage: mix tartarus.bench migration|agents|churn|busy|durability [options]; " <>
               "see `mix help tartarus.bench`"
           )
       end
