@@ -135,7 +135,23 @@ defmodule Tartarus.Envelope do
       {:error, {:not_portable, :fun, [:a, 1]}}
   """
   @spec portable?(term()) :: :ok | {:error, {:not_portable, :fun | :port, list()}}
-  def portable?(term), do: walk(term, [])
+  def portable?(term) do
+    # The common case (portable) without building paths or closures; the path of an
+    # offending term is found by the slower walk only when there is one.
+    if clean?(term), do: :ok, else: walk(term, [])
+  end
+
+  defp clean?(t) when is_function(t) or is_port(t), do: false
+  defp clean?([h | t]), do: clean?(h) and clean?(t)
+  defp clean?(t) when is_map(t), do: clean_map?(:maps.next(:maps.iterator(t)))
+  defp clean?(t) when is_tuple(t), do: clean_tuple?(t, tuple_size(t))
+  defp clean?(_t), do: true
+
+  defp clean_map?(:none), do: true
+  defp clean_map?({k, v, i}), do: clean?(k) and clean?(v) and clean_map?(:maps.next(i))
+
+  defp clean_tuple?(_t, 0), do: true
+  defp clean_tuple?(t, i), do: clean?(:erlang.element(i, t)) and clean_tuple?(t, i - 1)
 
   defp walk(t, path) when is_function(t), do: {:error, {:not_portable, :fun, Enum.reverse(path)}}
   defp walk(t, path) when is_port(t), do: {:error, {:not_portable, :port, Enum.reverse(path)}}

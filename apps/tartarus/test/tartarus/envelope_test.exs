@@ -37,6 +37,15 @@ defmodule Tartarus.EnvelopeTest do
   end
 
   describe "portable?/1" do
+    test "funs in map keys, improper list tails and deep tuples are found" do
+      f = fn -> 1 end
+      assert {:error, {:not_portable, :fun, _}} = Envelope.portable?(%{f => 1})
+      assert {:error, {:not_portable, :fun, [1]}} = Envelope.portable?([1 | f])
+      assert {:error, {:not_portable, :fun, [:a, 1, 0]}} = Envelope.portable?(%{a: {0, {f}}})
+      assert Envelope.portable?([1 | 2]) == :ok
+      assert Envelope.portable?(%{{1, [2 | 3]} => %{x: <<1, 2>>}}) == :ok
+    end
+
     test "plain data is portable" do
       assert Envelope.portable?(nil) == :ok
       assert Envelope.portable?(%{a: [1, {2, "x"}], b: %{c: self()}, d: make_ref()}) == :ok
