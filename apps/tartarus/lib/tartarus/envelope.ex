@@ -122,6 +122,8 @@ defmodule Tartarus.Envelope do
 
   @doc "All modules this agent needs at its destination."
   @spec modules(t()) :: [module()]
+  def modules(%__MODULE__{module: m, ships: [], payload: %{modules: []}}), do: [m]
+
   def modules(%__MODULE__{module: m, ships: ships, payload: %{modules: pm}}) do
     Enum.uniq([m | ships] ++ pm)
   end
