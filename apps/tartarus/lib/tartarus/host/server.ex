@@ -36,6 +36,11 @@ defmodule Tartarus.Host.Server do
   @impl true
   def init({name, opts}) do
     Process.flag(:trap_exit, true)
+    # Every arrival passes through this one process (admission, spawning the paused copy):
+    # at normal priority it gets one turn among all runnable agents and its queue grows to
+    # hundreds of prepares under load. Its work per message is short and bounded, so high
+    # priority cannot starve the agents: it drains its queue and waits.
+    Process.flag(:priority, :high)
 
     ledger =
       :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
