@@ -712,6 +712,10 @@ defmodule Tartarus.Host.Server do
       normal_exit?(reason) ->
         state
 
+      :ets.member(host.ledger, :stopping) ->
+        # The host is stopping (see Tartarus.Host.Keeper): its agents are killed with it.
+        state
+
       not resident? ->
         # A paused copy that died before its commit: the source still decides; nothing to do.
         state

@@ -75,6 +75,9 @@ defmodule Tartarus.Host.Keeper do
 
   @impl true
   def init({name, opts, starts}) do
+    # Trapping exits, so that terminate/2 runs when the host's supervisor stops its children
+    # (the keeper first: it is the last child).
+    Process.flag(:trap_exit, true)
     state = %{host: {name, node()}, opts: opts}
 
     case :atomics.add_get(starts, 1, 1) do
@@ -102,6 +105,17 @@ defmodule Tartarus.Host.Keeper do
     )
 
     {:noreply, state}
+  end
+
+  # The host is stopping (or restarting): its agents are about to be killed by their
+  # supervisor. The mark tells the host's server not to take their deaths for crashes (no
+  # restart, no removal: with persistence they are restored when the host starts again).
+  @impl true
+  def terminate(_reason, %{host: host}) do
+    case Tartarus.Host.local(host) do
+      {:ok, info} -> :ets.insert(info.ledger, {:stopping, true})
+      _ -> :ok
+    end
   end
 
   @impl true
