@@ -97,16 +97,12 @@ defmodule Tartarus.Host.Directory do
     end
   end
 
-  # An agent ended elsewhere: a host of this node drops its forwarding pointers to it
-  # (Tartarus.Ledger.gone/2).
+  # An agent ended elsewhere (Tartarus.Ledger.gone/2): passed on to the named host's server,
+  # which drops its forwarding pointers to it. Checked here so junk goes no further.
   def handle_info({:"$tartarus_gone", host, id, name}, monitors)
       when (is_atom(host) or is_binary(host)) and is_binary(id) and byte_size(id) <= 64 and
              (is_nil(name) or (is_binary(name) and byte_size(name) <= 1024)) do
-    case Tartarus.Host.local({host, node()}) do
-      {:ok, info} -> Tartarus.Ledger.forget_pointers(info, id, name)
-      _ -> :ok
-    end
-
+    with {:ok, pid} <- whereis({host, node()}), do: send(pid, {:"$tartarus_gone", id, name})
     {:noreply, monitors}
   end
 

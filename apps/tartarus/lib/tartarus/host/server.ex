@@ -363,6 +363,12 @@ defmodule Tartarus.Host.Server do
     {:noreply, agent_down(state, entry, reason, resident?, kill != nil)}
   end
 
+  # An agent that passed through here ended elsewhere (checked by Tartarus.Host.Directory).
+  def handle_info({:"$tartarus_gone", id, name}, state) when is_binary(id) do
+    Ledger.forget_pointers(state.host, id, name)
+    {:noreply, state}
+  end
+
   def handle_info(:sweep, %{host: %{opts: %{forward_ttl: ttl}}} = state) when is_integer(ttl) do
     Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
     schedule_sweep(ttl)

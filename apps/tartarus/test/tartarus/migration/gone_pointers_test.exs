@@ -33,6 +33,8 @@ defmodule Tartarus.Migration.GonePointersTest do
     send(Tartarus.Host.Directory, {:"$tartarus_gone", a, "0000000000000000", nil})
     send(Tartarus.Host.Directory, {:"$tartarus_gone", a, :not_an_id, 3})
     :sys.get_state(Tartarus.Host.Directory)
+    {:ok, server} = Tartarus.Host.whereis(a)
+    :sys.get_state(server)
     assert id in pointers(a)
     assert :ok = Tartarus.post({id, a}, :inc)
   end
