@@ -212,6 +212,12 @@ defmodule Tartarus.Events do
   end
 
   @doc false
+  # A `from` that gen_server can answer: a junk `{:"$gen_call", from, msg}` sent by hand may
+  # carry anything, and a `{:reply, ...}` return on it crashes the server. Servers that reply
+  # by return drop calls whose `from` fails this guard (a first handle_call clause).
+  defguard is_from(from) when is_tuple(from) and tuple_size(from) == 2 and is_pid(elem(from, 0))
+
+  @doc false
   # Answers a call whose `from` came with the message: a junk `{:"$gen_call", from, msg}` sent
   # by hand may carry a `from` that is no `{pid, tag}`, and gen_server's own reply would crash
   # the server on it. Use as `{:noreply, state}` after `reply(from, answer)`.

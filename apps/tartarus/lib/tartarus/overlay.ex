@@ -21,6 +21,7 @@ defmodule Tartarus.Overlay do
   A message for a host that does not run on this node is dropped.
   """
   use GenServer
+  require Tartarus.Events
 
   alias Tartarus.{Broadcast, Host, Signal}
 
@@ -42,6 +43,11 @@ defmodule Tartarus.Overlay do
   end
 
   @impl true
+  def handle_call(msg, from, state) when not Tartarus.Events.is_from(from) do
+    Tartarus.Events.drop(:tartarus_overlay, :call, msg)
+    {:noreply, state}
+  end
+
   def handle_call({:emit, host, name, e}, _from, state) do
     case local(host) do
       {:ok, info} ->

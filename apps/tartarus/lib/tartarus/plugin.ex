@@ -23,6 +23,7 @@ defmodule Tartarus.Plugin do
   `Tartarus.Plugin.SimSensor` is a simulated sensor with a scripted signal.
   """
   use GenServer
+  require Tartarus.Events
 
   @typedoc "What a plugin says about itself."
   @type description :: %{
@@ -115,6 +116,11 @@ defmodule Tartarus.Plugin do
   end
 
   @impl true
+  def handle_call(msg, from, s) when not Tartarus.Events.is_from(from) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    {:noreply, s}
+  end
+
   def handle_call(:describe, _from, s), do: {:reply, s.module.describe(s.state), s}
 
   def handle_call({:read, args}, _from, s) do
@@ -131,7 +137,7 @@ defmodule Tartarus.Plugin do
     end
   end
 
-  def handle_call({:subscribe, pid}, _from, s) do
+  def handle_call({:subscribe, pid}, _from, s) when is_pid(pid) do
     if Map.has_key?(s.subscribers, pid) do
       {:reply, :ok, s}
     else
@@ -139,8 +145,22 @@ defmodule Tartarus.Plugin do
     end
   end
 
+  # Anything else is answered, dropped and counted, never a crash.
+  def handle_call(msg, _from, s) do
+    Tartarus.Events.drop(__MODULE__, :call, msg)
+    {:reply, {:error, :unexpected_call}, s}
+  end
+
   @impl true
-  def handle_info({:DOWN, _ref, :process, pid, _}, s) do
+  def handle_cast(msg, s) do
+    Tartarus.Events.drop(__MODULE__, :cast, msg)
+    {:noreply, s}
+  end
+
+  @impl true
+  # Only the monitors this server made count: a forged :DOWN goes to the plugin like any message.
+  def handle_info({:DOWN, ref, :process, pid, _}, s)
+      when is_map_key(s.subscribers, pid) and :erlang.map_get(pid, s.subscribers) == ref do
     {:noreply, %{s | subscribers: Map.delete(s.subscribers, pid)}}
   end
 

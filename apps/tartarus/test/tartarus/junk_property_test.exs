@@ -2,17 +2,17 @@ defmodule Tartarus.JunkPropertyTest do
   # Random terms sent (as messages, casts and calls with short timeouts) to the processes of a
   # node with a few hosts and agents: afterwards every host is up and every agent answers.
   #
-  # Targets of the default run: every registered process of the tartarus application
-  # (Process.registered/0 after the app started: our node-level services) and every host's
-  # keeper. The host servers and agent processes are being hardened separately; while
-  # @target_hosts_and_agents is false they are targeted only by the :known_bug test below.
+  # Targets: every registered process of the tartarus application (Process.registered/0
+  # after the app started: our node-level services), every host's keeper and server, and
+  # every agent process. Calls and casts go through GenServer; sends include hand-made
+  # `{:"$gen_call", from, msg}` whose `from` is junk (which once crashed agents: gen_server
+  # replies to whatever `from` a `{:reply, ...}` return names).
   use ExUnit.Case, async: false
 
   import Tartarus.HostCase, only: [unique_name: 1, addr: 1]
 
   alias Tartarus.Examples.Echo
 
-  @target_hosts_and_agents false
   @hosts 3
   @agents_per_host 3
   # 200 cases of 100 terms: 20,000 terms per run.
@@ -100,12 +100,8 @@ defmodule Tartarus.JunkPropertyTest do
     for {_name, ids} <- hosts, id <- ids, {:ok, pid, _} = Tartarus.AgentTable.lookup(id), do: pid
   end
 
-  defp targets(hosts, hosts_and_agents?) do
-    base = registered() ++ keepers(hosts)
-
-    if hosts_and_agents?,
-      do: base ++ Enum.map(hosts, &host_pid(elem(&1, 0))) ++ agent_pids(hosts),
-      else: base
+  defp targets(hosts) do
+    registered() ++ keepers(hosts) ++ Enum.map(hosts, &host_pid(elem(&1, 0))) ++ agent_pids(hosts)
   end
 
   # -- running the property ----------------------------------------------------------------
@@ -144,11 +140,12 @@ defmodule Tartarus.JunkPropertyTest do
 
   defp concrete(t, _pids), do: t
 
-  defp healthy?(hosts, host_pids, same_pids?) do
+  # Every host up (its server never restarted) and every agent answering where it was.
+  defp healthy?(hosts, host_pids) do
     Enum.all?(hosts, fn {name, ids} ->
       up? =
         case Tartarus.Host.Directory.whereis(addr(name)) do
-          {:ok, pid} -> not same_pids? or pid == host_pids[name]
+          {:ok, pid} -> pid == host_pids[name]
           _ -> false
         end
 
@@ -156,22 +153,21 @@ defmodule Tartarus.JunkPropertyTest do
     end)
   end
 
-  defp run_property(hosts_and_agents?, cases) do
+  defp run_property(cases) do
     hosts = start_node()
     sent = :counters.new(1, [])
 
     try do
       host_pids = Map.new(hosts, fn {name, _} -> {name, host_pid(name)} end)
-      all_pids = targets(hosts, true)
-      targets = targets(hosts, hosts_and_agents?)
+      targets = targets(hosts)
 
       property =
         :proper.forall(:proper_types.vector(@terms_per_case, op()), fn ops ->
           # (This PropEr cannot report exceptions raised in a property on OTP 25.)
           try do
-            Enum.each(ops, &deliver(&1, targets, all_pids, sent))
+            Enum.each(ops, &deliver(&1, targets, targets, sent))
             flush()
-            healthy?(hosts, host_pids, not hosts_and_agents?)
+            healthy?(hosts, host_pids)
           rescue
             e ->
               IO.puts("exception in property: " <> Exception.format(:error, e, __STACKTRACE__))
@@ -199,10 +195,10 @@ defmodule Tartarus.JunkPropertyTest do
   end
 
   @tag timeout: 300_000
-  test "random terms to every registered process and keeper leave every host up and every agent answering" do
+  test "random terms to every service, keeper, host server and agent leave every host up and every agent answering" do
     dropped_before = Tartarus.Events.totals().dropped
     services = Map.new(registered(), &{&1, Process.whereis(&1)})
-    {result, sent, targets} = run_property(@target_hosts_and_agents, @cases)
+    {result, sent, targets} = run_property(@cases)
 
     assert result == true,
            "counterexample: " <> inspect(result, limit: 50, printable_limit: 200)
@@ -210,18 +206,8 @@ defmodule Tartarus.JunkPropertyTest do
     assert sent >= 20_000
     # No service restarted either.
     assert Map.new(registered(), &{&1, Process.whereis(&1)}) == services
-    assert length(targets) >= 3 + @hosts
-    # Most of them were dropped and counted by the services (calls they know are answered).
+    assert length(targets) >= 3 + @hosts * (2 + @agents_per_host)
+    # Most of them were dropped and counted (calls a target knows are answered).
     assert Tartarus.Events.totals().dropped - dropped_before > sent / 2
-  end
-
-  # The host servers and agents are hardened in another change; this runs the same property
-  # against them too (`mix test --only known_bug`).
-  @tag :known_bug
-  @tag timeout: 300_000
-  test "random terms to host servers and agents too leave every host up and every agent answering" do
-    {result, sent, _targets} = run_property(true, 50)
-    assert result == true, "counterexample: " <> inspect(result, limit: 50, printable_limit: 200)
-    assert sent >= 5_000
   end
 end

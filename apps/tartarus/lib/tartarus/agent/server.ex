@@ -40,6 +40,7 @@ defmodule Tartarus.Agent.Server do
   # Stopping a host kills its agents outright (shutdown: :brutal_kill): this process has no
   # terminate work, and an agent that traps exits must not hold up stop_host.
   use GenServer, restart: :temporary, shutdown: :brutal_kill
+  require Tartarus.Events
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
   alias Tartarus.Migration.Protocol
@@ -333,6 +334,9 @@ defmodule Tartarus.Agent.Server do
   # -- control (from Tartarus facade) ----------------------------------------------
 
   @impl true
+  def handle_call(_op, from, data) when not Tartarus.Events.is_from(from),
+    do: dropped(data, :call)
+
   def handle_call(_op, _from, %{paused: p} = data) when p != nil do
     {:reply, {:error, :in_transit}, data}
   end

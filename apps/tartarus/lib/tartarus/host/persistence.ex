@@ -168,6 +168,7 @@ defmodule Tartarus.Host.Persistence.Writer do
   # answered once written, and compaction between two appends (nothing is appended while it
   # runs), when the file has grown by more than twice its live size.
   use GenServer
+  require Tartarus.Events
 
   @compact_min 256 * 1024
 
@@ -180,6 +181,8 @@ defmodule Tartarus.Host.Persistence.Writer do
   end
 
   @impl true
+  def handle_call(_msg, from, s) when not Tartarus.Events.is_from(from), do: {:noreply, s}
+
   def handle_call({:append, bin}, _from, s) when is_binary(bin) do
     :ok = :file.write(s.fd, bin)
     s = %{s | grown: s.grown + byte_size(bin)}

@@ -18,6 +18,7 @@ defmodule Tartarus.Host.Server do
   # {:error, {:bad_message, _}}, unexpected casts and messages are dropped and counted in
   # the ledger ({:count, :dropped}), and a :DOWN counts only for a monitor this server made.
   use GenServer
+  require Tartarus.Events
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger}
   alias Tartarus.Migration.Protocol
@@ -90,6 +91,11 @@ defmodule Tartarus.Host.Server do
   end
 
   @impl true
+  def handle_call(_request, from, state) when not Tartarus.Events.is_from(from) do
+    Ledger.count(state.host, :dropped)
+    {:noreply, state}
+  end
+
   def handle_call(request, from, state) do
     case Tartarus.Wire.check_call(request) do
       :ok -> call(request, from, state)
