@@ -719,6 +719,7 @@ defmodule Tartarus.Host.Server do
     cond do
       killed? ->
         Events.emit(host, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
+        if resident?, do: ended(host, entry)
         state
 
       normal_exit?(reason) ->
@@ -734,6 +735,7 @@ defmodule Tartarus.Host.Server do
 
       match?({:callback_timeout, _, _}, reason) ->
         # Not restarted: the same callback would hang again.
+        ended(host, entry)
         removed(state, entry, reason)
 
       not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
@@ -750,8 +752,12 @@ defmodule Tartarus.Host.Server do
         )
 
         case start_agent(state, snapshot.(), {:restart, n}, n) do
-          {:ok, _pid, state} -> state
-          {:error, why, state} -> removed(state, entry, {:restart_failed, why})
+          {:ok, _pid, state} ->
+            state
+
+          {:error, why, state} ->
+            ended(host, entry)
+            removed(state, entry, {:restart_failed, why})
         end
 
       true ->
@@ -767,8 +773,23 @@ defmodule Tartarus.Host.Server do
           crashes: 1
         )
 
+        ended(host, entry)
         removed(state, entry, {:too_many_restarts, reason})
     end
+  end
+
+  # A resident agent killed or removed here: the hosts it visited drop their pointers to it
+  # (Tartarus.Ledger.gone/2), as when it stops on its own. Not if it had moved on from here
+  # (a pointer here names its newer place): it lives there.
+  defp ended(host, entry) do
+    unless :ets.member(host.ledger, {:fwd, entry.id}) do
+      case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
+        [{_, env}] -> Ledger.gone(host, env)
+        [] -> :ok
+      end
+    end
+
+    :ok
   end
 
   defp removed(state, entry, reason) do

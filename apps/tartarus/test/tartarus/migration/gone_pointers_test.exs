@@ -38,4 +38,16 @@ defmodule Tartarus.Migration.GonePointersTest do
     assert id in pointers(a)
     assert :ok = Tartarus.post({id, a}, :inc)
   end
+
+  test "an agent killed where it lives leaves no pointer on the hosts it visited either" do
+    [a, b, c] = line!(3)
+    {:ok, id} = Tartarus.create_mobile_agent(a, Probe, %{test: self()}, name: "victim")
+    :ok = Tartarus.move({id, a}, b)
+    :ok = Tartarus.move({id, b}, c)
+    assert pointers(a) |> Enum.sort() == Enum.sort([id, "victim"])
+
+    :ok = Tartarus.kill({id, c})
+    assert eventually(fn -> pointers(a) == [] and pointers(b) == [] end)
+    assert Tartarus.post({id, a}, :inc) == {:error, :not_found}
+  end
 end
