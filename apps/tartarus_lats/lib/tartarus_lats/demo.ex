@@ -9,7 +9,7 @@ defmodule TartarusLats.Demo do
 
   @impl true
   def run(opts) do
-    out = Path.join(opts[:out], "lats")
+    out = Path.expand(Path.join(opts[:out], "lats"))
 
     {:ok, %{summary: s}} =
       TartarusLats.Experiment.run(
