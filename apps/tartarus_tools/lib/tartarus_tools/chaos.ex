@@ -39,13 +39,18 @@ defmodule TartarusTools.Chaos do
       of the default mode; `acknowledged_of_lost_agents` - acknowledged messages of agents
       not found at the end;
     * `clones`, `agent_moves` (moves the agents asked for themselves), `posts`,
-      `post_failures` (reason => count), `untracked_agents` (agents found at the end that
-      the harness did not create: a clone whose outcome it never learnt).
+      `post_failures` (reason => count), `clone_failures` (kind of error => count: a
+      `:timeout` or `:destination_down` clone may have committed), `untracked_agents`
+      (agents found at the end that the harness did not create: a clone whose outcome it
+      never learnt).
 
-  Not exercised: replaying captured hand-off messages from a rogue node. That needs the
-  protocol's messages themselves, which neither the public API nor the `Tartarus.Fault`
-  points hand out (`:outgoing` and `:admitting` give the envelope, not the message), so the
-  harness would depend on the wire format; the protocol's own tests do it.
+  A **rogue node** replays captured hand-offs: every host hands a copy of each `prepare` it
+  receives, as sent (sealed, whole), to the harness (`Tartarus.Fault` point
+  `:prepare_received`), which keeps the last 1,000; `:replays` times, spread over the run,
+  one of them, drawn at random (most are for agents that have moved on since), is sent
+  again to the host that received it, from an extra node that runs no host. A replay that
+  were admitted would show as a duplicate, a transient duplicate or an untracked agent;
+  `replays` counts those sent.
 
   The schedule of moves, kills and partitions is drawn from `seed`; the interleaving with
   the nodes' own timing is not deterministic (that is the point of a chaos run).
@@ -68,8 +73,9 @@ defmodule TartarusTools.Chaos do
   Runs a chaos experiment. Options: `:nodes` (default 8), `:agents` (500), `:migrations`
   (10_000), `:kills` (20), `:partitions` (20), `:persist` (false), `:seed` (1),
   `:progress` (a 1-arity fun called with the number of migrations attempted so far),
-  `:census_ms` (1_000; 0 turns the census off), `:host_opts` (extra options for every
-  host, e.g. `[durable: true]` on a platform that has them).
+  `:census_ms` (1_000; 0 turns the census off), `:replays` (200; captured prepares sent
+  again from a rogue node, 0 for none), `:host_opts` (extra options for every host, e.g.
+  `[durable: true]` on a platform that has them).
   Returns a map of results (see the moduledoc).
   """
   @spec run(keyword()) :: map()
@@ -88,6 +94,8 @@ defmodule TartarusTools.Chaos do
     tag = "#{System.unique_integer([:positive])}_#{:os.getpid()}"
     dir = Path.join(System.tmp_dir!(), "tartarus_chaos_#{tag}")
     names = for i <- 1..n, do: :"chaos#{i}_#{tag}"
+    rogue_name = :"chaos_rogue_#{tag}"
+    replays = Keyword.get(opts, :replays, 200)
 
     world = %{
       names: names,
@@ -96,7 +104,8 @@ defmodule TartarusTools.Chaos do
       migrations: migrations,
       host_opts: Keyword.get(opts, :host_opts, []),
       table: :ets.new(:chaos, [:public, :set, write_concurrency: true]),
-      acked: :ets.new(:chaos_acked, [:public, :bag, write_concurrency: true])
+      acked: :ets.new(:chaos_acked, [:public, :bag, write_concurrency: true]),
+      captured: if(replays > 0, do: spawn_link(fn -> capture_loop(:queue.new(), 0) end))
     }
 
     t0 = System.monotonic_time(:millisecond)
@@ -125,18 +134,22 @@ defmodule TartarusTools.Chaos do
         end
 
       census = Task.async(fn -> census(world, hosts, Keyword.get(opts, :census_ms, 1_000)) end)
+      rogue = Task.async(fn -> rogue(world, rogue_name, replays, counter, seed) end)
       run_faults(world, faults, counter, nodes, progress, {seed, 0})
       Task.await_many(workers, :infinity)
       send(census.pid, :stop)
+      send(rogue.pid, :stop)
       census_result = Task.await(census, :infinity)
+      replays_sent = Task.await(rogue, :infinity)
 
       heal_all(world, nodes)
       settle(hosts)
       world
       |> count(ids, hosts, counter, kills, partitions, persist, seed, n, t0)
       |> Map.merge(census_result)
+      |> Map.put(:replays, replays_sent)
     after
-      for name <- names, do: Peer.kill(node_of(name))
+      for name <- [rogue_name | names], do: Peer.kill(node_of(name))
       File.rm_rf(dir)
     end
   end
@@ -220,10 +233,15 @@ defmodule TartarusTools.Chaos do
         if :ets.member(world.table, {:dead, elem(dest, 1)}),
           do: :ets.insert(world.table, {{:on_dead, clone}, true})
 
-      _ ->
-        :ok
+      {:error, reason} ->
+        key = {:clone_failed, failure_kind(reason)}
+        :ets.update_counter(world.table, key, 1, {key, 0})
     end
   end
+
+  # A clone failure by kind (its reason without the node names and pids in it).
+  defp failure_kind(reason) when is_tuple(reason), do: inspect(elem(reason, 0))
+  defp failure_kind(reason), do: inspect(reason)
 
   # One numbered message to an agent; an `:ok` is remembered as acknowledged.
   defp post_one(world, id) do
@@ -369,7 +387,85 @@ defmodule TartarusTools.Chaos do
         world.host_opts
 
     {:ok, _} = :erpc.call(node, Tartarus, :start_host, [:h, host_opts])
+
+    if world.captured do
+      hook = {:transform, {__MODULE__, :capture, [world.captured]}}
+      :ok = :erpc.call(node, Tartarus.Fault, :install, [:prepare_received, hook])
+    end
+
     node
+  end
+
+  # -- the rogue node ----------------------------------------------------------------
+
+  @doc false
+  # The `:prepare_received` hook on every node: a copy of the message, and who received it
+  # (the host's server), goes to the harness; the message itself goes on unchanged.
+  def capture(msg, collector) do
+    send(collector, {:captured, self(), msg})
+    msg
+  end
+
+  @keep 1_000
+
+  defp capture_loop(queue, size) do
+    receive do
+      {:captured, pid, msg} when size < @keep ->
+        capture_loop(:queue.in({pid, msg}, queue), size + 1)
+
+      {:captured, pid, msg} ->
+        capture_loop(:queue.in({pid, msg}, :queue.drop(queue)), size)
+
+      {:pick, from, i} ->
+        send(from, {:picked, if(size == 0, do: nil, else: Enum.at(:queue.to_list(queue), rem(i, size)))})
+        capture_loop(queue, size)
+    end
+  end
+
+  # Sends `replays` captured prepares again, from a node of its own, spread over the run (one
+  # each time another `migrations / replays` migrations were attempted). Returns how many it
+  # sent.
+  defp rogue(_world, _name, 0, _counter, _seed) do
+    receive do
+      :stop -> 0
+    end
+  end
+
+  defp rogue(world, name, replays, counter, seed) do
+    {:ok, _pid, node} = Peer.start(name, link: false)
+    rng = :rand.seed_s(:exsss, {seed, 13, 17})
+    rogue_loop(world, node, replays, counter, rng, 0)
+  end
+
+  defp rogue_loop(world, node, replays, counter, rng, sent) do
+    receive do
+      # The workers are done: what is still due goes now.
+      :stop -> elem(replay(world, node, replays - sent, rng), 1) + sent
+    after
+      10 ->
+        due = div(:atomics.get(counter, 1) * replays, max(world.migrations, 1))
+        {rng, n} = replay(world, node, min(due, replays) - sent, rng)
+        rogue_loop(world, node, replays, counter, rng, sent + n)
+    end
+  end
+
+  # Sends up to `n` captured prepares again; returns how many (none while none is captured).
+  defp replay(world, node, n, rng), do: replay(world, node, n, rng, 0)
+
+  defp replay(_world, _node, n, rng, done) when n <= 0, do: {rng, done}
+
+  defp replay(world, node, n, rng, done) do
+    {i, rng} = :rand.uniform_s(@keep, rng)
+    send(world.captured, {:pick, self(), i})
+
+    receive do
+      {:picked, nil} ->
+        {rng, done}
+
+      {:picked, {pid, msg}} ->
+        :erpc.cast(node, :erlang, :send, [pid, msg])
+        replay(world, node, n - 1, rng, done + 1)
+    end
   end
 
   defp nodes_of(world), do: Enum.map(world.names, &node_of/1)
@@ -501,11 +597,15 @@ defmodule TartarusTools.Chaos do
     post_failures =
       for {{:post_failed, reason}, n} <- :ets.tab2list(world.table), into: %{}, do: {reason, n}
 
+    clone_failures =
+      for {{:clone_failed, kind}, n} <- :ets.tab2list(world.table), into: %{}, do: {kind, n}
+
     %{
       nodes: n,
       agents_start: length(ids),
       agents_end: map_size(freq),
       clones: length(clones),
+      clone_failures: clone_failures,
       untracked_agents: Enum.count(Map.keys(freq), &(not MapSet.member?(tracked_set, &1))),
       duplicates: duplicates,
       lost: length(lost),

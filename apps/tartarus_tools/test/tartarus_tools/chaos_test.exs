@@ -10,7 +10,7 @@ defmodule TartarusTools.ChaosTest do
     :ok
   end
 
-  test "a small run with kills, partitions, clones, posts and a census" do
+  test "a small run with kills, partitions, clones, posts, replays from a rogue node and a census" do
     r =
       TartarusTools.Chaos.run(
         nodes: 2,
@@ -20,7 +20,8 @@ defmodule TartarusTools.ChaosTest do
         partitions: 1,
         persist: true,
         seed: 3,
-        census_ms: 200
+        census_ms: 200,
+        replays: 20
       )
 
     assert r.duplicates == 0
@@ -28,6 +29,8 @@ defmodule TartarusTools.ChaosTest do
     assert r.transient_duplicates == 0
     assert r.agents_end == r.agents_start + r.clones + r.untracked_agents
     assert r.census_rounds > 0
+    # Captured sealed prepares sent again from a rogue node: none admitted (no duplicate above).
+    assert r.replays == 20
     assert r.posts == r.acknowledged + Enum.sum(Map.values(r.post_failures))
     # Messages missing after a restart are excused (no durability mode); no other.
     assert r.acknowledged_missing == r.acknowledged_missing_after_kill

@@ -6,23 +6,25 @@ defmodule Mix.Tasks.Tartarus.Chaos do
 
       mix tartarus.chaos --nodes 8 --agents 500 --migrations 10000 --kills 20 \\
                          --partitions 20 [--persist] [--durable] --seed 1 \\
-                         [--census-ms 1000] [--json] [--out FILE]
+                         [--census-ms 1000] [--replays 200] [--json] [--out FILE]
 
   Agents count the messages they take; the workers move them, let them move themselves,
   clone them and post them numbered messages; a census during the run asks every copy to
   answer; at the end every acknowledged message must be in its agent's state (see
-  `TartarusTools.Chaos`). `--census-ms 0` turns the census off.
+  `TartarusTools.Chaos`). `--census-ms 0` turns the census off. A rogue node (no host)
+  replays `--replays` captured sealed `prepare` messages to the hosts that received them,
+  spread over the run (`0` for none).
 
   `--durable` starts every host with `durable: true` (acknowledged messages journaled
   before the sender gets `:ok`); a platform without that host option is refused with an
   error before any node starts.
 
   With `--json` the last line printed is one JSON object with the keys `nodes,
-  agents_start, agents_end, clones, untracked_agents, duplicates, lost, lost_on_dead_hosts,
-  migrations_done, agent_moves, posts, post_failures, acknowledged, acknowledged_missing,
-  acknowledged_missing_after_kill, acknowledged_of_lost_agents, census_rounds,
-  transient_duplicates, census_unanswered, kills, partitions, persist, host_opts, seed,
-  still_in_doubt, wall_ms`.
+  agents_start, agents_end, clones, clone_failures, untracked_agents, duplicates, lost,
+  lost_on_dead_hosts, migrations_done, agent_moves, posts, post_failures, acknowledged,
+  acknowledged_missing, acknowledged_missing_after_kill, acknowledged_of_lost_agents,
+  census_rounds, transient_duplicates, census_unanswered, replays, kills, partitions,
+  persist, host_opts, seed, still_in_doubt, wall_ms`.
   """
   use TartarusTools.CLI
 
@@ -35,6 +37,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
     persist: :boolean,
     durable: :boolean,
     census_ms: :integer,
+    replays: :integer,
     seed: :integer,
     json: :boolean,
     out: :string
@@ -44,7 +47,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   def run(argv) do
     opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.chaos")
     TartarusTools.CLI.positive!(opts, [:nodes, :agents, :migrations], "tartarus.chaos")
-    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :census_ms], "tartarus.chaos")
+    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :census_ms, :replays], "tartarus.chaos")
 
     Mix.Task.run("app.start")
     host_opts = durable_opts(opts[:durable])
@@ -68,6 +71,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
         persist: opts[:persist] || false,
         seed: opts[:seed] || 1,
         census_ms: opts[:census_ms] || 1_000,
+        replays: opts[:replays] || 200,
         host_opts: host_opts,
         progress: progress
       )
