@@ -138,9 +138,11 @@ defmodule Tartarus.Migration.ParkingTest do
     send(server, :"$tartarus_ask_parked")
     assert Tartarus.Host.call(b, :parked) == 1
 
-    # Committed to this copy: revived, it starts.
-    :ets.delete(ha.ledger, {:handoff, mig})
+    # Committed to this copy: revived, it starts. Written in the protocol's order (the
+    # decision before the hand-off record goes): the query above may still be answered
+    # meanwhile, and between the two steps in the other order it would read "aborted".
     :ets.insert(ha.ledger, {{:decision, mig}, {:committed, copy}})
+    :ets.delete(ha.ledger, {:handoff, mig})
     send(server, :"$tartarus_ask_parked")
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
     assert Tartarus.Host.call(b, :parked) == 0
