@@ -26,7 +26,7 @@ defmodule TartarusLats.Deployment do
   stores are quiet: queries released then see a consistent snapshot.
   """
 
-  alias TartarusLats.{Building, Cloud, DatabaseAgent, Radio, Region, World}
+  alias TartarusLats.{Building, Cloud, DatabaseAgent, HM10, Radio, Region, World}
 
   defstruct building: nil,
             world: nil,
@@ -38,7 +38,11 @@ defmodule TartarusLats.Deployment do
             owns_cloud: false,
             expected: %{},
             uploads: 0,
-            time: 0
+            time: 0,
+            record: nil,
+            replay: nil,
+            parsers: %{},
+            input: %{records: 0, bad_records: 0, garbage_bytes: 0, other_devices: 0}
 
   @type t :: %__MODULE__{
           building: Building.t(),
@@ -51,7 +55,11 @@ defmodule TartarusLats.Deployment do
           owns_cloud: boolean(),
           expected: %{Tartarus.host() => non_neg_integer()},
           uploads: non_neg_integer(),
-          time: non_neg_integer()
+          time: non_neg_integer(),
+          record: IO.device() | nil,
+          replay: TartarusLats.HM10.Recording.t() | nil,
+          parsers: %{Building.node_name() => HM10.t()},
+          input: map()
         }
 
   @schema [
@@ -64,7 +72,17 @@ defmodule TartarusLats.Deployment do
     centralized: [type: :boolean, default: true, doc: "database agents upload to the cloud"],
     data_dir: [type: :any, doc: "directory of the database agents' DETS logs (default none)"],
     timeout: [type: :pos_integer, default: 15, doc: "handshake timeout in world seconds"],
-    cloud: [type: :any, doc: "a running host to put the cloud agent on (default a new host)"]
+    cloud: [type: :any, doc: "a running host to put the cloud agent on (default a new host)"],
+    record: [
+      type: :any,
+      doc:
+        "an open IO device: every node's HM-10 output of every second is written to it (`TartarusLats.HM10.Recording`)"
+    ],
+    replay: [
+      type: :any,
+      doc:
+        "a recording (`TartarusLats.HM10.Recording.read/1`): the receivers hear it, parsed by `TartarusLats.HM10`, instead of the simulated radio (the world still moves, for the ground truth)"
+    ]
   ]
 
   @doc """
@@ -84,6 +102,7 @@ defmodule TartarusLats.Deployment do
       end)
 
     building = world.building
+    check_replay_nodes!(opts[:replay], building)
 
     # Peer mode makes this VM a distributed node; the cloud host, started here before the
     # network, must get its address under the node's final name.
@@ -117,8 +136,30 @@ defmodule TartarusLats.Deployment do
       net: net,
       hosts: net.hosts,
       cloud: cloud,
-      owns_cloud: owns
+      owns_cloud: owns,
+      record: opts[:record],
+      replay: opts[:replay]
     }
+  end
+
+  defp check_replay_nodes!(nil, _building), do: :ok
+
+  defp check_replay_nodes!(replay, building) do
+    known = MapSet.new(Building.nodes(building), &to_string/1)
+
+    unknown =
+      for {_t, nodes} <- replay,
+          node <- Map.keys(nodes),
+          not MapSet.member?(known, node),
+          uniq: true,
+          do: node
+
+    if unknown != [],
+      do:
+        raise(
+          ArgumentError,
+          "the recording names nodes this building does not have: #{Enum.join(Enum.sort(unknown), ", ")}"
+        )
   end
 
   defp calibration(world), do: Region.calibrate(tx_power: -59, exponent: world.radio.exponent)
@@ -180,8 +221,11 @@ defmodule TartarusLats.Deployment do
   @spec step(t()) :: t()
   def step(%__MODULE__{} = dep) do
     {world, rng} = World.step(dep.world, dep.rng)
+    # Drawn also when replaying, so the world (the ground truth) moves as when recorded.
     {readings, rng} = World.readings(world, rng)
     t = world.time
+    if dep.record, do: record(dep.record, t, world, readings)
+    {readings, dep} = if dep.replay, do: replayed(dep, t), else: {readings, dep}
     dep = %{dep | world: world, rng: rng, readings: readings, time: t}
     write_readings(dep, t)
     {dep, sent} = phase(dep, {:sense, t})
@@ -189,6 +233,46 @@ defmodule TartarusLats.Deployment do
     {dep, _} = phase(dep, {:tick, t})
     dep
   end
+
+  # Every node's scan of second t as its HM-10 prints it (tags it did not hear are absent).
+  defp record(io, t, world, readings) do
+    lines =
+      for node <- Building.nodes(world.building) do
+        beacons =
+          for {tag, rssi} <- Enum.sort(Map.get(readings, node, %{})),
+              is_integer(rssi),
+              do: World.beacon(world, World.bearer_of(world, tag), rssi)
+
+        HM10.Recording.line(t, node, HM10.encode_scan(beacons))
+      end
+
+    IO.binwrite(io, lines)
+  end
+
+  # What the receivers hear when replaying: each node's serial text of second t, fed to
+  # that node's parser.
+  defp replayed(dep, t) do
+    serial = Map.get(dep.replay, t, %{})
+
+    Enum.reduce(Building.nodes(dep.building), {%{}, dep}, fn node, {readings, dep} ->
+      parser = Map.get(dep.parsers, node, HM10.new())
+      {parser, events} = HM10.feed(parser, Map.get(serial, to_string(node), ""))
+
+      dep = %{
+        dep
+        | parsers: Map.put(dep.parsers, node, parser),
+          input: Enum.reduce(events, dep.input, &count_input/2)
+      }
+
+      {Map.put(readings, node, HM10.readings(events)), dep}
+    end)
+  end
+
+  defp count_input({:beacon, _, _}, c), do: %{c | records: c.records + 1}
+  defp count_input({:bad_record, _, _}, c), do: %{c | bad_records: c.bad_records + 1}
+  defp count_input({:garbage, b}, c), do: %{c | garbage_bytes: c.garbage_bytes + byte_size(b)}
+  defp count_input({:other_device, _, _}, c), do: %{c | other_devices: c.other_devices + 1}
+  defp count_input(_scan_mark, c), do: c
 
   defp write_readings(dep, t) do
     dep.hosts

@@ -60,7 +60,17 @@ defmodule TartarusLats.Experiment do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     group: [type: :pos_integer, default: 10, doc: "building nodes per BEAM node in peer mode"],
     out: [type: :any, doc: "output directory (default `results/lats-<UTC timestamp>`), or false"],
-    quiet: [type: :boolean, default: false, doc: "no progress line"]
+    quiet: [type: :boolean, default: false, doc: "no progress line"],
+    record: [
+      type: :any,
+      doc:
+        "a file to record every node's HM-10 serial output to (`TartarusLats.HM10.Recording`; gzip if it ends in `.gz`)"
+    ],
+    replay: [
+      type: :any,
+      doc:
+        "a recording whose serial output the nodes hear instead of the simulated radio; the world (the ground truth) still moves by the seed, so a recording made with the same seed and options replays the same run"
+    ]
   ]
 
   @doc "The options of `run/1` (a `Tartarus.Options` schema; `mix tartarus.lats` reads its defaults here)."
@@ -79,10 +89,50 @@ defmodule TartarusLats.Experiment do
   """
   @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
   def run(opts \\ []) do
-    with {:ok, opts} <- validate(opts) do
+    with {:ok, opts} <- validate(opts),
+         {:ok, opts} <- load_replay(opts) do
       {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet])
       TartarusEmu.Scenario.run(__MODULE__, runner ++ [steps: opts[:minutes] * 60] ++ rest)
     end
+  end
+
+  defp load_replay(opts) do
+    case opts[:replay] do
+      nil ->
+        {:ok, opts}
+
+      path when is_binary(path) ->
+        with {:ok, recording} <- TartarusLats.HM10.Recording.read(path),
+             :ok <- known_nodes(recording, building(opts[:nodes]), path),
+             do: {:ok, Keyword.put(opts, :replay, recording)}
+
+      other ->
+        {:error,
+         "invalid options given to TartarusLats.Experiment.run/1 for key :replay: expected a file path, got: #{inspect(other)}"}
+    end
+  end
+
+  defp known_nodes(recording, building, path) do
+    known = MapSet.new(Building.nodes(building), &to_string/1)
+
+    case for({_t, nodes} <- recording, n <- Map.keys(nodes), n not in known, uniq: true, do: n) do
+      [] ->
+        :ok
+
+      unknown ->
+        {:error,
+         "#{path} names nodes a building of #{length(Building.nodes(building))} nodes does not have: #{Enum.join(Enum.sort(unknown), ", ")}"}
+    end
+  end
+
+  defp open_recording(nil), do: nil
+
+  defp open_recording(path) do
+    File.mkdir_p!(Path.dirname(path))
+    modes = if String.ends_with?(path, ".gz"), do: [:write, :compressed], else: [:write]
+    io = File.open!(path, [:binary | modes])
+    IO.binwrite(io, TartarusLats.HM10.Recording.header())
+    io
   end
 
   @doc """
@@ -130,7 +180,9 @@ defmodule TartarusLats.Experiment do
         seed: opts.seed,
         world: world,
         mode: opts.mode,
-        group: opts.group
+        group: opts.group,
+        record: open_recording(opts[:record]),
+        replay: opts[:replay]
       )
 
     {:ok,
@@ -196,7 +248,10 @@ defmodule TartarusLats.Experiment do
   end
 
   @impl TartarusEmu.Scenario
-  def teardown(state), do: Deployment.stop(state.dep)
+  def teardown(state) do
+    if state.dep.record, do: File.close(state.dep.record)
+    Deployment.stop(state.dep)
+  end
 
   @doc """
   The building for `nodes` nodes: the thesis's 50 (2 floors of 5 x 5) by
@@ -449,7 +504,11 @@ defmodule TartarusLats.Experiment do
       median_query_ms: median(ms) && Float.round(median(ms) * 1.0, 3),
       trace_time_error_s: median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
       by_type: by_type,
-      world_seconds: dep.time
+      world_seconds: dep.time,
+      input: if(dep.replay, do: "replay", else: "simulated"),
+      replay_records: dep.input.records,
+      replay_bad_records: dep.input.bad_records,
+      replay_garbage_bytes: dep.input.garbage_bytes
     })
   end
 

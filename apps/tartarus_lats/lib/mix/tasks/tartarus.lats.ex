@@ -7,6 +7,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
       mix tartarus.lats [--nodes 50] [--bearers 10] [--minutes 20] [--queries 30]
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
+                        [--record FILE | --replay FILE]
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
   at least 10. `--help` prints this text.
@@ -28,11 +29,21 @@ defmodule Mix.Tasks.Tartarus.Lats do
       `queries_answered.{csv,svg}` - the scenario's series (every 10 world s);
     * `summary.json`, `summary.md` - the keys below, and ours vs the thesis.
 
+  `--record FILE` writes every node's HM-10 serial output of every second into FILE
+  (gzip-compressed if it ends in `.gz`; the format is in
+  `TartarusLats.HM10.Recording`). `--replay FILE` feeds such a recording to the nodes'
+  receivers instead of the simulated radio: each node's text goes through the HM-10 parser
+  (`TartarusLats.HM10`) as if it came from its UART. The world still moves by the seed (it
+  is the ground truth the answers are judged against), so a recording replayed with the seed
+  and options it was made with reproduces the run; a capture from real hardware replays
+  too, but its answers are judged against a world that was not there.
+
   Summary keys: `queries, correct, correct_centralized,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
   cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
-  world_seconds` and the runner's `scenario, steps, setup_ms, run_ms`. Medians are
+  world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
+  runner's `scenario, steps, setup_ms, run_ms`. Medians are
   nearest-rank (`TartarusTools.Report.median/1`). With `--json` the last line printed is the summary as one
   JSON object.
   """
@@ -49,6 +60,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
     group: :integer,
     seed: :integer,
     out: :string,
+    record: :string,
+    replay: :string,
     json: :boolean,
     help: :boolean
   ]
@@ -79,6 +92,9 @@ defmodule Mix.Tasks.Tartarus.Lats do
         {:ok, shown} -> shown
         {:error, message} -> Mix.raise("mix tartarus.lats: #{message}")
       end
+
+    if shown[:record] && shown[:replay],
+      do: Mix.raise("mix tartarus.lats: --record and --replay cannot be given together")
 
     Mix.Task.run("app.start")
 
