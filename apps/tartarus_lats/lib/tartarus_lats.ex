@@ -75,6 +75,9 @@ defmodule TartarusLats do
   Returns `{:ok, result}` where `result` is what the agent returned (for
   the built-in queries a map with `:answer`, `:hops`, `:route`,
   `:answered_at`, `:cloud_contacts`, `:elapsed_us`), or `{:error, reason}`.
+  `:elapsed_us` is the answering node's monotonic clock minus the starting
+  node's: meaningful only when both run in one VM. `TartarusLats.Experiment`
+  measures latency in the releasing process instead (one clock).
   """
   @spec query(Tartarus.host_ref(), query_type(), term(), keyword()) ::
           {:ok, term()} | {:error, term()}

@@ -197,7 +197,8 @@ defmodule TartarusLats.Experiment do
        k: 0,
        series: TartarusTools.Series.new(),
        meta: %{
-         nodes: opts.nodes,
+         # What was built: --nodes is rounded to whole rows (see building/1).
+         nodes: length(Building.nodes(building)),
          bearers: opts.bearers,
          minutes: opts.minutes,
          mode: to_string(opts.mode)
@@ -408,23 +409,29 @@ defmodule TartarusLats.Experiment do
   defp run_batch(batch, dep) do
     released =
       Enum.map(batch, fn q ->
+        t0 = System.monotonic_time(:microsecond)
+
         {:ok, id} =
           TartarusLats.release(q.host, q.type, q.tag,
             label: "#{q.type}(#{q.person})#{q.id}",
             seed: {:lats_query, q.id, q.time}
           )
 
-        {q, id}
+        {q, id, t0}
       end)
 
-    Enum.map(released, fn {q, id} ->
-      {:ok, r} = TartarusLats.await(id, 120_000)
+    # Latency on this VM's clock: from the release to the result's arrival here (the agent
+    # starts and ends on different nodes, whose clocks are not this one's in peer mode).
+    arrived = collect(Map.new(released, fn {_q, id, _t0} -> {id, nil} end), 120_000)
+
+    Enum.map(released, fn {q, id, t0} ->
+      {r, at} = Map.fetch!(arrived, id)
       central = Cloud.query(dep.cloud, q.type, q.start, q.tag)
 
       Map.merge(q, %{
         answer: r.answer,
         hops: r.hops,
-        ms: r.elapsed_us / 1000,
+        ms: (at - t0) / 1000,
         route: r.route,
         answered_at: r.answered_at,
         central: central,
@@ -433,6 +440,23 @@ defmodule TartarusLats.Experiment do
         time_error: time_error(q.type, r.answer, q.truth)
       })
     end)
+  end
+
+  # Results of the released agents in the order they arrive, each with its arrival time.
+  defp collect(pending, timeout) do
+    if Enum.all?(pending, fn {_id, v} -> v != nil end) do
+      pending
+    else
+      receive do
+        {:tartarus_result, id, result} when is_map_key(pending, id) ->
+          collect(Map.put(pending, id, {result, System.monotonic_time(:microsecond)}), timeout)
+
+        {:tartarus_removed, id, reason} when is_map_key(pending, id) ->
+          raise "LATS query agent #{id} was removed: #{inspect(reason)}"
+      after
+        timeout -> raise "LATS query agents did not answer within #{timeout} ms"
+      end
+    end
   end
 
   @doc false

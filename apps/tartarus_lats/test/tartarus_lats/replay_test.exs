@@ -15,6 +15,17 @@ defmodule TartarusLats.ReplayTest do
 
   defp outcome(summary), do: Map.drop(summary, @not_outcome)
 
+  @tag timeout: 120_000
+  test "same seed, same summary (virtual mode); latencies are measured on one clock" do
+    {:ok, a} = Experiment.run(@small ++ [seed: 2])
+    {:ok, b} = Experiment.run(@small ++ [seed: 2])
+    assert outcome(a.summary) == outcome(b.summary)
+    assert a.summary.median_query_ms > 0
+    # --nodes is rounded to whole rows; the summary says what was built.
+    {:ok, c} = Experiment.run(Keyword.put(@small, :nodes, 15) ++ [seed: 2])
+    assert c.summary.nodes == 20
+  end
+
   @tag :tmp_dir
   @tag timeout: 120_000
   test "a run recorded and replayed gives the same summary", %{tmp_dir: dir} do

@@ -10,7 +10,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
                         [--record FILE | --replay FILE]
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
-  at least 10. `--help` prints this text.
+  at least 10 and is rounded to whole rows of 5 on 2 floors (`--nodes 15` builds 20; the
+  line printed and the summary's `nodes` say what was built). `--help` prints this text.
 
   The experiment is a `TartarusEmu.Scenario` (one step per world second, a
   progress line on standard error) and writes into `--out DIR` (default
@@ -98,10 +99,17 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
     Mix.Task.run("app.start")
 
+    built = length(TartarusLats.Building.nodes(Experiment.building(shown[:nodes])))
+
+    rounded =
+      if built != shown[:nodes],
+        do: " (--nodes #{shown[:nodes]} rounded to whole rows: 2 floors x rows of 5)",
+        else: ""
+
     unless json?,
       do:
         Mix.shell().info(
-          "LATS: #{shown[:nodes]} nodes, seed #{shown[:seed]}, #{shown[:mode]} hosts..."
+          "LATS: #{built} nodes#{rounded}, seed #{shown[:seed]}, #{shown[:mode]} hosts..."
         )
 
     case Experiment.run(exp_opts) do
