@@ -26,7 +26,10 @@ defmodule TartarusLats.BeaconPlugin do
   or `nil`). Writes: `{:readings, t, readings}` gives the readings of second
   `t` (they take precedence over the script): the emulation driver, a test
   or a hardware bridge. Readings of earlier seconds not scanned are
-  dropped at the next scan.
+  dropped at the next scan. A reading that is not `{uuid, major, minor} =>
+  rssi` (32 lowercase hex digits, 16-bit major and minor, an integer RSSI
+  the HM-10 can report) is refused: dropped and counted (read `:refused`,
+  and `describe/1`); the valid readings of the same write are kept.
   """
   @behaviour Tartarus.Plugin
 
@@ -39,7 +42,7 @@ defmodule TartarusLats.BeaconPlugin do
   def init(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.BeaconPlugin"),
          :ok <- check(opts) do
-      {:ok, %{node: opts[:node], script: opts[:script], injected: %{}, last: nil}}
+      {:ok, %{node: opts[:node], script: opts[:script], injected: %{}, last: nil, refused: 0}}
     end
   end
 
@@ -60,7 +63,13 @@ defmodule TartarusLats.BeaconPlugin do
 
   @impl true
   def describe(s) do
-    %{kind: :ble_receiver, node: s.node, reads: [:scan, :last], writes: [:readings]}
+    %{
+      kind: :ble_receiver,
+      node: s.node,
+      reads: [:scan, :last, :refused],
+      writes: [:readings],
+      refused: s.refused
+    }
   end
 
   @impl true
@@ -72,11 +81,37 @@ defmodule TartarusLats.BeaconPlugin do
   end
 
   def read(:last, s), do: {:ok, s.last, s}
+  def read(:refused, s), do: {:ok, s.refused, s}
   def read(arg, s), do: {:error, {:bad_argument, arg}, s}
 
   @impl true
-  def write({:readings, t, readings}, s) when is_integer(t) and is_map(readings),
-    do: {:ok, %{s | injected: Map.put(s.injected, t, readings)}}
+  def write({:readings, t, readings}, s) when is_integer(t) and is_map(readings) do
+    {good, bad} = Enum.split_with(readings, &valid_reading?/1)
+    s = %{s | refused: s.refused + length(bad)}
+    {:ok, %{s | injected: Map.put(s.injected, t, Map.new(good))}}
+  end
 
   def write(arg, s), do: {:error, {:bad_argument, arg}, s}
+
+  @doc """
+  Whether `{tag, rssi}` is a reading LATS takes: a tag `{uuid, major, minor}` as
+  `TartarusLats.Beacon.tag_id/1` makes it and an RSSI `TartarusLats.IBeacon.valid_rssi?/1`
+  accepts.
+
+      iex> TartarusLats.BeaconPlugin.valid_reading?({{"12121212b64445208f0c720eaf059935", 1, 2}, -70})
+      true
+      iex> TartarusLats.BeaconPlugin.valid_reading?({{"nope", 1, 2}, -70})
+      false
+      iex> TartarusLats.BeaconPlugin.valid_reading?({{"12121212b64445208f0c720eaf059935", 1, 2}, :loud})
+      false
+  """
+  @spec valid_reading?(term()) :: boolean()
+  def valid_reading?({{uuid, major, minor}, rssi})
+      when is_binary(uuid) and byte_size(uuid) == 32 and is_integer(major) and major in 0..65535 and
+             is_integer(minor) and minor in 0..65535 do
+    TartarusLats.IBeacon.valid_rssi?(rssi) and
+      match?({:ok, _}, Base.decode16(uuid, case: :lower))
+  end
+
+  def valid_reading?(_), do: false
 end

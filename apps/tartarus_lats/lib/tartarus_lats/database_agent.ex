@@ -123,10 +123,14 @@ defmodule TartarusLats.DatabaseAgent do
     do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
 
   def handle_message({:sense, t}, from, s) do
+    # Whatever receiver is attached: only well-formed readings reach the tracker.
     readings =
       case A.read(:beacon, {:scan, t}) do
-        {:ok, readings} -> readings
-        {:error, _} -> %{}
+        {:ok, readings} when is_map(readings) ->
+          Map.filter(readings, &TartarusLats.BeaconPlugin.valid_reading?/1)
+
+        _ ->
+          %{}
       end
 
     {events, tracker} = Tracker.tick(s.tracker, t, readings)

@@ -207,7 +207,7 @@ defmodule TartarusLats.AgentsTest do
     {:ok, host} = Tartarus.start_host("beacon-test")
 
     try do
-      tag = {"aa", 1, 1}
+      tag = {"000000000000000000000000000000aa", 1, 1}
 
       :ok =
         Tartarus.attach_plugin(
