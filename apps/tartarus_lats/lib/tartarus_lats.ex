@@ -70,11 +70,15 @@ defmodule TartarusLats do
   agent module it is that module's `init/1` argument. Options: `:timeout`
   (ms, default 60 000), `:label` and `:report` (passed to built-in query
   agents: a label for the cloud log; whether to contact the cloud, default
-  true), `:seed` (the agent's random seed, for reproducible walks).
+  true), `:cloud` (`:per_node`, the default: the agent contacts the cloud
+  from every node where it finds data of the tag, as in the thesis's
+  scenario 2; `:per_query`: once, from where it found the answer), `:seed`
+  (the agent's random seed, for reproducible walks).
 
   Returns `{:ok, result}` where `result` is what the agent returned (for
   the built-in queries a map with `:answer`, `:hops`, `:route`,
-  `:answered_at`, `:cloud_contacts`, `:elapsed_us`), or `{:error, reason}`.
+  `:answered_at`, `:cloud_contacts`, `:per_node_contacts`,
+  `:per_query_contacts`, `:elapsed_us`), or `{:error, reason}`.
   `:elapsed_us` is the answering node's monotonic clock minus the starting
   node's: meaningful only when both run in one VM. `TartarusLats.Experiment`
   measures latency in the releasing process instead (one clock).
@@ -118,6 +122,11 @@ defmodule TartarusLats do
   end
 
   defp builtin_args(tag, opts) do
-    %{tag: tag, label: Keyword.get(opts, :label), report: Keyword.get(opts, :report, true)}
+    %{
+      tag: tag,
+      label: Keyword.get(opts, :label),
+      report: Keyword.get(opts, :report, true),
+      cloud: Keyword.get(opts, :cloud, :per_node)
+    }
   end
 end

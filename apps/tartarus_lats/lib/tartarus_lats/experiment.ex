@@ -11,8 +11,9 @@ defmodule TartarusLats.Experiment do
   every new record and vector to the cloud (Scenario 1's traffic, counted
   as `:centralized`). At each query instant the world is paused (between
   two driver steps), the query agents are released together on their start
-  nodes (Scenario 2; they contact the cloud once each, counted as
-  `:agents`), and the same queries are put to the cloud, which answers from
+  nodes (Scenario 2; they contact the cloud from every node where they
+  find data of their tag, or once each with `agent_cloud: :per_query`,
+  counted as `:agents`), and the same queries are put to the cloud, which answers from
   its mirror (Scenario 1). Agents never read the cloud's mirror.
 
   ## Queries and ground truth
@@ -61,6 +62,12 @@ defmodule TartarusLats.Experiment do
     group: [type: :pos_integer, default: 10, doc: "building nodes per BEAM node in peer mode"],
     out: [type: :any, doc: "output directory (default `results/lats-<UTC timestamp>`), or false"],
     quiet: [type: :boolean, default: false, doc: "no progress line"],
+    agent_cloud: [
+      type: {:in, [:per_node, :per_query]},
+      default: :per_node,
+      doc:
+        "when query agents contact the cloud: from every node where they find data of the tag (the thesis's scenario 2), or once per query"
+    ],
     record: [
       type: :any,
       doc:
@@ -201,7 +208,8 @@ defmodule TartarusLats.Experiment do
          nodes: length(Building.nodes(building)),
          bearers: opts.bearers,
          minutes: opts.minutes,
-         mode: to_string(opts.mode)
+         mode: to_string(opts.mode),
+         agent_cloud: to_string(opts.agent_cloud)
        }
      }}
   end
@@ -304,7 +312,7 @@ defmodule TartarusLats.Experiment do
         end
       end)
 
-    results = run_batch(batch, acc.dep)
+    results = run_batch(batch, acc.dep, String.to_existing_atom(acc.meta.agent_cloud))
     %{acc | pending: waiting, rng: rng, k: k, results: Enum.reverse(results) ++ acc.results}
   end
 
@@ -404,9 +412,9 @@ defmodule TartarusLats.Experiment do
   end
 
   # Releases the batch's agents together, then asks the cloud the same questions.
-  defp run_batch([], _dep), do: []
+  defp run_batch([], _dep, _rule), do: []
 
-  defp run_batch(batch, dep) do
+  defp run_batch(batch, dep, rule) do
     released =
       Enum.map(batch, fn q ->
         t0 = System.monotonic_time(:microsecond)
@@ -414,7 +422,8 @@ defmodule TartarusLats.Experiment do
         {:ok, id} =
           TartarusLats.release(q.host, q.type, q.tag,
             label: "#{q.type}(#{q.person})#{q.id}",
-            seed: {:lats_query, q.id, q.time}
+            seed: {:lats_query, q.id, q.time},
+            cloud: rule
           )
 
         {q, id, t0}
@@ -434,6 +443,8 @@ defmodule TartarusLats.Experiment do
         ms: (at - t0) / 1000,
         route: r.route,
         answered_at: r.answered_at,
+        per_node_contacts: r.per_node_contacts,
+        per_query_contacts: r.per_query_contacts,
         central: central,
         correct: correct?(q.type, r.answer, q.truth),
         correct_centralized: correct?(q.type, central, q.truth),
@@ -521,6 +532,9 @@ defmodule TartarusLats.Experiment do
       cloud_connections_centralized: c,
       cloud_connections_agents: a,
       cloud_connection_ratio: if(c > 0, do: Float.round(a / c, 4), else: nil),
+      # What the agents' design costs under each rule (the run applied `agent_cloud`).
+      cloud_connections_agents_per_node: Enum.sum(Enum.map(results, & &1.per_node_contacts)),
+      cloud_connections_agents_per_query: Enum.sum(Enum.map(results, & &1.per_query_contacts)),
       cloud_bytes_centralized: stats.bytes.centralized,
       cloud_bytes_agents: stats.bytes.agents,
       median_query_hops: median(hops),

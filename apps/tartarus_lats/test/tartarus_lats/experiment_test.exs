@@ -34,6 +34,24 @@ defmodule TartarusLats.ExperimentTest do
     assert File.read!(Path.join(dir, "summary.md")) =~ "cloud connections, agents / centralized"
   end
 
+  # The thesis's scenario 2: an agent contacts the cloud from every node where it finds data
+  # of its tag. Both rules are reported for the same queries; the plots and
+  # cloud_connections_agents count the rule applied.
+  @tag timeout: 120_000
+  test "cloud contacts per node (default) and per query, both reported" do
+    small = [nodes: 10, minutes: 3, queries: 3, seed: 3, quiet: true, out: false]
+    {:ok, %{summary: n}} = TartarusLats.Experiment.run(small)
+    {:ok, %{summary: q}} = TartarusLats.Experiment.run(small ++ [agent_cloud: :per_query])
+
+    assert n.agent_cloud == "per_node" and q.agent_cloud == "per_query"
+    assert n.cloud_connections_agents == n.cloud_connections_agents_per_node
+    assert q.cloud_connections_agents == q.cloud_connections_agents_per_query
+    assert q.cloud_connections_agents <= q.queries
+    # Same walks, so the same costs either way; a query's data spans several nodes.
+    assert n.cloud_connections_agents_per_node == q.cloud_connections_agents_per_node
+    assert n.cloud_connections_agents_per_node > n.cloud_connections_agents_per_query
+  end
+
   test "options are checked in one place, naming key, expectation and value" do
     assert {:error, msg} = TartarusLats.Experiment.run(nodes: 5)
     assert msg =~ "for key :nodes: expected an integer >= 10, got: 5"

@@ -7,7 +7,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
       mix tartarus.lats [--nodes 50] [--bearers 10] [--minutes 20] [--queries 30]
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
-                        [--record FILE | --replay FILE]
+                        [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
   at least 10 and is rounded to whole rows of 5 on 2 floors (`--nodes 15` builds 20; the
@@ -39,8 +39,15 @@ defmodule Mix.Tasks.Tartarus.Lats do
   and options it was made with reproduces the run; a capture from real hardware replays
   too, but its answers are judged against a world that was not there.
 
+  `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
+  thesis's scenario 2: from every node where they find data of the tag) or `per_query`
+  (once, from where the answer was found). The summary reports what both rules cost for the
+  same queries (`cloud_connections_agents_per_node`, `_per_query`);
+  `cloud_connections_agents` and the plots count the contacts made under the rule applied.
+
   Summary keys: `queries, correct, correct_centralized,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
+  cloud_connections_agents_per_node, cloud_connections_agents_per_query, agent_cloud,
   cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
   world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
@@ -63,6 +70,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
     out: :string,
     record: :string,
     replay: :string,
+    agent_cloud: :string,
     json: :boolean,
     help: :boolean
   ]
@@ -80,12 +88,23 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
   defp run_experiment(opts) do
     mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.lats", nil)
+
+    rule =
+      TartarusTools.CLI.choice!(
+        opts[:agent_cloud],
+        [:per_node, :per_query],
+        :agent_cloud,
+        "tartarus.lats",
+        nil
+      )
+
     json? = Keyword.get(opts, :json, false)
 
     exp_opts =
       opts
-      |> Keyword.drop([:json, :help, :mode])
+      |> Keyword.drop([:json, :help, :mode, :agent_cloud])
       |> then(&if(mode, do: Keyword.put(&1, :mode, mode), else: &1))
+      |> then(&if(rule, do: Keyword.put(&1, :agent_cloud, rule), else: &1))
       |> Keyword.put(:quiet, json?)
 
     shown =

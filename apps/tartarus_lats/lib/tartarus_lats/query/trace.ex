@@ -31,11 +31,11 @@ defmodule TartarusLats.Query.Trace do
   The answer is `{:ok, %{path: [%{node, arrived_at, left_at}], entry,
   status}}` (as `TartarusLats.MotionVectors.trace/3`; `status` `:present`,
   `:exited`, `:in_transit`, or `:broken` if a link could not be followed) or
-  `:not_found`. The agent contacts the cloud once, from the node where it
-  completed the path, and returns the same map as
+  `:not_found`. The agent contacts the cloud as `:cloud` says (see
+  `TartarusLats.Query.WhereIs`) and returns the same map as
   `TartarusLats.Query.WhereIs`.
 
-  Arguments: `:tag` (required), `:label`, `:report`, `:max_hops`.
+  Arguments: `:tag` (required), `:label`, `:report`, `:cloud`, `:max_hops`.
   """
   use Tartarus.Agent, ships: [TartarusLats.Query, TartarusLats.Query.Walk]
 

@@ -2,7 +2,11 @@ defmodule TartarusLats.Query.Walk do
   @moduledoc false
   # What every query agent does on a node: read the LATS entries of the host store,
   # remember where it has been and what it has heard of, search conscientiously, and
-  # finish (one cloud contact from the node where the answer was found, then return).
+  # finish. Cloud contacts (thesis §3.4, scenario 2): by default (`cloud: :per_node`) the
+  # agent contacts the cloud from every node where it finds data of its tag (a confirmed
+  # stay in the node's motion vectors), once per node; with `cloud: :per_query`, once, from
+  # the node where the answer was found. The result says how many it made and, for both
+  # rules, how many it would have made (`data_nodes`, `found`).
 
   alias Tartarus.Agent, as: A
 
@@ -15,6 +19,8 @@ defmodule TartarusLats.Query.Walk do
       tag: Map.fetch!(args, :tag),
       label: Map.get(args, :label),
       report: Map.get(args, :report, true),
+      cloud: Map.get(args, :cloud, :per_node),
+      data_nodes: [],
       max_hops: Map.get(args, :max_hops, 500),
       started_us: System.monotonic_time(:microsecond),
       route: [],
@@ -37,7 +43,42 @@ defmodule TartarusLats.Query.Walk do
         known: Enum.uniq(s.known ++ [node | Map.keys(neighbours)])
     }
 
-    {node, mv, neighbours, s}
+    {node, mv, neighbours, found_data(s, node, mv)}
+  end
+
+  # First visit of a node holding data of the tag: noted, and under the per-node rule the
+  # cloud is told what was found here.
+  defp found_data(s, node, mv) do
+    stay = TartarusLats.Query.latest(mv, s.tag)
+
+    if stay == nil or node in s.data_nodes do
+      s
+    else
+      if s.cloud == :per_node, do: contact_cloud(s, node, {:found_here, stay})
+      %{s | data_nodes: s.data_nodes ++ [node]}
+    end
+  end
+
+  defp contact_cloud(s, node, what) do
+    cloud = A.store_get({:lats, :cloud})
+
+    if s.report and cloud != nil do
+      Tartarus.post({TartarusLats.Cloud.agent_name(), cloud}, {
+        :answer,
+        %{
+          query: s.label,
+          type: s.type,
+          tag: s.tag,
+          time: A.store_get({:lats, :clock}, 0),
+          node: node,
+          answer: what
+        }
+      })
+
+      1
+    else
+      0
+    end
   end
 
   # No trace here: move on conscientiously, or give up once every node heard of was
@@ -71,20 +112,30 @@ defmodule TartarusLats.Query.Walk do
   def finish(answer, s, found) do
     node = List.last(s.route)
     cloud = A.store_get({:lats, :cloud})
+    # Per-node rule: a node with data was contacted from on arrival; the answer's node, if
+    # it had no data (e.g. Where am I next to the user), is contacted from now. Per-query
+    # rule: one contact, from here, if the answer was found.
+    s =
+      cond do
+        found and s.cloud == :per_node and node not in s.data_nodes ->
+          contact_cloud(s, node, answer)
+          %{s | data_nodes: s.data_nodes ++ [node]}
 
-    if found and s.report and cloud != nil do
-      Tartarus.post({TartarusLats.Cloud.agent_name(), cloud}, {
-        :answer,
-        %{
-          query: s.label,
-          type: s.type,
-          tag: s.tag,
-          time: A.store_get({:lats, :clock}, 0),
-          node: node,
-          answer: answer
-        }
-      })
-    end
+        found and s.cloud == :per_query ->
+          contact_cloud(s, node, answer)
+          s
+
+        true ->
+          s
+      end
+
+    contacts =
+      cond do
+        not s.report or cloud == nil -> 0
+        s.cloud == :per_node -> length(s.data_nodes)
+        found -> 1
+        true -> 0
+      end
 
     result = %{
       type: s.type,
@@ -94,7 +145,10 @@ defmodule TartarusLats.Query.Walk do
       hops: A.hops(),
       route: s.route,
       answered_at: node,
-      cloud_contacts: if(found and s.report and cloud != nil, do: 1, else: 0),
+      cloud_contacts: contacts,
+      # What each rule costs for this query, whichever was applied.
+      per_node_contacts: length(Enum.uniq(s.data_nodes ++ if(found, do: [node], else: []))),
+      per_query_contacts: if(found, do: 1, else: 0),
       elapsed_us: System.monotonic_time(:microsecond) - s.started_us
     }
 

@@ -15,12 +15,14 @@ defmodule TartarusLats.Query.WhereIs do
       (its own and its neighbours' names, gathered on the way) was visited.
 
   Ghost stays are skipped (see `TartarusLats.Query`). The agent contacts the
-  cloud once, from the node where it found the answer, and returns
-  `%{answer, hops, route, answered_at, cloud_contacts, elapsed_us, ...}` to
-  its owner.
+  cloud from every node where it finds data of the tag (`cloud: :per_node`,
+  the default: the thesis's scenario 2) or once, from the node where it
+  found the answer (`cloud: :per_query`), and returns `%{answer, hops,
+  route, answered_at, cloud_contacts, per_node_contacts,
+  per_query_contacts, elapsed_us, ...}` to its owner.
 
   Arguments: `:tag` (required), `:label`, `:report` (contact the cloud,
-  default true), `:max_hops` (default 500).
+  default true), `:cloud`, `:max_hops` (default 500).
   """
   use Tartarus.Agent, ships: [TartarusLats.Query, TartarusLats.Query.Walk]
 
