@@ -28,7 +28,8 @@ defmodule TartarusLats.Experiment do
 
   The ground truth is the world's (`TartarusLats.World.current_zone/2`,
   `TartarusLats.World.visited_path/2`). The trackers see a move a few
-  seconds late (moving average of 6 samples, median of 3, 2-sample debounce)
+  seconds late (moving average of 6 samples, median of 3, 1.5 dB hysteresis,
+  2-sample debounce)
   and an exit is decided by a 15 s handshake timeout, so a query about X is
   released only at an instant when X's ground truth is **settled**: X has
   been in its current zone for at least `#{20}` s, or left the building at

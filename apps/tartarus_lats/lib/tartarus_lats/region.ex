@@ -110,4 +110,47 @@ defmodule TartarusLats.Region do
       true -> :beyond
     end
   end
+
+  @doc """
+  The region for a (filtered) RSSI, given the region the tag is in now, with hysteresis: a
+  tag leaves its region only when the RSSI is past a threshold by `hysteresis_db` (toward
+  a weaker region: below the threshold by that much; toward a stronger one: above it by
+  that much). With 0 it is `classify/2`. So a tag that stands still where its average
+  hovers around a threshold stays in one region.
+
+      iex> cal = TartarusLats.Region.calibration(-65, -73)
+      iex> TartarusLats.Region.classify(-74, cal, :far, 3)
+      :far
+      iex> TartarusLats.Region.classify(-76.5, cal, :far, 3)
+      :beyond
+      iex> TartarusLats.Region.classify(-71, cal, :beyond, 3)
+      :beyond
+      iex> TartarusLats.Region.classify(-69, cal, :beyond, 3)
+      :far
+      iex> TartarusLats.Region.classify(-60, cal, :beyond, 3)
+      :near
+  """
+  @spec classify(number() | :none | nil, calibration(), t(), number()) :: t()
+  def classify(rssi, cal, current, hysteresis_db) when is_number(rssi) and hysteresis_db >= 0 do
+    plain = classify(rssi, cal)
+
+    cond do
+      rank(plain) < rank(current) ->
+        weaker = classify(rssi + hysteresis_db, cal)
+        if rank(weaker) < rank(current), do: weaker, else: current
+
+      rank(plain) > rank(current) ->
+        stronger = classify(rssi - hysteresis_db, cal)
+        if rank(stronger) > rank(current), do: stronger, else: current
+
+      true ->
+        current
+    end
+  end
+
+  def classify(_no_signal, _cal, _current, _hysteresis_db), do: :beyond
+
+  defp rank(:near), do: 2
+  defp rank(:far), do: 1
+  defp rank(:beyond), do: 0
 end

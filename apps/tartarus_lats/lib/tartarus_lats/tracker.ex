@@ -38,7 +38,10 @@ defmodule TartarusLats.Tracker do
        reaches the average at all.
     3. That value goes through a `TartarusLats.RSSIFilter` (window
        `:window`, default 6) and the average is classified by
-       `TartarusLats.Region.classify/2` into a *candidate* region.
+       `TartarusLats.Region.classify/4` into a *candidate* region, with
+       hysteresis: it differs from the current region only when the average
+       is past a threshold by `:hysteresis_db` (default 1.5 dB), so a tag whose
+       average hovers around a threshold does not flip.
     4. Debounce: the candidate replaces the tag's current region only after
        it has been the candidate for `:confirm` consecutive samples
        (default 2, i.e. it held for more than one second at 1 Hz). A
@@ -66,7 +69,13 @@ defmodule TartarusLats.Tracker do
 
   alias TartarusLats.{Beacon, Region, RSSIFilter}
 
-  defstruct calibration: nil, window: 6, median: 3, confirm: 2, missing_rssi: -100, tags: %{}
+  defstruct calibration: nil,
+            window: 6,
+            median: 3,
+            confirm: 2,
+            missing_rssi: -100,
+            hysteresis_db: 1.5,
+            tags: %{}
 
   @typedoc "A row for the node's durable store (thesis Figure 3.4)."
   @type record :: %{
@@ -98,6 +107,7 @@ defmodule TartarusLats.Tracker do
           median: pos_integer(),
           confirm: pos_integer(),
           missing_rssi: number(),
+          hysteresis_db: number(),
           tags: %{Beacon.tag_id() => tag_state()}
         }
 
@@ -115,7 +125,12 @@ defmodule TartarusLats.Tracker do
       doc: "spike-rejecting median window"
     ],
     confirm: [type: :pos_integer, default: 2, doc: "samples that confirm a change"],
-    missing_rssi: [type: :number, default: -100, doc: "dBm of a missing sample"]
+    missing_rssi: [type: :number, default: -100, doc: "dBm of a missing sample"],
+    hysteresis_db: [
+      type: :number,
+      default: 1.5,
+      doc: "how far past a threshold the average must be to change region"
+    ]
   ]
 
   @doc """
@@ -129,7 +144,10 @@ defmodule TartarusLats.Tracker do
     * `:median` - spike-rejecting median over this many raw samples before
       the average (odd positive integer, default 3; 1 disables it);
     * `:confirm` - consecutive samples that confirm a change (default 2);
-    * `:missing_rssi` - value of a `:missing` sample in dBm (default -100).
+    * `:missing_rssi` - value of a `:missing` sample in dBm (default -100);
+    * `:hysteresis_db` - how far past a threshold (dB) the average must be for
+      the candidate to be another region (default 1.5; 0 turns it off, see
+      `TartarusLats.Region.classify/4`).
 
   Raises `ArgumentError` naming the key on a bad option.
 
@@ -146,7 +164,8 @@ defmodule TartarusLats.Tracker do
       window: opts[:window],
       median: opts[:median],
       confirm: opts[:confirm],
-      missing_rssi: opts[:missing_rssi]
+      missing_rssi: opts[:missing_rssi],
+      hysteresis_db: opts[:hysteresis_db]
     }
   end
 
@@ -164,7 +183,7 @@ defmodule TartarusLats.Tracker do
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
     raw = Enum.take([value | state.raw], t.median)
     {avg, filter} = RSSIFilter.push(state.filter, median(raw))
-    candidate = Region.classify(avg, t.calibration)
+    candidate = Region.classify(avg, t.calibration, state.region, t.hysteresis_db)
     state = %{state | filter: filter, raw: raw}
 
     {events, state} =

@@ -92,4 +92,30 @@ defmodule TartarusLats.TrackerTest do
       Tracker.observe(Tracker.new(), 1, @tag_id, "x")
     end
   end
+
+  # A tag standing 5.5 m from a node (1 m into the neighbouring zone, zones 9 m apart), where
+  # its average hovers 0.8 dB under the far threshold, with the default radio (2 dB noise,
+  # spikes, drops): hysteresis keeps the node from logging far/beyond flips.
+  test "a stationary tag near a zone boundary: at most 4 records in 10 minutes (without hysteresis: dozens)" do
+    cal = Region.calibrate(tx_power: -59, exponent: 2.0)
+
+    records = fn h, seed ->
+      1..600
+      |> Enum.reduce(
+        {Tracker.new(calibration: cal, hysteresis_db: h), 0, TartarusLats.Radio.seed(seed)},
+        fn t, {tr, n, rng} ->
+          {v, rng} = TartarusLats.Radio.sample(%TartarusLats.Radio{}, 5.5, -59, rng)
+          {events, tr} = Tracker.observe(tr, t, @tag_id, v)
+          {tr, n + Enum.count(events, &match?({:record, _}, &1)), rng}
+        end
+      )
+      |> elem(1)
+    end
+
+    with_h = for seed <- 1..20, do: records.(1.5, seed)
+    without = for seed <- 1..20, do: records.(0, seed)
+    assert Enum.max(with_h) <= 4
+    assert Enum.sum(with_h) * 10 <= Enum.sum(without)
+    assert Enum.min(without) >= 20
+  end
 end
