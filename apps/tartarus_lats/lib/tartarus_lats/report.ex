@@ -4,7 +4,9 @@ defmodule TartarusLats.Report do
   the run's directory beside the runner's `summary.json`, `summary.md` and
   series (see `TartarusEmu.Scenario`):
 
-    * `queries.csv` - every query: type, person, start node, world time, answer,
+    * `queries.csv` - every query: type, person, start node, world time, answer
+      (with its freshness, the age of its evidence, whether it is complete and the
+      nodes it could not reach),
       truth, correct (agents, centralized), hops, ms, route;
     * `cloud_connections.csv`, `cloud_connections.svg` - cumulative connections to
       the cloud over world time: centralized (all uploads, and per person),
@@ -95,14 +97,18 @@ defmodule TartarusLats.Report do
           q.hops,
           Float.round(q.ms * 1.0, 3),
           Enum.join(q.route, " "),
-          q.time_error
+          q.time_error,
+          q.freshness,
+          q.evidence_age_s,
+          q.complete,
+          Enum.join(q.unreachable, " ")
         ]
       end)
 
     Report.write_csv!(
       dir,
       "queries",
-      ~w(id type person start time answer truth correct correct_centralized hops ms route trace_time_error_s),
+      ~w(id type person start time answer truth correct correct_centralized hops ms route trace_time_error_s freshness evidence_age_s complete unreachable),
       rows
     )
   end

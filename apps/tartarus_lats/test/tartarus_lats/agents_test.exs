@@ -172,6 +172,49 @@ defmodule TartarusLats.AgentsTest do
     end
   end
 
+  describe "how fresh and complete an answer is" do
+    # As above (b never acknowledges), with a long handshake timeout: a's vector stays
+    # pending, so Where is X answers "in transit from a", current at first, stale later.
+    test "in transit: current, then stale past #{TartarusLats.Query.Walk.stale_after()} s; present: current" do
+      positions = %{a: {0, 0, 0}, b: {9, 0, 0}, c: {18, 0, 0}}
+
+      building =
+        Building.custom(positions: positions, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
+
+      script = %{name: :y, enter_at: 0, entrance: :a, route: [{:a, 25}, {:b, 10_000}], exit: :b}
+      world = World.new(building: building, walkers: 0, scripts: [script])
+      dep = Deployment.start(seed: 2, world: world, prefix: "fresh", timeout: 200)
+
+      try do
+        dep = Deployment.run(dep, 20)
+        tag = World.tag(dep.world, :y)
+
+        assert {:ok, %{answer: {:in_zone, :a}, freshness: :current, complete: true} = r} =
+                 TartarusLats.query(dep.hosts[:c], :where_is, tag, report: false)
+
+        assert r.evidence_at == r.asked_at and r.unreachable == []
+
+        :ok = Tartarus.kill({"lats-db", dep.hosts[:b]})
+        dep = Deployment.run(dep, 20)
+
+        assert {:ok, %{answer: {:in_transit, :a}, freshness: :current} = r} =
+                 TartarusLats.query(dep.hosts[:a], :where_is, tag, report: false)
+
+        left = r.evidence_at
+        assert left < r.asked_at and r.asked_at - left <= 30
+
+        dep = Deployment.run(dep, 40)
+
+        assert {:ok, %{answer: {:in_transit, :a}, freshness: :stale, evidence_at: ^left} = r} =
+                 TartarusLats.query(dep.hosts[:a], :where_is, tag, report: false)
+
+        assert r.asked_at - left > 30
+      after
+        Deployment.stop(dep)
+      end
+    end
+  end
+
   describe "persistence" do
     @tag :tmp_dir
     test "a node's log and vectors survive a host restart", %{tmp_dir: dir} do

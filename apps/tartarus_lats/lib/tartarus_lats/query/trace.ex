@@ -56,7 +56,7 @@ defmodule TartarusLats.Query.Trace do
   def handle_arrival(_ctx, s), do: step(s)
 
   @impl true
-  def handle_move_failed(_dest, _reason, _ctx, s), do: Walk.move_failed(s, &step/1)
+  def handle_move_failed(dest, _reason, _ctx, s), do: Walk.move_failed(s, dest, &step/1)
 
   defp step(s) do
     {node, mv, neighbours, s} = Walk.look(s)

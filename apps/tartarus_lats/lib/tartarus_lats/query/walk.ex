@@ -12,6 +12,15 @@ defmodule TartarusLats.Query.Walk do
 
   @max_move_failures 3
 
+  # How old the evidence of an answer that a person is between zones (left a node, not
+  # found at the next) may be before the answer is stale: a hand-over is confirmed within
+  # the motion vectors' handshake timeout (15 s by default), so past twice that the person
+  # is not in transit any more, only lost track of.
+  @stale_after 30
+
+  @doc false
+  def stale_after, do: @stale_after
+
   # The common part of a query agent's state.
   def new(args, type) when is_map(args) do
     %{
@@ -21,6 +30,7 @@ defmodule TartarusLats.Query.Walk do
       report: Map.get(args, :report, true),
       cloud: Map.get(args, :cloud, :per_node),
       data_nodes: [],
+      unreachable: [],
       max_hops: Map.get(args, :max_hops, 500),
       started_us: System.monotonic_time(:microsecond),
       route: [],
@@ -99,13 +109,58 @@ defmodule TartarusLats.Query.Walk do
     end
   end
 
-  def move_failed(s, retry) do
-    s = %{s | failures: s.failures + 1}
+  def move_failed(s, dest, retry) do
+    s = %{s | failures: s.failures + 1, unreachable: Enum.uniq(s.unreachable ++ [node_of(dest)])}
 
     if s.failures > @max_move_failures,
       do: finish({:error, :unreachable}, s, false),
       else: retry.(s)
   end
+
+  # The building node a destination host stands for (the neighbours map names them).
+  defp node_of(dest) do
+    neighbours = A.store_get({:lats, :neighbours}, %{})
+
+    case Enum.find(neighbours, fn {_node, host} -> host == dest end) do
+      {node, _} -> node
+      nil -> dest
+    end
+  end
+
+  # What an answer rests on, on this node's clock: `{evidence_at, freshness}`. Present
+  # somewhere (Where is: in a zone; Trace: present) is evidence of now; an exit from the
+  # building is the exit's time and stays current (nothing later was seen); a departure not
+  # followed to a next zone (in transit, a broken trace) is the departure's time, stale once
+  # older than @stale_after. No answer, no evidence.
+  defp evidence(answer, s, clock) do
+    here = TartarusLats.Query.latest(A.store_get({:lats, :mv}), s.tag)
+
+    case answer do
+      {:in_zone, _} -> {clock, :current}
+      :left_building -> {left_at(here, clock), :current}
+      {:in_transit, _} -> aged(left_at(here, clock), clock)
+      {:ok, %{status: :present}} -> {clock, :current}
+      {:ok, %{status: :exited, path: path}} -> {left_at(List.last(path), clock), :current}
+      {:ok, %{path: [_ | _] = path}} -> aged(left_at(List.last(path), clock), clock)
+      _ -> {nil, :none}
+    end
+  end
+
+  # Complete: nothing the walk needed was out of reach, and a Trace walked back to the
+  # building's entry (status present or exited, not broken or in transit).
+  defp complete?(answer, s) do
+    s.unreachable == [] and
+      case answer do
+        {:ok, %{status: status, entry: :infinity}} -> status in [:present, :exited]
+        {:ok, _} -> false
+        _ -> true
+      end
+  end
+
+  defp left_at(%{left_at: t}, _clock) when is_number(t), do: t
+  defp left_at(_stay, clock), do: clock
+
+  defp aged(t, clock), do: {t, if(clock - t > @stale_after, do: :stale, else: :current)}
 
   # Delivers the answer; `found` says whether relevant data was found here (then the
   # cloud is contacted, once, from this node).
@@ -137,6 +192,9 @@ defmodule TartarusLats.Query.Walk do
         true -> 0
       end
 
+    clock = A.store_get({:lats, :clock}, 0)
+    {evidence_at, freshness} = evidence(answer, s, clock)
+
     result = %{
       type: s.type,
       tag: s.tag,
@@ -146,6 +204,12 @@ defmodule TartarusLats.Query.Walk do
       route: s.route,
       answered_at: node,
       cloud_contacts: contacts,
+      # How fresh and complete the answer is (see evidence/3).
+      asked_at: clock,
+      evidence_at: evidence_at,
+      freshness: freshness,
+      unreachable: s.unreachable,
+      complete: complete?(answer, s),
       # What each rule costs for this query, whichever was applied.
       per_node_contacts: length(Enum.uniq(s.data_nodes ++ if(found, do: [node], else: []))),
       per_query_contacts: if(found, do: 1, else: 0),

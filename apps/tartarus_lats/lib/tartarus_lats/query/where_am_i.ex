@@ -26,5 +26,6 @@ defmodule TartarusLats.Query.WhereAmI do
   def handle_arrival(_ctx, s), do: WhereIs.step(s)
 
   @impl true
-  def handle_move_failed(_dest, _reason, _ctx, s), do: Walk.move_failed(s, &WhereIs.step/1)
+  def handle_move_failed(dest, _reason, _ctx, s),
+    do: Walk.move_failed(s, dest, &WhereIs.step/1)
 end

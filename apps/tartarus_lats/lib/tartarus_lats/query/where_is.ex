@@ -36,7 +36,7 @@ defmodule TartarusLats.Query.WhereIs do
   def handle_arrival(_ctx, s), do: step(s)
 
   @impl true
-  def handle_move_failed(_dest, _reason, _ctx, s), do: Walk.move_failed(s, &step/1)
+  def handle_move_failed(dest, _reason, _ctx, s), do: Walk.move_failed(s, dest, &step/1)
 
   @doc false
   def step(s) do
