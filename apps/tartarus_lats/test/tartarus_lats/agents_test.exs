@@ -141,15 +141,20 @@ defmodule TartarusLats.AgentsTest do
     assert seen[:d] == [tag]
   end
 
+  # Three zones a - b - c in a line; Y enters at a, stays 25 s, then stays at b.
+  defp line_world do
+    positions = %{a: {0, 0, 0}, b: {9, 0, 0}, c: {18, 0, 0}}
+
+    building =
+      Building.custom(positions: positions, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
+
+    script = %{name: :y, enter_at: 0, entrance: :a, route: [{:a, 25}, {:b, 10_000}], exit: :b}
+    World.new(building: building, walkers: 0, scripts: [script])
+  end
+
   describe "a neighbour that never acknowledges" do
     test "the tag reads as gone from the last node, after the timeout in world seconds" do
-      positions = %{a: {0, 0, 0}, b: {9, 0, 0}, c: {18, 0, 0}}
-
-      building =
-        Building.custom(positions: positions, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
-
-      script = %{name: :y, enter_at: 0, entrance: :a, route: [{:a, 25}, {:b, 10_000}], exit: :b}
-      world = World.new(building: building, walkers: 0, scripts: [script])
+      world = line_world()
       dep = Deployment.start(seed: 2, world: world, prefix: "noack")
 
       try do
@@ -176,13 +181,7 @@ defmodule TartarusLats.AgentsTest do
     # As above (b never acknowledges), with a long handshake timeout: a's vector stays
     # pending, so Where is X answers "in transit from a", current at first, stale later.
     test "in transit: current, then stale past #{TartarusLats.Query.Walk.stale_after()} s; present: current" do
-      positions = %{a: {0, 0, 0}, b: {9, 0, 0}, c: {18, 0, 0}}
-
-      building =
-        Building.custom(positions: positions, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
-
-      script = %{name: :y, enter_at: 0, entrance: :a, route: [{:a, 25}, {:b, 10_000}], exit: :b}
-      world = World.new(building: building, walkers: 0, scripts: [script])
+      world = line_world()
       dep = Deployment.start(seed: 2, world: world, prefix: "fresh", timeout: 200)
 
       try do
