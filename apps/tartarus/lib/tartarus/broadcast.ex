@@ -65,23 +65,14 @@ defmodule Tartarus.Broadcast do
   """
   @spec broadcast(Tartarus.host_ref(), term()) :: {:ok, non_neg_integer()} | {:error, term()}
   def broadcast(host, message) do
-    with :ok <- portable(message) do
-      if Host.address?(host) do
-        {_, node} = host = Host.address(host)
+    with :ok <- portable(message),
+         do: Host.on_node(host, __MODULE__, :local_broadcast, [message])
+  end
 
-        if node == node() do
-          with {:ok, info} <- Host.local(host), do: {:ok, send_from(info, message)}
-        else
-          try do
-            :erpc.call(node, __MODULE__, :broadcast, [host, message], 10_000)
-          catch
-            _, _ -> {:error, {:unknown_host, host}}
-          end
-        end
-      else
-        {:error, {:unknown_host, host}}
-      end
-    end
+  @doc false
+  # On the host's node (see Tartarus.Host.on_node/4).
+  def local_broadcast(host, message) do
+    with {:ok, info} <- Host.local(host), do: {:ok, send_from(info, message)}
   end
 
   defp portable(message) do

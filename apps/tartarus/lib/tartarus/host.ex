@@ -85,6 +85,35 @@ defmodule Tartarus.Host do
   end
 
   @doc false
+  # Runs `module.fun(host, args...)` for a host on this node, or remotely on the host's node
+  # with :erpc (each function takes the host's full address first). A host that is gone (or
+  # whose node is) answers `{:error, {:unknown_host, host}}`. Tartarus.Host.OnNode, Signal and
+  # Broadcast keep their node-side functions in their own modules.
+  @spec on_node(term(), module(), atom(), list()) :: term()
+  def on_node(host, module, fun, args) do
+    if address?(host) do
+      {_, node} = host = address(host)
+
+      if node == node() do
+        try do
+          apply(module, fun, [host | args])
+        rescue
+          # The host stopped while we read its tables.
+          ArgumentError -> {:error, {:unknown_host, host}}
+        end
+      else
+        try do
+          :erpc.call(node, module, fun, [host | args], 10_000)
+        catch
+          _, _ -> {:error, {:unknown_host, host}}
+        end
+      end
+    else
+      {:error, {:unknown_host, host}}
+    end
+  end
+
+  @doc false
   # Calls a host's server, turning a dead host or node into an error.
   @spec call(name() | t(), term(), timeout()) :: term()
   def call(host, request, timeout \\ 5_000) do

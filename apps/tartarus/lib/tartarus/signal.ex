@@ -598,21 +598,5 @@ defmodule Tartarus.Signal do
   @doc false
   def now_us, do: System.monotonic_time(:microsecond)
 
-  defp on_node(host, fun, args) do
-    if Host.address?(host) do
-      {_, node} = host = Host.address(host)
-
-      if node == node() do
-        apply(__MODULE__, fun, [host | args])
-      else
-        try do
-          :erpc.call(node, __MODULE__, fun, [host | args], 10_000)
-        catch
-          _, _ -> {:error, {:unknown_host, host}}
-        end
-      end
-    else
-      {:error, {:unknown_host, host}}
-    end
-  end
+  defp on_node(host, fun, args), do: Host.on_node(host, __MODULE__, fun, args)
 end

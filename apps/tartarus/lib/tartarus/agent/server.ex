@@ -616,7 +616,7 @@ defmodule Tartarus.Agent.Server do
   end
 
   defp source_actions([{:fetch_code, mods} | rest], s, x) do
-    result = binaries(x.manifest, mods)
+    result = Tartarus.CodeShipping.binaries(x.manifest, mods)
     {s, actions} = Protocol.source_step(s, {:code, result})
     source_actions(actions ++ rest, s, x)
   end
@@ -708,18 +708,6 @@ defmodule Tartarus.Agent.Server do
   end
 
   defp unwatch(mref), do: Process.demonitor(mref, [:flush])
-
-  defp binaries(manifest, mods) do
-    Enum.reduce_while(mods, {:ok, []}, fn mod, {:ok, acc} ->
-      with {_, md5} <- List.keyfind(manifest, mod, 0),
-           {:ok, bin} <- CodeCache.fetch_binary(mod, md5) do
-        {:cont, {:ok, [{mod, md5, bin} | acc]}}
-      else
-        nil -> {:halt, {:error, {:not_in_manifest, mod}}}
-        error -> {:halt, error}
-      end
-    end)
-  end
 
   defp outgoing(env, :move, _here) do
     %{env | departed_at: System.system_time(:microsecond)}

@@ -11,28 +11,7 @@ defmodule Tartarus.Host.OnNode do
   # Runs `fun(host, args...)` of this module for a host on this node, or remotely on the
   # host's node. A host that is gone (or whose node is) answers `{:error, {:unknown_host, host}}`.
   @spec run(term(), atom(), list()) :: term()
-  def run(host, fun, args) do
-    if Host.address?(host) do
-      {_, node} = host = Host.address(host)
-
-      if node == node() do
-        try do
-          apply(__MODULE__, fun, [host | args])
-        rescue
-          # The host stopped while we read its tables.
-          ArgumentError -> {:error, {:unknown_host, host}}
-        end
-      else
-        try do
-          :erpc.call(node, __MODULE__, fun, [host | args], 10_000)
-        catch
-          _, _ -> {:error, {:unknown_host, host}}
-        end
-      end
-    else
-      {:error, {:unknown_host, host}}
-    end
-  end
+  def run(host, fun, args), do: Host.on_node(host, __MODULE__, fun, args)
 
   @doc false
   # Stops a host of this node: its tree (server, agents, plugins) goes down at once.
