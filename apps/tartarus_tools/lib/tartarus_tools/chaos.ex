@@ -33,10 +33,11 @@ defmodule TartarusTools.Chaos do
       have been leaving);
     * `acknowledged` - posts that returned `:ok`; `acknowledged_missing` - of those, messages
       not in the agent's state at the end (agents found at the end only);
-      `acknowledged_missing_after_kill` - of those, messages of agents that were on a node
-      when it was SIGKILLed: without a durability mode, persistence restores an agent as it
-      was at its last arrival, so those can be lost and are reported apart, not as a failure
-      of the default mode; `acknowledged_of_lost_agents` - acknowledged messages of agents
+      `acknowledged_missing_after_kill` - of those, messages of agents that were restored
+      from their arrival snapshot (their node was SIGKILLed and restarted, or they crashed;
+      each agent reports its arrivals, and the same hop count twice is a restore): without a
+      durability mode, persistence restores an agent as it was at its last arrival, so those
+      can be lost and are reported apart, not as a failure of the default mode; `acknowledged_of_lost_agents` - acknowledged messages of agents
       not found at the end;
     * `clones`, `agent_moves` (moves the agents asked for themselves), `posts`,
       `post_failures` (reason => count), `clone_failures` (kind of error => count: a
@@ -108,6 +109,8 @@ defmodule TartarusTools.Chaos do
       captured: if(replays > 0, do: spawn_link(fn -> capture_loop(:queue.new(), 0) end))
     }
 
+    world = Map.put(world, :arrivals, spawn_link(fn -> arrivals_loop(world.table) end))
+
     t0 = System.monotonic_time(:millisecond)
 
     try do
@@ -117,7 +120,7 @@ defmodule TartarusTools.Chaos do
       ids =
         for i <- 1..agents do
           host = Enum.at(hosts, rem(i, n))
-          {:ok, id} = Tartarus.create_mobile_agent(host, Counter, i)
+          {:ok, id} = Tartarus.create_mobile_agent(host, Counter, {i, world.arrivals})
           :ets.insert(world.table, {{:loc, id}, host})
           id
         end
@@ -149,6 +152,11 @@ defmodule TartarusTools.Chaos do
       |> Map.merge(census_result)
       |> Map.put(:replays, replays_sent)
     after
+      for pid <- [world.captured, world.arrivals], is_pid(pid) do
+        Process.unlink(pid)
+        Process.exit(pid, :kill)
+      end
+
       for name <- [rogue_name | names], do: Peer.kill(node_of(name))
       File.rm_rf(dir)
     end
@@ -285,7 +293,6 @@ defmodule TartarusTools.Chaos do
         # Committed to a node that died before the agent started there: lost with it.
         :ets.insert(world.table, {{:loc, id}, dest})
         :ets.insert(world.table, {{:on_dead, id}, true})
-        :ets.insert(world.table, {{:killed_on, id}, true})
 
       _failed ->
         :ok
@@ -304,7 +311,6 @@ defmodule TartarusTools.Chaos do
 
     if :ets.member(world.table, {:dead, node}) do
       :ets.insert(world.table, {{:on_dead, id}, true})
-      :ets.insert(world.table, {{:killed_on, id}, true})
     end
   end
 
@@ -347,7 +353,6 @@ defmodule TartarusTools.Chaos do
 
     for %{id: id} <- List.wrap(Tartarus.agents({:h, node})) do
       :ets.insert(world.table, {{:on_dead, id}, true})
-      :ets.insert(world.table, {{:killed_on, id}, true})
     end
 
     Peer.kill(node)
@@ -394,6 +399,32 @@ defmodule TartarusTools.Chaos do
     end
 
     node
+  end
+
+  # -- arrivals: which agents were restored ------------------------------------------
+
+  # An agent's arrivals are counted by hop count: the same hop count twice means the agent
+  # was started again from its arrival snapshot (a node restart restored it, or it crashed).
+  defp arrivals_loop(table) do
+    receive do
+      {:chaos_arrival, id, hops, restarts} ->
+        n = :ets.update_counter(table, {:arrival, id, hops}, 1, {{:arrival, id, hops}, 0})
+        if n > 1 or restarts > 0, do: :ets.insert(table, {{:restored, id}, true})
+        arrivals_loop(table)
+
+      {:sync, from} ->
+        send(from, :synced)
+        arrivals_loop(table)
+    end
+  end
+
+  # Waits until the arrival reports that reached this node so far are counted.
+  defp sync_arrivals(world) do
+    send(world.arrivals, {:sync, self()})
+
+    receive do
+      :synced -> :ok
+    end
   end
 
   # -- the rogue node ----------------------------------------------------------------
@@ -592,6 +623,7 @@ defmodule TartarusTools.Chaos do
     on_dead = Enum.count(lost, &:ets.member(world.table, {:on_dead, &1}))
     tracked_set = MapSet.new(tracked)
     where = Map.new(residents)
+    :ok = sync_arrivals(world)
     acked = acknowledged(world, ids, where)
 
     post_failures =
@@ -654,12 +686,12 @@ defmodule TartarusTools.Chaos do
             end
 
           missing = Enum.count(seqs, &(not MapSet.member?(got, &1)))
-          killed? = :ets.member(world.table, {:killed_on, id})
+          restored? = :ets.member(world.table, {:restored, id})
 
           %{
             acc
             | missing: acc.missing + missing,
-              missing_after_kill: acc.missing_after_kill + if(killed?, do: missing, else: 0)
+              missing_after_kill: acc.missing_after_kill + if(restored?, do: missing, else: 0)
           }
       end
     end)
@@ -670,12 +702,25 @@ defmodule TartarusTools.Chaos.Counter do
   @moduledoc """
   The agent of the chaos harness: its state records every message `{:msg, seq}` it takes
   (`got`, a set of seqs; `count`, how many it took, duplicates included), so a rollback or
-  a second copy shows. `{:go, dest}` makes it move itself to `dest`.
+  a second copy shows. `{:go, dest}` makes it move itself to `dest`. Its creation and each
+  arrival (after a move, a clone, a crash or a restore from a checkpoint) are reported to `report` as
+  `{:chaos_arrival, id, hops, restarts}`: an arrival reported twice with the same hop count
+  is a restore, which is how the harness knows which agents went back to an arrival
+  snapshot.
   """
   use Tartarus.Agent
 
   @impl true
-  def init(i), do: {:stay, %{i: i, got: MapSet.new(), count: 0}}
+  def init({i, report}) do
+    send(report, {:chaos_arrival, Tartarus.Agent.id(), 0, 0})
+    {:stay, %{i: i, report: report, got: MapSet.new(), count: 0}}
+  end
+
+  @impl true
+  def handle_arrival(ctx, s) do
+    send(s.report, {:chaos_arrival, Tartarus.Agent.id(), ctx.hops, ctx.restarts})
+    {:stay, s}
+  end
 
   @impl true
   def handle_message({:msg, seq}, _from, s),

@@ -32,13 +32,36 @@ defmodule TartarusTools.ChaosTest do
     # Captured sealed prepares sent again from a rogue node: none admitted (no duplicate above).
     assert r.replays == 20
     assert r.posts == r.acknowledged + Enum.sum(Map.values(r.post_failures))
-    # Messages missing after a restart are excused (no durability mode); no other.
+    # Messages missing from an agent restored from its arrival snapshot are excused (no
+    # durability mode); no other.
     assert r.acknowledged_missing == r.acknowledged_missing_after_kill
     assert r.acknowledged_of_lost_agents == 0
 
     for key <- [:migrations_done, :agent_moves, :census_unanswered, :still_in_doubt, :wall_ms] do
       assert is_integer(r[key]), "#{key}"
     end
+  end
+
+  test "a small durable run: no acknowledged message is missing, kills included" do
+    r =
+      TartarusTools.Chaos.run(
+        nodes: 2,
+        agents: 8,
+        migrations: 60,
+        kills: 1,
+        partitions: 1,
+        persist: true,
+        seed: 2,
+        census_ms: 0,
+        replays: 0,
+        host_opts: [durable: true]
+      )
+
+    assert r.duplicates == 0
+    assert r.lost == 0
+    assert r.acknowledged > 0
+    assert r.acknowledged_missing == 0
+    assert r.acknowledged_of_lost_agents == 0
   end
 
   test "--durable is refused with a clear error on a platform without it" do
