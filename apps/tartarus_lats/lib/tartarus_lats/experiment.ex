@@ -63,6 +63,17 @@ defmodule TartarusLats.Experiment do
     group: [type: :pos_integer, default: 10, doc: "building nodes per BEAM node in peer mode"],
     out: [type: :any, doc: "output directory (default `results/lats-<UTC timestamp>`), or false"],
     quiet: [type: :boolean, default: false, doc: "no progress line"],
+    release: [
+      type: {:in, [:random, :settled]},
+      default: :random,
+      doc:
+        "when queries are released: at random world seconds, whatever the target is doing (default), or only when the target is settled"
+    ],
+    noise_db: [
+      type: :number,
+      default: 4.0,
+      doc: "standard deviation of the radio's Gaussian noise (dB)"
+    ],
     agent_cloud: [
       type: {:in, [:per_node, :per_query]},
       default: :per_node,
@@ -157,7 +168,8 @@ defmodule TartarusLats.Experiment do
   @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.Experiment.run/1"),
-         :ok <- check_nodes(opts[:nodes]) do
+         :ok <- check_nodes(opts[:nodes]),
+         :ok <- check_noise(opts[:noise_db]) do
       {:ok, opts}
     end
   end
@@ -168,6 +180,13 @@ defmodule TartarusLats.Experiment do
     do:
       {:error,
        "invalid options given to TartarusLats.Experiment.run/1 for key :nodes: expected an integer >= 10, got: #{n}"}
+
+  defp check_noise(db) when db >= 0, do: :ok
+
+  defp check_noise(db),
+    do:
+      {:error,
+       "invalid options given to TartarusLats.Experiment.run/1 for key :noise_db: expected a non-negative number, got: #{db}"}
 
   # -- the scenario ------------------------------------------------------------------
 
@@ -180,7 +199,7 @@ defmodule TartarusLats.Experiment do
   @impl TartarusEmu.Scenario
   def setup(opts) do
     building = building(opts.nodes)
-    world = world(building, opts.bearers)
+    world = world(building, opts.bearers, opts.noise_db)
     duration = opts.steps
 
     dep =
@@ -197,7 +216,8 @@ defmodule TartarusLats.Experiment do
      %{
        dep: dep,
        rng: :rand.seed_s(:exsss, opts.seed * 7919 + 11),
-       schedule: schedule(opts.queries, duration),
+       schedule: schedule(opts.queries, duration, opts.release, opts.seed),
+       release: opts.release,
        janitor: if(:janitor in World.names(world), do: World.tag(world, :janitor)),
        pending: [],
        results: [],
@@ -210,7 +230,9 @@ defmodule TartarusLats.Experiment do
          bearers: opts.bearers,
          minutes: opts.minutes,
          mode: to_string(opts.mode),
-         agent_cloud: to_string(opts.agent_cloud)
+         agent_cloud: to_string(opts.agent_cloud),
+         release: to_string(opts.release),
+         noise_db: opts.noise_db
        }
      }}
   end
@@ -275,27 +297,52 @@ defmodule TartarusLats.Experiment do
     Building.new(floors: 2, cols: 5, rows: max(1, div(nodes + 5, 10)))
   end
 
-  defp world(building, bearers) do
+  defp world(building, bearers, noise_db) do
     scripts = World.default_scripts(building)
+    radio = TartarusLats.Radio.new(noise_sigma: noise_db)
 
     if bearers >= length(scripts) do
-      World.new(building: building, walkers: bearers - length(scripts), scripts: scripts)
+      World.new(
+        building: building,
+        radio: radio,
+        walkers: bearers - length(scripts),
+        scripts: scripts
+      )
     else
-      World.new(building: building, walkers: 0, scripts: Enum.take(scripts, bearers))
+      World.new(
+        building: building,
+        radio: radio,
+        walkers: 0,
+        scripts: Enum.take(scripts, bearers)
+      )
     end
   end
 
-  # Query instants: %{second => [type]}.
-  defp schedule(n, duration) do
+  # Query instants: %{second => [type]}. Settled release: evenly spread after the warm-up
+  # (each batch then waits for a settled target). Random release: each batch at a world
+  # second drawn uniformly after the warm-up, from the seed.
+  defp schedule(n, duration, release, seed) do
     instants = max(1, div(n + 2, 3))
     span = max(duration - @warmup, 1)
+    rng = :rand.seed_s(:exsss, {seed, 3301, 17})
 
-    for k <- 0..(instants - 1), reduce: %{} do
-      acc ->
-        t = min(duration, @warmup + div(k * span, instants))
+    {acc, _rng} =
+      Enum.reduce(0..(instants - 1), {%{}, rng}, fn k, {acc, rng} ->
+        {t, rng} =
+          case release do
+            :settled ->
+              {min(duration, @warmup + div(k * span, instants)), rng}
+
+            :random ->
+              {x, rng} = :rand.uniform_s(span, rng)
+              {min(duration, @warmup + x), rng}
+          end
+
         types = Enum.take([:trace, :where_is, :where_am_i], min(3, n - 3 * k))
-        Map.update(acc, t, types, &(&1 ++ types))
-    end
+        {Map.update(acc, t, types, &(&1 ++ types)), rng}
+      end)
+
+    acc
   end
 
   # -- firing --------------------------------------------------------------------
@@ -307,7 +354,7 @@ defmodule TartarusLats.Experiment do
 
     {batch, waiting, rng, k} =
       Enum.reduce(acc.pending, {[], [], acc.rng, acc.k}, fn type, {batch, waiting, rng, k} ->
-        case pick(type, world, acc.dep, rng, k) do
+        case pick(type, world, acc.dep, rng, k, acc.release) do
           {nil, rng} -> {batch, waiting ++ [type], rng, k}
           {q, rng} -> {batch ++ [q], waiting, rng, k + 1}
         end
@@ -334,7 +381,12 @@ defmodule TartarusLats.Experiment do
 
   defp inside?(world, name), do: World.current_zone(world, name) != :outside
 
-  defp pick(type, world, dep, rng, k) do
+  # A bearer a query may be about: settled (settled release), or one who has come into the
+  # building at some time (random release: moving or not).
+  defp eligible?(world, name, :settled), do: settled?(world, name)
+  defp eligible?(world, name, :random), do: World.visited_path(world, name) != []
+
+  defp pick(type, world, dep, rng, k, release) do
     names = World.names(world)
     scripted = Enum.filter(names, &(Map.fetch!(world.bearers, &1).kind == :scripted))
     nodes = Building.nodes(world.building)
@@ -344,13 +396,13 @@ defmodule TartarusLats.Experiment do
         :trace ->
           # Rotate over the scripted bearers (Fig. 3.9), starting with the k-th.
           rot = rotate(scripted, div(k, 3))
-          rot |> Enum.filter(&settled?(world, &1)) |> Enum.take(1)
+          rot |> Enum.filter(&eligible?(world, &1, release)) |> Enum.take(1)
 
         :where_is ->
-          Enum.filter(names, &settled?(world, &1))
+          Enum.filter(names, &eligible?(world, &1, release))
 
         :where_am_i ->
-          Enum.filter(names, &(settled?(world, &1) and inside?(world, &1)))
+          Enum.filter(names, &(eligible?(world, &1, release) and inside?(world, &1)))
       end
 
     case candidates do
@@ -381,6 +433,8 @@ defmodule TartarusLats.Experiment do
           start: start,
           host: dep.hosts[start],
           time: world.time,
+          settled: settled?(world, name),
+          path: World.visited_path(world, name),
           truth: truth(type, world, name)
         }
 
@@ -451,8 +505,8 @@ defmodule TartarusLats.Experiment do
         unreachable: r.unreachable,
         per_query_contacts: r.per_query_contacts,
         central: central,
-        correct: correct?(q.type, r.answer, q.truth),
-        correct_centralized: correct?(q.type, central, q.truth),
+        correct: correct?(q.type, r.answer, q.path, q.time),
+        correct_centralized: correct?(q.type, central, q.path, q.time),
         time_error: time_error(q.type, r.answer, q.truth)
       })
     end)
@@ -475,12 +529,75 @@ defmodule TartarusLats.Experiment do
     end
   end
 
-  @doc false
-  def correct?(:trace, {:ok, %{path: path, status: status}}, truth),
-    do: Enum.map(path, & &1.node) == truth.zones and status == truth.status
+  @lag 15
 
-  def correct?(:trace, _answer, _truth), do: false
-  def correct?(_type, answer, truth), do: answer == truth
+  @doc """
+  Whether an answer to a query released at world second `t` is correct, given the
+  bearer's ground-truth path (`TartarusLats.World.visited_path/2` at `t`). One definition
+  for settled and moving targets: the answer must be true of the bearer at some second of
+  the **lag window** `[t - #{@lag}, t]` (#{@lag} s: the motion vectors' handshake timeout,
+  which bounds how late the trackers see a move or an exit):
+
+    * `{:in_zone, z}` - the bearer was in `z` at some second of the window;
+    * `:left_building` - the bearer was outside, after having been inside, at some second
+      of the window;
+    * `{:in_transit, z}` - the bearer was in `z` in the window and is not in `z` at `t`
+      (it left `z` and the next zone has not been confirmed yet);
+    * Trace `{:ok, %{path: p, status: s}}` - at some second `u` of the window, `p`'s zones
+      are exactly the zones the bearer had entered by `u` (pass-through zones included)
+      and `s` is `:present` if the bearer was inside at `u`, `:exited` if outside; an
+      `:in_transit` status is right when, at `u`, the bearer had left the last zone of `p`.
+
+  Anything else (`:not_found`, a wrong zone, a stale answer about an earlier place) is
+  wrong. For a settled target (in its zone for 20 s, or out for 30 s) the window holds a
+  single truth, so this is exact equality with the truth at `t`.
+
+      iex> path = [%{zone: :p1, entered_at: 10, left_at: 50}, %{zone: :p2, entered_at: 50, left_at: nil}]
+      iex> TartarusLats.Experiment.correct?(:where_is, {:in_zone, :p1}, path, 60)
+      true
+      iex> TartarusLats.Experiment.correct?(:where_is, {:in_zone, :p1}, path, 80)
+      false
+      iex> TartarusLats.Experiment.correct?(:where_is, {:in_transit, :p1}, path, 60)
+      true
+  """
+  @spec correct?(atom(), term(), [World.stay()], number()) :: boolean()
+  def correct?(type, answer, path, t) do
+    Enum.any?(max(t - @lag, 0)..t, &true_at?(type, answer, path, &1, t))
+  end
+
+  @doc "The lag window of `correct?/4`, in world seconds."
+  @spec lag_window() :: pos_integer()
+  def lag_window, do: @lag
+
+  defp true_at?(:trace, {:ok, %{path: p, status: status}}, path, u, _t) do
+    entered = Enum.filter(path, &(&1.entered_at <= u))
+
+    Enum.map(p, & &1.node) == Enum.map(entered, & &1.zone) and entered != [] and
+      case status do
+        :present -> zone_at(path, u) not in [:outside, :not_entered]
+        :exited -> zone_at(path, u) == :outside
+        :in_transit -> List.last(entered).left_at != nil and List.last(entered).left_at <= u
+        _ -> false
+      end
+  end
+
+  defp true_at?(:trace, _answer, _path, _u, _t), do: false
+  defp true_at?(_type, {:in_zone, z}, path, u, _t), do: zone_at(path, u) == z
+  defp true_at?(_type, :left_building, path, u, _t), do: zone_at(path, u) == :outside
+
+  defp true_at?(_type, {:in_transit, z}, path, u, t),
+    do: zone_at(path, u) == z and zone_at(path, t) != z
+
+  defp true_at?(_type, _answer, _path, _u, _t), do: false
+
+  # Where the bearer was at second u: a zone, :outside (after having been inside), or
+  # :not_entered.
+  defp zone_at(path, u) do
+    case Enum.find(path, &(&1.entered_at <= u and (&1.left_at == nil or u < &1.left_at))) do
+      %{zone: z} -> z
+      nil -> if Enum.any?(path, &(&1.entered_at <= u)), do: :outside, else: :not_entered
+    end
+  end
 
   defp time_error(:trace, {:ok, %{path: path}}, %{path: truth})
        when length(path) == length(truth) do
@@ -530,9 +647,18 @@ defmodule TartarusLats.Experiment do
          }}
       end)
 
+    {settled, moving} = Enum.split_with(results, & &1.settled)
+
     Map.merge(meta, %{
       queries: length(results),
       correct: Enum.count(results, & &1.correct),
+      # Correctness (see correct?/4) by whether the target was settled at release.
+      queries_settled: length(settled),
+      queries_moving: length(moving),
+      correct_settled: share(settled, & &1.correct),
+      correct_moving: share(moving, & &1.correct),
+      correct_settled_centralized: share(settled, & &1.correct_centralized),
+      correct_moving_centralized: share(moving, & &1.correct_centralized),
       correct_centralized: Enum.count(results, & &1.correct_centralized),
       cloud_connections_centralized: c,
       cloud_connections_agents: a,
@@ -558,4 +684,8 @@ defmodule TartarusLats.Experiment do
   end
 
   defp median(list), do: TartarusTools.Report.median(list)
+
+  # The share of `list` for which `fun` holds (4 decimals), nil for an empty list.
+  defp share([], _fun), do: nil
+  defp share(list, fun), do: Float.round(Enum.count(list, fun) / length(list), 4)
 end

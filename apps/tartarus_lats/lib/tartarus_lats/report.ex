@@ -4,7 +4,8 @@ defmodule TartarusLats.Report do
   the run's directory beside the runner's `summary.json`, `summary.md` and
   series (see `TartarusEmu.Scenario`):
 
-    * `queries.csv` - every query: type, person, start node, world time, answer
+    * `queries.csv` - every query: type, person, start node, world time, whether the
+      target was settled then (`TartarusLats.Experiment.correct?/4`), answer
       (with its freshness, the age of its evidence, whether it is complete and the
       nodes it could not reach),
       truth, correct (agents, centralized), hops, ms, route;
@@ -71,6 +72,12 @@ defmodule TartarusLats.Report do
         ours: "#{summary.correct}/#{summary.queries}",
         thesis: "not reported"
       },
+      %{
+        metric: "correct, settled / moving targets (agents; centralized)",
+        ours:
+          "#{summary.correct_settled} / #{summary.correct_moving}; #{summary.correct_settled_centralized} / #{summary.correct_moving_centralized} (#{summary.noise_db} dB noise)",
+        thesis: "not reported"
+      },
       %{metric: "median query hops", ours: summary.median_query_hops, thesis: "not reported"}
     ]
   end
@@ -90,6 +97,7 @@ defmodule TartarusLats.Report do
           q.person,
           q.start,
           q.time,
+          q.settled,
           show(q.answer),
           show(truth(q)),
           q.correct,
@@ -108,7 +116,7 @@ defmodule TartarusLats.Report do
     Report.write_csv!(
       dir,
       "queries",
-      ~w(id type person start time answer truth correct correct_centralized hops ms route trace_time_error_s freshness evidence_age_s complete unreachable),
+      ~w(id type person start time settled answer truth correct correct_centralized hops ms route trace_time_error_s freshness evidence_age_s complete unreachable),
       rows
     )
   end
