@@ -8,6 +8,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
       mix tartarus.lats [--nodes 50] [--bearers 10] [--minutes 20] [--queries 30]
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
                         [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
+                        [--release random|settled] [--noise-db 4.0]
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
   at least 10 and is rounded to whole rows of 5 on 2 floors (`--nodes 15` builds 20; the
@@ -17,7 +18,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   progress line on standard error) and writes into `--out DIR` (default
   `results/lats-<UTC timestamp>`, relative to the current directory):
 
-    * `queries.csv` - every query: type, person, start node, world time, answer,
+    * `queries.csv` - every query: type, person, start node, world time, settled, answer,
       truth, correct (agents, centralized), hops, ms, route;
     * `cloud_connections.csv`, `cloud_connections.svg` - cumulative connections to
       the cloud over world time: centralized (all uploads, and per person),
@@ -39,13 +40,24 @@ defmodule Mix.Tasks.Tartarus.Lats do
   and options it was made with reproduces the run; a capture from real hardware replays
   too, but its answers are judged against a world that was not there.
 
+  `--release` says when queries are released: `random` (default: batches of three at world
+  seconds drawn from the seed after a 120 s warm-up, about whoever has come into the
+  building, moving or not) or `settled` (only about a target settled in its zone for 20 s or
+  out for 30 s). `--noise-db` is the radio's Gaussian noise (default 4 dB). One definition of
+  a correct answer serves both (`TartarusLats.Experiment.correct?/4`): the answer must be
+  true of the target at some second of the 15 s before the release (the trackers' lag);
+  the summary splits it into `correct_settled` and `correct_moving` (shares of the queries
+  whose target was, or was not, settled at release).
+
   `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
   thesis's scenario 2: from every node where they find data of the tag) or `per_query`
   (once, from where the answer was found). The summary reports what both rules cost for the
   same queries (`cloud_connections_agents_per_node`, `_per_query`);
   `cloud_connections_agents` and the plots count the contacts made under the rule applied.
 
-  Summary keys: `queries, correct, correct_centralized,
+  Summary keys: `queries, correct, correct_centralized, queries_settled, queries_moving,
+  correct_settled, correct_moving, correct_settled_centralized, correct_moving_centralized,
+  release, noise_db,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
   cloud_connections_agents_per_node, cloud_connections_agents_per_query, agent_cloud,
   answers_stale, answers_incomplete,
@@ -72,6 +84,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
     record: :string,
     replay: :string,
     agent_cloud: :string,
+    release: :string,
+    noise_db: :float,
     json: :boolean,
     help: :boolean
   ]
@@ -99,13 +113,23 @@ defmodule Mix.Tasks.Tartarus.Lats do
         nil
       )
 
+    release =
+      TartarusTools.CLI.choice!(
+        opts[:release],
+        [:random, :settled],
+        :release,
+        "tartarus.lats",
+        nil
+      )
+
     json? = Keyword.get(opts, :json, false)
 
     exp_opts =
       opts
-      |> Keyword.drop([:json, :help, :mode, :agent_cloud])
+      |> Keyword.drop([:json, :help, :mode, :agent_cloud, :release])
       |> then(&if(mode, do: Keyword.put(&1, :mode, mode), else: &1))
       |> then(&if(rule, do: Keyword.put(&1, :agent_cloud, rule), else: &1))
+      |> then(&if(release, do: Keyword.put(&1, :release, release), else: &1))
       |> Keyword.put(:quiet, json?)
 
     shown =
@@ -139,6 +163,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
         else
           Mix.shell().info("""
           queries: #{summary.queries}, correct: #{summary.correct} (centralized: #{summary.correct_centralized})
+          correct, settled / moving targets: #{summary.correct_settled} / #{summary.correct_moving} (#{summary.release} release, #{summary.noise_db} dB noise)
           cloud connections: centralized #{summary.cloud_connections_centralized}, agents #{summary.cloud_connections_agents} (ratio #{summary.cloud_connection_ratio})
           cloud bytes: centralized #{summary.cloud_bytes_centralized}, agents #{summary.cloud_bytes_agents}
           median query hops #{summary.median_query_hops}, median latency #{summary.median_query_ms} ms
