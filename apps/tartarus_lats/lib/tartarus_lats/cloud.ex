@@ -9,7 +9,8 @@ defmodule TartarusLats.Cloud do
 
     * `:centralized` (Scenario 1) - `{:upload, %{node, time, records,
       vectors}}` posted by the database agents (`centralized: true`) with
-      every new record and changed vector. The cloud keeps a mirror of every
+      every new record and every new or changed stay (only those: a stay is known by
+      its arrival time, and the cloud merges it into its mirror). The cloud keeps a mirror of every
       node's motion vectors and answers queries centrally from it
       (`{:query, type, start, tag}` requests), with the same decision
       functions as the query agents (`TartarusLats.Query`).
@@ -80,7 +81,9 @@ defmodule TartarusLats.Cloud do
   def handle_message({:upload, %{node: node, time: t} = up} = msg, _from, s) do
     tables =
       Enum.reduce(up.vectors, s.tables, fn {tag, segs}, tables ->
-        Map.update(tables, node, %{tag => segs}, &Map.put(&1, tag, segs))
+        Map.update(tables, node, %{tag => merge([], segs)}, fn table ->
+          Map.update(table, tag, merge([], segs), &merge(&1, segs))
+        end)
       end)
 
     tags =
@@ -132,5 +135,14 @@ defmodule TartarusLats.Cloud do
         bytes: Map.update!(s.bytes, design, &(&1 + bytes)),
         log: [%{design: design, time: t, tags: tags, bytes: bytes} | s.log]
     }
+  end
+
+  # An upload carries only the stays that are new or changed (known by their arrival time);
+  # the mirror keeps a node's list as the node does, newest first.
+  defp merge(list, changed) do
+    changed
+    |> Enum.reduce(Map.new(list, &{&1.arrived_at, &1}), &Map.put(&2, &1.arrived_at, &1))
+    |> Map.values()
+    |> Enum.sort_by(& &1.arrived_at, :desc)
   end
 end

@@ -196,7 +196,14 @@ defmodule TartarusLats.DatabaseAgent do
         {:send, node, msg} -> if h = s.neighbours[node], do: [{h, msg}], else: []
       end)
 
-    changed = for {tag, segs} <- mv.tags, Map.get(before, tag) != segs, do: {tag, segs}
+    # Only what is new: per tag, the stays added or changed since the last upload (a stay is
+    # known by its arrival time; the cloud merges them into its mirror).
+    changed =
+      for {tag, segs} <- mv.tags,
+          old = Map.get(before, tag, []),
+          old != segs,
+          do: {tag, segs -- old}
+
     s = %{s | mv: mv}
 
     if changed != [] do
