@@ -42,6 +42,7 @@ defmodule TartarusLats.Deployment do
             record: nil,
             replay: nil,
             parsers: %{},
+            down: MapSet.new(),
             input: %{records: 0, bad_records: 0, garbage_bytes: 0, other_devices: 0}
 
   @type t :: %__MODULE__{
@@ -59,6 +60,7 @@ defmodule TartarusLats.Deployment do
           record: IO.device() | nil,
           replay: TartarusLats.HM10.Recording.t() | nil,
           parsers: %{Building.node_name() => HM10.t()},
+          down: MapSet.t(Building.node_name()),
           input: map()
         }
 
@@ -200,11 +202,39 @@ defmodule TartarusLats.Deployment do
   deployment has a `:data_dir`).
   """
   @spec restart_node(t(), Building.node_name()) :: t()
-  def restart_node(%__MODULE__{} = dep, node) do
+  def restart_node(%__MODULE__{} = dep, node), do: dep |> kill_node(node) |> revive_node(node)
+
+  @doc """
+  Kills the host of `node` (a node that dies): its receiver and database agent go with it.
+  The driver goes on without it: it is not asked in the phases, messages sent to it are
+  lost, queries that try to reach it find it unreachable. See `revive_node/2`.
+  """
+  @spec kill_node(t(), Building.node_name()) :: t()
+  def kill_node(%__MODULE__{} = dep, node) do
     :ok = TartarusEmu.Network.kill_node(dep.net, node)
-    :ok = TartarusEmu.Network.restart_node(dep.net, node)
-    %{dep | expected: Map.delete(dep.expected, dep.hosts[node])}
+    %{dep | down: MapSet.put(dep.down, node), expected: Map.delete(dep.expected, dep.hosts[node])}
   end
+
+  @doc """
+  Starts a killed node's host again, empty, and runs the setup hook on it: a new receiver
+  and a new database agent, which reloads its log and vectors when the deployment has a
+  `:data_dir` (its tracker starts afresh: every tag beyond).
+  """
+  @spec revive_node(t(), Building.node_name()) :: t()
+  def revive_node(%__MODULE__{} = dep, node) do
+    :ok = TartarusEmu.Network.restart_node(dep.net, node)
+
+    %{
+      dep
+      | down: MapSet.delete(dep.down, node),
+        expected: Map.delete(dep.expected, dep.hosts[node])
+    }
+  end
+
+  @doc "The nodes that are up (not killed), sorted."
+  @spec live_nodes(t()) :: [Building.node_name()]
+  def live_nodes(%__MODULE__{} = dep),
+    do: dep.building |> Building.nodes() |> Enum.reject(&MapSet.member?(dep.down, &1))
 
   @doc "Runs `seconds` steps (see `step/1`)."
   @spec run(t(), non_neg_integer()) :: t()
@@ -276,6 +306,7 @@ defmodule TartarusLats.Deployment do
 
   defp write_readings(dep, t) do
     dep.hosts
+    |> Enum.reject(fn {node, _host} -> MapSet.member?(dep.down, node) end)
     |> Task.async_stream(
       fn {node, host} ->
         heard =
@@ -292,6 +323,7 @@ defmodule TartarusLats.Deployment do
     |> Enum.each(fn
       {:ok, {_node, :ok}} -> :ok
       {:ok, {_node, {:error, :unknown_host}}} -> :ok
+      {:ok, {_node, {:error, {:unknown_host, _}}}} -> :ok
       {:ok, {node, other}} -> raise "LATS driver: receiver of #{node} failed: #{inspect(other)}"
     end)
   end
@@ -311,6 +343,7 @@ defmodule TartarusLats.Deployment do
   defp phase(dep, msg) do
     replies =
       dep.hosts
+      |> Enum.reject(fn {n, _host} -> MapSet.member?(dep.down, n) end)
       |> Enum.map(fn {_n, host} ->
         Task.async(fn -> Tartarus.request({DatabaseAgent.agent_name(), host}, msg, 60_000) end)
       end)
@@ -322,13 +355,16 @@ defmodule TartarusLats.Deployment do
           exp = Enum.reduce(to, exp, fn {h, k}, exp -> Map.update(exp, h, k, &(&1 + k)) end)
           {exp, ups + u, n + Enum.sum(Map.values(to))}
 
-        {:error, :not_found}, acc ->
+        {:error, reason}, acc when reason == :not_found or elem(reason, 0) == :unknown_host ->
           acc
 
         other, _ ->
           raise "LATS driver: a database agent failed #{inspect(msg)}: #{inspect(other)}"
       end)
 
+    # Messages cast to a dead node are lost: nobody waits for them.
+    dead = MapSet.new(dep.down, &dep.hosts[&1])
+    expected = Map.reject(expected, fn {h, _} -> MapSet.member?(dead, h) end)
     changed = for {h, k} <- expected, Map.get(dep.expected, h) != k, do: {h, k}
     barrier(changed, if(uploads > dep.uploads, do: {dep.cloud, uploads}))
     {%{dep | expected: expected, uploads: uploads}, sent}
@@ -347,6 +383,7 @@ defmodule TartarusLats.Deployment do
     |> Enum.each(fn
       {_host, {:ok, :ok}} -> :ok
       {_host, {:error, :not_found}} -> :ok
+      {_host, {:error, {:unknown_host, _}}} -> :ok
       {host, other} -> raise "LATS driver: barrier at #{inspect(host)} failed: #{inspect(other)}"
     end)
   end

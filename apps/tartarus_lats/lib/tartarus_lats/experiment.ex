@@ -74,6 +74,13 @@ defmodule TartarusLats.Experiment do
       default: 4.0,
       doc: "standard deviation of the radio's Gaussian noise (dB)"
     ],
+    kill_nodes: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "nodes killed during the run (at world seconds and nodes drawn from the seed, after the warm-up), each restarted `down_s` later on its data directory"
+    ],
+    down_s: [type: :pos_integer, default: 60, doc: "world seconds a killed node stays down"],
     agent_cloud: [
       type: {:in, [:per_node, :per_query]},
       default: :per_node,
@@ -202,12 +209,18 @@ defmodule TartarusLats.Experiment do
     world = world(building, opts.bearers, opts.noise_db)
     duration = opts.steps
 
+    # Killed nodes come back on their data directory (their log and vectors survive).
+    data_dir =
+      if opts.kill_nodes > 0,
+        do: Path.join(System.tmp_dir!(), "lats-#{System.unique_integer([:positive])}")
+
     dep =
       Deployment.start(
         seed: opts.seed,
         world: world,
         mode: opts.mode,
         group: opts.group,
+        data_dir: data_dir,
         record: open_recording(opts[:record]),
         replay: opts[:replay]
       )
@@ -217,6 +230,9 @@ defmodule TartarusLats.Experiment do
        dep: dep,
        rng: :rand.seed_s(:exsss, opts.seed * 7919 + 11),
        schedule: schedule(opts.queries, duration, opts.release, opts.seed),
+       faults: faults(opts.kill_nodes, opts.down_s, building, duration, opts.seed),
+       kills: 0,
+       data_dir: data_dir,
        release: opts.release,
        janitor: if(:janitor in World.names(world), do: World.tag(world, :janitor)),
        pending: [],
@@ -232,6 +248,8 @@ defmodule TartarusLats.Experiment do
          mode: to_string(opts.mode),
          agent_cloud: to_string(opts.agent_cloud),
          release: to_string(opts.release),
+         kill_nodes: opts.kill_nodes,
+         down_s: opts.down_s,
          noise_db: opts.noise_db
        }
      }}
@@ -240,7 +258,7 @@ defmodule TartarusLats.Experiment do
   @impl TartarusEmu.Scenario
   def step(state, _step) do
     dep = Deployment.step(state.dep)
-    state = %{state | dep: dep} |> record_rssi()
+    state = %{state | dep: dep} |> record_rssi() |> apply_faults()
     due = Map.get(state.schedule, dep.time, [])
     state = fire(%{state | pending: state.pending ++ due})
     record_series(state)
@@ -262,7 +280,13 @@ defmodule TartarusLats.Experiment do
 
   @impl TartarusEmu.Scenario
   def summary(state) do
-    summarize(Enum.reverse(state.results), Cloud.stats(state.dep.cloud), state.dep, state.meta)
+    meta =
+      Map.merge(state.meta, %{
+        node_kills: state.kills,
+        nodes_down_at_end: MapSet.size(state.dep.down)
+      })
+
+    summarize(Enum.reverse(state.results), Cloud.stats(state.dep.cloud), state.dep, meta)
   end
 
   @impl TartarusEmu.Scenario
@@ -283,6 +307,8 @@ defmodule TartarusLats.Experiment do
   def teardown(state) do
     if state.dep.record, do: File.close(state.dep.record)
     Deployment.stop(state.dep)
+    if state.data_dir, do: File.rm_rf(state.data_dir)
+    :ok
   end
 
   @doc """
@@ -345,6 +371,49 @@ defmodule TartarusLats.Experiment do
     acc
   end
 
+  # -- node kills ------------------------------------------------------------------
+
+  # %{second => [{:kill | :revive, node}]}: k kills at seconds drawn after the warm-up (a
+  # node already down at its second is not killed again), each revived down_s later.
+  defp faults(0, _down, _building, _duration, _seed), do: %{}
+
+  defp faults(k, down, building, duration, seed) do
+    nodes = Building.nodes(building)
+    rng = :rand.seed_s(:exsss, {seed, 4409, 23})
+    span = max(duration - @warmup - down, 1)
+
+    {acc, _} =
+      Enum.reduce(1..k, {%{}, rng}, fn _, {acc, rng} ->
+        {x, rng} = :rand.uniform_s(span, rng)
+        {i, rng} = :rand.uniform_s(length(nodes), rng)
+        node = Enum.at(nodes, i - 1)
+        t = @warmup + x
+
+        acc =
+          acc
+          |> Map.update(t, [{:kill, node}], &(&1 ++ [{:kill, node}]))
+          |> Map.update(t + down, [{:revive, node}], &(&1 ++ [{:revive, node}]))
+
+        {acc, rng}
+      end)
+
+    acc
+  end
+
+  defp apply_faults(%{dep: dep} = state) do
+    Enum.reduce(Map.get(state.faults, dep.time, []), state, fn
+      {:kill, node}, state ->
+        if MapSet.member?(state.dep.down, node),
+          do: state,
+          else: %{state | dep: Deployment.kill_node(state.dep, node), kills: state.kills + 1}
+
+      {:revive, node}, state ->
+        if MapSet.member?(state.dep.down, node),
+          do: %{state | dep: Deployment.revive_node(state.dep, node)},
+          else: state
+    end)
+  end
+
   # -- firing --------------------------------------------------------------------
 
   defp fire(%{pending: []} = acc), do: acc
@@ -389,7 +458,8 @@ defmodule TartarusLats.Experiment do
   defp pick(type, world, dep, rng, k, release) do
     names = World.names(world)
     scripted = Enum.filter(names, &(Map.fetch!(world.bearers, &1).kind == :scripted))
-    nodes = Building.nodes(world.building)
+    # Queries are asked from nodes that are up.
+    nodes = Deployment.live_nodes(dep)
 
     candidates =
       case type do
@@ -417,29 +487,35 @@ defmodule TartarusLats.Experiment do
           case type do
             :where_am_i ->
               ns = Building.neighbours(world.building, World.current_zone(world, name))
-              {j, rng} = :rand.uniform_s(length(ns), rng)
-              {Enum.at(ns, j - 1), rng}
+              ns = Enum.filter(ns, &(&1 in nodes))
+              if ns == [], do: {nil, rng}, else: pick_one(ns, rng)
 
             _ ->
-              {j, rng} = :rand.uniform_s(length(nodes), rng)
-              {Enum.at(nodes, j - 1), rng}
+              pick_one(nodes, rng)
           end
 
-        q = %{
-          id: k + 1,
-          type: type,
-          person: name,
-          tag: World.tag(world, name),
-          start: start,
-          host: dep.hosts[start],
-          time: world.time,
-          settled: settled?(world, name),
-          path: World.visited_path(world, name),
-          truth: truth(type, world, name)
-        }
-
-        {q, rng}
+        if start, do: {query(k, type, name, start, world, dep), rng}, else: {nil, rng}
     end
+  end
+
+  defp pick_one(list, rng) do
+    {j, rng} = :rand.uniform_s(length(list), rng)
+    {Enum.at(list, j - 1), rng}
+  end
+
+  defp query(k, type, name, start, world, dep) do
+    %{
+      id: k + 1,
+      type: type,
+      person: name,
+      tag: World.tag(world, name),
+      start: start,
+      host: dep.hosts[start],
+      time: world.time,
+      settled: settled?(world, name),
+      path: World.visited_path(world, name),
+      truth: truth(type, world, name)
+    }
   end
 
   defp rotate([], _n), do: []
@@ -619,7 +695,13 @@ defmodule TartarusLats.Experiment do
 
     row =
       Map.new(acc.dep.hosts, fn {node, host} ->
-        filtered = Tartarus.store_get(host, {:lats, :filtered}, %{}) |> Map.get(tag)
+        # A node that is down has no filtered value.
+        filtered =
+          case Tartarus.store_get(host, {:lats, :filtered}, %{}) do
+            %{} = values -> Map.get(values, tag)
+            _ -> nil
+          end
+
         r = get_in(raw, [node, tag])
         {node, {if(is_number(r), do: r, else: nil), filtered}}
       end)
@@ -668,6 +750,8 @@ defmodule TartarusLats.Experiment do
       cloud_connections_agents_per_query: Enum.sum(Enum.map(results, & &1.per_query_contacts)),
       answers_stale: Enum.count(results, &(&1.freshness == :stale)),
       answers_incomplete: Enum.count(results, &(not &1.complete)),
+      # Answers that name nodes they could not reach (a killed node, a cut link).
+      answers_partial: Enum.count(results, &(&1.unreachable != [])),
       cloud_bytes_centralized: stats.bytes.centralized,
       cloud_bytes_agents: stats.bytes.agents,
       median_query_hops: median(hops),

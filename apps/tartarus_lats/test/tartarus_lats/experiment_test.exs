@@ -52,6 +52,24 @@ defmodule TartarusLats.ExperimentTest do
     assert n.cloud_connections_agents_per_node > n.cloud_connections_agents_per_query
   end
 
+  # Nodes die and come back during the run: the run goes on, queries are asked from nodes
+  # that are up, and an answer that needed a dead node names it (partial, not complete).
+  @tag timeout: 120_000
+  test "nodes killed mid-run: the run goes on and answers name the nodes they missed" do
+    base = [nodes: 20, minutes: 8, queries: 30, seed: 2, down_s: 90, quiet: true, out: false]
+    {:ok, %{summary: s}} = TartarusLats.Experiment.run(base ++ [kill_nodes: 4])
+
+    assert s.queries == 30
+    assert s.node_kills >= 3
+    assert s.nodes_down_at_end == 0
+    assert s.answers_partial > 0
+    assert s.answers_incomplete >= s.answers_partial
+
+    # Without kills the same seed has nothing partial.
+    {:ok, %{summary: clean}} = TartarusLats.Experiment.run(base)
+    assert clean.answers_partial == 0 and clean.node_kills == 0
+  end
+
   test "options are checked in one place, naming key, expectation and value" do
     assert {:error, msg} = TartarusLats.Experiment.run(nodes: 5)
     assert msg =~ "for key :nodes: expected an integer >= 10, got: 5"
@@ -59,5 +77,9 @@ defmodule TartarusLats.ExperimentTest do
     assert msg =~ "for key :mode: expected"
     assert {:error, msg} = TartarusLats.Experiment.run(minutes: 0)
     assert msg =~ "for key :minutes: expected a positive integer, got: 0"
+    assert {:error, msg} = TartarusLats.Experiment.run(noise_db: -1)
+    assert msg =~ "for key :noise_db: expected a non-negative number, got: -1"
+    assert {:error, msg} = TartarusLats.Experiment.run(release: :sometimes)
+    assert msg =~ "for key :release: expected"
   end
 end

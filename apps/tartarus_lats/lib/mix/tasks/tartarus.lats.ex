@@ -9,6 +9,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
                         [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
                         [--release random|settled] [--noise-db 4.0]
+                        [--kill-nodes 0] [--down-s 60]
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
   at least 10 and is rounded to whole rows of 5 on 2 floors (`--nodes 15` builds 20; the
@@ -49,6 +50,14 @@ defmodule Mix.Tasks.Tartarus.Lats do
   the summary splits it into `correct_settled` and `correct_moving` (shares of the queries
   whose target was, or was not, settled at release).
 
+  `--kill-nodes K` kills K nodes during the run (world seconds and nodes drawn from the
+  seed, after the warm-up) and restarts each `--down-s` world seconds later on its data
+  directory (its log and motion vectors survive; its tracker starts afresh). The run goes
+  on: the driver leaves dead nodes out, queries are asked from nodes that are up, and an
+  answer that needed a dead node names it in `unreachable` (counted in `answers_partial`;
+  such an answer is never `complete`). Kills happen between world seconds, while no query
+  agent is walking.
+
   `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
   thesis's scenario 2: from every node where they find data of the tag) or `per_query`
   (once, from where the answer was found). The summary reports what both rules cost for the
@@ -57,7 +66,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
   Summary keys: `queries, correct, correct_centralized, queries_settled, queries_moving,
   correct_settled, correct_moving, correct_settled_centralized, correct_moving_centralized,
-  release, noise_db,
+  release, noise_db, kill_nodes, down_s, node_kills, nodes_down_at_end, answers_partial,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
   cloud_connections_agents_per_node, cloud_connections_agents_per_query, agent_cloud,
   answers_stale, answers_incomplete,
@@ -86,6 +95,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
     agent_cloud: :string,
     release: :string,
     noise_db: :float,
+    kill_nodes: :integer,
+    down_s: :integer,
     json: :boolean,
     help: :boolean
   ]
