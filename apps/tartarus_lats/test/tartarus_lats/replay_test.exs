@@ -41,13 +41,14 @@ defmodule TartarusLats.ReplayTest do
   end
 
   # The fixture was made by the simulator:
-  #   mix tartarus.lats --nodes 10 --minutes 3 --queries 3 --seed 4 \
+  #   mix tartarus.lats --nodes 10 --minutes 3 --queries 3 --seed 4 --noise-db 2 \
   #     --record apps/tartarus_lats/test/fixtures/lats_10_nodes_seed_4.hm10.gz
   # If the world or the radio model changes on purpose, make it again with that command.
   @tag timeout: 120_000
   test "the recorded fixture replays end to end: every record parsed, the simulated run's answers" do
-    {:ok, replayed} = Experiment.run(@small ++ [seed: 4, replay: @fixture])
-    {:ok, simulated} = Experiment.run(@small ++ [seed: 4])
+    # Made at 2 dB of noise: the simulated run it is compared with must have that noise.
+    {:ok, replayed} = Experiment.run(@small ++ [seed: 4, noise_db: 2.0, replay: @fixture])
+    {:ok, simulated} = Experiment.run(@small ++ [seed: 4, noise_db: 2.0])
 
     s = replayed.summary
     assert s.replay_records == 8_553
