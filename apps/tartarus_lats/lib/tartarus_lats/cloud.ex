@@ -24,7 +24,8 @@ defmodule TartarusLats.Cloud do
   Requests: `{:sync, n}` is answered (`:ok`) once the cloud has taken `n`
   uploads in all (the driver's barrier, see `TartarusLats.DatabaseAgent`);
   `:stats` returns `%{connections: %{design => n}, bytes: %{design
-  => n}, log: [%{design, time, tags, bytes}]}` (log oldest first);
+  => n}, log: [%{design, time, tags, bytes, query_type}]}` (log oldest first;
+  `query_type` is the query's type for an agent's contact, nil for an upload);
   `{:query, :where_is | :where_am_i | :trace, start_node, tag}` returns the
   centralized answer.
   """
@@ -96,8 +97,8 @@ defmodule TartarusLats.Cloud do
   def handle_message({:sync, n}, from, s),
     do: {:stay, release(%{s | waiting: [{n, from} | s.waiting]})}
 
-  def handle_message({:answer, %{time: t, tag: tag}} = msg, _from, s),
-    do: {:stay, count(s, :agents, t, [tag], msg)}
+  def handle_message({:answer, %{time: t, tag: tag} = a} = msg, _from, s),
+    do: {:stay, count(s, :agents, t, [tag], msg, Map.get(a, :type))}
 
   def handle_message(:stats, from, s) do
     A.reply(from, %{connections: s.connections, bytes: s.bytes, log: Enum.reverse(s.log)})
@@ -126,14 +127,16 @@ defmodule TartarusLats.Cloud do
     %{s | waiting: waiting}
   end
 
-  defp count(s, design, t, tags, msg) do
+  defp count(s, design, t, tags, msg, query_type \\ nil) do
     bytes = :erlang.external_size(msg)
 
     %{
       s
       | connections: Map.update!(s.connections, design, &(&1 + 1)),
         bytes: Map.update!(s.bytes, design, &(&1 + bytes)),
-        log: [%{design: design, time: t, tags: tags, bytes: bytes} | s.log]
+        log: [
+          %{design: design, time: t, tags: tags, bytes: bytes, query_type: query_type} | s.log
+        ]
     }
   end
 

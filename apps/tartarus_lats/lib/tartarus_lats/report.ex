@@ -10,11 +10,14 @@ defmodule TartarusLats.Report do
       nodes it could not reach),
       truth, correct (agents, centralized), hops, ms, route;
     * `cloud_connections.csv`, `cloud_connections.svg` - cumulative connections to
-      the cloud over world time: centralized (all uploads, and per person),
-      agents (all, and per queried person): the thesis's Fig. 3.9;
-    * `rssi.csv`, `rssi.svg` - raw and filtered RSSI of the Janitor's tag at the
-      first two zones of the Janitor's path, with the near/far thresholds
-      (Fig. 3.6/3.7);
+      the cloud over world time: centralized (every upload; the CSV also per person),
+      agents (contacts of every query, and of the Trace queries about each scripted
+      bearer): the thesis's Fig. 3.9; `cloud_connections_agents.svg` - the agents'
+      curves alone, on a scale of their own;
+    * `rssi.csv`, `rssi.svg` - raw and filtered RSSI of the Janitor's tag at two
+      zones, 40 s either side of the Janitor's first hand-over into a zone where it
+      then stays 20 s or more, with the thresholds (regions labelled) and the true
+      hand-over (Figs. 3.6-3.7);
     * `hops.svg`, `latency.svg` - box plots of query hops and latency per type.
   """
 
@@ -136,18 +139,24 @@ defmodule TartarusLats.Report do
     queried = result.queries |> Enum.map(& &1.person) |> Enum.uniq()
     scripted = Enum.filter(World.names(world), &(Map.fetch!(world.bearers, &1).kind == :scripted))
 
+    # What each curve counts: every upload; every contact of every query agent; the contacts
+    # of the Trace queries about one scripted bearer (the thesis's per-person curves).
     series =
-      [{"centralized (all)", fn e -> e.design == :centralized end}] ++
-        [{"agents (all queries)", fn e -> e.design == :agents end}] ++
+      [{"centralized: every upload", fn e -> e.design == :centralized end}] ++
+        [{"agents: contacts of every query", fn e -> e.design == :agents end}] ++
         for name <- scripted, name in queried do
           tag = World.tag(world, name)
-          {"agents: #{name}", fn e -> e.design == :agents and tag in e.tags end}
+
+          {"agents: contacts of Trace(#{name})",
+           fn e -> e.design == :agents and e[:query_type] == :trace and tag in e.tags end}
         end
 
     per_person =
       for name <- queried do
         tag = World.tag(world, name)
-        {"centralized: #{name}", fn e -> e.design == :centralized and tag in e.tags end}
+
+        {"centralized: uploads about #{name}",
+         fn e -> e.design == :centralized and tag in e.tags end}
       end
 
     curves = Enum.map(series ++ per_person, fn {name, f} -> {name, cumulative(log, f)} end)
@@ -183,7 +192,20 @@ defmodule TartarusLats.Report do
         )
       )
 
-    [csv, svg]
+    # The agents' curves on their own scale: beside the centralized one they lie on the axis.
+    agents_svg =
+      SVG.write!(
+        Path.join(dir, "cloud_connections_agents.svg"),
+        SVG.line_chart(tl(chart),
+          title: "Cloud connections of the query agents alone (scale of their own)",
+          x_label: "world time",
+          x_unit: "s",
+          y_label: "connections",
+          markers: false
+        )
+      )
+
+    [csv, svg, agents_svg]
   end
 
   defp cumulative(log, f) do
@@ -208,11 +230,16 @@ defmodule TartarusLats.Report do
     [{0, 0} | pts] ++ [{seconds, if(pts == [], do: 0, else: elem(List.last(pts), 1))}]
   end
 
+  # The RSSI around one hand-over of the Janitor's (Figs. 3.6-3.7): the first move (after
+  # 40 s, within the recorded seconds) into a zone where the Janitor then stays at least
+  # 20 s; 40 s either side of it.
   defp write_rssi(dir, result, world) do
+    recorded = result.rssi |> Enum.map(&elem(&1, 0)) |> Enum.max(fn -> 0 end)
+
     with true <- :janitor in World.names(world),
-         [%{zone: a}, %{zone: b} | _] <- World.visited_path(world, :janitor) do
+         {a, b, at} <- hand_over(World.visited_path(world, :janitor), recorded - 40) do
       rows =
-        for {t, row} <- result.rssi do
+        for {t, row} <- result.rssi, t >= at - 40 and t <= at + 40 do
           {ra, fa} = row[a]
           {rb, fb} = row[b]
           [t, ra, fa && Float.round(fa, 2), rb, fb && Float.round(fb, 2)]
@@ -227,26 +254,34 @@ defmodule TartarusLats.Report do
         )
 
       cal = Region.calibrate(tx_power: -59, exponent: world.radio.exponent)
-      last = rows |> Enum.map(&hd/1) |> Enum.max(fn -> 1 end)
+      {lo, hi} = {at - 40, at + 40}
       pick = fn i -> for [t | r] <- rows, v = Enum.at(r, i), is_number(v), do: {t, v} end
+      top = rows |> Enum.flat_map(&tl/1) |> Enum.filter(&is_number/1) |> Enum.max(fn -> -50 end)
+      near = Float.round(cal.near_dbm, 1)
+      far = Float.round(cal.far_dbm, 1)
 
       svg =
         SVG.write!(
           Path.join(dir, "rssi.svg"),
           SVG.line_chart(
             [
-              %{name: "raw at #{a}", points: pick.(0)},
+              %{name: "raw at #{a} (left)", points: pick.(0)},
               %{name: "filtered at #{a}", points: pick.(1)},
-              %{name: "raw at #{b}", points: pick.(2)},
+              %{name: "raw at #{b} (entered)", points: pick.(2)},
               %{name: "filtered at #{b}", points: pick.(3)},
-              %{name: "near threshold", points: [{0, cal.near_dbm}, {last, cal.near_dbm}]},
-              %{name: "far threshold", points: [{0, cal.far_dbm}, {last, cal.far_dbm}]}
+              %{name: "near above #{near} dBm", points: [{lo, cal.near_dbm}, {hi, cal.near_dbm}]},
+              %{
+                name: "far above #{far} dBm; beyond under",
+                points: [{lo, cal.far_dbm}, {hi, cal.far_dbm}]
+              },
+              %{name: "true hand-over (t = #{at} s)", points: [{at, -100}, {at, max(top, -50)}]}
             ],
-            title: "Janitor's tag: raw and filtered RSSI at #{a} and #{b} (cf. Fig. 3.6/3.7)",
+            title: "Janitor's tag handed over from #{a} to #{b} (cf. Figs. 3.6-3.7)",
             x_label: "world time",
             x_unit: "s",
             y_label: "RSSI",
             y_unit: "dBm",
+            y_min: -100,
             markers: false
           )
         )
@@ -255,5 +290,16 @@ defmodule TartarusLats.Report do
     else
       _ -> []
     end
+  end
+
+  defp hand_over(path, last) do
+    path
+    |> Enum.chunk_every(2, 1, :discard)
+    |> Enum.find_value(fn [x, y] ->
+      stays? = (y.left_at || last) - y.entered_at >= 20
+
+      if stays? and y.entered_at >= 40 and y.entered_at <= last,
+        do: {x.zone, y.zone, y.entered_at}
+    end)
   end
 end

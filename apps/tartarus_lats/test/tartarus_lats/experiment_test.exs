@@ -28,7 +28,7 @@ defmodule TartarusLats.ExperimentTest do
     assert s.cloud_connections_agents <= 0.1 * s.cloud_connections_centralized
 
     for f <-
-          ~w(queries.csv cloud_connections.csv cloud_connections.svg rssi.svg hops.svg latency.svg series.csv summary.json summary.md),
+          ~w(queries.csv cloud_connections.csv cloud_connections.svg cloud_connections_agents.svg rssi.svg hops.svg latency.svg series.csv summary.json summary.md),
         do: assert(File.exists?(Path.join(dir, f)), f)
 
     assert File.read!(Path.join(dir, "summary.md")) =~ "cloud connections, agents / centralized"

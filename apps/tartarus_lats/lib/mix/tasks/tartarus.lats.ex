@@ -22,11 +22,14 @@ defmodule Mix.Tasks.Tartarus.Lats do
     * `queries.csv` - every query: type, person, start node, world time, settled, answer,
       truth, correct (agents, centralized), hops, ms, route;
     * `cloud_connections.csv`, `cloud_connections.svg` - cumulative connections to
-      the cloud over world time: centralized (all uploads, and per person),
-      agents (all, and per queried person): the thesis's Fig. 3.9;
-    * `rssi.csv`, `rssi.svg` - raw and filtered RSSI of the Janitor's tag at the
-      first two zones of the Janitor's path, with the near/far thresholds
-      (Fig. 3.6/3.7);
+      the cloud over world time: centralized (every upload; the CSV also per person),
+      agents (contacts of every query, and of the Trace queries about each scripted
+      bearer): the thesis's Fig. 3.9; `cloud_connections_agents.svg` - the agents'
+      curves alone, on a scale of their own;
+    * `rssi.csv`, `rssi.svg` - raw and filtered RSSI of the Janitor's tag at two
+      zones, 40 s either side of the Janitor's first hand-over into a zone where it
+      then stays 20 s or more, with the thresholds (regions labelled) and the true
+      hand-over (Figs. 3.6-3.7);
     * `hops.svg`, `latency.svg` - box plots of query hops and latency per type;
     * `series.csv`, `cloud_uploads_centralized.{csv,svg}`,
       `queries_answered.{csv,svg}` - the scenario's series (every 10 world s);
