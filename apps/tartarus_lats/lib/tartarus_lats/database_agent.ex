@@ -30,10 +30,13 @@ defmodule TartarusLats.DatabaseAgent do
   `TartarusLats.Deployment`) advances the world one second at a time and
   then asks every database agent, in phases, with `Tartarus.request/3`:
 
-    1. `{:sense, t}` - scan the receiver, run the tracker, log records, feed
-       `:entered_zone` / `:left_zone` to the motion vectors and post the
-       handshake messages to the neighbours;
-    2. `{:deliver, t, j}` for `j = 1, 2, ...` while messages flow - apply the
+    1. `{:sense, t}` - scan the receiver, run the tracker, log records, and
+       post this node's zone report (`TartarusLats.Zone.report/2`: its RSSI of
+       every tag it hears or holds, and which it holds) to the neighbours;
+    2. `{:deliver, t, j}` for `j = 1, 2, ...` while messages flow (the first
+       always) - in the first, decide the zone on the neighbours' reports
+       (`TartarusLats.Zone.decide/4`) and feed the `:entered_zone` /
+       `:left_zone` decisions to the motion vectors; in every one, apply the
        handshake messages sent in earlier phases, in a fixed order (sorted),
        and post the answers;
     3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
@@ -72,13 +75,14 @@ defmodule TartarusLats.DatabaseAgent do
 
   A map with `:node` (required), `:neighbours` (`%{node => host}`),
   `:cloud` (host or nil), `:centralized` (boolean), `:data_dir` (path or
-  nil), `:tracker` (options of `TartarusLats.Tracker.new/1`), `:timeout`
+  nil), `:tracker` (options of `TartarusLats.Tracker.new/1`), `:zone`
+  (options of `TartarusLats.Zone.new/1`; the tracker's calibration is passed on), `:timeout`
   (handshake timeout in seconds, default 15).
   """
   use Tartarus.Agent
 
   alias Tartarus.Agent, as: A
-  alias TartarusLats.{MotionVectors, Tracker}
+  alias TartarusLats.{MotionVectors, Tracker, Zone}
 
   @name "lats-db"
 
@@ -96,6 +100,10 @@ defmodule TartarusLats.DatabaseAgent do
       cloud: Map.get(args, :cloud),
       centralized: Map.get(args, :centralized, false),
       tracker: Tracker.new(Map.get(args, :tracker, [])),
+      zone:
+        Zone.new(
+          Keyword.take(Map.get(args, :tracker, []), [:calibration]) ++ Map.get(args, :zone, [])
+        ),
       mv: MotionVectors.new(node, timeout: Map.get(args, :timeout, 15)),
       log: [],
       seq: 0,
@@ -140,18 +148,40 @@ defmodule TartarusLats.DatabaseAgent do
       Map.new(Tracker.tags(tracker), &{&1, Tracker.average(tracker, &1)})
     )
 
+    # The zone is decided in the first delivery, on every neighbour's report of this second
+    # (TartarusLats.Zone): the tracker's own zone events are not used.
     records = for {:record, r} <- events, do: r
-    mv_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
     s = %{s | tracker: tracker, clock: t} |> append_log(records)
-    {s, out, changed} = apply_events(s, t, mv_events)
-    send_all(s, from, {t, 0}, out, records, changed)
+    report = Zone.report(s.zone, tracker)
+
+    out =
+      if report == %{},
+        do: [],
+        else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
+
+    send_all(s, from, {t, 0}, out, records, [])
     {:stay, s}
   end
 
   def handle_message({:deliver, t, j}, from, s) do
     {ready, later} = Enum.split_with(s.inbox, fn {stamp, _} -> stamp < {t, j} end)
-    inbox = ready |> Enum.map(&elem(&1, 1)) |> Enum.sort()
-    {s, out, changed} = apply_events(%{s | inbox: later}, t, inbox)
+
+    {reports, inbox} =
+      ready |> Enum.map(&elem(&1, 1)) |> Enum.split_with(&match?({:rss, _, _}, &1))
+
+    s = %{s | inbox: later}
+
+    # The first delivery of a second decides the zone on the reports of that second.
+    {zone_events, s} =
+      if j == 1 do
+        heard = Map.new(reports, fn {:rss, node, report} -> {node, report} end)
+        {events, zone} = Zone.decide(s.zone, t, s.tracker, heard)
+        {events, %{s | zone: zone}}
+      else
+        {[], s}
+      end
+
+    {s, out, changed} = apply_events(s, t, zone_events ++ Enum.sort(inbox))
     send_all(s, from, {t, j}, out, [], changed)
     {:stay, s}
   end

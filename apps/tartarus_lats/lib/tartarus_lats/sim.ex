@@ -21,19 +21,23 @@ defmodule TartarusLats.Sim do
 
     1. `TartarusLats.World.step/2` (bearers move);
     2. `TartarusLats.World.readings/2` (every node hears every tag or not);
-    3. on every node (in node order) `TartarusLats.Tracker.tick/3`; records
-       are appended to the node's log, `:entered_zone` / `:left_zone` go to
-       the node's motion-vector table and the resulting handshake messages
-       are delivered to the neighbours (recursively) at once;
-    4. `:tick` on every motion-vector table (timeouts);
-    5. statistics of detection against ground truth (`stats/1`).
+    3. on every node `TartarusLats.Tracker.tick/3`; records are appended to
+       the node's log;
+    4. every node's report (`TartarusLats.Zone.report/2`) goes to its
+       neighbours and every node decides its zone (`TartarusLats.Zone.decide/4`);
+       in node order, the `:entered_zone` / `:left_zone` decisions go to the
+       node's motion-vector table and the resulting handshake messages are
+       delivered to the neighbours (recursively) at once;
+    5. `:tick` on every motion-vector table (timeouts);
+    6. statistics of detection against ground truth (`stats/1`).
   """
 
-  alias TartarusLats.{Building, MotionVectors, Radio, Region, Tracker, World}
+  alias TartarusLats.{Building, MotionVectors, Radio, Region, Tracker, World, Zone}
 
   defstruct world: nil,
             rng: nil,
             trackers: %{},
+            zones: %{},
             tables: %{},
             logs: %{},
             stats: %{seconds: 0, argmax_hits: 0, own_hits: 0, others: 0, others_present: 0}
@@ -42,6 +46,7 @@ defmodule TartarusLats.Sim do
           world: World.t(),
           rng: Radio.rng(),
           trackers: %{Building.node_name() => Tracker.t()},
+          zones: %{Building.node_name() => Zone.t()},
           tables: %{Building.node_name() => MotionVectors.t()},
           logs: %{Building.node_name() => [Tracker.record()]},
           stats: map()
@@ -51,7 +56,8 @@ defmodule TartarusLats.Sim do
   A new deployment. Options: `:seed` (integer, default 0), `:world` (a
   `TartarusLats.World`, default `TartarusLats.World.new/0`), `:tracker`
   (options for `TartarusLats.Tracker.new/1`; the default calibration uses
-  the world's radio exponent and the bearers' Tx power), `:timeout`
+  the world's radio exponent and the bearers' Tx power), `:zone` (options
+  for `TartarusLats.Zone.new/1`), `:timeout`
   (handshake timeout, seconds, default 15).
   """
   @spec new(keyword()) :: t()
@@ -67,6 +73,7 @@ defmodule TartarusLats.Sim do
       world: world,
       rng: Radio.seed(seed),
       trackers: Map.new(nodes, &{&1, Tracker.new(tracker_opts)}),
+      zones: Map.new(nodes, &{&1, Zone.new([calibration: cal] ++ Keyword.get(opts, :zone, []))}),
       tables: Map.new(nodes, &{&1, MotionVectors.new(&1, timeout: timeout)}),
       logs: Map.new(nodes, &{&1, []})
     }
@@ -85,17 +92,33 @@ defmodule TartarusLats.Sim do
     now = world.time
     sim = %{sim | world: world, rng: rng}
 
+    nodes = Building.nodes(world.building)
+
+    # Every node's tracker takes its readings and logs its records.
     sim =
-      Enum.reduce(Building.nodes(world.building), sim, fn node, sim ->
+      Enum.reduce(nodes, sim, fn node, sim ->
         {events, tracker} =
           Tracker.tick(Map.fetch!(sim.trackers, node), now, Map.fetch!(readings, node))
 
-        sim = %{sim | trackers: Map.put(sim.trackers, node, tracker)}
+        records = for {:record, record} <- events, do: record
 
-        Enum.reduce(events, sim, fn
-          {:record, record}, sim -> %{sim | logs: Map.update!(sim.logs, node, &[record | &1])}
-          event, sim -> deliver(sim, [{node, event}])
-        end)
+        %{
+          sim
+          | trackers: Map.put(sim.trackers, node, tracker),
+            logs: Map.update!(sim.logs, node, &(Enum.reverse(records) ++ &1))
+        }
+      end)
+
+    # Every node reports to its neighbours, then every node decides its zone on the same
+    # reports (TartarusLats.Zone), and the decisions go to the motion vectors.
+    reports = Map.new(nodes, &{&1, Zone.report(sim.zones[&1], sim.trackers[&1])})
+
+    sim =
+      Enum.reduce(nodes, sim, fn node, sim ->
+        heard = Map.new(Building.neighbours(world.building, node), &{&1, reports[&1]})
+        {events, zone} = Zone.decide(sim.zones[node], now, sim.trackers[node], heard)
+        sim = %{sim | zones: Map.put(sim.zones, node, zone)}
+        Enum.reduce(events, sim, fn event, sim -> deliver(sim, [{node, event}]) end)
       end)
 
     tables =

@@ -55,9 +55,14 @@ defmodule TartarusLats.Tracker do
          the change, so the debounce delays the write but not the timestamp;
        * `{:entered_zone, tag, time}` if the tag was `:beyond`;
        * `{:left_zone, tag, time}` if the tag is now `:beyond` (normally
-         from `:far`; a direct near -> beyond change counts too). This is
-         the trigger of the motion-vector handshake
-         (`TartarusLats.MotionVectors`).
+         from `:far`; a direct near -> beyond change counts too).
+
+       These two say whether this node alone hears the tag. Which zone the
+       tag is in is decided with the neighbours by `TartarusLats.Zone`
+       (from `heard_average/2` and the region), and that decision, not these
+       events, drives the motion-vector handshake
+       (`TartarusLats.MotionVectors`) in `TartarusLats.Sim` and
+       `TartarusLats.DatabaseAgent`.
     6. A tag that is beyond and whose filter holds only floor samples is
        forgotten (it is indistinguishable from a tag never heard), so the
        tracker's size is bounded by the tags recently heard.
@@ -97,6 +102,7 @@ defmodule TartarusLats.Tracker do
   @type tag_state :: %{
           filter: RSSIFilter.t(),
           raw: [number()],
+          heard: [number() | nil],
           region: Region.t(),
           pending: nil | {Region.t(), number(), pos_integer(), integer()}
         }
@@ -182,9 +188,10 @@ defmodule TartarusLats.Tracker do
     state = Map.get_lazy(t.tags, tag, fn -> fresh(t) end)
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
     raw = Enum.take([value | state.raw], t.median)
+    heard = Enum.take([if(rssi == :missing, do: nil, else: rssi) | state.heard], t.window)
     {avg, filter} = RSSIFilter.push(state.filter, median(raw))
     candidate = Region.classify(avg, t.calibration, state.region, t.hysteresis_db)
-    state = %{state | filter: filter, raw: raw}
+    state = %{state | filter: filter, raw: raw, heard: heard}
 
     {events, state} =
       cond do
@@ -262,6 +269,45 @@ defmodule TartarusLats.Tracker do
     end
   end
 
+  @doc """
+  The mean of the samples of `tag` actually heard in the last `:window` seconds (missing
+  samples left out), or `nil` when none was heard (or the tag is unknown).
+
+  Unlike `average/2`, which counts a lost packet as the floor so that a tag that went away
+  fades, this value does not dip when a few packets are lost: it is what neighbouring
+  nodes compare to decide which zone a tag is in (`TartarusLats.Zone`).
+
+      iex> t = TartarusLats.Tracker.new(window: 3, median: 1)
+      iex> tag = {"00000000000000000000000000000001", 1, 1}
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 1, tag, -60)
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 2, tag, :missing)
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 3, tag, -70)
+      iex> {TartarusLats.Tracker.heard_average(t, tag), TartarusLats.Tracker.average(t, tag)}
+      {-65.0, -76.66666666666667}
+  """
+  @spec heard_average(t(), Beacon.tag_id()) :: float() | nil
+  def heard_average(%__MODULE__{tags: tags}, tag) do
+    case tags do
+      %{^tag => %{heard: heard}} ->
+        case Enum.reject(heard, &is_nil/1) do
+          [] -> nil
+          values -> Enum.sum(values) / length(values)
+        end
+
+      _ ->
+        nil
+    end
+  end
+
+  @doc "How many samples of `tag` were heard in the last `:window` seconds (0 if unknown)."
+  @spec heard_count(t(), Beacon.tag_id()) :: non_neg_integer()
+  def heard_count(%__MODULE__{tags: tags}, tag) do
+    case tags do
+      %{^tag => %{heard: heard}} -> Enum.count(heard, &is_number/1)
+      _ -> 0
+    end
+  end
+
   @doc "The tags the tracker currently keeps state for, sorted."
   @spec tags(t()) :: [Beacon.tag_id()]
   def tags(%__MODULE__{tags: tags}), do: tags |> Map.keys() |> Enum.sort()
@@ -276,6 +322,7 @@ defmodule TartarusLats.Tracker do
     %{
       filter: RSSIFilter.new(window: t.window, fill: t.missing_rssi),
       raw: List.duplicate(t.missing_rssi, t.median),
+      heard: [],
       region: :beyond,
       pending: nil
     }

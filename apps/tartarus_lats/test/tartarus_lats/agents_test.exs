@@ -160,7 +160,9 @@ defmodule TartarusLats.AgentsTest do
       try do
         # b's database agent is gone: b hears X but nobody there answers a's notice.
         :ok = Tartarus.kill({"lats-db", dep.hosts[:b]})
-        dep = Deployment.run(dep, 40)
+        # Y leaves a at 25 s and is at b by about 33 s; a lets it go once its RSSI has been
+        # under the exit threshold for 5 s (TartarusLats.Zone), by about 40 s.
+        dep = Deployment.run(dep, 45)
         tag = World.tag(dep.world, :y)
         mv = Tartarus.store_get(dep.hosts[:a], {:lats, :mv})
         assert {:a, :pending} = MotionVectors.mvf(mv, tag)
@@ -194,7 +196,7 @@ defmodule TartarusLats.AgentsTest do
         assert r.evidence_at == r.asked_at and r.unreachable == []
 
         :ok = Tartarus.kill({"lats-db", dep.hosts[:b]})
-        dep = Deployment.run(dep, 20)
+        dep = Deployment.run(dep, 25)
 
         assert {:ok, %{answer: {:in_transit, :a}, freshness: :current} = r} =
                  TartarusLats.query(dep.hosts[:a], :where_is, tag, report: false)

@@ -1,0 +1,295 @@
+defmodule TartarusLats.Zone do
+  @moduledoc """
+  The zone decision of thesis §3.3.1, decentralized: which zone a tag is in, decided on
+  each node from its own RSSI and its neighbours', with no central server.
+
+  A node's `TartarusLats.Tracker` says how well the node hears a tag (near, far, beyond,
+  with hysteresis and debounce) and logs it. Zones overlap, though: a tag 4-5 m from two
+  nodes is "far" at both, and a tag standing near a zone's edge keeps crossing the far
+  threshold of the next node. So every second each node tells its neighbours, for every tag
+  it hears or holds, its RSSI (`TartarusLats.Tracker.heard_average/2`: lost packets left
+  out, so a short burst of them does not look like a move) and whether it holds the tag
+  (`report/2`; the messages travel between the database agents, see
+  `TartarusLats.DatabaseAgent`). Each node then decides for itself, by the same rule on the
+  same numbers as its neighbours:
+
+    * **claim** (the tag enters this zone) when the node hears the tag well (at least
+      `:min_heard` samples in its tracker's window, and an RSSI at or above the far
+      threshold: within about 5 m) and its RSSI is at least `:claim_db` above every
+      neighbour's: for `:claim_dwell` consecutive seconds if no neighbour holds the tag;
+      if one does, the RSSI must also be at least `:margin_db` above that neighbour's, for
+      `:dwell` seconds, or `:fast_db` above it for one second (a walker passing through
+      a zone); the holder releases it in the same second, by the rule below;
+    * **release** (the tag leaves this zone) when some neighbour's RSSI is at least
+      `:margin_db` above its own for `:dwell` consecutive seconds, or `:fast_db` above for
+      one (the neighbour takes the tag in the same second), or when its RSSI stays under the exit threshold
+      (`:exit_db` under the far threshold: the tag is out of range, it left) for
+      `:exit_dwell` seconds.
+
+  A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
+  is the hysteresis: a tag standing still, even on the boundary between two zones, stays
+  in the zone that holds it unless the other node is `:margin_db` stronger for `:dwell`
+  seconds, which noise alone rarely gives; a tag that walks on is handed over as soon as it
+  is clearly nearer the next node: the previous zone's RSS at its minimum when the next
+  one's is at its maximum (§3.3.1). Two neighbours never claim one tag in the same second
+  (each would have to be stronger than the other). The exit threshold is under the far
+  threshold on purpose: a tag 4.5 m from its node is at the edge of "far", and its tracker
+  flickers between far and beyond; the zone must not follow it.
+
+  The decision is a plain value and pure: `decide/4` takes the second, this node's tracker
+  and the neighbours' reports, and returns `:entered_zone` / `:left_zone` events (dated
+  from the first second of the held condition, as the tracker dates its records) for the
+  motion vectors (`TartarusLats.MotionVectors`).
+
+      iex> z = TartarusLats.Zone.new(dwell: 1, claim_dwell: 1, min_heard: 1)
+      iex> tag = {"00000000000000000000000000000001", 1, 1}
+      iex> t = TartarusLats.Tracker.new(window: 1, median: 1, confirm: 1)
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 1, tag, -60)
+      iex> {events, z} = TartarusLats.Zone.decide(z, 1, t, %{p2: %{tag => {-70.0, false}}})
+      iex> events
+      [{:entered_zone, tag, 1}]
+      iex> TartarusLats.Zone.report(z, t)
+      %{tag => {-60.0, true}}
+      iex> {events, _z} = TartarusLats.Zone.decide(z, 2, t, %{p2: %{tag => {-53.0, false}}})
+      iex> events
+      [{:left_zone, tag, 2}]
+  """
+
+  alias TartarusLats.{Beacon, Tracker}
+
+  alias TartarusLats.Region
+
+  defstruct margin_db: 6.0,
+            fast_db: 12.0,
+            claim_db: 1.0,
+            claim_dwell: 2,
+            min_heard: 3,
+            dwell: 3,
+            exit_dwell: 5,
+            exit_dbm: -76.0,
+            far_dbm: -73.0,
+            missing_rssi: -100,
+            tags: %{}
+
+  @typedoc "A node's zone decisions: per tag, whether it is in this zone and what is pending."
+  @type t :: %__MODULE__{
+          margin_db: number(),
+          fast_db: number(),
+          claim_db: number(),
+          claim_dwell: pos_integer(),
+          min_heard: pos_integer(),
+          dwell: pos_integer(),
+          exit_dwell: pos_integer(),
+          exit_dbm: number(),
+          far_dbm: number(),
+          missing_rssi: number(),
+          tags: %{
+            Beacon.tag_id() => %{
+              mine: boolean(),
+              pending: nil | {atom(), number(), pos_integer()}
+            }
+          }
+        }
+
+  @typedoc """
+  The neighbours' reports of one second: `%{neighbour => %{tag => {rssi, held}}}`, each
+  neighbour's `report/2` (its RSSI of the tag, and whether it held the tag).
+  """
+  @type reports :: %{term() => %{Beacon.tag_id() => {number(), boolean()}}}
+
+  @typedoc "What the motion vectors are told."
+  @type event ::
+          {:entered_zone, Beacon.tag_id(), number()} | {:left_zone, Beacon.tag_id(), number()}
+
+  @schema [
+    margin_db: [
+      type: :number,
+      default: 6.0,
+      doc: "how much stronger (dB) than the node holding a tag a neighbour must be to take it"
+    ],
+    fast_db: [
+      type: :number,
+      default: 12.0,
+      doc:
+        "a neighbour this much stronger (dB) than the holder takes the tag at once (a walker passing through a zone)"
+    ],
+    claim_db: [
+      type: :number,
+      default: 1.0,
+      doc: "how much stronger (dB) than every neighbour a node must be to claim a tag"
+    ],
+    claim_dwell: [
+      type: :pos_integer,
+      default: 2,
+      doc: "seconds a claim of a tag no neighbour holds must hold"
+    ],
+    min_heard: [
+      type: :pos_integer,
+      default: 3,
+      doc: "samples a node must have heard in its tracker's window to claim a tag"
+    ],
+    dwell: [
+      type: :pos_integer,
+      default: 3,
+      doc: "seconds a hand-over (a neighbour stronger by margin_db) must hold, on both sides"
+    ],
+    exit_dwell: [
+      type: :pos_integer,
+      default: 5,
+      doc: "seconds a held tag must stay under the exit threshold to be released"
+    ],
+    calibration: [
+      type: {:struct, Region},
+      doc: "the near/far thresholds (default `TartarusLats.Region.calibrate/0`)"
+    ],
+    exit_db: [
+      type: :number,
+      default: 3.0,
+      doc:
+        "a held tag is out of range when its RSSI is this far (dB) under the far threshold (3 dB: about 1.4 times the far distance, 7 m with the default calibration)"
+    ],
+    missing_rssi: [type: :number, default: -100, doc: "dBm of a tag a neighbour does not report"]
+  ]
+
+  @doc """
+  A node's zone decision. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Raises `ArgumentError` naming the key on a bad option.
+
+      iex> TartarusLats.Zone.new(dwell: 0)
+      ** (ArgumentError) invalid options given to TartarusLats.Zone.new/1 for key :dwell: expected a positive integer, got: 0
+  """
+  @spec new(keyword()) :: t()
+  def new(opts \\ []) do
+    opts = Tartarus.Options.validate!(opts, @schema, "TartarusLats.Zone.new/1")
+
+    if opts[:margin_db] < opts[:claim_db] or opts[:claim_db] < 0 or
+         opts[:fast_db] < opts[:margin_db],
+       do:
+         raise(
+           ArgumentError,
+           "invalid options given to TartarusLats.Zone.new/1: expected 0 <= claim_db <= margin_db <= fast_db, got: claim_db: #{opts[:claim_db]}, margin_db: #{opts[:margin_db]}, fast_db: #{opts[:fast_db]}"
+         )
+
+    cal = Keyword.get_lazy(opts, :calibration, fn -> Region.calibrate() end)
+
+    %__MODULE__{
+      margin_db: opts[:margin_db],
+      fast_db: opts[:fast_db],
+      claim_db: opts[:claim_db],
+      claim_dwell: opts[:claim_dwell],
+      min_heard: opts[:min_heard],
+      dwell: opts[:dwell],
+      exit_dwell: opts[:exit_dwell],
+      exit_dbm: cal.far_dbm - opts[:exit_db],
+      far_dbm: cal.far_dbm,
+      missing_rssi: opts[:missing_rssi]
+    }
+  end
+
+  @doc """
+  Decides second `t` for every tag this node hears or holds: `tracker` is this node's
+  tracker after second `t`, `reports` its neighbours' filtered RSSI of second `t`. Returns
+  the events, sorted by tag, and the new decision state.
+  """
+  @spec decide(t(), number(), Tracker.t(), reports()) :: {[event()], t()}
+  def decide(%__MODULE__{} = z, t, %Tracker{} = tracker, reports) when is_map(reports) do
+    held = for {tag, %{mine: true}} <- z.tags, do: tag
+    tags = Enum.sort(Enum.uniq(Tracker.tags(tracker) ++ held))
+
+    {events, states} =
+      Enum.reduce(tags, {[], z.tags}, fn tag, {events, states} ->
+        state = Map.get(states, tag, %{mine: false, pending: nil})
+        own = Tracker.heard_average(tracker, tag) || z.missing_rssi
+        {best, holder} = neighbours(reports, tag, z.missing_rssi)
+        heard = own >= z.far_dbm and Tracker.heard_count(tracker, tag) >= z.min_heard
+        {event, state} = step(z, t, tag, state, heard, own, best, holder)
+        {if(event, do: [event | events], else: events), store(states, tag, state)}
+      end)
+
+    {Enum.reverse(events), %{z | tags: states}}
+  end
+
+  @doc """
+  What this node tells its neighbours after second `t`: `%{tag => {rssi, held}}` for every
+  tag it hears or holds (`rssi` is `TartarusLats.Tracker.heard_average/2`, or the floor).
+  """
+  @spec report(t(), Tracker.t()) :: %{Beacon.tag_id() => {number(), boolean()}}
+  def report(%__MODULE__{} = z, %Tracker{} = tracker) do
+    tags = Enum.uniq(Tracker.tags(tracker) ++ held(z))
+
+    Map.new(tags, fn tag ->
+      {tag, {Tracker.heard_average(tracker, tag) || z.missing_rssi, holds?(z, tag)}}
+    end)
+  end
+
+  @doc "True if this node holds `tag` in its zone."
+  @spec holds?(t(), Beacon.tag_id()) :: boolean()
+  def holds?(%__MODULE__{tags: tags}, tag), do: match?(%{^tag => %{mine: true}}, tags)
+
+  @doc "The tags this node holds in its zone, sorted."
+  @spec held(t()) :: [Beacon.tag_id()]
+  def held(%__MODULE__{tags: tags}), do: Enum.sort(for {tag, %{mine: true}} <- tags, do: tag)
+
+  # Not held: claim once heard, stronger than every neighbour by claim_db and than the
+  # neighbour holding the tag (if one does) by margin_db, for `dwell` seconds.
+  defp step(z, t, tag, %{mine: false} = state, heard, own, best, holder) do
+    cond do
+      not heard or own < best + z.claim_db -> {nil, %{state | pending: nil}}
+      holder == nil -> hold(state, t, {:claim, z.claim_dwell}, {:entered_zone, tag}, true)
+      own >= holder + z.fast_db -> hold(state, t, {:take, 1}, {:entered_zone, tag}, true)
+      own >= holder + z.margin_db -> hold(state, t, {:take, z.dwell}, {:entered_zone, tag}, true)
+      true -> {nil, %{state | pending: nil}}
+    end
+  end
+
+  # Held: release when a neighbour is stronger by margin_db for `dwell` seconds (it takes
+  # the tag), or when out of range (under the exit threshold) for `exit_dwell` seconds.
+  defp step(z, t, tag, %{mine: true} = state, _heard, own, best, _holder) do
+    cond do
+      best >= own + z.fast_db ->
+        hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
+
+      best >= own + z.margin_db ->
+        hold(state, t, {:handed, z.dwell}, {:left_zone, tag}, false)
+
+      own < z.exit_dbm ->
+        hold(state, t, {:exit, z.exit_dwell}, {:left_zone, tag}, false)
+
+      true ->
+        {nil, %{state | pending: nil}}
+    end
+  end
+
+  # A condition (`why`) that must hold `need` consecutive seconds; the event is dated from
+  # its first second. A different condition starts the count again.
+  defp hold(state, t, {why, need}, {kind, tag}, mine_after) do
+    {since, count} =
+      case state.pending do
+        {^why, since, count} -> {since, count + 1}
+        _ -> {t, 1}
+      end
+
+    if count >= need,
+      do: {{kind, tag, since}, %{mine: mine_after, pending: nil}},
+      else: {nil, %{state | pending: {why, since, count}}}
+  end
+
+  # The strongest neighbour's RSSI of the tag, and the RSSI of the neighbour that holds it
+  # (nil if none does).
+  defp neighbours(reports, tag, floor) do
+    Enum.reduce(reports, {floor, nil}, fn {_n, values}, {best, holder} ->
+      case values do
+        %{^tag => {v, true}} when is_number(v) -> {max(best, v), max(holder || v, v)}
+        %{^tag => {v, _}} when is_number(v) -> {max(best, v), holder}
+        _ -> {best, holder}
+      end
+    end)
+  end
+
+  # Nothing to remember about a tag that is not held and has nothing pending.
+  defp store(states, tag, %{mine: false, pending: nil}), do: Map.delete(states, tag)
+  defp store(states, tag, state), do: Map.put(states, tag, state)
+end
