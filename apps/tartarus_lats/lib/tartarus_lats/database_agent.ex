@@ -68,8 +68,10 @@ defmodule TartarusLats.DatabaseAgent do
   ## The cloud (centralized design, thesis Scenario 1)
 
   With `centralized: true` the agent uploads, in one post to the cloud agent
-  (`TartarusLats.Cloud`) per phase that produced anything, every new record
-  and every changed vector: one connection per upload.
+  (`TartarusLats.Cloud`) at the end of every second that produced anything
+  (the tick phase), the second's new records and its new or changed stays
+  (only those: a stay is known by its arrival time): one connection per
+  upload, so at most one per node per second.
 
   ## Arguments of `init/1`
 
@@ -111,6 +113,7 @@ defmodule TartarusLats.DatabaseAgent do
       inbox: [],
       received: 0,
       waiting: [],
+      unsent: {[], %{}},
       dets: nil
     }
 
@@ -159,7 +162,7 @@ defmodule TartarusLats.DatabaseAgent do
         do: [],
         else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
 
-    send_all(s, from, {t, 0}, out, records, [])
+    s = send_all(pending(s, records, []), from, {t, 0}, out)
     {:stay, s}
   end
 
@@ -182,15 +185,13 @@ defmodule TartarusLats.DatabaseAgent do
       end
 
     {s, out, changed} = apply_events(s, t, zone_events ++ Enum.sort(inbox))
-    send_all(s, from, {t, j}, out, [], changed)
-    {:stay, s}
+    {:stay, send_all(pending(s, [], changed), from, {t, j}, out)}
   end
 
   def handle_message({:tick, t}, from, s) do
     {s, [], changed} = apply_events(%{s | clock: t}, t, [:tick])
     A.store_put({:lats, :clock}, t)
-    send_all(s, from, {t, :tick}, [], [], changed)
-    {:stay, s}
+    {:stay, send_all(pending(s, [], changed), from, {t, :tick}, [])}
   end
 
   def handle_message(:state, from, s) do
@@ -244,22 +245,44 @@ defmodule TartarusLats.DatabaseAgent do
     {s, out, changed}
   end
 
-  # Casts the handshake messages and the upload, and tells the driver what went where
-  # (the driver's barrier waits for them, see the moduledoc).
-  defp send_all(s, from, {t, _} = stamp, out, records, changed) do
+  # What the cloud has not been sent yet: this second's records, and per tag the new or
+  # changed stays by arrival time (a stay changed twice in a second goes once, as it is last).
+  defp pending(s, records, changed) do
+    {recs, vecs} = s.unsent
+
+    vecs =
+      Enum.reduce(changed, vecs, fn {tag, segs}, vecs ->
+        Map.update(vecs, tag, Map.new(segs, &{&1.arrived_at, &1}), fn by_arrival ->
+          Enum.reduce(segs, by_arrival, &Map.put(&2, &1.arrived_at, &1))
+        end)
+      end)
+
+    %{s | unsent: {Enum.reverse(records, recs), vecs}}
+  end
+
+  # Casts the handshake messages and, in the tick phase, the second's upload (one
+  # connection per node per second with news), and tells the driver what went where (the
+  # driver's barrier waits for them, see the moduledoc).
+  defp send_all(s, from, {t, phase} = stamp, out) do
     Enum.each(out, fn {host, msg} -> :ok = Tartarus.cast({@name, host}, {:mv, stamp, msg}) end)
-    upload = upload(s, t, records, changed)
+    {upload, s} = if phase == :tick, do: upload(s, t), else: {nil, s}
     if upload, do: :ok = Tartarus.cast({TartarusLats.Cloud.agent_name(), s.cloud}, upload)
     sent = Enum.frequencies_by(out, fn {host, _} -> host end)
     A.reply(from, {:ok, %{sent: sent, uploads: if(upload, do: 1, else: 0)}})
+    s
   end
 
-  defp upload(%{centralized: true, cloud: cloud} = s, t, records, changed)
-       when cloud != nil and (records != [] or changed != []) do
-    {:upload, %{node: s.node, time: t, records: records, vectors: changed}}
+  defp upload(%{centralized: true, cloud: cloud, unsent: {recs, vecs}} = s, t)
+       when cloud != nil and (recs != [] or vecs != %{}) do
+    vectors =
+      for {tag, by_arrival} <- Enum.sort(vecs),
+          do: {tag, by_arrival |> Map.values() |> Enum.sort_by(& &1.arrived_at, :desc)}
+
+    msg = {:upload, %{node: s.node, time: t, records: Enum.reverse(recs), vectors: vectors}}
+    {msg, %{s | unsent: {[], %{}}}}
   end
 
-  defp upload(_s, _t, _records, _changed), do: nil
+  defp upload(s, _t), do: {nil, %{s | unsent: {[], %{}}}}
 
   # -- log and persistence ------------------------------------------------------
 
