@@ -68,9 +68,16 @@ defmodule TartarusEmu.Log do
     end
   end
 
-  @doc "Stops the log and its forwarders."
+  @doc """
+  Stops the log and its forwarders. A log that is already gone (or going: it stops with its
+  network) is fine: `:ok` either way.
+  """
   @spec stop(t()) :: :ok
-  def stop(log), do: GenServer.stop(log)
+  def stop(log) do
+    GenServer.stop(log)
+  catch
+    :exit, _ -> :ok
+  end
 
   @doc """
   Ends the current step: collects what the forwarders have (stamped with the current step),
