@@ -1,0 +1,84 @@
+defmodule TartarusWarehouse.TaskAgent do
+  @moduledoc """
+  A task agent (thesis Algorithm 3): it carries the programs of its block of tasks (as
+  code), their resources and the state information, and it is the one token of those
+  resources while it lives.
+
+  It migrates conscientiously among robots (`TartarusWarehouse.Roam`); on each robot it
+  tries to claim it (`TartarusWarehouse.Robot`: the robot must be in the state the agent
+  looks for and idle). When the claim succeeds it hands the programs to the robot and
+  **stays until the robot has run them** (the adaptive clock of §4.5.3), the robot goes to
+  the next state, and the agent tells the distributor it is done: it is then re-issued for
+  the next job (and migrates on) or retires (stops). When a round of robots finds no match
+  it waits `idle_ms` before the next hop, so idle agents do not spin.
+  """
+  use Tartarus.Agent
+
+  alias Tartarus.Agent
+
+  @doc false
+  @impl true
+  def init(args) do
+    Enum.each(args.a.tasks, &Agent.add_module(&1.program))
+    {:move, strategy(args), Map.put(args, :misses, 0)}
+  end
+
+  @doc false
+  @impl true
+  def handle_arrival(_ctx, s) do
+    a = s.a
+
+    case Agent.write(:robot, {:claim, a.look_for, a.needs, Agent.id()}) do
+      :ok ->
+        :ok = Agent.subscribe(:robot)
+        run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
+        :ok = Agent.write(:robot, {:run, Agent.id(), run})
+
+        if a.index == 0,
+          do: {:ok, :ok} = Tartarus.request(s.distributor, {:started, s.ref}, 30_000)
+
+        {:stay, %{s | misses: 0}}
+
+      {:error, _} ->
+        roam(%{s | misses: s.misses + 1})
+    end
+  end
+
+  @doc false
+  @impl true
+  def handle_info({:plugin_event, :robot, {:finished, id, _reports}}, s) do
+    if id == Agent.id() do
+      case Tartarus.request(s.distributor, {:done, s.ref}, 30_000) do
+        {:ok, {:reissue, a}} ->
+          Enum.each(a.tasks, &Agent.add_module(&1.program))
+          {:move, strategy(s), %{s | a: a, misses: 0}}
+
+        {:ok, :retire} ->
+          {:stop, :normal, s}
+      end
+    else
+      {:stay, s}
+    end
+  end
+
+  def handle_info(:roam, s), do: {:move, strategy(s), s}
+  def handle_info(_msg, s), do: {:stay, s}
+
+  @doc false
+  @impl true
+  def handle_move_failed(_dest, _reason, _ctx, s) do
+    Process.send_after(self(), :roam, max(s.idle_ms, 1))
+    {:stay, s}
+  end
+
+  defp roam(s) do
+    if s.misses >= s.round and s.idle_ms > 0 do
+      Process.send_after(self(), :roam, s.idle_ms)
+      {:stay, %{s | misses: 0}}
+    else
+      {:move, strategy(s), s}
+    end
+  end
+
+  defp strategy(s), do: {:strategy, TartarusWarehouse.Roam, s.robots}
+end
