@@ -54,8 +54,8 @@ defmodule TartarusWarehouse.Checker do
   @doc """
   Which jobs completed: `specs` are the job specs (validated); returns `completed` (ids),
   `missing` (`{job, task}` never run), `duplicated` (run more than once), `split`
-  (`{job, sequence}` run on more than one robot), `out_of_order` (`{job, sequence}`
-  whose tasks did not run in order). A job completes when none of its tasks is missing or
+  (`{job, sequence}` run on more than one robot), `out_of_order` (`{job, task}` that
+  started before the task it comes after had finished). A job completes when none of its tasks is missing or
   duplicated and none of its sequences is split or out of order.
   """
   @spec completion([entry()], [map()]) :: map()
@@ -77,13 +77,15 @@ defmodule TartarusWarehouse.Checker do
               rs |> Enum.map(& &1.robot) |> Enum.uniq() |> length() > 1,
               do: {spec.id, s}
 
-        order = order_of(spec)
+        at = Map.new(runs, &{&1.task, &1})
 
         ooo =
-          for {s, rs} <- seqs,
-              idx = rs |> Enum.sort_by(& &1.start_us) |> Enum.map(&Map.get(order, &1.task)),
-              idx != Enum.sort(idx),
-              do: {spec.id, s}
+          for t <- spec.tasks,
+              p <- t |> Map.get(:after, []) |> List.wrap(),
+              run = at[to_string(t.name)],
+              before = at[to_string(p)],
+              run != nil and before != nil and before.stop_us > run.start_us,
+              do: {spec.id, to_string(t.name)}
 
         {spec.id, missing, dup, split, ooo}
       end)
@@ -95,27 +97,6 @@ defmodule TartarusWarehouse.Checker do
       split: Enum.flat_map(results, &elem(&1, 3)),
       out_of_order: Enum.flat_map(results, &elem(&1, 4))
     }
-  end
-
-  # Position of each task along its chain (depth from its sequence's head).
-  defp order_of(spec) do
-    after_of =
-      Map.new(
-        spec.tasks,
-        &{to_string(&1.name),
-         &1 |> Map.get(:after, []) |> List.wrap() |> Enum.map(fn p -> to_string(p) end)}
-      )
-
-    Map.new(after_of, fn {n, _} -> {n, depth(n, after_of, 0)} end)
-  end
-
-  defp depth(_n, _after_of, d) when d > 10_000, do: d
-
-  defp depth(n, after_of, d) do
-    case Map.get(after_of, n, []) do
-      [] -> d
-      [p | _] -> depth(p, after_of, d + 1)
-    end
   end
 
   @doc """

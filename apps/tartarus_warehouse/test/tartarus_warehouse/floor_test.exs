@@ -1,0 +1,127 @@
+defmodule TartarusWarehouse.FloorTest do
+  use ExUnit.Case, async: false
+  doctest TartarusWarehouse.Floor
+
+  alias TartarusWarehouse.{Checker, Experiment, Floor, Prop}
+
+  test "task agents run 6 jobs on 3 robots: every job completes, no resource is held twice, robots pipeline" do
+    jobs = Experiment.thesis_jobs(6, 1000)
+    {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, jitter: 0.3, seed: 3)
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    c = Checker.completion(r.history, jobs)
+    assert Enum.sort(c.completed) == Enum.to_list(1..6)
+    assert length(r.history) == 24
+    # More than one robot worked, and some instant had two executing at once.
+    assert r.history |> Enum.map(& &1.robot) |> Enum.uniq() |> length() > 1
+
+    assert Enum.any?(Checker.occupancy(r.history, r.t0_us, 5).series, fn {_, busy} -> busy > 1 end)
+
+    assert r.migrations > 0
+  end
+
+  test "the centralized baseline runs the same jobs with no migration" do
+    jobs = Experiment.thesis_jobs(4, 1000)
+    {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, design: :central)
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 4
+    assert r.migrations == 0
+  end
+
+  test "independent sequences run on different robots; a robot retired after job 1 takes no more work" do
+    job = fn id ->
+      %{
+        id: id,
+        tasks: [
+          %{name: "Fetch", resources: [:rack], duration_ms: 1000},
+          %{name: "Carry", resources: [:path], after: ["Fetch"], duration_ms: 1000},
+          %{name: "Stamp", resources: [:stamp], duration_ms: 1000},
+          %{name: "Place", resources: [:shelf], after: ["Stamp"], duration_ms: 1000}
+        ]
+      }
+    end
+
+    jobs = Enum.map(1..4, job)
+    {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, retire: [{3, 1}])
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 4
+    # Each job's two sequences ran on two robots.
+    for j <- 1..4 do
+      robots = for e <- r.history, e.job == j, uniq: true, do: e.robot
+      assert length(robots) == 2
+    end
+  end
+
+  test "a malformed job is refused before anything starts" do
+    assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
+
+    assert {:error, "invalid options given to TartarusWarehouse.Floor.run/1 for key :robots" <> _} =
+             Floor.run(robots: 0)
+  end
+
+  @tag timeout: 300_000
+  test "property: random jobs (sequences, independent sequences, shared resources), 1-6 robots, random durations, a robot removal: no violation, every job completes" do
+    resources = [:a, :b, :c, :d, :e]
+
+    # A task: its resources (1-2 of five), its ideal duration, whether it follows the previous.
+    task =
+      {:proper_types.non_empty(:proper_types.list(:proper_types.elements(resources))),
+       :proper_types.integer(500, 3000), :proper_types.boolean()}
+
+    job = :proper_types.non_empty(:proper_types.list(task))
+
+    gen =
+      {:proper_types.integer(1, 6), :proper_types.non_empty(:proper_types.list(job)),
+       :proper_types.integer(1, 1000), :proper_types.boolean()}
+
+    prop =
+      :proper.forall(gen, fn {robots, raw_jobs, seed, removal} ->
+        Prop.safely(fn ->
+          jobs =
+            raw_jobs
+            |> Enum.take(5)
+            |> Enum.with_index(1)
+            |> Enum.map(fn {tasks, id} ->
+              %{
+                id: id,
+                tasks:
+                  tasks
+                  |> Enum.take(4)
+                  |> Enum.with_index(1)
+                  |> Enum.map(fn {{rs, ms, chained}, i} ->
+                    %{
+                      name: "T#{i}",
+                      resources: rs,
+                      duration_ms: ms,
+                      after: if(chained and i > 1, do: ["T#{i - 1}"], else: [])
+                    }
+                  end)
+              }
+            end)
+
+          retire = if removal and robots > 1, do: [{robots, 1}], else: []
+
+          {:ok, r} =
+            Floor.run(
+              robots: robots,
+              jobs: jobs,
+              scale: 0.005,
+              jitter: 0.5,
+              seed: seed,
+              retire: retire,
+              resources: resources,
+              timeout_ms: 30_000
+            )
+
+          c = Checker.completion(r.history, jobs)
+
+          r.timed_out == [] and Checker.violations(r.history) == [] and
+            length(c.completed) == length(jobs)
+        end)
+      end)
+
+    assert Prop.check(prop, 25) == true
+  end
+end
