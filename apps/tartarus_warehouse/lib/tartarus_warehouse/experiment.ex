@@ -1,7 +1,381 @@
 defmodule TartarusWarehouse.Experiment do
   @moduledoc """
-  Jobs of the thesis's experiments.
+  The experiments of `mix tartarus.warehouse` (thesis §4.7), as one
+  `TartarusEmu.Scenario`: each step is one configuration, run on a fresh emulated floor
+  (`TartarusWarehouse.Floor`) and checked (`TartarusWarehouse.Checker`).
+
+    * `:robots` - step k runs the thesis's warehouse jobs (T1-T4, §4.7.4) on k robots
+      (k = 1..`robots`): `jobs` jobs with variable durations (each robot has its own pace
+      and each execution a spread of `jitter`): a Gantt chart per k (Figs. 4.7-4.10) and
+      the speed-up over one robot; then `equal_jobs` jobs with equal durations: the
+      speed-up of the pipeline in steady state;
+    * `:scaling` - step i runs `scaling_jobs` jobs of n soft tasks (Sort, Merge, Add, Sub,
+      Div repeating, §4.7.2; n = 5, 10, 20, ... up to `max_tasks`) with equal durations on
+      a network of `nodes` nodes (`scaling_robots` robots, the rest secondary), with task
+      agents and with the central server: the average time per task against tasks per
+      job (Fig. 4.4).
+
+  Every run's mutual-exclusion violations (Eq. 4.1) and incomplete jobs are counted in
+  the summary (`mutex_violations`, `deadlocks`: jobs not completed within `timeout_ms`).
   """
+  @behaviour TartarusEmu.Scenario
+
+  alias TartarusTools.{Report, Series, SVG}
+  alias TartarusWarehouse.{Checker, Floor}
+
+  @schema [
+    experiment: [type: {:in, [:robots, :scaling]}, default: :robots, doc: "which experiment"],
+    seed: [type: :integer, default: 1, doc: "seed"],
+    out: [
+      type: :any,
+      doc: "output directory (default `results/warehouse-<experiment>-<UTC timestamp>`), or false"
+    ],
+    quiet: [type: :boolean, default: false, doc: "no progress line"],
+    scale: [type: :number, default: 0.01, doc: "time scale: 0.01 runs a 2 s task as 20 ms"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
+    jobs: [type: :pos_integer, default: 4, doc: "`robots`: jobs with variable durations"],
+    jitter: [type: :number, default: 0.3, doc: "`robots`: spread of each execution's duration"],
+    equal_jobs: [type: :pos_integer, default: 40, doc: "`robots`: jobs with equal durations"],
+    max_tasks: [type: :pos_integer, default: 60, doc: "`scaling`: tasks per job up to this"],
+    scaling_jobs: [type: :pos_integer, default: 5, doc: "`scaling`: jobs per run"],
+    nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
+    scaling_robots: [type: :pos_integer, default: 10, doc: "`scaling`: robots among them"],
+    timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
+  ]
+
+  @thesis_speedup %{2 => 1.75, 3 => 1.84, 4 => 2.21}
+
+  @doc "The options of `run/1`."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  Checks `run/1`'s options; returns them with defaults, or `{:error, message}`.
+
+      iex> {:ok, opts} = TartarusWarehouse.Experiment.validate(experiment: :scaling)
+      iex> {opts[:max_tasks], opts[:nodes]}
+      {60, 100}
+      iex> TartarusWarehouse.Experiment.validate(experiment: :otfp)
+      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling], got: :otfp"}
+  """
+  @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate(opts) do
+    with {:ok, opts} <-
+           Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Experiment.run/1") do
+      if opts[:nodes] < opts[:scaling_robots] + 1,
+        do:
+          {:error,
+           "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + 1 (#{opts[:scaling_robots] + 1}), got: #{opts[:nodes]}"},
+        else: {:ok, opts}
+    end
+  end
+
+  @doc """
+  Runs an experiment (options above) through `TartarusEmu.Scenario.run/2`. Returns
+  `{:ok, %{summary:, series:, out:, files:}}` or `{:error, message}`.
+
+  #{Tartarus.Options.docs(@schema)}
+  """
+  @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
+  def run(opts \\ []) do
+    with {:ok, opts} <- validate(opts) do
+      out =
+        case Keyword.fetch(opts, :out) do
+          {:ok, out} -> out
+          :error -> Report.default_out_dir("warehouse-#{opts[:experiment]}")
+        end
+
+      points = points(opts)
+
+      TartarusEmu.Scenario.run(__MODULE__,
+        seed: opts[:seed],
+        out: out,
+        quiet: opts[:quiet],
+        steps: length(points),
+        params: Keyword.drop(opts, [:seed, :out, :quiet]),
+        points: points
+      )
+    end
+  end
+
+  defp points(opts) do
+    case opts[:experiment] do
+      :robots -> Enum.to_list(1..opts[:robots])
+      :scaling -> Enum.filter([5, 10, 20, 30, 40, 50, 60, 80, 100], &(&1 <= opts[:max_tasks]))
+    end
+    |> case do
+      [] -> [opts[:max_tasks]]
+      list -> list
+    end
+  end
+
+  # -- the scenario ------------------------------------------------------------------
+
+  @impl TartarusEmu.Scenario
+  def name, do: "warehouse"
+
+  @impl TartarusEmu.Scenario
+  def title, do: "Warehouse (thesis ch. 4): a clock-less pipeline of task agents"
+
+  @impl TartarusEmu.Scenario
+  def setup(opts) do
+    {:ok,
+     %{
+       p: Map.new(opts.params),
+       seed: opts.seed,
+       points: opts.points,
+       runs: [],
+       series: Series.new()
+     }}
+  end
+
+  @impl TartarusEmu.Scenario
+  def step(state, k) do
+    point = Enum.at(state.points, k - 1)
+    runs = run_point(state.p.experiment, point, state)
+    state = %{state | runs: state.runs ++ runs}
+    %{state | series: record(state.p.experiment, point, state)}
+  end
+
+  @impl TartarusEmu.Scenario
+  def done?(state, k), do: k >= length(state.points)
+
+  @impl TartarusEmu.Scenario
+  def series(state), do: state.series
+
+  defp run_point(:robots, k, state) do
+    p = state.p
+    paces = Enum.map(1..k, &(1.0 + 0.1 * rem(&1 * 7, 5)))
+
+    variable =
+      floor!(
+        robots: k,
+        jobs: thesis_jobs(p.jobs, 2000),
+        scale: p.scale,
+        jitter: p.jitter,
+        paces: paces,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms
+      )
+
+    equal =
+      floor!(
+        robots: k,
+        jobs: thesis_jobs(p.equal_jobs, 2000),
+        scale: p.scale,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms
+      )
+
+    [
+      Map.merge(variable, %{kind: :variable, point: k, specs: thesis_jobs(p.jobs, 2000)}),
+      Map.merge(equal, %{kind: :equal, point: k, specs: thesis_jobs(p.equal_jobs, 2000)})
+    ]
+  end
+
+  defp run_point(:scaling, n, state) do
+    p = state.p
+    jobs = soft_jobs(p.scaling_jobs, n, 2000)
+
+    for design <- [:agents, :central] do
+      r =
+        floor!(
+          robots: p.scaling_robots,
+          secondary: p.nodes - p.scaling_robots - 1,
+          jobs: jobs,
+          scale: p.scale,
+          design: design,
+          seed: state.seed,
+          mode: p.mode,
+          timeout_ms: p.timeout_ms
+        )
+
+      Map.merge(r, %{kind: design, point: n, specs: jobs})
+    end
+  end
+
+  defp floor!(opts) do
+    {:ok, r} = Floor.run(opts)
+    c = Checker.completion(r.history, opts[:jobs])
+
+    Map.merge(r, %{
+      violations: length(Checker.violations(r.history)),
+      completed_jobs: length(c.completed),
+      occupancy: Checker.occupancy(r.history, r.t0_us, 20)
+    })
+  end
+
+  defp record(:robots, k, state) do
+    [v, e] = Enum.filter(state.runs, &(&1.point == k))
+    [v1, e1] = Enum.filter(state.runs, &(&1.point == 1))
+
+    state.series
+    |> Series.record(:speedup_variable, k, Float.round(v1.makespan_ms / v.makespan_ms, 3))
+    |> Series.record(:speedup_equal, k, Float.round(e1.makespan_ms / e.makespan_ms, 3))
+    |> Series.record(:makespan_variable_ms, k, round(v.makespan_ms))
+    |> Series.record(:makespan_equal_ms, k, round(e.makespan_ms))
+    |> Series.record(:mean_busy_robots_equal, k, e.occupancy.mean)
+  end
+
+  defp record(:scaling, n, state) do
+    [a, c] = Enum.filter(state.runs, &(&1.point == n))
+    per = fn r -> Float.round(r.makespan_ms / (length(r.jobs) * n), 3) end
+
+    state.series
+    |> Series.record(:avg_task_ms_agents, n, per.(a))
+    |> Series.record(:avg_task_ms_central, n, per.(c))
+    |> Series.record(:migrations_agents, n, a.migrations)
+  end
+
+  @impl TartarusEmu.Scenario
+  def charts(%{p: %{experiment: :robots}}),
+    do: [
+      %{
+        file: "speedup",
+        title: "Speed-up over one robot",
+        series: [:speedup_variable, :speedup_equal],
+        x_label: "robots",
+        y_label: "speed-up"
+      }
+    ]
+
+  def charts(_state),
+    do: [
+      %{
+        file: "avg_task_time",
+        title: "Average time per task: task agents vs central server (Fig. 4.4)",
+        series: [:avg_task_ms_agents, :avg_task_ms_central],
+        x_label: "tasks per job",
+        y_label: "ms per task"
+      }
+    ]
+
+  @impl TartarusEmu.Scenario
+  def summary(state) do
+    p = state.p
+    runs = state.runs
+
+    by = fn name ->
+      Map.new(Series.points(state.series, name), fn {x, y} -> {to_string(x), y} end)
+    end
+
+    base = %{
+      experiment: to_string(p.experiment),
+      jobs: runs |> Enum.map(&length(&1.jobs)) |> Enum.sum(),
+      tasks: runs |> Enum.map(&length(&1.history)) |> Enum.sum(),
+      completed_jobs: runs |> Enum.map(& &1.completed_jobs) |> Enum.sum(),
+      mutex_violations: runs |> Enum.map(& &1.violations) |> Enum.sum(),
+      deadlocks: runs |> Enum.map(&length(&1.timed_out)) |> Enum.sum(),
+      scale: p.scale,
+      mode: to_string(p.mode),
+      wall_ms: runs |> Enum.map(& &1.wall_ms) |> Enum.sum()
+    }
+
+    case p.experiment do
+      :robots ->
+        Map.merge(base, %{
+          speedup: by.(:speedup_variable),
+          speedup_equal: by.(:speedup_equal),
+          makespan_variable_ms: by.(:makespan_variable_ms),
+          makespan_equal_ms: by.(:makespan_equal_ms),
+          jobs_variable: p.jobs,
+          jobs_equal: p.equal_jobs,
+          jitter: p.jitter,
+          speedup_thesis: Map.new(@thesis_speedup, fn {k, v} -> {to_string(k), v} end)
+        })
+
+      :scaling ->
+        agents = by.(:avg_task_ms_agents)
+        central = by.(:avg_task_ms_central)
+
+        Map.merge(base, %{
+          speedup: nil,
+          avg_task_ms_agents: agents,
+          avg_task_ms_central: central,
+          agents_faster_at:
+            for({n, a} <- agents, a < central[n], do: String.to_integer(n)) |> Enum.sort(),
+          nodes: p.nodes,
+          robots: p.scaling_robots,
+          jobs_per_run: p.scaling_jobs
+        })
+    end
+  end
+
+  @impl TartarusEmu.Scenario
+  def comparisons(%{p: %{experiment: :robots}} = state) do
+    ours = Map.new(Series.points(state.series, :speedup_variable))
+
+    for {k, thesis} <- Enum.sort(@thesis_speedup), Map.has_key?(ours, k) do
+      %{metric: "speed-up on #{k} robots (variable durations)", ours: ours[k], thesis: thesis}
+    end
+  end
+
+  def comparisons(_state), do: []
+
+  @impl TartarusEmu.Scenario
+  def write(state, dir) do
+    rows =
+      for r <- state.runs, e <- r.history do
+        [
+          r.point,
+          r.kind,
+          e.robot,
+          e.job,
+          e.task,
+          Enum.join(Enum.map(e.resources, &inspect/1), " "),
+          Float.round((e.start_us - r.t0_us) / 1000, 3),
+          Float.round((e.stop_us - r.t0_us) / 1000, 3),
+          Float.round(e.ms, 3)
+        ]
+      end
+
+    csv =
+      Report.write_csv!(
+        dir,
+        "executions",
+        ["point", "run", "robot", "job", "task", "resources", "start_ms", "stop_ms", "ms"],
+        rows
+      )
+
+    gantts =
+      for r <- state.runs,
+          r.kind in [:variable, :agents] and (r.kind == :variable or r.point == hd(state.points)) do
+        rows =
+          Enum.map(r.robots, fn robot ->
+            spans =
+              for e <- r.history, e.robot == robot do
+                %{
+                  start: (e.start_us - r.t0_us) / 1000,
+                  stop: (e.stop_us - r.t0_us) / 1000,
+                  label: "J#{e.job}",
+                  group: e.task
+                }
+              end
+
+            %{label: robot, spans: spans}
+          end)
+
+        what =
+          if r.kind == :variable,
+            do: "#{r.point} robot(s), variable durations",
+            else: "#{r.point} tasks per job, agents"
+
+        file =
+          if r.kind == :variable,
+            do: "gantt_#{r.point}_robots.svg",
+            else: "gantt_#{r.point}_tasks.svg"
+
+        SVG.write!(
+          Path.join(dir, file),
+          SVG.gantt(rows, title: "Warehouse: #{what}", x_label: "ms")
+        )
+      end
+
+    [csv | gantts]
+  end
 
   @doc """
   `n` jobs of the warehouse's four sequential tasks (§4.7.4): T1 leave the bay (`:bay`),

@@ -1,0 +1,111 @@
+defmodule Mix.Tasks.Tartarus.Warehouse do
+  @shortdoc "Warehouse: mutual exclusion by a clock-less pipeline of task agents (thesis ch. 4)"
+  @moduledoc """
+  Runs the warehouse experiments of the thesis (§4.7) on emulated floors (see
+  `TartarusWarehouse.Experiment`).
+
+      mix tartarus.warehouse --experiment robots|scaling [--seed 1] [--out DIR] [--json]
+                             [--scale 0.01] [--mode virtual|peer]
+                             [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
+                             [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
+
+  `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
+  (default 0.01: 20 ms). `--help` prints this text.
+
+    * `robots`: the warehouse's 4 jobs of T1-T4 with variable durations on 1..4 robots: a
+      Gantt chart per robot count (`gantt_<k>_robots.svg`, Figs. 4.7-4.10) and the
+      speed-up over one robot (`speedup.svg`, against the thesis's 1.75, 1.84, 2.21); then
+      `--equal-jobs` jobs with equal durations (the pipeline's steady-state speed-up);
+    * `scaling`: jobs of 5..60 soft tasks (Sort, Merge, Add, Sub, Div repeating) on a
+      100-node network, task agents vs the central server: `avg_task_time.svg` (Fig. 4.4).
+
+  Output (in `--out DIR`, default `results/warehouse-<experiment>-<UTC timestamp>`):
+  `executions.csv` (every task executed: robot, job, task, resources, start, stop), the
+  Gantt charts, the series as CSV and SVG, `summary.json` and `summary.md`.
+
+  Summary keys: `experiment, jobs, tasks, completed_jobs, mutex_violations, deadlocks,
+  speedup` (for `robots`: an object keyed by robot count; null for `scaling`),
+  `speedup_equal, makespan_variable_ms, makespan_equal_ms, speedup_thesis` (robots),
+  `avg_task_ms_agents, avg_task_ms_central` (objects keyed by tasks per job),
+  `agents_faster_at` (scaling), `scale, mode, wall_ms` and the runner's `scenario, seed,
+  steps, setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON
+  object.
+  """
+  use TartarusTools.CLI
+
+  alias TartarusWarehouse.Experiment
+
+  @task "tartarus.warehouse"
+
+  @impl true
+  def run(argv) do
+    # The flags are the experiment's schema; the two choices are read as strings first.
+    schema =
+      Experiment.schema()
+      |> Keyword.drop([:quiet])
+      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "robots"))
+      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
+
+    opts = TartarusTools.CLI.options!(argv, schema, @task)
+
+    experiment =
+      TartarusTools.CLI.choice!(
+        opts[:experiment],
+        [:robots, :scaling],
+        :experiment,
+        @task,
+        :robots
+      )
+
+    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
+    json? = opts[:json]
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.merge(experiment: experiment, mode: mode, quiet: json?)
+
+    exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
+
+    case Experiment.validate(exp_opts) do
+      {:ok, _} -> :ok
+      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+    end
+
+    Mix.Task.run("app.start")
+
+    unless json?,
+      do:
+        Mix.shell().info(
+          "warehouse: experiment #{experiment}, seed #{opts[:seed]}, #{mode} hosts..."
+        )
+
+    case Experiment.run(exp_opts) do
+      {:ok, %{summary: s, out: dir}} ->
+        TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
+
+      {:error, message} ->
+        Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp text(s, dir) do
+    lines =
+      case s.experiment do
+        "robots" ->
+          "speed-up (variable durations): #{inspect(s.speedup)}; thesis #{inspect(s.speedup_thesis)}\n" <>
+            "speed-up (equal durations, #{s.jobs_equal} jobs): #{inspect(s.speedup_equal)}"
+
+        "scaling" ->
+          "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
+      end
+
+    """
+    jobs #{s.jobs}, completed #{s.completed_jobs}, tasks run #{s.tasks}, mutex violations #{s.mutex_violations}, deadlocks #{s.deadlocks}
+    #{lines}
+    written to #{dir}\
+    """
+  end
+end
