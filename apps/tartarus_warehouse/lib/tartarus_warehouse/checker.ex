@@ -32,6 +32,7 @@ defmodule TartarusWarehouse.Checker do
   @spec violations([entry()]) :: [%{resource: term(), robots: {term(), term()}, at_us: integer()}]
   def violations(history) do
     history
+    |> Enum.reject(&Map.get(&1, :skipped, false))
     |> Enum.flat_map(fn e -> Enum.map(e.resources, &{&1, e}) end)
     |> Enum.group_by(&elem(&1, 0), &elem(&1, 1))
     |> Enum.sort()
@@ -68,7 +69,7 @@ defmodule TartarusWarehouse.Checker do
         names = Enum.map(spec.tasks, &to_string(&1.name))
         counts = Enum.frequencies_by(runs, & &1.task)
         missing = for n <- names, Map.get(counts, n, 0) == 0, do: {spec.id, n}
-        dup = for {n, c} <- counts, c > 1, do: {spec.id, n}
+        dup = for {n, c} <- counts, c > 1, n in names, do: {spec.id, n}
 
         seqs = Enum.group_by(runs, &Map.get(&1, :seq))
 

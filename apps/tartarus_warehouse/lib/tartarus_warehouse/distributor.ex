@@ -36,7 +36,18 @@ defmodule TartarusWarehouse.Distributor do
     * `{:reissue, ref, assignment}` - the agent `ref` that just reported carries
       `assignment` next;
     * `{:retire, ref}` - the agent `ref` that just reported stops;
-    * `{:job_done, job_id}` - every task of the job ran.
+    * `{:job_done, job_id}` - every task of the job ran;
+    * `{:sequence, change}` - release a sequence agent that writes `change` into every
+      robot's state-transition database (on-the-fly programming, below).
+
+  ## On-the-fly programming (§4.5.4)
+
+  `insert/3` adds a task after another one: a sequence agent tells every robot to wait,
+  after that task, for the new task's agent, which is released like any other (first come,
+  first served on its resources) and keeps serving robots (and holding its resources)
+  until `delete/2` removes the task; it then retires as soon as it reports, or when it asks
+  `still/2` after a round without work. `delete/2` of a job's own task only tells the
+  robots (they skip it).
 
   ## Example
 
@@ -82,6 +93,7 @@ defmodule TartarusWarehouse.Distributor do
           | {:reissue, ref(), assignment()}
           | {:retire, ref()}
           | {:job_done, term()}
+          | {:sequence, {:insert, String.t(), String.t()} | {:delete, String.t()}}
 
   @typedoc "The distributor."
   @type t :: %__MODULE__{
@@ -92,7 +104,8 @@ defmodule TartarusWarehouse.Distributor do
           jobs: %{term() => non_neg_integer()},
           starting: ref() | nil,
           next_ref: pos_integer(),
-          completed: [term()]
+          completed: [term()],
+          inserted: %{String.t() => boolean()}
         }
 
   defstruct world: nil,
@@ -102,7 +115,8 @@ defmodule TartarusWarehouse.Distributor do
             jobs: %{},
             starting: nil,
             next_ref: 1,
-            completed: []
+            completed: [],
+            inserted: %{}
 
   @doc "A distributor for `world` (see `TartarusWarehouse.Job.world/2`)."
   @spec new(Job.world()) :: t()
@@ -177,6 +191,11 @@ defmodule TartarusWarehouse.Distributor do
       {nil, _} ->
         {d, [{:retire, ref}]}
 
+      {%{persistent: true} = a, _out} ->
+        if Map.get(d.inserted, inserted_name(a), false),
+          do: {d, [{:reissue, ref, a}]},
+          else: free_persistent(d, ref, a)
+
       {a, out} ->
         held = Map.drop(d.held, a.resources)
         left = d.jobs[a.job] - 1
@@ -199,6 +218,101 @@ defmodule TartarusWarehouse.Distributor do
 
         {d, finished ++ actions}
     end
+  end
+
+  @doc """
+  Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
+  `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
+  actions}` (a `{:sequence, {:insert, after_task, name}}` and, once its resources are
+  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`.
+
+      iex> alias TartarusWarehouse.Distributor, as: D
+      iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
+      iex> {:ok, d, [{:release, 1, a}, {:sequence, change}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
+      iex> {a.look_for, a.next, change}
+      {{:inserted, "T2A"}, :resume, {:insert, "T2", "T2A"}}
+      iex> {d, [{:reissue, 1, _}]} = D.done(d, 1)
+      iex> {:ok, d, [{:sequence, {:delete, "T2A"}}]} = D.delete(d, "T2A")
+      iex> D.done(d, 1)
+      ...> |> elem(1)
+      [{:retire, 1}]
+  """
+  @spec insert(t(), String.t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
+  def insert(%__MODULE__{} = d, after_task, spec) do
+    name = spec |> Map.get(:name, "") |> to_string()
+
+    with :ok <-
+           if(Map.get(d.inserted, name),
+             do: {:error, "task #{inspect(name)} is already inserted"},
+             else: :ok
+           ),
+         {:ok, plan} <-
+           Job.plan(%{id: {:otfp, name}, tasks: [Map.put(spec, :after, [])]}, d.world) do
+      [%{tasks: tasks, resources: rs}] = hd(plan.sequences)
+
+      a = %{
+        job: {:otfp, name},
+        seq: 0,
+        index: 1,
+        tasks: tasks,
+        resources: rs,
+        needs: [],
+        look_for: {:inserted, name},
+        next: :resume,
+        persistent: true
+      }
+
+      d = %{d | queue: d.queue ++ [a], inserted: Map.put(d.inserted, name, true)}
+      {d, actions} = issue(d, nil)
+      {:ok, d, actions ++ [{:sequence, {:insert, to_string(after_task), name}}]}
+    end
+  end
+
+  @doc """
+  Deletes task `name`: an inserted task's agent retires (at once if it was not yet
+  released), and robots skip the task from now on. Returns `{:ok, distributor, actions}`.
+  """
+  @spec delete(t(), String.t()) :: {:ok, t(), [action()]}
+  def delete(%__MODULE__{} = d, name) do
+    name = to_string(name)
+
+    queue = Enum.reject(d.queue, &(Map.get(&1, :persistent) && inserted_name(&1) == name))
+
+    inserted =
+      if Map.has_key?(d.inserted, name), do: Map.put(d.inserted, name, false), else: d.inserted
+
+    {:ok, %{d | queue: queue, inserted: inserted}, [{:sequence, {:delete, name}}]}
+  end
+
+  @doc """
+  An inserted task's agent `ref` found no work for a while: if its task was deleted it
+  retires now (`{:retire, ref}` among the actions, its resources free); else nothing.
+  """
+  @spec still(t(), ref()) :: {t(), [action()]}
+  def still(%__MODULE__{} = d, ref) do
+    case Map.get(d.out, ref) do
+      %{persistent: true} = a ->
+        if Map.get(d.inserted, inserted_name(a), false),
+          do: {d, []},
+          else: free_persistent(d, ref, a)
+
+      _ ->
+        {d, []}
+    end
+  end
+
+  defp inserted_name(%{job: {:otfp, name}}), do: name
+
+  defp free_persistent(d, ref, a) do
+    d = %{
+      d
+      | out: Map.delete(d.out, ref),
+        held: Map.drop(d.held, a.resources),
+        inserted: Map.delete(d.inserted, inserted_name(a))
+    }
+
+    {d, actions} = issue(d, nil)
+    {d, actions ++ [{:retire, ref}]}
   end
 
   @doc "Assignments waiting to be released."

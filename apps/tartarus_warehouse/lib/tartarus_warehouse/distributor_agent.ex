@@ -7,7 +7,9 @@ defmodule TartarusWarehouse.DistributorAgent do
   completes.
 
   Requests it answers: `{:submit, job_spec}` (`:ok` or `{:error, message}`; jobs arrive
-  at any time), `{:started, ref}` and `{:done, ref}` from task agents, `:status`.
+  at any time), `{:insert, after_task, task_spec}` and `{:delete, task}` (on-the-fly
+  programming: it releases a `TartarusWarehouse.SequenceAgent`), `{:started, ref}`,
+  `{:done, ref}` and `{:still, ref}` from task agents, `:status`.
   """
   use Tartarus.Agent
 
@@ -58,6 +60,31 @@ defmodule TartarusWarehouse.DistributorAgent do
     {:stay, perform(others, %{s | d: d})}
   end
 
+  def handle_message({:insert, after_task, spec}, from, s) do
+    case Distributor.insert(s.d, after_task, spec) do
+      {:ok, d, actions} ->
+        Tartarus.Agent.reply(from, :ok)
+        {:stay, perform(actions, %{s | d: d})}
+
+      {:error, message} ->
+        Tartarus.Agent.reply(from, {:error, message})
+        {:stay, s}
+    end
+  end
+
+  def handle_message({:delete, name}, from, s) do
+    {:ok, d, actions} = Distributor.delete(s.d, name)
+    Tartarus.Agent.reply(from, :ok)
+    {:stay, perform(actions, %{s | d: d})}
+  end
+
+  def handle_message({:still, ref}, from, s) do
+    {d, actions} = Distributor.still(s.d, ref)
+    {mine, others} = Enum.split_with(actions, &(&1 == {:retire, ref}))
+    Tartarus.Agent.reply(from, if(mine == [], do: :stay, else: :retire))
+    {:stay, perform(others, %{s | d: d})}
+  end
+
   def handle_message(:status, from, s) do
     Tartarus.Agent.reply(from, %{
       waiting: Distributor.waiting(s.d),
@@ -95,6 +122,18 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   defp act({:job_done, id}, s) do
     if s.owner, do: send(s.owner, {:warehouse_job_done, id, System.system_time(:microsecond)})
+    s
+  end
+
+  defp act({:sequence, change}, s) do
+    {:ok, _} =
+      Tartarus.create_mobile_agent(
+        Tartarus.Agent.host(),
+        TartarusWarehouse.SequenceAgent,
+        %{change: change, robots: s.robots, owner: s.owner},
+        seed: {s.seed, :sequence, change}
+      )
+
     s
   end
 

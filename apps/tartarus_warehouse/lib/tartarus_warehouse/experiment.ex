@@ -13,7 +13,18 @@ defmodule TartarusWarehouse.Experiment do
       Div repeating, §4.7.2; n = 5, 10, 20, ... up to `max_tasks`) with equal durations on
       a network of `nodes` nodes (`scaling_robots` robots, the rest secondary), with task
       agents and with the central server: the average time per task against tasks per
-      job (Fig. 4.4).
+      job (Fig. 4.4);
+    * `:otfp` - on-the-fly programming (§4.5.4): 6 warehouse jobs on 3 robots, a task T2A
+      (a detour, its program compiled at run time) added after T2 while job 2 runs T2,
+      deleted, and added again (Fig. 4.12: a Gantt chart); then 16 jobs of 10 soft tasks
+      on 4 robots while tasks are added (after 2, 4 and 6 jobs completed: 1, 1 and 3
+      tasks) and deleted (3 tasks after 9 jobs): the tasks and the time per task of each
+      job (Fig. 4.5);
+    * `:removal` - 6 warehouse jobs on 3 robots; robot r2's battery runs low once 2 jobs
+      completed (it finishes its job and leaves), and a fourth robot joins once 4 jobs
+      completed (Fig. 4.13);
+    * `:mixed` - 6 jobs on 4 robots: jobs 1 and 6 purely sequential, jobs 2-5 two
+      independent sequences each (Fig. 4.11).
 
   Every run's mutual-exclusion violations (Eq. 4.1) and incomplete jobs are counted in
   the summary (`mutex_violations`, `deadlocks`: jobs not completed within `timeout_ms`).
@@ -24,7 +35,11 @@ defmodule TartarusWarehouse.Experiment do
   alias TartarusWarehouse.{Checker, Floor}
 
   @schema [
-    experiment: [type: {:in, [:robots, :scaling]}, default: :robots, doc: "which experiment"],
+    experiment: [
+      type: {:in, [:robots, :scaling, :otfp, :removal, :mixed]},
+      default: :robots,
+      doc: "which experiment"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
       type: :any,
@@ -56,8 +71,8 @@ defmodule TartarusWarehouse.Experiment do
       iex> {:ok, opts} = TartarusWarehouse.Experiment.validate(experiment: :scaling)
       iex> {opts[:max_tasks], opts[:nodes]}
       {60, 100}
-      iex> TartarusWarehouse.Experiment.validate(experiment: :otfp)
-      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling], got: :otfp"}
+      iex> TartarusWarehouse.Experiment.validate(experiment: :failover)
+      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed], got: :failover"}
   """
   @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate(opts) do
@@ -103,6 +118,7 @@ defmodule TartarusWarehouse.Experiment do
     case opts[:experiment] do
       :robots -> Enum.to_list(1..opts[:robots])
       :scaling -> Enum.filter([5, 10, 20, 30, 40, 50, 60, 80, 100], &(&1 <= opts[:max_tasks]))
+      _single -> [1]
     end
     |> case do
       [] -> [opts[:max_tasks]]
@@ -197,6 +213,148 @@ defmodule TartarusWarehouse.Experiment do
     end
   end
 
+  defp run_point(:otfp, _, state) do
+    p = state.p
+    detour = detour_program()
+    t = fn ms -> round(ms * p.scale / 0.01) end
+    t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1500}
+    jobs = thesis_jobs(6, 2000)
+
+    gantt =
+      floor!(
+        robots: 3,
+        jobs: jobs,
+        resources: [:bay, :line, :rack, :wall, :packing, :return, :detour],
+        scale: p.scale,
+        jitter: p.jitter,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms,
+        events: [
+          {{:ms, t.(45)}, {:insert, "T2", t2a}},
+          {{:ms, t.(95)}, {:delete, "T2A"}},
+          {{:ms, t.(135)}, {:insert, "T2", t2a}}
+        ]
+      )
+
+    soft = soft_jobs(16, 10, 2000)
+
+    extra = fn i ->
+      %{name: "X#{i}", resources: [{:extra, i}], program: detour, duration_ms: 2000}
+    end
+
+    stream =
+      floor!(
+        robots: 4,
+        jobs: soft,
+        resources: Enum.map(1..10, &{:psi, &1}) ++ Enum.map(1..5, &{:extra, &1}),
+        scale: p.scale,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms,
+        events: [
+          {2, {:insert, "T10", extra.(1)}},
+          {4, {:insert, "T5", extra.(2)}},
+          {6, {:insert, "T3", extra.(3)}},
+          {6, {:insert, "T7", extra.(4)}},
+          {6, {:insert, "T8", extra.(5)}},
+          {9, {:delete, "X3"}},
+          {9, {:delete, "X4"}},
+          {9, {:delete, "X5"}}
+        ]
+      )
+
+    [
+      Map.merge(gantt, %{kind: :variable, point: 1, specs: jobs}),
+      Map.merge(stream, %{kind: :stream, point: 1, specs: soft})
+    ]
+  end
+
+  defp run_point(:removal, _, state) do
+    p = state.p
+    jobs = thesis_jobs(8, 2000)
+
+    r =
+      floor!(
+        robots: 4,
+        standby: [4],
+        jobs: jobs,
+        scale: p.scale,
+        jitter: p.jitter,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms,
+        events: [{2, {:retire, 2}}, {4, {:join, 4}}]
+      )
+
+    [Map.merge(r, %{kind: :variable, point: 1, specs: jobs})]
+  end
+
+  defp run_point(:mixed, _, state) do
+    p = state.p
+    jobs = mixed_jobs(6, 2000)
+
+    r =
+      floor!(
+        robots: 4,
+        jobs: jobs,
+        scale: p.scale,
+        jitter: p.jitter,
+        seed: state.seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms
+      )
+
+    [Map.merge(r, %{kind: :variable, point: 1, specs: jobs})]
+  end
+
+  # A task program written at run time: it ships with its agent as code.
+  defp detour_program do
+    module = TartarusWarehouse.Program.Detour
+
+    if Code.ensure_loaded?(module) do
+      module
+    else
+      {:ok, [^module]} =
+        Tartarus.compile_string("""
+        defmodule TartarusWarehouse.Program.Detour do
+          @moduledoc "A detour from the usual path, written while the warehouse runs."
+          use TartarusWarehouse.Program
+          def work(data), do: Enum.reverse(data)
+        end
+        """)
+
+      module
+    end
+  end
+
+  @doc """
+  `n` jobs of §4.7.5 (Fig. 4.11): the first and the last purely sequential (T1-T4 of
+  `thesis_jobs/2`), the others two independent sequences: Fetch -> Carry -> Pack (`:bay`,
+  `:line`, `:packing`) and Stamp -> Place (`:stamp`, `:shelf`).
+
+      iex> [a, b] = TartarusWarehouse.Experiment.mixed_jobs(3, 2000) |> Enum.take(2)
+      iex> {length(a.tasks), Enum.map(b.tasks, & &1.name)}
+      {4, ["Fetch", "Carry", "Pack", "Stamp", "Place"]}
+  """
+  @spec mixed_jobs(pos_integer(), number()) :: [map()]
+  def mixed_jobs(n, ms) do
+    [seq | _] = thesis_jobs(1, ms)
+
+    for j <- 1..n do
+      if j == 1 or j == n do
+        %{seq | id: j}
+      else
+        %{
+          id: j,
+          tasks:
+            chain([{"Fetch", [:bay]}, {"Carry", [:line]}, {"Pack", [:packing]}], ms) ++
+              chain([{"Stamp", [:stamp]}, {"Place", [:shelf]}], ms)
+        }
+      end
+    end
+  end
+
   defp floor!(opts) do
     {:ok, r} = Floor.run(opts)
     c = Checker.completion(r.history, opts[:jobs])
@@ -220,6 +378,21 @@ defmodule TartarusWarehouse.Experiment do
     |> Series.record(:mean_busy_robots_equal, k, e.occupancy.mean)
   end
 
+  defp record(:otfp, _, state) do
+    stream = Enum.find(state.runs, &(&1.kind == :stream))
+
+    Enum.reduce(per_job(stream), state.series, fn {job, tasks, ms_per_task}, series ->
+      series
+      |> Series.record(:tasks_in_job, job, tasks)
+      |> Series.record(:ms_per_task, job, ms_per_task)
+    end)
+  end
+
+  defp record(single, _, state) when single in [:removal, :mixed] do
+    [r] = state.runs
+    Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
+  end
+
   defp record(:scaling, n, state) do
     [a, c] = Enum.filter(state.runs, &(&1.point == n))
     per = fn r -> Float.round(r.makespan_ms / (length(r.jobs) * n), 3) end
@@ -241,6 +414,19 @@ defmodule TartarusWarehouse.Experiment do
         y_label: "speed-up"
       }
     ]
+
+  def charts(%{p: %{experiment: :otfp}}),
+    do: [
+      %{
+        file: "otfp",
+        title: "Tasks per job and ms per task as tasks are added and deleted (Fig. 4.5)",
+        series: [:tasks_in_job, :ms_per_task],
+        x_label: "job",
+        y_label: ""
+      }
+    ]
+
+  def charts(%{p: %{experiment: single}}) when single in [:removal, :mixed], do: []
 
   def charts(_state),
     do: [
@@ -287,6 +473,63 @@ defmodule TartarusWarehouse.Experiment do
           speedup_thesis: Map.new(@thesis_speedup, fn {k, v} -> {to_string(k), v} end)
         })
 
+      :otfp ->
+        [gantt] = Enum.filter(runs, &(&1.kind == :variable))
+        stream = Enum.find(runs, &(&1.kind == :stream))
+
+        Map.merge(base, %{
+          speedup: nil,
+          inserted_runs: Enum.count(gantt.history, &(&1.task == "T2A")),
+          jobs_with_t2a:
+            gantt.history
+            |> Enum.filter(&(&1.task == "T2A"))
+            |> Enum.map(& &1.job)
+            |> Enum.uniq()
+            |> Enum.sort(),
+          skipped_runs: Enum.count(stream.history ++ gantt.history, & &1.skipped),
+          tasks_in_job: by.(:tasks_in_job),
+          ms_per_task: by.(:ms_per_task)
+        })
+
+      :removal ->
+        [r] = runs
+
+        jobs_of = fn robot ->
+          r.history
+          |> Enum.filter(&(&1.robot == robot))
+          |> Enum.map(& &1.job)
+          |> Enum.uniq()
+          |> Enum.sort()
+        end
+
+        Map.merge(base, %{
+          speedup: nil,
+          removed_robot: "r2",
+          joined_robot: "r4",
+          jobs_per_robot: Map.new(r.robots, &{&1, jobs_of.(&1)}),
+          mean_busy_robots: r.occupancy.mean
+        })
+
+      :mixed ->
+        [r] = runs
+
+        overlapping =
+          for j <- r.jobs,
+              [a, b] <- [
+                r.history
+                |> Enum.filter(&(&1.job == j))
+                |> Enum.group_by(& &1.seq)
+                |> Map.values()
+              ],
+              span(a) |> overlaps?(span(b)),
+              do: j
+
+        Map.merge(base, %{
+          speedup: nil,
+          jobs_with_concurrent_sequences: overlapping,
+          mean_busy_robots: r.occupancy.mean
+        })
+
       :scaling ->
         agents = by.(:avg_task_ms_agents)
         central = by.(:avg_task_ms_central)
@@ -302,6 +545,25 @@ defmodule TartarusWarehouse.Experiment do
           jobs_per_run: p.scaling_jobs
         })
     end
+  end
+
+  defp span(entries),
+    do:
+      {entries |> Enum.map(& &1.start_us) |> Enum.min(),
+       entries |> Enum.map(& &1.stop_us) |> Enum.max()}
+
+  defp overlaps?({a0, a1}, {b0, b1}), do: a0 < b1 and b0 < a1
+
+  # Per job of a run: tasks run (not skipped) and the job's time per task.
+  defp per_job(r) do
+    r.history
+    |> Enum.reject(& &1.skipped)
+    |> Enum.group_by(& &1.job)
+    |> Enum.sort()
+    |> Enum.map(fn {job, es} ->
+      {t0, t1} = span(es)
+      {job, length(es), Float.round((t1 - t0) / 1000 / length(es), 3)}
+    end)
   end
 
   @impl TartarusEmu.Scenario

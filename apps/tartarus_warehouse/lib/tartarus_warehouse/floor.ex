@@ -56,7 +56,19 @@ defmodule TartarusWarehouse.Floor do
     retire: [
       type: {:list, :any},
       default: [],
-      doc: "`{robot_index, after_job_done_count}`: retire the robot once that many jobs completed"
+      doc:
+        "`{robot_index, n}`: retire the robot once n jobs completed (the event `{n, {:retire, robot_index}}`)"
+    ],
+    events: [
+      type: {:list, :any},
+      default: [],
+      doc:
+        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming)"
+    ],
+    standby: [
+      type: {:list, :pos_integer},
+      default: [],
+      doc: "robots that start out of service (they join with `{:join, i}`)"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     seed: [type: :integer, default: 1, doc: "seed"],
@@ -168,7 +180,8 @@ defmodule TartarusWarehouse.Floor do
                scale: opts[:scale],
                pace: Enum.at(opts[:paces], i - 1, 1.0),
                jitter: opts[:jitter],
-               seed: opts[:seed]}
+               seed: opts[:seed],
+               off: i in opts[:standby]}
             )
 
           :ok
@@ -224,7 +237,9 @@ defmodule TartarusWarehouse.Floor do
       dref = {dist, jd}
       t0 = System.system_time(:microsecond)
       submit(dref, opts[:jobs], opts[:arrivals_ms])
-      completed = await(opts, robot_hosts, %{}, length(opts[:jobs]), t0)
+      events = events(opts)
+      fire(events, 0, dref, robot_hosts)
+      completed = await(opts, events, dref, robot_hosts, %{}, length(opts[:jobs]), t0)
       :ok = TartarusEmu.Log.sync(log)
       totals = TartarusEmu.Log.totals(log)
       TartarusEmu.Log.stop(log)
@@ -289,23 +304,64 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
-  defp await(opts, robot_hosts, done, total, t0) do
-    if map_size(done) >= total do
-      done
-    else
-      receive do
-        {:warehouse_job_done, id, at} ->
-          done = Map.put(done, id, at)
-          retire(opts[:retire], map_size(done), robot_hosts)
-          await(opts, robot_hosts, done, total, t0)
-      after
-        opts[:timeout_ms] -> done
-      end
+  # Waits for the jobs, firing the events due: `{n, e}` once n jobs completed, `{{:ms, t}, e}`
+  # t ms after the submission.
+  defp await(opts, events, dref, robot_hosts, done, total, t0) do
+    now_ms = div(System.system_time(:microsecond) - t0, 1000)
+    {due, events} = Enum.split_with(events, &match?({{:ms, t}, _} when t <= now_ms, &1))
+    Enum.each(due, fn {_, e} -> fire_one(e, dref, robot_hosts) end)
+
+    next =
+      events
+      |> Enum.flat_map(fn
+        {{:ms, t}, _} -> [t - now_ms]
+        _ -> []
+      end)
+      |> Enum.min(fn -> opts[:timeout_ms] end)
+
+    cond do
+      map_size(done) >= total ->
+        done
+
+      now_ms > opts[:timeout_ms] ->
+        done
+
+      true ->
+        receive do
+          {:warehouse_job_done, id, at} ->
+            done = Map.put(done, id, at)
+            fire(events, map_size(done), dref, robot_hosts)
+            await(opts, events, dref, robot_hosts, done, total, t0)
+        after
+          max(min(next, opts[:timeout_ms]), 0) ->
+            await(opts, events, dref, robot_hosts, done, total, t0)
+        end
     end
   end
 
-  defp retire(rules, count, robot_hosts) do
-    for {i, ^count} <- rules, do: Tartarus.write_plugin(robot_hosts["r#{i}"], :robot, :retire)
+  defp events(opts),
+    do: Enum.map(opts[:retire], fn {i, n} -> {n, {:retire, i}} end) ++ opts[:events]
+
+  defp fire(events, count, dref, robot_hosts) do
+    for {^count, event} <- events, do: fire_one(event, dref, robot_hosts)
+    :ok
+  end
+
+  defp fire_one(event, dref, robot_hosts) do
+    case event do
+      {:retire, i} ->
+        :ok = Tartarus.write_plugin(robot_hosts["r#{i}"], :robot, :retire)
+
+      {:join, i} ->
+        :ok = Tartarus.write_plugin(robot_hosts["r#{i}"], :robot, :join)
+
+      {:insert, after_task, spec} ->
+        {:ok, :ok} = Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
+
+      {:delete, task} ->
+        {:ok, :ok} = Tartarus.request(dref, {:delete, task}, 30_000)
+    end
+
     :ok
   end
 end

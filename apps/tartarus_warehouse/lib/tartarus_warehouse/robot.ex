@@ -15,7 +15,8 @@ defmodule TartarusWarehouse.Robot do
     * `:pace` - this robot's slowness factor (default 1.0);
     * `:jitter` - each execution takes a factor in `1 ± jitter` more, drawn from `:seed`,
       the robot, the job and the task (default 0.0: equal durations);
-    * `:seed` - seed of the jitter (default 0).
+    * `:seed` - seed of the jitter (default 0);
+    * `:off` - starts out of service, until `write(:robot, :join)` (default false).
 
   ## What agents do with it (Algorithm 3)
 
@@ -27,7 +28,23 @@ defmodule TartarusWarehouse.Robot do
       task's program's `run/1`, timed), then goes to state `run.next` and sends the event
       `{:finished, agent, reports}` to its subscribers (the agent that claimed it);
     * `write(:robot, :retire)` - battery low: finish the current job, then leave (state
-      `:off` once free; it takes no more work).
+      `:off` once free; it takes no more work);
+    * `write(:robot, :join)` - a robot started with `off: true` joins the floor (robot
+      addition while running).
+
+  ## The state-transition database (on-the-fly programming, §4.5.4)
+
+  Sequence agents (`TartarusWarehouse.SequenceAgent`) change it with
+  `write(:robot, {:db, change})`:
+
+    * `{:insert, after_task, new_task}` - a robot that finishes a block ending with
+      `after_task` goes to `{:inserted, new_task, next}` instead of `next`: it waits for
+      the agent of `new_task` (which looks for `{:inserted, new_task}` and leaves the robot
+      in `next`, the state it would have had);
+    * `{:delete, task}` - `task` is no longer run: an agent that brings it finds the robot
+      skipping it (recorded with `skipped: true`, holding nothing), an insertion of it is
+      removed, and a robot waiting for it goes on to its next state at once (a robot that
+      already passed the modified point continues without redoing anything).
 
   `read(:robot, :history)` gives every execution, oldest first: maps with `robot, job,
   seq, task, resources, agent, start_us, stop_us, ms, ideal_ms` (times are
@@ -51,7 +68,11 @@ defmodule TartarusWarehouse.Robot do
            state: :free,
            busy: nil,
            retiring: false,
-           off: false,
+           off: Keyword.get(opts, :off, false),
+           running: nil,
+           last_job: nil,
+           inserts: %{},
+           deleted: MapSet.new(),
            history: []
          }}
 
@@ -75,12 +96,13 @@ defmodule TartarusWarehouse.Robot do
 
   @impl true
   def read(:state, s), do: {:ok, %{state: s.state, busy: s.busy, off: s.off}, s}
+  def read(:db, s), do: {:ok, %{inserts: s.inserts, deleted: s.deleted}, s}
   def read(:history, s), do: {:ok, Enum.reverse(s.history), s}
   def read(other, s), do: {:error, {:bad_argument, other}, s}
 
   @impl true
   def write({:claim, look_for, needs, agent}, s) do
-    if s.busy == nil and not s.off and s.state == look_for and
+    if s.busy == nil and not s.off and matches?(s.state, look_for) and
          (look_for != :free or (not s.retiring and reaches?(s, needs))) do
       {:ok, %{s | busy: agent}}
     else
@@ -90,14 +112,15 @@ defmodule TartarusWarehouse.Robot do
 
   def write({:run, agent, run}, %{busy: agent} = s) do
     robot = self()
-    ctx = Map.take(s, [:robot, :scale, :pace, :jitter, :seed])
+    ctx = Map.take(s, [:robot, :scale, :pace, :jitter, :seed, :deleted])
+    {job, seq} = if match?({:inserted, _, _}, s.state), do: job_of(s), else: {run.job, run.seq}
 
     spawn_link(fn ->
-      reports = Enum.map(run.tasks, &execute(&1, run, agent, ctx))
-      send(robot, {:robot_finished, agent, run.next, reports})
+      reports = Enum.map(run.tasks, &execute(&1, %{run | job: job, seq: seq}, agent, ctx))
+      send(robot, {:robot_finished, agent, reports})
     end)
 
-    {:ok, s}
+    {:ok, %{s | running: run, last_job: {job, seq}}}
   end
 
   def write({:run, _agent, _run}, s), do: {:error, :not_claimed, s}
@@ -107,21 +130,96 @@ defmodule TartarusWarehouse.Robot do
     {:ok, if(s.state == :free and s.busy == nil, do: %{s | off: true}, else: s)}
   end
 
+  def write(:join, s), do: {:ok, %{s | off: false, retiring: false}}
+
+  def write({:db, {:insert, after_task, task}}, s),
+    do:
+      {:ok,
+       %{
+         s
+         | inserts: Map.put(s.inserts, after_task, task),
+           deleted: MapSet.delete(s.deleted, task)
+       }}
+
+  def write({:db, {:delete, task}}, s) do
+    inserts = for {a, t} <- s.inserts, t != task, into: %{}, do: {a, t}
+    s = %{s | inserts: inserts, deleted: MapSet.put(s.deleted, task)}
+
+    case s.state do
+      {:inserted, ^task, next} when s.busy == nil -> {:ok, %{s | state: next}}
+      _ -> {:ok, s}
+    end
+  end
+
   def write(other, s), do: {:error, {:bad_argument, other}, s}
 
   @impl true
-  def handle_info({:robot_finished, agent, next, reports}, %{busy: agent} = s) do
+  def handle_info({:robot_finished, agent, reports}, %{busy: agent} = s) do
+    run = s.running
+    next = if run.next == :resume, do: resume_of(s.state), else: run.next
+
+    next =
+      case Map.get(s.inserts, List.last(run.tasks).name) do
+        nil -> next
+        task -> {:inserted, task, next}
+      end
+
     off = s.off or (s.retiring and next == :free)
-    s = %{s | state: next, busy: nil, off: off, history: Enum.reverse(reports) ++ s.history}
+
+    s = %{
+      s
+      | state: next,
+        busy: nil,
+        off: off,
+        running: nil,
+        history: Enum.reverse(reports) ++ s.history
+    }
+
     {:events, [{:finished, agent, reports}], s}
   end
 
   def handle_info(_msg, s), do: {:events, [], s}
 
+  defp matches?(state, state), do: true
+  defp matches?({:inserted, task, _next}, {:inserted, task}), do: true
+  defp matches?(_state, _look_for), do: false
+
+  defp resume_of({:inserted, _task, next}), do: next
+  defp resume_of(_state), do: :free
+
+  # The job an inserted task runs for: the one the robot resumes, else (inserted after a
+  # job's last block) the last one it worked for.
+  defp job_of(%{state: {:inserted, _task, {job, seq, _i}}}), do: {job, seq}
+  defp job_of(s), do: s.last_job || {nil, nil}
+
   defp reaches?(%{reach: :all}, _needs), do: true
   defp reaches?(%{reach: reach}, needs), do: Enum.all?(needs, &MapSet.member?(reach, &1))
 
   defp execute(task, run, agent, ctx) do
+    if MapSet.member?(ctx.deleted, task.name),
+      do: skip(task, run, agent, ctx),
+      else: perform(task, run, agent, ctx)
+  end
+
+  defp skip(task, run, agent, ctx) do
+    now = System.system_time(:microsecond)
+
+    %{
+      robot: ctx.robot,
+      job: run.job,
+      seq: run.seq,
+      task: task.name,
+      resources: [],
+      agent: agent,
+      start_us: now,
+      stop_us: now,
+      ms: 0.0,
+      ideal_ms: task.duration_ms,
+      skipped: true
+    }
+  end
+
+  defp perform(task, run, agent, ctx) do
     ms = task.duration_ms * ctx.scale * ctx.pace * factor(ctx, run.job, task.name)
     start = System.system_time(:microsecond)
     t0 = System.monotonic_time(:microsecond)
@@ -138,7 +236,8 @@ defmodule TartarusWarehouse.Robot do
       start_us: start,
       stop_us: start + took,
       ms: took / 1000,
-      ideal_ms: task.duration_ms
+      ideal_ms: task.duration_ms,
+      skipped: false
     }
   end
 

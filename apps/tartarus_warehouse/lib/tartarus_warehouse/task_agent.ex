@@ -11,6 +11,10 @@ defmodule TartarusWarehouse.TaskAgent do
   the next state, and the agent tells the distributor it is done: it is then re-issued for
   the next job (and migrates on) or retires (stops). When a round of robots finds no match
   it waits `idle_ms` before the next hop, so idle agents do not spin.
+
+  The agent of an inserted task (on-the-fly programming) looks for robots in state
+  `{:inserted, task, _}`, leaves them in the state they would have had, and asks the
+  distributor after each fruitless round whether its task was deleted.
   """
   use Tartarus.Agent
 
@@ -72,13 +76,21 @@ defmodule TartarusWarehouse.TaskAgent do
   end
 
   defp roam(s) do
-    if s.misses >= s.round and s.idle_ms > 0 do
-      Process.send_after(self(), :roam, s.idle_ms)
-      {:stay, %{s | misses: 0}}
-    else
-      {:move, strategy(s), s}
+    cond do
+      s.misses >= s.round and Map.get(s.a, :persistent, false) and retired?(s) ->
+        {:stop, :normal, s}
+
+      s.misses >= s.round and s.idle_ms > 0 ->
+        Process.send_after(self(), :roam, s.idle_ms)
+        {:stay, %{s | misses: 0}}
+
+      true ->
+        {:move, strategy(s), s}
     end
   end
+
+  # An inserted task's agent asks whether its task was deleted.
+  defp retired?(s), do: Tartarus.request(s.distributor, {:still, s.ref}, 30_000) == {:ok, :retire}
 
   defp strategy(s), do: {:strategy, TartarusWarehouse.Roam, s.robots}
 end

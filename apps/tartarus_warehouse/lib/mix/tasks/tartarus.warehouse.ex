@@ -53,7 +53,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     experiment =
       TartarusTools.CLI.choice!(
         opts[:experiment],
-        [:robots, :scaling],
+        [:robots, :scaling, :otfp, :removal, :mixed],
         :experiment,
         @task,
         :robots
