@@ -122,6 +122,7 @@ defmodule TartarusWarehouse.Floor do
   `TartarusWarehouse.Robot`), `jobs` (ids in submission order), `completed` (id =>
   completion time, µs), `t0_us` (submission of the first job), `makespan_ms`, `robots`,
   `migrations`, `bytes`, `messages` (from `TartarusEmu.Log`), `timed_out` (jobs not done),
+  `refused_events` (events that were refused and changed nothing, with the reason),
   `wall_ms`; or `{:error, message}` for bad options or a rejected job.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
@@ -264,6 +265,7 @@ defmodule TartarusWarehouse.Floor do
          jobs: ids,
          completed: completed,
          timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
+         refused_events: refused(),
          t0_us: t0,
          makespan_ms: (last - t0) / 1000,
          robots:
@@ -347,21 +349,39 @@ defmodule TartarusWarehouse.Floor do
     :ok
   end
 
+  # A change the floor refuses (an unknown robot, a task already inserted, ...) changes
+  # nothing; it is reported in the result's `refused_events`.
   defp fire_one(event, dref, robot_hosts) do
-    case event do
-      {:retire, i} ->
-        :ok = Tartarus.write_plugin(robot_hosts["r#{i}"], :robot, :retire)
+    result =
+      case event do
+        {:retire, i} -> plugin(robot_hosts, i, :retire)
+        {:join, i} -> plugin(robot_hosts, i, :join)
+        {:insert, after_task, spec} -> Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
+        {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
+        other -> {:error, "unknown event #{inspect(other)}"}
+      end
 
-      {:join, i} ->
-        :ok = Tartarus.write_plugin(robot_hosts["r#{i}"], :robot, :join)
-
-      {:insert, after_task, spec} ->
-        {:ok, :ok} = Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
-
-      {:delete, task} ->
-        {:ok, :ok} = Tartarus.request(dref, {:delete, task}, 30_000)
+    case result do
+      ok when ok in [:ok, {:ok, :ok}] -> :ok
+      {:ok, {:error, reason}} -> send(self(), {:warehouse_refused, event, reason})
+      {:error, reason} -> send(self(), {:warehouse_refused, event, reason})
     end
 
     :ok
+  end
+
+  defp plugin(robot_hosts, i, what) do
+    case Map.fetch(robot_hosts, "r#{i}") do
+      {:ok, host} -> Tartarus.write_plugin(host, :robot, what)
+      :error -> {:error, "no robot #{inspect(i)}"}
+    end
+  end
+
+  defp refused do
+    receive do
+      {:warehouse_refused, event, reason} -> [%{event: event, reason: reason} | refused()]
+    after
+      0 -> []
+    end
   end
 end

@@ -54,6 +54,58 @@ defmodule TartarusWarehouse.FloorTest do
     end
   end
 
+  test "on-the-fly programming: a task added with a program compiled at run time runs in later jobs, a deleted task is skipped" do
+    {:ok, [detour]} =
+      Tartarus.compile_string("""
+      defmodule TartarusWarehouse.FloorTest.Detour do
+        use TartarusWarehouse.Program
+        def work(data), do: Enum.reverse(data)
+      end
+      """)
+
+    jobs = Experiment.thesis_jobs(6, 1000)
+    t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1000}
+
+    {:ok, r} =
+      Floor.run(
+        robots: 2,
+        jobs: jobs,
+        scale: 0.01,
+        resources: [:bay, :line, :rack, :wall, :packing, :return, :detour],
+        events: [{0, {:insert, "T2", t2a}}, {3, {:delete, "T4"}}]
+      )
+
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 6
+
+    # Inserted right after submission: every job but (perhaps) the first runs T2A, after T2 and before T3.
+    with_t2a = for e <- r.history, e.task == "T2A", do: e.job
+    assert Enum.sort(with_t2a) -- [1] == [2, 3, 4, 5, 6]
+
+    for j <- with_t2a do
+      at = Map.new(for e <- r.history, e.job == j, do: {e.task, e})
+      assert at["T2"].stop_us <= at["T2A"].start_us and at["T2A"].stop_us <= at["T3"].start_us
+      assert at["T2A"].robot == at["T2"].robot
+    end
+
+    # T4 was deleted once 3 jobs completed: the last job skipped it (holding nothing).
+    assert [%{skipped: true, resources: []}] =
+             for(e <- r.history, e.job == 6, e.task == "T4", do: e)
+  end
+
+  test "a standby robot joins while the floor runs" do
+    jobs = Experiment.thesis_jobs(6, 1000)
+
+    {:ok, r} =
+      Floor.run(robots: 2, standby: [2], jobs: jobs, scale: 0.01, events: [{2, {:join, 2}}])
+
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    first_r2 = r.history |> Enum.filter(&(&1.robot == "r2")) |> Enum.map(& &1.job) |> Enum.min()
+    assert first_r2 > 2
+  end
+
   test "a malformed job is refused before anything starts" do
     assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
 
@@ -62,7 +114,8 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   @tag timeout: 300_000
-  test "property: random jobs (sequences, independent sequences, shared resources), 1-6 robots, random durations, a robot removal: no violation, every job completes" do
+  @tag :property
+  test "property: random jobs (sequences, independent sequences, shared resources), 1-6 robots, random durations, tasks added and deleted on the fly, a robot removal: no violation, every job completes" do
     resources = [:a, :b, :c, :d, :e]
 
     # A task: its resources (1-2 of five), its ideal duration, whether it follows the previous.
@@ -72,12 +125,22 @@ defmodule TartarusWarehouse.FloorTest do
 
     job = :proper_types.non_empty(:proper_types.list(task))
 
+    # On-the-fly changes, after 0-3 jobs completed: add task X (resource :x) after T1..T3,
+    # delete X, delete T2.
+    otfp =
+      :proper_types.oneof([
+        {:insert, :proper_types.elements(["T1", "T2", "T3"])},
+        :delete_x,
+        :delete_t2
+      ])
+
     gen =
       {:proper_types.integer(1, 6), :proper_types.non_empty(:proper_types.list(job)),
-       :proper_types.integer(1, 1000), :proper_types.boolean()}
+       :proper_types.integer(1, 1000), :proper_types.boolean(),
+       :proper_types.list({:proper_types.integer(0, 3), otfp})}
 
     prop =
-      :proper.forall(gen, fn {robots, raw_jobs, seed, removal} ->
+      :proper.forall(gen, fn {robots, raw_jobs, seed, removal, changes} ->
         Prop.safely(fn ->
           jobs =
             raw_jobs
@@ -102,6 +165,16 @@ defmodule TartarusWarehouse.FloorTest do
             end)
 
           retire = if removal and robots > 1, do: [{robots, 1}], else: []
+          x = %{name: "X", resources: [:x], duration_ms: 700}
+
+          events =
+            changes
+            |> Enum.take(3)
+            |> Enum.map(fn
+              {n, {:insert, after_task}} -> {n, {:insert, after_task, x}}
+              {n, :delete_x} -> {n, {:delete, "X"}}
+              {n, :delete_t2} -> {n, {:delete, "T2"}}
+            end)
 
           {:ok, r} =
             Floor.run(
@@ -111,7 +184,8 @@ defmodule TartarusWarehouse.FloorTest do
               jitter: 0.5,
               seed: seed,
               retire: retire,
-              resources: resources,
+              events: events,
+              resources: [:x | resources],
               timeout_ms: 30_000
             )
 
@@ -122,6 +196,6 @@ defmodule TartarusWarehouse.FloorTest do
         end)
       end)
 
-    assert Prop.check(prop, 25) == true
+    assert Prop.check(prop, 50) == true
   end
 end
