@@ -24,7 +24,11 @@ defmodule TartarusWarehouse.Experiment do
       completed (it finishes its job and leaves), and a fourth robot joins once 4 jobs
       completed (Fig. 4.13);
     * `:mixed` - 6 jobs on 4 robots: jobs 1 and 6 purely sequential, jobs 2-5 two
-      independent sequences each (Fig. 4.11).
+      independent sequences each (Fig. 4.11);
+    * `:failover` - beyond the thesis: 10 warehouse jobs on 3 robots while the
+      distributor's host is killed twice (100 ms and 50 ms down) and started again on its
+      journal, for three seeds (seed, seed + 1, seed + 2): jobs lost, jobs duplicated (a
+      task run twice), violations; and once without persistence, for contrast.
 
   Every run's mutual-exclusion violations (Eq. 4.1) and incomplete jobs are counted in
   the summary (`mutex_violations`, `deadlocks`: jobs not completed within `timeout_ms`).
@@ -36,7 +40,7 @@ defmodule TartarusWarehouse.Experiment do
 
   @schema [
     experiment: [
-      type: {:in, [:robots, :scaling, :otfp, :removal, :mixed]},
+      type: {:in, [:robots, :scaling, :otfp, :removal, :mixed, :failover]},
       default: :robots,
       doc: "which experiment"
     ],
@@ -71,8 +75,8 @@ defmodule TartarusWarehouse.Experiment do
       iex> {:ok, opts} = TartarusWarehouse.Experiment.validate(experiment: :scaling)
       iex> {opts[:max_tasks], opts[:nodes]}
       {60, 100}
-      iex> TartarusWarehouse.Experiment.validate(experiment: :failover)
-      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed], got: :failover"}
+      iex> TartarusWarehouse.Experiment.validate(experiment: :nope)
+      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed, :failover], got: :nope"}
   """
   @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate(opts) do
@@ -118,6 +122,7 @@ defmodule TartarusWarehouse.Experiment do
     case opts[:experiment] do
       :robots -> Enum.to_list(1..opts[:robots])
       :scaling -> Enum.filter([5, 10, 20, 30, 40, 50, 60, 80, 100], &(&1 <= opts[:max_tasks]))
+      :failover -> [1, 2, 3]
       _single -> [1]
     end
     |> case do
@@ -308,6 +313,51 @@ defmodule TartarusWarehouse.Experiment do
     [Map.merge(r, %{kind: :variable, point: 1, specs: jobs})]
   end
 
+  defp run_point(:failover, i, state) do
+    p = state.p
+    jobs = thesis_jobs(10, 2000)
+    t = fn ms -> round(ms * p.scale / 0.01) end
+    seed = state.seed + i - 1
+
+    kills = [
+      {{:ms, t.(40 + 20 * i)}, {:kill_distributor, t.(100)}},
+      {{:ms, t.(240 + 20 * i)}, {:kill_distributor, t.(50)}}
+    ]
+
+    r =
+      floor!(
+        robots: 3,
+        jobs: jobs,
+        scale: p.scale,
+        jitter: p.jitter,
+        seed: seed,
+        mode: p.mode,
+        timeout_ms: p.timeout_ms,
+        failover: true,
+        events: kills
+      )
+
+    runs = [Map.merge(r, %{kind: :variable, point: i, specs: jobs, run_seed: seed})]
+
+    if i == 1 do
+      # The same loss without persistence: the distributor and what it knew are gone.
+      lost =
+        floor!(
+          robots: 3,
+          jobs: jobs,
+          scale: p.scale,
+          seed: seed,
+          mode: p.mode,
+          timeout_ms: t.(2000),
+          events: [hd(kills)]
+        )
+
+      runs ++ [Map.merge(lost, %{kind: :no_persistence, point: i, specs: jobs, run_seed: seed})]
+    else
+      runs
+    end
+  end
+
   # A task program written at run time: it ships with its agent as code.
   defp detour_program do
     module = TartarusWarehouse.Program.Detour
@@ -388,6 +438,14 @@ defmodule TartarusWarehouse.Experiment do
     end)
   end
 
+  defp record(:failover, i, state) do
+    r = Enum.find(state.runs, &(&1.point == i and &1.kind == :variable))
+
+    state.series
+    |> Series.record(:jobs_lost, i, length(r.jobs) - r.completed_jobs)
+    |> Series.record(:makespan_ms, i, round(r.makespan_ms))
+  end
+
   defp record(single, _, state) when single in [:removal, :mixed] do
     [r] = state.runs
     Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
@@ -426,7 +484,7 @@ defmodule TartarusWarehouse.Experiment do
       }
     ]
 
-  def charts(%{p: %{experiment: single}}) when single in [:removal, :mixed], do: []
+  def charts(%{p: %{experiment: single}}) when single in [:removal, :mixed, :failover], do: []
 
   def charts(_state),
     do: [
@@ -489,6 +547,33 @@ defmodule TartarusWarehouse.Experiment do
           skipped_runs: Enum.count(stream.history ++ gantt.history, & &1.skipped),
           tasks_in_job: by.(:tasks_in_job),
           ms_per_task: by.(:ms_per_task)
+        })
+
+      :failover ->
+        kept = Enum.filter(runs, &(&1.kind == :variable))
+        lost = Enum.find(runs, &(&1.kind == :no_persistence))
+
+        duplicated = fn r ->
+          r.history
+          |> Enum.frequencies_by(&{&1.job, &1.task})
+          |> Enum.count(fn {_, n} -> n > 1 end)
+        end
+
+        Map.merge(base, %{
+          speedup: nil,
+          seeds: Enum.map(kept, & &1.run_seed),
+          kills: kept |> Enum.map(&length(&1.killed_at_us)) |> Enum.sum(),
+          jobs_lost: kept |> Enum.map(&(length(&1.jobs) - &1.completed_jobs)) |> Enum.sum(),
+          jobs_duplicated: kept |> Enum.map(duplicated) |> Enum.sum(),
+          jobs_lost_by_seed:
+            Map.new(kept, &{to_string(&1.run_seed), length(&1.jobs) - &1.completed_jobs}),
+          makespan_ms_by_seed: Map.new(kept, &{to_string(&1.run_seed), round(&1.makespan_ms)}),
+          jobs_lost_without_persistence: length(lost.timed_out),
+          # The runs without persistence are not counted in jobs/completed_jobs/deadlocks.
+          jobs: kept |> Enum.map(&length(&1.jobs)) |> Enum.sum(),
+          completed_jobs: kept |> Enum.map(& &1.completed_jobs) |> Enum.sum(),
+          deadlocks: kept |> Enum.map(&length(&1.timed_out)) |> Enum.sum(),
+          tasks: kept |> Enum.map(&length(&1.history)) |> Enum.sum()
         })
 
       :removal ->

@@ -71,6 +71,12 @@ defmodule TartarusWarehouse.Floor do
       doc: "robots that start out of service (they join with `{:join, i}`)"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    failover: [
+      type: :boolean,
+      default: false,
+      doc:
+        "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     timeout_ms: [type: :pos_integer, default: 120_000, doc: "give up waiting after this long"]
   ]
@@ -192,8 +198,18 @@ defmodule TartarusWarehouse.Floor do
       end
     end
 
+    data_dir =
+      if opts[:failover],
+        do: Path.join(System.tmp_dir!(), "warehouse-jd-#{System.unique_integer([:positive])}")
+
+    node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
+
     {:ok, net} =
-      Network.start(topology(robots, opts[:secondary]), mode: opts[:mode], setup: setup)
+      Network.start(topology(robots, opts[:secondary]),
+        mode: opts[:mode],
+        setup: setup,
+        node_opts: node_opts
+      )
 
     try do
       {:ok, log} = TartarusEmu.Log.start(net)
@@ -209,7 +225,8 @@ defmodule TartarusWarehouse.Floor do
               robots: MapSet.new(Map.values(robot_hosts)),
               idle_ms: opts[:idle_ms],
               round: min(robots, 16),
-              seed: opts[:seed]
+              seed: opts[:seed],
+              validate: opts[:failover]
             })
 
           :central ->
@@ -236,11 +253,12 @@ defmodule TartarusWarehouse.Floor do
         end
 
       dref = {dist, jd}
+      ctx = %{dref: dref, robot_hosts: robot_hosts, net: net}
       t0 = System.system_time(:microsecond)
       submit(dref, opts[:jobs], opts[:arrivals_ms])
       events = events(opts)
-      fire(events, 0, dref, robot_hosts)
-      completed = await(opts, events, dref, robot_hosts, %{}, length(opts[:jobs]), t0)
+      fire(events, 0, ctx)
+      completed = await(opts, events, ctx, %{}, length(opts[:jobs]), t0)
       :ok = TartarusEmu.Log.sync(log)
       totals = TartarusEmu.Log.totals(log)
       TartarusEmu.Log.stop(log)
@@ -266,6 +284,7 @@ defmodule TartarusWarehouse.Floor do
          completed: completed,
          timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
          refused_events: refused(),
+         killed_at_us: killed(),
          t0_us: t0,
          makespan_ms: (last - t0) / 1000,
          robots:
@@ -277,6 +296,7 @@ defmodule TartarusWarehouse.Floor do
        }}
     after
       Network.stop(net)
+      if data_dir, do: File.rm_rf(data_dir)
     end
   end
 
@@ -299,19 +319,27 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
-  defp submit_one(dref, job) do
-    case Tartarus.request(dref, {:submit, job}, 30_000) do
-      {:ok, :ok} -> :ok
-      other -> raise "job #{inspect(job.id)} was refused: #{inspect(other)}"
+  # Asked again while the distributor is unreachable (its host restarting), for 30 s.
+  defp submit_one(dref, job, tries \\ 3000) do
+    case Tartarus.request(dref, {:submit, job}, 5_000) do
+      {:ok, :ok} ->
+        :ok
+
+      {:error, _} when tries > 0 ->
+        Process.sleep(10)
+        submit_one(dref, job, tries - 1)
+
+      other ->
+        raise "job #{inspect(job.id)} was refused: #{inspect(other)}"
     end
   end
 
   # Waits for the jobs, firing the events due: `{n, e}` once n jobs completed, `{{:ms, t}, e}`
   # t ms after the submission.
-  defp await(opts, events, dref, robot_hosts, done, total, t0) do
+  defp await(opts, events, ctx, done, total, t0) do
     now_ms = div(System.system_time(:microsecond) - t0, 1000)
     {due, events} = Enum.split_with(events, &match?({{:ms, t}, _} when t <= now_ms, &1))
-    Enum.each(due, fn {_, e} -> fire_one(e, dref, robot_hosts) end)
+    Enum.each(due, fn {_, e} -> fire_one(e, ctx) end)
 
     next =
       events
@@ -332,11 +360,11 @@ defmodule TartarusWarehouse.Floor do
         receive do
           {:warehouse_job_done, id, at} ->
             done = Map.put(done, id, at)
-            fire(events, map_size(done), dref, robot_hosts)
-            await(opts, events, dref, robot_hosts, done, total, t0)
+            fire(events, map_size(done), ctx)
+            await(opts, events, ctx, done, total, t0)
         after
           max(min(next, opts[:timeout_ms]), 0) ->
-            await(opts, events, dref, robot_hosts, done, total, t0)
+            await(opts, events, ctx, done, total, t0)
         end
     end
   end
@@ -344,20 +372,21 @@ defmodule TartarusWarehouse.Floor do
   defp events(opts),
     do: Enum.map(opts[:retire], fn {i, n} -> {n, {:retire, i}} end) ++ opts[:events]
 
-  defp fire(events, count, dref, robot_hosts) do
-    for {^count, event} <- events, do: fire_one(event, dref, robot_hosts)
+  defp fire(events, count, ctx) do
+    for {^count, event} <- events, do: fire_one(event, ctx)
     :ok
   end
 
   # A change the floor refuses (an unknown robot, a task already inserted, ...) changes
   # nothing; it is reported in the result's `refused_events`.
-  defp fire_one(event, dref, robot_hosts) do
+  defp fire_one(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
     result =
       case event do
         {:retire, i} -> plugin(robot_hosts, i, :retire)
         {:join, i} -> plugin(robot_hosts, i, :join)
         {:insert, after_task, spec} -> Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
         {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
+        {:kill_distributor, down_ms} -> kill_distributor(net, down_ms)
         other -> {:error, "unknown event #{inspect(other)}"}
       end
 
@@ -370,10 +399,27 @@ defmodule TartarusWarehouse.Floor do
     :ok
   end
 
+  # The distributor's host dies with everything on it, and starts again `down_ms` later
+  # (on its journal, with `failover: true`).
+  defp kill_distributor(net, down_ms) do
+    :ok = Network.kill_node(net, "jd")
+    send(self(), {:warehouse_killed, System.system_time(:microsecond)})
+    Process.sleep(down_ms)
+    Network.restart_node(net, "jd")
+  end
+
   defp plugin(robot_hosts, i, what) do
     case Map.fetch(robot_hosts, "r#{i}") do
       {:ok, host} -> Tartarus.write_plugin(host, :robot, what)
       :error -> {:error, "no robot #{inspect(i)}"}
+    end
+  end
+
+  defp killed do
+    receive do
+      {:warehouse_killed, at} -> [at | killed()]
+    after
+      0 -> []
     end
   end
 

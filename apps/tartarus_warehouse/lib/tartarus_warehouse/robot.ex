@@ -24,6 +24,7 @@ defmodule TartarusWarehouse.Robot do
     * `write(:robot, {:claim, look_for, needs, agent})` - atomically: if the robot is in
       state `look_for`, idle, in service, and (for a free robot) reaches every resource in
       `needs`, it is now busy with `agent`; else `{:error, :no_match}`;
+    * `write(:robot, {:unclaim, agent})` - gives a claim back (before any run);
     * `write(:robot, {:run, agent, run})` - runs `run.tasks` one after another (each
       task's program's `run/1`, timed), then goes to state `run.next` and sends the event
       `{:finished, agent, reports}` to its subscribers (the agent that claimed it);
@@ -129,6 +130,9 @@ defmodule TartarusWarehouse.Robot do
     s = %{s | retiring: true}
     {:ok, if(s.state == :free and s.busy == nil, do: %{s | off: true}, else: s)}
   end
+
+  def write({:unclaim, agent}, %{busy: agent, running: nil} = s), do: {:ok, %{s | busy: nil}}
+  def write({:unclaim, _agent}, s), do: {:ok, s}
 
   def write(:join, s), do: {:ok, %{s | off: false, retiring: false}}
 

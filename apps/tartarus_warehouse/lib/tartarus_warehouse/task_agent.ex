@@ -12,6 +12,10 @@ defmodule TartarusWarehouse.TaskAgent do
   the next job (and migrates on) or retires (stops). When a round of robots finds no match
   it waits `idle_ms` before the next hop, so idle agents do not spin.
 
+  With `validate: true` (a distributor that survives restarts) the agent asks the
+  distributor, after claiming a robot and before running anything, whether it is the
+  valid holder of its assignment (see `TartarusWarehouse.DistributorAgent`).
+
   The agent of an inserted task (on-the-fly programming) looks for robots in state
   `{:inserted, task, _}`, leaves them in the state they would have had, and asks the
   distributor after each fruitless round whether its task was deleted.
@@ -34,14 +38,17 @@ defmodule TartarusWarehouse.TaskAgent do
 
     case Agent.write(:robot, {:claim, a.look_for, a.needs, Agent.id()}) do
       :ok ->
-        :ok = Agent.subscribe(:robot)
-        run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
-        :ok = Agent.write(:robot, {:run, Agent.id(), run})
-
-        if a.index == 0,
-          do: {:ok, :ok} = Tartarus.request(s.distributor, {:started, s.ref}, 30_000)
-
-        {:stay, %{s | misses: 0}}
+        if valid?(s) do
+          :ok = Agent.subscribe(:robot)
+          run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
+          :ok = Agent.write(:robot, {:run, Agent.id(), run})
+          if a.index == 0, do: :ok = ask(s, {:started, s.ref})
+          {:stay, %{s | misses: 0}}
+        else
+          # A stale copy (created again after the distributor's restart): it runs nothing.
+          :ok = Agent.write(:robot, {:unclaim, Agent.id()})
+          {:stop, :normal, s}
+        end
 
       {:error, _} ->
         roam(%{s | misses: s.misses + 1})
@@ -52,12 +59,12 @@ defmodule TartarusWarehouse.TaskAgent do
   @impl true
   def handle_info({:plugin_event, :robot, {:finished, id, _reports}}, s) do
     if id == Agent.id() do
-      case Tartarus.request(s.distributor, {:done, s.ref}, 30_000) do
-        {:ok, {:reissue, a}} ->
+      case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
+        {:reissue, a} ->
           Enum.each(a.tasks, &Agent.add_module(&1.program))
           {:move, strategy(s), %{s | a: a, misses: 0}}
 
-        {:ok, :retire} ->
+        :retire ->
           {:stop, :normal, s}
       end
     else
@@ -90,7 +97,28 @@ defmodule TartarusWarehouse.TaskAgent do
   end
 
   # An inserted task's agent asks whether its task was deleted.
-  defp retired?(s), do: Tartarus.request(s.distributor, {:still, s.ref}, 30_000) == {:ok, :retire}
+  defp retired?(s), do: ask(s, {:still, s.ref}) == :retire
+
+  defp valid?(%{validate: true} = s), do: ask(s, {:valid, s.ref, s.nonce}) == true
+  defp valid?(_s), do: true
+
+  # A request to the distributor, asked again while it is unreachable (its host may be
+  # restarting; its answers are the same when asked twice), for at most 8 s.
+  defp ask(s, message, deadline \\ nil) do
+    deadline = deadline || System.monotonic_time(:millisecond) + 8_000
+
+    case Tartarus.request(s.distributor, message, 2_000) do
+      {:ok, answer} ->
+        answer
+
+      {:error, reason} ->
+        if System.monotonic_time(:millisecond) > deadline,
+          do: exit({:distributor_unreachable, reason})
+
+        Process.sleep(10)
+        ask(s, message, deadline)
+    end
+  end
 
   defp strategy(s), do: {:strategy, TartarusWarehouse.Roam, s.robots}
 end

@@ -106,6 +106,38 @@ defmodule TartarusWarehouse.FloorTest do
     assert first_r2 > 2
   end
 
+  test "the distributor's host killed twice and started again on its journal: no job lost, none duplicated" do
+    jobs = Experiment.thesis_jobs(8, 1000)
+
+    {:ok, r} =
+      Floor.run(
+        robots: 3,
+        jobs: jobs,
+        scale: 0.01,
+        failover: true,
+        events: [{{:ms, 5}, {:kill_distributor, 60}}, {{:ms, 110}, {:kill_distributor, 30}}]
+      )
+
+    assert length(r.killed_at_us) == 2
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    c = Checker.completion(r.history, jobs)
+    assert c.duplicated == [] and c.missing == []
+    assert length(c.completed) == 8
+
+    # Without persistence the same loss stops every job that was not done.
+    {:ok, lost} =
+      Floor.run(
+        robots: 3,
+        jobs: jobs,
+        scale: 0.01,
+        timeout_ms: 1_000,
+        events: [{{:ms, 5}, {:kill_distributor, 60}}]
+      )
+
+    assert lost.timed_out != []
+  end
+
   test "a malformed job is refused before anything starts" do
     assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
 

@@ -53,7 +53,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     experiment =
       TartarusTools.CLI.choice!(
         opts[:experiment],
-        [:robots, :scaling, :otfp, :removal, :mixed],
+        [:robots, :scaling, :otfp, :removal, :mixed, :failover],
         :experiment,
         @task,
         :robots
