@@ -14,8 +14,8 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   ## Surviving the loss of its host
 
-  The distributor is the design's one central point. Its state is checkpointed
-  (`Tartarus.Agent.checkpoint/0`) after every change, and on a host started with
+  The distributor is the design's one central point. With `validate: true` its state is
+  checkpointed (`Tartarus.Agent.checkpoint/0`) after every change, and on a host started with
   `:data_dir` that checkpoint is journaled: a host killed and started again restores the
   distributor where its last checkpoint left it. What it does to the world (creating
   agents, answering, telling the owner) happens only **after** the change that decided
@@ -165,7 +165,7 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   def handle_info(:effects, s) do
     s = Enum.reduce(s.effects, %{s | effects: []}, &act/2)
-    Tartarus.Agent.checkpoint()
+    if s.validate, do: Tartarus.Agent.checkpoint()
     {:stay, s}
   end
 
@@ -173,7 +173,7 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   # The change is checkpointed when this callback returns; its effects follow.
   defp later(s, effects) do
-    Tartarus.Agent.checkpoint()
+    if s.validate, do: Tartarus.Agent.checkpoint()
     send(self(), :effects)
     {:stay, %{s | effects: s.effects ++ effects}}
   end
@@ -216,7 +216,7 @@ defmodule TartarusWarehouse.DistributorAgent do
       Tartarus.create_mobile_agent(
         Tartarus.Agent.host(),
         TartarusWarehouse.SequenceAgent,
-        %{change: change, robots: s.robots, owner: s.owner},
+        %{change: change, robots: s.robots, all: s.all_robots, owner: s.owner},
         seed: {s.seed, :sequence, change}
       )
 

@@ -222,7 +222,8 @@ defmodule TartarusWarehouse.Floor do
             Tartarus.create_static_agent(jd, TartarusWarehouse.DistributorAgent, %{
               world: world,
               owner: owner,
-              robots: MapSet.new(Map.values(robot_hosts)),
+              robots: robot_set(robot_hosts),
+              all_robots: MapSet.new(Map.values(robot_hosts)),
               idle_ms: opts[:idle_ms],
               round: min(robots, 16),
               seed: opts[:seed],
@@ -297,6 +298,21 @@ defmodule TartarusWarehouse.Floor do
     after
       Network.stop(net)
       if data_dir, do: File.rm_rf(data_dir)
+    end
+  end
+
+  # How agents tell robots: by name prefix ("emu<tag>-r"), when every robot's name has it
+  # (nothing that grows with the robots travels with them), else the set of robot hosts.
+  defp robot_set(robot_hosts) do
+    {name, _} = robot_hosts["r1"]
+
+    with true <- is_binary(name) and String.ends_with?(name, "-r1"),
+         prefix = String.slice(name, 0..-2//1),
+         true <-
+           Enum.all?(robot_hosts, fn {r, {n, _}} -> n == prefix <> String.slice(r, 1..-1//1) end) do
+      {:prefix, prefix}
+    else
+      _ -> MapSet.new(Map.values(robot_hosts))
     end
   end
 

@@ -12,7 +12,7 @@ defmodule TartarusWarehouse.SequenceAgent do
 
   @doc false
   @impl true
-  def init(args), do: {:move, strategy(args), Map.put(args, :left, args.robots)}
+  def init(args), do: {:move, strategy(args), Map.put(args, :left, args.all)}
 
   @doc false
   @impl true

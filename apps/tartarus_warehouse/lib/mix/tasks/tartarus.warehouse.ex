@@ -2,34 +2,55 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   @shortdoc "Warehouse: mutual exclusion by a clock-less pipeline of task agents (thesis ch. 4)"
   @moduledoc """
   Runs the warehouse experiments of the thesis (§4.7) on emulated floors (see
-  `TartarusWarehouse.Experiment`).
+  `TartarusWarehouse.Experiment`): task agents carry each task's program and are the
+  tokens of its resources; robots line up into a clock-less pipeline.
 
-      mix tartarus.warehouse --experiment robots|scaling [--seed 1] [--out DIR] [--json]
-                             [--scale 0.01] [--mode virtual|peer]
+      mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
+                             [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
                              [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
+                             [--timeout-ms 300000]
 
   `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
-  (default 0.01: 20 ms). `--help` prints this text.
+  (default 0.01: 20 ms). `--help` prints this text. Experiments:
 
-    * `robots`: the warehouse's 4 jobs of T1-T4 with variable durations on 1..4 robots: a
+    * `robots`: `--jobs` (4) warehouse jobs of T1-T4 with variable durations (each robot
+      its own pace, each execution a spread of `--jitter`) on 1..`--robots` robots: a
       Gantt chart per robot count (`gantt_<k>_robots.svg`, Figs. 4.7-4.10) and the
       speed-up over one robot (`speedup.svg`, against the thesis's 1.75, 1.84, 2.21); then
-      `--equal-jobs` jobs with equal durations (the pipeline's steady-state speed-up);
-    * `scaling`: jobs of 5..60 soft tasks (Sort, Merge, Add, Sub, Div repeating) on a
-      100-node network, task agents vs the central server: `avg_task_time.svg` (Fig. 4.4).
+      `--equal-jobs` (40) jobs with equal durations: the pipeline's steady-state speed-up;
+    * `scaling`: `--scaling-jobs` jobs of 5..`--max-tasks` soft tasks (Sort, Merge, Add,
+      Sub, Div repeating) on a `--nodes`-node network with `--scaling-robots` robots, task
+      agents vs the central server: `avg_task_time.svg` (Fig. 4.4);
+    * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
+      (`gantt_otfp.svg`, Fig. 4.12), then 16 jobs of 10 soft tasks while tasks are added
+      and deleted (`otfp.svg`: tasks and ms per task of each job, Fig. 4.5);
+    * `removal`: 8 jobs on 3 robots; r2 leaves once 2 jobs completed (battery low: it
+      finishes its job first), a fourth robot joins once 4 completed (`gantt_removal.svg`,
+      Fig. 4.13);
+    * `mixed`: jobs of sequential and independent sequences (`gantt_mixed.svg`, Fig. 4.11);
+    * `failover`: the distributor's host killed twice during 10 jobs and started again on
+      its journal, for seeds S, S+1, S+2; once more without persistence, for contrast.
 
   Output (in `--out DIR`, default `results/warehouse-<experiment>-<UTC timestamp>`):
   `executions.csv` (every task executed: robot, job, task, resources, start, stop), the
-  Gantt charts, the series as CSV and SVG, `summary.json` and `summary.md`.
+  Gantt charts (one lane per robot), the series as CSV and SVG, `summary.json` and
+  `summary.md`.
 
-  Summary keys: `experiment, jobs, tasks, completed_jobs, mutex_violations, deadlocks,
-  speedup` (for `robots`: an object keyed by robot count; null for `scaling`),
-  `speedup_equal, makespan_variable_ms, makespan_equal_ms, speedup_thesis` (robots),
-  `avg_task_ms_agents, avg_task_ms_central` (objects keyed by tasks per job),
-  `agents_faster_at` (scaling), `scale, mode, wall_ms` and the runner's `scenario, seed,
-  steps, setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON
-  object.
+  Summary keys (all experiments): `experiment, jobs, tasks, completed_jobs,
+  mutex_violations` (Eq. 4.1, pairs of executions on two robots holding one resource at
+  one instant), `deadlocks` (jobs not completed within `--timeout-ms`), `speedup` (for
+  `robots` an object keyed by robot count, else null), `scale, mode, wall_ms` and the
+  runner's `scenario, seed, steps, setup_ms, run_ms`. `robots` adds `speedup_equal,
+  makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
+  jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central` (objects keyed by tasks
+  per job), `agents_faster_at, nodes, robots, jobs_per_run`; `otfp` adds `inserted_runs,
+  jobs_with_t2a, skipped_runs, tasks_in_job, ms_per_task`; `removal` adds `jobs_per_robot,
+  removed_robot, joined_robot, mean_busy_robots`; `mixed` adds
+  `jobs_with_concurrent_sequences, mean_busy_robots`; `failover` adds `jobs_lost,
+  jobs_duplicated, kills, seeds, jobs_lost_by_seed, makespan_ms_by_seed,
+  jobs_lost_without_persistence`. With `--json` the last line printed is the summary as
+  one JSON object.
   """
   use TartarusTools.CLI
 
@@ -100,6 +121,18 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
 
         "scaling" ->
           "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
+
+        "failover" ->
+          "kills #{s.kills}: jobs lost #{s.jobs_lost}, duplicated #{s.jobs_duplicated} (without persistence: #{s.jobs_lost_without_persistence} lost)"
+
+        "otfp" ->
+          "tasks per job: #{inspect(s.tasks_in_job)}\nms per task: #{inspect(s.ms_per_task)}"
+
+        "removal" ->
+          "jobs per robot: #{inspect(s.jobs_per_robot)}"
+
+        "mixed" ->
+          "jobs whose two sequences overlapped: #{inspect(s.jobs_with_concurrent_sequences)}"
       end
 
     """
