@@ -194,7 +194,8 @@ defmodule TartarusWarehouse.DistributorAgent do
       robots: s.robots,
       idle_ms: s.idle_ms,
       round: s.round,
-      validate: s.validate
+      validate: s.validate,
+      guide: Map.get(s, :guide)
     }
 
     {:ok, _} =

@@ -71,6 +71,12 @@ defmodule TartarusWarehouse.Floor do
       doc: "robots that start out of service (they join with `{:join, i}`)"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    guide: [
+      type: :boolean,
+      default: false,
+      doc:
+        "agents climb a signal field to the robot that waits for them instead of searching blind (beyond the thesis; see `TartarusWarehouse.TaskAgent`)"
+    ],
     failover: [
       type: :boolean,
       default: false,
@@ -227,7 +233,8 @@ defmodule TartarusWarehouse.Floor do
               idle_ms: opts[:idle_ms],
               round: min(robots, 16),
               seed: opts[:seed],
-              validate: opts[:failover]
+              validate: opts[:failover],
+              guide: if(opts[:guide], do: robot_span(robots))
             })
 
           :central ->
@@ -314,6 +321,14 @@ defmodule TartarusWarehouse.Floor do
     else
       _ -> MapSet.new(Map.values(robot_hosts))
     end
+  end
+
+  # The hops between the two farthest robots (a full mesh: 1).
+  defp robot_span(robots) when robots <= 16, do: 1
+
+  defp robot_span(robots) do
+    robot_topo = topology(robots, 0)
+    TartarusEmu.Topology.distances(robot_topo, "r1") |> Map.values() |> Enum.max()
   end
 
   defp submit(dref, jobs, arrivals) do

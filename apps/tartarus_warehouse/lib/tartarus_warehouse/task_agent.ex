@@ -12,6 +12,11 @@ defmodule TartarusWarehouse.TaskAgent do
   the next job (and migrates on) or retires (stops). When a round of robots finds no match
   it waits `idle_ms` before the next hop, so idle agents do not spin.
 
+  With `guide: span` (an integer) the agent whose robot goes on to a next block emits a
+  signal field named after that state, `span` hops wide, and agents looking for a booked
+  robot climb such a field when their host has one (beyond the thesis: the thesis's agents
+  search blind, which costs hops in proportion to the robots).
+
   With `validate: true` (a distributor that survives restarts) the agent asks the
   distributor, after claiming a robot and before running anything, whether it is the
   valid holder of its assignment (see `TartarusWarehouse.DistributorAgent`).
@@ -59,6 +64,8 @@ defmodule TartarusWarehouse.TaskAgent do
   @impl true
   def handle_info({:plugin_event, :robot, {:finished, id, _reports}}, s) do
     if id == Agent.id() do
+      guide(s)
+
       case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
         {:reissue, a} ->
           Enum.each(a.tasks, &Agent.add_module(&1.program))
@@ -73,6 +80,8 @@ defmodule TartarusWarehouse.TaskAgent do
   end
 
   def handle_info(:roam, s), do: {:move, strategy(s), s}
+  # Waiting on a robot for a field: try this robot again first (it may be the one).
+  def handle_info(:guided, s), do: handle_arrival(%{}, s)
   def handle_info(_msg, s), do: {:stay, s}
 
   @doc false
@@ -82,7 +91,37 @@ defmodule TartarusWarehouse.TaskAgent do
     {:stay, s}
   end
 
-  defp roam(s) do
+  # With `guide: span`, the robot's next state is announced as a signal field around it
+  # (`Tartarus.Signal`), which the agent of the next block climbs instead of searching blind.
+  defp guide(%{guide: span, a: %{next: {_, _, _} = next}}) when is_integer(span),
+    do: Agent.emit_signal({:warehouse_wait, next}, 100, span: span + 1)
+
+  defp guide(_s), do: :ok
+
+  defp roam(%{guide: span, a: %{look_for: {_, _, _} = state}} = s) when is_integer(span) do
+    gradient = Agent.gradient({:warehouse_wait, state})
+
+    cond do
+      map_size(gradient) > 0 ->
+        {best, _} = Enum.max_by(gradient, &elem(&1, 1))
+        {:move, best, Map.delete(s, :wait)}
+
+      # The field covers every robot: on a robot, no field means the robot it looks for is
+      # not waiting yet.
+      TartarusWarehouse.Roam.robot?(s.robots, Agent.host()) ->
+        # Waiting costs a check per tick: ticks lengthen (up to 16 ms) while nothing changes.
+        wait = Map.get(s, :wait, max(s.idle_ms, 1))
+        Process.send_after(self(), :guided, wait)
+        {:stay, Map.put(s, :wait, min(wait * 2, 16))}
+
+      true ->
+        blind(s)
+    end
+  end
+
+  defp roam(s), do: blind(s)
+
+  defp blind(s) do
     cond do
       s.misses >= s.round and Map.get(s.a, :persistent, false) and retired?(s) ->
         {:stop, :normal, s}
