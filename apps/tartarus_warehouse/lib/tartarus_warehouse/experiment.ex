@@ -60,6 +60,12 @@ defmodule TartarusWarehouse.Experiment do
     scaling_jobs: [type: :pos_integer, default: 5, doc: "`scaling`: jobs per run"],
     nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
     scaling_robots: [type: :pos_integer, default: 10, doc: "`scaling`: robots among them"],
+    big_robots: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "`scaling`: also one run on this many robots (e.g. 1000; 0: none): 20 jobs of 5 soft tasks in 20 independent pipelines, agents guided by signal fields"
+    ],
     timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
   ]
 
@@ -201,21 +207,56 @@ defmodule TartarusWarehouse.Experiment do
     p = state.p
     jobs = soft_jobs(p.scaling_jobs, n, 2000)
 
-    for design <- [:agents, :central] do
-      r =
-        floor!(
-          robots: p.scaling_robots,
-          secondary: p.nodes - p.scaling_robots - 1,
-          jobs: jobs,
-          scale: p.scale,
-          design: design,
-          seed: state.seed,
-          mode: p.mode,
-          timeout_ms: p.timeout_ms
-        )
+    big =
+      if p.big_robots > 0 and n == List.last(state.points) do
+        big_jobs =
+          for j <- 1..20 do
+            %{
+              id: j,
+              tasks:
+                for {prog, i} <- Enum.with_index(TartarusWarehouse.Program.soft(5), 1) do
+                  %{
+                    name: "T#{i}",
+                    resources: [{:psi, i, j}],
+                    after: if(i > 1, do: ["T#{i - 1}"], else: []),
+                    program: prog
+                  }
+                end
+            }
+          end
 
-      Map.merge(r, %{kind: design, point: n, specs: jobs})
-    end
+        r =
+          floor!(
+            robots: p.big_robots,
+            jobs: big_jobs,
+            scale: p.scale,
+            guide: true,
+            seed: state.seed,
+            mode: p.mode,
+            timeout_ms: p.timeout_ms
+          )
+
+        [Map.merge(r, %{kind: :big, point: n, specs: big_jobs})]
+      else
+        []
+      end
+
+    big ++
+      for design <- [:agents, :central] do
+        r =
+          floor!(
+            robots: p.scaling_robots,
+            secondary: p.nodes - p.scaling_robots - 1,
+            jobs: jobs,
+            scale: p.scale,
+            design: design,
+            seed: state.seed,
+            mode: p.mode,
+            timeout_ms: p.timeout_ms
+          )
+
+        Map.merge(r, %{kind: design, point: n, specs: jobs})
+      end
   end
 
   defp run_point(:otfp, _, state) do
@@ -452,7 +493,7 @@ defmodule TartarusWarehouse.Experiment do
   end
 
   defp record(:scaling, n, state) do
-    [a, c] = Enum.filter(state.runs, &(&1.point == n))
+    [a, c] = Enum.filter(state.runs, &(&1.point == n and &1.kind in [:agents, :central]))
     per = fn r -> Float.round(r.makespan_ms / (length(r.jobs) * n), 3) end
 
     state.series
@@ -619,7 +660,25 @@ defmodule TartarusWarehouse.Experiment do
         agents = by.(:avg_task_ms_agents)
         central = by.(:avg_task_ms_central)
 
+        big =
+          case Enum.find(runs, &(&1.kind == :big)) do
+            nil ->
+              nil
+
+            r ->
+              %{
+                robots: length(r.robots),
+                jobs: length(r.jobs),
+                completed_jobs: r.completed_jobs,
+                mutex_violations: r.violations,
+                wall_ms: r.wall_ms,
+                makespan_ms: round(r.makespan_ms),
+                migrations: r.migrations
+              }
+          end
+
         Map.merge(base, %{
+          big_run: big,
           speedup: nil,
           avg_task_ms_agents: agents,
           avg_task_ms_central: central,
