@@ -12,8 +12,8 @@ defmodule TartarusWarehouse.Experiment do
     * `:scaling` - step i runs `scaling_jobs` jobs of n soft tasks (Sort, Merge, Add, Sub,
       Div repeating, §4.7.2; n = 5, 10, 20, ... up to `max_tasks`) with equal durations on
       a network of `nodes` nodes (`scaling_robots` robots, the rest secondary), with task
-      agents and with the central server: the average time per task against tasks per
-      job (Fig. 4.4);
+      agents (searching blind, as in the thesis, and guided by signal fields) and with
+      the central server: the average time per task against tasks per job (Fig. 4.4);
     * `:otfp` - on-the-fly programming (§4.5.4): 6 warehouse jobs on 3 robots, a task T2A
       (a detour, its program compiled at run time) added after T2 while job 2 runs T2,
       deleted, and added again (Fig. 4.12: a Gantt chart); then 16 jobs of 10 soft tasks
@@ -242,20 +242,21 @@ defmodule TartarusWarehouse.Experiment do
       end
 
     big ++
-      for design <- [:agents, :central] do
+      for kind <- [:agents, :central, :guided] do
         r =
           floor!(
             robots: p.scaling_robots,
             secondary: p.nodes - p.scaling_robots - 1,
             jobs: jobs,
             scale: p.scale,
-            design: design,
+            design: if(kind == :central, do: :central, else: :agents),
+            guide: kind == :guided,
             seed: state.seed,
             mode: p.mode,
             timeout_ms: p.timeout_ms
           )
 
-        Map.merge(r, %{kind: design, point: n, specs: jobs})
+        Map.merge(r, %{kind: kind, point: n, specs: jobs})
       end
   end
 
@@ -493,12 +494,16 @@ defmodule TartarusWarehouse.Experiment do
   end
 
   defp record(:scaling, n, state) do
-    [a, c] = Enum.filter(state.runs, &(&1.point == n and &1.kind in [:agents, :central]))
+    [a, c, g] =
+      Enum.filter(state.runs, &(&1.point == n and &1.kind in [:agents, :central, :guided]))
+
     per = fn r -> Float.round(r.makespan_ms / (length(r.jobs) * n), 3) end
 
     state.series
     |> Series.record(:avg_task_ms_agents, n, per.(a))
     |> Series.record(:avg_task_ms_central, n, per.(c))
+    |> Series.record(:avg_task_ms_agents_guided, n, per.(g))
+    |> Series.record(:migrations_agents_guided, n, g.migrations)
     |> Series.record(:migrations_agents, n, a.migrations)
   end
 
@@ -532,7 +537,7 @@ defmodule TartarusWarehouse.Experiment do
       %{
         file: "avg_task_time",
         title: "Average time per task: task agents vs central server (Fig. 4.4)",
-        series: [:avg_task_ms_agents, :avg_task_ms_central],
+        series: [:avg_task_ms_agents, :avg_task_ms_central, :avg_task_ms_agents_guided],
         x_label: "tasks per job",
         y_label: "ms per task"
       }
@@ -682,6 +687,7 @@ defmodule TartarusWarehouse.Experiment do
           speedup: nil,
           avg_task_ms_agents: agents,
           avg_task_ms_central: central,
+          avg_task_ms_agents_guided: by.(:avg_task_ms_agents_guided),
           agents_faster_at:
             for({n, a} <- agents, a < central[n], do: String.to_integer(n)) |> Enum.sort(),
           nodes: p.nodes,

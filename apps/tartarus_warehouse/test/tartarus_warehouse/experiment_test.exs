@@ -55,7 +55,8 @@ defmodule TartarusWarehouse.ExperimentTest do
 
     assert Map.keys(s.avg_task_ms_agents) == ["5"]
     assert Map.keys(s.avg_task_ms_central) == ["5"]
-    assert s.mutex_violations == 0 and s.deadlocks == 0 and s.completed_jobs == 4
+    assert Map.keys(s.avg_task_ms_agents_guided) == ["5"]
+    assert s.mutex_violations == 0 and s.deadlocks == 0 and s.completed_jobs == 6 and s.jobs == 6
   end
 
   test "options are checked with the platform's wording" do
