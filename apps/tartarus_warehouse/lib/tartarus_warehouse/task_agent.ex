@@ -47,8 +47,10 @@ defmodule TartarusWarehouse.TaskAgent do
           :ok = Agent.subscribe(:robot)
           run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
           :ok = Agent.write(:robot, {:run, Agent.id(), run})
-          if a.index == 0, do: :ok = ask(s, {:started, s.ref})
-          {:stay, %{s | misses: 0}}
+
+          if a.index == 0 and ask(s, {:started, s.ref}) == :unreachable,
+            do: {:stop, {:shutdown, :distributor_unreachable}, s},
+            else: {:stay, %{s | misses: 0}}
         else
           # A stale copy (created again after the distributor's restart): it runs nothing.
           :ok = Agent.write(:robot, {:unclaim, Agent.id()})
@@ -73,6 +75,9 @@ defmodule TartarusWarehouse.TaskAgent do
 
         :retire ->
           {:stop, :normal, s}
+
+        :unreachable ->
+          {:stop, {:shutdown, :distributor_unreachable}, s}
       end
     else
       {:stay, s}
@@ -142,7 +147,8 @@ defmodule TartarusWarehouse.TaskAgent do
   defp valid?(_s), do: true
 
   # A request to the distributor, asked again while it is unreachable (its host may be
-  # restarting; its answers are the same when asked twice), for at most 8 s.
+  # restarting; its answers are the same when asked twice), for at most 8 s; then
+  # `:unreachable` (the distributor is gone: the agent stops, its token with it).
   defp ask(s, message, deadline \\ nil) do
     deadline = deadline || System.monotonic_time(:millisecond) + 8_000
 
@@ -151,11 +157,13 @@ defmodule TartarusWarehouse.TaskAgent do
         answer
 
       {:error, reason} ->
-        if System.monotonic_time(:millisecond) > deadline,
-          do: exit({:distributor_unreachable, reason})
-
-        Process.sleep(10)
-        ask(s, message, deadline)
+        if System.monotonic_time(:millisecond) > deadline do
+          _ = reason
+          :unreachable
+        else
+          Process.sleep(10)
+          ask(s, message, deadline)
+        end
     end
   end
 
