@@ -770,23 +770,61 @@ defmodule TartarusWarehouse.Experiment do
             %{label: robot, spans: spans}
           end)
 
-        what =
-          if r.kind == :variable,
-            do: "#{r.point} robot(s), variable durations",
-            else: "#{r.point} tasks per job, agents"
+        {what, file} =
+          case state.p.experiment do
+            :robots ->
+              {"#{r.point} robot(s), variable durations", "gantt_#{r.point}_robots.svg"}
 
-        file =
-          if r.kind == :variable,
-            do: "gantt_#{r.point}_robots.svg",
-            else: "gantt_#{r.point}_tasks.svg"
+            :scaling ->
+              {"#{r.point} tasks per job, agents", "gantt_#{r.point}_tasks.svg"}
 
-        SVG.write!(
-          Path.join(dir, file),
-          SVG.gantt(rows, title: "Warehouse: #{what}", x_label: "ms")
-        )
+            :otfp ->
+              {"T2A added, deleted and added again on the fly (Fig. 4.12)", "gantt_otfp.svg"}
+
+            :removal ->
+              {"r2 leaves after 2 jobs, r4 joins after 4 (Fig. 4.13)", "gantt_removal.svg"}
+
+            :mixed ->
+              {"sequential and independent sequences (Fig. 4.11)", "gantt_mixed.svg"}
+
+            :failover ->
+              {"the distributor's host killed twice, seed #{r.run_seed}",
+               "gantt_failover_seed_#{r.run_seed}.svg"}
+          end
+
+        by_robot =
+          SVG.write!(
+            Path.join(dir, file),
+            SVG.gantt(rows, title: "Warehouse: #{what}", x_label: "ms")
+          )
+
+        # As the thesis draws them: a row per job, bars coloured by robot, labelled with
+        # the task and the ms it took.
+        job_rows =
+          Enum.map(r.jobs, fn job ->
+            spans =
+              for e <- r.history, e.job == job, not e.skipped do
+                %{
+                  start: (e.start_us - r.t0_us) / 1000,
+                  stop: (e.stop_us - r.t0_us) / 1000,
+                  label: "#{e.task} #{round(e.ms)}",
+                  group: e.robot
+                }
+              end
+
+            %{label: "J#{job}", spans: spans}
+          end)
+
+        by_job =
+          SVG.write!(
+            Path.join(dir, String.replace_suffix(file, ".svg", "_by_job.svg")),
+            SVG.gantt(job_rows, title: "Warehouse: #{what}, by job", x_label: "ms")
+          )
+
+        [by_robot, by_job]
       end
 
-    [csv | gantts]
+    [csv | List.flatten(gantts)]
   end
 
   @doc """

@@ -36,6 +36,7 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert Map.keys(s.speedup) == ["1", "2"]
     assert s.speedup["1"] == 1.0
     assert Enum.any?(files, &String.ends_with?(&1, "gantt_2_robots.svg"))
+    assert File.read!(Path.join(dir, "gantt_2_robots_by_job.svg")) =~ "J2"
     assert File.read!(Path.join(dir, "summary.json")) =~ ~s("speedup")
     assert File.read!(Path.join(dir, "executions.csv")) =~ "point,run,robot,job,task"
   end

@@ -20,6 +20,15 @@ defmodule TartarusWarehouse.FloorTest do
     assert r.migrations > 0
   end
 
+  test "jobs arrive asynchronously: a job submitted later starts later and still completes" do
+    jobs = Experiment.thesis_jobs(3, 1000)
+    {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, arrivals_ms: [0, 0, 120])
+    assert r.timed_out == []
+    assert length(Checker.completion(r.history, jobs).completed) == 3
+    first_of_3 = r.history |> Enum.filter(&(&1.job == 3)) |> Enum.map(& &1.start_us) |> Enum.min()
+    assert first_of_3 - r.t0_us >= 120_000
+  end
+
   test "the centralized baseline runs the same jobs with no migration" do
     jobs = Experiment.thesis_jobs(4, 1000)
     {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, design: :central)
