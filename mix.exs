@@ -21,7 +21,7 @@ defmodule TartarusUmbrella.MixProject do
   defp top_level_tests(args) do
     Mix.Task.run("compile", [])
 
-    for app <- [:tartarus, :tartarus_tools, :tartarus_emu, :tartarus_lats] do
+    for app <- [:tartarus, :tartarus_tools, :tartarus_emu, :tartarus_lats, :tartarus_warehouse] do
       {:ok, _} = Application.ensure_all_started(app)
     end
 

@@ -91,6 +91,8 @@ defmodule TartarusEmu.Network do
     :keeper,
     :table,
     setup: nil,
+    host_opts: [],
+    node_opts: %{},
     group: 1,
     peers: [],
     adjacency: %{},
@@ -115,7 +117,9 @@ defmodule TartarusEmu.Network do
           peers: [pid()],
           adjacency: %{optional(Topology.name()) => [Topology.name()]},
           index: %{optional(Tartarus.host()) => Topology.name()},
-          setup: setup() | nil
+          setup: setup() | nil,
+          host_opts: keyword(),
+          node_opts: %{optional(Topology.name()) => keyword()}
         }
 
   @typedoc """
@@ -139,6 +143,12 @@ defmodule TartarusEmu.Network do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     group: [type: :pos_integer, default: 1, doc: "topology nodes per BEAM node (peer mode)"],
     host_opts: [type: :keyword, default: [], doc: "extra options of `Tartarus.start_host/2`"],
+    node_opts: [
+      type: :map,
+      default: %{},
+      doc:
+        "per topology node, more options of `Tartarus.start_host/2` merged over `:host_opts` (e.g. `%{\"jd\" => [data_dir: dir]}`: persistence for one host); a restarted node gets them again"
+    ],
     prefix: [
       type: :any,
       default: "emu",
@@ -201,6 +211,7 @@ defmodule TartarusEmu.Network do
       }
 
       host_opts = Keyword.put(opts[:host_opts], :strict_links, true)
+      net = %{net | host_opts: host_opts, node_opts: opts[:node_opts]}
 
       result =
         case opts[:mode] do
@@ -253,7 +264,7 @@ defmodule TartarusEmu.Network do
 
     net.topology.nodes
     |> Task.async_stream(
-      fn n -> {n, Tartarus.start_host(Map.fetch!(names, n), host_opts)} end,
+      fn n -> {n, Tartarus.start_host(Map.fetch!(names, n), host_opts_of(net, n, host_opts))} end,
       max_concurrency: System.schedulers_online() * 2,
       timeout: :infinity
     )
@@ -279,7 +290,8 @@ defmodule TartarusEmu.Network do
           name: :"#{opts[:prefix] || "emu"}#{String.downcase(tag)}_#{i}",
           args: peer_args,
           hosts: Enum.map(members, &{&1, Map.fetch!(names, &1)}),
-          host_opts: host_opts
+          host_opts: host_opts,
+          node_opts: Map.take(net.node_opts, members)
         }
       end)
 
@@ -533,11 +545,17 @@ defmodule TartarusEmu.Network do
   def restart_node(net, n) do
     {name, _} = host(net, n)
 
-    with {:ok, _} <- Tartarus.start_host(name, strict_links: true) do
+    with {:ok, _} <- Tartarus.start_host(name, host_opts_of(net, n, net.host_opts)) do
       Keeper.delete(net, {:killed, n})
       reconnect(net, [n])
       run_setup(net, [n])
     end
+  end
+
+  # The start options of topology node `n`'s host.
+  defp host_opts_of(net, n, host_opts) do
+    host_opts = if host_opts == [], do: [strict_links: true], else: host_opts
+    Keyword.merge(host_opts, Map.get(net.node_opts, n, []))
   end
 
   defp reconnect(net, members) do

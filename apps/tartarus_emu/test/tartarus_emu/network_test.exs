@@ -21,6 +21,20 @@ defmodule TartarusEmu.NetworkTest do
     assert length(Network.live_links(net)) == Topology.edge_count(topo)
   end
 
+  @tag :tmp_dir
+  test "node_opts: one node's host journals, and a restarted node gets its options again", %{
+    tmp_dir: dir
+  } do
+    net = start_network!(Topology.line(3), node_opts: %{h2: [data_dir: dir]})
+    h2 = Network.host(net, :h2)
+    {:ok, id} = Tartarus.create_static_agent(h2, Tartarus.Examples.Echo, :kept)
+    :ok = Network.kill_node(net, :h2)
+    :ok = Network.restart_node(net, :h2)
+    # Restored from h2's journal: the restarted host got its data_dir again.
+    assert [%{id: ^id}] = Tartarus.agents(h2)
+    assert {:ok, :kept} = Tartarus.request({id, h2}, :state)
+  end
+
   test "the setup hook runs on every node after linking, and again on a restarted node" do
     me = self()
 

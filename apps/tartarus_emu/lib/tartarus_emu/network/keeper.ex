@@ -123,7 +123,7 @@ defmodule TartarusEmu.Network.Keeper do
                node,
                __MODULE__,
                :start_local_hosts,
-               [spec.hosts, spec.host_opts],
+               [spec.hosts, spec.host_opts, Map.get(spec, :node_opts, %{})],
                60_000
              ) do
           :ok ->
@@ -173,9 +173,9 @@ defmodule TartarusEmu.Network.Keeper do
 
   @doc false
   # Runs on a peer: starts its hosts.
-  def start_local_hosts(hosts, opts) do
-    Enum.reduce_while(hosts, :ok, fn {_topo, name}, :ok ->
-      case Tartarus.start_host(name, opts) do
+  def start_local_hosts(hosts, opts, node_opts \\ %{}) do
+    Enum.reduce_while(hosts, :ok, fn {topo, name}, :ok ->
+      case Tartarus.start_host(name, Keyword.merge(opts, Map.get(node_opts, topo, []))) do
         {:ok, _} -> {:cont, :ok}
         error -> {:halt, error}
       end

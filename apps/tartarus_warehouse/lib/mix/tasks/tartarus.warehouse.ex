@@ -1,0 +1,147 @@
+defmodule Mix.Tasks.Tartarus.Warehouse do
+  @shortdoc "Warehouse: mutual exclusion by a clock-less pipeline of task agents (thesis ch. 4)"
+  @moduledoc """
+  Runs the warehouse experiments of the thesis (§4.7) on emulated floors (see
+  `TartarusWarehouse.Experiment`): task agents carry each task's program and are the
+  tokens of its resources; robots line up into a clock-less pipeline.
+
+      mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
+                             [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
+                             [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
+                             [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
+                             [--big-robots 1000]
+                             [--timeout-ms 300000]
+
+  `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
+  (default 0.01: 20 ms). `--help` prints this text. Experiments:
+
+    * `robots`: `--jobs` (4) warehouse jobs of T1-T4 with variable durations (each robot
+      its own pace, each execution a spread of `--jitter`) on 1..`--robots` robots: a
+      Gantt chart per robot count (`gantt_<k>_robots.svg`, Figs. 4.7-4.10) and the
+      speed-up over one robot (`speedup.svg`, against the thesis's 1.75, 1.84, 2.21); then
+      `--equal-jobs` (40) jobs with equal durations: the pipeline's steady-state speed-up;
+    * `scaling`: `--scaling-jobs` jobs of 5..`--max-tasks` soft tasks (Sort, Merge, Add,
+      Sub, Div repeating) on a `--nodes`-node network with `--scaling-robots` robots, task
+      agents (blind as in the thesis, and guided by signal fields) vs the central server: `avg_task_time.svg` (Fig. 4.4); with `--big-robots N`
+      also one run on N robots (20 jobs of 5 tasks in 20 independent pipelines, agents
+      guided by signal fields; `big_run` in the summary, with its wall time);
+    * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
+      (`gantt_otfp.svg`, Fig. 4.12), then 16 jobs of 10 soft tasks while tasks are added
+      and deleted (`otfp.svg`: tasks and ms per task of each job, Fig. 4.5);
+    * `removal`: 8 jobs on 3 robots; r2 leaves once 2 jobs completed (battery low: it
+      finishes its job first), a fourth robot joins once 4 completed (`gantt_removal.svg`,
+      Fig. 4.13);
+    * `mixed`: jobs of sequential and independent sequences (`gantt_mixed.svg`, Fig. 4.11);
+    * `failover`: the distributor's host killed twice during 10 jobs and started again on
+      its journal, for seeds S, S+1, S+2; once more without persistence, for contrast.
+
+  Output (in `--out DIR`, default `results/warehouse-<experiment>-<UTC timestamp>`):
+  `executions.csv` (every task executed: robot, job, task, resources, start, stop), the
+  Gantt charts (one lane per robot), the series as CSV and SVG, `summary.json` and
+  `summary.md`.
+
+  Summary keys (all experiments): `experiment, jobs, tasks, completed_jobs,
+  mutex_violations` (Eq. 4.1, pairs of executions on two robots holding one resource at
+  one instant), `deadlocks` (jobs not completed within `--timeout-ms`), `speedup` (for
+  `robots` an object keyed by robot count, else null), `scale, mode, wall_ms` and the
+  runner's `scenario, seed, steps, setup_ms, run_ms`. `robots` adds `speedup_equal,
+  makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
+  jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central,
+  avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, nodes, robots, jobs_per_run, big_run`; `otfp` adds `inserted_runs,
+  jobs_with_t2a, skipped_runs, tasks_in_job, ms_per_task`; `removal` adds `jobs_per_robot,
+  removed_robot, joined_robot, mean_busy_robots`; `mixed` adds
+  `jobs_with_concurrent_sequences, mean_busy_robots`; `failover` adds `jobs_lost,
+  jobs_duplicated, kills, seeds, jobs_lost_by_seed, makespan_ms_by_seed,
+  jobs_lost_without_persistence`. With `--json` the last line printed is the summary as
+  one JSON object.
+  """
+  use TartarusTools.CLI
+
+  alias TartarusWarehouse.Experiment
+
+  @task "tartarus.warehouse"
+
+  @impl true
+  def run(argv) do
+    # The flags are the experiment's schema; the two choices are read as strings first.
+    schema =
+      Experiment.schema()
+      |> Keyword.drop([:quiet])
+      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "robots"))
+      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
+
+    opts = TartarusTools.CLI.options!(argv, schema, @task)
+
+    experiment =
+      TartarusTools.CLI.choice!(
+        opts[:experiment],
+        [:robots, :scaling, :otfp, :removal, :mixed, :failover],
+        :experiment,
+        @task,
+        :robots
+      )
+
+    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
+    json? = opts[:json]
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.merge(experiment: experiment, mode: mode, quiet: json?)
+
+    exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
+
+    case Experiment.validate(exp_opts) do
+      {:ok, _} -> :ok
+      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+    end
+
+    Mix.Task.run("app.start")
+
+    unless json?,
+      do:
+        Mix.shell().info(
+          "warehouse: experiment #{experiment}, seed #{opts[:seed]}, #{mode} hosts..."
+        )
+
+    case Experiment.run(exp_opts) do
+      {:ok, %{summary: s, out: dir}} ->
+        TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
+
+      {:error, message} ->
+        Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp text(s, dir) do
+    lines =
+      case s.experiment do
+        "robots" ->
+          "speed-up (variable durations): #{inspect(s.speedup)}; thesis #{inspect(s.speedup_thesis)}\n" <>
+            "speed-up (equal durations, #{s.jobs_equal} jobs): #{inspect(s.speedup_equal)}"
+
+        "scaling" ->
+          "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
+
+        "failover" ->
+          "kills #{s.kills}: jobs lost #{s.jobs_lost}, duplicated #{s.jobs_duplicated} (without persistence: #{s.jobs_lost_without_persistence} lost)"
+
+        "otfp" ->
+          "tasks per job: #{inspect(s.tasks_in_job)}\nms per task: #{inspect(s.ms_per_task)}"
+
+        "removal" ->
+          "jobs per robot: #{inspect(s.jobs_per_robot)}"
+
+        "mixed" ->
+          "jobs whose two sequences overlapped: #{inspect(s.jobs_with_concurrent_sequences)}"
+      end
+
+    """
+    jobs #{s.jobs}, completed #{s.completed_jobs}, tasks run #{s.tasks}, mutex violations #{s.mutex_violations}, deadlocks #{s.deadlocks}
+    #{lines}
+    written to #{dir}\
+    """
+  end
+end

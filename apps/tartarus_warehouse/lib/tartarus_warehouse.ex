@@ -1,0 +1,39 @@
+defmodule TartarusWarehouse do
+  @moduledoc """
+  The warehouse of the thesis's chapter 4: mutual exclusion of shared resources by
+  ordering robot tasks into a clock-less pipeline of mobile agents.
+
+  Each task's program travels inside one mobile agent, which is also the token for the
+  task's resources; a robot can only execute a task while that agent sits on it, so robots
+  line up into a pipeline whose stages stretch and shrink with real execution times.
+
+  | module | what it is |
+  |---|---|
+  | `TartarusWarehouse.Job` | the model (§4.3): job specs, their validation, their plan (cases A, B, C) |
+  | `TartarusWarehouse.Distributor` | the Job Distributor (Algorithm 2), pure |
+  | `TartarusWarehouse.DistributorAgent` | its process: a static agent on the distributor's host |
+  | `TartarusWarehouse.TaskAgent` | task agents (Algorithm 3) |
+  | `TartarusWarehouse.Robot` | the robot plugin: state, reach, program execution, history |
+  | `TartarusWarehouse.Program` | task programs (shipped as code) |
+  | `TartarusWarehouse.Central` | the centralized baseline (§4.7.2) |
+  | `TartarusWarehouse.Floor` | a floor on the emulator; `run/1` |
+  | `TartarusWarehouse.Checker` | Eq. 4.1 (mutual exclusion), completion, Eq. 4.2 (occupancy) over the history |
+  | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` |
+  """
+
+  @doc """
+  Validates and plans a job for `world` (see `TartarusWarehouse.Job.plan/2`).
+
+      iex> world = TartarusWarehouse.Job.world([:a, :b], 2)
+      iex> {:ok, plan} = TartarusWarehouse.plan(%{id: 1, tasks: [%{name: "T1", resources: [:a]}, %{name: "T2", resources: [:b]}]}, world)
+      iex> plan.case
+      :b
+  """
+  @spec plan(map(), TartarusWarehouse.Job.world()) ::
+          {:ok, TartarusWarehouse.Job.plan()} | {:error, String.t()}
+  defdelegate plan(spec, world), to: TartarusWarehouse.Job
+
+  @doc "Runs jobs on an emulated floor. See `TartarusWarehouse.Floor.run/1`."
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  defdelegate run(opts), to: TartarusWarehouse.Floor
+end

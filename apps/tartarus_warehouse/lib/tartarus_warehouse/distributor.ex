@@ -1,0 +1,371 @@
+defmodule TartarusWarehouse.Distributor do
+  @moduledoc """
+  The Job Distributor of Algorithm 2 (thesis §4.5.1) as a pure state machine:
+  `(distributor, event) -> {distributor, actions}`. `TartarusWarehouse.DistributorAgent`
+  runs it on the distributor's host and carries the actions out.
+
+  ## What it decides
+
+  A job is planned (`TartarusWarehouse.Job.plan/2`: sequences of blocks, case A, B or C)
+  and each block becomes an **assignment**: the tasks an agent carries, their resources,
+  and the state information (SI): the robot state to look for and the state to leave the
+  robot in. Robot states are `:free` (the thesis's S1*) and `{job, sequence, index}`
+  ("booked for this job's sequence, next block `index`"): the first block of a sequence
+  looks for a free robot, the last one leaves it free.
+
+  Assignments wait in one queue, in the order jobs arrived. One pass over the queue
+  releases each assignment whose resources no released agent holds and no assignment
+  before it is waiting for (first come, first served per resource: a later job never
+  overtakes an earlier one on a resource, so none starves), with one more rule for first
+  blocks: a sequence's first block is released only once the previous first block has
+  booked a robot (`started/2`). Robots are thus booked in job order, and the oldest
+  unfinished sequence can always go on: its next block's resources are held by nobody
+  older and wanted by nobody younger, and its robot (or, for a first block, every robot,
+  all being free or booked by older sequences that finish) is there to be found. That
+  removes the hold-and-wait the thesis leaves open (§4.5.6).
+
+  The distributor keeps the list of resources held (§4.5.1: "the same resource is not
+  assigned to other agents"): an agent is the one token of its resources from its release
+  until it reports `done/2`. The agent that reports is re-issued for the next job when
+  an assignment now released needs no resource beyond the ones it held (§4.5.2: "this
+  task and resource is then assigned ... for the next job"); otherwise it retires.
+
+  ## Actions
+
+    * `{:release, ref, assignment}` - start a new task agent `ref` carrying `assignment`;
+    * `{:reissue, ref, assignment}` - the agent `ref` that just reported carries
+      `assignment` next;
+    * `{:retire, ref}` - the agent `ref` that just reported stops;
+    * `{:job_done, job_id}` - every task of the job ran;
+    * `{:sequence, change}` - release a sequence agent that writes `change` into every
+      robot's state-transition database (on-the-fly programming, below).
+
+  ## On-the-fly programming (§4.5.4)
+
+  `insert/3` adds a task after another one: a sequence agent tells every robot to wait,
+  after that task, for the new task's agent, which is released like any other (first come,
+  first served on its resources) and keeps serving robots (and holding its resources)
+  until `delete/2` removes the task; it then retires as soon as it reports, or when it asks
+  `still/2` after a round without work. `delete/2` of a job's own task only tells the
+  robots (they skip it).
+
+  ## Example
+
+      iex> alias TartarusWarehouse.Distributor, as: D
+      iex> d = D.new(TartarusWarehouse.Job.world([:a, :b], 2))
+      iex> job = %{id: 1, tasks: [%{name: "T1", resources: [:a]}, %{name: "T2", resources: [:b], after: ["T1"]}]}
+      iex> {:ok, d, actions} = D.submit(d, job)
+      iex> for {:release, ref, a} <- actions, do: {ref, a.look_for, a.next}
+      [{1, :free, {1, 0, 1}}, {2, {1, 0, 1}, :free}]
+      iex> {:ok, d, []} = D.submit(d, %{job | id: 2})
+      iex> {d, []} = D.started(d, 1)
+      iex> {d, [{:reissue, 1, next}]} = D.done(d, 1)
+      iex> {next.job, next.look_for}
+      {2, :free}
+      iex> D.waiting(d)
+      1
+  """
+
+  alias TartarusWarehouse.Job
+
+  @typedoc "A robot's state: free (S1*), or booked for a job's sequence, waiting for a block."
+  @type robot_state ::
+          :free | {job :: term(), sequence :: non_neg_integer(), index :: pos_integer()}
+
+  @typedoc "What one task agent carries."
+  @type assignment :: %{
+          job: term(),
+          seq: non_neg_integer(),
+          index: non_neg_integer(),
+          tasks: [Job.task()],
+          resources: [Job.resource()],
+          needs: [Job.resource()],
+          look_for: robot_state(),
+          next: robot_state()
+        }
+
+  @typedoc "An agent's reference (the distributor's own numbering)."
+  @type ref :: pos_integer()
+
+  @typedoc "An action for the process that runs the distributor."
+  @type action ::
+          {:release, ref(), assignment()}
+          | {:reissue, ref(), assignment()}
+          | {:retire, ref()}
+          | {:job_done, term()}
+          | {:sequence, {:insert, String.t(), String.t()} | {:delete, String.t()}}
+
+  @typedoc "The distributor."
+  @type t :: %__MODULE__{
+          world: Job.world(),
+          queue: [assignment()],
+          held: %{Job.resource() => ref()},
+          out: %{ref() => assignment()},
+          jobs: %{term() => non_neg_integer()},
+          starting: ref() | nil,
+          next_ref: pos_integer(),
+          completed: [term()],
+          inserted: %{String.t() => boolean()}
+        }
+
+  defstruct world: nil,
+            queue: [],
+            held: %{},
+            out: %{},
+            jobs: %{},
+            starting: nil,
+            next_ref: 1,
+            completed: [],
+            inserted: %{}
+
+  @doc "A distributor for `world` (see `TartarusWarehouse.Job.world/2`)."
+  @spec new(Job.world()) :: t()
+  def new(world), do: %__MODULE__{world: world}
+
+  @doc """
+  A job arrives (asynchronously, at any time). Returns `{:ok, distributor, actions}`, or
+  `{:error, message}` for a malformed spec (see `TartarusWarehouse.Job.plan/2`) or a job
+  id already in use; the distributor is then unchanged.
+  """
+  @spec submit(t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
+  def submit(%__MODULE__{} = d, spec) do
+    with {:ok, plan} <- Job.plan(spec, d.world),
+         :ok <- new_id(d, plan.id) do
+      assignments = assignments(plan)
+
+      d = %{
+        d
+        | queue: d.queue ++ assignments,
+          jobs: Map.put(d.jobs, plan.id, length(assignments))
+      }
+
+      {d, actions} = issue(d, nil)
+      {:ok, d, actions}
+    end
+  end
+
+  defp new_id(d, id) do
+    if Map.has_key?(d.jobs, id) or id in d.completed,
+      do: {:error, "job id #{inspect(id)} is already in use"},
+      else: :ok
+  end
+
+  @doc "The plan's blocks as assignments, in order (sequence by sequence)."
+  @spec assignments(Job.plan()) :: [assignment()]
+  def assignments(plan) do
+    for {blocks, s} <- Enum.with_index(plan.sequences),
+        needs = blocks |> Enum.flat_map(& &1.resources) |> Enum.uniq() |> Enum.sort(),
+        last = length(blocks) - 1,
+        {b, i} <- Enum.with_index(blocks) do
+      %{
+        job: plan.id,
+        seq: s,
+        index: i,
+        tasks: b.tasks,
+        resources: b.resources,
+        needs: needs,
+        look_for: if(i == 0, do: :free, else: {plan.id, s, i}),
+        next: if(i == last, do: :free, else: {plan.id, s, i + 1})
+      }
+    end
+  end
+
+  @doc """
+  Agent `ref`, carrying a first block, has booked a robot: the next first block may go.
+  Unknown refs are ignored.
+  """
+  @spec started(t(), ref()) :: {t(), [action()]}
+  def started(%__MODULE__{starting: ref} = d, ref) when ref != nil,
+    do: issue(%{d | starting: nil}, nil)
+
+  def started(%__MODULE__{} = d, _ref), do: {d, []}
+
+  @doc """
+  Agent `ref` has run its tasks: its resources are free again. The agent is re-issued or
+  retired (exactly one of `{:reissue, ref, _}`, `{:retire, ref}` is among the actions).
+  Unknown refs get `{:retire, ref}` and change nothing else.
+  """
+  @spec done(t(), ref()) :: {t(), [action()]}
+  def done(%__MODULE__{} = d, ref) do
+    case Map.pop(d.out, ref) do
+      {nil, _} ->
+        {d, [{:retire, ref}]}
+
+      {%{persistent: true} = a, _out} ->
+        if Map.get(d.inserted, inserted_name(a), false),
+          do: {d, [{:reissue, ref, a}]},
+          else: free_persistent(d, ref, a)
+
+      {a, out} ->
+        held = Map.drop(d.held, a.resources)
+        left = d.jobs[a.job] - 1
+
+        {d, finished} =
+          if left == 0,
+            do:
+              {%{d | jobs: Map.delete(d.jobs, a.job), completed: [a.job | d.completed]},
+               [{:job_done, a.job}]},
+            else: {%{d | jobs: Map.put(d.jobs, a.job, left)}, []}
+
+        # A first block that ends before it reported started (it cannot, but be safe).
+        d = if d.starting == ref, do: %{d | starting: nil}, else: d
+        {d, actions} = issue(%{d | out: out, held: held}, {ref, MapSet.new(a.resources)})
+
+        actions =
+          if Enum.any?(actions, &match?({:reissue, ^ref, _}, &1)),
+            do: actions,
+            else: actions ++ [{:retire, ref}]
+
+        {d, finished ++ actions}
+    end
+  end
+
+  @doc """
+  Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
+  `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
+  actions}` (a `{:sequence, {:insert, after_task, name}}` and, once its resources are
+  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`.
+
+      iex> alias TartarusWarehouse.Distributor, as: D
+      iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
+      iex> {:ok, d, [{:release, 1, a}, {:sequence, change}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
+      iex> {a.look_for, a.next, change}
+      {{:inserted, "T2A"}, :resume, {:insert, "T2", "T2A"}}
+      iex> {d, [{:reissue, 1, _}]} = D.done(d, 1)
+      iex> {:ok, d, [{:sequence, {:delete, "T2A"}}]} = D.delete(d, "T2A")
+      iex> D.done(d, 1)
+      ...> |> elem(1)
+      [{:retire, 1}]
+  """
+  @spec insert(t(), String.t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
+  def insert(%__MODULE__{} = d, after_task, spec) do
+    name = spec |> Map.get(:name, "") |> to_string()
+
+    with :ok <-
+           if(Map.get(d.inserted, name),
+             do: {:error, "task #{inspect(name)} is already inserted"},
+             else: :ok
+           ),
+         {:ok, plan} <-
+           Job.plan(%{id: {:otfp, name}, tasks: [Map.put(spec, :after, [])]}, d.world) do
+      [%{tasks: tasks, resources: rs}] = hd(plan.sequences)
+
+      a = %{
+        job: {:otfp, name},
+        seq: 0,
+        index: 1,
+        tasks: tasks,
+        resources: rs,
+        needs: [],
+        look_for: {:inserted, name},
+        next: :resume,
+        persistent: true
+      }
+
+      d = %{d | queue: d.queue ++ [a], inserted: Map.put(d.inserted, name, true)}
+      {d, actions} = issue(d, nil)
+      {:ok, d, actions ++ [{:sequence, {:insert, to_string(after_task), name}}]}
+    end
+  end
+
+  @doc """
+  Deletes task `name`: an inserted task's agent retires (at once if it was not yet
+  released), and robots skip the task from now on. Returns `{:ok, distributor, actions}`.
+  """
+  @spec delete(t(), String.t()) :: {:ok, t(), [action()]}
+  def delete(%__MODULE__{} = d, name) do
+    name = to_string(name)
+
+    queue = Enum.reject(d.queue, &(Map.get(&1, :persistent) && inserted_name(&1) == name))
+
+    inserted =
+      if Map.has_key?(d.inserted, name), do: Map.put(d.inserted, name, false), else: d.inserted
+
+    {:ok, %{d | queue: queue, inserted: inserted}, [{:sequence, {:delete, name}}]}
+  end
+
+  @doc """
+  An inserted task's agent `ref` found no work for a while: if its task was deleted it
+  retires now (`{:retire, ref}` among the actions, its resources free); else nothing.
+  """
+  @spec still(t(), ref()) :: {t(), [action()]}
+  def still(%__MODULE__{} = d, ref) do
+    case Map.get(d.out, ref) do
+      %{persistent: true} = a ->
+        if Map.get(d.inserted, inserted_name(a), false),
+          do: {d, []},
+          else: free_persistent(d, ref, a)
+
+      _ ->
+        {d, []}
+    end
+  end
+
+  defp inserted_name(%{job: {:otfp, name}}), do: name
+
+  defp free_persistent(d, ref, a) do
+    d = %{
+      d
+      | out: Map.delete(d.out, ref),
+        held: Map.drop(d.held, a.resources),
+        inserted: Map.delete(d.inserted, inserted_name(a))
+    }
+
+    {d, actions} = issue(d, nil)
+    {d, actions ++ [{:retire, ref}]}
+  end
+
+  @doc "Assignments waiting to be released."
+  @spec waiting(t()) :: non_neg_integer()
+  def waiting(%__MODULE__{queue: q}), do: length(q)
+
+  @doc "Resources held now, each with the agent holding it."
+  @spec held(t()) :: %{Job.resource() => ref()}
+  def held(%__MODULE__{held: held}), do: held
+
+  @doc "Jobs not yet completed."
+  @spec pending_jobs(t()) :: [term()]
+  def pending_jobs(%__MODULE__{jobs: jobs}), do: Map.keys(jobs)
+
+  # One pass over the queue (see the moduledoc). `returning` is the agent that just
+  # reported, with the resources it held: it takes the first released assignment it covers.
+  defp issue(d, returning) do
+    {queue, d, actions, _blocked, _returning} =
+      Enum.reduce(d.queue, {[], d, [], MapSet.new(), returning}, fn a,
+                                                                    {queue, d, actions, blocked,
+                                                                     ret} ->
+        rs = MapSet.new(a.resources)
+
+        free? =
+          Enum.all?(a.resources, &(not Map.has_key?(d.held, &1))) and
+            MapSet.disjoint?(rs, blocked) and
+            (a.index > 0 or d.starting == nil)
+
+        if free? do
+          {ref, d, action, ret} =
+            case ret do
+              {r, covers} ->
+                if MapSet.subset?(rs, covers),
+                  do: {r, d, :reissue, nil},
+                  else: {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, ret}
+
+              nil ->
+                {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, nil}
+            end
+
+          d = %{
+            d
+            | out: Map.put(d.out, ref, a),
+              held: Enum.reduce(a.resources, d.held, &Map.put(&2, &1, ref)),
+              starting: if(a.index == 0, do: ref, else: d.starting)
+          }
+
+          {queue, d, [{action, ref, a} | actions], blocked, ret}
+        else
+          {[a | queue], d, actions, MapSet.union(blocked, rs), ret}
+        end
+      end)
+
+    {%{d | queue: Enum.reverse(queue)}, Enum.reverse(actions)}
+  end
+end

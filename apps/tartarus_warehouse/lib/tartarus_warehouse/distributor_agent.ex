@@ -1,0 +1,229 @@
+defmodule TartarusWarehouse.DistributorAgent do
+  @moduledoc """
+  The Job Distributor's process: a static agent on the distributor's host that runs the
+  pure `TartarusWarehouse.Distributor` and carries out its actions: it creates task agents
+  (`TartarusWarehouse.TaskAgent`) on its host, hands a returning agent its next
+  assignment, and tells its owner `{:warehouse_job_done, job_id, time_us}` when a job
+  completes.
+
+  Requests it answers: `{:submit, job_spec}` (`:ok` or `{:error, message}`; jobs arrive
+  at any time; the same job submitted again is `:ok` and changes nothing),
+  `{:insert, after_task, task_spec}` and `{:delete, task}` (on-the-fly programming: it
+  releases a `TartarusWarehouse.SequenceAgent`), `{:started, ref}`, `{:done, ref, key}`,
+  `{:still, ref}` and `{:valid, ref, nonce}` from task agents, `:status`.
+
+  ## Surviving the loss of its host
+
+  The distributor is the design's one central point. With `validate: true` its state is
+  checkpointed (`Tartarus.Agent.checkpoint/0`) after every change, and on a host started with
+  `:data_dir` that checkpoint is journaled: a host killed and started again restores the
+  distributor where its last checkpoint left it. What it does to the world (creating
+  agents, answering, telling the owner) happens only **after** the change that decided
+  it is checkpointed, from a list of pending effects kept in the state, so a restart
+  redoes what it may not have done, never forgets it:
+
+    * an answer lost with the host is asked again (task agents retry while the
+      distributor is unreachable) and answered again from the last answer kept per agent
+      (`{:done, ref, key}` carries which assignment is done, so a repeated report is
+      recognized);
+    * an agent created just before the host died may be created again after the restart
+      with a new nonce; with `validate: true` every task agent asks `{:valid, ref, nonce}`
+      after claiming a robot and before running anything, so the stale copy retires
+      without running its tasks: no task runs twice and no resource has two tokens;
+    * a job completion may be told twice (the owner counts job ids).
+  """
+  use Tartarus.Agent
+
+  alias TartarusWarehouse.Distributor
+
+  @doc false
+  @impl true
+  def init(args) do
+    s =
+      Map.merge(
+        %{validate: false},
+        Map.merge(args, %{
+          d: Distributor.new(args.world),
+          released: 0,
+          reissued: 0,
+          specs: %{},
+          # effects decided and checkpointed, not yet carried out
+          effects: [],
+          nonces: %{},
+          last: %{}
+        })
+      )
+
+    {:stay, s}
+  end
+
+  @doc false
+  @impl true
+  # Restored after a restart of the host: carry out what was decided and not yet done.
+  def handle_arrival(_ctx, s) do
+    if s.effects != [], do: send(self(), :effects)
+    {:stay, s}
+  end
+
+  @doc false
+  @impl true
+  def handle_message({:submit, spec}, from, s) do
+    id = Map.get(spec, :id)
+
+    cond do
+      is_map(spec) and Map.get(s.specs, id) == spec ->
+        later(s, [{:reply, from, :ok}])
+
+      true ->
+        case Distributor.submit(s.d, spec) do
+          {:ok, d, actions} ->
+            later(%{s | d: d, specs: Map.put(s.specs, id, spec)}, [{:reply, from, :ok} | actions])
+
+          {:error, message} ->
+            later(s, [{:reply, from, {:error, message}}])
+        end
+    end
+  end
+
+  def handle_message({:insert, after_task, spec}, from, s) do
+    case Distributor.insert(s.d, after_task, spec) do
+      {:ok, d, actions} -> later(%{s | d: d}, [{:reply, from, :ok} | actions])
+      {:error, message} -> later(s, [{:reply, from, {:error, message}}])
+    end
+  end
+
+  def handle_message({:delete, name}, from, s) do
+    {:ok, d, actions} = Distributor.delete(s.d, name)
+    later(%{s | d: d}, [{:reply, from, :ok} | actions])
+  end
+
+  def handle_message({:started, ref}, from, s) do
+    {d, actions} = Distributor.started(s.d, ref)
+    later(%{s | d: d}, [{:reply, from, :ok} | actions])
+  end
+
+  def handle_message({:done, ref, key}, from, s) do
+    case {Map.get(s.d.out, ref), Map.get(s.last, ref)} do
+      {a, _} when a != nil and {a.job, a.seq, a.index} == key ->
+        {d, actions} = Distributor.done(s.d, ref)
+
+        {mine, others} =
+          Enum.split_with(actions, fn
+            {:reissue, ^ref, _} -> true
+            {:retire, ^ref} -> true
+            _ -> false
+          end)
+
+        answer =
+          case mine do
+            [{:reissue, _, a}] -> {:reissue, a}
+            [{:retire, _}] -> :retire
+          end
+
+        s = if match?({:reissue, _}, answer), do: %{s | reissued: s.reissued + 1}, else: s
+        s = %{s | d: d, last: Map.put(s.last, ref, {key, answer})}
+        s = if answer == :retire, do: %{s | nonces: Map.delete(s.nonces, ref)}, else: s
+        later(s, [{:reply, from, answer} | others])
+
+      # A report repeated (its answer was lost with the host): the same answer.
+      {_, {^key, answer}} ->
+        later(s, [{:reply, from, answer}])
+
+      _ ->
+        later(s, [{:reply, from, :retire}])
+    end
+  end
+
+  def handle_message({:still, ref}, from, s) do
+    {d, actions} = Distributor.still(s.d, ref)
+    {mine, others} = Enum.split_with(actions, &(&1 == {:retire, ref}))
+    later(%{s | d: d}, [{:reply, from, if(mine == [], do: :stay, else: :retire)} | others])
+  end
+
+  def handle_message({:valid, ref, nonce}, from, s) do
+    Tartarus.Agent.reply(from, Map.get(s.nonces, ref) == nonce)
+    {:stay, s}
+  end
+
+  def handle_message(:status, from, s) do
+    Tartarus.Agent.reply(from, %{
+      waiting: Distributor.waiting(s.d),
+      held: Distributor.held(s.d),
+      pending_jobs: Distributor.pending_jobs(s.d),
+      released: s.released,
+      reissued: s.reissued
+    })
+
+    {:stay, s}
+  end
+
+  def handle_message(_other, _from, s), do: {:stay, s}
+
+  @doc false
+  @impl true
+  def handle_info(:effects, %{effects: []} = s), do: {:stay, s}
+
+  def handle_info(:effects, s) do
+    s = Enum.reduce(s.effects, %{s | effects: []}, &act/2)
+    if s.validate, do: Tartarus.Agent.checkpoint()
+    {:stay, s}
+  end
+
+  def handle_info(_msg, s), do: {:stay, s}
+
+  # The change is checkpointed when this callback returns; its effects follow.
+  defp later(s, effects) do
+    if s.validate, do: Tartarus.Agent.checkpoint()
+    send(self(), :effects)
+    {:stay, %{s | effects: s.effects ++ effects}}
+  end
+
+  defp act({:reply, from, answer}, s) do
+    Tartarus.Agent.reply(from, answer)
+    s
+  end
+
+  defp act({:release, ref, a}, s) do
+    nonce = {System.system_time(:microsecond), :erlang.unique_integer([:positive])}
+
+    args = %{
+      ref: ref,
+      nonce: nonce,
+      a: a,
+      distributor: {Tartarus.Agent.id(), Tartarus.Agent.host()},
+      robots: s.robots,
+      idle_ms: s.idle_ms,
+      round: s.round,
+      validate: s.validate,
+      guide: Map.get(s, :guide)
+    }
+
+    {:ok, _} =
+      Tartarus.create_mobile_agent(Tartarus.Agent.host(), TartarusWarehouse.TaskAgent, args,
+        name: "task-#{ref}",
+        seed: {s.seed, ref}
+      )
+
+    %{s | released: s.released + 1, nonces: Map.put(s.nonces, ref, nonce)}
+  end
+
+  defp act({:job_done, id}, s) do
+    if s.owner, do: send(s.owner, {:warehouse_job_done, id, System.system_time(:microsecond)})
+    s
+  end
+
+  defp act({:sequence, change}, s) do
+    {:ok, _} =
+      Tartarus.create_mobile_agent(
+        Tartarus.Agent.host(),
+        TartarusWarehouse.SequenceAgent,
+        %{change: change, robots: s.robots, all: s.all_robots, owner: s.owner},
+        seed: {s.seed, :sequence, change}
+      )
+
+    s
+  end
+
+  defp act({:retire, _ref}, s), do: s
+  defp act({:reissue, _ref, _a}, s), do: s
+end

@@ -1,0 +1,464 @@
+defmodule TartarusWarehouse.Floor do
+  @moduledoc """
+  A warehouse floor on the emulator: the network of §4.7.1 (robot nodes, secondary nodes
+  that only relay agents, the distributor's node) started with `TartarusEmu.Network`, a
+  robot plugin on each robot host and the distributor (or, for the baseline, the central
+  server and its robot agents) created by the network's per-node setup hook. `run/1` feeds
+  it jobs and returns what happened.
+
+  ## Topology
+
+  Node `"jd"` is the distributor's (the server's in the baseline); robots `"r1".."rk"` are
+  linked to each other (a full mesh up to 16 robots, else a ring with chords to the robots
+  4 and 16 places on) and to `"jd"` (the first 16); secondary nodes `"s1"..` hang on two
+  robots each. Task agents move among robots (`TartarusWarehouse.Roam`).
+  """
+
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusWarehouse.{Job, Robot}
+
+  @schema [
+    robots: [type: :pos_integer, default: 4, doc: "robots"],
+    secondary: [type: :non_neg_integer, default: 0, doc: "secondary (relay) nodes"],
+    resources: [
+      type: {:list, :any},
+      default: [],
+      doc: "the resources (default: those the jobs name)"
+    ],
+    reach: [
+      type: :any,
+      default: :all,
+      doc: "`:all`, or a map robot index => resources it reaches"
+    ],
+    jobs: [type: {:list, :any}, default: [], doc: "job specs (see `TartarusWarehouse.Job`)"],
+    arrivals_ms: [
+      type: {:list, :non_neg_integer},
+      default: [],
+      doc: "arrival time of each job (default: all at once)"
+    ],
+    design: [
+      type: {:in, [:agents, :central]},
+      default: :agents,
+      doc: "task agents, or the central server"
+    ],
+    scale: [type: :number, default: 0.01, doc: "time scale of task durations"],
+    paces: [type: {:list, :number}, default: [], doc: "pace of robot i (default 1.0)"],
+    jitter: [
+      type: :number,
+      default: 0.0,
+      doc: "per-execution duration spread (0: equal durations)"
+    ],
+    idle_ms: [
+      type: :non_neg_integer,
+      default: 1,
+      doc: "an agent that found no robot in a round waits this long"
+    ],
+    retire: [
+      type: {:list, :any},
+      default: [],
+      doc:
+        "`{robot_index, n}`: retire the robot once n jobs completed (the event `{n, {:retire, robot_index}}`)"
+    ],
+    events: [
+      type: {:list, :any},
+      default: [],
+      doc:
+        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming)"
+    ],
+    standby: [
+      type: {:list, :pos_integer},
+      default: [],
+      doc: "robots that start out of service (they join with `{:join, i}`)"
+    ],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    guide: [
+      type: :boolean,
+      default: false,
+      doc:
+        "agents climb a signal field to the robot that waits for them instead of searching blind (beyond the thesis; see `TartarusWarehouse.TaskAgent`)"
+    ],
+    failover: [
+      type: :boolean,
+      default: false,
+      doc:
+        "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
+    ],
+    seed: [type: :integer, default: 1, doc: "seed"],
+    timeout_ms: [type: :pos_integer, default: 120_000, doc: "give up waiting after this long"]
+  ]
+
+  @doc "The options of `run/1`."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  The floor's topology for `robots` robots and `secondary` relay nodes.
+
+      iex> t = TartarusWarehouse.Floor.topology(3, 2)
+      iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
+      {6, true}
+  """
+  @spec topology(pos_integer(), non_neg_integer()) :: Topology.t()
+  def topology(robots, secondary) do
+    rs = Enum.map(1..robots, &"r#{&1}")
+    ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
+
+    robot_edges =
+      if robots <= 16,
+        do: for(i <- 1..robots, j <- (i + 1)..robots//1, do: {"r#{i}", "r#{j}"}),
+        else:
+          for(
+            i <- 1..robots,
+            d <- [1, 4, 16],
+            j = rem(i - 1 + d, robots) + 1,
+            j != i,
+            do: {"r#{min(i, j)}", "r#{max(i, j)}"}
+          )
+
+    jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
+
+    s_edges =
+      for {s, i} <- Enum.with_index(ss),
+          r <- Enum.uniq([rem(i, robots) + 1, rem(i + 1, robots) + 1]),
+          do: {s, "r#{r}"}
+
+    Topology.new(["jd" | rs] ++ ss, Enum.uniq(robot_edges ++ jd_edges ++ s_edges))
+  end
+
+  @doc """
+  Runs jobs on a floor. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, result}` with `history` (every execution: see
+  `TartarusWarehouse.Robot`), `jobs` (ids in submission order), `completed` (id =>
+  completion time, µs), `t0_us` (submission of the first job), `makespan_ms`, `robots`,
+  `migrations`, `bytes`, `messages` (from `TartarusEmu.Log`), `timed_out` (jobs not done),
+  `refused_events` (events that were refused and changed nothing, with the reason),
+  `wall_ms`; or `{:error, message}` for bad options or a rejected job.
+  """
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  def run(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1") do
+      resources =
+        case opts[:resources] do
+          [] ->
+            opts[:jobs]
+            |> Enum.flat_map(&Enum.flat_map(&1.tasks, fn t -> t.resources end))
+            |> Enum.uniq()
+
+          rs ->
+            rs
+        end
+
+      reach =
+        case opts[:reach] do
+          :all -> opts[:robots]
+          map -> Map.new(1..opts[:robots], &{&1, Map.get(map, &1, [])})
+        end
+
+      world = Job.world(resources, reach)
+      world = %{world | robots: Map.new(world.robots, fn {i, r} -> {"r#{i}", r} end)}
+      with_world(world, opts)
+    end
+  end
+
+  defp with_world(world, opts) do
+    Enum.find_value(opts[:jobs], fn spec ->
+      case Job.plan(spec, world) do
+        {:ok, _} -> nil
+        {:error, m} -> {:error, m}
+      end
+    end) || start_and_run(world, opts)
+  end
+
+  defp start_and_run(world, opts) do
+    owner = self()
+    robots = opts[:robots]
+    design = opts[:design]
+    t_start = System.monotonic_time(:millisecond)
+
+    setup = fn node, host ->
+      case node do
+        "r" <> i ->
+          i = String.to_integer(i)
+
+          :ok =
+            Tartarus.attach_plugin(
+              host,
+              :robot,
+              {Robot,
+               robot: node,
+               reach: if(opts[:reach] == :all, do: :all, else: Map.get(opts[:reach], i, [])),
+               scale: opts[:scale],
+               pace: Enum.at(opts[:paces], i - 1, 1.0),
+               jitter: opts[:jitter],
+               seed: opts[:seed],
+               off: i in opts[:standby]}
+            )
+
+          :ok
+
+        _ ->
+          :ok
+      end
+    end
+
+    data_dir =
+      if opts[:failover],
+        do: Path.join(System.tmp_dir!(), "warehouse-jd-#{System.unique_integer([:positive])}")
+
+    node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
+
+    {:ok, net} =
+      Network.start(topology(robots, opts[:secondary]),
+        mode: opts[:mode],
+        setup: setup,
+        node_opts: node_opts
+      )
+
+    try do
+      {:ok, log} = TartarusEmu.Log.start(net)
+      robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
+      jd = Network.host(net, "jd")
+
+      {:ok, dist} =
+        case design do
+          :agents ->
+            Tartarus.create_static_agent(jd, TartarusWarehouse.DistributorAgent, %{
+              world: world,
+              owner: owner,
+              robots: robot_set(robot_hosts),
+              all_robots: MapSet.new(Map.values(robot_hosts)),
+              idle_ms: opts[:idle_ms],
+              round: min(robots, 16),
+              seed: opts[:seed],
+              validate: opts[:failover],
+              guide: if(opts[:guide], do: robot_span(robots))
+            })
+
+          :central ->
+            agents =
+              Map.new(robot_hosts, fn {name, host} ->
+                {:ok, id} =
+                  Tartarus.create_static_agent(host, TartarusWarehouse.CentralRobot, %{
+                    robot: name,
+                    server: nil
+                  })
+
+                {name, {id, host}}
+              end)
+
+            {:ok, sid} =
+              Tartarus.create_static_agent(jd, TartarusWarehouse.Central, %{
+                world: world,
+                owner: owner,
+                robots: agents
+              })
+
+            Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
+            {:ok, sid}
+        end
+
+      dref = {dist, jd}
+      ctx = %{dref: dref, robot_hosts: robot_hosts, net: net}
+      t0 = System.system_time(:microsecond)
+      submit(dref, opts[:jobs], opts[:arrivals_ms])
+      events = events(opts)
+      fire(events, 0, ctx)
+      completed = await(opts, events, ctx, %{}, length(opts[:jobs]), t0)
+      :ok = TartarusEmu.Log.sync(log)
+      totals = TartarusEmu.Log.totals(log)
+      TartarusEmu.Log.stop(log)
+
+      history =
+        robot_hosts
+        |> Enum.flat_map(fn {_, h} ->
+          case Tartarus.read_plugin(h, :robot, :history) do
+            {:ok, list} -> list
+            _ -> []
+          end
+        end)
+        |> Enum.sort_by(& &1.start_us)
+
+      ids = Enum.map(opts[:jobs], & &1.id)
+      last = completed |> Map.values() |> Enum.max(fn -> t0 end)
+
+      {:ok,
+       %{
+         design: design,
+         history: history,
+         jobs: ids,
+         completed: completed,
+         timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
+         refused_events: refused(),
+         killed_at_us: killed(),
+         t0_us: t0,
+         makespan_ms: (last - t0) / 1000,
+         robots:
+           Map.keys(robot_hosts) |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
+         migrations: Map.get(totals, :departures, 0),
+         bytes: Map.get(totals, :bytes, 0),
+         messages: Map.get(totals, :messages, 0),
+         wall_ms: System.monotonic_time(:millisecond) - t_start
+       }}
+    after
+      Network.stop(net)
+      if data_dir, do: File.rm_rf(data_dir)
+    end
+  end
+
+  # How agents tell robots: by name prefix ("emu<tag>-r"), when every robot's name has it
+  # (nothing that grows with the robots travels with them), else the set of robot hosts.
+  defp robot_set(robot_hosts) do
+    {name, _} = robot_hosts["r1"]
+
+    with true <- is_binary(name) and String.ends_with?(name, "-r1"),
+         prefix = String.slice(name, 0..-2//1),
+         true <-
+           Enum.all?(robot_hosts, fn {r, {n, _}} -> n == prefix <> String.slice(r, 1..-1//1) end) do
+      {:prefix, prefix}
+    else
+      _ -> MapSet.new(Map.values(robot_hosts))
+    end
+  end
+
+  # The hops between the two farthest robots (a full mesh: 1).
+  defp robot_span(robots) when robots <= 16, do: 1
+
+  defp robot_span(robots) do
+    robot_topo = topology(robots, 0)
+    TartarusEmu.Topology.distances(robot_topo, "r1") |> Map.values() |> Enum.max()
+  end
+
+  defp submit(dref, jobs, arrivals) do
+    if arrivals == [] do
+      Enum.each(jobs, &submit_one(dref, &1))
+    else
+      t0 = System.monotonic_time(:millisecond)
+
+      jobs
+      |> Enum.zip(
+        arrivals ++ List.duplicate(List.last(arrivals), max(length(jobs) - length(arrivals), 0))
+      )
+      |> Enum.sort_by(&elem(&1, 1))
+      |> Enum.each(fn {job, at} ->
+        wait = at - (System.monotonic_time(:millisecond) - t0)
+        if wait > 0, do: Process.sleep(wait)
+        submit_one(dref, job)
+      end)
+    end
+  end
+
+  # Asked again while the distributor is unreachable (its host restarting), for 30 s.
+  defp submit_one(dref, job, tries \\ 3000) do
+    case Tartarus.request(dref, {:submit, job}, 5_000) do
+      {:ok, :ok} ->
+        :ok
+
+      {:error, _} when tries > 0 ->
+        Process.sleep(10)
+        submit_one(dref, job, tries - 1)
+
+      other ->
+        raise "job #{inspect(job.id)} was refused: #{inspect(other)}"
+    end
+  end
+
+  # Waits for the jobs, firing the events due: `{n, e}` once n jobs completed, `{{:ms, t}, e}`
+  # t ms after the submission.
+  defp await(opts, events, ctx, done, total, t0) do
+    now_ms = div(System.system_time(:microsecond) - t0, 1000)
+    {due, events} = Enum.split_with(events, &match?({{:ms, t}, _} when t <= now_ms, &1))
+    Enum.each(due, fn {_, e} -> fire_one(e, ctx) end)
+
+    next =
+      events
+      |> Enum.flat_map(fn
+        {{:ms, t}, _} -> [t - now_ms]
+        _ -> []
+      end)
+      |> Enum.min(fn -> opts[:timeout_ms] end)
+
+    cond do
+      map_size(done) >= total ->
+        done
+
+      now_ms > opts[:timeout_ms] ->
+        done
+
+      true ->
+        receive do
+          {:warehouse_job_done, id, at} ->
+            done = Map.put(done, id, at)
+            fire(events, map_size(done), ctx)
+            await(opts, events, ctx, done, total, t0)
+        after
+          max(min(next, opts[:timeout_ms]), 0) ->
+            await(opts, events, ctx, done, total, t0)
+        end
+    end
+  end
+
+  defp events(opts),
+    do: Enum.map(opts[:retire], fn {i, n} -> {n, {:retire, i}} end) ++ opts[:events]
+
+  defp fire(events, count, ctx) do
+    for {^count, event} <- events, do: fire_one(event, ctx)
+    :ok
+  end
+
+  # A change the floor refuses (an unknown robot, a task already inserted, ...) changes
+  # nothing; it is reported in the result's `refused_events`.
+  defp fire_one(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
+    result =
+      case event do
+        {:retire, i} -> plugin(robot_hosts, i, :retire)
+        {:join, i} -> plugin(robot_hosts, i, :join)
+        {:insert, after_task, spec} -> Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
+        {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
+        {:kill_distributor, down_ms} -> kill_distributor(net, down_ms)
+        other -> {:error, "unknown event #{inspect(other)}"}
+      end
+
+    case result do
+      ok when ok in [:ok, {:ok, :ok}] -> :ok
+      {:ok, {:error, reason}} -> send(self(), {:warehouse_refused, event, reason})
+      {:error, reason} -> send(self(), {:warehouse_refused, event, reason})
+    end
+
+    :ok
+  end
+
+  # The distributor's host dies with everything on it, and starts again `down_ms` later
+  # (on its journal, with `failover: true`).
+  defp kill_distributor(net, down_ms) do
+    :ok = Network.kill_node(net, "jd")
+    send(self(), {:warehouse_killed, System.system_time(:microsecond)})
+    Process.sleep(down_ms)
+    Network.restart_node(net, "jd")
+  end
+
+  defp plugin(robot_hosts, i, what) do
+    case Map.fetch(robot_hosts, "r#{i}") do
+      {:ok, host} -> Tartarus.write_plugin(host, :robot, what)
+      :error -> {:error, "no robot #{inspect(i)}"}
+    end
+  end
+
+  defp killed do
+    receive do
+      {:warehouse_killed, at} -> [at | killed()]
+    after
+      0 -> []
+    end
+  end
+
+  defp refused do
+    receive do
+      {:warehouse_refused, event, reason} -> [%{event: event, reason: reason} | refused()]
+    after
+      0 -> []
+    end
+  end
+end

@@ -1,0 +1,171 @@
+defmodule TartarusWarehouse.TaskAgent do
+  @moduledoc """
+  A task agent (thesis Algorithm 3): it carries the programs of its block of tasks (as
+  code), their resources and the state information, and it is the one token of those
+  resources while it lives.
+
+  It migrates conscientiously among robots (`TartarusWarehouse.Roam`); on each robot it
+  tries to claim it (`TartarusWarehouse.Robot`: the robot must be in the state the agent
+  looks for and idle). When the claim succeeds it hands the programs to the robot and
+  **stays until the robot has run them** (the adaptive clock of §4.5.3), the robot goes to
+  the next state, and the agent tells the distributor it is done: it is then re-issued for
+  the next job (and migrates on) or retires (stops). When a round of robots finds no match
+  it waits `idle_ms` before the next hop, so idle agents do not spin.
+
+  With `guide: span` (an integer) the agent whose robot goes on to a next block emits a
+  signal field named after that state, `span` hops wide, and agents looking for a booked
+  robot climb such a field when their host has one (beyond the thesis: the thesis's agents
+  search blind, which costs hops in proportion to the robots).
+
+  With `validate: true` (a distributor that survives restarts) the agent asks the
+  distributor, after claiming a robot and before running anything, whether it is the
+  valid holder of its assignment (see `TartarusWarehouse.DistributorAgent`).
+
+  The agent of an inserted task (on-the-fly programming) looks for robots in state
+  `{:inserted, task, _}`, leaves them in the state they would have had, and asks the
+  distributor after each fruitless round whether its task was deleted.
+  """
+  use Tartarus.Agent
+
+  alias Tartarus.Agent
+
+  @doc false
+  @impl true
+  def init(args) do
+    Enum.each(args.a.tasks, &Agent.add_module(&1.program))
+    {:move, strategy(args), Map.put(args, :misses, 0)}
+  end
+
+  @doc false
+  @impl true
+  def handle_arrival(_ctx, s) do
+    a = s.a
+
+    case Agent.write(:robot, {:claim, a.look_for, a.needs, Agent.id()}) do
+      :ok ->
+        if valid?(s) do
+          :ok = Agent.subscribe(:robot)
+          run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
+          :ok = Agent.write(:robot, {:run, Agent.id(), run})
+
+          if a.index == 0 and ask(s, {:started, s.ref}) == :unreachable,
+            do: {:stop, {:shutdown, :distributor_unreachable}, s},
+            else: {:stay, %{s | misses: 0}}
+        else
+          # A stale copy (created again after the distributor's restart): it runs nothing.
+          :ok = Agent.write(:robot, {:unclaim, Agent.id()})
+          {:stop, :normal, s}
+        end
+
+      {:error, _} ->
+        roam(%{s | misses: s.misses + 1})
+    end
+  end
+
+  @doc false
+  @impl true
+  def handle_info({:plugin_event, :robot, {:finished, id, _reports}}, s) do
+    if id == Agent.id() do
+      guide(s)
+
+      case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
+        {:reissue, a} ->
+          Enum.each(a.tasks, &Agent.add_module(&1.program))
+          {:move, strategy(s), %{s | a: a, misses: 0}}
+
+        :retire ->
+          {:stop, :normal, s}
+
+        :unreachable ->
+          {:stop, {:shutdown, :distributor_unreachable}, s}
+      end
+    else
+      {:stay, s}
+    end
+  end
+
+  def handle_info(:roam, s), do: {:move, strategy(s), s}
+  # Waiting on a robot for a field: try this robot again first (it may be the one).
+  def handle_info(:guided, s), do: handle_arrival(%{}, s)
+  def handle_info(_msg, s), do: {:stay, s}
+
+  @doc false
+  @impl true
+  def handle_move_failed(_dest, _reason, _ctx, s) do
+    Process.send_after(self(), :roam, max(s.idle_ms, 1))
+    {:stay, s}
+  end
+
+  # With `guide: span`, the robot's next state is announced as a signal field around it
+  # (`Tartarus.Signal`), which the agent of the next block climbs instead of searching blind.
+  defp guide(%{guide: span, a: %{next: {_, _, _} = next}}) when is_integer(span),
+    do: Agent.emit_signal({:warehouse_wait, next}, 100, span: span + 1)
+
+  defp guide(_s), do: :ok
+
+  defp roam(%{guide: span, a: %{look_for: {_, _, _} = state}} = s) when is_integer(span) do
+    gradient = Agent.gradient({:warehouse_wait, state})
+
+    cond do
+      map_size(gradient) > 0 ->
+        {best, _} = Enum.max_by(gradient, &elem(&1, 1))
+        {:move, best, Map.delete(s, :wait)}
+
+      # The field covers every robot: on a robot, no field means the robot it looks for is
+      # not waiting yet.
+      TartarusWarehouse.Roam.robot?(s.robots, Agent.host()) ->
+        # Waiting costs a check per tick: ticks lengthen (up to 16 ms) while nothing changes.
+        wait = Map.get(s, :wait, max(s.idle_ms, 1))
+        Process.send_after(self(), :guided, wait)
+        {:stay, Map.put(s, :wait, min(wait * 2, 16))}
+
+      true ->
+        blind(s)
+    end
+  end
+
+  defp roam(s), do: blind(s)
+
+  defp blind(s) do
+    cond do
+      s.misses >= s.round and Map.get(s.a, :persistent, false) and retired?(s) ->
+        {:stop, :normal, s}
+
+      s.misses >= s.round and s.idle_ms > 0 ->
+        Process.send_after(self(), :roam, s.idle_ms)
+        {:stay, %{s | misses: 0}}
+
+      true ->
+        {:move, strategy(s), s}
+    end
+  end
+
+  # An inserted task's agent asks whether its task was deleted.
+  defp retired?(s), do: ask(s, {:still, s.ref}) == :retire
+
+  defp valid?(%{validate: true} = s), do: ask(s, {:valid, s.ref, s.nonce}) == true
+  defp valid?(_s), do: true
+
+  # A request to the distributor, asked again while it is unreachable (its host may be
+  # restarting; its answers are the same when asked twice), for at most 8 s; then
+  # `:unreachable` (the distributor is gone: the agent stops, its token with it).
+  defp ask(s, message, deadline \\ nil) do
+    deadline = deadline || System.monotonic_time(:millisecond) + 8_000
+
+    case Tartarus.request(s.distributor, message, 2_000) do
+      {:ok, answer} ->
+        answer
+
+      {:error, reason} ->
+        if System.monotonic_time(:millisecond) > deadline do
+          _ = reason
+          :unreachable
+        else
+          Process.sleep(10)
+          ask(s, message, deadline)
+        end
+    end
+  end
+
+  defp strategy(s), do: {:strategy, TartarusWarehouse.Roam, s.robots}
+end

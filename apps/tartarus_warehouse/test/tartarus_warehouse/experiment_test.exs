@@ -1,0 +1,72 @@
+defmodule TartarusWarehouse.ExperimentTest do
+  use ExUnit.Case, async: false
+
+  alias TartarusWarehouse.Experiment
+
+  @moduletag :tmp_dir
+
+  test "robots: speed-ups keyed by robot count, Gantt charts, the issue's JSON keys", %{
+    tmp_dir: dir
+  } do
+    {:ok, %{summary: s, files: files}} =
+      Experiment.run(
+        experiment: :robots,
+        robots: 2,
+        jobs: 2,
+        equal_jobs: 4,
+        scale: 0.005,
+        out: dir,
+        quiet: true
+      )
+
+    for key <- [
+          :experiment,
+          :jobs,
+          :tasks,
+          :completed_jobs,
+          :mutex_violations,
+          :deadlocks,
+          :speedup
+        ],
+        do: assert(Map.has_key?(s, key))
+
+    assert s.experiment == "robots"
+    assert s.mutex_violations == 0 and s.deadlocks == 0
+    assert s.completed_jobs == s.jobs
+    assert Map.keys(s.speedup) == ["1", "2"]
+    assert s.speedup["1"] == 1.0
+    assert Enum.any?(files, &String.ends_with?(&1, "gantt_2_robots.svg"))
+    assert File.read!(Path.join(dir, "gantt_2_robots_by_job.svg")) =~ "J2"
+    assert File.read!(Path.join(dir, "summary.json")) =~ ~s("speedup")
+    assert File.read!(Path.join(dir, "executions.csv")) =~ "point,run,robot,job,task"
+  end
+
+  test "scaling: agents and central keyed by tasks per job", %{tmp_dir: dir} do
+    {:ok, %{summary: s}} =
+      Experiment.run(
+        experiment: :scaling,
+        max_tasks: 5,
+        scaling_jobs: 2,
+        nodes: 20,
+        scaling_robots: 4,
+        scale: 0.005,
+        out: dir,
+        quiet: true
+      )
+
+    assert Map.keys(s.avg_task_ms_agents) == ["5"]
+    assert Map.keys(s.avg_task_ms_central) == ["5"]
+    assert Map.keys(s.avg_task_ms_agents_guided) == ["5"]
+    assert s.mutex_violations == 0 and s.deadlocks == 0 and s.completed_jobs == 6 and s.jobs == 6
+  end
+
+  test "options are checked with the platform's wording" do
+    assert {:error,
+            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :robots: expected a positive integer, got: 0"} =
+             Experiment.run(robots: 0)
+
+    assert {:error,
+            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + 1 (11), got: 5"} =
+             Experiment.run(nodes: 5)
+  end
+end

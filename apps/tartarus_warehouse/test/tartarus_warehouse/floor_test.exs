@@ -1,0 +1,270 @@
+defmodule TartarusWarehouse.FloorTest do
+  use ExUnit.Case, async: false
+  doctest TartarusWarehouse.Floor
+
+  alias TartarusWarehouse.{Checker, Experiment, Floor, Prop}
+
+  test "task agents run 6 jobs on 3 robots: every job completes, no resource is held twice, robots pipeline" do
+    jobs = Experiment.thesis_jobs(6, 1000)
+    {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, jitter: 0.3, seed: 3)
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    c = Checker.completion(r.history, jobs)
+    assert Enum.sort(c.completed) == Enum.to_list(1..6)
+    assert length(r.history) == 24
+    # More than one robot worked, and some instant had two executing at once.
+    assert r.history |> Enum.map(& &1.robot) |> Enum.uniq() |> length() > 1
+
+    assert Enum.any?(Checker.occupancy(r.history, r.t0_us, 5).series, fn {_, busy} -> busy > 1 end)
+
+    assert r.migrations > 0
+  end
+
+  test "jobs arrive asynchronously: a job submitted later starts later and still completes" do
+    jobs = Experiment.thesis_jobs(3, 1000)
+    {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, arrivals_ms: [0, 0, 120])
+    assert r.timed_out == []
+    assert length(Checker.completion(r.history, jobs).completed) == 3
+    first_of_3 = r.history |> Enum.filter(&(&1.job == 3)) |> Enum.map(& &1.start_us) |> Enum.min()
+    assert first_of_3 - r.t0_us >= 120_000
+  end
+
+  test "the centralized baseline runs the same jobs with no migration" do
+    jobs = Experiment.thesis_jobs(4, 1000)
+    {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, design: :central)
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 4
+    assert r.migrations == 0
+  end
+
+  test "independent sequences run on different robots; a robot retired after job 1 takes no more work" do
+    job = fn id ->
+      %{
+        id: id,
+        tasks: [
+          %{name: "Fetch", resources: [:rack], duration_ms: 1000},
+          %{name: "Carry", resources: [:path], after: ["Fetch"], duration_ms: 1000},
+          %{name: "Stamp", resources: [:stamp], duration_ms: 1000},
+          %{name: "Place", resources: [:shelf], after: ["Stamp"], duration_ms: 1000}
+        ]
+      }
+    end
+
+    jobs = Enum.map(1..4, job)
+    {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, retire: [{3, 1}])
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 4
+    c = Checker.completion(r.history, jobs)
+    assert c.split == []
+
+    # Some job's two sequences ran at the same time on two robots.
+    assert Enum.any?(1..4, fn j ->
+             case r.history
+                  |> Enum.filter(&(&1.job == j))
+                  |> Enum.group_by(& &1.seq)
+                  |> Map.values() do
+               [a, b] ->
+                 hd(a).robot != hd(b).robot and
+                   Enum.min_by(a, & &1.start_us).start_us < Enum.max_by(b, & &1.stop_us).stop_us and
+                   Enum.min_by(b, & &1.start_us).start_us < Enum.max_by(a, & &1.stop_us).stop_us
+
+               _ ->
+                 false
+             end
+           end)
+
+    # r3 retired when the first job completed: after that it only finished what it had begun.
+    retired_at = r.completed |> Map.values() |> Enum.min()
+
+    begun =
+      for e <- r.history,
+          e.robot == "r3",
+          e.start_us < retired_at,
+          into: MapSet.new(),
+          do: {e.job, e.seq}
+
+    assert Enum.all?(
+             r.history,
+             &(&1.robot != "r3" or &1.start_us < retired_at or {&1.job, &1.seq} in begun)
+           )
+  end
+
+  test "on-the-fly programming: a task added with a program compiled at run time runs in later jobs, a deleted task is skipped" do
+    {:ok, [detour]} =
+      Tartarus.compile_string("""
+      defmodule TartarusWarehouse.FloorTest.Detour do
+        use TartarusWarehouse.Program
+        def work(data), do: Enum.reverse(data)
+      end
+      """)
+
+    jobs = Experiment.thesis_jobs(6, 1000)
+    t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1000}
+
+    {:ok, r} =
+      Floor.run(
+        robots: 2,
+        jobs: jobs,
+        scale: 0.01,
+        resources: [:bay, :line, :rack, :wall, :packing, :return, :detour],
+        events: [{0, {:insert, "T2", t2a}}, {3, {:delete, "T4"}}]
+      )
+
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    assert length(Checker.completion(r.history, jobs).completed) == 6
+
+    # Inserted right after submission: every job but (perhaps) the first runs T2A, after T2 and before T3.
+    with_t2a = for e <- r.history, e.task == "T2A", do: e.job
+    assert Enum.sort(with_t2a) -- [1] == [2, 3, 4, 5, 6]
+
+    for j <- with_t2a do
+      at = Map.new(for e <- r.history, e.job == j, do: {e.task, e})
+      assert at["T2"].stop_us <= at["T2A"].start_us and at["T2A"].stop_us <= at["T3"].start_us
+      assert at["T2A"].robot == at["T2"].robot
+    end
+
+    # T4 was deleted once 3 jobs completed: the last job skipped it (holding nothing).
+    assert [%{skipped: true, resources: []}] =
+             for(e <- r.history, e.job == 6, e.task == "T4", do: e)
+  end
+
+  test "a standby robot joins while the floor runs" do
+    jobs = Experiment.thesis_jobs(6, 1000)
+
+    {:ok, r} =
+      Floor.run(robots: 2, standby: [2], jobs: jobs, scale: 0.01, events: [{2, {:join, 2}}])
+
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    first_r2 = r.history |> Enum.filter(&(&1.robot == "r2")) |> Enum.map(& &1.job) |> Enum.min()
+    assert first_r2 > 2
+  end
+
+  test "the distributor's host killed twice and started again on its journal: no job lost, none duplicated" do
+    jobs = Experiment.thesis_jobs(8, 1000)
+
+    {:ok, r} =
+      Floor.run(
+        robots: 3,
+        jobs: jobs,
+        scale: 0.01,
+        failover: true,
+        events: [{{:ms, 5}, {:kill_distributor, 60}}, {{:ms, 110}, {:kill_distributor, 30}}]
+      )
+
+    assert length(r.killed_at_us) == 2
+    assert r.timed_out == []
+    assert Checker.violations(r.history) == []
+    c = Checker.completion(r.history, jobs)
+    assert c.duplicated == [] and c.missing == []
+    assert length(c.completed) == 8
+
+    # Without persistence the same loss stops every job that was not done.
+    {:ok, lost} =
+      Floor.run(
+        robots: 3,
+        jobs: jobs,
+        scale: 0.01,
+        timeout_ms: 1_000,
+        events: [{{:ms, 5}, {:kill_distributor, 60}}]
+      )
+
+    assert lost.timed_out != []
+  end
+
+  test "a malformed job is refused before anything starts" do
+    assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
+
+    assert {:error, "invalid options given to TartarusWarehouse.Floor.run/1 for key :robots" <> _} =
+             Floor.run(robots: 0)
+  end
+
+  @tag timeout: 300_000
+  @tag :property
+  test "property: random jobs (sequences, independent sequences, shared resources), 1-6 robots, random durations, tasks added and deleted on the fly, a robot removal: no violation, every job completes" do
+    resources = [:a, :b, :c, :d, :e]
+
+    # A task: its resources (1-2 of five), its ideal duration, whether it follows the previous.
+    task =
+      {:proper_types.non_empty(:proper_types.list(:proper_types.elements(resources))),
+       :proper_types.integer(500, 3000), :proper_types.boolean()}
+
+    job = :proper_types.non_empty(:proper_types.list(task))
+
+    # On-the-fly changes, after 0-3 jobs completed: add task X (resource :x) after T1..T3,
+    # delete X, delete T2.
+    otfp =
+      :proper_types.oneof([
+        {:insert, :proper_types.elements(["T1", "T2", "T3"])},
+        :delete_x,
+        :delete_t2
+      ])
+
+    gen =
+      {:proper_types.integer(1, 6), :proper_types.non_empty(:proper_types.list(job)),
+       :proper_types.integer(1, 1000), :proper_types.boolean(),
+       :proper_types.list({:proper_types.integer(0, 3), otfp})}
+
+    prop =
+      :proper.forall(gen, fn {robots, raw_jobs, seed, removal, changes} ->
+        Prop.safely(fn ->
+          jobs =
+            raw_jobs
+            |> Enum.take(5)
+            |> Enum.with_index(1)
+            |> Enum.map(fn {tasks, id} ->
+              %{
+                id: id,
+                tasks:
+                  tasks
+                  |> Enum.take(4)
+                  |> Enum.with_index(1)
+                  |> Enum.map(fn {{rs, ms, chained}, i} ->
+                    %{
+                      name: "T#{i}",
+                      resources: rs,
+                      duration_ms: ms,
+                      after: if(chained and i > 1, do: ["T#{i - 1}"], else: [])
+                    }
+                  end)
+              }
+            end)
+
+          retire = if removal and robots > 1, do: [{robots, 1}], else: []
+          x = %{name: "X", resources: [:x], duration_ms: 700}
+
+          events =
+            changes
+            |> Enum.take(3)
+            |> Enum.map(fn
+              {n, {:insert, after_task}} -> {n, {:insert, after_task, x}}
+              {n, :delete_x} -> {n, {:delete, "X"}}
+              {n, :delete_t2} -> {n, {:delete, "T2"}}
+            end)
+
+          {:ok, r} =
+            Floor.run(
+              robots: robots,
+              jobs: jobs,
+              scale: 0.005,
+              jitter: 0.5,
+              seed: seed,
+              retire: retire,
+              events: events,
+              resources: [:x | resources],
+              timeout_ms: 30_000
+            )
+
+          c = Checker.completion(r.history, jobs)
+
+          r.timed_out == [] and Checker.violations(r.history) == [] and
+            length(c.completed) == length(jobs)
+        end)
+      end)
+
+    assert Prop.check(prop, 50) == true
+  end
+end
