@@ -135,6 +135,7 @@ defmodule TartarusWarehouse.Floor do
   completion time, µs), `t0_us` (submission of the first job), `makespan_ms`, `robots`,
   `migrations`, `bytes`, `messages` (from `TartarusEmu.Log`), `timed_out` (jobs not done),
   `refused_events` (events that were refused and changed nothing, with the reason),
+  `applied_events` (events applied, each with the time it took effect, µs),
   `wall_ms`; or `{:error, message}` for bad options or a rejected job.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
@@ -292,6 +293,7 @@ defmodule TartarusWarehouse.Floor do
          completed: completed,
          timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
          refused_events: refused(),
+         applied_events: applied(),
          killed_at_us: killed(),
          t0_us: t0,
          makespan_ms: (last - t0) / 1000,
@@ -422,9 +424,14 @@ defmodule TartarusWarehouse.Floor do
       end
 
     case result do
-      ok when ok in [:ok, {:ok, :ok}] -> :ok
-      {:ok, {:error, reason}} -> send(self(), {:warehouse_refused, event, reason})
-      {:error, reason} -> send(self(), {:warehouse_refused, event, reason})
+      ok when ok in [:ok, {:ok, :ok}] ->
+        send(self(), {:warehouse_applied, event, System.system_time(:microsecond)})
+
+      {:ok, {:error, reason}} ->
+        send(self(), {:warehouse_refused, event, reason})
+
+      {:error, reason} ->
+        send(self(), {:warehouse_refused, event, reason})
     end
 
     :ok
@@ -449,6 +456,14 @@ defmodule TartarusWarehouse.Floor do
   defp killed do
     receive do
       {:warehouse_killed, at} -> [at | killed()]
+    after
+      0 -> []
+    end
+  end
+
+  defp applied do
+    receive do
+      {:warehouse_applied, event, at} -> [%{event: event, at_us: at} | applied()]
     after
       0 -> []
     end
