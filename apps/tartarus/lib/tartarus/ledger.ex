@@ -259,14 +259,24 @@ defmodule Tartarus.Ledger do
   end
 
   # An arriving agent registers before it drops its `arriving` entry (and the forwarding
-  # pointer of its previous visit): a reader that missed it in the table and then found
-  # neither entry looks again.
+  # pointer of its previous visit), and a departing one writes its pointer before it leaves
+  # the table: a reader that missed it in the table and then found neither entry looks
+  # again, in the same order. (An agent that hops at every arrival can come and go between
+  # two of the reader's looks: then the pointer it left is there now.)
   defp just_arrived(host, agent) do
     {name, _} = host.ref
 
     case Tartarus.AgentTable.lookup(agent) do
-      {:ok, pid, ^name} -> {:here, pid, agent}
-      _ -> locate_by_name(host, agent)
+      {:ok, pid, ^name} ->
+        {:here, pid, agent}
+
+      _ ->
+        case {:ets.lookup(host.ledger, {:fwd, agent}),
+              :ets.lookup(host.ledger, {:arriving, agent})} do
+          {[{_, dest, _, _, _}], _} -> {:moved, dest}
+          {[], [{_, pid}]} -> {:arriving, pid}
+          {[], []} -> locate_by_name(host, agent)
+        end
     end
   end
 

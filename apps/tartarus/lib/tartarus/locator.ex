@@ -143,7 +143,10 @@ defmodule Tartarus.Locator do
   @spec deliver(term(), :post | :request, term(), timeout()) :: term()
   def deliver(agent, kind, msg, timeout) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
-    deliver(agent, {kind, msg}, make_ref(), deadline, @max_chase)
+    # The tag grows with every message this node sends: the agent takes a sender's messages
+    # in the order of their tags, each once (see take?/1 in Tartarus.Agent.Server).
+    tag = System.unique_integer([:monotonic, :positive])
+    deliver(agent, {kind, msg}, tag, deadline, @max_chase)
   end
 
   defp deliver(agent, km, tag, deadline, n, crashed \\ false)

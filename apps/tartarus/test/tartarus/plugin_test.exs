@@ -135,12 +135,12 @@ defmodule Tartarus.PluginTest do
       assert inside({id, a}, :subscribe, [:temp]) == :ok
       # Subscribing twice is fine (and does not double the events).
       assert inside({id, a}, :subscribe, [:temp]) == :ok
-      assert_receive {:probe_plugin_event, ^id, :temp, {:reading, first}}
-      assert_receive {:probe_plugin_event, ^id, :temp, {:reading, second}}
+      assert_receive {:probe_plugin_event, ^id, :temp, {:reading, first}}, 2_000
+      assert_receive {:probe_plugin_event, ^id, :temp, {:reading, second}}, 2_000
       assert Enum.sort([first, second]) == [5, 6]
 
       :ok = Tartarus.move({id, a}, b)
-      assert_receive {:probe_arrived, ^id, %{host: {^b, _}}, _}
+      assert_receive {:probe_arrived, ^id, %{host: {^b, _}}, _}, 2_000
       flush_events(id)
       refute_receive {:probe_plugin_event, ^id, :temp, _}, 50
     end

@@ -93,8 +93,11 @@ defmodule Tartarus.Agent.Server do
     {:ok, %{host: host, env: env, paused: nil}, {:continue, {:go, {:init, args}}}}
   end
 
-  defp start(host, env, {:paused, mig, copy, src, kind}) do
+  # `src_pid`: the source agent's process when the prepare came from it (nil for a copy
+  # revived from the journal): it hands over the messages it held right after its commit.
+  defp start(host, env, {:paused, mig, copy, src, kind, src_pid}) do
     Process.put(@host, host)
+    Process.put(:"$tartarus_src_pid", src_pid)
 
     c =
       Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
@@ -730,11 +733,16 @@ defmodule Tartarus.Agent.Server do
 
   defp commit(%{paused: %{c: c} = p} = data, notify) do
     Process.cancel_timer(p.timer)
-    # Committed by its source directly (not through a decision query): the source's
-    # hand-over of the messages it held follows the commit.
+    # A move: the source hands over the messages it held right after its commit. Wait for
+    # them before taking anything else, whether the commit came from the source or from a
+    # decision query (the source may be slow, not gone: taking newer messages first would
+    # break a sender's order and the memory of what was taken), unless the source is gone.
+    direct = Process.delete(:"$tartarus_direct_commit") == true
+    src_pid = Process.delete(:"$tartarus_src_pid")
+
     handover =
-      if c.kind == :move and Process.delete(:"$tartarus_direct_commit") == true,
-        do: await_handover(c.mig, data.host.opts.migration_timeout),
+      if c.kind == :move and (direct or is_pid(src_pid)),
+        do: await_handover(c.mig, data.host.opts.migration_timeout, src_pid),
         else: []
 
     # Messages that came while paused are new here unless the hand-over says otherwise.
@@ -827,12 +835,18 @@ defmodule Tartarus.Agent.Server do
 
   defp take_new?(_), do: false
 
-  # True (and remembered) unless `tag` is the last one taken from `pid`.
+  # True (and remembered) unless `tag` was taken from `pid` already. A sender's tags grow
+  # (Tartarus.Locator numbers them in the order it sends), so a tag at or under the last one
+  # taken from that sender is old: a copy sent again that arrives after the sender's next
+  # message was taken (it reached a paused copy's stash, say) is not taken a second time.
   defp take?({pid, tag}) do
     seen = Process.get(@seen, %{})
 
     case seen do
       %{^pid => {_, ^tag}} ->
+        false
+
+      %{^pid => {_, last}} when is_integer(last) and is_integer(tag) and tag < last ->
         false
 
       _ ->
@@ -850,8 +864,14 @@ defmodule Tartarus.Agent.Server do
     seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@seen_max, 2)) |> Map.new()
   end
 
-  defp await_handover(mig, timeout) do
+  defp await_handover(mig, timeout, src_pid) do
+    mref = if is_pid(src_pid), do: Process.monitor(src_pid)
+
     receive do
+      # The source ended without handing over (it sends the hand-over before it ends).
+      {:DOWN, ^mref, :process, _, _} when mref != nil ->
+        []
+
       {:"$tartarus_handover", ^mig, pid, msgs, seen}
       when is_pid(pid) and is_list(msgs) and is_map(seen) ->
         Process.put(@seen, seen)
@@ -861,9 +881,12 @@ defmodule Tartarus.Agent.Server do
           Enum.reduce(seen, 0, fn {_, {n, _}}, acc -> max(n, acc) end)
         )
 
+        if mref, do: Process.demonitor(mref, [:flush])
         msgs
     after
-      timeout -> []
+      timeout ->
+        if mref, do: Process.demonitor(mref, [:flush])
+        []
     end
   end
 

@@ -193,7 +193,7 @@ defmodule Tartarus.Host.Server do
 
     state =
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
-        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
+        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
             :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
             %{state | dest: Protocol.restore_seen(state.dest, mig, copy, pid)}
@@ -446,7 +446,7 @@ defmodule Tartarus.Host.Server do
       :revive ->
         unparked(state, key)
 
-        case start_agent(state, env, {:paused, mig, copy, src, kind}) do
+        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
             :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
             send(pid, Protocol.decision(mig, copy, d))
@@ -499,7 +499,7 @@ defmodule Tartarus.Host.Server do
   end
 
   defp admission_action({:create, p, copy}, state) do
-    case start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind}) do
+    case start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
       {:ok, pid, state} ->
         # Findable (messages to it wait until it starts).
         :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
@@ -686,7 +686,7 @@ defmodule Tartarus.Host.Server do
       {:ok, pid} ->
         mref = Process.monitor(pid)
         # Paused copies run nothing until their commit; the others wait for this.
-        unless match?({:paused, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
+        unless match?({:paused, _, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
         entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
         {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
 
