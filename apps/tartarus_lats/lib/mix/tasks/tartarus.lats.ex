@@ -116,34 +116,23 @@ defmodule Mix.Tasks.Tartarus.Lats do
   end
 
   defp run_experiment(opts) do
-    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, "tartarus.lats", nil)
-
-    rule =
-      TartarusTools.CLI.choice!(
-        opts[:agent_cloud],
-        [:per_node, :per_query],
-        :agent_cloud,
-        "tartarus.lats",
-        nil
-      )
-
-    release =
-      TartarusTools.CLI.choice!(
-        opts[:release],
-        [:random, :settled],
-        :release,
-        "tartarus.lats",
-        nil
-      )
+    # Flags that name one of a few values: turned into the experiment's atoms here.
+    choices =
+      for {key, values} <- [
+            mode: [:virtual, :peer],
+            agent_cloud: [:per_node, :per_query],
+            release: [:random, :settled]
+          ],
+          value = TartarusTools.CLI.choice!(opts[key], values, key, "tartarus.lats", nil),
+          value != nil,
+          do: {key, value}
 
     json? = Keyword.get(opts, :json, false)
 
     exp_opts =
       opts
       |> Keyword.drop([:json, :help, :mode, :agent_cloud, :release])
-      |> then(&if(mode, do: Keyword.put(&1, :mode, mode), else: &1))
-      |> then(&if(rule, do: Keyword.put(&1, :agent_cloud, rule), else: &1))
-      |> then(&if(release, do: Keyword.put(&1, :release, release), else: &1))
+      |> Keyword.merge(choices)
       |> Keyword.put(:quiet, json?)
 
     shown =
