@@ -245,38 +245,28 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  defp locate_elsewhere(host, agent) do
-    case :ets.lookup(host.ledger, {:arriving, agent}) do
-      [{_, pid}] ->
-        {:arriving, pid}
-
-      [] ->
-        case :ets.lookup(host.ledger, {:fwd, agent}) do
-          [{_, dest, _, _, _}] -> {:moved, dest}
-          [] -> just_arrived(host, agent)
-        end
+  # Not resident here: arriving, or gone on (a forwarding pointer). An arriving agent
+  # registers before it drops its `arriving` entry (and the forwarding pointer of its
+  # previous visit), and a departing one writes its pointer before it leaves the table: a
+  # reader that missed it in the table and then found neither entry looks in the table and
+  # here once more. (An agent that hops at every arrival can come and go between two of the
+  # reader's looks: then the pointer it left is there now.)
+  defp locate_elsewhere(host, agent, again \\ true) do
+    with [] <- :ets.lookup(host.ledger, {:arriving, agent}),
+         [] <- :ets.lookup(host.ledger, {:fwd, agent}) do
+      if again, do: just_arrived(host, agent), else: locate_by_name(host, agent)
+    else
+      [{_, pid}] -> {:arriving, pid}
+      [{_, dest, _, _, _}] -> {:moved, dest}
     end
   end
 
-  # An arriving agent registers before it drops its `arriving` entry (and the forwarding
-  # pointer of its previous visit), and a departing one writes its pointer before it leaves
-  # the table: a reader that missed it in the table and then found neither entry looks
-  # again, in the same order. (An agent that hops at every arrival can come and go between
-  # two of the reader's looks: then the pointer it left is there now.)
   defp just_arrived(host, agent) do
     {name, _} = host.ref
 
     case Tartarus.AgentTable.lookup(agent) do
-      {:ok, pid, ^name} ->
-        {:here, pid, agent}
-
-      _ ->
-        case {:ets.lookup(host.ledger, {:fwd, agent}),
-              :ets.lookup(host.ledger, {:arriving, agent})} do
-          {[{_, dest, _, _, _}], _} -> {:moved, dest}
-          {[], [{_, pid}]} -> {:arriving, pid}
-          {[], []} -> locate_by_name(host, agent)
-        end
+      {:ok, pid, ^name} -> {:here, pid, agent}
+      _ -> locate_elsewhere(host, agent, false)
     end
   end
 

@@ -10,19 +10,11 @@ defmodule TartarusTools.ChaosTest do
     :ok
   end
 
+  # Two nodes, one kill, one partition, persistence.
+  @small [nodes: 2, agents: 8, migrations: 60, kills: 1, partitions: 1, persist: true]
+
   test "a small run with kills, partitions, clones, posts, replays from a rogue node and a census" do
-    r =
-      TartarusTools.Chaos.run(
-        nodes: 2,
-        agents: 8,
-        migrations: 60,
-        kills: 1,
-        partitions: 1,
-        persist: true,
-        seed: 3,
-        census_ms: 200,
-        replays: 20
-      )
+    r = TartarusTools.Chaos.run(@small ++ [seed: 3, census_ms: 200, replays: 20])
 
     assert r.duplicates == 0
     assert r.lost == 0
@@ -45,16 +37,7 @@ defmodule TartarusTools.ChaosTest do
   test "a small durable run: no acknowledged message is missing, kills included" do
     r =
       TartarusTools.Chaos.run(
-        nodes: 2,
-        agents: 8,
-        migrations: 60,
-        kills: 1,
-        partitions: 1,
-        persist: true,
-        seed: 2,
-        census_ms: 0,
-        replays: 0,
-        host_opts: [durable: true]
+        @small ++ [seed: 2, census_ms: 0, replays: 0, host_opts: [durable: true]]
       )
 
     assert r.duplicates == 0
