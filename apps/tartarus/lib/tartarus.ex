@@ -114,8 +114,13 @@ defmodule Tartarus do
 
   #{Tartarus.Options.docs(Platform.link_schema())}
 
-  `:latency_ms` delays each hand-off over the link and `:loss` makes it fail with that
-  probability; emulations use them.
+  Emulations use them. `:latency_ms` is the one-way delay of one message over the link:
+  a hand-off over it pays three (prepare, prepared, commit: what stands between the
+  source's decision to move and the agent running at the destination), and a message an
+  agent sends to an agent on the other end (`post/3`, `cast/3`, `request/3` called from
+  its callbacks) pays one on the way there and one on the way back (acknowledgement or
+  reply). Messages between hosts that are not neighbours, or sent from outside any agent,
+  pay nothing. `:loss` makes a hand-off over the link fail with that probability.
   """
   @spec connect(host_ref(), host_ref(), keyword()) :: :ok | {:error, term()}
   def connect(a, b, props \\ []), do: Host.Links.connect(a, b, props)
@@ -212,8 +217,10 @@ defmodule Tartarus do
   """
   @spec cast(agent_ref(), term(), pid() | nil) :: :ok
   def cast(agent, message, reply_to \\ nil) do
+    from = Locator.sender()
+
     spawn(fn ->
-      case post(agent, message) do
+      case Locator.deliver(agent, :post, message, 5_000, from) do
         :ok ->
           :ok
 

@@ -233,6 +233,23 @@ defmodule TartarusTest do
       assert Tartarus.whereis(id) == {:ok, addr(b)}
     end
 
+    test "a link's latency is paid by each message of a hand-off and by agents' messages both ways" do
+      [a, b] = hosts!(2)
+      :ok = Tartarus.connect(a, b, latency_ms: 100)
+      id = agent!(a)
+      t0 = System.monotonic_time(:millisecond)
+      assert Tartarus.move({id, a}, b) == :ok
+      # prepare, prepared, commit: three one-way delays at least (a lower bound, not a timing)
+      assert System.monotonic_time(:millisecond) - t0 >= 300
+
+      other = agent!(a)
+
+      assert {:ok, {{:ok, %{count: 0}}, ms}} =
+               Tartarus.request(other, {:timed_request, id, :state})
+
+      assert ms >= 200
+    end
+
     test "strict links refuse directed moves to hosts that are not neighbours" do
       a = host!(strict_links: true)
       [b, c] = hosts!(2)

@@ -140,32 +140,68 @@ defmodule Tartarus.Locator do
   # is handled and acknowledged once. A process that ended otherwise (gone before we
   # watched it, crashed, an aborted copy) makes the search start again, at most
   # @max_chase times in a row without the agent moving.
-  @spec deliver(term(), :post | :request, term(), timeout()) :: term()
-  def deliver(agent, kind, msg, timeout) do
+  #
+  # `from` is the sending agent's host (`sender/0`) when links are emulated on this node: a
+  # message between two hosts joined by a link with latency pays it once on the way there
+  # and once on the way back (the acknowledgement, or the reply), like a hand-off pays it
+  # for each of its messages (Tartarus.Agent.Server.emulate_link/1).
+  @spec deliver(term(), :post | :request, term(), timeout(), map() | nil) :: term()
+  def deliver(agent, kind, msg, timeout, from \\ sender()) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
     # The tag grows with every message this node sends: the agent takes a sender's messages
     # in the order of their tags, each once (see take?/1 in Tartarus.Agent.Server).
     tag = System.unique_integer([:monotonic, :positive])
-    deliver(agent, {kind, msg}, tag, deadline, @max_chase)
+    deliver(agent, {kind, msg}, tag, deadline, @max_chase, false, from)
   end
 
-  defp deliver(agent, km, tag, deadline, n, crashed \\ false)
-  defp deliver(_agent, _km, _tag, _deadline, 0, _crashed), do: {:error, :too_many_hops}
+  @doc false
+  # The calling agent's host when some link on this node emulates latency or loss (its
+  # hook is installed), else nil: a node that emulates nothing pays one
+  # :persistent_term read per message.
+  @spec sender() :: map() | nil
+  def sender do
+    if :persistent_term.get({Tartarus.Fault, :link}, nil) != nil,
+      do: Process.get(:"$tartarus_host")
+  end
 
-  defp deliver(agent, km, tag, deadline, n, crashed) do
+  defp deliver(agent, km, tag, deadline, n, crashed, from \\ nil)
+
+  defp deliver(_agent, _km, _tag, _deadline, 0, _crashed, _from),
+    do: {:error, :too_many_hops}
+
+  defp deliver(agent, km, tag, deadline, n, crashed, from) do
     with :ok <- in_time(deadline) do
       case locate(agent, @max_chase, :arriving_ok) do
-        {:ok, pid, ref} ->
-          follow(pid, km, ref, tag, deadline, n)
+        {:ok, pid, {_id, host} = ref} ->
+          case link_latency(from, host) do
+            0 ->
+              follow(pid, km, ref, tag, deadline, n)
+
+            ms ->
+              Process.sleep(ms)
+              result = follow(pid, km, ref, tag, deadline, n)
+              Process.sleep(ms)
+              result
+          end
 
         # A crashed agent is registered again once its host restarted it.
         {:error, :not_found} when crashed ->
           backoff(n)
-          deliver(agent, km, tag, deadline, n - 1, crashed)
+          deliver(agent, km, tag, deadline, n - 1, crashed, from)
 
         error ->
           error
       end
+    end
+  end
+
+  defp link_latency(nil, _host), do: 0
+  defp link_latency(%{ref: host}, host), do: 0
+
+  defp link_latency(from, host) do
+    case Ledger.link(from, host) do
+      %{latency_ms: ms} -> ms
+      _ -> 0
     end
   end
 

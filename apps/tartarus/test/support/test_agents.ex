@@ -15,6 +15,8 @@ defmodule Tartarus.Test.Probe do
   #   :crash                raises
   #   :ignore               never replies
   #   {:answer_from, dest}  moves to dest and answers the request from there with its host
+  #   {:timed_request, agent, msg}
+  #                         requests msg from agent, replies {result, elapsed ms}
   #
   # Init args: a map merged into the default state; `init_action:` is carried out at once,
   # `arrival_action:` on every arrival.
@@ -65,6 +67,12 @@ defmodule Tartarus.Test.Probe do
   def handle_message(:crash, _from, _s), do: raise("probe crash on purpose")
   def handle_message(:ignore, _from, s), do: {:stay, s}
   def handle_message({:answer_from, dest}, from, s), do: {:move, dest, Map.put(s, :pending, from)}
+
+  def handle_message({:timed_request, agent, msg}, from, s) do
+    t0 = System.monotonic_time(:millisecond)
+    result = Tartarus.request(agent, msg)
+    reply(from, {result, System.monotonic_time(:millisecond) - t0}, s)
+  end
 
   def handle_message({:do, action}, from, s) do
     A.reply(from, :ok)

@@ -60,6 +60,12 @@ defmodule TartarusWarehouse.Experiment do
     scaling_jobs: [type: :pos_integer, default: 5, doc: "`scaling`: jobs per run"],
     nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
     scaling_robots: [type: :pos_integer, default: 10, doc: "`scaling`: robots among them"],
+    latency_ms: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
+    ],
     big_robots: [
       type: :non_neg_integer,
       default: 0,
@@ -253,6 +259,7 @@ defmodule TartarusWarehouse.Experiment do
             guide: kind == :guided,
             seed: state.seed,
             mode: p.mode,
+            latency_ms: p.latency_ms,
             timeout_ms: p.timeout_ms
           )
 
@@ -690,11 +697,30 @@ defmodule TartarusWarehouse.Experiment do
           avg_task_ms_agents_guided: by.(:avg_task_ms_agents_guided),
           agents_faster_at:
             for({n, a} <- agents, a < central[n], do: String.to_integer(n)) |> Enum.sort(),
+          slope_ms_per_task: %{
+            agents: slope(agents),
+            central: slope(central),
+            agents_guided: slope(by.(:avg_task_ms_agents_guided))
+          },
+          latency_ms: p.latency_ms,
           nodes: p.nodes,
           robots: p.scaling_robots,
           jobs_per_run: p.scaling_jobs
         })
     end
+  end
+
+  # Least-squares slope of ms per task against tasks per job (keys are strings).
+  defp slope(points) when map_size(points) < 2, do: nil
+
+  defp slope(points) do
+    xy = for {n, y} <- points, do: {String.to_integer(n) * 1.0, y * 1.0}
+    k = length(xy)
+    mx = Enum.sum(Enum.map(xy, &elem(&1, 0))) / k
+    my = Enum.sum(Enum.map(xy, &elem(&1, 1))) / k
+    sxy = Enum.sum(for {x, y} <- xy, do: (x - mx) * (y - my))
+    sxx = Enum.sum(for {x, _} <- xy, do: (x - mx) * (x - mx))
+    Float.round(sxy / sxx, 4)
   end
 
   defp span(entries),

@@ -71,6 +71,12 @@ defmodule TartarusWarehouse.Floor do
       doc: "robots that start out of service (they join with `{:join, i}`)"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    latency_ms: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "one-way delay of every link (see `Tartarus.connect/3`: a hand-off pays three, a message between neighbours one each way; the central server's messages and the agents' migrations pay it alike)"
+    ],
     guide: [
       type: :boolean,
       default: false,
@@ -215,7 +221,8 @@ defmodule TartarusWarehouse.Floor do
       Network.start(topology(robots, opts[:secondary]),
         mode: opts[:mode],
         setup: setup,
-        node_opts: node_opts
+        node_opts: node_opts,
+        link: [latency_ms: opts[:latency_ms]]
       )
 
     try do

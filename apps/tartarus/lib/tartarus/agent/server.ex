@@ -530,13 +530,15 @@ defmodule Tartarus.Agent.Server do
   end
 
   @doc false
-  # The :link hook: the link's properties from the ledger. Latency delays the hand-off, loss
-  # makes it fail (the agent's own random state decides, so runs are reproducible).
+  # The :link hook: the link's properties from the ledger. Latency is one message's one-way
+  # delay: the hand-off waits for three (prepare, prepared, commit; the modules' round trip
+  # of a first crossing is not charged). Loss makes it fail (the agent's own random state
+  # decides, so runs are reproducible).
   def emulate_link({host, dest, rng}) do
     case Ledger.link(host, dest) do
       %{} = props ->
         latency = Map.get(props, :latency_ms, 0)
-        if latency > 0, do: Process.sleep(latency)
+        if latency > 0, do: Process.sleep(3 * latency)
         loss = Map.get(props, :loss, 0)
 
         if loss > 0 do

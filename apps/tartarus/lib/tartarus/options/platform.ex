@@ -144,7 +144,11 @@ defmodule Tartarus.Options.Platform do
   ]
 
   @link [
-    latency_ms: [type: :non_neg_integer, default: 0, doc: "delay of each hand-off"],
+    latency_ms: [
+      type: :non_neg_integer,
+      default: 0,
+      doc: "one-way delay of a message over the link (a hand-off pays three)"
+    ],
     loss: [type: :probability, default: 0, doc: "probability a hand-off fails"]
   ]
 
