@@ -2,7 +2,8 @@ defmodule TartarusLats.HM10Test do
   use ExUnit.Case, async: true
   doctest TartarusLats.HM10
 
-  alias TartarusLats.{Beacon, HM10, Prop}
+  alias TartarusLats.{Beacon, HM10}
+  alias TartarusTools.Prop
 
   @b1 %Beacon{
     uuid: "74278bdab64445208f0c720eaf059935",

@@ -3,7 +3,8 @@ defmodule TartarusLats.IBeaconTest do
   doctest TartarusLats.IBeacon
   doctest TartarusLats.Beacon
 
-  alias TartarusLats.{Beacon, IBeacon, Prop}
+  alias TartarusLats.{Beacon, IBeacon}
+  alias TartarusTools.Prop
 
   @beacon %Beacon{
     uuid: "12121212b64445208f0c720eaf059935",

@@ -2,7 +2,8 @@ defmodule TartarusLats.ZoneTest do
   use ExUnit.Case, async: true
   doctest TartarusLats.Zone
 
-  alias TartarusLats.{Prop, Radio, Region, Tracker, Zone}
+  alias TartarusLats.{Radio, Region, Tracker, Zone}
+  alias TartarusTools.Prop
 
   @tag_id {"12121212b64445208f0c720eaf059935", 1, 1}
   @cal Region.calibrate(tx_power: -59, exponent: 2.0)

@@ -2,7 +2,8 @@ defmodule TartarusWarehouse.FloorTest do
   use ExUnit.Case, async: false
   doctest TartarusWarehouse.Floor
 
-  alias TartarusWarehouse.{Checker, Experiment, Floor, Prop}
+  alias TartarusWarehouse.{Checker, Experiment, Floor}
+  alias TartarusTools.Prop
 
   test "task agents run 6 jobs on 3 robots: every job completes, no resource is held twice, robots pipeline" do
     jobs = Experiment.thesis_jobs(6, 1000)
