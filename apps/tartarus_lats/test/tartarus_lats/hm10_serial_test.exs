@@ -75,13 +75,11 @@ defmodule TartarusLats.HM10SerialTest do
     %{link: link, host: host} = ctx
     {:ok, _} = Tartarus.start_host(host)
 
-    # The plugin is attached before the device exists: it waits for it.
-    :ok =
-      Tartarus.attach_plugin(
-        host,
-        :beacon,
-        HM10.Receiver.plugin(link, poll_ms: 300, backoff_ms: {10, 100})
-      )
+    # The plugin `mix tartarus.node --ble LINK` attaches, attached before the device
+    # exists: it waits for it.
+    [beacon: spec] = Mix.Tasks.Tartarus.Node.plugins!(ble: link, speed: 9600)
+    assert spec == HM10.Receiver.plugin(link, speed: 9600)
+    :ok = Tartarus.attach_plugin(host, :beacon, spec)
 
     {:ok, agent} = Tartarus.create_static_agent(host, Listener, %{to: self()})
     assert_receive :listening
@@ -180,6 +178,23 @@ defmodule TartarusLats.HM10SerialTest do
       assert {:ok, {:error, {:no_such_plugin, :beacon}}} = Tartarus.request(far, {:read, :counts})
     after
       Tartarus.stop_host(other_host)
+    end
+  end
+
+  test "mix tartarus.node --ble names no application: the umbrella's configuration does" do
+    assert Application.get_env(:tartarus_tools, :ble_plugin) == {HM10.Receiver, :plugin}
+
+    assert [serial: {Tartarus.Plugin.Serial, device: "/dev/ttyS1", speed: 115_200}] =
+             Mix.Tasks.Tartarus.Node.plugins!(serial: "/dev/ttyS1", speed: 115_200)
+
+    Application.delete_env(:tartarus_tools, :ble_plugin)
+
+    try do
+      assert_raise Mix.Error, ~r/--ble needs a BLE receiver: configure :tartarus_tools/, fn ->
+        Mix.Tasks.Tartarus.Node.plugins!(ble: "/dev/ttyUSB0")
+      end
+    after
+      Application.put_env(:tartarus_tools, :ble_plugin, {HM10.Receiver, :plugin})
     end
   end
 
