@@ -5,8 +5,9 @@ defmodule TartarusFirmware.MixProject do
   #     export MIX_TARGET=rpi4 TARTARUS_WIFI_SSID=... TARTARUS_WIFI_PSK=...
   #     mix deps.get && mix firmware && mix burn        # or: mix upload tartarus-XXXX.local
   #
-  # See docs/devices.md. This project needs hex (nerves, nerves_pack, circuits_*) and the
-  # nerves_bootstrap archive: the umbrella's CI never builds it.
+  # See docs/devices.md. This project needs hex (nerves, nerves_pack, circuits_*), the
+  # nerves_bootstrap archive and Elixir >= 1.17 (rel/vm.args.eex): the umbrella's CI
+  # (Elixir 1.14, no hex) never builds it.
   use Mix.Project
 
   @app :tartarus_firmware
@@ -17,7 +18,7 @@ defmodule TartarusFirmware.MixProject do
     [
       app: @app,
       version: @version,
-      elixir: "~> 1.14",
+      elixir: "~> 1.17",
       archives: [nerves_bootstrap: "~> 1.12"],
       start_permanent: Mix.env() == :prod,
       deps: deps(),
