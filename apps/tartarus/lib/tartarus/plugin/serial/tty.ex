@@ -68,8 +68,9 @@ defmodule Tartarus.Plugin.Serial.Tty do
 
   @impl true
   def write(%{port: port, opening: nil}, data) do
-    Port.command(port, data)
-    :ok
+    # A device that stops reading must not block the plugin: what the port cannot take now
+    # is refused, not queued.
+    if :erlang.port_command(port, data, [:nosuspend]), do: :ok, else: {:error, :busy}
   rescue
     ArgumentError -> {:error, :closed}
   end
