@@ -181,6 +181,42 @@ defmodule TartarusLats.HM10SerialTest do
     end
   end
 
+  test "the node's database agent logs what an HM-10 on a tty hears", %{link: link, host: host} do
+    {:ok, _} = Tartarus.start_host(host)
+    :ok = Tartarus.attach_plugin(host, :beacon, HM10.Receiver.plugin(link, backoff_ms: {10, 100}))
+    {:ok, _} = Tartarus.create_static_agent(host, Listener, %{to: self()})
+    assert_receive :listening
+    {socat, _} = socat!(link)
+    assert_receive {:ble, {:serial, :up}}, 5_000
+
+    db = {TartarusLats.DatabaseAgent.agent_name(), host}
+
+    {:ok, _} =
+      Tartarus.create_static_agent(
+        host,
+        TartarusLats.DatabaseAgent,
+        %{node: :p1, tracker: [window: 2, median: 1]},
+        name: TartarusLats.DatabaseAgent.agent_name()
+      )
+
+    # One scan a second, as the HM-10 answers AT+DISI?; the driver's phases each second.
+    for t <- 1..4 do
+      Port.command(socat, HM10.encode_scan([@b1]))
+      assert_receive {:ble, {:scan_done, _}}, 5_000
+      assert {:ok, _} = Tartarus.request(db, {:sense, t})
+      assert {:ok, _} = Tartarus.request(db, {:deliver, t, 1})
+      assert {:ok, _} = Tartarus.request(db, {:tick, t})
+    end
+
+    # The tag went from beyond to near (-61 dBm): a record of the node's log (thesis Fig. 3.4).
+    assert {:ok, %{log: [record | _]}} = Tartarus.request(db, :state)
+
+    assert %{uuid: "74278bdab64445208f0c720eaf059935", major: 1234, minor: 1111, rssi: -61} =
+             record
+
+    assert record.region == :near
+  end
+
   test "mix tartarus.node --ble names no application: the umbrella's configuration does" do
     assert Application.get_env(:tartarus_tools, :ble_plugin) == {HM10.Receiver, :plugin}
 
@@ -239,7 +275,7 @@ defmodule TartarusLats.HM10SerialTest do
   end
 
   # Waits (bounded) until the plugin has received `n` bytes in all.
-  defp wait_bytes(host, n, tries \\ 500) do
+  defp wait_bytes(host, n, tries \\ 1000) do
     {:ok, %{bytes: got}} = Tartarus.read_plugin(host, :beacon, :status)
 
     cond do
