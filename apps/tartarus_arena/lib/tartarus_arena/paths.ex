@@ -22,7 +22,9 @@ defmodule TartarusArena.Paths do
   Each path has a start/finish flag at arc length 0 (a chequered marker beside the line:
   green for path 1, blue for path 2). A lap is complete when a robot's tracked progress
   passes the flag again (`track/4`): progress is the arc length of the nearest point of the
-  line, unwrapped along the way, so wandering back and forth near the flag is not a lap.
+  line, unwrapped along the way, so wandering back and forth near the flag is not a lap, and
+  it grows no faster than the robot moves, so cutting across from one leg of a zigzag to the
+  next is not progress.
 
       iex> p = TartarusArena.Paths.path(1, 7)
       iex> Enum.map(p.subpaths, & &1.type)
@@ -293,7 +295,7 @@ defmodule TartarusArena.Paths do
   def track_new(path, x, y) do
     {s, _d, idx} = locate(path, x, y)
     s = if s > path.length - 0.01, do: 0.0, else: s
-    %{idx: idx, s: s, progress: 0.0, start: s, laps: 0, distance: 0.0}
+    %{idx: idx, s: s, progress: 0.0, start: s, laps: 0, distance: 0.0, x: x, y: y}
   end
 
   @doc """
@@ -306,8 +308,13 @@ defmodule TartarusArena.Paths do
     l = path.length
     ds = s - tr.s
     ds = if ds > l / 2, do: ds - l, else: if(ds < -l / 2, do: ds + l, else: ds)
-    progress = tr.progress + ds
+    # progress along the line grows no faster than the robot moves: cutting across from one
+    # leg of a zigzag to the next is not progress
+    moved = G.dist(tr.x, tr.y, x, y) + 0.005
+    progress = tr.progress + max(-moved, min(moved, ds))
     laps = max(tr.laps, floor((tr.start + progress) / l))
-    {%{tr | idx: idx, s: s, progress: progress, laps: laps, distance: d}, laps > tr.laps}
+
+    {%{tr | idx: idx, s: s, progress: progress, laps: laps, distance: d, x: x, y: y},
+     laps > tr.laps}
   end
 end

@@ -160,7 +160,8 @@ defmodule TartarusArena.Run do
            driver: d,
            tr: tr,
            sp: sp,
-           sp_start: tr.progress,
+           sp_end: sp.to - tr.start,
+           base: 0.0,
            sp_t0: 0.0,
            sp_steps: 0,
            sp_on: 0,
@@ -249,16 +250,18 @@ defmodule TartarusArena.Run do
     s = %{s | tr: tr}
 
     s =
-      if tr.progress - s.sp_start >= s.sp.to - s.sp.from - 1.0e-9 or lap? do
+      if tr.progress >= s.sp_end - 1.0e-9 do
         r = measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
-        next = Paths.subpath_at(path, tr.s)
+        next = Enum.at(path.subpaths, rem(s.sp.index + 1, length(path.subpaths)))
+        base = if next.index == 0, do: s.base + path.length, else: s.base
         pfa = choose(s.driver, next)
 
         %{
           s
           | subpaths: [r | s.subpaths],
             sp: next,
-            sp_start: tr.progress,
+            sp_end: base + next.to - tr.start,
+            base: base,
             sp_t0: clock,
             sp_steps: 0,
             sp_on: 0,

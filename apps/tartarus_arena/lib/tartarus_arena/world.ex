@@ -61,7 +61,7 @@ defmodule TartarusArena.World do
       `d` the distance to the light and `f = 0.3 + 0.7 max(0, cos angle)`; 5 (ambient) when
       the light is off; noise N(0, 1);
     * `line` - `{left, right}`, 0..100 reflected light of two downward sensors 6 cm ahead
-      of the axle and 1.8 cm either side of the centre line: 60 on the floor, 12 on black
+      of the axle and 2.5 cm either side of the centre line: 60 on the floor, 12 on black
       tape (2 cm wide), blended over the sensor's 8 mm spot, noise N(0, 1). They straddle
       a line: both read white when the robot is centred;
     * `bumped` - whether the robot's last move was refused; `holding` - the id of the puck
@@ -117,7 +117,7 @@ defmodule TartarusArena.World do
   @us_rays [-0.2618, -0.1309, 0.0, 0.1309, 0.2618]
   @us_range 2.0
   @line_ahead 0.06
-  @line_lateral 0.018
+  @line_lateral 0.025
   @spot 0.008
   @floor_reflect 60.0
   @black_reflect 12.0

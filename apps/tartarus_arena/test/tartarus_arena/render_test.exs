@@ -16,12 +16,12 @@ defmodule TartarusArena.RenderTest do
     w =
       World.new()
       |> World.add_puck(:p, x: 1.5, y: 1.5, radius: 0.05)
-      |> World.add_line([{1.0, 1.3}, {2.0, 1.3}])
+      |> World.add_line([{1.0, 1.292}, {2.0, 1.292}])
 
     {40, 40, rows} = PNG.decode(Render.png(w, center: {1.5, 1.5}, view: 0.8, pixels: {40, 40}))
     px = fn i, j -> rows |> Enum.at(j) |> binary_part(i * 3, 3) end
     assert px.(20, 20) == <<0xF2, 0xC4, 0x18>>
-    # y = 1.3 is 0.2 m below the centre: row 20 + 10
+    # row 30 is 1.29 m high, on the line
     assert px.(5, 30) == <<17, 17, 17>>
     assert px.(5, 5) == <<0xE6, 0xE2, 0xD8>>
   end

@@ -101,9 +101,9 @@ defmodule TartarusArena.SensorTest do
 
     {l, r} = line.(1.5)
     assert l == r and l >= 50
-    {l, r} = line.(1.482)
+    {l, r} = line.(1.475)
     assert l <= 15 and r == 60
-    {l, r} = line.(1.518)
+    {l, r} = line.(1.525)
     assert r <= 15 and l == 60
     assert line.(1.0) == {60, 60}
   end

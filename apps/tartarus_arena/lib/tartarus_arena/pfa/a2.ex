@@ -2,7 +2,8 @@ defmodule TartarusArena.PFA.A2 do
   @moduledoc """
   A2 (Table 6.4): if both sensors read white, full speed ahead; else run the motors in
   opposite directions (at `spin`, default 0.8 of top speed) so the robot turns on the
-  spot towards the black side. Both black (a sharp corner): towards the side that last saw black alone.
+  spot towards the black side. Both black (a crossing, or the
+  tip of a sharp corner) goes straight.
 
       iex> s = TartarusArena.PFA.A2.init([])
       iex> {cmd, _} = TartarusArena.PFA.A2.control({20, 60}, 0.02, s)
@@ -16,20 +17,20 @@ defmodule TartarusArena.PFA.A2 do
   def init(opts),
     do: %{
       threshold: Keyword.get(opts, :threshold, 36),
-      last: :left,
       spin: Keyword.get(opts, :spin, 0.8)
     }
 
   @impl true
   @doc "Full speed on white; spin in place towards the black side."
   def control({l, r}, _dt, s) do
-    case {l < s.threshold, r < s.threshold} do
-      {false, false} -> {{1.0, 1.0}, s}
-      {true, false} -> {{-s.spin, s.spin}, %{s | last: :left}}
-      {false, true} -> {{s.spin, -s.spin}, %{s | last: :right}}
-      {true, true} when s.last == :left -> {{-s.spin, s.spin}, s}
-      {true, true} -> {{s.spin, -s.spin}, s}
-    end
+    cmd =
+      case {l < s.threshold, r < s.threshold} do
+        {true, false} -> {-s.spin, s.spin}
+        {false, true} -> {s.spin, -s.spin}
+        _ -> {1.0, 1.0}
+      end
+
+    {cmd, s}
   end
 
   @impl true
