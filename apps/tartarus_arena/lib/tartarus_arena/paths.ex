@@ -254,13 +254,21 @@ defmodule TartarusArena.Paths do
           {float(), float(), non_neg_integer()}
   def locate(path, x, y, hint \\ nil) do
     n = tuple_size(path.segs)
-    range = if hint, do: Enum.map(-4..12, &Integer.mod(hint + &1, n)), else: 0..(n - 1)
 
-    Enum.reduce(range, {0.0, :infinity, 0}, fn i, {_, bd, _} = best ->
-      {ax, ay, bx, by, s0, len} = elem(path.segs, i)
-      {d, t} = G.point_segment(x, y, {ax, ay, bx, by})
-      if d < bd, do: {s0 + t * len, d, i}, else: best
-    end)
+    if hint do
+      nearest(path.segs, n, x, y, Integer.mod(hint - 3, n), 12, {0.0, :infinity, 0})
+    else
+      nearest(path.segs, n, x, y, 0, n, {0.0, :infinity, 0})
+    end
+  end
+
+  defp nearest(_segs, _n, _x, _y, _i, 0, best), do: best
+
+  defp nearest(segs, n, x, y, i, left, {_, bd, _} = best) do
+    {ax, ay, bx, by, s0, len} = elem(segs, i)
+    {d, t} = G.point_segment(x, y, {ax, ay, bx, by})
+    best = if d < bd, do: {s0 + t * len, d, i}, else: best
+    nearest(segs, n, x, y, if(i + 1 == n, do: 0, else: i + 1), left - 1, best)
   end
 
   @doc "The point and heading of the line at arc length `s` (wrapped): `{x, y, theta}`."

@@ -97,7 +97,7 @@ defmodule TartarusArena.Run do
         measure(path, sp, pfa, false, t, on / max(steps, 1), max_time)
 
       true ->
-        {readings, world} = World.sense(world, :r)
+        {readings, world} = World.sense(world, :r, [:line])
         {cmd, state} = pfa.control(readings.line, dt, state)
         on = on + if(sensor_mid_distance(world, :r, path, tr) <= @on_line, do: 1, else: 0)
         world = World.step(world, %{r: cmd}, dt)
@@ -208,7 +208,7 @@ defmodule TartarusArena.Run do
     else
       {cmds, world, states} =
         Enum.reduce(states, {%{}, world, states}, fn {id, s}, {cmds, world, states} ->
-          {readings, world} = World.sense(world, id)
+          {readings, world} = World.sense(world, id, [:line])
           {cmd, ctl} = s.pfa.control(readings.line, o.dt, s.ctl)
           on = if sensor_mid_distance(world, id, s.driver.path, s.tr) <= @on_line, do: 1, else: 0
           s = %{s | ctl: ctl, sp_steps: s.sp_steps + 1, sp_on: s.sp_on + on}
