@@ -113,13 +113,13 @@ defmodule TartarusArena.Paths do
       sp_a: [arc: {0.3, 90}, straight: 0.5, arc: {0.3, 90}],
       sp_d: [
         straight: 0.3,
-        corner: 120,
+        corner: 100,
         straight: 0.3,
-        corner: -120,
+        corner: -100,
         straight: 0.5,
-        corner: 120,
+        corner: 100,
         straight: 0.3,
-        corner: -120,
+        corner: -100,
         straight: 0.4
       ],
       sp_b: [
@@ -131,9 +131,9 @@ defmodule TartarusArena.Paths do
         corner: 90,
         straight: 0.2,
         corner: -90,
-        straight: 0.35
+        to_x: 0.9
       ],
-      sp_a: [arc: {0.22, 90}, straight: 0.14, arc: {0.22, 90}]
+      sp_a: [arc: {0.22, 90}, to_y: 1.82, arc: {0.22, 90}]
     )
   end
 
@@ -190,6 +190,13 @@ defmodule TartarusArena.Paths do
     p = {x + len * :math.cos(h), y + len * :math.sin(h)}
     {[p | pts], {elem(p, 0), elem(p, 1), h}}
   end
+
+  # a straight along the current heading up to the line x = v (or y = v)
+  defp turtle({:to_x, v}, {[{x, _} | _], {_, _, h}} = acc),
+    do: turtle({:straight, (v - x) / :math.cos(h)}, acc)
+
+  defp turtle({:to_y, v}, {[{_, y} | _], {_, _, h}} = acc),
+    do: turtle({:straight, (v - y) / :math.sin(h)}, acc)
 
   defp turtle({:corner, deg}, {pts, {x, y, h}}), do: {pts, {x, y, h + deg * :math.pi() / 180}}
 

@@ -579,7 +579,6 @@ defmodule TartarusArena.World do
   @spec sense(t(), id()) :: {readings(), t()}
   def sense(%__MODULE__{} = w, id), do: sense(w, id, @sensors)
 
-
   @doc """
   Reads only the sensors named in `which` (keys of `t:readings/0`), as a controller that
   needs only some of them would (a line follower reads `[:line]`): cheaper, and it draws
