@@ -133,12 +133,15 @@ defmodule TartarusArena.Run do
   Runs robots for laps on their paths, all in `world` at once (robots already added and
   placed). Options: `:laps` (default 1: stop when every robot has done this many),
   `:max_time` (default 600 s of simulated time), `:dt` (default 0.02 s), `:sample` (seconds
-  between trajectory samples, default 0.1), `:lost_penalty` (default 5.0 s).
+  between trajectory samples, default 0.1), `:lost_penalty` (default 5.0 s), `:stuck_after`
+  (default 15.0 s: a robot that has not progressed 5 cm along its path for that long, e.g.
+  spinning at a corner, is put 10 cm further on and charged the penalty, as an
+  experimenter would nudge it). A robot that has done its laps stops and waits.
 
   Returns `%{world:, time:, robots: %{id => result}}` where each result has `lap_times`
   (seconds per completed lap, penalties included), `subpaths` (one
   `t:subpath_result/0` per sub-path crossed, in order), `trajectory` (`[{t, x, y}]`) and
-  `lost` (how many times it was put back).
+  `lost` (how many times it was put back on the line or nudged on).
   """
   @spec laps([driver()], World.t() | keyword()) :: map()
   def laps(drivers, world, opts \\ []) do
@@ -147,6 +150,7 @@ defmodule TartarusArena.Run do
     max_time = Keyword.get(opts, :max_time, 600.0)
     sample = Keyword.get(opts, :sample, 0.1)
     penalty = Keyword.get(opts, :lost_penalty, 5.0)
+    stuck = Keyword.get(opts, :stuck_after, 15.0)
 
     states =
       Map.new(drivers, fn d ->
@@ -173,6 +177,8 @@ defmodule TartarusArena.Run do
            subpaths: [],
            trajectory: [{0.0, x, y}],
            lost: 0,
+           best: 0.0,
+           best_t: 0.0,
            next_sample: sample
          }}
       end)
@@ -182,7 +188,8 @@ defmodule TartarusArena.Run do
       target: target,
       max_time: max_time,
       sample: sample,
-      penalty: penalty
+      penalty: penalty,
+      stuck: stuck
     })
   end
 
@@ -207,21 +214,32 @@ defmodule TartarusArena.Run do
       %{world: world, time: t, robots: robots}
     else
       {cmds, world, states} =
-        Enum.reduce(states, {%{}, world, states}, fn {id, s}, {cmds, world, states} ->
-          {readings, world} = World.sense(world, id, [:line])
-          {cmd, ctl} = s.pfa.control(readings.line, o.dt, s.ctl)
-          on = if sensor_mid_distance(world, id, s.driver.path, s.tr) <= @on_line, do: 1, else: 0
-          s = %{s | ctl: ctl, sp_steps: s.sp_steps + 1, sp_on: s.sp_on + on}
-          {Map.put(cmds, id, cmd), world, Map.put(states, id, s)}
+        Enum.reduce(states, {%{}, world, states}, fn
+          {id, s}, {cmds, world, states} when length(s.lap_times) >= o.target ->
+            {Map.put(cmds, id, {0.0, 0.0}), world, states}
+
+          {id, s}, {cmds, world, states} ->
+            {readings, world} = World.sense(world, id, [:line])
+            {cmd, ctl} = s.pfa.control(readings.line, o.dt, s.ctl)
+
+            on =
+              if sensor_mid_distance(world, id, s.driver.path, s.tr) <= @on_line, do: 1, else: 0
+
+            s = %{s | ctl: ctl, sp_steps: s.sp_steps + 1, sp_on: s.sp_on + on}
+            {Map.put(cmds, id, cmd), world, Map.put(states, id, s)}
         end)
 
       world = World.step(world, cmds, o.dt)
       t = World.time(world)
 
       {world, states} =
-        Enum.reduce(states, {world, states}, fn {id, s}, {world, states} ->
-          {world, s} = after_step(world, id, s, t, o)
-          {world, Map.put(states, id, s)}
+        Enum.reduce(states, {world, states}, fn
+          {_id, s}, acc when length(s.lap_times) >= o.target ->
+            acc
+
+          {id, s}, {world, states} ->
+            {world, s} = after_step(world, id, s, t, o)
+            {world, Map.put(states, id, s)}
         end)
 
       loop_laps(world, states, o)
@@ -234,17 +252,26 @@ defmodule TartarusArena.Run do
     {tr, lap?} = Paths.track(s.tr, path, x, y)
     clock = t + s.penalty
 
-    {world, tr, s} =
-      if tr.distance > @lost do
-        {px, py, ph} = Paths.point_at(path, tr.s)
-        world = World.place(world, id, {px, py, ph})
+    {best, best_t} =
+      if tr.progress > s.best + 0.05, do: {tr.progress, t}, else: {s.best, s.best_t}
 
-        {%{tr | distance: 0.0}, s}
-        |> then(fn {tr, s} ->
-          {world, tr, %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1}}
-        end)
-      else
-        {world, tr, s}
+    s = %{s | best: best, best_t: best_t}
+
+    {world, tr, s} =
+      cond do
+        tr.distance > @lost ->
+          world = World.place(world, id, Paths.point_at(path, tr.s))
+
+          {%{tr | distance: 0.0}, %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1}}
+          |> then(fn {tr, s} -> {world, tr, s} end)
+
+        t - best_t > o.stuck ->
+          world = World.place(world, id, Paths.point_at(path, tr.s + 0.1))
+          s = %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1, best_t: t}
+          {world, tr, s}
+
+        true ->
+          {world, tr, s}
       end
 
     s = %{s | tr: tr}
