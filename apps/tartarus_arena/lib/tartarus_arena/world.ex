@@ -368,6 +368,42 @@ defmodule TartarusArena.World do
   def place(%__MODULE__{} = w, id, {x, y, th}),
     do: update_robot(w, id, &%{&1 | x: x * 1.0, y: y * 1.0, theta: th * 1.0, bumped: false})
 
+  @doc """
+  A robot's commanded motion: forward speed `v` (m/s) and turn rate `omega` (rad/s) of its
+  current wheel command (no noise), and both normalized to 0..1 (`v_trans` = |v| /
+  max_speed, `v_rot` = |omega| / (2 max_speed / axle)): the terms of the thesis's
+  obstacle-avoidance fitness `f_obs = v_trans (1 - v_rot) d` (Eq. 7.1).
+
+      iex> w = TartarusArena.World.new() |> TartarusArena.World.add_robot(:r, x: 1, y: 1)
+      iex> TartarusArena.World.motion(TartarusArena.World.set_wheels(w, :r, 1.0, 0.0), :r).v_rot
+      0.5
+  """
+  @spec motion(t(), id()) :: %{v: float(), omega: float(), v_trans: float(), v_rot: float()}
+  def motion(%__MODULE__{} = w, id) do
+    r = Map.fetch!(w.robots, id)
+    {cl, cr} = r.cmd
+    v = (cl + cr) / 2 * r.max_speed
+    om = (cr - cl) * r.max_speed / r.axle
+
+    %{
+      v: v,
+      omega: om,
+      v_trans: abs(v) / r.max_speed,
+      v_rot: abs(om) / (2 * r.max_speed / r.axle)
+    }
+  end
+
+  @doc """
+  The inputs of the thesis's 4-5-2 neural controller (§7.3): the two light sensors, the
+  ultrasonic and the colour sensor, each normalized to 0..1, in that order.
+
+      iex> TartarusArena.World.normalize(%{light: {100, 50}, ultrasonic: 200, colour: 3})
+      [1.0, 0.5, 1.0, 0.3333333333333333]
+  """
+  @spec normalize(map()) :: [float()]
+  def normalize(%{light: {l, r}, ultrasonic: us, colour: c}),
+    do: [l / 100, r / 100, us / 200, c / 9]
+
   @doc "The world's simulated time in seconds."
   @spec time(t()) :: float()
   def time(%__MODULE__{time: t}), do: t
