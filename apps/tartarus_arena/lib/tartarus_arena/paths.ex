@@ -263,7 +263,7 @@ defmodule TartarusArena.Paths do
     n = tuple_size(path.segs)
 
     if hint do
-      nearest(path.segs, n, x, y, Integer.mod(hint - 3, n), 12, {0.0, :infinity, 0})
+      nearest(path.segs, n, x, y, Integer.mod(hint - 2, n), 8, {0.0, :infinity, 0})
     else
       nearest(path.segs, n, x, y, 0, n, {0.0, :infinity, 0})
     end

@@ -121,12 +121,9 @@ defmodule TartarusArena.Run do
     }
   end
 
-  defp sensor_mid_distance(world, id, path, tr) do
+  defp sensor_mid_distance(world, id, _path, _tr) do
     r = Map.fetch!(world.robots, id)
-    mx = r.x + 0.06 * :math.cos(r.theta)
-    my = r.y + 0.06 * :math.sin(r.theta)
-    {_, d, _} = Paths.locate(path, mx, my, tr.idx)
-    d
+    World.line_distance(world, r.x + 0.06 * :math.cos(r.theta), r.y + 0.06 * :math.sin(r.theta))
   end
 
   @doc """

@@ -186,7 +186,7 @@ defmodule TartarusArena.World do
     %__MODULE__{
       size: {elem(size, 0) * 1.0, elem(size, 1) * 1.0},
       walls: border ++ extra,
-      rng: Tartarus.Random.new({:arena, Keyword.get(opts, :seed, 0)}),
+      rng: :rand.seed_s(Tartarus.Random.new({:arena, Keyword.get(opts, :seed, 0)})),
       noise: noise,
       light: %{
         x: Keyword.get(light, :x, w / 2) * 1.0,
@@ -441,8 +441,8 @@ defmodule TartarusArena.World do
 
   defp move(w, r, dt) do
     {cl, cr} = r.cmd
-    {nl, rng} = Tartarus.Random.normal(w.rng)
-    {nr, rng} = Tartarus.Random.normal(rng)
+    {nl, rng} = :rand.normal_s(w.rng)
+    {nr, rng} = :rand.normal_s(rng)
     w = %{w | rng: rng}
     vl = cl * r.max_speed * (1 + w.noise.wheel * nl)
     vr = cr * r.max_speed * (1 + w.noise.wheel * nr)
@@ -654,7 +654,7 @@ defmodule TartarusArena.World do
   end
 
   defp noisy(w, value, sd, cap) do
-    {n, rng} = Tartarus.Random.normal(w.rng)
+    {n, rng} = :rand.normal_s(w.rng)
     {round(max(0.0, min(cap * 1.0, value + sd * n))), %{w | rng: rng}}
   end
 
@@ -720,6 +720,19 @@ defmodule TartarusArena.World do
     floor = floor_reflect(w, px, py)
     c = line_coverage(w, px, py)
     floor * (1 - c) + @black_reflect * c
+  end
+
+  @doc """
+  The distance (m) from `(x, y)` to the nearest black line, or `:infinity` when no line
+  is within 5 cm (the floor index only keeps what is near).
+  """
+  @spec line_distance(t(), number(), number()) :: float() | :infinity
+  def line_distance(%__MODULE__{} = w, x, y) do
+    w.line_index
+    |> Map.get({cell(x), cell(y)}, [])
+    |> Enum.reduce(:infinity, fn {ax, ay, bx, by, _}, best ->
+      min(best, G.dist_segment(x, y, {ax, ay, bx, by}))
+    end)
   end
 
   @doc false

@@ -17,7 +17,8 @@ defmodule Mix.Tasks.Tartarus.Arena do
   the line and was put back, per PFA and path), `path_length_m, subpath_cost` (mean cost
   per sub-path type and PFA), `exhaustive_best` (the PFA of least cost per sub-path type:
   what trying every PFA everywhere finds), `sim_speed_x` (simulated seconds per wall
-  second with `sim_speed_robots` = 3 robots), `bench_seconds, wall_ms`. With `--json` the
+  second with `sim_speed_robots` = 3 robots), `sim_speed_cpu_x` (the same against the VM's
+  CPU time, which a busy machine does not inflate), `bench_seconds, wall_ms`. With `--json` the
   last line printed is the summary as one JSON object. `--help` prints this text.
   """
   use TartarusTools.CLI
