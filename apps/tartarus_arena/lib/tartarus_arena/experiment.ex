@@ -19,7 +19,7 @@ defmodule TartarusArena.Experiment do
   the same seed gives the same numbers (except `sim_speed_x` and `wall_ms`).
   """
 
-  alias TartarusArena.{Paths, PFA, Render, Run, World}
+  alias TartarusArena.{PFAs, Paths, PFA, Render, Run, World}
 
   @schema [
     seed: [
@@ -58,8 +58,8 @@ defmodule TartarusArena.Experiment do
     p2 = Paths.path(2, seed)
 
     laps =
-      for pfa <- PFA.all() do
-        world = Run.arena([{:p1, p1, 0.0}, {:p2, p2, 0.0}], seed: {seed, PFA.name(pfa)})
+      for pfa <- PFAs.all() do
+        world = Run.arena([{:p1, p1, 0.0}, {:p2, p2, 0.0}], seed: {seed, PFAs.name(pfa)})
 
         res =
           Run.laps(
@@ -70,14 +70,14 @@ defmodule TartarusArena.Experiment do
           )
 
         trajs = %{
-          "path 1 (#{PFA.name(pfa)})" => res.robots.p1.trajectory,
-          "path 2 (#{PFA.name(pfa)})" => res.robots.p2.trajectory
+          "path 1 (#{PFAs.name(pfa)})" => res.robots.p1.trajectory,
+          "path 2 (#{PFAs.name(pfa)})" => res.robots.p2.trajectory
         }
 
-        Render.trajectories(res.world, trajs, title: "#{PFA.name(pfa)}: #{opts[:laps]} laps")
-        |> then(&File.write!(Path.join(out, "trajectories_#{PFA.name(pfa)}.svg"), &1))
+        Render.trajectories(res.world, trajs, title: "#{PFAs.name(pfa)}: #{opts[:laps]} laps")
+        |> then(&File.write!(Path.join(out, "trajectories_#{PFAs.name(pfa)}.svg"), &1))
 
-        {PFA.name(pfa), res}
+        {PFAs.name(pfa), res}
       end
 
     {_, last} = List.last(laps)
@@ -89,7 +89,7 @@ defmodule TartarusArena.Experiment do
     )
 
     subs =
-      for pfa <- PFA.all(), p <- [p1, p2], sp <- p.subpaths do
+      for pfa <- PFAs.all(), p <- [p1, p2], sp <- p.subpaths do
         Run.subpath(pfa, p, sp.index, seed: seed)
       end
 
@@ -116,9 +116,9 @@ defmodule TartarusArena.Experiment do
     cost =
       for type <- Paths.types(), into: %{} do
         {type,
-         for pfa <- PFA.all(), into: %{} do
-           cs = for s <- subs, s.type == type, s.pfa == PFA.name(pfa), do: s.cost
-           {PFA.name(pfa), Float.round(Enum.sum(cs) / length(cs), 3)}
+         for pfa <- PFAs.all(), into: %{} do
+           cs = for s <- subs, s.type == type, s.pfa == PFAs.name(pfa), do: s.cost
+           {PFAs.name(pfa), Float.round(Enum.sum(cs) / length(cs), 3)}
          end}
       end
 
@@ -187,7 +187,7 @@ defmodule TartarusArena.Experiment do
   end
 
   defp markdown(s) do
-    pfas = Enum.map(PFA.all(), &PFA.name/1)
+    pfas = Enum.map(PFAs.all(), &PFAs.name/1)
 
     lap_rows =
       for name <- pfas do

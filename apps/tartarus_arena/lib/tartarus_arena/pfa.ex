@@ -19,8 +19,8 @@ defmodule TartarusArena.PFA do
   | A8 | `TartarusArena.PFA.A8` | A1 plus a sharp turn towards the last side seen when both sensors lost the line |
 
   Each module is self-contained (it calls nothing but Kernel and `:math`), so an agent can
-  carry it as code (`Tartarus.Agent.carry/1`) and run it on whichever robot host it
-  reaches. `TartarusArena.Run` drives robots with PFAs over paths and measures them.
+  carry it as code (`Tartarus.Agent.add_module/1`) and run it on whichever robot host it
+  reaches. `TartarusArena.PFAs` lists them; `TartarusArena.Run` drives robots with PFAs over paths and measures them.
   """
 
   @typedoc "A PFA module."
@@ -35,45 +35,4 @@ defmodule TartarusArena.PFA do
 
   @doc "Table 6.4's one-line description of the strategy."
   @callback strategy() :: String.t()
-
-  @all [
-    TartarusArena.PFA.A1,
-    TartarusArena.PFA.A2,
-    TartarusArena.PFA.A3,
-    TartarusArena.PFA.A4,
-    TartarusArena.PFA.A5,
-    TartarusArena.PFA.A6,
-    TartarusArena.PFA.A7,
-    TartarusArena.PFA.A8
-  ]
-
-  @doc """
-  The eight PFAs, A1 to A8.
-
-      iex> length(TartarusArena.PFA.all())
-      8
-  """
-  @spec all() :: [t()]
-  def all, do: @all
-
-  @doc """
-  A PFA's short name, `"A1"` .. `"A8"`.
-
-      iex> TartarusArena.PFA.name(TartarusArena.PFA.A4)
-      "A4"
-  """
-  @spec name(t()) :: String.t()
-  def name(module), do: module |> Module.split() |> List.last()
-
-  @doc """
-  The PFA module named `"A1"` .. `"A8"` (or `:a1` ..), or nil.
-
-      iex> TartarusArena.PFA.by_name("A2")
-      TartarusArena.PFA.A2
-  """
-  @spec by_name(String.t() | atom()) :: t() | nil
-  def by_name(name) do
-    n = name |> to_string() |> String.upcase()
-    Enum.find(@all, &(name(&1) == n))
-  end
 end

@@ -27,7 +27,7 @@ defmodule TartarusArena.Run do
       true
   """
 
-  alias TartarusArena.{Paths, World}
+  alias TartarusArena.{PFAs, Paths, World}
 
   @lost 0.25
   @on_line 0.03
@@ -113,7 +113,7 @@ defmodule TartarusArena.Run do
       index: sp.index,
       type: sp.type,
       features: sp.features,
-      pfa: TartarusArena.PFA.name(pfa),
+      pfa: PFAs.name(pfa),
       completed: completed,
       time: Float.round(t, 3),
       on_line: Float.round(on_line, 4),

@@ -5,6 +5,7 @@ defmodule TartarusArena.DocTest do
   doctest TartarusArena.World
   doctest TartarusArena.Paths
   doctest TartarusArena.PFA
+  doctest TartarusArena.PFAs
   doctest TartarusArena.PFA.A1
   doctest TartarusArena.PFA.A2
   doctest TartarusArena.PFA.A3

@@ -1,7 +1,7 @@
 defmodule TartarusArena.PathsTest do
   use ExUnit.Case, async: true
 
-  alias TartarusArena.{Paths, PFA, Run, World}
+  alias TartarusArena.{PFAs, Paths, PFA, Run, World}
 
   test "both paths close, are made of the thesis's sub-path types, and carry jittered Table 6.3 features" do
     p1 = Paths.path(1, 3)
@@ -50,7 +50,7 @@ defmodule TartarusArena.PathsTest do
     assert tr.laps == 1
   end
 
-  for pfa <- PFA.all() do
+  for pfa <- PFAs.all() do
     test "#{inspect(pfa)} keeps a robot on a straight and on a curved line" do
       p = Paths.path(1, 0)
 

@@ -28,6 +28,28 @@ defmodule TartarusArena.PluginTest do
     end
   end
 
+  defmodule Follower do
+    @moduledoc false
+    # An agent carrying a PFA: each :step it reads the line sensors of its host's robot and
+    # sets the wheels.
+    use Tartarus.Agent
+
+    @impl true
+    def init(pfa) do
+      Tartarus.Agent.add_module(pfa)
+      {:stay, %{pfa: pfa, ctl: pfa.init([])}}
+    end
+
+    @impl true
+    def handle_message(:step, from, s) do
+      {:ok, line} = Tartarus.Agent.read(:robot, :line)
+      {{l, r}, ctl} = s.pfa.control(line, 0.02, s.ctl)
+      :ok = Tartarus.Agent.write(:robot, {:wheels, l, r})
+      Tartarus.Agent.reply(from, :ok)
+      {:stay, %{s | ctl: ctl}}
+    end
+  end
+
   setup do
     world =
       World.new(noise: :none)
@@ -99,5 +121,29 @@ defmodule TartarusArena.PluginTest do
     # the robot is at the centre of the view
     <<_::binary-size(30 * 3), r, g, b, _::binary>> = Enum.at(rows, 20)
     assert {r, g, b} in [{157, 183, 213}, {35, 52, 68}]
+  end
+
+  test "an agent carrying a PFA follows a line with its host's robot", %{
+    arena: arena,
+    hosts: [hs, _]
+  } do
+    :ok =
+      Server.update(arena, fn w ->
+        w
+        |> World.add_line([{0.5, 1.0}, {1.5, 1.0}, {2.2, 1.4}])
+        |> World.place(:santa, {0.9, 1.0, 0.2})
+      end)
+
+    {:ok, a} = Tartarus.create_agent(hs, Follower, TartarusArena.PFA.A4)
+
+    for _ <- 1..300 do
+      {:ok, :ok} = Tartarus.request(a, :step)
+      :ok = Server.step(arena, 1)
+    end
+
+    {x, y, _} = Server.pose(arena, :santa)
+    assert x > 1.55
+    # on the second leg of the line (slope 0.4 / 0.7 from (1.5, 1.0))
+    assert_in_delta y, 1.0 + (x - 1.5) * 0.4 / 0.7, 0.03
   end
 end
