@@ -112,6 +112,62 @@ defmodule TartarusArena.World do
             noise: %{}
 
   @default_noise %{wheel: 0.03, ultrasonic: 1.0, light: 1.0, line: 1.0}
+
+  @point {:tuple, [:number, :number]}
+  @pos_number {:custom, &TartarusArena.World.positive?/1}
+
+  @new_schema [
+    size: [
+      type: {:tuple, [@pos_number, @pos_number]},
+      default: {3.0, 3.0},
+      expected: "{width, height} in metres, both positive",
+      doc: "the arena's `{width, height}` in metres"
+    ],
+    seed: [type: :any, default: 0, doc: "seed of the world's random stream (any term)"],
+    noise: [
+      type: {:or, [{:in, [:none]}, :map]},
+      default: %{},
+      doc: "`:none`, or a map overriding the noise levels"
+    ],
+    walls: [
+      type: {:list, {:tuple, [@point, @point]}},
+      default: [],
+      doc: "extra wall segments `{{x1, y1}, {x2, y2}}`"
+    ],
+    light: [type: :keyword, default: [], doc: "`[x:, y:, on:]` (default the centre, off)"]
+  ]
+
+  @robot_schema [
+    x: [type: :number, required: true, doc: "x (m)"],
+    y: [type: :number, required: true, doc: "y (m)"],
+    theta: [type: :number, default: 0.0, doc: "heading (rad)"],
+    radius: [type: @pos_number, default: 0.07, expected: "a positive number", doc: "m"],
+    axle: [
+      type: @pos_number,
+      default: 0.11,
+      expected: "a positive number",
+      doc: "wheel distance (m)"
+    ],
+    max_speed: [
+      type: @pos_number,
+      default: 0.25,
+      expected: "a positive number",
+      doc: "top wheel speed (m/s)"
+    ],
+    tool: [
+      type: {:in, [:none, :pusher, :claws]},
+      default: :none,
+      doc: "`:none`, `:pusher` or `:claws`"
+    ]
+  ]
+
+  @puck_schema [
+    x: [type: :number, required: true, doc: "x (m)"],
+    y: [type: :number, required: true, doc: "y (m)"],
+    radius: [type: @pos_number, default: 0.03, expected: "a positive number", doc: "m"],
+    colour: [type: {:in, Enum.to_list(0..9)}, default: 3, doc: "0..9 (3: yellow)"],
+    tall: [type: :boolean, default: false, doc: "seen by the ultrasonic sensor"]
+  ]
   @no_noise %{wheel: 0.0, ultrasonic: 0.0, light: 0.0, line: 0.0}
 
   @sensors [:ultrasonic, :colour, :light, :line, :bumped, :holding, :puck_in_gripper]
@@ -152,13 +208,16 @@ defmodule TartarusArena.World do
     9 => "#8b5a2b"
   }
 
+  @doc false
+  def positive?(v), do: is_number(v) and v > 0
+
   @doc """
   A new, empty arena.
 
-  Options: `:size` `{width, height}` in metres (default `{3.0, 3.0}`), `:seed` (any term,
-  default 0), `:noise` (`:none`, or a map overriding `#{inspect(@default_noise)}`),
-  `:walls` (extra wall segments `{{x1, y1}, {x2, y2}}`), `:light` (`[x:, y:, on:]`,
-  default the centre, off).
+  Options (the noise levels are `#{inspect(@default_noise)}`; bad options raise
+  `ArgumentError` naming the key, what was expected and what arrived):
+
+  #{Tartarus.Options.docs(@new_schema)}
 
       iex> w = TartarusArena.World.new(size: {2.0, 2.0})
       iex> length(w.walls)
@@ -166,6 +225,7 @@ defmodule TartarusArena.World do
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
+    opts = Tartarus.Options.validate!(opts, @new_schema, "TartarusArena.World.new/1")
     {w, h} = size = Keyword.get(opts, :size, {3.0, 3.0})
     {w, h} = {w * 1.0, h * 1.0}
 
@@ -197,12 +257,15 @@ defmodule TartarusArena.World do
   end
 
   @doc """
-  Adds a robot. Options: `:x`, `:y`, `:theta` (required position, heading default 0),
-  `:radius`, `:axle`, `:max_speed`, `:tool` (`:none | :pusher | :claws`). Raises
-  `ArgumentError` if the robot would overlap a wall or another robot.
+  Adds a robot. Raises `ArgumentError` for a bad option or if the robot would overlap a
+  wall or another robot. Options:
+
+  #{Tartarus.Options.docs(@robot_schema)}
   """
   @spec add_robot(t(), id(), keyword()) :: t()
   def add_robot(%__MODULE__{} = w, id, opts) do
+    opts = Tartarus.Options.validate!(opts, @robot_schema, "TartarusArena.World.add_robot/3")
+
     r = %{
       id: id,
       x: Keyword.fetch!(opts, :x) * 1.0,
@@ -218,11 +281,6 @@ defmodule TartarusArena.World do
       odometer: 0.0
     }
 
-    unless r.tool in [:none, :pusher, :claws] do
-      raise ArgumentError,
-            "invalid robot option :tool: expected :none, :pusher or :claws, got: #{inspect(r.tool)}"
-    end
-
     if Enum.any?(w.walls, &(G.dist_segment(r.x, r.y, &1) < r.radius)) or
          Enum.any?(w.robots, fn {_, o} -> G.dist(r.x, r.y, o.x, o.y) < r.radius + o.radius end) do
       raise ArgumentError,
@@ -233,12 +291,14 @@ defmodule TartarusArena.World do
   end
 
   @doc """
-  Adds a puck (or any movable object). Options: `:x`, `:y` (required), `:radius` (default
-  0.03 m), `:colour` (0..9, default 3: yellow), `:tall` (seen by the ultrasonic sensor,
-  default false; a roadblock is a tall green object).
+  Adds a puck (or any movable object; a roadblock is a tall green one). Options:
+
+  #{Tartarus.Options.docs(@puck_schema)}
   """
   @spec add_puck(t(), id(), keyword()) :: t()
   def add_puck(%__MODULE__{} = w, id, opts) do
+    opts = Tartarus.Options.validate!(opts, @puck_schema, "TartarusArena.World.add_puck/3")
+
     p = %{
       id: id,
       x: Keyword.fetch!(opts, :x) * 1.0,

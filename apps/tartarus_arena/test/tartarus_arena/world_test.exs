@@ -91,6 +91,22 @@ defmodule TartarusArena.WorldTest do
       assert bx - ax >= 0.14 - 1.0e-9
     end
 
+    test "bad options are refused with the key, the expectation and the value" do
+      assert_raise ArgumentError,
+                   "invalid options given to TartarusArena.World.add_robot/3 for key :tool: expected one of [:none, :pusher, :claws], got: :wings",
+                   fn -> world() |> World.add_robot(:r, x: 1, y: 1, tool: :wings) end
+
+      assert_raise ArgumentError,
+                   ~r/World.new\/1 for key :size: expected \{width, height\} in metres, both positive, got: \{0, 2\}/,
+                   fn ->
+                     World.new(size: {0, 2})
+                   end
+
+      assert_raise ArgumentError, ~r/add_puck\/3 for key :colour/, fn ->
+        world() |> World.add_puck(:p, x: 1, y: 1, colour: 12)
+      end
+    end
+
     test "adding a robot inside a wall is refused" do
       assert_raise ArgumentError, ~r/overlaps/, fn ->
         world() |> World.add_robot(:r, x: 0.01, y: 1)
