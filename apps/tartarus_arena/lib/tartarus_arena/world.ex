@@ -559,12 +559,22 @@ defmodule TartarusArena.World do
   end
 
   defp robot_hits_wall?(w, r, nx, ny) do
-    Enum.any?(w.walls, fn seg ->
-      dn = G.dist_segment(nx, ny, seg)
+    reach = r.radius + abs(nx - r.x) + abs(ny - r.y) + 1.0e-6
 
-      G.segments_cross?(r.x, r.y, nx, ny, seg) or
-        (dn < r.radius and dn < G.dist_segment(r.x, r.y, seg))
+    Enum.any?(w.walls, fn seg ->
+      near?(nx, ny, reach, seg) and
+        (G.segments_cross?(r.x, r.y, nx, ny, seg) or
+           (
+             dn = G.dist_segment(nx, ny, seg)
+             dn < r.radius and dn < G.dist_segment(r.x, r.y, seg)
+           ))
     end)
+  end
+
+  # Whether (x, y) is within `reach` of the segment's bounding box (a cheap first look).
+  defp near?(x, y, reach, {ax, ay, bx, by}) do
+    x + reach >= min(ax, bx) and x - reach <= max(ax, bx) and y + reach >= min(ay, by) and
+      y - reach <= max(ay, by)
   end
 
   defp robot_hits_robot?(w, r, nx, ny) do
@@ -654,8 +664,11 @@ defmodule TartarusArena.World do
   # Whether puck p moving to (px, py) would cross or touch a wall, overlap a robot (other
   # than those in skip_robots) or a puck (other than those in skip_pucks).
   defp puck_blocked?(w, p, px, py, skip_robots, skip_pucks) do
+    reach = p.radius + abs(px - p.x) + abs(py - p.y) + 1.0e-6
+
     Enum.any?(w.walls, fn seg ->
-      G.segments_cross?(p.x, p.y, px, py, seg) or G.dist_segment(px, py, seg) < p.radius
+      near?(px, py, reach, seg) and
+        (G.segments_cross?(p.x, p.y, px, py, seg) or G.dist_segment(px, py, seg) < p.radius)
     end) or
       Enum.any?(w.robots, fn {oid, o} ->
         oid not in skip_robots and G.dist(px, py, o.x, o.y) < p.radius + o.radius
