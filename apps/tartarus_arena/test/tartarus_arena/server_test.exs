@@ -7,9 +7,13 @@ defmodule TartarusArena.ServerTest do
     w = World.new(noise: :none) |> World.add_robot(:r, x: 1, y: 1)
     pid = start_supervised!({Server, world: w, tick_ms: 5})
     :ok = Server.set_wheels(pid, :r, 1.0, 1.0)
-    Process.sleep(100)
+    # wait (up to 5 s) for the ticks to move the robot
+    assert Enum.any?(1..500, fn _ ->
+             Process.sleep(10)
+             elem(Server.pose(pid, :r), 0) > 1.0
+           end)
+
     assert World.time(Server.world(pid)) > 0
-    assert elem(Server.pose(pid, :r), 0) > 1.0
   end
 
   test "sense of an unknown robot, a failing update and a bad start are errors, not crashes" do
