@@ -2,10 +2,12 @@ defmodule TartarusArena.CameraPlugin do
   @moduledoc """
   A camera looking down on a shared arena, as a `Tartarus.Plugin` (the roadblock
   scenario's monitoring node): `Tartarus.Agent.read(:camera, :snapshot)` returns a PNG
-  (binary) of the part of the arena it watches, drawn by `TartarusArena.Render.png/2`.
+  (binary) of what it sees.
 
-  Options: `:arena` (a `TartarusArena.Server`, required) and the view options of
-  `TartarusArena.Render.png/2` (`:center`, `:view`, `:pixels`).
+  Options: `:arena` (a `TartarusArena.Server`, required); with `:pose` or `:robot`, a
+  pinhole camera (`TartarusArena.Render.camera_png/2`: `:pose`, `:robot`, `:height`,
+  `:pitch`, `:fov`, `:pixels`); otherwise a camera looking straight down
+  (`TartarusArena.Render.png/2`: `:center`, `:view`, `:pixels`).
   """
   @behaviour Tartarus.Plugin
 
@@ -20,12 +22,27 @@ defmodule TartarusArena.CameraPlugin do
 
   @impl true
   @doc "A camera: reads `:snapshot`."
-  def describe(_s), do: %{kind: :camera, reads: [:snapshot], writes: [], format: :png}
+  def describe(s) do
+    view =
+      if Keyword.has_key?(s.view, :pose) or Keyword.has_key?(s.view, :robot),
+        do: :pinhole,
+        else: :overhead
+
+    %{kind: :camera, reads: [:snapshot], writes: [], format: :png, view: view}
+  end
 
   @impl true
   @doc "`:snapshot` (or nil): a PNG of the view."
-  def read(arg, s) when arg in [nil, :snapshot],
-    do: {:ok, TartarusArena.Render.png(TartarusArena.Server.world(s.arena), s.view), s}
+  def read(arg, s) when arg in [nil, :snapshot] do
+    world = TartarusArena.Server.world(s.arena)
+
+    png =
+      if Keyword.has_key?(s.view, :pose) or Keyword.has_key?(s.view, :robot),
+        do: TartarusArena.Render.camera_png(world, s.view),
+        else: TartarusArena.Render.png(world, s.view)
+
+    {:ok, png, s}
+  end
 
   def read(arg, s), do: {:error, {:bad_argument, arg}, s}
 

@@ -1,7 +1,8 @@
 defmodule TartarusArena.Render do
   @moduledoc """
-  Pictures of an arena: an SVG snapshot (`svg/2`), an SVG trajectory plot (`trajectories/3`)
-  and a PNG as a camera looking down on part of the arena would take it (`png/2`).
+  Pictures of an arena: an SVG snapshot (`svg/2`), an SVG trajectory plot (`trajectories/3`),
+  a PNG as a camera looking straight down on part of the arena would take it (`png/2`), and
+  a PNG through a pinhole camera on a pole or on a robot (`camera_png/2`).
   The floor is drawn in its colours (`TartarusArena.World.colour_hex/1`), lines black,
   pucks in their colours, the light as a yellow disc (grey when off), robots as discs with
   a heading mark and their id.
@@ -185,6 +186,165 @@ defmodule TartarusArena.Render do
         rgb(World.colour_hex(7))
     end
   end
+
+  @doc """
+  A PNG of the arena through a pinhole camera: a webcam on a pole beside the path (the
+  roadblock's monitoring node) or a camera on a robot. Walls (15 cm high), robots
+  (cylinders 12 cm high), pucks (2 cm; tall objects 10 cm) and the light (a ball 15 cm up,
+  yellow when on) stand on the floor, which shows its lines and markers; sides are shaded
+  darker than tops. Options:
+
+    * `:pose` - `{x, y, heading}` of the camera, or `:robot` - a robot id: the camera sits
+      on its front, 10 cm up, looking where it heads;
+    * `:height` - metres above the floor (default 0.35; 0.1 on a robot);
+    * `:pitch` - how far it looks down, radians (default 0.6; 0.25 on a robot);
+    * `:fov` - horizontal field of view, radians (default 1.1, about 63 degrees);
+    * `:pixels` - `{width, height}` (default `{160, 120}`).
+
+      iex> w = TartarusArena.World.new() |> TartarusArena.World.add_robot(:r1, x: 1.5, y: 1.5)
+      iex> png = TartarusArena.Render.camera_png(w, robot: :r1, pixels: {32, 24})
+      iex> TartarusArena.PNG.size(png)
+      {32, 24}
+  """
+  @spec camera_png(World.t(), keyword()) :: binary()
+  def camera_png(world, opts) do
+    {{cx, cy, psi}, h, pitch, own} =
+      case Keyword.fetch(opts, :robot) do
+        {:ok, id} ->
+          r = Map.fetch!(world.robots, id)
+          d = r.radius + 0.005
+
+          {{r.x + d * :math.cos(r.theta), r.y + d * :math.sin(r.theta), r.theta},
+           Keyword.get(opts, :height, 0.1), Keyword.get(opts, :pitch, 0.25), id}
+
+        :error ->
+          {Keyword.fetch!(opts, :pose), Keyword.get(opts, :height, 0.35),
+           Keyword.get(opts, :pitch, 0.6), nil}
+      end
+
+    fov = Keyword.get(opts, :fov, 1.1)
+    {pw, ph} = Keyword.get(opts, :pixels, {160, 120})
+    f = {:math.cos(psi) * :math.cos(pitch), :math.sin(psi) * :math.cos(pitch), -:math.sin(pitch)}
+    rt = {:math.sin(psi), -:math.cos(psi), 0.0}
+    up = cross(rt, f)
+    k = :math.tan(fov / 2)
+
+    solids =
+      for({id, r} <- world.robots, id != own, do: {r.x, r.y, r.radius, 0.12, {157, 183, 213}}) ++
+        for {_, p} <- world.pucks,
+            do:
+              {p.x, p.y, p.radius, if(p.tall, do: 0.1, else: 0.02),
+               rgb(World.colour_hex(p.colour))}
+
+    rows =
+      for j <- 0..(ph - 1) do
+        sy = (1 - 2 * (j + 0.5) / ph) * k * ph / pw
+
+        for i <- 0..(pw - 1), into: <<>> do
+          sx = (2 * (i + 0.5) / pw - 1) * k
+          d = add(f, add(scale3(rt, sx), scale3(up, sy)))
+          {r, g, b} = trace(world, {cx, cy, h}, d, solids)
+          <<r, g, b>>
+        end
+      end
+
+    TartarusArena.PNG.encode(pw, ph, rows)
+  end
+
+  @wall_height 0.15
+
+  # The colour the ray from o along d sees first.
+  defp trace(world, {ox, oy, oz}, {dx, dy, dz}, solids) do
+    dxy = :math.sqrt(dx * dx + dy * dy)
+    l = world.light
+
+    floor =
+      if dz < 0 do
+        t = -oz / dz
+        [{t, floor_colour(world, ox + t * dx, oy + t * dy)}]
+      else
+        []
+      end
+
+    walls =
+      for seg <- world.walls,
+          t = TartarusArena.Geometry.ray_segment(ox, oy, dx, dy, seg),
+          z = oz + t * dz,
+          z >= 0 and z <= @wall_height,
+          do: {t, {90, 90, 96}}
+
+    bodies =
+      Enum.flat_map(solids, fn {sx, sy, rad, height, colour} ->
+        side =
+          if dxy > 1.0e-9 do
+            case TartarusArena.Geometry.ray_circle(ox, oy, dx / dxy, dy / dxy, sx, sy, rad) do
+              nil ->
+                []
+
+              txy ->
+                t = txy / dxy
+                z = oz + t * dz
+                if z >= 0 and z <= height and t > 0, do: [{t, shade(colour, 0.75)}], else: []
+            end
+          else
+            []
+          end
+
+        top =
+          if dz < 0 and oz > height do
+            t = (height - oz) / dz
+            if dd(ox + t * dx, oy + t * dy, sx, sy) <= rad, do: [{t, colour}], else: []
+          else
+            []
+          end
+
+        side ++ top
+      end)
+
+    light =
+      case sphere(ox - l.x, oy - l.y, oz - 0.15, dx, dy, dz, 0.05) do
+        nil -> []
+        t -> [{t, if(l.on, do: {255, 243, 92}, else: {150, 150, 150})}]
+      end
+
+    case Enum.min_by(floor ++ walls ++ bodies ++ light, &elem(&1, 0), fn -> nil end) do
+      nil -> {200, 210, 220}
+      {_, colour} -> colour
+    end
+  end
+
+  defp floor_colour(world, x, y) do
+    {aw, ah} = world.size
+
+    cond do
+      x < 0 or y < 0 or x > aw or y > ah -> {120, 120, 120}
+      mk = World.marker_at(world, x, y) -> rgb(World.colour_hex(mk.colour))
+      World.line_coverage(world, x, y) > 0.5 -> {17, 17, 17}
+      true -> rgb(World.colour_hex(7))
+    end
+  end
+
+  defp sphere(fx, fy, fz, dx, dy, dz, r) do
+    a = dx * dx + dy * dy + dz * dz
+    b = 2 * (fx * dx + fy * dy + fz * dz)
+    c = fx * fx + fy * fy + fz * fz - r * r
+    disc = b * b - 4 * a * c
+
+    if disc < 0 do
+      nil
+    else
+      t = (-b - :math.sqrt(disc)) / (2 * a)
+      if t > 0, do: t, else: nil
+    end
+  end
+
+  defp shade({r, g, b}, k), do: {round(r * k), round(g * k), round(b * k)}
+
+  defp cross({a1, a2, a3}, {b1, b2, b3}),
+    do: {a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1}
+
+  defp add({a1, a2, a3}, {b1, b2, b3}), do: {a1 + b1, a2 + b2, a3 + b3}
+  defp scale3({a1, a2, a3}, k), do: {a1 * k, a2 * k, a3 * k}
 
   defp dd(x1, y1, x2, y2), do: :math.sqrt((x1 - x2) * (x1 - x2) + (y1 - y2) * (y1 - y2))
 

@@ -40,4 +40,19 @@ defmodule TartarusArena.RenderTest do
     t = Render.trajectories(w, %{"r1 <A4>" => [{0.0, 0.9, 0.3}, {0.1, 1.0, 0.3}]}, title: "laps")
     assert t =~ "r1 &lt;A4&gt;" and t =~ "<polyline"
   end
+
+  test "a pinhole camera on a robot sees a green block ahead, the floor below, the wall beyond" do
+    w =
+      World.new()
+      |> World.add_robot(:santa, x: 1.0, y: 1.5)
+      |> World.add_puck(:block, x: 1.4, y: 1.5, radius: 0.05, colour: 2, tall: true)
+
+    {40, 30, rows} = PNG.decode(Render.camera_png(w, robot: :santa, pixels: {40, 30}))
+    px = fn i, j -> rows |> Enum.at(j) |> binary_part(i * 3, 3) end
+    # the block's side: green (#3aa845) shaded to 0.75
+    assert px.(20, 15) == <<44, 126, 52>>
+    # the floor at the bottom edge, the wall (grey) or sky at the top
+    assert px.(20, 29) == <<0xE6, 0xE2, 0xD8>>
+    assert px.(2, 0) in [<<90, 90, 96>>, <<200, 210, 220>>]
+  end
 end
