@@ -48,13 +48,26 @@ defmodule TartarusArena.Run do
   @typedoc """
   A driver: which robot follows which path with which PFAs. `choose` is a PFA module (used
   everywhere) or a function of the sub-path (`t:TartarusArena.Paths.subpath/0`) returning
-  one, called each time the robot enters a sub-path.
+  one, called each time the robot enters a sub-path; without `choose`, the `:policy` option
+  of `laps/3` chooses.
   """
   @type driver :: %{
-          robot: World.id(),
-          path: Paths.t(),
-          choose: module() | (Paths.subpath() -> module())
+          required(:robot) => World.id(),
+          required(:path) => Paths.t(),
+          optional(:choose) => module() | (Paths.subpath() -> module())
         }
+
+  @typedoc """
+  What a policy (the `:policy` option of `laps/3`) is told, with its state, and what it
+  returns: `{:choose, robot, subpath}` -> `{pfa_module, state}` when a robot enters a
+  sub-path; `{:result, robot, subpath_result}` -> `state` when it leaves one;
+  `{:lap, robot, lap_number, seconds}` -> `state` when it completes a lap (before the
+  result of the lap's last sub-path).
+  """
+  @type policy_event ::
+          {:choose, World.id(), Paths.subpath()}
+          | {:result, World.id(), subpath_result()}
+          | {:lap, World.id(), pos_integer(), float()}
 
   @doc """
   Runs `pfa` over sub-path `index` of `path`, from the sub-path's start on the line
@@ -135,7 +148,13 @@ defmodule TartarusArena.Run do
   spinning at a corner, is put 10 cm further on and charged the penalty, as an
   experimenter would nudge it). A robot that has done its laps stops and waits.
 
-  Returns `%{world:, time:, robots: %{id => result}}` where each result has `lap_times`
+  `:policy` (a function of a `t:policy_event/0` and a state) and `:policy_state` (its
+  initial state, default nil) let a learner choose each robot's PFA per sub-path and hear
+  every sub-path's measure and every lap as they happen, in simulated-time order, one state
+  shared by all robots (the selection experiment's hook: the learning itself is not here).
+  The final state is returned as `policy_state`.
+
+  Returns `%{world:, time:, robots: %{id => result}, policy_state:}` where each result has `lap_times`
   (seconds per completed lap, penalties included), `subpaths` (one
   `t:subpath_result/0` per sub-path crossed, in order), `trajectory` (`[{t, x, y}]`) and
   `lost` (how many times it was put back on the line or nudged on).
@@ -148,52 +167,60 @@ defmodule TartarusArena.Run do
     sample = Keyword.get(opts, :sample, 0.1)
     penalty = Keyword.get(opts, :lost_penalty, 5.0)
     stuck = Keyword.get(opts, :stuck_after, 15.0)
+    policy = Keyword.get(opts, :policy)
 
-    states =
-      Map.new(drivers, fn d ->
+    {states, ps} =
+      Enum.map_reduce(drivers, Keyword.get(opts, :policy_state), fn d, ps ->
         {x, y, _} = World.pose(world, d.robot)
         tr = Paths.track_new(d.path, x, y)
         sp = Paths.subpath_at(d.path, tr.s)
-        pfa = choose(d, sp)
+        {pfa, ps} = choose(d, sp, policy, ps)
 
-        {d.robot,
-         %{
-           driver: d,
-           tr: tr,
-           sp: sp,
-           sp_end: sp.to - tr.start,
-           base: 0.0,
-           sp_t0: 0.0,
-           sp_steps: 0,
-           sp_on: 0,
-           pfa: pfa,
-           ctl: pfa.init([]),
-           penalty: 0.0,
-           lap_t0: 0.0,
-           lap_times: [],
-           subpaths: [],
-           trajectory: [{0.0, x, y}],
-           lost: 0,
-           best: 0.0,
-           best_t: 0.0,
-           next_sample: sample
-         }}
+        {{d.robot,
+          %{
+            driver: d,
+            tr: tr,
+            sp: sp,
+            sp_end: sp.to - tr.start,
+            base: 0.0,
+            sp_t0: 0.0,
+            sp_steps: 0,
+            sp_on: 0,
+            pfa: pfa,
+            ctl: pfa.init([]),
+            penalty: 0.0,
+            lap_t0: 0.0,
+            lap_times: [],
+            subpaths: [],
+            trajectory: [{0.0, x, y}],
+            lost: 0,
+            best: 0.0,
+            best_t: 0.0,
+            next_sample: sample
+          }}, ps}
       end)
 
-    loop_laps(world, states, %{
+    loop_laps(world, Map.new(states), ps, %{
       dt: dt,
       target: target,
       max_time: max_time,
       sample: sample,
       penalty: penalty,
-      stuck: stuck
+      stuck: stuck,
+      policy: policy
     })
   end
 
-  defp choose(%{choose: f}, sp) when is_function(f, 1), do: f.(sp)
-  defp choose(%{choose: m}, _sp) when is_atom(m), do: m
+  defp choose(%{choose: f}, sp, _policy, ps) when is_function(f, 1), do: {f.(sp), ps}
+  defp choose(%{choose: m}, _sp, _policy, ps) when is_atom(m), do: {m, ps}
 
-  defp loop_laps(world, states, o) do
+  defp choose(d, sp, policy, ps) when is_function(policy, 2),
+    do: policy.({:choose, d.robot, sp}, ps)
+
+  defp notify(nil, _event, ps), do: ps
+  defp notify(policy, event, ps), do: policy.(event, ps)
+
+  defp loop_laps(world, states, ps, o) do
     t = World.time(world)
 
     if t >= o.max_time or Enum.all?(states, fn {_, s} -> length(s.lap_times) >= o.target end) do
@@ -208,7 +235,7 @@ defmodule TartarusArena.Run do
            }}
         end)
 
-      %{world: world, time: t, robots: robots}
+      %{world: world, time: t, robots: robots, policy_state: ps}
     else
       {cmds, world, states} =
         Enum.reduce(states, {%{}, world, states}, fn
@@ -229,21 +256,21 @@ defmodule TartarusArena.Run do
       world = World.step(world, cmds, o.dt)
       t = World.time(world)
 
-      {world, states} =
-        Enum.reduce(states, {world, states}, fn
+      {world, states, ps} =
+        Enum.reduce(states, {world, states, ps}, fn
           {_id, s}, acc when length(s.lap_times) >= o.target ->
             acc
 
-          {id, s}, {world, states} ->
-            {world, s} = after_step(world, id, s, t, o)
-            {world, Map.put(states, id, s)}
+          {id, s}, {world, states, ps} ->
+            {world, s, ps} = after_step(world, id, s, t, o, ps)
+            {world, Map.put(states, id, s), ps}
         end)
 
-      loop_laps(world, states, o)
+      loop_laps(world, states, ps, o)
     end
   end
 
-  defp after_step(world, id, s, t, o) do
+  defp after_step(world, id, s, t, o, ps) do
     path = s.driver.path
     {x, y, _} = World.pose(world, id)
     {tr, lap?} = Paths.track(s.tr, path, x, y)
@@ -273,33 +300,41 @@ defmodule TartarusArena.Run do
 
     s = %{s | tr: tr}
 
-    s =
-      if tr.progress >= s.sp_end - 1.0e-9 do
-        r = measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
-        next = Enum.at(path.subpaths, rem(s.sp.index + 1, length(path.subpaths)))
-        base = if next.index == 0, do: s.base + path.length, else: s.base
-        pfa = choose(s.driver, next)
-
-        %{
-          s
-          | subpaths: [r | s.subpaths],
-            sp: next,
-            sp_end: base + next.to - tr.start,
-            base: base,
-            sp_t0: clock,
-            sp_steps: 0,
-            sp_on: 0,
-            pfa: pfa,
-            ctl: if(pfa == s.pfa, do: s.ctl, else: pfa.init([]))
-        }
+    # a lap, then the end of a sub-path (the last one of a lap ends with it) go to the
+    # policy, before the next sub-path's PFA is chosen
+    {s, ps} =
+      if lap? do
+        secs = Float.round(clock - s.lap_t0, 3)
+        ps = notify(o.policy, {:lap, id, length(s.lap_times) + 1, secs}, ps)
+        {%{s | lap_times: [secs | s.lap_times], lap_t0: clock}, ps}
       else
-        s
+        {s, ps}
       end
 
-    s =
-      if lap?,
-        do: %{s | lap_times: [Float.round(clock - s.lap_t0, 3) | s.lap_times], lap_t0: clock},
-        else: s
+    {s, ps} =
+      if tr.progress >= s.sp_end - 1.0e-9 do
+        r = measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
+        ps = notify(o.policy, {:result, id, r}, ps)
+
+        next = Enum.at(path.subpaths, rem(s.sp.index + 1, length(path.subpaths)))
+        base = if next.index == 0, do: s.base + path.length, else: s.base
+        {pfa, ps} = choose(s.driver, next, o.policy, ps)
+
+        {%{
+           s
+           | subpaths: [r | s.subpaths],
+             sp: next,
+             sp_end: base + next.to - tr.start,
+             base: base,
+             sp_t0: clock,
+             sp_steps: 0,
+             sp_on: 0,
+             pfa: pfa,
+             ctl: if(pfa == s.pfa, do: s.ctl, else: pfa.init([]))
+         }, ps}
+      else
+        {s, ps}
+      end
 
     s =
       if t >= s.next_sample - 1.0e-9,
@@ -310,7 +345,7 @@ defmodule TartarusArena.Run do
         },
         else: s
 
-    {world, s}
+    {world, s, ps}
   end
 
   @doc """

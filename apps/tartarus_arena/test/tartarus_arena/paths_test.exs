@@ -95,6 +95,49 @@ defmodule TartarusArena.PathsTest do
     assert length(res.robots.r.lap_times) == 1
   end
 
+  test "laps: a policy chooses every sub-path's PFA and hears every result and lap, in order" do
+    p1 = Paths.path(1, 0)
+    p2 = Paths.path(2, 0)
+    pfas = PFAs.all()
+
+    policy = fn
+      {:choose, robot, sp}, st ->
+        pfa = Enum.at(pfas, rem(length(st.chosen), 8))
+        {pfa, %{st | chosen: [{robot, sp.index, PFAs.name(pfa)} | st.chosen]}}
+
+      {:result, robot, r}, st ->
+        %{st | results: [{robot, r.index, r.pfa} | st.results]}
+
+      {:lap, robot, n, secs}, st ->
+        %{st | laps: [{robot, n, secs} | st.laps]}
+    end
+
+    res =
+      Run.laps(
+        [%{robot: :a, path: p1}, %{robot: :b, path: p2}],
+        Run.arena([{:a, p1, 0.0}, {:b, p2, 0.0}], seed: 2),
+        laps: 1,
+        policy: policy,
+        policy_state: %{chosen: [], results: [], laps: []}
+      )
+
+    st = res.policy_state
+
+    for robot <- [:a, :b] do
+      subs = res.robots[robot].subpaths
+      results = for {^robot, i, pfa} <- Enum.reverse(st.results), do: {i, pfa}
+      assert results == Enum.map(subs, &{&1.index, &1.pfa})
+      chosen = for {^robot, i, pfa} <- Enum.reverse(st.chosen), do: {i, pfa}
+      # every sub-path crossed was chosen first; the last choice is the next lap's first
+      assert Enum.take(chosen, length(results)) == results
+      assert [{^robot, 1, secs}] = Enum.filter(st.laps, &(elem(&1, 0) == robot))
+      assert res.robots[robot].lap_times == [secs]
+    end
+
+    # the choices rotate through the eight PFAs across both robots
+    assert st.chosen |> Enum.map(&elem(&1, 2)) |> Enum.uniq() |> length() == 8
+  end
+
   defmodule Straight do
     @moduledoc false
     @behaviour TartarusArena.PFA
