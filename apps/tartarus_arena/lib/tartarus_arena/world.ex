@@ -54,7 +54,8 @@ defmodule TartarusArena.World do
       (blocks; pucks are too low), capped at 200, noise N(0, 1 cm);
     * `colour` - 0..9 under the front of the robot: a puck in the gripper gives the
       puck's colour (yellow = 3), else a floor marker's colour, else 0 on a black line,
-      else 7 (the plain floor, the thesis's default). Colours: 0 black, 1 blue, 2 green,
+      else 7 (the plain floor, the thesis's default); with probability `noise.colour`
+      (default 0.01) a misread, uniform over 0..9. Colours: 0 black, 1 blue, 2 green,
       3 yellow, 4 red, 5 white, 6 orange, 7 floor, 8 purple, 9 brown;
     * `light` - `{left, right}`, 0..100 (high = near the light): two sensors on the sides
       looking 45 degrees left and right of the heading, `5 + 95 f / (1 + (d / 0.5)^2)` with
@@ -111,7 +112,7 @@ defmodule TartarusArena.World do
             time: 0.0,
             noise: %{}
 
-  @default_noise %{wheel: 0.03, ultrasonic: 1.0, light: 1.0, line: 1.0}
+  @default_noise %{wheel: 0.03, ultrasonic: 1.0, light: 1.0, line: 1.0, colour: 0.01}
 
   @point {:tuple, [:number, :number]}
   @pos_number {:custom, &TartarusArena.World.positive?/1}
@@ -168,7 +169,7 @@ defmodule TartarusArena.World do
     colour: [type: {:in, Enum.to_list(0..9)}, default: 3, doc: "0..9 (3: yellow)"],
     tall: [type: :boolean, default: false, doc: "seen by the ultrasonic sensor"]
   ]
-  @no_noise %{wheel: 0.0, ultrasonic: 0.0, light: 0.0, line: 0.0}
+  @no_noise %{wheel: 0.0, ultrasonic: 0.0, light: 0.0, line: 0.0, colour: 0.0}
 
   @sensors [:ultrasonic, :colour, :light, :line, :bumped, :holding, :puck_in_gripper]
   @us_rays [-0.2618, -0.1309, 0.0, 0.1309, 0.2618]
@@ -703,7 +704,14 @@ defmodule TartarusArena.World do
         {Map.put(acc, :ultrasonic, v), w}
 
       :colour, {acc, w} ->
-        {Map.put(acc, :colour, colour(w, r)), w}
+        {u, rng} = :rand.uniform_s(w.rng)
+
+        if u < w.noise.colour do
+          {c, rng} = :rand.uniform_s(10, rng)
+          {Map.put(acc, :colour, c - 1), %{w | rng: rng}}
+        else
+          {Map.put(acc, :colour, colour(w, r)), %{w | rng: rng}}
+        end
 
       :light, {acc, w} ->
         {ll, w} = noisy(w, light_raw(w, r, 1), w.noise.light, 100)

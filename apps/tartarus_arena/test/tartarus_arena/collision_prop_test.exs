@@ -49,7 +49,7 @@ defmodule TartarusArena.CollisionPropTest do
         end)
       end)
 
-    assert Prop.check(prop, 150) == true
+    assert Prop.check(prop, 300) == true
   end
 
   defp sound?(before, w) do

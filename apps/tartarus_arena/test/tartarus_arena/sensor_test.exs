@@ -68,6 +68,21 @@ defmodule TartarusArena.SensorTest do
     assert sense(World.add_line(base, [{1.095, 1.0}, {1.095, 2.0}])).colour == 0
   end
 
+  test "colour noise: a misread with the given probability, from the seeded stream" do
+    w =
+      World.new(seed: 9, noise: %{colour: 0.3})
+      |> World.add_robot(:r, x: 1.0, y: 1.5)
+      |> World.add_puck(:p, x: 1.1, y: 1.5)
+
+    {reads, _} = Enum.map_reduce(1..1000, w, fn _, w -> World.sense(w, :r, [:colour]) end)
+    wrong = Enum.count(reads, &(&1.colour != 3))
+    # 0.3 x 0.9 expected (a misread may draw 3): 270
+    assert wrong > 200 and wrong < 340
+    assert Enum.all?(reads, &(&1.colour in 0..9))
+    {again, _} = Enum.map_reduce(1..1000, w, fn _, w -> World.sense(w, :r, [:colour]) end)
+    assert again == reads
+  end
+
   test "light: switching on and off; nearer is brighter; the side facing it reads more" do
     at = fn x, theta, state ->
       World.new(noise: :none, light: [x: 1.5, y: 1.5])
