@@ -15,11 +15,10 @@ defmodule TartarusArena.Paths do
   Path 1 (`path(1, seed)`) is sp-c, sp-a, sp-b, sp-a in the lower half of a 3 m x 3 m arena;
   path 2 is sp-c, sp-a, sp-d, sp-b, sp-a in the upper half. Both run counter-clockwise.
   sp-b is a notch of four right-angle corners; sp-d two zigzags of 100-degree turns (80
-  degrees inside: acute). As
-  in the thesis, sub-paths of one type differ between instances: in shape (path 2's first
-  curve has a longer straight between its bends, its last curve a tighter radius) and in
-  their feature vectors, which are Table 6.3's values plus a uniform jitter in ±0.05 drawn
-  from the seed (clipped to [0, 1]).
+  degrees inside: acute). As in the thesis, sub-paths of one type differ between instances:
+  in shape (path 2's first curve has a longer straight between its bends, its last curve a
+  tighter radius, its notch is shorter) and in their feature vectors, which are Table 6.3's
+  values plus a uniform jitter in ±0.05 drawn from the seed (clipped to [0, 1]).
 
   Each path has a start/finish flag at arc length 0 (a coloured marker beside the line:
   green for path 1, blue for path 2). A lap is complete when a robot's tracked progress
