@@ -9,6 +9,19 @@ defmodule Mix.Tasks.Tartarus.Node do
     sensor: [
       type: :string,
       doc: "attach a simulated sensor plugin under this name (a sine-like script)"
+    ],
+    dashboard: [
+      type: :non_neg_integer,
+      doc: "serve the web dashboard (`TartarusTools.Dashboard`) on this port"
+    ],
+    dashboard_bind: [
+      type: :string,
+      default: "127.0.0.1",
+      doc: "the address the dashboard listens on"
+    ],
+    dashboard_token_file: [
+      type: :string,
+      doc: "read the dashboard's action token from this file (default: a random one, printed)"
     ]
   ]
   @moduledoc """
@@ -82,10 +95,29 @@ defmodule Mix.Tasks.Tartarus.Node do
           "attach with: iex --sname me --cookie #{Node.get_cookie()} --remsh #{node()}"
         )
 
+        if opts[:dashboard], do: start_dashboard(opts)
+
         Process.sleep(:infinity)
 
       {:error, reason} ->
         Mix.raise("mix tartarus.node: cannot start host: #{inspect(reason)}")
+    end
+  end
+
+  defp start_dashboard(opts) do
+    bind =
+      case :inet.parse_address(String.to_charlist(opts[:dashboard_bind])) do
+        {:ok, ip} -> ip
+        _ -> Mix.raise("mix tartarus.node: --dashboard-bind expects an IP address, got: #{opts[:dashboard_bind]}")
+      end
+
+    dash_opts =
+      [port: opts[:dashboard], bind: bind] ++
+        if(opts[:dashboard_token_file], do: [token_file: opts[:dashboard_token_file]], else: [])
+
+    case TartarusTools.Dashboard.start(dash_opts) do
+      {:ok, dash} -> Mix.shell().info(TartarusTools.Dashboard.banner(dash))
+      {:error, reason} -> Mix.raise("mix tartarus.node: cannot start the dashboard: #{inspect(reason)}")
     end
   end
 
