@@ -129,6 +129,23 @@ defmodule TartarusTools.Dashboard do
     "dashboard: #{url(dash)}  (actions need the token: #{token(dash)})"
   end
 
+  @doc """
+  A GET with OTP's `:httpc` (for benchmarks and scripts that read the API from Elixir):
+  `{:ok, status, body}` or `{:error, reason}`.
+  """
+  @spec http_get(String.t(), timeout()) :: {:ok, pos_integer(), binary()} | {:error, term()}
+  def http_get(url, timeout \\ 60_000) do
+    {:ok, _} = Application.ensure_all_started(:inets)
+
+    case :httpc.request(:get, {String.to_charlist(url), []}, [timeout: timeout],
+           body_format: :binary,
+           socket_opts: [nodelay: true]
+         ) do
+      {:ok, {{_, status, _}, _headers, body}} -> {:ok, status, body}
+      {:error, reason} -> {:error, reason}
+    end
+  end
+
   defp validate(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusTools.Dashboard"),
          {:ok, token} <- token_of(opts) do

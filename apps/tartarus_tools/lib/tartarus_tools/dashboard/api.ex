@@ -630,16 +630,46 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp index(ctx), do: cached(ctx, :index, fn -> Map.new(topology(ctx).hosts, &{&1.id, &1}) end)
 
+  # Up to @status_limit hosts, each host's counters come from Tartarus.status/1 (counted
+  # since the host started). Beyond, status/1 is too dear (it lists the host's plugins
+  # with a select over the whole host registry: about 1 ms a host at 2,000 hosts), so the
+  # counters are the feed's, counted from the events since the dashboard started, and the
+  # residents come from Tartarus.agents/1; `counted` says which.
+  @status_limit 500
+
   defp host_views(ctx) do
-    cached(ctx, :views, fn -> Enum.map(topology(ctx).hosts, &host_view/1) end)
+    cached(ctx, :views, fn ->
+      hosts = topology(ctx).hosts
+
+      if length(hosts) <= @status_limit do
+        Enum.map(hosts, &host_view/1)
+      else
+        counts = Feed.host_counts(ctx.feed)
+        Enum.map(hosts, &light_view(&1, Map.get(counts, &1.id, %{})))
+      end
+    end)
   end
 
-  defp host_view(h) do
-    base = %{
+  defp light_view(h, counts) do
+    residents =
+      case h.up && Tartarus.agents(h.host) do
+        list when is_list(list) -> length(list)
+        _ -> 0
+      end
+
+    h
+    |> base_view("dashboard")
+    |> Map.merge(counts)
+    |> Map.put(:residents, residents)
+  end
+
+  defp base_view(h, counted) do
+    %{
       id: h.id,
       node: to_string(elem(h.host, 1)),
       up: h.up,
       pos: pos(Map.get(h, :pos)),
+      counted: counted,
       residents: 0,
       arrivals: 0,
       departures: 0,
@@ -650,6 +680,10 @@ defmodule TartarusTools.Dashboard.Api do
       hop_median_us: nil,
       hop_p99_us: nil
     }
+  end
+
+  defp host_view(h) do
+    base = base_view(h, "host")
 
     case h.up && Tartarus.status(h.host) do
       %{counts: c} = st ->
@@ -676,16 +710,19 @@ defmodule TartarusTools.Dashboard.Api do
   defp pos({x, y}) when is_number(x) and is_number(y), do: [x, y]
   defp pos(_), do: nil
 
+  # A value is kept for a second, or for five times what computing it took if that is
+  # longer (10,000 hosts' statuses are not read again for every request).
   defp cached(ctx, key, fun) do
     now = System.monotonic_time(:millisecond)
 
     case :ets.lookup(ctx.cache, key) do
-      [{^key, at, value}] when now - at < @cache_ms ->
+      [{^key, until, value}] when now < until ->
         value
 
       _ ->
         value = fun.()
-        :ets.insert(ctx.cache, {key, now, value})
+        took = System.monotonic_time(:millisecond) - now
+        :ets.insert(ctx.cache, {key, now + max(@cache_ms, 5 * took), value})
         value
     end
   end

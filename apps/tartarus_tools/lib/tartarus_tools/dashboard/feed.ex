@@ -35,6 +35,10 @@ defmodule TartarusTools.Dashboard.Feed do
   # Which id stands for which host address (%{host => id}); others are named by name.
   def names(feed, names), do: GenServer.cast(feed, {:names, names})
 
+  # Per host id: arrivals, departures, refused, bytes, messages, move_failed since the feed
+  # started (for networks too large to ask every host for its status).
+  def host_counts(feed), do: GenServer.call(feed, :host_counts, 30_000)
+
   # Subscribes remote nodes' events too (hosts of an emulation in peer mode).
   def watch_nodes(feed, nodes), do: GenServer.cast(feed, {:watch_nodes, nodes})
 
@@ -80,7 +84,8 @@ defmodule TartarusTools.Dashboard.Feed do
        hops_n: 0,
        counts: %{},
        watched: MapSet.new([node()]),
-       names: %{}
+       names: %{},
+       host_counts: %{}
      }}
   end
 
@@ -132,6 +137,7 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   def handle_call({:place, id}, _from, s), do: {:reply, Map.get(s.places, id), s}
+  def handle_call(:host_counts, _from, s), do: {:reply, s.host_counts, s}
 
   @impl true
   def handle_cast({:names, names}, s), do: {:noreply, %{s | names: names}}
@@ -188,6 +194,7 @@ defmodule TartarusTools.Dashboard.Feed do
     v = view(e, seq, s.names)
     s = %{s | seq: seq, counts: Map.update(s.counts, v.type, 1, &(&1 + 1))}
     s = track(v, s)
+    s = count(v, s)
     s = if v.type == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
 
     {recent, n} =
@@ -212,6 +219,30 @@ defmodule TartarusTools.Dashboard.Feed do
     do: %{s | places: Map.delete(s.places, a)}
 
   defp track(_, s), do: s
+
+  @counted %{
+    arrival: :arrivals,
+    departure: :departures,
+    refused: :refused,
+    message: :messages,
+    move_failed: :move_failed
+  }
+
+  defp count(%{type: t, host: h} = v, s) when is_map_key(@counted, t) and is_binary(h) do
+    key = Map.fetch!(@counted, t)
+    bytes = if t == :departure and is_integer(v[:bytes]), do: v.bytes, else: 0
+
+    c =
+      case s.host_counts do
+        %{^h => c} -> c
+        _ -> %{arrivals: 0, departures: 0, refused: 0, messages: 0, move_failed: 0, bytes: 0}
+      end
+
+    c = %{c | key => Map.fetch!(c, key) + 1, bytes: c.bytes + bytes}
+    %{s | host_counts: Map.put(s.host_counts, h, c)}
+  end
+
+  defp count(_v, s), do: s
 
   defp hop(us, s) do
     if s.hops_n >= @hop_samples,
