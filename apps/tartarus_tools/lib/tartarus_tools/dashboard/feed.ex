@@ -99,6 +99,7 @@ defmodule TartarusTools.Dashboard.Feed do
     list =
       s.recent
       |> :queue.to_list()
+      |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
       |> Enum.filter(fn e ->
         e.seq > f.since and (f.type == nil or e.type == f.type) and
           (f.host == nil or e[:host] == f.host or e[:to] == f.host or e[:from] == f.host) and
@@ -168,7 +169,7 @@ defmodule TartarusTools.Dashboard.Feed do
         TartarusTools.JSON.encode!(%{
           seq: s.seq,
           dropped: s.batch_dropped,
-          events: Enum.reverse(s.batch)
+          events: s.batch |> Enum.reverse() |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
         })
 
       msg = {:sse, ["event: batch\ndata: ", data, "\n\n"]}
@@ -189,36 +190,40 @@ defmodule TartarusTools.Dashboard.Feed do
 
   def handle_info(_other, s), do: {:noreply, s}
 
+  # Per event only counts, places and rings of raw events: the conversion to JSON-able
+  # views happens when a batch goes out or /api/events asks, for at most a batch or a ring.
   defp take(e, s) do
     seq = s.seq + 1
-    v = view(e, seq, s.names)
-    s = %{s | seq: seq, counts: Map.update(s.counts, v.type, 1, &(&1 + 1))}
-    s = track(v, s)
-    s = count(v, s)
-    s = if v.type == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
+    t = e[:type]
+    h = name(e[:host], s.names)
+    s = %{s | seq: seq, counts: Map.update(s.counts, t, 1, &(&1 + 1))}
+    s = track(t, e, h, s)
+    s = count(t, e, h, s)
+    s = if t == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
+    raw = {seq, e}
 
     {recent, n} =
       if s.recent_n >= s.recent_max,
-        do: {:queue.in(v, :queue.drop(s.recent)), s.recent_n},
-        else: {:queue.in(v, s.recent), s.recent_n + 1}
+        do: {:queue.in(raw, :queue.drop(s.recent)), s.recent_n},
+        else: {:queue.in(raw, s.recent), s.recent_n + 1}
 
     s = %{s | recent: recent, recent_n: n}
 
     if s.batch_n < s.max_batch,
-      do: %{s | batch: [v | s.batch], batch_n: s.batch_n + 1},
+      do: %{s | batch: [raw | s.batch], batch_n: s.batch_n + 1},
       else: %{s | batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
   end
 
-  defp track(%{type: t, agent: a, host: h}, s) when t in [:created, :arrival],
+  defp track(t, %{agent: a}, h, s) when t in [:created, :arrival],
     do: %{s | places: Map.put(s.places, a, h)}
 
-  defp track(%{type: :clone, clone: c, to: to}, s) when is_binary(c),
-    do: %{s | places: Map.put(s.places, c, to)}
+  defp track(:clone, %{clone: c, to: to}, _h, s) when is_binary(c),
+    do: %{s | places: Map.put(s.places, c, name(to, s.names))}
 
-  defp track(%{type: t, agent: a}, s) when t in [:kill, :stopped, :removed],
+  defp track(t, %{agent: a}, _h, s) when t in [:kill, :stopped, :removed],
     do: %{s | places: Map.delete(s.places, a)}
 
-  defp track(_, s), do: s
+  defp track(_, _, _, s), do: s
 
   @counted %{
     arrival: :arrivals,
@@ -228,9 +233,9 @@ defmodule TartarusTools.Dashboard.Feed do
     move_failed: :move_failed
   }
 
-  defp count(%{type: t, host: h} = v, s) when is_map_key(@counted, t) and is_binary(h) do
+  defp count(t, e, h, s) when is_map_key(@counted, t) and is_binary(h) do
     key = Map.fetch!(@counted, t)
-    bytes = if t == :departure and is_integer(v[:bytes]), do: v.bytes, else: 0
+    bytes = if t == :departure and is_integer(e[:bytes]), do: e.bytes, else: 0
 
     c =
       case s.host_counts do
@@ -242,7 +247,7 @@ defmodule TartarusTools.Dashboard.Feed do
     %{s | host_counts: Map.put(s.host_counts, h, c)}
   end
 
-  defp count(_v, s), do: s
+  defp count(_t, _e, _h, s), do: s
 
   defp hop(us, s) do
     if s.hops_n >= @hop_samples,
