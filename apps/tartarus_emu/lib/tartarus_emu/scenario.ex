@@ -116,13 +116,20 @@ defmodule TartarusEmu.Scenario do
   """
   @callback panels(state()) :: [{module(), term()}]
 
+  @doc """
+  The emulated network the web dashboard shows (optional; default: the state's `:net`
+  when it is a `TartarusEmu.Network`).
+  """
+  @callback network(state()) :: TartarusEmu.Network.t() | nil
+
   @optional_callbacks done?: 2,
                       charts: 1,
                       comparisons: 1,
                       title: 0,
                       write: 2,
                       teardown: 1,
-                      panels: 1
+                      panels: 1,
+                      network: 1
 
   @schema [
     seed: [type: :integer, doc: "seed of all randomness (default: a random one)"],
@@ -197,7 +204,7 @@ defmodule TartarusEmu.Scenario do
 
   defp dashboard(module, state, runner) do
     with spec when spec != nil <- runner[:dashboard],
-         %{net: %TartarusEmu.Network{} = net} <- state do
+         %TartarusEmu.Network{} = net <- network(module, state) do
       opts = if is_integer(spec), do: [port: spec], else: spec
 
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
@@ -208,6 +215,14 @@ defmodule TartarusEmu.Scenario do
       dash
     else
       _ -> nil
+    end
+  end
+
+  defp network(module, state) do
+    cond do
+      function_exported?(module, :network, 1) -> module.network(state)
+      is_map(state) -> Map.get(state, :net)
+      true -> nil
     end
   end
 

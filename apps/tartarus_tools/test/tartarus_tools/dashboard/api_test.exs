@@ -9,6 +9,26 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
   @token "test-token-0123456789"
 
+  defmodule CounterPanel do
+    # A panel over an Elixir Agent holding a count: shows it, and "bump" adds params["by"].
+    @behaviour TartarusTools.Dashboard.Panel
+    def name(_), do: "counter"
+
+    def render(agent) do
+      %{
+        title: "A counter",
+        columns: ["name", "count"],
+        rows: [["clicks", Agent.get(agent, & &1)]],
+        actions: [%{action: "bump", label: "bump", params: %{by: 1}}]
+      }
+    end
+
+    def act(agent, "bump", %{"by" => by}) when is_integer(by),
+      do: {:ok, Agent.get_and_update(agent, &{&1 + by, &1 + by})}
+
+    def act(_agent, action, _params), do: {:error, {:unknown_action, action}}
+  end
+
   setup do
     n = System.unique_integer([:positive])
     a = :"dash_a_#{n}"
@@ -254,6 +274,23 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
     assert length(created) + Enum.sum(Enum.map(batches, & &1["dropped"])) >= 12
     assert Enum.sum(Enum.map(batches, & &1["dropped"])) > 0
+  end
+
+  test "an application's panel is shown and acts, with the token" do
+    {:ok, counter} = Agent.start_link(fn -> 0 end)
+    {:ok, dash} = Dashboard.start_link(token: @token, panels: [{CounterPanel, counter}])
+    url = Dashboard.url(dash)
+
+    {200, _, %{"panels" => [panel]}} = get(url, "/api/panels")
+    assert %{"name" => "counter", "title" => "A counter", "rows" => [["clicks", 0]]} = panel
+    assert [%{"action" => "bump", "params" => %{"by" => 1}}] = panel["actions"]
+
+    assert {401, _, _} = post(url, "/api/panels/counter/bump", ~s({"by":2}), nil)
+    assert {200, _, %{"ok" => true, "result" => 2}} = post(url, "/api/panels/counter/bump", ~s({"by":2}))
+    assert Agent.get(counter, & &1) == 2
+    assert {422, _, %{"message" => m}} = post(url, "/api/panels/counter/explode", "{}")
+    assert m =~ "explode failed"
+    assert {404, _, %{"error" => "unknown_panel"}} = post(url, "/api/panels/nope/bump", "{}")
   end
 
   test "the token can come from a file; a bad token option is refused" do
