@@ -42,19 +42,31 @@ defmodule TartarusTools.Dashboard.Feed do
   # Subscribes remote nodes' events too (hosts of an emulation in peer mode).
   def watch_nodes(feed, nodes), do: GenServer.cast(feed, {:watch_nodes, nodes})
 
+  @relay_ms 200
+  @relay_max 1_000
+
   @doc false
-  # Runs on another node: forwards that node's events to the feed until the feed goes.
+  # Runs on another node: forwards that node's events to the feed, at most @relay_max
+  # every @relay_ms in one message (the rest counted), until the feed goes.
   def relay(feed) do
     ref = Process.monitor(feed)
     Tartarus.Events.subscribe()
-    relay_loop(feed, ref)
+    Process.send_after(self(), :relay_flush, @relay_ms)
+    relay_loop(feed, ref, [], 0, 0)
   end
 
-  defp relay_loop(feed, ref) do
+  defp relay_loop(feed, ref, acc, n, dropped) do
     receive do
-      {:tartarus_event, _} = e ->
-        send(feed, e)
-        relay_loop(feed, ref)
+      {:tartarus_event, e} when n < @relay_max ->
+        relay_loop(feed, ref, [e | acc], n + 1, dropped)
+
+      {:tartarus_event, _} ->
+        relay_loop(feed, ref, acc, n, dropped + 1)
+
+      :relay_flush ->
+        if n > 0 or dropped > 0, do: send(feed, {:tartarus_events, Enum.reverse(acc), dropped})
+        Process.send_after(self(), :relay_flush, @relay_ms)
+        relay_loop(feed, ref, [], 0, 0)
 
       {:DOWN, ^ref, _, _, _} ->
         :ok
@@ -159,6 +171,11 @@ defmodule TartarusTools.Dashboard.Feed do
     else
       {:noreply, s}
     end
+  end
+
+  def handle_info({:tartarus_events, events, dropped}, s) do
+    s = Enum.reduce(events, s, &take/2)
+    {:noreply, %{s | dropped: s.dropped + dropped, batch_dropped: s.batch_dropped + dropped}}
   end
 
   def handle_info(:flush, s) do
