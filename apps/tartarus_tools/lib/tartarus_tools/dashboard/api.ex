@@ -141,7 +141,7 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp host_detail(id, ctx) do
     with {:ok, h} <- find_host(id, ctx) do
-      view = Enum.find(host_views(ctx), &(&1.id == id))
+      view = Enum.find(host_views(ctx), &(&1.id == id)) || host_view(h)
 
       agents =
         case Tartarus.agents(h.host) do
