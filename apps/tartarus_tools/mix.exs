@@ -21,7 +21,7 @@ defmodule TartarusTools.MixProject do
 
   def application do
     [
-      extra_applications: [:logger, :tools],
+      extra_applications: [:logger, :tools, :inets],
       env: [tartarus_demo: [TartarusTools.Demo.Platform]]
     ]
   end

@@ -7,4 +7,14 @@ exclude =
     [:scale]
   end
 
+# Browser tests (the dashboard in headless Chromium) run when Chromium is installed;
+# scripts/test installs it and sets TARTARUS_BROWSER=1 so that a missing one fails loudly.
+exclude =
+  if TartarusTools.Dashboard.Browser.executable() || System.get_env("TARTARUS_BROWSER") == "1" do
+    exclude
+  else
+    IO.puts("Excluding :browser tests (no chromium on the PATH; scripts/test installs it)")
+    [:browser | exclude]
+  end
+
 ExUnit.start(exclude: exclude)

@@ -110,14 +110,40 @@ defmodule TartarusEmu.Scenario do
   @doc "Stops what setup started (optional)."
   @callback teardown(state()) :: any()
 
-  @optional_callbacks done?: 2, charts: 1, comparisons: 1, title: 0, write: 2, teardown: 1
+  @doc """
+  Panels the web dashboard shows for this scenario (optional; see
+  `TartarusTools.Dashboard.Panel`), given the state after setup.
+  """
+  @callback panels(state()) :: [{module(), term()}]
+
+  @doc """
+  The emulated network the web dashboard shows (optional; default: the state's `:net`
+  when it is a `TartarusEmu.Network`).
+  """
+  @callback network(state()) :: TartarusEmu.Network.t() | nil
+
+  @optional_callbacks done?: 2,
+                      charts: 1,
+                      comparisons: 1,
+                      title: 0,
+                      write: 2,
+                      teardown: 1,
+                      panels: 1,
+                      network: 1
 
   @schema [
     seed: [type: :integer, doc: "seed of all randomness (default: a random one)"],
     steps: [type: :pos_integer, default: 100, doc: "steps to run at most"],
     out: [type: :any, doc: "output directory, or `false` for none"],
     quiet: [type: :boolean, default: false, doc: "no progress line"],
-    progress_device: [type: :any, default: :standard_error, doc: "where progress goes"]
+    progress_device: [type: :any, default: :standard_error, doc: "where progress goes"],
+    dashboard: [
+      type: :any,
+      doc:
+        "serve the web dashboard on this port while the scenario runs (when its state " <>
+          "keeps its network under `:net`; see `TartarusEmu.Dashboard`), or dashboard options"
+    ],
+    step_ms: [type: :non_neg_integer, default: 0, doc: "pause after each step (to watch a run)"]
   ]
 
   @doc """
@@ -146,6 +172,8 @@ defmodule TartarusEmu.Scenario do
 
       case module.setup(setup_opts) do
         {:ok, state} ->
+          dash = dashboard(module, state, runner)
+
           try do
             t1 = System.monotonic_time(:millisecond)
             {state, ran} = loop(module, state, steps, runner)
@@ -164,12 +192,37 @@ defmodule TartarusEmu.Scenario do
             {dir, files} = write(module, state, runner[:out], summary, series)
             {:ok, %{summary: summary, series: series, out: dir, files: files}}
           after
+            if dash, do: TartarusTools.Dashboard.stop(dash)
             if function_exported?(module, :teardown, 1), do: module.teardown(state)
           end
 
         {:error, _} = error ->
           error
       end
+    end
+  end
+
+  defp dashboard(module, state, runner) do
+    with spec when spec != nil <- runner[:dashboard],
+         %TartarusEmu.Network{} = net <- network(module, state) do
+      opts = if is_integer(spec), do: [port: spec], else: spec
+
+      panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
+
+      {:ok, dash} = TartarusEmu.Dashboard.start_link(net, Keyword.put_new(opts, :panels, panels))
+      Process.unlink(dash)
+      IO.puts(runner[:progress_device], TartarusTools.Dashboard.banner(dash))
+      dash
+    else
+      _ -> nil
+    end
+  end
+
+  defp network(module, state) do
+    cond do
+      function_exported?(module, :network, 1) -> module.network(state)
+      is_map(state) -> Map.get(state, :net)
+      true -> nil
     end
   end
 
@@ -186,6 +239,7 @@ defmodule TartarusEmu.Scenario do
     {state, ran, progress} =
       Enum.reduce_while(1..steps, {state, 0, progress}, fn step, {state, _, progress} ->
         state = module.step(state, step)
+        if runner[:step_ms] > 0, do: Process.sleep(runner[:step_ms])
         progress = Progress.advance(progress)
 
         if done? and module.done?(state, step),

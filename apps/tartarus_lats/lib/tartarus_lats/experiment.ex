@@ -103,7 +103,13 @@ defmodule TartarusLats.Experiment do
       type: :any,
       doc:
         "a recording whose serial output the nodes hear instead of the simulated radio; the world (the ground truth) still moves by the seed, so a recording made with the same seed and options replays the same run"
-    ]
+    ],
+    dashboard: [
+      type: :non_neg_integer,
+      doc:
+        "serve the web dashboard on this port while the run goes, with the LATS panel (`TartarusLats.DashboardPanel`)"
+    ],
+    step_ms: [type: :non_neg_integer, default: 0, doc: "pause after each world second (to watch)"]
   ]
 
   @doc "The options of `run/1` (a `Tartarus.Options` schema; `mix tartarus.lats` reads its defaults here)."
@@ -124,7 +130,7 @@ defmodule TartarusLats.Experiment do
   def run(opts \\ []) do
     with {:ok, opts} <- validate(opts),
          {:ok, opts} <- load_replay(opts) do
-      {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet])
+      {runner, rest} = Keyword.split(opts, [:seed, :out, :quiet, :dashboard, :step_ms])
       TartarusEmu.Scenario.run(__MODULE__, runner ++ [steps: opts[:minutes] * 60] ++ rest)
     end
   end
@@ -298,6 +304,16 @@ defmodule TartarusLats.Experiment do
 
   @impl TartarusEmu.Scenario
   def comparisons(state), do: TartarusLats.Report.comparisons(summary(state))
+
+  @impl TartarusEmu.Scenario
+  def network(state), do: state.dep.net
+
+  @impl TartarusEmu.Scenario
+  def panels(state) do
+    world = state.dep.world
+    bearers = Map.new(World.names(world), &{World.tag(world, &1), &1})
+    [{TartarusLats.DashboardPanel, %{net: state.dep.net, bearers: bearers}}]
+  end
 
   @impl TartarusEmu.Scenario
   def write(state, dir) do

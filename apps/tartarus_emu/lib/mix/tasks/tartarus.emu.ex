@@ -9,6 +9,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--strategy random|conscientious] [--p P] [--latency-ms MS]
                        [--loss P] [--seed N] [--out DIR] [--until-covered]
                        [--keep-events] [--quiet] [--json] [--help]
+                       [--dashboard PORT] [--step-ms MS]
 
   Defaults (those of `TartarusEmu.Walk.schema/0`): a 16-host grid, 4 agents, 100 steps,
   virtual mode, random walk, `p = 0`, a random seed (recorded in the summary), output in
@@ -26,6 +27,10 @@ defmodule Mix.Tasks.Tartarus.Emu do
   With `--json` the last line printed is one JSON object with the summary keys: `hosts,
   agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
   failed_moves, messages, bytes, energy_mj, wall_ms, coverage, ...` (see `TartarusEmu.Walk`).
+
+  `--dashboard PORT` serves the web dashboard (`TartarusTools.Dashboard`, on 127.0.0.1)
+  while the walk runs and prints its address and action token; `--step-ms MS` pauses
+  after each step so that a person can watch (see `docs/dashboard.md`).
 
   Large virtual runs (more processes or ETS tables than this VM allows, e.g. 10,000 hosts
   and 100,000 agents) run in a fresh BEAM node started with `+P` and `+e` large enough, so
@@ -48,6 +53,8 @@ defmodule Mix.Tasks.Tartarus.Emu do
     out: :string,
     until_covered: :boolean,
     keep_events: :boolean,
+    dashboard: :integer,
+    step_ms: :integer,
     quiet: :boolean,
     json: :boolean,
     help: :boolean
@@ -76,7 +83,9 @@ defmodule Mix.Tasks.Tartarus.Emu do
         seed: opts[:seed],
         out: Path.expand(opts[:out] || TartarusTools.Report.default_out_dir("walk")),
         quiet: opts[:quiet] || opts[:json] || false,
-        progress_device: progress
+        progress_device: progress,
+        dashboard: opts[:dashboard],
+        step_ms: opts[:step_ms]
       )
       |> Enum.reject(fn {_, v} -> is_nil(v) end)
 
@@ -104,6 +113,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
   defp check!(opts) do
     TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
     TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
+    TartarusTools.CLI.non_negative!(opts, [:dashboard, :step_ms], "tartarus.emu")
 
     # Absent flags stay absent: the walk's schema supplies the defaults.
     choices = [mode: [:virtual, :peer], strategy: [:random, :conscientious]]

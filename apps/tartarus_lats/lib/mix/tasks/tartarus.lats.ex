@@ -9,7 +9,11 @@ defmodule Mix.Tasks.Tartarus.Lats do
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
                         [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
                         [--release random|settled] [--noise-db 4.0]
-                        [--kill-nodes 0] [--down-s 60]
+                        [--kill-nodes 0] [--down-s 60] [--dashboard PORT] [--step-ms MS]
+
+  `--dashboard PORT` serves the web dashboard (127.0.0.1) while the run goes, with a LATS
+  panel (where each tag bearer is heard, the query agents out; `TartarusLats.DashboardPanel`);
+  `--step-ms MS` pauses after each world second so that a person can watch.
 
   The defaults are those of `TartarusLats.Experiment.schema/0`; `--nodes` is
   at least 10 and is rounded to whole rows of 5 on 2 floors (`--nodes 15` builds 20; the
@@ -100,6 +104,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
     noise_db: :float,
     kill_nodes: :integer,
     down_s: :integer,
+    dashboard: :integer,
+    step_ms: :integer,
     json: :boolean,
     help: :boolean
   ]

@@ -19,7 +19,20 @@ defmodule Mix.Tasks.Tartarus.Node do
       type: :string,
       doc: "attach a serial device read as text lines as plugin `:serial`"
     ],
-    speed: [type: :pos_integer, default: 9600, doc: "baud of `--ble` and `--serial`"]
+    speed: [type: :pos_integer, default: 9600, doc: "baud of `--ble` and `--serial`"],
+    dashboard: [
+      type: :non_neg_integer,
+      doc: "serve the web dashboard (`TartarusTools.Dashboard`) on this port"
+    ],
+    dashboard_bind: [
+      type: :string,
+      default: "127.0.0.1",
+      doc: "the address the dashboard listens on"
+    ],
+    dashboard_token_file: [
+      type: :string,
+      doc: "read the dashboard's action token from this file (default: a random one, printed)"
+    ]
   ]
   @moduledoc """
   Starts this VM as a named BEAM node running one Tartarus host, links it to neighbour
@@ -96,6 +109,8 @@ defmodule Mix.Tasks.Tartarus.Node do
           "attach with: iex --sname me --cookie #{Node.get_cookie()} --remsh #{node()}"
         )
 
+        if opts[:dashboard], do: start_dashboard(opts)
+
         Process.sleep(:infinity)
 
       {:error, reason} ->
@@ -134,6 +149,23 @@ defmodule Mix.Tasks.Tartarus.Node do
         Mix.raise(
           "mix tartarus.node: --ble needs a BLE receiver: configure :tartarus_tools, :ble_plugin as {module, function} (function(path, [speed: baud]) returns a plugin spec), got: #{inspect(Application.get_env(:tartarus_tools, :ble_plugin))}"
         )
+    end
+  end
+
+  defp start_dashboard(opts) do
+    bind =
+      case :inet.parse_address(String.to_charlist(opts[:dashboard_bind])) do
+        {:ok, ip} -> ip
+        _ -> Mix.raise("mix tartarus.node: --dashboard-bind expects an IP address, got: #{opts[:dashboard_bind]}")
+      end
+
+    dash_opts =
+      [port: opts[:dashboard], bind: bind] ++
+        if(opts[:dashboard_token_file], do: [token_file: opts[:dashboard_token_file]], else: [])
+
+    case TartarusTools.Dashboard.start(dash_opts) do
+      {:ok, dash} -> Mix.shell().info(TartarusTools.Dashboard.banner(dash))
+      {:error, reason} -> Mix.raise("mix tartarus.node: cannot start the dashboard: #{inspect(reason)}")
     end
   end
 

@@ -1,0 +1,69 @@
+defmodule TartarusEmu.Dashboard do
+  @moduledoc """
+  The emulator's side of the web dashboard (`TartarusTools.Dashboard`): an emulated
+  network's hosts (on whichever BEAM node each lives), its topology's links and whether
+  each is live, and the link actions carried out with `TartarusEmu.Network`
+  (`break_link/3`, `heal_link/3`, `isolate/2`, `rejoin/2`).
+
+      {:ok, net} = TartarusEmu.Network.start(TartarusEmu.Topology.grid(3, 3))
+      {:ok, dash} = TartarusEmu.Dashboard.start_link(net, port: 4040)
+      IO.puts(TartarusTools.Dashboard.banner(dash))
+
+  A host's id on the page and in the JSON API is its topology node's name as a string;
+  positions of the topology (if it has them) place the hosts on the page.
+  """
+
+  @behaviour TartarusTools.Dashboard.Emulation
+
+  alias TartarusEmu.Network
+
+  @doc """
+  Starts a dashboard (linked to the caller) showing `net`: the options of
+  `TartarusTools.Dashboard`, with `:emulation` set to this module and `net`.
+  """
+  @spec start_link(Network.t(), keyword()) :: GenServer.on_start()
+  def start_link(%Network{} = net, opts \\ []) do
+    TartarusTools.Dashboard.start_link(Keyword.put(opts, :emulation, {__MODULE__, net}))
+  end
+
+  @impl true
+  @doc "The network's hosts in topology order, `up` unless isolated or killed."
+  def hosts(%Network{} = net) do
+    topo = net.topology
+
+    Enum.map(topo.nodes, fn n ->
+      %{
+        id: to_string(n),
+        host: Network.host(net, n),
+        up: Network.up?(net, n),
+        pos: pos(topo.positions[n])
+      }
+    end)
+  end
+
+  defp pos({x, y}), do: {x, y}
+  defp pos({x, y, _z}), do: {x, y}
+  defp pos(_), do: nil
+
+  @impl true
+  @doc "The topology's edges, sorted, each `up` when live."
+  def links(%Network{} = net) do
+    net.topology.edges
+    |> Enum.sort()
+    |> Enum.map(fn {a, b} -> %{a: to_string(a), b: to_string(b), up: Network.live?(net, a, b)} end)
+  end
+
+  @impl true
+  @doc "Breaks or heals a link, isolates a host or lets it rejoin."
+  def act(%Network{} = net, action, params) do
+    names = Map.new(net.topology.nodes, &{to_string(&1), &1})
+
+    case {action, params} do
+      {:break_link, %{a: a, b: b}} -> Network.break_link(net, names[a], names[b])
+      {:heal_link, %{a: a, b: b}} -> Network.heal_link(net, names[a], names[b])
+      {:isolate, %{host: h}} -> Network.isolate(net, names[h])
+      {:rejoin, %{host: h}} -> Network.rejoin(net, names[h])
+      _ -> {:error, :unknown_action}
+    end
+  end
+end

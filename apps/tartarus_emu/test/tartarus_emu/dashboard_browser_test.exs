@@ -1,0 +1,164 @@
+defmodule TartarusEmu.DashboardBrowserTest do
+  # The dashboard in a real headless Chromium (Debian's `chromium`, driven over the DevTools
+  # protocol by TartarusTools.Dashboard.Browser) against an emulated network of 4 hosts:
+  # asserts on what the browser rendered. Excluded with `--exclude browser`; skipped with a
+  # note when no Chromium is installed (scripts/test installs it and insists on it).
+  use ExUnit.Case, async: false
+
+  import TartarusEmu.EmuCase
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusTools.Dashboard.Browser
+
+  @moduletag :browser
+  @moduletag timeout: 120_000
+  @token "browser-test-token"
+  @screenshot Path.expand("../../../../_build/dashboard/dashboard.png", __DIR__)
+
+  setup do
+    net = start_network!(Topology.grid(2, 2))
+    h = fn n -> Network.host(net, n) end
+    {:ok, a1} = Tartarus.create_mobile_agent(h.(:h1), Tartarus.Examples.Echo, nil, name: "scout")
+
+    {:ok, a2} =
+      Tartarus.create_mobile_agent(h.(:h4), Tartarus.Examples.Echo, nil, name: "courier")
+
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(net, token: @token, batch_ms: 100)
+    {:ok, b} = Browser.start(width: 1400, height: 1000)
+    on_exit(fn -> Browser.stop(b) end)
+    :ok = Browser.open(b, TartarusTools.Dashboard.url(dash))
+    :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 15_000)
+    %{net: net, b: b, a1: a1, a2: a2, h: h}
+  end
+
+  defp eval!(b, js) do
+    {:ok, v} = Browser.eval(b, js)
+    v
+  end
+
+  defp agent_host(b, id),
+    do:
+      eval!(
+        b,
+        "(document.querySelector('#overlay circle.agent[data-agent=\"#{id}\"]') || {dataset: {}}).dataset.host || null"
+      )
+
+  test "hosts, links and agents are drawn; a move shows up; no token, no action", c do
+    %{b: b, a1: a1, a2: a2} = c
+
+    # Hosts and links of the overlay, and each agent at its host, in the graph and the table.
+    assert eval!(
+             b,
+             "[...document.querySelectorAll('#overlay g.host')].map(g => g.dataset.host).sort()"
+           ) ==
+             ["h1", "h2", "h3", "h4"]
+
+    assert eval!(b, "document.querySelectorAll('#overlay line.link').length") == 4
+    assert agent_host(b, a1) == "h1"
+    assert agent_host(b, a2) == "h4"
+
+    assert eval!(
+             b,
+             "document.querySelector('#agents tr[data-agent=\"#{a2}\"] td.where').textContent"
+           ) == "h4"
+
+    assert eval!(b, "document.getElementById('stream').textContent") == "live"
+
+    # The agent moves (outside the page): the page shows it at its new host.
+    :ok = Tartarus.move({a1, c.h.(:h1)}, c.h.(:h2))
+
+    assert :ok =
+             Browser.wait(
+               b,
+               "document.querySelector('#overlay circle.agent[data-agent=\"#{a1}\"][data-host=\"h2\"]')",
+               5_000
+             )
+
+    assert eval!(
+             b,
+             "[...document.querySelectorAll('#events div.arrival')].some(d => d.textContent.includes('#{a1}'))"
+           )
+
+    # Without the token the page is read-only: a click on "kill" is refused, in plain words.
+    assert eval!(b, "document.getElementById('mode').textContent") == "read-only"
+    eval!(b, "document.querySelector('#agents tr[data-agent=\"#{a2}\"]').click(); true")
+    :ok = Browser.wait(b, "document.querySelector('#detail button[data-action=kill]')", 5_000)
+    eval!(b, "document.querySelector('#detail button[data-action=kill]').click(); true")
+
+    :ok =
+      Browser.wait(b, "document.getElementById('notice').textContent.includes('refused')", 5_000)
+
+    notice = eval!(b, "document.getElementById('notice').textContent")
+    assert notice =~ "kill refused"
+    assert notice =~ "token"
+    assert {:ok, _} = Tartarus.whereis({a2, c.h.(:h4)})
+    assert agent_host(b, a2) == "h4"
+  end
+
+  test "with the token, the page breaks a link and moves an agent; the screenshot", c do
+    %{b: b, a2: a2, net: net} = c
+
+    eval!(
+      b,
+      "document.getElementById('token').value = '#{@token}'; document.getElementById('token-set').click(); true"
+    )
+
+    assert eval!(b, "document.getElementById('mode').textContent") == "token set"
+
+    # Break h1-h2 from h1's detail panel.
+    eval!(b, "document.querySelector('#hosts tr[data-host=\"h1\"]').click(); true")
+    :ok = Browser.wait(b, "document.querySelector('#detail button[data-action=break]')", 5_000)
+
+    eval!(
+      b,
+      "document.querySelector('#detail select').value = 'h2'; document.querySelector('#detail button[data-action=break]').click(); true"
+    )
+
+    :ok =
+      Browser.wait(
+        b,
+        "document.getElementById('notice').textContent === 'break link: done'",
+        5_000
+      )
+
+    refute Network.live?(net, :h1, :h2)
+
+    :ok =
+      Browser.wait(
+        b,
+        "document.querySelector('#overlay line.link.down[data-link=\"h1-h2\"]')",
+        8_000
+      )
+
+    # Move an agent from its detail panel.
+    eval!(b, "document.querySelector('#agents tr[data-agent=\"#{a2}\"]').click(); true")
+    :ok = Browser.wait(b, "document.querySelector('#detail button[data-action=move]')", 5_000)
+
+    eval!(
+      b,
+      "document.querySelector('#detail select').value = 'h3'; document.querySelector('#detail button[data-action=move]').click(); true"
+    )
+
+    :ok =
+      Browser.wait(
+        b,
+        "document.querySelector('#overlay circle.agent[data-agent=\"#{a2}\"][data-host=\"h3\"]')",
+        5_000
+      )
+
+    assert {:ok, h3} = Tartarus.whereis({a2, c.h.(:h4)})
+    assert h3 == c.h.(:h3)
+
+    # Let the agent's detail show its new host, then keep a picture of the page.
+    eval!(b, "document.querySelector('#agents tr[data-agent=\"#{a2}\"]').click(); true")
+
+    :ok =
+      Browser.wait(
+        b,
+        "(document.getElementById('detail-host') || {}).textContent === 'h3'",
+        5_000
+      )
+
+    assert :ok = Browser.screenshot(b, @screenshot)
+    assert <<0x89, "PNG", _::binary>> = File.read!(@screenshot)
+  end
+end

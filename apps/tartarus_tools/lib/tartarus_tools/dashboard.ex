@@ -1,0 +1,227 @@
+defmodule TartarusTools.Dashboard do
+  @schema [
+    port: [type: :non_neg_integer, default: 0, doc: "TCP port (0: any free port)"],
+    bind: [
+      type: :any,
+      default: {127, 0, 0, 1},
+      doc: "address to listen on, a tuple (`{0, 0, 0, 0}` for every interface)"
+    ],
+    token: [type: :any, doc: "the action token (a string); default: a random one"],
+    token_file: [
+      type: :any,
+      doc: "read the token from this file (its first line) instead of making one"
+    ],
+    catalog: [
+      type: {:list, :atom},
+      default: [Tartarus.Examples.Echo],
+      doc: "agent modules the page may create"
+    ],
+    emulation: [
+      type: :any,
+      doc: "`{module, arg}`: a `TartarusTools.Dashboard.Emulation` (hosts, links, link actions)"
+    ],
+    panels: [
+      type: :any,
+      default: [],
+      doc: "`[{module, arg}]`: `TartarusTools.Dashboard.Panel`s shown below the graph"
+    ],
+    batch_ms: [type: :pos_integer, default: 250, doc: "how often the live stream sends a batch"],
+    max_batch: [
+      type: :pos_integer,
+      default: 200,
+      doc: "events per batch at most (the rest are counted as dropped)"
+    ],
+    recent: [type: :pos_integer, default: 1_000, doc: "recent events kept for `/api/events`"],
+    max_body: [type: :pos_integer, default: 16_384, doc: "largest request body accepted, bytes"]
+  ]
+
+  @moduledoc """
+  A live web dashboard for a node: the overlay graph, its agents, per-host counters, hop
+  times, a stream of recent events and actions, served by OTP's own `:inets` HTTP server
+  (no dependency outside OTP). `docs/dashboard.md` is the user guide and documents the JSON
+  HTTP API the page uses (programs in any language can drive a node through it).
+
+      {:ok, dash} = TartarusTools.Dashboard.start_link(port: 4040)
+      TartarusTools.Dashboard.url(dash)     # "http://127.0.0.1:4040/"
+      TartarusTools.Dashboard.token(dash)   # what actions need (Authorization: Bearer ...)
+
+  `mix tartarus.node --dashboard PORT`, `mix tartarus.emu --dashboard PORT` and the
+  scenarios' mix tasks (through `TartarusEmu.Scenario`'s `:dashboard` option) start one.
+
+  ## Options
+
+  #{Tartarus.Options.docs(@schema)}
+
+  ## What it reads and what it changes
+
+  Hosts are those of this node (`Tartarus.hosts/0`, with the neighbour links among them)
+  unless an `:emulation` is given, which then names the hosts and links (on any BEAM node)
+  and carries out the link actions (break, heal, isolate, rejoin). Counters come from
+  `Tartarus.status/1`, agents from `Tartarus.agents/1`, and every action goes through the
+  public `Tartarus` API (`create_mobile_agent/4`, `move/2`, `clone/2`, `kill/1`, `post/3`).
+
+  ## Live updates, and never slowing the platform
+
+  One process (`TartarusTools.Dashboard.Feed`) subscribes to `Tartarus.Events`: per event it
+  does a few map updates (last known place of each agent, a bounded ring of recent events,
+  a bounded sample of hop times). Every `:batch_ms` it sends the connected pages one batch of
+  at most `:max_batch` events (server-sent events on `/api/stream`); what does not fit is
+  counted, not queued. A page that does not read fast enough gets no more batches until it
+  catches up. If events arrive faster than the feed handles them, it drops the backlog and
+  counts it: the platform never waits for the dashboard (emitting an event is a `send/2`).
+
+  ## Security
+
+  It listens on 127.0.0.1 by default. Reading needs nothing; every action needs the token
+  (`Authorization: Bearer TOKEN` or `X-Tartarus-Token: TOKEN`), printed at start or read
+  from `:token_file`. Without it the page is read-only: actions answer 401 (no token) or 403
+  (a wrong one). Request bodies are JSON, at most `:max_body` bytes; decoded JSON never
+  creates atoms (hosts, agents and modules are looked up among those that exist).
+  """
+
+  use GenServer
+
+  alias TartarusTools.Dashboard.{Feed, Httpd}
+
+  @typedoc "A running dashboard (its process)."
+  @type t :: GenServer.server()
+
+  @doc "The options' schema (see the moduledoc)."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  Starts a dashboard linked to the caller. Returns `{:ok, pid}` or `{:error, reason}`
+  (bad options, port in use, unreadable token file).
+  """
+  @spec start_link(keyword()) :: GenServer.on_start()
+  def start_link(opts \\ []) do
+    with {:ok, opts} <- validate(opts), do: GenServer.start_link(__MODULE__, opts)
+  end
+
+  @doc "As `start_link/1`, not linked."
+  @spec start(keyword()) :: GenServer.on_start()
+  def start(opts \\ []) do
+    with {:ok, opts} <- validate(opts), do: GenServer.start(__MODULE__, opts)
+  end
+
+  @doc "Stops a dashboard: the HTTP server, its streams and its event subscription."
+  @spec stop(t()) :: :ok
+  def stop(dash), do: GenServer.stop(dash)
+
+  @doc "The page's address, e.g. `\"http://127.0.0.1:4040/\"`."
+  @spec url(t()) :: String.t()
+  def url(dash), do: GenServer.call(dash, :url)
+
+  @doc "The TCP port it listens on."
+  @spec port(t()) :: :inet.port_number()
+  def port(dash), do: GenServer.call(dash, :port)
+
+  @doc "The token that actions need."
+  @spec token(t()) :: String.t()
+  def token(dash), do: GenServer.call(dash, :token)
+
+  @doc """
+  One line to print when a dashboard starts: where it is and the token.
+  """
+  @spec banner(t()) :: String.t()
+  def banner(dash) do
+    "dashboard: #{url(dash)}  (actions need the token: #{token(dash)})"
+  end
+
+  @doc """
+  A GET with OTP's `:httpc` (for benchmarks and scripts that read the API from Elixir):
+  `{:ok, status, body}` or `{:error, reason}`.
+  """
+  @spec http_get(String.t(), timeout()) :: {:ok, pos_integer(), binary()} | {:error, term()}
+  def http_get(url, timeout \\ 60_000) do
+    {:ok, _} = Application.ensure_all_started(:inets)
+
+    case :httpc.request(:get, {String.to_charlist(url), []}, [timeout: timeout],
+           body_format: :binary,
+           socket_opts: [nodelay: true]
+         ) do
+      {:ok, {{_, status, _}, _headers, body}} -> {:ok, status, body}
+      {:error, reason} -> {:error, reason}
+    end
+  end
+
+  defp validate(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusTools.Dashboard"),
+         {:ok, token} <- token_of(opts) do
+      {:ok, Keyword.put(opts, :token, token)}
+    end
+  end
+
+  defp token_of(opts) do
+    cond do
+      is_binary(opts[:token]) and byte_size(opts[:token]) >= 8 ->
+        {:ok, opts[:token]}
+
+      opts[:token] != nil ->
+        {:error,
+         "invalid options given to TartarusTools.Dashboard for key [:token]: " <>
+           "expected a string of at least 8 bytes, got: #{inspect(opts[:token])}"}
+
+      opts[:token_file] != nil ->
+        case File.read(opts[:token_file]) do
+          {:ok, text} ->
+            case text |> String.split("\n") |> hd() |> String.trim() do
+              t when byte_size(t) >= 8 -> {:ok, t}
+              _ -> {:error, "token file #{opts[:token_file]}: first line is shorter than 8 bytes"}
+            end
+
+          {:error, reason} ->
+            {:error, "token file #{opts[:token_file]}: #{:file.format_error(reason)}"}
+        end
+
+      true ->
+        {:ok, Base.url_encode64(:crypto.strong_rand_bytes(18), padding: false)}
+    end
+  end
+
+  @impl true
+  def init(opts) do
+    Process.flag(:trap_exit, true)
+    {:ok, _} = Application.ensure_all_started(:inets)
+    {:ok, feed} = Feed.start_link(opts)
+
+    ctx = %{
+      feed: feed,
+      token: opts[:token],
+      catalog: opts[:catalog],
+      emulation: opts[:emulation],
+      panels: opts[:panels],
+      max_body: opts[:max_body],
+      cache: :ets.new(:tartarus_dashboard_cache, [:public, :set, read_concurrency: true])
+    }
+
+    case Httpd.start(opts[:bind], opts[:port], ctx) do
+      {:ok, httpd, port} ->
+        # The first look at the hosts tells the feed their ids (see Api.topology/1).
+        _ = TartarusTools.Dashboard.Api.topology(ctx)
+        host = opts[:bind] |> :inet.ntoa() |> to_string()
+        {:ok, %{httpd: httpd, port: port, feed: feed, token: opts[:token], host: host}}
+
+      {:error, reason} ->
+        Feed.stop(feed)
+        {:stop, reason}
+    end
+  end
+
+  @impl true
+  def handle_call(:url, _from, s), do: {:reply, "http://#{s.host}:#{s.port}/", s}
+  def handle_call(:port, _from, s), do: {:reply, s.port, s}
+  def handle_call(:token, _from, s), do: {:reply, s.token, s}
+
+  @impl true
+  def handle_info({:EXIT, _pid, reason}, s), do: {:stop, reason, s}
+  def handle_info(_other, s), do: {:noreply, s}
+
+  @impl true
+  def terminate(_reason, s) do
+    Httpd.stop(s.httpd)
+    Feed.stop(s.feed)
+    :ok
+  end
+end

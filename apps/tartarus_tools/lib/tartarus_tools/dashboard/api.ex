@@ -1,0 +1,752 @@
+defmodule TartarusTools.Dashboard.Api do
+  @moduledoc false
+  # The JSON HTTP API (documented in docs/dashboard.md): a request map in
+  # (%{method, path, query, headers, body}), {status, content_type, body} or :stream out.
+  # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
+  # hosts, agents, modules and panels are looked up among those that exist.
+
+  alias TartarusTools.Dashboard.{Feed, Page}
+  alias TartarusTools.JSON
+
+  @cache_ms 1_000
+  @id ~r/\A[0-9a-f]{16}\z/
+
+  def handle(req, ctx) do
+    segs = String.split(req.path, "/", trim: true)
+    route(req.method, segs, req, ctx)
+  end
+
+  # -- routes ---------------------------------------------------------------------------
+
+  defp route("GET", [], _req, _ctx), do: {200, "text/html; charset=utf-8", Page.html()}
+  defp route("GET", ["favicon.ico"], _req, _ctx), do: {204, "image/x-icon", ""}
+  defp route("GET", ["api"], _req, _ctx), do: json(200, %{endpoints: endpoints()})
+  defp route("GET", ["api", "stream"], _req, _ctx), do: :stream
+  defp route("GET", ["api", "info"], _req, ctx), do: json(200, info(ctx))
+  defp route("GET", ["api", "hosts"], req, ctx), do: with_query(req, &hosts(&1, ctx))
+  defp route("GET", ["api", "hosts", id], _req, ctx), do: host_detail(id, ctx)
+  defp route("GET", ["api", "links"], req, ctx), do: with_query(req, &links(&1, ctx))
+  defp route("GET", ["api", "summary"], _req, ctx), do: json(200, summary(ctx))
+  defp route("GET", ["api", "agents"], req, ctx), do: with_query(req, &agents(&1, ctx))
+  defp route("GET", ["api", "agents", id], _req, ctx), do: agent_detail(id, ctx)
+  defp route("GET", ["api", "events"], req, ctx), do: with_query(req, &events(&1, ctx))
+  defp route("GET", ["api", "catalog"], _req, ctx), do: json(200, %{catalog: catalog(ctx)})
+  defp route("GET", ["api", "panels"], _req, ctx), do: json(200, %{panels: panels(ctx)})
+
+  defp route("POST", ["api" | rest] = segs, req, ctx) do
+    if known_post?(segs) do
+      with :ok <- authorize(req, ctx),
+           :ok <- size(req, ctx),
+           {:ok, params} <- params(req) do
+        action(rest, params, ctx)
+      else
+        {:error, status, code, message} -> error(status, code, message)
+      end
+    else
+      other_method("POST", segs, req)
+    end
+  end
+
+  defp route(method, segs, req, _ctx), do: other_method(method, segs, req)
+
+  defp other_method(method, segs, req) do
+    if Enum.any?(["GET", "POST"], &(&1 != method and match?({:ok, _}, routable(&1, segs)))),
+      do: error(405, "method_not_allowed", "#{method} is not allowed on #{req.path}"),
+      else: not_found(req)
+  end
+
+  defp not_found(req), do: error(404, "not_found", "no such endpoint: #{req.method} #{req.path}")
+
+  defp routable("GET", ["api", x]) when x in ~w(info hosts links summary agents events catalog panels stream),
+    do: {:ok, x}
+
+  defp routable("GET", ["api", x, _]) when x in ~w(hosts agents), do: {:ok, x}
+  defp routable("GET", []), do: {:ok, :page}
+  defp routable("POST", segs), do: if(known_post?(segs), do: {:ok, :post}, else: :error)
+  defp routable(_, _), do: :error
+
+  defp known_post?(["api", "agents"]), do: true
+  defp known_post?(["api", "agents", _, a]) when a in ~w(move clone kill post), do: true
+  defp known_post?(["api", "links", a]) when a in ~w(break heal), do: true
+  defp known_post?(["api", "hosts", _, a]) when a in ~w(isolate rejoin), do: true
+  defp known_post?(["api", "panels", _, _]), do: true
+  defp known_post?(_), do: false
+
+  defp endpoints do
+    [
+      "GET /api/info",
+      "GET /api/hosts?offset=0&limit=1000&sort=residents",
+      "GET /api/hosts/ID",
+      "GET /api/links?limit=5000",
+      "GET /api/summary",
+      "GET /api/agents?host=ID&limit=5000",
+      "GET /api/agents/ID",
+      "GET /api/events?type=arrival&host=ID&agent=ID&since=SEQ&limit=200",
+      "GET /api/stream (text/event-stream)",
+      "GET /api/catalog",
+      "GET /api/panels",
+      "POST /api/agents {host, module, args?, static?}",
+      "POST /api/agents/ID/move {to}",
+      "POST /api/agents/ID/clone {to}",
+      "POST /api/agents/ID/kill",
+      "POST /api/agents/ID/post {message}",
+      "POST /api/links/break {a, b}",
+      "POST /api/links/heal {a, b}",
+      "POST /api/hosts/ID/isolate",
+      "POST /api/hosts/ID/rejoin",
+      "POST /api/panels/NAME/ACTION {params}"
+    ]
+  end
+
+  # -- reads ----------------------------------------------------------------------------
+
+  defp info(ctx) do
+    %{
+      node: to_string(node()),
+      emulation: ctx.emulation != nil,
+      hosts: length(topology(ctx).hosts),
+      catalog: catalog(ctx),
+      panels: Enum.map(ctx.panels, fn {m, a} -> m.name(a) end),
+      token_required_for: "POST",
+      max_body: ctx.max_body
+    }
+  end
+
+  defp hosts(q, ctx) do
+    with {:ok, offset} <- int(q, "offset", 0, 0, 10_000_000),
+         {:ok, limit} <- int(q, "limit", 1_000, 1, 100_000),
+         {:ok, sort} <- choice(q, "sort", ~w(topology residents arrivals refused bytes)) do
+      all = host_views(ctx)
+
+      sorted =
+        case sort do
+          "topology" -> all
+          key -> Enum.sort_by(all, &(-Map.get(&1, String.to_existing_atom(key), 0)))
+        end
+
+      json(200, %{
+        total: length(all),
+        offset: offset,
+        hosts: sorted |> Enum.drop(offset) |> Enum.take(limit)
+      })
+    end
+  end
+
+  defp links(q, ctx) do
+    with {:ok, limit} <- int(q, "limit", 5_000, 1, 1_000_000) do
+      all = topology(ctx).links
+      json(200, %{total: length(all), links: Enum.take(all, limit)})
+    end
+  end
+
+  defp host_detail(id, ctx) do
+    with {:ok, h} <- find_host(id, ctx) do
+      view = Enum.find(host_views(ctx), &(&1.id == id)) || host_view(h)
+
+      agents =
+        case Tartarus.agents(h.host) do
+          list when is_list(list) -> Enum.map(list, &agent_view(&1, id))
+          _ -> []
+        end
+
+      hop =
+        case Tartarus.hop_stats(h.host) do
+          m when is_map(m) -> m
+          _ -> %{}
+        end
+
+      json(200, Map.merge(view, %{agents: agents, hop: hop}))
+    end
+  end
+
+  defp summary(ctx) do
+    views = host_views(ctx)
+    topo = topology(ctx)
+    stats = Feed.stats(ctx.feed)
+
+    by_node =
+      views
+      |> Enum.group_by(& &1.node)
+      |> Enum.map(fn {node, vs} -> Map.put(sum(vs), :node, node) end)
+      |> Enum.sort_by(& &1.node)
+
+    n = length(views)
+    per = max(1, div(n + 99, 100))
+
+    buckets =
+      views
+      |> Enum.chunk_every(per)
+      |> Enum.map(fn vs ->
+        Map.merge(sum(vs), %{first: hd(vs).id, last: List.last(vs).id})
+      end)
+
+    %{
+      hosts: n,
+      hosts_down: Enum.count(views, &(!&1.up)),
+      links: length(topo.links),
+      links_down: Enum.count(topo.links, &(!&1.up)),
+      totals: Map.take(Tartarus.Events.totals(), [:created, :arrivals, :departures, :refused, :bytes, :messages, :move_failed, :kills, :crashes]),
+      hop: stats.hop,
+      feed: Map.take(stats, [:seq, :dropped, :clients]),
+      counts: stats.counts,
+      by_node: by_node,
+      buckets: buckets,
+      top: views |> Enum.sort_by(&(-&1.residents)) |> Enum.take(20)
+    }
+  end
+
+  defp sum(vs) do
+    Enum.reduce(
+      vs,
+      %{hosts: 0, down: 0, residents: 0, arrivals: 0, refused: 0, bytes: 0},
+      fn v, acc ->
+        %{
+          hosts: acc.hosts + 1,
+          down: acc.down + if(v.up, do: 0, else: 1),
+          residents: acc.residents + v.residents,
+          arrivals: acc.arrivals + v.arrivals,
+          refused: acc.refused + v.refused,
+          bytes: acc.bytes + v.bytes
+        }
+      end
+    )
+  end
+
+  defp agents(q, ctx) do
+    with {:ok, limit} <- int(q, "limit", 5_000, 1, 1_000_000),
+         {:ok, hosts} <- host_filter(q, ctx) do
+      all =
+        case hosts do
+          :all -> cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end)
+          list -> collect_agents(list)
+        end
+
+      json(200, %{total: length(all), agents: Enum.take(all, limit)})
+    end
+  end
+
+  defp host_filter(q, ctx) do
+    case q["host"] do
+      nil -> {:ok, :all}
+      id -> with {:ok, h} <- find_host(id, ctx), do: {:ok, [h]}
+    end
+  end
+
+  defp collect_agents(hosts) do
+    Enum.flat_map(hosts, fn h ->
+      case h.up && Tartarus.agents(h.host) do
+        list when is_list(list) -> Enum.map(list, &agent_view(&1, h.id))
+        _ -> []
+      end
+    end)
+  end
+
+  defp agent_view(a, host_id) do
+    %{id: a.id, name: Feed.term(a.name), module: inspect(a.module), host: host_id}
+  end
+
+  defp agent_detail(id, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx) do
+      case Tartarus.agent_info(ref) do
+        {:ok, info} ->
+          names = names(ctx)
+          view = Map.new(info, fn {k, v} -> {k, info_value(k, v, names)} end)
+          json(200, Map.put(view, :id, id))
+
+        {:error, reason} ->
+          error(404, "unknown_agent", "agent #{id}: #{describe(reason)}")
+      end
+    end
+  end
+
+  defp info_value(k, v, names) when k in [:host, :home, :source],
+    do: Map.get(names, v) || Feed.host_id(v)
+
+  defp info_value(:module, v, _) when is_atom(v), do: inspect(v)
+  defp info_value(_k, v, _), do: Feed.term(v)
+
+  defp names(ctx) do
+    _ = topology(ctx)
+
+    case :ets.lookup(ctx.cache, :names) do
+      [{:names, names}] -> names
+      _ -> %{}
+    end
+  end
+
+  defp events(q, ctx) do
+    with {:ok, since} <- int(q, "since", 0, 0, 1_000_000_000_000),
+         {:ok, limit} <- int(q, "limit", 200, 1, 1_000) do
+      type =
+        case q["type"] do
+          nil -> nil
+          "" -> nil
+          t -> Enum.find(event_types(), &(Atom.to_string(&1) == t)) || :__none__
+        end
+
+      f = %{since: since, limit: limit, type: type, host: blank(q["host"]), agent: blank(q["agent"])}
+      json(200, Feed.events(ctx.feed, f))
+    end
+  end
+
+  defp blank(""), do: nil
+  defp blank(x), do: x
+
+  defp event_types,
+    do:
+      ~w(created arrival departure move_failed clone kill stopped crash removed message refused dropped broadcast broadcast_received signal signal_relay)a
+
+  defp catalog(ctx) do
+    Enum.map(ctx.catalog, fn m ->
+      %{module: inspect(m), doc: first_line(m)}
+    end)
+  end
+
+  defp first_line(m) do
+    case Code.fetch_docs(m) do
+      {:docs_v1, _, _, _, %{"en" => doc}, _, _} -> doc |> String.split("\n") |> hd()
+      _ -> ""
+    end
+  end
+
+  defp panels(ctx) do
+    Enum.map(ctx.panels, fn {m, a} ->
+      v = m.render(a)
+
+      %{
+        name: m.name(a),
+        title: v.title,
+        text: Map.get(v, :text, ""),
+        columns: v.columns,
+        rows: Enum.map(v.rows, fn row -> Enum.map(row, &Feed.term/1) end),
+        actions: Map.get(v, :actions, [])
+      }
+    end)
+  end
+
+  # -- actions --------------------------------------------------------------------------
+
+  defp action(["agents"], p, ctx) do
+    with {:ok, h} <- host_param(p, "host", ctx),
+         {:ok, m} <- module_param(p, ctx) do
+      create =
+        if p["static"] == true,
+          do: &Tartarus.create_static_agent/3,
+          else: &Tartarus.create_mobile_agent/3
+
+      case create.(h.host, m, Map.get(p, "args")) do
+        {:ok, id} -> json(201, %{ok: true, id: id, host: h.id})
+        {:error, reason} -> failed("create", reason)
+      end
+    end
+  end
+
+  defp action(["agents", id, "move"], p, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx), {:ok, h} <- host_param(p, "to", ctx) do
+      case Tartarus.move(ref, h.host) do
+        :ok -> json(200, %{ok: true, id: id, host: h.id})
+        {:error, reason} -> failed("move", reason)
+      end
+    end
+  end
+
+  defp action(["agents", id, "clone"], p, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx),
+         {:ok, dest} <- clone_dest(p, ctx) do
+      case Tartarus.clone(ref, dest) do
+        {:ok, clone} -> json(200, %{ok: true, id: id, clone: clone})
+        {:error, reason} -> failed("clone", reason)
+      end
+    end
+  end
+
+  defp action(["agents", id, "kill"], _p, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx) do
+      case Tartarus.kill(ref) do
+        :ok -> json(200, %{ok: true, id: id})
+        {:error, reason} -> failed("kill", reason)
+      end
+    end
+  end
+
+  defp action(["agents", id, "post"], p, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx),
+         {:ok, msg} <- required(p, "message") do
+      case Tartarus.post(ref, msg) do
+        :ok -> json(200, %{ok: true, id: id})
+        {:error, reason} -> failed("post", reason)
+      end
+    end
+  end
+
+  defp action(["links", act], p, ctx) do
+    with {:ok, emu} <- emulation(ctx),
+         {:ok, a} <- host_param(p, "a", ctx),
+         {:ok, b} <- host_param(p, "b", ctx) do
+      emu_act(emu, String.to_existing_atom(act <> "_link"), %{a: a.id, b: b.id}, ctx)
+    end
+  end
+
+  defp action(["hosts", id, act], _p, ctx) do
+    with {:ok, emu} <- emulation(ctx), {:ok, h} <- find_host(id, ctx) do
+      emu_act(emu, String.to_existing_atom(act), %{host: h.id}, ctx)
+    end
+  end
+
+  defp action(["panels", name, act], p, ctx) do
+    case Enum.find(ctx.panels, fn {m, a} -> m.name(a) == name end) do
+      nil ->
+        error(404, "unknown_panel", "there is no panel named #{inspect(name)}")
+
+      {m, a} ->
+        case m.act(a, act, p) do
+          {:ok, result} -> json(200, %{ok: true, result: Feed.term(result)})
+          {:error, reason} -> failed(act, reason)
+        end
+    end
+  end
+
+  defp emu_act({m, a}, act, params, ctx) do
+    case m.act(a, act, params) do
+      :ok ->
+        :ets.delete(ctx.cache, :topology)
+        :ets.delete(ctx.cache, :views)
+        json(200, Map.put(params, :ok, true))
+
+      {:error, reason} ->
+        failed(Atom.to_string(act), reason)
+    end
+  end
+
+  defp emulation(%{emulation: nil}),
+    do: error(404, "not_emulated", "this node runs no emulation: link actions need one")
+
+  defp emulation(%{emulation: emu}), do: {:ok, emu}
+
+  # -- input ----------------------------------------------------------------------------
+
+  defp authorize(req, ctx) do
+    given =
+      case req.headers do
+        %{"authorization" => "Bearer " <> t} -> String.trim(t)
+        %{"x-tartarus-token" => t} -> String.trim(t)
+        _ -> nil
+      end
+
+    cond do
+      given in [nil, ""] ->
+        {:error, 401, "token_required",
+         "this action needs the dashboard's token (Authorization: Bearer TOKEN); without it the dashboard is read-only"}
+
+      byte_size(given) == byte_size(ctx.token) and :crypto.hash_equals(given, ctx.token) ->
+        :ok
+
+      true ->
+        {:error, 403, "bad_token", "the token is wrong: the action was refused"}
+    end
+  end
+
+  defp size(req, ctx) do
+    if byte_size(req.body) > ctx.max_body,
+      do:
+        {:error, 413, "body_too_large",
+         "the request body has #{byte_size(req.body)} bytes; at most #{ctx.max_body} are accepted"},
+      else: :ok
+  end
+
+  defp params(%{body: body}) do
+    case String.trim(body) do
+      "" ->
+        {:ok, %{}}
+
+      text ->
+        case JSON.decode(text) do
+          {:ok, map} when is_map(map) ->
+            {:ok, map}
+
+          {:ok, _} ->
+            {:error, 400, "bad_json", "the body must be a JSON object"}
+
+          {:error, {:invalid_json, pos}} ->
+            {:error, 400, "bad_json", "the body is not valid JSON (at byte #{pos})"}
+        end
+    end
+  end
+
+  defp required(p, key) do
+    case Map.fetch(p, key) do
+      {:ok, v} -> {:ok, v}
+      :error -> reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field"})
+    end
+  end
+
+  defp host_param(p, key, ctx) do
+    case p[key] do
+      id when is_binary(id) ->
+        find_host(id, ctx)
+
+      nil ->
+        reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field (a host id)"})
+
+      other ->
+        reply_error(
+          {:error, 400, "bad_param", "#{inspect(key)} must be a host id (a string), got: #{JSON.encode!(other)}"}
+        )
+    end
+  end
+
+  defp clone_dest(%{"to" => "here"}, _ctx), do: {:ok, :here}
+  defp clone_dest(%{"to" => nil}, _ctx), do: {:ok, :here}
+  defp clone_dest(p, ctx), do: with({:ok, h} <- host_param(p, "to", ctx), do: {:ok, h.host})
+
+  defp module_param(p, ctx) do
+    case p["module"] do
+      name when is_binary(name) ->
+        case Enum.find(ctx.catalog, &(inspect(&1) == name or inspect(&1) == "Elixir." <> name)) do
+          nil ->
+            reply_error(
+              {:error, 404, "unknown_module",
+               "#{inspect(name)} is not in this node's catalog: #{Enum.map_join(ctx.catalog, ", ", &inspect/1)}"}
+            )
+
+          m ->
+            {:ok, m}
+        end
+
+      _ ->
+        reply_error({:error, 400, "missing_param", "the body needs a \"module\" field (from GET /api/catalog)"})
+    end
+  end
+
+  defp find_host(id, ctx) do
+    case Map.fetch(index(ctx), id) do
+      {:ok, h} -> {:ok, h}
+      :error -> error(404, "unknown_host", "there is no host #{inspect(id)}")
+    end
+  end
+
+  defp agent_ref(id, ctx) do
+    cond do
+      not Regex.match?(@id, id) ->
+        error(400, "bad_agent_id", "#{inspect(id)} is not an agent id (16 hexadecimal digits)")
+
+      (place = Feed.place(ctx.feed, id)) && Map.has_key?(index(ctx), place) ->
+        {:ok, {id, Map.fetch!(index(ctx), place).host}}
+
+      a = Enum.find(cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end), &(&1.id == id)) ->
+        {:ok, {id, Map.fetch!(index(ctx), a.host).host}}
+
+      true ->
+        error(404, "unknown_agent", "there is no agent #{id} on the hosts shown here")
+    end
+  end
+
+  defp with_query(req, fun) do
+    case fun.(req.query) do
+      {:error, status, code, message} -> error(status, code, message)
+      other -> other
+    end
+  end
+
+  defp int(q, key, default, min, max) do
+    case q[key] do
+      nil ->
+        {:ok, default}
+
+      s ->
+        case Integer.parse(s) do
+          {n, ""} when n >= min and n <= max ->
+            {:ok, n}
+
+          _ ->
+            reply_error({:error, 400, "bad_param", "#{key} must be an integer in #{min}..#{max}, got: #{inspect(s)}"})
+        end
+    end
+  end
+
+  defp choice(q, key, values) do
+    case q[key] do
+      nil -> {:ok, hd(values)}
+      v -> if v in values, do: {:ok, v}, else: reply_error({:error, 400, "bad_param", "#{key} must be one of #{Enum.join(values, ", ")}, got: #{inspect(v)}"})
+    end
+  end
+
+  # Inside `with` chains an error must stop the chain and be the answer itself.
+  defp reply_error({:error, status, code, message}), do: error(status, code, message)
+
+  # -- the topology and host views, cached for a second -----------------------------------
+
+  @doc false
+  # The hosts and links shown (cached for a second). The feed learns which id stands for
+  # which host address, so that events name hosts as the page does.
+  def topology(ctx) do
+    cached(ctx, :topology, fn ->
+      topo = topology_now(ctx)
+      names = Map.new(topo.hosts, &{&1.host, &1.id})
+
+      case :ets.lookup(ctx.cache, :names) do
+        [{:names, ^names}] ->
+          :ok
+
+        _ ->
+          :ets.insert(ctx.cache, {:names, names})
+          Feed.names(ctx.feed, names)
+      end
+
+      topo
+    end)
+  end
+
+  defp topology_now(ctx) do
+    case ctx.emulation do
+        {m, a} ->
+          hosts = m.hosts(a)
+          Feed.watch_nodes(ctx.feed, Enum.map(hosts, &elem(&1.host, 1)))
+          %{hosts: hosts, links: m.links(a)}
+
+        nil ->
+          hosts =
+            Enum.map(Tartarus.hosts(), fn {name, _} = h -> %{id: to_string(name), host: h, up: true} end)
+
+          ids = MapSet.new(hosts, & &1.id)
+
+          links =
+            for h <- hosts,
+                n <- neighbours(h.host),
+                b = Feed.host_id(n),
+                h.id < b and MapSet.member?(ids, b),
+                do: %{a: h.id, b: b, up: true}
+
+          %{hosts: hosts, links: links}
+    end
+  end
+
+  defp neighbours(h) do
+    case Tartarus.neighbours(h) do
+      list when is_list(list) -> list
+      _ -> []
+    end
+  end
+
+  defp index(ctx), do: cached(ctx, :index, fn -> Map.new(topology(ctx).hosts, &{&1.id, &1}) end)
+
+  # Up to @status_limit hosts, each host's counters come from Tartarus.status/1 (counted
+  # since the host started). Beyond, status/1 is too dear (it lists the host's plugins
+  # with a select over the whole host registry: about 1 ms a host at 2,000 hosts), so the
+  # counters are the feed's, counted from the events since the dashboard started, and the
+  # residents come from Tartarus.agents/1; `counted` says which.
+  @status_limit 500
+
+  defp host_views(ctx) do
+    cached(ctx, :views, fn ->
+      hosts = topology(ctx).hosts
+
+      if length(hosts) <= @status_limit do
+        Enum.map(hosts, &host_view/1)
+      else
+        counts = Feed.host_counts(ctx.feed)
+        Enum.map(hosts, &light_view(&1, Map.get(counts, &1.id, %{})))
+      end
+    end)
+  end
+
+  defp light_view(h, counts) do
+    residents =
+      case h.up && Tartarus.agents(h.host) do
+        list when is_list(list) -> length(list)
+        _ -> 0
+      end
+
+    h
+    |> base_view("dashboard")
+    |> Map.merge(counts)
+    |> Map.put(:residents, residents)
+  end
+
+  defp base_view(h, counted) do
+    %{
+      id: h.id,
+      node: to_string(elem(h.host, 1)),
+      up: h.up,
+      pos: pos(Map.get(h, :pos)),
+      counted: counted,
+      residents: 0,
+      arrivals: 0,
+      departures: 0,
+      refused: 0,
+      bytes: 0,
+      messages: 0,
+      move_failed: 0,
+      hop_median_us: nil,
+      hop_p99_us: nil
+    }
+  end
+
+  defp host_view(h) do
+    base = base_view(h, "host")
+
+    case h.up && Tartarus.status(h.host) do
+      %{counts: c} = st ->
+        hops = Map.get(st, :hops) || %{}
+
+        %{
+          base
+          | residents: st.resident,
+            arrivals: c.arrivals,
+            departures: c.departures,
+            refused: c.refused,
+            bytes: c.bytes,
+            messages: c.messages,
+            move_failed: c.move_failed,
+            hop_median_us: Map.get(hops, :median_us),
+            hop_p99_us: Map.get(hops, :p99_us)
+        }
+
+      _ ->
+        base
+    end
+  end
+
+  defp pos({x, y}) when is_number(x) and is_number(y), do: [x, y]
+  defp pos(_), do: nil
+
+  # A value is kept for a second, or for five times what computing it took if that is
+  # longer (10,000 hosts' statuses are not read again for every request).
+  defp cached(ctx, key, fun) do
+    now = System.monotonic_time(:millisecond)
+
+    case :ets.lookup(ctx.cache, key) do
+      [{^key, until, value}] when now < until ->
+        value
+
+      _ ->
+        value = fun.()
+        took = System.monotonic_time(:millisecond) - now
+        :ets.insert(ctx.cache, {key, now + max(@cache_ms, 5 * took), value})
+        value
+    end
+  end
+
+  # -- answers --------------------------------------------------------------------------
+
+  defp json(status, data), do: {status, "application/json", JSON.encode!(data)}
+
+  defp error(status, code, message),
+    do: {status, "application/json", JSON.encode!(%{error: code, message: message})}
+
+  defp failed(what, reason), do: error(422, "action_failed", "#{what} failed: #{describe(reason)}")
+
+  @doc false
+  def describe(:not_found), do: "no such agent (it may have stopped)"
+  def describe({:no_link, h}), do: "there is no live link to #{Feed.host_id(h)}"
+  def describe({:unknown_host, h}), do: "unknown host #{Feed.host_id(h)}"
+  def describe({:refused, r}), do: "the destination refused it (#{describe(r)})"
+  def describe(:timeout), do: "no answer in time"
+
+  def describe({:no_such_link, a, b}),
+    do: "there is no link between #{Feed.host_id(a)} and #{Feed.host_id(b)}"
+
+  def describe(r) when is_binary(r), do: r
+  def describe(r) when is_atom(r), do: r |> Atom.to_string() |> String.replace("_", " ")
+  def describe(r), do: inspect(r, limit: 8, printable_limit: 100)
+end

@@ -1,0 +1,345 @@
+defmodule TartarusTools.Dashboard.Feed do
+  @moduledoc false
+  # The dashboard's one subscriber to Tartarus.Events. Per event: a few map updates (the
+  # agent's last known host, a bounded ring of recent events, a bounded ring of hop times,
+  # the next batch if it has room). Every batch_ms the batch goes to the connected streams
+  # as one server-sent event. Nothing here blocks an emitter: emitting is a send/2, and if
+  # the mailbox grows past @max_backlog the feed throws the backlog away and counts it.
+
+  use GenServer
+
+  @max_backlog 20_000
+  @hop_samples 2_048
+  @slow_client 20
+
+  def start_link(opts), do: GenServer.start_link(__MODULE__, opts)
+
+  def stop(feed) do
+    GenServer.stop(feed)
+  catch
+    :exit, _ -> :ok
+  end
+
+  # A stream (the calling HTTP handler process) joins: it gets {:sse, iodata} messages.
+  def join(feed), do: GenServer.call(feed, {:join, self()})
+
+  # Recent events, oldest first, filtered: %{type:, host:, agent:, since:, limit:}.
+  def events(feed, filter), do: GenServer.call(feed, {:events, filter})
+
+  # %{seq, dropped, clients, hop: %{count, p50_us, p90_us, p99_us, max_us}, counts: %{type => n}}
+  def stats(feed), do: GenServer.call(feed, :stats)
+
+  # The last host where the feed saw the agent (a host id), or nil.
+  def place(feed, id), do: GenServer.call(feed, {:place, id})
+
+  # Which id stands for which host address (%{host => id}); others are named by name.
+  def names(feed, names), do: GenServer.cast(feed, {:names, names})
+
+  # Per host id: arrivals, departures, refused, bytes, messages, move_failed since the feed
+  # started (for networks too large to ask every host for its status).
+  def host_counts(feed), do: GenServer.call(feed, :host_counts, 30_000)
+
+  # Subscribes remote nodes' events too (hosts of an emulation in peer mode).
+  def watch_nodes(feed, nodes), do: GenServer.cast(feed, {:watch_nodes, nodes})
+
+  @relay_ms 200
+  @relay_max 1_000
+
+  @doc false
+  # Runs on another node: forwards that node's events to the feed, at most @relay_max
+  # every @relay_ms in one message (the rest counted), until the feed goes.
+  def relay(feed) do
+    ref = Process.monitor(feed)
+    Tartarus.Events.subscribe()
+    Process.send_after(self(), :relay_flush, @relay_ms)
+    relay_loop(feed, ref, [], 0, 0)
+  end
+
+  defp relay_loop(feed, ref, acc, n, dropped) do
+    receive do
+      {:tartarus_event, e} when n < @relay_max ->
+        relay_loop(feed, ref, [e | acc], n + 1, dropped)
+
+      {:tartarus_event, _} ->
+        relay_loop(feed, ref, acc, n, dropped + 1)
+
+      :relay_flush ->
+        if n > 0 or dropped > 0, do: send(feed, {:tartarus_events, Enum.reverse(acc), dropped})
+        Process.send_after(self(), :relay_flush, @relay_ms)
+        relay_loop(feed, ref, [], 0, 0)
+
+      {:DOWN, ^ref, _, _, _} ->
+        :ok
+    end
+  end
+
+  @impl true
+  def init(opts) do
+    Tartarus.Events.subscribe()
+    Process.send_after(self(), :flush, opts[:batch_ms])
+
+    {:ok,
+     %{
+       batch_ms: opts[:batch_ms],
+       max_batch: opts[:max_batch],
+       recent_max: opts[:recent],
+       clients: %{},
+       batch: [],
+       batch_n: 0,
+       batch_dropped: 0,
+       seq: 0,
+       dropped: 0,
+       recent: :queue.new(),
+       recent_n: 0,
+       places: %{},
+       hops: :queue.new(),
+       hops_n: 0,
+       counts: %{},
+       watched: MapSet.new([node()]),
+       names: %{},
+       host_counts: %{}
+     }}
+  end
+
+  @impl true
+  def handle_call({:join, pid}, _from, s) do
+    ref = Process.monitor(pid)
+    {:reply, :ok, %{s | clients: Map.put(s.clients, pid, ref)}}
+  end
+
+  def handle_call({:events, f}, _from, s) do
+    list =
+      s.recent
+      |> :queue.to_list()
+      |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
+      |> Enum.filter(fn e ->
+        e.seq > f.since and (f.type == nil or e.type == f.type) and
+          (f.host == nil or e[:host] == f.host or e[:to] == f.host or e[:from] == f.host) and
+          (f.agent == nil or e[:agent] == f.agent or e[:clone] == f.agent)
+      end)
+
+    {:reply, %{seq: s.seq, dropped: s.dropped, events: Enum.take(list, -f.limit)}, s}
+  end
+
+  def handle_call(:stats, _from, s) do
+    sorted = s.hops |> :queue.to_list() |> Enum.sort()
+
+    hop =
+      case sorted do
+        [] ->
+          %{count: 0}
+
+        _ ->
+          %{
+            count: length(sorted),
+            p50_us: Tartarus.percentile(sorted, 0.5),
+            p90_us: Tartarus.percentile(sorted, 0.9),
+            p99_us: Tartarus.percentile(sorted, 0.99),
+            max_us: List.last(sorted)
+          }
+      end
+
+    {:reply,
+     %{
+       seq: s.seq,
+       dropped: s.dropped,
+       clients: map_size(s.clients),
+       hop: hop,
+       counts: s.counts
+     }, s}
+  end
+
+  def handle_call({:place, id}, _from, s), do: {:reply, Map.get(s.places, id), s}
+  def handle_call(:host_counts, _from, s), do: {:reply, s.host_counts, s}
+
+  @impl true
+  def handle_cast({:names, names}, s), do: {:noreply, %{s | names: names}}
+
+  def handle_cast({:watch_nodes, nodes}, s) do
+    new = nodes |> Enum.uniq() |> Enum.reject(&MapSet.member?(s.watched, &1))
+    Enum.each(new, &Node.spawn(&1, __MODULE__, :relay, [self()]))
+    {:noreply, %{s | watched: Enum.into(new, s.watched)}}
+  end
+
+  @impl true
+  def handle_info({:tartarus_event, e}, s) do
+    s = take(e, s)
+
+    if rem(s.seq, 1_000) == 0 do
+      {:message_queue_len, n} = Process.info(self(), :message_queue_len)
+      {:noreply, if(n > @max_backlog, do: shed(s), else: s)}
+    else
+      {:noreply, s}
+    end
+  end
+
+  def handle_info({:tartarus_events, events, dropped}, s) do
+    s = Enum.reduce(events, s, &take/2)
+    {:noreply, %{s | dropped: s.dropped + dropped, batch_dropped: s.batch_dropped + dropped}}
+  end
+
+  def handle_info(:flush, s) do
+    Process.send_after(self(), :flush, s.batch_ms)
+
+    if s.batch_n > 0 and map_size(s.clients) > 0 do
+      data =
+        TartarusTools.JSON.encode!(%{
+          seq: s.seq,
+          dropped: s.batch_dropped,
+          events: s.batch |> Enum.reverse() |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
+        })
+
+      msg = {:sse, ["event: batch\ndata: ", data, "\n\n"]}
+
+      Enum.each(s.clients, fn {pid, _} ->
+        case Process.info(pid, :message_queue_len) do
+          {:message_queue_len, n} when n < @slow_client -> send(pid, msg)
+          _ -> :ok
+        end
+      end)
+    end
+
+    {:noreply, %{s | batch: [], batch_n: 0, batch_dropped: 0}}
+  end
+
+  def handle_info({:DOWN, _ref, :process, pid, _}, s),
+    do: {:noreply, %{s | clients: Map.delete(s.clients, pid)}}
+
+  def handle_info(_other, s), do: {:noreply, s}
+
+  # Per event only counts, places and rings of raw events: the conversion to JSON-able
+  # views happens when a batch goes out or /api/events asks, for at most a batch or a ring.
+  defp take(e, s) do
+    seq = s.seq + 1
+    t = e[:type]
+    h = name(e[:host], s.names)
+    s = %{s | seq: seq, counts: Map.update(s.counts, t, 1, &(&1 + 1))}
+    s = track(t, e, h, s)
+    s = count(t, e, h, s)
+    s = if t == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
+    raw = {seq, e}
+
+    {recent, n} =
+      if s.recent_n >= s.recent_max,
+        do: {:queue.in(raw, :queue.drop(s.recent)), s.recent_n},
+        else: {:queue.in(raw, s.recent), s.recent_n + 1}
+
+    s = %{s | recent: recent, recent_n: n}
+
+    if s.batch_n < s.max_batch,
+      do: %{s | batch: [raw | s.batch], batch_n: s.batch_n + 1},
+      else: %{s | batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
+  end
+
+  defp track(t, %{agent: a}, h, s) when t in [:created, :arrival],
+    do: %{s | places: Map.put(s.places, a, h)}
+
+  defp track(:clone, %{clone: c, to: to}, _h, s) when is_binary(c),
+    do: %{s | places: Map.put(s.places, c, name(to, s.names))}
+
+  defp track(t, %{agent: a}, _h, s) when t in [:kill, :stopped, :removed],
+    do: %{s | places: Map.delete(s.places, a)}
+
+  defp track(_, _, _, s), do: s
+
+  @counted %{
+    arrival: :arrivals,
+    departure: :departures,
+    refused: :refused,
+    message: :messages,
+    move_failed: :move_failed
+  }
+
+  defp count(t, e, h, s) when is_map_key(@counted, t) and is_binary(h) do
+    key = Map.fetch!(@counted, t)
+    bytes = if t == :departure and is_integer(e[:bytes]), do: e.bytes, else: 0
+
+    c =
+      case s.host_counts do
+        %{^h => c} -> c
+        _ -> %{arrivals: 0, departures: 0, refused: 0, messages: 0, move_failed: 0, bytes: 0}
+      end
+
+    c = %{c | key => Map.fetch!(c, key) + 1, bytes: c.bytes + bytes}
+    %{s | host_counts: Map.put(s.host_counts, h, c)}
+  end
+
+  defp count(_t, _e, _h, s), do: s
+
+  defp hop(us, s) do
+    if s.hops_n >= @hop_samples,
+      do: %{s | hops: :queue.in(us, :queue.drop(s.hops))},
+      else: %{s | hops: :queue.in(us, s.hops), hops_n: s.hops_n + 1}
+  end
+
+  # Throws the backlog of events away (counted), so the mailbox stays bounded.
+  defp shed(s) do
+    n = drain(0)
+    %{s | dropped: s.dropped + n, batch_dropped: s.batch_dropped + n}
+  end
+
+  defp drain(n) do
+    receive do
+      {:tartarus_event, _} -> drain(n + 1)
+    after
+      0 -> n
+    end
+  end
+
+  @keys [
+    :agent,
+    :module,
+    :from,
+    :to,
+    :hop_us,
+    :hops,
+    :bytes,
+    :code_bytes,
+    :reason,
+    :clone,
+    :restarts,
+    :service,
+    :kind,
+    :name,
+    :messages
+  ]
+
+  # An event as JSON-able data: hosts become host ids (their names), terms become text.
+  @doc false
+  def view(e, seq, names \\ %{}) do
+    base = %{seq: seq, type: e[:type], host: name(e[:host], names), time: e[:time]}
+
+    Enum.reduce(@keys, base, fn k, acc ->
+      case Map.fetch(e, k) do
+        {:ok, v} -> Map.put(acc, k, value(k, v, names))
+        :error -> acc
+      end
+    end)
+  end
+
+  defp value(k, v, names) when k in [:from, :to], do: name(v, names)
+  defp value(:module, v, _) when is_atom(v), do: inspect(v)
+  defp value(_k, v, _), do: term(v)
+
+  defp name(h, names) do
+    case names do
+      %{^h => id} -> id
+      _ -> host_id(h)
+    end
+  end
+
+  @doc false
+  def host_id({name, node}) when is_atom(node), do: to_string(name)
+  def host_id(nil), do: nil
+  def host_id(name) when is_atom(name) or is_binary(name), do: to_string(name)
+  def host_id(other), do: inspect(other, limit: 6, printable_limit: 60)
+
+  @doc false
+  def term(v) when is_binary(v) do
+    if String.printable?(v) and byte_size(v) <= 200, do: v, else: inspect(v, limit: 6)
+  end
+
+  def term(v) when is_number(v) or is_boolean(v) or is_nil(v), do: v
+  def term(v) when is_atom(v), do: Atom.to_string(v)
+  def term(v), do: inspect(v, limit: 8, printable_limit: 80)
+end
