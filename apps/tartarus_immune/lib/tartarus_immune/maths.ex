@@ -12,7 +12,7 @@ defmodule TartarusImmune.Maths do
   | 6.7 | `threshold/2`, `candidates/3` (batch) |
   | 6.8 | `stimulation/3` |
   | 6.9 | `suppression/3` |
-  | 6.10 | `activation/3`, `interact/2` (the whole localized idiotypic network at once) |
+  | 6.10 | `activation/3`, `interact/2` and `interact_types/2` (the whole localized idiotypic network at once) |
   | 6.11, 6.12 | `cloning_space/2`, `clones/3` |
   | 6.13 | `after_cloning/3` |
   | 6.14 | `mutation_rate/2` |
@@ -23,10 +23,21 @@ defmodule TartarusImmune.Maths do
   ## Choices where the thesis is ambiguous
 
     * **Who interacts** (Eqs. 6.8-6.9): the candidates for one problem instance (affinity
-      ≥ ψ_th) with their scores on that instance; for every pair `i`, `j` where `i` has the
-      strictly lower cost, `i` receives `Sti_i^j` and `j` receives `Sup_j^i`. Equal costs
-      (e.g. two iPkts of one solution) neither stimulate nor suppress. All updates of one
-      round use the activations from before the round (a synchronous Farmer step).
+      ≥ ψ_th); for every pair `i`, `j` of different solutions where `i` has the strictly
+      better performance score ζ, `i` receives `Sti_i^j` and `j` receives `Sup_j^i`.
+      Equal scores, and two iPkts of one solution, neither stimulate nor suppress. All
+      updates of one round use the activations from before the round (a synchronous Farmer
+      step).
+    * **Pressure per solution** (`p.lin`, default `:types`): a solution interacts with each
+      other solution once per problem (`interact_types/2`, over the means of its iPkts), so
+      ten iPkts of a winner do not suppress a loser ten times; `:ipkts` makes every pair of
+      iPkts interact (`interact/2`), which turns an early lead into a monopoly within a few
+      steps.
+    * **The performance score ζ** an iPkt carries (§6.4.1: "an ID, activation value and a
+      performance score") is `running_score/4`: the running mean of its solution's relative
+      cost (cost / the best candidate's cost on that instance) over the last `score_window`
+      problems it took part in; every distinct candidate solution runs on the instance. A
+      clone inherits its parent's ζ.
     * **Caps**: an activation is capped at τ_max after Eq. 6.10 (τ_max is "the maximum value
       of activation an iPkt can have").
     * **NC** (Eq. 6.11) becomes a count by `p.nc_round` (`:floor` by default), never below 0;
@@ -193,9 +204,10 @@ defmodule TartarusImmune.Maths do
 
   @doc """
   One round of the localized idiotypic network (Eqs. 6.8-6.10) over `members`, maps with
-  `:fv`, `:tau` and `:cost` (lower is better): returns, in order, maps with the new `:tau`
-  (capped at τ_max), and the round's `:sti` and `:sup` totals. Pairs of equal cost do not
-  interact; all updates use the activations from before the round.
+  `:fv`, `:tau` and `:cost` (the performance score ζ, lower is better) and optionally
+  `:kind` (the solution): returns, in order, maps with the new `:tau` (capped at τ_max),
+  and the round's `:sti` and `:sup` totals. Pairs of equal cost, and pairs of the same
+  `:kind`, do not interact; all updates use the activations from before the round.
 
       iex> p = %{alpha: 0.4, delta: 0.2, gamma: 1, tau_max: 20}
       iex> ms = [%{fv: [0, 0, 0, 0], tau: 10, cost: 3}, %{fv: [0.3, 0, 0.4, 0], tau: 10, cost: 7}]
@@ -214,6 +226,7 @@ defmodule TartarusImmune.Maths do
 
           {o, _}, {sti, sup} ->
             cond do
+              kin?(m, o) -> {sti, sup}
               m.cost < o.cost -> {sti + stimulation(affinity(m.fv, o.fv), o.tau, p), sup}
               m.cost > o.cost -> {sti, sup + suppression(affinity(o.fv, m.fv), o.tau, p)}
               true -> {sti, sup}
@@ -222,6 +235,84 @@ defmodule TartarusImmune.Maths do
 
       %{tau: min(activation(m.tau, sti, sup), p.tau_max * 1.0), sti: sti, sup: sup}
     end
+  end
+
+  @doc """
+  One round of the localized idiotypic network between **solutions** rather than iPkts
+  (`p.lin == :types`, the default): the members (with `:kind`) are grouped by kind; each
+  group is represented by its mean feature vector, mean activation and mean score; for
+  every pair of kinds the better one's members each receive `Sti` (Eq. 6.8, computed from
+  the representatives) and the worse one's members each receive `Sup` (Eq. 6.9), once per
+  pair of kinds however many iPkts each has. So a solution's population does not multiply
+  the pressure it puts on the others (which `interact/2` does). Same output as
+  `interact/2`.
+
+      iex> p = %{alpha: 0.4, delta: 0.2, gamma: 1, tau_max: 20}
+      iex> ms = [%{fv: [0.0], tau: 10, cost: 1.0, kind: :a}, %{fv: [0.0], tau: 10, cost: 1.0, kind: :a}, %{fv: [0.0], tau: 10, cost: 2.0, kind: :b}]
+      iex> TartarusImmune.Maths.interact_types(ms, p) |> Enum.map(& &1.tau)
+      [15.0, 15.0, 7.0]
+  """
+  @spec interact_types([map()], p()) :: [%{tau: float(), sti: float(), sup: float()}]
+  def interact_types(members, p) do
+    reps =
+      members
+      |> Enum.group_by(& &1.kind)
+      |> Map.new(fn {k, ms} ->
+        n = length(ms)
+        fv = ms |> Enum.map(& &1.fv) |> Enum.zip_with(&(Enum.sum(&1) / n))
+
+        {k,
+         %{
+           fv: fv,
+           tau: Enum.sum(Enum.map(ms, & &1.tau)) / n,
+           cost: Enum.sum(Enum.map(ms, & &1.cost)) / n
+         }}
+      end)
+
+    deltas =
+      Map.new(reps, fn {k, r} ->
+        Enum.reduce(reps, {k, {0.0, 0.0}}, fn
+          {^k, _}, acc ->
+            acc
+
+          {_, o}, {k, {sti, sup}} ->
+            cond do
+              r.cost < o.cost -> {k, {sti + stimulation(affinity(r.fv, o.fv), o.tau, p), sup}}
+              r.cost > o.cost -> {k, {sti, sup + suppression(affinity(o.fv, r.fv), o.tau, p)}}
+              true -> {k, {sti, sup}}
+            end
+        end)
+      end)
+
+    for m <- members do
+      {sti, sup} = deltas[m.kind]
+      %{tau: min(activation(m.tau, sti, sup), p.tau_max * 1.0), sti: sti, sup: sup}
+    end
+  end
+
+  defp kin?(%{kind: k}, %{kind: k}), do: true
+  defp kin?(_, _), do: false
+
+  @doc """
+  The performance score ζ an iPkt carries after taking part in one more problem: the
+  running mean of its relative costs `r` (its solution's cost / the best candidate's cost,
+  so 1.0 is the best) over its last `window` problems (`zeta` nil: none yet). Returns
+  `{zeta, n}`.
+
+      iex> TartarusImmune.Maths.running_score(nil, 0, 1.5, 20)
+      {1.5, 1}
+      iex> TartarusImmune.Maths.running_score(1.5, 1, 1.0, 20)
+      {1.25, 2}
+      iex> TartarusImmune.Maths.running_score(2.0, 20, 1.0, 20)
+      {1.95, 20}
+  """
+  @spec running_score(number() | nil, non_neg_integer(), number(), pos_integer()) ::
+          {float(), non_neg_integer()}
+  def running_score(nil, _n, r, _window), do: {r * 1.0, 1}
+
+  def running_score(zeta, n, r, window) do
+    k = min(n + 1, window)
+    {zeta + (r - zeta) / k, k}
   end
 
   @doc """

@@ -21,6 +21,8 @@ defmodule TartarusImmune.Params do
   | `:clone_tau` | - | `:tau_min` | activation a clone starts with (`:tau_min`: the τ_min its parent paid for it, Eq. 6.13; or a number) |
   | `:nc_round` | - | `:floor` | how Eq. 6.11's NC becomes a count: `:floor`, `:round` or `:ceil` |
   | `:nc_cap` | - | `:survive` | `:survive`: a parent makes no more clones than leave it at τ_min or above; `:none`: Eq. 6.13 as printed |
+  | `:lin` | - | `:types` | who interacts in a LIN round: each pair of solutions once (`Maths.interact_types/2`) or each pair of iPkts (`Maths.interact/2`) |
+  | `:score_window` | - | 50 | problems in the running mean of an iPkt's performance score ζ |
   | `:clamp_fv` | - | true | mutated feature values are clamped to [0, 1] (features are normalized) |
 
   Table 6.1 lists `σ = 1` and `v = 5`, symbols that appear in no equation; Eq. 6.9 has a γ
@@ -51,6 +53,16 @@ defmodule TartarusImmune.Params do
       type: {:in, [:survive, :none]},
       default: :survive,
       doc: "cap NC so the parent keeps τ >= τ_min"
+    ],
+    score_window: [
+      type: :pos_integer,
+      default: 50,
+      doc: "problems in the running mean of the performance score ζ"
+    ],
+    lin: [
+      type: {:in, [:types, :ipkts]},
+      default: :types,
+      doc: "who interacts: solutions (once per pair) or every pair of iPkts"
     ],
     clamp_fv: [type: :boolean, default: true, doc: "clamp mutated features to [0, 1]"]
   ]

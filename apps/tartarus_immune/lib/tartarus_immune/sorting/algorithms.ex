@@ -39,9 +39,10 @@ end
 
 defmodule TartarusImmune.Sorting.Selection do
   @moduledoc """
-  Selection sort, instrumented (the array algorithm: for each position the minimum of the
-  rest, found with `len - 1` comparisons, is swapped in, 3 moves per swap when it is not
-  already there).
+  Selection sort, instrumented: the textbook array algorithm (Sedgewick & Wayne's
+  Algorithm 2.1, CLRS Exercise 2.2-2): for each position but the last, the minimum of the
+  rest, found with `len - 1` comparisons, is exchanged with the element there (3 moves per
+  exchange, made unconditionally as the textbook does).
 
       iex> TartarusImmune.Sorting.Selection.sort([3, 1, 2])
       {[1, 2, 3], %{comparisons: 3, moves: 6}}
@@ -62,7 +63,7 @@ defmodule TartarusImmune.Sorting.Selection do
     c = c + length(t)
 
     if k == 0 do
-      go(t, [h | acc], c, m)
+      go(t, [h | acc], c, m + 3)
     else
       # the array swap: the head takes the minimum's place in the rest
       go(List.replace_at(t, k - 1, h), [min | acc], c, m + 3)
