@@ -1,0 +1,39 @@
+defmodule TartarusImmune.SelectTest do
+  use ExUnit.Case, async: false
+  alias TartarusImmune.Select
+
+  @tag :tmp_dir
+  test "the sharing experiment reports both arms and writes its files", %{tmp_dir: dir} do
+    {:ok, r} =
+      Select.run(
+        experiment: :sharing,
+        set: :p1,
+        nodes: 4,
+        steps: 25,
+        hold: 5,
+        quiet: true,
+        out: dir
+      )
+
+    s = r.summary
+    assert s.experiment == "sharing"
+    assert Map.keys(s.arms) |> Enum.sort() == ["no_sharing", "sharing"]
+    assert Map.keys(s.convergence_steps) |> Enum.sort() == ["no_sharing", "sharing"]
+    assert s.arms["no_sharing"].migrations_mean == 0.0
+    assert s.arms["sharing"].migrations_mean > 0
+    assert %{"p1" => _} = s.winners
+    assert %{"p1" => acc} = s.test_accuracy
+    assert acc >= 0 and acc <= 1
+
+    for f <- ~w(runs.csv population_sharing_p1.svg population_no_sharing_p1.csv summary.json),
+        do: assert(File.exists?(Path.join(dir, f)), f)
+
+    json = File.read!(Path.join(dir, "summary.json"))
+    assert json =~ ~s("convergence_steps") and json =~ ~s("test_regret")
+  end
+
+  test "an unknown experiment is refused with the key's name" do
+    assert {:error, msg} = Select.run(experiment: :nope)
+    assert msg =~ ":experiment"
+  end
+end
