@@ -25,7 +25,10 @@ defmodule TartarusImmune.Experiment do
     5. the population per solution is recorded (the learning curve) and given to
        `TartarusImmune.Convergence`.
 
-  The run stops when it has converged (`stop: true`) or after `steps`. Then the **test
+  The run stops when it has converged (`stop: true`) or after `steps`. An on-the-fly
+  addition starts a new competition: the convergence tracker starts afresh (earlier
+  convergences are kept in the summary's `convergences`; `winner` and `convergence_step`
+  are those of the last competition). Then the **test
   phase**: for each test instance the network's choice is the solution with most live
   iPkts that recognize it (ties: larger summed activation, then solution order; if none
   recognizes it, the most populous solution); `test_accuracy` is the fraction where that is
@@ -121,6 +124,7 @@ defmodule TartarusImmune.Experiment do
         epoch: 0,
         serial: 0,
         conv: Convergence.new(share: o.share, hold: o.hold),
+        history: [],
         series: Series.new(),
         executed: %{},
         exec_regret: [],
@@ -212,8 +216,14 @@ defmodule TartarusImmune.Experiment do
 
     st =
       Enum.reduce(st.o.add, st, fn
-        {^k, sol}, st -> seed_ipkts(%{st | offered: st.offered ++ [sol]}, sol, 1)
-        _, st -> st
+        {^k, sol}, st ->
+          # a new solution opens a new competition: convergence is judged afresh
+          st = %{st | history: st.history ++ List.wrap(st.conv.converged)}
+          st = %{st | conv: Convergence.new(share: st.o.share, hold: st.o.hold)}
+          seed_ipkts(%{st | offered: st.offered ++ [sol]}, sol, 1)
+
+        _, st ->
+          st
       end)
 
     st = interact(st, k)
@@ -352,6 +362,10 @@ defmodule TartarusImmune.Experiment do
       winner: winner,
       converged: st.conv.converged != nil,
       convergence_step: conv_step,
+      convergences:
+        Enum.map(st.history ++ List.wrap(st.conv.converged), fn {k, w} ->
+          %{step: k, winner: w}
+        end),
       steps_run: st.last_step,
       known_best: t.known_best,
       test_accuracy: t.accuracy,

@@ -264,6 +264,7 @@ defmodule TartarusImmune.Select do
     common(runs)
     |> Map.merge(%{
       final_population: Enum.map(runs, & &1.summary.population),
+      convergences: Enum.map(runs, & &1.summary.convergences),
       arms: arms(runs)
     })
   end
