@@ -20,9 +20,11 @@ defmodule TartarusImmune.Experiment do
        new solution on every host;
     3. **Interaction**: every host solves its oldest pending problem (`TartarusImmune.Node`);
        the step waits for every clone born;
-    4. **Migration**: every iPkt is told `{:go, epoch}` and moves, stays or dies
+    4. **Churn** (`dynamic: p`, Fig. 6.6): each host breaks off (all its links down,
+       `TartarusEmu.Network.isolate/2`) or, if off, reconnects with probability `p`;
+    5. **Migration**: every iPkt is told `{:go, epoch}` and moves, stays or dies
        (`TartarusImmune.IPkt`); the step waits for every one;
-    5. the population per solution is recorded (the learning curve) and given to
+    6. the population per solution is recorded (the learning curve) and given to
        `TartarusImmune.Convergence`.
 
   The run stops when it has converged (`stop: true`) or after `steps`. An on-the-fly
@@ -70,6 +72,11 @@ defmodule TartarusImmune.Experiment do
     share: [type: :number, default: 0.9, doc: "convergence: the leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps the leader must hold"],
     stop: [type: :boolean, default: true, doc: "stop once converged"],
+    dynamic: [
+      type: :probability,
+      default: 0.0,
+      doc: "each step each host breaks off (or, if off, reconnects) with this probability"
+    ],
     params: [type: :keyword, default: [], doc: "Table 6.1 parameters (TartarusImmune.Params)"]
   ]
 
@@ -125,6 +132,8 @@ defmodule TartarusImmune.Experiment do
         serial: 0,
         conv: Convergence.new(share: o.share, hold: o.hold),
         history: [],
+        isolated: MapSet.new(),
+        toggles: 0,
         series: Series.new(),
         executed: %{},
         exec_regret: [],
@@ -227,6 +236,7 @@ defmodule TartarusImmune.Experiment do
       end)
 
     st = interact(st, k)
+    st = churn(st)
     st = migrate(st)
     pop = Map.new(st.pop, fn {s, n} -> {st.domain.solution_name(s), n} end)
 
@@ -309,6 +319,30 @@ defmodule TartarusImmune.Experiment do
     %{st | pop: pop, executed: executed, born: st.born + born, died: st.died + length(died)}
   end
 
+  # Fig. 6.6's dynamic network: between the interaction and the migration phase (no move
+  # in flight), each host breaks off or reconnects with probability `dynamic`.
+  defp churn(%{o: %{dynamic: p}} = st) when p == 0, do: st
+
+  defp churn(st) do
+    Enum.reduce(st.net.topology.nodes, st, fn n, st ->
+      {u, rng} = :rand.uniform_s(st.rng)
+      st = %{st | rng: rng}
+
+      cond do
+        u >= st.o.dynamic ->
+          st
+
+        MapSet.member?(st.isolated, n) ->
+          Network.rejoin(st.net, n)
+          %{st | isolated: MapSet.delete(st.isolated, n), toggles: st.toggles + 1}
+
+        true ->
+          Network.isolate(st.net, n)
+          %{st | isolated: MapSet.put(st.isolated, n), toggles: st.toggles + 1}
+      end
+    end)
+  end
+
   defp migrate(st) do
     alive = st.pop |> Map.values() |> Enum.sum()
     Network.broadcast(st.net, {:go, st.epoch})
@@ -378,7 +412,9 @@ defmodule TartarusImmune.Experiment do
       migrations: st.moves,
       clones: st.born,
       deaths: st.died,
-      expired: st.expired
+      expired: st.expired,
+      dynamic: st.o.dynamic,
+      link_toggles: st.toggles
     }
   end
 

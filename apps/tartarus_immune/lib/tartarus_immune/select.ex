@@ -10,6 +10,7 @@ defmodule TartarusImmune.Select do
   | `danger` | `set` with danger signals, without, and without sharing, `seeds` seeds each | Fig. 6.8 |
   | `otfp` | `set` starting with Shell and Selection; Quick, Insertion, Merge, Heap added at `add_at` | Fig. 6.4 |
   | `nodes50` | P2 and P3 on `nodes` hosts (default 50), one seed | Fig. 6.5 |
+  | `dynamic` | `set` (p4) on `nodes` (50) hosts that break off and reconnect with probability p per step, p in `ps` | Fig. 6.6 |
   | `influx` | `set` for η in `etas` | Fig. 6.7a |
   | `barrage` | `set` for β in `betas` | Fig. 6.7b |
   | `iot` | the temperature series on `nodes` hosts (default 50) | Fig. 6.10 |
@@ -27,7 +28,7 @@ defmodule TartarusImmune.Select do
   alias TartarusImmune.{Experiment, Sorting}
   alias TartarusTools.{Report, Series, SVG}
 
-  @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :influx, :barrage, :iot]
+  @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :dynamic, :influx, :barrage, :iot]
 
   @schema [
     experiment: [type: {:in, @experiments}, default: :table6_2, doc: "which experiment"],
@@ -47,6 +48,7 @@ defmodule TartarusImmune.Select do
     eta: [type: :probability, default: 0.5, doc: "influx rate"],
     beta: [type: :pos_integer, default: 5, doc: "barrage size"],
     period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
+    ps: [type: {:list, :number}, default: [0.0, 0.1, 0.3, 0.5, 0.7, 1.0], doc: "dynamic sweep"],
     etas: [type: {:list, :number}, default: [0.1, 0.3, 0.5, 0.7, 0.9], doc: "influx sweep"],
     betas: [type: {:list, :pos_integer}, default: [1, 2, 5, 10, 20], doc: "barrage sweep"],
     add_at: [
@@ -123,7 +125,7 @@ defmodule TartarusImmune.Select do
     end
   end
 
-  defp default_nodes(e) when e in [:nodes50, :iot], do: 50
+  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic], do: 50
   defp default_nodes(_), do: 10
 
   defp seeds(o), do: Enum.map(0..(o.seeds - 1), &(o.seed + &1))
@@ -162,6 +164,11 @@ defmodule TartarusImmune.Select do
 
   defp plan(:nodes50, o),
     do: for(seed <- seeds(o), set <- [:p2, :p3], do: {"nodes#{o[:nodes] || 50}", set, seed, []})
+
+  defp plan(:dynamic, o) do
+    set = o[:set] || :p4
+    for seed <- seeds(o), p <- o.ps, do: {"p_#{p}", set, seed, [dynamic: p * 1.0]}
+  end
 
   defp plan(:influx, o) do
     set = o[:set] || :p2

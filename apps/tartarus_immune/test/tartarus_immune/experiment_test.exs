@@ -44,6 +44,17 @@ defmodule TartarusImmune.ExperimentTest do
     assert r.summary.migrations == 0 and r.summary.clones > 0
   end
 
+  test "a dynamic network: hosts break off and reconnect, the run still learns" do
+    {:ok, r} =
+      Scenario.run(
+        Experiment,
+        [seed: 2, out: false, dynamic: 0.5] ++ Keyword.put(@opts, :steps, 15)
+      )
+
+    assert r.summary.link_toggles > 10
+    assert r.summary.population["IS"] > 0
+  end
+
   test "options are validated" do
     assert {:error, msg} = Scenario.run(Experiment, seed: 1, out: false, quiet: true, eta: 2)
     assert msg =~ ":eta"

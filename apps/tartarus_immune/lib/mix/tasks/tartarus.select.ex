@@ -6,7 +6,7 @@ defmodule Mix.Tasks.Tartarus.Select do
   sorting algorithms) are drawn by danger signals to the hosts where sequences wait to be
   sorted; the best algorithm for each class of sequences takes over the network.
 
-      mix tartarus.select --experiment table6_2|sharing|danger|otfp|nodes50|influx|barrage|iot
+      mix tartarus.select --experiment table6_2|sharing|danger|otfp|nodes50|dynamic|influx|barrage|iot
                           [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
                           [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
                           [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]
@@ -22,6 +22,8 @@ defmodule Mix.Tasks.Tartarus.Select do
     * `otfp`: `--set` (p1) starting with Shell and Selection only; Quick, Insertion, Merge
       and Heap are added at steps 40, 80, 120, 160; runs all `--steps` (Fig. 6.4);
     * `nodes50`: P2 and P3 on `--nodes` hosts (default 50; also 100, 1000), Fig. 6.5;
+    * `dynamic`: `--set` (p4) on 50 hosts that break off (all links down) or reconnect
+      with probability p per step, p in 0, 0.1, 0.3, 0.5, 0.7, 1 (Fig. 6.6);
     * `influx`: η in 0.1, 0.3, 0.5, 0.7, 0.9 (Fig. 6.7a); `barrage`: β in 1, 2, 5, 10, 20
       (Fig. 6.7b);
     * `iot`: sequences of slowly varying temperature readings on 50 hosts (Fig. 6.10).
@@ -55,7 +57,7 @@ defmodule Mix.Tasks.Tartarus.Select do
   def run(argv) do
     schema =
       Select.schema()
-      |> Keyword.drop([:quiet, :etas, :betas, :add_at])
+      |> Keyword.drop([:quiet, :etas, :betas, :add_at, :ps])
       |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "table6_2"))
       |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
       |> Keyword.update!(:topology, &Keyword.merge(&1, type: :string, default: "grid"))
@@ -67,7 +69,17 @@ defmodule Mix.Tasks.Tartarus.Select do
     c = &TartarusTools.CLI.choice!(opts[&1], &2, &1, @task, hd(&2))
 
     exp =
-      c.(:experiment, [:table6_2, :sharing, :danger, :otfp, :nodes50, :influx, :barrage, :iot])
+      c.(:experiment, [
+        :table6_2,
+        :sharing,
+        :danger,
+        :otfp,
+        :nodes50,
+        :dynamic,
+        :influx,
+        :barrage,
+        :iot
+      ])
 
     mode = c.(:mode, [:virtual, :peer])
     topology = c.(:topology, [:grid, :ring, :line])
