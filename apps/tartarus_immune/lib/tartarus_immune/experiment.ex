@@ -266,7 +266,7 @@ defmodule TartarusImmune.Experiment do
     st =
       Enum.reduce(chosen, st, fn host, st ->
         {refs, st} = Enum.map_reduce(1..st.o.beta, st, fn _, st -> pick(st) end)
-        :ok = Tartarus.post({"immune", host}, {:problems, refs, st.epoch})
+        {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, refs, st.epoch})
         st
       end)
 

@@ -7,7 +7,7 @@ defmodule TartarusImmune.Node do
   Messages:
 
     * `{:enter, id, info}`, `{:leave, id}` - from iPkts arriving and leaving;
-    * `{:problems, refs, epoch}` - a barrage: the instances are materialized
+    * `{:problems, refs, epoch}` (a request, answered `:ok` once done) - a barrage: the instances are materialized
       (`domain.instance/3`), their feature vectors are published in the host store
       (`:immune_pending`, read by the iPkts) and, when danger signals are on, the node
       emits the danger signal `{:danger, epoch}` of strength Sg_max and span l_span (the
@@ -34,7 +34,7 @@ defmodule TartarusImmune.Node do
   def handle_message({:enter, id, info}, _from, s), do: {:stay, put_in(s.queue[id], info)}
   def handle_message({:leave, id}, _from, s), do: {:stay, %{s | queue: Map.delete(s.queue, id)}}
 
-  def handle_message({:problems, refs, epoch}, _from, s) do
+  def handle_message({:problems, refs, epoch}, from, s) do
     new =
       for {set, i} = ref <- refs do
         inst = s.domain.instance(set, i, s.seed)
@@ -52,6 +52,8 @@ defmodule TartarusImmune.Node do
         )
     end
 
+    # answered once the signal is emitted, so the driver's settle waits for its field
+    Tartarus.Agent.reply(from, :ok)
     {:stay, %{s | problems: problems}}
   end
 

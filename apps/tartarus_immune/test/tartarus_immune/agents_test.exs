@@ -49,7 +49,7 @@ defmodule TartarusImmune.AgentsTest do
 
   test "danger diffusion on a line: Sg_max at the distressed node, Sg_max/2 one hop away, nothing at l_span" do
     {_net, [h1, h2, h3, h4]} = line(4)
-    :ok = Tartarus.post({"immune", h1}, {:problems, [{:p2, 0}, {:p2, 1}], 1})
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}, {:p2, 1}], 1})
     Tartarus.Signal.settle()
 
     assert Enum.map([h1, h2, h3, h4], &Tartarus.signal(&1, {:danger, 1})) == [
@@ -65,7 +65,7 @@ defmodule TartarusImmune.AgentsTest do
 
   test "no danger signal when danger signals are off" do
     {_net, [h1, h2]} = line(2, false)
-    :ok = Tartarus.post({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
     Tartarus.Signal.settle()
     assert Tartarus.signal(h2, {:danger, 1}) == 0.0
   end
@@ -73,7 +73,7 @@ defmodule TartarusImmune.AgentsTest do
   test "an iPkt that recognizes the danger climbs it; one that does not wanders; one at the problem stays" do
     {net, [h1, h2, h3]} = line(3)
     fx = Sorting.features(Sorting.instance(:p2, 0, 1))
-    :ok = Tartarus.post({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
     Tartarus.Signal.settle()
     run = make_ref()
     a = ipkt(h2, fx, run, %{tag: 1})
@@ -107,7 +107,7 @@ defmodule TartarusImmune.AgentsTest do
     fx = Sorting.features(Sorting.instance(:p2, 0, 1))
     _ = ipkt(h1, fx, run, %{tag: 1, sol: Sorting.Quick})
     _ = ipkt(h1, fx, run, %{tag: 2, sol: Sorting.Selection, tau: 6.0})
-    :ok = Tartarus.post({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
     {:ok, r} = Tartarus.request({"immune", h1}, :interact)
     assert r.executed == Sorting.Quick
     assert r.died == [Sorting.Selection]
