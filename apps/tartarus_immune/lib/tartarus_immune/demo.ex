@@ -1,6 +1,6 @@
 defmodule TartarusImmune.Demo do
   @moduledoc false
-  # The immune selection's part of `mix tartarus.demo`: P2 and P3 on a 10-host grid.
+  # The immune selection's part of `mix tartarus.demo`: P3 and P1 on a 10-host grid.
   @behaviour TartarusTools.Demo
   import TartarusTools.Demo, only: [say: 1]
 
@@ -11,7 +11,7 @@ defmodule TartarusImmune.Demo do
   def run(opts) do
     seed = opts[:seed] || 1
 
-    for set <- [:p3, :p2] do
+    for set <- [:p3, :p1] do
       {:ok, r} =
         TartarusEmu.Scenario.run(TartarusImmune.Experiment,
           set: set,
