@@ -32,6 +32,15 @@ defmodule TartarusImmune.SelectTest do
     assert json =~ ~s("convergence_steps") and json =~ ~s("test_regret")
   end
 
+  # About 2 minutes: excluded by default (TARTARUS_SCALE=1 runs it).
+  @tag :slow
+  @tag timeout: 900_000
+  test "table6_2 over seeds 1-10 picks IS, QS, IS, QS in at least 9 seeds" do
+    {:ok, r} = Select.run(experiment: :table6_2, seeds: 10, quiet: true, out: false)
+    assert r.summary.seeds_matching_thesis >= 9
+    assert r.summary.winners == %{"p1" => "IS", "p2" => "QS", "p3" => "IS", "p4" => "QS"}
+  end
+
   test "an unknown experiment is refused with the key's name" do
     assert {:error, msg} = Select.run(experiment: :nope)
     assert msg =~ ":experiment"
