@@ -110,8 +110,15 @@ defmodule TartarusImmune.Experiment do
         Tartarus.create_static_agent(host, TartarusImmune.Node, node_state, name: "immune")
       end
 
+      # a generous hand-off timeout: thousands of iPkts move at once on a loaded machine, and
+      # a hand-off that timed out would change the run (the iPkt stays)
       {:ok, net} =
-        Network.start(topology(o.topology, o.nodes), mode: o.mode, group: o.group, setup: hook)
+        Network.start(topology(o.topology, o.nodes),
+          mode: o.mode,
+          group: o.group,
+          setup: hook,
+          host_opts: [migration_timeout: 60_000]
+        )
 
       hosts = Network.host_list(net)
 
@@ -133,6 +140,7 @@ defmodule TartarusImmune.Experiment do
         conv: Convergence.new(share: o.share, hold: o.hold),
         history: [],
         isolated: MapSet.new(),
+        failed_moves: 0,
         toggles: 0,
         series: Series.new(),
         executed: %{},
@@ -410,6 +418,7 @@ defmodule TartarusImmune.Experiment do
       live_ipkts: length(live),
       executed: names.(st.executed),
       migrations: st.moves,
+      failed_moves: st.failed_moves,
       clones: st.born,
       deaths: st.died,
       expired: st.expired,

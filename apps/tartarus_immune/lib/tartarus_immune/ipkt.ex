@@ -119,7 +119,7 @@ defmodule TartarusImmune.IPkt do
   @doc false
   def handle_move_failed(_dest, _reason, _ctx, s) do
     enter(s)
-    notify(s, :stayed)
+    notify(s, :move_failed)
     {:stay, s}
   end
 

@@ -293,7 +293,7 @@ defmodule TartarusImmune.Select do
     File.mkdir_p!(dir)
 
     header =
-      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations clones deaths run_ms)
+      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms)
 
     rows =
       for r <- runs do
