@@ -314,6 +314,7 @@ defmodule TartarusImmune.Select do
             s.test_regret,
             s.test_regret_rel,
             s.migrations,
+            s.failed_moves,
             s.clones,
             s.deaths,
             s.run_ms
