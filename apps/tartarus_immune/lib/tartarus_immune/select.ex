@@ -242,6 +242,7 @@ defmodule TartarusImmune.Select do
          test_accuracy: mean(Enum.map(rs, & &1.summary.test_accuracy)),
          test_regret: mean(Enum.map(rs, & &1.summary.test_regret)),
          migrations_mean: mean(Enum.map(rs, & &1.summary.migrations)),
+         failed_moves: Enum.map(rs, & &1.summary.failed_moves),
          wall_ms_mean: mean(Enum.map(rs, & &1.summary.run_ms))
        }}
     end)
