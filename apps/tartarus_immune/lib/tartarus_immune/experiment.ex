@@ -363,6 +363,9 @@ defmodule TartarusImmune.Experiment do
         {:stayed, _} ->
           st
 
+        {:move_failed, _} ->
+          %{st | failed_moves: st.failed_moves + 1}
+
         {:expired, sol} ->
           %{st | pop: Map.update!(st.pop, sol, &(&1 - 1)), expired: st.expired + 1}
       end
