@@ -309,7 +309,10 @@ defmodule TartarusImmune.Experiment do
       |> Enum.map(fn {:ok, r} -> r end)
 
     born = reports |> Enum.map(& &1.born) |> Enum.sum()
-    born_sols = for _ <- 1..born//1, do: receive_event(st.run, [:born])
+    # each ordered clone answers once: born, or its clone action failed (the parent says so)
+    events = for _ <- 1..born//1, do: receive_event(st.run, [:born, :move_failed])
+    born_sols = Enum.filter(events, &match?({:born, _}, &1))
+    born = length(born_sols)
 
     died = Enum.flat_map(reports, & &1.died)
 
