@@ -1,0 +1,140 @@
+defmodule Mix.Tasks.Tartarus.Select do
+  @shortdoc "Immune selection of the best solution per problem class (thesis ch. 6)"
+  @moduledoc """
+  Runs the immune-selection experiments of the thesis (§6.5) on emulated networks (see
+  `TartarusImmune.Select` and `TartarusImmune.Experiment`): iPkts (mobile agents carrying
+  sorting algorithms) are drawn by danger signals to the hosts where sequences wait to be
+  sorted; the best algorithm for each class of sequences takes over the network.
+
+      mix tartarus.select --experiment table6_2|sharing|danger|otfp|nodes50|dynamic|influx|barrage|iot
+                          [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
+                          [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
+                          [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]
+                          [--period 10] [--out DIR] [--json]
+
+  `--help` prints this text. Experiments:
+
+    * `table6_2`: P1-P4 on a 10-host grid, for `--seeds` seeds from `--seed`; the winner per
+      set against the thesis's IS, QS, IS, QS (Table 6.2) and the known best (the lowest
+      mean cost on the held-out instances);
+    * `sharing`: `--set` (p2) with and without sharing (Fig. 6.11);
+    * `danger`: `--set` (p2) with danger signals, without, and without sharing (Fig. 6.8);
+    * `otfp`: `--set` (p1) starting with Shell and Selection only; Quick, Insertion, Merge
+      and Heap are added at steps 40, 80, 120, 160; runs all `--steps` (Fig. 6.4);
+    * `nodes50`: P2 and P3 on `--nodes` hosts (default 50; also 100, 1000), Fig. 6.5;
+    * `dynamic`: `--set` (p4) on 50 hosts that break off (all links down) or reconnect
+      with probability p per step, p in 0, 0.1, 0.3, 0.5, 0.7, 1 (Fig. 6.6);
+    * `influx`: η in 0.1, 0.3, 0.5, 0.7, 0.9 (Fig. 6.7a); `barrage`: β in 1, 2, 5, 10, 20
+      (Fig. 6.7b);
+    * `iot`: sequences of slowly varying temperature readings on 50 hosts (Fig. 6.10).
+
+  A step is one round of Algorithm 4 at every host (each host solves at most one waiting
+  instance) followed by one move of every iPkt. A run stops when it has converged: one
+  solution holds at least `--share` of all live iPkts for `--hold` consecutive steps (its
+  first step is the convergence step), or after `--steps`.
+
+  Output (in `--out DIR`, default `results/select-<experiment>-<UTC timestamp>`):
+  `runs.csv`, `population_<arm>_<set>.svg|csv` (the learning curves of the first seed),
+  `steps.svg` (box plots of convergence steps, when an arm has several seeds),
+  `summary.json`, `summary.md`.
+
+  Summary keys: `experiment, winners` (set -> the winner of most seeds), `winners_by_seed,
+  known_best, convergence_steps` (set -> per seed; for arms: arm -> per seed),
+  `test_accuracy` (set -> mean fraction of held-out instances where the network's choice is
+  the oracle's), `test_regret` (set -> mean extra cost over the oracle, comparisons +
+  moves), `test_regret_rel, seeds, nodes, mode, wall_ms`; `table6_2` adds
+  `thesis_best, seeds_matching_thesis, seeds_matching_known_best`; the others add `arms`
+  (per arm: convergence steps, mean, sd, winners, accuracy, regret, migrations, run ms).
+  With `--json` the last line printed is the summary as one JSON object.
+  """
+  use TartarusTools.CLI
+
+  alias TartarusImmune.Select
+
+  @task "tartarus.select"
+
+  @impl true
+  def run(argv) do
+    schema =
+      Select.schema()
+      |> Keyword.drop([:quiet, :etas, :betas, :add_at, :ps])
+      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "table6_2"))
+      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:topology, &Keyword.merge(&1, type: :string, default: "grid"))
+      |> Keyword.update!(:set, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
+
+    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    c = &TartarusTools.CLI.choice!(opts[&1], &2, &1, @task, hd(&2))
+
+    exp =
+      c.(:experiment, [
+        :table6_2,
+        :sharing,
+        :danger,
+        :otfp,
+        :nodes50,
+        :dynamic,
+        :influx,
+        :barrage,
+        :iot
+      ])
+
+    mode = c.(:mode, [:virtual, :peer])
+    topology = c.(:topology, [:grid, :ring, :line])
+
+    set =
+      if opts[:set],
+        do: TartarusTools.CLI.choice!(opts[:set], [:p1, :p2, :p3, :p4, :temp], :set, @task, :p2)
+
+    json? = opts[:json]
+
+    sel_opts =
+      opts
+      |> Keyword.drop([:json, :set, :out])
+      |> Keyword.merge(experiment: exp, mode: mode, topology: topology, quiet: json?)
+      |> then(&if set, do: Keyword.put(&1, :set, set), else: &1)
+      |> then(&if opts[:out], do: Keyword.put(&1, :out, opts[:out]), else: &1)
+
+    case Select.validate(sel_opts) do
+      {:ok, _} -> :ok
+      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+    end
+
+    Mix.Task.run("app.start")
+    unless json?, do: Mix.shell().info("select: experiment #{exp}, seed #{opts[:seed]}...")
+
+    case Select.run(sel_opts) do
+      {:ok, %{summary: s, out: dir}} ->
+        TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
+
+      {:error, message} ->
+        Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp text(s, dir) do
+    arms =
+      case s do
+        %{arms: arms} ->
+          Enum.map_join(arms, "\n", fn {arm, a} ->
+            "  #{arm}: convergence steps #{inspect(a.convergence_steps, charlists: :as_lists)} (mean #{fmt(a.steps_mean)}, sd #{fmt(a.steps_sd)}), winners #{inspect(a.winners, charlists: :as_lists)}"
+          end)
+
+        _ ->
+          "  seeds matching the thesis (IS, QS, IS, QS): #{s.seeds_matching_thesis} of #{length(s.seeds)}"
+      end
+
+    """
+    winners #{inspect(s.winners, charlists: :as_lists)} (known best #{inspect(s.known_best, charlists: :as_lists)})
+    convergence steps #{inspect(s.convergence_steps, charlists: :as_lists)}
+    test accuracy #{inspect(s.test_accuracy, charlists: :as_lists)}
+    #{arms}
+    written to #{dir}\
+    """
+  end
+
+  defp fmt(nil), do: "-"
+  defp fmt(x), do: :erlang.float_to_binary(x * 1.0, decimals: 1)
+end

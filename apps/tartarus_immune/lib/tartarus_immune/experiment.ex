@@ -1,0 +1,499 @@
+defmodule TartarusImmune.Experiment do
+  @moduledoc """
+  One run of the protocol of thesis §6.5 as a `TartarusEmu.Scenario`, on a
+  `TartarusEmu.Network` (virtual hosts or real BEAM nodes).
+
+  ## Setup
+
+  The network's setup hook creates a `TartarusImmune.Node` agent (`"immune"`) on every
+  host. A **training pool** of `train` instances and a disjoint **test set** of `test`
+  instances are drawn from the data set (seeded). Every host gets `per_node` iPkts of each
+  initial solution, each with F_y the features of a random pool instance (§6.5.2) and
+  activation τ_init.
+
+  ## A step
+
+    1. **Barrage** (at step 1 and every `period` steps): `ceil(eta * nodes)` hosts chosen at
+       random (the influx rate η; 0.5: "a random half") each get `beta` instances of the
+       pool (the barrage size β); each emits its danger signal `{:danger, epoch}`;
+    2. **On-the-fly additions** due at this step (`add: [{step, solution}]`): one iPkt of the
+       new solution on every host;
+    3. **Interaction**: every host solves its oldest pending problem (`TartarusImmune.Node`);
+       the step waits for every clone born;
+    4. **Churn** (`dynamic: p`, Fig. 6.6): each host breaks off (all its links down,
+       `TartarusEmu.Network.isolate/2`) or, if off, reconnects with probability `p`;
+    5. **Migration**: every iPkt is told `{:go, epoch}` and moves, stays or dies
+       (`TartarusImmune.IPkt`); the step waits for every one;
+    6. the population per solution is recorded (the learning curve) and given to
+       `TartarusImmune.Convergence`.
+
+  The run stops when it has converged (`stop: true`) or after `steps`. An on-the-fly
+  addition starts a new competition: the convergence tracker starts afresh (earlier
+  convergences are kept in the summary's `convergences`; `winner` and `convergence_step`
+  are those of the last competition). Then the **test
+  phase**: for each test instance the network's choice is the solution with most live
+  iPkts that recognize it (ties: larger summed activation, then solution order; if none
+  recognizes it, the most populous solution); `test_accuracy` is the fraction where that is
+  the oracle's choice among the offered solutions, `test_regret` the mean extra cost over
+  the oracle, `test_regret_rel` the mean of extra cost / oracle cost.
+
+  ## Options
+
+  See `schema/0` (and `mix tartarus.select --help`); the parameters of Table 6.1 go in
+  `params:` (`TartarusImmune.Params`).
+  """
+  @behaviour TartarusEmu.Scenario
+
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusImmune.{Cache, Convergence, Domain, IPkt, Maths, Params}
+  alias TartarusTools.Series
+
+  @schema [
+    domain: [type: :atom, default: TartarusImmune.Sorting, doc: "the problem domain"],
+    set: [type: :atom, default: :p1, doc: "the data set"],
+    nodes: [type: :pos_integer, default: 10, doc: "hosts"],
+    topology: [type: {:in, [:grid, :ring, :line]}, default: :grid, doc: "topology"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "virtual hosts or peers"],
+    group: [type: :pos_integer, default: 1, doc: "hosts per BEAM node in peer mode"],
+    solutions: [
+      type: {:list, :atom},
+      default: nil,
+      doc: "initial solutions (default: the domain's first four)"
+    ],
+    add: [type: {:list, :any}, default: [], doc: "on-the-fly additions `[{step, solution}]`"],
+    sharing: [type: :boolean, default: true, doc: "iPkts travel (false: every node alone)"],
+    danger: [type: :boolean, default: true, doc: "danger signals on"],
+    eta: [type: :probability, default: 0.5, doc: "influx rate: fraction of hosts per barrage"],
+    beta: [type: :pos_integer, default: 5, doc: "barrage size: instances per host per barrage"],
+    period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
+    train: [type: :pos_integer, default: 200, doc: "training pool size"],
+    test: [type: :pos_integer, default: 50, doc: "held-out test instances"],
+    per_node: [type: :pos_integer, default: 1, doc: "initial iPkts per solution per host"],
+    share: [type: :number, default: 0.9, doc: "convergence: the leader's least share"],
+    hold: [type: :pos_integer, default: 30, doc: "convergence: steps the leader must hold"],
+    stop: [type: :boolean, default: true, doc: "stop once converged"],
+    dynamic: [
+      type: :probability,
+      default: 0.0,
+      doc: "each step each host breaks off (or, if off, reconnects) with this probability"
+    ],
+    params: [type: :keyword, default: [], doc: "Table 6.1 parameters (TartarusImmune.Params)"]
+  ]
+
+  @doc "The option schema of a run (besides the runner's `seed`, `steps`, `out`, `quiet`)."
+  def schema, do: @schema
+
+  @impl true
+  def name, do: "immune"
+
+  @impl true
+  def title, do: "Immune selection"
+
+  @impl true
+  def setup(opts) do
+    {given, _} = Map.split(opts, Keyword.keys(@schema))
+
+    with {:ok, o} <-
+           Tartarus.Options.validate(Map.to_list(given), @schema, "TartarusImmune.Experiment"),
+         {:ok, p} <- Params.new(o[:params]) do
+      o = Map.new(o)
+      domain = o.domain
+      sols = o.solutions || Enum.take(domain.solutions(), 4)
+      rng = opts.rng
+      run = make_ref()
+      Cache.ensure()
+      {pool, test, rng} = split(domain, o.set, o.train, o.test, rng)
+
+      node_state = %{domain: domain, p: p, seed: opts.seed, danger: o.danger}
+
+      hook = fn _node, host ->
+        Tartarus.create_static_agent(host, TartarusImmune.Node, node_state, name: "immune")
+      end
+
+      # a generous hand-off timeout: thousands of iPkts move at once on a loaded machine, and
+      # a hand-off that timed out would change the run (the iPkt stays)
+      {:ok, net} =
+        Network.start(topology(o.topology, o.nodes),
+          mode: o.mode,
+          group: o.group,
+          setup: hook,
+          host_opts: [migration_timeout: 60_000]
+        )
+
+      hosts = Network.host_list(net)
+
+      st = %{
+        o: o,
+        p: p,
+        seed: opts.seed,
+        run: run,
+        net: net,
+        hosts: hosts,
+        domain: domain,
+        pool: pool,
+        test_refs: test,
+        rng: rng,
+        offered: sols,
+        pop: Map.new(sols, &{&1, 0}),
+        epoch: 0,
+        serial: 0,
+        conv: Convergence.new(share: o.share, hold: o.hold),
+        history: [],
+        isolated: MapSet.new(),
+        failed_moves: 0,
+        toggles: 0,
+        series: Series.new(),
+        executed: %{},
+        exec_regret: [],
+        moves: 0,
+        born: 0,
+        died: 0,
+        expired: 0,
+        first_step: nil,
+        last_step: 0
+      }
+
+      st = Enum.reduce(sols, st, fn sol, st -> seed_ipkts(st, sol, o.per_node) end)
+      {:ok, st}
+    end
+  end
+
+  defp topology(:grid, n) do
+    rows = Enum.find(trunc(:math.sqrt(n))..1//-1, &(rem(n, &1) == 0))
+    Topology.grid(rows, div(n, rows))
+  end
+
+  defp topology(:ring, n), do: Topology.ring(n)
+  defp topology(:line, n), do: Topology.line(n)
+
+  defp split(domain, set, train, test, rng) do
+    size = domain.sets()[set]
+    {picked, rng} = sample(size, min(train + test, size), rng)
+    {pool, rest} = Enum.split(picked, min(train, size - 1))
+    {Enum.map(pool, &{set, &1}) |> List.to_tuple(), Enum.map(rest, &{set, &1}), rng}
+  end
+
+  # k distinct indices of 0..n-1
+  defp sample(n, k, rng) do
+    Enum.reduce_while(Stream.cycle([nil]), {MapSet.new(), [], rng}, fn _, {seen, acc, rng} ->
+      if length(acc) == k do
+        {:halt, {Enum.reverse(acc), rng}}
+      else
+        {i, rng} = :rand.uniform_s(n, rng)
+        i = i - 1
+
+        if MapSet.member?(seen, i),
+          do: {:cont, {seen, acc, rng}},
+          else: {:cont, {MapSet.put(seen, i), [i | acc], rng}}
+      end
+    end)
+    |> case do
+      {acc, rng} -> {acc, rng}
+    end
+  end
+
+  defp pick(st) do
+    {i, rng} = :rand.uniform_s(tuple_size(st.pool), st.rng)
+    {elem(st.pool, i - 1), %{st | rng: rng}}
+  end
+
+  defp seed_ipkts(st, sol, per_node) do
+    Enum.reduce(st.hosts, st, fn host, st ->
+      Enum.reduce(1..per_node, st, fn _, st ->
+        {{set, i}, st} = pick(st)
+        fv = st.domain.features(st.domain.instance(set, i, st.seed))
+        serial = st.serial + 1
+
+        s = %{
+          sol: sol,
+          fv: fv,
+          tau: st.p.tau_init * 1.0,
+          zeta: nil,
+          n: 0,
+          hops: 0,
+          tag: serial,
+          clones: 0,
+          plan: nil,
+          p: st.p,
+          driver: self(),
+          run: st.run,
+          sharing: st.o.sharing,
+          danger: st.o.danger
+        }
+
+        {:ok, _} = Tartarus.create_mobile_agent(host, IPkt, s, seed: {st.seed, serial})
+        %{st | serial: serial, pop: Map.update(st.pop, sol, 1, &(&1 + 1))}
+      end)
+    end)
+  end
+
+  @impl true
+  def step(st, k) do
+    st = if k == 1 or rem(k - 1, st.o.period) == 0, do: barrage(st), else: st
+
+    st =
+      Enum.reduce(st.o.add, st, fn
+        {^k, sol}, st ->
+          # a new solution opens a new competition: convergence is judged afresh
+          st = %{st | history: st.history ++ List.wrap(st.conv.converged)}
+          st = %{st | conv: Convergence.new(share: st.o.share, hold: st.o.hold)}
+          seed_ipkts(%{st | offered: st.offered ++ [sol]}, sol, 1)
+
+        _, st ->
+          st
+      end)
+
+    st = interact(st, k)
+    st = churn(st)
+    st = migrate(st)
+    pop = Map.new(st.pop, fn {s, n} -> {st.domain.solution_name(s), n} end)
+
+    series =
+      Enum.reduce(pop, st.series, fn {name, n}, ser -> Series.record(ser, name, k, n) end)
+      |> Series.record("total", k, pop |> Map.values() |> Enum.sum())
+
+    %{st | series: series, conv: Convergence.observe(st.conv, k, pop), last_step: k}
+  end
+
+  @impl true
+  def done?(st, _k), do: st.o.stop and st.conv.converged != nil
+
+  defp barrage(st) do
+    n = length(st.hosts)
+    want = min(n, max(1, ceil(st.o.eta * n)))
+
+    {order, rng} =
+      Enum.map_reduce(st.hosts, st.rng, fn h, r ->
+        {u, r} = :rand.uniform_s(r)
+        {{u, h}, r}
+      end)
+
+    chosen = order |> Enum.sort() |> Enum.take(want) |> Enum.map(&elem(&1, 1))
+    st = %{st | rng: rng, epoch: st.epoch + 1}
+
+    st =
+      Enum.reduce(chosen, st, fn host, st ->
+        {refs, st} = Enum.map_reduce(1..st.o.beta, st, fn _, st -> pick(st) end)
+        {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, refs, st.epoch})
+        st
+      end)
+
+    settle(st)
+    st
+  end
+
+  defp settle(st) do
+    if st.o.mode == :peer do
+      nodes = st.net |> Network.hosts_by_node() |> Enum.map(&elem(&1, 0))
+
+      for _ <- 1..3 do
+        :erpc.multicall(nodes, Tartarus.Signal, :settle, [], 60_000)
+        Process.sleep(20)
+      end
+    end
+
+    Tartarus.Signal.settle()
+  end
+
+  defp interact(st, _k) do
+    reports =
+      st.hosts
+      |> Task.async_stream(
+        fn host ->
+          {:ok, r} = Tartarus.request({"immune", host}, :interact, 120_000)
+          r
+        end,
+        timeout: :infinity,
+        max_concurrency: System.schedulers_online() * 2
+      )
+      |> Enum.map(fn {:ok, r} -> r end)
+
+    born = reports |> Enum.map(& &1.born) |> Enum.sum()
+    # each ordered clone answers once: born, or its clone action failed (the parent says so)
+    events = for _ <- 1..born//1, do: receive_event(st.run, [:born, :move_failed])
+    born_sols = Enum.filter(events, &match?({:born, _}, &1))
+    born = length(born_sols)
+
+    died = Enum.flat_map(reports, & &1.died)
+
+    pop =
+      Enum.reduce(born_sols, st.pop, fn {_, sol}, pop -> Map.update(pop, sol, 1, &(&1 + 1)) end)
+
+    pop = Enum.reduce(died, pop, fn sol, pop -> Map.update!(pop, sol, &(&1 - 1)) end)
+
+    executed =
+      Enum.reduce(reports, st.executed, fn
+        %{executed: nil}, acc -> acc
+        %{executed: sol}, acc -> Map.update(acc, sol, 1, &(&1 + 1))
+      end)
+
+    %{st | pop: pop, executed: executed, born: st.born + born, died: st.died + length(died)}
+  end
+
+  # Fig. 6.6's dynamic network: between the interaction and the migration phase (no move
+  # in flight), each host breaks off or reconnects with probability `dynamic`.
+  defp churn(%{o: %{dynamic: p}} = st) when p == 0, do: st
+
+  defp churn(st) do
+    Enum.reduce(st.net.topology.nodes, st, fn n, st ->
+      {u, rng} = :rand.uniform_s(st.rng)
+      st = %{st | rng: rng}
+
+      cond do
+        u >= st.o.dynamic ->
+          st
+
+        MapSet.member?(st.isolated, n) ->
+          Network.rejoin(st.net, n)
+          %{st | isolated: MapSet.delete(st.isolated, n), toggles: st.toggles + 1}
+
+        true ->
+          Network.isolate(st.net, n)
+          %{st | isolated: MapSet.put(st.isolated, n), toggles: st.toggles + 1}
+      end
+    end)
+  end
+
+  defp migrate(st) do
+    alive = st.pop |> Map.values() |> Enum.sum()
+    Network.broadcast(st.net, {:go, st.epoch})
+
+    Enum.reduce(1..alive//1, st, fn _, st ->
+      case receive_event(st.run, [:arrived, :stayed, :expired]) do
+        {:arrived, _} ->
+          %{st | moves: st.moves + 1}
+
+        {:stayed, _} ->
+          st
+
+        {:move_failed, _} ->
+          %{st | failed_moves: st.failed_moves + 1}
+
+        {:expired, sol} ->
+          %{st | pop: Map.update!(st.pop, sol, &(&1 - 1)), expired: st.expired + 1}
+      end
+    end)
+  end
+
+  defp receive_event(run, events) do
+    receive do
+      # births come only in the interaction phase, the rest only in the migration phase
+      {:immune, ^run, ev, _tag, sol} -> {ev, sol}
+    after
+      120_000 -> raise "immune: no #{inspect(events)} in 120 s"
+    end
+  end
+
+  # -- results -------------------------------------------------------------------------
+
+  @impl true
+  def series(st), do: st.series
+
+  @impl true
+  def summary(st) do
+    live = live_ipkts(st)
+    t = test(st, live)
+    names = fn m -> Map.new(m, fn {s, v} -> {st.domain.solution_name(s), v} end) end
+
+    {winner, conv_step} =
+      case st.conv.converged do
+        {k, w} -> {w, k}
+        nil -> {Convergence.leader(names.(st.pop), 0.0), nil}
+      end
+
+    %{
+      set: st.o.set,
+      nodes: length(st.hosts),
+      mode: st.o.mode,
+      sharing: st.o.sharing,
+      danger: st.o.danger,
+      winner: winner,
+      converged: st.conv.converged != nil,
+      convergence_step: conv_step,
+      convergences:
+        Enum.map(st.history ++ List.wrap(st.conv.converged), fn {k, w} ->
+          %{step: k, winner: w}
+        end),
+      steps_run: st.last_step,
+      known_best: t.known_best,
+      test_accuracy: t.accuracy,
+      test_regret: t.regret,
+      test_regret_rel: t.regret_rel,
+      test_choices: t.choices,
+      population: names.(st.pop),
+      live_ipkts: length(live),
+      executed: names.(st.executed),
+      migrations: st.moves,
+      failed_moves: st.failed_moves,
+      clones: st.born,
+      deaths: st.died,
+      expired: st.expired,
+      dynamic: st.o.dynamic,
+      link_toggles: st.toggles
+    }
+  end
+
+  defp live_ipkts(st) do
+    Enum.flat_map(st.hosts, fn h ->
+      {:ok, q} = Tartarus.request({"immune", h}, :queue)
+      q
+    end)
+  end
+
+  @doc false
+  def test(st, live) do
+    p = st.p
+    domain = st.domain
+    pop_order = st.offered
+
+    rows =
+      for {set, i} = ref <- st.test_refs do
+        inst = domain.instance(set, i, st.seed)
+        fx = domain.features(inst)
+        chosen = choose(live, fx, p, pop_order)
+        costs = Map.new(st.offered, &{&1, Cache.score(domain, &1, ref, st.seed, inst)})
+        best = Enum.min_by(st.offered, &costs[&1])
+        extra = costs[chosen] - costs[best]
+        {chosen, best, extra, extra / max(costs[best], 1)}
+      end
+
+    n = max(length(rows), 1)
+    {known, _} = Domain.class_best(domain, st.offered, st.test_refs, st.seed)
+
+    %{
+      accuracy: Enum.count(rows, fn {c, b, _, _} -> c == b end) / n,
+      regret: Enum.sum(Enum.map(rows, &elem(&1, 2))) / n,
+      regret_rel: Enum.sum(Enum.map(rows, &elem(&1, 3))) / n,
+      known_best: domain.solution_name(known),
+      choices: rows |> Enum.map(&domain.solution_name(elem(&1, 0))) |> Enum.frequencies()
+    }
+  end
+
+  @doc """
+  The network's choice for a problem of features `fx` given the live iPkts (maps with
+  `:sol`, `:fv`, `:tau`): the solution with most iPkts that recognize `fx` (ties: larger
+  summed activation, then the order of `order`); with none, the most populous solution.
+  """
+  @spec choose([map()], [float()], map(), [module()]) :: module()
+  def choose(live, fx, p, order) do
+    rec = Enum.filter(live, &Maths.recognizes?(fx, &1.fv, p))
+    pool = if rec == [], do: live, else: rec
+
+    case pool do
+      [] ->
+        hd(order)
+
+      _ ->
+        pool
+        |> Enum.group_by(& &1.sol)
+        |> Enum.min_by(fn {sol, ms} ->
+          {-length(ms), -Enum.sum(Enum.map(ms, & &1.tau)),
+           Enum.find_index(order, &(&1 == sol)) || 99}
+        end)
+        |> elem(0)
+    end
+  end
+
+  @impl true
+  def teardown(st), do: Network.stop(st.net)
+end

@@ -1,0 +1,147 @@
+defmodule TartarusImmune.IPkt do
+  @moduledoc """
+  An intelligent packet (iPkt, thesis §6.4.1): an ordinary mobile agent that carries one
+  solution module (shipped with it as code, `Tartarus.Agent.add_module/1`), the feature
+  vector it maps that solution to (F_y), its activation τ and its hop count (Eq. 6.16).
+
+  On every host it enters the host's interaction queue (it posts `{:enter, id, info}` to
+  the host's `TartarusImmune.Node` agent, named `"immune"`) and leaves it before it moves.
+
+  On `{:go, epoch}` (the step's move phase) it:
+
+    1. dies when its hops are used up (Eq. 6.17, Γ = 0);
+    2. stays when the host has a pending problem it recognizes (ψ ≥ ψ_th), or when sharing
+       is off;
+    3. else climbs the danger field `{:danger, epoch}` (`{:gradient, ...}` strategy) when a
+       danger signal at this host carries a feature vector it recognizes (and danger
+       signals are on);
+    4. else moves conscientiously.
+
+  The node tells it its new activation and performance score (`{:update, tau, {zeta,
+  n}}`), to clone (`{:clone, n, psi_norm, tau_after, {zeta, n}, clone_tau}`: it makes `n` clones here, one per `:clone_next` it sends itself) and to die
+  (`:die`). A clone (`ctx.clone_of` set) starts with the clone activation, no hops, a new
+  tag, and its F_y hypermutated (Eq. 6.15) with normal draws from its own travelling random
+  stream (`Tartarus.Agent.normal/0`), so the same seed gives the same mutations.
+
+  Every arrival, stay, birth and death is reported to the driver (the experiment process)
+  as `{:immune, run, event, tag, solution}` (deaths ordered by a node are reported by the
+  node), so a step can wait for exactly what it set in motion.
+  """
+  use Tartarus.Agent
+
+  alias TartarusImmune.Maths
+
+  @doc false
+  def init(s) do
+    :ok = Tartarus.Agent.add_module(s.sol)
+    enter(s)
+    {:stay, s}
+  end
+
+  @doc false
+  def handle_arrival(%{clone_of: parent}, s) when parent != nil and s.plan != nil do
+    zs = for _ <- s.fv, do: Tartarus.Agent.normal()
+
+    s = %{
+      s
+      | fv: Maths.hypermutate(s.fv, s.plan.psi_norm, zs, s.p),
+        tau: s.plan.clone_tau,
+        hops: 0,
+        tag: {s.tag, s.clones},
+        clones: 0,
+        plan: nil
+    }
+
+    enter(s)
+    notify(s, :born)
+    {:stay, s}
+  end
+
+  def handle_arrival(_ctx, s) do
+    s = %{s | hops: s.hops + 1}
+    enter(s)
+    notify(s, :arrived)
+    {:stay, s}
+  end
+
+  @doc false
+  def handle_message({:update, tau, {zeta, n}}, _from, s),
+    do: {:stay, %{s | tau: tau, zeta: zeta, n: n}}
+
+  def handle_message({:clone, k, psi_norm, tau_after, {zeta, n}, clone_tau}, _from, s) do
+    for _ <- 1..k//1, do: send(self(), :clone_next)
+
+    {:stay,
+     %{
+       s
+       | tau: tau_after,
+         zeta: zeta,
+         n: n,
+         plan: %{psi_norm: psi_norm, clone_tau: clone_tau}
+     }}
+  end
+
+  def handle_message(:die, _from, s), do: {:stop, :normal, s}
+
+  def handle_message(_other, _from, s), do: {:stay, s}
+
+  @doc false
+  def handle_info(:clone_next, s) do
+    s = %{s | clones: s.clones + 1}
+    {:clone, :here, s}
+  end
+
+  def handle_info({:go, epoch}, s) do
+    s = %{s | plan: nil}
+
+    cond do
+      Maths.life(s.hops, s.p) == 0 ->
+        leave()
+        notify(s, :expired)
+        {:stop, :normal, s}
+
+      not s.sharing or pending_match?(s) ->
+        notify(s, :stayed)
+        {:stay, s}
+
+      s.danger and danger_match?(s, epoch) ->
+        leave()
+        {:move, {:gradient, {:danger, epoch}}, s}
+
+      true ->
+        leave()
+        {:move, :conscientious, s}
+    end
+  end
+
+  def handle_info(_other, s), do: {:stay, s}
+
+  @doc false
+  def handle_move_failed(_dest, _reason, _ctx, s) do
+    enter(s)
+    notify(s, :move_failed)
+    {:stay, s}
+  end
+
+  defp notify(s, event), do: send(s.driver, {:immune, s.run, event, s.tag, s.sol})
+
+  defp enter(s) do
+    info = %{sol: s.sol, fv: s.fv, tau: s.tau, hops: s.hops, tag: s.tag, zeta: s.zeta, n: s.n}
+    :ok = Tartarus.post({"immune", Tartarus.Agent.host()}, {:enter, Tartarus.Agent.id(), info})
+  end
+
+  defp leave do
+    :ok = Tartarus.post({"immune", Tartarus.Agent.host()}, {:leave, Tartarus.Agent.id()})
+  end
+
+  defp pending_match?(s) do
+    Tartarus.Agent.store_get(:immune_pending, [])
+    |> Enum.any?(&Maths.recognizes?(&1, s.fv, s.p))
+  end
+
+  defp danger_match?(s, epoch) do
+    {:danger, epoch}
+    |> Tartarus.Agent.signals()
+    |> Enum.any?(fn %{data: fvs} -> Enum.any?(fvs, &Maths.recognizes?(&1, s.fv, s.p)) end)
+  end
+end

@@ -1,0 +1,361 @@
+defmodule TartarusImmune.Select do
+  @moduledoc """
+  The experiments of thesis §6.5, each a set of `TartarusImmune.Experiment` runs, with
+  their files and one summary (what `mix tartarus.select` prints).
+
+  | experiment | runs | thesis |
+  |---|---|---|
+  | `table6_2` | P1-P4 on the grid, for `seeds` seeds | Table 6.2, Fig. 6.3 |
+  | `sharing` | `set` with and without sharing, `seeds` seeds each | Fig. 6.11 |
+  | `danger` | `set` with danger signals, without, and without sharing, `seeds` seeds each | Fig. 6.8 |
+  | `otfp` | `set` starting with Shell and Selection; Quick, Insertion, Merge, Heap added at `add_at` | Fig. 6.4 |
+  | `nodes50` | P2 and P3 on `nodes` hosts (default 50), one seed | Fig. 6.5 |
+  | `dynamic` | `set` (p4) on `nodes` (50) hosts that break off and reconnect with probability p per step, p in `ps` | Fig. 6.6 |
+  | `influx` | `set` for η in `etas` | Fig. 6.7a |
+  | `barrage` | `set` for β in `betas` | Fig. 6.7b |
+  | `iot` | the temperature series on `nodes` hosts (default 50) | Fig. 6.10 |
+
+  Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps).
+  Files (in `out`): `runs.csv` (one row per run: experiment arm, set, seed, winner, known
+  best, converged, convergence step, steps run, test accuracy and regret, migrations,
+  clones, deaths, wall ms), a population chart per run of the first seed
+  (`population_<arm>_<set>.svg` and `.csv`: live iPkts per solution per step, the learning
+  curve), `steps.svg` (box plot of convergence steps per arm, for the multi-seed
+  experiments), `summary.json` and `summary.md`.
+  """
+
+  alias TartarusEmu.Scenario
+  alias TartarusImmune.{Experiment, Sorting}
+  alias TartarusTools.{Report, Series, SVG}
+
+  @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :dynamic, :influx, :barrage, :iot]
+
+  @schema [
+    experiment: [type: {:in, @experiments}, default: :table6_2, doc: "which experiment"],
+    seed: [type: :integer, default: 1, doc: "first seed"],
+    seeds: [type: :pos_integer, default: 1, doc: "seeds per arm (seed, seed + 1, ...)"],
+    nodes: [type: :pos_integer, doc: "hosts (default 10; 50 for nodes50 and iot)"],
+    topology: [type: {:in, [:grid, :ring, :line]}, default: :grid, doc: "topology"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "virtual hosts or peers"],
+    group: [type: :pos_integer, default: 1, doc: "hosts per BEAM node in peer mode"],
+    set: [
+      type: :atom,
+      doc: "data set of sharing/danger/otfp/influx/barrage (default p2; otfp p1)"
+    ],
+    steps: [type: :pos_integer, default: 600, doc: "step limit per run"],
+    share: [type: :number, default: 0.9, doc: "convergence: leader's least share"],
+    hold: [type: :pos_integer, default: 30, doc: "convergence: steps held"],
+    eta: [type: :probability, default: 0.5, doc: "influx rate"],
+    beta: [type: :pos_integer, default: 5, doc: "barrage size"],
+    period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
+    ps: [type: {:list, :number}, default: [0.0, 0.1, 0.3, 0.5, 0.7, 1.0], doc: "dynamic sweep"],
+    etas: [type: {:list, :number}, default: [0.1, 0.3, 0.5, 0.7, 0.9], doc: "influx sweep"],
+    betas: [type: {:list, :pos_integer}, default: [1, 2, 5, 10, 20], doc: "barrage sweep"],
+    add_at: [
+      type: {:list, :pos_integer},
+      default: [40, 80, 120, 160],
+      doc: "otfp: steps of the additions"
+    ],
+    out: [
+      type: :any,
+      doc: "output directory (default results/select-<experiment>-<time>), false for none"
+    ],
+    quiet: [type: :boolean, default: false, doc: "no progress lines"]
+  ]
+
+  @doc "The option schema."
+  def schema, do: @schema
+
+  @doc "Validates options."
+  @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate(opts), do: Tartarus.Options.validate(opts, @schema, "TartarusImmune.Select")
+
+  @doc """
+  Runs an experiment (options: `schema/0`). Returns `{:ok, %{summary:, out:, runs:}}`.
+  """
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  def run(opts) do
+    with {:ok, o} <- validate(opts) do
+      o = Map.new(o)
+      exp = o.experiment
+
+      out =
+        case Map.get(o, :out) do
+          false -> false
+          nil -> Report.default_out_dir("select-#{exp}")
+          dir -> dir
+        end
+
+      t0 = System.monotonic_time(:millisecond)
+      plan = plan(exp, o)
+
+      runs =
+        for {arm, set, seed, extra} <- plan do
+          base = [
+            set: set,
+            seed: seed,
+            steps: o.steps,
+            nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
+            topology: o.topology,
+            mode: o.mode,
+            group: o.group,
+            share: o.share,
+            hold: o.hold,
+            eta: o.eta,
+            beta: o.beta,
+            period: o.period,
+            out: false,
+            quiet: o.quiet
+          ]
+
+          {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
+          %{arm: arm, set: set, seed: seed, summary: r.summary, series: r.series}
+        end
+
+      summary =
+        exp
+        |> summarize(runs, o)
+        |> Map.merge(%{
+          experiment: to_string(exp),
+          wall_ms: System.monotonic_time(:millisecond) - t0
+        })
+
+      if out, do: write(out, runs, summary, o)
+      {:ok, %{summary: summary, out: out, runs: runs}}
+    end
+  end
+
+  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic], do: 50
+  defp default_nodes(_), do: 10
+
+  defp seeds(o), do: Enum.map(0..(o.seeds - 1), &(o.seed + &1))
+
+  defp plan(:table6_2, o),
+    do: for(seed <- seeds(o), set <- [:p1, :p2, :p3, :p4], do: {"main", set, seed, []})
+
+  defp plan(:sharing, o) do
+    set = o[:set] || :p2
+
+    for seed <- seeds(o),
+        {arm, sh} <- [{"sharing", true}, {"no_sharing", false}],
+        do: {arm, set, seed, [sharing: sh]}
+  end
+
+  defp plan(:danger, o) do
+    set = o[:set] || :p2
+
+    for seed <- seeds(o),
+        {arm, x} <- [
+          {"danger", [danger: true]},
+          {"no_danger", [danger: false]},
+          {"no_sharing", [sharing: false]}
+        ],
+        do: {arm, set, seed, x}
+  end
+
+  defp plan(:otfp, o) do
+    set = o[:set] || :p1
+    alias Sorting.{Heap, Insertion, Merge, Quick, Selection, Shell}
+    adds = Enum.zip(o.add_at, [Quick, Insertion, Merge, Heap])
+
+    for seed <- seeds(o),
+        do: {"otfp", set, seed, [solutions: [Shell, Selection], add: adds, stop: false]}
+  end
+
+  defp plan(:nodes50, o),
+    do: for(seed <- seeds(o), set <- [:p2, :p3], do: {"nodes#{o[:nodes] || 50}", set, seed, []})
+
+  defp plan(:dynamic, o) do
+    set = o[:set] || :p4
+    for seed <- seeds(o), p <- o.ps, do: {"p_#{p}", set, seed, [dynamic: p * 1.0]}
+  end
+
+  defp plan(:influx, o) do
+    set = o[:set] || :p2
+    for seed <- seeds(o), eta <- o.etas, do: {"eta_#{eta}", set, seed, [eta: eta * 1.0]}
+  end
+
+  defp plan(:barrage, o) do
+    set = o[:set] || :p2
+    for seed <- seeds(o), beta <- o.betas, do: {"beta_#{beta}", set, seed, [beta: beta]}
+  end
+
+  defp plan(:iot, o), do: for(seed <- seeds(o), do: {"iot", :temp, seed, []})
+
+  # -- summaries ------------------------------------------------------------------------
+
+  defp per_set(runs, key),
+    do:
+      runs
+      |> Enum.group_by(&to_string(&1.set))
+      |> Map.new(fn {s, rs} -> {s, Enum.map(rs, &get_in(&1, [:summary, key]))} end)
+
+  defp mean([]), do: nil
+  defp mean(xs), do: Enum.sum(xs) / length(xs)
+
+  defp sd(xs) when length(xs) < 2, do: nil
+
+  defp sd(xs) do
+    m = mean(xs)
+    :math.sqrt(Enum.sum(Enum.map(xs, &((&1 - m) * (&1 - m)))) / (length(xs) - 1))
+  end
+
+  defp steps_of(r), do: r.summary.convergence_step || r.summary.steps_run
+
+  defp common(runs) do
+    %{
+      winners: runs |> per_set(:winner) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
+      winners_by_seed: per_set(runs, :winner),
+      known_best: runs |> per_set(:known_best) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
+      convergence_steps: per_set(runs, :convergence_step),
+      test_accuracy: runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+      test_regret: runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+      test_regret_rel:
+        runs |> per_set(:test_regret_rel) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+      seeds: runs |> Enum.map(& &1.seed) |> Enum.uniq(),
+      nodes: hd(runs).summary.nodes,
+      mode: to_string(hd(runs).summary.mode)
+    }
+  end
+
+  defp majority(ws),
+    do:
+      ws
+      |> Enum.frequencies()
+      |> Enum.max_by(fn {w, n} -> {n, -Enum.find_index(ws, &(&1 == w))} end)
+      |> elem(0)
+
+  defp arms(runs) do
+    runs
+    |> Enum.group_by(& &1.arm)
+    |> Map.new(fn {arm, rs} ->
+      steps = Enum.map(rs, &steps_of/1)
+
+      {arm,
+       %{
+         convergence_steps: Enum.map(rs, & &1.summary.convergence_step),
+         steps_mean: mean(steps),
+         steps_sd: sd(steps),
+         converged: Enum.count(rs, & &1.summary.converged),
+         runs: length(rs),
+         winners: Enum.map(rs, & &1.summary.winner),
+         test_accuracy: mean(Enum.map(rs, & &1.summary.test_accuracy)),
+         test_regret: mean(Enum.map(rs, & &1.summary.test_regret)),
+         migrations_mean: mean(Enum.map(rs, & &1.summary.migrations)),
+         failed_moves: Enum.map(rs, & &1.summary.failed_moves),
+         wall_ms_mean: mean(Enum.map(rs, & &1.summary.run_ms))
+       }}
+    end)
+  end
+
+  defp summarize(:table6_2, runs, _o) do
+    thesis = %{"p1" => "IS", "p2" => "QS", "p3" => "IS", "p4" => "QS"}
+    by_seed = Enum.group_by(runs, & &1.seed)
+
+    matches =
+      Enum.count(by_seed, fn {_seed, rs} ->
+        Enum.all?(rs, &(&1.summary.winner == thesis[to_string(&1.set)]))
+      end)
+
+    common(runs)
+    |> Map.merge(%{
+      thesis_best: thesis,
+      seeds_matching_thesis: matches,
+      seeds_matching_known_best:
+        Enum.count(by_seed, fn {_seed, rs} ->
+          Enum.all?(rs, &(&1.summary.winner == &1.summary.known_best))
+        end)
+    })
+  end
+
+  defp summarize(:otfp, runs, _o) do
+    common(runs)
+    |> Map.merge(%{
+      final_population: Enum.map(runs, & &1.summary.population),
+      convergences: Enum.map(runs, & &1.summary.convergences),
+      arms: arms(runs)
+    })
+  end
+
+  defp summarize(_exp, runs, _o) do
+    a = arms(runs)
+
+    common(runs)
+    |> Map.merge(%{
+      arms: a,
+      convergence_steps: Map.new(a, fn {arm, x} -> {arm, x.convergence_steps} end),
+      wall_ms_per_run: Map.new(a, fn {arm, x} -> {arm, x.wall_ms_mean} end)
+    })
+  end
+
+  # -- files ----------------------------------------------------------------------------
+
+  defp write(dir, runs, summary, o) do
+    File.mkdir_p!(dir)
+
+    header =
+      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms)
+
+    rows =
+      for r <- runs do
+        s = r.summary
+
+        [
+          r.arm,
+          r.set,
+          r.seed,
+          s.winner,
+          s.known_best,
+          s.converged,
+          s.convergence_step,
+          s.steps_run
+        ] ++
+          [
+            s.test_accuracy,
+            s.test_regret,
+            s.test_regret_rel,
+            s.migrations,
+            s.failed_moves,
+            s.clones,
+            s.deaths,
+            s.run_ms
+          ]
+      end
+
+    Report.write_csv!(dir, "runs", header, rows)
+
+    for r <- runs, r.seed == o.seed do
+      name = "population_#{r.arm}_#{r.set}"
+      chart = r.series |> Series.to_chart() |> Enum.reject(&(&1.name == "total"))
+
+      SVG.write!(
+        Path.join(dir, name <> ".svg"),
+        SVG.line_chart(chart,
+          title:
+            "live iPkts per solution, #{r.arm}, #{r.set}, seed #{r.seed}" <> conv_note(r.summary),
+          x_label: "step",
+          y_label: "iPkts"
+        )
+      )
+
+      Report.write_csv!(dir, name, Series.header(r.series), Series.to_rows(r.series))
+    end
+
+    groups = runs |> Enum.group_by(&"#{&1.arm} #{&1.set}") |> Enum.sort()
+
+    if Enum.any?(groups, fn {_, rs} -> length(rs) > 1 end) do
+      SVG.write!(
+        Path.join(dir, "steps.svg"),
+        SVG.box_plot(Enum.map(groups, fn {g, rs} -> {g, Enum.map(rs, &steps_of/1)} end),
+          title: "convergence step per run (not converged: the step limit)",
+          y_label: "step"
+        )
+      )
+    end
+
+    Report.write_summary!(dir, summary, title: "Immune selection: #{o.experiment}")
+  end
+
+  defp conv_note(%{convergence_step: nil}), do: " (not converged)"
+  defp conv_note(%{convergence_step: k, winner: w}), do: " (converged at #{k}: #{w})"
+end

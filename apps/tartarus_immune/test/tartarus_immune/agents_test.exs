@@ -1,0 +1,151 @@
+defmodule TartarusImmune.AgentsTest do
+  use ExUnit.Case, async: false
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusImmune.{IPkt, Node, Params, Sorting}
+
+  @p Params.new!()
+
+  defp line(n, danger \\ true) do
+    state = %{domain: Sorting, p: @p, seed: 1, danger: danger}
+    hook = fn _n, host -> Tartarus.create_static_agent(host, Node, state, name: "immune") end
+    {:ok, net} = Network.start(Topology.line(n), setup: hook)
+    on_exit(fn -> Network.stop(net) end)
+    {net, Network.host_list(net)}
+  end
+
+  defp ipkt(host, fv, run, extra) do
+    s =
+      Map.merge(
+        %{
+          sol: Sorting.Insertion,
+          fv: fv,
+          tau: 10.0,
+          zeta: nil,
+          n: 0,
+          hops: 0,
+          tag: 1,
+          clones: 0,
+          plan: nil,
+          p: @p,
+          driver: self(),
+          run: run,
+          sharing: true,
+          danger: true
+        },
+        extra
+      )
+
+    {:ok, id} = Tartarus.create_mobile_agent(host, IPkt, s, seed: {1, s.tag})
+    id
+  end
+
+  defp event(run) do
+    receive do
+      {:immune, ^run, ev, _tag, _sol} -> ev
+    after
+      5000 -> :timeout
+    end
+  end
+
+  test "danger diffusion on a line: Sg_max at the distressed node, Sg_max/2 one hop away, nothing at l_span" do
+    {_net, [h1, h2, h3, h4]} = line(4)
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}, {:p2, 1}], 1})
+    Tartarus.Signal.settle()
+
+    assert Enum.map([h1, h2, h3, h4], &Tartarus.signal(&1, {:danger, 1})) == [
+             100.0,
+             50.0,
+             0.0,
+             0.0
+           ]
+
+    [%{hops: 1, data: fvs}] = Tartarus.Signal.contributions(h2, {:danger, 1})
+    assert fvs == Enum.map([0, 1], &Sorting.features(Sorting.instance(:p2, &1, 1)))
+  end
+
+  test "no danger signal when danger signals are off" do
+    {_net, [h1, h2]} = line(2, false)
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    Tartarus.Signal.settle()
+    assert Tartarus.signal(h2, {:danger, 1}) == 0.0
+  end
+
+  test "an iPkt that recognizes the danger climbs it; one that does not wanders; one at the problem stays" do
+    {net, [h1, h2, h3]} = line(3)
+    fx = Sorting.features(Sorting.instance(:p2, 0, 1))
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    Tartarus.Signal.settle()
+    run = make_ref()
+    a = ipkt(h2, fx, run, %{tag: 1})
+    # a far feature vector: no recognition
+    b = ipkt(h2, [0.0, 0.0, 0.0, 1.0], run, %{tag: 2, sol: Sorting.Quick})
+    c = ipkt(h1, fx, run, %{tag: 3})
+    assert Network.broadcast(net, {:go, 1}) == 3 + 3
+    evs = for _ <- 1..3, do: event(run)
+    assert Enum.sort(evs) == [:arrived, :arrived, :stayed]
+    assert {:ok, ^h1} = locate(a)
+    assert {:ok, ^h1} = locate(c)
+    assert {:ok, where} = locate(b)
+    assert where in [h1, h3]
+    {:ok, q} = Tartarus.request({"immune", h1}, :queue)
+    assert Enum.count(q, &(&1.fv == fx)) == 2
+  end
+
+  test "apoptosis by hops: an iPkt with no hops left dies on its next move and leaves the queue" do
+    {net, [h1, _h2]} = line(2)
+    run = make_ref()
+    _ = ipkt(h1, [0.5, 0.5, 0.5, 0.5], run, %{hops: 1000})
+    {:ok, [_]} = Tartarus.request({"immune", h1}, :queue)
+    Network.broadcast(net, {:go, 1})
+    assert event(run) == :expired
+    assert {:ok, []} = Tartarus.request({"immune", h1}, :queue)
+  end
+
+  test "a node's interaction: the best solution is selected and clones; losers below tau_min die" do
+    {_net, [h1, _]} = line(2)
+    run = make_ref()
+    fx = Sorting.features(Sorting.instance(:p2, 0, 1))
+    _ = ipkt(h1, fx, run, %{tag: 1, sol: Sorting.Quick})
+    _ = ipkt(h1, fx, run, %{tag: 2, sol: Sorting.Selection, tau: 6.0})
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    {:ok, r} = Tartarus.request({"immune", h1}, :interact)
+    assert r.executed == Sorting.Quick
+    assert r.died == [Sorting.Selection]
+    # tau 10 + 2 + 0.4 * 6 = 14.4; space 5 - 2 = 3: NC = floor(3 * 14.4 / 20) = 2, capped to
+    # floor((14.4 - 5) / 5) = 1
+    assert r.born == 1
+    assert event(run) == :born
+    {:ok, q} = Tartarus.request({"immune", h1}, :queue)
+    assert Enum.map(q, & &1.sol) |> Enum.sort() == [Sorting.Quick, Sorting.Quick]
+    clone = Enum.find(q, &(&1.tag == {1, 1}))
+    assert clone.tau == 5.0 and clone.hops == 0
+    # the clone's F_y was hypermutated (from its own random stream)
+    assert clone.fv != fx
+  end
+
+  test "population control: a full queue blocks cloning" do
+    members =
+      for i <- 1..5,
+          do: {i, %{sol: if(i == 1, do: :a, else: :b), fv: [0.5], tau: 20.0, zeta: nil, n: 0}}
+
+    score = fn
+      :a -> 1
+      :b -> 2
+    end
+
+    p = Map.put(@p, :q_current, 5)
+    d = Node.interact(members, [0.5], score, p)
+    assert d.selected == 1 and d.nc == 0
+    d = Node.interact(Enum.take(members, 2), [0.5], score, Map.put(@p, :q_current, 2))
+    assert d.selected == 1 and d.nc == 3
+    # no candidate: nothing happens
+    assert Node.interact(members, [0.0 - 2.0], score, p) == :no_candidates
+  end
+
+  defp locate(id) do
+    case Enum.find(Tartarus.hosts(), fn h -> Enum.any?(Tartarus.agents(h), &(&1.id == id)) end) do
+      nil -> :error
+      h -> {:ok, h}
+    end
+  end
+end

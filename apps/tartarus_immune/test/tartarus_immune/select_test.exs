@@ -1,0 +1,48 @@
+defmodule TartarusImmune.SelectTest do
+  use ExUnit.Case, async: false
+  alias TartarusImmune.Select
+
+  @tag :tmp_dir
+  test "the sharing experiment reports both arms and writes its files", %{tmp_dir: dir} do
+    {:ok, r} =
+      Select.run(
+        experiment: :sharing,
+        set: :p1,
+        nodes: 4,
+        steps: 25,
+        hold: 5,
+        quiet: true,
+        out: dir
+      )
+
+    s = r.summary
+    assert s.experiment == "sharing"
+    assert Map.keys(s.arms) |> Enum.sort() == ["no_sharing", "sharing"]
+    assert Map.keys(s.convergence_steps) |> Enum.sort() == ["no_sharing", "sharing"]
+    assert s.arms["no_sharing"].migrations_mean == 0.0
+    assert s.arms["sharing"].migrations_mean > 0
+    assert %{"p1" => _} = s.winners
+    assert %{"p1" => acc} = s.test_accuracy
+    assert acc >= 0 and acc <= 1
+
+    for f <- ~w(runs.csv population_sharing_p1.svg population_no_sharing_p1.csv summary.json),
+        do: assert(File.exists?(Path.join(dir, f)), f)
+
+    json = File.read!(Path.join(dir, "summary.json"))
+    assert json =~ ~s("convergence_steps") and json =~ ~s("test_regret")
+  end
+
+  # About 2 minutes: excluded by default (TARTARUS_SCALE=1 runs it).
+  @tag :slow
+  @tag timeout: 900_000
+  test "table6_2 over seeds 1-10 picks IS, QS, IS, QS in at least 9 seeds" do
+    {:ok, r} = Select.run(experiment: :table6_2, seeds: 10, quiet: true, out: false)
+    assert r.summary.seeds_matching_thesis >= 9
+    assert r.summary.winners == %{"p1" => "IS", "p2" => "QS", "p3" => "IS", "p4" => "QS"}
+  end
+
+  test "an unknown experiment is refused with the key's name" do
+    assert {:error, msg} = Select.run(experiment: :nope)
+    assert msg =~ ":experiment"
+  end
+end
