@@ -1,0 +1,101 @@
+defmodule Mix.Tasks.Tartarus.Evolve do
+  @shortdoc "Embodied evolution (thesis ch. 7): sharing controllers by broadcast or by iPkts"
+  @moduledoc """
+  Runs the embodied-evolution experiments of thesis ch. 7 (see
+  `TartarusImmune.Evolution.Experiment`).
+
+      mix tartarus.evolve --experiment sharing [--sizes 20,40,80] [--trials 10] [--p 0.1]
+                          [--max-iterations 3000] [--mode virtual|peer]
+                          [--seed 1] [--out DIR] [--json]
+
+  `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
+  links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the
+  OR gate with the (1+1)-online strategy and share what they find by broadcast (social
+  learning) or by 1, 2, 4, ... intelligent packets (mobile agents moving conscientiously),
+  against no sharing at all (`none`).
+  For each size in `--sizes` and each scheme, `--trials` runs (seeds S, S+1, ...).
+
+  Output (in `--out DIR`, default `results/evolve-<experiment>-<UTC timestamp>`):
+  `runs.csv` (one row per run: nodes, scheme, trial, gamma_avg, omega, first_solved_at,
+  converged_at, iterations), `gamma_avg.svg` and `omega.svg` (bars per size and scheme,
+  Fig. 7.6), the series as CSV/SVG, `summary.json`, `summary.md`.
+
+  Summary keys: `experiment, trials, sizes, p, mode, gamma_avg` and `omega` (size ->
+  scheme -> mean over the converged runs), `omega_median, converged_runs,
+  iterations_to_converge, ipkt_fewer_communications_at_every_size,
+  more_ipkts_lower_omega` (size -> whether Omega falls as iPkts are added), `antibodies`
+  and `test_success` (null for `sharing`), and the runner's `scenario, seed, steps,
+  setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON object.
+
+  Not built yet: `s1`, `s2`, `s3`, `monolithic`, `robots3` (they need the arena simulator).
+  """
+  use TartarusTools.CLI
+
+  alias TartarusImmune.Evolution.Experiment
+
+  @task "tartarus.evolve"
+
+  @impl true
+  def run(argv) do
+    schema =
+      Experiment.schema()
+      |> Keyword.drop([:quiet])
+      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "sharing"))
+      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:sizes, &Keyword.merge(&1, type: :string, default: "20,40,80"))
+      |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
+
+    opts = TartarusTools.CLI.options!(argv, schema, @task)
+
+    experiment = TartarusTools.CLI.choice!(opts[:experiment], [:sharing], :experiment, @task, :sharing)
+    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
+    sizes = parse_sizes!(opts[:sizes])
+    json? = opts[:json]
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.merge(experiment: experiment, mode: mode, sizes: sizes, quiet: json?)
+
+    exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
+    Mix.Task.run("app.start")
+
+    case Experiment.run(exp_opts) do
+      {:ok, %{summary: s, out: dir}} ->
+        TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
+
+      {:error, message} ->
+        Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp parse_sizes!(text) do
+    sizes = text |> String.split(",", trim: true) |> Enum.map(&Integer.parse(String.trim(&1)))
+
+    if sizes != [] and Enum.all?(sizes, &match?({n, ""} when n >= 2, &1)),
+      do: Enum.map(sizes, &elem(&1, 0)),
+      else: Mix.raise("mix #{@task}: invalid value for --sizes: expected comma-separated integers of at least 2, got: #{inspect(text)}")
+  end
+
+  defp order("none"), do: -1
+  defp order("b-cast"), do: 0
+  defp order("iPkt-" <> x), do: String.to_integer(x)
+
+  defp text(s, dir) do
+    rows =
+      for {n, g} <- Enum.sort_by(s.gamma_avg, &String.to_integer(elem(&1, 0))),
+          {label, v} <- Enum.sort_by(g, &order(elem(&1, 0))) do
+        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{v}  Omega #{inspect(s.omega[n][label])}"
+      end
+
+    Enum.join(
+      ["evolve: #{s.experiment}, #{s.trials} trials per point"] ++
+        rows ++
+        ["  iPkts fewer communications than broadcast at every size: #{s.ipkt_fewer_communications_at_every_size}",
+         "  more iPkts, lower Omega: #{inspect(s.more_ipkts_lower_omega)}",
+         "  written to #{dir}"],
+      "\n"
+    )
+  end
+end
