@@ -359,6 +359,19 @@ defmodule Tartarus do
   @spec plugins(host_ref()) :: [{atom(), map()}] | {:error, term()}
   def plugins(host), do: OnNode.run(host, :plugins, [])
 
+  @doc """
+  What a host can do, as its plugins describe it: `%{capability => [plugin names]}` (see
+  `Tartarus.Plugin`, "Capabilities"), so agents and operators choose robots by what they
+  can do.
+  """
+  @spec capabilities(host_ref()) :: %{atom() => [atom()]} | {:error, term()}
+  def capabilities(host) do
+    case plugins(host) do
+      {:error, _} = error -> error
+      plugins -> Tartarus.Plugin.capabilities(plugins)
+    end
+  end
+
   # -- code --------------------------------------------------------------------------
 
   @doc """

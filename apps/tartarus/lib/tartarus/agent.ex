@@ -307,6 +307,17 @@ defmodule Tartarus.Agent do
   def subscribe(plugin), do: Tartarus.Plugin.call(host(), plugin, {:subscribe, self()})
 
   @doc """
+  What the calling agent's host can do, as its plugins describe it:
+  `%{capability => [plugin names]}` (see `Tartarus.Plugin`, "Capabilities"). A foraging
+  agent hops to a robot's host and asks.
+  """
+  @spec capabilities() :: %{atom() => [atom()]}
+  def capabilities do
+    {host_name, _node} = host()
+    Tartarus.Plugin.capabilities(Tartarus.Plugin.list(host_name))
+  end
+
+  @doc """
   Asks for the calling agent's state to be made durable: once the callback that calls this
   returns, the state it returns (with the payload as the callback left it) is written to the
   host's journal (host option `:data_dir`) and becomes the snapshot a restart restores, after

@@ -20,7 +20,25 @@ defmodule Tartarus.Plugin do
       {:ok, 20.5} = Tartarus.Agent.read(:temp)
 
   Real devices (BLE receivers over UART, GPIO) implement the same behaviour in the firmware;
-  `Tartarus.Plugin.SimSensor` is a simulated sensor with a scripted signal.
+  `Tartarus.Plugin.SimSensor` is a simulated sensor with a scripted signal,
+  `Tartarus.Plugin.GPIO` named pins (simulated here, `Circuits.GPIO` in the firmware),
+  `Tartarus.Plugin.Serial` a serial line with a pluggable frame decoder.
+
+  ## Capabilities
+
+  What a robot can do (claws, a pusher, a camera) is described by its plugins, so agents can
+  choose robots by what they can do. A plugin's description may list `:capabilities`
+  (atoms), and any plugin can be given more when it is attached, with the option
+  `capabilities:` (taken by the host, not passed to the plugin):
+
+      Tartarus.attach_plugin(:claus, :claws,
+        {Tartarus.Plugin.GPIO, pins: [grip: {17, :output}], capabilities: [:claws, :grip]})
+
+      Tartarus.capabilities(:claus)         # from anywhere
+      #=> %{claws: [:claws], grip: [:claws]}
+      Tartarus.Agent.capabilities()         # inside an agent: its host's
+
+  `capabilities/1` computes that map from a host's plugin list.
   """
   use GenServer
   require Tartarus.Events
@@ -31,6 +49,7 @@ defmodule Tartarus.Plugin do
           optional(:reads) => [term()],
           optional(:writes) => [term()],
           optional(:events) => [term()],
+          optional(:capabilities) => [atom()],
           optional(atom()) => term()
         }
 
@@ -54,6 +73,27 @@ defmodule Tartarus.Plugin do
   @callback handle_info(msg :: term(), state :: term()) :: {:events, [term()], term()}
 
   @optional_callbacks handle_info: 2
+
+  @doc """
+  What a host's plugins can do: `%{capability => [plugin names]}` from a plugin list as
+  `Tartarus.plugins/1` returns it (the `:capabilities` of each description).
+
+      iex> Tartarus.Plugin.capabilities([
+      ...>   {:arm, %{kind: :gpio, capabilities: [:claws, :grip]}},
+      ...>   {:sonar, %{kind: :sensor, capabilities: [:ultrasonic]}},
+      ...>   {:temp, %{kind: :sensor}},
+      ...>   {:hand, %{kind: :gpio, capabilities: [:grip]}}
+      ...> ])
+      %{claws: [:arm], grip: [:arm, :hand], ultrasonic: [:sonar]}
+  """
+  @spec capabilities([{atom(), description()}]) :: %{atom() => [atom()]}
+  def capabilities(plugins) when is_list(plugins) do
+    for {name, %{capabilities: caps}} when is_list(caps) <- plugins,
+        cap <- caps,
+        reduce: %{} do
+      acc -> Map.update(acc, cap, [name], &Enum.sort(Enum.uniq([name | &1])))
+    end
+  end
 
   @doc false
   def child_spec({host_name, name, module, opts}) do
@@ -109,10 +149,27 @@ defmodule Tartarus.Plugin do
 
   @impl true
   def init({name, module, opts}) do
-    case module.init(opts) do
-      {:ok, state} -> {:ok, %{name: name, module: module, state: state, subscribers: %{}}}
-      {:error, reason} -> {:stop, reason}
+    {caps, opts} =
+      if Keyword.keyword?(opts), do: Keyword.pop(opts, :capabilities, []), else: {[], opts}
+
+    with true <- (is_list(caps) and Enum.all?(caps, &is_atom/1)) || {:bad_capabilities, caps},
+         {:ok, state} <- module.init(opts) do
+      {:ok, %{name: name, module: module, state: state, subscribers: %{}, capabilities: caps}}
+    else
+      {:bad_capabilities, caps} ->
+        {:stop, {:bad_option, :capabilities, "expected a list of atoms, got: #{inspect(caps)}"}}
+
+      {:error, reason} ->
+        {:stop, reason}
     end
+  end
+
+  # The module's description, with the capabilities given at attach time added.
+  defp describe(%{capabilities: []} = s), do: s.module.describe(s.state)
+
+  defp describe(s) do
+    d = s.module.describe(s.state)
+    Map.put(d, :capabilities, Enum.uniq(Map.get(d, :capabilities, []) ++ s.capabilities))
   end
 
   @impl true
@@ -121,7 +178,7 @@ defmodule Tartarus.Plugin do
     {:noreply, s}
   end
 
-  def handle_call(:describe, _from, s), do: {:reply, s.module.describe(s.state), s}
+  def handle_call(:describe, _from, s), do: {:reply, describe(s), s}
 
   def handle_call({:read, args}, _from, s) do
     case s.module.read(args, s.state) do

@@ -9,9 +9,9 @@ defmodule TartarusLats.BeaconPlugin do
   (`TartarusLats.Deployment`) draws every node's readings from the world
   each second and writes them into the receiver (`Tartarus.write_plugin/3`
   with `{:readings, t, readings}`), or the receiver plays a script. The
-  real receiver (an HM-10 on the Pi's UART, its `AT+DISI?` output parsed
-  by `TartarusLats.HM10`) implements the same reads in the firmware; it is
-  not written yet. Recorded serial output is replayed into this receiver by
+  real receiver (an HM-10 on a tty or the Pi's UART, its `AT+DISI?` output
+  parsed by `TartarusLats.HM10`) answers the same `{:scan, t}` read:
+  `TartarusLats.HM10.Receiver`, see docs/devices.md. Recorded serial output is replayed into this receiver by
   the driver (`TartarusLats.Deployment`, option `:replay`).
 
   Options:

@@ -18,7 +18,8 @@ defmodule TartarusLats.HM10.Recording do
   order of seconds, so a scan may be split across lines as a real capture cuts it.
 
   A real capture can be written in this format by a bridge that stamps each second's bytes
-  from a node's UART (the firmware is not written yet, see the README).
+  from a node's UART, reading the tty as `Tartarus.Plugin.Serial` does (no such bridge is
+  written yet; live HM-10 output goes to `TartarusLats.HM10.Receiver`).
   """
 
   @header "# tartarus-lats hm10 recording v1\n"

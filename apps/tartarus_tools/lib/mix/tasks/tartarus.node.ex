@@ -9,7 +9,17 @@ defmodule Mix.Tasks.Tartarus.Node do
     sensor: [
       type: :string,
       doc: "attach a simulated sensor plugin under this name (a sine-like script)"
-    ]
+    ],
+    ble: [
+      type: :string,
+      doc:
+        "attach the BLE receiver on this serial device (e.g. `/dev/ttyUSB0`) as plugin `:beacon` (see below)"
+    ],
+    serial: [
+      type: :string,
+      doc: "attach a serial device read as text lines as plugin `:serial`"
+    ],
+    speed: [type: :pos_integer, default: 9600, doc: "baud of `--ble` and `--serial`"]
   ]
   @moduledoc """
   Starts this VM as a named BEAM node running one Tartarus host, links it to neighbour
@@ -21,6 +31,22 @@ defmodule Mix.Tasks.Tartarus.Node do
   Options (flags are the keys with dashes):
 
   #{Tartarus.Options.docs(@schema)}
+
+  ## Devices
+
+  `--serial PATH` attaches `Tartarus.Plugin.Serial` (a tty configured with `stty`, read
+  through an Erlang port, reopened when the device comes back) with its line decoder.
+
+  `--ble PATH` attaches a BLE receiver on that tty as plugin `:beacon`. Which receiver is
+  an application's choice, so this task names none: it calls the function configured as
+  `config :tartarus_tools, :ble_plugin, {module, function}` with the path and
+  `[speed: baud]`, which returns the plugin spec. The umbrella's `config/config.exs` sets
+  LATS's HM-10 receiver, so in this repository
+
+      ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n1 --host h1 --ble /dev/ttyUSB0
+
+  gives the host an HM-10 that a LATS database agent reads (`Tartarus.read_plugin(:h1,
+  :beacon, :counts)` shows what arrived). See `docs/devices.md`.
 
   The host itself starts with `Tartarus.start_host/2`'s defaults (see its documentation),
   among them the admission policy's finite limits.
@@ -58,19 +84,7 @@ defmodule Mix.Tasks.Tartarus.Node do
     end
 
     host_name = String.to_atom(opts[:host])
-
-    plugins =
-      case opts[:sensor] do
-        nil ->
-          []
-
-        s ->
-          [
-            {String.to_atom(s),
-             {Tartarus.Plugin.SimSensor,
-              signal: Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)), unit: "°C"}}
-          ]
-      end
+    plugins = plugins!(opts)
 
     case Tartarus.start_host(host_name, neighbours: neighbours, plugins: plugins) do
       {:ok, host} ->
@@ -86,6 +100,40 @@ defmodule Mix.Tasks.Tartarus.Node do
 
       {:error, reason} ->
         Mix.raise("mix tartarus.node: cannot start host: #{inspect(reason)}")
+    end
+  end
+
+  @doc false
+  # The plugins the flags ask for, as `{name, spec}`; raises Mix.Error naming the flag.
+  @spec plugins!(keyword()) :: [{atom(), {module(), keyword()}}]
+  def plugins!(opts) do
+    sensor =
+      for s <- List.wrap(opts[:sensor]) do
+        {String.to_atom(s),
+         {Tartarus.Plugin.SimSensor,
+          signal: Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)), unit: "°C"}}
+      end
+
+    serial =
+      for path <- List.wrap(opts[:serial]),
+          do: {:serial, {Tartarus.Plugin.Serial, device: path, speed: opts[:speed] || 9600}}
+
+    ble = for path <- List.wrap(opts[:ble]), do: {:beacon, ble_plugin!(path, opts[:speed])}
+    sensor ++ serial ++ ble
+  end
+
+  defp ble_plugin!(path, speed) do
+    with {m, f} when is_atom(m) and is_atom(f) <-
+           Application.get_env(:tartarus_tools, :ble_plugin),
+         true <- Code.ensure_loaded?(m) and function_exported?(m, f, 2),
+         {module, plugin_opts} = spec when is_atom(module) and is_list(plugin_opts) <-
+           apply(m, f, [path, [speed: speed || 9600]]) do
+      spec
+    else
+      _ ->
+        Mix.raise(
+          "mix tartarus.node: --ble needs a BLE receiver: configure :tartarus_tools, :ble_plugin as {module, function} (function(path, [speed: baud]) returns a plugin spec), got: #{inspect(Application.get_env(:tartarus_tools, :ble_plugin))}"
+        )
     end
   end
 

@@ -1,0 +1,235 @@
+defmodule Tartarus.Plugin.Serial do
+  @schema [
+    device: [type: :string, required: true, doc: "the device's path, e.g. `/dev/ttyUSB0`"],
+    speed: [type: :pos_integer, default: 9600, doc: "the line's speed in baud"],
+    decoder: [
+      type: :atom,
+      default: Tartarus.Plugin.Serial.Lines,
+      doc: "a `Tartarus.Plugin.Serial.Decoder`"
+    ],
+    decoder_opts: [type: :keyword, default: [], doc: "the decoder's options"],
+    transport: [
+      type: :atom,
+      default: Tartarus.Plugin.Serial.Tty,
+      doc: "a `Tartarus.Plugin.Serial.Transport`"
+    ],
+    transport_opts: [type: :keyword, default: [], doc: "the transport's own options"],
+    backoff_ms: [
+      type: {:custom, &__MODULE__.backoff?/1},
+      expected: "{first, longest} positive integers with first <= longest",
+      default: {100, 5000},
+      doc: "the first and the longest delay between attempts to open the device"
+    ],
+    on_open: [
+      type: :string,
+      default: "",
+      doc: "bytes written each time the device opens (e.g. AT set-up commands)"
+    ],
+    poll: [
+      type: {:or, [{:in, [nil]}, {:tuple, [:string, :pos_integer]}]},
+      expected: "nil or {bytes, interval_ms}",
+      default: nil,
+      doc:
+        "`{bytes, interval_ms}`: bytes written every `interval_ms` while open (e.g. a scan command)"
+    ]
+  ]
+
+  @moduledoc """
+  A serial device as a `Tartarus.Plugin`: a transport that opens the line and reopens it
+  when the device comes back, and a decoder that turns its bytes into events and readings.
+
+      Tartarus.attach_plugin(:pi1, :console,
+        {Tartarus.Plugin.Serial, device: "/dev/ttyUSB0", speed: 115_200})
+
+      # a BLE module that scans when asked, with an application's decoder
+      Tartarus.attach_plugin(:pi1, :beacon,
+        {Tartarus.Plugin.Serial,
+         device: "/dev/ttyAMA0", decoder: MyApp.ScanDecoder, poll: {"AT+DISI?", 1000}})
+
+  The transport (`Tartarus.Plugin.Serial.Transport`) is `Tartarus.Plugin.Serial.Tty` by
+  default (any Linux tty, no dependency); the firmware brings one over `Circuits.UART`. The
+  decoder (`Tartarus.Plugin.Serial.Decoder`) is `Tartarus.Plugin.Serial.Lines` by default.
+
+  ## Unplugged, replugged
+
+  Attaching never fails because the device is absent: the plugin tries to open it, and
+  while it cannot (or after the device went away) it tries again after a delay that starts
+  at the first `:backoff_ms` bound, doubles at each failure up to the second, and starts
+  over once the device is open. When the device goes away the decoder forgets the frame it
+  was in the middle of (`reset/1`), so the bytes of a half-received record never join the
+  bytes of the next device.
+
+  ## Events, reads, writes
+
+  Subscribers get the decoder's events and `{:serial, :up}` (opened) and
+  `{:serial, :down, reason}` (lost or closed). Reads: `:status` (a map: `:status`
+  `:open | :opening | :closed`, `:device`, `:opens`, `:bytes` received, `:last_error`);
+  anything else goes to the decoder's `read/2`. Writes: `{:send, iodata}` writes bytes to
+  the device (`{:error, :closed}` unless it is open); anything else is
+  `{:error, {:bad_argument, arg}}`.
+
+  Options:
+
+  #{Tartarus.Options.docs(@schema)}
+  """
+  @behaviour Tartarus.Plugin
+
+  @doc false
+  def backoff?({a, b}) when is_integer(a) and is_integer(b), do: a > 0 and a <= b
+  def backoff?(_), do: false
+
+  @impl true
+  def init(opts) do
+    with {:ok, o} <- Tartarus.Options.validate(opts, @schema, "Tartarus.Plugin.Serial"),
+         :ok <- implements(o[:decoder], Tartarus.Plugin.Serial.Decoder, :decoder),
+         :ok <- implements(o[:transport], Tartarus.Plugin.Serial.Transport, :transport),
+         {:ok, decoder_state} <- o[:decoder].init(o[:decoder_opts]) do
+      send(self(), {__MODULE__, :connect})
+
+      case o[:poll] do
+        {_bytes, interval} -> :timer.send_interval(interval, {__MODULE__, :poll})
+        nil -> :ok
+      end
+
+      {:ok,
+       %{
+         o: Map.new(o),
+         conn: nil,
+         status: :closed,
+         decoder: decoder_state,
+         delay: elem(o[:backoff_ms], 0),
+         opens: 0,
+         bytes: 0,
+         last_error: nil
+       }}
+    end
+  end
+
+  defp implements(module, behaviour, key) do
+    callbacks =
+      behaviour.behaviour_info(:callbacks) -- behaviour.behaviour_info(:optional_callbacks)
+
+    if Code.ensure_loaded?(module) and
+         Enum.all?(callbacks, fn {f, a} -> function_exported?(module, f, a) end) do
+      :ok
+    else
+      {:error,
+       "invalid options given to Tartarus.Plugin.Serial for key :#{key}: expected a module implementing #{inspect(behaviour)}, got: #{inspect(module)}"}
+    end
+  end
+
+  @impl true
+  def describe(s) do
+    decoder = s.o.decoder
+
+    own = %{
+      kind: :serial,
+      device: s.o.device,
+      status: s.status,
+      reads: [:status],
+      writes: [:send],
+      events: [:serial]
+    }
+
+    if function_exported?(decoder, :describe, 1) do
+      d = decoder.describe(s.decoder)
+
+      Map.merge(own, d, fn
+        k, a, b when k in [:reads, :writes, :events] and is_list(b) -> Enum.uniq(a ++ b)
+        _k, _a, b -> b
+      end)
+    else
+      own
+    end
+  end
+
+  @impl true
+  def read(:status, s) do
+    {:ok,
+     %{
+       status: s.status,
+       device: s.o.device,
+       opens: s.opens,
+       bytes: s.bytes,
+       last_error: s.last_error
+     }, s}
+  end
+
+  def read(args, s) do
+    decoder = s.o.decoder
+
+    if function_exported?(decoder, :read, 2) do
+      case decoder.read(args, s.decoder) do
+        {:ok, value, d} -> {:ok, value, %{s | decoder: d}}
+        {:error, reason, d} -> {:error, reason, %{s | decoder: d}}
+      end
+    else
+      {:error, {:bad_argument, args}, s}
+    end
+  end
+
+  @impl true
+  def write({:send, data}, %{status: :open} = s) do
+    case s.o.transport.write(s.conn, data) do
+      :ok -> {:ok, s}
+      {:error, reason} -> {:error, reason, s}
+    end
+  end
+
+  def write({:send, _data}, s), do: {:error, :closed, s}
+  def write(arg, s), do: {:error, {:bad_argument, arg}, s}
+
+  @impl true
+  def handle_info({__MODULE__, :connect}, %{conn: nil} = s) do
+    case s.o.transport.open(s.o.device, [speed: s.o.speed] ++ s.o.transport_opts) do
+      {:ok, conn} -> {:events, [], %{s | conn: conn, status: :opening}}
+      {:error, reason} -> {:events, [], retry(%{s | last_error: reason})}
+    end
+  end
+
+  def handle_info({__MODULE__, :poll}, %{status: :open} = s) do
+    {bytes, _} = s.o.poll
+    _ = s.o.transport.write(s.conn, bytes)
+    {:events, [], s}
+  end
+
+  def handle_info({__MODULE__, _}, s), do: {:events, [], s}
+
+  def handle_info(msg, %{conn: conn} = s) when conn != nil do
+    case s.o.transport.message(msg, conn) do
+      :ignore -> {:events, [], s}
+      {items, conn} -> Enum.reduce(items, {:events, [], %{s | conn: conn}}, &item/2)
+    end
+  end
+
+  def handle_info(_msg, s), do: {:events, [], s}
+
+  # The device's state changes and data, in order; events accumulate in order.
+  defp item(:opened, {:events, events, s}) do
+    if s.o.on_open != "", do: s.o.transport.write(s.conn, s.o.on_open)
+    s = %{s | status: :open, opens: s.opens + 1, delay: elem(s.o.backoff_ms, 0)}
+    {:events, events ++ [{:serial, :up}], s}
+  end
+
+  defp item({:data, bytes}, {:events, events, s}) do
+    {decoded, d} = s.o.decoder.feed(bytes, s.decoder)
+    {:events, events ++ decoded, %{s | decoder: d, bytes: s.bytes + byte_size(bytes)}}
+  end
+
+  defp item({:closed, reason}, {:events, events, %{conn: nil} = s}) do
+    {:events, events, %{s | last_error: reason}}
+  end
+
+  defp item({:closed, reason}, {:events, events, s}) do
+    {dropped, d} = s.o.decoder.reset(s.decoder)
+    was_open = s.status == :open
+    s = retry(%{s | conn: nil, decoder: d, last_error: reason})
+    down = if was_open, do: [{:serial, :down, reason}], else: []
+    {:events, events ++ dropped ++ down, s}
+  end
+
+  defp retry(s) do
+    Process.send_after(self(), {__MODULE__, :connect}, s.delay)
+    %{s | status: :closed, conn: nil, delay: min(s.delay * 2, elem(s.o.backoff_ms, 1))}
+  end
+end

@@ -1,0 +1,235 @@
+defmodule Tartarus.DevicesTest do
+  # The platform's device plugins that need no arena: GPIO pins (simulated backend), the
+  # serial plugin's options and its life without a device, and capabilities: what a robot
+  # can do, described by its plugins, so agents choose robots by it.
+  use Tartarus.HostCase, async: false
+
+  alias Tartarus.Plugin.{GPIO, Serial}
+
+  doctest Tartarus.Plugin.GPIO.Sim
+  doctest Tartarus.Plugin.Serial.Lines
+  doctest Tartarus.Plugin, import: true
+
+  defmodule Forager do
+    @moduledoc false
+    # Walks a list of hosts and stops at the first whose plugins offer every capability it
+    # needs; reports {:chose, host, capabilities} or {:none, visited} to its payload's :test.
+    use Tartarus.Agent
+    alias Tartarus.Agent, as: A
+
+    @impl true
+    def init(%{route: [first | rest], need: need}),
+      do: {:move, first, %{route: rest, need: need, visited: []}}
+
+    @impl true
+    def handle_arrival(_ctx, s) do
+      caps = A.capabilities()
+      s = %{s | visited: s.visited ++ [A.host()]}
+
+      cond do
+        Enum.all?(s.need, &Map.has_key?(caps, &1)) ->
+          send(A.payload().test, {:chose, A.host(), caps})
+          {:stay, s}
+
+        s.route == [] ->
+          send(A.payload().test, {:none, s.visited})
+          {:stay, s}
+
+        true ->
+          [next | rest] = s.route
+          {:move, next, %{s | route: rest}}
+      end
+    end
+  end
+
+  describe "GPIO pins (simulated)" do
+    setup do
+      h = host!()
+
+      :ok =
+        Tartarus.attach_plugin(
+          h,
+          :io,
+          {GPIO, pins: [led: {17, :output}, relay: {22, :output, 1}, bump: {27, :input}]}
+        )
+
+      %{h: h}
+    end
+
+    test "reads, writes outputs, refuses inputs and unknown pins", %{h: h} do
+      assert Tartarus.read_plugin(h, :io, :all) == {:ok, %{led: 0, relay: 1, bump: 0}}
+      assert Tartarus.write_plugin(h, :io, {:pin, :led, 1}) == :ok
+      assert Tartarus.read_plugin(h, :io, {:pin, :led}) == {:ok, 1}
+      assert Tartarus.write_plugin(h, :io, {:pin, :bump, 1}) == {:error, {:not_an_output, :bump}}
+
+      assert Tartarus.write_plugin(h, :io, {:pin, :led, 2}) ==
+               {:error, {:bad_argument, {:pin, :led, 2}}}
+
+      assert Tartarus.write_plugin(h, :io, {:pin, :nope, 1}) == {:error, {:no_such_pin, :nope}}
+      assert Tartarus.read_plugin(h, :io, {:pin, :nope}) == {:error, {:no_such_pin, :nope}}
+      assert Tartarus.read_plugin(h, :io, :volts) == {:error, {:bad_argument, :volts}}
+
+      assert Tartarus.write_plugin(h, :io, {:stimulate, :led, 1}) ==
+               {:error, {:not_an_input, :led}}
+
+      assert [{:io, %{kind: :gpio, pins: %{bump: {27, :input}}, events: [:edge]}}] =
+               Tartarus.plugins(h)
+    end
+
+    test "an agent on the host sees the input's edges; the world drives the input", %{h: h} do
+      id = agent!(h)
+      assert_receive {:probe_init, ^id, _}
+      assert {:ok, :ok} = Tartarus.request(id, {:agent, :subscribe, [:io]})
+
+      :ok = Tartarus.write_plugin(h, :io, {:stimulate, :bump, 1})
+      assert_receive {:probe_plugin_event, ^id, :io, {:edge, :bump, 1}}
+      # No change, no edge.
+      :ok = Tartarus.write_plugin(h, :io, {:stimulate, :bump, 1})
+      :ok = Tartarus.write_plugin(h, :io, {:stimulate, :bump, 0})
+      assert_receive {:probe_plugin_event, ^id, :io, {:edge, :bump, 0}}
+      refute_received {:probe_plugin_event, ^id, :io, {:edge, :bump, 1}}
+      assert {:ok, {:ok, 0}} = Tartarus.request(id, {:agent, :read, [:io, {:pin, :bump}]})
+    end
+
+    test "bad pin tables and backends are refused with the key named" do
+      h = host!()
+
+      assert {:error,
+              "invalid options given to Tartarus.Plugin.GPIO for key :pins: expected a keyword list" <>
+                _} = Tartarus.attach_plugin(h, :x, {GPIO, pins: [a: {1, :sideways}]})
+
+      assert {:error, "invalid options given to Tartarus.Plugin.GPIO for key :pins" <> _} =
+               Tartarus.attach_plugin(h, :x, {GPIO, pins: [a: {1, :input}, a: {2, :input}]})
+
+      assert {:error, "invalid options given to Tartarus.Plugin.GPIO for key :backend" <> _} =
+               Tartarus.attach_plugin(h, :x, {GPIO, pins: [a: {1, :input}], backend: Enum})
+    end
+  end
+
+  describe "capabilities" do
+    test "described by the plugins and the attach option; queried per host" do
+      h = host!()
+
+      :ok =
+        Tartarus.attach_plugin(
+          h,
+          :arm,
+          {GPIO, pins: [grip: {17, :output}], capabilities: [:claws]}
+        )
+
+      :ok =
+        Tartarus.attach_plugin(
+          h,
+          :sonar,
+          {Tartarus.Plugin.SimSensor, signal: [40], capabilities: [:ultrasonic]}
+        )
+
+      :ok = Tartarus.attach_plugin(h, :temp, {Tartarus.Plugin.SimSensor, signal: [20]})
+      assert Tartarus.capabilities(h) == %{claws: [:arm], ultrasonic: [:sonar]}
+      assert [{:arm, %{capabilities: [:claws]}}, _, {:temp, temp}] = Tartarus.plugins(h)
+      refute Map.has_key?(temp, :capabilities)
+      assert Tartarus.capabilities(unique_name()) |> elem(0) == :error
+
+      assert Tartarus.attach_plugin(
+               h,
+               :bad,
+               {Tartarus.Plugin.SimSensor, signal: [1], capabilities: "claws"}
+             ) ==
+               {:error, {:bad_option, :capabilities, ~s(expected a list of atoms, got: "claws")}}
+    end
+
+    test "an agent forages the robots and stops at the one that can do what it needs" do
+      [home, santa, rudolph, claus] = line!(4)
+
+      :ok =
+        Tartarus.attach_plugin(
+          santa,
+          :sonar,
+          {Tartarus.Plugin.SimSensor, signal: [40], capabilities: [:ultrasonic, :drive]}
+        )
+
+      :ok =
+        Tartarus.attach_plugin(
+          rudolph,
+          :pusher,
+          {GPIO, pins: [push: {5, :output}], capabilities: [:pusher, :drive]}
+        )
+
+      :ok =
+        Tartarus.attach_plugin(
+          claus,
+          :claws,
+          {GPIO, pins: [grip: {6, :output}], capabilities: [:claws, :drive]}
+        )
+
+      route = for h <- [santa, rudolph, claus], do: {h, node()}
+      _ = agent!(home, %{route: route, need: [:claws, :drive]}, module: Forager)
+      assert_receive {:chose, {^claus, _}, %{claws: [:claws], drive: [:claws]}}, 5_000
+
+      _ = agent!(home, %{route: route, need: [:camera]}, module: Forager)
+      assert_receive {:none, visited}, 5_000
+      assert Enum.map(visited, &elem(&1, 0)) == [santa, rudolph, claus]
+    end
+  end
+
+  describe "serial plugin without its device" do
+    test "attaches, waits for the device and says why it is not open" do
+      h = host!()
+      dir = Path.join(System.tmp_dir!(), "tartarus-serial-#{System.unique_integer([:positive])}")
+      File.mkdir_p!(dir)
+      on_exit(fn -> File.rm_rf!(dir) end)
+      missing = Path.join(dir, "ttyNONE")
+      regular = Path.join(dir, "plain-file")
+      File.write!(regular, "not a tty")
+
+      :ok = Tartarus.attach_plugin(h, :gone, {Serial, device: missing, backoff_ms: {5, 20}})
+      :ok = Tartarus.attach_plugin(h, :file, {Serial, device: regular, backoff_ms: {5, 20}})
+      assert {:ok, %{status: :closed, opens: 0}} = Tartarus.read_plugin(h, :gone, :status)
+      assert Tartarus.write_plugin(h, :gone, {:send, "AT"}) == {:error, :closed}
+      assert Tartarus.read_plugin(h, :gone, :last) == {:ok, nil}
+      assert Tartarus.read_plugin(h, :gone, :nope) == {:error, {:bad_argument, :nope}}
+      wait_error(h, :gone, :enoent)
+      wait_error(h, :file, {:not_a_device, :regular})
+      # Nothing was created at the device's path.
+      refute File.exists?(missing)
+
+      assert [
+               {:file, _},
+               {:gone, %{kind: :serial, status: :closed, reads: [:status, :last, :lines]}}
+             ] = Tartarus.plugins(h)
+    end
+
+    test "bad options name the key" do
+      h = host!()
+
+      assert {:error, "required option :device not given to Tartarus.Plugin.Serial"} =
+               Tartarus.attach_plugin(h, :s, {Serial, []})
+
+      assert {:error,
+              "invalid options given to Tartarus.Plugin.Serial for key :decoder: expected a module implementing Tartarus.Plugin.Serial.Decoder, got: Enum"} =
+               Tartarus.attach_plugin(h, :s, {Serial, device: "/dev/null", decoder: Enum})
+
+      assert {:error, "invalid options given to Tartarus.Plugin.Serial for key :backoff_ms" <> _} =
+               Tartarus.attach_plugin(h, :s, {Serial, device: "/dev/null", backoff_ms: {10, 1}})
+
+      assert {:error, "invalid options given to Tartarus.Plugin.Serial for key :poll" <> _} =
+               Tartarus.attach_plugin(h, :s, {Serial, device: "/dev/null", poll: {"AT", 0}})
+    end
+  end
+
+  defp wait_error(h, name, expected, tries \\ 200) do
+    {:ok, %{last_error: got}} = Tartarus.read_plugin(h, name, :status)
+
+    cond do
+      got == expected ->
+        :ok
+
+      tries == 0 ->
+        flunk("last_error of #{name}: #{inspect(got)}, expected #{inspect(expected)}")
+
+      true ->
+        Process.sleep(10)
+        wait_error(h, name, expected, tries - 1)
+    end
+  end
+end

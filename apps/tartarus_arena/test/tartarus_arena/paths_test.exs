@@ -1,0 +1,164 @@
+defmodule TartarusArena.PathsTest do
+  use ExUnit.Case, async: true
+
+  alias TartarusArena.{PFAs, Paths, PFA, Run, World}
+
+  test "both paths close, are made of the thesis's sub-path types, and carry jittered Table 6.3 features" do
+    p1 = Paths.path(1, 3)
+    p2 = Paths.path(2, 3)
+    assert Enum.map(p1.subpaths, & &1.type) == [:sp_c, :sp_a, :sp_b, :sp_a]
+    assert Enum.map(p2.subpaths, & &1.type) == [:sp_c, :sp_a, :sp_d, :sp_b, :sp_a]
+
+    for p <- [p1, p2], sp <- p.subpaths do
+      table = Paths.table_features(sp.type)
+      assert length(sp.features) == 4
+      assert Enum.all?(Enum.zip(sp.features, table), fn {f, t} -> abs(f - t) <= 0.05 + 1.0e-9 end)
+      assert sp.to > sp.from
+    end
+
+    assert List.last(p1.subpaths).to == p1.length
+    # instances of one type differ
+    [_, a1, _, a2] = p1.subpaths
+    refute a1.features == a2.features
+    assert Paths.path(1, 3) == p1
+    refute Paths.path(1, 4).subpaths == p1.subpaths
+  end
+
+  test "lap detection: a full circuit is one lap; dithering around the flag is none" do
+    p = Paths.path(1, 0)
+    {x0, y0, _} = p.start
+    tr = Paths.track_new(p, x0, y0)
+
+    # back and forth across the flag
+    {tr, laps} =
+      Enum.reduce([0.05, -0.05, 0.04, -0.03, 0.02], {tr, 0}, fn s, {tr, n} ->
+        {x, y, _} = Paths.point_at(p, s)
+        {tr, lap?} = Paths.track(tr, p, x, y)
+        {tr, n + if(lap?, do: 1, else: 0)}
+      end)
+
+    assert laps == 0
+
+    {tr, laps} =
+      Enum.reduce(1..(round(p.length / 0.02) + 5), {tr, []}, fn k, {tr, laps} ->
+        {x, y, _} = Paths.point_at(p, 0.02 + k * 0.02)
+        {tr, lap?} = Paths.track(tr, p, x, y)
+        {tr, if(lap?, do: [k | laps], else: laps)}
+      end)
+
+    assert length(laps) == 1
+    assert tr.laps == 1
+  end
+
+  for pfa <- PFAs.all() do
+    test "#{inspect(pfa)} keeps a robot on a straight and on a curved line" do
+      p = Paths.path(1, 0)
+
+      for index <- [0, 1] do
+        r = Run.subpath(unquote(pfa), p, index, seed: 11)
+        assert r.completed, "#{inspect(unquote(pfa))} on #{r.type}: #{inspect(r)}"
+        assert r.on_line >= 0.95, "#{inspect(unquote(pfa))} on #{r.type}: #{inspect(r)}"
+        assert r.features == Enum.at(p.subpaths, index).features
+      end
+    end
+  end
+
+  test "laps: a robot with A4 laps path 1, timed, with its sub-paths measured; deterministic" do
+    p = Paths.path(1, 0)
+
+    go = fn ->
+      Run.laps([%{robot: :r, path: p, choose: PFA.A4}], Run.arena([{:r, p, 0.0}], seed: 5),
+        laps: 2
+      )
+    end
+
+    res = go.()
+    %{lap_times: [t1, t2], subpaths: subs, lost: 0} = res.robots.r
+    assert t1 > 20 and t1 < 40 and t2 > 20 and t2 < 40
+    assert Enum.map(Enum.take(subs, 4), & &1.type) == [:sp_c, :sp_a, :sp_b, :sp_a]
+    assert_in_delta Enum.sum(Enum.map(Enum.take(subs, 4), & &1.time)), t1, 0.05
+    assert go.() == res
+    assert World.time(res.world) == res.time
+  end
+
+  test "laps: a chooser picks a PFA per sub-path; a lost robot is put back and charged" do
+    p = Paths.path(2, 0)
+    choose = fn sp -> if sp.type == :sp_c, do: PFA.A1, else: PFA.A7 end
+
+    res =
+      Run.laps([%{robot: :r, path: p, choose: choose}], Run.arena([{:r, p, 0.0}], seed: 5),
+        laps: 1
+      )
+
+    subs = res.robots.r.subpaths
+    assert Enum.map(subs, & &1.pfa) == ["A1", "A7", "A7", "A7", "A7"]
+    assert length(res.robots.r.lap_times) == 1
+  end
+
+  test "laps: a policy chooses every sub-path's PFA and hears every result and lap, in order" do
+    p1 = Paths.path(1, 0)
+    p2 = Paths.path(2, 0)
+    pfas = PFAs.all()
+
+    policy = fn
+      {:choose, robot, sp}, st ->
+        pfa = Enum.at(pfas, rem(length(st.chosen), 8))
+        {pfa, %{st | chosen: [{robot, sp.index, PFAs.name(pfa)} | st.chosen]}}
+
+      {:result, robot, r}, st ->
+        %{st | results: [{robot, r.index, r.pfa} | st.results]}
+
+      {:lap, robot, n, secs}, st ->
+        %{st | laps: [{robot, n, secs} | st.laps]}
+    end
+
+    res =
+      Run.laps(
+        [%{robot: :a, path: p1}, %{robot: :b, path: p2}],
+        Run.arena([{:a, p1, 0.0}, {:b, p2, 0.0}], seed: 2),
+        laps: 1,
+        policy: policy,
+        policy_state: %{chosen: [], results: [], laps: []}
+      )
+
+    st = res.policy_state
+
+    for robot <- [:a, :b] do
+      subs = res.robots[robot].subpaths
+      results = for {^robot, i, pfa} <- Enum.reverse(st.results), do: {i, pfa}
+      assert results == Enum.map(subs, &{&1.index, &1.pfa})
+      chosen = for {^robot, i, pfa} <- Enum.reverse(st.chosen), do: {i, pfa}
+      # every sub-path crossed was chosen first; the last choice is the next lap's first
+      assert Enum.take(chosen, length(results)) == results
+      assert [{^robot, 1, secs}] = Enum.filter(st.laps, &(elem(&1, 0) == robot))
+      assert res.robots[robot].lap_times == [secs]
+    end
+
+    # the choices rotate through the eight PFAs across both robots
+    assert st.chosen |> Enum.map(&elem(&1, 2)) |> Enum.uniq() |> length() == 8
+  end
+
+  defmodule Straight do
+    @moduledoc false
+    @behaviour TartarusArena.PFA
+    def init(_), do: nil
+    def control(_, _, s), do: {{1.0, 1.0}, s}
+    def strategy, do: "straight ahead, whatever the line"
+  end
+
+  test "laps: a robot that leaves the line is put back on it and charged the penalty" do
+    p = Paths.path(1, 0)
+
+    res =
+      Run.laps([%{robot: :r, path: p, choose: Straight}], Run.arena([{:r, p, 0.0}], seed: 5),
+        laps: 1,
+        max_time: 20.0
+      )
+
+    assert res.robots.r.lost >= 1
+    assert res.robots.r.lap_times == []
+    {x, y, _} = World.pose(res.world, :r)
+    {_, d, _} = Paths.locate(p, x, y)
+    assert d <= 0.25
+  end
+end

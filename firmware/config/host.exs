@@ -1,0 +1,9 @@
+# A laptop build of the firmware: no distribution started by the firmware (use `iex --sname`),
+# simulated pins, no UART.
+import Config
+
+config :tartarus_firmware,
+  distribution: false,
+  plugins: [
+    io: {Tartarus.Plugin.GPIO, pins: [led: {17, :output}, button: {27, :input}]}
+  ]

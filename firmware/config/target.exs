@@ -1,0 +1,80 @@
+# A Raspberry Pi (MIX_TARGET=rpi0 | rpi3 | rpi4).
+import Config
+
+# Boot: start the runtime and networking first, then the firmware.
+config :shoehorn, init: [:nerves_runtime, :nerves_pack]
+
+# Hostnames are tartarus-<serial>, e.g. tartarus-1a2b; the node is tartarus@tartarus-1a2b.local.
+config :nerves, :erlinit, hostname_pattern: "tartarus-%s"
+
+config :nerves, :firmware, rootfs_overlay: "rootfs_overlay"
+
+# SSH (firmware updates with `mix upload`, a shell): the keys of the user who builds.
+keys =
+  ["id_rsa.pub", "id_ecdsa.pub", "id_ed25519.pub"]
+  |> Enum.map(&Path.join([System.user_home!(), ".ssh", &1]))
+  |> Enum.filter(&File.exists?/1)
+
+if keys == [],
+  do:
+    Mix.raise("""
+    No SSH public keys found in ~/.ssh. An ssh key is required to log in to the Pi and to
+    upload new firmware (`mix upload`).
+    """)
+
+config :nerves_ssh, authorized_keys: Enum.map(keys, &File.read!/1)
+
+# Wi-Fi from the environment of the build: TARTARUS_WIFI_SSID, TARTARUS_WIFI_PSK and
+# TARTARUS_WIFI_COUNTRY (the regulatory domain, e.g. "FR"; "00" is the world-safe default).
+# Without an SSID the Pi uses Ethernet and USB gadget networking only.
+wifi =
+  case System.get_env("TARTARUS_WIFI_SSID") do
+    ssid when is_binary(ssid) and ssid != "" ->
+      [
+        {"wlan0",
+         %{
+           type: VintageNetWiFi,
+           vintage_net_wifi: %{
+             networks: [
+               %{key_mgmt: :wpa_psk, ssid: ssid, psk: System.get_env("TARTARUS_WIFI_PSK", "")}
+             ]
+           },
+           ipv4: %{method: :dhcp}
+         }}
+      ]
+
+    _ ->
+      []
+  end
+
+config :vintage_net,
+  regulatory_domain: System.get_env("TARTARUS_WIFI_COUNTRY", "00"),
+  config:
+    [
+      {"usb0", %{type: VintageNetDirect}},
+      {"eth0", %{type: VintageNetEthernet, ipv4: %{method: :dhcp}}}
+    ] ++ wifi
+
+# mDNS: the Pi answers to <hostname>.local and advertises ssh and epmd.
+config :mdns_lite,
+  hosts: [:hostname],
+  ttl: 120,
+  services: [
+    %{protocol: "ssh", transport: "tcp", port: 22},
+    %{protocol: "sftp-ssh", transport: "tcp", port: 22},
+    %{protocol: "epmd", transport: "tcp", port: 4369}
+  ]
+
+# The node: distribution over TLS (rel/vm.args.eex names the option file this writes),
+# certificates and trusted issuers read from /data (see docs/devices.md), the host's durable
+# agents under /data too, and the devices of this Pi.
+config :tartarus_firmware,
+  distribution: true,
+  node_basename: "tartarus",
+  data: "/data/tartarus",
+  plugins: [
+    # An HM-10 on the Pi's UART (GPIO 14/15): a LATS node's BLE receiver.
+    beacon: {TartarusFirmware.HM10, device: "ttyAMA0", speed: 9600},
+    # A status LED and a push button.
+    io: {TartarusFirmware.GPIO, pins: [led: {17, :output}, button: {27, :input}]}
+  ]
