@@ -14,7 +14,8 @@ defmodule TartarusImmune.MixProject do
       deps: [
         {:tartarus, in_umbrella: true},
         {:tartarus_tools, in_umbrella: true},
-        {:tartarus_emu, in_umbrella: true}
+        {:tartarus_emu, in_umbrella: true},
+        {:tartarus_arena, in_umbrella: true}
       ]
     ]
   end

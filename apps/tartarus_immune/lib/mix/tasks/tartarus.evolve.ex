@@ -4,9 +4,25 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve --experiment sharing [--sizes 20,40,80] [--trials 10] [--p 0.1]
-                          [--max-iterations 3000] [--mode virtual|peer]
-                          [--seed 1] [--out DIR] [--json]
+      mix tartarus.evolve --experiment s1|s2|s3|monolithic|sharing [--trials 10]
+                          [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
+                          [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
+
+  `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
+  10 yellow pucks for S2 and S3) learns phototaxis with obstacle avoidance (S1), pushing
+  pucks towards the light (S2), or both with the light switched off, on and off again (S3,
+  where it must repel pucks when the light is off), with the immune algorithm (epsilon
+  0.45, 0.4, 0.25; 200, 500, 500 iterations) and, on the same seed, one monolithic
+  controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
+  with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
+  Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
+  design, trial, antibodies, switches, final fitness, test success), for the first trial
+  the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
+  colour per antibody, Figs. 7.3-7.5) and the robot's path (`trajectory_*.svg`). Summary:
+  `arms` (per scenario and design: test_success, antibodies, switches, final_fitness, and
+  for S3 the antibodies used with the light on, off and both, and in how many trials an
+  antibody of the first light-off phase was used again in the second), `antibodies`,
+  `test_success`, `test_success_monolithic`, `immune_beats_monolithic`.
 
   `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
   links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the
@@ -27,7 +43,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   and `test_success` (null for `sharing`), and the runner's `scenario, seed, steps,
   setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON object.
 
-  Not built yet: `s1`, `s2`, `s3`, `monolithic`, `robots3` (they need the arena simulator).
+  Not built yet: `robots3` (three robots sharing antibodies in S3).
   """
   use TartarusTools.CLI
 
@@ -48,7 +64,14 @@ defmodule Mix.Tasks.Tartarus.Evolve do
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
 
-    experiment = TartarusTools.CLI.choice!(opts[:experiment], [:sharing], :experiment, @task, :sharing)
+    experiment =
+      TartarusTools.CLI.choice!(
+        opts[:experiment],
+        [:s1, :s2, :s3, :monolithic, :sharing],
+        :experiment,
+        @task,
+        :sharing
+      )
     mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
     sizes = parse_sizes!(opts[:sizes])
     json? = opts[:json]
@@ -81,6 +104,21 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   defp order("none"), do: -1
   defp order("b-cast"), do: 0
   defp order("iPkt-" <> x), do: String.to_integer(x)
+
+  defp text(%{arms: arms} = s, dir) do
+    rows =
+      for {arm, a} <- Enum.sort(arms) do
+        extra =
+          if Map.has_key?(a, :antibodies_light_on),
+            do:
+              "  antibodies light on/off/both #{a.antibodies_light_on}/#{a.antibodies_light_off}/#{a.antibodies_used_in_both}, re-used after the light came back in #{a.trials_reusing_after_return} trials",
+            else: ""
+
+        "  #{String.pad_trailing(arm, 14)} test_success #{a.test_success}  antibodies #{a.antibodies}  final fitness #{a.final_fitness}#{extra}"
+      end
+
+    Enum.join(["evolve: #{s.experiment}, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"], "\n")
+  end
 
   defp text(s, dir) do
     rows =

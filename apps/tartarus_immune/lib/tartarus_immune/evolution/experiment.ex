@@ -3,23 +3,31 @@ defmodule TartarusImmune.Evolution.Experiment do
   The embodied-evolution experiments of thesis ch. 7 as a `TartarusEmu.Scenario`
   (`mix tartarus.evolve`).
 
-  Built so far: `sharing` (§7.4.3, Fig. 7.6): for each network size, social learning by
+  `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
+  scenario on the arena with the immune algorithm and, beside each, the monolithic
+  baseline (§7.4.1) on the same seed (`TartarusImmune.Evolution.Embodied`); `monolithic`:
+  the baseline alone on all three scenarios. A step is one trial.
+
+  `sharing` (§7.4.3, Fig. 7.6): for each network size, social learning by
   broadcast (`b-cast`) against 1, 2, 4, ... intelligent packets (`iPkt-x`, x = n/20, n/10
   and n/5, at least 1), `trials` runs each (seeds `seed`, `seed + 1`, ...); see
   `TartarusImmune.Evolution.Sharing` for what one run does (and `none`, no sharing, as
   the baseline) and how `gamma_avg` and `Omega`
   are measured. A step of the scenario is one (size, scheme) point.
 
-  The arena scenarios (`s1`, `s2`, `s3`, `monolithic`, `robots3`) need the arena
-  simulator and are not built yet.
+  Not built yet: `robots3` (three robots sharing antibodies in S3).
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.Sharing
+  alias TartarusImmune.Evolution.{Embodied, Sharing}
   alias TartarusTools.{Report, Series, SVG}
 
   @schema [
-    experiment: [type: {:in, [:sharing]}, default: :sharing, doc: "which experiment"],
+    experiment: [
+      type: {:in, [:s1, :s2, :s3, :monolithic, :sharing]},
+      default: :sharing,
+      doc: "which experiment"
+    ],
     sizes: [type: {:list, :pos_integer}, default: [20, 40, 80], doc: "`sharing`: network sizes"],
     trials: [type: :pos_integer, default: 10, doc: "runs per point (seeds seed, seed + 1, ...)"],
     p: [type: :probability, default: 0.1, doc: "`sharing`: per-iteration link flap probability"],
@@ -46,7 +54,10 @@ defmodule TartarusImmune.Evolution.Experiment do
   def run(opts \\ []) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "#{inspect(__MODULE__)}.run/1") do
       out = Keyword.get_lazy(opts, :out, fn -> Report.default_out_dir("evolve-#{opts[:experiment]}") end)
-      points = for n <- opts[:sizes], scheme <- schemes(n), do: {n, scheme}
+      points =
+        if opts[:experiment] == :sharing,
+          do: for(n <- opts[:sizes], scheme <- schemes(n), do: {n, scheme}),
+          else: Enum.to_list(0..(opts[:trials] - 1))
 
       TartarusEmu.Scenario.run(__MODULE__,
         seed: opts[:seed],
@@ -89,6 +100,27 @@ defmodule TartarusImmune.Evolution.Experiment do
     do: {:ok, %{p: Map.new(opts.params), seed: opts.seed, points: opts.points, runs: [], series: Series.new()}}
 
   @impl true
+  def step(%{p: %{experiment: exp}} = state, k) when exp != :sharing do
+    trial = Enum.at(state.points, k - 1)
+    seed = state.seed + trial
+
+    scenarios = if exp == :monolithic, do: [:s1, :s2, :s3], else: [exp]
+    designs = if exp == :monolithic, do: [:monolithic], else: [:immune, :monolithic]
+
+    runs =
+      for sc <- scenarios, d <- designs do
+        {:ok, r} = Embodied.run(scenario: sc, design: d, seed: seed, trace: trial == 0)
+        Map.merge(r, %{trial: trial})
+      end
+
+    series =
+      Enum.reduce(runs, state.series, fn r, series ->
+        Series.record(series, :"test_success_#{r.scenario}_#{r.design}", trial + 1, r.test_success)
+      end)
+
+    %{state | runs: state.runs ++ runs, series: series}
+  end
+
   def step(state, k) do
     {n, scheme} = Enum.at(state.points, k - 1)
     p = state.p
@@ -126,6 +158,71 @@ defmodule TartarusImmune.Evolution.Experiment do
   def series(state), do: state.series
 
   @impl true
+  def write(%{p: %{experiment: exp}} = state, dir) when exp != :sharing do
+    rows =
+      for r <- state.runs,
+          do: [
+            r.scenario,
+            r.design,
+            r.trial,
+            r.antibodies,
+            r.switches,
+            Float.round(r.final_fitness, 4),
+            r.test_success
+          ]
+
+    csv = Path.join(dir, "runs.csv")
+
+    File.write!(
+      csv,
+      Report.to_csv(~w(scenario design trial antibodies switches final_fitness test_success), rows)
+    )
+
+    curves =
+      for r <- state.runs, r.trial == 0 do
+        file = Path.join(dir, "curve_#{r.scenario}_#{r.design}.svg")
+
+        series =
+          r.curve
+          |> Enum.group_by(& &1.antibody)
+          |> Enum.sort()
+          |> Enum.map(fn {id, pts} ->
+            %{name: "Ab#{id}", points: Enum.map(pts, &{&1.iteration, Float.round(&1.fitness, 4)})}
+          end)
+
+        light =
+          case r.light_switches do
+            [on, off] -> "; light on at #{on}, off at #{off}"
+            _ -> ""
+          end
+
+        File.write!(
+          file,
+          SVG.line_chart(series,
+            lines: false,
+            title:
+              "#{String.upcase(to_string(r.scenario))} #{r.design}: fitness by antibody (#{r.switches} switches#{light})",
+            x_label: "iteration",
+            y_label: "fitness per step"
+          )
+        )
+
+        traj = Path.join(dir, "trajectory_#{r.scenario}_#{r.design}.svg")
+        points = r.trajectory |> Enum.with_index() |> Enum.map(fn {{x, y, _}, i} -> {i * 0.1, x, y} end)
+
+        File.write!(
+          traj,
+          TartarusArena.Render.trajectories(r.world, %{"robot" => points},
+            title: "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning"
+          )
+        )
+
+        [file, traj]
+      end
+
+    [csv | List.flatten(curves)]
+  end
+
   def write(state, dir) do
     rows =
       for r <- state.runs,
@@ -169,6 +266,52 @@ defmodule TartarusImmune.Evolution.Experiment do
   end
 
   @impl true
+  def summary(%{p: %{experiment: exp}} = state) when exp != :sharing do
+    p = state.p
+    arm = fn sc, d -> Enum.filter(state.runs, &(&1.scenario == sc and &1.design == d)) end
+    key = fn sc, d -> "#{sc}_#{d}" end
+
+    arms =
+      for sc <- [:s1, :s2, :s3], d <- [:immune, :monolithic], (runs = arm.(sc, d)) != [], into: %{} do
+        s3 =
+          if sc == :s3,
+            do: %{
+              antibodies_light_on: mean(for r <- runs, do: r.by_light.on),
+              antibodies_light_off: mean(for r <- runs, do: r.by_light.off),
+              antibodies_used_in_both: mean(for r <- runs, do: r.by_light.both),
+              trials_reusing_after_return: Enum.count(runs, &(&1.reused_after_return > 0))
+            },
+            else: %{}
+
+        {key.(sc, d),
+         Map.merge(
+           %{
+             test_success: mean(Enum.map(runs, & &1.test_success)),
+             test_success_by_trial: Enum.map(runs, & &1.test_success),
+             antibodies: mean(Enum.map(runs, & &1.antibodies)),
+             switches: mean(Enum.map(runs, & &1.switches)),
+             final_fitness: mean(Enum.map(runs, & &1.final_fitness)),
+             iterations: hd(runs).iterations,
+             epsilon: hd(runs).epsilon
+           },
+           s3
+         )}
+      end
+
+    main = if exp == :monolithic, do: nil, else: arms[key.(exp, :immune)]
+    mono = if exp == :monolithic, do: nil, else: arms[key.(exp, :monolithic)]
+
+    %{
+      experiment: to_string(exp),
+      trials: p.trials,
+      arms: arms,
+      antibodies: main && main.antibodies,
+      test_success: if(main, do: main.test_success, else: Map.new(arms, fn {k, v} -> {k, v.test_success} end)),
+      test_success_monolithic: mono && mono.test_success,
+      immune_beats_monolithic: if(main && mono, do: main.test_success > mono.test_success)
+    }
+  end
+
   def summary(state) do
     p = state.p
     by = fn f -> for {n, scheme} <- state.points, reduce: %{} do
