@@ -4,7 +4,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve --experiment s1|s2|s3|monolithic|sharing [--trials 10]
+      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
 
@@ -43,7 +43,12 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   and `test_success` (null for `sharing`), and the runner's `scenario, seed, steps,
   setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON object.
 
-  Not built yet: `robots3` (three robots sharing antibodies in S3).
+  `robots3` (§7.4.2): three robots learn S3 in one arena, each a host of an emulated
+  network, sharing their best antibodies every 5 iterations by broadcast or by one packet
+  agent, against no sharing, on the same seeds (`TartarusImmune.Evolution.Collective`).
+  Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
+  `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
+  each per scheme.
   """
   use TartarusTools.CLI
 
@@ -67,7 +72,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     experiment =
       TartarusTools.CLI.choice!(
         opts[:experiment],
-        [:s1, :s2, :s3, :monolithic, :sharing],
+        [:s1, :s2, :s3, :monolithic, :robots3, :sharing],
         :experiment,
         @task,
         :sharing
@@ -104,6 +109,15 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   defp order("none"), do: -1
   defp order("b-cast"), do: 0
   defp order("iPkt-" <> x), do: String.to_integer(x)
+
+  defp text(%{experiment: "robots3"} = s, dir) do
+    rows =
+      for scheme <- ["none", "broadcast", "ipkt"] do
+        "  #{String.pad_trailing(scheme, 10)} test_success #{s.test_success[scheme]}  antibodies #{s.antibodies[scheme]}  shared chosen #{s.external_selections[scheme]}  communications per robot #{s.communications_per_robot[scheme]}"
+      end
+
+    Enum.join(["evolve: robots3, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"], "\n")
+  end
 
   defp text(%{arms: arms} = s, dir) do
     rows =

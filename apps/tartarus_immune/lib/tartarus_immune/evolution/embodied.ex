@@ -97,6 +97,33 @@ defmodule TartarusImmune.Evolution.Embodied do
     end
   end
 
+  @doc """
+  The options of `run/1` validated, as a map with the scenario's defaults filled in; raises
+  `ArgumentError` for bad options.
+  """
+  @spec options(keyword()) :: map()
+  def options(opts),
+    do: opts |> Tartarus.Options.validate!(@schema, "#{inspect(__MODULE__)}.options/1") |> Map.new() |> defaults()
+
+  @doc """
+  One time step's sample for the objective functions (`TartarusImmune.Evolution.Objective`)
+  from a robot's motion and readings.
+  """
+  @spec sample(World.t(), term(), map()) :: Objective.sample()
+  def sample(world, robot, readings) do
+    m = World.motion(world, robot)
+    {lx, ly} = readings.light
+
+    %{
+      v_trans: min(m.v_trans, 1.0),
+      v_rot: min(m.v_rot, 1.0),
+      d: readings.ultrasonic / 200,
+      light: [lx / 100, ly / 100],
+      puck: readings.puck_in_gripper,
+      light_on: World.light_on?(world)
+    }
+  end
+
   defp defaults(o) do
     iterations =
       o[:iterations] ||
@@ -180,11 +207,13 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   defp s3_stats(_, _, _), do: %{}
 
-  defp light_at(:s3, {on_at, off_at}, i), do: i >= on_at and i < off_at
-  defp light_at(_, _, _), do: true
+  @doc false
+  def light_at(:s3, {on_at, off_at}, i), do: i >= on_at and i < off_at
+  def light_at(_, _, _), do: true
 
+  @doc false
   # A fresh arena: the robot at a random pose, pucks (S2, S3) at random places.
-  defp arena(o, rng, light_on) do
+  def arena(o, rng, light_on) do
     world = World.new(size: {2.0, 2.0}, seed: :erlang.phash2({o.seed, :world, rng}), light: [on: light_on])
     {x, rng} = between(rng, 0.2, 1.8)
     {y, rng} = between(rng, 0.2, 1.8)
@@ -229,18 +258,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   defp execute(o, world, w, paratope, readings, n, samples, traj) do
     [l, r] = NeuralNet.forward(@shape, w, World.normalize(readings))
     world = World.step(world, %{robot: {l, r}}, o.dt)
-    m = World.motion(world, :robot)
     {next, world} = World.sense(world, :robot)
-    {lx, ly} = {elem(next.light, 0), elem(next.light, 1)}
-
-    sample = %{
-      v_trans: min(m.v_trans, 1.0),
-      v_rot: min(m.v_rot, 1.0),
-      d: next.ultrasonic / 200,
-      light: [lx / 100, ly / 100],
-      puck: next.puck_in_gripper,
-      light_on: World.light_on?(world)
-    }
+    sample = sample(world, :robot, next)
 
     traj = if o.trace, do: [World.pose(world, :robot) | traj], else: traj
     samples = [sample | samples]
@@ -254,9 +273,16 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   # -- test -----------------------------------------------------------------------
 
-  defp test(%{test_episodes: 0}, _rep, rng), do: {nil, [], rng}
+  defp test(o, rep, rng), do: test_repertoire(o, rep, rng)
 
-  defp test(o, rep, rng) do
+  @doc """
+  Tests a trained repertoire (the test of the module doc) with `o`, the options of `run/1`
+  as a map with defaults filled in (`options/1`). Returns `{success, episodes, rng}`.
+  """
+  @spec test_repertoire(map(), Repertoire.t(), :rand.state()) :: {float() | nil, [map()], :rand.state()}
+  def test_repertoire(%{test_episodes: 0}, _rep, rng), do: {nil, [], rng}
+
+  def test_repertoire(o, rep, rng) do
     {episodes, rng} =
       Enum.map_reduce(1..o.test_episodes, rng, fn k, rng ->
         case o.scenario do

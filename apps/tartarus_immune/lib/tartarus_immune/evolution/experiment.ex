@@ -15,16 +15,18 @@ defmodule TartarusImmune.Evolution.Experiment do
   the baseline) and how `gamma_avg` and `Omega`
   are measured. A step of the scenario is one (size, scheme) point.
 
-  Not built yet: `robots3` (three robots sharing antibodies in S3).
+  `robots3` (§7.4.2): three robots learning S3 in one arena, sharing antibodies by
+  broadcast, by a packet agent, or not at all (`TartarusImmune.Evolution.Collective`), on
+  the same seeds; a step is one trial.
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.{Embodied, Sharing}
+  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing}
   alias TartarusTools.{Report, Series, SVG}
 
   @schema [
     experiment: [
-      type: {:in, [:s1, :s2, :s3, :monolithic, :sharing]},
+      type: {:in, [:s1, :s2, :s3, :monolithic, :robots3, :sharing]},
       default: :sharing,
       doc: "which experiment"
     ],
@@ -100,6 +102,23 @@ defmodule TartarusImmune.Evolution.Experiment do
     do: {:ok, %{p: Map.new(opts.params), seed: opts.seed, points: opts.points, runs: [], series: Series.new()}}
 
   @impl true
+  def step(%{p: %{experiment: :robots3}} = state, k) do
+    trial = Enum.at(state.points, k - 1)
+
+    runs =
+      for scheme <- [:none, :broadcast, :ipkt] do
+        {:ok, r} = Collective.run(scheme: scheme, seed: state.seed + trial)
+        Map.put(r, :trial, trial)
+      end
+
+    series =
+      Enum.reduce(runs, state.series, fn r, series ->
+        Series.record(series, :"test_success_robots3_#{r.scheme}", trial + 1, r.test_success)
+      end)
+
+    %{state | runs: state.runs ++ runs, series: series}
+  end
+
   def step(%{p: %{experiment: exp}} = state, k) when exp != :sharing do
     trial = Enum.at(state.points, k - 1)
     seed = state.seed + trial
@@ -158,6 +177,24 @@ defmodule TartarusImmune.Evolution.Experiment do
   def series(state), do: state.series
 
   @impl true
+  def write(%{p: %{experiment: :robots3}} = state, dir) do
+    rows =
+      for r <- state.runs, p <- r.per_robot do
+        c = r.communications
+        [r.scheme, r.trial, p.robot, p.antibodies, p.external_selections, p.test_success,
+         c.broadcast_messages + c.broadcasts_received + c.departures + c.arrivals]
+      end
+
+    csv = Path.join(dir, "runs.csv")
+
+    File.write!(
+      csv,
+      Report.to_csv(~w(scheme trial robot antibodies external_selections test_success communications), rows)
+    )
+
+    [csv]
+  end
+
   def write(%{p: %{experiment: exp}} = state, dir) when exp != :sharing do
     rows =
       for r <- state.runs,
@@ -266,6 +303,25 @@ defmodule TartarusImmune.Evolution.Experiment do
   end
 
   @impl true
+  def summary(%{p: %{experiment: :robots3}} = state) do
+    by = fn f ->
+      Map.new([:none, :broadcast, :ipkt], fn scheme ->
+        {to_string(scheme), f.(Enum.filter(state.runs, &(&1.scheme == scheme)))}
+      end)
+    end
+
+    comm = fn r -> r.communications |> Map.values() |> Enum.sum() end
+
+    %{
+      experiment: "robots3",
+      trials: state.p.trials,
+      test_success: by.(fn runs -> mean(Enum.map(runs, & &1.test_success)) end),
+      antibodies: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
+      external_selections: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.external_selections) end),
+      communications_per_robot: by.(fn runs -> mean(for r <- runs, do: comm.(r) / r.robots) end)
+    }
+  end
+
   def summary(%{p: %{experiment: exp}} = state) when exp != :sharing do
     p = state.p
     arm = fn sc, d -> Enum.filter(state.runs, &(&1.scenario == sc and &1.design == d)) end
