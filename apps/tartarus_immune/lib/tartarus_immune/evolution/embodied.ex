@@ -107,7 +107,9 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   @doc """
   One time step's sample for the objective functions (`TartarusImmune.Evolution.Objective`)
-  from a robot's motion and readings.
+  from a robot's motion and readings. The speeds are those the robot achieved: a robot
+  whose move was refused (it drove into a wall, a robot or a stuck puck: `bumped`) did not
+  translate, whatever its wheels were told (a real robot's wheel encoders stall).
   """
   @spec sample(World.t(), term(), map()) :: Objective.sample()
   def sample(world, robot, readings) do
@@ -115,7 +117,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     {lx, ly} = readings.light
 
     %{
-      v_trans: min(m.v_trans, 1.0),
+      v_trans: if(readings.bumped, do: 0.0, else: min(m.v_trans, 1.0)),
       v_rot: min(m.v_rot, 1.0),
       d: readings.ultrasonic / 200,
       light: [lx / 100, ly / 100],
