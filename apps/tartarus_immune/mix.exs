@@ -14,7 +14,8 @@ defmodule TartarusImmune.MixProject do
       deps: [
         {:tartarus, in_umbrella: true},
         {:tartarus_tools, in_umbrella: true},
-        {:tartarus_emu, in_umbrella: true}
+        {:tartarus_emu, in_umbrella: true},
+        {:tartarus_arena, in_umbrella: true}
       ]
     ]
   end
@@ -22,7 +23,7 @@ defmodule TartarusImmune.MixProject do
   def application do
     [
       extra_applications: [:logger],
-      env: [tartarus_demo: [TartarusImmune.Demo]]
+      env: [tartarus_demo: [TartarusImmune.Demo, TartarusImmune.Evolution.Demo]]
     ]
   end
 end

@@ -1,6 +1,4 @@
-# PropEr helpers live in an .exs (not compiled into the app). Long runs are tagged :slow
-# and excluded unless TARTARUS_SCALE=1.
-Code.require_file("support/prop.exs", __DIR__)
+# Long runs are tagged :slow and excluded unless TARTARUS_SCALE=1.
 
 exclude =
   if System.get_env("TARTARUS_SCALE") == "1" do

@@ -1,6 +1,7 @@
 defmodule TartarusImmune.SortingTest do
   use ExUnit.Case, async: true
-  alias TartarusImmune.{Domain, Prop, Sorting}
+  alias TartarusImmune.{Domain, Sorting}
+  alias TartarusTools.Prop
   import :proper_types, only: [list: 1, integer: 2]
   doctest TartarusImmune.Sorting
   doctest TartarusImmune.Sorting.Insertion

@@ -170,7 +170,8 @@ defmodule TartarusTools.SVG do
   @doc """
   A line chart of one or more series `%{name: term, points: [{x, y}]}`, drawn in the given
   order with a legend. Extra options: `:x_min`, `:x_max`, `:y_min`, `:y_max` (force the
-  range to include these), `:markers` (draw points; default when a series has at most 60).
+  range to include these), `:markers` (draw points; default when a series has at most 60),
+  `:lines` (default true; `false` draws points only: a scatter plot, one colour per series).
 
   ## Examples
 
@@ -197,7 +198,10 @@ defmodule TartarusTools.SVG do
       |> Enum.map(fn {%{name: name, points: pts}, i} ->
         color = color(i)
         coords = Enum.map(pts, fn {x, y} -> [num(sx.(x)), ",", num(sy.(y)), " "] end)
-        markers? = Keyword.get(opts, :markers, length(pts) <= 60) or length(pts) == 1
+        lines? = Keyword.get(opts, :lines, true)
+
+        markers? =
+          Keyword.get(opts, :markers, length(pts) <= 60) or length(pts) == 1 or not lines?
 
         circles =
           if markers?,
@@ -217,7 +221,7 @@ defmodule TartarusTools.SVG do
             else: []
 
         polyline =
-          if length(pts) > 1,
+          if lines? and length(pts) > 1,
             do: [
               ~s(<polyline fill="none" stroke="#{color}" stroke-width="2" points="),
               coords,

@@ -10,7 +10,8 @@ defmodule TartarusEmu.Log.Counts do
       `:clone` events (one hand-off is one message of its envelope plus shipped code bytes);
     * `{:step, step, counter}` - per step of the log's clock (added by `stamp/2`).
 
-  Counter names are those of `Tartarus.Events` (`:arrivals`, `:departures`, `:bytes`, ...),
+  Counter names are those of `Tartarus.Events` (`:arrivals`, `:departures`, `:bytes`,
+  `:broadcasts`, `:broadcast_messages`, `:broadcast_bytes`, `:broadcasts_received`, ...),
   so per-host counts compare directly with `Tartarus.status(host).counts`. One difference:
   the platform also counts shipped code of a `:clone` in `:bytes`, which the clone event
   does not carry.
@@ -29,6 +30,12 @@ defmodule TartarusEmu.Log.Counts do
 
       iex> TartarusEmu.Log.Counts.add(%{}, %{type: :arrival, host: :b})
       %{{:total, :arrivals} => 1, {:host, :b, :arrivals} => 1}
+
+  A broadcast counts its messages (one per neighbour) and bytes:
+
+      iex> c = TartarusEmu.Log.Counts.add(%{}, %{type: :broadcast, host: :a, to: [:b, :c], messages: 2, bytes: 90})
+      iex> {c[{:total, :broadcasts}], c[{:total, :broadcast_messages}], c[{:host, :a, :broadcast_bytes}]}
+      {1, 2, 90}
   """
   @spec add(t(), map()) :: t()
   # The hot path of the log (two events per migration): one clause per common type.
@@ -69,6 +76,15 @@ defmodule TartarusEmu.Log.Counts do
   defp amounts(:removed, _), do: [removed: 1]
   defp amounts(:message, e), do: [messages: 1, message_bytes: Map.get(e, :bytes, 0)]
   defp amounts(:refused, _), do: [refused: 1]
+
+  defp amounts(:broadcast, e),
+    do: [
+      broadcasts: 1,
+      broadcast_messages: Map.get(e, :messages, 0),
+      broadcast_bytes: Map.get(e, :bytes, 0)
+    ]
+
+  defp amounts(:broadcast_received, _), do: [broadcasts_received: 1]
   defp amounts(other, _), do: [{other, 1}]
 
   defp add_link(c, :clone, %{host: from, to: to} = e) do

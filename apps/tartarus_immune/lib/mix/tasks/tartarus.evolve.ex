@@ -1,0 +1,162 @@
+defmodule Mix.Tasks.Tartarus.Evolve do
+  @shortdoc "Embodied evolution (thesis ch. 7): sharing controllers by broadcast or by iPkts"
+  @moduledoc """
+  Runs the embodied-evolution experiments of thesis ch. 7 (see
+  `TartarusImmune.Evolution.Experiment`).
+
+      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
+                          [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
+                          [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
+
+  `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
+  10 yellow pucks for S2 and S3) learns phototaxis with obstacle avoidance (S1), pushing
+  pucks towards the light (S2), or both with the light switched off, on and off again (S3,
+  where it must repel pucks when the light is off), with the immune algorithm (epsilon
+  0.45, 0.4, 0.25; 200, 500, 500 iterations) and, on the same seed, one monolithic
+  controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
+  with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
+  Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
+  design, trial, antibodies, switches, final fitness, test success), for the first trial
+  the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
+  colour per antibody, Figs. 7.3-7.5) and the robot's path (`trajectory_*.svg`). Summary:
+  `arms` (per scenario and design: test_success, antibodies, switches, final_fitness, and
+  for S3 the antibodies used with the light on, off and both, and in how many trials an
+  antibody of the first light-off phase was used again in the second), `antibodies`,
+  `test_success`, `test_success_monolithic`, `immune_beats_monolithic`.
+
+  `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
+  links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the
+  OR gate with the (1+1)-online strategy and share what they find by broadcast (social
+  learning) or by 1, 2, 4, ... intelligent packets (mobile agents moving conscientiously),
+  against no sharing at all (`none`).
+  For each size in `--sizes` and each scheme, `--trials` runs (seeds S, S+1, ...).
+
+  Output (in `--out DIR`, default `results/evolve-<experiment>-<UTC timestamp>`):
+  `runs.csv` (one row per run: nodes, scheme, trial, gamma_avg, omega, first_solved_at,
+  converged_at, iterations), `gamma_avg.svg` and `omega.svg` (bars per size and scheme,
+  Fig. 7.6), the series as CSV/SVG, `summary.json`, `summary.md`.
+
+  Summary keys: `experiment, trials, sizes, p, mode, gamma_avg` and `omega` (size ->
+  scheme -> mean over the converged runs), `omega_median, converged_runs,
+  iterations_to_converge, ipkt_fewer_communications_at_every_size,
+  more_ipkts_lower_omega` (size -> whether Omega falls as iPkts are added), `antibodies`
+  and `test_success` (null for `sharing`), and the runner's `scenario, seed, steps,
+  setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON object.
+
+  `robots3` (§7.4.2): three robots learn S3 in one arena, each a host of an emulated
+  network, sharing their best antibodies every 5 iterations by broadcast or by one packet
+  agent, against no sharing, on the same seeds (`TartarusImmune.Evolution.Collective`).
+  Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
+  `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
+  each per scheme.
+  """
+  use TartarusTools.CLI
+
+  alias TartarusImmune.Evolution.Experiment
+
+  @task "tartarus.evolve"
+
+  @impl true
+  def run(argv) do
+    schema =
+      Experiment.schema()
+      |> Keyword.drop([:quiet])
+      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "sharing"))
+      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:sizes, &Keyword.merge(&1, type: :string, default: "20,40,80"))
+      |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
+
+    opts = TartarusTools.CLI.options!(argv, schema, @task)
+
+    experiment =
+      TartarusTools.CLI.choice!(
+        opts[:experiment],
+        [:s1, :s2, :s3, :monolithic, :robots3, :sharing],
+        :experiment,
+        @task,
+        :sharing
+      )
+
+    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
+    sizes = parse_sizes!(opts[:sizes])
+    json? = opts[:json]
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.merge(experiment: experiment, mode: mode, sizes: sizes, quiet: json?)
+
+    exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
+    Mix.Task.run("app.start")
+
+    case Experiment.run(exp_opts) do
+      {:ok, %{summary: s, out: dir}} ->
+        TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
+
+      {:error, message} ->
+        Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp parse_sizes!(text) do
+    sizes = text |> String.split(",", trim: true) |> Enum.map(&Integer.parse(String.trim(&1)))
+
+    if sizes != [] and Enum.all?(sizes, &match?({n, ""} when n >= 2, &1)),
+      do: Enum.map(sizes, &elem(&1, 0)),
+      else:
+        Mix.raise(
+          "mix #{@task}: invalid value for --sizes: expected comma-separated integers of at least 2, got: #{inspect(text)}"
+        )
+  end
+
+  defp order("none"), do: -1
+  defp order("b-cast"), do: 0
+  defp order("iPkt-" <> x), do: String.to_integer(x)
+
+  defp text(%{experiment: "robots3"} = s, dir) do
+    rows =
+      for scheme <- ["none", "broadcast", "ipkt"] do
+        "  #{String.pad_trailing(scheme, 10)} test_success #{s.test_success[scheme]}  antibodies #{s.antibodies[scheme]}  shared chosen #{s.external_selections[scheme]}  communications per robot #{s.communications_per_robot[scheme]}"
+      end
+
+    Enum.join(["evolve: robots3, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"], "\n")
+  end
+
+  defp text(%{arms: arms} = s, dir) do
+    rows =
+      for {arm, a} <- Enum.sort(arms) do
+        extra =
+          if Map.has_key?(a, :antibodies_light_on),
+            do:
+              "  antibodies light on/off/both #{a.antibodies_light_on}/#{a.antibodies_light_off}/#{a.antibodies_used_in_both}, re-used after the light came back in #{a.trials_reusing_after_return} trials",
+            else: ""
+
+        "  #{String.pad_trailing(arm, 14)} test_success #{a.test_success}  antibodies #{a.antibodies}  final fitness #{a.final_fitness}#{extra}"
+      end
+
+    Enum.join(
+      ["evolve: #{s.experiment}, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"],
+      "\n"
+    )
+  end
+
+  defp text(s, dir) do
+    rows =
+      for {n, g} <- Enum.sort_by(s.gamma_avg, &String.to_integer(elem(&1, 0))),
+          {label, v} <- Enum.sort_by(g, &order(elem(&1, 0))) do
+        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{v}  Omega #{inspect(s.omega[n][label])}"
+      end
+
+    Enum.join(
+      ["evolve: #{s.experiment}, #{s.trials} trials per point"] ++
+        rows ++
+        [
+          "  iPkts fewer communications than broadcast at every size: #{s.ipkt_fewer_communications_at_every_size}",
+          "  more iPkts, lower Omega: #{inspect(s.more_ipkts_lower_omega)}",
+          "  written to #{dir}"
+        ],
+      "\n"
+    )
+  end
+end

@@ -1,0 +1,438 @@
+defmodule TartarusImmune.Evolution.Embodied do
+  @moduledoc """
+  One robot learning a scenario of thesis §7.3.1 on the arena (`TartarusArena.World`),
+  with the immune algorithm (Algorithm 5: a repertoire of antibodies, each a 4-5-2
+  controller evolved by the (1+1)-online strategy) or, as the baseline of §7.4.1, one
+  monolithic controller evolved by the same strategy.
+
+  ## The arena
+
+  2 m x 2 m, the light in the middle (on for S1 and S2; switched for S3), 10 yellow pucks
+  scattered at random for S2 and S3, the robot (with a pusher, for the pucks) at a random
+  pose. Everything is drawn from the seed.
+
+  ## One iteration (an evaluation period)
+
+  1. sense: the epitope is `TartarusArena.World.normalize/1` of the readings (the two light
+     sensors, the ultrasonic, the colour sensor, each 0..1);
+  2. immune: `Repertoire.recognize/3` then `Repertoire.select/5` (no external repertoire for
+     one robot) pick an antibody; monolithic: the one controller;
+  3. its strategy proposes weights (`ES.propose/2`), which drive the wheels (the network's
+     two `tanh` outputs are the wheel commands) for up to `period` steps of `dt` seconds;
+     the period ends early when the sensed epitope leaves the antibody's active region
+     (Algorithm 5, line 22: "while the current antigen is within the AR of BestAb");
+  4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
+     the period and divided by its steps (periods cut short compare with full ones); the
+     strategy and the antibody's concentration are told.
+
+  The curve records, per iteration, the antibody used, the fitness and the light.
+
+  ## Test
+
+  After training, `test_episodes` episodes from fresh random poses (and pucks) run the
+  learnt controllers without evolving them (immune: the best candidate for the sensed
+  epitope at each period, or the nearest antibody when none is within epsilon). Success
+  (our definitions, as the thesis gives none):
+
+    * S1: the robot comes within 0.4 m of the light during a 30 s episode and never bumps
+      into a wall (phototaxis with obstacle avoidance: Eq. 7.1 rewards moving fast and
+      straight towards the light, not stopping there);
+    * S2: at least one puck ends 0.25 m closer to the light than it started (30 s);
+    * S3: an episode of 30 s with the light on meets S2's criterion, and one with the light
+      off ends with no puck in the gripper and the robot having moved at least 1 m; a
+      trial's success is the mean of the two halves.
+  """
+
+  alias TartarusArena.World
+  alias TartarusImmune.Evolution.{ES, NeuralNet, Objective, Repertoire}
+
+  @shape [4, 5, 2]
+
+  @schema [
+    scenario: [type: {:in, [:s1, :s2, :s3]}, default: :s1, doc: "S1, S2 or S3"],
+    design: [
+      type: {:in, [:immune, :monolithic]},
+      default: :immune,
+      doc: "the immune algorithm or one controller"
+    ],
+    iterations: [
+      type: :pos_integer,
+      doc: "evaluation periods (default: 200 for S1, 500 immune / 400 monolithic for S2 and S3)"
+    ],
+    epsilon: [
+      type: :number,
+      doc: "cross-reactivity threshold (default 0.45, 0.4, 0.25 for S1, S2, S3)"
+    ],
+    period: [type: :pos_integer, default: 30, doc: "steps per evaluation period at most"],
+    min_period: [
+      type: :pos_integer,
+      default: 10,
+      doc: "steps an evaluation runs before leaving the active region can end it"
+    ],
+    dt: [type: :number, default: 0.1, doc: "seconds per step"],
+    pucks: [type: :non_neg_integer, default: 10, doc: "pucks (S2, S3)"],
+    test_episodes: [type: :non_neg_integer, default: 10, doc: "test episodes after training"],
+    es: [
+      type: :keyword,
+      default: [sigma_min: 0.5, p_reeval: 0.2],
+      doc: "options of each controller's `TartarusImmune.Evolution.ES` strategy"
+    ],
+    trace: [type: :boolean, default: false, doc: "keep the robot's trajectory (for plots)"],
+    seed: [type: :integer, default: 1, doc: "seed"]
+  ]
+
+  @doc "The options of `run/1`."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  Trains and tests once. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, result}`: `curve` (`[%{iteration, antibody, fitness, light_on}]`),
+  `antibodies` (created), `switches` (iterations whose antibody differs from the previous
+  one), `test_success` (0..1), `by_light` (S3: the antibodies used with the light on and
+  off, and how many were used in both), `reused_after_return` (S3: whether an antibody
+  first used in the first light-off phase was used again in the second), `trajectory`
+  (poses, with `trace: true`) and `world` (the final world, with `trace: true`),
+  `light_switches` (S3), `test_episodes` (each test episode's outcome: success, bumps,
+  final distance to the light, distance moved, best puck gain towards the light),
+  `final_fitness` (mean of the last 20 iterations).
+  """
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  def run(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "#{inspect(__MODULE__)}.run/1") do
+      {:ok, do_run(defaults(Map.new(opts)))}
+    end
+  end
+
+  @doc """
+  The options of `run/1` validated, as a map with the scenario's defaults filled in; raises
+  `ArgumentError` for bad options.
+  """
+  @spec options(keyword()) :: map()
+  def options(opts),
+    do:
+      opts
+      |> Tartarus.Options.validate!(@schema, "#{inspect(__MODULE__)}.options/1")
+      |> Map.new()
+      |> defaults()
+
+  @doc """
+  One time step's sample for the objective functions (`TartarusImmune.Evolution.Objective`)
+  from a robot's motion and readings. The speeds are those the robot achieved: a robot
+  whose move was refused (it drove into a wall, a robot or a stuck puck: `bumped`) did not
+  translate, whatever its wheels were told (a real robot's wheel encoders stall).
+  """
+  @spec sample(World.t(), term(), map()) :: Objective.sample()
+  def sample(world, robot, readings) do
+    m = World.motion(world, robot)
+    {lx, ly} = readings.light
+
+    %{
+      v_trans: if(readings.bumped, do: 0.0, else: min(m.v_trans, 1.0)),
+      v_rot: min(m.v_rot, 1.0),
+      d: readings.ultrasonic / 200,
+      light: [lx / 100, ly / 100],
+      puck: readings.puck_in_gripper,
+      light_on: World.light_on?(world)
+    }
+  end
+
+  defp defaults(o) do
+    iterations =
+      o[:iterations] ||
+        case {o.scenario, o.design} do
+          {:s1, _} -> 200
+          {_, :immune} -> 500
+          {_, :monolithic} -> 400
+        end
+
+    epsilon =
+      cond do
+        o.design == :monolithic -> 10.0
+        o[:epsilon] -> o.epsilon
+        true -> %{s1: 0.45, s2: 0.4, s3: 0.25}[o.scenario]
+      end
+
+    Map.merge(o, %{iterations: iterations, epsilon: epsilon})
+  end
+
+  @doc """
+  The light schedule of S3 for `n` iterations: off, then on from an iteration drawn in
+  30-40 % of the run, then off again from one in 60-70 % (each condition lasts well over
+  the thesis's minimum of 5 evaluations). Returns the two switch iterations.
+  """
+  @spec light_switches(pos_integer(), integer()) :: {pos_integer(), pos_integer()}
+  def light_switches(n, seed) do
+    rng = :rand.seed_s(:exsss, {seed, 3, 3})
+    {a, rng} = :rand.uniform_s(rng)
+    {b, _} = :rand.uniform_s(rng)
+    {round(n * (0.3 + 0.1 * a)), round(n * (0.6 + 0.1 * b))}
+  end
+
+  defp do_run(o) do
+    rng = :rand.seed_s(:exsss, {o.seed, 7, 1})
+    {world, rng} = arena(o, rng, o.scenario != :s3)
+    switches = if o.scenario == :s3, do: light_switches(o.iterations, o.seed)
+
+    rep =
+      Repertoire.new(epsilon: o.epsilon, shape: @shape, p_sharing: 0.0, origin: :self, es: o.es)
+
+    st = %{world: world, rng: rng, rep: rep, curve: [], traj: []}
+
+    st =
+      Enum.reduce(1..o.iterations, st, fn i, st ->
+        light = light_at(o.scenario, switches, i)
+        st = %{st | world: World.set_light(st.world, if(light, do: :on, else: :off))}
+        iteration(o, st, i, light)
+      end)
+
+    curve = Enum.reverse(st.curve)
+    {success, details, _} = test(o, st.rep, st.rng)
+
+    %{
+      scenario: o.scenario,
+      design: o.design,
+      epsilon: o.epsilon,
+      iterations: o.iterations,
+      curve: curve,
+      antibodies: st.rep.next_id - 1,
+      switches:
+        curve
+        |> Enum.chunk_every(2, 1, :discard)
+        |> Enum.count(fn [a, b] -> a.antibody != b.antibody end),
+      test_success: success,
+      test_episodes: details,
+      light_switches: switches && Tuple.to_list(switches),
+      trajectory: Enum.reverse(st.traj),
+      world: if(o.trace, do: st.world),
+      final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> mean()
+    }
+    |> Map.merge(s3_stats(o.scenario, curve, switches))
+  end
+
+  defp s3_stats(:s3, curve, {on_at, off_at}) do
+    ids = fn pred -> curve |> Enum.filter(pred) |> Enum.map(& &1.antibody) |> MapSet.new() end
+    on = ids.(& &1.light_on)
+    off = ids.(&(not &1.light_on))
+    first_off = ids.(&(&1.iteration < on_at))
+    second_off = ids.(&(&1.iteration >= off_at))
+
+    %{
+      by_light: %{
+        on: MapSet.size(on),
+        off: MapSet.size(off),
+        both: MapSet.size(MapSet.intersection(on, off))
+      },
+      reused_after_return: MapSet.size(MapSet.intersection(first_off, second_off))
+    }
+  end
+
+  defp s3_stats(_, _, _), do: %{}
+
+  @doc false
+  def light_at(:s3, {on_at, off_at}, i), do: i >= on_at and i < off_at
+  def light_at(_, _, _), do: true
+
+  @doc false
+  # A fresh arena: the robot at a random pose, pucks (S2, S3) at random places.
+  def arena(o, rng, light_on) do
+    world =
+      World.new(
+        size: {2.0, 2.0},
+        seed: :erlang.phash2({o.seed, :world, rng}),
+        light: [on: light_on]
+      )
+
+    {x, rng} = between(rng, 0.2, 1.8)
+    {y, rng} = between(rng, 0.2, 1.8)
+    {th, rng} = between(rng, -:math.pi(), :math.pi())
+    world = World.add_robot(world, :robot, x: x, y: y, theta: th, tool: :pusher)
+    n = if o.scenario == :s1, do: 0, else: o.pucks
+
+    Enum.reduce(1..n//1, {world, rng}, fn k, {w, rng} ->
+      {px, rng} = between(rng, 0.15, 1.85)
+      {py, rng} = between(rng, 0.15, 1.85)
+      {rx, ry, _} = World.pose(w, :robot)
+
+      if :math.sqrt((px - rx) ** 2 + (py - ry) ** 2) < 0.2 or
+           :math.sqrt((px - 1.0) ** 2 + (py - 1.0) ** 2) < 0.15,
+         do: {w, rng},
+         else: {World.add_puck(w, k, x: px, y: py), rng}
+    end)
+  end
+
+  defp between(rng, a, b) do
+    {u, rng} = :rand.uniform_s(rng)
+    {a + (b - a) * u, rng}
+  end
+
+  defp iteration(o, st, i, light) do
+    {readings, world} = World.sense(st.world, :robot)
+    ep = World.normalize(readings)
+    {rep, cands, rng} = Repertoire.recognize(st.rep, ep, st.rng)
+    {rep, key, _, rng} = Repertoire.select(rep, cands, ep, %{}, rng)
+    ab = rep.antibodies[key]
+    {kind, w, rng} = ES.propose(ab.es, rng)
+    {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], st.traj)
+    fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
+    rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
+    rep = Repertoire.report(rep, key, fitness)
+
+    point = %{
+      iteration: i,
+      antibody: elem(key, 1),
+      fitness: fitness,
+      light_on: light,
+      steps: length(samples)
+    }
+
+    %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+  end
+
+  # Runs weights `w` for up to `n` steps; stops when the epitope leaves `paratope`'s
+  # active region (after at least one step).
+  defp execute(o, world, w, paratope, readings, n, samples, traj) do
+    [l, r] = NeuralNet.forward(@shape, w, World.normalize(readings))
+    world = World.step(world, %{robot: {l, r}}, o.dt)
+    {next, world} = World.sense(world, :robot)
+    sample = sample(world, :robot, next)
+
+    traj = if o.trace, do: [World.pose(world, :robot) | traj], else: traj
+    samples = [sample | samples]
+
+    done =
+      length(samples) >= o.min_period and
+        Repertoire.affinity(World.normalize(next), paratope) > o.epsilon
+
+    if n <= 1 or done,
+      do: {world, samples, traj},
+      else: execute(o, world, w, paratope, next, n - 1, samples, traj)
+  end
+
+  # -- test -----------------------------------------------------------------------
+
+  defp test(o, rep, rng), do: test_repertoire(o, rep, rng)
+
+  @doc """
+  Tests a trained repertoire (the test of the module doc) with `o`, the options of `run/1`
+  as a map with defaults filled in (`options/1`). Returns `{success, episodes, rng}`.
+  """
+  @spec test_repertoire(map(), Repertoire.t(), :rand.state()) ::
+          {float() | nil, [map()], :rand.state()}
+  def test_repertoire(%{test_episodes: 0}, _rep, rng), do: {nil, [], rng}
+
+  def test_repertoire(o, rep, rng) do
+    {episodes, rng} =
+      Enum.map_reduce(1..o.test_episodes, rng, fn k, rng ->
+        case o.scenario do
+          :s3 ->
+            {a, rng} = episode(o, rep, rng, true, k)
+            {b, rng} = episode(o, rep, rng, false, k)
+            {[a, b], rng}
+
+          _ ->
+            {a, rng} = episode(o, rep, rng, true, k)
+            {[a], rng}
+        end
+      end)
+
+    episodes = List.flatten(episodes)
+    {Float.round(mean(Enum.map(episodes, & &1.success)), 3), episodes, rng}
+  end
+
+  @episode_steps 300
+
+  defp episode(o, rep, rng, light, _k) do
+    {world, rng} = arena(o, rng, light)
+    pucks0 = world.pucks
+    {x0, y0, _} = World.pose(world, :robot)
+    {world, bumps, near} = drive(o, rep, world, @episode_steps, 0, [])
+    {x1, y1, _} = World.pose(world, :robot)
+    {readings, _} = World.sense(world, :robot)
+
+    ok =
+      case {o.scenario, light} do
+        {:s1, _} ->
+          bumps == 0 and Enum.any?(near)
+
+        {_, true} ->
+          Enum.any?(world.pucks, fn {id, p} ->
+            p0 = pucks0[id]
+            dist(p0.x, p0.y, 1.0, 1.0) - dist(p.x, p.y, 1.0, 1.0) >= 0.25
+          end)
+
+        {:s3, false} ->
+          not readings.puck_in_gripper and dist(x0, y0, x1, y1) >= 1.0
+      end
+
+    detail = %{
+      light_on: light,
+      success: if(ok, do: 1.0, else: 0.0),
+      bumps: bumps,
+      final_light_distance: Float.round(dist(x1, y1, 1.0, 1.0), 3),
+      moved: Float.round(dist(x0, y0, x1, y1), 3),
+      best_puck_gain:
+        world.pucks
+        |> Enum.map(fn {id, p} ->
+          dist(pucks0[id].x, pucks0[id].y, 1.0, 1.0) - dist(p.x, p.y, 1.0, 1.0)
+        end)
+        |> Enum.max(fn -> 0.0 end)
+        |> Float.round(3)
+    }
+
+    {detail, rng}
+  end
+
+  # The learnt controllers, frozen: the controller is chosen again every `period` steps.
+  defp drive(_o, _rep, world, 0, bumps, near), do: {world, bumps, near}
+
+  defp drive(o, rep, world, left, bumps, near) do
+    {readings, world} = World.sense(world, :robot)
+    ep = World.normalize(readings)
+    w = frozen(rep, ep)
+
+    {world, bumps, near, left} =
+      Enum.reduce_while(1..o.period, {world, bumps, near, left}, fn _,
+                                                                    {world, bumps, near, left} ->
+        if left == 0 do
+          {:halt, {world, bumps, near, left}}
+        else
+          {r, world} = World.sense(world, :robot)
+          [l, rr] = NeuralNet.forward(@shape, w, World.normalize(r))
+          world = World.step(world, %{robot: {l, rr}}, o.dt)
+          {x, y, _} = World.pose(world, :robot)
+          bumped = world.robots[:robot].bumped
+
+          {:cont,
+           {world, bumps + if(bumped, do: 1, else: 0), [dist(x, y, 1.0, 1.0) <= 0.4 | near],
+            left - 1}}
+        end
+      end)
+
+    drive(o, rep, world, left, bumps, near)
+  end
+
+  defp frozen(rep, ep) do
+    case Repertoire.candidates(rep, ep) do
+      [] ->
+        rep.antibodies
+        |> Enum.min_by(fn {k, ab} -> {Repertoire.affinity(ep, ab.paratope), k} end)
+        |> elem(1)
+
+      cands ->
+        rep.antibodies[
+          Enum.max_by(cands, fn {k, _} -> rep.antibodies[k].concentration end) |> elem(0)
+        ]
+    end
+    |> Map.fetch!(:es)
+    |> Map.fetch!(:champion)
+  end
+
+  defp dist(x0, y0, x1, y1), do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
+
+  defp mean([]), do: 0.0
+  defp mean(xs), do: Enum.sum(xs) / length(xs)
+end

@@ -1,0 +1,266 @@
+defmodule TartarusImmune.Evolution.Sharing do
+  @moduledoc """
+  One run of the sharing experiment of thesis §7.4.3: robot nodes on a dynamic network
+  each evolve a controller for the OR-gate task (`TartarusImmune.Evolution.OrGate`, one
+  (1+1)-online evaluation per iteration) and share what they find, either
+
+    * `:broadcast` - social learning: every iteration each node broadcasts its champion to
+      its current neighbours (`Tartarus.Agent.broadcast/1`), and each node adopts the best
+      one it received if it beats its own;
+    * `:ipkt` - `ipkts` intelligent packets (`TartarusImmune.Evolution.IPkt`, mobile agents)
+      carry the best controller they met from node to node, conscientiously, one hop per
+      iteration, each hop preceded by a small `:hello` broadcast (neighbour discovery, as in
+      the thesis);
+    * `:none` - no sharing (the baseline).
+
+  ## The network
+
+  `nodes` nodes, each with up to 5 potential neighbours (a random pairing of 5 link
+  "stubs" per node; `topology/2`). Each link flaps as a two-state Markov chain
+  (`TartarusEmu.Dynamics`, probability `p` per iteration both ways): half the links are
+  down at any time, so a node has between 0 (isolated) and 5 neighbours and they change
+  at random, as in the thesis.
+
+  ## What is measured
+
+    * **solved**: a node holds a controller that solves OR (`OrGate.solved?/1`);
+    * **first solution** `t1`: the first iteration at whose end some node is solved;
+    * **convergence** `t90`: the first iteration at whose end at least `converge` (0.9) of
+      the nodes are solved, by their own evolution or by sharing;
+    * **Omega** (convergence count) = `t90 - t1`, the thesis's "iterations from the first
+      best solution found by a node till 90% of the population converges";
+    * **gamma_avg**: communications per node, sending and receiving, from the platform's
+      own counters (`TartarusEmu.Log`): broadcast messages sent and received, plus, for
+      iPkts, departures and arrivals (one hand-off is one message each way in this count,
+      as the thesis counts a packet's migration), up to convergence.
+
+  A run that does not converge within `max_iterations` reports `converged: false` and
+  `omega: nil`.
+  """
+
+  alias TartarusEmu.{Dynamics, Log, Network, Topology}
+  alias TartarusImmune.Evolution.{IPkt, Learner}
+
+  @schema [
+    nodes: [type: :pos_integer, default: 20, doc: "robot nodes"],
+    scheme: [
+      type: {:in, [:broadcast, :ipkt, :none]},
+      default: :broadcast,
+      doc: "how controllers are shared"
+    ],
+    ipkts: [type: :pos_integer, default: 1, doc: "iPkts (scheme `:ipkt`)"],
+    p: [
+      type: :probability,
+      default: 0.1,
+      doc: "per-iteration probability that a link breaks (or heals)"
+    ],
+    max_iterations: [type: :pos_integer, default: 3000, doc: "give up after this many iterations"],
+    converge: [
+      type: :probability,
+      default: 0.9,
+      doc: "fraction of solved nodes that counts as converged"
+    ],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    seed: [type: :integer, default: 1, doc: "seed (network, dynamics, learners, iPkts)"]
+  ]
+
+  @doc "The options of `run/1`."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  The potential-neighbour graph: nodes `"n1".."nN"`, each with at most 5 neighbours (5
+  stubs per node, shuffled with `seed` and paired; self-pairs and repeats dropped).
+
+      iex> t = TartarusImmune.Evolution.Sharing.topology(40, 1)
+      iex> Enum.all?(t.nodes, &(length(TartarusEmu.Topology.neighbours(t, &1)) <= 5))
+      true
+      iex> t == TartarusImmune.Evolution.Sharing.topology(40, 1)
+      true
+  """
+  @spec topology(pos_integer(), integer()) :: Topology.t()
+  def topology(n, seed) do
+    names = for i <- 1..n, do: "n#{i}"
+    rng = :rand.seed_s(:exsss, {seed, 7, 5})
+    stubs = for name <- names, _ <- 1..5, do: name
+
+    {shuffled, _} =
+      stubs
+      |> Enum.map_reduce(rng, fn s, rng ->
+        {u, rng} = :rand.uniform_s(rng)
+        {{u, s}, rng}
+      end)
+
+    edges =
+      shuffled
+      |> Enum.sort()
+      |> Enum.map(&elem(&1, 1))
+      |> Enum.chunk_every(2, 2, :discard)
+      |> Enum.flat_map(fn [a, b] -> if a == b, do: [], else: [{min(a, b), max(a, b)}] end)
+      |> Enum.uniq()
+
+    Topology.new(names, edges)
+  end
+
+  @doc """
+  Runs the experiment once. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, result}` with `nodes, scheme, ipkts, iterations, first_solved_at,
+  converged_at, converged, omega, gamma_avg, communications` (a map of the counters
+  summed) and `solved` (`[{iteration, solved_nodes}]`), or `{:error, message}`.
+  """
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  def run(opts) do
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "#{inspect(__MODULE__)}.run/1") do
+      {:ok, do_run(Map.new(opts))}
+    end
+  end
+
+  defp do_run(o) do
+    topo = topology(o.nodes, o.seed)
+    {:ok, net} = Network.start(topo, mode: o.mode)
+
+    try do
+      {:ok, log} = Log.start(net)
+
+      learners =
+        for {name, i} <- Enum.with_index(topo.nodes) do
+          {:ok, id} =
+            Tartarus.create_static_agent(Network.host(net, name), Learner, %{
+              seed: :erlang.phash2({o.seed, :learner, i})
+            })
+
+          id
+        end
+
+      ipkts =
+        if o.scheme == :ipkt do
+          for k <- 0..(o.ipkts - 1) do
+            name = Enum.at(topo.nodes, div(k * o.nodes, o.ipkts))
+
+            {:ok, id} =
+              Tartarus.create_agent(Network.host(net, name), IPkt, %{driver: self()},
+                seed: {o.seed, :ipkt, k}
+              )
+
+            id
+          end
+        else
+          []
+        end
+
+      dyn = Dynamics.new(MapSet.to_list(topo.edges))
+      rng = Dynamics.rng(o.seed)
+      state = %{net: net, learners: learners, ipkts: ipkts, dyn: dyn, rng: rng, shared: 0}
+      result = loop(o, state, 1, nil, [])
+      :ok = Log.sync(log)
+      totals = Log.totals(log)
+      Log.stop(log)
+
+      comm =
+        Map.new([:broadcast_messages, :broadcasts_received, :departures, :arrivals], fn k ->
+          {k, Map.get(totals, k, 0)}
+        end)
+
+      Map.merge(result, %{
+        nodes: o.nodes,
+        scheme: o.scheme,
+        ipkts: if(o.scheme == :ipkt, do: o.ipkts, else: 0),
+        communications: comm,
+        gamma_avg: Float.round(Enum.sum(Map.values(comm)) / o.nodes, 2)
+      })
+    after
+      Network.stop(net)
+    end
+  end
+
+  defp loop(o, s, t, first, solved_series) do
+    {events, dyn, rng} = Dynamics.step(s.dyn, o.p, s.rng)
+
+    Enum.each(events, fn
+      {:down, {a, b}} -> Network.break_link(s.net, a, b)
+      {:up, {a, b}} -> Network.heal_link(s.net, a, b)
+    end)
+
+    s = %{s | dyn: dyn, rng: rng}
+    _ = ask_all(s.learners, :iterate)
+    s = share(o.scheme, s)
+    solved = s.learners |> ask_all(:status) |> Enum.count(& &1.solved)
+    series = [{t, solved} | solved_series]
+    first = first || if(solved > 0, do: t)
+
+    cond do
+      solved >= o.converge * o.nodes ->
+        finish(first, t, series, t)
+
+      t >= o.max_iterations ->
+        finish(first, nil, series, t)
+
+      true ->
+        loop(o, s, t + 1, first, series)
+    end
+  end
+
+  defp finish(first, t90, series, t) do
+    %{
+      iterations: t,
+      first_solved_at: first,
+      converged_at: t90,
+      converged: t90 != nil,
+      omega: if(t90 && first, do: t90 - first),
+      solved: Enum.reverse(series)
+    }
+  end
+
+  defp share(:none, s), do: s
+
+  defp share(:broadcast, s) do
+    sent = s.learners |> ask_all(:share) |> Enum.sum()
+    expected = s.shared + sent
+    await_received(s.learners, expected, 1000)
+    _ = ask_all(s.learners, :absorb)
+    %{s | shared: expected}
+  end
+
+  defp share(:ipkt, s) do
+    Enum.each(s.ipkts, fn id -> {:ok, :ok} = Tartarus.request(id, :visit, 10_000) end)
+
+    Enum.each(s.ipkts, fn id ->
+      receive do
+        {tag, ^id} when tag in [:ipkt_moved, :ipkt_stayed] -> :ok
+      after
+        10_000 -> raise "iPkt #{id} neither moved nor stayed within 10 s"
+      end
+    end)
+
+    s
+  end
+
+  # Broadcasts are delivered by each node's overlay process, after :share has answered:
+  # wait until every one sent so far has been received, so that :absorb sees them all
+  # (a broadcast to a host that stopped is never received: give up after `tries`).
+  defp await_received(learners, expected, tries) do
+    received = learners |> ask_all(:status) |> Enum.map(& &1.received) |> Enum.sum()
+
+    cond do
+      received >= expected -> :ok
+      tries == 0 -> :ok
+      true -> Process.sleep(1) && await_received(learners, expected, tries - 1)
+    end
+  end
+
+  defp ask_all(ids, msg) do
+    ids
+    |> Task.async_stream(
+      fn id ->
+        {:ok, r} = Tartarus.request(id, msg, 30_000)
+        r
+      end,
+      max_concurrency: System.schedulers_online() * 2,
+      timeout: 60_000
+    )
+    |> Enum.map(fn {:ok, r} -> r end)
+  end
+end

@@ -1,0 +1,37 @@
+defmodule TartarusImmune.Evolution.EmbodiedTest do
+  use ExUnit.Case, async: true
+
+  alias TartarusImmune.Evolution.Embodied
+
+  test "the immune robot grows a repertoire, the monolithic one keeps one controller; same seed, same run" do
+    {:ok, a} = Embodied.run(scenario: :s1, iterations: 40, test_episodes: 2, seed: 4)
+    assert a.antibodies > 1 and length(a.curve) == 40
+    assert Enum.all?(a.curve, &(&1.steps >= 1 and &1.steps <= 30))
+    assert length(a.test_episodes) == 2 and a.test_success in [0.0, 0.5, 1.0]
+    {:ok, b} = Embodied.run(scenario: :s1, iterations: 40, test_episodes: 2, seed: 4)
+    assert a.curve == b.curve and a.test_episodes == b.test_episodes
+
+    {:ok, m} =
+      Embodied.run(scenario: :s1, design: :monolithic, iterations: 40, test_episodes: 1, seed: 4)
+
+    assert m.antibodies == 1 and m.switches == 0
+    # every period of the single controller runs to its full length
+    assert Enum.all?(m.curve, &(&1.steps == 30))
+  end
+
+  test "S3: the light goes off, on and off again; antibodies are made for each light" do
+    {:ok, r} = Embodied.run(scenario: :s3, iterations: 120, test_episodes: 1, seed: 2)
+    [on, off] = r.light_switches
+    assert on < off
+    assert Enum.all?(r.curve, &(&1.light_on == (&1.iteration >= on and &1.iteration < off)))
+    # with the light on the epitopes differ (light sensors), so new antibodies appear
+    assert r.by_light.on >= 1 and r.by_light.off >= 1
+    assert r.antibodies >= 2
+    assert length(r.test_episodes) == 2
+  end
+
+  test "bad options are refused with the key named" do
+    assert {:error, message} = Embodied.run(scenario: :s4)
+    assert message =~ "for key :scenario"
+  end
+end
