@@ -1,7 +1,8 @@
 defmodule TartarusArena.CollisionPropTest do
   use ExUnit.Case, async: true
 
-  alias TartarusArena.{Geometry, Prop, World}
+  alias TartarusArena.{Geometry, World}
+  alias TartarusTools.Prop
 
   @robots [:a, :b, :c]
 

@@ -388,9 +388,14 @@ defmodule TartarusImmune.Evolution.AbPkt do
   telling the driver `{:ipkt_moved, id}` or `{:ipkt_stayed, id}`.
   """
   use Tartarus.Agent,
-    ships: [TartarusImmune.Evolution.ES, TartarusImmune.Evolution.Repertoire]
+    ships: [
+      TartarusImmune.Evolution.ES,
+      TartarusImmune.Evolution.Repertoire,
+      TartarusImmune.Evolution.Courier
+    ]
 
   alias Tartarus.Agent
+  alias TartarusImmune.Evolution.Courier
 
   @doc false
   @impl true
@@ -412,28 +417,16 @@ defmodule TartarusImmune.Evolution.AbPkt do
       end
 
     Agent.reply(from, :ok)
-
-    if Agent.neighbours() == [] do
-      send(s.driver, {:ipkt_stayed, Agent.id()})
-      {:stay, s}
-    else
-      {:move, :conscientious, s}
-    end
+    Courier.hop(s)
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
 
   @doc false
   @impl true
-  def handle_arrival(_ctx, s) do
-    send(s.driver, {:ipkt_moved, Agent.id()})
-    {:stay, s}
-  end
+  def handle_arrival(_ctx, s), do: Courier.tell(s, :ipkt_moved)
 
   @doc false
   @impl true
-  def handle_move_failed(_dest, _reason, _ctx, s) do
-    send(s.driver, {:ipkt_stayed, Agent.id()})
-    {:stay, s}
-  end
+  def handle_move_failed(_dest, _reason, _ctx, s), do: Courier.tell(s, :ipkt_stayed)
 end

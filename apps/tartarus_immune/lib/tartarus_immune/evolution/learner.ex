@@ -130,10 +130,12 @@ defmodule TartarusImmune.Evolution.IPkt do
     ships: [
       TartarusImmune.Evolution.ES,
       TartarusImmune.Evolution.NeuralNet,
-      TartarusImmune.Evolution.OrGate
+      TartarusImmune.Evolution.OrGate,
+      TartarusImmune.Evolution.Courier
     ]
 
   alias Tartarus.Agent
+  alias TartarusImmune.Evolution.Courier
 
   @doc false
   @impl true
@@ -155,29 +157,50 @@ defmodule TartarusImmune.Evolution.IPkt do
       end
 
     Agent.reply(from, :ok)
-
-    if Agent.neighbours() == [] do
-      send(s.driver, {:ipkt_stayed, Agent.id()})
-      {:stay, s}
-    else
-      Agent.broadcast(:hello)
-      {:move, :conscientious, s}
-    end
+    Courier.hop(s, hello: true)
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
 
   @doc false
   @impl true
-  def handle_arrival(_ctx, s) do
-    send(s.driver, {:ipkt_moved, Agent.id()})
-    {:stay, s}
-  end
+  def handle_arrival(_ctx, s), do: Courier.tell(s, :ipkt_moved)
 
   @doc false
   @impl true
-  def handle_move_failed(_dest, _reason, _ctx, s) do
-    send(s.driver, {:ipkt_stayed, Agent.id()})
+  def handle_move_failed(_dest, _reason, _ctx, s), do: Courier.tell(s, :ipkt_stayed)
+end
+
+defmodule TartarusImmune.Evolution.Courier do
+  @moduledoc """
+  The moving part shared by the packets of the evolution experiments
+  (`TartarusImmune.Evolution.IPkt`, `TartarusImmune.Evolution.AbPkt`): called from an
+  agent's callbacks, with the agent's state holding the experiment driver's pid under
+  `:driver`. The driver waits for one `{:ipkt_moved, id}` or `{:ipkt_stayed, id}` per hop.
+  """
+
+  alias Tartarus.Agent
+
+  @doc """
+  The action that moves the calling agent on to a neighbour it visited least
+  (`:conscientious`), after a `:hello` broadcast with `hello: true` (the thesis's neighbour
+  discovery, counted like any broadcast); on a host with no neighbour it stays and tells
+  the driver so.
+  """
+  @spec hop(map(), keyword()) :: Tartarus.Agent.action()
+  def hop(s, opts \\ []) do
+    if Agent.neighbours() == [] do
+      tell(s, :ipkt_stayed)
+    else
+      if opts[:hello], do: Agent.broadcast(:hello)
+      {:move, :conscientious, s}
+    end
+  end
+
+  @doc "Tells the driver `{tag, id}` and stays."
+  @spec tell(map(), :ipkt_moved | :ipkt_stayed) :: Tartarus.Agent.action()
+  def tell(s, tag) do
+    send(s.driver, {tag, Agent.id()})
     {:stay, s}
   end
 end
