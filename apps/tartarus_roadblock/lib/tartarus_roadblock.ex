@@ -1,0 +1,221 @@
+defmodule TartarusRoadblock do
+  @moduledoc """
+  The roadblock rescue of thesis §2.4, on the arena: a cyber-physical system of 13 Tartarus
+  hosts (12 computers and a Pi with a webcam beside the path, the monitoring node), the
+  commuter robot Santa on a line path from A to B, and two rescue robots on their dock:
+  Rudolph (a pusher) and Claus (claws).
+
+  A block appears on the path. Santa's ultrasonic sensor sees it; Santa stops and tells the
+  monitoring node, whose static agent takes a snapshot with its webcam (a PNG) and forwards
+  it to the administrator's host. The administrator (a person in iex, or `auto: true`)
+  releases a mobile agent carrying the rescue program as code; it forages the network for
+  rescue robots, compares Rudolph and Claus by their capabilities against its requirement
+  (`[:drive, :claws]`), goes to Claus's host and installs the program there; Claus drives
+  to the block, takes it off the path, and the agent guides Claus back to its dock. Santa
+  drives on to B. See `docs/roadblock.md`.
+
+      {:ok, %{summary: s}} = TartarusRoadblock.run(seed: 1, out: false)
+      s.rescued and s.chosen_robot == "claus" and s.santa_arrived   #=> true
+
+  ## The administrator in iex
+
+      iex> TartarusRoadblock.start(seed: 1, out: "results/roadblock-iex")
+      iex> # ... Santa stops; a message says the snapshot is at the administrator's host
+      iex> TartarusRoadblock.snapshot("snapshot.png")
+      iex> TartarusRoadblock.release_rescue()
+      iex> TartarusRoadblock.await()
+
+  Modules: `TartarusRoadblock.Scenario` (the `TartarusEmu.Scenario`), the agents
+  `TartarusRoadblock.Commuter`, `TartarusRoadblock.Monitor`, `TartarusRoadblock.Admin`,
+  `TartarusRoadblock.Rescuer`, and the program `TartarusRoadblock.RescueProgram`; the
+  devices are the arena's `TartarusArena.RobotPlugin`, `TartarusArena.DevicePlugin` and
+  `TartarusArena.CameraPlugin`.
+  """
+
+  alias TartarusArena.World
+
+  @line_y 0.8
+
+  @schema [
+    seed: [type: :integer, default: 1, doc: "seed of the arena's noise and the block's place"],
+    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    auto: [
+      type: :boolean,
+      default: true,
+      doc: "release the rescue agent at once (false: wait for `release_rescue/1`)"
+    ],
+    block_at: [type: :pos_integer, default: 2, doc: "arena seconds until the block appears"],
+    steps: [type: :pos_integer, default: 2400, doc: "control steps of 0.05 s at most"],
+    out: [
+      type: :any,
+      doc: "output directory (default `results/roadblock-<stamp>`), `false` for none"
+    ],
+    quiet: [type: :boolean, default: true, doc: "no progress line"]
+  ]
+
+  @doc """
+  The options of `run/1` and `start/1`:
+
+  #{Tartarus.Options.docs(@schema)}
+  """
+  @spec schema() :: keyword()
+  def schema, do: @schema
+
+  @doc "Checks options against `schema/0`: `{:ok, opts}` or `{:error, message}`."
+  @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def validate(opts), do: Tartarus.Options.validate(opts, @schema, "TartarusRoadblock.run/1")
+
+  @doc """
+  Runs the scenario (see the moduledoc) and writes its outputs: `snapshot.png`,
+  `trajectories.svg`, `timeline.csv`, `timeline.svg`, the series, `summary.json` and
+  `summary.md`. Returns `{:ok, %{summary:, out:, files:, series:}}` (see
+  `TartarusEmu.Scenario.run/2`) or `{:error, message}`.
+
+  Summary keys: `rescued` (the block is off the path and the program finished),
+  `chosen_robot`, `santa_arrived`, `agent_hops` (the rescue agent's migrations), `seconds`
+  (arena time), `santa_arrival_s`, `santa_stopped_s`, `rescue_done_s`, `claus_docked`,
+  `block`, `block_final`, `candidates`, `requirement`, `hosts_visited`, `nodes`, `mode`,
+  `snapshot_bytes`, `release_to_install_ms` (wall time of the agent's walk), and the
+  runner's `scenario, seed, steps, setup_ms, run_ms`.
+  """
+  @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
+  def run(opts \\ []) do
+    with {:ok, opts} <- validate(opts) do
+      {block_at, opts} = Keyword.pop(opts, :block_at)
+      opts = if Keyword.get(opts, :out) == nil, do: Keyword.delete(opts, :out), else: opts
+      TartarusEmu.Scenario.run(TartarusRoadblock.Scenario, [{:block_at, block_at * 1.0} | opts])
+    end
+  end
+
+  @doc """
+  Starts a run in the background for an administrator in iex (`auto: false` unless given;
+  other options as `run/1`) and returns `{:ok, pid}`. When Santa is blocked it prints
+  where, and waits for `release_rescue/1`; `await/1` gets the result.
+  """
+  @spec start(keyword()) :: {:ok, pid()} | {:error, String.t()}
+  def start(opts \\ []) do
+    opts = Keyword.put_new(opts, :auto, false)
+
+    with {:ok, _} <- validate(opts) do
+      caller = self()
+      pid = spawn(fn -> send(caller, {:roadblock_done, self(), run(opts)}) end)
+      {:ok, pid}
+    end
+  end
+
+  @doc """
+  The administrator releases the rescue agent, from iex, while a run started by `start/1`
+  waits. Options: `requirement:` the capabilities the rescue robot must have (default
+  `[:drive, :claws]`). Returns `{:ok, agent_id}`, or `{:error, :no_run_waiting}`.
+  """
+  @spec release_rescue(keyword()) :: {:ok, String.t()} | {:error, :no_run_waiting}
+  def release_rescue(opts \\ []) do
+    case Process.whereis(TartarusRoadblock.Driver) do
+      nil ->
+        {:error, :no_run_waiting}
+
+      pid ->
+        ref = make_ref()
+        send(pid, {:roadblock_release, self(), ref, opts})
+
+        receive do
+          {^ref, reply} -> reply
+        after
+          15_000 -> {:error, :no_run_waiting}
+        end
+    end
+  end
+
+  @doc """
+  Waits (up to `timeout` ms, default 120 s) for the run started by `start/1` and returns
+  its result as `run/1` does, or `{:error, :timeout}`.
+  """
+  @spec await(timeout()) :: {:ok, map()} | {:error, term()}
+  def await(timeout \\ 120_000) do
+    receive do
+      {:roadblock_done, _pid, result} -> result
+    after
+      timeout -> {:error, :timeout}
+    end
+  end
+
+  @doc """
+  The snapshot the monitoring node sent to the administrator's host, written to `path`;
+  returns `{:ok, report}` (where Santa is, what it measured, the block's estimated place)
+  or `{:error, :no_snapshot}`.
+  """
+  @spec snapshot(Path.t()) :: {:ok, map()} | {:error, :no_snapshot}
+  def snapshot(path) do
+    with pid when is_pid(pid) <- Process.whereis(TartarusRoadblock.Driver),
+         ref = make_ref(),
+         _ = send(pid, {:roadblock_snapshot_request, self(), ref}),
+         {png, report} when is_binary(png) <- await_reply(ref) do
+      File.write!(path, png)
+      {:ok, report}
+    else
+      _ -> {:error, :no_snapshot}
+    end
+  end
+
+  defp await_reply(ref) do
+    receive do
+      {^ref, reply} -> reply
+    after
+      15_000 -> nil
+    end
+  end
+
+  @doc """
+  The network: 12 computers `pc1..pc12` in a ring and the Pi `pi` beside the path, linked
+  to `pc2` and `pc3`. Santa talks to `pc1`, the administrator sits at `pc7`, Rudolph and
+  Claus talk to `pc10` and `pc11`.
+
+      iex> t = TartarusRoadblock.topology()
+      iex> {TartarusEmu.Topology.size(t), TartarusEmu.Topology.edge_count(t)}
+      {13, 14}
+  """
+  @spec topology() :: TartarusEmu.Topology.t()
+  def topology do
+    pcs = for i <- 1..12, do: :"pc#{i}"
+    ring = Enum.zip(pcs, tl(pcs) ++ [hd(pcs)])
+    TartarusEmu.Topology.new(pcs ++ [:pi], ring ++ [{:pi, :pc2}, {:pi, :pc3}])
+  end
+
+  @doc """
+  The arena of the scenario for a seed, and its layout: a 3 m x 3 m floor with the black
+  path along y = #{@line_y} from A (x = 0.35) to B (x = 2.45, marker), Santa at A heading
+  to B, the dock (top right) with Claus (claws) and Rudolph (pusher), and where the block
+  will appear (x drawn from the seed in 1.2..1.6 m) and the webcam stands.
+
+      iex> {w, layout} = TartarusRoadblock.world(1)
+      iex> {Map.keys(w.robots), layout.dest_x}
+      {[:claus, :rudolph, :santa], 2.45}
+  """
+  @spec world(integer()) :: {World.t(), map()}
+  def world(seed) do
+    {u, _} = :rand.uniform_s(:rand.seed_s(:exsss, {seed, 16, 2004}))
+    bx = 1.2 + 0.4 * u
+    docks = %{claus: {2.0, 2.3, -:math.pi() / 2}, rudolph: {2.5, 2.3, -:math.pi() / 2}}
+
+    w =
+      World.new(seed: seed)
+      |> World.add_line([{0.15, @line_y}, {2.85, @line_y}])
+      |> World.add_marker(x: 0.35, y: @line_y - 0.12, w: 0.1, h: 0.08, colour: 1, label: "A")
+      |> World.add_marker(x: 2.45, y: @line_y - 0.12, w: 0.1, h: 0.08, colour: 4, label: "B")
+      |> World.add_marker(x: 2.25, y: 2.3, w: 0.8, h: 0.25, colour: 8, label: "dock")
+      |> World.add_robot(:santa, x: 0.35, y: @line_y, theta: 0.0)
+      |> add_docked(:claus, docks.claus, :claws)
+      |> add_docked(:rudolph, docks.rudolph, :pusher)
+
+    {w,
+     %{
+       block: {bx, @line_y},
+       dest_x: 2.45,
+       docks: docks,
+       camera: {1.4, 0.25, :math.pi() / 2}
+     }}
+  end
+
+  defp add_docked(w, id, {x, y, th}, tool),
+    do: World.add_robot(w, id, x: x, y: y, theta: th, tool: tool)
+end
