@@ -80,12 +80,22 @@ defmodule TartarusRoadblock do
   """
   @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
   def run(opts \\ []) do
-    with {:ok, opts} <- validate(opts) do
+    with {:ok, opts} <- validate(opts),
+         :ok <- distributed(opts[:mode]) do
       {block_at, opts} = Keyword.pop(opts, :block_at)
       opts = if Keyword.get(opts, :out) == nil, do: Keyword.delete(opts, :out), else: opts
       TartarusEmu.Scenario.run(TartarusRoadblock.Scenario, [{:block_at, block_at * 1.0} | opts])
     end
   end
+
+  defp distributed(:peer) do
+    case TartarusTools.Peer.ensure_distributed("roadblock") do
+      :ok -> :ok
+      {:error, reason} -> {:error, "peer mode needs a distributed node: #{inspect(reason)}"}
+    end
+  end
+
+  defp distributed(_), do: :ok
 
   @doc """
   Starts a run in the background for an administrator in iex (`auto: false` unless given;
@@ -97,9 +107,20 @@ defmodule TartarusRoadblock do
     opts = Keyword.put_new(opts, :auto, false)
 
     with {:ok, _} <- validate(opts) do
-      caller = self()
-      pid = spawn(fn -> send(caller, {:roadblock_done, self(), run(opts)}) end)
+      pid = spawn(fn -> serve_result(run(opts)) end)
+      :persistent_term.put({__MODULE__, :run}, pid)
       {:ok, pid}
+    end
+  end
+
+  # The background run answers await/1 (from any process) for 10 minutes.
+  defp serve_result(result) do
+    receive do
+      {:roadblock_await, from, ref} ->
+        send(from, {ref, result})
+        serve_result(result)
+    after
+      600_000 -> :ok
     end
   end
 
@@ -127,15 +148,27 @@ defmodule TartarusRoadblock do
   end
 
   @doc """
-  Waits (up to `timeout` ms, default 120 s) for the run started by `start/1` and returns
-  its result as `run/1` does, or `{:error, :timeout}`.
+  Waits (up to `timeout` ms, default 120 s) for the run last started by `start/1` (from
+  any process) and returns its result as `run/1` does, or `{:error, :timeout}` (or
+  `{:error, :no_run}`).
   """
   @spec await(timeout()) :: {:ok, map()} | {:error, term()}
   def await(timeout \\ 120_000) do
-    receive do
-      {:roadblock_done, _pid, result} -> result
-    after
-      timeout -> {:error, :timeout}
+    with pid when is_pid(pid) <- :persistent_term.get({__MODULE__, :run}, nil),
+         ref = Process.monitor(pid),
+         _ = send(pid, {:roadblock_await, self(), ref}) do
+      receive do
+        {^ref, result} ->
+          Process.demonitor(ref, [:flush])
+          result
+
+        {:DOWN, ^ref, :process, _, reason} ->
+          {:error, {:run_down, reason}}
+      after
+        timeout -> {:error, :timeout}
+      end
+    else
+      nil -> {:error, :no_run}
     end
   end
 
