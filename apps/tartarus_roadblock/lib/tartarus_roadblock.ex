@@ -19,11 +19,14 @@ defmodule TartarusRoadblock do
 
   ## The administrator in iex
 
-      iex> TartarusRoadblock.start(seed: 1, out: "results/roadblock-iex")
-      iex> # ... Santa stops; a message says the snapshot is at the administrator's host
-      iex> TartarusRoadblock.snapshot("snapshot.png")
-      iex> TartarusRoadblock.release_rescue()
-      iex> TartarusRoadblock.await()
+      TartarusRoadblock.start(seed: 1, out: "results/roadblock-iex")
+      # ... Santa stops; a message says the snapshot is at the administrator's host
+      TartarusRoadblock.snapshot("snapshot.png")     # {:ok, report}
+      TartarusRoadblock.release_rescue()             # {:ok, agent_id}
+      TartarusRoadblock.await()                      # {:ok, %{summary: ...}}
+
+  (`iex -S mix tartarus.roadblock --seed 1` does the first line for you; the README has a
+  transcript.)
 
   Modules: `TartarusRoadblock.Scenario` (the `TartarusEmu.Scenario`), the agents
   `TartarusRoadblock.Commuter`, `TartarusRoadblock.Monitor`, `TartarusRoadblock.Admin`,

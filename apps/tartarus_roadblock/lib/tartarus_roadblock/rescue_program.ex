@@ -14,7 +14,8 @@ defmodule TartarusRoadblock.RescueProgram do
   block from the path, across the path), `:face` (turn towards the block), `:approach`
   (creep forward until the block is in the claws' zone, then close them), `:carry`
   (reverse, holding it, until it is `lift` metres off the path), `:release` (open),
-  `:back_off` (reverse a little more), `:home` (drive to the dock), `:dock` (turn to the
+  `:back_off` (reverse a little more; a robot whose claws do not take the block after 5 tries gives
+  up and backs off from there), `:home` (drive to the dock), `:dock` (turn to the
   dock's heading), `:done`.
 
       iex> s = TartarusRoadblock.RescueProgram.init(block: {1.4, 0.8}, dock: {2.0, 2.3, -1.5708})
@@ -95,6 +96,10 @@ defmodule TartarusRoadblock.RescueProgram do
         cond do
           r.holding != nil ->
             {[stop()], %{s | phase: :carry}}
+
+          # The claws never closed on it (a robot without claws): give up, go home.
+          s.grips >= 5 ->
+            {[stop()], %{s | phase: :back_off, lift: side * (y - by) - 0.12}}
 
           near? ->
             {[stop(), {:grip, :close}], %{s | grips: s.grips + 1}}
