@@ -84,9 +84,10 @@ defmodule TartarusRoadblock.Scenario do
            rescue_done_at: nil,
            santa_stopped_s: 0.0,
            released_ms: nil,
-           installed_ms: nil
+           installed_ms: nil,
+           paused_ms: nil
          }
-         |> event(:block, "scenario", "start")}
+         |> event(:santa, "santa", "drives from A")}
 
       {:error, _} = error ->
         GenServer.stop(arena)
@@ -207,6 +208,8 @@ defmodule TartarusRoadblock.Scenario do
 
   # Santa told the monitoring node; the world stands still while the network works.
   defp handle_report(s) do
+    s = %{s | paused_ms: now(s)}
+
     {png, report} =
       receive do
         {:roadblock_snapshot, png, report} -> {png, report}
@@ -424,34 +427,48 @@ defmodule TartarusRoadblock.Scenario do
         end)
     ])
 
-    timeline = TartarusTools.SVG.write!(Path.join(dir, "timeline.svg"), timeline_svg(events))
+    timeline = TartarusTools.SVG.write!(Path.join(dir, "timeline.svg"), timeline_svg(events, s))
     Enum.filter([png, svg, csv, timeline], &File.exists?/1)
   end
 
   # One lane per actor; each event opens a span that lasts until the actor's next event
-  # (or the end), on the wall clock (the network's work takes wall time, not arena time).
-  defp timeline_svg(events) do
-    last = (List.last(events) || %{wall_ms: 0}).wall_ms + 1
+  # (or the end). The x axis is the arena's time with the network's pause spliced in: while
+  # the arena stood still (from Santa's report to the program's installation) time goes on
+  # by the wall clock.
+  defp timeline_svg(events, s) do
+    x = fn e -> Float.round(e.t + pause_s(e.wall_ms, s), 3) end
+    last = x.(List.last(events) || %{t: s.t, wall_ms: now(s)}) + 0.2
 
     rows =
       events
       |> Enum.group_by(& &1.actor)
       |> Enum.sort_by(fn {_, evs} -> hd(evs).wall_ms end)
       |> Enum.map(fn {actor, evs} ->
-        stops = Enum.map(tl(evs), & &1.wall_ms) ++ [last]
+        final = List.last(evs)
+
+        stops =
+          Enum.map(tl(evs), x) ++ [if(final.lane == :network, do: x.(final) + 0.3, else: last)]
 
         spans =
           Enum.zip_with(evs, stops, fn e, stop ->
-            %{start: e.wall_ms, stop: max(stop, e.wall_ms + 1), label: e.text, group: e.lane}
+            %{start: x.(e), stop: max(stop, x.(e) + 0.01), label: e.text, group: e.lane}
           end)
 
         %{label: to_string(actor), spans: spans}
       end)
 
     TartarusTools.SVG.gantt(rows,
-      title: "Roadblock rescue: who does what (wall clock)",
-      x_label: "ms since start"
+      title: "Roadblock rescue: who does what",
+      x_label:
+        "arena seconds (the network's work, while the arena stands still, on the wall clock)"
     )
+  end
+
+  defp pause_s(_wall_ms, %{paused_ms: nil}), do: 0.0
+
+  defp pause_s(wall_ms, s) do
+    len = (s.installed_ms || now(s)) - s.paused_ms
+    min(max(wall_ms - s.paused_ms, 0), len) / 1000
   end
 
   @impl true
