@@ -130,7 +130,9 @@ defmodule TartarusRoadblock do
   @doc """
   The administrator releases the rescue agent, from iex, while a run started by `start/1`
   waits. Options: `requirement:` the capabilities the rescue robot must have (default
-  `[:drive, :claws]`). Returns `{:ok, agent_id}`, or `{:error, :no_run_waiting}`.
+  `[:drive, :claws]`). Returns `{:ok, agent_id}`, or `{:error, :no_run_waiting}` when no
+  run is going on. Called before Santa is blocked, it waits (up to 60 s) until the run
+  gets there; a release that times out is still taken when the run gets there.
   """
   @spec release_rescue(keyword()) :: {:ok, String.t()} | {:error, :no_run_waiting}
   def release_rescue(opts \\ []) do
@@ -145,7 +147,7 @@ defmodule TartarusRoadblock do
         receive do
           {^ref, reply} -> reply
         after
-          15_000 -> {:error, :no_run_waiting}
+          60_000 -> {:error, :no_run_waiting}
         end
     end
   end
@@ -178,7 +180,8 @@ defmodule TartarusRoadblock do
   @doc """
   The snapshot the monitoring node sent to the administrator's host, written to `path`;
   returns `{:ok, report}` (where Santa is, what it measured, the block's estimated place)
-  or `{:error, :no_snapshot}`.
+  or `{:error, :no_snapshot}` (no run going on, or none waiting for the administrator
+  within 15 s).
   """
   @spec snapshot(Path.t()) :: {:ok, map()} | {:error, :no_snapshot}
   def snapshot(path) do
