@@ -175,6 +175,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         rng: :rand.seed_s(:exsss, {seed, 6_5_11, 13}),
         received: %{r1: [], r2: []},
         current: %{r1: nil, r2: nil},
+        how: %{r1: nil, r2: nil},
         laps_done: %{r1: 0, r2: 0},
         pop: %{},
         serial: 0,
@@ -250,10 +251,10 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       case r.selected do
         nil ->
           fallback = st.current[robot] || hd(st.received[robot])
-          {fallback, bump(st, :no_candidate, 1)}
+          {fallback, bump(st, :no_candidate, 1) |> put_in([:how, robot], "kept")}
 
         pfa ->
-          {pfa, st}
+          {pfa, put_in(st.how[robot], "network")}
       end
 
     {pfa, put_in(st.current[robot], pfa)}
@@ -275,7 +276,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       pfa: m.pfa,
       time: m.time,
       on_line: m.on_line,
-      cost: cost
+      cost: cost,
+      how: st.how[robot]
     }
 
     %{st | choices: [row | st.choices]}
@@ -533,11 +535,11 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     Report.write_csv!(
       out,
       "choices",
-      ["trial", "robot", "lap", "index", "type", "pfa", "time", "on_line", "cost"],
+      ["trial", "robot", "lap", "index", "type", "pfa", "how", "time", "on_line", "cost"],
       for(
         {t, k} <- Enum.with_index(trials, 1),
         c <- t.choices,
-        do: [k, c.robot, c.lap, c.index, c.type, c.pfa, c.time, c.on_line, c.cost]
+        do: [k, c.robot, c.lap, c.index, c.type, c.pfa, c.how, c.time, c.on_line, c.cost]
       )
     )
 
