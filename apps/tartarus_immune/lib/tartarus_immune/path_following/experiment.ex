@@ -50,6 +50,9 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   * `exhaustive_best`: per type, the PFA of least mean `score/2` over the type's
     instances on both paths (first trial's seed), with every PFA's mean
     (`exhaustive_costs`): the reference of trying everything;
+  * `measured_costs`: per type and PFA, the mean normalized cost and the number of runs
+    the robots measured in the laps of all trials (what the mechanism learned from), and
+    `measured_best`, the PFA of least mean among those run at least 3 times;
   * `sim_speed_x`: simulated seconds (arena time summed over trials) per wall second of
     the trials, the immune network included.
 
@@ -460,6 +463,29 @@ defmodule TartarusImmune.PathFollowing.Experiment do
 
     sim = trials |> Enum.map(& &1.sim_time) |> Enum.sum()
 
+    # what the robots measured in the laps, over every trial: type -> PFA -> mean, count
+    measured =
+      trials
+      |> Enum.flat_map(& &1.choices)
+      |> Enum.group_by(&Atom.to_string(&1.type))
+      |> Map.new(fn {type, rows} ->
+        {type,
+         rows
+         |> Enum.group_by(& &1.pfa)
+         |> Map.new(fn {pfa, rs} ->
+           {pfa, %{mean: round3(avg(Enum.map(rs, & &1.cost))), runs: length(rs)}}
+         end)}
+      end)
+
+    measured_best =
+      Map.new(measured, fn {type, m} ->
+        {type,
+         m
+         |> Enum.filter(fn {_, v} -> v.runs >= 3 end)
+         |> Enum.min_by(fn {_, v} -> v.mean end, fn -> {nil, nil} end)
+         |> elem(0)}
+      end)
+
     ex =
       if exhaustive,
         do: Map.new(exhaustive, fn {t, {b, _}} -> {Atom.to_string(t), b} end),
@@ -491,6 +517,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         if(exhaustive, do: Map.new(exhaustive, fn {t, {_, m}} -> {Atom.to_string(t), m} end)),
       matches_exhaustive: if(ex, do: Map.new(types, &{&1, best[&1] == ex[&1]})),
       matches_table6_5: Map.new(types, &{&1, best[&1] == @table6_5[&1]}),
+      measured_costs: measured,
+      measured_best: measured_best,
       thesis: @thesis,
       lost_per_trial: Map.new(paths, fn {id, key} -> {key, Enum.map(trials, & &1.lost[id])} end),
       counters:
