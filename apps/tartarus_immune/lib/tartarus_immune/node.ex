@@ -21,14 +21,37 @@ defmodule TartarusImmune.Node do
       map;
     * `:queue` (a request) - the queue's entries.
 
-  The decisions are the pure function `interact/4`; this module only carries them out.
+  ## Deferred measurement (a robot)
+
+  Where a solution's cost is known only after it has run, and only one can run (a robot
+  crossing a sub-path with one path-following algorithm, `TartarusImmune.PathFollowing`),
+  an interaction is cut in two; the pending problem is registered and signalled with
+  `{:problems, refs, epoch}` as above:
+
+    * `:choose` (a request) - the resident iPkts that recognize the oldest pending problem
+      are the candidates; one LIN round (Eqs. 6.8-6.10) over the performance scores ζ the
+      candidates **carry** (no solution is run), the candidate of largest activation is
+      selected and the losers below τ_min die (Eq. 6.17). A candidate never measured
+      (ζ nil: a solution just injected) has nothing to compare, takes no part in the
+      round and is selected first, so each new solution is tried once (`choose/3`). Answers `%{selected: solution | nil, candidates: n, died: [solution]}`;
+      the problem stays pending (so the candidates stay on the host) until the feedback;
+    * `{:feedback, cost}` (a request) - the selected solution's measured cost: every
+      candidate of that solution still here takes it into its ζ (`Maths.running_score/4`,
+      here the running mean of the domain's cost itself, not relative to other
+      candidates, which did not run), the selected iPkt makes NC clones (Eqs.
+      6.11-6.13) and dies if it is left below τ_min; the problem is removed. Answers
+      `%{executed: solution | nil, born: n, died: [solution]}`.
+
+  The decisions are the pure functions `interact/4`, `choose/3` and `feedback/5`; this
+  module only carries them out. Candidates whose activation or score changed are told
+  with `{:update, tau, {zeta, n}}`, so the values travel with them.
   """
   use Tartarus.Agent
 
   alias TartarusImmune.{Cache, Maths}
 
   @doc false
-  def init(s), do: {:stay, Map.merge(%{queue: %{}, problems: []}, s)}
+  def init(s), do: {:stay, Map.merge(%{queue: %{}, problems: [], choice: nil}, s)}
 
   @doc false
   def handle_message({:enter, id, info}, _from, s), do: {:stay, put_in(s.queue[id], info)}
@@ -113,6 +136,97 @@ defmodule TartarusImmune.Node do
     end
   end
 
+  def handle_message(:choose, from, %{problems: []} = s) do
+    Tartarus.Agent.reply(from, %{selected: nil, candidates: 0, died: []})
+    {:stay, %{s | choice: nil}}
+  end
+
+  def handle_message(:choose, from, %{problems: [pb | _]} = s) do
+    members = s.queue |> Enum.sort_by(fn {_id, m} -> m.tag end)
+
+    case choose(members, pb.fv, s.p) do
+      :no_candidates ->
+        Tartarus.Agent.reply(from, %{selected: nil, candidates: 0, died: []})
+        {:stay, %{s | choice: nil}}
+
+      d ->
+        host = Tartarus.Agent.host()
+
+        for {id, tau} <- d.taus, id not in d.dead do
+          m = s.queue[id]
+          :ok = Tartarus.post({id, host}, {:update, tau, {m.zeta, m.n}})
+        end
+
+        for id <- d.dead, do: :ok = Tartarus.post({id, host}, :die)
+
+        queue =
+          d.taus
+          |> Enum.reduce(s.queue, fn {id, t}, q -> put_in(q[id].tau, t) end)
+          |> Map.drop(d.dead)
+
+        Tartarus.Agent.reply(from, %{
+          selected: d.solution,
+          candidates: length(d.taus),
+          died: Enum.map(d.dead, &s.queue[&1].sol)
+        })
+
+        {:stay, %{s | queue: queue, choice: %{id: d.selected, sol: d.solution}}}
+    end
+  end
+
+  def handle_message({:feedback, _cost}, from, %{problems: []} = s) do
+    Tartarus.Agent.reply(from, %{executed: nil, born: 0, died: []})
+    {:stay, %{s | choice: nil}}
+  end
+
+  def handle_message({:feedback, cost}, from, %{problems: [pb | rest]} = s) do
+    publish(rest)
+    s = %{s | problems: rest}
+    choice = s.choice
+
+    if choice == nil or not Map.has_key?(s.queue, choice.id) do
+      Tartarus.Agent.reply(from, %{executed: choice && choice.sol, born: 0, died: []})
+      {:stay, %{s | choice: nil}}
+    else
+      kin =
+        s.queue
+        |> Enum.filter(fn {_, m} ->
+          m.sol == choice.sol and Maths.recognizes?(pb.fv, m.fv, s.p)
+        end)
+        |> Enum.sort_by(fn {_id, m} -> m.tag end)
+
+      sel = {choice.id, s.queue[choice.id]}
+      d = feedback(sel, kin, pb.fv, cost, Map.put(s.p, :q_current, map_size(s.queue)))
+      host = Tartarus.Agent.host()
+
+      for {id, score} <- d.scores, id != choice.id do
+        :ok = Tartarus.post({id, host}, {:update, s.queue[id].tau, score})
+      end
+
+      msg =
+        if d.nc > 0,
+          do: {:clone, d.nc, d.psi_norm, d.tau_after, d.scores[choice.id], clone_tau(s.p)},
+          else: {:update, d.tau_after, d.scores[choice.id]}
+
+      :ok = Tartarus.post({choice.id, host}, msg)
+      for id <- d.dead, do: :ok = Tartarus.post({id, host}, :die)
+
+      queue =
+        d.scores
+        |> Enum.reduce(s.queue, fn {id, {z, n}}, q -> update_in(q[id], &%{&1 | zeta: z, n: n}) end)
+        |> then(&put_in(&1[choice.id].tau, d.tau_after))
+        |> Map.drop(d.dead)
+
+      Tartarus.Agent.reply(from, %{
+        executed: choice.sol,
+        born: d.nc,
+        died: Enum.map(d.dead, &s.queue[&1].sol)
+      })
+
+      {:stay, %{s | queue: queue, choice: nil}}
+    end
+  end
+
   def handle_message(:queue, from, s) do
     Tartarus.Agent.reply(from, Map.values(s.queue))
     {:stay, s}
@@ -183,6 +297,96 @@ defmodule TartarusImmune.Node do
         scores: scores
       }
     end
+  end
+
+  @doc """
+  The choice half of a deferred interaction (see the moduledoc), pure: the candidates
+  among `members` (`{id, %{sol:, fv:, tau:, zeta:}}` in queue order) for a problem of
+  feature vector `fx` are those that recognize it. Those whose solution has been measured
+  (`zeta` not nil) interact in one LIN round over the scores ζ they carry; those never
+  measured have no score to compare, take no part in it, and are tried first: the earliest
+  untried candidate is selected if there is one, else the one of largest activation after
+  the round. Returns `:no_candidates` or `%{taus: [{id, tau}], selected: id, solution:
+  module, dead: [id]}` (`taus` only for the measured candidates); the selected one is never
+  among the dead (it is about to run).
+
+      iex> p = TartarusImmune.Params.new!(tau_min: 5)
+      iex> ms = [{1, %{sol: :a, fv: [0.2], tau: 10.0, zeta: 1.2}}, {2, %{sol: :b, fv: [0.2], tau: 10.0, zeta: 2.0}}]
+      iex> d = TartarusImmune.Node.choose(ms, [0.2], p)
+      iex> {d.selected, d.solution, d.taus}
+      {1, :a, [{1, 15.0}, {2, 7.0}]}
+      iex> d = TartarusImmune.Node.choose(ms ++ [{3, %{sol: :c, fv: [0.2], tau: 10.0, zeta: nil}}], [0.2], p)
+      iex> {d.selected, d.solution, d.taus}
+      {3, :c, [{1, 15.0}, {2, 7.0}]}
+      iex> TartarusImmune.Node.choose(ms, [0.9], p)
+      :no_candidates
+  """
+  @spec choose([{term(), map()}], [float()], map()) :: :no_candidates | map()
+  def choose(members, fx, p) do
+    cands = Enum.filter(members, fn {_id, m} -> Maths.recognizes?(fx, m.fv, p) end)
+    {measured, untried} = Enum.split_with(cands, fn {_id, m} -> m.zeta != nil end)
+
+    if cands == [] do
+      :no_candidates
+    else
+      ms = Enum.map(measured, fn {_, m} -> %{fv: m.fv, tau: m.tau, cost: m.zeta, kind: m.sol} end)
+      new = if ms == [], do: [], else: lin(ms, p)
+      taus = Enum.zip_with(measured, new, fn {id, _}, n -> {id, n.tau} end)
+
+      {sel_id, sel} =
+        case untried do
+          [first | _] ->
+            first
+
+          [] ->
+            after_round = Enum.zip_with(ms, new, fn m, n -> %{m | tau: n.tau} end)
+            Enum.at(measured, Maths.select(after_round))
+        end
+
+      dead = for {id, t} <- taus, id != sel_id, t < p.tau_min, do: id
+      %{taus: taus, selected: sel_id, solution: sel.sol, dead: dead}
+    end
+  end
+
+  @doc """
+  The feedback half of a deferred interaction, pure: the selected member `{id, m}` ran on
+  the problem of features `fx` and cost `cost`; `kin` are the candidates of the same
+  solution still on the host (the selected one among them). Each takes the cost into its
+  running score; the selected one makes NC clones (Eqs. 6.11-6.13, with `p.q_current`) and
+  dies if left below τ_min (Eq. 6.17). Returns `%{scores: %{id => {zeta, n}}, nc:,
+  tau_after:, psi_norm:, dead: [id]}`.
+
+      iex> p = TartarusImmune.Params.new!() |> Map.put(:q_current, 1)
+      iex> sel = {1, %{sol: :a, fv: [0.5], tau: 20.0, zeta: nil, n: 0}}
+      iex> d = TartarusImmune.Node.feedback(sel, [sel], [0.5], 1.5, p)
+      iex> {d.scores, d.nc, d.tau_after, d.dead}
+      {%{1 => {1.5, 1}}, 3, 5.0, []}
+  """
+  @spec feedback({term(), map()}, [{term(), map()}], [float()], number(), map()) :: map()
+  def feedback({sel_id, sel}, kin, fx, cost, p) do
+    kin = if List.keymember?(kin, sel_id, 0), do: kin, else: [{sel_id, sel} | kin]
+
+    scores =
+      Map.new(kin, fn {id, m} ->
+        {id, Maths.running_score(m.zeta, m.n, cost, p.score_window)}
+      end)
+
+    nc = if sel.tau < p.tau_min, do: 0, else: Maths.clones(sel.tau, p.q_current, p)
+    tau_after = Maths.after_cloning(sel.tau, nc, p)
+
+    %{
+      scores: scores,
+      nc: nc,
+      tau_after: tau_after,
+      psi_norm: Maths.affinity(fx, sel.fv) / Maths.psi_max(length(fx)),
+      dead: if(tau_after < p.tau_min, do: [sel_id], else: [])
+    }
+  end
+
+  defp lin(ms, p) do
+    if Map.get(p, :lin, :types) == :types,
+      do: Maths.interact_types(ms, p),
+      else: Maths.interact(ms, p)
   end
 
   defp clone_tau(%{clone_tau: :tau_min, tau_min: t}), do: t * 1.0

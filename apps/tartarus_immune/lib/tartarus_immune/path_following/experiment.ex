@@ -1,0 +1,643 @@
+defmodule TartarusImmune.PathFollowing.Experiment do
+  @moduledoc """
+  The path-following experiment of thesis §6.5.11 (Fig. 6.13, Table 6.5): two robots on
+  Path-1 and Path-2 at once learn which PFA to use on which kind of sub-path with the
+  immune selection mechanism (`TartarusImmune.Node`, `TartarusImmune.IPkt`,
+  `TartarusImmune.Maths`), sharing what they learn through iPkts (`mix tartarus.pfa`).
+
+  ## One trial
+
+  * The world: both paths of `TartarusArena.Paths` under the trial's seed, robot `r1` on
+    Path-1's flag and `r2` on Path-2's, driven together by `TartarusArena.Run.laps/3`.
+  * The network: each robot's host is a host of an emulated network
+    (`TartarusEmu.Network`, the two hosts linked), with a `TartarusImmune.Node` agent
+    (`"immune"`) on each; the domain is `TartarusImmune.PathFollowing`.
+  * **Injection** (the thesis's input stream): before lap 1 and at the end of every lap
+    but the last, each robot receives one PFA it has not received before, drawn at random
+    from the offered PFAs (none once it has had them all): one iPkt of that PFA per
+    sub-path type on the robot's map (its path), mapping the PFA to that type's features
+    on the map (F_y), activation τ_init, never measured.
+  * **Encounter** (the `:policy` of `Run.laps/3`, asked when a robot enters a sub-path):
+    the robot's host registers the sub-path as its pending problem and emits the danger
+    signal `{:danger, epoch}` carrying its features (a fresh epoch per encounter); one
+    migration round follows (every iPkt is told `{:go, epoch}`: one that recognizes a
+    problem pending at its host stays, one that recognizes the signal climbs it to the
+    robot (the XRep), the others move on conscientiously, which between two robots means
+    to the other one); then the node's `:choose` runs the localized idiotypic network
+    over the candidates (IRep and XRep alike) and the robot runs the selected PFA. If no
+    iPkt recognizes the sub-path the robot keeps its current PFA (counted as
+    `no_candidate`).
+  * **Feedback** (told when the robot leaves the sub-path): the measured cost
+    (`time * (2 - on_line)`, time including any put-back penalty, over the sub-path's
+    nominal time: `TartarusImmune.PathFollowing.normalize/2`) goes to the node
+    (`{:feedback, cost}`): the iPkts of the selected PFA take it into their ζ and the
+    selected one clones; clones move with the next migration round, so the mappings reach
+    the other robot as agents.
+
+  At the end of a trial the **best PFA per sub-path type** is the network's choice for
+  Table 6.3's feature vector of the type (`TartarusImmune.Experiment.choose/4`: the PFA
+  with most live iPkts recognizing it, ties by summed activation).
+
+  ## Measures
+
+  * `lap_times`: per path, the time of each lap (one list per trial) and the mean over
+    trials per lap (Fig. 6.13 a and b);
+  * `plateau_lap`: per path, on the mean curve, the first lap L such that every lap from
+    L to the last is within 10% of the **final mean** (the mean of the last 3 laps); and
+    `plateau_time`, the mean lap time from the plateau lap to the last;
+  * `best_pfa`: per sub-path type, the most frequent best PFA over the trials (ties: the
+    earlier PFA), with `best_pfa_counts`;
+  * `exhaustive_best`: per type, the PFA of least mean `score/2` over the type's
+    instances on both paths (first trial's seed), with every PFA's mean
+    (`exhaustive_costs`): the reference of trying everything;
+  * `measured_costs`: per type and PFA, the mean normalized cost and the number of runs
+    the robots measured in the laps of all trials (what the mechanism learned from), and
+    `measured_best`, the PFA of least mean among those run at least 3 times;
+  * `sim_speed_x`: simulated seconds (arena time summed over trials) per wall second of
+    the trials, the immune network included.
+
+  Choices (all options): μ = 0.8 rather than Table 6.1's 0.5, since with ψ_max = 2 (four
+  features) μ = 0.5 lets an iPkt recognize sub-paths of other types (sp-a and sp-c, sp-b
+  and sp-d and sp-a and sp-d are 0.67-0.79 apart; instances of one type at most 0.2);
+  μ = 0.8 recognizes within 0.4. Q_max = 20 rather than 5, since a robot's host holds the
+  iPkts of four sub-path types and up to eight PFAs, not one problem class.
+  """
+
+  alias TartarusArena.{PFAs, Paths, Run}
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusImmune.{Domain, IPkt, Params, PathFollowing}
+  alias TartarusTools.{Report, SVG}
+
+  @schema [
+    laps: [type: :pos_integer, default: 12, doc: "laps per robot"],
+    trials: [type: :pos_integer, default: 10, doc: "trials (seeds seed, seed + 1, ...)"],
+    seed: [type: :integer, default: 1, doc: "seed of the first trial"],
+    pfas: [
+      type: {:list, :atom},
+      default: nil,
+      doc: "the PFAs the input stream offers (default all eight)"
+    ],
+    sharing: [type: :boolean, default: true, doc: "iPkts travel between the robots"],
+    danger: [type: :boolean, default: true, doc: "danger signals on"],
+    exhaustive: [type: :boolean, default: true, doc: "also run the exhaustive search"],
+    params: [
+      type: :keyword,
+      default: [],
+      doc: "Table 6.1 parameters (TartarusImmune.Params); defaults here mu 0.8, q_max 20"
+    ],
+    out: [type: :any, default: nil, doc: "output directory, or false for none"]
+  ]
+
+  @thesis %{
+    plateau_lap: %{"path1" => 6, "path2" => 8},
+    plateau_time: %{"path1" => 22, "path2" => 31}
+  }
+  @table6_5 %{"sp_a" => "A4", "sp_b" => "A2", "sp_c" => "A1", "sp_d" => "A2"}
+
+  @doc "The options of `run/1` (`Tartarus.Options` schema)."
+  @spec schema() :: Tartarus.Options.schema()
+  def schema, do: @schema
+
+  @doc """
+  Runs the trials and writes the outputs (unless `out: false`): `lap_times.csv` (trial,
+  path, lap, seconds), `lap_times_trial1.svg` (Fig. 6.13a), `lap_times_mean.svg`
+  (Fig. 6.13b), `choices.csv` (every sub-path crossed: trial, robot, lap, index, type,
+  PFA, time, on_line, normalized cost), `best_pfa.csv` (Table 6.5 beside the thesis and
+  the exhaustive search), `summary.json`, `summary.md`. Options:
+
+  #{Tartarus.Options.docs(@schema)}
+
+  Returns `{:ok, %{summary: map, out: dir | nil, trials: [trial]}}` or `{:error, message}`.
+  """
+  @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
+  def run(opts \\ []) do
+    with {:ok, o} <- Tartarus.Options.validate(opts, @schema, "#{inspect(__MODULE__)}.run/1"),
+         o = Map.new(o),
+         {:ok, p} <- Params.new(Keyword.merge([mu: 0.8, q_max: 20], o.params)),
+         :ok <- check_pfas(o.pfas) do
+      o = %{o | pfas: o.pfas || PFAs.all()}
+      t0 = System.monotonic_time(:microsecond)
+      trials = for t <- 0..(o.trials - 1), do: trial(o, p, o.seed + t)
+      wall = (System.monotonic_time(:microsecond) - t0) / 1.0e6
+      exhaustive = if o.exhaustive, do: exhaustive(o.pfas, o.seed)
+      summary = summarize(o, trials, exhaustive, wall)
+
+      out =
+        case o.out do
+          false -> nil
+          nil -> Report.default_out_dir("pfa")
+          dir -> dir
+        end
+
+      if out, do: write(out, o, trials, summary)
+      {:ok, %{summary: summary, out: out, trials: trials}}
+    end
+  end
+
+  defp check_pfas(nil), do: :ok
+
+  defp check_pfas(pfas) do
+    if pfas != [] and Enum.all?(pfas, &(&1 in PFAs.all())),
+      do: :ok,
+      else:
+        {:error,
+         "invalid value for :pfas: expected PFA modules of TartarusArena.PFAs.all(), got: #{inspect(pfas)}"}
+  end
+
+  # -- one trial -------------------------------------------------------------------------
+
+  @doc """
+  One trial under `seed` (options validated as in `run/1`, `p` the parameters): returns
+  `%{seed, lap_times: %{1 => [...], 2 => [...]}, best: %{type => name}, choices, sim_time,
+  counters}`.
+  """
+  @spec trial(map(), map(), integer()) :: map()
+  def trial(o, p, seed) do
+    paths = %{r1: PathFollowing.path(1, seed), r2: PathFollowing.path(2, seed)}
+    node_state = %{domain: PathFollowing, p: p, seed: seed, danger: o.danger}
+
+    hook = fn _node, host ->
+      Tartarus.create_static_agent(host, TartarusImmune.Node, node_state, name: "immune")
+    end
+
+    {:ok, net} =
+      Network.start(Topology.new(["r1", "r2"], [{"r1", "r2"}]),
+        setup: hook,
+        host_opts: [migration_timeout: 60_000]
+      )
+
+    try do
+      st = %{
+        o: o,
+        p: p,
+        seed: seed,
+        run: make_ref(),
+        net: net,
+        paths: paths,
+        hosts: %{r1: Network.host(net, "r1"), r2: Network.host(net, "r2")},
+        rng: :rand.seed_s(:exsss, {seed, 6_5_11, 13}),
+        received: %{r1: [], r2: []},
+        current: %{r1: nil, r2: nil},
+        how: %{r1: nil, r2: nil},
+        laps_done: %{r1: 0, r2: 0},
+        pop: %{},
+        serial: 0,
+        epoch: 0,
+        choices: [],
+        counters: %{
+          injected: 0,
+          born: 0,
+          died: 0,
+          expired: 0,
+          migrations: 0,
+          failed_moves: 0,
+          no_candidate: 0
+        }
+      }
+
+      st = st |> inject(:r1) |> inject(:r2)
+      world = Run.arena([{:r1, paths.r1, 0.0}, {:r2, paths.r2, 0.0}], seed: {seed, :pfa})
+
+      res =
+        Run.laps([%{robot: :r1, path: paths.r1}, %{robot: :r2, path: paths.r2}], world,
+          laps: o.laps,
+          max_time: 120.0 * o.laps,
+          policy: &policy/2,
+          policy_state: st
+        )
+
+      st = res.policy_state
+      live = live(st)
+
+      best =
+        Map.new(Paths.types(), fn type ->
+          fx = Paths.table_features(type)
+          rec = Enum.filter(live, &TartarusImmune.Maths.recognizes?(fx, &1.fv, p))
+
+          {type,
+           if(rec == [],
+             do: nil,
+             else: PFAs.name(TartarusImmune.Experiment.choose(rec, fx, p, o.pfas))
+           )}
+        end)
+
+      %{
+        seed: seed,
+        lap_times: %{1 => res.robots.r1.lap_times, 2 => res.robots.r2.lap_times},
+        lost: %{1 => res.robots.r1.lost, 2 => res.robots.r2.lost},
+        best: best,
+        choices: Enum.reverse(st.choices),
+        sim_time: res.time,
+        received:
+          Map.new(st.received, fn {r, l} -> {r, Enum.map(Enum.reverse(l), &PFAs.name/1)} end),
+        population: Map.new(st.pop, fn {s, n} -> {PFAs.name(s), n} end),
+        counters: st.counters
+      }
+    after
+      Network.stop(net)
+    end
+  end
+
+  @doc false
+  # the policy of Run.laps/3: the immune mechanism behind one function
+  def policy({:choose, robot, sp}, st) do
+    host = st.hosts[robot]
+    epoch = st.epoch + 1
+    set = PathFollowing.set_of(st.paths[robot].id)
+    {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, [{set, sp.index}], epoch})
+    Tartarus.Signal.settle()
+    st = migrate(%{st | epoch: epoch})
+    {:ok, r} = Tartarus.request({"immune", host}, :choose)
+    st = died(st, r.died)
+
+    {pfa, st} =
+      case r.selected do
+        nil ->
+          fallback = st.current[robot] || hd(st.received[robot])
+          {fallback, bump(st, :no_candidate, 1) |> put_in([:how, robot], "kept")}
+
+        pfa ->
+          {pfa, put_in(st.how[robot], "network")}
+      end
+
+    {pfa, put_in(st.current[robot], pfa)}
+  end
+
+  def policy({:result, robot, m}, st) do
+    inst = PathFollowing.instance(PathFollowing.set_of(m.path), m.index, st.seed)
+    cost = PathFollowing.normalize(m.cost, inst)
+    {:ok, r} = Tartarus.request({"immune", st.hosts[robot]}, {:feedback, cost})
+    st = born(st, r.born) |> died(r.died)
+
+    row = %{
+      robot: robot,
+      # the lap event of a lap's last sub-path comes before its result
+      lap:
+        st.laps_done[robot] + if(m.index == length(st.paths[robot].subpaths) - 1, do: 0, else: 1),
+      index: m.index,
+      type: m.type,
+      pfa: m.pfa,
+      time: m.time,
+      on_line: m.on_line,
+      cost: cost,
+      how: st.how[robot]
+    }
+
+    %{st | choices: [row | st.choices]}
+  end
+
+  def policy({:lap, robot, n, _secs}, st) do
+    st = put_in(st.laps_done[robot], n)
+    if n < st.o.laps, do: inject(st, robot), else: st
+  end
+
+  # one new PFA for `robot`: one iPkt per sub-path type of its map
+  defp inject(st, robot) do
+    left = st.o.pfas -- st.received[robot]
+
+    if left == [] do
+      st
+    else
+      {i, rng} = :rand.uniform_s(length(left), st.rng)
+      pfa = Enum.at(left, i - 1)
+      st = %{st | rng: rng, received: Map.update!(st.received, robot, &[pfa | &1])}
+
+      st.paths[robot].subpaths
+      |> Enum.uniq_by(& &1.type)
+      |> Enum.reduce(st, fn sp, st ->
+        serial = st.serial + 1
+
+        s = %{
+          sol: pfa,
+          fv: sp.features,
+          tau: st.p.tau_init * 1.0,
+          zeta: nil,
+          n: 0,
+          hops: 0,
+          tag: serial,
+          clones: 0,
+          plan: nil,
+          p: st.p,
+          driver: self(),
+          run: st.run,
+          sharing: st.o.sharing,
+          danger: st.o.danger
+        }
+
+        {:ok, _} = Tartarus.create_mobile_agent(st.hosts[robot], IPkt, s, seed: {st.seed, serial})
+
+        %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
+        |> bump(:injected, 1)
+      end)
+    end
+  end
+
+  defp migrate(st) do
+    alive = st.pop |> Map.values() |> Enum.sum()
+    Network.broadcast(st.net, {:go, st.epoch})
+
+    Enum.reduce(1..alive//1, st, fn _, st ->
+      case receive_event(st.run) do
+        {:arrived, _} -> bump(st, :migrations, 1)
+        {:stayed, _} -> st
+        {:move_failed, _} -> bump(st, :failed_moves, 1)
+        {:expired, sol} -> %{bump(st, :expired, 1) | pop: Map.update!(st.pop, sol, &(&1 - 1))}
+      end
+    end)
+  end
+
+  defp born(st, n) do
+    Enum.reduce(1..n//1, st, fn _, st ->
+      case receive_event(st.run) do
+        {:born, sol} -> %{bump(st, :born, 1) | pop: Map.update(st.pop, sol, 1, &(&1 + 1))}
+        {:move_failed, _} -> bump(st, :failed_moves, 1)
+      end
+    end)
+  end
+
+  defp died(st, sols) do
+    pop = Enum.reduce(sols, st.pop, fn sol, pop -> Map.update!(pop, sol, &(&1 - 1)) end)
+    %{bump(st, :died, length(sols)) | pop: pop}
+  end
+
+  defp bump(st, key, n), do: update_in(st.counters[key], &(&1 + n))
+
+  defp receive_event(run) do
+    receive do
+      {:immune, ^run, ev, _tag, sol} -> {ev, sol}
+    after
+      60_000 -> raise "pfa: an iPkt did not answer in 60 s"
+    end
+  end
+
+  defp live(st) do
+    Enum.flat_map(Map.values(st.hosts), fn h ->
+      {:ok, q} = Tartarus.request({"immune", h}, :queue)
+      q
+    end)
+  end
+
+  # -- the exhaustive reference --------------------------------------------------------------
+
+  @doc """
+  Every PFA of `pfas` over every sub-path instance of both paths under `seed`
+  (`PathFollowing.score/2`): per type, `{best_name, %{name => mean normalized cost}}`.
+  """
+  @spec exhaustive([module()], integer()) :: %{Paths.type() => {String.t(), map()}}
+  def exhaustive(pfas, seed) do
+    refs = for set <- [:p1, :p2], i <- 0..(PathFollowing.sets()[set] - 1), do: {set, i}
+
+    by_type = Enum.group_by(refs, fn {set, i} -> PathFollowing.instance(set, i, seed).type end)
+
+    Map.new(by_type, fn {type, rs} ->
+      {best, means} = Domain.class_best(PathFollowing, pfas, rs, seed)
+
+      {type,
+       {PFAs.name(best), Map.new(means, fn {s, m} -> {PFAs.name(s), Float.round(m, 3)} end)}}
+    end)
+  end
+
+  # -- summary ---------------------------------------------------------------------------
+
+  @doc """
+  The plateau lap of a lap-time curve: the first lap L (1-based) such that every lap from
+  L to the last is within `tol` (10%) of the mean of the last `tail` (3) laps.
+
+      iex> TartarusImmune.PathFollowing.Experiment.plateau_lap([60, 40, 31, 29, 30, 30])
+      3
+      iex> TartarusImmune.PathFollowing.Experiment.plateau_lap([30, 30, 30])
+      1
+  """
+  @spec plateau_lap([number()], number(), pos_integer()) :: pos_integer() | nil
+  def plateau_lap(times, tol \\ 0.1, tail \\ 3)
+  def plateau_lap([], _tol, _tail), do: nil
+
+  def plateau_lap(times, tol, tail) do
+    last = Enum.take(times, -tail)
+    final = Enum.sum(last) / length(last)
+    n = length(times)
+
+    times
+    |> Enum.with_index(1)
+    |> Enum.reverse()
+    |> Enum.reduce_while(n, fn {t, i}, acc ->
+      if abs(t - final) <= tol * final, do: {:cont, i}, else: {:halt, acc}
+    end)
+  end
+
+  defp summarize(o, trials, exhaustive, wall) do
+    paths = [{1, "path1"}, {2, "path2"}]
+
+    per_trial = Map.new(paths, fn {id, key} -> {key, Enum.map(trials, & &1.lap_times[id])} end)
+
+    mean = Map.new(per_trial, fn {key, lists} -> {key, mean_curve(lists)} end)
+
+    plateau = Map.new(mean, fn {k, c} -> {k, plateau_lap(c)} end)
+
+    plateau_time =
+      Map.new(mean, fn {k, c} ->
+        case plateau[k] do
+          nil -> {k, nil}
+          l -> {k, round3(avg(Enum.drop(c, l - 1)))}
+        end
+      end)
+
+    types = Enum.map(Paths.types(), &Atom.to_string/1)
+
+    counts =
+      Map.new(Paths.types(), fn type ->
+        {Atom.to_string(type),
+         trials |> Enum.map(& &1.best[type]) |> Enum.reject(&is_nil/1) |> Enum.frequencies()}
+      end)
+
+    order = Enum.map(o.pfas, &PFAs.name/1)
+
+    best =
+      Map.new(counts, fn {type, c} ->
+        {type,
+         case Enum.sort_by(c, fn {name, n} -> {-n, Enum.find_index(order, &(&1 == name))} end) do
+           [] -> nil
+           [{name, _} | _] -> name
+         end}
+      end)
+
+    sim = trials |> Enum.map(& &1.sim_time) |> Enum.sum()
+
+    # what the robots measured in the laps, over every trial: type -> PFA -> mean, count
+    measured =
+      trials
+      |> Enum.flat_map(& &1.choices)
+      |> Enum.group_by(&Atom.to_string(&1.type))
+      |> Map.new(fn {type, rows} ->
+        {type,
+         rows
+         |> Enum.group_by(& &1.pfa)
+         |> Map.new(fn {pfa, rs} ->
+           {pfa, %{mean: round3(avg(Enum.map(rs, & &1.cost))), runs: length(rs)}}
+         end)}
+      end)
+
+    measured_best =
+      Map.new(measured, fn {type, m} ->
+        {type,
+         m
+         |> Enum.filter(fn {_, v} -> v.runs >= 3 end)
+         |> Enum.min_by(fn {_, v} -> v.mean end, fn -> {nil, nil} end)
+         |> elem(0)}
+      end)
+
+    ex =
+      if exhaustive,
+        do: Map.new(exhaustive, fn {t, {b, _}} -> {Atom.to_string(t), b} end),
+        else: nil
+
+    %{
+      trials: o.trials,
+      laps: o.laps,
+      seed: o.seed,
+      pfas: order,
+      sharing: o.sharing,
+      danger: o.danger,
+      lap_times: %{
+        "trial1" => Map.new(per_trial, fn {k, l} -> {k, hd(l)} end),
+        "mean" => mean,
+        "per_trial" => per_trial
+      },
+      plateau_lap: plateau,
+      plateau_time: plateau_time,
+      plateau_definition:
+        "first lap L of the mean curve such that every lap from L on is within 10% of the mean of the last 3 laps",
+      plateau_lap_per_trial:
+        Map.new(per_trial, fn {k, lists} -> {k, Enum.map(lists, &plateau_lap/1)} end),
+      best_pfa: best,
+      best_pfa_counts: counts,
+      best_pfa_table6_5: @table6_5,
+      exhaustive_best: ex,
+      exhaustive_costs:
+        if(exhaustive, do: Map.new(exhaustive, fn {t, {_, m}} -> {Atom.to_string(t), m} end)),
+      matches_exhaustive: if(ex, do: Map.new(types, &{&1, best[&1] == ex[&1]})),
+      matches_table6_5: Map.new(types, &{&1, best[&1] == @table6_5[&1]}),
+      measured_costs: measured,
+      measured_best: measured_best,
+      thesis: @thesis,
+      lost_per_trial: Map.new(paths, fn {id, key} -> {key, Enum.map(trials, & &1.lost[id])} end),
+      counters:
+        Enum.reduce(trials, %{}, fn t, acc ->
+          Map.merge(acc, t.counters, fn _, a, b -> a + b end)
+        end),
+      sim_seconds: round3(sim),
+      wall_seconds: round3(wall),
+      sim_speed_x: round3(sim / max(wall, 1.0e-6))
+    }
+  end
+
+  defp mean_curve(lists) do
+    n = lists |> Enum.map(&length/1) |> Enum.min(fn -> 0 end)
+
+    for i <- 0..(n - 1)//1 do
+      lists |> Enum.map(&Enum.at(&1, i)) |> avg() |> round3()
+    end
+  end
+
+  defp avg([]), do: 0.0
+  defp avg(xs), do: Enum.sum(xs) / length(xs)
+  defp round3(x), do: Float.round(x * 1.0, 3)
+
+  # -- files -----------------------------------------------------------------------------
+
+  defp write(out, o, trials, s) do
+    File.mkdir_p!(out)
+
+    Report.write_csv!(
+      out,
+      "lap_times",
+      ["trial", "seed", "path", "lap", "seconds"],
+      for(
+        {t, k} <- Enum.with_index(trials, 1),
+        id <- [1, 2],
+        {secs, lap} <- Enum.with_index(t.lap_times[id], 1),
+        do: [k, t.seed, id, lap, secs]
+      )
+    )
+
+    Report.write_csv!(
+      out,
+      "choices",
+      ["trial", "robot", "lap", "index", "type", "pfa", "how", "time", "on_line", "cost"],
+      for(
+        {t, k} <- Enum.with_index(trials, 1),
+        c <- t.choices,
+        do: [k, c.robot, c.lap, c.index, c.type, c.pfa, c.how, c.time, c.on_line, c.cost]
+      )
+    )
+
+    Report.write_csv!(
+      out,
+      "best_pfa",
+      ["type", "best_pfa", "trials_per_pfa", "table6_5", "exhaustive_best"],
+      for type <- Enum.map(Paths.types(), &Atom.to_string/1) do
+        counts =
+          s.best_pfa_counts[type]
+          |> Enum.sort()
+          |> Enum.map_join(" ", fn {n, c} -> "#{n}:#{c}" end)
+
+        [
+          type,
+          s.best_pfa[type],
+          counts,
+          @table6_5[type],
+          s.exhaustive_best && s.exhaustive_best[type]
+        ]
+      end
+    )
+
+    curve = fn lists ->
+      for {key, label} <- [{"path1", "Path-1"}, {"path2", "Path-2"}] do
+        %{
+          name: label,
+          points: Enum.with_index(lists[key], 1) |> Enum.map(fn {t, i} -> {i, t} end)
+        }
+      end
+    end
+
+    SVG.write!(
+      Path.join(out, "lap_times_trial1.svg"),
+      SVG.line_chart(curve.(s.lap_times["trial1"]),
+        title: "Time per lap, one trial (seed #{o.seed}; Fig. 6.13a)",
+        x_label: "lap",
+        y_label: "seconds",
+        y_min: 0
+      )
+    )
+
+    SVG.write!(
+      Path.join(out, "lap_times_mean.svg"),
+      SVG.line_chart(curve.(s.lap_times["mean"]),
+        title: "Mean time per lap over #{o.trials} trials (Fig. 6.13b)",
+        x_label: "lap",
+        y_label: "seconds",
+        y_min: 0
+      )
+    )
+
+    Report.write_summary!(
+      out,
+      Map.delete(s, :lap_times) |> Map.put(:lap_times_mean, s.lap_times["mean"]),
+      title: "Path-following selection (thesis §6.5.11)",
+      comparisons: [
+        %{metric: "plateau lap, Path-1", ours: s.plateau_lap["path1"], thesis: 6},
+        %{metric: "plateau lap, Path-2", ours: s.plateau_lap["path2"], thesis: 8},
+        %{metric: "plateau time, Path-1 (s)", ours: s.plateau_time["path1"], thesis: 22},
+        %{metric: "plateau time, Path-2 (s)", ours: s.plateau_time["path2"], thesis: 31}
+        | for type <- ["sp_a", "sp_b", "sp_c", "sp_d"] do
+            %{
+              metric: "best PFA #{type}",
+              ours: s.best_pfa[type],
+              thesis: @table6_5[type],
+              note: "exhaustive search here: #{s.exhaustive_best && s.exhaustive_best[type]}"
+            }
+          end
+      ]
+    )
+  end
+end

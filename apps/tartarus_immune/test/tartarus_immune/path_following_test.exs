@@ -1,0 +1,168 @@
+defmodule TartarusImmune.PathFollowingTest do
+  use ExUnit.Case, async: false
+
+  alias TartarusArena.{PFA, Paths}
+  alias TartarusImmune.{Node, Params, PathFollowing}
+  alias TartarusImmune.PathFollowing.Experiment
+
+  doctest TartarusImmune.PathFollowing
+  doctest TartarusImmune.PathFollowing.Experiment
+  doctest TartarusImmune.Node
+
+  describe "the domain" do
+    test "an instance's features are its sub-path's, normalized, and the types are the paths'" do
+      for {set, id} <- [p1: 1, p2: 2], seed <- [1, 2] do
+        path = Paths.path(id, seed)
+
+        for i <- 0..(PathFollowing.sets()[set] - 1) do
+          inst = PathFollowing.instance(set, i, seed)
+          sp = Enum.at(path.subpaths, i)
+          assert PathFollowing.features(inst) == sp.features
+          assert inst.type == sp.type
+          assert length(sp.features) == PathFollowing.feature_count()
+          assert Enum.all?(sp.features, &(&1 >= 0 and &1 <= 1))
+          assert_in_delta inst.nominal, (sp.to - sp.from) / 0.25, 1.0e-9
+        end
+      end
+
+      types = fn set ->
+        for i <- 0..(PathFollowing.sets()[set] - 1), do: PathFollowing.instance(set, i, 1).type
+      end
+
+      assert types.(:p1) == [:sp_c, :sp_a, :sp_b, :sp_a]
+      assert types.(:p2) == [:sp_c, :sp_a, :sp_d, :sp_b, :sp_a]
+      assert PathFollowing.solutions() == TartarusArena.PFAs.all()
+      assert PathFollowing.solution_name(PFA.A4) == "A4"
+    end
+
+    test "the score is a robot's run over the sub-path: a failure costs 12 nominal times" do
+      straight = PathFollowing.instance(:p1, 0, 1)
+      acute = PathFollowing.instance(:p2, 2, 1)
+      assert straight.type == :sp_c and acute.type == :sp_d
+
+      a1 = PathFollowing.score(PFA.A1, straight)
+      a5 = PathFollowing.score(PFA.A5, straight)
+      # bang-bang at full speed is faster on a straight than the PD controller at 0.75
+      assert a1 >= 1.0 and a1 < a5
+      # A2 spins in place at the acute turns' tips and loses the line; A1 keeps pivoting
+      assert PathFollowing.score(PFA.A2, acute) == 12.0
+      assert PathFollowing.score(PFA.A1, acute) < 12.0
+      # deterministic
+      assert PathFollowing.score(PFA.A1, straight) == a1
+    end
+  end
+
+  describe "deferred interactions (Node.choose/3, Node.feedback/5)" do
+    setup do
+      %{p: Params.new!(mu: 0.8)}
+    end
+
+    test "an untried candidate is tried first; measured ones still compete", %{p: p} do
+      fx = [0.7, 0.2, 0.0, 0.0]
+      a = {1, %{sol: :a, fv: fx, tau: 10.0, zeta: 1.1, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 10.0, zeta: 1.5, n: 3}}
+      new = {3, %{sol: :c, fv: fx, tau: 10.0, zeta: nil, n: 0}}
+      other = {4, %{sol: :d, fv: [0.3, 0.7, 0.0, 0.2], tau: 10.0, zeta: 0.5, n: 3}}
+
+      d = Node.choose([a, b, new, other], fx, p)
+      assert d.selected == 3 and d.solution == :c
+      # the far iPkt (another sub-path type) is no candidate; the new one takes no part
+      assert Enum.map(d.taus, &elem(&1, 0)) == [1, 2]
+      [{1, ta}, {2, tb}] = d.taus
+      assert ta > 10.0 and tb < 10.0
+
+      d = Node.choose([a, b, other], fx, p)
+      assert d.selected == 1 and d.dead == []
+    end
+
+    test "a loser dies below tau_min; the selected one never dies when chosen", %{p: p} do
+      fx = [0.5, 0.3, 0.9, 0.7]
+      a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 5.0, zeta: 2.0, n: 3}}
+      d = Node.choose([a, b], fx, p)
+      assert d.selected == 1 and d.dead == [2]
+    end
+
+    test "feedback: kin take the measured cost, the selected clones within its queue", %{p: p} do
+      fx = [0.5, 0.3, 0.9, 0.7]
+      sel = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 1}}
+      kin = {2, %{sol: :a, fv: fx, tau: 6.0, zeta: 1.0, n: 1}}
+
+      d = Node.feedback(sel, [sel, kin], fx, 2.0, Map.put(p, :q_current, 2))
+      assert d.scores == %{1 => {1.5, 2}, 2 => {1.5, 2}}
+      assert d.nc == 3 and d.tau_after == 5.0 and d.dead == []
+      assert_in_delta d.psi_norm, 1.0, 1.0e-9
+
+      # a full queue: no clone
+      d = Node.feedback(sel, [sel], fx, 2.0, Map.put(p, :q_current, p.q_max))
+      assert d.nc == 0 and d.tau_after == 20.0
+    end
+  end
+
+  describe "the experiment" do
+    @small [trials: 1, laps: 4, seed: 3, pfas: [PFA.A1, PFA.A3, PFA.A5]]
+
+    @tag :tmp_dir
+    test "on a small case the network's choice is the exhaustive best per sub-path type, " <>
+           "and the same seed gives the same numbers",
+         %{tmp_dir: dir} do
+      {:ok, a} = Experiment.run([out: dir] ++ @small)
+      {:ok, b} = Experiment.run([out: false] ++ @small)
+      s = a.summary
+      drop = &Map.drop(&1, [:wall_seconds, :sim_speed_x])
+      assert drop.(s) == drop.(b.summary)
+      assert a.trials == b.trials
+
+      assert s.exhaustive_best == %{
+               "sp_a" => "A1",
+               "sp_b" => "A1",
+               "sp_c" => "A1",
+               "sp_d" => "A1"
+             }
+
+      assert s.best_pfa == s.exhaustive_best, inspect(s.best_pfa_counts)
+      assert Enum.all?(Map.values(s.matches_exhaustive))
+
+      # each robot received the three PFAs, one per lap, and tried each
+      [t] = a.trials
+      assert Enum.sort(t.received.r1) == ["A1", "A3", "A5"]
+      assert Enum.sort(t.received.r2) == ["A1", "A3", "A5"]
+      assert t.counters.injected == 3 * 3 + 3 * 4
+      assert t.counters.migrations > 0 and t.counters.born > 0 and t.counters.died > 0
+
+      used = fn robot -> t.choices |> Enum.filter(&(&1.robot == robot)) |> Enum.map(& &1.pfa) end
+      assert Enum.sort(Enum.uniq(used.(:r1))) == ["A1", "A3", "A5"]
+      # the mappings travel: a robot ran a PFA before it received it itself
+      first_run = fn robot, name ->
+        Enum.find(t.choices, &(&1.robot == robot and &1.pfa == name)).lap
+      end
+
+      received_lap = fn robot, name -> Enum.find_index(t.received[robot], &(&1 == name)) + 1 end
+
+      assert Enum.any?(
+               for r <- [:r1, :r2],
+                   n <- ["A1", "A3", "A5"],
+                   do: first_run.(r, n) < received_lap.(r, n)
+             )
+
+      # lap times: 4 per path; on the last lap every sub-path uses the best (A1)
+      assert length(s.lap_times["trial1"]["path1"]) == 4
+      last = Enum.filter(t.choices, &(&1.lap == 4))
+      assert last != [] and Enum.all?(last, &(&1.pfa == "A1")), inspect(last)
+
+      for f <-
+            ~w(lap_times.csv choices.csv best_pfa.csv lap_times_trial1.svg lap_times_mean.svg summary.json summary.md),
+          do: assert(File.exists?(Path.join(dir, f)), f)
+
+      {:ok, c} = Experiment.run(Keyword.merge(@small, seed: 4, out: false, exhaustive: false))
+      refute c.summary.lap_times == s.lap_times
+    end
+
+    test "options are checked" do
+      assert {:error, msg} = Experiment.run(laps: 0)
+      assert msg =~ "laps"
+      assert {:error, msg} = Experiment.run(pfas: [Enum])
+      assert msg =~ "pfas"
+    end
+  end
+end
