@@ -98,9 +98,11 @@ defmodule TartarusImmune.Node do
       d ->
         host = Tartarus.Agent.host()
 
+        # The other candidates carry their new activation and score away with them.
         for {id, tau} <- d.taus,
             id != d.selected,
-            do: :ok = Tartarus.post({id, host}, {:tau, tau})
+            id not in d.dead,
+            do: :ok = Tartarus.post({id, host}, {:update, tau, d.scores[id]})
 
         for id <- d.dead, do: :ok = Tartarus.post({id, host}, :die)
 
