@@ -22,6 +22,7 @@ defmodule Tartarus.BroadcastTest do
     @impl true
     def handle_arrival(_ctx, test) do
       :ok = A.subscribe_broadcasts()
+      send(test, {:subscribed, A.id(), A.host()})
       {:stay, test}
     end
 
@@ -117,6 +118,10 @@ defmodule Tartarus.BroadcastTest do
 
     # The subscription follows the agent (it subscribes again on arrival).
     :ok = Tartarus.move({on_a, a}, c)
+    # The move returns once the copy at c is committed; its arrival callback (which
+    # subscribes) may run a moment later.
+    c_addr = addr(c)
+    assert_receive {:subscribed, ^on_a, ^c_addr}, 2_000
     assert Tartarus.broadcast(b, :later) == {:ok, 2}
     assert_receive {:heard, ^on_a, at, ^b_addr, :later}, 2_000
     assert at == addr(c)
