@@ -108,6 +108,31 @@ defmodule TartarusEmu.Log do
   @spec totals(t(), non_neg_integer() | :all) :: %{atom() => non_neg_integer()}
   def totals(log, step \\ :all), do: GenServer.call(log, {:totals, step}, :infinity)
 
+  @doc """
+  The totals once the network is quiet: syncs, and syncs again (every 10 ms, for at most
+  `timeout_ms`) until every broadcast message sent has been received and every departure
+  has arrived. A broadcast is received, and an arrival counted, a moment after the call
+  that sent it returned, so totals read right after an experiment's last step can miss
+  them. On a network that loses messages (killed nodes, lossy links) the counts never
+  match: the totals at the timeout are returned.
+  """
+  @spec settled_totals(t(), non_neg_integer()) :: %{atom() => non_neg_integer()}
+  def settled_totals(log, timeout_ms \\ 2_000) do
+    :ok = sync(log)
+    t = totals(log)
+
+    settled =
+      Map.get(t, :broadcast_messages, 0) == Map.get(t, :broadcasts_received, 0) and
+        Map.get(t, :departures, 0) == Map.get(t, :arrivals, 0)
+
+    if settled or timeout_ms <= 0 do
+      t
+    else
+      Process.sleep(10)
+      settled_totals(log, timeout_ms - 10)
+    end
+  end
+
   @doc "The flat counts (`TartarusEmu.Log.Counts`)."
   @spec raw_counts(t()) :: Counts.t()
   def raw_counts(log), do: GenServer.call(log, :raw_counts, :infinity)

@@ -65,6 +65,28 @@ defmodule TartarusEmu.LogTest do
     end
   end
 
+  test "broadcasts are counted as the platform counts them; settled totals wait for their reception",
+       %{net: net, log: log} do
+    sent =
+      for n <- [:h1, :h2, :h3, :h4, :h5, :h6], reduce: 0 do
+        acc ->
+          {:ok, k} = Tartarus.broadcast(Network.host(net, n), {:hello, n})
+          acc + k
+      end
+
+    t = Log.settled_totals(log)
+    assert t.broadcasts == 6
+    assert t.broadcast_messages == sent and t.broadcasts_received == sent
+
+    platform =
+      net
+      |> Network.host_list()
+      |> Enum.map(&Tartarus.status(&1).counts.broadcast_messages)
+      |> Enum.sum()
+
+    assert platform == sent
+  end
+
   test "the step clock stamps events with the step they happened in", %{net: net, log: log} do
     assert Log.step(log) == 0
     {:ok, _} = Tartarus.create_mobile_agent(Network.host(net, :h1), Hopper, 0)

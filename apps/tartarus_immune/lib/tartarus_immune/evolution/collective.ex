@@ -131,8 +131,7 @@ defmodule TartarusImmune.Evolution.Collective do
 
       st = %{world: world, rng: rng, robots: robots}
       st = loop(c, o, st, keepers, pkt, switches, names)
-      :ok = Log.sync(log)
-      totals = Log.totals(log)
+      totals = Log.settled_totals(log)
       Log.stop(log)
 
       {per, _} =

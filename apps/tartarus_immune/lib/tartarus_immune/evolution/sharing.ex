@@ -155,8 +155,7 @@ defmodule TartarusImmune.Evolution.Sharing do
       rng = Dynamics.rng(o.seed)
       state = %{net: net, learners: learners, ipkts: ipkts, dyn: dyn, rng: rng, shared: 0}
       result = loop(o, state, 1, nil, [])
-      :ok = Log.sync(log)
-      totals = Log.totals(log)
+      totals = Log.settled_totals(log)
       Log.stop(log)
 
       comm =
