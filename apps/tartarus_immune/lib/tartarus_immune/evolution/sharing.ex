@@ -218,7 +218,7 @@ defmodule TartarusImmune.Evolution.Sharing do
   defp share(:broadcast, s) do
     sent = s.learners |> ask_all(:share) |> Enum.sum()
     expected = s.shared + sent
-    await_received(s.learners, expected, 1000)
+    await_received(s.learners, expected, 30_000)
     _ = ask_all(s.learners, :absorb)
     %{s | shared: expected}
   end
@@ -238,15 +238,22 @@ defmodule TartarusImmune.Evolution.Sharing do
   end
 
   # Broadcasts are delivered by each node's overlay process, after :share has answered:
-  # wait until every one sent so far has been received, so that :absorb sees them all
-  # (a broadcast to a host that stopped is never received: give up after `tries`).
+  # wait until every one sent so far has been received, so that :absorb sees them all and
+  # a run does not depend on the scheduler. No host stops here, so a broadcast that never
+  # arrives is an error, not something to absorb without.
   defp await_received(learners, expected, tries) do
     received = learners |> ask_all(:status) |> Enum.map(& &1.received) |> Enum.sum()
 
     cond do
-      received >= expected -> :ok
-      tries == 0 -> :ok
-      true -> Process.sleep(1) && await_received(learners, expected, tries - 1)
+      received >= expected ->
+        :ok
+
+      tries == 0 ->
+        raise "#{expected - received} of #{expected} broadcasts not received after 30 s"
+
+      true ->
+        Process.sleep(1)
+        await_received(learners, expected, tries - 1)
     end
   end
 
