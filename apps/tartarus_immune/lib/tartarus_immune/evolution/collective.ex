@@ -277,7 +277,7 @@ defmodule TartarusImmune.Evolution.Collective do
             rep = Repertoire.put_es(r.rep, cur.key, ES.tell(ab.es, {cur.kind, cur.w}, fitness))
             rep = Repertoire.report(rep, cur.key, fitness)
             r = %{r | rep: rep, cur: nil, done: r.done + 1}
-            if rem(r.done, c.share_every) == 0, do: publish(c, r, keepers[n], pkt)
+            if rem(r.done, c.share_every) == 0, do: publish(c, r, keepers, n, pkt)
             r
           else
             %{r | cur: %{cur | samples: samples, inputs: ep}}
@@ -287,16 +287,23 @@ defmodule TartarusImmune.Evolution.Collective do
     end
   end
 
-  defp publish(%{scheme: :none}, _r, _keeper, _pkt), do: :ok
+  defp publish(%{scheme: :none}, _r, _keepers, _n, _pkt), do: :ok
 
-  defp publish(c, r, keeper, pkt) do
+  defp publish(c, r, keepers, n, pkt) do
+    keeper = keepers[n]
+
     top =
       r.rep.antibodies
       |> Enum.sort_by(fn {key, ab} -> {-ab.concentration, key} end)
       |> Enum.take(c.share_top)
       |> Map.new()
 
-    {:ok, _} = Tartarus.request(keeper, {:publish, top, c.scheme})
+    before = if c.scheme == :broadcast, do: received(keepers), else: 0
+    {:ok, sent} = Tartarus.request(keeper, {:publish, top, c.scheme})
+
+    # A broadcast is received a moment after it was sent: wait for it, so that what the
+    # other robots select next does not depend on the scheduler.
+    if c.scheme == :broadcast, do: await_received(keepers, before + sent, 30_000)
 
     if c.scheme == :ipkt do
       {:ok, :ok} = Tartarus.request(pkt, :visit, 10_000)
@@ -309,6 +316,26 @@ defmodule TartarusImmune.Evolution.Collective do
     end
 
     :ok
+  end
+
+  defp received(keepers),
+    do:
+      keepers |> Map.values() |> Enum.map(&elem(Tartarus.request(&1, :received), 1)) |> Enum.sum()
+
+  defp await_received(keepers, target, tries) do
+    got = received(keepers)
+
+    cond do
+      got >= target ->
+        :ok
+
+      tries == 0 ->
+        raise "#{target - got} broadcasts of antibodies not received after 30 s"
+
+      true ->
+        Process.sleep(1)
+        await_received(keepers, target, tries - 1)
+    end
   end
 end
 
@@ -323,6 +350,7 @@ defmodule TartarusImmune.Evolution.Keeper do
       the number of neighbours); `{:publish, antibodies, _}` keeps them for a visiting
       packet (answers 0);
     * `:xrep` - the external repertoire;
+    * `:received` - how many broadcasts of antibodies it has received;
     * `{:exchange, carried}` - a packet's visit: merges `carried` into the external
       repertoire (the robot's own antibodies excepted) and answers the published ones.
   """
@@ -335,7 +363,7 @@ defmodule TartarusImmune.Evolution.Keeper do
   def init(_args) do
     Agent.store_put(:keeper, Agent.id())
     Process.send_after(self(), :subscribe, 0)
-    {:stay, %{xrep: %{}, own: %{}}}
+    {:stay, %{xrep: %{}, own: %{}, received: 0}}
   end
 
   @doc false
@@ -355,6 +383,11 @@ defmodule TartarusImmune.Evolution.Keeper do
     {:stay, s}
   end
 
+  def handle_message(:received, from, s) do
+    Agent.reply(from, s.received)
+    {:stay, s}
+  end
+
   def handle_message({:exchange, carried}, from, s) do
     Agent.reply(from, s.own)
     {:stay, merge(s, carried)}
@@ -369,7 +402,9 @@ defmodule TartarusImmune.Evolution.Keeper do
     {:stay, s}
   end
 
-  def handle_info({:tartarus_broadcast, _from, {:antibodies, abs}}, s), do: {:stay, merge(s, abs)}
+  def handle_info({:tartarus_broadcast, _from, {:antibodies, abs}}, s),
+    do: {:stay, %{merge(s, abs) | received: s.received + 1}}
+
   def handle_info(_other, s), do: {:stay, s}
 
   defp merge(s, abs) do
