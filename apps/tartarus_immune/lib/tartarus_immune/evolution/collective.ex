@@ -28,7 +28,17 @@ defmodule TartarusImmune.Evolution.Collective do
 
   alias TartarusArena.World
   alias TartarusEmu.{Log, Network, Topology}
-  alias TartarusImmune.Evolution.{AbPkt, Embodied, ES, Keeper, NeuralNet, Objective, Repertoire}
+
+  alias TartarusImmune.Evolution.{
+    AbPkt,
+    Courier,
+    Embodied,
+    ES,
+    Keeper,
+    NeuralNet,
+    Objective,
+    Repertoire
+  }
 
   @shape [4, 5, 2]
 
@@ -322,21 +332,9 @@ defmodule TartarusImmune.Evolution.Collective do
     do:
       keepers |> Map.values() |> Enum.map(&elem(Tartarus.request(&1, :received), 1)) |> Enum.sum()
 
-  defp await_received(keepers, target, tries) do
-    got = received(keepers)
-
-    cond do
-      got >= target ->
-        :ok
-
-      tries == 0 ->
-        raise "#{target - got} broadcasts of antibodies not received after 30 s"
-
-      true ->
-        Process.sleep(1)
-        await_received(keepers, target, tries - 1)
-    end
-  end
+  defp await_received(keepers, target, tries),
+    do:
+      Courier.await_count(fn -> received(keepers) end, target, tries, "broadcasts of antibodies")
 end
 
 defmodule TartarusImmune.Evolution.Keeper do

@@ -173,10 +173,11 @@ end
 
 defmodule TartarusImmune.Evolution.Courier do
   @moduledoc """
-  The moving part shared by the packets of the evolution experiments
-  (`TartarusImmune.Evolution.IPkt`, `TartarusImmune.Evolution.AbPkt`): called from an
+  What the evolution experiments' packets and drivers share: the packets' hop
+  (`TartarusImmune.Evolution.IPkt`, `TartarusImmune.Evolution.AbPkt`; called from an
   agent's callbacks, with the agent's state holding the experiment driver's pid under
-  `:driver`. The driver waits for one `{:ipkt_moved, id}` or `{:ipkt_stayed, id}` per hop.
+  `:driver`; the driver waits for one `{:ipkt_moved, id}` or `{:ipkt_stayed, id}` per hop),
+  and the drivers' wait for broadcasts to be received (`await_count/4`).
   """
 
   alias Tartarus.Agent
@@ -194,6 +195,30 @@ defmodule TartarusImmune.Evolution.Courier do
     else
       if opts[:hello], do: Agent.broadcast(:hello)
       {:move, :conscientious, s}
+    end
+  end
+
+  @doc """
+  For the experiments' drivers: polls `count.()` every millisecond until it reaches
+  `target` (a broadcast is received a moment after the call that sent it returned; waiting
+  for it keeps a run independent of the scheduler). Raises, naming `what`, after `tries`
+  polls: in these experiments no host stops, so a message that never arrives is an error.
+  """
+  @spec await_count((() -> non_neg_integer()), non_neg_integer(), non_neg_integer(), String.t()) ::
+          :ok
+  def await_count(count, target, tries, what) do
+    got = count.()
+
+    cond do
+      got >= target ->
+        :ok
+
+      tries == 0 ->
+        raise "#{target - got} of #{target} #{what} not received after #{tries} polls"
+
+      true ->
+        Process.sleep(1)
+        await_count(count, target, tries - 1, what)
     end
   end
 

@@ -39,7 +39,7 @@ defmodule TartarusImmune.Evolution.Sharing do
   """
 
   alias TartarusEmu.{Dynamics, Log, Network, Topology}
-  alias TartarusImmune.Evolution.{IPkt, Learner}
+  alias TartarusImmune.Evolution.{Courier, IPkt, Learner}
 
   @schema [
     nodes: [type: :pos_integer, default: 20, doc: "robot nodes"],
@@ -242,19 +242,8 @@ defmodule TartarusImmune.Evolution.Sharing do
   # a run does not depend on the scheduler. No host stops here, so a broadcast that never
   # arrives is an error, not something to absorb without.
   defp await_received(learners, expected, tries) do
-    received = learners |> ask_all(:status) |> Enum.map(& &1.received) |> Enum.sum()
-
-    cond do
-      received >= expected ->
-        :ok
-
-      tries == 0 ->
-        raise "#{expected - received} of #{expected} broadcasts not received after 30 s"
-
-      true ->
-        Process.sleep(1)
-        await_received(learners, expected, tries - 1)
-    end
+    count = fn -> learners |> ask_all(:status) |> Enum.map(& &1.received) |> Enum.sum() end
+    Courier.await_count(count, expected, tries, "broadcasts")
   end
 
   defp ask_all(ids, msg) do
