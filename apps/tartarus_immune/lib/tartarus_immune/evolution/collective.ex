@@ -360,7 +360,7 @@ defmodule TartarusImmune.Evolution.Keeper do
   @impl true
   def init(_args) do
     Agent.store_put(:keeper, Agent.id())
-    Process.send_after(self(), :subscribe, 0)
+    :ok = Agent.subscribe_broadcasts()
     {:stay, %{xrep: %{}, own: %{}, received: 0}}
   end
 
@@ -395,11 +395,6 @@ defmodule TartarusImmune.Evolution.Keeper do
 
   @doc false
   @impl true
-  def handle_info(:subscribe, s) do
-    Agent.subscribe_broadcasts()
-    {:stay, s}
-  end
-
   def handle_info({:tartarus_broadcast, _from, {:antibodies, abs}}, s),
     do: {:stay, %{merge(s, abs) | received: s.received + 1}}
 

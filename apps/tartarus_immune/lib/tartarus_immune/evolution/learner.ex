@@ -32,7 +32,8 @@ defmodule TartarusImmune.Evolution.Learner do
     es = ES.new(w, Map.get(args, :es, []))
     es = %{es | fitness: OrGate.fitness(w)}
     Agent.store_put(:learner, Agent.id())
-    Process.send_after(self(), :subscribe, 0)
+    # Subscribed before create_static_agent returns: a broadcast sent later always finds it.
+    :ok = Agent.subscribe_broadcasts()
     {:stay, %{rng: rng, es: es, inbox: [], received: 0, adopted: 0}}
   end
 
@@ -90,11 +91,6 @@ defmodule TartarusImmune.Evolution.Learner do
 
   @doc false
   @impl true
-  def handle_info(:subscribe, s) do
-    Agent.subscribe_broadcasts()
-    {:stay, s}
-  end
-
   def handle_info({:tartarus_broadcast, _from, {:controller, w}}, s),
     do: {:stay, %{s | inbox: [w | s.inbox], received: s.received + 1}}
 
@@ -214,7 +210,7 @@ defmodule TartarusImmune.Evolution.Courier do
         :ok
 
       tries == 0 ->
-        raise "#{target - got} of #{target} #{what} not received after #{tries} polls"
+        raise "#{target - got} of #{target} #{what} not received"
 
       true ->
         Process.sleep(1)
