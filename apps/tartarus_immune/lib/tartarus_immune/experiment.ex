@@ -204,24 +204,7 @@ defmodule TartarusImmune.Experiment do
         fv = st.domain.features(st.domain.instance(set, i, st.seed))
         serial = st.serial + 1
 
-        s = %{
-          sol: sol,
-          fv: fv,
-          tau: st.p.tau_init * 1.0,
-          zeta: nil,
-          n: 0,
-          hops: 0,
-          tag: serial,
-          clones: 0,
-          plan: nil,
-          p: st.p,
-          driver: self(),
-          run: st.run,
-          sharing: st.o.sharing,
-          danger: st.o.danger
-        }
-
-        {:ok, _} = Tartarus.create_mobile_agent(host, IPkt, s, seed: {st.seed, serial})
+        {:ok, _} = IPkt.create(host, sol, fv, serial, st)
         %{st | serial: serial, pop: Map.update(st.pop, sol, 1, &(&1 + 1))}
       end)
     end)

@@ -31,6 +31,35 @@ defmodule TartarusImmune.IPkt do
 
   alias TartarusImmune.Maths
 
+  @doc """
+  Creates a fresh iPkt of solution `sol` mapped to feature vector `fv` on `host`, for an
+  experiment's driver (the calling process): activation `tau_init`, no score yet, `serial`
+  as its tag and, with the run's seed, its random stream. `st` holds the run's `p`
+  (parameters), `run`, `seed` and options `o` (`sharing`, `danger`).
+  """
+  @spec create(Tartarus.host_ref(), module(), [float()], pos_integer(), map()) ::
+          {:ok, String.t()} | {:error, term()}
+  def create(host, sol, fv, serial, st) do
+    s = %{
+      sol: sol,
+      fv: fv,
+      tau: st.p.tau_init * 1.0,
+      zeta: nil,
+      n: 0,
+      hops: 0,
+      tag: serial,
+      clones: 0,
+      plan: nil,
+      p: st.p,
+      driver: self(),
+      run: st.run,
+      sharing: st.o.sharing,
+      danger: st.o.danger
+    }
+
+    Tartarus.create_mobile_agent(host, __MODULE__, s, seed: {st.seed, serial})
+  end
+
   @doc false
   def init(s) do
     :ok = Tartarus.Agent.add_module(s.sol)

@@ -307,24 +307,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       |> Enum.reduce(st, fn sp, st ->
         serial = st.serial + 1
 
-        s = %{
-          sol: pfa,
-          fv: sp.features,
-          tau: st.p.tau_init * 1.0,
-          zeta: nil,
-          n: 0,
-          hops: 0,
-          tag: serial,
-          clones: 0,
-          plan: nil,
-          p: st.p,
-          driver: self(),
-          run: st.run,
-          sharing: st.o.sharing,
-          danger: st.o.danger
-        }
-
-        {:ok, _} = Tartarus.create_mobile_agent(st.hosts[robot], IPkt, s, seed: {st.seed, serial})
+        {:ok, _} = IPkt.create(st.hosts[robot], pfa, sp.features, serial, st)
 
         %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
         |> bump(:injected, 1)
