@@ -11,6 +11,18 @@ defmodule TartarusWarehouse.Central do
   robot for a first block, the booked one for the others) and waits for the robot's
   message that it finished. Every grant is two messages through the server (command,
   finished), so its work grows with the number of tasks.
+
+  ## Service time
+
+  `server_ms` (default 0) is the time the server takes to handle one message from a
+  robot before it can take the next: a real server reads the request off its socket,
+  updates and logs its tables and acknowledges, and the thesis's server (a Prolog process
+  over TCP) slowed as the messages grew. It is modelled as the server agent being busy
+  (it sleeps, using no CPU, so it does not slow the robots' hosts that share this
+  machine's cores); messages that arrive meanwhile queue in its mailbox, one server
+  handling them in order. With `k` robots busy on tasks of `T` ms, the server is busy a
+  fraction about `k * server_ms / T` of the time; near 1 the queue grows and every
+  hand-over waits. At 0 the server is a BEAM process handling a message in microseconds.
   """
   use Tartarus.Agent
 
@@ -27,7 +39,8 @@ defmodule TartarusWarehouse.Central do
        busy: MapSet.new(),
        pending: [],
        messages: 0
-     })}
+     })
+     |> Map.put_new(:server_ms, 0)}
   end
 
   @doc false
@@ -45,6 +58,8 @@ defmodule TartarusWarehouse.Central do
   end
 
   def handle_message({:finished, ref, robot, next}, _from, s) do
+    if s.server_ms > 0, do: Process.sleep(s.server_ms)
+
     s = %{
       s
       | states: Map.put(s.states, robot, next),

@@ -66,6 +66,12 @@ defmodule TartarusWarehouse.Experiment do
       doc:
         "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
+    server_ms: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "`scaling`: the central server's time to handle one robot message (see `TartarusWarehouse.Central`, \"Service time\"); 0: a BEAM process's microseconds"
+    ],
     big_robots: [
       type: :non_neg_integer,
       default: 0,
@@ -260,6 +266,7 @@ defmodule TartarusWarehouse.Experiment do
             seed: state.seed,
             mode: p.mode,
             latency_ms: p.latency_ms,
+            server_ms: p.server_ms,
             timeout_ms: p.timeout_ms
           )
 
@@ -703,6 +710,7 @@ defmodule TartarusWarehouse.Experiment do
             agents_guided: slope(by.(:avg_task_ms_agents_guided))
           },
           latency_ms: p.latency_ms,
+          server_ms: p.server_ms,
           nodes: p.nodes,
           robots: p.scaling_robots,
           jobs_per_run: p.scaling_jobs

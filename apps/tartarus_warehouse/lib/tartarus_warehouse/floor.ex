@@ -77,6 +77,12 @@ defmodule TartarusWarehouse.Floor do
       doc:
         "one-way delay of every link (see `Tartarus.connect/3`: a hand-off pays three, a message between neighbours one each way; the central server's messages and the agents' migrations pay it alike)"
     ],
+    server_ms: [
+      type: :non_neg_integer,
+      default: 0,
+      doc:
+        "`design: :central`: the server's time to handle one message from a robot (read it, update its tables, send the commands that follow); the server handles one message at a time, so messages queue behind it when robots report faster than it handles (see `TartarusWarehouse.Central`)"
+    ],
     guide: [
       type: :boolean,
       default: false,
@@ -261,7 +267,8 @@ defmodule TartarusWarehouse.Floor do
               Tartarus.create_static_agent(jd, TartarusWarehouse.Central, %{
                 world: world,
                 owner: owner,
-                robots: agents
+                robots: agents,
+                server_ms: opts[:server_ms]
               })
 
             Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)

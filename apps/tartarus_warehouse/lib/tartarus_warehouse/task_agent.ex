@@ -29,6 +29,9 @@ defmodule TartarusWarehouse.TaskAgent do
 
   alias Tartarus.Agent
 
+  # The longest tick of an agent waiting on a robot for a field (guided).
+  @max_tick_ms 4
+
   @doc false
   @impl true
   def init(args) do
@@ -65,29 +68,36 @@ defmodule TartarusWarehouse.TaskAgent do
   @doc false
   @impl true
   def handle_info({:plugin_event, :robot, {:finished, id, _reports}}, s) do
-    if id == Agent.id() do
-      guide(s)
-
-      case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
-        {:reissue, a} ->
-          Enum.each(a.tasks, &Agent.add_module(&1.program))
-          {:move, strategy(s), %{s | a: a, misses: 0}}
-
-        :retire ->
-          {:stop, :normal, s}
-
-        :unreachable ->
-          {:stop, {:shutdown, :distributor_unreachable}, s}
-      end
-    else
-      {:stay, s}
+    cond do
+      id == Agent.id() -> finished(s)
+      # Waiting here for a field: this robot finished someone else's block, and may now be
+      # in the state looked for (or have announced it): look again at once.
+      Map.has_key?(s, :wait_timer) -> handle_arrival(%{}, unwait(s))
+      true -> {:stay, s}
     end
   end
 
   def handle_info(:roam, s), do: {:move, strategy(s), s}
   # Waiting on a robot for a field: try this robot again first (it may be the one).
-  def handle_info(:guided, s), do: handle_arrival(%{}, s)
+  def handle_info({:guided, ref}, %{wait_timer: ref} = s), do: handle_arrival(%{}, unwait(s))
   def handle_info(_msg, s), do: {:stay, s}
+
+  # Its robot ran its block: announce the robot's next state (guided), then the next job.
+  defp finished(s) do
+    guide(s)
+
+    case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
+      {:reissue, a} ->
+        Enum.each(a.tasks, &Agent.add_module(&1.program))
+        {:move, strategy(s), %{s | a: a, misses: 0}}
+
+      :retire ->
+        {:stop, :normal, s}
+
+      :unreachable ->
+        {:stop, {:shutdown, :distributor_unreachable}, s}
+    end
+  end
 
   @doc false
   @impl true
@@ -103,6 +113,9 @@ defmodule TartarusWarehouse.TaskAgent do
 
   defp guide(_s), do: :ok
 
+  # Ends a wait for a field (a later tick of it is ignored).
+  defp unwait(s), do: Map.delete(s, :wait_timer)
+
   defp roam(%{guide: span, a: %{look_for: {_, _, _} = state}} = s) when is_integer(span) do
     gradient = Agent.gradient({:warehouse_wait, state})
 
@@ -114,10 +127,14 @@ defmodule TartarusWarehouse.TaskAgent do
       # The field covers every robot: on a robot, no field means the robot it looks for is
       # not waiting yet.
       TartarusWarehouse.Roam.robot?(s.robots, Agent.host()) ->
-        # Waiting costs a check per tick: ticks lengthen (up to 16 ms) while nothing changes.
+        # It listens to this robot (which wakes it the moment the robot finishes a block:
+        # often the very robot it waits for) and looks at the field around it on a tick
+        # that lengthens, up to @max_tick_ms ms, while nothing changes.
+        :ok = Agent.subscribe(:robot)
         wait = Map.get(s, :wait, max(s.idle_ms, 1))
-        Process.send_after(self(), :guided, wait)
-        {:stay, Map.put(s, :wait, min(wait * 2, 16))}
+        ref = make_ref()
+        Process.send_after(self(), {:guided, ref}, wait)
+        {:stay, s |> Map.put(:wait, min(wait * 2, @max_tick_ms)) |> Map.put(:wait_timer, ref)}
 
       true ->
         blind(s)

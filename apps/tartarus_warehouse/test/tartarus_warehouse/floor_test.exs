@@ -39,6 +39,19 @@ defmodule TartarusWarehouse.FloorTest do
     assert r.migrations == 0
   end
 
+  test "a central server with a service time makes every robot wait for it between blocks" do
+    # One robot: each block starts only after the server handled the previous "finished"
+    # (server_ms) and sent the next command. A lower bound only: no timing upper bound.
+    jobs = Experiment.thesis_jobs(2, 1000)
+    {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, server_ms: 25)
+    assert r.timed_out == []
+    assert length(Checker.completion(r.history, jobs).completed) == 2
+    runs = Enum.sort_by(r.history, & &1.start_us)
+    gaps = for [a, b] <- Enum.chunk_every(runs, 2, 1, :discard), do: b.start_us - a.stop_us
+    assert length(gaps) == 7
+    assert Enum.all?(gaps, &(&1 >= 25_000))
+  end
+
   test "independent sequences run on different robots; a robot retired after job 1 takes no more work" do
     job = fn id ->
       %{

@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
                              [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
                              [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
-                             [--big-robots 1000]
+                             [--latency-ms 0] [--server-ms 0] [--big-robots 1000]
                              [--timeout-ms 300000]
 
   `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
@@ -22,7 +22,10 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       `--equal-jobs` (40) jobs with equal durations: the pipeline's steady-state speed-up;
     * `scaling`: `--scaling-jobs` jobs of 5..`--max-tasks` soft tasks (Sort, Merge, Add,
       Sub, Div repeating) on a `--nodes`-node network with `--scaling-robots` robots, task
-      agents (blind as in the thesis, and guided by signal fields) vs the central server: `avg_task_time.svg` (Fig. 4.4); with `--big-robots N`
+      agents (blind as in the thesis, and guided by signal fields) vs the central server:
+      `avg_task_time.svg` (Fig. 4.4); `--latency-ms L` gives every link a one-way delay
+      paid alike by both designs, `--server-ms S` the central server's time to handle one
+      robot message (`TartarusWarehouse.Central`, "Service time"); with `--big-robots N`
       also one run on N robots (20 jobs of 5 tasks in 20 independent pipelines, agents
       guided by signal fields; `big_run` in the summary, with its wall time);
     * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
@@ -47,7 +50,8 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   runner's `scenario, seed, steps, setup_ms, run_ms`. `robots` adds `speedup_equal,
   makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
   jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central,
-  avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, nodes, robots, jobs_per_run, big_run`; `otfp` adds `inserted_runs,
+  avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, slope_ms_per_task, latency_ms, server_ms,
+  nodes, robots, jobs_per_run, big_run`; `otfp` adds `inserted_runs,
   jobs_with_t2a, skipped_runs, tasks_in_job, ms_per_task`; `removal` adds `jobs_per_robot,
   removed_robot, joined_robot, mean_busy_robots`; `mixed` adds
   `jobs_with_concurrent_sequences, mean_busy_robots`; `failover` adds `jobs_lost,
