@@ -89,7 +89,7 @@ defmodule Tartarus.Agent do
   the host's plugins (`read/2`, `write/2`, `subscribe/1`), and `reply/2`; the agent's own
   random stream (`uniform/0`, `uniform/1`, `normal/0`, `normal/2`, `shuffle/1`,
   `random_seed/0`, `random/1`: see `Tartarus.Random`); signal fields (`signal/2`,
-  `signals/1`, `gradient/1`, `emit_signal/3`: see `Tartarus.Signal`); and neighbour
+  `signals/1`, `gradient/1`, `emit_signal/3`, `watch_signal/1`: see `Tartarus.Signal`); and neighbour
   broadcasts (`broadcast/1`, `subscribe_broadcasts/0`: see `Tartarus.Broadcast`).
 
   ## Options of `use Tartarus.Agent`
@@ -423,6 +423,16 @@ defmodule Tartarus.Agent do
   @spec emit_signal(Tartarus.Signal.name(), number(), keyword()) :: :ok | {:error, term()}
   def emit_signal(name, strength, opts \\ []),
     do: Tartarus.Signal.emit(host(), name, strength, opts)
+
+  @doc """
+  Watches signal `name` on the calling agent's host: the agent receives
+  `{:tartarus_signal, host, name}` in `c:handle_info/2` each time the host takes a new
+  contribution to it (see `Tartarus.Signal`, "Watching"), so it can wait for a field
+  without polling. Watch first, then read the field. The watch ends when the agent leaves
+  the host.
+  """
+  @spec watch_signal(Tartarus.Signal.name()) :: :ok | {:error, term()}
+  def watch_signal(name), do: Tartarus.Signal.watch(host(), name, self())
 
   @doc """
   Sends `message` to every neighbour of the calling agent's host (see `Tartarus.Broadcast`).

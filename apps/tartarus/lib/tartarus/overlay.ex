@@ -6,10 +6,12 @@ defmodule Tartarus.Overlay do
   It is registered as `:tartarus_overlay` on every node, so a host addresses a neighbour's
   node as `{:tartarus_overlay, node}` (an atom, not this module's name, so that
   `Tartarus.Signal` and `Tartarus.Broadcast`, which this module calls, do not depend on it
-  back: no xref cycle). It owns two ETS tables, read directly by everyone:
-  `:tartarus_signals` (the signal fields of this node's hosts) and
-  `:tartarus_broadcast_subscribers` (broadcast subscriptions). It monitors the hosts it holds
-  fields for and the subscribers, and forgets them when they go.
+  back: no xref cycle). It owns three ETS tables, read directly by everyone:
+  `:tartarus_signals` (the signal fields of this node's hosts),
+  `:tartarus_broadcast_subscribers` (broadcast subscriptions) and
+  `:tartarus_signal_watchers` (processes watching a signal at a host,
+  `Tartarus.Signal.watch/3`). It monitors the hosts it holds fields for, the subscribers
+  and the watchers, and forgets them when they go.
 
   Wire messages (maintainer notes):
 
@@ -38,6 +40,8 @@ defmodule Tartarus.Overlay do
       :named_table,
       read_concurrency: true
     ])
+
+    :ets.new(:tartarus_signal_watchers, [:bag, :protected, :named_table, read_concurrency: true])
 
     {:ok, %{hosts: %{}, subs: %{}}}
   end
@@ -91,6 +95,34 @@ defmodule Tartarus.Overlay do
     {:reply, :ok, %{state | subs: Map.new(subs)}}
   end
 
+  def handle_call({{:watch, name, pid}, host}, _from, state) when is_pid(pid) do
+    case local(host) do
+      {:ok, info} ->
+        {host_name, _} = info.ref
+        entry = {{host_name, name}, pid}
+
+        if :ets.match_object(:tartarus_signal_watchers, entry) == [] do
+          :ets.insert(:tartarus_signal_watchers, entry)
+          mref = Process.monitor(pid)
+          {:reply, :ok, %{state | subs: Map.put(state.subs, mref, {:watch, entry})}}
+        else
+          {:reply, :ok, state}
+        end
+
+      error ->
+        {:reply, error, state}
+    end
+  end
+
+  def handle_call({{:unwatch, name, pid}, host}, _from, state) when is_pid(pid) do
+    {host_name, _} = Host.address(host)
+    entry = {{host_name, name}, pid}
+    :ets.delete_object(:tartarus_signal_watchers, entry)
+    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub == {:watch, entry} end)
+    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
+    {:reply, :ok, %{state | subs: Map.new(subs)}}
+  end
+
   # Anything else (from another node, well-formed or not) is dropped and counted.
   def handle_call(msg, from, state) do
     Tartarus.Events.drop(:tartarus_overlay, :call, msg)
@@ -128,6 +160,10 @@ defmodule Tartarus.Overlay do
 
   def handle_info({:DOWN, mref, :process, _pid, _reason}, state) do
     case Map.pop(state.subs, mref) do
+      {{:watch, entry}, subs} ->
+        :ets.delete_object(:tartarus_signal_watchers, entry)
+        {:noreply, %{state | subs: subs}}
+
       {{name, pid}, subs} ->
         :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
         {:noreply, %{state | subs: subs}}
@@ -166,6 +202,8 @@ defmodule Tartarus.Overlay do
         :ets.select_delete(:tartarus_signals, [
           {{{:"$1", :_}, :_}, [{:"=:=", :"$1", {:const, name}}], [true]}
         ])
+
+        # Its watchers stay until they go (their monitors clear them).
 
         %{state | hosts: Map.delete(state.hosts, name)}
 

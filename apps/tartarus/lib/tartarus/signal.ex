@@ -60,6 +60,17 @@ defmodule Tartarus.Signal do
   fields do not mix with application data and the host server is not involved. The fields
   of a host are dropped when it stops.
 
+  ## Watching
+
+  A process can **watch** a signal at a host (`watch/3`, or `Tartarus.Agent.watch_signal/1`
+  from an agent): it then receives `{:tartarus_signal, host, name}` each time the host
+  takes a new contribution to that signal (the field arrives, or a stronger or fresher
+  emission replaces one), so it can wait for a field without polling. The message says
+  only that something changed: read the field (`value/3`, `neighbour_values/3`) after it.
+  Watch first and read after, so a field that arrives in between is not missed. A watch
+  ends with `unwatch/3` or when the process exits (an agent's watches end when it leaves
+  the host).
+
   Every relay is counted for the sending host: `:signal_messages` and `:signal_bytes`
   (`:erlang.external_size/1` of each message), and each emission as `:signals` (see
   `Tartarus.Events`, event types `:signal` and `:signal_relay`).
@@ -489,6 +500,49 @@ defmodule Tartarus.Signal do
     end
   end
 
+  @doc """
+  Watches signal `name` at `host` (on any node): `pid` receives
+  `{:tartarus_signal, host, name}` each time the host takes a new contribution to it (see
+  "Watching" above). Watching twice is the same as once.
+
+      iex> {:ok, _} = Tartarus.start_host(:sw_a)
+      iex> {:ok, _} = Tartarus.start_host(:sw_b, neighbours: [:sw_a])
+      iex> :ok = Tartarus.Signal.watch(:sw_b, :food)
+      iex> Tartarus.emit_signal(:sw_a, :food, 10, span: 2)
+      :ok
+      iex> b = Tartarus.Host.address(:sw_b)
+      iex> receive do {:tartarus_signal, ^b, :food} -> :arrived after 5_000 -> :missed end
+      :arrived
+      iex> Enum.each([:sw_a, :sw_b], &Tartarus.stop_host/1)
+  """
+  @spec watch(Tartarus.host_ref(), name(), pid()) :: :ok | {:error, term()}
+  def watch(host, name, pid \\ self()), do: overlay_call(host, {:watch, name, pid})
+
+  @doc "Ends a watch made with `watch/3`."
+  @spec unwatch(Tartarus.host_ref(), name(), pid()) :: :ok | {:error, term()}
+  def unwatch(host, name, pid \\ self()), do: overlay_call(host, {:unwatch, name, pid})
+
+  @doc "The processes watching signal `name` at `host` (a host on this node)."
+  @spec watchers(Tartarus.host_ref(), name()) :: [pid()]
+  def watchers(host, name) do
+    {host_name, _} = Host.address(host)
+    for {_, pid} <- :ets.lookup(:tartarus_signal_watchers, {host_name, name}), do: pid
+  end
+
+  defp overlay_call(host, request) do
+    if Host.address?(host) do
+      {_, node} = host = Host.address(host)
+
+      try do
+        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
+      catch
+        :exit, _ -> {:error, {:unknown_host, host}}
+      end
+    else
+      {:error, {:unknown_host, host}}
+    end
+  end
+
   # -- inside the overlay process ----------------------------------------------------
 
   @doc false
@@ -537,6 +591,9 @@ defmodule Tartarus.Signal do
       own = field.own |> Map.put(source, c) |> prune(now)
       :ets.insert(:tartarus_signals, {{host_name, name}, %{field | own: own}})
       if hops < e.span, do: relay(info, name, source, from, e, hops, now - born)
+
+      for {_, pid} <- :ets.lookup(:tartarus_signal_watchers, {host_name, name}),
+          do: send(pid, {:tartarus_signal, info.ref, name})
     end
 
     :ok

@@ -180,6 +180,82 @@ defmodule Tartarus.SignalTest do
     assert top == addr(Enum.at(g, 8))
   end
 
+  defmodule Waiter do
+    @moduledoc false
+    # Waits on its host for signal `name` without polling (a watch), then climbs it.
+    use Tartarus.Agent
+    alias Tartarus.Agent, as: A
+
+    @impl true
+    def init(name) do
+      :ok = A.watch_signal(name)
+      send(self(), {:tartarus_signal, A.host(), name})
+      {:stay, %{name: name, woken: 0}}
+    end
+
+    @impl true
+    def handle_info({:tartarus_signal, _host, name}, %{name: name} = s) do
+      s = %{s | woken: s.woken + 1}
+      if A.signal(name) > 0, do: climb(s), else: {:stay, s}
+    end
+
+    @impl true
+    def handle_arrival(_ctx, s), do: climb(s)
+
+    defp climb(s) do
+      best = s.name |> A.gradient() |> Map.values() |> Enum.max(fn -> 0.0 end)
+
+      if A.signal(s.name) >= best,
+        do: {:return, {A.host(), s.woken}, s},
+        else: {:move, {:gradient, s.name}, s}
+    end
+  end
+
+  test "an agent watching a signal is woken when the field reaches its host, and its watch ends when it leaves" do
+    [a, _b, c] = hosts = line!(3)
+    {:ok, id} = Tartarus.create_mobile_agent(c, Waiter, :food, owner: self())
+    # Nothing to wake it: it stays, watching (its own first look found no field).
+    assert eventually(fn -> Signal.watchers(c, :food) != [] end, 5_000)
+    refute_receive {:tartarus_result, ^id, _}, 100
+
+    :ok = Tartarus.emit_signal(a, :food, 100, span: 3)
+    assert_receive {:tartarus_result, ^id, {top, woken}}, 5_000
+    assert top == addr(a)
+    # Woken once by its own first look and once by the field (one emission, one change).
+    assert woken == 2
+    # It left c: its watch went with it.
+    assert eventually(fn -> Signal.watchers(c, :food) == [] end, 5_000)
+    assert Enum.all?(hosts, &(Signal.watchers(&1, :food) == []))
+  end
+
+  test "watch and unwatch from any process; a watcher that exits is forgotten" do
+    [a, b] = line!(2)
+    :ok = Signal.watch(b, :w)
+    :ok = Signal.watch(b, :w)
+    assert Signal.watchers(b, :w) == [self()]
+    :ok = Tartarus.emit_signal(a, :w, 10, span: 2)
+    bref = addr(b)
+    assert_receive {:tartarus_signal, ^bref, :w}, 5_000
+    refute_receive {:tartarus_signal, _, :w}, 50
+    # Another name at the same host wakes nobody.
+    :ok = Tartarus.emit_signal(a, :other, 10, span: 2)
+    Signal.settle()
+    refute_receive {:tartarus_signal, _, _}, 50
+
+    :ok = Signal.unwatch(b, :w)
+    assert Signal.watchers(b, :w) == []
+    :ok = Tartarus.emit_signal(a, :w, 20, span: 2)
+    Signal.settle()
+    refute_receive {:tartarus_signal, _, :w}, 50
+
+    pid = spawn(fn -> receive do: (:stop -> :ok) end)
+    :ok = Signal.watch(b, :w, pid)
+    assert Signal.watchers(b, :w) == [pid]
+    send(pid, :stop)
+    assert eventually(fn -> Signal.watchers(b, :w) == [] end, 5_000)
+    assert {:error, {:unknown_host, _}} = Signal.watch({:nowhere, node()}, :w)
+  end
+
   test "{:gradient, name} breaks ties at random, reproducibly for a stream" do
     ns = [{:b, :n}, {:c, :n}, {:d, :n}]
 

@@ -12,10 +12,17 @@ defmodule TartarusWarehouse.TaskAgent do
   the next job (and migrates on) or retires (stops). When a round of robots finds no match
   it waits `idle_ms` before the next hop, so idle agents do not spin.
 
-  With `guide: span` (an integer) the agent whose robot goes on to a next block emits a
-  signal field named after that state, `span` hops wide, and agents looking for a booked
-  robot climb such a field when their host has one (beyond the thesis: the thesis's agents
-  search blind, which costs hops in proportion to the robots).
+  With `guide: span` (an integer) the agent whose robot goes on to a next block announces,
+  as soon as the robot starts its block, the state the robot will be in afterwards: a
+  signal field named after that state, `span` hops wide. An agent looking for a booked
+  robot climbs such a field when its host has one, and at its source (the robot, still
+  busy) it waits, listening to the robot: the robot's "finished" wakes it at once. Where
+  no field has arrived yet it waits on a robot, watching for the field
+  (`Tartarus.Agent.watch_signal/1`): its arrival wakes the agent, which does not poll (a
+  look every 100 ms is only a safety net). The field is announced a whole block
+  before the robot is free, so the agent is usually there, waiting, when it is. (Beyond
+  the thesis: the thesis's agents search blind, which costs hops in proportion to the
+  robots.)
 
   With `validate: true` (a distributor that survives restarts) the agent asks the
   distributor, after claiming a robot and before running anything, whether it is the
@@ -25,12 +32,12 @@ defmodule TartarusWarehouse.TaskAgent do
   `{:inserted, task, _}`, leaves them in the state they would have had, and asks the
   distributor after each fruitless round whether its task was deleted.
   """
+  # A guided agent waiting on a robot looks again this often even if nothing woke it.
+  @safety_ms 100
+
   use Tartarus.Agent
 
   alias Tartarus.Agent
-
-  # The longest tick of an agent waiting on a robot for a field (guided).
-  @max_tick_ms 4
 
   @doc false
   @impl true
@@ -50,6 +57,7 @@ defmodule TartarusWarehouse.TaskAgent do
           :ok = Agent.subscribe(:robot)
           run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
           :ok = Agent.write(:robot, {:run, Agent.id(), run})
+          guide(s)
 
           if a.index == 0 and ask(s, {:started, s.ref}) == :unreachable,
             do: {:stop, {:shutdown, :distributor_unreachable}, s},
@@ -80,12 +88,15 @@ defmodule TartarusWarehouse.TaskAgent do
   def handle_info(:roam, s), do: {:move, strategy(s), s}
   # Waiting on a robot for a field: try this robot again first (it may be the one).
   def handle_info({:guided, ref}, %{wait_timer: ref} = s), do: handle_arrival(%{}, unwait(s))
+
+  # The field it waits for changed on this host.
+  def handle_info({:tartarus_signal, _host, {:warehouse_wait, _}}, %{wait_timer: _} = s),
+    do: handle_arrival(%{}, unwait(s))
+
   def handle_info(_msg, s), do: {:stay, s}
 
-  # Its robot ran its block: announce the robot's next state (guided), then the next job.
+  # Its robot ran its block: the next job.
   defp finished(s) do
-    guide(s)
-
     case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
       {:reissue, a} ->
         Enum.each(a.tasks, &Agent.add_module(&1.program))
@@ -106,10 +117,15 @@ defmodule TartarusWarehouse.TaskAgent do
     {:stay, s}
   end
 
-  # With `guide: span`, the robot's next state is announced as a signal field around it
+  # With `guide: span`, the state the robot will be in after this block is announced as a
+  # signal field around it when the block starts
   # (`Tartarus.Signal`), which the agent of the next block climbs instead of searching blind.
   defp guide(%{guide: span, a: %{next: {_, _, _} = next}}) when is_integer(span),
-    do: Agent.emit_signal({:warehouse_wait, next}, 100, span: span + 1)
+    do:
+      Agent.emit_signal({:warehouse_wait, next}, 100,
+        span: span,
+        decay: {:linear, 100 / (span + 1)}
+      )
 
   defp guide(_s), do: :ok
 
@@ -118,23 +134,21 @@ defmodule TartarusWarehouse.TaskAgent do
 
   defp roam(%{guide: span, a: %{look_for: {_, _, _} = state}} = s) when is_integer(span) do
     gradient = Agent.gradient({:warehouse_wait, state})
+    here = Agent.signal({:warehouse_wait, state})
 
     cond do
+      # At the field's source: the robot announced the state and is still running its block.
+      here > 0 and Enum.all?(gradient, fn {_, v} -> v <= here end) ->
+        wait(s)
+
       map_size(gradient) > 0 ->
         {best, _} = Enum.max_by(gradient, &elem(&1, 1))
-        {:move, best, Map.delete(s, :wait)}
+        {:move, best, s}
 
       # The field covers every robot: on a robot, no field means the robot it looks for is
       # not waiting yet.
       TartarusWarehouse.Roam.robot?(s.robots, Agent.host()) ->
-        # It listens to this robot (which wakes it the moment the robot finishes a block:
-        # often the very robot it waits for) and looks at the field around it on a tick
-        # that lengthens, up to @max_tick_ms ms, while nothing changes.
-        :ok = Agent.subscribe(:robot)
-        wait = Map.get(s, :wait, max(s.idle_ms, 1))
-        ref = make_ref()
-        Process.send_after(self(), {:guided, ref}, wait)
-        {:stay, s |> Map.put(:wait, min(wait * 2, @max_tick_ms)) |> Map.put(:wait_timer, ref)}
+        wait(s)
 
       true ->
         blind(s)
@@ -142,6 +156,25 @@ defmodule TartarusWarehouse.TaskAgent do
   end
 
   defp roam(s), do: blind(s)
+
+  # Waits on this robot without polling: it listens to the robot (its finishing a block
+  # wakes the agent at once) and watches the field it looks for (its arrival or change
+  # here wakes it). The first time on a host it looks again at once, for a field that
+  # arrived between its look and its watch; then only every @safety_ms ms.
+  defp wait(s) do
+    ref = make_ref()
+    key = {Agent.host(), s.a.look_for}
+
+    if Map.get(s, :watching) == key do
+      Process.send_after(self(), {:guided, ref}, @safety_ms)
+      {:stay, Map.put(s, :wait_timer, ref)}
+    else
+      :ok = Agent.subscribe(:robot)
+      :ok = Agent.watch_signal({:warehouse_wait, s.a.look_for})
+      send(self(), {:guided, ref})
+      {:stay, s |> Map.put(:wait_timer, ref) |> Map.put(:watching, key)}
+    end
+  end
 
   defp blind(s) do
     cond do
