@@ -165,14 +165,21 @@ defmodule TartarusWarehouse.TaskAgent do
     ref = make_ref()
     key = {Agent.host(), s.a.look_for}
 
-    if Map.get(s, :watching) == key do
-      Process.send_after(self(), {:guided, ref}, @safety_ms)
-      {:stay, Map.put(s, :wait_timer, ref)}
-    else
-      :ok = Agent.subscribe(:robot)
-      :ok = Agent.watch_signal({:warehouse_wait, s.a.look_for})
-      send(self(), {:guided, ref})
-      {:stay, s |> Map.put(:wait_timer, ref) |> Map.put(:watching, key)}
+    cond do
+      Map.get(s, :watching) == key ->
+        Process.send_after(self(), {:guided, ref}, @safety_ms)
+        {:stay, Map.put(s, :wait_timer, ref)}
+
+      Agent.subscribe(:robot) == :ok and
+          Agent.watch_signal({:warehouse_wait, s.a.look_for}) == :ok ->
+        send(self(), {:guided, ref})
+        {:stay, s |> Map.put(:wait_timer, ref) |> Map.put(:watching, key)}
+
+      # It could not listen (the robot or the node's signal process did not answer): it
+      # looks again soon, and tries to listen again then.
+      true ->
+        Process.send_after(self(), {:guided, ref}, max(s.idle_ms, 1))
+        {:stay, Map.put(s, :wait_timer, ref)}
     end
   end
 
