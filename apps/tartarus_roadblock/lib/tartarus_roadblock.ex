@@ -26,7 +26,8 @@ defmodule TartarusRoadblock do
       TartarusRoadblock.await()                      # {:ok, %{summary: ...}}
 
   (`iex -S mix tartarus.roadblock --seed 1` does the first line for you; the README has a
-  transcript.)
+  transcript.) With `dashboard: port` the web dashboard shows the run and its panel
+  (`TartarusRoadblock.Panel`): the snapshot, and a button that releases the rescue agent.
 
   Modules: `TartarusRoadblock.Scenario` (the `TartarusEmu.Scenario`), the agents
   `TartarusRoadblock.Commuter`, `TartarusRoadblock.Monitor`, `TartarusRoadblock.Admin`,
@@ -51,7 +52,12 @@ defmodule TartarusRoadblock do
       type: :any,
       doc: "output directory (default `results/roadblock-<stamp>`), `false` for none"
     ],
-    quiet: [type: :boolean, default: true, doc: "no progress line"]
+    quiet: [type: :boolean, default: true, doc: "no progress line"],
+    dashboard: [
+      type: :any,
+      doc:
+        "serve the web dashboard on this port (127.0.0.1) while the run goes, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`), with the roadblock panel (`TartarusRoadblock.Panel`: the snapshot, and a button that releases the rescue agent)"
+    ]
   ]
 
   @doc """

@@ -21,6 +21,63 @@ defmodule TartarusRoadblockTest do
     :hosts_visited
   ]
 
+  test "on the dashboard: the panel shows the snapshot while the run waits, and its button releases the rescue agent" do
+    {:ok, l} = :gen_tcp.listen(0, [])
+    {:ok, port} = :inet.port(l)
+    :gen_tcp.close(l)
+    token = "roadblock-panel-test-token"
+    url = "http://127.0.0.1:#{port}/api/panels"
+
+    {:ok, _} = TartarusRoadblock.start(seed: 1, out: false, dashboard: [port: port, token: token])
+
+    panel = await_panel(url, System.monotonic_time(:millisecond) + 60_000)
+    assert panel["title"] =~ "Roadblock"
+    assert [%{"action" => "release"}] = panel["actions"]
+    assert ["Santa", "stopped", _] = Enum.find(panel["rows"], &(hd(&1) == "Santa"))
+    "data:image/png;base64," <> b64 = panel["image"]
+    assert <<137, "PNG", _::binary>> = Base.decode64!(b64)
+
+    req =
+      {String.to_charlist(url <> "/roadblock/release"),
+       [{~c"authorization", ~c"Bearer " ++ String.to_charlist(token)}], ~c"application/json",
+       "{}"}
+
+    {:ok, {{_, 200, _}, _, body}} =
+      :httpc.request(:post, req, [timeout: 30_000], body_format: :binary)
+
+    assert %{"ok" => true, "result" => agent} = TartarusTools.JSON.decode!(body)
+    assert is_binary(agent)
+
+    {:ok, %{summary: s}} = TartarusRoadblock.await()
+    assert s.rescued and s.chosen_robot == "claus" and s.santa_arrived
+    # Nothing waits any more: the button's action is refused.
+    assert TartarusRoadblock.Panel.act(:ets.new(:rb_none, []), "release", %{}) ==
+             {:error, :not_waiting}
+  end
+
+  # Polls the dashboard until the roadblock panel offers its button (the run waits).
+  defp await_panel(url, deadline) do
+    panel =
+      case TartarusTools.Dashboard.http_get(url, 5_000) do
+        {:ok, 200, body} ->
+          body |> TartarusTools.JSON.decode!() |> Map.get("panels") |> List.first()
+
+        _ ->
+          nil
+      end
+
+    cond do
+      panel && panel["actions"] != [] ->
+        panel
+
+      System.monotonic_time(:millisecond) > deadline ->
+        flunk("the panel never offered the release button")
+
+      true ->
+        Process.sleep(200) && await_panel(url, deadline)
+    end
+  end
+
   @tag :tmp_dir
   test "auto mode, virtual hosts: Claus is chosen, the block removed, Santa arrives", %{
     tmp_dir: dir

@@ -85,7 +85,9 @@ defmodule TartarusRoadblock.Scenario do
            santa_stopped_s: 0.0,
            released_ms: nil,
            installed_ms: nil,
-           paused_ms: nil
+           paused_ms: nil,
+           # read by the dashboard's panel (TartarusRoadblock.Panel)
+           status: :ets.new(:roadblock_status, [:public, :set, read_concurrency: true])
          }
          |> event(:santa, "santa", "drives from A")}
 
@@ -167,7 +169,39 @@ defmodule TartarusRoadblock.Scenario do
     s = tick_santa(s)
     s = if s.phase == :rescue, do: tick_rescuer(s), else: s
     :ok = Server.step(s.arena, 1)
-    record(s, step)
+    s |> record(step) |> publish()
+  end
+
+  @impl true
+  @doc false
+  def panels(s), do: [{TartarusRoadblock.Panel, s.status}]
+
+  # What the dashboard's panel shows (it reads the table, never this loop).
+  defp publish(s, waiting \\ false) do
+    w = Server.world(s.arena)
+    {sx, _, _} = World.pose(w, :santa)
+
+    :ets.insert(
+      s.status,
+      {:status,
+       %{
+         t: s.t,
+         phase: s.phase,
+         santa_phase: s.santa.phase,
+         santa_x: Float.round(sx, 2),
+         block: if(s.block_placed, do: "x = #{Float.round(elem(s.layout.block, 0), 2)} m"),
+         chosen: s.chosen,
+         program_phase: s.program_phase,
+         hops: s.hops,
+         visited: s.visited,
+         waiting: waiting,
+         auto: s.auto,
+         events: s.timeline |> Enum.take(5),
+         snapshot: s.snapshot
+       }}
+    )
+
+    s
   end
 
   defp maybe_place_block(%{block_placed: false, t: t} = s) when t >= s.block_at do
@@ -233,6 +267,7 @@ defmodule TartarusRoadblock.Scenario do
             TartarusRoadblock.release_rescue()
         """)
 
+        publish(s, true)
         await_administrator(s)
       end
 
@@ -251,7 +286,10 @@ defmodule TartarusRoadblock.Scenario do
   end
 
   defp release(s, reply_to) do
-    s = %{s | released_ms: now(s)} |> event(:network, "admin", "releases the rescue agent")
+    s =
+      %{s | released_ms: now(s)}
+      |> event(:network, "admin", "releases the rescue agent")
+      |> publish()
 
     {:ok, id} =
       Tartarus.create_mobile_agent(
@@ -279,11 +317,11 @@ defmodule TartarusRoadblock.Scenario do
             "visits #{host_name(s, host)} (#{what})"
           )
 
-        await_install(s)
+        await_install(publish(s))
 
       {:roadblock_chosen, robot, host, candidates} ->
         s = %{s | chosen: robot, chosen_host: host, candidates: candidates}
-        await_install(event(s, :network, "rescuer", "chooses #{robot}"))
+        await_install(publish(event(s, :network, "rescuer", "chooses #{robot}")))
 
       {:roadblock_installed, robot, host, hops} ->
         s = %{s | phase: :rescue, hops: hops, rescuer: {s.rescuer, host}, installed_ms: now(s)}

@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
   dock; Santa drives on to B.
 
       mix tartarus.roadblock [--auto] [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
-                             [--block-at 2] [--steps 2400]
+                             [--block-at 2] [--steps 2400] [--dashboard PORT]
 
   Without `--auto` the run waits for the administrator when the snapshot arrives:
 
@@ -18,6 +18,11 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
       writes the snapshot, `TartarusRoadblock.release_rescue()` releases the rescue
       agent, `TartarusRoadblock.await()` returns the result;
     * otherwise the task asks on the terminal and releases the agent when you press Enter.
+
+  `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT (the address and token
+  are printed) with the roadblock panel: Santa, the rescue, the latest events, the webcam
+  snapshot, and (without `--auto`) a button that releases the rescue agent, so the
+  administrator can decide from the page instead of the terminal.
 
   `--mode peer` runs every host on a BEAM node of its own (`:peer`); `--help` prints this
   text.
@@ -43,6 +48,7 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
       |> Keyword.update!(:auto, &Keyword.put(&1, :default, false))
       |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:dashboard, &Keyword.put(&1, :type, :non_neg_integer))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
@@ -69,6 +75,15 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
           "roadblock: running in the background (seed #{opts[:seed]}, #{mode} hosts); " <>
             "when Santa is blocked, release the rescue agent with TartarusRoadblock.release_rescue()"
         )
+
+      opts[:dashboard] ->
+        {:ok, _} = TartarusRoadblock.start(run_opts)
+
+        Mix.shell().info(
+          "roadblock: when Santa is blocked, release the rescue agent from the dashboard's roadblock panel"
+        )
+
+        report(TartarusRoadblock.await(:infinity), json?)
 
       true ->
         {:ok, _} = TartarusRoadblock.start(run_opts)

@@ -5,7 +5,7 @@ defmodule TartarusTools.Dashboard.Api do
   # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
   # hosts, agents, modules and panels are looked up among those that exist.
 
-  alias TartarusTools.Dashboard.{Feed, Page}
+  alias TartarusTools.Dashboard.{Feed, Page, Panel}
   alias TartarusTools.JSON
 
   @cache_ms 1_000
@@ -319,7 +319,9 @@ defmodule TartarusTools.Dashboard.Api do
         text: Map.get(v, :text, ""),
         columns: v.columns,
         rows: Enum.map(v.rows, fn row -> Enum.map(row, &Feed.term/1) end),
-        actions: Map.get(v, :actions, [])
+        actions: Map.get(v, :actions, []),
+        image: Panel.data_url(Map.get(v, :image)),
+        image_alt: get_in(v, [Access.key(:image, %{}), Access.key(:alt, v.title)]) || v.title
       }
     end)
   end

@@ -6,7 +6,10 @@ defmodule TartarusTools.Dashboard.Panel do
   `POST /api/panels/NAME/ACTION` (with the token).
 
   A panel's table cells are JSON values (strings, numbers, booleans, nil); a cell that
-  names a host or an agent id is shown as a link to its detail. An application that shows
+  names a host or an agent id is shown as a link to its detail. A panel may also show one
+  picture (`:image`, e.g. a camera's snapshot): `%{type: "image/png", data: binary}`
+  (PNG, JPEG, GIF or SVG), served inline with the panel (keep it small: the page fetches
+  the panels every few seconds). An application that shows
   where its agents are writes, for instance:
 
       defmodule MyApp.Panel do
@@ -22,14 +25,41 @@ defmodule TartarusTools.Dashboard.Panel do
   @typedoc "A button: the action's name, its label, and the JSON params it posts."
   @type action :: %{action: String.t(), label: String.t(), params: map()}
 
+  @typedoc "A picture: its media type and its bytes; `alt` describes it."
+  @type image :: %{
+          required(:type) => String.t(),
+          required(:data) => binary(),
+          optional(:alt) => String.t()
+        }
+
   @typedoc "What a panel shows."
   @type view :: %{
           required(:title) => String.t(),
           required(:columns) => [String.t()],
           required(:rows) => [[term()]],
           optional(:actions) => [action()],
-          optional(:text) => String.t()
+          optional(:text) => String.t(),
+          optional(:image) => image() | nil
         }
+
+  @image_types ~w(image/png image/jpeg image/gif image/svg+xml)
+
+  @doc """
+  A panel's picture as the page shows it: a `data:` URL, or nil (no picture, or a type
+  the page does not show).
+
+      iex> TartarusTools.Dashboard.Panel.data_url(%{type: "image/png", data: <<1, 2, 3>>})
+      "data:image/png;base64,AQID"
+      iex> TartarusTools.Dashboard.Panel.data_url(%{type: "text/html", data: "<b>"})
+      nil
+      iex> TartarusTools.Dashboard.Panel.data_url(nil)
+      nil
+  """
+  @spec data_url(image() | nil) :: String.t() | nil
+  def data_url(%{type: type, data: data}) when type in @image_types and is_binary(data),
+    do: "data:" <> type <> ";base64," <> Base.encode64(data)
+
+  def data_url(_), do: nil
 
   @doc "The panel's name in URLs (letters, digits, `_` and `-`)."
   @callback name(arg :: term()) :: String.t()

@@ -276,6 +276,26 @@ defmodule TartarusTools.Dashboard.ApiTest do
     assert Enum.sum(Enum.map(batches, & &1["dropped"])) > 0
   end
 
+  defmodule PicturePanel do
+    @moduledoc false
+    # A panel with a picture (and one with a type the page does not show).
+    @behaviour TartarusTools.Dashboard.Panel
+    def name(type), do: "pic-" <> String.replace(type, ~r/[^a-z]/, "")
+
+    def render(type),
+      do: %{title: "A picture", columns: [], rows: [], image: %{type: type, data: <<137, 80, 78, 71>>, alt: "four bytes"}}
+
+    def act(_, action, _), do: {:error, {:unknown_action, action}}
+  end
+
+  test "a panel's picture is served inline as a data URL; a type the page does not show is dropped" do
+    {:ok, dash} = Dashboard.start_link(token: @token, panels: [{PicturePanel, "image/png"}, {PicturePanel, "text/html"}])
+    {200, _, %{"panels" => [png, html]}} = get(Dashboard.url(dash), "/api/panels")
+    assert png["image"] == "data:image/png;base64," <> Base.encode64(<<137, 80, 78, 71>>)
+    assert png["image_alt"] == "four bytes"
+    assert html["image"] == nil
+  end
+
   test "an application's panel is shown and acts, with the token" do
     {:ok, counter} = Agent.start_link(fn -> 0 end)
     {:ok, dash} = Dashboard.start_link(token: @token, panels: [{CounterPanel, counter}])
