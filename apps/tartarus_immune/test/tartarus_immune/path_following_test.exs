@@ -75,6 +75,43 @@ defmodule TartarusImmune.PathFollowingTest do
       assert d.selected == 1 and d.dead == []
     end
 
+    test "explore: :activation tries a new PFA only where no measured one is more activated",
+         %{p: p} do
+      fx = [0.7, 0.2, 0.0, 0.0]
+      a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.1, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 5.0, zeta: 1.5, n: 3}}
+      new = {3, %{sol: :c, fv: fx, tau: 10.0, zeta: nil, n: 0}}
+      act = Map.put(p, :explore, :activation)
+
+      # a is stimulated above the newcomer's tau_init: the network's choice runs
+      d = Node.choose([a, b, new], fx, act)
+      assert d.selected == 1 and d.explored == false
+
+      # a drained by cloning, below the newcomer: the newcomer is tried
+      drained = {1, %{sol: :a, fv: fx, tau: 6.0, zeta: 1.1, n: 3}}
+      d = Node.choose([drained, new], fx, act)
+      assert d.selected == 3 and d.explored == true
+
+      # explore: false never tries it while a measured candidate exists; alone, it runs
+      assert Node.choose([drained, new], fx, Map.put(p, :explore, false)).selected == 1
+      assert Node.choose([new], fx, Map.put(p, :explore, false)).selected == 3
+    end
+
+    test "n_min: a loser with fewer measures survives suppression and counts as untried",
+         %{p: p} do
+      fx = [0.5, 0.3, 0.9, 0.7]
+      a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 5.0, zeta: 2.0, n: 1}}
+
+      assert Node.choose([a, b], fx, p).dead == [2]
+
+      d = Node.choose([a, b], fx, Map.merge(p, %{n_min: 2, explore: false}))
+      assert d.selected == 1 and d.dead == []
+
+      d = Node.choose([a, b], fx, Map.put(p, :n_min, 2))
+      assert d.selected == 2 and d.explored
+    end
+
     test "a loser dies below tau_min; the selected one never dies when chosen", %{p: p} do
       fx = [0.5, 0.3, 0.9, 0.7]
       a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 3}}
@@ -101,13 +138,15 @@ defmodule TartarusImmune.PathFollowingTest do
 
   describe "the experiment" do
     @small [trials: 1, laps: 4, seed: 3, pfas: [PFA.A1, PFA.A3, PFA.A5]]
+    @roam [explore: :untried_first, sharing: true]
 
     @tag :tmp_dir
-    test "on a small case the network's choice is the exhaustive best per sub-path type, " <>
-           "and the same seed gives the same numbers",
+    test "on a small case (every new PFA tried at once, every iPkt roaming) the network's " <>
+           "choice is the exhaustive best per sub-path type, and the same seed gives the same numbers",
          %{tmp_dir: dir} do
-      {:ok, a} = Experiment.run([out: dir] ++ @small)
-      {:ok, b} = Experiment.run([out: false] ++ @small)
+      small = @small ++ @roam
+      {:ok, a} = Experiment.run([out: dir] ++ small)
+      {:ok, b} = Experiment.run([out: false] ++ small)
       s = a.summary
       drop = &Map.drop(&1, [:wall_seconds, :sim_speed_x])
       assert drop.(s) == drop.(b.summary)
@@ -154,8 +193,36 @@ defmodule TartarusImmune.PathFollowingTest do
             ~w(lap_times.csv choices.csv best_pfa.csv lap_times_trial1.svg lap_times_mean.svg summary.json summary.md),
           do: assert(File.exists?(Path.join(dir, f)), f)
 
-      {:ok, c} = Experiment.run(Keyword.merge(@small, seed: 4, out: false, exhaustive: false))
+      {:ok, c} = Experiment.run(Keyword.merge(small, seed: 4, out: false, exhaustive: false))
       refute c.summary.lap_times == s.lap_times
+    end
+
+    test "the defaults (exploration by activation, clones shared): every crossing has " <>
+           "candidates, only clones travel, and the same seed gives the same numbers" do
+      opts = [out: false, exhaustive: false] ++ @small
+      {:ok, a} = Experiment.run(opts)
+      {:ok, b} = Experiment.run(opts)
+      assert a.trials == b.trials
+      assert a.summary.explore == :activation and a.summary.sharing == :clones
+      [t] = a.trials
+
+      # each robot's repertoire stays with it: never a sub-path without a candidate
+      assert t.counters.no_candidate == 0
+      assert Enum.all?(t.choices, &(&1.how in ["explored", "network"]))
+      # only fresh clones move, each once
+      assert t.counters.born > 0 and t.counters.migrations <= t.counters.born
+      # lap 1 runs only the PFAs the robots received first (their own or the other's
+      # clones); later laps exploit too
+      firsts = [hd(t.received.r1), hd(t.received.r2)]
+      lap1 = Enum.filter(t.choices, &(&1.lap == 1))
+      assert lap1 != [] and Enum.all?(lap1, &(&1.pfa in firsts)), inspect(lap1)
+
+      assert Enum.any?(t.choices, &(&1.how == "network" and &1.lap > 1))
+      assert Map.has_key?(a.summary.plateau_lap_5pct, "path1")
+
+      # without sharing nothing moves
+      {:ok, c} = Experiment.run(opts ++ [sharing: false])
+      assert hd(c.trials).counters.migrations == 0
     end
 
     test "options are checked" do
@@ -163,6 +230,10 @@ defmodule TartarusImmune.PathFollowingTest do
       assert msg =~ "laps"
       assert {:error, msg} = Experiment.run(pfas: [Enum])
       assert msg =~ "pfas"
+      assert {:error, msg} = Experiment.run(explore: 2)
+      assert msg =~ "explore"
+      assert {:error, msg} = Experiment.run(sharing: :all)
+      assert msg =~ "sharing"
     end
   end
 end

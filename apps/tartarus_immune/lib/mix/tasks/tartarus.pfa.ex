@@ -10,7 +10,18 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   the mappings travel between the robots as agents.
 
       mix tartarus.pfa [--laps 12] [--trials 10] [--seed 1] [--out DIR] [--json]
-                       [--no-sharing] [--no-danger] [--no-exhaustive]
+                       [--explore activation|untried_first|P] [--n-min 1]
+                       [--sharing clones|roam|none] [--no-danger] [--no-exhaustive]
+
+  `--explore` is when a robot tries a PFA it has not measured on a sub-path's type:
+  `activation` (default: when the new iPkt's activation τ_init is at least the largest
+  activation of the measured candidates after their LIN round, so exploration fades as
+  winners are stimulated), `untried_first` (always, at once: every new PFA is tried on
+  every type) or a probability P (a coin per sub-path). `--n-min` is how many measures a
+  PFA needs on a type before suppression can kill it. `--sharing` is how mappings travel
+  between the robots: `clones` (default: fresh clones go to the other robot, every other
+  iPkt stays in its robot's repertoire), `roam` (every iPkt not held by a pending problem
+  moves on), `none`.
 
   Output (in `--out DIR`, default `results/pfa-<UTC timestamp>`): `lap_times.csv` (trial,
   seed, path, lap, seconds), `lap_times_trial1.svg` (one trial, Fig. 6.13a),
@@ -43,11 +54,22 @@ defmodule Mix.Tasks.Tartarus.Pfa do
       Experiment.schema()
       |> Keyword.drop([:pfas, :params])
       |> Keyword.update!(:out, &Keyword.merge(&1, type: :string, default: nil))
+      |> Keyword.update!(:sharing, &Keyword.merge(&1, type: :string, default: "clones"))
+      |> Keyword.update!(:explore, &Keyword.merge(&1, type: :string, default: "activation"))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
     json? = opts[:json]
-    exp_opts = Keyword.drop(opts, [:json])
+
+    sharing =
+      TartarusTools.CLI.choice!(opts[:sharing], [:clones, :roam, :none], :sharing, @task, :clones)
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.put(:sharing, %{clones: :clones, roam: true, none: false}[sharing])
+      |> Keyword.put(:explore, explore!(opts[:explore]))
+
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
     Mix.Task.run("app.start")
 
@@ -57,6 +79,24 @@ defmodule Mix.Tasks.Tartarus.Pfa do
 
       {:error, message} ->
         Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp explore!(value) do
+    case {value, Float.parse(value)} do
+      {"activation", _} ->
+        :activation
+
+      {"untried_first", _} ->
+        :untried_first
+
+      {_, {x, ""}} when x >= 0 and x <= 1 ->
+        x
+
+      _ ->
+        Mix.raise(
+          "mix #{@task}: --explore must be activation, untried_first or a probability between 0 and 1, got: #{value}"
+        )
     end
   end
 

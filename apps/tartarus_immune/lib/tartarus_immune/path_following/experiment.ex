@@ -77,7 +77,23 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       default: nil,
       doc: "the PFAs the input stream offers (default all eight)"
     ],
-    sharing: [type: :boolean, default: true, doc: "iPkts travel between the robots"],
+    sharing: [
+      type: {:in, [:clones, true, false]},
+      default: :clones,
+      doc:
+        "how mappings travel between the robots: :clones (fresh clones go to the other robot, the rest stay), true (every iPkt not held by a problem moves on), false (none)"
+    ],
+    explore: [
+      type: {:or, [{:in, [:activation, :untried_first]}, :probability]},
+      default: :activation,
+      doc:
+        "when a robot tries a PFA not yet measured on the sub-path's type: :activation (if its activation is at least the best measured one's), :untried_first (always, at once), or a probability"
+    ],
+    n_min: [
+      type: :pos_integer,
+      default: 1,
+      doc: "measures of a PFA on a sub-path type before suppression can kill it"
+    ],
     danger: [type: :boolean, default: true, doc: "danger signals on"],
     exhaustive: [type: :boolean, default: true, doc: "also run the exhaustive search"],
     params: [
@@ -176,6 +192,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         paths: paths,
         hosts: %{r1: Network.host(net, "r1"), r2: Network.host(net, "r2")},
         rng: :rand.seed_s(:exsss, {seed, 6_5_11, 13}),
+        xrng: :rand.seed_s(:exsss, {seed, 6_5_11, 14}),
         received: %{r1: [], r2: []},
         current: %{r1: nil, r2: nil},
         how: %{r1: nil, r2: nil},
@@ -247,7 +264,11 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, [{set, sp.index}], epoch})
     Tartarus.Signal.settle()
     st = migrate(%{st | epoch: epoch})
-    {:ok, r} = Tartarus.request({"immune", host}, :choose)
+    {explore?, st} = explore?(st)
+
+    {:ok, r} =
+      Tartarus.request({"immune", host}, {:choose, %{explore: explore?, n_min: st.o.n_min}})
+
     st = died(st, r.died)
 
     {pfa, st} =
@@ -257,7 +278,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
           {fallback, bump(st, :no_candidate, 1) |> put_in([:how, robot], "kept")}
 
         pfa ->
-          {pfa, put_in(st.how[robot], "network")}
+          {pfa, put_in(st.how[robot], if(r.explored, do: "explored", else: "network"))}
       end
 
     {pfa, put_in(st.current[robot], pfa)}
@@ -289,6 +310,17 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   def policy({:lap, robot, n, _secs}, st) do
     st = put_in(st.laps_done[robot], n)
     if n < st.o.laps, do: inject(st, robot), else: st
+  end
+
+  # the node's exploration policy for this encounter (Node.choose/3's p.explore); a
+  # probability is a coin thrown from the trial's own exploration stream, so the input
+  # stream's draws do not depend on it
+  defp explore?(%{o: %{explore: :activation}} = st), do: {:activation, st}
+  defp explore?(%{o: %{explore: :untried_first}} = st), do: {true, st}
+
+  defp explore?(st) do
+    {x, xrng} = :rand.uniform_s(st.xrng)
+    {x < st.o.explore, %{st | xrng: xrng}}
   end
 
   # one new PFA for `robot`: one iPkt per sub-path type of its map
@@ -480,6 +512,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       seed: o.seed,
       pfas: order,
       sharing: o.sharing,
+      explore: o.explore,
+      n_min: o.n_min,
       danger: o.danger,
       lap_times: %{
         "trial1" => Map.new(per_trial, fn {k, l} -> {k, hd(l)} end),
@@ -488,6 +522,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       },
       plateau_lap: plateau,
       plateau_time: plateau_time,
+      plateau_lap_5pct: Map.new(mean, fn {k, c} -> {k, plateau_lap(c, 0.05)} end),
       plateau_definition:
         "first lap L of the mean curve such that every lap from L on is within 10% of the mean of the last 3 laps",
       plateau_lap_per_trial:
