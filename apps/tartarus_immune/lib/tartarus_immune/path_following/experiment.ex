@@ -20,19 +20,39 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   * **Encounter** (the `:policy` of `Run.laps/3`, asked when a robot enters a sub-path):
     the robot's host registers the sub-path as its pending problem and emits the danger
     signal `{:danger, epoch}` carrying its features (a fresh epoch per encounter); one
-    migration round follows (every iPkt is told `{:go, epoch}`: one that recognizes a
-    problem pending at its host stays, one that recognizes the signal climbs it to the
-    robot (the XRep), the others move on conscientiously, which between two robots means
-    to the other one); then the node's `:choose` runs the localized idiotypic network
-    over the candidates (IRep and XRep alike) and the robot runs the selected PFA. If no
-    iPkt recognizes the sub-path the robot keeps its current PFA (counted as
-    `no_candidate`).
+    migration round follows (every iPkt is told `{:go, epoch}`, see sharing below); then
+    the node's `{:choose, %{explore: ...}}` runs the localized idiotypic network over the
+    candidates (IRep and XRep alike) and the robot runs the selected PFA
+    (`TartarusImmune.Node.choose/3`). If no iPkt recognizes the sub-path the robot keeps
+    its current PFA (counted as `no_candidate`; with the default sharing it does not
+    happen).
+  * **Exploration** (`:explore`): a PFA not yet measured on the sub-path's type (a fresh
+    iPkt of the input stream: no score ζ, activation τ_init) takes no part in the LIN
+    round. With `:activation` (the default) it runs when its activation is at least the
+    largest activation a measured candidate has after the round: Algorithm 4's "select
+    the iPkt of largest activation" over every candidate, the new one entering with what
+    it has, τ_init. A winner's activation grows with stimulation and falls when it pays
+    for clones, so new PFAs are tried where the network has no strongly stimulated
+    mapping, and exploration fades as the mappings settle (seeds 1-10: 207 of 1,080
+    crossings explored, against 550 with `:untried_first`). `:untried_first` tries every
+    new iPkt at the first crossing it can (so every PFA the stream brings is run on every
+    type, and the lap times of laps 1-8, while the stream still brings one PFA per lap,
+    are mostly exploration); a number is a probability per crossing.
   * **Feedback** (told when the robot leaves the sub-path): the measured cost
     (`time * (2 - on_line)`, time including any put-back penalty, over the sub-path's
     nominal time: `TartarusImmune.PathFollowing.normalize/2`) goes to the node
     (`{:feedback, cost}`): the iPkts of the selected PFA take it into their ζ and the
-    selected one clones; clones move with the next migration round, so the mappings reach
-    the other robot as agents.
+    selected one clones (Eqs. 6.11-6.13).
+  * **Sharing** (`:sharing`): with `:clones` (the default), as in the thesis ("the
+    mapping information and the performance measure of the best PFA is packed into an
+    iPkt, cloned and shared with the other robot(s)"), a fresh clone makes one move (up a
+    danger signal it recognizes, else conscientiously: between two robots, to the other
+    one) and every other iPkt stays in the repertoire of the robot where it is. With
+    `true` (roaming, the first version) every iPkt not held by a problem pending at its
+    host moves on at each round, so a robot's repertoire drifts to the other robot and
+    the iPkts of a type sit pinned at whichever robot is on such a sub-path: seeds 1-10
+    had 224 of 1,080 crossings with no candidate, where the robot ran the PFA it had
+    chosen for the previous, different sub-path. `false`: nothing moves.
 
   At the end of a trial the **best PFA per sub-path type** is the network's choice for
   Table 6.3's feature vector of the type (`TartarusImmune.Experiment.choose/4`: the PFA
@@ -45,6 +65,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   * `plateau_lap`: per path, on the mean curve, the first lap L such that every lap from
     L to the last is within 10% of the **final mean** (the mean of the last 3 laps); and
     `plateau_time`, the mean lap time from the plateau lap to the last;
+    `plateau_lap_5pct` the same within 5% (on Path-1 the whole fall from a random PFA's
+    lap to the best lap is about 14%, so a 10% band often holds from lap 1 or 2);
   * `best_pfa`: per sub-path type, the most frequent best PFA over the trials (ties: the
     earlier PFA), with `best_pfa_counts`;
   * `exhaustive_best`: per type, the PFA of least mean `score/2` over the type's
@@ -60,7 +82,11 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   features) μ = 0.5 lets an iPkt recognize sub-paths of other types (sp-a and sp-c, sp-b
   and sp-d and sp-a and sp-d are 0.67-0.79 apart; instances of one type at most 0.2);
   μ = 0.8 recognizes within 0.4. Q_max = 20 rather than 5, since a robot's host holds the
-  iPkts of four sub-path types and up to eight PFAs, not one problem class.
+  iPkts of four sub-path types and up to eight PFAs, not one problem class. `:n_min`
+  (default 1) is how many measures a PFA needs on a type before suppression can kill it
+  (and until then it counts as untried); 2 was tried against single noisy measures and
+  made the curves worse (seeds 1-10, Path-1's last three laps 31.6 s against 28.5 s):
+  re-trying the losers costs more than the noise it removes.
   """
 
   alias TartarusArena.{PFAs, Paths, Run}
