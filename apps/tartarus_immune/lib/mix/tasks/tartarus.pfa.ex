@@ -7,7 +7,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   sub-path's features, iPkts carrying PFA-to-sub-path mappings are drawn to it, the host's
   localized idiotypic network picks one, the robot runs that PFA and its measured cost
   (time, staying on the line) feeds back; each robot receives one new random PFA per lap;
-  the mappings travel between the robots as agents.
+  the mappings travel between the robots as agents (fresh clones, by default).
 
       mix tartarus.pfa [--laps 12] [--trials 10] [--seed 1] [--out DIR] [--json]
                        [--explore activation|untried_first|P] [--n-min 1]
@@ -32,7 +32,8 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   Summary keys: `trials, laps, lap_times` (`trial1`, `mean` and `per_trial`, each per
   path), `plateau_lap` (per path: on the mean curve, the first lap L such that every lap
   from L to the last is within 10% of the mean of the last 3 laps), `plateau_time` (the
-  mean lap time from there), `plateau_lap_per_trial`, `best_pfa` (per sub-path type: the
+  mean lap time from there), `plateau_lap_5pct` (the same within 5%),
+  `plateau_lap_per_trial`, `explore`, `sharing`, `n_min`, `best_pfa` (per sub-path type: the
   most frequent network choice over the trials) and `best_pfa_counts`,
   `best_pfa_table6_5`, `exhaustive_best` and `exhaustive_costs` (every PFA alone over
   every sub-path instance of the first seed), `matches_exhaustive`, `matches_table6_5`,
