@@ -23,9 +23,14 @@ defmodule TartarusArena.Paths do
   Each path has a start/finish flag at arc length 0 (a coloured marker beside the line:
   green for path 1, blue for path 2). A lap is complete when a robot's tracked progress
   passes the flag again (`track/4`): progress is the arc length of the nearest point of the
-  line, unwrapped along the way, so wandering back and forth near the flag is not a lap, and
-  it grows no faster than the robot moves, so cutting across from one leg of a zigzag to the
-  next is not progress.
+  line, unwrapped along the way, so wandering back and forth near the flag is not a lap.
+  While the robot is off the line (more than 5 cm from it) progress grows no faster than
+  the robot moves, so cutting across from one leg of a zigzag to the next is not progress
+  until the robot is back on the line; on the line, progress is again the nearest point's
+  unwrapped arc length. (An earlier version capped it always: each corner a robot cut
+  short left the progress behind the robot for good, about 0.5 m per lap of Path-2, so
+  after a few laps the sub-path boundaries, and the PFA switches, were metres away from
+  the sub-paths themselves.)
 
       iex> p = TartarusArena.Paths.path(1, 7)
       iex> Enum.map(p.subpaths, & &1.type)
@@ -64,8 +69,12 @@ defmodule TartarusArena.Paths do
           idx: non_neg_integer(),
           s: float(),
           progress: float(),
+          along: float(),
           laps: non_neg_integer()
         }
+
+  # a robot this close to the line (m) is on it for the progress (`track/4`)
+  @rejoin 0.05
 
   @table %{
     sp_a: [0.3, 0.7, 0.0, 0.2],
@@ -311,7 +320,7 @@ defmodule TartarusArena.Paths do
   def track_new(path, x, y) do
     {s, _d, idx} = locate(path, x, y)
     s = if s > path.length - 0.01, do: 0.0, else: s
-    %{idx: idx, s: s, progress: 0.0, start: s, laps: 0, distance: 0.0, x: x, y: y}
+    %{idx: idx, s: s, progress: 0.0, along: 0.0, start: s, laps: 0, distance: 0.0, x: x, y: y}
   end
 
   @doc """
@@ -324,13 +333,27 @@ defmodule TartarusArena.Paths do
     l = path.length
     ds = s - tr.s
     ds = if ds > l / 2, do: ds - l, else: if(ds < -l / 2, do: ds + l, else: ds)
-    # progress along the line grows no faster than the robot moves: cutting across from one
-    # leg of a zigzag to the next is not progress
+    # off the line, progress grows no faster than the robot moves (cutting across from one
+    # leg of a zigzag to the next is not progress while it is off the line); back on the
+    # line it is again the nearest point's unwrapped arc length (`along`), so the progress
+    # never lags behind where the robot is (a lag would shift every sub-path boundary)
+    along = tr.along + ds
     moved = G.dist(tr.x, tr.y, x, y) + 0.005
-    progress = tr.progress + max(-moved, min(moved, ds))
+
+    progress = if d <= @rejoin, do: along, else: tr.progress + max(-moved, min(moved, ds))
+
     laps = max(tr.laps, floor((tr.start + progress) / l))
 
-    {%{tr | idx: idx, s: s, progress: progress, laps: laps, distance: d, x: x, y: y},
-     laps > tr.laps}
+    {%{
+       tr
+       | idx: idx,
+         s: s,
+         progress: progress,
+         along: along,
+         laps: laps,
+         distance: d,
+         x: x,
+         y: y
+     }, laps > tr.laps}
   end
 end

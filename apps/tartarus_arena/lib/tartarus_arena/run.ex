@@ -156,7 +156,9 @@ defmodule TartarusArena.Run do
 
   Returns `%{world:, time:, robots: %{id => result}, policy_state:}` where each result has `lap_times`
   (seconds per completed lap, penalties included), `subpaths` (one
-  `t:subpath_result/0` per sub-path crossed, in order), `trajectory` (`[{t, x, y}]`) and
+  `t:subpath_result/0` per sub-path crossed, in order, each with `put_back` and `nudged`,
+  how often the robot was put back on the line or nudged on in it, and `penalty`, the
+  seconds charged for that, included in its `time`), `trajectory` (`[{t, x, y}]`) and
   `lost` (how many times it was put back on the line or nudged on).
   """
   @spec laps([driver()], World.t() | keyword()) :: map()
@@ -186,6 +188,9 @@ defmodule TartarusArena.Run do
             sp_t0: 0.0,
             sp_steps: 0,
             sp_on: 0,
+            sp_lost: 0,
+            sp_nudged: 0,
+            sp_penalty: 0.0,
             pfa: pfa,
             ctl: pfa.init([]),
             penalty: 0.0,
@@ -286,12 +291,28 @@ defmodule TartarusArena.Run do
         tr.distance > @lost ->
           world = World.place(world, id, Paths.point_at(path, tr.s))
 
-          {%{tr | distance: 0.0}, %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1}}
-          |> then(fn {tr, s} -> {world, tr, s} end)
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              sp_lost: s.sp_lost + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
+          {world, %{tr | distance: 0.0}, s}
 
         t - best_t > o.stuck ->
           world = World.place(world, id, Paths.point_at(path, tr.s + 0.1))
-          s = %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1, best_t: t}
+
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              best_t: t,
+              sp_nudged: s.sp_nudged + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
           {world, tr, s}
 
         true ->
@@ -313,7 +334,14 @@ defmodule TartarusArena.Run do
 
     {s, ps} =
       if tr.progress >= s.sp_end - 1.0e-9 do
-        r = measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
+        r =
+          measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
+          |> Map.merge(%{
+            put_back: s.sp_lost,
+            nudged: s.sp_nudged,
+            penalty: Float.round(s.sp_penalty, 3)
+          })
+
         ps = notify(o.policy, {:result, id, r}, ps)
 
         next = Enum.at(path.subpaths, rem(s.sp.index + 1, length(path.subpaths)))
@@ -329,6 +357,9 @@ defmodule TartarusArena.Run do
              sp_t0: clock,
              sp_steps: 0,
              sp_on: 0,
+             sp_lost: 0,
+             sp_nudged: 0,
+             sp_penalty: 0.0,
              pfa: pfa,
              ctl: if(pfa == s.pfa, do: s.ctl, else: pfa.init([]))
          }, ps}

@@ -50,6 +50,35 @@ defmodule TartarusArena.PathsTest do
     assert tr.laps == 1
   end
 
+  test "progress: a cut corner gains nothing while off the line, and none is lost once " <>
+         "the robot is back on it (no lag behind the robot)" do
+    p = Paths.path(2, 1)
+    sp = Enum.find(p.subpaths, &(&1.type == :sp_d))
+    {x0, y0, _} = Paths.point_at(p, sp.from)
+    tr = Paths.track_new(p, x0, y0)
+
+    # a jump straight to the line 0.6 m further on, the robot moving 0.2 m a step: off
+    # the line half-way, progress grows by at most what it moved
+    {xa, ya, _} = Paths.point_at(p, sp.from + 0.6)
+    {tr, _} = Paths.track(tr, p, (x0 + xa) / 2 + 0.2, (y0 + ya) / 2 + 0.2)
+    assert tr.distance > 0.05 and tr.progress <= 0.35 + 0.005 + 1.0e-9
+
+    # back on the line: progress is where the robot is
+    {tr, _} = Paths.track(tr, p, xa, ya)
+    assert_in_delta tr.progress, 0.6, 1.0e-6
+
+    # following the line from there on keeps it so, over a whole lap
+    {tr, laps} =
+      Enum.reduce(1..round(p.length / 0.02), {tr, 0}, fn k, {tr, n} ->
+        {x, y, _} = Paths.point_at(p, sp.from + 0.6 + k * 0.02)
+        {tr, lap?} = Paths.track(tr, p, x, y)
+        {tr, n + if(lap?, do: 1, else: 0)}
+      end)
+
+    assert_in_delta tr.progress, 0.6 + round(p.length / 0.02) * 0.02, 1.0e-6
+    assert laps == 1
+  end
+
   for pfa <- PFAs.all() do
     test "#{inspect(pfa)} keeps a robot on a straight and on a curved line" do
       p = Paths.path(1, 0)

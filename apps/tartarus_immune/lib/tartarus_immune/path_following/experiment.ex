@@ -120,6 +120,29 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       default: 1,
       doc: "measures of a PFA on a sub-path type before suppression can kill it"
     ],
+    stream: [
+      type: {:in, [:once, :lifelong]},
+      default: :once,
+      doc:
+        "the input stream: :once (each PFA once per robot, nothing after the eighth) or :lifelong (then, each lap, one PFA whose mapping of some sub-path type has died out at the robot, for those types)"
+    ],
+    challenge: [
+      type: {:in, [:tried, :activation]},
+      default: :tried,
+      doc:
+        "a re-injected PFA: :tried (enters at tau_max, so it runs once) or :activation (tau_init, as a new one)"
+    ],
+    stuck_after: [
+      type: :number,
+      default: 6.0,
+      doc:
+        "seconds without 5 cm of progress after which the experimenter nudges a robot 10 cm on (Run.laps/3's :stuck_after)"
+    ],
+    lost_penalty: [
+      type: :number,
+      default: 5.0,
+      doc: "seconds charged each time a robot is put back on the line or nudged on"
+    ],
     danger: [type: :boolean, default: true, doc: "danger signals on"],
     exhaustive: [type: :boolean, default: true, doc: "also run the exhaustive search"],
     params: [
@@ -234,7 +257,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
           expired: 0,
           migrations: 0,
           failed_moves: 0,
-          no_candidate: 0
+          no_candidate: 0,
+          reinjected: 0
         }
       }
 
@@ -245,6 +269,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         Run.laps([%{robot: :r1, path: paths.r1}, %{robot: :r2, path: paths.r2}], world,
           laps: o.laps,
           max_time: 120.0 * o.laps,
+          stuck_after: o.stuck_after,
+          lost_penalty: o.lost_penalty,
           policy: &policy/2,
           policy_state: st
         )
@@ -325,6 +351,9 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       type: m.type,
       pfa: m.pfa,
       time: m.time,
+      put_back: Map.get(m, :put_back, 0),
+      nudged: Map.get(m, :nudged, 0),
+      penalty: Map.get(m, :penalty, 0.0),
       on_line: m.on_line,
       cost: cost,
       how: st.how[robot]
@@ -349,28 +378,65 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     {x < st.o.explore, %{st | xrng: xrng}}
   end
 
-  # one new PFA for `robot`: one iPkt per sub-path type of its map
+  # one new PFA for `robot`: one iPkt per sub-path type of its map; once every PFA has
+  # been received, with stream: :lifelong, one PFA whose mapping of some type of the map
+  # has died out in the robot's repertoire, for those types
   defp inject(st, robot) do
     left = st.o.pfas -- st.received[robot]
+    types = Enum.uniq_by(st.paths[robot].subpaths, & &1.type)
 
-    if left == [] do
-      st
-    else
-      {i, rng} = :rand.uniform_s(length(left), st.rng)
-      pfa = Enum.at(left, i - 1)
-      st = %{st | rng: rng, received: Map.update!(st.received, robot, &[pfa | &1])}
+    cond do
+      left != [] ->
+        {i, rng} = :rand.uniform_s(length(left), st.rng)
+        pfa = Enum.at(left, i - 1)
+        st = %{st | rng: rng, received: Map.update!(st.received, robot, &[pfa | &1])}
+        Enum.reduce(types, st, &create(&2, robot, pfa, &1.features))
 
-      st.paths[robot].subpaths
-      |> Enum.uniq_by(& &1.type)
-      |> Enum.reduce(st, fn sp, st ->
-        serial = st.serial + 1
+      st.o.stream == :lifelong ->
+        reinject(st, robot, types)
 
-        {:ok, _} = IPkt.create(st.hosts[robot], pfa, sp.features, serial, st)
-
-        %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
-        |> bump(:injected, 1)
-      end)
+      true ->
+        st
     end
+  end
+
+  defp reinject(st, robot, types) do
+    p0 = st.p
+    {:ok, q} = Tartarus.request({"immune", st.hosts[robot]}, :queue)
+
+    extinct =
+      for pfa <- st.o.pfas,
+          sp <- types,
+          not Enum.any?(
+            q,
+            &(&1.sol == pfa and TartarusImmune.Maths.recognizes?(sp.features, &1.fv, st.p))
+          ),
+          do: {pfa, sp}
+
+    case extinct |> Enum.map(&elem(&1, 0)) |> Enum.uniq() do
+      [] ->
+        st
+
+      pfas ->
+        {i, rng} = :rand.uniform_s(length(pfas), st.rng)
+        pfa = Enum.at(pfas, i - 1)
+
+        tau = if st.o.challenge == :tried, do: st.p.tau_max, else: st.p.tau_init
+        st = %{st | rng: rng, p: %{st.p | tau_init: tau}}
+
+        for({^pfa, sp} <- extinct, do: sp)
+        |> Enum.reduce(st, &create(&2, robot, pfa, &1.features))
+        |> Map.put(:p, %{st.p | tau_init: p0.tau_init})
+        |> bump(:reinjected, 1)
+    end
+  end
+
+  defp create(st, robot, pfa, features) do
+    serial = st.serial + 1
+    {:ok, _} = IPkt.create(st.hosts[robot], pfa, features, serial, st)
+
+    %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
+    |> bump(:injected, 1)
   end
 
   defp migrate(st) do
@@ -607,11 +673,25 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     Report.write_csv!(
       out,
       "choices",
-      ["trial", "robot", "lap", "index", "type", "pfa", "how", "time", "on_line", "cost"],
+      ~w(trial robot lap index type pfa how time on_line cost put_back nudged penalty),
       for(
         {t, k} <- Enum.with_index(trials, 1),
         c <- t.choices,
-        do: [k, c.robot, c.lap, c.index, c.type, c.pfa, c.how, c.time, c.on_line, c.cost]
+        do: [
+          k,
+          c.robot,
+          c.lap,
+          c.index,
+          c.type,
+          c.pfa,
+          c.how,
+          c.time,
+          c.on_line,
+          c.cost,
+          c.put_back,
+          c.nudged,
+          c.penalty
+        ]
       )
     )
 
