@@ -111,7 +111,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     ],
     explore: [
       type: {:or, [{:in, [:activation, :untried_first]}, :probability]},
-      default: :activation,
+      default: :untried_first,
       doc:
         "when a robot tries a PFA not yet measured on the sub-path's type: :activation (if its activation is at least the best measured one's), :untried_first (always, at once), or a probability"
     ],
@@ -506,6 +506,28 @@ defmodule TartarusImmune.PathFollowing.Experiment do
 
   # -- summary ---------------------------------------------------------------------------
 
+  # per path, over every crossing of every trial: put-backs, nudges, the seconds charged
+  # for them, the crossings that had one, and the share of the robot's time those took
+  defp failures(trials) do
+    rows = Enum.flat_map(trials, & &1.choices)
+
+    Map.new([{:r1, "path1"}, {:r2, "path2"}], fn {robot, key} ->
+      rs = Enum.filter(rows, &(&1.robot == robot))
+      failed = Enum.filter(rs, &(&1.put_back + &1.nudged > 0))
+      total = rs |> Enum.map(& &1.time) |> Enum.sum()
+
+      {key,
+       %{
+         crossings: length(rs),
+         failed_crossings: length(failed),
+         put_back: rs |> Enum.map(& &1.put_back) |> Enum.sum(),
+         nudged: rs |> Enum.map(& &1.nudged) |> Enum.sum(),
+         penalty_seconds: round3(rs |> Enum.map(& &1.penalty) |> Enum.sum()),
+         failed_time_share: round3(Enum.sum(Enum.map(failed, & &1.time)) / max(total, 1.0e-9))
+       }}
+    end)
+  end
+
   @doc """
   The plateau lap of a lap-time curve: the first lap L (1-based) such that every lap from
   L to the last is within `tol` (10%) of the mean of the last `tail` (3) laps.
@@ -606,6 +628,10 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       sharing: o.sharing,
       explore: o.explore,
       n_min: o.n_min,
+      stream: o.stream,
+      challenge: o.challenge,
+      stuck_after: o.stuck_after,
+      lost_penalty: o.lost_penalty,
       danger: o.danger,
       lap_times: %{
         "trial1" => Map.new(per_trial, fn {k, l} -> {k, hd(l)} end),
@@ -631,6 +657,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       measured_best: measured_best,
       thesis: @thesis,
       lost_per_trial: Map.new(paths, fn {id, key} -> {key, Enum.map(trials, & &1.lost[id])} end),
+      failures: failures(trials),
       counters:
         Enum.reduce(trials, %{}, fn t, acc ->
           Map.merge(acc, t.counters, fn _, a, b -> a + b end)
