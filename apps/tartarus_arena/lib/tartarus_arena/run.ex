@@ -106,7 +106,7 @@ defmodule TartarusArena.Run do
       tr.progress >= span ->
         measure(path, sp, pfa, true, t, on / max(steps, 1), max_time)
 
-      t >= max_time or tr.distance > @lost ->
+      t >= max_time or tr.distance > @lost or tr.skipped ->
         measure(path, sp, pfa, false, t, on / max(steps, 1), max_time)
 
       true ->
@@ -300,6 +300,20 @@ defmodule TartarusArena.Run do
           }
 
           {world, %{tr | distance: 0.0}, s}
+
+        tr.skipped ->
+          {tr, pose} = Paths.back_to_progress(tr, path)
+          world = World.place(world, id, pose)
+
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              sp_lost: s.sp_lost + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
+          {world, tr, s}
 
         t - best_t > o.stuck ->
           world = World.place(world, id, Paths.point_at(path, tr.s + 0.1))
