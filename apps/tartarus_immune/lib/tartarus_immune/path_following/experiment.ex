@@ -14,7 +14,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     (`"immune"`) on each; the domain is `TartarusImmune.PathFollowing`.
   * **Injection** (the thesis's input stream): before lap 1 and at the end of every lap
     but the last, each robot receives one PFA it has not received before, drawn at random
-    from the offered PFAs (none once it has had them all): one iPkt of that PFA per
+    from the offered PFAs (none once it has had them all, unless `stream: :lifelong`):
+    one iPkt of that PFA per
     sub-path type on the robot's map (its path), mapping the PFA to that type's features
     on the map (F_y), activation τ_init, never measured.
   * **Encounter** (the `:policy` of `Run.laps/3`, asked when a robot enters a sub-path):
@@ -28,21 +29,36 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     happen).
   * **Exploration** (`:explore`): a PFA not yet measured on the sub-path's type (a fresh
     iPkt of the input stream: no score ζ, activation τ_init) takes no part in the LIN
-    round. With `:activation` (the default) it runs when its activation is at least the
-    largest activation a measured candidate has after the round: Algorithm 4's "select
-    the iPkt of largest activation" over every candidate, the new one entering with what
-    it has, τ_init. A winner's activation grows with stimulation and falls when it pays
-    for clones, so new PFAs are tried where the network has no strongly stimulated
-    mapping, and exploration fades as the mappings settle (seeds 1-10: 207 of 1,080
-    crossings explored, against 550 with `:untried_first`). `:untried_first` tries every
-    new iPkt at the first crossing it can (so every PFA the stream brings is run on every
-    type, and the lap times of laps 1-8, while the stream still brings one PFA per lap,
-    are mostly exploration); a number is a probability per crossing.
+    round. With `:untried_first` (the default) it runs at the first crossing it can, so
+    every PFA the stream brings is run once on every type of the robot's map, as the
+    thesis's robots executed the PFAs they received; laps 1-8 are then mostly
+    exploration and from lap 9 on only the network's choices run. With `:activation` it
+    runs when its activation is at least the largest activation a measured candidate has
+    after the round (Algorithm 4's "select the iPkt of largest activation" over every
+    candidate, the new one entering with τ_init): exploration fades as winners are
+    stimulated, but a mapping whose rivals died is never challenged again however badly
+    it does (with no measured rival on the robot it is neither stimulated nor
+    suppressed, and only `r2` meets sp-d), so some trials kept a PFA failing on every
+    crossing to the last lap. A number is a probability per crossing.
   * **Feedback** (told when the robot leaves the sub-path): the measured cost
     (`time * (2 - on_line)`, time including any put-back penalty, over the sub-path's
     nominal time: `TartarusImmune.PathFollowing.normalize/2`) goes to the node
     (`{:feedback, cost}`): the iPkts of the selected PFA take it into their ζ and the
-    selected one clones (Eqs. 6.11-6.13).
+    selected one clones (Eqs. 6.11-6.13). A crossing where the robot lost the line is
+    scored like any other: its time includes the penalty (`Run.laps/3` puts a robot 25 cm
+    off the line, or one that rejoined it more than 0.15 m further on, back at its
+    progress, and nudges one stuck `:stuck_after` seconds, default 6, 10 cm on; each
+    costs `:lost_penalty`, default 5 s), so it costs about 2-7 where a clean crossing
+    costs 1.0-1.4. 6 s rather than `Run`'s 15: of the stalls that ended by themselves
+    (seeds 1-10) 99% ended within 2 s and every working corner manoeuvre within 4.5 s;
+    the longer ones were A8 spinning out of reach of the line and A6 circling, at 20 s a
+    nudge with 15.
+  * **Stream** (`:stream`): `:once` (the default) gives each robot each PFA once;
+    `:lifelong` then injects, each lap, a PFA whose mapping of some type has died out at
+    the robot, for those types (with `challenge: :tried` at τ_max, so it runs even under
+    `explore: :activation`). Measured, re-injection costs more than it saves (the PFAs
+    that died mostly died for failing; seeds 1-10, laps 10-12, Path-2 46-51 s against
+    28-32 s).
   * **Sharing** (`:sharing`): with `:clones` (the default), as in the thesis ("the
     mapping information and the performance measure of the best PFA is packed into an
     iPkt, cloned and shared with the other robot(s)"), a fresh clone makes one move (up a
@@ -85,8 +101,9 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   iPkts of four sub-path types and up to eight PFAs, not one problem class. `:n_min`
   (default 1) is how many measures a PFA needs on a type before suppression can kill it
   (and until then it counts as untried); 2 was tried against single noisy measures and
-  made the curves worse (seeds 1-10, Path-1's last three laps 31.6 s against 28.5 s):
-  re-trying the losers costs more than the noise it removes.
+  made the curves worse (seeds 1-10, last three laps: Path-1 31.6 s against 26.7 s,
+  Path-2 52.2 s against 30.0 s): re-trying the losers costs more than the noise it
+  removes.
   """
 
   alias TartarusArena.{PFAs, Paths, Run}
