@@ -16,10 +16,12 @@ defmodule TartarusArena.Run do
       on the line costs its time; one that wandered off all the way costs twice its time);
       a run that timed out or lost the line costs `3 * max_time`.
 
-  A robot is *lost* when its centre is more than 25 cm from the line. In a single sub-path
-  trial (`subpath/4`) that ends the trial (`completed: false`). When running laps
-  (`laps/2`), as an experimenter would, it is put back on the line at the point of its
-  progress, facing along it, and charged `lost_penalty` seconds (default 5) on its clock.
+  A robot is *lost* when its centre is more than 25 cm from the line, or when it rejoins
+  the line more than 0.15 m further on than its progress (a shortcut, e.g. across a notch:
+  `TartarusArena.Paths.track/4`'s `skipped`). In a single sub-path trial (`subpath/4`)
+  that ends the trial (`completed: false`). When running laps (`laps/2`), as an
+  experimenter would, it is put back on the line at the point of its progress, facing
+  along it, and charged `lost_penalty` seconds (default 5) on its clock.
 
       iex> p = TartarusArena.Paths.path(1, 0)
       iex> r = TartarusArena.Run.subpath(TartarusArena.PFA.A4, p, 0, seed: 1)
