@@ -23,9 +23,14 @@ defmodule TartarusArena.Paths do
   Each path has a start/finish flag at arc length 0 (a coloured marker beside the line:
   green for path 1, blue for path 2). A lap is complete when a robot's tracked progress
   passes the flag again (`track/4`): progress is the arc length of the nearest point of the
-  line, unwrapped along the way, so wandering back and forth near the flag is not a lap, and
-  it grows no faster than the robot moves, so cutting across from one leg of a zigzag to the
-  next is not progress.
+  line, unwrapped along the way, so wandering back and forth near the flag is not a lap.
+  While the robot is off the line (more than 5 cm from it) progress grows no faster than
+  the robot moves, so cutting across from one leg of a zigzag to the next is not progress
+  until the robot is back on the line; on the line, progress is again the nearest point's
+  unwrapped arc length. (An earlier version capped it always: each corner a robot cut
+  short left the progress behind the robot for good, about 0.5 m per lap of Path-2, so
+  after a few laps the sub-path boundaries, and the PFA switches, were metres away from
+  the sub-paths themselves.)
 
       iex> p = TartarusArena.Paths.path(1, 7)
       iex> Enum.map(p.subpaths, & &1.type)
@@ -64,8 +69,16 @@ defmodule TartarusArena.Paths do
           idx: non_neg_integer(),
           s: float(),
           progress: float(),
+          along: float(),
+          skipped: boolean(),
           laps: non_neg_integer()
         }
+
+  # a robot this close to the line (m) is on it for the progress (`track/4`)
+  @rejoin 0.05
+  # the most of the path (m) a robot may skip between leaving the line and rejoining it
+  # (cutting a corner short saves at most about 0.1 m here; skipping Path-2's notch 0.4 m)
+  @max_skip 0.15
 
   @table %{
     sp_a: [0.3, 0.7, 0.0, 0.2],
@@ -311,7 +324,32 @@ defmodule TartarusArena.Paths do
   def track_new(path, x, y) do
     {s, _d, idx} = locate(path, x, y)
     s = if s > path.length - 0.01, do: 0.0, else: s
-    %{idx: idx, s: s, progress: 0.0, start: s, laps: 0, distance: 0.0, x: x, y: y}
+
+    %{
+      idx: idx,
+      s: s,
+      progress: 0.0,
+      along: 0.0,
+      skipped: false,
+      start: s,
+      laps: 0,
+      distance: 0.0,
+      x: x,
+      y: y
+    }
+  end
+
+  @doc """
+  The pose on the line at the tracker's progress (facing along the line) and the tracker
+  of a robot put there: where an experimenter puts back a robot that took a shortcut
+  (`skipped`).
+  """
+  @spec back_to_progress(tracker(), t()) :: {tracker(), {float(), float(), float()}}
+  def back_to_progress(tr, path) do
+    {x, y, _} = pose = point_at(path, tr.start + tr.progress)
+    {s, _d, idx} = locate(path, x, y)
+
+    {%{tr | idx: idx, s: s, along: tr.progress, skipped: false, distance: 0.0, x: x, y: y}, pose}
   end
 
   @doc """
@@ -324,13 +362,36 @@ defmodule TartarusArena.Paths do
     l = path.length
     ds = s - tr.s
     ds = if ds > l / 2, do: ds - l, else: if(ds < -l / 2, do: ds + l, else: ds)
-    # progress along the line grows no faster than the robot moves: cutting across from one
-    # leg of a zigzag to the next is not progress
+    # off the line, progress grows no faster than the robot moves (cutting across is not
+    # progress while it is off the line); back on the line it is again the nearest point's
+    # unwrapped arc length (`along`), so the progress never lags behind where the robot is
+    # (a lag would shift every sub-path boundary), unless that skips more than @max_skip
+    # of the path (a shortcut, not a cut corner): then it stays behind and `skipped` says
+    # so (`TartarusArena.Run` puts the robot back, `back_to_progress/2`)
+    along = tr.along + ds
     moved = G.dist(tr.x, tr.y, x, y) + 0.005
-    progress = tr.progress + max(-moved, min(moved, ds))
+    capped = tr.progress + max(-moved, min(moved, ds))
+
+    {progress, skipped} =
+      cond do
+        d > @rejoin -> {capped, false}
+        along - capped <= @max_skip -> {along, false}
+        true -> {capped, true}
+      end
+
     laps = max(tr.laps, floor((tr.start + progress) / l))
 
-    {%{tr | idx: idx, s: s, progress: progress, laps: laps, distance: d, x: x, y: y},
-     laps > tr.laps}
+    {%{
+       tr
+       | idx: idx,
+         s: s,
+         progress: progress,
+         along: along,
+         skipped: skipped,
+         laps: laps,
+         distance: d,
+         x: x,
+         y: y
+     }, laps > tr.laps}
   end
 end

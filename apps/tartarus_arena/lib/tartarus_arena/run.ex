@@ -16,10 +16,12 @@ defmodule TartarusArena.Run do
       on the line costs its time; one that wandered off all the way costs twice its time);
       a run that timed out or lost the line costs `3 * max_time`.
 
-  A robot is *lost* when its centre is more than 25 cm from the line. In a single sub-path
-  trial (`subpath/4`) that ends the trial (`completed: false`). When running laps
-  (`laps/2`), as an experimenter would, it is put back on the line at the point of its
-  progress, facing along it, and charged `lost_penalty` seconds (default 5) on its clock.
+  A robot is *lost* when its centre is more than 25 cm from the line, or when it rejoins
+  the line more than 0.15 m further on than its progress (a shortcut, e.g. across a notch:
+  `TartarusArena.Paths.track/4`'s `skipped`). In a single sub-path trial (`subpath/4`)
+  that ends the trial (`completed: false`). When running laps (`laps/2`), as an
+  experimenter would, it is put back on the line at the point of its progress, facing
+  along it, and charged `lost_penalty` seconds (default 5) on its clock.
 
       iex> p = TartarusArena.Paths.path(1, 0)
       iex> r = TartarusArena.Run.subpath(TartarusArena.PFA.A4, p, 0, seed: 1)
@@ -106,7 +108,7 @@ defmodule TartarusArena.Run do
       tr.progress >= span ->
         measure(path, sp, pfa, true, t, on / max(steps, 1), max_time)
 
-      t >= max_time or tr.distance > @lost ->
+      t >= max_time or tr.distance > @lost or tr.skipped ->
         measure(path, sp, pfa, false, t, on / max(steps, 1), max_time)
 
       true ->
@@ -156,7 +158,9 @@ defmodule TartarusArena.Run do
 
   Returns `%{world:, time:, robots: %{id => result}, policy_state:}` where each result has `lap_times`
   (seconds per completed lap, penalties included), `subpaths` (one
-  `t:subpath_result/0` per sub-path crossed, in order), `trajectory` (`[{t, x, y}]`) and
+  `t:subpath_result/0` per sub-path crossed, in order, each with `put_back` and `nudged`,
+  how often the robot was put back on the line or nudged on in it, and `penalty`, the
+  seconds charged for that, included in its `time`), `trajectory` (`[{t, x, y}]`) and
   `lost` (how many times it was put back on the line or nudged on).
   """
   @spec laps([driver()], World.t() | keyword()) :: map()
@@ -186,6 +190,9 @@ defmodule TartarusArena.Run do
             sp_t0: 0.0,
             sp_steps: 0,
             sp_on: 0,
+            sp_lost: 0,
+            sp_nudged: 0,
+            sp_penalty: 0.0,
             pfa: pfa,
             ctl: pfa.init([]),
             penalty: 0.0,
@@ -286,12 +293,42 @@ defmodule TartarusArena.Run do
         tr.distance > @lost ->
           world = World.place(world, id, Paths.point_at(path, tr.s))
 
-          {%{tr | distance: 0.0}, %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1}}
-          |> then(fn {tr, s} -> {world, tr, s} end)
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              sp_lost: s.sp_lost + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
+          {world, %{tr | distance: 0.0}, s}
+
+        tr.skipped ->
+          {tr, pose} = Paths.back_to_progress(tr, path)
+          world = World.place(world, id, pose)
+
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              sp_lost: s.sp_lost + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
+          {world, tr, s}
 
         t - best_t > o.stuck ->
           world = World.place(world, id, Paths.point_at(path, tr.s + 0.1))
-          s = %{s | penalty: s.penalty + o.penalty, lost: s.lost + 1, best_t: t}
+
+          s = %{
+            s
+            | penalty: s.penalty + o.penalty,
+              lost: s.lost + 1,
+              best_t: t,
+              sp_nudged: s.sp_nudged + 1,
+              sp_penalty: s.sp_penalty + o.penalty
+          }
+
           {world, tr, s}
 
         true ->
@@ -313,7 +350,14 @@ defmodule TartarusArena.Run do
 
     {s, ps} =
       if tr.progress >= s.sp_end - 1.0e-9 do
-        r = measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
+        r =
+          measure(path, s.sp, s.pfa, true, clock - s.sp_t0, s.sp_on / max(s.sp_steps, 1), 0.0)
+          |> Map.merge(%{
+            put_back: s.sp_lost,
+            nudged: s.sp_nudged,
+            penalty: Float.round(s.sp_penalty, 3)
+          })
+
         ps = notify(o.policy, {:result, id, r}, ps)
 
         next = Enum.at(path.subpaths, rem(s.sp.index + 1, length(path.subpaths)))
@@ -329,6 +373,9 @@ defmodule TartarusArena.Run do
              sp_t0: clock,
              sp_steps: 0,
              sp_on: 0,
+             sp_lost: 0,
+             sp_nudged: 0,
+             sp_penalty: 0.0,
              pfa: pfa,
              ctl: if(pfa == s.pfa, do: s.ctl, else: pfa.init([]))
          }, ps}

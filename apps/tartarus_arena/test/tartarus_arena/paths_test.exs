@@ -50,6 +50,56 @@ defmodule TartarusArena.PathsTest do
     assert tr.laps == 1
   end
 
+  test "progress: a cut corner is caught up once the robot is back on the line (no lag); " <>
+         "a shortcut is not, and is flagged" do
+    p = Paths.path(2, 1)
+    sp = Enum.find(p.subpaths, &(&1.type == :sp_d))
+    at = fn s -> Paths.point_at(p, sp.from + s) end
+    {x0, y0, _} = at.(0.0)
+    tr0 = Paths.track_new(p, x0, y0)
+
+    # along the first leg to 0.2 m before the corner (0.3 m), then off the line 6 cm to the
+    # side, then back on the line 0.1 m after the corner: 0.2 m of line for ~0.1 m moved
+    tr =
+      Enum.reduce(1..5, tr0, fn k, tr ->
+        elem(Paths.track(tr, p, elem(at.(k * 0.02), 0), elem(at.(k * 0.02), 1)), 0)
+      end)
+
+    {xm, ym, _} = at.(0.3)
+    {tr, _} = Paths.track(tr, p, xm - 0.06, ym + 0.06)
+    assert tr.distance > 0.05
+    {xb, yb, _} = at.(0.4)
+    {tr, _} = Paths.track(tr, p, xb, yb)
+    refute tr.skipped
+    assert_in_delta tr.progress, 0.4, 1.0e-6
+
+    # following the line from there on keeps it so, over a whole lap
+    steps = round(p.length / 0.02)
+
+    {tr, laps} =
+      Enum.reduce(1..steps, {tr, 0}, fn k, {tr, n} ->
+        {x, y, _} = at.(0.4 + k * 0.02)
+        {tr, lap?} = Paths.track(tr, p, x, y)
+        {tr, n + if(lap?, do: 1, else: 0)}
+      end)
+
+    assert_in_delta tr.progress, 0.4 + steps * 0.02, 1.0e-6
+    assert laps == 1
+
+    # a jump from the start to the line 0.6 m further on is a shortcut: progress stays
+    # within what the robot moved, and the robot is put back there
+    {xa, ya, _} = at.(0.6)
+    {tr, _} = Paths.track(tr0, p, (x0 + xa) / 2 + 0.15, (y0 + ya) / 2 + 0.15)
+    {tr, _} = Paths.track(tr, p, xa, ya)
+    assert tr.skipped and tr.progress < 0.6 - 0.15
+    {tr, {x, y, _}} = Paths.back_to_progress(tr, p)
+    refute tr.skipped
+    assert_in_delta tr.along, tr.progress, 1.0e-9
+    {tr2, _} = Paths.track(tr, p, x, y)
+    refute tr2.skipped
+    assert_in_delta tr2.progress, tr.progress, 1.0e-6
+  end
+
   for pfa <- PFAs.all() do
     test "#{inspect(pfa)} keeps a robot on a straight and on a curved line" do
       p = Paths.path(1, 0)

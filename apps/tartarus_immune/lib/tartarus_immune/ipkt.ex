@@ -11,7 +11,10 @@ defmodule TartarusImmune.IPkt do
 
     1. dies when its hops are used up (Eq. 6.17, Γ = 0);
     2. stays when the host has a pending problem it recognizes (ψ ≥ ψ_th), or when sharing
-       is off;
+       is off (`sharing: false`), or, with `sharing: :clones`, unless it is a clone that has
+       not moved yet (then only fresh clones travel, each once, and an iPkt otherwise stays
+       in the repertoire of the host where it was made or arrived: thesis §6.5.11's robots
+       keep their mappings and share clones);
     3. else climbs the danger field `{:danger, epoch}` (`{:gradient, ...}` strategy) when a
        danger signal at this host carries a feature vector it recognizes (and danger
        signals are on);
@@ -129,7 +132,7 @@ defmodule TartarusImmune.IPkt do
         notify(s, :expired)
         {:stop, :normal, s}
 
-      not s.sharing or pending_match?(s) ->
+      s.sharing == false or pending_match?(s) or (s.sharing == :clones and not fresh_clone?(s)) ->
         notify(s, :stayed)
         {:stay, s}
 
@@ -151,6 +154,9 @@ defmodule TartarusImmune.IPkt do
     notify(s, :move_failed)
     {:stay, s}
   end
+
+  # a clone that has not moved yet (sharing :clones: the only iPkts that travel)
+  defp fresh_clone?(s), do: is_tuple(s.tag) and s.hops == 0
 
   defp notify(s, event), do: send(s.driver, {:immune, s.run, event, s.tag, s.sol})
 

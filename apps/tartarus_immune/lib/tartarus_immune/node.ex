@@ -32,8 +32,12 @@ defmodule TartarusImmune.Node do
       are the candidates; one LIN round (Eqs. 6.8-6.10) over the performance scores ζ the
       candidates **carry** (no solution is run), the candidate of largest activation is
       selected and the losers below τ_min die (Eq. 6.17). A candidate never measured
-      (ζ nil: a solution just injected) has nothing to compare, takes no part in the
-      round and is selected first, so each new solution is tried once (`choose/3`). Answers `%{selected: solution | nil, candidates: n, died: [solution]}`;
+      (ζ nil: a solution just injected) has nothing to compare and takes no part in the
+      round; by default it is selected first, so each new solution is tried once
+      (`choose/3`; `p.explore` and `p.n_min` set other exploration policies).
+      `{:choose, overrides}` is the same with `overrides` (a map or keyword list, e.g.
+      `%{explore: :activation}`) merged into the parameters for this choice. Answers
+      `%{selected: solution | nil, explored: boolean, candidates: n, died: [solution]}`;
       the problem stays pending (so the candidates stay on the host) until the feedback;
     * `{:feedback, cost}` (a request) - the selected solution's measured cost: every
       candidate of that solution still here takes it into its ζ (`Maths.running_score/4`,
@@ -138,17 +142,19 @@ defmodule TartarusImmune.Node do
     end
   end
 
-  def handle_message(:choose, from, %{problems: []} = s) do
-    Tartarus.Agent.reply(from, %{selected: nil, candidates: 0, died: []})
+  def handle_message(:choose, from, s), do: handle_message({:choose, %{}}, from, s)
+
+  def handle_message({:choose, _over}, from, %{problems: []} = s) do
+    Tartarus.Agent.reply(from, %{selected: nil, explored: false, candidates: 0, died: []})
     {:stay, %{s | choice: nil}}
   end
 
-  def handle_message(:choose, from, %{problems: [pb | _]} = s) do
+  def handle_message({:choose, over}, from, %{problems: [pb | _]} = s) do
     members = s.queue |> Enum.sort_by(fn {_id, m} -> m.tag end)
 
-    case choose(members, pb.fv, s.p) do
+    case choose(members, pb.fv, Map.merge(s.p, Map.new(over))) do
       :no_candidates ->
-        Tartarus.Agent.reply(from, %{selected: nil, candidates: 0, died: []})
+        Tartarus.Agent.reply(from, %{selected: nil, explored: false, candidates: 0, died: []})
         {:stay, %{s | choice: nil}}
 
       d ->
@@ -168,6 +174,7 @@ defmodule TartarusImmune.Node do
 
         Tartarus.Agent.reply(from, %{
           selected: d.solution,
+          explored: d.explored,
           candidates: length(d.taus),
           died: Enum.map(d.dead, &s.queue[&1].sol)
         })
@@ -303,30 +310,49 @@ defmodule TartarusImmune.Node do
 
   @doc """
   The choice half of a deferred interaction (see the moduledoc), pure: the candidates
-  among `members` (`{id, %{sol:, fv:, tau:, zeta:}}` in queue order) for a problem of
+  among `members` (`{id, %{sol:, fv:, tau:, zeta:, n:}}` in queue order) for a problem of
   feature vector `fx` are those that recognize it. Those whose solution has been measured
   (`zeta` not nil) interact in one LIN round over the scores ζ they carry; those never
-  measured have no score to compare, take no part in it, and are tried first: the earliest
-  untried candidate is selected if there is one, else the one of largest activation after
-  the round. Returns `:no_candidates` or `%{taus: [{id, tau}], selected: id, solution:
-  module, dead: [id]}` (`taus` only for the measured candidates); the selected one is never
-  among the dead (it is about to run).
+  measured have no score to compare and take no part in it. Which candidate runs depends
+  on `p.explore` (absent: `true`):
+
+    * `true` - the earliest **untried** candidate (fewer than `p.n_min` measures, default
+      1: never measured) is tried first; else the measured one of largest activation
+      after the round (Algorithm 4, line 19);
+    * `:activation` - selection by activation over all candidates: the untried candidate
+      of largest activation (a new iPkt's τ_init) runs if its activation is at least the
+      largest a measured candidate has after the round, else that measured one. So a new
+      solution is tried where no measured one has been stimulated above it, and
+      exploration fades as winners gain activation;
+    * `false` - the measured candidate of largest activation; untried ones only when none
+      is measured.
+
+  A measured candidate that falls below τ_min dies (Eq. 6.17) only once it holds at least
+  `p.n_min` measures (default 1: at once), so one unlucky run need not kill it. Returns
+  `:no_candidates` or `%{taus: [{id, tau}], selected: id, solution: module, dead: [id],
+  explored: boolean}` (`taus` only for the measured candidates; `explored`: the selected
+  one was untried); the selected one is never among the dead (it is about to run).
 
       iex> p = TartarusImmune.Params.new!(tau_min: 5)
       iex> ms = [{1, %{sol: :a, fv: [0.2], tau: 10.0, zeta: 1.2}}, {2, %{sol: :b, fv: [0.2], tau: 10.0, zeta: 2.0}}]
       iex> d = TartarusImmune.Node.choose(ms, [0.2], p)
       iex> {d.selected, d.solution, d.taus}
       {1, :a, [{1, 15.0}, {2, 7.0}]}
-      iex> d = TartarusImmune.Node.choose(ms ++ [{3, %{sol: :c, fv: [0.2], tau: 10.0, zeta: nil}}], [0.2], p)
-      iex> {d.selected, d.solution, d.taus}
-      {3, :c, [{1, 15.0}, {2, 7.0}]}
+      iex> new = {3, %{sol: :c, fv: [0.2], tau: 10.0, zeta: nil}}
+      iex> d = TartarusImmune.Node.choose(ms ++ [new], [0.2], p)
+      iex> {d.selected, d.solution, d.taus, d.explored}
+      {3, :c, [{1, 15.0}, {2, 7.0}], true}
+      iex> TartarusImmune.Node.choose(ms ++ [new], [0.2], Map.put(p, :explore, :activation)).selected
+      1
       iex> TartarusImmune.Node.choose(ms, [0.9], p)
       :no_candidates
   """
   @spec choose([{term(), map()}], [float()], map()) :: :no_candidates | map()
   def choose(members, fx, p) do
     cands = Enum.filter(members, fn {_id, m} -> Maths.recognizes?(fx, m.fv, p) end)
-    {measured, untried} = Enum.split_with(cands, fn {_id, m} -> m.zeta != nil end)
+    {measured, never} = Enum.split_with(cands, fn {_id, m} -> m.zeta != nil end)
+    n_min = Map.get(p, :n_min, 1)
+    untried = Enum.filter(cands, fn {_id, m} -> measures(m) < n_min end)
 
     if cands == [] do
       :no_candidates
@@ -335,18 +361,30 @@ defmodule TartarusImmune.Node do
       new = if ms == [], do: [], else: lin(ms, p)
       taus = Enum.zip_with(measured, new, fn {id, _}, n -> {id, n.tau} end)
 
-      {sel_id, sel} =
-        case untried do
-          [first | _] ->
-            first
+      best_measured = fn ->
+        Enum.at(measured, Maths.select(Enum.zip_with(ms, new, fn m, n -> %{m | tau: n.tau} end)))
+      end
 
-          [] ->
-            after_round = Enum.zip_with(ms, new, fn m, n -> %{m | tau: n.tau} end)
-            Enum.at(measured, Maths.select(after_round))
+      {{sel_id, sel}, explored} =
+        case {Map.get(p, :explore, true), untried} do
+          {_, _} when measured == [] ->
+            {hd(never), true}
+
+          {true, [first | _]} ->
+            {first, true}
+
+          {:activation, [_ | _]} ->
+            top = new |> Enum.map(& &1.tau) |> Enum.max()
+            {id, m} = Enum.max_by(untried, fn {_, m} -> m.tau end)
+            if m.tau >= top, do: {{id, m}, true}, else: {best_measured.(), false}
+
+          _ ->
+            {best_measured.(), false}
         end
 
-      dead = for {id, t} <- taus, id != sel_id, t < p.tau_min, do: id
-      %{taus: taus, selected: sel_id, solution: sel.sol, dead: dead}
+      judged? = fn id -> measures(elem(List.keyfind(cands, id, 0), 1)) >= n_min end
+      dead = for {id, t} <- taus, id != sel_id, t < p.tau_min, judged?.(id), do: id
+      %{taus: taus, selected: sel_id, solution: sel.sol, dead: dead, explored: explored}
     end
   end
 
@@ -384,6 +422,11 @@ defmodule TartarusImmune.Node do
       dead: if(tau_after < p.tau_min, do: [sel_id], else: [])
     }
   end
+
+  # how many measures an iPkt's score holds (`n`; without it, 1 once it has a score)
+  defp measures(%{n: n}) when is_integer(n), do: n
+  defp measures(%{zeta: nil}), do: 0
+  defp measures(_m), do: 1
 
   defp lin(ms, p) do
     if Map.get(p, :lin, :types) == :types,

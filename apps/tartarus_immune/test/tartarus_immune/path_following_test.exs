@@ -75,6 +75,43 @@ defmodule TartarusImmune.PathFollowingTest do
       assert d.selected == 1 and d.dead == []
     end
 
+    test "explore: :activation tries a new PFA only where no measured one is more activated",
+         %{p: p} do
+      fx = [0.7, 0.2, 0.0, 0.0]
+      a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.1, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 5.0, zeta: 1.5, n: 3}}
+      new = {3, %{sol: :c, fv: fx, tau: 10.0, zeta: nil, n: 0}}
+      act = Map.put(p, :explore, :activation)
+
+      # a is stimulated above the newcomer's tau_init: the network's choice runs
+      d = Node.choose([a, b, new], fx, act)
+      assert d.selected == 1 and d.explored == false
+
+      # a drained by cloning, below the newcomer: the newcomer is tried
+      drained = {1, %{sol: :a, fv: fx, tau: 6.0, zeta: 1.1, n: 3}}
+      d = Node.choose([drained, new], fx, act)
+      assert d.selected == 3 and d.explored == true
+
+      # explore: false never tries it while a measured candidate exists; alone, it runs
+      assert Node.choose([drained, new], fx, Map.put(p, :explore, false)).selected == 1
+      assert Node.choose([new], fx, Map.put(p, :explore, false)).selected == 3
+    end
+
+    test "n_min: a loser with fewer measures survives suppression and counts as untried",
+         %{p: p} do
+      fx = [0.5, 0.3, 0.9, 0.7]
+      a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 3}}
+      b = {2, %{sol: :b, fv: fx, tau: 5.0, zeta: 2.0, n: 1}}
+
+      assert Node.choose([a, b], fx, p).dead == [2]
+
+      d = Node.choose([a, b], fx, Map.merge(p, %{n_min: 2, explore: false}))
+      assert d.selected == 1 and d.dead == []
+
+      d = Node.choose([a, b], fx, Map.put(p, :n_min, 2))
+      assert d.selected == 2 and d.explored
+    end
+
     test "a loser dies below tau_min; the selected one never dies when chosen", %{p: p} do
       fx = [0.5, 0.3, 0.9, 0.7]
       a = {1, %{sol: :a, fv: fx, tau: 20.0, zeta: 1.0, n: 3}}
@@ -101,13 +138,15 @@ defmodule TartarusImmune.PathFollowingTest do
 
   describe "the experiment" do
     @small [trials: 1, laps: 4, seed: 3, pfas: [PFA.A1, PFA.A3, PFA.A5]]
+    @roam [explore: :untried_first, sharing: true]
 
     @tag :tmp_dir
-    test "on a small case the network's choice is the exhaustive best per sub-path type, " <>
-           "and the same seed gives the same numbers",
+    test "on a small case (every new PFA tried at once, every iPkt roaming) the network's " <>
+           "choice per sub-path type beats the exhaustive best where the laps measured it better, and the same seed gives the same numbers",
          %{tmp_dir: dir} do
-      {:ok, a} = Experiment.run([out: dir] ++ @small)
-      {:ok, b} = Experiment.run([out: false] ++ @small)
+      small = @small ++ @roam
+      {:ok, a} = Experiment.run([out: dir] ++ small)
+      {:ok, b} = Experiment.run([out: false] ++ small)
       s = a.summary
       drop = &Map.drop(&1, [:wall_seconds, :sim_speed_x])
       assert drop.(s) == drop.(b.summary)
@@ -120,8 +159,12 @@ defmodule TartarusImmune.PathFollowingTest do
                "sp_d" => "A1"
              }
 
-      assert s.best_pfa == s.exhaustive_best, inspect(s.best_pfa_counts)
-      assert Enum.all?(Map.values(s.matches_exhaustive))
+      # in the laps a robot enters a sub-path as the previous PFA left it, and Path-2's
+      # notch is tighter than Path-1's: A5 beats A1 on sp-b there (measured 1.31 against
+      # 2.98: A1 overshoots the notch), though A1 is best alone
+      m = s.measured_costs
+      assert m["sp_b"]["A5"].mean < m["sp_b"]["A1"].mean
+      assert s.best_pfa == %{"sp_a" => "A1", "sp_b" => "A5", "sp_c" => "A1", "sp_d" => "A1"}
 
       # each robot received the three PFAs, one per lap, and tried each
       [t] = a.trials
@@ -145,24 +188,117 @@ defmodule TartarusImmune.PathFollowingTest do
                    do: first_run.(r, n) < received_lap.(r, n)
              )
 
-      # lap times: 4 per path; on the last lap every sub-path uses the best (A1)
+      # lap times: 4 per path; on the last lap every sub-path the network chose for
+      # (roaming iPkts may leave a crossing with no candidate: "kept") uses its type's best
       assert length(s.lap_times["trial1"]["path1"]) == 4
-      last = Enum.filter(t.choices, &(&1.lap == 4))
-      assert last != [] and Enum.all?(last, &(&1.pfa == "A1")), inspect(last)
+      last = Enum.filter(t.choices, &(&1.lap == 4 and &1.how != "kept"))
+
+      assert last != [] and Enum.all?(last, &(&1.pfa == s.best_pfa[Atom.to_string(&1.type)])),
+             inspect(last)
 
       for f <-
             ~w(lap_times.csv choices.csv best_pfa.csv lap_times_trial1.svg lap_times_mean.svg summary.json summary.md),
           do: assert(File.exists?(Path.join(dir, f)), f)
 
-      {:ok, c} = Experiment.run(Keyword.merge(@small, seed: 4, out: false, exhaustive: false))
+      {:ok, c} = Experiment.run(Keyword.merge(small, seed: 4, out: false, exhaustive: false))
       refute c.summary.lap_times == s.lap_times
     end
 
+    test "exploration by activation, clones shared: every crossing has " <>
+           "candidates, only clones travel, and the same seed gives the same numbers" do
+      opts = [out: false, exhaustive: false, explore: :activation] ++ @small
+      {:ok, a} = Experiment.run(opts)
+      {:ok, b} = Experiment.run(opts)
+      assert a.trials == b.trials
+      assert a.summary.explore == :activation and a.summary.sharing == :clones
+      [t] = a.trials
+
+      # each robot's repertoire stays with it: never a sub-path without a candidate
+      assert t.counters.no_candidate == 0
+      assert Enum.all?(t.choices, &(&1.how in ["explored", "network"]))
+      # only fresh clones move, each once
+      assert t.counters.born > 0 and t.counters.migrations <= t.counters.born
+      # lap 1 runs only the PFAs the robots received first (their own or the other's
+      # clones); later laps exploit too
+      firsts = [hd(t.received.r1), hd(t.received.r2)]
+      lap1 = Enum.filter(t.choices, &(&1.lap == 1))
+      assert lap1 != [] and Enum.all?(lap1, &(&1.pfa in firsts)), inspect(lap1)
+
+      assert Enum.any?(t.choices, &(&1.how == "network" and &1.lap > 1))
+      assert Map.has_key?(a.summary.plateau_lap_5pct, "path1")
+
+      # without sharing nothing moves
+      {:ok, c} = Experiment.run(opts ++ [sharing: false])
+      assert hd(c.trials).counters.migrations == 0
+    end
+
+    test "the defaults: every PFA received is tried on every type of the robot's map, " <>
+           "each crossing reports its put-backs and nudges, deterministic" do
+      opts = [out: false, exhaustive: false] ++ @small
+      {:ok, a} = Experiment.run(opts)
+      {:ok, b} = Experiment.run(opts)
+      assert a.trials == b.trials
+      s = a.summary
+
+      assert {s.explore, s.sharing, s.stream, s.stuck_after} ==
+               {:untried_first, :clones, :once, 6.0}
+
+      [t] = a.trials
+
+      for robot <- [:r1, :r2] do
+        rows = Enum.filter(t.choices, &(&1.robot == robot))
+        types = rows |> Enum.map(& &1.type) |> Enum.uniq()
+
+        for type <- types,
+            do:
+              assert(
+                rows
+                |> Enum.filter(&(&1.type == type))
+                |> Enum.map(& &1.pfa)
+                |> Enum.uniq()
+                |> Enum.sort() == ["A1", "A3", "A5"],
+                inspect({robot, type})
+              )
+      end
+
+      assert Enum.all?(t.choices, &(is_integer(&1.put_back) and is_integer(&1.nudged)))
+      assert Enum.all?(t.choices, &(&1.penalty == 5.0 * (&1.put_back + &1.nudged)))
+      f = s.failures["path2"]
+
+      assert f.put_back + f.nudged ==
+               Enum.sum(Map.values(Map.new(t.lost, fn {k, v} -> {k, v} end))) - t.lost[1] +
+                 f.put_back + f.nudged - t.lost[2]
+
+      assert f.penalty_seconds == 5.0 * (f.put_back + f.nudged)
+    end
+
+    test "a lifelong stream injects again a PFA whose mapping died out; once, nothing " <>
+           "after the last PFA" do
+      opts = [out: false, exhaustive: false, laps: 6] ++ Keyword.delete(@small, :laps)
+      {:ok, once} = Experiment.run(opts)
+      {:ok, life} = Experiment.run(opts ++ [stream: :lifelong])
+      [o] = once.trials
+      [l] = life.trials
+      assert o.counters.reinjected == 0
+      assert l.counters.reinjected > 0
+      assert l.counters.injected > o.counters.injected
+      # the first three laps (the stream's first pass) are the same
+      assert Enum.take(o.choices, 10) == Enum.take(l.choices, 10)
+    end
+
     test "options are checked" do
+      assert {:error, msg} = Experiment.run(stream: :forever)
+      assert msg =~ "stream"
+      assert {:error, msg} = Experiment.run(stuck_after: :never)
+      assert msg =~ "stuck_after"
       assert {:error, msg} = Experiment.run(laps: 0)
       assert msg =~ "laps"
       assert {:error, msg} = Experiment.run(pfas: [Enum])
       assert msg =~ "pfas"
+      assert {:error, msg} = Experiment.run(explore: 2)
+      assert msg =~ "explore"
+      assert {:error, msg} = Experiment.run(sharing: :all)
+      assert msg =~ "sharing"
     end
   end
 end

@@ -7,21 +7,44 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   sub-path's features, iPkts carrying PFA-to-sub-path mappings are drawn to it, the host's
   localized idiotypic network picks one, the robot runs that PFA and its measured cost
   (time, staying on the line) feeds back; each robot receives one new random PFA per lap;
-  the mappings travel between the robots as agents.
+  the mappings travel between the robots as agents (fresh clones, by default).
 
       mix tartarus.pfa [--laps 12] [--trials 10] [--seed 1] [--out DIR] [--json]
-                       [--no-sharing] [--no-danger] [--no-exhaustive]
+                       [--explore untried_first|activation|P] [--n-min 1]
+                       [--sharing clones|roam|none] [--stream once|lifelong]
+                       [--challenge tried|activation] [--stuck-after 6] [--lost-penalty 5]
+                       [--no-danger] [--no-exhaustive]
+
+  `--explore` is when a robot tries a PFA it has not measured on a sub-path's type:
+  `untried_first` (default: at its first chance, so every PFA the stream brings is run
+  once on every type, as the thesis's robots executed the PFAs they received),
+  `activation` (when the new iPkt's activation τ_init is at least the largest activation
+  of the measured candidates after their LIN round: exploration fades, but an incumbent
+  that keeps failing is never challenged) or a probability P (a coin per sub-path).
+  `--n-min` is how many measures a PFA needs on a type before suppression can kill it.
+  `--sharing` is how mappings travel between the robots: `clones` (default: fresh clones
+  go to the other robot, every other iPkt stays in its robot's repertoire), `roam` (every
+  iPkt not held by a pending problem moves on), `none`. `--stream` is the input stream:
+  `once` (default: each PFA once per robot, so nothing new after the eighth lap) or
+  `lifelong` (then, each lap, a PFA whose mapping of some type has died out at the robot
+  is injected again for those types; `--challenge tried` makes it enter at τ_max so it
+  runs once, `activation` at τ_init). `--stuck-after S` (default 6) is how long a robot
+  may make no progress before the experimenter nudges it 10 cm on, and `--lost-penalty S`
+  (default 5) the seconds charged for that and for each put-back on the line.
 
   Output (in `--out DIR`, default `results/pfa-<UTC timestamp>`): `lap_times.csv` (trial,
   seed, path, lap, seconds), `lap_times_trial1.svg` (one trial, Fig. 6.13a),
   `lap_times_mean.svg` (the mean over trials, Fig. 6.13b), `choices.csv` (every sub-path
-  crossed: the PFA used and its measure), `best_pfa.csv` (the best PFA per sub-path type
+  crossed: the PFA used and its measure, with put-backs, nudges and their penalty), `best_pfa.csv` (the best PFA per sub-path type
   beside Table 6.5 and the exhaustive search), `summary.json`, `summary.md`.
 
   Summary keys: `trials, laps, lap_times` (`trial1`, `mean` and `per_trial`, each per
   path), `plateau_lap` (per path: on the mean curve, the first lap L such that every lap
   from L to the last is within 10% of the mean of the last 3 laps), `plateau_time` (the
-  mean lap time from there), `plateau_lap_per_trial`, `best_pfa` (per sub-path type: the
+  mean lap time from there), `plateau_lap_5pct` (the same within 5%),
+  `plateau_lap_per_trial`, `explore`, `sharing`, `n_min`, `stream`, `stuck_after`,
+  `lost_per_trial`, `failures` (per path: put-backs, nudges, penalty seconds, share of the
+  time), `best_pfa` (per sub-path type: the
   most frequent network choice over the trials) and `best_pfa_counts`,
   `best_pfa_table6_5`, `exhaustive_best` and `exhaustive_costs` (every PFA alone over
   every sub-path instance of the first seed), `matches_exhaustive`, `matches_table6_5`,
@@ -43,11 +66,38 @@ defmodule Mix.Tasks.Tartarus.Pfa do
       Experiment.schema()
       |> Keyword.drop([:pfas, :params])
       |> Keyword.update!(:out, &Keyword.merge(&1, type: :string, default: nil))
+      |> Keyword.update!(:sharing, &Keyword.merge(&1, type: :string, default: "clones"))
+      |> Keyword.update!(:explore, &Keyword.merge(&1, type: :string, default: "untried_first"))
+      |> Keyword.update!(:stream, &Keyword.merge(&1, type: :string, default: "once"))
+      |> Keyword.update!(:challenge, &Keyword.merge(&1, type: :string, default: "tried"))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
     json? = opts[:json]
-    exp_opts = Keyword.drop(opts, [:json])
+
+    sharing =
+      TartarusTools.CLI.choice!(opts[:sharing], [:clones, :roam, :none], :sharing, @task, :clones)
+
+    exp_opts =
+      opts
+      |> Keyword.drop([:json])
+      |> Keyword.put(:sharing, %{clones: :clones, roam: true, none: false}[sharing])
+      |> Keyword.put(:explore, explore!(opts[:explore]))
+      |> Keyword.put(
+        :stream,
+        TartarusTools.CLI.choice!(opts[:stream], [:once, :lifelong], :stream, @task, :once)
+      )
+      |> Keyword.put(
+        :challenge,
+        TartarusTools.CLI.choice!(
+          opts[:challenge],
+          [:tried, :activation],
+          :challenge,
+          @task,
+          :tried
+        )
+      )
+
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
     Mix.Task.run("app.start")
 
@@ -57,6 +107,24 @@ defmodule Mix.Tasks.Tartarus.Pfa do
 
       {:error, message} ->
         Mix.raise("mix #{@task}: #{message}")
+    end
+  end
+
+  defp explore!(value) do
+    case {value, Float.parse(value)} do
+      {"activation", _} ->
+        :activation
+
+      {"untried_first", _} ->
+        :untried_first
+
+      {_, {x, ""}} when x >= 0 and x <= 1 ->
+        x
+
+      _ ->
+        Mix.raise(
+          "mix #{@task}: --explore must be activation, untried_first or a probability between 0 and 1, got: #{value}"
+        )
     end
   end
 

@@ -14,25 +14,61 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     (`"immune"`) on each; the domain is `TartarusImmune.PathFollowing`.
   * **Injection** (the thesis's input stream): before lap 1 and at the end of every lap
     but the last, each robot receives one PFA it has not received before, drawn at random
-    from the offered PFAs (none once it has had them all): one iPkt of that PFA per
+    from the offered PFAs (none once it has had them all, unless `stream: :lifelong`):
+    one iPkt of that PFA per
     sub-path type on the robot's map (its path), mapping the PFA to that type's features
     on the map (F_y), activation τ_init, never measured.
   * **Encounter** (the `:policy` of `Run.laps/3`, asked when a robot enters a sub-path):
     the robot's host registers the sub-path as its pending problem and emits the danger
     signal `{:danger, epoch}` carrying its features (a fresh epoch per encounter); one
-    migration round follows (every iPkt is told `{:go, epoch}`: one that recognizes a
-    problem pending at its host stays, one that recognizes the signal climbs it to the
-    robot (the XRep), the others move on conscientiously, which between two robots means
-    to the other one); then the node's `:choose` runs the localized idiotypic network
-    over the candidates (IRep and XRep alike) and the robot runs the selected PFA. If no
-    iPkt recognizes the sub-path the robot keeps its current PFA (counted as
-    `no_candidate`).
+    migration round follows (every iPkt is told `{:go, epoch}`, see sharing below); then
+    the node's `{:choose, %{explore: ...}}` runs the localized idiotypic network over the
+    candidates (IRep and XRep alike) and the robot runs the selected PFA
+    (`TartarusImmune.Node.choose/3`). If no iPkt recognizes the sub-path the robot keeps
+    its current PFA (counted as `no_candidate`; with the default sharing it does not
+    happen).
+  * **Exploration** (`:explore`): a PFA not yet measured on the sub-path's type (a fresh
+    iPkt of the input stream: no score ζ, activation τ_init) takes no part in the LIN
+    round. With `:untried_first` (the default) it runs at the first crossing it can, so
+    every PFA the stream brings is run once on every type of the robot's map, as the
+    thesis's robots executed the PFAs they received; laps 1-8 are then mostly
+    exploration and from lap 9 on only the network's choices run. With `:activation` it
+    runs when its activation is at least the largest activation a measured candidate has
+    after the round (Algorithm 4's "select the iPkt of largest activation" over every
+    candidate, the new one entering with τ_init): exploration fades as winners are
+    stimulated, but a mapping whose rivals died is never challenged again however badly
+    it does (with no measured rival on the robot it is neither stimulated nor
+    suppressed, and only `r2` meets sp-d), so some trials kept a PFA failing on every
+    crossing to the last lap. A number is a probability per crossing.
   * **Feedback** (told when the robot leaves the sub-path): the measured cost
     (`time * (2 - on_line)`, time including any put-back penalty, over the sub-path's
     nominal time: `TartarusImmune.PathFollowing.normalize/2`) goes to the node
     (`{:feedback, cost}`): the iPkts of the selected PFA take it into their ζ and the
-    selected one clones; clones move with the next migration round, so the mappings reach
-    the other robot as agents.
+    selected one clones (Eqs. 6.11-6.13). A crossing where the robot lost the line is
+    scored like any other: its time includes the penalty (`Run.laps/3` puts a robot 25 cm
+    off the line, or one that rejoined it more than 0.15 m further on, back at its
+    progress, and nudges one stuck `:stuck_after` seconds, default 6, 10 cm on; each
+    costs `:lost_penalty`, default 5 s), so it costs about 2-7 where a clean crossing
+    costs 1.0-1.4. 6 s rather than `Run`'s 15: of the stalls that ended by themselves
+    (seeds 1-10) 99% ended within 2 s and every working corner manoeuvre within 4.5 s;
+    the longer ones were A8 spinning out of reach of the line and A6 circling, at 20 s a
+    nudge with 15.
+  * **Stream** (`:stream`): `:once` (the default) gives each robot each PFA once;
+    `:lifelong` then injects, each lap, a PFA whose mapping of some type has died out at
+    the robot, for those types (with `challenge: :tried` at τ_max, so it runs even under
+    `explore: :activation`). Measured, re-injection costs more than it saves (the PFAs
+    that died mostly died for failing; seeds 1-10, laps 10-12, Path-2 46-51 s against
+    28-32 s).
+  * **Sharing** (`:sharing`): with `:clones` (the default), as in the thesis ("the
+    mapping information and the performance measure of the best PFA is packed into an
+    iPkt, cloned and shared with the other robot(s)"), a fresh clone makes one move (up a
+    danger signal it recognizes, else conscientiously: between two robots, to the other
+    one) and every other iPkt stays in the repertoire of the robot where it is. With
+    `true` (roaming, the first version) every iPkt not held by a problem pending at its
+    host moves on at each round, so a robot's repertoire drifts to the other robot and
+    the iPkts of a type sit pinned at whichever robot is on such a sub-path: seeds 1-10
+    had 224 of 1,080 crossings with no candidate, where the robot ran the PFA it had
+    chosen for the previous, different sub-path. `false`: nothing moves.
 
   At the end of a trial the **best PFA per sub-path type** is the network's choice for
   Table 6.3's feature vector of the type (`TartarusImmune.Experiment.choose/4`: the PFA
@@ -45,6 +81,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   * `plateau_lap`: per path, on the mean curve, the first lap L such that every lap from
     L to the last is within 10% of the **final mean** (the mean of the last 3 laps); and
     `plateau_time`, the mean lap time from the plateau lap to the last;
+    `plateau_lap_5pct` the same within 5% (on Path-1 the whole fall from a random PFA's
+    lap to the best lap is about 14%, so a 10% band often holds from lap 1 or 2);
   * `best_pfa`: per sub-path type, the most frequent best PFA over the trials (ties: the
     earlier PFA), with `best_pfa_counts`;
   * `exhaustive_best`: per type, the PFA of least mean `score/2` over the type's
@@ -60,7 +98,12 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   features) μ = 0.5 lets an iPkt recognize sub-paths of other types (sp-a and sp-c, sp-b
   and sp-d and sp-a and sp-d are 0.67-0.79 apart; instances of one type at most 0.2);
   μ = 0.8 recognizes within 0.4. Q_max = 20 rather than 5, since a robot's host holds the
-  iPkts of four sub-path types and up to eight PFAs, not one problem class.
+  iPkts of four sub-path types and up to eight PFAs, not one problem class. `:n_min`
+  (default 1) is how many measures a PFA needs on a type before suppression can kill it
+  (and until then it counts as untried); 2 was tried against single noisy measures and
+  made the curves worse (seeds 1-10, last three laps: Path-1 31.6 s against 26.7 s,
+  Path-2 52.2 s against 30.0 s): re-trying the losers costs more than the noise it
+  removes.
   """
 
   alias TartarusArena.{PFAs, Paths, Run}
@@ -77,7 +120,46 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       default: nil,
       doc: "the PFAs the input stream offers (default all eight)"
     ],
-    sharing: [type: :boolean, default: true, doc: "iPkts travel between the robots"],
+    sharing: [
+      type: {:in, [:clones, true, false]},
+      default: :clones,
+      doc:
+        "how mappings travel between the robots: :clones (fresh clones go to the other robot, the rest stay), true (every iPkt not held by a problem moves on), false (none)"
+    ],
+    explore: [
+      type: {:or, [{:in, [:activation, :untried_first]}, :probability]},
+      default: :untried_first,
+      doc:
+        "when a robot tries a PFA not yet measured on the sub-path's type: :activation (if its activation is at least the best measured one's), :untried_first (always, at once), or a probability"
+    ],
+    n_min: [
+      type: :pos_integer,
+      default: 1,
+      doc: "measures of a PFA on a sub-path type before suppression can kill it"
+    ],
+    stream: [
+      type: {:in, [:once, :lifelong]},
+      default: :once,
+      doc:
+        "the input stream: :once (each PFA once per robot, nothing after the eighth) or :lifelong (then, each lap, one PFA whose mapping of some sub-path type has died out at the robot, for those types)"
+    ],
+    challenge: [
+      type: {:in, [:tried, :activation]},
+      default: :tried,
+      doc:
+        "a re-injected PFA: :tried (enters at tau_max, so it runs once) or :activation (tau_init, as a new one)"
+    ],
+    stuck_after: [
+      type: :number,
+      default: 6.0,
+      doc:
+        "seconds without 5 cm of progress after which the experimenter nudges a robot 10 cm on (Run.laps/3's :stuck_after)"
+    ],
+    lost_penalty: [
+      type: :number,
+      default: 5.0,
+      doc: "seconds charged each time a robot is put back on the line or nudged on"
+    ],
     danger: [type: :boolean, default: true, doc: "danger signals on"],
     exhaustive: [type: :boolean, default: true, doc: "also run the exhaustive search"],
     params: [
@@ -176,6 +258,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         paths: paths,
         hosts: %{r1: Network.host(net, "r1"), r2: Network.host(net, "r2")},
         rng: :rand.seed_s(:exsss, {seed, 6_5_11, 13}),
+        xrng: :rand.seed_s(:exsss, {seed, 6_5_11, 14}),
         received: %{r1: [], r2: []},
         current: %{r1: nil, r2: nil},
         how: %{r1: nil, r2: nil},
@@ -191,7 +274,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
           expired: 0,
           migrations: 0,
           failed_moves: 0,
-          no_candidate: 0
+          no_candidate: 0,
+          reinjected: 0
         }
       }
 
@@ -202,6 +286,8 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         Run.laps([%{robot: :r1, path: paths.r1}, %{robot: :r2, path: paths.r2}], world,
           laps: o.laps,
           max_time: 120.0 * o.laps,
+          stuck_after: o.stuck_after,
+          lost_penalty: o.lost_penalty,
           policy: &policy/2,
           policy_state: st
         )
@@ -247,7 +333,11 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, [{set, sp.index}], epoch})
     Tartarus.Signal.settle()
     st = migrate(%{st | epoch: epoch})
-    {:ok, r} = Tartarus.request({"immune", host}, :choose)
+    {explore?, st} = explore?(st)
+
+    {:ok, r} =
+      Tartarus.request({"immune", host}, {:choose, %{explore: explore?, n_min: st.o.n_min}})
+
     st = died(st, r.died)
 
     {pfa, st} =
@@ -257,7 +347,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
           {fallback, bump(st, :no_candidate, 1) |> put_in([:how, robot], "kept")}
 
         pfa ->
-          {pfa, put_in(st.how[robot], "network")}
+          {pfa, put_in(st.how[robot], if(r.explored, do: "explored", else: "network"))}
       end
 
     {pfa, put_in(st.current[robot], pfa)}
@@ -278,6 +368,9 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       type: m.type,
       pfa: m.pfa,
       time: m.time,
+      put_back: Map.get(m, :put_back, 0),
+      nudged: Map.get(m, :nudged, 0),
+      penalty: Map.get(m, :penalty, 0.0),
       on_line: m.on_line,
       cost: cost,
       how: st.how[robot]
@@ -291,28 +384,76 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     if n < st.o.laps, do: inject(st, robot), else: st
   end
 
-  # one new PFA for `robot`: one iPkt per sub-path type of its map
+  # the node's exploration policy for this encounter (Node.choose/3's p.explore); a
+  # probability is a coin thrown from the trial's own exploration stream, so the input
+  # stream's draws do not depend on it
+  defp explore?(%{o: %{explore: :activation}} = st), do: {:activation, st}
+  defp explore?(%{o: %{explore: :untried_first}} = st), do: {true, st}
+
+  defp explore?(st) do
+    {x, xrng} = :rand.uniform_s(st.xrng)
+    {x < st.o.explore, %{st | xrng: xrng}}
+  end
+
+  # one new PFA for `robot`: one iPkt per sub-path type of its map; once every PFA has
+  # been received, with stream: :lifelong, one PFA whose mapping of some type of the map
+  # has died out in the robot's repertoire, for those types
   defp inject(st, robot) do
     left = st.o.pfas -- st.received[robot]
+    types = Enum.uniq_by(st.paths[robot].subpaths, & &1.type)
 
-    if left == [] do
-      st
-    else
-      {i, rng} = :rand.uniform_s(length(left), st.rng)
-      pfa = Enum.at(left, i - 1)
-      st = %{st | rng: rng, received: Map.update!(st.received, robot, &[pfa | &1])}
+    cond do
+      left != [] ->
+        {i, rng} = :rand.uniform_s(length(left), st.rng)
+        pfa = Enum.at(left, i - 1)
+        st = %{st | rng: rng, received: Map.update!(st.received, robot, &[pfa | &1])}
+        Enum.reduce(types, st, &create(&2, robot, pfa, &1.features))
 
-      st.paths[robot].subpaths
-      |> Enum.uniq_by(& &1.type)
-      |> Enum.reduce(st, fn sp, st ->
-        serial = st.serial + 1
+      st.o.stream == :lifelong ->
+        reinject(st, robot, types)
 
-        {:ok, _} = IPkt.create(st.hosts[robot], pfa, sp.features, serial, st)
-
-        %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
-        |> bump(:injected, 1)
-      end)
+      true ->
+        st
     end
+  end
+
+  defp reinject(st, robot, types) do
+    p0 = st.p
+    {:ok, q} = Tartarus.request({"immune", st.hosts[robot]}, :queue)
+
+    extinct =
+      for pfa <- st.o.pfas,
+          sp <- types,
+          not Enum.any?(
+            q,
+            &(&1.sol == pfa and TartarusImmune.Maths.recognizes?(sp.features, &1.fv, st.p))
+          ),
+          do: {pfa, sp}
+
+    case extinct |> Enum.map(&elem(&1, 0)) |> Enum.uniq() do
+      [] ->
+        st
+
+      pfas ->
+        {i, rng} = :rand.uniform_s(length(pfas), st.rng)
+        pfa = Enum.at(pfas, i - 1)
+
+        tau = if st.o.challenge == :tried, do: st.p.tau_max, else: st.p.tau_init
+        st = %{st | rng: rng, p: %{st.p | tau_init: tau}}
+
+        for({^pfa, sp} <- extinct, do: sp)
+        |> Enum.reduce(st, &create(&2, robot, pfa, &1.features))
+        |> Map.put(:p, %{st.p | tau_init: p0.tau_init})
+        |> bump(:reinjected, 1)
+    end
+  end
+
+  defp create(st, robot, pfa, features) do
+    serial = st.serial + 1
+    {:ok, _} = IPkt.create(st.hosts[robot], pfa, features, serial, st)
+
+    %{st | serial: serial, pop: Map.update(st.pop, pfa, 1, &(&1 + 1))}
+    |> bump(:injected, 1)
   end
 
   defp migrate(st) do
@@ -381,6 +522,28 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   end
 
   # -- summary ---------------------------------------------------------------------------
+
+  # per path, over every crossing of every trial: put-backs, nudges, the seconds charged
+  # for them, the crossings that had one, and the share of the robot's time those took
+  defp failures(trials) do
+    rows = Enum.flat_map(trials, & &1.choices)
+
+    Map.new([{:r1, "path1"}, {:r2, "path2"}], fn {robot, key} ->
+      rs = Enum.filter(rows, &(&1.robot == robot))
+      failed = Enum.filter(rs, &(&1.put_back + &1.nudged > 0))
+      total = rs |> Enum.map(& &1.time) |> Enum.sum()
+
+      {key,
+       %{
+         crossings: length(rs),
+         failed_crossings: length(failed),
+         put_back: rs |> Enum.map(& &1.put_back) |> Enum.sum(),
+         nudged: rs |> Enum.map(& &1.nudged) |> Enum.sum(),
+         penalty_seconds: round3(rs |> Enum.map(& &1.penalty) |> Enum.sum()),
+         failed_time_share: round3(Enum.sum(Enum.map(failed, & &1.time)) / max(total, 1.0e-9))
+       }}
+    end)
+  end
 
   @doc """
   The plateau lap of a lap-time curve: the first lap L (1-based) such that every lap from
@@ -480,6 +643,12 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       seed: o.seed,
       pfas: order,
       sharing: o.sharing,
+      explore: o.explore,
+      n_min: o.n_min,
+      stream: o.stream,
+      challenge: o.challenge,
+      stuck_after: o.stuck_after,
+      lost_penalty: o.lost_penalty,
       danger: o.danger,
       lap_times: %{
         "trial1" => Map.new(per_trial, fn {k, l} -> {k, hd(l)} end),
@@ -488,6 +657,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       },
       plateau_lap: plateau,
       plateau_time: plateau_time,
+      plateau_lap_5pct: Map.new(mean, fn {k, c} -> {k, plateau_lap(c, 0.05)} end),
       plateau_definition:
         "first lap L of the mean curve such that every lap from L on is within 10% of the mean of the last 3 laps",
       plateau_lap_per_trial:
@@ -504,6 +674,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       measured_best: measured_best,
       thesis: @thesis,
       lost_per_trial: Map.new(paths, fn {id, key} -> {key, Enum.map(trials, & &1.lost[id])} end),
+      failures: failures(trials),
       counters:
         Enum.reduce(trials, %{}, fn t, acc ->
           Map.merge(acc, t.counters, fn _, a, b -> a + b end)
@@ -546,11 +717,25 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     Report.write_csv!(
       out,
       "choices",
-      ["trial", "robot", "lap", "index", "type", "pfa", "how", "time", "on_line", "cost"],
+      ~w(trial robot lap index type pfa how time on_line cost put_back nudged penalty),
       for(
         {t, k} <- Enum.with_index(trials, 1),
         c <- t.choices,
-        do: [k, c.robot, c.lap, c.index, c.type, c.pfa, c.how, c.time, c.on_line, c.cost]
+        do: [
+          k,
+          c.robot,
+          c.lap,
+          c.index,
+          c.type,
+          c.pfa,
+          c.how,
+          c.time,
+          c.on_line,
+          c.cost,
+          c.put_back,
+          c.nudged,
+          c.penalty
+        ]
       )
     )
 
