@@ -139,22 +139,7 @@ defmodule TartarusRoadblock do
   gets there; a release that times out is still taken when the run gets there.
   """
   @spec release_rescue(keyword()) :: {:ok, String.t()} | {:error, :no_run_waiting}
-  def release_rescue(opts \\ []) do
-    case Process.whereis(TartarusRoadblock.Driver) do
-      nil ->
-        {:error, :no_run_waiting}
-
-      pid ->
-        ref = make_ref()
-        send(pid, {:roadblock_release, self(), ref, opts})
-
-        receive do
-          {^ref, reply} -> reply
-        after
-          60_000 -> {:error, :no_run_waiting}
-        end
-    end
-  end
+  defdelegate release_rescue(opts \\ []), to: TartarusRoadblock.Control, as: :release
 
   @doc """
   Waits (up to `timeout` ms, default 120 s) for the run last started by `start/1` (from

@@ -128,19 +128,7 @@ defmodule Tartarus.Broadcast do
     for {_, pid} <- :ets.lookup(:tartarus_broadcast_subscribers, name), do: pid
   end
 
-  defp overlay_call(host, request) do
-    if Host.address?(host) do
-      {_, node} = host = Host.address(host)
-
-      try do
-        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
-      catch
-        :exit, _ -> {:error, {:unknown_host, host}}
-      end
-    else
-      {:error, {:unknown_host, host}}
-    end
-  end
+  defp overlay_call(host, request), do: Host.overlay_call(host, request)
 
   @doc false
   # In the overlay process: a broadcast arrived for host `info` from `from`.

@@ -114,6 +114,25 @@ defmodule Tartarus.Host do
   end
 
   @doc false
+  # Calls the node-level overlay process (`Tartarus.Overlay`, registered as
+  # :tartarus_overlay) of the host's node with `{request, host}`, turning a dead host or
+  # node into an error. Signal and Broadcast call it (by name: no xref cycle).
+  @spec overlay_call(term(), term()) :: term()
+  def overlay_call(host, request) do
+    if address?(host) do
+      {_, node} = host = address(host)
+
+      try do
+        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
+      catch
+        :exit, _ -> {:error, {:unknown_host, host}}
+      end
+    else
+      {:error, {:unknown_host, host}}
+    end
+  end
+
+  @doc false
   # Calls a host's server, turning a dead host or node into an error.
   @spec call(name() | t(), term(), timeout()) :: term()
   def call(host, request, timeout \\ 5_000) do

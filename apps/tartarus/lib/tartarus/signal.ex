@@ -529,19 +529,7 @@ defmodule Tartarus.Signal do
     for {_, pid} <- :ets.lookup(:tartarus_signal_watchers, {host_name, name}), do: pid
   end
 
-  defp overlay_call(host, request) do
-    if Host.address?(host) do
-      {_, node} = host = Host.address(host)
-
-      try do
-        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
-      catch
-        :exit, _ -> {:error, {:unknown_host, host}}
-      end
-    else
-      {:error, {:unknown_host, host}}
-    end
-  end
+  defp overlay_call(host, request), do: Host.overlay_call(host, request)
 
   # -- inside the overlay process ----------------------------------------------------
 

@@ -58,7 +58,7 @@ defmodule TartarusRoadblock.Panel do
   """
   def act(table, "release", _params) do
     if status(table).waiting,
-      do: TartarusRoadblock.release_rescue(),
+      do: TartarusRoadblock.Control.release(),
       else: {:error, :not_waiting}
   end
 
