@@ -64,6 +64,16 @@ defmodule TartarusImmune.Evolution.Embodied do
       doc: "cross-reactivity threshold (default 0.45, 0.4, 0.25 for S1, S2, S3)"
     ],
     period: [type: :pos_integer, default: 30, doc: "steps per evaluation period at most"],
+    recovery: [
+      type: :non_neg_integer,
+      default: 20,
+      doc: "steps the proposed controller runs unscored before its evaluation period"
+    ],
+    test_switch: [
+      type: {:in, [:region, :period]},
+      default: :region,
+      doc: "test: re-select when the epitope leaves the antibody's region, or every period"
+    ],
     min_period: [
       type: :pos_integer,
       default: 10,
@@ -269,27 +279,51 @@ defmodule TartarusImmune.Evolution.Embodied do
     {a + (b - a) * u, rng}
   end
 
-  defp iteration(o, st, i, light) do
+  # One iteration: one evaluation. A round of Algorithm 5 whose recovery period already
+  # takes the robot out of the selected antibody's active region ends there, unevaluated
+  # (line 22: the antibody's turn is over), and the next round starts from where the robot
+  # is; after @max_aborted such rounds the evaluation goes ahead regardless.
+  @max_aborted 5
+
+  defp iteration(o, st, i, light, aborted \\ 0) do
     {readings, world} = World.sense(st.world, :robot)
     ep = World.normalize(readings)
     {rep, cands, rng} = Repertoire.recognize(st.rep, ep, st.rng)
     {rep, key, _, rng} = Repertoire.select(rep, cands, ep, %{}, rng)
     ab = rep.antibodies[key]
     {kind, w, rng} = ES.propose(ab.es, rng)
-    {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], st.traj)
-    fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
-    rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
-    rep = Repertoire.report(rep, key, fitness)
+    {world, readings, traj} = recover(o, world, w, readings, o.recovery, st.traj)
 
-    point = %{
-      iteration: i,
-      antibody: elem(key, 1),
-      fitness: fitness,
-      light_on: light,
-      steps: length(samples)
-    }
+    if aborted < @max_aborted and o.recovery > 0 and
+         Repertoire.affinity(World.normalize(readings), ab.paratope) > o.epsilon do
+      iteration(o, %{st | world: world, rep: rep, rng: rng, traj: traj}, i, light, aborted + 1)
+    else
+      {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
+      fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
+      rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
+      rep = Repertoire.report(rep, key, fitness)
 
-    %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+      point = %{
+        iteration: i,
+        antibody: elem(key, 1),
+        fitness: fitness,
+        light_on: light,
+        steps: length(samples)
+      }
+
+      %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+    end
+  end
+
+  # The recovery period: `w` drives for `n` steps, unscored.
+  defp recover(_o, world, _w, readings, 0, traj), do: {world, readings, traj}
+
+  defp recover(o, world, w, readings, n, traj) do
+    [l, r] = NeuralNet.forward(@shape, w, World.normalize(readings))
+    world = World.step(world, %{robot: {l, r}}, o.dt)
+    {next, world} = World.sense(world, :robot)
+    traj = if o.trace, do: [World.pose(world, :robot) | traj], else: traj
+    recover(o, world, w, next, n - 1, traj)
   end
 
   # Runs weights `w` for up to `n` steps; stops when the epitope leaves `paratope`'s
@@ -319,8 +353,12 @@ defmodule TartarusImmune.Evolution.Embodied do
   @doc """
   Tests a trained repertoire (the test of the module doc) with `o`, the options of `run/1`
   as a map with defaults filled in (`options/1`). Returns `{success, episodes, rng}`.
+
+  Instead of a repertoire, `rep` may be a fixed controller: a function from the normalized
+  epitope to the two wheel commands `[left, right]` (hand-made controllers measure what
+  the test asks, `TartarusImmune.Evolution.Diagnostics`).
   """
-  @spec test_repertoire(map(), Repertoire.t(), :rand.state()) ::
+  @spec test_repertoire(map(), Repertoire.t() | ([float()] -> [float()]), :rand.state()) ::
           {float() | nil, [map()], :rand.state()}
   def test_repertoire(%{test_episodes: 0}, _rep, rng), do: {nil, [], rng}
 
@@ -386,33 +424,53 @@ defmodule TartarusImmune.Evolution.Embodied do
     {detail, rng}
   end
 
-  # The learnt controllers, frozen: the controller is chosen again every `period` steps.
-  defp drive(_o, _rep, world, 0, bumps, near), do: {world, bumps, near}
+  # The learnt controllers, frozen. `test_switch: :period`: the controller is chosen again
+  # every `period` steps; `:region`: as in training, also when the epitope has left the
+  # chosen antibody's active region after at least `min_period` steps (Algorithm 5, line 22).
+  defp drive(o, rep, world, left, bumps, near),
+    do: drive(o, rep, world, left, bumps, near, nil, 0)
 
-  defp drive(o, rep, world, left, bumps, near) do
-    {readings, world} = World.sense(world, :robot)
-    ep = World.normalize(readings)
-    w = frozen(rep, ep)
+  defp drive(_o, _rep, world, 0, bumps, near, _cur, _k), do: {world, bumps, near}
 
-    {world, bumps, near, left} =
-      Enum.reduce_while(1..o.period, {world, bumps, near, left}, fn _,
-                                                                    {world, bumps, near, left} ->
-        if left == 0 do
-          {:halt, {world, bumps, near, left}}
-        else
+  defp drive(o, rep, world, left, bumps, near, cur, k) do
+    {r, world} = World.sense(world, :robot)
+    ep = World.normalize(r)
+
+    {cur, k, ep, world} =
+      cond do
+        is_function(rep, 1) ->
+          {rep, k, ep, world}
+
+        cur == nil or k >= o.period ->
+          # (the reading that chose is not the one the controller then acts on)
           {r, world} = World.sense(world, :robot)
-          [l, rr] = NeuralNet.forward(@shape, w, World.normalize(r))
-          world = World.step(world, %{robot: {l, rr}}, o.dt)
-          {x, y, _} = World.pose(world, :robot)
-          bumped = world.robots[:robot].bumped
+          {frozen(rep, ep), 0, World.normalize(r), world}
 
-          {:cont,
-           {world, bumps + if(bumped, do: 1, else: 0), [dist(x, y, 1.0, 1.0) <= 0.4 | near],
-            left - 1}}
-        end
-      end)
+        o.test_switch == :region and k >= o.min_period and
+            Repertoire.affinity(ep, cur.paratope) > o.epsilon ->
+          {frozen(rep, ep), 0, ep, world}
 
-    drive(o, rep, world, left, bumps, near)
+        true ->
+          {cur, k, ep, world}
+      end
+
+    [l, rr] =
+      if is_function(cur, 1), do: cur.(ep), else: NeuralNet.forward(@shape, cur.es.champion, ep)
+
+    world = World.step(world, %{robot: {l, rr}}, o.dt)
+    {x, y, _} = World.pose(world, :robot)
+    bumped = world.robots[:robot].bumped
+
+    drive(
+      o,
+      rep,
+      world,
+      left - 1,
+      bumps + if(bumped, do: 1, else: 0),
+      [dist(x, y, 1.0, 1.0) <= 0.4 | near],
+      cur,
+      k + 1
+    )
   end
 
   defp frozen(rep, ep) do
@@ -427,8 +485,6 @@ defmodule TartarusImmune.Evolution.Embodied do
           Enum.max_by(cands, fn {k, _} -> rep.antibodies[k].concentration end) |> elem(0)
         ]
     end
-    |> Map.fetch!(:es)
-    |> Map.fetch!(:champion)
   end
 
   defp dist(x0, y0, x1, y1), do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)

@@ -21,7 +21,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing}
+  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing, Stats}
   alias TartarusTools.{Report, Series, SVG}
 
   @schema [
@@ -39,6 +39,21 @@ defmodule TartarusImmune.Evolution.Experiment do
       doc: "`sharing`: a run gives up after this"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    recovery: [
+      type: :non_neg_integer,
+      default: 20,
+      doc: "`s1`-`s3`, `monolithic`: unscored steps before each evaluation (`Embodied`)"
+    ],
+    period: [
+      type: :pos_integer,
+      default: 30,
+      doc: "`s1`-`s3`, `monolithic`: steps per evaluation at most"
+    ],
+    min_period: [
+      type: :pos_integer,
+      default: 10,
+      doc: "`s1`-`s3`, `monolithic`: steps before leaving the active region ends an evaluation"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
       type: :any,
@@ -147,7 +162,17 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     runs =
       for sc <- scenarios, d <- designs do
-        {:ok, r} = Embodied.run(scenario: sc, design: d, seed: seed, trace: trial == 0)
+        {:ok, r} =
+          Embodied.run(
+            scenario: sc,
+            design: d,
+            seed: seed,
+            trace: trial == 0,
+            recovery: state.p.recovery,
+            period: state.p.period,
+            min_period: state.p.min_period
+          )
+
         Map.merge(r, %{trial: trial})
       end
 
@@ -417,6 +442,10 @@ defmodule TartarusImmune.Evolution.Experiment do
     main = if exp == :monolithic, do: nil, else: arms[key.(exp, :immune)]
     mono = if exp == :monolithic, do: nil, else: arms[key.(exp, :monolithic)]
 
+    test =
+      main && mono &&
+        Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial)
+
     %{
       experiment: to_string(exp),
       trials: p.trials,
@@ -425,7 +454,12 @@ defmodule TartarusImmune.Evolution.Experiment do
       test_success:
         if(main, do: main.test_success, else: Map.new(arms, fn {k, v} -> {k, v.test_success} end)),
       test_success_monolithic: mono && mono.test_success,
-      immune_beats_monolithic: if(main && mono, do: main.test_success > mono.test_success)
+      recovery: p.recovery,
+      period: p.period,
+      min_period: p.min_period,
+      mann_whitney_u: test && test.u,
+      p_value: test && Float.round(test.p_value, 4),
+      immune_beats_monolithic: if(test, do: test.p_value < 0.05)
     }
   end
 

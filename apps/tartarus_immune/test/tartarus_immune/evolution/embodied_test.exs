@@ -30,6 +30,38 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     assert length(r.test_episodes) == 2
   end
 
+  test "each evaluation follows an unscored recovery period; recovery 0 is the plain loop" do
+    {:ok, r} = Embodied.run(scenario: :s1, iterations: 30, test_episodes: 1, seed: 5, trace: true)
+
+    scored = Enum.sum(Enum.map(r.curve, & &1.steps))
+    # the robot drove the 20 recovery steps of every evaluation besides the scored ones
+    # (more when a recovery left the antibody's region and the round was not evaluated)
+    assert length(r.trajectory) >= scored + 20 * 30
+
+    {:ok, r0} =
+      Embodied.run(
+        scenario: :s1,
+        iterations: 30,
+        test_episodes: 1,
+        seed: 5,
+        trace: true,
+        recovery: 0
+      )
+
+    assert length(r0.trajectory) == Enum.sum(Enum.map(r0.curve, & &1.steps))
+  end
+
+  test "the test re-selects as Algorithm 5 does or every period; both are reproducible" do
+    opts = [scenario: :s1, iterations: 40, test_episodes: 3, seed: 6]
+    {:ok, a} = Embodied.run(opts)
+    {:ok, b} = Embodied.run(opts ++ [test_switch: :period])
+    # same training (the test comes after it), possibly different test drives
+    assert a.curve == b.curve
+    assert {:ok, ^a} = Embodied.run(opts)
+    assert {:error, message} = Embodied.run(opts ++ [test_switch: :never])
+    assert message =~ "for key :test_switch"
+  end
+
   test "bad options are refused with the key named" do
     assert {:error, message} = Embodied.run(scenario: :s4)
     assert message =~ "for key :scenario"
