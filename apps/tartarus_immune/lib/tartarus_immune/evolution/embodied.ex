@@ -107,7 +107,9 @@ defmodule TartarusImmune.Evolution.Embodied do
   first used in the first light-off phase was used again in the second), `trajectory`
   (poses, with `trace: true`) and `world` (the final world, with `trace: true`),
   `light_switches` (S3), `test_episodes` (each test episode's outcome: success, bumps,
-  final distance to the light, distance moved, best puck gain towards the light),
+  `final_stall` (the steps at the end of the episode in a row in which the robot's move
+  was refused: stuck against a wall, or pushing a puck that cannot move), final distance
+  to the light, distance moved, best puck gain towards the light),
   `final_fitness` (mean of the last 20 iterations).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
@@ -387,7 +389,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     {world, rng} = arena(o, rng, light)
     pucks0 = world.pucks
     {x0, y0, _} = World.pose(world, :robot)
-    {world, bumps, near} = drive(o, rep, world, @episode_steps, 0, [])
+    {world, {bumps, stall}, near} = drive(o, rep, world, @episode_steps, {0, 0}, [])
     {x1, y1, _} = World.pose(world, :robot)
     {readings, _} = World.sense(world, :robot)
 
@@ -410,6 +412,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       light_on: light,
       success: if(ok, do: 1.0, else: 0.0),
       bumps: bumps,
+      final_stall: stall,
       final_light_distance: Float.round(dist(x1, y1, 1.0, 1.0), 3),
       moved: Float.round(dist(x0, y0, x1, y1), 3),
       best_puck_gain:
@@ -466,7 +469,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       rep,
       world,
       left - 1,
-      bumps + if(bumped, do: 1, else: 0),
+      if(bumped, do: {elem(bumps, 0) + 1, elem(bumps, 1) + 1}, else: {elem(bumps, 0), 0}),
       [dist(x, y, 1.0, 1.0) <= 0.4 | near],
       cur,
       k + 1

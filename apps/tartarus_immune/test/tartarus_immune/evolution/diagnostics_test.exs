@@ -1,0 +1,25 @@
+defmodule TartarusImmune.Evolution.DiagnosticsTest do
+  use ExUnit.Case, async: true
+
+  alias TartarusImmune.Evolution.Diagnostics
+
+  doctest Diagnostics
+
+  test "the S1 test is passable: hand-made phototaxis passes, driving straight into a wall fails" do
+    c = Diagnostics.controllers()
+    assert Diagnostics.ceiling(:s1, c.phototaxis, episodes: 5).success == 1.0
+    straight = Diagnostics.ceiling(:s1, c.straight, episodes: 5)
+    assert straight.success == 0.0
+    # it ends pressed against a wall
+    assert Enum.all?(straight.episodes, &(&1.final_stall > 0))
+  end
+
+  test "a recovery period makes one evaluation rank controllers more reliably" do
+    plain = Diagnostics.ordering(period: 30, recovery: 0, runs: 3, evaluations: 60)
+    recovered = Diagnostics.ordering(period: 30, recovery: 20, runs: 3, evaluations: 60)
+
+    assert recovered.beats[{:phototaxis, :straight}] > plain.beats[{:phototaxis, :straight}]
+    assert recovered.beats[{:avoid, :straight}] > plain.beats[{:avoid, :straight}]
+    assert plain.beats[{:phototaxis, :avoid}] + plain.beats[{:avoid, :phototaxis}] <= 1.0
+  end
+end
