@@ -6,7 +6,8 @@ defmodule Mix.Tasks.Tartarus.Evolve do
 
       mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
-                          [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
+                          [--mode virtual|peer] [--recovery 20] [--period 30]
+                          [--min-period 10] [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
   10 yellow pucks for S2 and S3) learns phototaxis with obstacle avoidance (S1), pushing
@@ -15,6 +16,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   0.45, 0.4, 0.25; 200, 500, 500 iterations) and, on the same seed, one monolithic
   controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
   with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
+  Each evaluation of up to `--period` steps of 0.1 s (30) follows `--recovery` unscored
+  steps (20; 0: none) and, for the immune robot, ends when the sensors leave the
+  antibody's active region after `--min-period` steps (10).
   Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
   design, trial, antibodies, switches, final fitness, test success), for the first trial
   the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
@@ -22,7 +26,10 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   `arms` (per scenario and design: test_success, antibodies, switches, final_fitness, and
   for S3 the antibodies used with the light on, off and both, and in how many trials an
   antibody of the first light-off phase was used again in the second), `antibodies`,
-  `test_success`, `test_success_monolithic`, `immune_beats_monolithic`.
+  `test_success`, `test_success_monolithic`, `recovery`, `period`, `min_period`,
+  `mann_whitney_u` and `p_value` (exact one-sided Mann-Whitney U test of the immune
+  robot's per-trial test success against the baseline's), `immune_beats_monolithic`
+  (`p_value < 0.05`).
 
   `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
   links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the
@@ -135,8 +142,15 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         "  #{String.pad_trailing(arm, 14)} test_success #{a.test_success}  antibodies #{a.antibodies}  final fitness #{a.final_fitness}#{extra}"
       end
 
+    test =
+      if s.p_value,
+        do: [
+          "  immune better than monolithic on test success: one-sided Mann-Whitney U #{s.mann_whitney_u}, p = #{s.p_value}"
+        ],
+        else: []
+
     Enum.join(
-      ["evolve: #{s.experiment}, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"],
+      ["evolve: #{s.experiment}, #{s.trials} trials"] ++ rows ++ test ++ ["  written to #{dir}"],
       "\n"
     )
   end

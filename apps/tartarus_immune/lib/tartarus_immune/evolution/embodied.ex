@@ -18,12 +18,25 @@ defmodule TartarusImmune.Evolution.Embodied do
   2. immune: `Repertoire.recognize/3` then `Repertoire.select/5` (no external repertoire for
      one robot) pick an antibody; monolithic: the one controller;
   3. its strategy proposes weights (`ES.propose/2`), which drive the wheels (the network's
-     two `tanh` outputs are the wheel commands) for up to `period` steps of `dt` seconds;
-     the period ends early when the sensed epitope leaves the antibody's active region
-     (Algorithm 5, line 22: "while the current antigen is within the AR of BestAb");
+     two `tanh` outputs are the wheel commands) first for a **recovery period** of
+     `recovery` steps (default 20, 2 s) that is not scored, then for up to `period` steps
+     of `dt` seconds that are; the scored period ends early when the sensed epitope leaves
+     the antibody's active region after at least `min_period` scored steps (Algorithm 5,
+     line 22: "while the current antigen is within the AR of BestAb");
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
-     the period and divided by its steps (periods cut short compare with full ones); the
-     strategy and the antibody's concentration are told.
+     the scored period and divided by its steps (periods cut short compare with full
+     ones); the strategy and the antibody's concentration are told.
+
+  The recovery period is part of the (1+1)-online strategy the thesis uses (Bredeche,
+  Haasdijk and Eiben 2009): a robot evaluates controllers one after the other without
+  being put back, so each new controller starts wherever, and however stuck, the previous
+  one left the robot; without the recovery its score measures that inheritance as much as
+  itself (`TartarusImmune.Evolution.Diagnostics.ordering/1`: driving straight into walls
+  scores 0.45 per step between other controllers, 0.20 after a recovery period). If the
+  recovery already takes the robot out of the selected antibody's active region, the
+  antibody's turn is over (line 22) unevaluated and the round starts again from there (at
+  most 5 times per iteration); iterations count evaluations. `recovery: 0` is the loop
+  without it. The monolithic baseline gets the same recovery.
 
   The curve records, per iteration, the antibody used, the fitness and the light.
 
@@ -31,8 +44,11 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   After training, `test_episodes` episodes from fresh random poses (and pucks) run the
   learnt controllers without evolving them (immune: the best candidate for the sensed
-  epitope at each period, or the nearest antibody when none is within epsilon). Success
-  (our definitions, as the thesis gives none):
+  epitope, or the nearest antibody when none is within epsilon). With `test_switch:
+  :region` (default) the antibody is chosen again as in training: when the epitope has
+  left its active region after at least `min_period` steps, or after `period` steps;
+  `:period` chooses only every `period` steps. Success (our definitions, as the thesis
+  gives none):
 
     * S1: the robot comes within 0.4 m of the light during a 30 s episode and never bumps
       into a wall (phototaxis with obstacle avoidance: Eq. 7.1 rewards moving fast and
