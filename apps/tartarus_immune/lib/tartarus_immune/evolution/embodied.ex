@@ -126,7 +126,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   `final_stall` (the steps at the end of the episode in a row in which the robot's move
   was refused: stuck against a wall, or pushing a puck that cannot move), final distance
   to the light, distance moved, best puck gain towards the light),
-  `final_fitness` (mean of the last 20 iterations).
+  `final_fitness` (mean of the last 20 iterations), `unevaluated_rounds` (rounds whose
+  recovery period left the antibody's active region).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -208,7 +209,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     rep =
       Repertoire.new(epsilon: o.epsilon, shape: @shape, p_sharing: 0.0, origin: :self, es: o.es)
 
-    st = %{world: world, rng: rng, rep: rep, curve: [], traj: []}
+    st = %{world: world, rng: rng, rep: rep, curve: [], traj: [], unevaluated: 0}
 
     st =
       Enum.reduce(1..o.iterations, st, fn i, st ->
@@ -227,6 +228,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       iterations: o.iterations,
       curve: curve,
       antibodies: st.rep.next_id - 1,
+      unevaluated_rounds: st.unevaluated,
       switches:
         curve
         |> Enum.chunk_every(2, 1, :discard)
@@ -314,7 +316,8 @@ defmodule TartarusImmune.Evolution.Embodied do
 
     if aborted < @max_aborted and o.recovery > 0 and
          Repertoire.affinity(World.normalize(readings), ab.paratope) > o.epsilon do
-      iteration(o, %{st | world: world, rep: rep, rng: rng, traj: traj}, i, light, aborted + 1)
+      st = %{st | world: world, rep: rep, rng: rng, traj: traj, unevaluated: st.unevaluated + 1}
+      iteration(o, st, i, light, aborted + 1)
     else
       {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
       fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
