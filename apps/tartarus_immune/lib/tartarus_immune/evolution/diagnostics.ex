@@ -8,6 +8,8 @@ defmodule TartarusImmune.Evolution.Diagnostics do
       evolved 4-5-2 networks (`[light_left, light_right, ultrasonic, colour]` to two wheel
       commands);
     * `ceiling/3` - the test success of a fixed controller (the test of `Embodied`);
+    * `fitness/3` - the mean per-step objective (Eqs. 7.1-7.3) a fixed controller earns
+      over such episodes: whether the fitness points where the test does;
     * `ordering/1` - how often a single evaluation ranks one controller above another
       when controllers take turns on one robot, each evaluation starting where the last
       one left the robot (as in the (1+1)-online strategy), for a given evaluation period
@@ -35,7 +37,9 @@ defmodule TartarusImmune.Evolution.Diagnostics do
     * `:avoid` - straight on, turn in place under 0.2: obstacle avoidance only;
     * `:straight` - full speed ahead, whatever the sensors say;
     * `:wander_phototaxis` - obstacle avoidance, and phototaxis while the colour sensor
-      sees a puck in the gripper (S2's sub-tasks by hand).
+      sees a puck in the gripper (S2's sub-tasks by hand);
+    * `:circle` - left wheel full, right wheel 0.6, whatever the sensors say: a tight
+      circle at speed.
   """
   @spec controllers() :: %{atom() => controller()}
   def controllers do
@@ -48,6 +52,7 @@ defmodule TartarusImmune.Evolution.Diagnostics do
       phototaxis: fn [ll, lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: photo.(ll, lr) end,
       avoid: fn [_ll, _lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: [0.7, 0.7] end,
       straight: fn _ -> [1.0, 1.0] end,
+      circle: fn _ -> [1.0, 0.6] end,
       wander_phototaxis: fn [ll, lr, us, c] ->
         cond do
           c < 0.5 -> photo.(ll, lr)
@@ -79,6 +84,31 @@ defmodule TartarusImmune.Evolution.Diagnostics do
       Embodied.test_repertoire(o, controller, :rand.seed_s(:exsss, {o.seed, 9, 9}))
 
     %{success: success, episodes: episodes}
+  end
+
+  @doc """
+  The mean per-step objective of `scenario` (`TartarusImmune.Evolution.Objective`, on the
+  samples `Embodied` scores) that `controller` earns over `episodes` episodes of 30 s
+  (default 20) from the test's poses (light on), drawn from `seed` (default 1).
+
+      iex> alias TartarusImmune.Evolution.Diagnostics
+      iex> Diagnostics.fitness(:s1, Diagnostics.controllers().straight, episodes: 2) < 1.0
+      true
+  """
+  @spec fitness(:s1 | :s2 | :s3, controller(), keyword()) :: float()
+  def fitness(scenario, controller, opts \\ []) do
+    n = Keyword.get(opts, :episodes, 20)
+    seed = Keyword.get(opts, :seed, 1)
+    o = Embodied.options(scenario: scenario, seed: seed)
+
+    {total, _} =
+      Enum.reduce(1..n, {0.0, :rand.seed_s(:exsss, {seed, 9, 9})}, fn _, {acc, rng} ->
+        {world, rng} = Embodied.arena(o, rng, true)
+        {_, samples} = drive(world, controller, 300, true)
+        {acc + Objective.fitness(scenario, samples) / 300, rng}
+      end)
+
+    Float.round(total / n, 3)
   end
 
   @doc """

@@ -14,6 +14,18 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert Enum.all?(straight.episodes, &(&1.final_stall > 0))
   end
 
+  test "S2: pushing pucks towards the light by hand passes test episodes; Eq. 7.2 ranks circling higher, which passes none" do
+    c = Diagnostics.controllers()
+    pusher = Diagnostics.ceiling(:s2, c.wander_phototaxis, episodes: 10)
+    assert pusher.success >= 0.2
+    # with pucks sliding along walls and pushing each other, few episodes end stalled
+    assert Enum.count(pusher.episodes, &(&1.final_stall > 0)) <= 2
+    assert Diagnostics.ceiling(:s2, c.circle, episodes: 10).success == 0.0
+
+    assert Diagnostics.fitness(:s2, c.circle, episodes: 5) >
+             Diagnostics.fitness(:s2, c.wander_phototaxis, episodes: 5)
+  end
+
   test "a recovery period makes one evaluation rank controllers more reliably" do
     plain = Diagnostics.ordering(period: 30, recovery: 0, runs: 3, evaluations: 60)
     recovered = Diagnostics.ordering(period: 30, recovery: 20, runs: 3, evaluations: 60)
