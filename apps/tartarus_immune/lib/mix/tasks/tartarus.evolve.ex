@@ -6,7 +6,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
 
       mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
-                          [--mode virtual|peer] [--recovery 20] [--period 30]
+                          [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--min-period 10] [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
@@ -17,7 +17,8 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
   with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
   Each evaluation of up to `--period` steps of 0.1 s (30) follows `--recovery` unscored
-  steps (20; 0: none) and, for the immune robot, ends when the sensors leave the
+  steps (0, as in the thesis; 20 is Bredeche et al.'s recovery period) and, for the immune
+  robot, ends when the sensors leave the
   antibody's active region after `--min-period` steps (10).
   Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
   design, trial, antibodies, switches, final fitness, test success), for the first trial

@@ -18,25 +18,26 @@ defmodule TartarusImmune.Evolution.Embodied do
   2. immune: `Repertoire.recognize/3` then `Repertoire.select/5` (no external repertoire for
      one robot) pick an antibody; monolithic: the one controller;
   3. its strategy proposes weights (`ES.propose/2`), which drive the wheels (the network's
-     two `tanh` outputs are the wheel commands) first for a **recovery period** of
-     `recovery` steps (default 20, 2 s) that is not scored, then for up to `period` steps
-     of `dt` seconds that are; the scored period ends early when the sensed epitope leaves
+     two `tanh` outputs are the wheel commands) for up to `period` steps of `dt` seconds
+     (after an optional, unscored **recovery period** of `recovery` steps, default 0:
+     none, as the thesis describes); the scored period ends early when the sensed epitope leaves
      the antibody's active region after at least `min_period` scored steps (Algorithm 5,
      line 22: "while the current antigen is within the AR of BestAb");
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
      the scored period and divided by its steps (periods cut short compare with full
      ones); the strategy and the antibody's concentration are told.
 
-  The recovery period is part of the (1+1)-online strategy the thesis uses (Bredeche,
-  Haasdijk and Eiben 2009): a robot evaluates controllers one after the other without
+  The recovery period comes from the paper of the (1+1)-online strategy the thesis cites
+  (Bredeche, Haasdijk and Eiben 2009), not from the thesis, whose loop has none (the
+  default, `recovery: 0`): a robot evaluates controllers one after the other without
   being put back, so each new controller starts wherever, and however stuck, the previous
-  one left the robot; without the recovery its score measures that inheritance as much as
-  itself (`TartarusImmune.Evolution.Diagnostics.ordering/1`: driving straight into walls
-  scores 0.45 per step between other controllers, 0.20 after a recovery period). If the
-  recovery already takes the robot out of the selected antibody's active region, the
+  one left the robot, and its score measures that inheritance as well as itself
+  (`TartarusImmune.Evolution.Diagnostics.ordering/1`: driving straight into walls scores
+  0.45 per step between other controllers, 0.20 after a recovery period of 20 steps). If
+  the recovery already takes the robot out of the selected antibody's active region, the
   antibody's turn is over (line 22) unevaluated and the round starts again from there (at
-  most 5 times per iteration); iterations count evaluations. `recovery: 0` is the loop
-  without it. The monolithic baseline gets the same recovery.
+  most 5 times per iteration); iterations count evaluations. The monolithic baseline gets
+  the same recovery. docs/evolution.md gives both settings' results.
 
   The curve records, per iteration, the antibody used, the fitness and the light.
 
@@ -82,7 +83,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     period: [type: :pos_integer, default: 30, doc: "steps per evaluation period at most"],
     recovery: [
       type: :non_neg_integer,
-      default: 20,
+      default: 0,
       doc: "steps the proposed controller runs unscored before its evaluation period"
     ],
     test_switch: [

@@ -45,7 +45,7 @@ defmodule TartarusImmune.Evolution.Experiment do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     recovery: [
       type: :non_neg_integer,
-      default: 20,
+      default: 0,
       doc: "`s1`-`s3`, `monolithic`: unscored steps before each evaluation (`Embodied`)"
     ],
     period: [

@@ -31,7 +31,15 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
   end
 
   test "each evaluation follows an unscored recovery period; recovery 0 is the plain loop" do
-    {:ok, r} = Embodied.run(scenario: :s1, iterations: 30, test_episodes: 1, seed: 5, trace: true)
+    {:ok, r} =
+      Embodied.run(
+        scenario: :s1,
+        iterations: 30,
+        test_episodes: 1,
+        seed: 5,
+        trace: true,
+        recovery: 20
+      )
 
     scored = Enum.sum(Enum.map(r.curve, & &1.steps))
     # the robot drove the 20 recovery steps of every evaluation besides the scored ones
@@ -44,12 +52,13 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
         iterations: 30,
         test_episodes: 1,
         seed: 5,
-        trace: true,
-        recovery: 0
+        trace: true
       )
 
     assert length(r0.trajectory) == Enum.sum(Enum.map(r0.curve, & &1.steps))
     assert r0.unevaluated_rounds == 0
+    # the thesis's loop, without a recovery period, is the default
+    assert Embodied.options(scenario: :s1).recovery == 0
   end
 
   test "the test re-selects as Algorithm 5 does or every period; both are reproducible" do
