@@ -189,7 +189,9 @@ defmodule TartarusImmune.Evolution.Collective do
           (px - x) ** 2 + (py - y) ** 2 > 0.04
         end)
 
-      if far?, do: {World.add_puck(w, k, x: px, y: py), rng}, else: {w, rng}
+      if far? and Embodied.puck_room?(w, px, py),
+        do: {World.add_puck(w, k, x: px, y: py), rng},
+        else: {w, rng}
     end)
   end
 

@@ -289,11 +289,20 @@ defmodule TartarusImmune.Evolution.Embodied do
       {rx, ry, _} = World.pose(w, :robot)
 
       if :math.sqrt((px - rx) ** 2 + (py - ry) ** 2) < 0.2 or
-           :math.sqrt((px - 1.0) ** 2 + (py - 1.0) ** 2) < 0.15,
+           :math.sqrt((px - 1.0) ** 2 + (py - 1.0) ** 2) < 0.15 or not puck_room?(w, px, py),
          do: {w, rng},
          else: {World.add_puck(w, k, x: px, y: py), rng}
     end)
   end
+
+  @doc false
+  # Whether a puck (radius 0.03) at (x, y) would not overlap the pucks already placed (a
+  # puck drawn onto another is left out, as one drawn too near the robot or the light).
+  def puck_room?(world, x, y),
+    do:
+      Enum.all?(world.pucks, fn {_, p} ->
+        (p.x - x) ** 2 + (p.y - y) ** 2 >= (p.radius + 0.03) ** 2
+      end)
 
   defp between(rng, a, b) do
     {u, rng} = :rand.uniform_s(rng)

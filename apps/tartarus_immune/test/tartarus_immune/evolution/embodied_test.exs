@@ -72,6 +72,26 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     assert message =~ "for key :test_switch"
   end
 
+  test "the S2 arena never places a puck on another, on the robot or on the light" do
+    o = Embodied.options(scenario: :s2)
+
+    for seed <- 1..100 do
+      {w, _} = Embodied.arena(%{o | seed: seed}, :rand.seed_s(:exsss, {seed, 9, 9}), true)
+      pucks = Map.values(w.pucks)
+      {rx, ry, _} = TartarusArena.World.pose(w, :robot)
+      assert length(pucks) in 5..10
+
+      for p <- pucks do
+        assert :math.sqrt((p.x - rx) ** 2 + (p.y - ry) ** 2) >= 0.2
+        assert :math.sqrt((p.x - 1.0) ** 2 + (p.y - 1.0) ** 2) >= 0.15
+
+        for q <- pucks,
+            q.id != p.id,
+            do: assert(:math.sqrt((p.x - q.x) ** 2 + (p.y - q.y) ** 2) >= 0.06)
+      end
+    end
+  end
+
   test "bad options are refused with the key named" do
     assert {:error, message} = Embodied.run(scenario: :s4)
     assert message =~ "for key :scenario"
