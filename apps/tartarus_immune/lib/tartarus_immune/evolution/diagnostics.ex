@@ -89,7 +89,8 @@ defmodule TartarusImmune.Evolution.Diagnostics do
   @doc """
   The mean per-step objective of `scenario` (`TartarusImmune.Evolution.Objective`, on the
   samples `Embodied` scores) that `controller` earns over `episodes` episodes of 30 s
-  (default 20) from the test's poses (light on), drawn from `seed` (default 1).
+  (default 20) from the test's poses (light on), drawn from `seed` (default 1), with
+  `f_puck` read as `puck_reward` (`:product`, the default, or `:sum`).
 
       iex> alias TartarusImmune.Evolution.Diagnostics
       iex> Diagnostics.fitness(:s1, Diagnostics.controllers().straight, episodes: 2) < 1.0
@@ -99,13 +100,14 @@ defmodule TartarusImmune.Evolution.Diagnostics do
   def fitness(scenario, controller, opts \\ []) do
     n = Keyword.get(opts, :episodes, 20)
     seed = Keyword.get(opts, :seed, 1)
+    reading = Objective.puck_reward!(opts)
     o = Embodied.options(scenario: scenario, seed: seed)
 
     {total, _} =
       Enum.reduce(1..n, {0.0, :rand.seed_s(:exsss, {seed, 9, 9})}, fn _, {acc, rng} ->
         {world, rng} = Embodied.arena(o, rng, true)
         {_, samples} = drive(world, controller, 300, true)
-        {acc + Objective.fitness(scenario, samples) / 300, rng}
+        {acc + Objective.fitness(scenario, samples, puck_reward: reading) / 300, rng}
       end)
 
     Float.round(total / n, 3)

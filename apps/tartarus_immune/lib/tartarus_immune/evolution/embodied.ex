@@ -96,6 +96,12 @@ defmodule TartarusImmune.Evolution.Embodied do
       default: 10,
       doc: "steps an evaluation runs before leaving the active region can end it"
     ],
+    puck_reward: [
+      type: {:in, [:product, :sum]},
+      default: :product,
+      doc:
+        "the reading of Eq. 7.2's f_puck: `b_puck * v_trans` or, as printed, `b_puck + v_trans` (`Objective`)"
+    ],
     dt: [type: :number, default: 0.1, doc: "seconds per step"],
     pucks: [type: :non_neg_integer, default: 10, doc: "pucks (S2, S3)"],
     test_episodes: [type: :non_neg_integer, default: 10, doc: "test episodes after training"],
@@ -330,7 +336,11 @@ defmodule TartarusImmune.Evolution.Embodied do
       iteration(o, st, i, light, aborted + 1)
     else
       {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
-      fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
+
+      fitness =
+        Objective.fitness(o.scenario, samples, puck_reward: o.puck_reward) /
+          max(length(samples), 1)
+
       rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
       rep = Repertoire.report(rep, key, fitness)
 

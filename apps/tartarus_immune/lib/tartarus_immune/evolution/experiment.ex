@@ -58,6 +58,11 @@ defmodule TartarusImmune.Evolution.Experiment do
       default: 10,
       doc: "`s1`-`s3`, `monolithic`: steps before leaving the active region ends an evaluation"
     ],
+    puck_reward: [
+      type: {:in, [:product, :sum]},
+      default: :product,
+      doc: "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck (`Objective`)"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
       type: :any,
@@ -145,7 +150,13 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     runs =
       for scheme <- [:none, :broadcast, :ipkt] do
-        {:ok, r} = Collective.run(scheme: scheme, seed: state.seed + trial)
+        {:ok, r} =
+          Collective.run(
+            scheme: scheme,
+            seed: state.seed + trial,
+            puck_reward: state.p.puck_reward
+          )
+
         Map.put(r, :trial, trial)
       end
 
@@ -174,7 +185,8 @@ defmodule TartarusImmune.Evolution.Experiment do
             trace: trial == 0,
             recovery: state.p.recovery,
             period: state.p.period,
-            min_period: state.p.min_period
+            min_period: state.p.min_period,
+            puck_reward: state.p.puck_reward
           )
 
         Map.merge(r, %{trial: trial})
@@ -400,6 +412,7 @@ defmodule TartarusImmune.Evolution.Experiment do
     %{
       experiment: "robots3",
       trials: state.p.trials,
+      puck_reward: to_string(state.p.puck_reward),
       test_success: by.(fn runs -> mean(Enum.map(runs, & &1.test_success)) end),
       antibodies: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
       external_selections:
@@ -459,6 +472,7 @@ defmodule TartarusImmune.Evolution.Experiment do
         if(main, do: main.test_success, else: Map.new(arms, fn {k, v} -> {k, v.test_success} end)),
       test_success_monolithic: mono && mono.test_success,
       recovery: p.recovery,
+      puck_reward: to_string(p.puck_reward),
       period: p.period,
       min_period: p.min_period,
       mann_whitney_u: test && test.u,

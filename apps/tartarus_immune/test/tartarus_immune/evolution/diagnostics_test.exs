@@ -14,7 +14,7 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert Enum.all?(straight.episodes, &(&1.final_stall > 0))
   end
 
-  test "S2: pushing pucks towards the light by hand passes test episodes; Eq. 7.2 ranks circling higher, which passes none" do
+  test "S2: pushing pucks towards the light by hand passes test episodes; Eq. 7.2 ranks circling higher under both readings of f_puck, and circling passes none" do
     c = Diagnostics.controllers()
     pusher = Diagnostics.ceiling(:s2, c.wander_phototaxis, episodes: 10)
     assert pusher.success >= 0.2
@@ -22,8 +22,15 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert Enum.count(pusher.episodes, &(&1.final_stall > 0)) <= 2
     assert Diagnostics.ceiling(:s2, c.circle, episodes: 10).success == 0.0
 
-    assert Diagnostics.fitness(:s2, c.circle, episodes: 5) >
-             Diagnostics.fitness(:s2, c.wander_phototaxis, episodes: 5)
+    for r <- [:sum, :product] do
+      assert Diagnostics.fitness(:s2, c.circle, episodes: 10, puck_reward: r) >
+               Diagnostics.fitness(:s2, c.wander_phototaxis, episodes: 10, puck_reward: r)
+    end
+
+    # under the product the circle still earns f_puck: it sweeps pucks into its pusher and
+    # carries them round
+    assert Diagnostics.fitness(:s2, c.circle, episodes: 5, puck_reward: :product) >
+             Diagnostics.fitness(:s1, c.circle, episodes: 5)
   end
 
   test "a recovery period makes one evaluation rank controllers more reliably" do

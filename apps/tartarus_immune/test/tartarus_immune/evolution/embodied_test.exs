@@ -92,8 +92,30 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     end
   end
 
+  test "the reading of f_puck is an option: the product by default, the printed sum on request" do
+    run = fn opts ->
+      {:ok, r} = Embodied.run([scenario: :s2, iterations: 30, test_episodes: 0, seed: 3] ++ opts)
+      r
+    end
+
+    product = run.([])
+    assert run.(puck_reward: :product).curve == product.curve
+    sum = run.(puck_reward: :sum)
+    # the sum pays every step's speed again, so an S2 evaluation scores higher under it
+    assert hd(Enum.reverse(sum.curve)).fitness > hd(Enum.reverse(product.curve)).fitness
+    # S1 has no pucks: the reading changes nothing
+    {:ok, a} = Embodied.run(scenario: :s1, iterations: 20, test_episodes: 0, seed: 3)
+
+    {:ok, b} =
+      Embodied.run(scenario: :s1, iterations: 20, test_episodes: 0, seed: 3, puck_reward: :sum)
+
+    assert a.curve == b.curve
+  end
+
   test "bad options are refused with the key named" do
     assert {:error, message} = Embodied.run(scenario: :s4)
     assert message =~ "for key :scenario"
+    assert {:error, message} = Embodied.run(scenario: :s2, puck_reward: :max)
+    assert message =~ "for key :puck_reward"
   end
 end
