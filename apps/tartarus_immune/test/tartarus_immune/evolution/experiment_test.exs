@@ -8,6 +8,8 @@ defmodule TartarusImmune.Evolution.ExperimentTest do
       Experiment.run(experiment: :s1, trials: 3, seed: 2, out: false, quiet: true, recovery: 5)
 
     assert s.recovery == 5 and s.period == 30 and s.min_period == 10
+    # the product reading of f_puck is the default
+    assert s.puck_reward == "product"
     imm = s.arms["s1_immune"].test_success_by_trial
     mono = s.arms["s1_monolithic"].test_success_by_trial
     assert length(imm) == 3 and length(mono) == 3
