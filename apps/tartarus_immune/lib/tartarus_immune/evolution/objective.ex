@@ -36,7 +36,9 @@ defmodule TartarusImmune.Evolution.Objective do
   under the sum a robot gains more from driving fast anywhere than from pushing. The sum
   also does not mirror `f_antipuck`, which Eq. 7.3 uses as the reversal of `f_puck`
   when the light is off. We read the printed `+` as a misprint for `*`, and keep the
-  printed sum as an option.
+  printed sum as an option. Neither reading says where the puck should go: measured on the
+  arena, both still score driving in a tight circle (which sweeps up a puck and carries it
+  round) above a hand-made controller that pushes pucks to the light (docs/evolution.md).
 
       iex> alias TartarusImmune.Evolution.Objective
       iex> s = %{v_trans: 1.0, v_rot: 0.0, d: 1.0, light: [0.2, 0.5], puck: false}
