@@ -39,13 +39,20 @@ defmodule TartarusArena.World do
 
   ## Collisions
 
-  Walls are segments; the four borders are always there. A move is refused (the robot
-  keeps its pose, `bumped` is set) if the robot's path crosses a wall, ends closer to a
-  wall than its radius, overlaps another robot, or would push a puck into a wall, a robot
-  or another puck. A refused move is tried again as a turn in place, then dropped. So no
-  robot ever passes through a wall, whatever the commands. A robot that drives into a free
-  puck pushes it along the line between their centres. Robots move one at a time, in the
-  order of their ids, each against the others' current poses.
+  Walls are segments; the four borders are always there. A robot that drives into a free
+  puck pushes it along the line between their centres. Pucks are light, as on a floor: a
+  puck pushed into a wall at an angle slides along the wall, keeping in contact with what
+  pushes it (at most twice as far as the push: a push close to head-on jams it), and a
+  puck pushed into a free puck pushes that one along the line between their centres, down
+  a chain of up to 3 pucks. A puck held in claws does not slide. A move is refused (the
+  robot keeps its pose, `bumped` is set) if the robot's path crosses a wall, ends closer
+  to a wall than its radius, overlaps another robot, or would push a puck, so resolved,
+  into a wall, a robot, a held puck, a corner or a longer chain. A refused move is tried
+  again as a turn in place, then dropped; a pusher's cupped pucks that cannot follow such
+  a turn slip out of its shallow U and stay where they are (the disc-shaped robot itself
+  can always turn in place). So no robot ever passes through a wall, whatever the
+  commands. Robots move one at a time, in the order of their ids, each against the
+  others' current poses.
 
   ## Sensors (`sense/2`)
 
@@ -520,14 +527,19 @@ defmodule TartarusArena.World do
         ny = r.y + v * h * :math.sin(thm)
         nth = G.wrap_angle(r.theta + om * h)
 
-        case attempt(w, r, nx, ny, nth, v) do
+        case attempt(w, r, nx, ny, nth, v, true) do
           {:ok, w} ->
             {w, bumped}
 
           :blocked ->
-            case attempt(w, r, r.x, r.y, nth, v) do
+            # a refused move is tried as a turn in place; a pusher's cupped pucks that
+            # cannot follow the turn slip out of its shallow U (the disc-shaped robot
+            # itself can always turn in place)
+            with :blocked <- attempt(w, r, r.x, r.y, nth, v, true),
+                 :blocked <- attempt(w, r, r.x, r.y, nth, v, false) do
+              {w, true}
+            else
               {:ok, w} -> {w, true}
-              :blocked -> {w, true}
             end
         end
       end)
@@ -535,19 +547,17 @@ defmodule TartarusArena.World do
     update_robot(w, r.id, &%{&1 | bumped: bumped})
   end
 
-  # Tries to move robot r to (nx, ny, nth); returns the new world or :blocked.
-  defp attempt(w, r, nx, ny, nth, v) do
-    carried = carried(w, r, v)
-    carried_ids = Enum.map(carried, & &1.id)
+  # Tries to move robot r to (nx, ny, nth) (with its cupped pucks if `cup`); returns the
+  # new world or :blocked.
+  defp attempt(w, r, nx, ny, nth, v, cup) do
+    carried = carried(w, r, v, cup)
 
     with false <- robot_hits_wall?(w, r, nx, ny),
          false <- robot_hits_robot?(w, r, nx, ny),
-         {:ok, moved} <- move_carried(w, r, carried, nx, ny, nth),
-         {:ok, pushed} <- push_pucks(w, r, nx, ny, carried_ids ++ Map.keys(moved), moved) do
+         {:ok, moves} <- move_carried(w, r, carried, nx, ny, nth),
+         {:ok, moves} <- push_pucks(w, r, nx, ny, moves, Enum.map(carried, & &1.id)) do
       pucks =
-        moved
-        |> Map.merge(pushed)
-        |> Enum.reduce(w.pucks, fn {pid, {px, py}}, acc ->
+        Enum.reduce(moves, w.pucks, fn {pid, {px, py}}, acc ->
           Map.update!(acc, pid, &%{&1 | x: px, y: py})
         end)
 
@@ -589,10 +599,10 @@ defmodule TartarusArena.World do
   end
 
   # Pucks that move with the robot: held in claws, or cupped by a pusher going forward.
-  defp carried(w, r, v) do
+  defp carried(w, r, v, cup) do
     cond do
       r.held != nil -> [Map.fetch!(w.pucks, r.held)]
-      r.tool == :pusher and v >= 0 -> in_zone(w, r)
+      cup and r.tool == :pusher and v >= 0 -> in_zone(w, r)
       true -> []
     end
   end
@@ -608,8 +618,12 @@ defmodule TartarusArena.World do
     |> Enum.sort_by(&G.dist(r.x, r.y, &1.x, &1.y))
   end
 
+  # The carried pucks keep their place in the robot's frame (a held one sits in the
+  # claws); returns the puck moves `%{id => {x, y}}` or :blocked.
   defp move_carried(w, r, carried, nx, ny, nth) do
-    Enum.reduce_while(carried, {:ok, %{}}, fn p, {:ok, acc} ->
+    skip = Enum.map(carried, & &1.id)
+
+    Enum.reduce_while(carried, {:ok, %{}}, fn p, {:ok, moves} ->
       {px, py} =
         if r.held == p.id do
           d = r.radius + p.radius + 0.002
@@ -624,20 +638,26 @@ defmodule TartarusArena.World do
           {nx + c * dx - s * dy, ny + s * dx + c * dy}
         end
 
-      if puck_blocked?(w, p, px, py, [r.id], Map.keys(acc) ++ Enum.map(carried, & &1.id)),
-        do: {:halt, :blocked},
-        else: {:cont, {:ok, Map.put(acc, p.id, {px, py})}}
+      # a held puck is fixed in the claws; a cupped one may slide along a wall
+      pusher = if r.held == p.id, do: nil, else: {nx, ny, r.radius}
+
+      case shove(w, {r.id, nx, ny}, p, {px, py}, pusher, moves, skip, 0) do
+        {:ok, moves} -> {:cont, {:ok, moves}}
+        :blocked -> {:halt, :blocked}
+      end
     end)
   end
 
-  defp push_pucks(w, r, nx, ny, skip, moved) do
-    Enum.reduce_while(w.pucks, {:ok, %{}}, fn {pid, p}, {:ok, acc} ->
+  # The robot's body, at its new place, pushes the free pucks it would overlap along the
+  # line between their centres.
+  defp push_pucks(w, r, nx, ny, moves, skip) do
+    Enum.reduce_while(w.pucks, {:ok, moves}, fn {pid, p}, {:ok, moves} ->
       dn = G.dist(nx, ny, p.x, p.y)
       reach = r.radius + p.radius
 
       cond do
-        pid in skip or dn >= reach ->
-          {:cont, {:ok, acc}}
+        Map.has_key?(moves, pid) or pid in skip or dn >= reach ->
+          {:cont, {:ok, moves}}
 
         p.held_by != nil ->
           {:halt, :blocked}
@@ -648,36 +668,153 @@ defmodule TartarusArena.World do
               do: {:math.cos(r.theta), :math.sin(r.theta)},
               else: {(p.x - nx) / dn, (p.y - ny) / dn}
 
-          px = nx + ux * (reach + 1.0e-4)
-          py = ny + uy * (reach + 1.0e-4)
-          others = Map.merge(moved, acc)
+          target = {nx + ux * (reach + 1.0e-4), ny + uy * (reach + 1.0e-4)}
 
-          if puck_blocked?(w, p, px, py, [r.id], [pid | Map.keys(others)]) or
-               Enum.any?(others, fn {oid, {ox, oy}} ->
-                 G.dist(px, py, ox, oy) < p.radius + w.pucks[oid].radius
-               end),
-             do: {:halt, :blocked},
-             else: {:cont, {:ok, Map.put(acc, pid, {px, py})}}
+          case shove(w, {r.id, nx, ny}, p, target, {nx, ny, r.radius}, moves, skip, 0) do
+            {:ok, moves} -> {:cont, {:ok, moves}}
+            :blocked -> {:halt, :blocked}
+          end
       end
     end)
   end
 
-  # Whether puck p moving to (px, py) would cross or touch a wall, overlap a robot (other
-  # than those in skip_robots) or a puck (other than those in skip_pucks).
-  defp puck_blocked?(w, p, px, py, skip_robots, skip_pucks) do
-    reach = p.radius + abs(px - p.x) + abs(py - p.y) + 1.0e-6
+  @chain 3
 
-    Enum.any?(w.walls, fn seg ->
-      near?(px, py, reach, seg) and
-        (G.segments_cross?(p.x, p.y, px, py, seg) or G.dist_segment(px, py, seg) < p.radius)
-    end) or
-      Enum.any?(w.robots, fn {oid, o} ->
-        oid not in skip_robots and G.dist(px, py, o.x, o.y) < p.radius + o.radius
-      end) or
-      Enum.any?(w.pucks, fn {qid, q} ->
-        qid != p.id and qid not in skip_pucks and
+  # Moves puck p towards `target`, driven by `pusher` (the disc `{x, y, radius}` behind it,
+  # or nil for a puck held in claws). Light pucks behave as pucks do on a floor:
+  #   * one that meets a wall at an angle slides along it, staying in contact with its
+  #     pusher (a head-on push into a wall, or into a corner, is refused);
+  #   * one that meets a free puck pushes it along the line between their centres, and so
+  #     on down a chain of up to @chain pucks.
+  # `mover` is the moving robot's id and new place (the other robots stand still); `moves`
+  # the pucks already moved in this step; `skip` pucks moved by the robot afterwards
+  # (checked when they move). Returns `{:ok, moves}` or :blocked.
+  defp shove(w, {rid, rx, ry} = mover, p, target, pusher, moves, skip, depth) do
+    with {:ok, {px, py}} <- against_walls(w, p, target, pusher),
+         false <-
+           Enum.any?(w.robots, fn {oid, o} ->
+             {ox, oy} = if oid == rid, do: {rx, ry}, else: {o.x, o.y}
+             G.dist(px, py, ox, oy) < p.radius + o.radius - 1.0e-6
+           end),
+         false <-
+           Enum.any?(moves, fn {qid, {qx, qy}} ->
+             qid != p.id and G.dist(px, py, qx, qy) < p.radius + w.pucks[qid].radius - 1.0e-6
+           end) do
+      moves = Map.put(moves, p.id, {px, py})
+
+      w.pucks
+      |> Map.values()
+      |> Enum.filter(fn q ->
+        q.id != p.id and not Map.has_key?(moves, q.id) and q.id not in skip and
           G.dist(px, py, q.x, q.y) < p.radius + q.radius
       end)
+      |> Enum.reduce_while({:ok, moves}, fn q, {:ok, moves} ->
+        if q.held_by != nil or depth >= @chain do
+          {:halt, :blocked}
+        else
+          dn = G.dist(px, py, q.x, q.y)
+          reach = p.radius + q.radius + 1.0e-4
+
+          {ux, uy} =
+            if dn < 1.0e-9, do: unit(px - p.x, py - p.y), else: {(q.x - px) / dn, (q.y - py) / dn}
+
+          case shove(
+                 w,
+                 mover,
+                 q,
+                 {px + ux * reach, py + uy * reach},
+                 {px, py, p.radius},
+                 moves,
+                 skip,
+                 depth + 1
+               ) do
+            {:ok, moves} -> {:cont, {:ok, moves}}
+            :blocked -> {:halt, :blocked}
+          end
+        end
+      end)
+    else
+      _ -> :blocked
+    end
+  end
+
+  # Where puck p ends up when driven to `target` by `pusher` with the walls in the way:
+  # the target itself if free; else, for a puck with a pusher, the target brought back to
+  # touch the wall it meets and then moved along that wall until the pusher no longer
+  # overlaps it (the puck slides along the wall); :blocked if that place is not free either
+  # (a corner) or the push is (close to) head-on.
+  defp against_walls(w, p, {px, py} = target, pusher) do
+    case Enum.find(w.walls, &puck_in_wall?(p, px, py, &1)) do
+      nil ->
+        {:ok, target}
+
+      _ when pusher == nil ->
+        :blocked
+
+      seg ->
+        {cx, cy} = closest_point(p.x, p.y, seg)
+        {nx, ny} = unit(p.x - cx, p.y - cy)
+        {tx, ty} = {-ny, nx}
+        h = p.radius + 1.0e-4
+        # the target moved along the normal to touch the wall
+        dn = (px - cx) * nx + (py - cy) * ny
+        {qx, qy} = {px + (h - dn) * nx, py + (h - dn) * ny}
+        along = (px - p.x) * tx + (py - p.y) * ty
+
+        # a push too close to head-on jams the puck rather than sliding it (the slide may
+        # be at most twice the push: friction)
+        with {:ok, {sx, sy}} <- clear_of(pusher, p.radius, {qx, qy}, {tx, ty}, along),
+             true <- G.dist(p.x, p.y, sx, sy) <= 2 * G.dist(p.x, p.y, px, py) + 1.0e-3,
+             false <- Enum.any?(w.walls, &puck_in_wall?(p, sx, sy, &1)) do
+          {:ok, {sx, sy}}
+        else
+          _ -> :blocked
+        end
+    end
+  end
+
+  # Moves (qx, qy) along the direction (tx, ty) (forwards if `along` > 0, backwards if < 0)
+  # until a puck of radius pr there no longer overlaps the pusher disc.
+  defp clear_of({cx, cy, cr}, pr, {qx, qy}, {tx, ty}, along) do
+    reach = cr + pr + 1.0e-4
+
+    if G.dist(qx, qy, cx, cy) >= reach do
+      {:ok, {qx, qy}}
+    else
+      b = (qx - cx) * tx + (qy - cy) * ty
+      c = (qx - cx) * (qx - cx) + (qy - cy) * (qy - cy) - reach * reach
+      root = :math.sqrt(max(0.0, b * b - c))
+
+      cond do
+        along > 1.0e-9 ->
+          s = -b + root
+          {:ok, {qx + s * tx, qy + s * ty}}
+
+        along < -1.0e-9 ->
+          s = -b - root
+          {:ok, {qx + s * tx, qy + s * ty}}
+
+        true ->
+          :blocked
+      end
+    end
+  end
+
+  defp puck_in_wall?(p, px, py, seg) do
+    reach = p.radius + abs(px - p.x) + abs(py - p.y) + 1.0e-6
+
+    near?(px, py, reach, seg) and
+      (G.segments_cross?(p.x, p.y, px, py, seg) or G.dist_segment(px, py, seg) < p.radius)
+  end
+
+  defp closest_point(px, py, {ax, ay, bx, by} = seg) do
+    {_, t} = G.point_segment(px, py, seg)
+    {ax + t * (bx - ax), ay + t * (by - ay)}
+  end
+
+  defp unit(dx, dy) do
+    d = :math.sqrt(dx * dx + dy * dy)
+    if d < 1.0e-12, do: {1.0, 0.0}, else: {dx / d, dy / d}
   end
 
   ## Sensing

@@ -6,10 +6,11 @@ defmodule TartarusArena.CollisionPropTest do
 
   @robots [:a, :b, :c]
 
-  # Three robots (one with claws, one with a pusher), pucks, an interior wall; random wheel
-  # and grip commands with random step lengths up to 0.4 s. After every step: no robot is
-  # closer to a wall than its radius or outside the arena, no robot crossed a wall since the
-  # last step, no two robots overlap, no puck is in a wall.
+  # Three robots (one with claws, one with a pusher), five pucks (two close together, one
+  # near a corner), an interior wall; random wheel and grip commands with random step
+  # lengths up to 0.4 s. After every step: no robot is closer to a wall than its radius or
+  # outside the arena, no robot crossed a wall since the last step, no two robots overlap,
+  # no puck is in a wall, no puck overlaps a puck or a robot.
   @tag :property
   test "property: whatever the commands, no robot passes through a wall or another robot" do
     wheel = :proper_types.float(-1.5, 1.5)
@@ -32,6 +33,8 @@ defmodule TartarusArena.CollisionPropTest do
             |> World.add_puck(:p1, x: 0.7, y: 1.0)
             |> World.add_puck(:p2, x: 1.3, y: 1.0)
             |> World.add_puck(:p3, x: 1.0, y: 1.6, tall: true, radius: 0.05)
+            |> World.add_puck(:p4, x: 1.37, y: 1.02)
+            |> World.add_puck(:p5, x: 1.94, y: 1.9)
 
           cmds
           |> Enum.take(40)
@@ -69,8 +72,14 @@ defmodule TartarusArena.CollisionPropTest do
           oid == id or Geometry.dist(r.x, r.y, o.x, o.y) >= r.radius + o.radius - 1.0e-9
         end)
     end) and
-      Enum.all?(w.pucks, fn {_, p} ->
-        Enum.all?(w.walls, &(Geometry.dist_segment(p.x, p.y, &1) >= p.radius - 1.0e-9))
+      Enum.all?(w.pucks, fn {pid, p} ->
+        Enum.all?(w.walls, &(Geometry.dist_segment(p.x, p.y, &1) >= p.radius - 1.0e-9)) and
+          Enum.all?(w.pucks, fn {qid, q} ->
+            qid == pid or Geometry.dist(p.x, p.y, q.x, q.y) >= p.radius + q.radius - 1.0e-6
+          end) and
+          Enum.all?(w.robots, fn {_, r} ->
+            Geometry.dist(p.x, p.y, r.x, r.y) >= p.radius + r.radius - 1.0e-6
+          end)
       end)
   end
 end

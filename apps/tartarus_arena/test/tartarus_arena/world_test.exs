@@ -140,6 +140,76 @@ defmodule TartarusArena.WorldTest do
       assert w.robots.r.bumped
     end
 
+    test "a puck pushed into a wall at an angle slides along it, and the robot goes on" do
+      # the robot heads 45 degrees into the right wall (x = 3) with a puck in its pusher
+      w =
+        world()
+        |> World.add_robot(:r, x: 2.75, y: 1.0, theta: :math.pi() / 4, tool: :pusher)
+        |> World.add_puck(:p,
+          x: 2.75 + 0.101 * :math.cos(:math.pi() / 4),
+          y: 1.0 + 0.101 * :math.sin(:math.pi() / 4)
+        )
+
+      w = run(w, %{r: {1, 1}}, 100)
+      p = w.pucks.p
+      {x, y, _} = World.pose(w, :r)
+      # the puck touches the wall and has slid up along it; the robot followed it until its
+      # own body met the wall
+      assert_in_delta p.x, 3.0 - 0.03, 0.001
+      assert p.y > 1.25
+      assert y > 1.15
+      assert_in_delta x, 3.0 - 0.07, 0.01
+      assert :math.sqrt((p.x - x) ** 2 + (p.y - y) ** 2) >= 0.1 - 1.0e-6
+    end
+
+    test "a puck pushed into another pushes it along" do
+      w =
+        world()
+        |> World.add_robot(:r, x: 1.0, y: 1.0)
+        |> World.add_puck(:p, x: 1.2, y: 1.0)
+        |> World.add_puck(:q, x: 1.3, y: 1.0)
+        |> run(%{r: {1, 1}}, 100)
+
+      {x, _, _} = World.pose(w, :r)
+      assert x > 1.4
+      assert_in_delta w.pucks.q.x - w.pucks.p.x, 0.06, 0.001
+
+      assert :math.sqrt((w.pucks.q.x - w.pucks.p.x) ** 2 + (w.pucks.q.y - w.pucks.p.y) ** 2) >=
+               0.06 - 1.0e-6
+
+      refute w.robots.r.bumped
+    end
+
+    test "a pusher whose puck is jammed in a corner can still turn in place, leaving the puck there" do
+      # facing the corner (3, 3) with the puck wedged into it
+      th = :math.pi() / 4
+      px = 3.0 - 0.03 - 0.001
+
+      w =
+        world()
+        |> World.add_robot(:r,
+          x: px - 0.1005 * :math.cos(th),
+          y: px - 0.1005 * :math.sin(th),
+          theta: th,
+          tool: :pusher
+        )
+        |> World.add_puck(:p, x: px, y: px)
+
+      pushed = run(w, %{r: {1, 1}}, 20)
+      {x, y, _} = World.pose(pushed, :r)
+      assert_in_delta x, px - 0.1005 * :math.cos(th), 0.002
+      assert_in_delta y, px - 0.1005 * :math.sin(th), 0.002
+      assert pushed.robots.r.bumped
+      turned = run(pushed, %{r: {0.2, 1}}, 50)
+      {_, _, th2} = World.pose(turned, :r)
+      assert abs(TartarusArena.Geometry.wrap_angle(th2 - th)) > 1.0
+      # the puck stays in its corner (nudged at most along a wall), out of the gripper
+      assert_in_delta turned.pucks.p.x, px, 0.005
+      assert_in_delta turned.pucks.p.y, px, 0.005
+      assert turned.pucks.p.x <= 3.0 - 0.03 and turned.pucks.p.y <= 3.0 - 0.03
+      refute elem(World.sense(turned, :r), 0).puck_in_gripper
+    end
+
     test "claws hold a puck when closed (it follows backwards) and drop it when opened" do
       w =
         world()

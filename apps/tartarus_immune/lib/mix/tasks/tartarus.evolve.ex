@@ -6,7 +6,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
 
       mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
-                          [--mode virtual|peer] [--seed 1] [--out DIR] [--json]
+                          [--mode virtual|peer] [--recovery 0] [--period 30]
+                          [--min-period 10] [--puck-reward product|sum]
+                          [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
   10 yellow pucks for S2 and S3) learns phototaxis with obstacle avoidance (S1), pushing
@@ -15,6 +17,15 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   0.45, 0.4, 0.25; 200, 500, 500 iterations) and, on the same seed, one monolithic
   controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
   with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
+  Each evaluation of up to `--period` steps of 0.1 s (30) follows `--recovery` unscored
+  steps (0, as in the thesis; 20 is Bredeche et al.'s recovery period) and, for the immune
+  robot, ends when the sensors leave the
+  antibody's active region after `--min-period` steps (10).
+  `--puck-reward` chooses the reading of Eq. 7.2's f_puck, "a function which rewards puck
+  pushing behavior" (S2, S3 with the light on, `robots3`): `product` (default),
+  `b_puck * v_trans`, moving with a puck in the gripper; `sum`, `b_puck + v_trans`, the
+  equation as printed, which also pays speed without a puck (see
+  `TartarusImmune.Evolution.Objective`).
   Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
   design, trial, antibodies, switches, final fitness, test success), for the first trial
   the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
@@ -22,7 +33,10 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   `arms` (per scenario and design: test_success, antibodies, switches, final_fitness, and
   for S3 the antibodies used with the light on, off and both, and in how many trials an
   antibody of the first light-off phase was used again in the second), `antibodies`,
-  `test_success`, `test_success_monolithic`, `immune_beats_monolithic`.
+  `test_success`, `test_success_monolithic`, `recovery`, `puck_reward`, `period`, `min_period`,
+  `mann_whitney_u` and `p_value` (exact one-sided Mann-Whitney U test of the immune
+  robot's per-trial test success against the baseline's), `immune_beats_monolithic`
+  (`p_value < 0.05`).
 
   `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
   links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the
@@ -63,6 +77,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       |> Keyword.drop([:quiet])
       |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "sharing"))
       |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:puck_reward, &Keyword.merge(&1, type: :string, default: "product"))
       |> Keyword.update!(:sizes, &Keyword.merge(&1, type: :string, default: "20,40,80"))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
@@ -79,13 +94,29 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       )
 
     mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
+
+    puck_reward =
+      TartarusTools.CLI.choice!(
+        opts[:puck_reward],
+        [:product, :sum],
+        :puck_reward,
+        @task,
+        :product
+      )
+
     sizes = parse_sizes!(opts[:sizes])
     json? = opts[:json]
 
     exp_opts =
       opts
       |> Keyword.drop([:json])
-      |> Keyword.merge(experiment: experiment, mode: mode, sizes: sizes, quiet: json?)
+      |> Keyword.merge(
+        experiment: experiment,
+        mode: mode,
+        sizes: sizes,
+        puck_reward: puck_reward,
+        quiet: json?
+      )
 
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
     Mix.Task.run("app.start")
@@ -120,7 +151,11 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         "  #{String.pad_trailing(scheme, 10)} test_success #{s.test_success[scheme]}  antibodies #{s.antibodies[scheme]}  shared chosen #{s.external_selections[scheme]}  communications per robot #{s.communications_per_robot[scheme]}"
       end
 
-    Enum.join(["evolve: robots3, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"], "\n")
+    Enum.join(
+      ["evolve: robots3, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
+        rows ++ ["  written to #{dir}"],
+      "\n"
+    )
   end
 
   defp text(%{arms: arms} = s, dir) do
@@ -135,8 +170,16 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         "  #{String.pad_trailing(arm, 14)} test_success #{a.test_success}  antibodies #{a.antibodies}  final fitness #{a.final_fitness}#{extra}"
       end
 
+    test =
+      if s.p_value,
+        do: [
+          "  immune better than monolithic on test success: one-sided Mann-Whitney U #{s.mann_whitney_u}, p = #{s.p_value}"
+        ],
+        else: []
+
     Enum.join(
-      ["evolve: #{s.experiment}, #{s.trials} trials"] ++ rows ++ ["  written to #{dir}"],
+      ["evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
+        rows ++ test ++ ["  written to #{dir}"],
       "\n"
     )
   end

@@ -65,6 +65,12 @@ defmodule TartarusImmune.Evolution.Collective do
       default: 0.2,
       doc: "probability of taking a matching shared antibody"
     ],
+    puck_reward: [
+      type: {:in, [:product, :sum]},
+      default: :product,
+      doc:
+        "the reading of Eq. 7.2's f_puck: `b_puck * v_trans` or, as printed, `b_puck + v_trans` (`Objective`)"
+    ],
     test_episodes: [type: :non_neg_integer, default: 5, doc: "test episodes per robot"],
     seed: [type: :integer, default: 1, doc: "seed"]
   ]
@@ -95,7 +101,8 @@ defmodule TartarusImmune.Evolution.Collective do
         scenario: :s3,
         iterations: c.iterations,
         seed: c.seed,
-        test_episodes: c.test_episodes
+        test_episodes: c.test_episodes,
+        puck_reward: c.puck_reward
       )
 
     names = for i <- 1..c.robots, do: "r#{i}"
@@ -189,7 +196,9 @@ defmodule TartarusImmune.Evolution.Collective do
           (px - x) ** 2 + (py - y) ** 2 > 0.04
         end)
 
-      if far?, do: {World.add_puck(w, k, x: px, y: py), rng}, else: {w, rng}
+      if far? and Embodied.puck_room?(w, px, py),
+        do: {World.add_puck(w, k, x: px, y: py), rng},
+        else: {w, rng}
     end)
   end
 
@@ -282,7 +291,7 @@ defmodule TartarusImmune.Evolution.Collective do
 
         r =
           if over do
-            fitness = Objective.fitness(:s3, samples) / k
+            fitness = Objective.fitness(:s3, samples, puck_reward: c.puck_reward) / k
             ab = r.rep.antibodies[cur.key]
             rep = Repertoire.put_es(r.rep, cur.key, ES.tell(ab.es, {cur.kind, cur.w}, fitness))
             rep = Repertoire.report(rep, cur.key, fitness)

@@ -18,12 +18,26 @@ defmodule TartarusImmune.Evolution.Embodied do
   2. immune: `Repertoire.recognize/3` then `Repertoire.select/5` (no external repertoire for
      one robot) pick an antibody; monolithic: the one controller;
   3. its strategy proposes weights (`ES.propose/2`), which drive the wheels (the network's
-     two `tanh` outputs are the wheel commands) for up to `period` steps of `dt` seconds;
-     the period ends early when the sensed epitope leaves the antibody's active region
-     (Algorithm 5, line 22: "while the current antigen is within the AR of BestAb");
+     two `tanh` outputs are the wheel commands) for up to `period` steps of `dt` seconds
+     (after an optional, unscored **recovery period** of `recovery` steps, default 0:
+     none, as the thesis describes); the scored period ends early when the sensed epitope leaves
+     the antibody's active region after at least `min_period` scored steps (Algorithm 5,
+     line 22: "while the current antigen is within the AR of BestAb");
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
-     the period and divided by its steps (periods cut short compare with full ones); the
-     strategy and the antibody's concentration are told.
+     the scored period and divided by its steps (periods cut short compare with full
+     ones); the strategy and the antibody's concentration are told.
+
+  The recovery period comes from the paper of the (1+1)-online strategy the thesis cites
+  (Bredeche, Haasdijk and Eiben 2009), not from the thesis, whose loop has none (the
+  default, `recovery: 0`): a robot evaluates controllers one after the other without
+  being put back, so each new controller starts wherever, and however stuck, the previous
+  one left the robot, and its score measures that inheritance as well as itself
+  (`TartarusImmune.Evolution.Diagnostics.ordering/1`: driving straight into walls scores
+  0.45 per step between other controllers, 0.20 after a recovery period of 20 steps). If
+  the recovery already takes the robot out of the selected antibody's active region, the
+  antibody's turn is over (line 22) unevaluated and the round starts again from there (at
+  most 5 times per iteration); iterations count evaluations. The monolithic baseline gets
+  the same recovery. docs/evolution.md gives both settings' results.
 
   The curve records, per iteration, the antibody used, the fitness and the light.
 
@@ -31,8 +45,11 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   After training, `test_episodes` episodes from fresh random poses (and pucks) run the
   learnt controllers without evolving them (immune: the best candidate for the sensed
-  epitope at each period, or the nearest antibody when none is within epsilon). Success
-  (our definitions, as the thesis gives none):
+  epitope, or the nearest antibody when none is within epsilon). With `test_switch:
+  :region` (default) the antibody is chosen again as in training: when the epitope has
+  left its active region after at least `min_period` steps, or after `period` steps;
+  `:period` chooses only every `period` steps. Success (our definitions, as the thesis
+  gives none):
 
     * S1: the robot comes within 0.4 m of the light during a 30 s episode and never bumps
       into a wall (phototaxis with obstacle avoidance: Eq. 7.1 rewards moving fast and
@@ -64,10 +81,26 @@ defmodule TartarusImmune.Evolution.Embodied do
       doc: "cross-reactivity threshold (default 0.45, 0.4, 0.25 for S1, S2, S3)"
     ],
     period: [type: :pos_integer, default: 30, doc: "steps per evaluation period at most"],
+    recovery: [
+      type: :non_neg_integer,
+      default: 0,
+      doc: "steps the proposed controller runs unscored before its evaluation period"
+    ],
+    test_switch: [
+      type: {:in, [:region, :period]},
+      default: :region,
+      doc: "test: re-select when the epitope leaves the antibody's region, or every period"
+    ],
     min_period: [
       type: :pos_integer,
       default: 10,
       doc: "steps an evaluation runs before leaving the active region can end it"
+    ],
+    puck_reward: [
+      type: {:in, [:product, :sum]},
+      default: :product,
+      doc:
+        "the reading of Eq. 7.2's f_puck: `b_puck * v_trans` or, as printed, `b_puck + v_trans` (`Objective`)"
     ],
     dt: [type: :number, default: 0.1, doc: "seconds per step"],
     pucks: [type: :non_neg_integer, default: 10, doc: "pucks (S2, S3)"],
@@ -97,8 +130,11 @@ defmodule TartarusImmune.Evolution.Embodied do
   first used in the first light-off phase was used again in the second), `trajectory`
   (poses, with `trace: true`) and `world` (the final world, with `trace: true`),
   `light_switches` (S3), `test_episodes` (each test episode's outcome: success, bumps,
-  final distance to the light, distance moved, best puck gain towards the light),
-  `final_fitness` (mean of the last 20 iterations).
+  `final_stall` (the steps at the end of the episode in a row in which the robot's move
+  was refused: stuck against a wall, or pushing a puck that cannot move), final distance
+  to the light, distance moved, best puck gain towards the light),
+  `final_fitness` (mean of the last 20 iterations), `unevaluated_rounds` (rounds whose
+  recovery period left the antibody's active region).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -180,7 +216,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     rep =
       Repertoire.new(epsilon: o.epsilon, shape: @shape, p_sharing: 0.0, origin: :self, es: o.es)
 
-    st = %{world: world, rng: rng, rep: rep, curve: [], traj: []}
+    st = %{world: world, rng: rng, rep: rep, curve: [], traj: [], unevaluated: 0}
 
     st =
       Enum.reduce(1..o.iterations, st, fn i, st ->
@@ -199,6 +235,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       iterations: o.iterations,
       curve: curve,
       antibodies: st.rep.next_id - 1,
+      unevaluated_rounds: st.unevaluated,
       switches:
         curve
         |> Enum.chunk_every(2, 1, :discard)
@@ -258,38 +295,76 @@ defmodule TartarusImmune.Evolution.Embodied do
       {rx, ry, _} = World.pose(w, :robot)
 
       if :math.sqrt((px - rx) ** 2 + (py - ry) ** 2) < 0.2 or
-           :math.sqrt((px - 1.0) ** 2 + (py - 1.0) ** 2) < 0.15,
+           :math.sqrt((px - 1.0) ** 2 + (py - 1.0) ** 2) < 0.15 or not puck_room?(w, px, py),
          do: {w, rng},
          else: {World.add_puck(w, k, x: px, y: py), rng}
     end)
   end
+
+  @doc false
+  # Whether a puck (radius 0.03) at (x, y) would not overlap the pucks already placed (a
+  # puck drawn onto another is left out, as one drawn too near the robot or the light).
+  def puck_room?(world, x, y),
+    do:
+      Enum.all?(world.pucks, fn {_, p} ->
+        (p.x - x) ** 2 + (p.y - y) ** 2 >= (p.radius + 0.03) ** 2
+      end)
 
   defp between(rng, a, b) do
     {u, rng} = :rand.uniform_s(rng)
     {a + (b - a) * u, rng}
   end
 
-  defp iteration(o, st, i, light) do
+  # One iteration: one evaluation. A round of Algorithm 5 whose recovery period already
+  # takes the robot out of the selected antibody's active region ends there, unevaluated
+  # (line 22: the antibody's turn is over), and the next round starts from where the robot
+  # is; after @max_aborted such rounds the evaluation goes ahead regardless.
+  @max_aborted 5
+
+  defp iteration(o, st, i, light, aborted \\ 0) do
     {readings, world} = World.sense(st.world, :robot)
     ep = World.normalize(readings)
     {rep, cands, rng} = Repertoire.recognize(st.rep, ep, st.rng)
     {rep, key, _, rng} = Repertoire.select(rep, cands, ep, %{}, rng)
     ab = rep.antibodies[key]
     {kind, w, rng} = ES.propose(ab.es, rng)
-    {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], st.traj)
-    fitness = Objective.fitness(o.scenario, samples) / max(length(samples), 1)
-    rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
-    rep = Repertoire.report(rep, key, fitness)
+    {world, readings, traj} = recover(o, world, w, readings, o.recovery, st.traj)
 
-    point = %{
-      iteration: i,
-      antibody: elem(key, 1),
-      fitness: fitness,
-      light_on: light,
-      steps: length(samples)
-    }
+    if aborted < @max_aborted and o.recovery > 0 and
+         Repertoire.affinity(World.normalize(readings), ab.paratope) > o.epsilon do
+      st = %{st | world: world, rep: rep, rng: rng, traj: traj, unevaluated: st.unevaluated + 1}
+      iteration(o, st, i, light, aborted + 1)
+    else
+      {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
 
-    %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+      fitness =
+        Objective.fitness(o.scenario, samples, puck_reward: o.puck_reward) /
+          max(length(samples), 1)
+
+      rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
+      rep = Repertoire.report(rep, key, fitness)
+
+      point = %{
+        iteration: i,
+        antibody: elem(key, 1),
+        fitness: fitness,
+        light_on: light,
+        steps: length(samples)
+      }
+
+      %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+    end
+  end
+
+  # The recovery period: `w` drives for `n` steps, unscored.
+  defp recover(_o, world, _w, readings, 0, traj), do: {world, readings, traj}
+
+  defp recover(o, world, w, readings, n, traj) do
+    [l, r] = NeuralNet.forward(@shape, w, World.normalize(readings))
+    world = World.step(world, %{robot: {l, r}}, o.dt)
+    {next, world} = World.sense(world, :robot)
+    traj = if o.trace, do: [World.pose(world, :robot) | traj], else: traj
+    recover(o, world, w, next, n - 1, traj)
   end
 
   # Runs weights `w` for up to `n` steps; stops when the epitope leaves `paratope`'s
@@ -319,8 +394,12 @@ defmodule TartarusImmune.Evolution.Embodied do
   @doc """
   Tests a trained repertoire (the test of the module doc) with `o`, the options of `run/1`
   as a map with defaults filled in (`options/1`). Returns `{success, episodes, rng}`.
+
+  Instead of a repertoire, `rep` may be a fixed controller: a function from the normalized
+  epitope to the two wheel commands `[left, right]` (hand-made controllers measure what
+  the test asks, `TartarusImmune.Evolution.Diagnostics`).
   """
-  @spec test_repertoire(map(), Repertoire.t(), :rand.state()) ::
+  @spec test_repertoire(map(), Repertoire.t() | ([float()] -> [float()]), :rand.state()) ::
           {float() | nil, [map()], :rand.state()}
   def test_repertoire(%{test_episodes: 0}, _rep, rng), do: {nil, [], rng}
 
@@ -349,7 +428,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     {world, rng} = arena(o, rng, light)
     pucks0 = world.pucks
     {x0, y0, _} = World.pose(world, :robot)
-    {world, bumps, near} = drive(o, rep, world, @episode_steps, 0, [])
+    {world, {bumps, stall}, near} = drive(o, rep, world, @episode_steps, {0, 0}, [])
     {x1, y1, _} = World.pose(world, :robot)
     {readings, _} = World.sense(world, :robot)
 
@@ -372,6 +451,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       light_on: light,
       success: if(ok, do: 1.0, else: 0.0),
       bumps: bumps,
+      final_stall: stall,
       final_light_distance: Float.round(dist(x1, y1, 1.0, 1.0), 3),
       moved: Float.round(dist(x0, y0, x1, y1), 3),
       best_puck_gain:
@@ -386,33 +466,53 @@ defmodule TartarusImmune.Evolution.Embodied do
     {detail, rng}
   end
 
-  # The learnt controllers, frozen: the controller is chosen again every `period` steps.
-  defp drive(_o, _rep, world, 0, bumps, near), do: {world, bumps, near}
+  # The learnt controllers, frozen. `test_switch: :period`: the controller is chosen again
+  # every `period` steps; `:region`: as in training, also when the epitope has left the
+  # chosen antibody's active region after at least `min_period` steps (Algorithm 5, line 22).
+  defp drive(o, rep, world, left, bumps, near),
+    do: drive(o, rep, world, left, bumps, near, nil, 0)
 
-  defp drive(o, rep, world, left, bumps, near) do
-    {readings, world} = World.sense(world, :robot)
-    ep = World.normalize(readings)
-    w = frozen(rep, ep)
+  defp drive(_o, _rep, world, 0, bumps, near, _cur, _k), do: {world, bumps, near}
 
-    {world, bumps, near, left} =
-      Enum.reduce_while(1..o.period, {world, bumps, near, left}, fn _,
-                                                                    {world, bumps, near, left} ->
-        if left == 0 do
-          {:halt, {world, bumps, near, left}}
-        else
+  defp drive(o, rep, world, left, bumps, near, cur, k) do
+    {r, world} = World.sense(world, :robot)
+    ep = World.normalize(r)
+
+    {cur, k, ep, world} =
+      cond do
+        is_function(rep, 1) ->
+          {rep, k, ep, world}
+
+        cur == nil or k >= o.period ->
+          # (the reading that chose is not the one the controller then acts on)
           {r, world} = World.sense(world, :robot)
-          [l, rr] = NeuralNet.forward(@shape, w, World.normalize(r))
-          world = World.step(world, %{robot: {l, rr}}, o.dt)
-          {x, y, _} = World.pose(world, :robot)
-          bumped = world.robots[:robot].bumped
+          {frozen(rep, ep), 0, World.normalize(r), world}
 
-          {:cont,
-           {world, bumps + if(bumped, do: 1, else: 0), [dist(x, y, 1.0, 1.0) <= 0.4 | near],
-            left - 1}}
-        end
-      end)
+        o.test_switch == :region and k >= o.min_period and
+            Repertoire.affinity(ep, cur.paratope) > o.epsilon ->
+          {frozen(rep, ep), 0, ep, world}
 
-    drive(o, rep, world, left, bumps, near)
+        true ->
+          {cur, k, ep, world}
+      end
+
+    [l, rr] =
+      if is_function(cur, 1), do: cur.(ep), else: NeuralNet.forward(@shape, cur.es.champion, ep)
+
+    world = World.step(world, %{robot: {l, rr}}, o.dt)
+    {x, y, _} = World.pose(world, :robot)
+    bumped = world.robots[:robot].bumped
+
+    drive(
+      o,
+      rep,
+      world,
+      left - 1,
+      if(bumped, do: {elem(bumps, 0) + 1, elem(bumps, 1) + 1}, else: {elem(bumps, 0), 0}),
+      [dist(x, y, 1.0, 1.0) <= 0.4 | near],
+      cur,
+      k + 1
+    )
   end
 
   defp frozen(rep, ep) do
@@ -427,8 +527,6 @@ defmodule TartarusImmune.Evolution.Embodied do
           Enum.max_by(cands, fn {k, _} -> rep.antibodies[k].concentration end) |> elem(0)
         ]
     end
-    |> Map.fetch!(:es)
-    |> Map.fetch!(:champion)
   end
 
   defp dist(x0, y0, x1, y1), do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)

@@ -6,7 +6,11 @@ defmodule TartarusImmune.Evolution.Experiment do
   `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
   scenario on the arena with the immune algorithm and, beside each, the monolithic
   baseline (§7.4.1) on the same seed (`TartarusImmune.Evolution.Embodied`); `monolithic`:
-  the baseline alone on all three scenarios. A step is one trial.
+  the baseline alone on all three scenarios. A step is one trial. `recovery`, `period` and
+  `min_period` are passed to every run. The summary compares the two designs' test
+  success over the trials with a one-sided Mann-Whitney U test
+  (`TartarusImmune.Evolution.Stats`, exact): `mann_whitney_u`, `p_value` (immune better
+  than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
 
   `sharing` (§7.4.3, Fig. 7.6): for each network size, social learning by
   broadcast (`b-cast`) against 1, 2, 4, ... intelligent packets (`iPkt-x`, x = n/20, n/10
@@ -21,7 +25,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing}
+  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing, Stats}
   alias TartarusTools.{Report, Series, SVG}
 
   @schema [
@@ -39,6 +43,26 @@ defmodule TartarusImmune.Evolution.Experiment do
       doc: "`sharing`: a run gives up after this"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    recovery: [
+      type: :non_neg_integer,
+      default: 0,
+      doc: "`s1`-`s3`, `monolithic`: unscored steps before each evaluation (`Embodied`)"
+    ],
+    period: [
+      type: :pos_integer,
+      default: 30,
+      doc: "`s1`-`s3`, `monolithic`: steps per evaluation at most"
+    ],
+    min_period: [
+      type: :pos_integer,
+      default: 10,
+      doc: "`s1`-`s3`, `monolithic`: steps before leaving the active region ends an evaluation"
+    ],
+    puck_reward: [
+      type: {:in, [:product, :sum]},
+      default: :product,
+      doc: "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck (`Objective`)"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
       type: :any,
@@ -126,7 +150,13 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     runs =
       for scheme <- [:none, :broadcast, :ipkt] do
-        {:ok, r} = Collective.run(scheme: scheme, seed: state.seed + trial)
+        {:ok, r} =
+          Collective.run(
+            scheme: scheme,
+            seed: state.seed + trial,
+            puck_reward: state.p.puck_reward
+          )
+
         Map.put(r, :trial, trial)
       end
 
@@ -147,7 +177,18 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     runs =
       for sc <- scenarios, d <- designs do
-        {:ok, r} = Embodied.run(scenario: sc, design: d, seed: seed, trace: trial == 0)
+        {:ok, r} =
+          Embodied.run(
+            scenario: sc,
+            design: d,
+            seed: seed,
+            trace: trial == 0,
+            recovery: state.p.recovery,
+            period: state.p.period,
+            min_period: state.p.min_period,
+            puck_reward: state.p.puck_reward
+          )
+
         Map.merge(r, %{trial: trial})
       end
 
@@ -371,6 +412,7 @@ defmodule TartarusImmune.Evolution.Experiment do
     %{
       experiment: "robots3",
       trials: state.p.trials,
+      puck_reward: to_string(state.p.puck_reward),
       test_success: by.(fn runs -> mean(Enum.map(runs, & &1.test_success)) end),
       antibodies: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
       external_selections:
@@ -417,6 +459,10 @@ defmodule TartarusImmune.Evolution.Experiment do
     main = if exp == :monolithic, do: nil, else: arms[key.(exp, :immune)]
     mono = if exp == :monolithic, do: nil, else: arms[key.(exp, :monolithic)]
 
+    test =
+      main && mono &&
+        Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial)
+
     %{
       experiment: to_string(exp),
       trials: p.trials,
@@ -425,7 +471,13 @@ defmodule TartarusImmune.Evolution.Experiment do
       test_success:
         if(main, do: main.test_success, else: Map.new(arms, fn {k, v} -> {k, v.test_success} end)),
       test_success_monolithic: mono && mono.test_success,
-      immune_beats_monolithic: if(main && mono, do: main.test_success > mono.test_success)
+      recovery: p.recovery,
+      puck_reward: to_string(p.puck_reward),
+      period: p.period,
+      min_period: p.min_period,
+      mann_whitney_u: test && test.u,
+      p_value: test && Float.round(test.p_value, 4),
+      immune_beats_monolithic: if(test, do: test.p_value < 0.05)
     }
   end
 

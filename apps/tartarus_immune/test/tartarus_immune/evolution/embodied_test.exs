@@ -30,8 +30,92 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     assert length(r.test_episodes) == 2
   end
 
+  test "each evaluation follows an unscored recovery period; recovery 0 is the plain loop" do
+    {:ok, r} =
+      Embodied.run(
+        scenario: :s1,
+        iterations: 30,
+        test_episodes: 1,
+        seed: 5,
+        trace: true,
+        recovery: 20
+      )
+
+    scored = Enum.sum(Enum.map(r.curve, & &1.steps))
+    # the robot drove the 20 recovery steps of every evaluation besides the scored ones
+    # (more when a recovery left the antibody's region and the round was not evaluated)
+    assert length(r.trajectory) == scored + 20 * (30 + r.unevaluated_rounds)
+
+    {:ok, r0} =
+      Embodied.run(
+        scenario: :s1,
+        iterations: 30,
+        test_episodes: 1,
+        seed: 5,
+        trace: true
+      )
+
+    assert length(r0.trajectory) == Enum.sum(Enum.map(r0.curve, & &1.steps))
+    assert r0.unevaluated_rounds == 0
+    # the thesis's loop, without a recovery period, is the default
+    assert Embodied.options(scenario: :s1).recovery == 0
+  end
+
+  test "the test re-selects as Algorithm 5 does or every period; both are reproducible" do
+    opts = [scenario: :s1, iterations: 40, test_episodes: 3, seed: 6]
+    {:ok, a} = Embodied.run(opts)
+    {:ok, b} = Embodied.run(opts ++ [test_switch: :period])
+    # same training (the test comes after it), possibly different test drives
+    assert a.curve == b.curve
+    assert {:ok, ^a} = Embodied.run(opts)
+    assert {:error, message} = Embodied.run(opts ++ [test_switch: :never])
+    assert message =~ "for key :test_switch"
+  end
+
+  test "the S2 arena never places a puck on another, on the robot or on the light" do
+    o = Embodied.options(scenario: :s2)
+
+    for seed <- 1..100 do
+      {w, _} = Embodied.arena(%{o | seed: seed}, :rand.seed_s(:exsss, {seed, 9, 9}), true)
+      pucks = Map.values(w.pucks)
+      {rx, ry, _} = TartarusArena.World.pose(w, :robot)
+      assert length(pucks) in 5..10
+
+      for p <- pucks do
+        assert :math.sqrt((p.x - rx) ** 2 + (p.y - ry) ** 2) >= 0.2
+        assert :math.sqrt((p.x - 1.0) ** 2 + (p.y - 1.0) ** 2) >= 0.15
+
+        for q <- pucks,
+            q.id != p.id,
+            do: assert(:math.sqrt((p.x - q.x) ** 2 + (p.y - q.y) ** 2) >= 0.06)
+      end
+    end
+  end
+
+  test "the reading of f_puck is an option: the product by default, the printed sum on request" do
+    run = fn opts ->
+      {:ok, r} = Embodied.run([scenario: :s2, iterations: 30, test_episodes: 0, seed: 3] ++ opts)
+      r
+    end
+
+    product = run.([])
+    assert run.(puck_reward: :product).curve == product.curve
+    sum = run.(puck_reward: :sum)
+    # the sum pays every step's speed again, so an S2 evaluation scores higher under it
+    assert hd(Enum.reverse(sum.curve)).fitness > hd(Enum.reverse(product.curve)).fitness
+    # S1 has no pucks: the reading changes nothing
+    {:ok, a} = Embodied.run(scenario: :s1, iterations: 20, test_episodes: 0, seed: 3)
+
+    {:ok, b} =
+      Embodied.run(scenario: :s1, iterations: 20, test_episodes: 0, seed: 3, puck_reward: :sum)
+
+    assert a.curve == b.curve
+  end
+
   test "bad options are refused with the key named" do
     assert {:error, message} = Embodied.run(scenario: :s4)
     assert message =~ "for key :scenario"
+    assert {:error, message} = Embodied.run(scenario: :s2, puck_reward: :max)
+    assert message =~ "for key :puck_reward"
   end
 end

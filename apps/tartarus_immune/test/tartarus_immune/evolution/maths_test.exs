@@ -192,18 +192,88 @@ defmodule TartarusImmune.Evolution.MathsTest do
       assert_in_delta s1.(List.duplicate(@spinning_at_wall, 10)), 1.0, 1.0e-9
     end
 
-    test "S2 rewards pushing a puck" do
+    test "S2 rewards pushing a puck, under both readings of f_puck" do
       pushing = %{@run_at_light | puck: true}
-      assert Objective.fitness(:s2, [pushing]) - Objective.fitness(:s2, [@run_at_light]) == 1.0
+
+      for r <- [:product, :sum] do
+        gain =
+          Objective.fitness(:s2, [pushing], puck_reward: r) -
+            Objective.fitness(:s2, [@run_at_light], puck_reward: r)
+
+        assert gain == 1.0
+      end
+    end
+
+    test "f_puck: the product pays only moving with a puck, the sum pays holding one and moving anywhere" do
+      holding_still = %{@still | puck: true}
+      assert Objective.f_puck(holding_still, :product) == 0.0
+      assert Objective.f_puck(holding_still, :sum) == 1.0
+      assert Objective.f_puck(@run_at_light, :product) == 0.0
+      assert Objective.f_puck(@run_at_light, :sum) == 1.0
+      assert Objective.f_puck(%{@run_at_light | puck: true}, :product) == 1.0
+      assert Objective.f_puck(%{@run_at_light | puck: true}, :sum) == 2.0
+      assert Objective.step(:s2, holding_still) == Objective.step(:s2, holding_still, :product)
+    end
+
+    # 30 steps (3 s) of a robot driving a tight circle at speed, away from walls, never
+    # meeting a puck; and of a puck pusher that searches for 20 steps (slower, turning
+    # towards the light, a wall at mid range) and then pushes a puck towards the light for
+    # 10 (slow, nearly straight, the light brighter).
+    @circling List.duplicate(
+                %{v_trans: 0.8, v_rot: 0.4, d: 1.0, light: [0.35, 0.3], puck: false},
+                30
+              )
+    @pushing List.duplicate(
+               %{v_trans: 0.5, v_rot: 0.3, d: 0.6, light: [0.4, 0.2], puck: false},
+               20
+             ) ++
+               List.duplicate(
+                 %{v_trans: 0.5, v_rot: 0.1, d: 0.5, light: [0.7, 0.6], puck: true},
+                 10
+               )
+
+    test "S2: the sum ranks circling above pushing a puck to the light, the product the reverse" do
+      f = fn trace, r -> Objective.fitness(:s2, trace, puck_reward: r) end
+      assert_in_delta f.(@circling, :sum), 30 * (0.48 + 0.35 + 0.8), 1.0e-9
+
+      assert_in_delta f.(@pushing, :sum),
+                      20 * (0.21 + 0.4 + 0.5) + 10 * (0.225 + 0.7 + 1.5),
+                      1.0e-9
+
+      assert_in_delta f.(@circling, :product), 30 * (0.48 + 0.35), 1.0e-9
+      assert_in_delta f.(@pushing, :product), 20 * (0.21 + 0.4) + 10 * (0.225 + 0.7 + 0.5), 1.0e-9
+      assert f.(@circling, :sum) > f.(@pushing, :sum)
+      assert f.(@pushing, :product) > f.(@circling, :product)
+      # the default is the product
+      assert Objective.fitness(:s2, @pushing) == f.(@pushing, :product)
+    end
+
+    test "S3 with the light on ranks as S2; with it off, neither reading of f_puck counts" do
+      on = fn trace -> Enum.map(trace, &Map.put(&1, :light_on, true)) end
+      off = fn trace -> Enum.map(trace, &Map.put(&1, :light_on, false)) end
+      f = fn trace, r -> Objective.fitness(:s3, trace, puck_reward: r) end
+      assert f.(on.(@circling), :sum) > f.(on.(@pushing), :sum)
+      assert f.(on.(@pushing), :product) > f.(on.(@circling), :product)
+      assert f.(off.(@pushing), :sum) == f.(off.(@pushing), :product)
+      # light off: moving on without a puck beats pushing one
+      assert f.(off.(@circling), :product) > f.(off.(@pushing), :product)
+    end
+
+    test "an unknown reading is refused, naming the key" do
+      assert_raise ArgumentError, ~r/:puck_reward: expected :product or :sum, got: :max/, fn ->
+        Objective.fitness(:s2, @circling, puck_reward: :max)
+      end
     end
 
     test "S3 rewards a puck with the light on and moving without one with the light off" do
       on = Map.merge(@run_at_light, %{puck: true, light_on: true})
       off_with = Map.merge(@run_at_light, %{puck: true, light_on: false})
       off_without = Map.put(@run_at_light, :light_on, false)
-      assert Objective.step(:s3, on) == 1.0 + 0.9 + 2.0
+      assert Objective.step(:s3, on) == 1.0 + 0.9 + 1.0
+      assert Objective.step(:s3, on, :sum) == 1.0 + 0.9 + 2.0
       assert Objective.step(:s3, off_with) == 1.0 + 0.9
       assert Objective.step(:s3, off_without) == 1.0 + 0.9 + 1.0
+      assert Objective.step(:s3, off_without, :sum) == 1.0 + 0.9 + 1.0
     end
   end
 end

@@ -1,0 +1,182 @@
+defmodule TartarusImmune.Evolution.Diagnostics do
+  @moduledoc """
+  Measurements behind the choices of `TartarusImmune.Evolution.Embodied` (docs/evolution.md,
+  "Why learning was weak"): what the test asks of a controller, and how well one
+  evaluation period tells a better controller from a worse one on a moving robot.
+
+    * `controllers/0` - hand-made controllers on the same four normalized inputs as the
+      evolved 4-5-2 networks (`[light_left, light_right, ultrasonic, colour]` to two wheel
+      commands);
+    * `ceiling/3` - the test success of a fixed controller (the test of `Embodied`);
+    * `fitness/3` - the mean per-step objective (Eqs. 7.1-7.3) a fixed controller earns
+      over such episodes: whether the fitness points where the test does;
+    * `ordering/1` - how often a single evaluation ranks one controller above another
+      when controllers take turns on one robot, each evaluation starting where the last
+      one left the robot (as in the (1+1)-online strategy), for a given evaluation period
+      and recovery period.
+
+  Everything is seeded: the same options give the same numbers.
+
+      iex> alias TartarusImmune.Evolution.Diagnostics
+      iex> [l, r] = Diagnostics.controllers().phototaxis.([0.2, 0.4, 1.0, 0.78])
+      iex> r < l
+      true
+  """
+
+  alias TartarusArena.World
+  alias TartarusImmune.Evolution.{Embodied, Objective}
+
+  @typedoc "A fixed controller: normalized epitope to `[left, right]` wheel commands."
+  @type controller :: ([float()] -> [float()])
+
+  @doc """
+  Hand-made controllers:
+
+    * `:phototaxis` - turn towards the brighter light sensor, turn in place when the
+      ultrasonic reads under 0.2 (40 cm): phototaxis with obstacle avoidance;
+    * `:avoid` - straight on, turn in place under 0.2: obstacle avoidance only;
+    * `:straight` - full speed ahead, whatever the sensors say;
+    * `:wander_phototaxis` - obstacle avoidance, and phototaxis while the colour sensor
+      sees a puck in the gripper (S2's sub-tasks by hand);
+    * `:circle` - left wheel full, right wheel 0.6, whatever the sensors say: a tight
+      circle at speed.
+  """
+  @spec controllers() :: %{atom() => controller()}
+  def controllers do
+    photo = fn ll, lr ->
+      k = 4 * (lr - ll)
+      [0.7 + k, 0.7 - k]
+    end
+
+    %{
+      phototaxis: fn [ll, lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: photo.(ll, lr) end,
+      avoid: fn [_ll, _lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: [0.7, 0.7] end,
+      straight: fn _ -> [1.0, 1.0] end,
+      circle: fn _ -> [1.0, 0.6] end,
+      wander_phototaxis: fn [ll, lr, us, c] ->
+        cond do
+          c < 0.5 -> photo.(ll, lr)
+          us < 0.2 -> [-0.5, 0.5]
+          true -> [0.7, 0.7]
+        end
+      end
+    }
+  end
+
+  @doc """
+  The test success (0..1) of `controller` in `scenario`'s test (`Embodied`), over
+  `episodes` episodes (default 40) from poses drawn from `seed` (default 1). Returns
+  `%{success, episodes}` (each episode's outcome, as in `Embodied.run/1`).
+  """
+  @spec ceiling(:s1 | :s2 | :s3, controller(), keyword()) :: %{
+          success: float(),
+          episodes: [map()]
+        }
+  def ceiling(scenario, controller, opts \\ []) do
+    o =
+      Embodied.options(
+        scenario: scenario,
+        test_episodes: Keyword.get(opts, :episodes, 40),
+        seed: Keyword.get(opts, :seed, 1)
+      )
+
+    {success, episodes, _} =
+      Embodied.test_repertoire(o, controller, :rand.seed_s(:exsss, {o.seed, 9, 9}))
+
+    %{success: success, episodes: episodes}
+  end
+
+  @doc """
+  The mean per-step objective of `scenario` (`TartarusImmune.Evolution.Objective`, on the
+  samples `Embodied` scores) that `controller` earns over `episodes` episodes of 30 s
+  (default 20) from the test's poses (light on), drawn from `seed` (default 1), with
+  `f_puck` read as `puck_reward` (`:product`, the default, or `:sum`).
+
+      iex> alias TartarusImmune.Evolution.Diagnostics
+      iex> Diagnostics.fitness(:s1, Diagnostics.controllers().straight, episodes: 2) < 1.0
+      true
+  """
+  @spec fitness(:s1 | :s2 | :s3, controller(), keyword()) :: float()
+  def fitness(scenario, controller, opts \\ []) do
+    n = Keyword.get(opts, :episodes, 20)
+    seed = Keyword.get(opts, :seed, 1)
+    reading = Objective.puck_reward!(opts)
+    o = Embodied.options(scenario: scenario, seed: seed)
+
+    {total, _} =
+      Enum.reduce(1..n, {0.0, :rand.seed_s(:exsss, {seed, 9, 9})}, fn _, {acc, rng} ->
+        {world, rng} = Embodied.arena(o, rng, true)
+        {_, samples} = drive(world, controller, 300, true)
+        {acc + Objective.fitness(scenario, samples, puck_reward: reading) / 300, rng}
+      end)
+
+    Float.round(total / n, 3)
+  end
+
+  @doc """
+  Controllers take turns on one S1 robot: each evaluation picks one of `controllers` (a
+  keyword list of name and controller, default `:phototaxis`, `:avoid`, `:straight`) at
+  random, runs it `recovery` steps unscored, then `period` steps scored with Eq. 7.1 (per
+  step, as `Embodied` scores), from wherever the previous evaluation left the robot.
+  Options: `period` (30), `recovery` (0), `evaluations` per run (120), `runs` (10, seeds
+  1..runs), `controllers`.
+
+  Returns `%{mean: name => mean fitness per step, beats: {a, b} => the probability that
+  an evaluation of a scores higher than one of b}` for every ordered pair.
+  """
+  @spec ordering(keyword()) :: %{mean: map(), beats: map()}
+  def ordering(opts \\ []) do
+    period = Keyword.get(opts, :period, 30)
+    recovery = Keyword.get(opts, :recovery, 0)
+    n = Keyword.get(opts, :evaluations, 120)
+    c = controllers()
+
+    ctrls =
+      Keyword.get(opts, :controllers,
+        phototaxis: c.phototaxis,
+        avoid: c.avoid,
+        straight: c.straight
+      )
+
+    o = Embodied.options(scenario: :s1)
+
+    evals =
+      for seed <- 1..Keyword.get(opts, :runs, 10), reduce: [] do
+        acc ->
+          {world, _} = Embodied.arena(%{o | seed: seed}, :rand.seed_s(:exsss, {seed, 5, 5}), true)
+          rng = :rand.seed_s(:exsss, {seed, 1, 1})
+
+          {_, _, out} =
+            Enum.reduce(1..n, {world, rng, acc}, fn _, {w, rng, out} ->
+              {u, rng} = :rand.uniform_s(length(ctrls), rng)
+              {name, f} = Enum.at(ctrls, u - 1)
+              {w, _} = drive(w, f, recovery, false)
+              {w, samples} = drive(w, f, period, true)
+              {w, rng, [{name, Objective.fitness(:s1, samples) / period} | out]}
+            end)
+
+          out
+      end
+
+    by = Enum.group_by(evals, &elem(&1, 0), &elem(&1, 1))
+
+    %{
+      mean: Map.new(by, fn {k, xs} -> {k, Float.round(Enum.sum(xs) / length(xs), 3)} end),
+      beats:
+        for {a, xs} <- by, {b, ys} <- by, a != b, into: %{} do
+          wins = for x <- xs, y <- ys, x > y, reduce: 0, do: (k -> k + 1)
+          {{a, b}, Float.round(wins / (length(xs) * length(ys)), 3)}
+        end
+    }
+  end
+
+  defp drive(world, f, steps, score) do
+    Enum.reduce(1..steps//1, {world, []}, fn _, {w, samples} ->
+      {r, w} = World.sense(w, :robot)
+      [l, rr] = f.(World.normalize(r))
+      w = World.step(w, %{robot: {l, rr}}, 0.1)
+      {next, w} = World.sense(w, :robot)
+      {w, if(score, do: [Embodied.sample(w, :robot, next) | samples], else: samples)}
+    end)
+  end
+end

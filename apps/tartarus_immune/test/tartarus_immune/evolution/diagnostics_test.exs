@@ -1,0 +1,44 @@
+defmodule TartarusImmune.Evolution.DiagnosticsTest do
+  use ExUnit.Case, async: true
+
+  alias TartarusImmune.Evolution.Diagnostics
+
+  doctest Diagnostics
+
+  test "the S1 test is passable: hand-made phototaxis passes, driving straight into a wall fails" do
+    c = Diagnostics.controllers()
+    assert Diagnostics.ceiling(:s1, c.phototaxis, episodes: 5).success == 1.0
+    straight = Diagnostics.ceiling(:s1, c.straight, episodes: 5)
+    assert straight.success == 0.0
+    # it ends pressed against a wall
+    assert Enum.all?(straight.episodes, &(&1.final_stall > 0))
+  end
+
+  test "S2: pushing pucks towards the light by hand passes test episodes; Eq. 7.2 ranks circling higher under both readings of f_puck, and circling passes none" do
+    c = Diagnostics.controllers()
+    pusher = Diagnostics.ceiling(:s2, c.wander_phototaxis, episodes: 10)
+    assert pusher.success >= 0.2
+    # with pucks sliding along walls and pushing each other, few episodes end stalled
+    assert Enum.count(pusher.episodes, &(&1.final_stall > 0)) <= 2
+    assert Diagnostics.ceiling(:s2, c.circle, episodes: 10).success == 0.0
+
+    for r <- [:sum, :product] do
+      assert Diagnostics.fitness(:s2, c.circle, episodes: 10, puck_reward: r) >
+               Diagnostics.fitness(:s2, c.wander_phototaxis, episodes: 10, puck_reward: r)
+    end
+
+    # under the product the circle still earns f_puck: it sweeps pucks into its pusher and
+    # carries them round
+    assert Diagnostics.fitness(:s2, c.circle, episodes: 5, puck_reward: :product) >
+             Diagnostics.fitness(:s1, c.circle, episodes: 5)
+  end
+
+  test "a recovery period makes one evaluation rank controllers more reliably" do
+    plain = Diagnostics.ordering(period: 30, recovery: 0, runs: 3, evaluations: 60)
+    recovered = Diagnostics.ordering(period: 30, recovery: 20, runs: 3, evaluations: 60)
+
+    assert recovered.beats[{:phototaxis, :straight}] > plain.beats[{:phototaxis, :straight}]
+    assert recovered.beats[{:avoid, :straight}] > plain.beats[{:avoid, :straight}]
+    assert plain.beats[{:phototaxis, :avoid}] + plain.beats[{:avoid, :phototaxis}] <= 1.0
+  end
+end
