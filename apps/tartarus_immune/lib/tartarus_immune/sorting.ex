@@ -164,6 +164,24 @@ defmodule TartarusImmune.Sorting do
   """
   def score(solution, instance), do: score(solution, instance, [])
 
+  @impl true
+  @doc """
+  The scale a cost is divided by in a performance score (`TartarusImmune.Domain`):
+  `log2(L!)`, the information-theoretic least number of comparisons that sorts L distinct
+  keys, at least 1. It depends on the length alone, so a score is "how many times the
+  least possible" whatever else ran beside the solution, and a mean over sequences of
+  different lengths (P4) is not dominated by the longest.
+
+      iex> TartarusImmune.Sorting.score_scale(Enum.to_list(1..8)) |> Float.round(2)
+      15.3
+      iex> TartarusImmune.Sorting.score_scale([1])
+      1.0
+  """
+  def score_scale(list) do
+    n = length(list)
+    Enum.reduce(2..max(n, 2)//1, 0.0, fn k, acc -> acc + :math.log2(k) end) |> max(1.0)
+  end
+
   @doc """
   Like `score/2`; with `measure: :time` the run's wall time in µs instead (not
   deterministic). Raises if the output is not sorted.
