@@ -20,7 +20,11 @@ defmodule TartarusImmune.Sorting do
   for on-the-fly addition (`TartarusImmune.Sorting.*`). Each sorts and counts key
   comparisons and moves of the textbook array algorithm. The cost (`score/2`) is
   comparisons + moves: deterministic. `score/3` with `measure: :time` gives microseconds
-  instead (not deterministic).
+  instead (not deterministic, and not used: on P1 measured time ranks insertion and
+  selection sort by how they are written for the BEAM, see `profile/2` and
+  docs/immune.md). An iPkt's performance score divides the cost by `score_scale/1`,
+  log2(L!): a property of the instance alone, so the score does not depend on which other
+  algorithms ran beside it.
 
   ## Data sets (seeded)
 
