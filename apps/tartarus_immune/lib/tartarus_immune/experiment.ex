@@ -149,6 +149,7 @@ defmodule TartarusImmune.Experiment do
         born: 0,
         died: 0,
         expired: 0,
+        events_at: %{},
         first_step: nil,
         last_step: 0
       }
@@ -235,7 +236,21 @@ defmodule TartarusImmune.Experiment do
       Enum.reduce(pop, st.series, fn {name, n}, ser -> Series.record(ser, name, k, n) end)
       |> Series.record("total", k, pop |> Map.values() |> Enum.sum())
 
-    %{st | series: series, conv: Convergence.observe(st.conv, k, pop), last_step: k}
+    %{
+      st
+      | series: series,
+        conv: Convergence.observe(st.conv, k, pop),
+        last_step: k,
+        events_at: Map.put(st.events_at, k, log_count(st))
+    }
+  end
+
+  # What a log server of §6.5.1 would have counted by now: sharing (iPkt migrations to
+  # another host) and executions (a selected solution run on a problem, Algorithm 4
+  # line 20), and, as a wider variant, every clone and death too.
+  defp log_count(st) do
+    execs = st.executed |> Map.values() |> Enum.sum()
+    {st.moves + execs, st.moves + execs + st.born + st.died + st.expired}
   end
 
   @impl true
@@ -384,6 +399,9 @@ defmodule TartarusImmune.Experiment do
         nil -> {Convergence.leader(names.(st.pop), 0.0), nil}
       end
 
+    {events_run, events_all_run} = Map.get(st.events_at, st.last_step, {0, 0})
+    {conv_events, conv_events_all} = Map.get(st.events_at, conv_step, {nil, nil})
+
     %{
       set: st.o.set,
       nodes: length(st.hosts),
@@ -398,6 +416,10 @@ defmodule TartarusImmune.Experiment do
           %{step: k, winner: w}
         end),
       steps_run: st.last_step,
+      convergence_events: conv_events,
+      convergence_events_all: conv_events_all,
+      events_run: events_run,
+      events_all_run: events_all_run,
       known_best: t.known_best,
       test_accuracy: t.accuracy,
       test_regret: t.regret,

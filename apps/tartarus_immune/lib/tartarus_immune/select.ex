@@ -202,12 +202,18 @@ defmodule TartarusImmune.Select do
 
   defp steps_of(r), do: r.summary.convergence_step || r.summary.steps_run
 
+  # the same convergence in the second unit, a log server's count of events (sharing and
+  # executions, `TartarusImmune.Experiment`); not converged: the count at the step limit
+  defp events_of(r), do: r.summary.convergence_events || r.summary.events_run
+  defp events_all_of(r), do: r.summary.convergence_events_all || r.summary.events_all_run
+
   defp common(runs) do
     %{
       winners: runs |> per_set(:winner) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       winners_by_seed: per_set(runs, :winner),
       known_best: runs |> per_set(:known_best) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       convergence_steps: per_set(runs, :convergence_step),
+      convergence_events: per_set(runs, :convergence_events),
       test_accuracy: runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
       test_regret: runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
       test_regret_rel:
@@ -230,12 +236,19 @@ defmodule TartarusImmune.Select do
     |> Enum.group_by(& &1.arm)
     |> Map.new(fn {arm, rs} ->
       steps = Enum.map(rs, &steps_of/1)
+      events = Enum.map(rs, &events_of/1)
+      events_all = Enum.map(rs, &events_all_of/1)
 
       {arm,
        %{
          convergence_steps: Enum.map(rs, & &1.summary.convergence_step),
          steps_mean: mean(steps),
          steps_sd: sd(steps),
+         convergence_events: Enum.map(rs, & &1.summary.convergence_events),
+         events_mean: mean(events),
+         events_sd: sd(events),
+         events_all_mean: mean(events_all),
+         events_all_sd: sd(events_all),
          converged: Enum.count(rs, & &1.summary.converged),
          runs: length(rs),
          winners: Enum.map(rs, & &1.summary.winner),
@@ -294,7 +307,7 @@ defmodule TartarusImmune.Select do
     File.mkdir_p!(dir)
 
     header =
-      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms)
+      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms convergence_events events_run)
 
     rows =
       for r <- runs do
@@ -318,7 +331,9 @@ defmodule TartarusImmune.Select do
             s.failed_moves,
             s.clones,
             s.deaths,
-            s.run_ms
+            s.run_ms,
+            s.convergence_events,
+            s.events_run
           ]
       end
 
