@@ -22,7 +22,8 @@ defmodule TartarusImmune.Experiment do
        the step waits for every clone born;
     4. **Churn** (`dynamic: p`, Fig. 6.6): each host breaks off (all its links down,
        `TartarusEmu.Network.isolate/2`) or, if off, reconnects with probability `p`;
-    5. **Migration**: every iPkt is told `{:go, epoch}` and moves, stays or dies
+    5. **Migration**: every iPkt is told `{:go, epoch, age}` (age: the fraction of the
+       barrage period gone by, for `signal_life: :eq6_5`) and moves, stays or dies
        (`TartarusImmune.IPkt`); the step waits for every one;
     6. the population per solution is recorded (the learning curve) and given to
        `TartarusImmune.Convergence`.
@@ -354,7 +355,9 @@ defmodule TartarusImmune.Experiment do
 
   defp migrate(st) do
     alive = st.pop |> Map.values() |> Enum.sum()
-    Network.broadcast(st.net, {:go, st.epoch})
+    # how far into its barrage period the step is (Eq. 6.5's lifetimes, `signal_life:`)
+    age = rem(st.last_step, st.o.period) / st.o.period
+    Network.broadcast(st.net, {:go, st.epoch, age})
 
     Enum.reduce(1..alive//1, st, fn _, st ->
       case receive_event(st.run, [:arrived, :stayed, :expired]) do
