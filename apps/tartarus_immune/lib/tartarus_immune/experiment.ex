@@ -38,6 +38,15 @@ defmodule TartarusImmune.Experiment do
   the oracle's choice among the offered solutions, `test_regret` the mean extra cost over
   the oracle, `test_regret_rel` the mean of extra cost / oracle cost.
 
+  ## Steps and logged events
+
+  A step is one round (the list above); `convergence_step` is in rounds. The summary also
+  counts what the thesis's log server recorded (§6.5.1: "events such as sharing,
+  executions"): `convergence_events` is the number of migrations to another host plus
+  executions (a selected solution run on a problem) up to the end of the convergence
+  round, `convergence_events_all` adds clones and deaths; `events_run` and
+  `events_all_run` are the same counts at the end of the run.
+
   ## Options
 
   See `schema/0` (and `mix tartarus.select --help`); the parameters of Table 6.1 go in

@@ -15,10 +15,14 @@ defmodule TartarusImmune.Select do
   | `barrage` | `set` for β in `betas` | Fig. 6.7b |
   | `iot` | the temperature series on `nodes` hosts (default 50) | Fig. 6.10 |
 
-  Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps).
+  Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps),
+  in rounds (a step is one round: every host one iteration of Algorithm 4, every iPkt one
+  move); the same convergence is also given in the thesis's log-server unit
+  (`convergence_events`: sharing + executions logged by then; the arms' `events_mean`,
+  `events_sd`), reported, not used for the criteria.
   Files (in `out`): `runs.csv` (one row per run: experiment arm, set, seed, winner, known
   best, converged, convergence step, steps run, test accuracy and regret, migrations,
-  clones, deaths, wall ms), a population chart per run of the first seed
+  clones, deaths, wall ms, convergence events, events run), a population chart per run of the first seed
   (`population_<arm>_<set>.svg` and `.csv`: live iPkts per solution per step, the learning
   curve), `steps.svg` (box plot of convergence steps per arm, for the multi-seed
   experiments), `summary.json` and `summary.md`.
