@@ -41,6 +41,34 @@ defmodule TartarusImmune.Domain do
   @callback instance(set(), index :: non_neg_integer(), seed :: integer()) :: term()
 
   @doc """
+  Optional: a positive scale of `instance` that depends on the instance alone (its size),
+  by which a solution's cost is divided to make its performance score, so that costs on
+  instances of different sizes can be averaged and a score does not depend on which other
+  solutions happened to run beside it (see `TartarusImmune.Params`, `:score_ref`).
+  Without it the scale is 1.
+  """
+  @callback score_scale(instance :: term()) :: number()
+
+  @optional_callbacks score_scale: 1
+
+  @doc """
+  `domain.score_scale(instance)` if the domain defines it, else 1.
+
+      iex> TartarusImmune.Domain.score_scale(TartarusImmune.Sorting, [1, 2])
+      1.0
+      iex> TartarusImmune.Domain.score_scale(Enum, [1, 2])
+      1
+  """
+  @spec score_scale(module(), term()) :: number()
+  def score_scale(domain, instance) do
+    Code.ensure_loaded(domain)
+
+    if function_exported?(domain, :score_scale, 1),
+      do: domain.score_scale(instance),
+      else: 1
+  end
+
+  @doc """
   The oracle: the solution of `solutions` with the lowest cost on `instance` (ties: the
   earlier in `solutions`), and every solution's cost.
   """

@@ -22,7 +22,8 @@ defmodule TartarusImmune.Experiment do
        the step waits for every clone born;
     4. **Churn** (`dynamic: p`, Fig. 6.6): each host breaks off (all its links down,
        `TartarusEmu.Network.isolate/2`) or, if off, reconnects with probability `p`;
-    5. **Migration**: every iPkt is told `{:go, epoch}` and moves, stays or dies
+    5. **Migration**: every iPkt is told `{:go, epoch, age}` (age: the fraction of the
+       barrage period gone by, for `signal_life: :eq6_5`) and moves, stays or dies
        (`TartarusImmune.IPkt`); the step waits for every one;
     6. the population per solution is recorded (the learning curve) and given to
        `TartarusImmune.Convergence`.
@@ -36,6 +37,15 @@ defmodule TartarusImmune.Experiment do
   recognizes it, the most populous solution); `test_accuracy` is the fraction where that is
   the oracle's choice among the offered solutions, `test_regret` the mean extra cost over
   the oracle, `test_regret_rel` the mean of extra cost / oracle cost.
+
+  ## Steps and logged events
+
+  A step is one round (the list above); `convergence_step` is in rounds. The summary also
+  counts what the thesis's log server recorded (§6.5.1: "events such as sharing,
+  executions"): `convergence_events` is the number of migrations to another host plus
+  executions (a selected solution run on a problem) up to the end of the convergence
+  round, `convergence_events_all` adds clones and deaths; `events_run` and
+  `events_all_run` are the same counts at the end of the run.
 
   ## Options
 
@@ -149,6 +159,7 @@ defmodule TartarusImmune.Experiment do
         born: 0,
         died: 0,
         expired: 0,
+        events_at: %{},
         first_step: nil,
         last_step: 0
       }
@@ -235,7 +246,21 @@ defmodule TartarusImmune.Experiment do
       Enum.reduce(pop, st.series, fn {name, n}, ser -> Series.record(ser, name, k, n) end)
       |> Series.record("total", k, pop |> Map.values() |> Enum.sum())
 
-    %{st | series: series, conv: Convergence.observe(st.conv, k, pop), last_step: k}
+    %{
+      st
+      | series: series,
+        conv: Convergence.observe(st.conv, k, pop),
+        last_step: k,
+        events_at: Map.put(st.events_at, k, log_count(st))
+    }
+  end
+
+  # What a log server of §6.5.1 would have counted by now: sharing (iPkt migrations to
+  # another host) and executions (a selected solution run on a problem, Algorithm 4
+  # line 20), and, as a wider variant, every clone and death too.
+  defp log_count(st) do
+    execs = st.executed |> Map.values() |> Enum.sum()
+    {st.moves + execs, st.moves + execs + st.born + st.died + st.expired}
   end
 
   @impl true
@@ -339,7 +364,9 @@ defmodule TartarusImmune.Experiment do
 
   defp migrate(st) do
     alive = st.pop |> Map.values() |> Enum.sum()
-    Network.broadcast(st.net, {:go, st.epoch})
+    # how far into its barrage period the step is (Eq. 6.5's lifetimes, `signal_life:`)
+    age = rem(st.last_step, st.o.period) / st.o.period
+    Network.broadcast(st.net, {:go, st.epoch, age})
 
     Enum.reduce(1..alive//1, st, fn _, st ->
       case receive_event(st.run, [:arrived, :stayed, :expired]) do
@@ -384,6 +411,9 @@ defmodule TartarusImmune.Experiment do
         nil -> {Convergence.leader(names.(st.pop), 0.0), nil}
       end
 
+    {events_run, events_all_run} = Map.get(st.events_at, st.last_step, {0, 0})
+    {conv_events, conv_events_all} = Map.get(st.events_at, conv_step, {nil, nil})
+
     %{
       set: st.o.set,
       nodes: length(st.hosts),
@@ -398,6 +428,10 @@ defmodule TartarusImmune.Experiment do
           %{step: k, winner: w}
         end),
       steps_run: st.last_step,
+      convergence_events: conv_events,
+      convergence_events_all: conv_events_all,
+      events_run: events_run,
+      events_all_run: events_all_run,
       known_best: t.known_best,
       test_accuracy: t.accuracy,
       test_regret: t.regret,

@@ -123,7 +123,10 @@ defmodule TartarusImmune.IPkt do
     {:clone, :here, s}
   end
 
-  def handle_info({:go, epoch}, s) do
+  def handle_info({:go, epoch}, s), do: handle_info({:go, epoch, 0.0}, s)
+
+  # `age`: the fraction of the barrage period gone by (for `signal_life: :eq6_5`)
+  def handle_info({:go, epoch, age}, s) do
     s = %{s | plan: nil}
 
     cond do
@@ -136,7 +139,7 @@ defmodule TartarusImmune.IPkt do
         notify(s, :stayed)
         {:stay, s}
 
-      s.danger and danger_match?(s, epoch) ->
+      s.danger and danger_match?(s, epoch, age) ->
         leave()
         {:move, {:gradient, {:danger, epoch}}, s}
 
@@ -174,9 +177,16 @@ defmodule TartarusImmune.IPkt do
     |> Enum.any?(&Maths.recognizes?(&1, s.fv, s.p))
   end
 
-  defp danger_match?(s, epoch) do
+  # Eq. 6.5 (`signal_life: :eq6_5`): a contribution lives T_life(H) = its strength Sg(H)
+  # (ΔT_life = ΔSg, Eqs. 6.2-6.3), Sg_max standing for the barrage period
+  defp danger_match?(s, epoch, age) do
     {:danger, epoch}
     |> Tartarus.Agent.signals()
-    |> Enum.any?(fn %{data: fvs} -> Enum.any?(fvs, &Maths.recognizes?(&1, s.fv, s.p)) end)
+    |> Enum.any?(fn %{data: fvs, value: v} ->
+      alive?(s.p, v, age) and Enum.any?(fvs, &Maths.recognizes?(&1, s.fv, s.p))
+    end)
   end
+
+  defp alive?(%{signal_life: :eq6_5, sg_max: max}, v, age), do: age < v / max
+  defp alive?(_p, _v, _age), do: true
 end

@@ -34,10 +34,12 @@ defmodule TartarusImmune.Maths do
       iPkts interact (`interact/2`), which turns an early lead into a monopoly within a few
       steps.
     * **The performance score ζ** an iPkt carries (§6.4.1: "an ID, activation value and a
-      performance score") is `running_score/4`: the running mean of its solution's relative
-      cost (cost / the best candidate's cost on that instance) over the last `score_window`
-      problems it took part in; every distinct candidate solution runs on the instance. A
-      clone inherits its parent's ζ.
+      performance score") is `running_score/4`: the running mean of its solution's
+      normalized cost over the last `score_window` problems it took part in; every distinct
+      candidate solution runs on the instance. The cost is divided by a reference chosen by
+      `p.score_ref` (see `TartarusImmune.Params`): by default the instance's own scale
+      (`TartarusImmune.Domain.score_scale/2`), which no other solution changes. A clone
+      inherits its parent's ζ.
     * **Caps**: an activation is capped at τ_max after Eq. 6.10 (τ_max is "the maximum value
       of activation an iPkt can have").
     * **NC** (Eq. 6.11) becomes a count by `p.nc_round` (`:floor` by default), never below 0;
@@ -295,9 +297,9 @@ defmodule TartarusImmune.Maths do
 
   @doc """
   The performance score ζ an iPkt carries after taking part in one more problem: the
-  running mean of its relative costs `r` (its solution's cost / the best candidate's cost,
-  so 1.0 is the best) over its last `window` problems (`zeta` nil: none yet). Returns
-  `{zeta, n}`.
+  running mean of its normalized costs `r` (its solution's cost divided by the reference
+  of `p.score_ref`, lower is better) over its last `window` problems (`zeta` nil: none
+  yet). Returns `{zeta, n}`.
 
       iex> TartarusImmune.Maths.running_score(nil, 0, 1.5, 20)
       {1.5, 1}

@@ -52,7 +52,7 @@ defmodule TartarusImmune.Node do
   """
   use Tartarus.Agent
 
-  alias TartarusImmune.{Cache, Maths}
+  alias TartarusImmune.{Cache, Domain, Maths}
 
   @doc false
   def init(s), do: {:stay, Map.merge(%{queue: %{}, problems: [], choice: nil}, s)}
@@ -94,7 +94,12 @@ defmodule TartarusImmune.Node do
 
     score = fn sol -> Cache.score(s.domain, sol, pb.ref, s.seed, pb.inst) end
 
-    case interact(members, pb.fv, score, Map.put(s.p, :q_current, map_size(s.queue))) do
+    p =
+      s.p
+      |> Map.put(:q_current, map_size(s.queue))
+      |> Map.put(:scale, Domain.score_scale(s.domain, pb.inst))
+
+    case interact(members, pb.fv, score, p) do
       :no_candidates ->
         Tartarus.Agent.reply(from, %{executed: nil, waiting: pb.ref, born: 0, died: []})
         {:stay, s}
@@ -248,8 +253,11 @@ defmodule TartarusImmune.Node do
 
   @doc """
   The decisions of one interaction (Algorithm 4, lines 9-21) for a problem of feature
-  vector `fx`, pure. `members` are `{id, %{sol:, fv:, tau:}}` in queue order; `score`
-  gives a solution's cost on the instance; `p` holds the parameters and `:q_current`.
+  vector `fx`, pure. `members` are `{id, %{sol:, fv:, tau:, zeta:, n:}}` in queue order;
+  `score` gives a solution's cost on the instance; `p` holds the parameters, `:q_current`
+  and `:scale` (the instance's `TartarusImmune.Domain.score_scale/2`). Each candidate's
+  ζ takes its cost divided by `p.scale` (`p.score_ref == :instance`; a missing `:scale`
+  is 1) or by the cheapest candidate's cost (`:best_candidate`).
   Returns `:no_candidates`, or a map with the candidates' new activations `:taus`
   (`[{id, tau}]`) and performance scores `:scores` (`%{id => {zeta, n}}`), the `:selected` id, its clone count `:nc`, its activation after
   cloning `:tau_after`, the normalized affinity `:psi_norm` of its F_y to `fx` (for
@@ -266,11 +274,15 @@ defmodule TartarusImmune.Node do
       costs =
         cands |> Enum.map(fn {_, m} -> m.sol end) |> Enum.uniq() |> Map.new(&{&1, score.(&1)})
 
-      best = costs |> Map.values() |> Enum.min() |> max(1)
+      ref =
+        case Map.get(p, :score_ref, :best_candidate) do
+          :instance -> Map.get(p, :scale, 1)
+          :best_candidate -> costs |> Map.values() |> Enum.min() |> max(1)
+        end
 
       zetas =
         Enum.map(cands, fn {_, m} ->
-          Maths.running_score(m.zeta, m.n, costs[m.sol] / best, p.score_window)
+          Maths.running_score(m.zeta, m.n, costs[m.sol] / ref, p.score_window)
         end)
 
       ms =

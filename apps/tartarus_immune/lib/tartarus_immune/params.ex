@@ -23,10 +23,20 @@ defmodule TartarusImmune.Params do
   | `:nc_cap` | - | `:survive` | `:survive`: a parent makes no more clones than leave it at τ_min or above; `:none`: Eq. 6.13 as printed |
   | `:lin` | - | `:types` | who interacts in a LIN round: each pair of solutions once (`Maths.interact_types/2`) or each pair of iPkts (`Maths.interact/2`) |
   | `:score_window` | - | 50 | problems in the running mean of an iPkt's performance score ζ |
+  | `:score_ref` | - | `:instance` | what a cost is divided by in ζ (`:interact` only): `:instance`, the domain's scale of the instance (`TartarusImmune.Domain.score_scale/2`); `:best_candidate`, the cheapest candidate on the same instance |
+  | `:signal_life` | T_life (Eq. 6.5) | `:period` | how long iPkts follow a danger signal: `:period`, its whole barrage period at every hop; `:eq6_5`, a fraction T_life(H)/Sg_max = Sg(H)/Sg_max of it (ΔT_life = ΔSg, Eqs. 6.2-6.3: the whole period at the source, half of it one hop away), Sg_max standing for the period |
   | `:clamp_fv` | - | true | mutated feature values are clamped to [0, 1] (features are normalized) |
 
   Table 6.1 lists `σ = 1` and `v = 5`, symbols that appear in no equation; Eq. 6.9 has a γ
   and Eqs. 6.11-6.12 a Q_max that Table 6.1 does not list. We read σ as γ and v as Q_max.
+
+  `:score_ref`: a cost divided by the cheapest candidate present (`:best_candidate`, the
+  first choice) measures a solution against whoever happened to be on the host: a
+  solution alone on a host is "the best" of itself and scores 1.0 on every problem, so a
+  solution that first wins a few hosts by luck carries a perfect score to the next host and
+  suppresses a better rival there (on the sorting set P1 this gave the near-tie IS/SelS to
+  SelS in 5 of 10 seeds). `:instance` divides by a scale of the instance alone, so a score
+  is the solution's own.
   """
 
   @schema [
@@ -58,6 +68,17 @@ defmodule TartarusImmune.Params do
       type: :pos_integer,
       default: 50,
       doc: "problems in the running mean of the performance score ζ"
+    ],
+    score_ref: [
+      type: {:in, [:instance, :best_candidate]},
+      default: :instance,
+      doc: "ζ's reference: the instance's own scale, or the cheapest candidate present"
+    ],
+    signal_life: [
+      type: {:in, [:period, :eq6_5]},
+      default: :period,
+      doc:
+        "a danger signal lives its barrage period at every hop, or (Eq. 6.5) for a fraction Sg(H)/Sg_max of it"
     ],
     lin: [
       type: {:in, [:types, :ipkts]},

@@ -15,10 +15,14 @@ defmodule TartarusImmune.Select do
   | `barrage` | `set` for β in `betas` | Fig. 6.7b |
   | `iot` | the temperature series on `nodes` hosts (default 50) | Fig. 6.10 |
 
-  Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps).
+  Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps),
+  in rounds (a step is one round: every host one iteration of Algorithm 4, every iPkt one
+  move); the same convergence is also given in the thesis's log-server unit
+  (`convergence_events`: sharing + executions logged by then; the arms' `events_mean`,
+  `events_sd`), reported, not used for the criteria.
   Files (in `out`): `runs.csv` (one row per run: experiment arm, set, seed, winner, known
   best, converged, convergence step, steps run, test accuracy and regret, migrations,
-  clones, deaths, wall ms), a population chart per run of the first seed
+  clones, deaths, wall ms, convergence events, events run), a population chart per run of the first seed
   (`population_<arm>_<set>.svg` and `.csv`: live iPkts per solution per step, the learning
   curve), `steps.svg` (box plot of convergence steps per arm, for the multi-seed
   experiments), `summary.json` and `summary.md`.
@@ -202,12 +206,18 @@ defmodule TartarusImmune.Select do
 
   defp steps_of(r), do: r.summary.convergence_step || r.summary.steps_run
 
+  # the same convergence in the second unit, a log server's count of events (sharing and
+  # executions, `TartarusImmune.Experiment`); not converged: the count at the step limit
+  defp events_of(r), do: r.summary.convergence_events || r.summary.events_run
+  defp events_all_of(r), do: r.summary.convergence_events_all || r.summary.events_all_run
+
   defp common(runs) do
     %{
       winners: runs |> per_set(:winner) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       winners_by_seed: per_set(runs, :winner),
       known_best: runs |> per_set(:known_best) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       convergence_steps: per_set(runs, :convergence_step),
+      convergence_events: per_set(runs, :convergence_events),
       test_accuracy: runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
       test_regret: runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
       test_regret_rel:
@@ -230,12 +240,19 @@ defmodule TartarusImmune.Select do
     |> Enum.group_by(& &1.arm)
     |> Map.new(fn {arm, rs} ->
       steps = Enum.map(rs, &steps_of/1)
+      events = Enum.map(rs, &events_of/1)
+      events_all = Enum.map(rs, &events_all_of/1)
 
       {arm,
        %{
          convergence_steps: Enum.map(rs, & &1.summary.convergence_step),
          steps_mean: mean(steps),
          steps_sd: sd(steps),
+         convergence_events: Enum.map(rs, & &1.summary.convergence_events),
+         events_mean: mean(events),
+         events_sd: sd(events),
+         events_all_mean: mean(events_all),
+         events_all_sd: sd(events_all),
          converged: Enum.count(rs, & &1.summary.converged),
          runs: length(rs),
          winners: Enum.map(rs, & &1.summary.winner),
@@ -294,7 +311,7 @@ defmodule TartarusImmune.Select do
     File.mkdir_p!(dir)
 
     header =
-      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms)
+      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms convergence_events events_run)
 
     rows =
       for r <- runs do
@@ -318,7 +335,9 @@ defmodule TartarusImmune.Select do
             s.failed_moves,
             s.clones,
             s.deaths,
-            s.run_ms
+            s.run_ms,
+            s.convergence_events,
+            s.events_run
           ]
       end
 

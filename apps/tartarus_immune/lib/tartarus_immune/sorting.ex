@@ -20,7 +20,11 @@ defmodule TartarusImmune.Sorting do
   for on-the-fly addition (`TartarusImmune.Sorting.*`). Each sorts and counts key
   comparisons and moves of the textbook array algorithm. The cost (`score/2`) is
   comparisons + moves: deterministic. `score/3` with `measure: :time` gives microseconds
-  instead (not deterministic).
+  instead (not deterministic, and not used: on P1 measured time ranks insertion and
+  selection sort by how they are written for the BEAM, see `profile/2` and
+  docs/immune.md). An iPkt's performance score divides the cost by `score_scale/1`,
+  log2(L!): a property of the instance alone, so the score does not depend on which other
+  algorithms ran beside it.
 
   ## Data sets (seeded)
 
@@ -164,6 +168,24 @@ defmodule TartarusImmune.Sorting do
   """
   def score(solution, instance), do: score(solution, instance, [])
 
+  @impl true
+  @doc """
+  The scale a cost is divided by in a performance score (`TartarusImmune.Domain`):
+  `log2(L!)`, the information-theoretic least number of comparisons that sorts L distinct
+  keys, at least 1. It depends on the length alone, so a score is "how many times the
+  least possible" whatever else ran beside the solution, and a mean over sequences of
+  different lengths (P4) is not dominated by the longest.
+
+      iex> TartarusImmune.Sorting.score_scale(Enum.to_list(1..8)) |> Float.round(2)
+      15.3
+      iex> TartarusImmune.Sorting.score_scale([1])
+      1.0
+  """
+  def score_scale(list) do
+    n = length(list)
+    Enum.reduce(2..max(n, 2)//1, 0.0, fn k, acc -> acc + :math.log2(k) end) |> max(1.0)
+  end
+
   @doc """
   Like `score/2`; with `measure: :time` the run's wall time in µs instead (not
   deterministic). Raises if the output is not sorted.
@@ -190,6 +212,60 @@ defmodule TartarusImmune.Sorting do
 
   defp ordered?([a, b | t]), do: a <= b and ordered?([b | t])
   defp ordered?(_), do: true
+
+  @doc """
+  A profile of `solutions` over the instances of `set` (seeded): for each solution's short
+  name, `:mean_cost` (comparisons + moves), `:mean_score` (cost / `score_scale/1`, the
+  performance score's default reference), `:mean_relative` (cost / the cheapest of
+  `solutions` on the same instance, the `:best_candidate` reference), `:best_share` (the
+  fraction of instances where it is the cheapest; ties go to every solution that ties) and,
+  with `time: k`, `:median_ns`, the median over `k` timed passes of the wall time per sort
+  of the instrumented algorithm on this BEAM (not deterministic).
+
+  Options: `:solutions` (the base four), `:seed` (1), `:every` (take every n-th instance,
+  1), `:time` (0: no timing).
+
+      iex> prof = TartarusImmune.Sorting.profile(:p1, every: 997)
+      iex> prof["IS"].mean_cost < prof["SelS"].mean_cost
+      true
+  """
+  @spec profile(atom(), keyword()) :: %{String.t() => map()}
+  def profile(set, opts \\ []) do
+    sols = Keyword.get(opts, :solutions, base_solutions())
+    seed = Keyword.get(opts, :seed, 1)
+    every = Keyword.get(opts, :every, 1)
+    insts = for i <- 0..(@sets[set] - 1)//every, do: instance(set, i, seed)
+    n = length(insts)
+    rows = for x <- insts, do: {x, Map.new(sols, &{&1, score(&1, x)})}
+
+    Map.new(sols, fn sol ->
+      stats = %{
+        mean_cost: Enum.sum(Enum.map(rows, fn {_, c} -> c[sol] end)) / n,
+        mean_score: Enum.sum(Enum.map(rows, fn {x, c} -> c[sol] / score_scale(x) end)) / n,
+        mean_relative:
+          Enum.sum(Enum.map(rows, fn {_, c} -> c[sol] / max(Enum.min(Map.values(c)), 1) end)) /
+            n,
+        best_share: Enum.count(rows, fn {_, c} -> c[sol] == Enum.min(Map.values(c)) end) / n
+      }
+
+      case Keyword.get(opts, :time, 0) do
+        0 -> {sol.name(), stats}
+        k -> {sol.name(), Map.put(stats, :median_ns, median_ns(sol, insts, k))}
+      end
+    end)
+  end
+
+  defp median_ns(sol, insts, k) do
+    Enum.each(insts, &sol.sort/1)
+
+    ts =
+      for _ <- 1..k do
+        {us, :ok} = :timer.tc(fn -> Enum.each(insts, &sol.sort/1) end)
+        us * 1000 / length(insts)
+      end
+
+    ts |> Enum.sort() |> Enum.at(div(k, 2))
+  end
 
   # -- data sets ------------------------------------------------------------------------
 

@@ -91,6 +91,29 @@ defmodule TartarusImmune.AgentsTest do
     assert Enum.count(q, &(&1.fv == fx)) == 2
   end
 
+  test "signal_life :eq6_5: one hop away a signal (strength 50 of 100) is followed for the first half of the barrage period only" do
+    {net, [h1, h2, _h3]} = line(3)
+    fx = Sorting.features(Sorting.instance(:p2, 0, 1))
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    Tartarus.Signal.settle()
+    p = Params.new!(signal_life: :eq6_5)
+
+    where = fn age ->
+      run = make_ref()
+      ids = for tag <- 1..6, do: ipkt(h2, fx, run, %{tag: tag, p: p})
+      Network.broadcast(net, {:go, 1, age})
+      for _ <- ids, do: assert(event(run) == :arrived)
+      hosts = for id <- ids, do: elem(locate(id), 1)
+      for id <- ids, do: Tartarus.kill(id)
+      hosts
+    end
+
+    # age 0.4 < 50/100: all climb to the distressed host
+    assert where.(0.4) == List.duplicate(h1, 6)
+    # age 0.6: the signal has expired here; they wander conscientiously, not all to h1
+    refute where.(0.6) == List.duplicate(h1, 6)
+  end
+
   test "apoptosis by hops: an iPkt with no hops left dies on its next move and leaves the queue" do
     {net, [h1, _h2]} = line(2)
     run = make_ref()

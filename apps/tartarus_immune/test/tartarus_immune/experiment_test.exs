@@ -32,6 +32,15 @@ defmodule TartarusImmune.ExperimentTest do
 
     for f <- ~w(series.csv IS.csv IS.svg summary.json summary.md),
         do: assert(File.exists?(Path.join(dir, f)), f)
+
+    # the log server's count: migrations plus executions, at the end of the run and (fewer)
+    # at the convergence step; the wider count adds clones and deaths
+    s = a.summary
+    execs = s.executed |> Map.values() |> Enum.sum()
+    assert s.events_run == s.migrations + execs
+    assert s.events_all_run == s.events_run + s.clones + s.deaths + s.expired
+    assert s.convergence_events > 0 and s.convergence_events < s.events_run
+    assert s.convergence_events_all >= s.convergence_events
   end
 
   test "without sharing no iPkt migrates" do
@@ -42,6 +51,8 @@ defmodule TartarusImmune.ExperimentTest do
       )
 
     assert r.summary.migrations == 0 and r.summary.clones > 0
+    # nothing travels, so the log server counts only executions
+    assert r.summary.events_run == r.summary.executed |> Map.values() |> Enum.sum()
   end
 
   test "a dynamic network: hosts break off and reconnect, the run still learns" do

@@ -10,6 +10,7 @@ defmodule TartarusImmune.SortingTest do
   doctest TartarusImmune.Sorting.Quick
   doctest TartarusImmune.Sorting.Merge
   doctest TartarusImmune.Sorting.Heap
+  doctest TartarusImmune.Domain
 
   # brute-force O(n^2) versions
   defp inv_bf(l) do
@@ -108,5 +109,59 @@ defmodule TartarusImmune.SortingTest do
 
     {best, costs} = Domain.oracle(Sorting, sols, Enum.to_list(1..1000))
     assert best == Sorting.Insertion and costs[Sorting.Insertion] == 999 + 2 * 999
+  end
+
+  describe "the performance score ζ of an interaction (Node.interact/4)" do
+    alias TartarusImmune.{Node, Params}
+    alias Sorting.{Insertion, Selection}
+
+    setup do
+      # a P1 permutation on which insertion sort is cheaper than selection sort
+      inst = Sorting.instance(:p1, 100, 1)
+      assert Sorting.score(Insertion, inst) < Sorting.score(Selection, inst)
+      fx = Sorting.features(inst)
+      m = fn id, sol -> {id, %{sol: sol, fv: fx, tau: 10.0, zeta: nil, n: 0}} end
+      score = &Sorting.score(&1, inst)
+      p = Params.new!() |> Map.merge(%{q_current: 2, scale: Sorting.score_scale(inst)})
+
+      %{
+        inst: inst,
+        fx: fx,
+        alone: [m.(1, Selection)],
+        pair: [m.(1, Selection), m.(2, Insertion)],
+        score: score,
+        p: p
+      }
+    end
+
+    test "with score_ref: :instance it is the solution's own, whoever else ran", c do
+      own = {Sorting.score(Selection, c.inst) / Sorting.score_scale(c.inst), 1}
+      assert Node.interact(c.alone, c.fx, c.score, c.p).scores[1] == own
+      assert Node.interact(c.pair, c.fx, c.score, c.p).scores[1] == own
+    end
+
+    test "with score_ref: :best_candidate a solution alone scores the perfect 1.0", c do
+      p = %{c.p | score_ref: :best_candidate}
+      assert Node.interact(c.alone, c.fx, c.score, p).scores[1] == {1.0, 1}
+      {worse, 1} = Node.interact(c.pair, c.fx, c.score, p).scores[1]
+      assert worse > 1.0
+    end
+  end
+
+  test "P1 (every 97th permutation): by the mean score of either reference IS ranks before SelS" do
+    insts = for i <- 0..40_319//97, do: Sorting.instance(:p1, i, 1)
+    sols = [Sorting.Insertion, Sorting.Selection]
+
+    mean = fn f ->
+      Map.new(sols, fn s -> {s, Enum.sum(Enum.map(insts, &f.(s, &1))) / length(insts)} end)
+    end
+
+    own = mean.(fn s, i -> Sorting.score(s, i) / Sorting.score_scale(i) end)
+
+    rel =
+      mean.(fn s, i -> Sorting.score(s, i) / Enum.min(Enum.map(sols, &Sorting.score(&1, i))) end)
+
+    assert own[Sorting.Insertion] < own[Sorting.Selection]
+    assert rel[Sorting.Insertion] < rel[Sorting.Selection]
   end
 end
