@@ -74,18 +74,36 @@ defmodule TartarusTools.CLI do
   @doc """
   Parses `argv` against a `Tartarus.Options` schema: each key is a flag (`:state_bytes` is
   `--state-bytes`; `:integer`-like types parse as integers, `:number` and `:probability` as
-  floats, `:boolean` as a switch, the rest as strings), then the values are validated with
+  floats, `:boolean` as a switch, a choice among atoms (`{:in, [:virtual, :peer]}`) as the
+  atom its string names, the rest as strings), then the values are validated with
   `Tartarus.Options.validate/3` and the schema's defaults filled in. Raises `Mix.Error`
   naming the task, the flag, what was expected and what arrived.
 
       iex> schema = [seed: [type: :pos_integer, default: 1], out: [type: :string, default: "results"]]
       iex> TartarusTools.CLI.options!(["--seed", "3"], schema, "tartarus.x")
       [seed: 3, out: "results"]
+      iex> schema = [mode: [type: {:in, [:virtual, :peer]}, default: :virtual]]
+      iex> TartarusTools.CLI.options!(["--mode", "peer"], schema, "tartarus.x")
+      [mode: :peer]
+      iex> TartarusTools.CLI.options!([], schema, "tartarus.x")
+      [mode: :virtual]
   """
   @spec options!([String.t()], Tartarus.Options.schema(), String.t()) :: keyword()
   def options!(argv, schema, task) do
     switches = for {key, spec} <- schema, do: {key, switch(spec[:type])}
-    opts = parse!(argv, switches, task)
+
+    opts =
+      for {key, value} <- parse!(argv, switches, task) do
+        case schema[key][:type] do
+          {:in, choices} when is_binary(value) ->
+            if Enum.all?(choices, &is_atom/1),
+              do: {key, choice!(value, choices, key, task, nil)},
+              else: {key, value}
+
+          _ ->
+            {key, value}
+        end
+      end
 
     case Tartarus.Options.validate(opts, schema, "mix #{task}") do
       {:ok, opts} -> opts

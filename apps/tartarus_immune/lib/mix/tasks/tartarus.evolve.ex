@@ -75,48 +75,17 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     schema =
       Experiment.schema()
       |> Keyword.drop([:quiet])
-      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "sharing"))
-      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
-      |> Keyword.update!(:puck_reward, &Keyword.merge(&1, type: :string, default: "product"))
       |> Keyword.update!(:sizes, &Keyword.merge(&1, type: :string, default: "20,40,80"))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
-
-    experiment =
-      TartarusTools.CLI.choice!(
-        opts[:experiment],
-        [:s1, :s2, :s3, :monolithic, :robots3, :sharing],
-        :experiment,
-        @task,
-        :sharing
-      )
-
-    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
-
-    puck_reward =
-      TartarusTools.CLI.choice!(
-        opts[:puck_reward],
-        [:product, :sum],
-        :puck_reward,
-        @task,
-        :product
-      )
-
-    sizes = parse_sizes!(opts[:sizes])
     json? = opts[:json]
 
     exp_opts =
       opts
       |> Keyword.drop([:json])
-      |> Keyword.merge(
-        experiment: experiment,
-        mode: mode,
-        sizes: sizes,
-        puck_reward: puck_reward,
-        quiet: json?
-      )
+      |> Keyword.merge(sizes: parse_sizes!(opts[:sizes]), quiet: json?)
 
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
     Mix.Task.run("app.start")

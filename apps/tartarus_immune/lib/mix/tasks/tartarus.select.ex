@@ -58,44 +58,13 @@ defmodule Mix.Tasks.Tartarus.Select do
     schema =
       Select.schema()
       |> Keyword.drop([:quiet, :etas, :betas, :add_at, :ps])
-      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "table6_2"))
-      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
-      |> Keyword.update!(:topology, &Keyword.merge(&1, type: :string, default: "grid"))
-      |> Keyword.update!(:set, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:set, &Keyword.put(&1, :type, {:in, [:p1, :p2, :p3, :p4, :temp]}))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
-    c = &TartarusTools.CLI.choice!(opts[&1], &2, &1, @task, hd(&2))
-
-    exp =
-      c.(:experiment, [
-        :table6_2,
-        :sharing,
-        :danger,
-        :otfp,
-        :nodes50,
-        :dynamic,
-        :influx,
-        :barrage,
-        :iot
-      ])
-
-    mode = c.(:mode, [:virtual, :peer])
-    topology = c.(:topology, [:grid, :ring, :line])
-
-    set =
-      if opts[:set],
-        do: TartarusTools.CLI.choice!(opts[:set], [:p1, :p2, :p3, :p4, :temp], :set, @task, :p2)
-
-    json? = opts[:json]
-
-    sel_opts =
-      opts
-      |> Keyword.drop([:json, :set, :out])
-      |> Keyword.merge(experiment: exp, mode: mode, topology: topology, quiet: json?)
-      |> then(&if set, do: Keyword.put(&1, :set, set), else: &1)
-      |> then(&if opts[:out], do: Keyword.put(&1, :out, opts[:out]), else: &1)
+    {exp, json?} = {opts[:experiment], opts[:json]}
+    sel_opts = opts |> Keyword.drop([:json]) |> Keyword.put(:quiet, json?)
 
     case Select.validate(sel_opts) do
       {:ok, _} -> :ok

@@ -46,15 +46,13 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
       TartarusRoadblock.schema()
       |> Keyword.drop([:quiet])
       |> Keyword.update!(:auto, &Keyword.put(&1, :default, false))
-      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.update!(:dashboard, &Keyword.put(&1, :type, :non_neg_integer))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
-    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
-    json? = opts[:json]
-    run_opts = opts |> Keyword.drop([:json]) |> Keyword.merge(mode: mode)
+    {mode, json?} = {opts[:mode], opts[:json]}
+    run_opts = Keyword.drop(opts, [:json])
 
     case TartarusRoadblock.validate(run_opts) do
       {:ok, _} -> :ok

@@ -67,33 +67,17 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
 
   @impl true
   def run(argv) do
-    # The flags are the experiment's schema; the two choices are read as strings first.
+    # The flags are the experiment's schema.
     schema =
       Experiment.schema()
       |> Keyword.drop([:quiet])
-      |> Keyword.update!(:experiment, &Keyword.merge(&1, type: :string, default: "robots"))
-      |> Keyword.update!(:mode, &Keyword.merge(&1, type: :string, default: "virtual"))
+      |> Keyword.update!(:experiment, &Keyword.put(&1, :default, :robots))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
-
-    experiment =
-      TartarusTools.CLI.choice!(
-        opts[:experiment],
-        [:robots, :scaling, :otfp, :removal, :mixed, :failover],
-        :experiment,
-        @task,
-        :robots
-      )
-
-    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, @task, :virtual)
-    json? = opts[:json]
-
-    exp_opts =
-      opts
-      |> Keyword.drop([:json])
-      |> Keyword.merge(experiment: experiment, mode: mode, quiet: json?)
+    {experiment, mode, json?} = {opts[:experiment], opts[:mode], opts[:json]}
+    exp_opts = opts |> Keyword.drop([:json]) |> Keyword.put(:quiet, json?)
 
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
 
