@@ -73,16 +73,8 @@ defmodule Tartarus.Overlay do
 
   def handle_call({{:subscribe, pid}, host}, _from, state) when is_pid(pid) do
     case local(host) do
-      {:ok, info} ->
-        {name, _} = info.ref
-
-        if :ets.match_object(:tartarus_broadcast_subscribers, {name, pid}) == [] do
-          :ets.insert(:tartarus_broadcast_subscribers, {name, pid})
-          mref = Process.monitor(pid)
-          {:reply, :ok, %{state | subs: Map.put(state.subs, mref, {name, pid})}}
-        else
-          {:reply, :ok, state}
-        end
+      {:ok, %{ref: {name, _}}} ->
+        {:reply, :ok, add_sub(state, :tartarus_broadcast_subscribers, {name, pid})}
 
       error ->
         {:reply, error, state}
@@ -91,26 +83,13 @@ defmodule Tartarus.Overlay do
 
   def handle_call({{:unsubscribe, pid}, host}, _from, state) when is_pid(pid) do
     {name, _} = Host.address(host)
-    :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
-
-    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub == {name, pid} end)
-    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
-    {:reply, :ok, %{state | subs: Map.new(subs)}}
+    {:reply, :ok, drop_sub(state, :tartarus_broadcast_subscribers, {name, pid})}
   end
 
   def handle_call({{:watch, name, pid}, host}, _from, state) when is_pid(pid) do
     case local(host) do
-      {:ok, info} ->
-        {host_name, _} = info.ref
-        entry = {{host_name, name}, pid}
-
-        if :ets.match_object(:tartarus_signal_watchers, entry) == [] do
-          :ets.insert(:tartarus_signal_watchers, entry)
-          mref = Process.monitor(pid)
-          {:reply, :ok, %{state | subs: Map.put(state.subs, mref, {:watch, entry})}}
-        else
-          {:reply, :ok, state}
-        end
+      {:ok, %{ref: {host_name, _}}} ->
+        {:reply, :ok, add_sub(state, :tartarus_signal_watchers, {{host_name, name}, pid})}
 
       error ->
         {:reply, error, state}
@@ -119,11 +98,7 @@ defmodule Tartarus.Overlay do
 
   def handle_call({{:unwatch, name, pid}, host}, _from, state) when is_pid(pid) do
     {host_name, _} = Host.address(host)
-    entry = {{host_name, name}, pid}
-    :ets.delete_object(:tartarus_signal_watchers, entry)
-    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub == {:watch, entry} end)
-    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
-    {:reply, :ok, %{state | subs: Map.new(subs)}}
+    {:reply, :ok, drop_sub(state, :tartarus_signal_watchers, {{host_name, name}, pid})}
   end
 
   # Anything else (from another node, well-formed or not) is dropped and counted.
@@ -163,12 +138,8 @@ defmodule Tartarus.Overlay do
 
   def handle_info({:DOWN, mref, :process, _pid, _reason}, state) do
     case Map.pop(state.subs, mref) do
-      {{:watch, entry}, subs} ->
-        :ets.delete_object(:tartarus_signal_watchers, entry)
-        {:noreply, %{state | subs: subs}}
-
-      {{name, pid}, subs} ->
-        :ets.delete_object(:tartarus_broadcast_subscribers, {name, pid})
+      {{table, object}, subs} ->
+        :ets.delete_object(table, object)
         {:noreply, %{state | subs: subs}}
 
       {nil, _} ->
@@ -179,6 +150,25 @@ defmodule Tartarus.Overlay do
   def handle_info(other, state) do
     Tartarus.Events.drop(:tartarus_overlay, :info, other)
     {:noreply, state}
+  end
+
+  # A subscription (a broadcast subscriber, or a signal watcher): `object` {key, pid} in
+  # `table`, once, the pid monitored; `subs` maps the monitor to {table, object}. Keys are
+  # compared exactly (not as match patterns: a host may be named :_).
+  defp add_sub(state, table, {key, pid} = object) do
+    if Enum.any?(:ets.lookup(table, key), &(&1 === object)) do
+      state
+    else
+      :ets.insert(table, object)
+      %{state | subs: Map.put(state.subs, Process.monitor(pid), {table, object})}
+    end
+  end
+
+  defp drop_sub(state, table, object) do
+    :ets.delete_object(table, object)
+    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub === {table, object} end)
+    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
+    %{state | subs: Map.new(subs)}
   end
 
   defp local(host) do
@@ -199,10 +189,18 @@ defmodule Tartarus.Overlay do
     end
   end
 
+  # The match spec of a host's fields: its range of the ordered_set (the name bound in the
+  # key), unless the name reads as match syntax (:_ or :"$1"), then a guard (a full scan).
+  defp fields_of(name) do
+    if is_atom(name) and (name == :_ or String.starts_with?(Atom.to_string(name), "$")),
+      do: [{{{:"$1", :_}, :_}, [{:"=:=", :"$1", {:const, name}}], [true]}],
+      else: [{{{name, :_}, :_}, [], [true]}]
+  end
+
   defp forget_host(state, mref) do
     case Enum.find(state.hosts, fn {_, {m, _}} -> m == mref end) do
       {name, _} ->
-        :ets.select_delete(:tartarus_signals, [{{{name, :_}, :_}, [], [true]}])
+        :ets.select_delete(:tartarus_signals, fields_of(name))
 
         # Its watchers stay until they go (their monitors clear them).
 

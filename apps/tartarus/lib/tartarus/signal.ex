@@ -67,7 +67,10 @@ defmodule Tartarus.Signal do
   takes a new contribution to that signal (the field arrives, or a stronger or fresher
   emission replaces one), so it can wait for a field without polling. The message says
   only that something changed: read the field (`value/3`, `neighbour_values/3`) after it.
-  Watch first and read after, so a field that arrives in between is not missed. A watch
+  Watch first and read after, so a field that arrives in between is not missed. (Fields are
+  kept by `{host, name}` in an ordered table, which compares names with `==`: `1` and `1.0`
+  are one signal there, but a watch of `1` is not told of `1.0`; use names that do not
+  differ only so.) A watch
   ends with `unwatch/3` or when the process exits (an agent's watches end when it leaves
   the host).
 

@@ -256,6 +256,31 @@ defmodule Tartarus.SignalTest do
     assert {:error, {:unknown_host, _}} = Signal.watch({:nowhere, node()}, :w)
   end
 
+  test "hosts named like the overlay's own tags or like match syntax break nothing" do
+    overlay = Process.whereis(:tartarus_overlay)
+    {:ok, _} = Tartarus.start_host(:watch)
+    {:ok, _} = Tartarus.start_host(:_, neighbours: [:watch])
+    [other] = line!(1)
+    :ok = Tartarus.emit_signal(other, :kept, 10, span: 1)
+    :ok = Tartarus.emit_signal(:watch, :f, 10, span: 2)
+    Signal.settle()
+
+    # A broadcast subscriber of the host named :watch exits: the overlay forgets it and lives.
+    pid = spawn(fn -> receive do: (:stop -> :ok) end)
+    :ok = Tartarus.Broadcast.subscribe(:watch, pid)
+    send(pid, :stop)
+    assert eventually(fn -> Tartarus.Broadcast.subscribers(:watch) == [] end, 5_000)
+    assert Process.whereis(:tartarus_overlay) == overlay
+
+    # The host named :_ stops: only its own fields go.
+    assert Tartarus.signal(:_, :f) > 0
+    :ok = Tartarus.stop_host(:_)
+    assert eventually(fn -> :ets.lookup(:tartarus_signals, {:_, :f}) == [] end, 5_000)
+    assert Tartarus.signal(other, :kept) == 10.0
+    assert Tartarus.signal(:watch, :f) == 10.0
+    :ok = Tartarus.stop_host(:watch)
+  end
+
   test "{:gradient, name} breaks ties at random, reproducibly for a stream" do
     ns = [{:b, :n}, {:c, :n}, {:d, :n}]
 

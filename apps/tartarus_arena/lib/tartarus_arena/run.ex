@@ -290,8 +290,11 @@ defmodule TartarusArena.Run do
 
     {world, tr, s} =
       cond do
+        # lost: put back where its progress is (not at the nearest point, which may be
+        # ahead of a lagging progress: the next step would count that as a shortcut)
         tr.distance > @lost ->
-          world = World.place(world, id, Paths.point_at(path, tr.s))
+          {tr, pose} = Paths.back_to_progress(tr, path)
+          world = World.place(world, id, pose)
 
           s = %{
             s
@@ -301,7 +304,7 @@ defmodule TartarusArena.Run do
               sp_penalty: s.sp_penalty + o.penalty
           }
 
-          {world, %{tr | distance: 0.0}, s}
+          {world, tr, s}
 
         tr.skipped ->
           {tr, pose} = Paths.back_to_progress(tr, path)
@@ -318,7 +321,8 @@ defmodule TartarusArena.Run do
           {world, tr, s}
 
         t - best_t > o.stuck ->
-          world = World.place(world, id, Paths.point_at(path, tr.s + 0.1))
+          {tr, _} = Paths.back_to_progress(tr, path)
+          world = World.place(world, id, Paths.point_at(path, tr.start + tr.progress + 0.1))
 
           s = %{
             s

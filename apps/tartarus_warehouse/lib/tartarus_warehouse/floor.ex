@@ -115,18 +115,7 @@ defmodule TartarusWarehouse.Floor do
     rs = Enum.map(1..robots, &"r#{&1}")
     ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
 
-    robot_edges =
-      if robots <= 16,
-        do: for(i <- 1..robots, j <- (i + 1)..robots//1, do: {"r#{i}", "r#{j}"}),
-        else:
-          for(
-            i <- 1..robots,
-            d <- [1, 4, 16],
-            j = rem(i - 1 + d, robots) + 1,
-            j != i,
-            do: {"r#{min(i, j)}", "r#{max(i, j)}"}
-          )
-
+    robot_edges = robot_edges(robots)
     jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
 
     s_edges =
@@ -135,6 +124,21 @@ defmodule TartarusWarehouse.Floor do
           do: {s, "r#{r}"}
 
     Topology.new(["jd" | rs] ++ ss, Enum.uniq(robot_edges ++ jd_edges ++ s_edges))
+  end
+
+  # Robots: a full mesh up to 16, else a ring with chords 4 and 16 places on (modulo the
+  # robots: a circulant graph, the same seen from every robot).
+  defp robot_edges(robots) do
+    if robots <= 16,
+      do: for(i <- 1..robots, j <- (i + 1)..robots//1, do: {"r#{i}", "r#{j}"}),
+      else:
+        for(
+          i <- 1..robots,
+          d <- [1, 4, 16],
+          j = rem(i - 1 + d, robots) + 1,
+          j != i,
+          do: {"r#{min(i, j)}", "r#{max(i, j)}"}
+        )
   end
 
   @doc """
@@ -342,9 +346,12 @@ defmodule TartarusWarehouse.Floor do
   # The hops between the two farthest robots (a full mesh: 1).
   defp robot_span(robots) when robots <= 16, do: 1
 
+  # How far a field must reach to cover every robot from any robot: the diameter of the
+  # robots' own graph (circulant, so any robot's eccentricity; the other hosts only add
+  # shortcuts, never length).
   defp robot_span(robots) do
-    robot_topo = topology(robots, 0)
-    TartarusEmu.Topology.distances(robot_topo, "r1") |> Map.values() |> Enum.max()
+    robot_topo = Topology.new(Enum.map(1..robots, &"r#{&1}"), robot_edges(robots))
+    robot_topo |> Topology.distances("r1") |> Map.values() |> Enum.max()
   end
 
   defp submit(dref, jobs, arrivals) do

@@ -19,7 +19,8 @@ defmodule TartarusWarehouse.TaskAgent do
   busy) it waits, listening to the robot: the robot's "finished" wakes it at once. Where
   no field has arrived yet it waits on a robot, watching for the field
   (`Tartarus.Agent.watch_signal/1`): its arrival wakes the agent, which does not poll (a
-  look every 100 ms is only a safety net). The field is announced a whole block
+  look every 100 ms is only a safety net, and after 500 ms on a robot with no field at all
+  it moves on blind). The field is announced a whole block
   before the robot is free, so the agent is usually there, waiting, when it is. (Beyond
   the thesis: the thesis's agents search blind, which costs hops in proportion to the
   robots.)
@@ -34,6 +35,8 @@ defmodule TartarusWarehouse.TaskAgent do
   """
   # A guided agent waiting on a robot looks again this often even if nothing woke it.
   @safety_ms 100
+  # ... and gives up waiting on a robot no field reaches after this long.
+  @give_up_ms 500
 
   use Tartarus.Agent
 
@@ -139,7 +142,7 @@ defmodule TartarusWarehouse.TaskAgent do
     cond do
       # At the field's source: the robot announced the state and is still running its block.
       here > 0 and Enum.all?(gradient, fn {_, v} -> v <= here end) ->
-        wait(s)
+        wait(s, :source)
 
       map_size(gradient) > 0 ->
         {best, _} = Enum.max_by(gradient, &elem(&1, 1))
@@ -148,7 +151,7 @@ defmodule TartarusWarehouse.TaskAgent do
       # The field covers every robot: on a robot, no field means the robot it looks for is
       # not waiting yet.
       TartarusWarehouse.Roam.robot?(s.robots, Agent.host()) ->
-        wait(s)
+        wait(s, :no_field)
 
       true ->
         blind(s)
@@ -160,12 +163,20 @@ defmodule TartarusWarehouse.TaskAgent do
   # Waits on this robot without polling: it listens to the robot (its finishing a block
   # wakes the agent at once) and watches the field it looks for (its arrival or change
   # here wakes it). The first time on a host it looks again at once, for a field that
-  # arrived between its look and its watch; then only every @safety_ms ms.
-  defp wait(s) do
+  # arrived between its look and its watch; then only every @safety_ms ms. (The key holds
+  # the process: an agent that left and came back is a new process, with a new
+  # subscription and watch to make.) A backstop: an agent that has waited @give_up_ms on a
+  # robot with no field at all moves on blind (a field that could not reach it must not
+  # leave it waiting for ever).
+  defp wait(s, why) do
     ref = make_ref()
-    key = {Agent.host(), s.a.look_for}
+    key = {Agent.host(), s.a.look_for, self()}
+    now = System.monotonic_time(:millisecond)
 
     cond do
+      Map.get(s, :watching) == key and why == :no_field and now - s.since > @give_up_ms ->
+        {:move, strategy(s), Map.delete(s, :watching)}
+
       Map.get(s, :watching) == key ->
         Process.send_after(self(), {:guided, ref}, @safety_ms)
         {:stay, Map.put(s, :wait_timer, ref)}
@@ -173,7 +184,7 @@ defmodule TartarusWarehouse.TaskAgent do
       Agent.subscribe(:robot) == :ok and
           Agent.watch_signal({:warehouse_wait, s.a.look_for}) == :ok ->
         send(self(), {:guided, ref})
-        {:stay, s |> Map.put(:wait_timer, ref) |> Map.put(:watching, key)}
+        {:stay, s |> Map.merge(%{wait_timer: ref, watching: key, since: now})}
 
       # It could not listen (the robot or the node's signal process did not answer): it
       # looks again soon, and tries to listen again then.
