@@ -48,8 +48,9 @@ defmodule TartarusWarehouse.Robot do
       already passed the modified point continues without redoing anything).
 
   `read(:robot, :history)` gives every execution, oldest first: maps with `robot, job,
-  seq, task, resources, agent, start_us, stop_us, ms, ideal_ms` (times are
-  `System.system_time(:microsecond)`). It is the event log the checker reads
+  seq, task, resources, agent, claimed_us, start_us, stop_us, ms, ideal_ms` (times are
+  `System.system_time(:microsecond)`; `claimed_us`: when the agent claimed the robot for
+  the block the task belongs to). It is the event log the checker reads
   (`TartarusWarehouse.Checker`).
   """
   @behaviour Tartarus.Plugin
@@ -68,6 +69,7 @@ defmodule TartarusWarehouse.Robot do
            seed: Keyword.get(opts, :seed, 0),
            state: :free,
            busy: nil,
+           claimed_us: nil,
            retiring: false,
            off: Keyword.get(opts, :off, false),
            running: nil,
@@ -105,7 +107,7 @@ defmodule TartarusWarehouse.Robot do
   def write({:claim, look_for, needs, agent}, s) do
     if s.busy == nil and not s.off and matches?(s.state, look_for) and
          (look_for != :free or (not s.retiring and reaches?(s, needs))) do
-      {:ok, %{s | busy: agent}}
+      {:ok, %{s | busy: agent, claimed_us: System.system_time(:microsecond)}}
     else
       {:error, :no_match, s}
     end
@@ -113,7 +115,7 @@ defmodule TartarusWarehouse.Robot do
 
   def write({:run, agent, run}, %{busy: agent} = s) do
     robot = self()
-    ctx = Map.take(s, [:robot, :scale, :pace, :jitter, :seed, :deleted])
+    ctx = Map.take(s, [:robot, :scale, :pace, :jitter, :seed, :deleted, :claimed_us])
     {job, seq} = if match?({:inserted, _, _}, s.state), do: job_of(s), else: {run.job, run.seq}
 
     spawn_link(fn ->
@@ -215,6 +217,7 @@ defmodule TartarusWarehouse.Robot do
       task: task.name,
       resources: [],
       agent: agent,
+      claimed_us: ctx.claimed_us,
       start_us: now,
       stop_us: now,
       ms: 0.0,
@@ -237,6 +240,7 @@ defmodule TartarusWarehouse.Robot do
       task: task.name,
       resources: task.resources,
       agent: agent,
+      claimed_us: ctx.claimed_us,
       start_us: start,
       stop_us: start + took,
       ms: took / 1000,
