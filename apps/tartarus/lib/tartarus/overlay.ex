@@ -55,7 +55,7 @@ defmodule Tartarus.Overlay do
     {:noreply, state}
   end
 
-  def handle_call({:emit, host, name, e}, _from, state) do
+  def handle_call({{:emit, name, e}, host}, _from, state) do
     case local(host) do
       {:ok, info} ->
         Signal.handle_emit(info, name, e)

@@ -465,19 +465,7 @@ defmodule Tartarus.Signal do
   """
   @spec emit(Tartarus.host_ref(), name(), number(), keyword()) :: :ok | {:error, term()}
   def emit(host, name, strength, opts \\ []) do
-    with {:ok, e} <- emission(strength, opts) do
-      if Host.address?(host) do
-        {_, node} = host = Host.address(host)
-
-        try do
-          GenServer.call({:tartarus_overlay, node}, {:emit, host, name, e}, 10_000)
-        catch
-          :exit, _ -> {:error, {:unknown_host, host}}
-        end
-      else
-        {:error, {:unknown_host, host}}
-      end
-    end
+    with {:ok, e} <- emission(strength, opts), do: overlay_call(host, {:emit, name, e})
   end
 
   @doc """

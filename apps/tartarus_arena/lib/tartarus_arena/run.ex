@@ -290,23 +290,10 @@ defmodule TartarusArena.Run do
 
     {world, tr, s} =
       cond do
-        # lost: put back where its progress is (not at the nearest point, which may be
-        # ahead of a lagging progress: the next step would count that as a shortcut)
-        tr.distance > @lost ->
-          {tr, pose} = Paths.back_to_progress(tr, path)
-          world = World.place(world, id, pose)
-
-          s = %{
-            s
-            | penalty: s.penalty + o.penalty,
-              lost: s.lost + 1,
-              sp_lost: s.sp_lost + 1,
-              sp_penalty: s.sp_penalty + o.penalty
-          }
-
-          {world, tr, s}
-
-        tr.skipped ->
+        # lost, or a shortcut: put back where its progress is (not at the nearest point,
+        # which may be ahead of a lagging progress: the next step would count that as a
+        # shortcut)
+        tr.distance > @lost or tr.skipped ->
           {tr, pose} = Paths.back_to_progress(tr, path)
           world = World.place(world, id, pose)
 
