@@ -55,4 +55,18 @@ defmodule Tartarus.HostTest do
     for {key, _} <- Tartarus.Options.Platform.host_schema(),
         do: assert(doc =~ "`#{inspect(key)}`")
   end
+
+  test "an agent arriving while its destination stops is refused and stays where it was; the destination's server does not crash" do
+    [a, b] = line!(2)
+    {:ok, server} = Host.whereis(b)
+    # A stopping host: its supervisor stops the agents' supervisor before the server.
+    :ok = Supervisor.terminate_child(Host.via(:host_sup, b), :agents)
+    id = agent!(a)
+    assert {:error, _} = Tartarus.move({id, a}, b)
+    assert_receive {:probe_move_failed, ^id, _, _, ctx}
+    assert ctx.host == addr(a)
+    assert {:ok, ^server} = Host.whereis(b)
+    assert Process.alive?(server)
+    assert %{} = probe_state({id, a})
+  end
 end

@@ -682,7 +682,7 @@ defmodule Tartarus.Host.Server do
     :ets.insert(state.host.ledger, {{:snapshot, key}, env})
     if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
 
-    case DynamicSupervisor.start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
+    case start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
       {:ok, pid} ->
         mref = Process.monitor(pid)
         # Paused copies run nothing until their commit; the others wait for this.
@@ -699,6 +699,14 @@ defmodule Tartarus.Host.Server do
 
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
+
+  # While a host stops, its supervisor stops the agents' supervisor before this server (the
+  # reverse of their start order): an arrival in that window is refused, not a crash.
+  defp start_child(sup, spec) do
+    DynamicSupervisor.start_child(sup, spec)
+  catch
+    :exit, {reason, _} when reason in [:noproc, :shutdown, :normal] -> {:error, :host_stopping}
+  end
 
   defp unwrap({:bad_init, reason}), do: reason
   defp unwrap(reason), do: reason
