@@ -37,8 +37,10 @@ defmodule TartarusWarehouse.Distributor do
       `assignment` next;
     * `{:retire, ref}` - the agent `ref` that just reported stops;
     * `{:job_done, job_id}` - every task of the job ran;
-    * `{:sequence, change}` - release a sequence agent that writes `change` into every
-      robot's state-transition database (on-the-fly programming, below).
+    * `{:sequence, n, change}` - release a sequence agent that writes `change`, the
+      distributor's `n`th, into every robot's state-transition database (on-the-fly
+      programming, below). Changes travel concurrently, each in its own agent, so a robot
+      may get them out of order; it applies them in the order of `n`.
 
   ## On-the-fly programming (§4.5.4)
 
@@ -93,7 +95,7 @@ defmodule TartarusWarehouse.Distributor do
           | {:reissue, ref(), assignment()}
           | {:retire, ref()}
           | {:job_done, term()}
-          | {:sequence, {:insert, String.t(), String.t()} | {:delete, String.t()}}
+          | {:sequence, pos_integer(), {:insert, String.t(), String.t()} | {:delete, String.t()}}
 
   @typedoc "The distributor."
   @type t :: %__MODULE__{
@@ -116,7 +118,8 @@ defmodule TartarusWarehouse.Distributor do
             starting: nil,
             next_ref: 1,
             completed: [],
-            inserted: %{}
+            inserted: %{},
+            changes: 0
 
   @doc "A distributor for `world` (see `TartarusWarehouse.Job.world/2`)."
   @spec new(Job.world()) :: t()
@@ -223,16 +226,16 @@ defmodule TartarusWarehouse.Distributor do
   @doc """
   Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
   `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
-  actions}` (a `{:sequence, {:insert, after_task, name}}` and, once its resources are
+  actions}` (a `{:sequence, n, {:insert, after_task, name}}` and, once its resources are
   free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`.
 
       iex> alias TartarusWarehouse.Distributor, as: D
       iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
-      iex> {:ok, d, [{:release, 1, a}, {:sequence, change}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
+      iex> {:ok, d, [{:release, 1, a}, {:sequence, 1, change}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
       iex> {a.look_for, a.next, change}
       {{:inserted, "T2A"}, :resume, {:insert, "T2", "T2A"}}
       iex> {d, [{:reissue, 1, _}]} = D.done(d, 1)
-      iex> {:ok, d, [{:sequence, {:delete, "T2A"}}]} = D.delete(d, "T2A")
+      iex> {:ok, d, [{:sequence, 2, {:delete, "T2A"}}]} = D.delete(d, "T2A")
       iex> D.done(d, 1)
       ...> |> elem(1)
       [{:retire, 1}]
@@ -264,7 +267,8 @@ defmodule TartarusWarehouse.Distributor do
 
       d = %{d | queue: d.queue ++ [a], inserted: Map.put(d.inserted, name, true)}
       {d, actions} = issue(d, nil)
-      {:ok, d, actions ++ [{:sequence, {:insert, to_string(after_task), name}}]}
+      {d, change} = change(d, {:insert, to_string(after_task), name})
+      {:ok, d, actions ++ [change]}
     end
   end
 
@@ -281,8 +285,12 @@ defmodule TartarusWarehouse.Distributor do
     inserted =
       if Map.has_key?(d.inserted, name), do: Map.put(d.inserted, name, false), else: d.inserted
 
-    {:ok, %{d | queue: queue, inserted: inserted}, [{:sequence, {:delete, name}}]}
+    {d, change} = change(%{d | queue: queue, inserted: inserted}, {:delete, name})
+    {:ok, d, [change]}
   end
+
+  # The distributor's next change to the robots' databases, numbered.
+  defp change(d, change), do: {%{d | changes: d.changes + 1}, {:sequence, d.changes + 1, change}}
 
   @doc """
   An inserted task's agent `ref` found no work for a while: if its task was deleted it

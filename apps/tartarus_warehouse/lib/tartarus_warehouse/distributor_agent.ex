@@ -212,13 +212,13 @@ defmodule TartarusWarehouse.DistributorAgent do
     s
   end
 
-  defp act({:sequence, change}, s) do
+  defp act({:sequence, n, change}, s) do
     {:ok, _} =
       Tartarus.create_mobile_agent(
         Tartarus.Agent.host(),
         TartarusWarehouse.SequenceAgent,
-        %{change: change, robots: s.robots, all: s.all_robots, owner: s.owner},
-        seed: {s.seed, :sequence, change}
+        %{change: change, version: n, robots: s.robots, all: s.all_robots, owner: s.owner},
+        seed: {s.seed, :sequence, n}
       )
 
     s

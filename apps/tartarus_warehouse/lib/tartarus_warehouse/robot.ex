@@ -20,7 +20,10 @@ defmodule TartarusWarehouse.Robot do
 
   ## What agents do with it (Algorithm 3)
 
-    * `read(:robot, :state)` - `{:ok, %{state:, busy:, off:}}`;
+    * `read(:robot, :state)` - `{:ok, %{state:, busy:, off:, retiring:, running:, job:,
+      executions:}}`: `busy` is the agent that claimed it, `running` the names of the
+      tasks it runs now (nil when it runs none), `job` the last `{job, seq}` it ran,
+      `executions` how many tasks it ran so far;
     * `write(:robot, {:claim, look_for, needs, agent})` - atomically: if the robot is in
       state `look_for`, idle, in service, and (for a free robot) reaches every resource in
       `needs`, it is now busy with `agent`; else `{:error, :no_match}`;
@@ -36,7 +39,10 @@ defmodule TartarusWarehouse.Robot do
   ## The state-transition database (on-the-fly programming, §4.5.4)
 
   Sequence agents (`TartarusWarehouse.SequenceAgent`) change it with
-  `write(:robot, {:db, change})`:
+  `write(:robot, {:db, n, change})`, `n` the distributor's number of the change: each
+  change travels in its own agent, so a robot may get the second before the first (an
+  insertion and its deletion issued together); it applies changes in the order of `n`
+  (a later one waits for those before it; one already applied is ignored):
 
     * `{:insert, after_task, new_task}` - a robot that finishes a block ending with
       `after_task` goes to `{:inserted, new_task, next}` instead of `next`: it waits for
@@ -76,6 +82,8 @@ defmodule TartarusWarehouse.Robot do
            last_job: nil,
            inserts: %{},
            deleted: MapSet.new(),
+           db_version: 0,
+           db_pending: %{},
            history: []
          }}
 
@@ -98,8 +106,31 @@ defmodule TartarusWarehouse.Robot do
     }
 
   @impl true
-  def read(:state, s), do: {:ok, %{state: s.state, busy: s.busy, off: s.off}, s}
-  def read(:db, s), do: {:ok, %{inserts: s.inserts, deleted: s.deleted}, s}
+  def read(:state, s) do
+    running = if s.running, do: Enum.map(s.running.tasks, & &1.name)
+
+    {:ok,
+     %{
+       state: s.state,
+       busy: s.busy,
+       off: s.off,
+       retiring: s.retiring,
+       running: running,
+       job: s.last_job,
+       executions: length(s.history)
+     }, s}
+  end
+
+  def read(:db, s),
+    do:
+      {:ok,
+       %{
+         inserts: s.inserts,
+         deleted: s.deleted,
+         version: s.db_version,
+         pending: Map.keys(s.db_pending)
+       }, s}
+
   def read(:history, s), do: {:ok, Enum.reverse(s.history), s}
   def read(other, s), do: {:error, {:bad_argument, other}, s}
 
@@ -138,23 +169,10 @@ defmodule TartarusWarehouse.Robot do
 
   def write(:join, s), do: {:ok, %{s | off: false, retiring: false}}
 
-  def write({:db, {:insert, after_task, task}}, s),
-    do:
-      {:ok,
-       %{
-         s
-         | inserts: Map.put(s.inserts, after_task, task),
-           deleted: MapSet.delete(s.deleted, task)
-       }}
-
-  def write({:db, {:delete, task}}, s) do
-    inserts = for {a, t} <- s.inserts, t != task, into: %{}, do: {a, t}
-    s = %{s | inserts: inserts, deleted: MapSet.put(s.deleted, task)}
-
-    case s.state do
-      {:inserted, ^task, next} when s.busy == nil -> {:ok, %{s | state: next}}
-      _ -> {:ok, s}
-    end
+  def write({:db, n, change}, s) when is_integer(n) and n > 0 do
+    if n <= s.db_version,
+      do: {:ok, s},
+      else: {:ok, apply_changes(%{s | db_pending: Map.put(s.db_pending, n, change)})}
   end
 
   def write(other, s), do: {:error, {:bad_argument, other}, s}
@@ -185,6 +203,34 @@ defmodule TartarusWarehouse.Robot do
   end
 
   def handle_info(_msg, s), do: {:events, [], s}
+
+  # Applies the pending changes that follow the last one applied, in order.
+  defp apply_changes(s) do
+    case Map.pop(s.db_pending, s.db_version + 1) do
+      {nil, _} ->
+        s
+
+      {change, rest} ->
+        apply_changes(db_change(%{s | db_pending: rest, db_version: s.db_version + 1}, change))
+    end
+  end
+
+  defp db_change(s, {:insert, after_task, task}),
+    do: %{
+      s
+      | inserts: Map.put(s.inserts, after_task, task),
+        deleted: MapSet.delete(s.deleted, task)
+    }
+
+  defp db_change(s, {:delete, task}) do
+    inserts = for {a, t} <- s.inserts, t != task, into: %{}, do: {a, t}
+    s = %{s | inserts: inserts, deleted: MapSet.put(s.deleted, task)}
+
+    case s.state do
+      {:inserted, ^task, next} when s.busy == nil -> %{s | state: next}
+      _ -> s
+    end
+  end
 
   defp matches?(state, state), do: true
   defp matches?({:inserted, task, _next}, {:inserted, task}), do: true

@@ -191,6 +191,42 @@ defmodule TartarusWarehouse.FloorTest do
     assert lost.timed_out != []
   end
 
+  test "a task inserted and deleted at once: every robot applies the two changes in order, no robot waits for the deleted task" do
+    # Found by the property below: the two sequence agents travel concurrently, and a robot
+    # that got the deletion before the insertion kept the insertion and, after job 4's
+    # block (which ends with T2), waited forever for the deleted task's agent; job 5 never
+    # ran (8 runs in 10 of this case hung).
+    task = fn name, after_task ->
+      %{name: name, resources: [:a, :b], duration_ms: 1000, after: after_task}
+    end
+
+    four = [task.("T1", []), task.("T2", ["T1"]), task.("T3", []), task.("T4", ["T3"])]
+
+    jobs =
+      [four, four, four, [task.("T1", []), task.("T2", [])], [task.("T1", [])]]
+      |> Enum.with_index(1)
+      |> Enum.map(fn {tasks, id} -> %{id: id, tasks: tasks} end)
+
+    x = %{name: "X", resources: [:x], duration_ms: 700}
+
+    for seed <- 51..58 do
+      {:ok, r} =
+        Floor.run(
+          robots: 2,
+          jobs: jobs,
+          resources: [:a, :b, :x],
+          scale: 0.005,
+          seed: seed,
+          retire: [{2, 1}],
+          events: [{0, {:insert, "T2", x}}, {0, {:delete, "X"}}, {2, {:delete, "T2"}}],
+          timeout_ms: 5_000
+        )
+
+      assert r.timed_out == [], "seed #{seed}: jobs #{inspect(r.timed_out)} never completed"
+      assert Checker.violations(r.history) == []
+    end
+  end
+
   test "a malformed job is refused before anything starts" do
     assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
 
