@@ -11,23 +11,35 @@ defmodule TartarusEmu.Dashboard do
 
   A host's id on the page and in the JSON API is its topology node's name as a string;
   positions of the topology (if it has them) place the hosts on the page.
+
+  A scenario that builds a new network for each step (the warehouse's experiments start a
+  floor per point) gives a function instead of a network: it is called on every page
+  refresh and returns the network to show now, or `nil` (none: no hosts, no links, and
+  link actions are refused with `{:error, :no_network}`).
   """
 
   @behaviour TartarusTools.Dashboard.Emulation
 
   alias TartarusEmu.Network
 
+  @typedoc "A network, or a function returning the one to show now (`nil`: none)."
+  @type source :: Network.t() | (() -> Network.t() | nil)
+
   @doc """
-  Starts a dashboard (linked to the caller) showing `net`: the options of
+  Starts a dashboard (linked to the caller) showing `net` (a `t:source/0`): the options of
   `TartarusTools.Dashboard`, with `:emulation` set to this module and `net`.
   """
-  @spec start_link(Network.t(), keyword()) :: GenServer.on_start()
-  def start_link(%Network{} = net, opts \\ []) do
+  @spec start_link(source(), keyword()) :: GenServer.on_start()
+  def start_link(net, opts \\ [])
+
+  def start_link(net, opts) when is_struct(net, Network) or is_function(net, 0) do
     TartarusTools.Dashboard.start_link(Keyword.put(opts, :emulation, {__MODULE__, net}))
   end
 
   @impl true
   @doc "The network's hosts in topology order, `up` unless isolated or killed."
+  def hosts(net) when is_function(net, 0), do: if(n = net.(), do: hosts(n), else: [])
+
   def hosts(%Network{} = net) do
     topo = net.topology
 
@@ -47,6 +59,8 @@ defmodule TartarusEmu.Dashboard do
 
   @impl true
   @doc "The topology's edges, sorted, each `up` when live."
+  def links(net) when is_function(net, 0), do: if(n = net.(), do: links(n), else: [])
+
   def links(%Network{} = net) do
     net.topology.edges
     |> Enum.sort()
@@ -55,6 +69,10 @@ defmodule TartarusEmu.Dashboard do
 
   @impl true
   @doc "Breaks or heals a link, isolates a host or lets it rejoin."
+  def act(net, action, params) when is_function(net, 0) do
+    if n = net.(), do: act(n, action, params), else: {:error, :no_network}
+  end
+
   def act(%Network{} = net, action, params) do
     names = Map.new(net.topology.nodes, &{to_string(&1), &1})
 

@@ -118,9 +118,10 @@ defmodule TartarusEmu.Scenario do
 
   @doc """
   The emulated network the web dashboard shows (optional; default: the state's `:net`
-  when it is a `TartarusEmu.Network`).
+  when it is a `TartarusEmu.Network`), or a function returning the one to show now, for a
+  scenario that starts a new network at each step (see `TartarusEmu.Dashboard`).
   """
-  @callback network(state()) :: TartarusEmu.Network.t() | nil
+  @callback network(state()) :: TartarusEmu.Dashboard.source() | nil
 
   @optional_callbacks done?: 2,
                       charts: 1,
@@ -141,7 +142,8 @@ defmodule TartarusEmu.Scenario do
       type: :any,
       doc:
         "serve the web dashboard on this port while the scenario runs (when its state " <>
-          "keeps its network under `:net`; see `TartarusEmu.Dashboard`), or dashboard options"
+          "keeps its network under `:net` or it defines `c:network/1`; see " <>
+          "`TartarusEmu.Dashboard`), or dashboard options"
     ],
     step_ms: [type: :non_neg_integer, default: 0, doc: "pause after each step (to watch a run)"]
   ]
@@ -204,7 +206,8 @@ defmodule TartarusEmu.Scenario do
 
   defp dashboard(module, state, runner) do
     with spec when spec != nil <- runner[:dashboard],
-         %TartarusEmu.Network{} = net <- network(module, state) do
+         net when is_struct(net, TartarusEmu.Network) or is_function(net, 0) <-
+           network(module, state) do
       opts = if is_integer(spec), do: [port: spec], else: spec
 
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []

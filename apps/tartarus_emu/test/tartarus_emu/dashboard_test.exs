@@ -70,6 +70,25 @@ defmodule TartarusEmu.DashboardTest do
     assert {404, %{"error" => "unknown_host"}} = post(url, "/api/hosts/h99/isolate", "")
   end
 
+  test "a function as the network: the page shows whichever network it returns now", %{net: net} do
+    slot = :ets.new(:dash_slot, [:public])
+    current = fn -> with [{:net, n}] <- :ets.lookup(slot, :net), do: n, else: (_ -> nil) end
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(current, token: @token)
+    url = TartarusTools.Dashboard.url(dash)
+
+    # None yet: no hosts, no links, and link actions refused.
+    assert {200, %{"hosts" => [], "total" => 0}} = get(url, "/api/hosts")
+    assert {200, %{"links" => []}} = get(url, "/api/links")
+    assert TartarusEmu.Dashboard.act(current, :isolate, %{host: "h1"}) == {:error, :no_network}
+
+    :ets.insert(slot, {:net, net})
+
+    wait_until(fn -> match?({200, %{"total" => 6}}, get(url, "/api/hosts")) end)
+    assert {200, %{"ok" => true}} = post(url, "/api/links/break", ~s({"a":"h1","b":"h2"}))
+    refute Network.live?(net, :h1, :h2)
+    TartarusTools.Dashboard.stop(dash)
+  end
+
   test "events name hosts by their topology names", %{url: url, net: net} do
     {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :h1), Tartarus.Examples.Echo, nil)
     :ok = Tartarus.move({id, Network.host(net, :h1)}, Network.host(net, :h2))

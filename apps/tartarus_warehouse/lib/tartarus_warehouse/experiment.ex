@@ -50,6 +50,11 @@ defmodule TartarusWarehouse.Experiment do
       doc: "output directory (default `results/warehouse-<experiment>-<UTC timestamp>`), or false"
     ],
     quiet: [type: :boolean, default: false, doc: "no progress line"],
+    dashboard: [
+      type: :any,
+      doc:
+        "serve the web dashboard on this port (127.0.0.1) while the experiment runs, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the graph of the floor running now and the warehouse panel (`TartarusWarehouse.Panel`)"
+    ],
     scale: [type: :number, default: 0.01, doc: "time scale: 0.01 runs a 2 s task as 20 ms"],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
@@ -129,8 +134,9 @@ defmodule TartarusWarehouse.Experiment do
         seed: opts[:seed],
         out: out,
         quiet: opts[:quiet],
+        dashboard: opts[:dashboard],
         steps: length(points),
-        params: Keyword.drop(opts, [:seed, :out, :quiet]),
+        params: Keyword.drop(opts, [:seed, :out, :quiet, :dashboard]),
         points: points
       )
     end
@@ -165,13 +171,16 @@ defmodule TartarusWarehouse.Experiment do
        seed: opts.seed,
        points: opts.points,
        runs: [],
-       series: Series.new()
+       series: Series.new(),
+       # what the web dashboard shows (TartarusWarehouse.Panel)
+       panel: TartarusWarehouse.Panel.new()
      }}
   end
 
   @impl TartarusEmu.Scenario
   def step(state, k) do
     point = Enum.at(state.points, k - 1)
+    TartarusWarehouse.Panel.point(state.panel, state.p.experiment, point)
     runs = run_point(state.p.experiment, point, state)
     state = %{state | runs: state.runs ++ runs}
     %{state | series: record(state.p.experiment, point, state)}
@@ -179,6 +188,15 @@ defmodule TartarusWarehouse.Experiment do
 
   @impl TartarusEmu.Scenario
   def done?(state, k), do: k >= length(state.points)
+
+  @impl TartarusEmu.Scenario
+  def network(state), do: fn -> TartarusWarehouse.Panel.network(state.panel) end
+
+  @impl TartarusEmu.Scenario
+  def panels(state), do: [{TartarusWarehouse.Panel, state.panel}]
+
+  @impl TartarusEmu.Scenario
+  def teardown(state), do: :ets.delete(state.panel)
 
   @impl TartarusEmu.Scenario
   def series(state), do: state.series
@@ -189,6 +207,7 @@ defmodule TartarusWarehouse.Experiment do
 
     variable =
       floor!(
+        state.panel,
         robots: k,
         jobs: thesis_jobs(p.jobs, 2000),
         scale: p.scale,
@@ -201,6 +220,7 @@ defmodule TartarusWarehouse.Experiment do
 
     equal =
       floor!(
+        state.panel,
         robots: k,
         jobs: thesis_jobs(p.equal_jobs, 2000),
         scale: p.scale,
@@ -239,6 +259,7 @@ defmodule TartarusWarehouse.Experiment do
 
         r =
           floor!(
+            state.panel,
             robots: p.big_robots,
             jobs: big_jobs,
             scale: p.scale,
@@ -257,6 +278,7 @@ defmodule TartarusWarehouse.Experiment do
       for kind <- [:agents, :central, :guided] do
         r =
           floor!(
+            state.panel,
             robots: p.scaling_robots,
             secondary: p.nodes - p.scaling_robots - 1,
             jobs: jobs,
@@ -283,6 +305,7 @@ defmodule TartarusWarehouse.Experiment do
 
     gantt =
       floor!(
+        state.panel,
         robots: 3,
         jobs: jobs,
         resources: [:bay, :line, :rack, :wall, :packing, :return, :detour],
@@ -306,6 +329,7 @@ defmodule TartarusWarehouse.Experiment do
 
     stream =
       floor!(
+        state.panel,
         robots: 4,
         jobs: soft,
         resources: Enum.map(1..10, &{:psi, &1}) ++ Enum.map(1..5, &{:extra, &1}),
@@ -337,6 +361,7 @@ defmodule TartarusWarehouse.Experiment do
 
     r =
       floor!(
+        state.panel,
         robots: 4,
         standby: [4],
         jobs: jobs,
@@ -357,6 +382,7 @@ defmodule TartarusWarehouse.Experiment do
 
     r =
       floor!(
+        state.panel,
         robots: 4,
         jobs: jobs,
         scale: p.scale,
@@ -382,6 +408,7 @@ defmodule TartarusWarehouse.Experiment do
 
     r =
       floor!(
+        state.panel,
         robots: 3,
         jobs: jobs,
         scale: p.scale,
@@ -399,6 +426,7 @@ defmodule TartarusWarehouse.Experiment do
       # The same loss without persistence: the distributor and what it knew are gone.
       lost =
         floor!(
+          state.panel,
           robots: 3,
           jobs: jobs,
           scale: p.scale,
@@ -461,8 +489,8 @@ defmodule TartarusWarehouse.Experiment do
     end
   end
 
-  defp floor!(opts) do
-    {:ok, r} = Floor.run(opts)
+  defp floor!(panel, opts) do
+    {:ok, r} = Floor.run(Keyword.put(opts, :status, panel))
     c = Checker.completion(r.history, opts[:jobs])
 
     Map.merge(r, %{

@@ -96,6 +96,12 @@ defmodule TartarusWarehouse.Floor do
         "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
     ],
     seed: [type: :integer, default: 1, doc: "seed"],
+    status: [
+      type: :any,
+      default: nil,
+      doc:
+        "a public ETS table where the floor publishes itself while it runs, for the web dashboard (see `TartarusWarehouse.Panel`); nil: none"
+    ],
     timeout_ms: [type: :pos_integer, default: 120_000, doc: "give up waiting after this long"]
   ]
 
@@ -280,8 +286,17 @@ defmodule TartarusWarehouse.Floor do
         end
 
       dref = {dist, jd}
-      ctx = %{dref: dref, robot_hosts: robot_hosts, net: net}
+      ctx = %{dref: dref, robot_hosts: robot_hosts, net: net, status: opts[:status]}
       t0 = System.system_time(:microsecond)
+
+      publish(ctx.status, fn t ->
+        :ets.insert(t, [
+          {:floor,
+           %{net: net, robot_hosts: robot_hosts, design: design, guide: opts[:guide], t0_us: t0}},
+          {:jobs, length(opts[:jobs]), 0}
+        ])
+      end)
+
       submit(dref, opts[:jobs], opts[:arrivals_ms])
       events = events(opts)
       fire(events, 0, ctx)
@@ -323,6 +338,7 @@ defmodule TartarusWarehouse.Floor do
          wall_ms: System.monotonic_time(:millisecond) - t_start
        }}
     after
+      publish(opts[:status], &:ets.delete(&1, :floor))
       Network.stop(net)
       if data_dir, do: File.rm_rf(data_dir)
     end
@@ -414,6 +430,7 @@ defmodule TartarusWarehouse.Floor do
         receive do
           {:warehouse_job_done, id, at} ->
             done = Map.put(done, id, at)
+            publish(ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(done)}))
             fire(events, map_size(done), ctx)
             await(opts, events, ctx, done, total, t0)
         after
@@ -421,6 +438,16 @@ defmodule TartarusWarehouse.Floor do
             await(opts, events, ctx, done, total, t0)
         end
     end
+  end
+
+  # The dashboard's table (the run does not depend on it: a table gone is ignored).
+  defp publish(nil, _fun), do: :ok
+
+  defp publish(table, fun) do
+    fun.(table)
+    :ok
+  rescue
+    ArgumentError -> :ok
   end
 
   defp events(opts),

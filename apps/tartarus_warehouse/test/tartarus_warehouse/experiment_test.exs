@@ -5,6 +5,65 @@ defmodule TartarusWarehouse.ExperimentTest do
 
   @moduletag :tmp_dir
 
+  test "on the dashboard: the floor running now, a row per robot, the jobs done; the panel says when the run is over" do
+    {:ok, l} = :gen_tcp.listen(0, [])
+    {:ok, port} = :inet.port(l)
+    :gen_tcp.close(l)
+    url = "http://127.0.0.1:#{port}/"
+    owner = self()
+
+    run =
+      Task.async(fn ->
+        r =
+          Experiment.run(
+            experiment: :robots,
+            robots: 2,
+            jobs: 2,
+            equal_jobs: 6,
+            scale: 0.05,
+            out: false,
+            quiet: true,
+            dashboard: [port: port, token: "warehouse-panel-test"]
+          )
+
+        send(owner, :run_done)
+        r
+      end)
+
+    # A floor with two robots is shown (the 2-robot point): its hosts and the panel's rows.
+    panel =
+      poll(fn ->
+        with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url <> "api/panels", 5_000),
+             [%{"rows" => [_, _ | _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
+             do: p,
+             else: (_ -> nil)
+      end)
+
+    assert panel["title"] =~ "Warehouse (thesis ch. 4): robots, 2 robots"
+    assert panel["text"] =~ ~r/on 2 robots: \d+ of \d+ jobs done/
+    assert panel["text"] =~ "No two robots have held one resource at once so far."
+    assert Enum.map(panel["rows"], &hd/1) == ["r1", "r2"]
+    assert Enum.all?(panel["rows"], &(length(&1) == 6))
+
+    {:ok, 200, hosts} = TartarusTools.Dashboard.http_get(url <> "api/hosts", 5_000)
+    ids = Enum.map(TartarusTools.JSON.decode!(hosts)["hosts"], & &1["id"])
+    assert "jd" in ids and "r2" in ids
+
+    assert_receive :run_done, 60_000
+    assert {:ok, %{summary: %{mutex_violations: 0, deadlocks: 0}}} = Task.await(run)
+    gone = :ets.new(:gone, [])
+    :ets.delete(gone)
+    assert TartarusWarehouse.Panel.render(gone).text == "The run is over."
+  end
+
+  defp poll(fun, deadline \\ System.monotonic_time(:millisecond) + 60_000) do
+    cond do
+      v = fun.() -> v
+      System.monotonic_time(:millisecond) > deadline -> flunk("the panel never showed a floor")
+      true -> Process.sleep(50) && poll(fun, deadline)
+    end
+  end
+
   test "robots: speed-ups keyed by robot count, Gantt charts, the issue's JSON keys", %{
     tmp_dir: dir
   } do

@@ -10,10 +10,15 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
                              [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
                              [--latency-ms 0] [--server-ms 0] [--big-robots 1000]
-                             [--timeout-ms 300000]
+                             [--timeout-ms 300000] [--dashboard PORT]
 
   `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
-  (default 0.01: 20 ms). `--help` prints this text. Experiments:
+  (default 0.01: 20 ms). `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT
+  while the experiment runs (the address and token are printed): the hosts of the floor
+  running now and the warehouse panel (`TartarusWarehouse.Panel`: each robot's state, the
+  tasks it runs and the agent it serves, the jobs done, the mutual-exclusion check so
+  far); add `--scale 1` to watch the thesis's 2 s tasks in real time. `--help` prints this
+  text. Experiments:
 
     * `robots`: `--jobs` (4) warehouse jobs of T1-T4 with variable durations (each robot
       its own pace, each execution a spread of `--jitter`) on 1..`--robots` robots: a
@@ -73,6 +78,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       |> Keyword.drop([:quiet])
       |> Keyword.update!(:experiment, &Keyword.put(&1, :default, :robots))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:dashboard, &Keyword.put(&1, :type, :non_neg_integer))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
