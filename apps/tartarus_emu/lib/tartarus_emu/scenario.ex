@@ -153,7 +153,8 @@ defmodule TartarusEmu.Scenario do
 
   #{Tartarus.Options.docs(@schema)}
 
-  Returns `{:ok, %{summary:, series:, out:, files:}}` or `{:error, reason}` from setup.
+  Returns `{:ok, %{summary:, series:, out:, files:}}`, or `{:error, reason}` from setup or
+  from a dashboard that could not start (what setup started is then stopped).
   """
   @spec run(module(), keyword()) :: {:ok, result()} | {:error, term()}
   def run(module, opts \\ []) do
@@ -172,54 +173,59 @@ defmodule TartarusEmu.Scenario do
 
       t0 = System.monotonic_time(:millisecond)
 
-      case module.setup(setup_opts) do
-        {:ok, state} ->
-          dash = dashboard(module, state, runner)
+      with {:ok, state} <- module.setup(setup_opts),
+           {:ok, dash} <- dashboard(module, state, runner) do
+        try do
+          t1 = System.monotonic_time(:millisecond)
+          {state, ran} = loop(module, state, steps, runner)
+          t2 = System.monotonic_time(:millisecond)
 
-          try do
-            t1 = System.monotonic_time(:millisecond)
-            {state, ran} = loop(module, state, steps, runner)
-            t2 = System.monotonic_time(:millisecond)
+          runner_keys = %{
+            scenario: module.name(),
+            seed: seed,
+            steps: ran,
+            setup_ms: t1 - t0,
+            run_ms: t2 - t1
+          }
 
-            runner_keys = %{
-              scenario: module.name(),
-              seed: seed,
-              steps: ran,
-              setup_ms: t1 - t0,
-              run_ms: t2 - t1
-            }
-
-            summary = Map.merge(runner_keys, module.summary(state))
-            series = module.series(state)
-            {dir, files} = write(module, state, runner[:out], summary, series)
-            {:ok, %{summary: summary, series: series, out: dir, files: files}}
-          after
-            if dash, do: TartarusTools.Dashboard.stop(dash)
-            if function_exported?(module, :teardown, 1), do: module.teardown(state)
-          end
-
-        {:error, _} = error ->
-          error
+          summary = Map.merge(runner_keys, module.summary(state))
+          series = module.series(state)
+          {dir, files} = write(module, state, runner[:out], summary, series)
+          {:ok, %{summary: summary, series: series, out: dir, files: files}}
+        after
+          if dash, do: TartarusTools.Dashboard.stop(dash)
+          teardown(module, state)
+        end
       end
     end
   end
 
+  # {:ok, dashboard or nil}; a dashboard that cannot start (a bad option, a port in use)
+  # ends the run before it starts, with what setup started stopped.
   defp dashboard(module, state, runner) do
     with spec when spec != nil <- runner[:dashboard],
          net when is_struct(net, TartarusEmu.Network) or is_function(net, 0) <-
            network(module, state) do
       opts = if is_integer(spec), do: [port: spec], else: spec
-
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
 
-      {:ok, dash} = TartarusEmu.Dashboard.start_link(net, Keyword.put_new(opts, :panels, panels))
-      Process.unlink(dash)
-      IO.puts(runner[:progress_device], TartarusTools.Dashboard.banner(dash))
-      dash
+      case TartarusEmu.Dashboard.start_link(net, Keyword.put_new(opts, :panels, panels)) do
+        {:ok, dash} ->
+          Process.unlink(dash)
+          IO.puts(runner[:progress_device], TartarusTools.Dashboard.banner(dash))
+          {:ok, dash}
+
+        {:error, reason} ->
+          teardown(module, state)
+          {:error, if(is_binary(reason), do: reason, else: "dashboard: #{inspect(reason)}")}
+      end
     else
-      _ -> nil
+      _ -> {:ok, nil}
     end
   end
+
+  defp teardown(module, state),
+    do: if(function_exported?(module, :teardown, 1), do: module.teardown(state))
 
   defp network(module, state) do
     cond do

@@ -124,4 +124,23 @@ defmodule TartarusEmu.DashboardTest do
     # Stopped with the run.
     assert {:error, _} = TartarusTools.Dashboard.http_get(url <> "api/info", 2_000)
   end
+
+  test "a scenario whose dashboard cannot start ends with the reason, its network stopped" do
+    hosts_before = length(Tartarus.hosts())
+
+    assert {:error, message} =
+             TartarusEmu.Scenario.run(TartarusEmu.Walk,
+               hosts: 4,
+               topology: "ring",
+               agents: 2,
+               steps: 3,
+               seed: 1,
+               out: false,
+               quiet: true,
+               dashboard: [port: 0, token: "short"]
+             )
+
+    assert message =~ "token"
+    assert length(Tartarus.hosts()) == hosts_before
+  end
 end

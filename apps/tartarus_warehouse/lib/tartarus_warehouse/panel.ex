@@ -98,7 +98,7 @@ defmodule TartarusWarehouse.Panel do
     %{
       title: title(table),
       text:
-        "#{design_text(f)} on #{length(robots)} robots: #{done} of #{total} jobs done after " <>
+        "#{design_text(f)} on #{robots_text(length(robots))}: #{done} of #{total} jobs done after " <>
           "#{:erlang.float_to_binary(secs, decimals: 1)} s. " <>
           violations_text(robots) <>
           if(length(robots) > @live_max,
@@ -123,9 +123,12 @@ defmodule TartarusWarehouse.Panel do
     end
   end
 
-  defp point_text(:robots, k), do: "#{k} robots"
+  defp point_text(:robots, k), do: robots_text(k)
   defp point_text(:scaling, n), do: "#{n} tasks per job"
   defp point_text(_, point), do: "run #{point}"
+
+  defp robots_text(1), do: "1 robot"
+  defp robots_text(k), do: "#{k} robots"
 
   defp idle_text(table) do
     case lookup(table, :point) do
