@@ -64,6 +64,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   alias TartarusImmune.Evolution.{ES, NeuralNet, Objective, Repertoire}
 
   @shape [4, 5, 2]
+  # the colour sensor's reading of a yellow puck (thesis §7.3)
+  @yellow 3
 
   @schema [
     scenario: [type: {:in, [:s1, :s2, :s3]}, default: :s1, doc: "S1, S2 or S3"],
@@ -160,6 +162,22 @@ defmodule TartarusImmune.Evolution.Embodied do
   from a robot's motion and readings. The speeds are those the robot achieved: a robot
   whose move was refused (it drove into a wall, a robot or a stuck puck: `bumped`) did not
   translate, whatever its wheels were told (a real robot's wheel encoders stall).
+
+  `b_puck` (`:puck`) is the colour sensor reading yellow (3), as on the thesis's robots:
+  "The CS fixed behind the gripper facilitates the detection of the puck based on its
+  colour" (§7.3.1, S2), and "For the yellow color, the CS returned a value 3" (§7.3); the
+  fitness of embodied evolution is computed on board, from the robot's own sensors. The
+  arena's `puck_in_gripper` (a puck anywhere in the pusher's capture zone, up to 34
+  degrees off the axis and 1.5 cm from the body) is ground truth the robot cannot sense,
+  and counts pucks at the side of the U that the colour sensor does not see.
+
+      iex> alias TartarusArena.World
+      iex> w = World.new(seed: 1) |> World.add_robot(:r, x: 1.0, y: 1.0, tool: :pusher)
+      iex> r = %{light: {40, 20}, ultrasonic: 100, colour: 3, bumped: false, puck_in_gripper: false}
+      iex> TartarusImmune.Evolution.Embodied.sample(w, :r, r).puck
+      true
+      iex> TartarusImmune.Evolution.Embodied.sample(w, :r, %{r | colour: 7, puck_in_gripper: true}).puck
+      false
   """
   @spec sample(World.t(), term(), map()) :: Objective.sample()
   def sample(world, robot, readings) do
@@ -171,7 +189,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       v_rot: min(m.v_rot, 1.0),
       d: readings.ultrasonic / 200,
       light: [lx / 100, ly / 100],
-      puck: readings.puck_in_gripper,
+      puck: readings.colour == @yellow,
       light_on: World.light_on?(world)
     }
   end

@@ -1,7 +1,32 @@
 defmodule TartarusImmune.Evolution.EmbodiedTest do
   use ExUnit.Case, async: true
 
+  alias TartarusArena.World
   alias TartarusImmune.Evolution.Embodied
+
+  doctest Embodied
+
+  test "b_puck is the colour sensor seeing yellow: a puck held head-on counts, one at the side of the pusher's U does not" do
+    base = World.new(seed: 1, noise: :none) |> World.add_robot(:r, x: 1.0, y: 1.0, tool: :pusher)
+    # touching the robot (radius 0.07) at `angle` off its heading
+    at = fn angle -> {1.0 + 0.1 * :math.cos(angle), 1.0 + 0.1 * :math.sin(angle)} end
+
+    puck = fn angle ->
+      {x, y} = at.(angle)
+      w = World.add_puck(base, 1, x: x, y: y)
+      {readings, w} = World.sense(w, :r)
+      {readings.puck_in_gripper, Embodied.sample(w, :r, readings).puck}
+    end
+
+    assert puck.(0.0) == {true, true}
+    assert puck.(0.2) == {true, true}
+    # in the capture zone (34 degrees), beside the colour sensor
+    assert puck.(0.5) == {true, false}
+    assert puck.(-0.5) == {true, false}
+    assert puck.(1.2) == {false, false}
+    {readings, w} = World.sense(base, :r)
+    refute Embodied.sample(w, :r, readings).puck
+  end
 
   test "the immune robot grows a repertoire, the monolithic one keeps one controller; same seed, same run" do
     {:ok, a} = Embodied.run(scenario: :s1, iterations: 40, test_episodes: 2, seed: 4)
