@@ -4,8 +4,8 @@ defmodule TartarusImmune.Evolution.Objective do
   over an evaluation period, on a trace of samples (one per time step). Each sample is a map
   of normalized values (all in `[0, 1]`):
 
-    * `:v_trans` - translational speed, absolute, normalized by the top speed
-      (`TartarusArena.World.motion/2`);
+    * `:v_trans` - forward translational speed, normalized by the top speed, 0 when
+      backing up (`TartarusImmune.Evolution.Embodied.sample/3` says why);
     * `:v_rot` - rotational speed (absolute, normalized);
     * `:d` - the ultrasonic distance to the obstacle ahead (1: nothing in range);
     * `:light` - the two light sensors, `[l1, l2]` (1: brightest);
