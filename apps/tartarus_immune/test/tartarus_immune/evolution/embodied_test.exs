@@ -6,6 +6,33 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
 
   doctest Embodied
 
+  test "backing up earns no f_obs: the speed in Eqs. 7.1-7.3 is the forward speed" do
+    alias TartarusImmune.Evolution.Objective
+    # facing a wall 0.8 m ahead, from the middle of the arena, 20 steps of 0.1 s
+    w0 =
+      World.new(size: {2.0, 2.0}, seed: 1, noise: :none)
+      |> World.add_robot(:r, x: 1.0, y: 1.0, theta: 0.0, tool: :pusher)
+
+    trace = fn wheels ->
+      {_, samples} =
+        Enum.reduce(1..20, {w0, []}, fn _, {w, acc} ->
+          w = World.step(w, %{r: wheels}, 0.1)
+          {readings, w} = World.sense(w, :r)
+          {w, [Embodied.sample(w, :r, readings) | acc]}
+        end)
+
+      samples
+    end
+
+    back = trace.({-1.0, -1.0})
+    fwd = trace.({1.0, 1.0})
+    assert Enum.all?(back, &(&1.v_trans == 0.0 and Objective.f_obs(&1) == 0.0))
+    assert Enum.all?(fwd, &(&1.v_trans == 1.0 and Objective.f_obs(&1) > 0.0))
+    assert Objective.fitness(:s1, fwd) > Objective.fitness(:s1, back)
+    # S3 light off: f_antipuck pays driving on without a puck, not backing away
+    assert Enum.all?(back, &(Objective.f_antipuck(&1) == 0.0))
+  end
+
   test "b_puck is the colour sensor seeing yellow: a puck held head-on counts, one at the side of the pusher's U does not" do
     base = World.new(seed: 1, noise: :none) |> World.add_robot(:r, x: 1.0, y: 1.0, tool: :pusher)
     # touching the robot (radius 0.07) at `angle` off its heading
