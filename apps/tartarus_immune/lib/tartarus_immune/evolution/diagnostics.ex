@@ -39,7 +39,13 @@ defmodule TartarusImmune.Evolution.Diagnostics do
     * `:wander_phototaxis` - obstacle avoidance, and phototaxis while the colour sensor
       sees a puck in the gripper (S2's sub-tasks by hand);
     * `:circle` - left wheel full, right wheel 0.6, whatever the sensors say: a tight
-      circle at speed.
+      circle at speed;
+    * `:orbit` - phototaxis at full speed with a bias to the left that grows with the
+      light, turning in place under 0.2: it goes to the light and circles round it (S1's
+      "move towards the light source and then stay near it"), whatever the pucks;
+    * `:deliver` - full speed ahead with obstacle avoidance, and `:orbit`'s steering
+      (a stronger bias) while the colour sensor sees a puck: a puck met is taken to the
+      light and carried round it there.
   """
   @spec controllers() :: %{atom() => controller()}
   def controllers do
@@ -48,7 +54,20 @@ defmodule TartarusImmune.Evolution.Diagnostics do
       [0.7 + k, 0.7 - k]
     end
 
+    orbit = fn ll, lr, bias ->
+      t = 4 * (lr - ll) - bias * (ll + lr)
+      Enum.map([1.0 + t, 1.0 - t], &max(-1.0, min(1.0, &1)))
+    end
+
     %{
+      orbit: fn [ll, lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: orbit.(ll, lr, 0.3) end,
+      deliver: fn [ll, lr, us, c] ->
+        cond do
+          c < 0.5 -> orbit.(ll, lr, 0.6)
+          us < 0.2 -> [-0.5, 0.5]
+          true -> [1.0, 1.0]
+        end
+      end,
       phototaxis: fn [ll, lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: photo.(ll, lr) end,
       avoid: fn [_ll, _lr, us, _c] -> if us < 0.2, do: [-0.5, 0.5], else: [0.7, 0.7] end,
       straight: fn _ -> [1.0, 1.0] end,

@@ -64,6 +64,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   alias TartarusImmune.Evolution.{ES, NeuralNet, Objective, Repertoire}
 
   @shape [4, 5, 2]
+  # the colour sensor's reading of a yellow puck (thesis §7.3)
+  @yellow 3
 
   @schema [
     scenario: [type: {:in, [:s1, :s2, :s3]}, default: :s1, doc: "S1, S2 or S3"],
@@ -134,7 +136,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   was refused: stuck against a wall, or pushing a puck that cannot move), final distance
   to the light, distance moved, best puck gain towards the light),
   `final_fitness` (mean of the last 20 iterations), `unevaluated_rounds` (rounds whose
-  recovery period left the antibody's active region).
+  recovery period left the antibody's active region), `repertoire` (the trained
+  `TartarusImmune.Evolution.Repertoire`, for `test_repertoire/3`).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -160,6 +163,35 @@ defmodule TartarusImmune.Evolution.Embodied do
   from a robot's motion and readings. The speeds are those the robot achieved: a robot
   whose move was refused (it drove into a wall, a robot or a stuck puck: `bumped`) did not
   translate, whatever its wheels were told (a real robot's wheel encoders stall).
+
+  `v_trans` is the *forward* translational speed: 0 when the robot backs up. The
+  thesis's robot has its one ultrasonic sensor "mounted in front of the robot" and its
+  gripper in front; `f_obs = v_trans * (1 - v_rot) * d` pays speed times the free distance
+  *ahead*, which measures obstacle avoidance only for a robot moving where its sensor
+  looks, and a puck is pushed only forwards. With the absolute speed, driving backwards at
+  full speed earned the whole `f_obs` (the free space ahead grows as the robot backs away
+  from a wall) while never meeting an obstacle in the sensor or a puck in the gripper, and
+  most learnt controllers did just that (docs/evolution.md).
+
+  `b_puck` (`:puck`) is the colour sensor reading yellow (3), as on the thesis's robots:
+  "The CS fixed behind the gripper facilitates the detection of the puck based on its
+  colour" (§7.3.1, S2), and "For the yellow color, the CS returned a value 3" (§7.3); the
+  fitness of embodied evolution is computed on board, from the robot's own sensors. The
+  arena's `puck_in_gripper` (a puck anywhere in the pusher's capture zone, up to 34
+  degrees off the axis and 1.5 cm from the body) is ground truth the robot cannot sense,
+  and counts pucks at the side of the U that the colour sensor does not see.
+
+      iex> alias TartarusArena.World
+      iex> w = World.new(seed: 1) |> World.add_robot(:r, x: 1.0, y: 1.0, tool: :pusher)
+      iex> r = %{light: {40, 20}, ultrasonic: 100, colour: 3, bumped: false, puck_in_gripper: false}
+      iex> TartarusImmune.Evolution.Embodied.sample(w, :r, r).puck
+      true
+      iex> TartarusImmune.Evolution.Embodied.sample(w, :r, %{r | colour: 7, puck_in_gripper: true}).puck
+      false
+      iex> TartarusImmune.Evolution.Embodied.sample(World.set_wheels(w, :r, 1.0, 1.0), :r, r).v_trans
+      1.0
+      iex> TartarusImmune.Evolution.Embodied.sample(World.set_wheels(w, :r, -1.0, -1.0), :r, r).v_trans
+      0.0
   """
   @spec sample(World.t(), term(), map()) :: Objective.sample()
   def sample(world, robot, readings) do
@@ -167,11 +199,11 @@ defmodule TartarusImmune.Evolution.Embodied do
     {lx, ly} = readings.light
 
     %{
-      v_trans: if(readings.bumped, do: 0.0, else: min(m.v_trans, 1.0)),
+      v_trans: if(readings.bumped or m.v <= 0, do: 0.0, else: min(m.v_trans, 1.0)),
       v_rot: min(m.v_rot, 1.0),
       d: readings.ultrasonic / 200,
       light: [lx / 100, ly / 100],
-      puck: readings.puck_in_gripper,
+      puck: readings.colour == @yellow,
       light_on: World.light_on?(world)
     }
   end
@@ -245,6 +277,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       light_switches: switches && Tuple.to_list(switches),
       trajectory: Enum.reverse(st.traj),
       world: if(o.trace, do: st.world),
+      repertoire: st.rep,
       final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> mean()
     }
     |> Map.merge(s3_stats(o.scenario, curve, switches))

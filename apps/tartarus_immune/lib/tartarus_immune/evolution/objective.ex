@@ -4,12 +4,13 @@ defmodule TartarusImmune.Evolution.Objective do
   over an evaluation period, on a trace of samples (one per time step). Each sample is a map
   of normalized values (all in `[0, 1]`):
 
-    * `:v_trans` - translational speed, absolute, normalized by the top speed
-      (`TartarusArena.World.motion/2`);
+    * `:v_trans` - forward translational speed, normalized by the top speed, 0 when
+      backing up (`TartarusImmune.Evolution.Embodied.sample/3` says why);
     * `:v_rot` - rotational speed (absolute, normalized);
     * `:d` - the ultrasonic distance to the obstacle ahead (1: nothing in range);
     * `:light` - the two light sensors, `[l1, l2]` (1: brightest);
-    * `:puck` - a puck is in the gripper (`b_puck`, boolean);
+    * `:puck` - a puck is in the gripper (`b_puck`, boolean): on the arena, the colour
+      sensor behind the pusher reads yellow (`TartarusImmune.Evolution.Embodied.sample/3`);
     * `:light_on` - the light is on (`b_light`, boolean; S3 only).
 
   The terms:
@@ -37,8 +38,10 @@ defmodule TartarusImmune.Evolution.Objective do
   also does not mirror `f_antipuck`, which Eq. 7.3 uses as the reversal of `f_puck`
   when the light is off. We read the printed `+` as a misprint for `*`, and keep the
   printed sum as an option. Neither reading says where the puck should go: measured on the
-  arena, both still score driving in a tight circle (which sweeps up a puck and carries it
-  round) above a hand-made controller that pushes pucks to the light (docs/evolution.md).
+  arena, under both a hand-made controller that takes pucks to the light scores above
+  circling anywhere, but about as high as one that circles round the light whatever the
+  pucks, and evolution finds controllers that score higher still and push no puck to the
+  light (docs/evolution.md, "Why learning was weak").
 
       iex> alias TartarusImmune.Evolution.Objective
       iex> s = %{v_trans: 1.0, v_rot: 0.0, d: 1.0, light: [0.2, 0.5], puck: false}

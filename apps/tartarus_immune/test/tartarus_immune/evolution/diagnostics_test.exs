@@ -14,23 +14,40 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert Enum.all?(straight.episodes, &(&1.final_stall > 0))
   end
 
-  test "S2: pushing pucks towards the light by hand passes test episodes; Eq. 7.2 ranks circling higher under both readings of f_puck, and circling passes none" do
+  test "S2: pushing pucks towards the light by hand passes test episodes; circling passes none" do
     c = Diagnostics.controllers()
     pusher = Diagnostics.ceiling(:s2, c.wander_phototaxis, episodes: 10)
     assert pusher.success >= 0.2
     # with pucks sliding along walls and pushing each other, few episodes end stalled
     assert Enum.count(pusher.episodes, &(&1.final_stall > 0)) <= 2
     assert Diagnostics.ceiling(:s2, c.circle, episodes: 10).success == 0.0
-
-    for r <- [:sum, :product] do
-      assert Diagnostics.fitness(:s2, c.circle, episodes: 10, puck_reward: r) >
-               Diagnostics.fitness(:s2, c.wander_phototaxis, episodes: 10, puck_reward: r)
-    end
+    # taking a puck met to the light and carrying it round there passes more
+    assert Diagnostics.ceiling(:s2, c.deliver, episodes: 10).success > pusher.success
 
     # under the product the circle still earns f_puck: it sweeps pucks into its pusher and
     # carries them round
     assert Diagnostics.fitness(:s2, c.circle, episodes: 5, puck_reward: :product) >
              Diagnostics.fitness(:s1, c.circle, episodes: 5)
+  end
+
+  test "Eq. 7.2 under both readings: delivering pucks to the light beats circling anywhere and the slow pusher, but orbiting the light whatever the pucks scores about as well" do
+    c = Diagnostics.controllers()
+
+    for r <- [:sum, :product] do
+      f = fn ctrl -> Diagnostics.fitness(:s2, ctrl, episodes: 20, puck_reward: r) end
+      deliver = f.(c.deliver)
+      assert deliver > f.(c.circle)
+      assert deliver > f.(c.wander_phototaxis)
+      assert deliver > f.(c.phototaxis)
+      assert abs(f.(c.orbit) - deliver) < 0.1
+    end
+
+    # S1: orbiting the light beats circling anywhere and plain phototaxis
+    assert Diagnostics.fitness(:s1, c.orbit, episodes: 10) >
+             Diagnostics.fitness(:s1, c.phototaxis, episodes: 10)
+
+    assert Diagnostics.fitness(:s1, c.orbit, episodes: 10) >
+             Diagnostics.fitness(:s1, c.circle, episodes: 10)
   end
 
   test "a recovery period makes one evaluation rank controllers more reliably" do

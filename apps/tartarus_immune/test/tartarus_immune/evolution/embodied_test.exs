@@ -1,7 +1,59 @@
 defmodule TartarusImmune.Evolution.EmbodiedTest do
   use ExUnit.Case, async: true
 
+  alias TartarusArena.World
   alias TartarusImmune.Evolution.Embodied
+
+  doctest Embodied
+
+  test "backing up earns no f_obs: the speed in Eqs. 7.1-7.3 is the forward speed" do
+    alias TartarusImmune.Evolution.Objective
+    # facing a wall 0.8 m ahead, from the middle of the arena, 20 steps of 0.1 s
+    w0 =
+      World.new(size: {2.0, 2.0}, seed: 1, noise: :none)
+      |> World.add_robot(:r, x: 1.0, y: 1.0, theta: 0.0, tool: :pusher)
+
+    trace = fn wheels ->
+      {_, samples} =
+        Enum.reduce(1..20, {w0, []}, fn _, {w, acc} ->
+          w = World.step(w, %{r: wheels}, 0.1)
+          {readings, w} = World.sense(w, :r)
+          {w, [Embodied.sample(w, :r, readings) | acc]}
+        end)
+
+      samples
+    end
+
+    back = trace.({-1.0, -1.0})
+    fwd = trace.({1.0, 1.0})
+    assert Enum.all?(back, &(&1.v_trans == 0.0 and Objective.f_obs(&1) == 0.0))
+    assert Enum.all?(fwd, &(&1.v_trans == 1.0 and Objective.f_obs(&1) > 0.0))
+    assert Objective.fitness(:s1, fwd) > Objective.fitness(:s1, back)
+    # S3 light off: f_antipuck pays driving on without a puck, not backing away
+    assert Enum.all?(back, &(Objective.f_antipuck(&1) == 0.0))
+  end
+
+  test "b_puck is the colour sensor seeing yellow: a puck held head-on counts, one at the side of the pusher's U does not" do
+    base = World.new(seed: 1, noise: :none) |> World.add_robot(:r, x: 1.0, y: 1.0, tool: :pusher)
+    # touching the robot (radius 0.07) at `angle` off its heading
+    at = fn angle -> {1.0 + 0.1 * :math.cos(angle), 1.0 + 0.1 * :math.sin(angle)} end
+
+    puck = fn angle ->
+      {x, y} = at.(angle)
+      w = World.add_puck(base, 1, x: x, y: y)
+      {readings, w} = World.sense(w, :r)
+      {readings.puck_in_gripper, Embodied.sample(w, :r, readings).puck}
+    end
+
+    assert puck.(0.0) == {true, true}
+    assert puck.(0.2) == {true, true}
+    # in the capture zone (34 degrees), beside the colour sensor
+    assert puck.(0.5) == {true, false}
+    assert puck.(-0.5) == {true, false}
+    assert puck.(1.2) == {false, false}
+    {readings, w} = World.sense(base, :r)
+    refute Embodied.sample(w, :r, readings).puck
+  end
 
   test "the immune robot grows a repertoire, the monolithic one keeps one controller; same seed, same run" do
     {:ok, a} = Embodied.run(scenario: :s1, iterations: 40, test_episodes: 2, seed: 4)
@@ -101,8 +153,13 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     product = run.([])
     assert run.(puck_reward: :product).curve == product.curve
     sum = run.(puck_reward: :sum)
-    # the sum pays every step's speed again, so an S2 evaluation scores higher under it
-    assert hd(Enum.reverse(sum.curve)).fitness > hd(Enum.reverse(product.curve)).fitness
+    # the first evaluation runs the same controller on the same arena under both readings;
+    # the sum pays every step's forward speed again (and a puck still), so it scores at
+    # least as high
+    [p1 | _] = product.curve
+    [s1 | _] = sum.curve
+    assert s1.steps == p1.steps and s1.fitness >= p1.fitness
+    assert sum.curve != product.curve
     # S1 has no pucks: the reading changes nothing
     {:ok, a} = Embodied.run(scenario: :s1, iterations: 20, test_episodes: 0, seed: 3)
 
