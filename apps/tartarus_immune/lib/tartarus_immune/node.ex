@@ -255,7 +255,12 @@ defmodule TartarusImmune.Node do
   def handle_message({:diffuse, tag}, from, s) do
     fvs =
       if s.danger,
-        do: danger_call(Enum.map(s.problems, & &1.fv), map_size(s.queue), s.p),
+        do:
+          danger_call(
+            Enum.map(s.problems, & &1.fv),
+            Enum.map(s.queue, fn {_, m} -> m.fv end),
+            s.p
+          ),
         else: nil
 
     if fvs != nil do
@@ -462,49 +467,68 @@ defmodule TartarusImmune.Node do
 
   @doc """
   Whether a host calls for help this round, pure: with a per-round danger signal
-  (`p.signal_life` `:distressed` or `:unserved`), the feature vectors its danger signal
-  carries, or `nil` for no signal. `pending` are the feature vectors of the host's pending
-  problems, `q_current` the length of its interaction queue.
+  (`p.signal_life` `:distressed`, `:unserved` or `:unmet`), the feature vectors its danger
+  signal carries, or `nil` for no signal. `pending` are the feature vectors of the host's
+  pending problems, `residents` those (F_y) of the iPkts in its interaction queue.
 
     * `:distressed` - the host signals while it has a pending problem (Algorithm 4 diffuses
       danger signals in every iteration of its loop, for the current problems; a solved
       problem calls nobody);
-    * `:unserved` - the same, but not while its interaction queue is full
-      (`q_current >= p.q_max`): Q_max is "the maximum allowed number of iPkts that can enter
-      the interaction site", so a full site has no room for the iPkts a signal would bring
-      and no cloning space for them (Eq. 6.12); the call is answered. It resumes when the
-      queue drops below Q_max with problems still pending.
+    * `:unserved` - the same, but not while its interaction queue is full (Q_current =
+      `length(residents)` >= `p.q_max`): Q_max is "the maximum allowed number of iPkts that
+      can enter the interaction site", so a full site has no room for the iPkts a signal
+      would bring and no cloning space for them (Eq. 6.12); the call is answered. It
+      resumes when the queue drops below Q_max with problems still pending;
+    * `:unmet` - only for the pending problems that no resident recognizes (ψ < ψ_th for
+      every resident): the danger is a problem the host cannot serve (danger theory: a
+      response to damage, not to every antigen); the signal carries just those problems.
 
   Any other `signal_life` (a signal emitted once per barrage) gives `nil`: no per-round
   signal.
 
       iex> p = TartarusImmune.Params.new!(signal_life: :unserved, q_max: 5)
-      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], 4, p)
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 4), p)
       [[0.1, 0.2]]
-      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], 5, p)
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 5), p)
       nil
-      iex> TartarusImmune.Node.danger_call([], 0, p)
+      iex> TartarusImmune.Node.danger_call([], [], p)
       nil
-      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], 9, %{p | signal_life: :distressed})
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 9), %{p | signal_life: :distressed})
       [[0.1, 0.2]]
+      iex> p = %{p | signal_life: :unmet}
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2], [1.0, 1.0]], [[0.1, 0.2]], p)
+      [[1.0, 1.0]]
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], [[0.1, 0.2]], p)
+      nil
   """
-  @spec danger_call([[float()]], non_neg_integer(), map()) :: [[float()]] | nil
-  def danger_call([], _q_current, _p), do: nil
+  @spec danger_call([[float()]], [[float()]], map()) :: [[float()]] | nil
+  def danger_call([], _residents, _p), do: nil
 
-  def danger_call(pending, q_current, p) do
+  def danger_call(pending, residents, p) do
     case Map.get(p, :signal_life) do
-      :distressed -> pending
-      :unserved when q_current < p.q_max -> pending
-      _ -> nil
+      :distressed ->
+        pending
+
+      :unserved ->
+        if length(residents) < p.q_max, do: pending
+
+      :unmet ->
+        case Enum.reject(pending, fn fx -> Enum.any?(residents, &Maths.recognizes?(fx, &1, p)) end) do
+          [] -> nil
+          unmet -> unmet
+        end
+
+      _ ->
+        nil
     end
   end
 
   @doc """
   True when danger signals are diffused every round by `danger_call/3` (`p.signal_life`
-  `:distressed` or `:unserved`) rather than once per barrage.
+  `:distressed`, `:unserved` or `:unmet`) rather than once per barrage.
   """
   @spec per_round?(map()) :: boolean()
-  def per_round?(p), do: Map.get(p, :signal_life) in [:distressed, :unserved]
+  def per_round?(p), do: Map.get(p, :signal_life) in [:distressed, :unserved, :unmet]
 
   # how many measures an iPkt's score holds (`n`; without it, 1 once it has a score)
   defp measures(%{n: n}) when is_integer(n), do: n

@@ -75,7 +75,7 @@ defmodule TartarusImmune.Params do
       doc: "ζ's reference: the instance's own scale, or the cheapest candidate present"
     ],
     signal_life: [
-      type: {:in, [:period, :eq6_5, :distressed, :unserved]},
+      type: {:in, [:period, :eq6_5, :distressed, :unserved, :unmet]},
       default: :period,
       doc:
         "a danger signal lives its barrage period at every hop, (Eq. 6.5) a fraction Sg(H)/Sg_max of it, or one round, re-diffused while the host has a pending problem (:distressed) and room in its queue (:unserved)"

@@ -1,7 +1,7 @@
 defmodule TartarusImmune.AgentsTest do
   use ExUnit.Case, async: false
   alias TartarusEmu.{Network, Topology}
-  alias TartarusImmune.{IPkt, Node, Params, Sorting}
+  alias TartarusImmune.{IPkt, Maths, Node, Params, Sorting}
 
   @p Params.new!()
 
@@ -117,17 +117,31 @@ defmodule TartarusImmune.AgentsTest do
   test "danger_call: a host with a pending problem calls while its queue has room, not once it is full or its problems are solved" do
     p = Params.new!(signal_life: :unserved, q_max: 5)
     fv = [0.1, 0.2, 0.3, 0.4]
+    residents = fn n -> List.duplicate(fv, n) end
     # must fire: a pending problem, 4 of 5 places taken
-    assert Node.danger_call([fv], 4, p) == [fv]
+    assert Node.danger_call([fv], residents.(4), p) == [fv]
     # must not fire: the interaction site is full (the call is answered) ...
-    assert Node.danger_call([fv], 5, p) == nil
-    assert Node.danger_call([fv], 12, p) == nil
+    assert Node.danger_call([fv], residents.(5), p) == nil
+    assert Node.danger_call([fv], residents.(12), p) == nil
     # ... or nothing is pending (a solved problem calls nobody)
-    assert Node.danger_call([], 0, p) == nil
+    assert Node.danger_call([], [], p) == nil
     # :distressed ignores the queue; a barrage-long signal is never a per-round call
-    assert Node.danger_call([fv], 12, %{p | signal_life: :distressed}) == [fv]
-    assert Node.danger_call([fv], 0, %{p | signal_life: :period}) == nil
+    assert Node.danger_call([fv], residents.(12), %{p | signal_life: :distressed}) == [fv]
+    assert Node.danger_call([fv], [], %{p | signal_life: :period}) == nil
     assert Node.per_round?(p) and not Node.per_round?(@p)
+  end
+
+  test "danger_call :unmet: a host calls only for the problems no resident recognizes" do
+    p = Params.new!(signal_life: :unmet)
+    near = [0.1, 0.2, 0.3, 0.4]
+    far = [1.0, 1.0, 1.0, 0.0]
+    refute Maths.recognizes?(far, near, p)
+    # must fire, for the unrecognized problem only
+    assert Node.danger_call([near, far], [near], p) == [far]
+    assert Node.danger_call([near], [], p) == [near]
+    # must not fire: every pending problem has a candidate here, however full the queue
+    assert Node.danger_call([near], [near], p) == nil
+    assert Node.danger_call([near, far], [near, far], p) == nil
   end
 
   test "signal_life :unserved: a node diffuses its danger signal per round, only while it has room" do
