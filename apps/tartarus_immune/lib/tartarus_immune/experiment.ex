@@ -15,15 +15,20 @@ defmodule TartarusImmune.Experiment do
 
     1. **Barrage** (at step 1 and every `period` steps): `ceil(eta * nodes)` hosts chosen at
        random (the influx rate η; 0.5: "a random half") each get `beta` instances of the
-       pool (the barrage size β); each emits its danger signal `{:danger, epoch}`;
+       pool (the barrage size β); each emits its danger signal `{:danger, epoch}` (unless
+       the signal is diffused per round, step 5);
     2. **On-the-fly additions** due at this step (`add: [{step, solution}]`): one iPkt of the
        new solution on every host;
     3. **Interaction**: every host solves its oldest pending problem (`TartarusImmune.Node`);
        the step waits for every clone born;
     4. **Churn** (`dynamic: p`, Fig. 6.6): each host breaks off (all its links down,
        `TartarusEmu.Network.isolate/2`) or, if off, reconnects with probability `p`;
-    5. **Migration**: every iPkt is told `{:go, epoch, age}` (age: the fraction of the
-       barrage period gone by, for `signal_life: :eq6_5`) and moves, stays or dies
+    5. **Migration**: with a per-round danger signal (`signal_life: :distressed` or
+       `:unserved`, `TartarusImmune.Node.per_round?/1`) every host first decides whether it
+       calls for help (`TartarusImmune.Node.danger_call/3`) and diffuses `{:danger, {epoch,
+       step}}` if so; then every iPkt is told `{:go, tag, age}` (tag: the barrage's `epoch`,
+       or `{epoch, step}` with a per-round signal; age: the fraction of the barrage period
+       gone by, for `signal_life: :eq6_5`) and moves, stays or dies
        (`TartarusImmune.IPkt`); the step waits for every one;
     6. the population per solution is recorded (the learning curve) and given to
        `TartarusImmune.Convergence`.
@@ -366,7 +371,7 @@ defmodule TartarusImmune.Experiment do
     alive = st.pop |> Map.values() |> Enum.sum()
     # how far into its barrage period the step is (Eq. 6.5's lifetimes, `signal_life:`)
     age = rem(st.last_step, st.o.period) / st.o.period
-    Network.broadcast(st.net, {:go, st.epoch, age})
+    Network.broadcast(st.net, {:go, diffuse(st), age})
 
     Enum.reduce(1..alive//1, st, fn _, st ->
       case receive_event(st.run, [:arrived, :stayed, :expired]) do
@@ -383,6 +388,28 @@ defmodule TartarusImmune.Experiment do
           %{st | pop: Map.update!(st.pop, sol, &(&1 - 1)), expired: st.expired + 1}
       end
     end)
+  end
+
+  # The name's tag of the danger field the iPkts follow this round: the barrage's epoch, or
+  # with a per-round signal (`Node.per_round?/1`) a fresh `{epoch, round}`, diffused now by
+  # every host that calls for help (`Node.danger_call/3`), after this round's interactions.
+  defp diffuse(st) do
+    if st.o.danger and TartarusImmune.Node.per_round?(st.p) do
+      tag = {st.epoch, st.last_step + 1}
+
+      st.hosts
+      |> Task.async_stream(
+        fn host -> {:ok, _} = Tartarus.request({"immune", host}, {:diffuse, tag}, 120_000) end,
+        timeout: :infinity,
+        max_concurrency: System.schedulers_online() * 2
+      )
+      |> Stream.run()
+
+      settle(st)
+      tag
+    else
+      st.epoch
+    end
   end
 
   defp receive_event(run, events) do

@@ -15,9 +15,10 @@ defmodule TartarusImmune.IPkt do
        not moved yet (then only fresh clones travel, each once, and an iPkt otherwise stays
        in the repertoire of the host where it was made or arrived: thesis §6.5.11's robots
        keep their mappings and share clones);
-    3. else climbs the danger field `{:danger, epoch}` (`{:gradient, ...}` strategy) when a
+    3. else climbs the danger field `{:danger, tag}` (`{:gradient, ...}` strategy) when a
        danger signal at this host carries a feature vector it recognizes (and danger
-       signals are on);
+       signals are on); `{:go, tag, age}` names the field (the barrage's epoch, or
+       `{epoch, step}` for a signal diffused per round, see `TartarusImmune.Node.danger_call/3`);
     4. else moves conscientiously.
 
   The node tells it its new activation and performance score (`{:update, tau, {zeta,

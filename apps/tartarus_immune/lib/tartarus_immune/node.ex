@@ -19,7 +19,13 @@ defmodule TartarusImmune.Node do
       queue's length being Q_current), and candidates whose activation fell below τ_min die
       (Eq. 6.17). A problem no resident iPkt recognizes stays pending. Answers a report
       map;
-    * `:queue` (a request) - the queue's entries.
+    * `{:diffuse, tag}` (a request, answered `true` if a signal went out) - with a
+      per-round danger signal (`signal_life: :distressed | :unserved`; then `{:problems,
+      ...}` emits none), the host decides whether it calls for help this round
+      (`danger_call/3`) and if so emits `{:danger, tag}` carrying the feature vectors of its
+      pending problems;
+    * `:queue` (a request) - the queue's entries;
+    * `:pending` (a request) - how many problems are pending.
 
   ## Deferred measurement (a robot)
 
@@ -71,7 +77,7 @@ defmodule TartarusImmune.Node do
     problems = s.problems ++ new
     publish(problems)
 
-    if s.danger and new != [] do
+    if s.danger and new != [] and not per_round?(s.p) do
       :ok =
         Tartarus.Agent.emit_signal({:danger, epoch}, s.p.sg_max,
           span: s.p.l_span,
@@ -243,6 +249,30 @@ defmodule TartarusImmune.Node do
 
   def handle_message(:queue, from, s) do
     Tartarus.Agent.reply(from, Map.values(s.queue))
+    {:stay, s}
+  end
+
+  def handle_message({:diffuse, tag}, from, s) do
+    fvs =
+      if s.danger,
+        do:
+          danger_call(
+            Enum.map(s.problems, & &1.fv),
+            Enum.map(s.queue, fn {_, m} -> m.fv end),
+            s.p
+          ),
+        else: nil
+
+    if fvs != nil do
+      :ok = Tartarus.Agent.emit_signal({:danger, tag}, s.p.sg_max, span: s.p.l_span, data: fvs)
+    end
+
+    Tartarus.Agent.reply(from, fvs != nil)
+    {:stay, s}
+  end
+
+  def handle_message(:pending, from, s) do
+    Tartarus.Agent.reply(from, length(s.problems))
     {:stay, s}
   end
 
@@ -434,6 +464,71 @@ defmodule TartarusImmune.Node do
       dead: if(tau_after < p.tau_min, do: [sel_id], else: [])
     }
   end
+
+  @doc """
+  Whether a host calls for help this round, pure: with a per-round danger signal
+  (`p.signal_life` `:distressed`, `:unserved` or `:unmet`), the feature vectors its danger
+  signal carries, or `nil` for no signal. `pending` are the feature vectors of the host's
+  pending problems, `residents` those (F_y) of the iPkts in its interaction queue.
+
+    * `:distressed` - the host signals while it has a pending problem (Algorithm 4 diffuses
+      danger signals in every iteration of its loop, for the current problems; a solved
+      problem calls nobody);
+    * `:unserved` - the same, but not while its interaction queue is full (Q_current =
+      `length(residents)` >= `p.q_max`): Q_max is "the maximum allowed number of iPkts that
+      can enter the interaction site", so a full site has no room for the iPkts a signal
+      would bring and no cloning space for them (Eq. 6.12); the call is answered. It
+      resumes when the queue drops below Q_max with problems still pending;
+    * `:unmet` - only for the pending problems that no resident recognizes (ψ < ψ_th for
+      every resident): the danger is a problem the host cannot serve (danger theory: a
+      response to damage, not to every antigen); the signal carries just those problems.
+
+  Any other `signal_life` (a signal emitted once per barrage) gives `nil`: no per-round
+  signal.
+
+      iex> p = TartarusImmune.Params.new!(signal_life: :unserved, q_max: 5)
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 4), p)
+      [[0.1, 0.2]]
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 5), p)
+      nil
+      iex> TartarusImmune.Node.danger_call([], [], p)
+      nil
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], List.duplicate([0.1, 0.2], 9), %{p | signal_life: :distressed})
+      [[0.1, 0.2]]
+      iex> p = %{p | signal_life: :unmet}
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2], [1.0, 1.0]], [[0.1, 0.2]], p)
+      [[1.0, 1.0]]
+      iex> TartarusImmune.Node.danger_call([[0.1, 0.2]], [[0.1, 0.2]], p)
+      nil
+  """
+  @spec danger_call([[float()]], [[float()]], map()) :: [[float()]] | nil
+  def danger_call([], _residents, _p), do: nil
+
+  def danger_call(pending, residents, p) do
+    case Map.get(p, :signal_life) do
+      :distressed ->
+        pending
+
+      :unserved ->
+        if length(residents) < p.q_max, do: pending
+
+      :unmet ->
+        case Enum.reject(pending, fn fx -> Enum.any?(residents, &Maths.recognizes?(fx, &1, p)) end) do
+          [] -> nil
+          unmet -> unmet
+        end
+
+      _ ->
+        nil
+    end
+  end
+
+  @doc """
+  True when danger signals are diffused every round by `danger_call/3` (`p.signal_life`
+  `:distressed`, `:unserved` or `:unmet`) rather than once per barrage.
+  """
+  @spec per_round?(map()) :: boolean()
+  def per_round?(p), do: Map.get(p, :signal_life) in [:distressed, :unserved, :unmet]
 
   # how many measures an iPkt's score holds (`n`; without it, 1 once it has a score)
   defp measures(%{n: n}) when is_integer(n), do: n

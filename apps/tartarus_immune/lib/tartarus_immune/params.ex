@@ -24,7 +24,7 @@ defmodule TartarusImmune.Params do
   | `:lin` | - | `:types` | who interacts in a LIN round: each pair of solutions once (`Maths.interact_types/2`) or each pair of iPkts (`Maths.interact/2`) |
   | `:score_window` | - | 50 | problems in the running mean of an iPkt's performance score ζ |
   | `:score_ref` | - | `:instance` | what a cost is divided by in ζ (`:interact` only): `:instance`, the domain's scale of the instance (`TartarusImmune.Domain.score_scale/2`); `:best_candidate`, the cheapest candidate on the same instance |
-  | `:signal_life` | T_life (Eq. 6.5) | `:period` | how long iPkts follow a danger signal: `:period`, its whole barrage period at every hop; `:eq6_5`, a fraction T_life(H)/Sg_max = Sg(H)/Sg_max of it (ΔT_life = ΔSg, Eqs. 6.2-6.3: the whole period at the source, half of it one hop away), Sg_max standing for the period |
+  | `:signal_life` | T_life (Eq. 6.5) | `:period` | how long iPkts follow a danger signal: `:period`, its whole barrage period at every hop; `:eq6_5`, a fraction T_life(H)/Sg_max = Sg(H)/Sg_max of it (ΔT_life = ΔSg, Eqs. 6.2-6.3: the whole period at the source, half of it one hop away), Sg_max standing for the period; `:distressed`, re-diffused every round (lives one round) while the host has a pending problem; `:unserved`, the same but not while the host's interaction queue is full (Q_current ≥ Q_max): `TartarusImmune.Node.danger_call/3` |
   | `:clamp_fv` | - | true | mutated feature values are clamped to [0, 1] (features are normalized) |
 
   Table 6.1 lists `σ = 1` and `v = 5`, symbols that appear in no equation; Eq. 6.9 has a γ
@@ -75,10 +75,10 @@ defmodule TartarusImmune.Params do
       doc: "ζ's reference: the instance's own scale, or the cheapest candidate present"
     ],
     signal_life: [
-      type: {:in, [:period, :eq6_5]},
+      type: {:in, [:period, :eq6_5, :distressed, :unserved, :unmet]},
       default: :period,
       doc:
-        "a danger signal lives its barrage period at every hop, or (Eq. 6.5) for a fraction Sg(H)/Sg_max of it"
+        "a danger signal lives its barrage period at every hop, (Eq. 6.5) a fraction Sg(H)/Sg_max of it, or one round, re-diffused while the host has a pending problem (:distressed) and room in its queue (:unserved)"
     ],
     lin: [
       type: {:in, [:types, :ipkts]},

@@ -1,12 +1,12 @@
 defmodule TartarusImmune.AgentsTest do
   use ExUnit.Case, async: false
   alias TartarusEmu.{Network, Topology}
-  alias TartarusImmune.{IPkt, Node, Params, Sorting}
+  alias TartarusImmune.{IPkt, Maths, Node, Params, Sorting}
 
   @p Params.new!()
 
-  defp line(n, danger \\ true) do
-    state = %{domain: Sorting, p: @p, seed: 1, danger: danger}
+  defp line(n, danger \\ true, p \\ @p) do
+    state = %{domain: Sorting, p: p, seed: 1, danger: danger}
     hook = fn _n, host -> Tartarus.create_static_agent(host, Node, state, name: "immune") end
     {:ok, net} = Network.start(Topology.line(n), setup: hook)
     on_exit(fn -> Network.stop(net) end)
@@ -114,6 +114,59 @@ defmodule TartarusImmune.AgentsTest do
     refute where.(0.6) == List.duplicate(h1, 6)
   end
 
+  test "danger_call: a host with a pending problem calls while its queue has room, not once it is full or its problems are solved" do
+    p = Params.new!(signal_life: :unserved, q_max: 5)
+    fv = [0.1, 0.2, 0.3, 0.4]
+    residents = fn n -> List.duplicate(fv, n) end
+    # must fire: a pending problem, 4 of 5 places taken
+    assert Node.danger_call([fv], residents.(4), p) == [fv]
+    # must not fire: the interaction site is full (the call is answered) ...
+    assert Node.danger_call([fv], residents.(5), p) == nil
+    assert Node.danger_call([fv], residents.(12), p) == nil
+    # ... or nothing is pending (a solved problem calls nobody)
+    assert Node.danger_call([], [], p) == nil
+    # :distressed ignores the queue; a barrage-long signal is never a per-round call
+    assert Node.danger_call([fv], residents.(12), %{p | signal_life: :distressed}) == [fv]
+    assert Node.danger_call([fv], [], %{p | signal_life: :period}) == nil
+    assert Node.per_round?(p) and not Node.per_round?(@p)
+  end
+
+  test "danger_call :unmet: a host calls only for the problems no resident recognizes" do
+    p = Params.new!(signal_life: :unmet)
+    near = [0.1, 0.2, 0.3, 0.4]
+    far = [1.0, 1.0, 1.0, 0.0]
+    refute Maths.recognizes?(far, near, p)
+    # must fire, for the unrecognized problem only
+    assert Node.danger_call([near, far], [near], p) == [far]
+    assert Node.danger_call([near], [], p) == [near]
+    # must not fire: every pending problem has a candidate here, however full the queue
+    assert Node.danger_call([near], [near], p) == nil
+    assert Node.danger_call([near, far], [near, far], p) == nil
+  end
+
+  test "signal_life :unserved: a node diffuses its danger signal per round, only while it has room" do
+    p = Params.new!(signal_life: :unserved, q_max: 5)
+    {_net, [h1, h2, _h3]} = line(3, true, p)
+    fx = Sorting.features(Sorting.instance(:p2, 0, 1))
+    {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
+    Tartarus.Signal.settle()
+    # no barrage-long signal
+    assert Tartarus.signal(h2, {:danger, 1}) == 0.0
+    # round 1: the queue is empty, the host calls; its neighbour hears 50 and the problem
+    assert {:ok, true} = Tartarus.request({"immune", h1}, {:diffuse, {1, 1}})
+    Tartarus.Signal.settle()
+    assert Tartarus.signal(h2, {:danger, {1, 1}}) == 50.0
+    assert [%{data: [^fx]}] = Tartarus.Signal.contributions(h2, {:danger, {1, 1}})
+    # five iPkts fill the interaction site: round 2 calls nobody
+    run = make_ref()
+    for tag <- 1..5, do: ipkt(h1, fx, run, %{tag: tag, p: p})
+    wait_queue(h1, 5)
+    assert {:ok, false} = Tartarus.request({"immune", h1}, {:diffuse, {1, 2}})
+    Tartarus.Signal.settle()
+    assert Tartarus.signal(h2, {:danger, {1, 2}}) == 0.0
+    assert Tartarus.signal(h1, {:danger, {1, 2}}) == 0.0
+  end
+
   test "apoptosis by hops: an iPkt with no hops left dies on its next move and leaves the queue" do
     {net, [h1, _h2]} = line(2)
     run = make_ref()
@@ -163,6 +216,22 @@ defmodule TartarusImmune.AgentsTest do
     assert d.selected == 1 and d.nc == 3
     # no candidate: nothing happens
     assert Node.interact(members, [0.0 - 2.0], score, p) == :no_candidates
+  end
+
+  defp wait_queue(host, n, tries \\ 100) do
+    {:ok, q} = Tartarus.request({"immune", host}, :queue)
+
+    cond do
+      length(q) == n ->
+        :ok
+
+      tries == 0 ->
+        flunk("queue of #{inspect(host)}: #{length(q)} entries, expected #{n}")
+
+      true ->
+        Process.sleep(10)
+        wait_queue(host, n, tries - 1)
+    end
   end
 
   defp locate(id) do
