@@ -16,6 +16,8 @@ defmodule TartarusLats.DatabaseAgent do
   Query agents read these locally with `Tartarus.Agent.store_get/2`:
 
     * `{:lats, :node}` - this node's (zone's) name;
+    * `{:lats, :entrance}` - whether people can come in from outside in this node's
+      zone (a door to the outside; default `true`: a deployment that does not say);
     * `{:lats, :neighbours}` - `%{neighbour_node => host}`;
     * `{:lats, :mv}` - the `TartarusLats.MotionVectors` table;
     * `{:lats, :log}` - the log of records (`t:TartarusLats.Tracker.record/0`),
@@ -119,6 +121,7 @@ defmodule TartarusLats.DatabaseAgent do
 
     s = open_log(s, Map.get(args, :data_dir))
     A.store_put({:lats, :node}, node)
+    A.store_put({:lats, :entrance}, Map.get(args, :entrance, true))
     A.store_put({:lats, :neighbours}, s.neighbours)
     A.store_put({:lats, :cloud}, s.cloud)
     A.store_put({:lats, :filtered}, %{})

@@ -181,6 +181,7 @@ defmodule TartarusLats.Deployment do
 
       args = %{
         node: node,
+        entrance: node in Building.entrances(net.topology),
         neighbours: neighbours,
         cloud: cloud,
         centralized: Keyword.get(opts, :centralized, true),

@@ -773,6 +773,8 @@ defmodule TartarusLats.Experiment do
       cloud_connections_agents_per_query: Enum.sum(Enum.map(results, & &1.per_query_contacts)),
       answers_stale: Enum.count(results, &(&1.freshness == :stale)),
       answers_incomplete: Enum.count(results, &(not &1.complete)),
+      # Answers that said they were complete and were wrong: what a user would trust.
+      answers_complete_wrong: Enum.count(results, &(&1.complete and not &1.correct)),
       # Answers that name nodes they could not reach (a killed node, a cut link).
       answers_partial: Enum.count(results, &(&1.unreachable != [])),
       cloud_bytes_centralized: stats.bytes.centralized,

@@ -16,7 +16,9 @@ defmodule TartarusLats.Query do
       node}` (the last node's handshake is still undecided).
     * Trace(X): `{:ok, %{path: [%{node, arrived_at, left_at}], entry, status}}`
       (the shape of `TartarusLats.MotionVectors.trace/3`: `entry` is
-      `:infinity` when the walk back reached the stay where X came in,
+      `:infinity` when the walk back reached the stay where X came in, `:gap` when
+      that stay "came from outside" on a node with no door to the outside (a lost
+      hand-over: what came before is missing, and the answer is not complete),
       `status` is `:present`, `:exited`, `:in_transit` or `:broken`), or
       `:not_found`.
 

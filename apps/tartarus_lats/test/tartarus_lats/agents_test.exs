@@ -68,6 +68,29 @@ defmodule TartarusLats.AgentsTest do
     assert r.hops == length(r.route) - 1
   end
 
+  test "a Trace that walks back to an entry from outside on a node with no door says its chain is broken there (entry :gap, not complete)",
+       %{dep: dep, tag: tag} do
+    assert Tartarus.store_get(dep.hosts[:d], {:lats, :entrance}) == true
+    assert Tartarus.store_get(dep.hosts[:e], {:lats, :entrance}) == false
+
+    assert {:ok, %{answer: {:ok, %{entry: :infinity}}, complete: true}} =
+             TartarusLats.query(dep.hosts[:h], :trace, tag, report: false)
+
+    # d without its door: X's first stay "came from outside" where nobody can come in, so
+    # a hand-over before it was lost (what a missed hand-over or a dead node's zone leaves).
+    :ok = Tartarus.store_put(dep.hosts[:d], {:lats, :entrance}, false)
+
+    try do
+      assert {:ok,
+              %{answer: {:ok, %{entry: :gap, path: path, status: :present}}, complete: false}} =
+               TartarusLats.query(dep.hosts[:h], :trace, tag, report: false)
+
+      assert nodes(path) == [:d, :e, :f, :i, :h]
+    after
+      :ok = Tartarus.store_put(dep.hosts[:d], {:lats, :entrance}, true)
+    end
+  end
+
   test "Trace(X) fired at e goes back to d, then forward (Appendix .2)", %{dep: dep, tag: tag} do
     assert {:ok, r} = TartarusLats.query(dep.hosts[:e], :trace, tag)
     assert r.route == [:e, :d, :e, :f, :i, :h]

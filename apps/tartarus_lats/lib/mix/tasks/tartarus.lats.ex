@@ -76,7 +76,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   release, noise_db, kill_nodes, down_s, node_kills, nodes_down_at_end, answers_partial,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
   cloud_connections_agents_per_node, cloud_connections_agents_per_query, agent_cloud,
-  answers_stale, answers_incomplete,
+  answers_stale, answers_incomplete, answers_complete_wrong,
   cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
   world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the

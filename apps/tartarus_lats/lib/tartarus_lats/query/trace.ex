@@ -97,7 +97,7 @@ defmodule TartarusLats.Query.Trace do
 
     case stay.from do
       from when from in [:infinity, :pending] ->
-        s = Map.put(s, :entry, from)
+        s = Map.put(s, :entry, entry_kind(from))
         {_, found} = s.found
 
         if s.branch == :last do
@@ -146,6 +146,14 @@ defmodule TartarusLats.Query.Trace do
   end
 
   defp mv, do: Tartarus.Agent.store_get({:lats, :mv})
+
+  # A stay that came "from outside" on a node with no door to the outside is a hand-over
+  # that was lost (a wrong or missed hand-over, a bearer walking through a dead node's
+  # zone): the chain is broken there, and the answer says so (`:gap`, never complete).
+  defp entry_kind(:infinity),
+    do: if(Tartarus.Agent.store_get({:lats, :entrance}, true), do: :infinity, else: :gap)
+
+  defp entry_kind(from), do: from
 
   defp local(nil, s, _fun), do: done(:broken, s)
   defp local(stay, s, fun), do: fun.(stay, s)
