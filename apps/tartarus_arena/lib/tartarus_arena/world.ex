@@ -74,7 +74,7 @@ defmodule TartarusArena.World do
       `f = 0.3 + 0.7 (1 - c (1 - (1 + cos phi) / 2))`: more for the sensor facing the
       bulb (0.3 facing away to 1 facing it, far off), the same for both right under it
       (`f = 1`), and growing along any straight approach to the light (about 95 under
-      the bulb, 47 facing it from 0.5 m, 15-18 facing it from a corner of a 2 m
+      the bulb, 47 facing it from 0.5 m, 16-18 facing it from a corner of a 2 m
       arena); 5 (ambient) when the light is off; noise N(0, 1);
     * `line` - `{left, right}`, 0..100 reflected light of two downward sensors 6 cm ahead
       of the axle and 2.5 cm either side of the centre line: 60 on the floor, 12 on black
