@@ -16,7 +16,8 @@ defmodule TartarusWarehouse do
   | `TartarusWarehouse.Robot` | the robot plugin: state, reach, program execution, history |
   | `TartarusWarehouse.Program` | task programs (shipped as code) |
   | `TartarusWarehouse.Central` | the centralized baseline (§4.7.2) |
-  | `TartarusWarehouse.Floor` | a floor on the emulator; `run/1` |
+  | `TartarusWarehouse.Floor` | a floor on the emulator: `run/1` (a batch), `start/1` (a floor you drive from iex) |
+  | `TartarusWarehouse.Panel` | the warehouse on the web dashboard |
   | `TartarusWarehouse.Checker` | Eq. 4.1 (mutual exclusion), completion, Eq. 4.2 (occupancy) over the history |
   | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` |
   """
@@ -36,4 +37,31 @@ defmodule TartarusWarehouse do
   @doc "Runs jobs on an emulated floor. See `TartarusWarehouse.Floor.run/1`."
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   defdelegate run(opts), to: TartarusWarehouse.Floor
+
+  @doc """
+  Starts a floor you drive (from iex): `submit/2` jobs, `change/2` it, `status/1`,
+  `await/2`, `stop/1`. See `TartarusWarehouse.Floor.start/1`.
+  """
+  @spec start(keyword()) :: {:ok, pid()} | {:error, String.t()}
+  defdelegate start(opts \\ []), to: TartarusWarehouse.Floor
+
+  @doc "Submits a job to a started floor. See `TartarusWarehouse.Floor.submit/2`."
+  @spec submit(pid(), map()) :: :ok | {:error, String.t()}
+  defdelegate submit(floor, job), to: TartarusWarehouse.Floor
+
+  @doc "Changes a started floor while it runs. See `TartarusWarehouse.Floor.change/2`."
+  @spec change(pid(), term()) :: :ok | {:error, term()}
+  defdelegate change(floor, event), to: TartarusWarehouse.Floor
+
+  @doc "What a started floor is doing. See `TartarusWarehouse.Floor.status/1`."
+  @spec status(pid()) :: map()
+  defdelegate status(floor), to: TartarusWarehouse.Floor
+
+  @doc "Waits for a started floor's jobs. See `TartarusWarehouse.Floor.await/2`."
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout}
+  defdelegate await(floor, timeout \\ 60_000), to: TartarusWarehouse.Floor
+
+  @doc "Stops a started floor; returns what ran. See `TartarusWarehouse.Floor.stop/1`."
+  @spec stop(pid()) :: {:ok, map()}
+  defdelegate stop(floor), to: TartarusWarehouse.Floor
 end

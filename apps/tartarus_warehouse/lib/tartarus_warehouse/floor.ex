@@ -12,10 +12,30 @@ defmodule TartarusWarehouse.Floor do
   linked to each other (a full mesh up to 16 robots, else a ring with chords to the robots
   4 and 16 places on) and to `"jd"` (the first 16); secondary nodes `"s1"..` hang on two
   robots each. Task agents move among robots (`TartarusWarehouse.Roam`).
+
+  ## A floor you drive (iex)
+
+  `run/1` runs a batch of jobs and returns when they are done. `start/1` starts a floor
+  that stays up until `stop/1`: submit jobs when you like (`submit/2`), change it while it
+  runs (`change/2`: insert or delete a task, retire a robot, let a standby robot join),
+  look at it (`status/1`, or the web dashboard with `dashboard: port`), wait for the jobs
+  (`await/2`), and `stop/1` it for the same result as `run/1`:
+
+      iex> {:ok, f} = TartarusWarehouse.Floor.start(robots: 2, resources: [:rack, :bay])
+      iex> TartarusWarehouse.Floor.submit(f, %{id: 1, tasks: [%{name: "T1", resources: [:rack]}]})
+      :ok
+      iex> {:error, _message} = TartarusWarehouse.Floor.submit(f, %{id: 2, tasks: [%{name: "T1", resources: [:dock]}]})
+      iex> TartarusWarehouse.Floor.await(f, 10_000)
+      :ok
+      iex> {:ok, r} = TartarusWarehouse.Floor.stop(f)
+      iex> {r.jobs, r.timed_out, r.mutex_violations}
+      {[1], [], 0}
   """
 
+  use GenServer
+
   alias TartarusEmu.{Network, Topology}
-  alias TartarusWarehouse.{Job, Robot}
+  alias TartarusWarehouse.{Checker, Job, Robot}
 
   @schema [
     robots: [type: :pos_integer, default: 4, doc: "robots"],
@@ -162,44 +182,75 @@ defmodule TartarusWarehouse.Floor do
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1") do
-      resources =
-        case opts[:resources] do
-          [] ->
-            opts[:jobs]
-            |> Enum.flat_map(&Enum.flat_map(&1.tasks, fn t -> t.resources end))
-            |> Enum.uniq()
-
-          rs ->
-            rs
-        end
-
-      reach =
-        case opts[:reach] do
-          :all -> opts[:robots]
-          map -> Map.new(1..opts[:robots], &{&1, Map.get(map, &1, [])})
-        end
-
-      world = Job.world(resources, reach)
-      world = %{world | robots: Map.new(world.robots, fn {i, r} -> {"r#{i}", r} end)}
-      with_world(world, opts)
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1"),
+         world = world(opts),
+         :ok <- plan_all(opts[:jobs], world) do
+      start_and_run(world, opts)
     end
   end
 
-  defp with_world(world, opts) do
-    Enum.find_value(opts[:jobs], fn spec ->
+  defp world(opts) do
+    resources =
+      case opts[:resources] do
+        [] ->
+          opts[:jobs]
+          |> Enum.flat_map(&Enum.flat_map(&1.tasks, fn t -> t.resources end))
+          |> Enum.uniq()
+
+        rs ->
+          rs
+      end
+
+    reach =
+      case opts[:reach] do
+        :all -> opts[:robots]
+        map -> Map.new(1..opts[:robots], &{&1, Map.get(map, &1, [])})
+      end
+
+    world = Job.world(resources, reach)
+    %{world | robots: Map.new(world.robots, fn {i, r} -> {"r#{i}", r} end)}
+  end
+
+  defp plan_all(jobs, world) do
+    Enum.find_value(jobs, :ok, fn spec ->
       case Job.plan(spec, world) do
         {:ok, _} -> nil
         {:error, m} -> {:error, m}
       end
-    end) || start_and_run(world, opts)
+    end)
   end
 
   defp start_and_run(world, opts) do
-    owner = self()
+    t_start = System.monotonic_time(:millisecond)
+    ctx = start_floor(world, opts, self())
+
+    try do
+      t0 = System.system_time(:microsecond)
+      publish_floor(ctx, length(opts[:jobs]), t0)
+      submit(ctx.dref, opts[:jobs], opts[:arrivals_ms])
+      events = events(opts)
+      fire(events, 0, ctx)
+      completed = await(opts, events, ctx, %{}, length(opts[:jobs]), t0)
+
+      {:ok,
+       ctx
+       |> collect(Enum.map(opts[:jobs], & &1.id), completed, t0)
+       |> Map.merge(%{
+         refused_events: refused(),
+         applied_events: applied(),
+         killed_at_us: killed(),
+         wall_ms: System.monotonic_time(:millisecond) - t_start
+       })}
+    after
+      stop_floor(ctx)
+    end
+  end
+
+  # Starts the floor's network, robots and distributor (or central server); `owner` gets
+  # `{:warehouse_job_done, id, at_us}` for every job completed.
+  defp start_floor(world, opts, owner) do
     robots = opts[:robots]
     design = opts[:design]
-    t_start = System.monotonic_time(:millisecond)
 
     setup = fn node, host ->
       case node do
@@ -241,107 +292,117 @@ defmodule TartarusWarehouse.Floor do
         link: [latency_ms: opts[:latency_ms]]
       )
 
-    try do
-      {:ok, log} = TartarusEmu.Log.start(net)
-      robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
-      jd = Network.host(net, "jd")
+    {:ok, log} = TartarusEmu.Log.start(net)
+    robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
+    jd = Network.host(net, "jd")
 
-      {:ok, dist} =
-        case design do
-          :agents ->
-            Tartarus.create_static_agent(jd, TartarusWarehouse.DistributorAgent, %{
+    {:ok, dist} =
+      case design do
+        :agents ->
+          Tartarus.create_static_agent(jd, TartarusWarehouse.DistributorAgent, %{
+            world: world,
+            owner: owner,
+            robots: robot_set(robot_hosts),
+            all_robots: MapSet.new(Map.values(robot_hosts)),
+            idle_ms: opts[:idle_ms],
+            round: min(robots, 16),
+            seed: opts[:seed],
+            validate: opts[:failover],
+            guide: if(opts[:guide], do: robot_span(robots))
+          })
+
+        :central ->
+          agents =
+            Map.new(robot_hosts, fn {name, host} ->
+              {:ok, id} =
+                Tartarus.create_static_agent(host, TartarusWarehouse.CentralRobot, %{
+                  robot: name,
+                  server: nil
+                })
+
+              {name, {id, host}}
+            end)
+
+          {:ok, sid} =
+            Tartarus.create_static_agent(jd, TartarusWarehouse.Central, %{
               world: world,
               owner: owner,
-              robots: robot_set(robot_hosts),
-              all_robots: MapSet.new(Map.values(robot_hosts)),
-              idle_ms: opts[:idle_ms],
-              round: min(robots, 16),
-              seed: opts[:seed],
-              validate: opts[:failover],
-              guide: if(opts[:guide], do: robot_span(robots))
+              robots: agents,
+              server_ms: opts[:server_ms]
             })
 
-          :central ->
-            agents =
-              Map.new(robot_hosts, fn {name, host} ->
-                {:ok, id} =
-                  Tartarus.create_static_agent(host, TartarusWarehouse.CentralRobot, %{
-                    robot: name,
-                    server: nil
-                  })
+          Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
+          {:ok, sid}
+      end
 
-                {name, {id, host}}
-              end)
+    %{
+      dref: {dist, jd},
+      robot_hosts: robot_hosts,
+      net: net,
+      log: log,
+      status: opts[:status],
+      design: design,
+      guide: opts[:guide],
+      data_dir: data_dir,
+      world: world
+    }
+  end
 
-            {:ok, sid} =
-              Tartarus.create_static_agent(jd, TartarusWarehouse.Central, %{
-                world: world,
-                owner: owner,
-                robots: agents,
-                server_ms: opts[:server_ms]
-              })
+  defp publish_floor(ctx, jobs, t0) do
+    publish(ctx.status, fn t ->
+      :ets.insert(t, [
+        {:floor,
+         %{
+           net: ctx.net,
+           robot_hosts: ctx.robot_hosts,
+           design: ctx.design,
+           guide: ctx.guide,
+           t0_us: t0
+         }},
+        {:jobs, jobs, 0}
+      ])
+    end)
+  end
 
-            Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
-            {:ok, sid}
+  # What ran: the robots' histories (the event log), completions, the network's totals.
+  defp collect(ctx, ids, completed, t0) do
+    :ok = TartarusEmu.Log.sync(ctx.log)
+    totals = TartarusEmu.Log.totals(ctx.log)
+
+    history =
+      ctx.robot_hosts
+      |> Enum.flat_map(fn {_, h} ->
+        case Tartarus.read_plugin(h, :robot, :history) do
+          {:ok, list} -> list
+          _ -> []
         end
-
-      dref = {dist, jd}
-      ctx = %{dref: dref, robot_hosts: robot_hosts, net: net, status: opts[:status]}
-      t0 = System.system_time(:microsecond)
-
-      publish(ctx.status, fn t ->
-        :ets.insert(t, [
-          {:floor,
-           %{net: net, robot_hosts: robot_hosts, design: design, guide: opts[:guide], t0_us: t0}},
-          {:jobs, length(opts[:jobs]), 0}
-        ])
       end)
+      |> Enum.sort_by(& &1.start_us)
 
-      submit(dref, opts[:jobs], opts[:arrivals_ms])
-      events = events(opts)
-      fire(events, 0, ctx)
-      completed = await(opts, events, ctx, %{}, length(opts[:jobs]), t0)
-      :ok = TartarusEmu.Log.sync(log)
-      totals = TartarusEmu.Log.totals(log)
-      TartarusEmu.Log.stop(log)
+    last = completed |> Map.values() |> Enum.max(fn -> t0 end)
 
-      history =
-        robot_hosts
-        |> Enum.flat_map(fn {_, h} ->
-          case Tartarus.read_plugin(h, :robot, :history) do
-            {:ok, list} -> list
-            _ -> []
-          end
-        end)
-        |> Enum.sort_by(& &1.start_us)
+    %{
+      design: ctx.design,
+      history: history,
+      jobs: ids,
+      completed: completed,
+      timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
+      t0_us: t0,
+      makespan_ms: (last - t0) / 1000,
+      robots:
+        Map.keys(ctx.robot_hosts)
+        |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
+      migrations: Map.get(totals, :departures, 0),
+      bytes: Map.get(totals, :bytes, 0),
+      messages: Map.get(totals, :messages, 0)
+    }
+  end
 
-      ids = Enum.map(opts[:jobs], & &1.id)
-      last = completed |> Map.values() |> Enum.max(fn -> t0 end)
-
-      {:ok,
-       %{
-         design: design,
-         history: history,
-         jobs: ids,
-         completed: completed,
-         timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
-         refused_events: refused(),
-         applied_events: applied(),
-         killed_at_us: killed(),
-         t0_us: t0,
-         makespan_ms: (last - t0) / 1000,
-         robots:
-           Map.keys(robot_hosts) |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
-         migrations: Map.get(totals, :departures, 0),
-         bytes: Map.get(totals, :bytes, 0),
-         messages: Map.get(totals, :messages, 0),
-         wall_ms: System.monotonic_time(:millisecond) - t_start
-       }}
-    after
-      publish(opts[:status], &:ets.delete(&1, :floor))
-      Network.stop(net)
-      if data_dir, do: File.rm_rf(data_dir)
-    end
+  defp stop_floor(ctx) do
+    publish(ctx.status, &:ets.delete(&1, :floor))
+    TartarusEmu.Log.stop(ctx.log)
+    Network.stop(ctx.net)
+    if ctx.data_dir, do: File.rm_rf(ctx.data_dir)
   end
 
   # How agents tell robots: by name prefix ("emu<tag>-r"), when every robot's name has it
@@ -460,7 +521,16 @@ defmodule TartarusWarehouse.Floor do
 
   # A change the floor refuses (an unknown robot, a task already inserted, ...) changes
   # nothing; it is reported in the result's `refused_events`.
-  defp fire_one(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
+  defp fire_one(event, ctx) do
+    case apply_event(event, ctx) do
+      :ok -> send(self(), {:warehouse_applied, event, System.system_time(:microsecond)})
+      {:error, reason} -> send(self(), {:warehouse_refused, event, reason})
+    end
+
+    :ok
+  end
+
+  defp apply_event(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
     result =
       case event do
         {:retire, i} -> plugin(robot_hosts, i, :retire)
@@ -472,17 +542,10 @@ defmodule TartarusWarehouse.Floor do
       end
 
     case result do
-      ok when ok in [:ok, {:ok, :ok}] ->
-        send(self(), {:warehouse_applied, event, System.system_time(:microsecond)})
-
-      {:ok, {:error, reason}} ->
-        send(self(), {:warehouse_refused, event, reason})
-
-      {:error, reason} ->
-        send(self(), {:warehouse_refused, event, reason})
+      ok when ok in [:ok, {:ok, :ok}] -> :ok
+      {:ok, {:error, reason}} -> {:error, reason}
+      {:error, reason} -> {:error, reason}
     end
-
-    :ok
   end
 
   # The distributor's host dies with everything on it, and starts again `down_ms` later
@@ -524,4 +587,214 @@ defmodule TartarusWarehouse.Floor do
       0 -> []
     end
   end
+
+  # -- a floor you drive ---------------------------------------------------------------
+
+  @start_extra [
+    dashboard: [
+      type: :any,
+      default: nil,
+      doc:
+        "serve the web dashboard on this port (127.0.0.1), or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the floor's hosts and the warehouse panel (`TartarusWarehouse.Panel`); nil: none"
+    ]
+  ]
+
+  @doc """
+  Starts a floor that stays up until `stop/1` (not linked to the caller). Options: those of
+  `run/1` (the `jobs` given are submitted at once; `events`, `retire`, `arrivals_ms` and
+  `timeout_ms` are for `run/1`: here, call `change/2`), and `dashboard`. Give `resources`
+  for jobs to come (by default the floor knows the resources its first jobs name).
+  Returns `{:ok, floor}` or `{:error, message}`.
+  """
+  @spec start(keyword()) :: {:ok, pid()} | {:error, String.t()}
+  def start(opts \\ []) do
+    with {:ok, opts} <-
+           Tartarus.Options.validate(
+             opts,
+             @schema ++ @start_extra,
+             "TartarusWarehouse.Floor.start/1"
+           ),
+         world = world(opts),
+         :ok <- plan_all(opts[:jobs], world) do
+      case GenServer.start(__MODULE__, {world, opts}) do
+        {:ok, pid} -> {:ok, pid}
+        {:error, {:dashboard, message}} -> {:error, message}
+        {:error, reason} -> {:error, "the floor did not start: #{inspect(reason)}"}
+      end
+    end
+  end
+
+  @doc """
+  Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok`, or
+  `{:error, message}` for a malformed job or an id already submitted (nothing changes).
+  """
+  @spec submit(pid(), map()) :: :ok | {:error, String.t()}
+  def submit(floor, job), do: GenServer.call(floor, {:submit, job}, 60_000)
+
+  @doc """
+  Changes a started floor while it runs: `{:insert, after_task, task_spec}`,
+  `{:delete, task}`, `{:retire, i}`, `{:join, i}` or `{:kill_distributor, down_ms}` (see
+  `run/1`'s `events`). `:ok`, or `{:error, reason}` when refused (nothing changes).
+  """
+  @spec change(pid(), term()) :: :ok | {:error, term()}
+  def change(floor, event), do: GenServer.call(floor, {:change, event}, 60_000)
+
+  @doc """
+  What a started floor is doing: `jobs` (ids, in submission order), `done` (ids
+  completed), `pending`, `robots` (name => the robot's state, see
+  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`.
+  """
+  @spec status(pid()) :: map()
+  def status(floor), do: GenServer.call(floor, :status, 30_000)
+
+  @doc "Waits until every job submitted so far completed: `:ok` or `{:error, :timeout}`."
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout}
+  def await(floor, timeout \\ 60_000) do
+    GenServer.call(floor, {:await, timeout}, :infinity)
+  end
+
+  @doc """
+  Stops a started floor and returns `{:ok, result}`: `run/1`'s result (`timed_out` lists
+  the jobs not completed when it stopped), with `mutex_violations` (Eq. 4.1, pairs of
+  executions: `TartarusWarehouse.Checker.violations/1`) and `changes` (every `change/2`,
+  applied or refused, with its time).
+  """
+  @spec stop(pid()) :: {:ok, map()}
+  def stop(floor), do: GenServer.call(floor, :stop, 60_000)
+
+  @impl GenServer
+  def init({world, opts}) do
+    Process.flag(:trap_exit, true)
+    table = TartarusWarehouse.Panel.new()
+    ctx = start_floor(world, Keyword.put(opts, :status, table), self())
+    t0 = System.system_time(:microsecond)
+    publish_floor(ctx, 0, t0)
+
+    case start_dashboard(opts[:dashboard], ctx, table) do
+      {:ok, dash} ->
+        st = %{ctx: ctx, t0: t0, jobs: [], done: %{}, waiters: [], dash: dash, changes: []}
+        {:ok, Enum.reduce(opts[:jobs], st, &elem(do_submit(&1, &2), 1))}
+
+      {:error, message} ->
+        stop_floor(ctx)
+        {:stop, {:dashboard, message}}
+    end
+  end
+
+  defp start_dashboard(nil, _ctx, _table), do: {:ok, nil}
+
+  defp start_dashboard(spec, ctx, table) do
+    opts = if is_integer(spec), do: [port: spec], else: spec
+    panels = [{TartarusWarehouse.Panel, table}]
+
+    case TartarusEmu.Dashboard.start_link(ctx.net, Keyword.put_new(opts, :panels, panels)) do
+      {:ok, dash} ->
+        IO.puts(TartarusTools.Dashboard.banner(dash))
+        {:ok, dash}
+
+      {:error, reason} ->
+        {:error, if(is_binary(reason), do: reason, else: "dashboard: #{inspect(reason)}")}
+    end
+  end
+
+  @impl GenServer
+  def handle_call({:submit, job}, _from, st) do
+    {reply, st} = do_submit(job, st)
+    {:reply, reply, st}
+  end
+
+  def handle_call({:change, event}, _from, st) do
+    result = apply_event(event, st.ctx)
+    change = %{event: event, at_us: System.system_time(:microsecond), result: result}
+    {:reply, result, %{st | changes: [change | st.changes]}}
+  end
+
+  def handle_call(:status, _from, st) do
+    robots =
+      Map.new(st.ctx.robot_hosts, fn {name, host} ->
+        case Tartarus.read_plugin(host, :robot, :state) do
+          {:ok, state} -> {name, state}
+          {:error, reason} -> {name, {:unreachable, reason}}
+        end
+      end)
+
+    {:reply,
+     %{
+       jobs: st.jobs,
+       done: Enum.filter(st.jobs, &Map.has_key?(st.done, &1)),
+       pending: Enum.reject(st.jobs, &Map.has_key?(st.done, &1)),
+       robots: robots,
+       hosts: st.ctx.robot_hosts,
+       elapsed_ms: div(System.system_time(:microsecond) - st.t0, 1000)
+     }, st}
+  end
+
+  def handle_call({:await, timeout}, from, st) do
+    if all_done?(st) do
+      {:reply, :ok, st}
+    else
+      ref = make_ref()
+      if timeout != :infinity, do: Process.send_after(self(), {:await_timeout, ref}, timeout)
+      {:noreply, %{st | waiters: [{ref, from} | st.waiters]}}
+    end
+  end
+
+  def handle_call(:stop, _from, st) do
+    result = collect(st.ctx, st.jobs, st.done, st.t0)
+
+    result =
+      Map.merge(result, %{
+        mutex_violations: length(Checker.violations(result.history)),
+        changes: Enum.reverse(st.changes)
+      })
+
+    {:stop, :normal, {:ok, result}, st}
+  end
+
+  @impl GenServer
+  def handle_info({:warehouse_job_done, id, at}, st) do
+    st = %{st | done: Map.put(st.done, id, at)}
+    publish(st.ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(st.done)}))
+
+    if all_done?(st) do
+      Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, :ok) end)
+      {:noreply, %{st | waiters: []}}
+    else
+      {:noreply, st}
+    end
+  end
+
+  def handle_info({:await_timeout, ref}, st) do
+    case List.keytake(st.waiters, ref, 0) do
+      {{^ref, from}, rest} ->
+        GenServer.reply(from, {:error, :timeout})
+        {:noreply, %{st | waiters: rest}}
+
+      nil ->
+        {:noreply, st}
+    end
+  end
+
+  def handle_info(_other, st), do: {:noreply, st}
+
+  @impl GenServer
+  def terminate(_reason, st) do
+    if st.dash, do: TartarusTools.Dashboard.stop(st.dash)
+    stop_floor(st.ctx)
+  end
+
+  defp do_submit(job, st) do
+    with {:ok, _} <- Job.plan(job, st.ctx.world),
+         false <- job.id in st.jobs do
+      submit_one(st.ctx.dref, job)
+      st = %{st | jobs: st.jobs ++ [job.id]}
+      publish(st.ctx.status, &:ets.update_element(&1, :jobs, {2, length(st.jobs)}))
+      {:ok, st}
+    else
+      {:error, message} -> {{:error, message}, st}
+      true -> {{:error, "job #{inspect(job.id)} was already submitted"}, st}
+    end
+  end
+
+  defp all_done?(st), do: Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
 end

@@ -227,6 +227,96 @@ defmodule TartarusWarehouse.FloorTest do
     end
   end
 
+  test "a floor you drive: jobs submitted over time, a task inserted, a robot joining and one retiring, then stopped" do
+    hosts_before = length(Tartarus.hosts())
+
+    job = fn id ->
+      %{
+        id: id,
+        tasks: [
+          %{name: "T1", resources: [:rack]},
+          %{name: "T2", resources: [:bay], after: ["T1"]}
+        ]
+      }
+    end
+
+    {:ok, f} =
+      Floor.start(robots: 3, standby: [3], resources: [:rack, :bay, :detour], scale: 0.005)
+
+    assert :ok = Floor.submit(f, job.(1))
+    assert {:error, "job 1 was already submitted"} = Floor.submit(f, job.(1))
+    assert {:error, _} = Floor.submit(f, %{id: 9, tasks: []})
+
+    assert :ok =
+             Floor.change(
+               f,
+               {:insert, "T1", %{name: "X", resources: [:detour], duration_ms: 600}}
+             )
+
+    assert {:error, _} = Floor.change(f, {:retire, 7})
+    assert :ok = Floor.change(f, {:join, 3})
+    for id <- 2..6, do: assert(:ok = Floor.submit(f, job.(id)))
+
+    st = Floor.status(f)
+    assert st.jobs == [1, 2, 3, 4, 5, 6]
+    assert Enum.sort(st.done ++ st.pending) == [1, 2, 3, 4, 5, 6]
+    assert %{state: _, off: false} = st.robots["r3"]
+
+    assert :ok = Floor.await(f, 20_000)
+    assert :ok = Floor.change(f, {:retire, 1})
+    assert :ok = Floor.submit(f, job.(7))
+    assert :ok = Floor.await(f, 20_000)
+
+    {:ok, r} = Floor.stop(f)
+    refute Process.alive?(f)
+    assert r.jobs == [1, 2, 3, 4, 5, 6, 7] and r.timed_out == [] and r.mutex_violations == 0
+    # job 7 ran after robot 1 left; X ran after T1 from the insertion on
+    assert Enum.all?(r.history, &(not (&1.job == 7 and &1.robot == "r1")))
+    assert Enum.any?(r.history, &(&1.task == "X"))
+    assert Enum.map(r.changes, & &1.result) == [:ok, {:error, "no robot 7"}, :ok, :ok]
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
+  end
+
+  test "a floor you drive: bad options and a dashboard that cannot start are errors, and nothing is left running" do
+    hosts_before = length(Tartarus.hosts())
+
+    assert {:error, "invalid options given to TartarusWarehouse.Floor.start/1" <> _} =
+             Floor.start(robots: 0)
+
+    assert {:error, message} =
+             Floor.start(robots: 2, resources: [:a], dashboard: [port: 0, token: "short"])
+
+    assert message =~ "token"
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
+
+    # With a dashboard: its warehouse panel shows the floor, and goes with it.
+    {:ok, l} = :gen_tcp.listen(0, [])
+    {:ok, port} = :inet.port(l)
+    :gen_tcp.close(l)
+
+    {:ok, f} =
+      Floor.start(robots: 2, resources: [:a], dashboard: [port: port, token: "floor-test-token"])
+
+    url = "http://127.0.0.1:#{port}/api/panels"
+    {:ok, 200, body} = TartarusTools.Dashboard.http_get(url, 5_000)
+
+    assert [%{"name" => "warehouse", "rows" => [["r1" | _], ["r2" | _]]} = panel] =
+             TartarusTools.JSON.decode!(body)["panels"]
+
+    assert panel["text"] =~ "on 2 robots: 0 of 0 jobs done"
+    {:ok, _} = Floor.stop(f)
+    assert {:error, _} = TartarusTools.Dashboard.http_get(url, 2_000)
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
+  end
+
+  defp eventually(fun, deadline \\ System.monotonic_time(:millisecond) + 5_000) do
+    cond do
+      fun.() -> :ok
+      System.monotonic_time(:millisecond) > deadline -> flunk("never happened")
+      true -> Process.sleep(20) && eventually(fun, deadline)
+    end
+  end
+
   test "a malformed job is refused before anything starts" do
     assert {:error, ~s(job 1 has no tasks)} = Floor.run(jobs: [%{id: 1, tasks: []}])
 
