@@ -37,10 +37,13 @@ defmodule TartarusWarehouse.Distributor do
       `assignment` next;
     * `{:retire, ref}` - the agent `ref` that just reported stops;
     * `{:job_done, job_id}` - every task of the job ran;
-    * `{:sequence, n, change}` - release a sequence agent that writes `change`, the
-      distributor's `n`th, into every robot's state-transition database (on-the-fly
-      programming, below). Changes travel concurrently, each in its own agent, so a robot
-      may get them out of order; it applies them in the order of `n`.
+    * `{:sequence, changes}` - release a sequence agent that writes the newest change into
+      every robot's state-transition database (on-the-fly programming, below). `changes`
+      is every change so far, numbered (`[{1, change}, ..., {n, change}]`): changes travel
+      concurrently, each in its own agent, so a robot may meet them out of order, and an
+      agent lost with the distributor's host (an effect that never ran) leaves a gap; a
+      robot applies the changes it has not applied yet, in order, from whichever agent
+      comes first.
 
   ## On-the-fly programming (§4.5.4)
 
@@ -95,7 +98,8 @@ defmodule TartarusWarehouse.Distributor do
           | {:reissue, ref(), assignment()}
           | {:retire, ref()}
           | {:job_done, term()}
-          | {:sequence, pos_integer(), {:insert, String.t(), String.t()} | {:delete, String.t()}}
+          | {:sequence,
+             [{pos_integer(), {:insert, String.t(), String.t()} | {:delete, String.t()}}]}
 
   @typedoc "The distributor."
   @type t :: %__MODULE__{
@@ -119,7 +123,7 @@ defmodule TartarusWarehouse.Distributor do
             next_ref: 1,
             completed: [],
             inserted: %{},
-            changes: 0
+            changes: []
 
   @doc "A distributor for `world` (see `TartarusWarehouse.Job.world/2`)."
   @spec new(Job.world()) :: t()
@@ -226,16 +230,16 @@ defmodule TartarusWarehouse.Distributor do
   @doc """
   Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
   `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
-  actions}` (a `{:sequence, n, {:insert, after_task, name}}` and, once its resources are
+  actions}` (a `{:sequence, [..., {n, {:insert, after_task, name}}]}` and, once its resources are
   free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`.
 
       iex> alias TartarusWarehouse.Distributor, as: D
       iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
-      iex> {:ok, d, [{:release, 1, a}, {:sequence, 1, change}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
+      iex> {:ok, d, [{:release, 1, a}, {:sequence, [{1, change}]}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
       iex> {a.look_for, a.next, change}
       {{:inserted, "T2A"}, :resume, {:insert, "T2", "T2A"}}
       iex> {d, [{:reissue, 1, _}]} = D.done(d, 1)
-      iex> {:ok, d, [{:sequence, 2, {:delete, "T2A"}}]} = D.delete(d, "T2A")
+      iex> {:ok, d, [{:sequence, [{1, _}, {2, {:delete, "T2A"}}]}]} = D.delete(d, "T2A")
       iex> D.done(d, 1)
       ...> |> elem(1)
       [{:retire, 1}]
@@ -289,8 +293,12 @@ defmodule TartarusWarehouse.Distributor do
     {:ok, d, [change]}
   end
 
-  # The distributor's next change to the robots' databases, numbered.
-  defp change(d, change), do: {%{d | changes: d.changes + 1}, {:sequence, d.changes + 1, change}}
+  # The distributor's next change to the robots' databases, numbered; the action carries
+  # every change so far.
+  defp change(d, change) do
+    changes = d.changes ++ [{length(d.changes) + 1, change}]
+    {%{d | changes: changes}, {:sequence, changes}}
+  end
 
   @doc """
   An inserted task's agent `ref` found no work for a while: if its task was deleted it

@@ -212,12 +212,14 @@ defmodule TartarusWarehouse.DistributorAgent do
     s
   end
 
-  defp act({:sequence, n, change}, s) do
+  defp act({:sequence, changes}, s) do
+    {n, change} = List.last(changes)
+
     {:ok, _} =
       Tartarus.create_mobile_agent(
         Tartarus.Agent.host(),
         TartarusWarehouse.SequenceAgent,
-        %{change: change, version: n, robots: s.robots, all: s.all_robots, owner: s.owner},
+        %{change: change, changes: changes, robots: s.robots, all: s.all_robots, owner: s.owner},
         seed: {s.seed, :sequence, n}
       )
 

@@ -39,10 +39,11 @@ defmodule TartarusWarehouse.Robot do
   ## The state-transition database (on-the-fly programming, §4.5.4)
 
   Sequence agents (`TartarusWarehouse.SequenceAgent`) change it with
-  `write(:robot, {:db, n, change})`, `n` the distributor's number of the change: each
-  change travels in its own agent, so a robot may get the second before the first (an
-  insertion and its deletion issued together); it applies changes in the order of `n`
-  (a later one waits for those before it; one already applied is ignored):
+  `write(:robot, {:db, changes})`, `changes` every change the distributor made so far,
+  numbered (`[{1, change}, ..., {n, change}]`): each change travels in its own agent, so a
+  robot may meet the second before the first (an insertion and its deletion issued
+  together), or never meet one (lost with the distributor's host); it applies the changes
+  after the last one it applied, in their order, and ignores those it already applied:
 
     * `{:insert, after_task, new_task}` - a robot that finishes a block ending with
       `after_task` goes to `{:inserted, new_task, next}` instead of `next`: it waits for
@@ -83,7 +84,6 @@ defmodule TartarusWarehouse.Robot do
            inserts: %{},
            deleted: MapSet.new(),
            db_version: 0,
-           db_pending: %{},
            history: []
          }}
 
@@ -127,8 +127,7 @@ defmodule TartarusWarehouse.Robot do
        %{
          inserts: s.inserts,
          deleted: s.deleted,
-         version: s.db_version,
-         pending: Map.keys(s.db_pending)
+         version: s.db_version
        }, s}
 
   def read(:history, s), do: {:ok, Enum.reverse(s.history), s}
@@ -169,10 +168,12 @@ defmodule TartarusWarehouse.Robot do
 
   def write(:join, s), do: {:ok, %{s | off: false, retiring: false}}
 
-  def write({:db, n, change}, s) when is_integer(n) and n > 0 do
-    if n <= s.db_version,
-      do: {:ok, s},
-      else: {:ok, apply_changes(%{s | db_pending: Map.put(s.db_pending, n, change)})}
+  def write({:db, changes}, s) when is_list(changes) do
+    {:ok,
+     Enum.reduce(changes, s, fn
+       {n, change}, s when n == s.db_version + 1 -> db_change(%{s | db_version: n}, change)
+       _, s -> s
+     end)}
   end
 
   def write(other, s), do: {:error, {:bad_argument, other}, s}
@@ -203,17 +204,6 @@ defmodule TartarusWarehouse.Robot do
   end
 
   def handle_info(_msg, s), do: {:events, [], s}
-
-  # Applies the pending changes that follow the last one applied, in order.
-  defp apply_changes(s) do
-    case Map.pop(s.db_pending, s.db_version + 1) do
-      {nil, _} ->
-        s
-
-      {change, rest} ->
-        apply_changes(db_change(%{s | db_pending: rest, db_version: s.db_version + 1}, change))
-    end
-  end
 
   defp db_change(s, {:insert, after_task, task}),
     do: %{

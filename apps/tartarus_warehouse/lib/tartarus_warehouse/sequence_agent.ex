@@ -2,8 +2,9 @@ defmodule TartarusWarehouse.SequenceAgent do
   @moduledoc """
   The sequence agent of on-the-fly programming (thesis §4.5.4, `μ_seq`): it migrates
   among the robots and writes one change (`{:insert, after_task, task}` or
-  `{:delete, task}`, numbered by the distributor) into every robot's state-transition
-  database (`TartarusWarehouse.Robot`), then terminates, telling the owner
+  `{:delete, task}`) into every robot's state-transition database
+  (`TartarusWarehouse.Robot`), with every change the distributor made before it (numbered:
+  a robot applies those it missed, in order), then terminates, telling the owner
   `{:warehouse_sequence_done, change, time_us}`.
   """
   use Tartarus.Agent
@@ -20,7 +21,7 @@ defmodule TartarusWarehouse.SequenceAgent do
     here = Agent.host()
 
     s =
-      if MapSet.member?(s.left, here) and Agent.write(:robot, {:db, s.version, s.change}) == :ok,
+      if MapSet.member?(s.left, here) and Agent.write(:robot, {:db, s.changes}) == :ok,
         do: %{s | left: MapSet.delete(s.left, here)},
         else: s
 

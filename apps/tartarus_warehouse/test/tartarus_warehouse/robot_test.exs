@@ -8,32 +8,38 @@ defmodule TartarusWarehouse.RobotTest do
     db
   end
 
-  test "database changes apply in the distributor's order, whatever order they arrive in" do
+  @insert {1, {:insert, "T2", "X"}}
+  @delete {2, {:delete, "X"}}
+
+  test "database changes apply in the distributor's order, whichever agent comes first" do
     {:ok, s} = Robot.init(robot: "r1")
-    # The deletion (2nd change) arrives before the insertion (1st): it waits for it.
-    {:ok, s} = Robot.write({:db, 2, {:delete, "X"}}, s)
-    assert db(s) == %{inserts: %{}, deleted: MapSet.new(), version: 0, pending: [2]}
+    # The deletion's agent (it carries changes 1 and 2) comes before the insertion's.
+    {:ok, s} = Robot.write({:db, [@insert, @delete]}, s)
+    assert db(s) == %{inserts: %{}, deleted: MapSet.new(["X"]), version: 2}
 
-    {:ok, s} = Robot.write({:db, 1, {:insert, "T2", "X"}}, s)
-    assert db(s) == %{inserts: %{}, deleted: MapSet.new(["X"]), version: 2, pending: []}
-
-    # A change already applied (a sequence agent that came back) changes nothing.
-    {:ok, s2} = Robot.write({:db, 1, {:insert, "T2", "X"}}, s)
+    # The insertion's agent comes later: nothing it carries is new.
+    {:ok, s2} = Robot.write({:db, [@insert]}, s)
     assert db(s2) == db(s)
 
-    # In order: inserted, then deleted again.
-    {:ok, s} = Robot.write({:db, 3, {:insert, "T1", "Y"}}, s)
-    assert db(s).inserts == %{"T1" => "Y"}
+    # A third change: only it applies.
+    {:ok, s} = Robot.write({:db, [@insert, @delete, {3, {:insert, "T1", "Y"}}]}, s)
+    assert db(s) == %{inserts: %{"T1" => "Y"}, deleted: MapSet.new(["X"]), version: 3}
   end
 
-  test "a robot waiting for an inserted task goes on once the deletion is applied" do
+  test "a change whose agent was lost is applied from the next agent" do
     {:ok, s} = Robot.init(robot: "r1")
+    {:ok, s} = Robot.write({:db, [@insert]}, s)
+    assert db(s).inserts == %{"T2" => "X"}
+    # change 2 never came on its own; change 3's agent carries it
+    {:ok, s} = Robot.write({:db, [@insert, @delete, {3, {:delete, "T3"}}]}, s)
+    assert db(s) == %{inserts: %{}, deleted: MapSet.new(["X", "T3"]), version: 3}
+  end
+
+  test "a robot waiting for an inserted task goes on once its deletion is applied" do
+    {:ok, s} = Robot.init(robot: "r1")
+    {:ok, s} = Robot.write({:db, [@insert]}, s)
     s = %{s | state: {:inserted, "X", :free}}
-    {:ok, s} = Robot.write({:db, 2, {:delete, "X"}}, s)
-    # the deletion waits for change 1 ...
-    assert s.state == {:inserted, "X", :free}
-    {:ok, s} = Robot.write({:db, 1, {:insert, "T2", "X"}}, s)
-    # ... then both apply, and the robot no longer waits for X's agent.
+    {:ok, s} = Robot.write({:db, [@insert, @delete]}, s)
     assert s.state == :free
   end
 end
