@@ -63,6 +63,12 @@ defmodule TartarusImmune.Evolution.Experiment do
       default: :product,
       doc: "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck (`Objective`)"
     ],
+    score: [
+      type: {:in, [:per_step, :total]},
+      default: :per_step,
+      doc:
+        "`s1`-`s3`, `monolithic`: an evaluation's fitness per step, or summed over the period as Eqs. 7.1-7.3 print it (`Embodied`)"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
       type: :any,
@@ -186,7 +192,8 @@ defmodule TartarusImmune.Evolution.Experiment do
             recovery: state.p.recovery,
             period: state.p.period,
             min_period: state.p.min_period,
-            puck_reward: state.p.puck_reward
+            puck_reward: state.p.puck_reward,
+            score: state.p.score
           )
 
         Map.merge(r, %{trial: trial})
@@ -475,6 +482,7 @@ defmodule TartarusImmune.Evolution.Experiment do
       puck_reward: to_string(p.puck_reward),
       period: p.period,
       min_period: p.min_period,
+      score: to_string(p.score),
       mann_whitney_u: test && test.u,
       p_value: test && Float.round(test.p_value, 4),
       immune_beats_monolithic: if(test, do: test.p_value < 0.05)
