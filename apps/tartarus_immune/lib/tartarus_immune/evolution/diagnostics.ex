@@ -257,7 +257,9 @@ defmodule TartarusImmune.Evolution.Diagnostics do
   Each evaluation starts when a puck comes into view and ends by `Embodied`'s training
   rule (the epitope leaves the active region of radius 0.4 around the epitope it started
   with, after at least 10 steps, or 30 steps); its fitness is Eq. 7.2 (product) per
-  step. After `evaluations` (default 200) evaluations from seed `seed` (1), the champion
+  step (with `repeats: k`, default 1, each proposal drives k puck periods in a row and
+  its fitness is their mean: `evaluations` proposals, k times as many periods). After
+  `evaluations` (default 200) evaluations from seed `seed` (1), the champion
   takes the puck branch of a controller whose other branch is the fixed one, and that
   controller sits S2's test (`ceiling/3`, `episodes`, default 20). Returns
   `%{fitness, improvements, test_success}` (the champion's last measured fitness, how
@@ -277,14 +279,21 @@ defmodule TartarusImmune.Evolution.Diagnostics do
     {world, rng} = Embodied.arena(o, rng, true)
     {net, rng} = NeuralNet.random(@shape, rng)
 
+    repeats = Keyword.get(opts, :repeats, 1)
+
     {es, _, _} =
       Enum.reduce(1..n, {ES.new(net, es_opts), world, rng}, fn _, {es, w, rng} ->
-        w = until_puck(w, 0)
-        {r, w} = World.sense(w, :robot)
         {kind, cand, rng} = ES.propose(es, rng)
-        {w, samples} = puck_period(w, cand, World.normalize(r), 1, [])
-        f = Objective.fitness(:s2, samples) / length(samples)
-        {ES.tell(es, {kind, cand}, f), w, rng}
+
+        {w, fs} =
+          Enum.reduce(1..repeats, {w, []}, fn _, {w, fs} ->
+            w = until_puck(w, 0)
+            {r, w} = World.sense(w, :robot)
+            {w, samples} = puck_period(w, cand, World.normalize(r), 1, [])
+            {w, [Objective.fitness(:s2, samples) / length(samples) | fs]}
+          end)
+
+        {ES.tell(es, {kind, cand}, Enum.sum(fs) / repeats), w, rng}
       end)
 
     ctrl = fn [_, _, _, c] = ep ->

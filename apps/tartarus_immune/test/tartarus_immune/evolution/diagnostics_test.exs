@@ -89,5 +89,9 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert a == Diagnostics.puck_subtask(evaluations: 8, seed: 2, episodes: 2)
     assert a.improvements in 1..8
     assert a.test_success in [0.0, 0.5, 1.0]
+    # each proposal judged on the mean of two puck periods: another run
+    b = Diagnostics.puck_subtask(evaluations: 8, seed: 2, episodes: 2, repeats: 2)
+    assert b.improvements in 1..8
+    assert b != a
   end
 end
