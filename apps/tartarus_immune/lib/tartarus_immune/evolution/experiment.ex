@@ -6,8 +6,8 @@ defmodule TartarusImmune.Evolution.Experiment do
   `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
   scenario on the arena with the immune algorithm and, beside each, the monolithic
   baseline (§7.4.1) on the same seed (`TartarusImmune.Evolution.Embodied`); `monolithic`:
-  the baseline alone on all three scenarios. A step is one trial. `recovery`, `period` and
-  `min_period` are passed to every run. The summary compares the two designs' test
+  the baseline alone on all three scenarios. A step is one trial. `recovery`, `period`,
+  `min_period`, `puck_reward` and `score` are passed to every run. The summary compares the two designs' test
   success over the trials with a one-sided Mann-Whitney U test
   (`TartarusImmune.Evolution.Stats`, exact): `mann_whitney_u`, `p_value` (immune better
   than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
