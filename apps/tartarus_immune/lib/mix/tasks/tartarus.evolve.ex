@@ -8,6 +8,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--min-period 10] [--puck-reward product|sum]
+                          [--score per_step|total]
                           [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
@@ -20,7 +21,10 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Each evaluation of up to `--period` steps of 0.1 s (30) follows `--recovery` unscored
   steps (0, as in the thesis; 20 is Bredeche et al.'s recovery period) and, for the immune
   robot, ends when the sensors leave the
-  antibody's active region after `--min-period` steps (10).
+  antibody's active region after `--min-period` steps (10). `--score` is an evaluation's
+  fitness: the objective per step (`per_step`, default) or summed over the evaluation
+  period (`total`, Eqs. 7.1-7.3 as printed; with `--min-period 1`, the thesis's loop to
+  the letter: docs/evolution.md, "Why S2 is not learnt").
   `--puck-reward` chooses the reading of Eq. 7.2's f_puck, "a function which rewards puck
   pushing behavior" (S2, S3 with the light on, `robots3`): `product` (default),
   `b_puck * v_trans`, moving with a puck in the gripper; `sum`, `b_puck + v_trans`, the
@@ -34,6 +38,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   for S3 the antibodies used with the light on, off and both, and in how many trials an
   antibody of the first light-off phase was used again in the second), `antibodies`,
   `test_success`, `test_success_monolithic`, `recovery`, `puck_reward`, `period`, `min_period`,
+  `score`,
   `mann_whitney_u` and `p_value` (exact one-sided Mann-Whitney U test of the immune
   robot's per-trial test success against the baseline's), `immune_beats_monolithic`
   (`p_value < 0.05`).
@@ -147,7 +152,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         else: []
 
     Enum.join(
-      ["evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
+      [
+        "evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}, min period #{s.min_period}, score #{s.score}"
+      ] ++
         rows ++ test ++ ["  written to #{dir}"],
       "\n"
     )

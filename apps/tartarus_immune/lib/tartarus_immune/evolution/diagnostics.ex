@@ -24,7 +24,9 @@ defmodule TartarusImmune.Evolution.Diagnostics do
   """
 
   alias TartarusArena.World
-  alias TartarusImmune.Evolution.{Embodied, Objective}
+  alias TartarusImmune.Evolution.{Embodied, ES, NeuralNet, Objective}
+
+  @shape [4, 5, 2]
 
   @typedoc "A fixed controller: normalized epitope to `[left, right]` wheel commands."
   @type controller :: ([float()] -> [float()])
@@ -188,6 +190,189 @@ defmodule TartarusImmune.Evolution.Diagnostics do
         end
     }
   end
+
+  @doc """
+  How `scenario`'s objective scores `controller` *evaluation by evaluation*, as the
+  immune learner sees it: `controller` drives `episodes` episodes of 30 s from the test's
+  poses (light on, seed `seed`, default 1), cut into evaluation periods by `Embodied`'s
+  training rule (the epitope at a period's start is the paratope; the period ends when
+  the epitope leaves its active region of radius `epsilon`, default the scenario's, after
+  at least `min_period` steps (10), or after `period` steps (30)). Returns, for the
+  periods that start with a puck in the colour sensor's view (`:puck`) and the others
+  (`:no_puck`): how many there were, their mean per-step fitness (as `Embodied` scores a
+  period) and its standard deviation over the periods, their mean length in steps, and the mean share of their steps with a puck in
+  view; and `:light_gain`, the mean change of `f_light` from a puck period's first step
+  to its last (whether the periods that carry a puck carry it towards the light).
+
+      iex> alias TartarusImmune.Evolution.Diagnostics
+      iex> w = Diagnostics.windows(:s2, Diagnostics.controllers().straight, episodes: 1)
+      iex> w.no_puck.periods > 0
+      true
+  """
+  @spec windows(:s1 | :s2 | :s3, controller(), keyword()) :: map()
+  def windows(scenario, controller, opts \\ []) do
+    n = Keyword.get(opts, :episodes, 20)
+    seed = Keyword.get(opts, :seed, 1)
+    reading = Objective.puck_reward!(opts)
+    o = Embodied.options(scenario: scenario, seed: seed)
+    eps = Keyword.get(opts, :epsilon, o.epsilon)
+    min_p = Keyword.get(opts, :min_period, 10)
+    period = Keyword.get(opts, :period, 30)
+
+    {periods, _} =
+      Enum.reduce(1..n, {[], :rand.seed_s(:exsss, {seed, 9, 9})}, fn _, {acc, rng} ->
+        {world, rng} = Embodied.arena(o, rng, true)
+        {cut(world, controller, 300, {eps, min_p, period}, scenario, reading, acc), rng}
+      end)
+
+    by = Enum.group_by(periods, & &1.puck_start)
+
+    summary = fn ps ->
+      k = max(length(ps), 1)
+
+      %{
+        periods: length(ps),
+        fitness: Float.round(Enum.sum(Enum.map(ps, & &1.fitness)) / k, 3),
+        fitness_sd: sd(Enum.map(ps, & &1.fitness)),
+        steps: Float.round(Enum.sum(Enum.map(ps, & &1.steps)) / k, 1),
+        puck_share: Float.round(Enum.sum(Enum.map(ps, & &1.puck_share)) / k, 3)
+      }
+    end
+
+    puck = Map.get(by, true, [])
+
+    %{
+      puck: summary.(puck),
+      no_puck: summary.(Map.get(by, false, [])),
+      light_gain: Float.round(Enum.sum(Enum.map(puck, & &1.light_gain)) / max(length(puck), 1), 3)
+    }
+  end
+
+  @doc """
+  How many evaluations the (1+1)-online strategy needs to learn S2's puck sub-task on its
+  own: one 4-5-2 network (random weights, `Embodied`'s strategy options, or `es`) drives
+  only while the colour sensor sees a puck; the rest of the time a fixed hand-made branch
+  drives (full speed ahead, turning in place under 0.2 on the ultrasonic: `:deliver`'s
+  branch without a puck), so the robot meets pucks far more often than a learning robot.
+  Each evaluation starts when a puck comes into view and ends by `Embodied`'s training
+  rule (the epitope leaves the active region of radius 0.4 around the epitope it started
+  with, after at least 10 steps, or 30 steps); its fitness is Eq. 7.2 (product) per
+  step (with `repeats: k`, default 1, each proposal drives k puck periods in a row and
+  its fitness is their mean: `evaluations` proposals, k times as many periods). After
+  `evaluations` (default 200) evaluations from seed `seed` (1), the champion
+  takes the puck branch of a controller whose other branch is the fixed one, and that
+  controller sits S2's test (`ceiling/3`, `episodes`, default 20). Returns
+  `%{fitness, improvements, test_success}` (the champion's last measured fitness, how
+  many offspring replaced it, the test success).
+  """
+  @spec puck_subtask(keyword()) :: %{
+          fitness: float(),
+          improvements: non_neg_integer(),
+          test_success: float()
+        }
+  def puck_subtask(opts \\ []) do
+    n = Keyword.get(opts, :evaluations, 200)
+    seed = Keyword.get(opts, :seed, 1)
+    o = Embodied.options(scenario: :s2, seed: seed)
+    es_opts = Keyword.get(opts, :es, o.es)
+    rng = :rand.seed_s(:exsss, {seed, 42, 1})
+    {world, rng} = Embodied.arena(o, rng, true)
+    {net, rng} = NeuralNet.random(@shape, rng)
+
+    repeats = Keyword.get(opts, :repeats, 1)
+
+    {es, _, _} =
+      Enum.reduce(1..n, {ES.new(net, es_opts), world, rng}, fn _, {es, w, rng} ->
+        {kind, cand, rng} = ES.propose(es, rng)
+
+        {w, fs} =
+          Enum.reduce(1..repeats, {w, []}, fn _, {w, fs} ->
+            w = until_puck(w, 0)
+            {r, w} = World.sense(w, :robot)
+            {w, samples} = puck_period(w, cand, World.normalize(r), 1, [])
+            {w, [Objective.fitness(:s2, samples) / length(samples) | fs]}
+          end)
+
+        {ES.tell(es, {kind, cand}, Enum.sum(fs) / repeats), w, rng}
+      end)
+
+    ctrl = fn [_, _, _, c] = ep ->
+      if c < 0.5, do: NeuralNet.forward(@shape, es.champion, ep), else: ahead(ep)
+    end
+
+    %{
+      fitness: Float.round(es.fitness * 1.0, 3),
+      improvements: es.improvements,
+      test_success: ceiling(:s2, ctrl, episodes: Keyword.get(opts, :episodes, 20)).success
+    }
+  end
+
+  defp ahead([_ll, _lr, us, _c]), do: if(us < 0.2, do: [-0.5, 0.5], else: [1.0, 1.0])
+
+  # The fixed branch drives until the colour sensor sees a puck (at most 300 s).
+  defp until_puck(w, k) when k > 3000, do: w
+
+  defp until_puck(w, k) do
+    {r, w} = World.sense(w, :robot)
+
+    if r.colour == 3,
+      do: w,
+      else:
+        until_puck(World.step(w, %{robot: List.to_tuple(ahead(World.normalize(r)))}, 0.1), k + 1)
+  end
+
+  defp puck_period(w, net, para, k, samples) do
+    {r, w} = World.sense(w, :robot)
+    [l, rr] = NeuralNet.forward(@shape, net, World.normalize(r))
+    w = World.step(w, %{robot: {l, rr}}, 0.1)
+    {next, w} = World.sense(w, :robot)
+    samples = [Embodied.sample(w, :robot, next) | samples]
+
+    if k >= 30 or (k >= 10 and dist(World.normalize(next), para) > 0.4),
+      do: {w, samples},
+      else: puck_period(w, net, para, k + 1, samples)
+  end
+
+  defp cut(_world, _f, left, _rule, _sc, _reading, acc) when left <= 0, do: acc
+
+  defp cut(world, f, left, {eps, min_p, period} = rule, sc, reading, acc) do
+    {r, world} = World.sense(world, :robot)
+    para = World.normalize(r)
+
+    {world, samples} =
+      Enum.reduce_while(1..min(period, left), {world, []}, fn k, {w, samples} ->
+        {r, w} = World.sense(w, :robot)
+        [l, rr] = f.(World.normalize(r))
+        w = World.step(w, %{robot: {l, rr}}, 0.1)
+        {next, w} = World.sense(w, :robot)
+        samples = [Embodied.sample(w, :robot, next) | samples]
+        out = k >= min_p and dist(World.normalize(next), para) > eps
+        if out, do: {:halt, {w, samples}}, else: {:cont, {w, samples}}
+      end)
+
+    steps = length(samples)
+    ordered = Enum.reverse(samples)
+
+    p = %{
+      puck_start: r.colour == 3,
+      steps: steps,
+      fitness: Objective.fitness(sc, samples, puck_reward: reading) / steps,
+      puck_share: Enum.count(samples, & &1.puck) / steps,
+      light_gain: Objective.f_light(List.last(ordered)) - Objective.f_light(hd(ordered))
+    }
+
+    cut(world, f, left - steps, rule, sc, reading, [p | acc])
+  end
+
+  defp sd(xs) when length(xs) < 2, do: 0.0
+
+  defp sd(xs) do
+    m = Enum.sum(xs) / length(xs)
+    Float.round(:math.sqrt(Enum.sum(Enum.map(xs, &((&1 - m) ** 2))) / (length(xs) - 1)), 3)
+  end
+
+  defp dist(a, b),
+    do: a |> Enum.zip(b) |> Enum.reduce(0.0, fn {x, y}, s -> s + (x - y) ** 2 end) |> :math.sqrt()
 
   defp drive(world, f, steps, score) do
     Enum.reduce(1..steps//1, {world, []}, fn _, {w, samples} ->

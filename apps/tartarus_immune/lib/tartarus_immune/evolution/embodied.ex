@@ -25,7 +25,8 @@ defmodule TartarusImmune.Evolution.Embodied do
      line 22: "while the current antigen is within the AR of BestAb");
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
      the scored period and divided by its steps (periods cut short compare with full
-     ones); the strategy and the antibody's concentration are told.
+     ones; `score: :total` leaves the sum undivided, as Eqs. 7.1-7.3 print it); the
+     strategy and the antibody's concentration are told.
 
   The recovery period comes from the paper of the (1+1)-online strategy the thesis cites
   (Bredeche, Haasdijk and Eiben 2009), not from the thesis, whose loop has none (the
@@ -104,6 +105,12 @@ defmodule TartarusImmune.Evolution.Embodied do
       doc:
         "the reading of Eq. 7.2's f_puck: `b_puck * v_trans` or, as printed, `b_puck + v_trans` (`Objective`)"
     ],
+    score: [
+      type: {:in, [:per_step, :total]},
+      default: :per_step,
+      doc:
+        "an evaluation's fitness: the objective per step (default) or, as Eqs. 7.1-7.3 print it, summed over the evaluation period"
+    ],
     dt: [type: :number, default: 0.1, doc: "seconds per step"],
     pucks: [type: :non_neg_integer, default: 10, doc: "pucks (S2, S3)"],
     test_episodes: [type: :non_neg_integer, default: 10, doc: "test episodes after training"],
@@ -125,7 +132,11 @@ defmodule TartarusImmune.Evolution.Embodied do
 
   #{Tartarus.Options.docs(@schema)}
 
-  Returns `{:ok, result}`: `curve` (`[%{iteration, antibody, fitness, light_on}]`),
+  Returns `{:ok, result}`: `curve` (`[%{iteration, antibody, fitness, light_on, steps,
+  epitope, kind, sigma, puck_steps}]`: per evaluation, the antibody that ran, its fitness,
+  the light, the scored steps, the epitope that chose the antibody, what the strategy
+  proposed (`:offspring` or `:champion`), the strategy's sigma when it proposed, and the
+  scored steps with the colour sensor on yellow),
   `antibodies` (created), `switches` (iterations whose antibody differs from the previous
   one), `test_success` (0..1), `by_light` (S3: the antibodies used with the light on and
   off, and how many were used in both), `reused_after_return` (S3: whether an antibody
@@ -370,9 +381,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     else
       {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
 
-      fitness =
-        Objective.fitness(o.scenario, samples, puck_reward: o.puck_reward) /
-          max(length(samples), 1)
+      fitness = score(o, samples)
 
       rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
       rep = Repertoire.report(rep, key, fitness)
@@ -382,11 +391,22 @@ defmodule TartarusImmune.Evolution.Embodied do
         antibody: elem(key, 1),
         fitness: fitness,
         light_on: light,
-        steps: length(samples)
+        steps: length(samples),
+        epitope: ep,
+        kind: kind,
+        sigma: ab.es.sigma,
+        puck_steps: Enum.count(samples, & &1.puck)
       }
 
       %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
     end
+  end
+
+  # An evaluation's fitness: the objective per step, or summed over the period (Eq. 7.1's
+  # sum from t = 0 to t').
+  defp score(o, samples) do
+    total = Objective.fitness(o.scenario, samples, puck_reward: o.puck_reward)
+    if o.score == :total, do: total, else: total / max(length(samples), 1)
   end
 
   # The recovery period: `w` drives for `n` steps, unscored.

@@ -6,8 +6,8 @@ defmodule TartarusImmune.Evolution.Experiment do
   `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
   scenario on the arena with the immune algorithm and, beside each, the monolithic
   baseline (§7.4.1) on the same seed (`TartarusImmune.Evolution.Embodied`); `monolithic`:
-  the baseline alone on all three scenarios. A step is one trial. `recovery`, `period` and
-  `min_period` are passed to every run. The summary compares the two designs' test
+  the baseline alone on all three scenarios. A step is one trial. `recovery`, `period`,
+  `min_period`, `puck_reward` and `score` are passed to every run. The summary compares the two designs' test
   success over the trials with a one-sided Mann-Whitney U test
   (`TartarusImmune.Evolution.Stats`, exact): `mann_whitney_u`, `p_value` (immune better
   than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
@@ -62,6 +62,12 @@ defmodule TartarusImmune.Evolution.Experiment do
       type: {:in, [:product, :sum]},
       default: :product,
       doc: "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck (`Objective`)"
+    ],
+    score: [
+      type: {:in, [:per_step, :total]},
+      default: :per_step,
+      doc:
+        "`s1`-`s3`, `monolithic`: an evaluation's fitness per step, or summed over the period as Eqs. 7.1-7.3 print it (`Embodied`)"
     ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [
@@ -186,7 +192,8 @@ defmodule TartarusImmune.Evolution.Experiment do
             recovery: state.p.recovery,
             period: state.p.period,
             min_period: state.p.min_period,
-            puck_reward: state.p.puck_reward
+            puck_reward: state.p.puck_reward,
+            score: state.p.score
           )
 
         Map.merge(r, %{trial: trial})
@@ -475,6 +482,7 @@ defmodule TartarusImmune.Evolution.Experiment do
       puck_reward: to_string(p.puck_reward),
       period: p.period,
       min_period: p.min_period,
+      score: to_string(p.score),
       mann_whitney_u: test && test.u,
       p_value: test && Float.round(test.p_value, 4),
       immune_beats_monolithic: if(test, do: test.p_value < 0.05)

@@ -60,4 +60,38 @@ defmodule TartarusImmune.Evolution.DiagnosticsTest do
     assert recovered.beats[{:avoid, :straight}] > plain.beats[{:avoid, :straight}]
     assert plain.beats[{:phototaxis, :avoid}] + plain.beats[{:avoid, :phototaxis}] <= 1.0
   end
+
+  test "S2 evaluation by evaluation: Eq. 7.2 pays carrying a puck towards the light more than carrying it away, in the periods that start with a puck" do
+    c = Diagnostics.controllers()
+    clamp = fn xs -> Enum.map(xs, &max(-1.0, min(1.0, &1))) end
+
+    # deliver's branch without a puck, and with a puck steering away from the light
+    away = fn [ll, lr, us, col] ->
+      cond do
+        col >= 0.5 and us < 0.2 -> [-0.5, 0.5]
+        col >= 0.5 -> [1.0, 1.0]
+        true -> clamp.([1.0 + 4 * (ll - lr), 1.0 - 4 * (ll - lr)])
+      end
+    end
+
+    to_light = Diagnostics.windows(:s2, c.deliver, episodes: 5)
+    from_light = Diagnostics.windows(:s2, away, episodes: 5)
+    assert to_light.puck.periods > 0 and from_light.puck.periods > 0
+    assert to_light.puck.fitness > from_light.puck.fitness
+    # the puck is kept through the periods that start with one
+    assert to_light.puck.puck_share > 0.9
+    # and those periods pay more per step than the periods without a puck
+    assert to_light.puck.fitness > to_light.no_puck.fitness
+  end
+
+  test "the puck sub-task on its own: the same seed gives the same strategy and test" do
+    a = Diagnostics.puck_subtask(evaluations: 8, seed: 2, episodes: 2)
+    assert a == Diagnostics.puck_subtask(evaluations: 8, seed: 2, episodes: 2)
+    assert a.improvements in 1..8
+    assert a.test_success in [0.0, 0.5, 1.0]
+    # each proposal judged on the mean of two puck periods: another run
+    b = Diagnostics.puck_subtask(evaluations: 8, seed: 2, episodes: 2, repeats: 2)
+    assert b.improvements in 1..8
+    assert b != a
+  end
 end

@@ -175,4 +175,46 @@ defmodule TartarusImmune.Evolution.EmbodiedTest do
     assert {:error, message} = Embodied.run(scenario: :s2, puck_reward: :max)
     assert message =~ "for key :puck_reward"
   end
+
+  test "score: :total is the objective summed over the period (Eq. 7.1), :per_step divides it by the period's steps" do
+    # the monolithic robot's periods are all `period` steps long, and the strategy only
+    # compares fitnesses, so the two runs are the same run with the fitness scaled
+    run = fn score ->
+      {:ok, r} =
+        Embodied.run(
+          scenario: :s1,
+          design: :monolithic,
+          iterations: 12,
+          test_episodes: 0,
+          seed: 3,
+          score: score
+        )
+
+      r
+    end
+
+    per_step = run.(:per_step)
+    total = run.(:total)
+    assert Embodied.options([]).score == :per_step
+
+    for {a, b} <- Enum.zip(per_step.curve, total.curve) do
+      assert a.steps == 30 and b.steps == 30
+      assert_in_delta b.fitness, 30 * a.fitness, 1.0e-9
+    end
+  end
+
+  test "the curve says, per evaluation, the epitope that chose, what the strategy proposed with which sigma, and the steps with a puck in view" do
+    {:ok, r} = Embodied.run(scenario: :s2, iterations: 40, test_episodes: 0, seed: 1)
+
+    for p <- r.curve do
+      assert length(p.epitope) == 4
+      assert p.kind in [:offspring, :champion]
+      assert p.sigma >= 0.5 and p.sigma <= 4.0
+      assert p.puck_steps in 0..p.steps
+    end
+
+    # an antibody's first evaluation is an offspring at the strategy's smallest sigma
+    first = r.curve |> Enum.uniq_by(& &1.antibody)
+    assert Enum.all?(first, &(&1.kind == :offspring and &1.sigma == 0.5))
+  end
 end
