@@ -36,6 +36,17 @@ defmodule TartarusEmu.Dashboard do
     TartarusTools.Dashboard.start_link(Keyword.put(opts, :emulation, {__MODULE__, net}))
   end
 
+  @doc """
+  As `start_link/2`, not linked: a dashboard that cannot start (a port in use) returns
+  `{:error, reason}` to the caller rather than taking it down.
+  """
+  @spec start(source(), keyword()) :: GenServer.on_start()
+  def start(net, opts \\ [])
+
+  def start(net, opts) when is_struct(net, Network) or is_function(net, 0) do
+    TartarusTools.Dashboard.start(Keyword.put(opts, :emulation, {__MODULE__, net}))
+  end
+
   @impl true
   @doc "The network's hosts in topology order, `up` unless isolated or killed."
   def hosts(net) when is_function(net, 0), do: if(n = net.(), do: hosts(n), else: [])

@@ -209,20 +209,24 @@ defmodule TartarusEmu.Scenario do
       opts = if is_integer(spec), do: [port: spec], else: spec
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
 
-      case TartarusEmu.Dashboard.start_link(net, Keyword.put_new(opts, :panels, panels)) do
+      case TartarusEmu.Dashboard.start(net, Keyword.put_new(opts, :panels, panels)) do
         {:ok, dash} ->
-          Process.unlink(dash)
           IO.puts(runner[:progress_device], TartarusTools.Dashboard.banner(dash))
           {:ok, dash}
 
         {:error, reason} ->
           teardown(module, state)
-          {:error, if(is_binary(reason), do: reason, else: "dashboard: #{inspect(reason)}")}
+          {:error, dashboard_error(reason)}
       end
     else
       _ -> {:ok, nil}
     end
   end
+
+  @doc false
+  # A dashboard's start error in words.
+  def dashboard_error(reason) when is_binary(reason), do: reason
+  def dashboard_error(reason), do: "dashboard: the web server did not start: #{inspect(reason)}"
 
   defp teardown(module, state),
     do: if(function_exported?(module, :teardown, 1), do: module.teardown(state))

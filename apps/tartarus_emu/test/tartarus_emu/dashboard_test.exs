@@ -125,22 +125,52 @@ defmodule TartarusEmu.DashboardTest do
     assert {:error, _} = TartarusTools.Dashboard.http_get(url <> "api/info", 2_000)
   end
 
-  test "a scenario whose dashboard cannot start ends with the reason, its network stopped" do
-    hosts_before = length(Tartarus.hosts())
+  defmodule Tiny do
+    # A scenario that tells the test when it is torn down.
+    @behaviour TartarusEmu.Scenario
+    def name, do: "tiny"
 
-    assert {:error, message} =
-             TartarusEmu.Scenario.run(TartarusEmu.Walk,
-               hosts: 4,
-               topology: "ring",
-               agents: 2,
-               steps: 3,
-               seed: 1,
-               out: false,
-               quiet: true,
-               dashboard: [port: 0, token: "short"]
-             )
+    def setup(opts) do
+      {:ok, net} = TartarusEmu.Network.start(TartarusEmu.Topology.line(2))
+      {:ok, %{net: net, test: opts.test}}
+    end
 
+    def step(s, _), do: s
+    def series(_), do: TartarusTools.Series.new()
+    def summary(_), do: %{}
+
+    def teardown(s) do
+      TartarusEmu.Network.stop(s.net)
+      send(s.test, {:torn_down, s.net})
+    end
+  end
+
+  test "a scenario whose dashboard cannot start (a bad token, a port in use) ends with the reason, torn down" do
+    run = fn dashboard ->
+      TartarusEmu.Scenario.run(Tiny,
+        test: self(),
+        steps: 1,
+        seed: 1,
+        out: false,
+        quiet: true,
+        dashboard: dashboard
+      )
+    end
+
+    assert {:error, message} = run.(port: 0, token: "short")
     assert message =~ "token"
-    assert length(Tartarus.hosts()) == hosts_before
+    assert_received {:torn_down, net}
+
+    assert Enum.all?(
+             net.topology.nodes,
+             &(TartarusEmu.Network.host(net, &1) |> Tartarus.Host.whereis() |> elem(0) == :error)
+           )
+
+    # A port in use: the same, and the caller is not taken down with the web server.
+    {:ok, l} = :gen_tcp.listen(0, ip: {127, 0, 0, 1})
+    {:ok, port} = :inet.port(l)
+    assert run.(port) == {:error, "dashboard: port #{port} is in use"}
+    assert_received {:torn_down, _}
+    :gen_tcp.close(l)
   end
 end

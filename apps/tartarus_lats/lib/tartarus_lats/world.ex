@@ -162,6 +162,15 @@ defmodule TartarusLats.World do
               "%{name: atom, enter_at: seconds, entrance: node, route: [{node, dwell_seconds}], exit: node} " <>
               "with nodes of the building, got: #{inspect(script)}"
     end
+
+    # People come in through doors: the nodes know which zones have one (a Trace that walks
+    # back to an entry elsewhere reports a broken chain, see TartarusLats.Query).
+    unless script.entrance in Building.entrances(building) do
+      raise ArgumentError,
+            "invalid options given to TartarusLats.World.new/1 for key :scripts: expected " <>
+              "script #{inspect(script.name)}'s entrance to be one of the building's entrances " <>
+              "#{inspect(Building.entrances(building))}, got: #{inspect(script.entrance)}"
+    end
   end
 
   @doc """

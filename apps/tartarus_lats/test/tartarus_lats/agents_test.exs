@@ -91,6 +91,23 @@ defmodule TartarusLats.AgentsTest do
     end
   end
 
+  test "a scripted bearer comes in through a door of the building" do
+    b =
+      Building.custom(
+        positions: %{a: {0, 0, 0}, b: {9, 0, 0}},
+        adjacency: %{a: [:b]},
+        entrances: [:a]
+      )
+
+    script = %{name: :z, enter_at: 0, entrance: :b, route: [{:b, 10}], exit: :a}
+
+    assert_raise ArgumentError,
+                 ~r/entrance to be one of the building's entrances \[:a\], got: :b/,
+                 fn ->
+                   World.new(building: b, walkers: 0, scripts: [script])
+                 end
+  end
+
   test "Trace(X) fired at e goes back to d, then forward (Appendix .2)", %{dep: dep, tag: tag} do
     assert {:ok, r} = TartarusLats.query(dep.hosts[:e], :trace, tag)
     assert r.route == [:e, :d, :e, :f, :i, :h]
@@ -255,6 +272,10 @@ defmodule TartarusLats.AgentsTest do
         dep = Deployment.restart_node(dep, :d)
         assert Tartarus.store_get(host, {:lats, :log}) == log
         assert Tartarus.store_get(host, {:lats, :mv}).tags == mv.tags
+        # what the node knows of its zone comes back with it: d has the door, e has none
+        assert Tartarus.store_get(host, {:lats, :entrance}) == true
+        dep = Deployment.restart_node(dep, :e)
+        assert Tartarus.store_get(dep.hosts[:e], {:lats, :entrance}) == false
 
         # and the node goes on working: the trace still reaches through d
         dep = Deployment.run(dep, 90)

@@ -59,9 +59,13 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   @doc false
   @impl true
-  # Restored after a restart of the host: carry out what was decided and not yet done.
+  # Restored after a restart of the host: carry out what was decided and not yet done. A
+  # sequence agent released before the restart may have died with the host before it
+  # reached every robot, so the changes so far go round once more (robots ignore what
+  # they already applied).
   def handle_arrival(_ctx, s) do
     if s.effects != [], do: send(self(), :effects)
+    s = if s.d.changes != [], do: act({:sequence, s.d.changes}, s), else: s
     {:stay, s}
   end
 

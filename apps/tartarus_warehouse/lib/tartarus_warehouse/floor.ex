@@ -19,7 +19,7 @@ defmodule TartarusWarehouse.Floor do
   that stays up until `stop/1`: submit jobs when you like (`submit/2`), change it while it
   runs (`change/2`: insert or delete a task, retire a robot, let a standby robot join),
   look at it (`status/1`, or the web dashboard with `dashboard: port`), wait for the jobs
-  (`await/2`), and `stop/1` it for the same result as `run/1`:
+  (`await/2`), and `stop/1` it for what ran (as `run/1` reports it):
 
       iex> {:ok, f} = TartarusWarehouse.Floor.start(robots: 2, resources: [:rack, :bay])
       iex> TartarusWarehouse.Floor.submit(f, %{id: 1, tasks: [%{name: "T1", resources: [:rack]}]})
@@ -250,7 +250,6 @@ defmodule TartarusWarehouse.Floor do
   # `{:warehouse_job_done, id, at_us}` for every job completed.
   defp start_floor(world, opts, owner) do
     robots = opts[:robots]
-    design = opts[:design]
 
     setup = fn node, host ->
       case node do
@@ -292,6 +291,19 @@ defmodule TartarusWarehouse.Floor do
         link: [latency_ms: opts[:latency_ms]]
       )
 
+    try do
+      start_agents(net, world, opts, owner, data_dir)
+    rescue
+      e ->
+        Network.stop(net)
+        if data_dir, do: File.rm_rf(data_dir)
+        reraise e, __STACKTRACE__
+    end
+  end
+
+  defp start_agents(net, world, opts, owner, data_dir) do
+    robots = opts[:robots]
+    design = opts[:design]
     {:ok, log} = TartarusEmu.Log.start(net)
     robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
     jd = Network.host(net, "jd")
@@ -343,6 +355,7 @@ defmodule TartarusWarehouse.Floor do
       status: opts[:status],
       design: design,
       guide: opts[:guide],
+      failover: opts[:failover],
       data_dir: data_dir,
       world: world
     }
@@ -433,7 +446,7 @@ defmodule TartarusWarehouse.Floor do
 
   defp submit(dref, jobs, arrivals) do
     if arrivals == [] do
-      Enum.each(jobs, &submit_one(dref, &1))
+      Enum.each(jobs, &submit_one!(dref, &1))
     else
       t0 = System.monotonic_time(:millisecond)
 
@@ -445,7 +458,7 @@ defmodule TartarusWarehouse.Floor do
       |> Enum.each(fn {job, at} ->
         wait = at - (System.monotonic_time(:millisecond) - t0)
         if wait > 0, do: Process.sleep(wait)
-        submit_one(dref, job)
+        submit_one!(dref, job)
       end)
     end
   end
@@ -461,8 +474,12 @@ defmodule TartarusWarehouse.Floor do
         submit_one(dref, job, tries - 1)
 
       other ->
-        raise "job #{inspect(job.id)} was refused: #{inspect(other)}"
+        {:error, "job #{inspect(job.id)} was refused: #{inspect(other)}"}
     end
+  end
+
+  defp submit_one!(dref, job) do
+    with {:error, message} <- submit_one(dref, job), do: raise(message)
   end
 
   # Waits for the jobs, firing the events due: `{n, e}` once n jobs completed, `{{:ms, t}, e}`
@@ -529,6 +546,12 @@ defmodule TartarusWarehouse.Floor do
 
     :ok
   end
+
+  defp apply_event({:insert, _, _}, %{design: :central}),
+    do: {:error, "the central baseline takes no on-the-fly changes"}
+
+  defp apply_event({:delete, _}, %{design: :central}),
+    do: {:error, "the central baseline takes no on-the-fly changes"}
 
   defp apply_event(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
     result =
@@ -634,10 +657,20 @@ defmodule TartarusWarehouse.Floor do
   @doc """
   Changes a started floor while it runs: `{:insert, after_task, task_spec}`,
   `{:delete, task}`, `{:retire, i}`, `{:join, i}` or `{:kill_distributor, down_ms}` (see
-  `run/1`'s `events`). `:ok`, or `{:error, reason}` when refused (nothing changes).
+  `run/1`'s `events`; the kill needs a floor started with `failover: true`, and the floor
+  answers nothing else until its distributor's host is back). `:ok`, or `{:error, reason}`
+  when refused (nothing changes).
   """
   @spec change(pid(), term()) :: :ok | {:error, term()}
-  def change(floor, event), do: GenServer.call(floor, {:change, event}, 60_000)
+  def change(floor, event) do
+    down_ms =
+      case event do
+        {:kill_distributor, ms} when is_integer(ms) and ms >= 0 -> ms
+        _ -> 0
+      end
+
+    GenServer.call(floor, {:change, event}, 60_000 + down_ms)
+  end
 
   @doc """
   What a started floor is doing: `jobs` (ids, in submission order), `done` (ids
@@ -647,17 +680,22 @@ defmodule TartarusWarehouse.Floor do
   @spec status(pid()) :: map()
   def status(floor), do: GenServer.call(floor, :status, 30_000)
 
-  @doc "Waits until every job submitted so far completed: `:ok` or `{:error, :timeout}`."
-  @spec await(pid(), timeout()) :: :ok | {:error, :timeout}
+  @doc """
+  Waits until every job submitted so far completed: `:ok`, `{:error, :timeout}`, or
+  `{:error, :stopped}` when the floor is stopped meanwhile.
+  """
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped}
   def await(floor, timeout \\ 60_000) do
     GenServer.call(floor, {:await, timeout}, :infinity)
   end
 
   @doc """
-  Stops a started floor and returns `{:ok, result}`: `run/1`'s result (`timed_out` lists
-  the jobs not completed when it stopped), with `mutex_violations` (Eq. 4.1, pairs of
-  executions: `TartarusWarehouse.Checker.violations/1`) and `changes` (every `change/2`,
-  applied or refused, with its time).
+  Stops a started floor and returns `{:ok, result}`: the keys of `run/1`'s result that
+  describe what ran (`history`, `jobs`, `completed`, `timed_out`: the jobs not completed
+  when it stopped, `t0_us`, `makespan_ms`, `robots`, `migrations`, `bytes`, `messages`),
+  with `mutex_violations` (Eq. 4.1, pairs of executions:
+  `TartarusWarehouse.Checker.violations/1`) and `changes` (every `change/2`, with its time
+  and its result, `:ok` or `{:error, reason}`) instead of `run/1`'s event lists.
   """
   @spec stop(pid()) :: {:ok, map()}
   def stop(floor), do: GenServer.call(floor, :stop, 60_000)
@@ -704,7 +742,16 @@ defmodule TartarusWarehouse.Floor do
   end
 
   def handle_call({:change, event}, _from, st) do
-    result = apply_event(event, st.ctx)
+    result =
+      case event do
+        {:kill_distributor, _} when not st.ctx.failover ->
+          {:error,
+           "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
+
+        _ ->
+          apply_event(event, st.ctx)
+      end
+
     change = %{event: event, at_us: System.system_time(:microsecond), result: result}
     {:reply, result, %{st | changes: [change | st.changes]}}
   end
@@ -748,7 +795,8 @@ defmodule TartarusWarehouse.Floor do
         changes: Enum.reverse(st.changes)
       })
 
-    {:stop, :normal, {:ok, result}, st}
+    Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, {:error, :stopped}) end)
+    {:stop, :normal, {:ok, result}, %{st | waiters: []}}
   end
 
   @impl GenServer
@@ -775,18 +823,26 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
+  def handle_info({:EXIT, dash, _reason}, %{dash: dash} = st), do: {:noreply, %{st | dash: nil}}
   def handle_info(_other, st), do: {:noreply, st}
 
   @impl GenServer
   def terminate(_reason, st) do
-    if st.dash, do: TartarusTools.Dashboard.stop(st.dash)
+    if st.dash do
+      try do
+        TartarusTools.Dashboard.stop(st.dash)
+      catch
+        :exit, _ -> :ok
+      end
+    end
+
     stop_floor(st.ctx)
   end
 
   defp do_submit(job, st) do
     with {:ok, _} <- Job.plan(job, st.ctx.world),
-         false <- job.id in st.jobs do
-      submit_one(st.ctx.dref, job)
+         false <- job.id in st.jobs,
+         :ok <- submit_one(st.ctx.dref, job) do
       st = %{st | jobs: st.jobs ++ [job.id]}
       publish(st.ctx.status, &:ets.update_element(&1, :jobs, {2, length(st.jobs)}))
       {:ok, st}

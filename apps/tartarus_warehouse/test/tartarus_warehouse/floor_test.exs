@@ -309,6 +309,53 @@ defmodule TartarusWarehouse.FloorTest do
     eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
   end
 
+  test "a floor you drive: its distributor killed (with failover), a task deleted, the central baseline refusing changes, stop while someone waits" do
+    hosts_before = length(Tartarus.hosts())
+
+    job = fn id ->
+      %{
+        id: id,
+        tasks: [%{name: "T1", resources: [:a]}, %{name: "T2", resources: [:b], after: ["T1"]}]
+      }
+    end
+
+    {:ok, f} = Floor.start(robots: 2, resources: [:a, :b], scale: 0.005)
+
+    assert {:error, "the distributor's host can be killed only" <> _} =
+             Floor.change(f, {:kill_distributor, 10})
+
+    {:ok, _} = Floor.stop(f)
+
+    {:ok, f} = Floor.start(robots: 2, resources: [:a, :b], scale: 0.005, failover: true)
+    assert :ok = Floor.submit(f, job.(1))
+    assert :ok = Floor.change(f, {:kill_distributor, 30})
+    assert :ok = Floor.change(f, {:delete, "T2"})
+    for id <- 2..4, do: assert(:ok = Floor.submit(f, job.(id)))
+    assert :ok = Floor.await(f, 20_000)
+    {:ok, r} = Floor.stop(f)
+    assert r.timed_out == [] and r.mutex_violations == 0
+    assert [%{result: :ok}, %{result: :ok}] = r.changes
+
+    {:ok, c} = Floor.start(robots: 2, resources: [:a, :b], design: :central, scale: 0.005)
+
+    assert {:error, "the central baseline takes no on-the-fly changes"} =
+             Floor.change(c, {:delete, "T2"})
+
+    # a long job; stop/1 while a caller waits for it
+    assert :ok =
+             Floor.submit(c, %{
+               id: 1,
+               tasks: [%{name: "T1", resources: [:a], duration_ms: 400_000}]
+             })
+
+    waiter = Task.async(fn -> Floor.await(c, 60_000) end)
+    Process.sleep(50)
+    {:ok, r} = Floor.stop(c)
+    assert r.timed_out == [1]
+    assert Task.await(waiter) == {:error, :stopped}
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
+  end
+
   defp eventually(fun, deadline \\ System.monotonic_time(:millisecond) + 5_000) do
     cond do
       fun.() -> :ok

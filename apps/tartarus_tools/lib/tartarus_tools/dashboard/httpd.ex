@@ -39,9 +39,21 @@ defmodule TartarusTools.Dashboard.Httpd do
 
       {:error, reason} ->
         :persistent_term.erase(key)
-        {:error, reason}
+        {:error, listen_error(reason, port)}
     end
   end
+
+  # :inets buries a listen error in nested supervisor shutdowns; a port in use is said so.
+  defp listen_error(reason, port) do
+    if in_term?(reason, {:listen, :eaddrinuse}),
+      do: "dashboard: port #{port} is in use",
+      else: reason
+  end
+
+  defp in_term?(term, term), do: true
+  defp in_term?(term, x) when is_tuple(term), do: in_term?(Tuple.to_list(term), x)
+  defp in_term?(term, x) when is_list(term), do: Enum.any?(term, &in_term?(&1, x))
+  defp in_term?(_term, _x), do: false
 
   def stop({pid, key}) do
     _ = :inets.stop(:httpd, pid)
