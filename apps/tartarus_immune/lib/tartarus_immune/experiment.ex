@@ -92,7 +92,14 @@ defmodule TartarusImmune.Experiment do
       default: 0.0,
       doc: "each step each host breaks off (or, if off, reconnects) with this probability"
     ],
-    params: [type: :keyword, default: [], doc: "Table 6.1 parameters (TartarusImmune.Params)"]
+    params: [type: :keyword, default: [], doc: "Table 6.1 parameters (TartarusImmune.Params)"],
+    panel: [
+      type: :any,
+      default: nil,
+      doc:
+        "an ETS table the run publishes itself into, for the web dashboard (`TartarusImmune.Panel`)"
+    ],
+    label: [type: :any, default: nil, doc: "the run's name on the dashboard"]
   ]
 
   @doc "The option schema of a run (besides the runner's `seed`, `steps`, `out`, `quiet`)."
@@ -136,6 +143,7 @@ defmodule TartarusImmune.Experiment do
         )
 
       hosts = Network.host_list(net)
+      publish(o.panel, {:run, %{net: net, label: o.label, set: o.set, domain: domain}})
 
       st = %{
         o: o,
@@ -251,13 +259,26 @@ defmodule TartarusImmune.Experiment do
       Enum.reduce(pop, st.series, fn {name, n}, ser -> Series.record(ser, name, k, n) end)
       |> Series.record("total", k, pop |> Map.values() |> Enum.sum())
 
+    conv = Convergence.observe(st.conv, k, pop)
+    publish(st.o.panel, {:round, k, pop, conv.converged})
+
     %{
       st
       | series: series,
-        conv: Convergence.observe(st.conv, k, pop),
+        conv: conv,
         last_step: k,
         events_at: Map.put(st.events_at, k, log_count(st))
     }
+  end
+
+  # The dashboard's table (the run does not depend on it: a table gone is ignored).
+  defp publish(nil, _row), do: :ok
+
+  defp publish(table, row) do
+    :ets.insert(table, row)
+    :ok
+  rescue
+    ArgumentError -> :ok
   end
 
   # What a log server of §6.5.1 would have counted by now: sharing (iPkt migrations to
@@ -539,5 +560,8 @@ defmodule TartarusImmune.Experiment do
   end
 
   @impl true
-  def teardown(st), do: Network.stop(st.net)
+  def teardown(st) do
+    if st.o.panel, do: TartarusImmune.Panel.clear(st.o.panel)
+    Network.stop(st.net)
+  end
 end

@@ -64,7 +64,13 @@ defmodule TartarusImmune.Select do
       type: :any,
       doc: "output directory (default results/select-<experiment>-<time>), false for none"
     ],
-    quiet: [type: :boolean, default: false, doc: "no progress lines"]
+    quiet: [type: :boolean, default: false, doc: "no progress lines"],
+    dashboard: [
+      type: :any,
+      default: nil,
+      doc:
+        "serve the web dashboard on this port (127.0.0.1) while the runs go, or dashboard options (`port:`, `token:`, ...): the network of the run going now and the immune panel (`TartarusImmune.Panel`)"
+    ]
   ]
 
   @doc "The option schema."
@@ -90,43 +96,82 @@ defmodule TartarusImmune.Select do
           dir -> dir
         end
 
-      t0 = System.monotonic_time(:millisecond)
-      plan = plan(exp, o)
-
-      runs =
-        for {arm, set, seed, extra} <- plan do
-          base = [
-            set: set,
-            seed: seed,
-            steps: o.steps,
-            nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
-            topology: o.topology,
-            mode: o.mode,
-            group: o.group,
-            share: o.share,
-            hold: o.hold,
-            eta: o.eta,
-            beta: o.beta,
-            period: o.period,
-            out: false,
-            quiet: o.quiet
-          ]
-
-          {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
-          %{arm: arm, set: set, seed: seed, summary: r.summary, series: r.series}
+      with {:ok, dash} <- dashboard(o.dashboard) do
+        try do
+          run_plan(exp, o, out, dash)
+        after
+          if dash, do: stop_dashboard(dash)
         end
-
-      summary =
-        exp
-        |> summarize(runs, o)
-        |> Map.merge(%{
-          experiment: to_string(exp),
-          wall_ms: System.monotonic_time(:millisecond) - t0
-        })
-
-      if out, do: write(out, runs, summary, o)
-      {:ok, %{summary: summary, out: out, runs: runs}}
+      end
     end
+  end
+
+  # One dashboard for all the runs: it shows the run going now (TartarusImmune.Panel).
+  defp dashboard(nil), do: {:ok, nil}
+
+  defp dashboard(spec) do
+    table = TartarusImmune.Panel.new()
+    opts = if is_integer(spec), do: [port: spec], else: spec
+    net = fn -> TartarusImmune.Panel.network(table) end
+    panels = [{TartarusImmune.Panel, table}]
+
+    case TartarusEmu.Dashboard.start(net, Keyword.put_new(opts, :panels, panels)) do
+      {:ok, dash} ->
+        IO.puts(:stderr, TartarusTools.Dashboard.banner(dash))
+        {:ok, {dash, table}}
+
+      {:error, reason} ->
+        :ets.delete(table)
+        {:error, TartarusEmu.Scenario.dashboard_error(reason)}
+    end
+  end
+
+  defp stop_dashboard({dash, table}) do
+    TartarusTools.Dashboard.stop(dash)
+    :ets.delete(table)
+  end
+
+  defp run_plan(exp, o, out, dash) do
+    panel = if dash, do: elem(dash, 1)
+
+    t0 = System.monotonic_time(:millisecond)
+    plan = plan(exp, o)
+
+    runs =
+      for {arm, set, seed, extra} <- plan do
+        base = [
+          set: set,
+          seed: seed,
+          steps: o.steps,
+          nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
+          topology: o.topology,
+          mode: o.mode,
+          group: o.group,
+          share: o.share,
+          hold: o.hold,
+          eta: o.eta,
+          beta: o.beta,
+          period: o.period,
+          out: false,
+          quiet: o.quiet,
+          panel: panel,
+          label: "#{exp}: #{arm}, #{set}, seed #{seed}"
+        ]
+
+        {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
+        %{arm: arm, set: set, seed: seed, summary: r.summary, series: r.series}
+      end
+
+    summary =
+      exp
+      |> summarize(runs, o)
+      |> Map.merge(%{
+        experiment: to_string(exp),
+        wall_ms: System.monotonic_time(:millisecond) - t0
+      })
+
+    if out, do: write(out, runs, summary, o)
+    {:ok, %{summary: summary, out: out, runs: runs}}
   end
 
   defp default_nodes(e) when e in [:nodes50, :iot, :dynamic], do: 50

@@ -15,6 +15,8 @@ defmodule TartarusWarehouse.Panel do
 
   @behaviour TartarusTools.Dashboard.Panel
 
+  import TartarusTools.Dashboard.Panel, only: [lookup: 2]
+
   alias TartarusWarehouse.Checker
 
   @live_max 64
@@ -174,12 +176,5 @@ defmodule TartarusWarehouse.Panel do
       0 -> "No two robots have held one resource at once so far."
       n -> "MUTUAL-EXCLUSION VIOLATIONS so far: #{n}."
     end
-  end
-
-  # The run is over when the table is gone.
-  defp lookup(table, key) do
-    :ets.lookup(table, key)
-  rescue
-    ArgumentError -> :gone
   end
 end

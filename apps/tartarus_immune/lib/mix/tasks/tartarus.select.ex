@@ -10,9 +10,13 @@ defmodule Mix.Tasks.Tartarus.Select do
                           [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
                           [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
                           [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]
-                          [--period 10] [--out DIR] [--json]
+                          [--period 10] [--out DIR] [--json] [--dashboard PORT]
 
-  `--help` prints this text. Experiments:
+  `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT while the runs go (the
+  address and token are printed): the hosts of the run going now and the immune panel
+  (`TartarusImmune.Panel`: the round, live iPkts per solution, convergence, and per host
+  its pending problems and queued iPkts by solution). `--help` prints this text.
+  Experiments:
 
     * `table6_2`: P1-P4 on a 10-host grid, for `--seeds` seeds from `--seed`; the winner per
       set against the thesis's IS, QS, IS, QS (Table 6.2) and the known best (the lowest
@@ -60,6 +64,7 @@ defmodule Mix.Tasks.Tartarus.Select do
       |> Keyword.drop([:quiet, :etas, :betas, :add_at, :ps])
       |> Keyword.update!(:set, &Keyword.put(&1, :type, {:in, [:p1, :p2, :p3, :p4, :temp]}))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:dashboard, &Keyword.put(&1, :type, :non_neg_integer))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)

@@ -61,6 +61,26 @@ defmodule TartarusTools.Dashboard.Panel do
 
   def data_url(_), do: nil
 
+  @doc """
+  Reads `key` from the ETS table a run publishes itself into for its panel (the panel's
+  `arg`): the objects, or `:gone` once the table is deleted (the run is over), so a page
+  refreshed after the run says so instead of failing.
+
+      iex> t = :ets.new(:panel_doc, [:public])
+      iex> :ets.insert(t, {:run, 1})
+      iex> TartarusTools.Dashboard.Panel.lookup(t, :run)
+      [{:run, 1}]
+      iex> :ets.delete(t)
+      iex> TartarusTools.Dashboard.Panel.lookup(t, :run)
+      :gone
+  """
+  @spec lookup(:ets.tid() | atom(), term()) :: [tuple()] | :gone
+  def lookup(table, key) do
+    :ets.lookup(table, key)
+  rescue
+    ArgumentError -> :gone
+  end
+
   @doc "The panel's name in URLs (letters, digits, `_` and `-`)."
   @callback name(arg :: term()) :: String.t()
 

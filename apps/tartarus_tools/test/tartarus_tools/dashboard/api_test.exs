@@ -7,6 +7,8 @@ defmodule TartarusTools.Dashboard.ApiTest do
   alias TartarusTools.Dashboard
   alias TartarusTools.JSON
 
+  doctest TartarusTools.Dashboard.Panel
+
   @token "test-token-0123456789"
 
   defmodule CounterPanel do
