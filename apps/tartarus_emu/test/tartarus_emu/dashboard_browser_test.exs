@@ -61,7 +61,8 @@ defmodule TartarusEmu.DashboardBrowserTest do
              "document.querySelector('#agents tr[data-agent=\"#{a2}\"] td.where').textContent"
            ) == "h4"
 
-    assert eval!(b, "document.getElementById('stream').textContent") == "live"
+    # The event stream connects on its own after the first data are drawn.
+    :ok = Browser.wait(b, "document.getElementById('stream').textContent === 'live'", 15_000)
 
     # The agent moves (outside the page): the page shows it at its new host.
     :ok = Tartarus.move({a1, c.h.(:h1)}, c.h.(:h2))

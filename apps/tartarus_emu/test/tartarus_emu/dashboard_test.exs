@@ -161,10 +161,11 @@ defmodule TartarusEmu.DashboardTest do
     assert message =~ "token"
     assert_received {:torn_down, net}
 
-    assert Enum.all?(
-             net.topology.nodes,
-             &(TartarusEmu.Network.host(net, &1) |> Tartarus.Host.whereis() |> elem(0) == :error)
-           )
+    wait_until(fn ->
+      Enum.all?(net.topology.nodes, fn n ->
+        match?({:error, _}, Tartarus.Host.whereis(TartarusEmu.Network.host(net, n)))
+      end)
+    end)
 
     # A port in use: the same, and the caller is not taken down with the web server.
     {:ok, l} = :gen_tcp.listen(0, ip: {127, 0, 0, 1})
