@@ -796,7 +796,9 @@ defmodule TartarusWarehouse.Floor do
       })
 
     Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, {:error, :stopped}) end)
-    {:stop, :normal, {:ok, result}, %{st | waiters: []}}
+    # Everything is stopped before the caller hears back.
+    shut_down(st)
+    {:stop, :normal, {:ok, result}, %{st | waiters: [], dash: nil, ctx: nil}}
   end
 
   @impl GenServer
@@ -827,7 +829,9 @@ defmodule TartarusWarehouse.Floor do
   def handle_info(_other, st), do: {:noreply, st}
 
   @impl GenServer
-  def terminate(_reason, st) do
+  def terminate(_reason, st), do: shut_down(st)
+
+  defp shut_down(st) do
     if st.dash do
       try do
         TartarusTools.Dashboard.stop(st.dash)
@@ -836,7 +840,7 @@ defmodule TartarusWarehouse.Floor do
       end
     end
 
-    stop_floor(st.ctx)
+    if st.ctx, do: stop_floor(st.ctx)
   end
 
   defp do_submit(job, st) do

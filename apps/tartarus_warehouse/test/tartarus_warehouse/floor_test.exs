@@ -268,7 +268,7 @@ defmodule TartarusWarehouse.FloorTest do
     assert :ok = Floor.await(f, 20_000)
 
     {:ok, r} = Floor.stop(f)
-    refute Process.alive?(f)
+    eventually(fn -> not Process.alive?(f) end)
     assert r.jobs == [1, 2, 3, 4, 5, 6, 7] and r.timed_out == [] and r.mutex_violations == 0
     # job 7 ran after robot 1 left; X ran after T1 from the insertion on
     assert Enum.all?(r.history, &(not (&1.job == 7 and &1.robot == "r1")))
