@@ -47,6 +47,29 @@ defmodule TartarusEmu.Dashboard do
     TartarusTools.Dashboard.start(Keyword.put(opts, :emulation, {__MODULE__, net}))
   end
 
+  @doc """
+  Starts a dashboard (not linked) for `net` from a runner's `dashboard:` value, a port or
+  dashboard options, with `panels` (`[{module, arg}]`), and prints its address and token
+  on `device`. Returns `{:ok, dash}`, or `{:error, message}` (a bad option, a port in use).
+  """
+  @spec serve(source(), non_neg_integer() | keyword(), [{module(), term()}], IO.device()) ::
+          {:ok, pid()} | {:error, String.t()}
+  def serve(net, spec, panels, device \\ :standard_error) do
+    opts = if is_integer(spec), do: [port: spec], else: spec
+
+    case start(net, Keyword.put_new(opts, :panels, panels)) do
+      {:ok, dash} ->
+        IO.puts(device, TartarusTools.Dashboard.banner(dash))
+        {:ok, dash}
+
+      {:error, reason} when is_binary(reason) ->
+        {:error, reason}
+
+      {:error, reason} ->
+        {:error, "dashboard: the web server did not start: #{inspect(reason)}"}
+    end
+  end
+
   @impl true
   @doc "The network's hosts in topology order, `up` unless isolated or killed."
   def hosts(net) when is_function(net, 0), do: if(n = net.(), do: hosts(n), else: [])

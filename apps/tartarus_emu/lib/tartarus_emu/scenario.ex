@@ -206,27 +206,17 @@ defmodule TartarusEmu.Scenario do
     with spec when spec != nil <- runner[:dashboard],
          net when is_struct(net, TartarusEmu.Network) or is_function(net, 0) <-
            network(module, state) do
-      opts = if is_integer(spec), do: [port: spec], else: spec
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
 
-      case TartarusEmu.Dashboard.start(net, Keyword.put_new(opts, :panels, panels)) do
-        {:ok, dash} ->
-          IO.puts(runner[:progress_device], TartarusTools.Dashboard.banner(dash))
-          {:ok, dash}
-
-        {:error, reason} ->
-          teardown(module, state)
-          {:error, dashboard_error(reason)}
+      with {:error, _} = error <-
+             TartarusEmu.Dashboard.serve(net, spec, panels, runner[:progress_device]) do
+        teardown(module, state)
+        error
       end
     else
       _ -> {:ok, nil}
     end
   end
-
-  @doc false
-  # A dashboard's start error in words.
-  def dashboard_error(reason) when is_binary(reason), do: reason
-  def dashboard_error(reason), do: "dashboard: the web server did not start: #{inspect(reason)}"
 
   defp teardown(module, state),
     do: if(function_exported?(module, :teardown, 1), do: module.teardown(state))

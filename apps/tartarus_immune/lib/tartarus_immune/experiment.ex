@@ -61,6 +61,7 @@ defmodule TartarusImmune.Experiment do
 
   alias TartarusEmu.{Network, Topology}
   alias TartarusImmune.{Cache, Convergence, Domain, IPkt, Maths, Params}
+  alias TartarusTools.Dashboard.Panel
   alias TartarusTools.Series
 
   @schema [
@@ -143,7 +144,11 @@ defmodule TartarusImmune.Experiment do
         )
 
       hosts = Network.host_list(net)
-      publish(o.panel, {:run, %{net: net, label: o.label, set: o.set, domain: domain}})
+
+      Panel.publish(
+        o.panel,
+        &:ets.insert(&1, {:run, %{net: net, label: o.label, set: o.set, domain: domain}})
+      )
 
       st = %{
         o: o,
@@ -260,7 +265,7 @@ defmodule TartarusImmune.Experiment do
       |> Series.record("total", k, pop |> Map.values() |> Enum.sum())
 
     conv = Convergence.observe(st.conv, k, pop)
-    publish(st.o.panel, {:round, k, pop, conv.converged})
+    Panel.publish(st.o.panel, &:ets.insert(&1, {:round, k, pop, conv.converged}))
 
     %{
       st
@@ -269,16 +274,6 @@ defmodule TartarusImmune.Experiment do
         last_step: k,
         events_at: Map.put(st.events_at, k, log_count(st))
     }
-  end
-
-  # The dashboard's table (the run does not depend on it: a table gone is ignored).
-  defp publish(nil, _row), do: :ok
-
-  defp publish(table, row) do
-    :ets.insert(table, row)
-    :ok
-  rescue
-    ArgumentError -> :ok
   end
 
   # What a log server of §6.5.1 would have counted by now: sharing (iPkt migrations to
@@ -561,7 +556,7 @@ defmodule TartarusImmune.Experiment do
 
   @impl true
   def teardown(st) do
-    if st.o.panel, do: TartarusImmune.Panel.clear(st.o.panel)
+    TartarusImmune.Panel.clear(st.o.panel)
     Network.stop(st.net)
   end
 end

@@ -23,14 +23,13 @@ defmodule TartarusImmune.Panel do
   @spec new() :: :ets.tid()
   def new, do: :ets.new(:tartarus_immune_panel, [:public, :set])
 
-  @doc "Forgets the run that ended (its network is going)."
-  @spec clear(:ets.tid()) :: :ok
+  @doc "Forgets the run that ended (its network is going); nothing without a table."
+  @spec clear(:ets.tid() | nil) :: :ok
   def clear(table) do
-    :ets.delete(table, :run)
-    :ets.delete(table, :round)
-    :ok
-  rescue
-    ArgumentError -> :ok
+    TartarusTools.Dashboard.Panel.publish(table, fn t ->
+      :ets.delete(t, :run)
+      :ets.delete(t, :round)
+    end)
   end
 
   @doc """

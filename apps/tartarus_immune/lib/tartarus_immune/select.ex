@@ -111,18 +111,15 @@ defmodule TartarusImmune.Select do
 
   defp dashboard(spec) do
     table = TartarusImmune.Panel.new()
-    opts = if is_integer(spec), do: [port: spec], else: spec
     net = fn -> TartarusImmune.Panel.network(table) end
-    panels = [{TartarusImmune.Panel, table}]
 
-    case TartarusEmu.Dashboard.start(net, Keyword.put_new(opts, :panels, panels)) do
+    case TartarusEmu.Dashboard.serve(net, spec, [{TartarusImmune.Panel, table}]) do
       {:ok, dash} ->
-        IO.puts(:stderr, TartarusTools.Dashboard.banner(dash))
         {:ok, {dash, table}}
 
-      {:error, reason} ->
+      error ->
         :ets.delete(table)
-        {:error, TartarusEmu.Scenario.dashboard_error(reason)}
+        error
     end
   end
 

@@ -35,6 +35,7 @@ defmodule TartarusWarehouse.Floor do
   use GenServer
 
   alias TartarusEmu.{Network, Topology}
+  alias TartarusTools.Dashboard.Panel
   alias TartarusWarehouse.{Checker, Job, Robot}
 
   @schema [
@@ -362,7 +363,7 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp publish_floor(ctx, jobs, t0) do
-    publish(ctx.status, fn t ->
+    Panel.publish(ctx.status, fn t ->
       :ets.insert(t, [
         {:floor,
          %{
@@ -382,15 +383,7 @@ defmodule TartarusWarehouse.Floor do
     :ok = TartarusEmu.Log.sync(ctx.log)
     totals = TartarusEmu.Log.totals(ctx.log)
 
-    history =
-      ctx.robot_hosts
-      |> Enum.flat_map(fn {_, h} ->
-        case Tartarus.read_plugin(h, :robot, :history) do
-          {:ok, list} -> list
-          _ -> []
-        end
-      end)
-      |> Enum.sort_by(& &1.start_us)
+    history = Robot.history(ctx.robot_hosts)
 
     last = completed |> Map.values() |> Enum.max(fn -> t0 end)
 
@@ -412,7 +405,7 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp stop_floor(ctx) do
-    publish(ctx.status, &:ets.delete(&1, :floor))
+    Panel.publish(ctx.status, &:ets.delete(&1, :floor))
     TartarusEmu.Log.stop(ctx.log)
     Network.stop(ctx.net)
     if ctx.data_dir, do: File.rm_rf(ctx.data_dir)
@@ -508,7 +501,7 @@ defmodule TartarusWarehouse.Floor do
         receive do
           {:warehouse_job_done, id, at} ->
             done = Map.put(done, id, at)
-            publish(ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(done)}))
+            Panel.publish(ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(done)}))
             fire(events, map_size(done), ctx)
             await(opts, events, ctx, done, total, t0)
         after
@@ -516,16 +509,6 @@ defmodule TartarusWarehouse.Floor do
             await(opts, events, ctx, done, total, t0)
         end
     end
-  end
-
-  # The dashboard's table (the run does not depend on it: a table gone is ignored).
-  defp publish(nil, _fun), do: :ok
-
-  defp publish(table, fun) do
-    fun.(table)
-    :ok
-  rescue
-    ArgumentError -> :ok
   end
 
   defp events(opts),
@@ -721,17 +704,12 @@ defmodule TartarusWarehouse.Floor do
 
   defp start_dashboard(nil, _ctx, _table), do: {:ok, nil}
 
+  # Linked once started: it goes with the floor.
   defp start_dashboard(spec, ctx, table) do
-    opts = if is_integer(spec), do: [port: spec], else: spec
-    panels = [{TartarusWarehouse.Panel, table}]
-
-    case TartarusEmu.Dashboard.start_link(ctx.net, Keyword.put_new(opts, :panels, panels)) do
-      {:ok, dash} ->
-        IO.puts(TartarusTools.Dashboard.banner(dash))
-        {:ok, dash}
-
-      {:error, reason} ->
-        {:error, if(is_binary(reason), do: reason, else: "dashboard: #{inspect(reason)}")}
+    with {:ok, dash} <-
+           TartarusEmu.Dashboard.serve(ctx.net, spec, [{TartarusWarehouse.Panel, table}]) do
+      Process.link(dash)
+      {:ok, dash}
     end
   end
 
@@ -804,7 +782,7 @@ defmodule TartarusWarehouse.Floor do
   @impl GenServer
   def handle_info({:warehouse_job_done, id, at}, st) do
     st = %{st | done: Map.put(st.done, id, at)}
-    publish(st.ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(st.done)}))
+    Panel.publish(st.ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(st.done)}))
 
     if all_done?(st) do
       Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, :ok) end)
@@ -848,7 +826,7 @@ defmodule TartarusWarehouse.Floor do
          false <- job.id in st.jobs,
          :ok <- submit_one(st.ctx.dref, job) do
       st = %{st | jobs: st.jobs ++ [job.id]}
-      publish(st.ctx.status, &:ets.update_element(&1, :jobs, {2, length(st.jobs)}))
+      Panel.publish(st.ctx.status, &:ets.update_element(&1, :jobs, {2, length(st.jobs)}))
       {:ok, st}
     else
       {:error, message} -> {{:error, message}, st}

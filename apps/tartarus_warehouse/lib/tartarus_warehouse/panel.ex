@@ -164,15 +164,7 @@ defmodule TartarusWarehouse.Panel do
     do: "Mutual exclusion is checked after the run on floors this large."
 
   defp violations_text(robots) do
-    history =
-      Enum.flat_map(robots, fn {_, host} ->
-        case Tartarus.read_plugin(host, :robot, :history) do
-          {:ok, list} -> list
-          _ -> []
-        end
-      end)
-
-    case length(Checker.violations(history)) do
+    case length(Checker.violations(TartarusWarehouse.Robot.history(robots))) do
       0 -> "No two robots have held one resource at once so far."
       n -> "MUTUAL-EXCLUSION VIOLATIONS so far: #{n}."
     end

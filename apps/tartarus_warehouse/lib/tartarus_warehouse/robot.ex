@@ -62,6 +62,23 @@ defmodule TartarusWarehouse.Robot do
   """
   @behaviour Tartarus.Plugin
 
+  @doc """
+  Every execution the robots ran so far (`robot_hosts`: `%{name => host}` or a list of
+  `{name, host}`, each with this plugin attached as `:robot`), by start time: the event
+  log `TartarusWarehouse.Checker` reads. A robot that cannot be read adds nothing.
+  """
+  @spec history(Enumerable.t()) :: [map()]
+  def history(robot_hosts) do
+    robot_hosts
+    |> Enum.flat_map(fn {_, host} ->
+      case Tartarus.read_plugin(host, :robot, :history) do
+        {:ok, list} -> list
+        _ -> []
+      end
+    end)
+    |> Enum.sort_by(& &1.start_us)
+  end
+
   @impl true
   def init(opts) do
     case Keyword.fetch(opts, :robot) do

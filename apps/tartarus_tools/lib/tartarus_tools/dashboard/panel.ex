@@ -81,6 +81,29 @@ defmodule TartarusTools.Dashboard.Panel do
     ArgumentError -> :gone
   end
 
+  @doc """
+  What a run does to publish itself for its panel: `fun.(table)` (an insert, an update, a
+  delete), or nothing when there is no table (no dashboard) or it is gone. The run never
+  depends on the page.
+
+      iex> t = :ets.new(:panel_doc, [:public])
+      iex> TartarusTools.Dashboard.Panel.publish(t, &:ets.insert(&1, {:round, 3}))
+      :ok
+      iex> TartarusTools.Dashboard.Panel.lookup(t, :round)
+      [{:round, 3}]
+      iex> TartarusTools.Dashboard.Panel.publish(nil, &:ets.insert(&1, {:round, 4}))
+      :ok
+  """
+  @spec publish(:ets.tid() | atom() | nil, (:ets.tid() | atom() -> term())) :: :ok
+  def publish(nil, _fun), do: :ok
+
+  def publish(table, fun) do
+    fun.(table)
+    :ok
+  rescue
+    ArgumentError -> :ok
+  end
+
   @doc "The panel's name in URLs (letters, digits, `_` and `-`)."
   @callback name(arg :: term()) :: String.t()
 
