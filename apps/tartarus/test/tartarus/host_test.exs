@@ -59,8 +59,9 @@ defmodule Tartarus.HostTest do
   test "an agent arriving while its destination stops is refused and stays where it was; the destination's server does not crash" do
     [a, b] = line!(2)
     {:ok, server} = Host.whereis(b)
-    # A stopping host: its supervisor stops the agents' supervisor before the server.
-    :ok = Supervisor.terminate_child(Host.via(:host_sup, b), :agents)
+    # A stopping host: its supervisor stops the keeper (which marks the host stopping) before
+    # the server.
+    :ok = Supervisor.terminate_child(Host.via(:host_sup, b), :keeper)
     id = agent!(a)
     assert {:error, _} = Tartarus.move({id, a}, b)
     assert_receive {:probe_move_failed, ^id, _, _, ctx}

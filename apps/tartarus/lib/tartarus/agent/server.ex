@@ -43,7 +43,7 @@ defmodule Tartarus.Agent.Server do
   require Tartarus.Events
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Inbox, Protocol}
 
   # How long a host waits before it sends the acknowledgements of its arrivals (one batch per
   # source host, see Host.Server).
@@ -53,84 +53,92 @@ defmodule Tartarus.Agent.Server do
   @host :"$tartarus_host"
   @watchdog :"$tartarus_watchdog"
 
-  # Reaching a busy agent (see "reaching a busy agent" below): the messages this process has
-  # still to handle before it returns to its mailbox, and the last message tag taken from
-  # each recent sender (it travels with the agent from process to process).
-  @pending :"$tartarus_pending"
-  @seen :"$tartarus_seen"
-  @seen_max 1024
-
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
   # the timer it arms on every wait costs about a fifth of the migration throughput.
-  def start_link({host, _key, _mode} = arg) do
-    opts =
-      [
-        hibernate_after: host.opts.hibernate_after,
-        spawn_opt: heap_limit(host.opts.max_heap_size)
-      ]
-      |> Enum.reject(fn {_, v} -> v in [:infinity, []] end)
-
-    GenServer.start_link(__MODULE__, arg, opts)
+  #
+  # The host's server starts agents itself (start/3), monitored from their first instant
+  # (spawn_opt's :monitor): no supervisor call and no start-up handshake on the path of a
+  # hop or a create. The host's server restarts crashed agents from their snapshots and,
+  # when it stops (its terminate/2), kills them all (see Tartarus.Host.Server).
+  @doc false
+  @spec start(map(), reference(), term()) :: {pid(), reference()}
+  def start(host, key, mode) do
+    :proc_lib.spawn_opt(__MODULE__, :enter, [host, key, mode], [
+      :monitor | heap_limit(host.opts.max_heap_size)
+    ])
   end
 
   defp heap_limit(:infinity), do: []
   defp heap_limit(words), do: [max_heap_size: %{size: words, kill: true, error_logger: false}]
 
+  defp loop_opts(%{opts: %{hibernate_after: :infinity}}), do: []
+  defp loop_opts(%{opts: %{hibernate_after: ms}}), do: [hibernate_after: ms]
+
   # -- start ---------------------------------------------------------------------
+
+  @doc false
+  # The new process's entry point (start/3): reads its snapshot and becomes a gen_server.
+  def enter(host, key, mode) do
+    # No parent: gen_server would stop on any {:EXIT, parent, _} message, and anyone can send
+    # one. This process stops on its host's signals by the rules of handle_info/2.
+    Process.put(:"$ancestors", [self() | Process.get(:"$ancestors", [])])
+
+    case init({host, key, mode}) do
+      {:ok, data} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data)
+      {:ok, data, cont} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data, cont)
+      {:stop, reason} -> exit(reason)
+    end
+  end
 
   @impl true
   def init({host, key, mode}) do
     [{_, env}] = :ets.lookup(host.ledger, {:snapshot, key})
-    Process.put(:"$tartarus_snapshot_key", key)
-    start(host, env, mode)
+    Process.put(@host, host)
+
+    data = %{
+      host: host,
+      env: env,
+      key: key,
+      paused: nil,
+      inbox: Inbox.new(),
+      pending: []
+    }
+
+    start(data, mode)
   end
 
   # The agent's init/1 runs after this process started (see handle_continue({:init, _})).
-  defp start(host, env, {:create, args}) do
-    env = %{env | visits: %{host.ref => 1}}
-    Process.put(@host, host)
-    {:ok, %{host: host, env: env, paused: nil}, {:continue, {:go, {:init, args}}}}
+  defp start(data, {:create, args}) do
+    {:ok, put_in(data.env.visits, %{data.host.ref => 1}), {:continue, {:init, args}}}
   end
 
   # `src_pid`: the source agent's process when the prepare came from it (nil for a copy
-  # revived from the journal): it hands over the messages it held right after its commit.
-  defp start(host, env, {:paused, mig, copy, src, kind, src_pid}) do
-    Process.put(@host, host)
-    Process.put(:"$tartarus_src_pid", src_pid)
-
+  # revived from the journal): its commit carries the messages it held.
+  defp start(%{host: host} = data, {:paused, mig, copy, src, kind, src_pid}) do
     c =
       Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
 
     timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
-    {:ok, %{host: host, env: env, paused: %{c: c, timer: timer, stash: []}}}
+
+    {:ok,
+     %{data | paused: %{c: c, timer: timer, stash: [], src_pid: src_pid, handover: :none}}}
   end
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
   # host started again on its data directory.
-  defp start(host, env, {:restart, n}) do
-    Process.put(@host, host)
-    crashed_on(host, env.id)
-    data = %{host: host, env: env, paused: nil}
+  defp start(data, {:restart, n}) do
+    data = crashed_on(data)
 
-    case Ledger.register_resident(host, env, self()) do
-      :ok -> {:ok, data, {:continue, {:go, {:arrive, %{ctx(data) | restarts: n}}}}}
+    case Ledger.register_resident(data.host, data.env, self()) do
+      :ok -> {:ok, data, {:continue, {:arrive, %{ctx(data) | restarts: n}}}}
       {:error, reason} -> {:stop, reason}
     end
   end
 
-  defp start(host, env, :restore), do: start(host, env, {:restart, 0})
+  defp start(data, :restore), do: start(data, {:restart, 0})
 
   @impl true
-  # The agent's code runs only once its host watches it (the host sends :"$tartarus_go" right
-  # after it monitors the new process), so an immediate crash or stop is seen for what it is.
-  def handle_continue({:go, next}, data) do
-    receive do
-      :"$tartarus_go" -> handle_continue(next, data)
-    after
-      5_000 -> handle_continue(next, data)
-    end
-  end
 
   def handle_continue({:init, args}, data) do
     env = data.env
@@ -184,9 +192,15 @@ defmodule Tartarus.Agent.Server do
           end
       end
 
-    # Whether the event that may start the copy is its source's own commit (then the
-    # source's hand-over of messages follows it; see commit/2).
-    Process.put(:"$tartarus_direct_commit", match?({:commit, _, _, _}, event))
+    # The source's own commit carries its hand-over of messages (see commit/2).
+    p =
+      case {event, msg} do
+        {{:commit, mig, copy, _}, {_, _, _, _, handover}} when mig == p.c.mig and copy == p.c.copy ->
+          %{p | handover: handover}
+
+        _ ->
+          p
+      end
 
     {c, actions} = Protocol.copy_step(p.c, event)
     paused_actions(actions, %{data | paused: %{p | c: c}})
@@ -199,7 +213,10 @@ defmodule Tartarus.Agent.Server do
   # data directory), so an acknowledged change survives SIGKILL and restart.
   def handle_info({:"$tartarus_msg", {pid, _ref} = from, kind, _msg} = m, data)
       when is_pid(pid) and kind in [:post, :request] do
-    if take?(from), do: handle_msg(m, data), else: {:noreply, data}
+    case Inbox.take(data.inbox, from) do
+      {true, inbox} -> handle_msg(m, %{data | inbox: inbox})
+      {false, _} -> {:noreply, data}
+    end
   end
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
@@ -210,10 +227,13 @@ defmodule Tartarus.Agent.Server do
       else: user_info(msg, data)
   end
 
-  # A hand-over that came after this process stopped waiting for it (its source was slow):
-  # what this process took meanwhile is not taken twice.
-  def handle_info({:"$tartarus_handover", _mig, _pid, msgs, _seen}, data) when is_list(msgs),
-    do: handle_pending(take_new(msgs, []), data, fn data -> {:noreply, data} end)
+  # A commit (with its hand-over) that came after this process stopped waiting for it (its
+  # source was slow): what this process took meanwhile is not taken twice.
+  def handle_info({:"$tartarus_commit", _mig, _copy, _notify, {msgs, _}}, data)
+      when is_list(msgs) do
+    {msgs, inbox} = Inbox.take_new(data.inbox, msgs)
+    handle_pending(msgs, %{data | inbox: inbox}, fn data -> {:noreply, data} end)
+  end
 
   # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
   # twice, or a timer that fired as it committed: not for the agent's code.
@@ -269,14 +289,14 @@ defmodule Tartarus.Agent.Server do
 
   # After a crash: the message whose handling crashed the agent (host option :durable) is
   # answered with an error and not taken again.
-  defp crashed_on(host, id) do
-    case :ets.take(host.ledger, {:handling, id}) do
+  defp crashed_on(data) do
+    case :ets.take(data.host.ledger, {:handling, data.env.id}) do
       [{_, {pid, ref} = from}] ->
-        take?(from)
         send(pid, {ref, {:failed, :agent_crashed}})
+        %{data | inbox: elem(Inbox.take(data.inbox, from), 1)}
 
       [] ->
-        :ok
+        data
     end
   end
 
@@ -663,14 +683,30 @@ defmodule Tartarus.Agent.Server do
     source_actions(rest, s, x)
   end
 
+  # A move's commit carries the hand-over of messages (see "reaching a busy agent"): the
+  # messages this process took and had not handled, then those in its mailbox.
+  defp source_actions([{:send, pid, {:"$tartarus_commit", mig, copy, notify, _}} | rest], s, x) do
+    Tartarus.Fault.point(:committing, pid)
+    data = x.data
+
+    {handover, data} =
+      if s.kind == :move do
+        {msgs, inbox} = Inbox.handover(data.inbox, data.pending, drain([]))
+        {{msgs, inbox}, %{data | inbox: inbox, pending: []}}
+      else
+        {nil, data}
+      end
+
+    send(pid, Protocol.commit(mig, copy, notify, handover))
+    source_actions(rest, s, %{x | data: data})
+  end
+
   defp source_actions([{:send, pid, msg} | rest], s, x) do
-    if elem(msg, 0) == :"$tartarus_commit", do: Tartarus.Fault.point(:committing, pid)
     send(pid, msg)
     source_actions(rest, s, x)
   end
 
-  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move} = s, x) do
-    hand_over(new_pid, s.mig)
+  defp source_actions([{:done, {:committed, _copy, new_pid}} | _], %{kind: :move}, x) do
     {:moved, new_pid, x.data}
   end
 
@@ -735,24 +771,29 @@ defmodule Tartarus.Agent.Server do
 
   defp commit(%{paused: %{c: c} = p} = data, notify) do
     Process.cancel_timer(p.timer)
-    # A move: the source hands over the messages it held right after its commit. Wait for
-    # them before taking anything else, whether the commit came from the source or from a
-    # decision query (the source may be slow, not gone: taking newer messages first would
-    # break a sender's order and the memory of what was taken), unless the source is gone.
-    direct = Process.delete(:"$tartarus_direct_commit") == true
-    src_pid = Process.delete(:"$tartarus_src_pid")
-
+    # A move: the source's commit carries the messages it held. If this copy learnt the
+    # decision by asking (the commit is late or lost) while the source process lives, wait
+    # for that commit before taking anything else (the source may be slow, not gone: taking
+    # newer messages first would break a sender's order and the memory of what was taken).
     handover =
-      if c.kind == :move and (direct or is_pid(src_pid)),
-        do: await_handover(c.mig, data.host.opts.migration_timeout, src_pid),
-        else: []
+      case p.handover do
+        :none when c.kind == :move and is_pid(p.src_pid) ->
+          await_commit(c.mig, data.host.opts.migration_timeout, p.src_pid)
+
+        other ->
+          other
+      end
+
+    {handed, inbox} = Inbox.receive_handover(data.inbox, handover)
 
     # Messages that came while paused are new here unless the hand-over says otherwise.
     {msgs, others} =
       Enum.split_with(Enum.reverse(p.stash), &match?({:"$tartarus_msg", _, _, _}, &1))
 
     Enum.each(others, &send(self(), &1))
-    pending = handover ++ Enum.filter(msgs, &take_new?/1)
+    {fresh, inbox} = Inbox.take_new(inbox, msgs)
+    pending = handed ++ fresh
+    data = %{data | inbox: inbox}
     host = data.host
     now = System.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
@@ -804,20 +845,8 @@ defmodule Tartarus.Agent.Server do
   end
 
   # -- reaching a busy agent --------------------------------------------------------
-  # A sender tags each message once and sends it again, with the same tag, wherever the
-  # agent went when the process it sent it to ends (Tartarus.Locator.deliver/4). The agent
-  # takes a tag once: it remembers the last tag taken from each recent sender (a sender
-  # has one message outstanding at a time), and that memory travels with it. A process that
-  # moves away hands the messages it took and had not handled, and those in its mailbox,
-  # with its memory, to its successor in one message sent right after the commit; the
-  # successor handles them before anything else. A copy that arrives after the hand-over
-  # is lost with the process, and sent again by its sender. So each message is handled
-  # once wherever the agent runs, and a sender's messages in the order it sent them.
-
-  defp hand_over(new_pid, mig) do
-    msgs = (Process.delete(@pending) || []) ++ Enum.filter(drain([]), &take_new?/1)
-    send(new_pid, {:"$tartarus_handover", mig, self(), msgs, Process.get(@seen, %{})})
-  end
+  # Tartarus.Migration.Inbox decides what is taken and what is handed over; this process
+  # drains its mailbox into the commit (source) and handles the hand-over first (successor).
 
   defp drain(acc) do
     receive do
@@ -827,85 +856,34 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  # The messages of a list (proper or not, from anywhere) taken now, in order.
-  defp take_new([m | rest], acc), do: take_new(rest, if(take_new?(m), do: [m | acc], else: acc))
-  defp take_new(_, acc), do: Enum.reverse(acc)
-
-  defp take_new?({:"$tartarus_msg", {pid, _} = from, kind, _})
-       when is_pid(pid) and kind in [:post, :request],
-       do: take?(from)
-
-  defp take_new?(_), do: false
-
-  # True (and remembered) unless `tag` was taken from `pid` already. A sender's tags grow
-  # (Tartarus.Locator numbers them in the order it sends), so a tag at or under the last one
-  # taken from that sender is old: a copy sent again that arrives after the sender's next
-  # message was taken (it reached a paused copy's stash, say) is not taken a second time.
-  defp take?({pid, tag}) do
-    seen = Process.get(@seen, %{})
-
-    case seen do
-      %{^pid => {_, ^tag}} ->
-        false
-
-      %{^pid => {_, last}} when is_integer(last) and is_integer(tag) and tag < last ->
-        false
-
-      _ ->
-        n = Process.get(:"$tartarus_seen_n", 0) + 1
-        Process.put(:"$tartarus_seen_n", n)
-        Process.put(@seen, trim(Map.put(seen, pid, {n, tag})))
-        true
-    end
-  end
-
-  # At most @seen_max senders remembered: the oldest half goes when it is full.
-  defp trim(seen) when map_size(seen) <= @seen_max, do: seen
-
-  defp trim(seen) do
-    seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@seen_max, 2)) |> Map.new()
-  end
-
-  defp await_handover(mig, timeout, src_pid) do
-    mref = if is_pid(src_pid), do: Process.monitor(src_pid)
+  # The source's own commit, when the decision came from asking (see commit/2).
+  defp await_commit(mig, timeout, src_pid) do
+    mref = Process.monitor(src_pid)
 
     receive do
-      # The source ended without handing over (it sends the hand-over before it ends).
-      {:DOWN, ^mref, :process, _, _} when mref != nil ->
-        []
+      # The source ended without sending it (it sends the commit before it ends).
+      {:DOWN, ^mref, :process, _, _} ->
+        nil
 
-      {:"$tartarus_handover", ^mig, pid, msgs, seen}
-      when is_pid(pid) and is_list(msgs) and is_map(seen) ->
-        Process.put(@seen, seen)
-
-        Process.put(
-          :"$tartarus_seen_n",
-          Enum.reduce(seen, 0, fn {_, {n, _}}, acc -> max(n, acc) end)
-        )
-
-        if mref, do: Process.demonitor(mref, [:flush])
-        msgs
+      {:"$tartarus_commit", ^mig, _copy, _notify, handover} ->
+        Process.demonitor(mref, [:flush])
+        handover
     after
       timeout ->
-        if mref, do: Process.demonitor(mref, [:flush])
-        []
+        Process.demonitor(mref, [:flush])
+        nil
     end
   end
 
   # Handles `msgs` one by one as if they came from the mailbox, then calls `next`; if one
-  # of them stops the process (a move), the others are left in @pending for hand_over/2.
+  # of them stops the process (a move), the others are left in data.pending for the
+  # hand-over.
   defp handle_pending([], data, next), do: next.(data)
 
   defp handle_pending([m | rest], data, next) do
-    Process.put(@pending, rest)
-
-    case handle_msg(m, data) do
-      {:noreply, data} ->
-        Process.delete(@pending)
-        handle_pending(rest, data, next)
-
-      other ->
-        other
+    case handle_msg(m, %{data | pending: rest}) do
+      {:noreply, data} -> handle_pending(rest, %{data | pending: []}, next)
+      other -> other
     end
   end
 
@@ -914,7 +892,7 @@ defmodule Tartarus.Agent.Server do
   # The agent is resident here as `data.env`: that is its arrival snapshot, for restarts
   # after a crash and (with persistence) after the host's restart.
   defp arrived(data) do
-    :ets.insert(data.host.ledger, {{:snapshot, Process.get(:"$tartarus_snapshot_key")}, data.env})
+    :ets.insert(data.host.ledger, {{:snapshot, data.key}, data.env})
     Tartarus.Host.Persistence.checkpoint(data.host, data.env)
   end
 
@@ -936,7 +914,7 @@ defmodule Tartarus.Agent.Server do
 
   # The creator of this agent, if no one answered it yet (see the top of this module).
   defp created(data, reply) do
-    case :ets.take(data.host.ledger, {:creating, Process.get(:"$tartarus_snapshot_key")}) do
+    case :ets.take(data.host.ledger, {:creating, data.key}) do
       [{_, from}] -> GenServer.reply(from, reply)
       [] -> :ok
     end

@@ -80,6 +80,8 @@ defmodule Tartarus.Host.Server do
      %{
        host: host,
        monitors: %{},
+       # The same agents by pid (to kill them all when this server stops).
+       pids: %{},
        # Agents being killed: pid => {escalation timer, callers to answer}.
        killing: %{},
        # Agents stopped by the watchdog: pid => {:callback_timeout, callback, ms}.
@@ -356,6 +358,7 @@ defmodule Tartarus.Host.Server do
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
+    state = %{state | pids: Map.delete(state.pids, pid)}
     {kill, killing} = Map.pop(state.killing, pid)
     {overrun, overran} = Map.pop(state.overran, pid)
     reason = overrun || reason
@@ -400,6 +403,10 @@ defmodule Tartarus.Host.Server do
 
   @impl true
   def terminate(_reason, state) do
+    # Stopping a host kills its agents outright: they have no terminate work, and an agent
+    # that traps exits must not hold up stop_host (see start_agent/5).
+    :ets.insert(state.host.ledger, {:stopping, true})
+    Enum.each(state.pids, fn {pid, _} -> Process.exit(pid, :kill) end)
     Tartarus.Host.Persistence.close(state.host.journal)
   catch
     :exit, _ -> :ok
@@ -676,40 +683,34 @@ defmodule Tartarus.Host.Server do
   # The envelope an agent starts from is its arrival snapshot: kept in the ledger table (not
   # in this server's or the supervisor's heap, which would then hold and garbage-collect
   # every resident's state) for restarts, and read by the agent's process when it starts.
+  #
+  # This server starts its agents itself, monitored from their first instant (see
+  # Tartarus.Agent.Server.start/3): no supervisor call on the path of a hop or a create.
+  # Restarts are this server's (agent_down/5); when it stops, its terminate/2 kills them all
+  # (as a supervisor with shutdown: :brutal_kill would). The one case it cannot cover is its
+  # own death by an untrappable :kill: its agents then lose their ledger (owned by this
+  # process) and end at their next step that reads it.
   defp start_agent(state, env, mode, restarts \\ 0, creator \\ nil) do
-    sup = Tartarus.Host.via(:agents, elem(state.host.ref, 0))
     key = make_ref()
     :ets.insert(state.host.ledger, {{:snapshot, key}, env})
     if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
 
-    case start_child(sup, {Tartarus.Agent.Server, {state.host, key, mode}}) do
-      {:ok, pid} ->
-        mref = Process.monitor(pid)
-        # Paused copies run nothing until their commit; the others wait for this.
-        unless match?({:paused, _, _, _, _, _}, mode), do: send(pid, :"$tartarus_go")
-        entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
-        {:ok, pid, %{state | monitors: Map.put(state.monitors, mref, entry)}}
+    if :ets.member(state.host.ledger, :stopping) do
+      :ets.delete(state.host.ledger, {:snapshot, key})
+      :ets.delete(state.host.ledger, {:creating, key})
+      {:error, :host_stopping, state}
+    else
+      {pid, mref} = Tartarus.Agent.Server.start(state.host, key, mode)
+      entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
 
-      {:error, reason} ->
-        :ets.delete(state.host.ledger, {:snapshot, key})
-        :ets.delete(state.host.ledger, {:creating, key})
-        {:error, unwrap(reason), state}
+      {:ok, pid,
+       %{state | monitors: Map.put(state.monitors, mref, entry), pids: Map.put(state.pids, pid, mref)}}
     end
   end
 
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
 
-  # While a host stops, its supervisor stops the agents' supervisor before this server (the
-  # reverse of their start order): an arrival in that window is refused, not a crash.
-  defp start_child(sup, spec) do
-    DynamicSupervisor.start_child(sup, spec)
-  catch
-    :exit, {reason, _} when reason in [:noproc, :shutdown, :normal] -> {:error, :host_stopping}
-  end
-
-  defp unwrap({:bad_init, reason}), do: reason
-  defp unwrap(reason), do: reason
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host

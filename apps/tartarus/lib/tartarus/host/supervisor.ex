@@ -3,15 +3,18 @@ defmodule Tartarus.Host.Supervisor do
   # One host's process tree:
   #
   #   Host.Supervisor        :one_for_all, at most @max_restarts restarts in @max_seconds s
-  #   ├── Host.Server        owns the ledger and store tables
-  #   ├── agents             DynamicSupervisor of the host's agents
+  #   ├── Host.Server        owns the ledger and store tables; starts, monitors, restarts
+  #   │                      and (when it stops) kills the host's agents
   #   ├── plugins            DynamicSupervisor of the host's plugins
   #   └── Host.Keeper        brings a restarted host back (see below)
   #
   # The server comes first because it owns the ledger and store tables the agents and plugins
-  # use; the agents' and plugins' supervisors follow, so on shutdown agents and plugins stop
-  # before their tables disappear. :one_for_all because agents and plugins hold references to
-  # the server's tables: a restarted server means a fresh host.
+  # use; the plugins' supervisor follows, so on shutdown plugins stop before their tables
+  # disappear; the server kills its agents in its terminate/2. Agents are not a supervisor's
+  # children: a create or an arrival would otherwise wait on one more process (the
+  # supervisor's start_child call and the child's start handshake) on the path of every hop.
+  # :one_for_all because agents and plugins hold references to the server's tables: a
+  # restarted server means a fresh host.
   #
   # A host whose server (or any other child) crashes is restarted, all of it, up to
   # @max_restarts times in @max_seconds seconds; beyond that the host stops for good (its
@@ -39,12 +42,6 @@ defmodule Tartarus.Host.Supervisor do
 
     children = [
       {Tartarus.Host.Server, {name, opts}},
-      %{
-        id: :agents,
-        start:
-          {DynamicSupervisor, :start_link, [[strategy: :one_for_one, name: via(:agents, name)]]},
-        type: :supervisor
-      },
       %{
         id: :plugins,
         start:
@@ -107,8 +104,8 @@ defmodule Tartarus.Host.Keeper do
     {:noreply, state}
   end
 
-  # The host is stopping (or restarting): its agents are about to be killed by their
-  # supervisor. The mark tells the host's server not to take their deaths for crashes (no
+  # The host is stopping (or restarting): its agents are about to be killed by the host's
+  # server. The mark tells the host's server not to take their deaths for crashes (no
   # restart, no removal: with persistence they are restored when the host starts again).
   @impl true
   def terminate(_reason, %{host: host}) do

@@ -25,7 +25,10 @@ defmodule Tartarus.Migration.Protocol do
       H  -> S   {:"$tartarus_need", mig, [module]}        modules H lacks; S resends with code
       H  -> S   {:"$tartarus_prepared", mig, copy, a_pid} A exists, paused, journaled
       H  -> S   {:"$tartarus_refused", mig, reason}       nothing was created
-      S  -> A   {:"$tartarus_commit", mig, copy, notify}  A becomes the agent
+      S  -> A   {:"$tartarus_commit", mig, copy, notify, handover}
+                                                        A becomes the agent; `handover` (a
+                                                        move's) carries the messages S took
+                                                        and had not handled, see below
       A  -> Hs  {:"$tartarus_decision?", mig, id, copy, a_pid}
       Hs -> A   {:"$tartarus_decision", mig, copy, :committed | {:committed, notify} | :aborted | :unknown}
       A  -> Hs  {:"$tartarus_acks", [{mig, id, copy}]}         A runs: Hs may forget the decision
@@ -135,9 +138,14 @@ defmodule Tartarus.Migration.Protocol do
   @spec refused(mig(), term()) :: tuple()
   def refused(mig, reason), do: {:"$tartarus_refused", mig, reason}
 
-  @doc "The `commit` message."
-  @spec commit(mig(), copy_token(), term()) :: tuple()
-  def commit(mig, copy, notify), do: {:"$tartarus_commit", mig, copy, notify}
+  @doc """
+  The `commit` message. A move's carries the source process's hand-over of messages,
+  `{msgs, seen}` (`Tartarus.Migration.Inbox.handover/2`): a hop is three messages,
+  `prepare`, `prepared`, `commit`.
+  """
+  @spec commit(mig(), copy_token(), term(), term()) :: tuple()
+  def commit(mig, copy, notify, handover \\ nil),
+    do: {:"$tartarus_commit", mig, copy, notify, handover}
 
   @doc "The decision query of a paused copy."
   @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
@@ -178,7 +186,8 @@ defmodule Tartarus.Migration.Protocol do
   def classify({:"$tartarus_prepared", mig, copy, pid}), do: {:prepared, mig, copy, pid}
   def classify({:"$tartarus_need", mig, mods}), do: {:need, mig, mods}
   def classify({:"$tartarus_refused", mig, reason}), do: {:refused, mig, reason}
-  def classify({:"$tartarus_commit", mig, copy, notify}), do: {:commit, mig, copy, notify}
+  def classify({:"$tartarus_commit", mig, copy, notify, _handover}),
+    do: {:commit, mig, copy, notify}
   def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
   def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
   def classify({:"$tartarus_acks", list}), do: {:acks, list}
@@ -473,7 +482,7 @@ defmodule Tartarus.Migration.Protocol do
       [{:decide, :m, {:committed, :c}}]
       iex> {_s, acts} = P.source_step(s, {:decided, true})
       iex> acts
-      [{:record_commit, :move, :m, :c}, {:end_handoff, :m}, {:send, :a, {:"$tartarus_commit", :m, :c, nil}}, {:done, {:committed, :c, :a}}]
+      [{:record_commit, :move, :m, :c}, {:end_handoff, :m}, {:send, :a, {:"$tartarus_commit", :m, :c, nil, nil}}, {:done, {:committed, :c, :a}}]
   """
   @spec source_step(map(), term()) :: {map(), [action()]}
   def source_step(%{phase: :preparing, mig: mig} = s, {:prepared, mig, copy, pid}),

@@ -1,0 +1,107 @@
+defmodule Tartarus.Migration.Inbox do
+  @moduledoc """
+  Exactly-once hand-over of messages to a moving agent, as pure functions.
+
+  A sender tags each message once (`Tartarus.Locator` numbers them in the order it sends,
+  per node) and sends it again, with the same tag, wherever the agent went when the process
+  it sent it to ends. The agent takes a tag once: the inbox remembers the last tag taken
+  from each recent sender (a sender has one message outstanding at a time), and that memory
+  travels with the agent from process to process inside the `commit` message
+  (`Tartarus.Migration.Protocol.commit/4`), together with the messages the old process took
+  and had not handled. The successor handles those before anything else. A copy that
+  reaches the old process after the hand-over is lost with it and sent again by its sender
+  (the old process's exit names its successor). So each message is handled once wherever
+  the agent runs, and a sender's messages in the order it sent them.
+
+  A message here is `{:"$tartarus_msg", {sender_pid, tag}, kind, body}` with `kind` in
+  `:post | :request`.
+
+      iex> alias Tartarus.Migration.Inbox
+      iex> pid = self()
+      iex> {true, i} = Inbox.take(Inbox.new(), {pid, 1})
+      iex> {false, i} = Inbox.take(i, {pid, 1})
+      iex> {false, _} = Inbox.take(i, {pid, 0})
+      iex> {true, _} = Inbox.take(i, {pid, 2})
+  """
+
+  @max 1024
+
+  @typedoc "The memory of what was taken: sender => {order, last tag}, and the order counter."
+  @type t :: %{seen: %{optional(pid()) => {non_neg_integer(), term()}}, n: non_neg_integer()}
+
+  @doc "An empty inbox."
+  @spec new() :: t()
+  def new, do: %{seen: %{}, n: 0}
+
+  @doc """
+  Whether a message from `{pid, tag}` is new (then it is remembered as taken). A sender's
+  tags grow, so a tag at or under the last one taken from that sender is old: a copy sent
+  again that arrives after the sender's next message was taken is not taken a second time.
+  At most #{@max} senders are remembered: the oldest half goes when it is full.
+  """
+  @spec take(t(), {pid(), term()}) :: {boolean(), t()}
+  def take(%{seen: seen, n: n} = inbox, {pid, tag}) do
+    case seen do
+      %{^pid => {_, ^tag}} ->
+        {false, inbox}
+
+      %{^pid => {_, last}} when is_integer(last) and is_integer(tag) and tag < last ->
+        {false, inbox}
+
+      _ ->
+        {true, %{seen: trim(Map.put(seen, pid, {n + 1, tag})), n: n + 1}}
+    end
+  end
+
+  defp trim(seen) when map_size(seen) <= @max, do: seen
+
+  defp trim(seen) do
+    seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@max, 2)) |> Map.new()
+  end
+
+  @doc """
+  Takes the new messages of `msgs` (a list, proper or not, from anywhere), in order;
+  anything that is not a well-formed message is left out.
+  """
+  @spec take_new(t(), term()) :: {[tuple()], t()}
+  def take_new(inbox, msgs), do: take_new(inbox, msgs, [])
+
+  defp take_new(inbox, [m | rest], acc) do
+    case take_msg(inbox, m) do
+      {true, inbox} -> take_new(inbox, rest, [m | acc])
+      {false, inbox} -> take_new(inbox, rest, acc)
+    end
+  end
+
+  defp take_new(inbox, _, acc), do: {Enum.reverse(acc), inbox}
+
+  @doc "`take/2` for a whole message; false for anything that is not one."
+  @spec take_msg(t(), term()) :: {boolean(), t()}
+  def take_msg(inbox, {:"$tartarus_msg", {pid, _} = from, kind, _})
+      when is_pid(pid) and kind in [:post, :request],
+      do: take(inbox, from)
+
+  def take_msg(inbox, _), do: {false, inbox}
+
+  @doc """
+  The hand-over a process that moves away sends its successor inside `commit`:
+  `pending` (messages it took and had not handled) followed by the new ones of `mailbox`
+  (what it drained from its mailbox), and its memory.
+  """
+  @spec handover(t(), [tuple()], [tuple()]) :: {[tuple()], t()}
+  def handover(inbox, pending, mailbox) do
+    {fresh, inbox} = take_new(inbox, mailbox)
+    {pending ++ fresh, inbox}
+  end
+
+  @doc """
+  The successor's inbox and the messages it handles first, from a received hand-over
+  (anything malformed counts as an empty one).
+  """
+  @spec receive_handover(t(), term()) :: {[tuple()], t()}
+  def receive_handover(_inbox, {msgs, %{seen: seen, n: n} = inbox})
+      when is_list(msgs) and is_map(seen) and is_integer(n),
+      do: {msgs, inbox}
+
+  def receive_handover(inbox, _), do: {[], inbox}
+end
