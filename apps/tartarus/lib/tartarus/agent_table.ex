@@ -75,6 +75,11 @@ defmodule Tartarus.AgentTable do
     end
   end
 
+  # Removes `id` if it is still registered to `pid` at `host_name` as `name` and `module`
+  # (one delete of exactly that entry).
+  def unregister(id, pid, host_name, name, module),
+    do: :ets.delete_object(@table, {id, pid, host_name, name, module})
+
   # Removes `id` if it is still registered to `pid`.
   def unregister(id, pid) do
     # delete_object removes exactly this entry: if it was replaced meanwhile, nothing.

@@ -8,20 +8,21 @@ defmodule Tartarus.Ledger do
   #   :neighbours                 [host]
   #   {:link, host}               %{latency_ms:, loss:}
   #   {:agent, pid}               {_, id, name, module}      a resident agent
+  #   {:fwd, id}                  {_, :handoff, mig, source_pid}
+  #                               an undecided hand-off (move or clone) of agent id, resident
+  #                               here; one record, written before `prepare` leaves. A
+  #                               committed move replaces it with the forwarding pointer in
+  #                               one write (the pointer is the move's decision); an abort
+  #                               deletes it; a committed clone writes its decision first.
   #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy} | :acked | :name, notify}
   #                               (an id's pointer names its migration until the copy
   #                               acknowledges; a name's pointer never stands for a decision)
-  #   {:handoff, mig}             {_, source_pid}            an undecided hand-off (source)
-  #   {:handoff_by, pid}          {_, mig}                   the same, by its source process
   #   {:parked, {mig, copy}}      {_, env, src, kind}        a parked in-doubt copy (destination)
   #   :parked                     n                          how many
-  #                                                          forwarding pointer (and the record
-  #                                                          of a committed migration)
-  #   {:migrating, id}            {_, mig}                   a hand-off in progress (source)
   #   {:arriving, id}             {_, pid}                   a paused copy (destination)
-  #   {:decision, mig}            {_, {:committed, copy}}    (a move's: only until the
-  #                                                          forwarding pointer is written; a
-  #                                                          clone's: until the clone's ack)
+  #   {:decision, mig}            {_, {:committed, copy}}    a clone's commit, until the clone's
+  #                                                          ack (and, after a restart with
+  #                                                          persistence, every journaled commit)
   #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
   #   :resident, :visits, :hop_seq, {:count, name}           counters
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
@@ -61,8 +62,8 @@ defmodule Tartarus.Ledger do
 
   def forget_resident(host, pid) do
     case :ets.take(host.ledger, {:agent, pid}) do
-      [{_, id, _, _}] ->
-        Tartarus.AgentTable.unregister(id, pid)
+      [{_, id, name, module}] ->
+        Tartarus.AgentTable.unregister(id, pid, elem(host.ref, 0), name, module)
         :ets.update_counter(host.ledger, :resident, -1)
         true
 
@@ -72,34 +73,29 @@ defmodule Tartarus.Ledger do
   end
 
   # Before `prepare` leaves: the migration is undecided (Protocol.answer/3 says :unknown).
-  # `{:migrating, id}` (moves) lets a kill or crash of the agent find its hand-off.
-  # A source process runs one hand-off at a time: {:handoff_by, pid} finds it after a crash.
-  def begin_handoff(host, id, mig, kind) do
-    if kind == :move, do: :ets.insert(host.ledger, {{:migrating, id}, mig})
-    :ets.insert(host.ledger, [{{:handoff, mig}, self()}, {{:handoff_by, self()}, mig}])
-  end
+  # Keyed by the agent's id: a kill or crash of the agent finds it, and a source process runs
+  # one hand-off at a time.
+  def begin_handoff(host, id, mig),
+    do: :ets.insert(host.ledger, {{:fwd, id}, :handoff, mig, self()})
 
-  # After the decision (an abort is this with no commit written).
-  def end_handoff(host, id, mig) do
-    :ets.delete(host.ledger, {:handoff, mig})
-    :ets.delete(host.ledger, {:handoff_by, self()})
-    :ets.delete_object(host.ledger, {{:migrating, id}, mig})
-  end
+  # An abort: the hand-off record goes with no commit written.
+  def end_handoff(host, id, mig),
+    do: :ets.delete_object(host.ledger, {{:fwd, id}, :handoff, mig, self()})
 
-  # The source's commit. Returns false if one was already written (never: one writer).
+  # A clone's commit (before its hand-off record goes). Returns false if one was already
+  # written (never: one writer).
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
-  # The agent committed migration `mig` (copy `copy`) to `dest`: leave a forwarding pointer
-  # (which also records the commit for a destination that asks, see decision/4) and stop
-  # being resident. `notify` (a GenServer from, or nil) is who waits for the move to finish:
-  # a destination that learns of the commit by asking (the commit message was lost) answers it.
+  # The agent committed the move `mig` (copy `copy`) to `dest`: its forwarding pointer, which
+  # names the commit for a destination that asks (see decision/4), replaces the hand-off
+  # record in one write; then it stops being resident. `notify` (a GenServer from, or nil)
+  # is who waits for the move to finish: a destination that learns of the commit by asking
+  # (the commit message was lost) answers it.
   def depart(host, id, name, dest, mig, copy, notify) do
     now = System.system_time(:microsecond)
     :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
     if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
     forget_resident(host, self())
-    # The forwarding pointer now stands for the decision (written before this is dropped).
-    :ets.delete(host.ledger, {:decision, mig})
   end
 
   # The agent `env` ended on this host (returned or stopped): the forwarding pointers it left
@@ -132,19 +128,21 @@ defmodule Tartarus.Ledger do
   # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
   # (source) host: Tartarus.Migration.Protocol.answer/3 over what the ledger holds, read in
   # the protocol's order (hand-off record first).
+  # `id` is the agent that left (for a clone, the clone's parent: `query_id/2`). One read
+  # decides a move (its hand-off record, then its pointer, under one key); a clone's commit
+  # is written before its hand-off record goes, so it is read second.
   def decision(host, mig, id, copy) do
-    handoff? = :ets.member(host.ledger, {:handoff, mig})
+    {handoff?, pointer} =
+      case :ets.lookup(host.ledger, {:fwd, id}) do
+        [{_, :handoff, ^mig, _pid}] -> {true, nil}
+        [{_, _dest, _at, {m, c}, notify}] -> {false, {m, c, notify}}
+        _ -> {false, nil}
+      end
 
     decision =
       case :ets.lookup(host.ledger, {:decision, mig}) do
         [{_, d}] -> d
         [] -> nil
-      end
-
-    pointer =
-      case :ets.lookup(host.ledger, {:fwd, id}) do
-        [{_, _dest, _at, {m, c}, notify}] -> {m, c, notify}
-        _ -> nil
       end
 
     Tartarus.Migration.Protocol.answer(
@@ -176,29 +174,31 @@ defmodule Tartarus.Ledger do
   # aborted (their records go; the process that could have committed them is dead). True if
   # the agent is still ours to restart, false if it had committed a move (it lives on at
   # the destination).
-  def abort_pending(host, id, pid) do
-    drop_handoffs(host, pid)
+  #
+  # A resident agent has no pointer here (its arrival deleted it), so a pointer under its id
+  # means it committed a move; a hand-off record means an undecided one (or a clone's).
+  def abort_pending(host, id, _pid) do
+    case :ets.lookup(host.ledger, {:fwd, id}) do
+      [{_, :handoff, _mig, _p} = record] ->
+        :ets.delete_object(host.ledger, record)
+        true
 
-    case :ets.take(host.ledger, {:migrating, id}) do
-      [{_, mig}] -> not committed?(host, mig, id)
-      [] -> true
+      [{_, _dest, _at, _decision, _notify}] ->
+        false
+
+      [] ->
+        true
     end
   end
 
-  # The hand-off record of a source process that is gone.
-  def drop_handoffs(_host, nil), do: :ok
+  # The hand-off record of agent `id`'s source process `pid`, which is gone.
+  def drop_handoffs(host, id, pid),
+    do: :ets.match_delete(host.ledger, {{:fwd, id}, :handoff, :_, pid})
 
-  def drop_handoffs(host, pid) do
-    case :ets.take(host.ledger, {:handoff_by, pid}) do
-      [{_, mig}] -> :ets.delete_object(host.ledger, {{:handoff, mig}, pid})
-      [] -> true
-    end
-  end
-
-  defp committed?(host, mig, id) do
-    :ets.member(host.ledger, {:decision, mig}) or
-      match?([{_, _, _, {^mig, _}, _}], :ets.lookup(host.ledger, {:fwd, id}))
-  end
+  # The agent id a paused copy asks its source host about: the agent that left (a clone's
+  # parent for a clone).
+  def query_id(%{clone_of: parent}, :clone) when is_binary(parent), do: parent
+  def query_id(env, _kind), do: env.id
 
   def record_hop(host, hop_us) do
     seq = :ets.update_counter(host.ledger, :hop_seq, 1)
@@ -253,11 +253,19 @@ defmodule Tartarus.Ledger do
   # reader's looks: then the pointer it left is there now.)
   defp locate_elsewhere(host, agent, again \\ true) do
     with [] <- :ets.lookup(host.ledger, {:arriving, agent}),
-         [] <- :ets.lookup(host.ledger, {:fwd, agent}) do
+         [] <- pointer(host, agent) do
       if again, do: just_arrived(host, agent), else: locate_by_name(host, agent)
     else
       [{_, pid}] -> {:arriving, pid}
       [{_, dest, _, _, _}] -> {:moved, dest}
+    end
+  end
+
+  # A forwarding pointer (not a hand-off record, which is kept under the same key).
+  defp pointer(host, agent) do
+    case :ets.lookup(host.ledger, {:fwd, agent}) do
+      [{_, _, _, _, _}] = found -> found
+      _ -> []
     end
   end
 

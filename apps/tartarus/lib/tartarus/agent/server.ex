@@ -62,9 +62,9 @@ defmodule Tartarus.Agent.Server do
   # hop or a create. The host's server restarts crashed agents from their snapshots and,
   # when it stops (its terminate/2), kills them all (see Tartarus.Host.Server).
   @doc false
-  @spec start(map(), reference(), term()) :: {pid(), reference()}
-  def start(host, key, mode) do
-    :proc_lib.spawn_opt(__MODULE__, :enter, [host, key, mode], [
+  @spec start(map(), reference(), Tartarus.Envelope.t(), term()) :: {pid(), reference()}
+  def start(host, key, env, mode) do
+    :erlang.spawn_opt(__MODULE__, :enter, [host, key, env, mode], [
       :monitor | heap_limit(host.opts.max_heap_size)
     ])
   end
@@ -78,13 +78,15 @@ defmodule Tartarus.Agent.Server do
   # -- start ---------------------------------------------------------------------
 
   @doc false
-  # The new process's entry point (start/3): reads its snapshot and becomes a gen_server.
-  def enter(host, key, mode) do
-    # No parent: gen_server would stop on any {:EXIT, parent, _} message, and anyone can send
-    # one. This process stops on its host's signals by the rules of handle_info/2.
-    Process.put(:"$ancestors", [self() | Process.get(:"$ancestors", [])])
+  # The new process's entry point (start/4): becomes a gen_server. Spawned plainly (not by
+  # proc_lib, whose start-up bookkeeping costs more than the rest of an arrival), it names
+  # itself as its own parent: gen_server stops on any {:EXIT, parent, _} message, and anyone
+  # can send one; this process stops on its host's signals by the rules of handle_info/2.
+  def enter(host, key, env, mode) do
+    Process.put(:"$ancestors", [self()])
+    Process.put(:"$initial_call", {__MODULE__, :init, 1})
 
-    case init({host, key, mode}) do
+    case init({host, key, env, mode}) do
       {:ok, data} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data)
       {:ok, data, cont} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data, cont)
       {:stop, reason} -> exit(reason)
@@ -92,8 +94,7 @@ defmodule Tartarus.Agent.Server do
   end
 
   @impl true
-  def init({host, key, mode}) do
-    [{_, env}] = :ets.lookup(host.ledger, {:snapshot, key})
+  def init({host, key, env, mode}) do
     Process.put(@host, host)
 
     data = %{
@@ -121,8 +122,7 @@ defmodule Tartarus.Agent.Server do
 
     timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
 
-    {:ok,
-     %{data | paused: %{c: c, timer: timer, stash: [], src_pid: src_pid, handover: :none}}}
+    {:ok, %{data | paused: %{c: c, timer: timer, stash: [], src_pid: src_pid, handover: :none}}}
   end
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
@@ -136,7 +136,13 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  defp start(data, :restore), do: start(data, {:restart, 0})
+  # Restored from a checkpoint: the host's server waits for this word before it answers the
+  # restore (so a host comes back with its agents findable).
+  defp start(data, :restore) do
+    result = start(data, {:restart, 0})
+    send(data.host.pid, {:"$tartarus_restored", self()})
+    result
+  end
 
   @impl true
 
@@ -195,7 +201,8 @@ defmodule Tartarus.Agent.Server do
     # The source's own commit carries its hand-over of messages (see commit/2).
     p =
       case {event, msg} do
-        {{:commit, mig, copy, _}, {_, _, _, _, handover}} when mig == p.c.mig and copy == p.c.copy ->
+        {{:commit, mig, copy, _}, {_, _, _, _, handover}}
+        when mig == p.c.mig and copy == p.c.copy ->
           %{p | handover: handover}
 
         _ ->
@@ -327,8 +334,10 @@ defmodule Tartarus.Agent.Server do
   defp paused_actions([{:ask, src, mig, copy} | rest], data) do
     # The source host's server, found by address each time (the source may have restarted
     # since it sent `prepare`; the directory drops pids of hosts that went down).
+    id = Ledger.query_id(data.env, data.paused.c.kind)
+
     with {:ok, pid} <- Tartarus.Host.whereis(src),
-         do: send(pid, Protocol.decision_query(mig, data.env.id, copy, self()))
+         do: send(pid, Protocol.decision_query(mig, id, copy, self()))
 
     paused_actions(rest, data)
   end
@@ -582,7 +591,7 @@ defmodule Tartarus.Agent.Server do
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind, host.ref))
     prepare = Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, [])
     prepare = seal(prepare, host)
-    Ledger.begin_handoff(host, data.env.id, mig, kind)
+    Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)
     send(dest_pid, prepare)
     deadline = System.monotonic_time(:millisecond) + host.opts.migration_timeout
@@ -628,15 +637,26 @@ defmodule Tartarus.Agent.Server do
     unwatch(x.mref)
     with {:deciding, _copy, pid} <- s.phase, do: Tartarus.Fault.point(:prepared, pid)
 
-    decided = Ledger.decide(x.data.host, mig, decision)
+    # A move's decision is its forwarding pointer, written over the hand-off record in one
+    # step (record_commit, after the journal); a clone's is written here, before its
+    # hand-off record goes.
+    decided = s.kind == :move or Ledger.decide(x.data.host, mig, decision)
 
     {s, actions} = Protocol.source_step(s, {:decided, decided})
     source_actions(actions ++ rest, s, x)
   end
 
   defp source_actions([{:end_handoff, mig} | rest], s, x) do
-    if s.phase == :failed, do: unwatch(x.mref)
-    Ledger.end_handoff(x.data.host, x.data.env.id, mig)
+    case s.phase do
+      # Already replaced by the forwarding pointer.
+      {:committed, _, _} when s.kind == :move ->
+        :ok
+
+      phase ->
+        if phase == :failed, do: unwatch(x.mref)
+        Ledger.end_handoff(x.data.host, x.data.env.id, mig)
+    end
+
     source_actions(rest, s, x)
   end
 

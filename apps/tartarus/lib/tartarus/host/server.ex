@@ -185,13 +185,23 @@ defmodule Tartarus.Host.Server do
     {agents, in_doubt} = state.restore
     state = %{state | restore: {[], []}}
 
-    state =
-      Enum.reduce(agents, state, fn env, state ->
+    {state, pids} =
+      Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
         case start_agent(state, env, :restore) do
-          {:ok, _pid, state} -> state
-          {:error, _reason, state} -> state
+          {:ok, pid, state} -> {state, [pid | pids]}
+          {:error, _reason, state} -> {state, pids}
         end
       end)
+
+    # Each restored agent registers itself as it starts: answer once they have (an agent
+    # that died first is waited for a bounded time; its :DOWN is handled afterwards).
+    for pid <- pids do
+      receive do
+        {:"$tartarus_restored", ^pid} -> :ok
+      after
+        5_000 -> :ok
+      end
+    end
 
     state =
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
@@ -305,11 +315,11 @@ defmodule Tartarus.Host.Server do
   def handle_info(:"$tartarus_ask_parked", state) do
     host = state.host
 
-    for {{mig, copy}, env, _src, _kind} = rec <-
+    for {{mig, copy}, env, _src, kind} = rec <-
           :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}])
           |> Enum.map(fn {{:parked, k}, e, s, kd} -> {k, e, s, kd} end),
         {:ok, pid} <- [Tartarus.Host.whereis(elem(rec, 2))] do
-      send(pid, Protocol.decision_query(mig, env.id, copy, self()))
+      send(pid, Protocol.decision_query(mig, Ledger.query_id(env, kind), copy, self()))
     end
 
     if parked(state) > 0, do: schedule_parked()
@@ -355,6 +365,18 @@ defmodule Tartarus.Host.Server do
   end
 
   # Only a monitor this server made counts: a forged :DOWN changes nothing.
+  #
+  # An agent that moved on (its process ends with {:shutdown, {:migrated, _, _}} after its
+  # commit) left nothing to clean but its snapshot: it wrote its pointer over its hand-off
+  # record, left the resident tables and its arriving entry itself.
+  def handle_info({:DOWN, mref, :process, pid, {:shutdown, {:migrated, _, _}}}, state)
+      when is_map_key(state.monitors, mref) and not is_map_key(state.killing, pid) and
+             not is_map_key(state.overran, pid) do
+    {entry, monitors} = Map.pop(state.monitors, mref)
+    :ets.delete(state.host.ledger, {:snapshot, entry.key})
+    {:noreply, %{state | monitors: monitors, pids: Map.delete(state.pids, pid)}}
+  end
+
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
@@ -365,7 +387,7 @@ defmodule Tartarus.Host.Server do
     state = %{state | monitors: monitors, killing: killing, overran: overran}
     resident? = Ledger.forget_resident(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
-    Ledger.drop_handoffs(state.host, pid)
+    Ledger.drop_handoffs(state.host, entry.id, pid)
     :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
     not_created(state, entry, reason)
     if kill, do: killed(state, pid, entry, kill)
@@ -690,9 +712,16 @@ defmodule Tartarus.Host.Server do
   # (as a supervisor with shutdown: :brutal_kill would). The one case it cannot cover is its
   # own death by an untrappable :kill: its agents then lose their ledger (owned by this
   # process) and end at their next step that reads it.
+  #
+  # The envelope goes to the new process as an argument. The host keeps the snapshot a
+  # restart starts from under {:snapshot, key} (the agent writes it once resident; for a
+  # restart or a restore this server writes it first).
   defp start_agent(state, env, mode, restarts \\ 0, creator \\ nil) do
     key = make_ref()
-    :ets.insert(state.host.ledger, {{:snapshot, key}, env})
+
+    if match?({:restart, _}, mode) or mode == :restore,
+      do: :ets.insert(state.host.ledger, {{:snapshot, key}, env})
+
     if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
 
     if :ets.member(state.host.ledger, :stopping) do
@@ -700,17 +729,20 @@ defmodule Tartarus.Host.Server do
       :ets.delete(state.host.ledger, {:creating, key})
       {:error, :host_stopping, state}
     else
-      {pid, mref} = Tartarus.Agent.Server.start(state.host, key, mode)
+      {pid, mref} = Tartarus.Agent.Server.start(state.host, key, env, mode)
       entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
 
       {:ok, pid,
-       %{state | monitors: Map.put(state.monitors, mref, entry), pids: Map.put(state.pids, pid, mref)}}
+       %{
+         state
+         | monitors: Map.put(state.monitors, mref, entry),
+           pids: Map.put(state.pids, pid, mref)
+       }}
     end
   end
 
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
-
 
   defp agent_down(state, entry, reason, resident?, killed?) do
     host = state.host

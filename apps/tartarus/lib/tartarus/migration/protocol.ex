@@ -186,8 +186,10 @@ defmodule Tartarus.Migration.Protocol do
   def classify({:"$tartarus_prepared", mig, copy, pid}), do: {:prepared, mig, copy, pid}
   def classify({:"$tartarus_need", mig, mods}), do: {:need, mig, mods}
   def classify({:"$tartarus_refused", mig, reason}), do: {:refused, mig, reason}
+
   def classify({:"$tartarus_commit", mig, copy, notify, _handover}),
     do: {:commit, mig, copy, notify}
+
   def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
   def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
   def classify({:"$tartarus_acks", list}), do: {:acks, list}

@@ -12,7 +12,7 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
   end
 
   defp decisions(host), do: :ets.match(ledger(host).ledger, {{:decision, :"$1"}, :_})
-  defp handoffs(host), do: :ets.match(ledger(host).ledger, {{:handoff, :"$1"}, :_})
+  defp handoffs(host), do: :ets.match(ledger(host).ledger, {{:fwd, :_}, :handoff, :"$1", :_})
 
   defp unacked_pointers(host),
     do: :ets.select(ledger(host).ledger, [{{{:fwd, :_}, :_, :_, {:_, :_}, :_}, [], [true]}])

@@ -118,20 +118,21 @@ defmodule Tartarus.Migration.ParkingTest do
     {ha, server, mig, copy, pid, env.id}
   end
 
-  # Its queries are answered :unknown meanwhile (a hand-off record of `mig` at the source).
-  # With `keep_handoff: true` the source stays undecided afterwards (its record stays).
-  defp park(ha, pid, mig, opts \\ []) do
-    :ets.insert(ha.ledger, {{:handoff, mig}, self()})
+  # Its queries are answered :unknown meanwhile (a hand-off record of `mig` of agent `id` at
+  # the source). With `keep_handoff: true` the source stays undecided afterwards (its record
+  # stays).
+  defp park(ha, pid, mig, id, opts \\ []) do
+    :ets.insert(ha.ledger, {{:fwd, id}, :handoff, mig, self()})
     ref = Process.monitor(pid)
     for _ <- 1..21, do: send(pid, {:commit_timeout, mig})
     assert_receive {:DOWN, ^ref, :process, ^pid, {:shutdown, :parked}}, 5_000
-    unless opts[:keep_handoff], do: :ets.delete(ha.ledger, {:handoff, mig})
+    unless opts[:keep_handoff], do: :ets.delete(ha.ledger, {:fwd, id})
   end
 
   test "a parked copy is revived on a committed answer and runs once" do
     [a, b] = [host!(), host!()]
     {ha, server, mig, copy, pid, id} = paused_copy(a, b)
-    park(ha, pid, mig, keep_handoff: true)
+    park(ha, pid, mig, id, keep_handoff: true)
     assert Tartarus.Host.call(b, :parked) == 1 and Tartarus.Host.call(b, :paused) == 0
 
     # Unknown (the source has a hand-off record): kept.
@@ -142,7 +143,7 @@ defmodule Tartarus.Migration.ParkingTest do
     # decision before the hand-off record goes): the query above may still be answered
     # meanwhile, and between the two steps in the other order it would read "aborted".
     :ets.insert(ha.ledger, {{:decision, mig}, {:committed, copy}})
-    :ets.delete(ha.ledger, {:handoff, mig})
+    :ets.delete(ha.ledger, {:fwd, id})
     send(server, :"$tartarus_ask_parked")
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
     assert Tartarus.Host.call(b, :parked) == 0
@@ -152,7 +153,7 @@ defmodule Tartarus.Migration.ParkingTest do
   test "a parked copy is dropped on an aborted answer" do
     [a, b] = [host!(), host!()]
     {ha, server, mig, _copy, pid, id} = paused_copy(a, b)
-    park(ha, pid, mig)
+    park(ha, pid, mig, id)
     send(server, :"$tartarus_ask_parked")
     assert eventually(fn -> Tartarus.Host.call(b, :parked) == 0 end, 2_000)
     assert Tartarus.agents(b) == []
