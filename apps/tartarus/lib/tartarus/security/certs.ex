@@ -32,10 +32,10 @@ defmodule Tartarus.Security.Certs do
   the node name it dials against these names, so give every host a node may run on.
 
   What a certificate proves: "our CA issued this certificate to the node named CN on these
-  hosts". With `Tartarus.Security.TLSDist` (`-proto_dist tartarus_tls`) a node may connect
-  only under a name its certificate names (`<CN>@<host>` for the hosts above, or the CN itself
-  when it is a whole node name), so issue each node's certificate under its node name. Protect
-  the CA key accordingly.
+  hosts". With `Tartarus.Security.TLSDist` (`-proto_dist tartarus_tls`) a node may connect,
+  and be dialled, only under a name its certificate names (`<CN>@<host>` for the hosts above,
+  or the CN itself when it is a whole node name), so issue each node's certificate under its
+  node name. Protect the CA key accordingly.
   """
 
   require Record

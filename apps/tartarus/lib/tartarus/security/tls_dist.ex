@@ -27,11 +27,13 @@ defmodule Tartarus.Security.TLSDist do
   that the host part of the node name it dials (`b@host1` -> `host1`) is among the subject
   alternative names of the certificate presented (`inet_tls_dist` sets the TLS server name to
   it), so certificates must list the hosts nodes run on: see `mix tartarus.gen.certs --hosts`.
-  The side that accepts a connection also checks that the connecting node's name is one its
-  certificate names (its CN, `<name>` or `<name>@<host>`, with the subjectAltName hosts; see
-  `:tartarus_tls_dist`): a stolen certificate works only under its owner's name. The side that
-  dials checks the certificate's hosts, not the name before the `@` (`inet_tls_dist` gives it
-  no hook); the connection it opens is checked by the other side only when that side dials.
+  Both sides also check that the other node's name is one its certificate names (its CN,
+  `<name>` or `<name>@<host>`, with the subjectAltName hosts; see `:tartarus_tls_dist`): the
+  accepting side before the distribution handshake, the dialing side in the TLS handshake
+  itself (its `verify_fun`). A stolen certificate works only under its owner's name, whichever
+  side dials: an impostor that is dialled exchanges no distribution message at all.
+  The client options must have `verify: :verify_peer` (the file always does): without it the
+  node refuses to dial.
   Paths in the file are absolute: move the directory and regenerate the files with
   `write_optfile!/2`.
 
@@ -114,12 +116,20 @@ defmodule :tartarus_tls_dist do
 
   OTP's `inet_tls_dist` checks that a peer's certificate chains to the CA and (on the side
   that dials) that it names the host part of the node dialled, but any certificate holder may
-  connect under any node name. This module is `inet_tls_dist` with one change on the side
-  that accepts a connection: before the distribution handshake it reads the peer's
-  certificate and allows only the node names that certificate names, so the handshake
-  refuses any other name (`dist_util`'s allowed-nodes check, the one `net_kernel:allow/1`
-  uses). That accept step is a copy of OTP 25's (`inet_tls_dist` would turn allowed names into
-  hosts): check it when moving to another OTP release. The names a certificate names:
+  connect under any node name, and be dialled under any. This module is `inet_tls_dist` with
+  the node name bound to the certificate on both sides:
+
+    * accepting: before the distribution handshake it reads the peer's certificate and allows
+      only the node names that certificate names, so the handshake refuses any other name
+      (`dist_util`'s allowed-nodes check, the one `net_kernel:allow/1` uses);
+    * dialing: the TLS client's `verify_fun` (`verify_server/4`, put in the client options per
+      connection by `client_options/1`) fails the TLS handshake unless the server's
+      certificate names the node dialled, so an impostor gets no distribution message through
+      and never sees this node up.
+
+  Both steps are copies of OTP 25's (`inet_tls_dist` would turn allowed names into hosts,
+  and gives its TLS client only the host part of the node dialled): check them when moving
+  to another OTP release. The names a certificate names:
 
     * its subject CN, if the CN is a whole node name (`name@host`);
     * otherwise `CN@host` for every DNS name and IP address of its subjectAltName extension
@@ -128,11 +138,7 @@ defmodule :tartarus_tls_dist do
   A certificate without a CN allows no name. If `net_kernel:allow/1` was used, a name must be
   allowed by both.
 
-  On the side that dials, `inet_tls_dist` offers no hook between the TLS handshake and the
-  distribution handshake, so the same check runs as soon as the connection is up, and a node
-  whose certificate does not name it is disconnected at once: for a few milliseconds an
-  impostor that was dialled (by its own false name) is connected. Every other callback is
-  `inet_tls_dist`'s.
+  Every other callback (`listen`, `accept`, `select`, ...) is `inet_tls_dist`'s.
 
   It runs while the node boots, before Elixir is loaded, so it calls Erlang modules only.
   It reads the peer certificate through `tls_sender:dist_tls_socket/1`, the call
@@ -168,13 +174,6 @@ defmodule :tartarus_tls_dist do
   def listen(name, host), do: :inet_tls_dist.listen(name, host)
   @doc false
   def accept(listen), do: :inet_tls_dist.accept(listen)
-  @doc false
-  def setup(node, type, my_node, long_or_short, setup_time) do
-    pid = :inet_tls_dist.setup(node, type, my_node, long_or_short, setup_time)
-    _ = :erlang.spawn(fn -> watch_dialed(node, pid, setup_time) end)
-    pid
-  end
-
   @doc false
   def close(socket), do: :inet_tls_dist.close(socket)
   @doc false
@@ -284,52 +283,328 @@ defmodule :tartarus_tls_dist do
     end
   end
 
-  # The dialing side: `inet_tls_dist` checks only the host part of the dialled name against the
-  # certificate, so once the connection is up we check the whole name and disconnect an
-  # impostor (after a window of a few milliseconds; see the moduledoc).
-  defp watch_dialed(node, setup_pid, setup_time) do
-    ref = :erlang.monitor(:process, setup_pid)
-    :ok = :net_kernel.monitor_nodes(true)
-    timeout = if is_integer(setup_time), do: setup_time + 1_000, else: 60_000
+  # The dialing side. `inet_tls_dist:setup/5` gives the TLS client only the host part of the
+  # node it dials (as the server name), so its setup is done here, as OTP 25's
+  # `inet_tls_dist:do_setup/7` and `do_setup_connect/10` do it, with one difference: the TLS
+  # client's `verify_fun` (`verify_server/4`) also requires the server's certificate to name
+  # the node dialled, so the TLS handshake itself fails for any other certificate and no
+  # distribution message is ever exchanged with an impostor.
+  @doc false
+  def setup(node, type, my_node, long_or_short, setup_time) do
+    kernel = self()
 
-    if connected?(node) do
-      check_dialed(node)
-    else
-      receive do
-        {:nodeup, ^node} -> check_dialed(node)
-        {:DOWN, ^ref, _, _, _} -> if connected?(node), do: check_dialed(node)
-      after
-        timeout -> :ok
-      end
+    :erlang.spawn_opt(
+      fn -> do_setup(kernel, node, type, my_node, long_or_short, setup_time) end,
+      :dist_util.net_ticker_spawn_options()
+    )
+  end
+
+  defp do_setup(kernel, node, type, my_node, long_or_short, setup_time) do
+    {name, host} = split_node(node, long_or_short)
+    epmd = :net_kernel.epmd_module()
+    timer = :dist_util.start_timer(setup_time)
+    dial = {kernel, node, host, type, my_node, timer}
+
+    case address_please(epmd, name, host) do
+      {:ok, ip, port, version} ->
+        do_setup_connect(dial, ip, port, version)
+
+      {:ok, ip} ->
+        case epmd.port_please(name, ip) do
+          {:port, port, version} ->
+            do_setup_connect(dial, ip, port, version)
+
+          other ->
+            :dist_util.shutdown(
+              __MODULE__,
+              __ENV__.line,
+              node,
+              {:port_please_failed, epmd, name, ip, other}
+            )
+        end
+
+      other ->
+        :dist_util.shutdown(
+          __MODULE__,
+          __ENV__.line,
+          node,
+          {:getaddr_failed, :inet_tcp, host, other}
+        )
     end
   end
 
-  defp connected?(node), do: :lists.keymember(node, 1, :erlang.system_info(:dist_ctrl))
-
-  defp check_dialed(node) do
-    named? =
-      try do
-        {^node, ctrl} = :lists.keyfind(node, 1, :erlang.system_info(:dist_ctrl))
-        {:ok, socket} = :tls_sender.dist_tls_socket(ctrl)
-        {:ok, der} = :ssl.peercert(socket)
-
-        :lists.member(
-          :erlang.atom_to_list(node),
-          cert_names(:public_key.pkix_decode_cert(der, :otp))
-        )
-      catch
-        _, _ -> false
-      end
-
-    if not named? do
-      :logger.error(~c"** ~p presented a certificate that does not name it: disconnected **~n", [
-        node
-      ])
-
-      :erlang.disconnect_node(node)
+  defp address_please(epmd, name, host) do
+    if :erlang.function_exported(epmd, :address_please, 3) do
+      epmd.address_please(name, host, :inet)
+    else
+      :erl_epmd.address_please(name, host, :inet)
     end
+  end
 
-    :ok
+  defp do_setup_connect({kernel, node, host, type, my_node, timer}, ip, port, version) do
+    case client_options(node) do
+      {:ok, opts} ->
+        :dist_util.reset_timer(timer)
+
+        base = [
+          :binary,
+          {:active, false},
+          {:packet, 4},
+          {:server_name_indication, host},
+          :inet,
+          {:nodelay, true}
+        ]
+
+        case :ssl.connect(ip, port, base ++ opts, :net_kernel.connecttime()) do
+          {:ok, {:sslsocket, _, [_, dist_ctrl | _]} = ssl} ->
+            :ok = :ssl.controlling_process(ssl, self())
+
+            hs =
+              hs_data(hs_common(ssl, dist_ctrl),
+                kernel_pid: kernel,
+                other_node: node,
+                this_node: my_node,
+                socket: dist_ctrl,
+                timer: timer,
+                this_flags: 0,
+                other_version: version,
+                request_type: type
+              )
+
+            :erlang.link(dist_ctrl)
+            :dist_util.handshake_we_started(hs)
+
+          other ->
+            :dist_util.shutdown(
+              __MODULE__,
+              __ENV__.line,
+              node,
+              {:ssl_connect_failed, ip, port, other}
+            )
+        end
+
+      {:error, reason} ->
+        :logger.error(~c"** tartarus_tls cannot dial ~p: ~p **~n", [node, reason])
+        :dist_util.shutdown(__MODULE__, __ENV__.line, node, reason)
+    end
+  end
+
+  # As OTP 25's `inet_tls_dist:split_node/3`.
+  defp split_node(node, long_or_short) do
+    case :dist_util.split_node(node) do
+      {:node, name, host} ->
+        check_host(node, name, host, long_or_short)
+
+      {:host, _} ->
+        :logger.error(~c"** Nodename ~p illegal, no '@' character **~n", [node])
+        :dist_util.shutdown(__MODULE__, __ENV__.line, node, {:illegal_node_n@me, node})
+
+      _ ->
+        :logger.error(~c"** Nodename ~p illegal **~n", [node])
+        :dist_util.shutdown(__MODULE__, __ENV__.line, node, {:illegal_node_name, node})
+    end
+  end
+
+  defp check_host(node, name, host, long_or_short) do
+    case :string.split(host, ~c".", :all) do
+      [_] when long_or_short == :longnames ->
+        case :inet_tcp.parse_address(host) do
+          {:ok, _} ->
+            {name, host}
+
+          _ ->
+            :logger.error(
+              ~c"** System running to use fully qualified hostnames **~n** Hostname ~ts is illegal **~n",
+              [host]
+            )
+
+            :dist_util.shutdown(__MODULE__, __ENV__.line, node, {:not_longnames, host})
+        end
+
+      [_, _ | _] when long_or_short == :shortnames ->
+        :logger.error(
+          ~c"** System NOT running to use fully qualified hostnames **~n** Hostname ~ts is illegal **~n",
+          [host]
+        )
+
+        :dist_util.shutdown(__MODULE__, __ENV__.line, node, {:not_shortnames, host})
+
+      _ ->
+        {name, host}
+    end
+  end
+
+  @doc """
+  The TLS client options for dialing `node` (a node name atom): the client options of the
+  option file (or of `-ssl_dist_opt client_*` arguments) with the kernel's
+  `inet_dist_connect_options` over them, as OTP 25's `inet_tls_dist` builds them, and a
+  `verify_fun` that also requires the server's certificate to name `node` (see
+  `verify_server/4`), wrapping the options' own `verify_fun` if they have one.
+
+  `{:error, reason}` if the options do not verify the server (`verify: :verify_peer` is
+  required: without it no certificate, so no name, would be checked) or carry a `verify_fun`
+  in a form this module cannot wrap (only `{fun/3 or fun/4, state}` is).
+  """
+  @spec client_options(node()) :: {:ok, list()} | {:error, term()}
+  def client_options(node) do
+    opts = connect_options(ssl_options())
+
+    case :proplists.get_value(:verify, opts) do
+      :verify_peer ->
+        case :lists.keyfind(:verify_fun, 1, opts) do
+          false ->
+            {:ok, put_verify_fun(node, {&__MODULE__.default_verify/3, []}, opts)}
+
+          {:verify_fun, {fun, _state} = inner} when is_function(fun, 3) or is_function(fun, 4) ->
+            {:ok, put_verify_fun(node, inner, opts)}
+
+          {:verify_fun, other} ->
+            {:error, {:verify_fun_not_wrappable, other}}
+        end
+
+      other ->
+        {:error, {:verify_peer_needed, {:verify, other}}}
+    end
+  end
+
+  # External funs (`&__MODULE__.f/n`): they stay valid when this module is reloaded.
+  defp put_verify_fun(node, inner, opts) do
+    others =
+      :lists.filter(
+        fn opt -> not is_tuple(opt) or :erlang.element(1, opt) != :verify_fun end,
+        opts
+      )
+
+    [{:verify_fun, {&__MODULE__.verify_server/4, {node, inner}}} | others]
+  end
+
+  @doc """
+  The TLS client's certificate check when dialing: first the check the options asked for (their
+  own `verify_fun`, or `ssl`'s default one: any `{:bad_cert, _}` fails, so the CA chain and the
+  host name are checked as without this module), then, for the server's own certificate, that
+  it names the node dialled (`cert_names/1`). The state is `{node, {inner_fun, inner_state}}`;
+  a failure is `{:fail, {:bad_cert, {:node_not_named, node}}}`, a TLS handshake failure.
+
+  `ssl` calls it for every certificate of the chain: `:valid_peer` is the server's certificate,
+  and `{:bad_cert, :hostname_check_failed}` also comes only for it (should a custom
+  `verify_fun` accept that).
+  """
+  @spec verify_server(tuple(), binary(), term(), {node(), {function(), term()}}) ::
+          {:valid | :valid_peer | :unknown, term()} | {:fail, term()}
+  def verify_server(cert, der, event, {node, {fun, state}}) do
+    case inner_verify(fun, cert, der, event, state) do
+      {:fail, _} = fail ->
+        fail
+
+      {:unknown, state} ->
+        {:unknown, {node, {fun, state}}}
+
+      {valid, state} when valid == :valid or valid == :valid_peer ->
+        if peer_event?(event) and not :lists.member(:erlang.atom_to_list(node), cert_names(cert)) do
+          :logger.error(
+            ~c"** ~p presented a certificate that does not name it: refused **~n",
+            [node]
+          )
+
+          {:fail, {:bad_cert, {:node_not_named, node}}}
+        else
+          {valid, {node, {fun, state}}}
+        end
+    end
+  end
+
+  defp inner_verify(fun, cert, _der, event, state) when is_function(fun, 3),
+    do: fun.(cert, event, state)
+
+  defp inner_verify(fun, cert, der, event, state) when is_function(fun, 4),
+    do: fun.(cert, der, event, state)
+
+  defp peer_event?(:valid_peer), do: true
+  defp peer_event?({:bad_cert, :hostname_check_failed}), do: true
+  defp peer_event?(_), do: false
+
+  # `ssl`'s default verify_fun under `verify_peer` (and `inet_tls_dist`'s `verify_client/3`).
+  @doc false
+  def default_verify(_cert, {:bad_cert, _} = reason, _state), do: {:fail, reason}
+  def default_verify(_cert, {:extension, _}, state), do: {:unknown, state}
+  def default_verify(_cert, :valid, state), do: {:valid, state}
+  def default_verify(_cert, :valid_peer, state), do: {:valid, state}
+
+  # As OTP 25's `inet_tls_dist:connect_options/1`.
+  defp connect_options(opts) do
+    case :application.get_env(:kernel, :inet_dist_connect_options) do
+      {:ok, connect_opts} -> :lists.ukeysort(1, connect_opts ++ opts)
+      _ -> opts
+    end
+  end
+
+  # As OTP 25's `inet_tls_dist:get_ssl_options(client)`: the option file's client options
+  # (`ssl_dist_sup` put them in the `ssl_dist_opts` table), else `-ssl_dist_opt client_*`.
+  defp ssl_options do
+    try do
+      :ets.lookup(:ssl_dist_opts, :client)
+    catch
+      :error, :badarg -> ssl_dist_arguments()
+    else
+      [{:client, opts}] -> [{:erl_dist, true} | dist_defaults(opts)]
+      _ -> ssl_dist_arguments()
+    end
+  end
+
+  defp ssl_dist_arguments do
+    case :init.get_argument(:ssl_dist_opt) do
+      {:ok, args} -> [{:erl_dist, true} | dist_defaults(arg_options(:lists.append(args)))]
+      _ -> [{:erl_dist, true}]
+    end
+  end
+
+  defp dist_defaults(opts) do
+    case :proplists.get_value(:versions, opts, :undefined) do
+      :undefined -> [{:versions, [:"tlsv1.2"]} | opts]
+      _ -> opts
+    end
+  end
+
+  defp arg_options([]), do: []
+
+  defp arg_options([~c"client_" ++ opt, value | rest] = all),
+    do: [{:erlang.list_to_atom(opt), arg_value(opt, value, all)} | arg_options(rest)]
+
+  defp arg_options([_opt, _value | rest]), do: arg_options(rest)
+
+  defp arg_value(opt, value, all) do
+    cond do
+      opt in [~c"certfile", ~c"cacertfile", ~c"keyfile", ~c"password", ~c"ciphers"] and
+          is_list(value) ->
+        value
+
+      opt in [~c"verify", ~c"crl_check", ~c"reuse_sessions", ~c"secure_renegotiate"] ->
+        :erlang.list_to_atom(value)
+
+      opt in [~c"depth", ~c"hibernate_after"] ->
+        :erlang.list_to_integer(value)
+
+      opt == ~c"crl_cache" ->
+        termify(value)
+
+      opt == ~c"verify_fun" ->
+        case termify(value) do
+          {mod, fun, state} when is_atom(mod) and is_atom(fun) ->
+            {:erlang.make_fun(mod, fun, 3), state}
+
+          _ ->
+            :erlang.error(:malformed_ssl_dist_opt, [value])
+        end
+
+      true ->
+        :erlang.error(:malformed_ssl_dist_opt, [:client, all])
+    end
+  end
+
+  defp termify(text) do
+    {:ok, tokens, _} = :erl_scan.string(text ++ ~c".")
+    {:ok, term} = :erl_parse.parse_term(tokens)
+    term
   end
 
   defp bound_names(ssl, allowed) do

@@ -38,8 +38,9 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
       elixir --sname a --erl "-proto_dist tartarus_tls -ssl_dist_optfile certs/a.ssl_dist.conf -pa <tartarus ebin>" ...
 
   `tartarus_tls` (`:tartarus_tls_dist`) is OTP's `inet_tls` with node names bound to
-  certificates: a node may connect only under a name its certificate names, so give `--nodes`
-  the names the nodes will run under (`a` for `a@<any listed host>`, or `a@host`).
+  certificates: a node may connect, and be dialled, only under a name its certificate names,
+  so give `--nodes` the names the nodes will run under (`a` for `a@<any listed host>`, or
+  `a@host`).
 
   ## Options
 
