@@ -84,12 +84,13 @@ defmodule TartarusWarehouse.Floor do
       type: {:list, :any},
       default: [],
       doc:
-        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming)"
+        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves; refused when no robot in service would be left, or none reaching a resource it reaches), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming); checked before the floor starts (`TartarusWarehouse.Job.change/2`)"
     ],
     standby: [
       type: {:list, :pos_integer},
       default: [],
-      doc: "robots that start out of service (they join with `{:join, i}`)"
+      doc:
+        "robots that start out of service (they join with `{:join, i}`); at least one robot starts in service"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     latency_ms: [
@@ -637,7 +638,8 @@ defmodule TartarusWarehouse.Floor do
       ok when ok in [:ok, {:ok, :ok}] -> :ok
       {:ok, {:error, reason}} -> {:error, reason}
       {:error, :timeout} -> {:error, "the distributor did not answer within 30 s"}
-      {:error, reason} -> {:error, reason}
+      {:error, reason} when is_binary(reason) -> {:error, reason}
+      {:error, reason} -> {:error, "#{inspect(event)} failed: #{inspect(reason)}"}
     end
   end
 
@@ -785,7 +787,9 @@ defmodule TartarusWarehouse.Floor do
 
   @doc """
   Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok`, or
-  `{:error, message}` for a malformed job or an id already submitted (nothing changes).
+  `{:error, message}` for a malformed job (checked by `TartarusWarehouse.Job.plan/2`: the
+  message names the field, what was expected and what arrived), an id already submitted,
+  or a floor that failed (see `status/1`); nothing changes then.
   """
   @spec submit(pid(), map()) :: :ok | {:error, String.t()}
   def submit(floor, job), do: GenServer.call(floor, {:submit, job}, 60_000)
@@ -794,10 +798,14 @@ defmodule TartarusWarehouse.Floor do
   Changes a started floor while it runs: `{:insert, after_task, task_spec}`,
   `{:delete, task}`, `{:retire, i}`, `{:join, i}` or `{:kill_distributor, down_ms}` (see
   `run/1`'s `events`; the kill needs a floor started with `failover: true`, and the floor
-  answers nothing else until its distributor's host is back). `:ok`, or `{:error, reason}`
-  when refused (nothing changes).
+  answers nothing else until its distributor's host is back). `:ok`, or `{:error, message}`
+  when refused, and nothing changes: a malformed change (checked by
+  `TartarusWarehouse.Job.change/2` before anything is asked of the distributor or a
+  robot), an unknown robot, a robot whose retirement would leave no robot in service (or
+  none in service reaching a resource it reaches: the floor would take jobs it cannot
+  run), a task already inserted, or a floor that failed.
   """
-  @spec change(pid(), term()) :: :ok | {:error, term()}
+  @spec change(pid(), term()) :: :ok | {:error, String.t()}
   def change(floor, event) do
     down_ms =
       case event do
@@ -811,16 +819,21 @@ defmodule TartarusWarehouse.Floor do
   @doc """
   What a started floor is doing: `jobs` (ids, in submission order), `done` (ids
   completed), `pending`, `robots` (name => the robot's state, see
-  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`.
+  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`, `failed` (nil, or why
+  the floor failed: its distributor crashed and lost its jobs, or was removed; the floor
+  then takes no more jobs or changes, and `stop/1` still reports what ran) and `errors`
+  (oldest first: requests the floor or the distributor could not handle, each answered
+  `{:error, message}` to its caller, and the failure).
   """
   @spec status(pid()) :: map()
   def status(floor), do: GenServer.call(floor, :status, 30_000)
 
   @doc """
-  Waits until every job submitted so far completed: `:ok`, `{:error, :timeout}`, or
-  `{:error, :stopped}` when the floor is stopped meanwhile.
+  Waits until every job submitted so far completed: `:ok`, `{:error, :timeout}`,
+  `{:error, :stopped}` when the floor is stopped meanwhile, or `{:error, message}` when
+  the floor failed (at once, or as soon as it fails: see `status/1`).
   """
-  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped}
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped | String.t()}
   def await(floor, timeout \\ 60_000) do
     GenServer.call(floor, {:await, timeout}, :infinity)
   end

@@ -25,7 +25,9 @@ defmodule TartarusWarehouse.Job do
       ]}
 
   `program` defaults to `TartarusWarehouse.Program.Work`, `duration_ms` to 2000 (the
-  thesis's ideal task), `after` to `[]`.
+  thesis's ideal task), `after` to `[]`. Task names, `after` entries and resources are
+  strings or atoms (not nil, true or false); the job's `id` is plain data (no pid,
+  reference, port or function: it travels inside the agents).
 
   ## Cases (§4.5.1)
 
