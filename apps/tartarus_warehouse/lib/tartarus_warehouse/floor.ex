@@ -217,6 +217,10 @@ defmodule TartarusWarehouse.Floor do
   # what it is (`TartarusWarehouse.Job.change/2`), with robots of this floor.
   defp check_events(events, world, robots) do
     Enum.find_value(events, :ok, fn
+      {:retire_option, other} ->
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.run/1 for key :retire: expected {robot_index, n}, got: #{inspect(other, limit: 5)}"}
+
       {n, event} when (is_integer(n) and n >= 0) or (is_tuple(n) and tuple_size(n) == 2) ->
         with :ok <- check_when(n),
              {:ok, event} <- Job.change(event, world),

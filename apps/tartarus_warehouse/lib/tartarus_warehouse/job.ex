@@ -26,7 +26,8 @@ defmodule TartarusWarehouse.Job do
 
   `program` defaults to `TartarusWarehouse.Program.Work`, `duration_ms` to 2000 (the
   thesis's ideal task), `after` to `[]`. Task names, `after` entries and resources are
-  strings or atoms (not nil, true or false); the job's `id` is plain data (no pid,
+  strings or atoms (not nil, true or false; a resource may also be other plain data, such as
+  `{:psi, 1}`); the job's `id` is plain data (no pid,
   reference, port or function: it travels inside the agents).
 
   ## Cases (§4.5.1)
@@ -47,8 +48,8 @@ defmodule TartarusWarehouse.Job do
       {:c, [["T1", "T2", "T3"]]}
   """
 
-  @typedoc "A resource's name."
-  @type resource :: atom() | String.t()
+  @typedoc "A resource's name: an atom or a string (any plain data is accepted, e.g. `{:psi, 1}`)."
+  @type resource :: atom() | String.t() | term()
 
   @typedoc "A task after validation."
   @type task :: %{
@@ -260,9 +261,9 @@ defmodule TartarusWarehouse.Job do
       rs == [] ->
         {:error, "task #{inspect(name)} of job #{inspect(id)} needs no resource"}
 
-      not all_names?(rs) ->
+      not (plain?(rs) and Enum.all?(rs, &(&1 not in [nil, true, false]))) ->
         {:error,
-         "task #{inspect(name)} of job #{inspect(id)}: expected :resources to be a list of resources (atoms or strings), got: #{inspect(rs, limit: 5)}"}
+         "task #{inspect(name)} of job #{inspect(id)}: expected :resources to be a list of resources (atoms, strings or other plain data; not nil, true, false, a pid, a reference, a port or a function), got: #{inspect(rs, limit: 5)}"}
 
       not TartarusWarehouse.Program.program?(program) ->
         {:error,

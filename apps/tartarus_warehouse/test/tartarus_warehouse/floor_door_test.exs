@@ -150,6 +150,10 @@ defmodule TartarusWarehouse.FloorDoorTest do
     assert {:error, "invalid options given to TartarusWarehouse.Floor.run/1 for key :events" <> _} =
              Floor.run(robots: 2, jobs: [job(1)], events: [:retire])
 
+    assert {:error,
+            "invalid options given to TartarusWarehouse.Floor.run/1 for key :retire: expected {robot_index, n}, got: 3"} =
+             Floor.run(robots: 2, jobs: [job(1)], retire: [3])
+
     assert {:error, "job 1: expected a task's :name" <> _} =
              Floor.run(robots: 2, jobs: [%{id: 1, tasks: [%{name: self(), resources: [:a]}]}])
 

@@ -204,9 +204,9 @@ defmodule TartarusWarehouse.JobTest do
                {:error,
                 ~s(task "T2" of job "J": expected :after to be a task's name or a list of them (strings or atoms\), got: [#{inspect(pid)}])}
 
-      assert Job.plan(%{id: "J", tasks: [t("T1", [:rack, {:a, 1}])]}, @world) ==
+      assert Job.plan(%{id: "J", tasks: [t("T1", [:rack, pid])]}, @world) ==
                {:error,
-                ~s(task "T1" of job "J": expected :resources to be a list of resources (atoms or strings\), got: [:rack, {:a, 1}])}
+                ~s(task "T1" of job "J": expected :resources to be a list of resources (atoms, strings or other plain data; not nil, true, false, a pid, a reference, a port or a function\), got: [:rack, #{inspect(pid)}])}
 
       assert {:error,
               "expected a job's :id to be plain data (no pid, reference, port or function: it travels with the agents), got: {1, #PID<" <>
