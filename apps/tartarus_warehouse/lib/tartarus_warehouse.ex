@@ -50,7 +50,7 @@ defmodule TartarusWarehouse do
   defdelegate submit(floor, job), to: TartarusWarehouse.Floor
 
   @doc "Changes a started floor while it runs. See `TartarusWarehouse.Floor.change/2`."
-  @spec change(pid(), term()) :: :ok | {:error, term()}
+  @spec change(pid(), term()) :: :ok | {:error, String.t()}
   defdelegate change(floor, event), to: TartarusWarehouse.Floor
 
   @doc "What a started floor is doing. See `TartarusWarehouse.Floor.status/1`."
@@ -58,7 +58,7 @@ defmodule TartarusWarehouse do
   defdelegate status(floor), to: TartarusWarehouse.Floor
 
   @doc "Waits for a started floor's jobs. See `TartarusWarehouse.Floor.await/2`."
-  @spec await(pid(), timeout()) :: :ok | {:error, :timeout}
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped | String.t()}
   defdelegate await(floor, timeout \\ 60_000), to: TartarusWarehouse.Floor
 
   @doc "Stops a started floor; returns what ran. See `TartarusWarehouse.Floor.stop/1`."

@@ -231,7 +231,9 @@ defmodule TartarusWarehouse.Distributor do
   Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
   `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
   actions}` (a `{:sequence, [..., {n, {:insert, after_task, name}}]}` and, once its resources are
-  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`.
+  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}` for a
+  malformed change (`TartarusWarehouse.Job.change/2`) or a task already inserted; the
+  distributor is then unchanged.
 
       iex> alias TartarusWarehouse.Distributor, as: D
       iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
@@ -246,23 +248,20 @@ defmodule TartarusWarehouse.Distributor do
   """
   @spec insert(t(), String.t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
   def insert(%__MODULE__{} = d, after_task, spec) do
-    name = spec |> Map.get(:name, "") |> to_string()
-
-    with :ok <-
+    with {:ok, {:insert, after_task, task}} <-
+           Job.change({:insert, after_task, spec}, d.world),
+         name = task.name,
+         :ok <-
            if(Map.get(d.inserted, name),
              do: {:error, "task #{inspect(name)} is already inserted"},
              else: :ok
-           ),
-         {:ok, plan} <-
-           Job.plan(%{id: {:otfp, name}, tasks: [Map.put(spec, :after, [])]}, d.world) do
-      [%{tasks: tasks, resources: rs}] = hd(plan.sequences)
-
+           ) do
       a = %{
         job: {:otfp, name},
         seq: 0,
         index: 1,
-        tasks: tasks,
-        resources: rs,
+        tasks: [task],
+        resources: task.resources |> Enum.uniq() |> Enum.sort(),
         needs: [],
         look_for: {:inserted, name},
         next: :resume,
@@ -271,19 +270,24 @@ defmodule TartarusWarehouse.Distributor do
 
       d = %{d | queue: d.queue ++ [a], inserted: Map.put(d.inserted, name, true)}
       {d, actions} = issue(d, nil)
-      {d, change} = change(d, {:insert, to_string(after_task), name})
+      {d, change} = change(d, {:insert, after_task, name})
       {:ok, d, actions ++ [change]}
     end
   end
 
   @doc """
   Deletes task `name`: an inserted task's agent retires (at once if it was not yet
-  released), and robots skip the task from now on. Returns `{:ok, distributor, actions}`.
+  released), and robots skip the task from now on. Returns `{:ok, distributor, actions}`,
+  or `{:error, message}` when `name` is not a task's name (see
+  `TartarusWarehouse.Job.change/2`).
   """
-  @spec delete(t(), String.t()) :: {:ok, t(), [action()]}
+  @spec delete(t(), String.t()) :: {:ok, t(), [action()]} | {:error, String.t()}
   def delete(%__MODULE__{} = d, name) do
-    name = to_string(name)
+    with {:ok, {:delete, name}} <- Job.change({:delete, name}, d.world),
+         do: do_delete(d, name)
+  end
 
+  defp do_delete(d, name) do
     queue = Enum.reject(d.queue, &(Map.get(&1, :persistent) && inserted_name(&1) == name))
 
     inserted =

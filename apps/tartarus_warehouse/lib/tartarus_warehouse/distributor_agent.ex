@@ -63,6 +63,14 @@ defmodule TartarusWarehouse.DistributorAgent do
   # sequence agent released before the restart may have died with the host before it
   # reached every robot, so the changes so far go round once more (robots ignore what
   # they already applied).
+  def handle_arrival(%{restarts: n}, %{validate: false} = s) when n > 0 do
+    # Restarted from the snapshot it arrived with: without a journal that is its first
+    # state, and every job it had is forgotten. It says so rather than go on as if nothing
+    # happened; its owner (the floor) stops accepting work.
+    tell_owner(s, {:warehouse_distributor_failed, "the distributor crashed and lost its jobs"})
+    {:stay, s}
+  end
+
   def handle_arrival(_ctx, s) do
     if s.effects != [], do: send(self(), :effects)
     s = if s.d.changes != [], do: act({:sequence, s.d.changes}, s), else: s
@@ -71,11 +79,30 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   @doc false
   @impl true
-  def handle_message({:submit, spec}, from, s) do
+  # A request whose handling raises is answered `{:error, message}` and changes nothing
+  # (the distributor is pure until `later/2` returns): a bad message never takes the
+  # distributor, and the jobs it holds, down. The owner hears of it too.
+  def handle_message(message, from, s) do
+    handle(message, from, s)
+  catch
+    kind, reason ->
+      error =
+        "the distributor could not handle #{inspect(message, limit: 5)}: " <>
+          Exception.format_banner(kind, reason, __STACKTRACE__)
+
+      if from, do: Tartarus.Agent.reply(from, {:error, error})
+      tell_owner(s, {:warehouse_distributor_error, error})
+      {:stay, s}
+  end
+
+  defp handle({:submit, spec}, from, s) when not is_map(spec),
+    do: later(s, [{:reply, from, TartarusWarehouse.Job.plan(spec, s.d.world)}])
+
+  defp handle({:submit, spec}, from, s) do
     id = Map.get(spec, :id)
 
     cond do
-      is_map(spec) and Map.get(s.specs, id) == spec ->
+      Map.get(s.specs, id) == spec ->
         later(s, [{:reply, from, :ok}])
 
       true ->
@@ -89,24 +116,26 @@ defmodule TartarusWarehouse.DistributorAgent do
     end
   end
 
-  def handle_message({:insert, after_task, spec}, from, s) do
+  defp handle({:insert, after_task, spec}, from, s) do
     case Distributor.insert(s.d, after_task, spec) do
       {:ok, d, actions} -> later(%{s | d: d}, [{:reply, from, :ok} | actions])
       {:error, message} -> later(s, [{:reply, from, {:error, message}}])
     end
   end
 
-  def handle_message({:delete, name}, from, s) do
-    {:ok, d, actions} = Distributor.delete(s.d, name)
-    later(%{s | d: d}, [{:reply, from, :ok} | actions])
+  defp handle({:delete, name}, from, s) do
+    case Distributor.delete(s.d, name) do
+      {:ok, d, actions} -> later(%{s | d: d}, [{:reply, from, :ok} | actions])
+      {:error, message} -> later(s, [{:reply, from, {:error, message}}])
+    end
   end
 
-  def handle_message({:started, ref}, from, s) do
+  defp handle({:started, ref}, from, s) do
     {d, actions} = Distributor.started(s.d, ref)
     later(%{s | d: d}, [{:reply, from, :ok} | actions])
   end
 
-  def handle_message({:done, ref, key}, from, s) do
+  defp handle({:done, ref, key}, from, s) do
     case {Map.get(s.d.out, ref), Map.get(s.last, ref)} do
       {a, _} when a != nil and {a.job, a.seq, a.index} == key ->
         {d, actions} = Distributor.done(s.d, ref)
@@ -138,18 +167,18 @@ defmodule TartarusWarehouse.DistributorAgent do
     end
   end
 
-  def handle_message({:still, ref}, from, s) do
+  defp handle({:still, ref}, from, s) do
     {d, actions} = Distributor.still(s.d, ref)
     {mine, others} = Enum.split_with(actions, &(&1 == {:retire, ref}))
     later(%{s | d: d}, [{:reply, from, if(mine == [], do: :stay, else: :retire)} | others])
   end
 
-  def handle_message({:valid, ref, nonce}, from, s) do
+  defp handle({:valid, ref, nonce}, from, s) do
     Tartarus.Agent.reply(from, Map.get(s.nonces, ref) == nonce)
     {:stay, s}
   end
 
-  def handle_message(:status, from, s) do
+  defp handle(:status, from, s) do
     Tartarus.Agent.reply(from, %{
       waiting: Distributor.waiting(s.d),
       held: Distributor.held(s.d),
@@ -161,7 +190,7 @@ defmodule TartarusWarehouse.DistributorAgent do
     {:stay, s}
   end
 
-  def handle_message(_other, _from, s), do: {:stay, s}
+  defp handle(_other, _from, s), do: {:stay, s}
 
   @doc false
   @impl true
@@ -231,5 +260,9 @@ defmodule TartarusWarehouse.DistributorAgent do
   end
 
   defp act({:retire, _ref}, s), do: s
+
   defp act({:reissue, _ref, _a}, s), do: s
+
+  defp tell_owner(%{owner: owner}, message) when is_pid(owner), do: send(owner, message)
+  defp tell_owner(_s, _message), do: :ok
 end

@@ -84,12 +84,13 @@ defmodule TartarusWarehouse.Floor do
       type: {:list, :any},
       default: [],
       doc:
-        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming)"
+        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves; refused when no robot in service would be left, or none reaching a resource it reaches), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming); checked before the floor starts (`TartarusWarehouse.Job.change/2`)"
     ],
     standby: [
       type: {:list, :pos_integer},
       default: [],
-      doc: "robots that start out of service (they join with `{:join, i}`)"
+      doc:
+        "robots that start out of service (they join with `{:join, i}`); at least one robot starts in service"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     latency_ms: [
@@ -178,25 +179,84 @@ defmodule TartarusWarehouse.Floor do
   completion time, µs), `t0_us` (submission of the first job), `makespan_ms`, `robots`,
   `migrations`, `bytes`, `messages` (from `TartarusEmu.Log`), `timed_out` (jobs not done),
   `refused_events` (events that were refused and changed nothing, with the reason),
+  `failed` (nil, or why the distributor failed: its jobs are then lost and `run/1` stops
+  waiting for them),
   `applied_events` (events applied, each with the time it took effect, µs),
   `wall_ms`; or `{:error, message}` for bad options or a rejected job.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1"),
+         :ok <- check_standby(opts, "run/1"),
          world = world(opts),
-         :ok <- plan_all(opts[:jobs], world) do
+         :ok <- plan_all(opts[:jobs], world),
+         :ok <- check_events(events(opts), world, opts[:robots]) do
       start_and_run(world, opts)
     end
   end
+
+  # At least one robot starts in service, and standby robots are robots of the floor.
+  defp check_standby(opts, fun) do
+    robots = opts[:robots]
+
+    cond do
+      Enum.any?(opts[:standby], &(&1 > robots)) ->
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.#{fun} for key :standby: expected indices of robots 1..#{robots}, got: #{inspect(opts[:standby])}"}
+
+      Enum.all?(1..robots, &(&1 in opts[:standby])) ->
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.#{fun} for key :standby: at least one robot must start in service (a floor with none would take jobs it cannot run), got: #{inspect(opts[:standby])}"}
+
+      true ->
+        :ok
+    end
+  end
+
+  # `run/1`'s events (and `retire`), checked before anything starts: when each fires, and
+  # what it is (`TartarusWarehouse.Job.change/2`), with robots of this floor.
+  defp check_events(events, world, robots) do
+    Enum.find_value(events, :ok, fn
+      {:retire_option, other} ->
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.run/1 for key :retire: expected {robot_index, n}, got: #{inspect(other, limit: 5)}"}
+
+      {n, event} when (is_integer(n) and n >= 0) or (is_tuple(n) and tuple_size(n) == 2) ->
+        with :ok <- check_when(n),
+             {:ok, event} <- Job.change(event, world),
+             :ok <- check_robot(event, robots) do
+          nil
+        end
+
+      other ->
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.run/1 for key :events: expected {n, event} or {{:ms, t}, event}, got: #{inspect(other, limit: 5)}"}
+    end)
+  end
+
+  defp check_when({:ms, t}) when is_integer(t) and t >= 0, do: :ok
+  defp check_when(n) when is_integer(n) and n >= 0, do: :ok
+
+  defp check_when(other),
+    do:
+      {:error,
+       "invalid options given to TartarusWarehouse.Floor.run/1 for key :events: expected when an event fires to be n (jobs completed) or {:ms, t}, got: #{inspect(other)}"}
+
+  defp check_robot({what, i}, robots) when what in [:retire, :join] and i > robots,
+    do: {:error, "no robot #{inspect(i)} (the floor has robots 1..#{robots})"}
+
+  defp check_robot(_event, _robots), do: :ok
 
   defp world(opts) do
     resources =
       case opts[:resources] do
         [] ->
-          opts[:jobs]
-          |> Enum.flat_map(&Enum.flat_map(&1.tasks, fn t -> t.resources end))
-          |> Enum.uniq()
+          # Those of well-formed tasks: a malformed job is named by plan_all/2.
+          for %{tasks: tasks} when is_list(tasks) <- opts[:jobs],
+              %{resources: rs} when is_list(rs) <- tasks,
+              r <- rs,
+              uniq: true,
+              do: r
 
         rs ->
           rs
@@ -238,6 +298,7 @@ defmodule TartarusWarehouse.Floor do
        |> collect(Enum.map(opts[:jobs], & &1.id), completed, t0)
        |> Map.merge(%{
          refused_events: refused(),
+         failed: failed(),
          applied_events: applied(),
          killed_at_us: killed(),
          wall_ms: System.monotonic_time(:millisecond) - t_start
@@ -312,17 +373,23 @@ defmodule TartarusWarehouse.Floor do
     {:ok, dist} =
       case design do
         :agents ->
-          Tartarus.create_static_agent(jd, TartarusWarehouse.DistributorAgent, %{
-            world: world,
-            owner: owner,
-            robots: robot_set(robot_hosts),
-            all_robots: MapSet.new(Map.values(robot_hosts)),
-            idle_ms: opts[:idle_ms],
-            round: min(robots, 16),
-            seed: opts[:seed],
-            validate: opts[:failover],
-            guide: if(opts[:guide], do: robot_span(robots))
-          })
+          Tartarus.create_static_agent(
+            jd,
+            TartarusWarehouse.DistributorAgent,
+            %{
+              world: world,
+              owner: owner,
+              robots: robot_set(robot_hosts),
+              all_robots: MapSet.new(Map.values(robot_hosts)),
+              idle_ms: opts[:idle_ms],
+              round: min(robots, 16),
+              seed: opts[:seed],
+              validate: opts[:failover],
+              guide: if(opts[:guide], do: robot_span(robots))
+            },
+            # told `{:tartarus_removed, id, reason}` if it is removed
+            owner: owner
+          )
 
         :central ->
           agents =
@@ -337,12 +404,12 @@ defmodule TartarusWarehouse.Floor do
             end)
 
           {:ok, sid} =
-            Tartarus.create_static_agent(jd, TartarusWarehouse.Central, %{
-              world: world,
-              owner: owner,
-              robots: agents,
-              server_ms: opts[:server_ms]
-            })
+            Tartarus.create_static_agent(
+              jd,
+              TartarusWarehouse.Central,
+              %{world: world, owner: owner, robots: agents, server_ms: opts[:server_ms]},
+              owner: owner
+            )
 
           Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
           {:ok, sid}
@@ -504,6 +571,15 @@ defmodule TartarusWarehouse.Floor do
             Panel.publish(ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(done)}))
             fire(events, map_size(done), ctx)
             await(opts, events, ctx, done, total, t0)
+
+          # The distributor failed: the jobs it held will not complete; no use waiting.
+          {:warehouse_distributor_failed, reason} ->
+            send(self(), {:warehouse_failed, reason})
+            done
+
+          {:tartarus_removed, id, reason} when id == elem(ctx.dref, 0) ->
+            send(self(), {:warehouse_failed, "the distributor was removed: #{inspect(reason)}"})
+            done
         after
           max(min(next, opts[:timeout_ms]), 0) ->
             await(opts, events, ctx, done, total, t0)
@@ -511,8 +587,15 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
-  defp events(opts),
-    do: Enum.map(opts[:retire], fn {i, n} -> {n, {:retire, i}} end) ++ opts[:events]
+  defp events(opts) do
+    retire =
+      Enum.map(opts[:retire], fn
+        {i, n} -> {n, {:retire, i}}
+        other -> {:retire_option, other}
+      end)
+
+    retire ++ opts[:events]
+  end
 
   defp fire(events, count, ctx) do
     for {^count, event} <- events, do: fire_one(event, ctx)
@@ -536,22 +619,85 @@ defmodule TartarusWarehouse.Floor do
   defp apply_event({:delete, _}, %{design: :central}),
     do: {:error, "the central baseline takes no on-the-fly changes"}
 
-  defp apply_event(event, %{dref: dref, robot_hosts: robot_hosts, net: net}) do
+  # Every change is checked first (`Job.change/2`: the one door for changes); a malformed
+  # one never reaches the distributor or a robot.
+  defp apply_event(event, ctx) do
+    case Job.change(event, ctx.world) do
+      {:ok, event} -> apply_valid(event, ctx)
+      {:error, message} -> {:error, message}
+    end
+  end
+
+  defp apply_valid(event, %{dref: dref, robot_hosts: robot_hosts, net: net} = ctx) do
     result =
       case event do
-        {:retire, i} -> plugin(robot_hosts, i, :retire)
+        {:retire, i} -> retire(ctx, i)
         {:join, i} -> plugin(robot_hosts, i, :join)
-        {:insert, after_task, spec} -> Tartarus.request(dref, {:insert, after_task, spec}, 30_000)
+        {:insert, after_task, task} -> Tartarus.request(dref, {:insert, after_task, task}, 30_000)
         {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
         {:kill_distributor, down_ms} -> kill_distributor(net, down_ms)
-        other -> {:error, "unknown event #{inspect(other)}"}
       end
 
     case result do
       ok when ok in [:ok, {:ok, :ok}] -> :ok
       {:ok, {:error, reason}} -> {:error, reason}
-      {:error, reason} -> {:error, reason}
+      {:error, :timeout} -> {:error, "the distributor did not answer within 30 s"}
+      {:error, reason} when is_binary(reason) -> {:error, reason}
+      {:error, reason} -> {:error, "#{inspect(event)} failed: #{inspect(reason)}"}
     end
+  end
+
+  # A robot may leave only if the robots still in service (not off, not retiring) reach
+  # every resource it reaches: the floor never takes jobs it has no robot for, and no task
+  # agent searches for a robot that will not come back.
+  defp retire(ctx, i) do
+    name = "r#{i}"
+
+    with {:ok, host} <- robot_host(ctx.robot_hosts, i),
+         {:ok, states} <- robot_states(ctx.robot_hosts),
+         :ok <- still_served(ctx.world, states, name) do
+      Tartarus.write_plugin(host, :robot, :retire)
+    end
+  end
+
+  defp still_served(world, states, name) do
+    in_service = fn r -> match?(%{off: false, retiring: false}, states[r]) end
+
+    if in_service.(name) do
+      others = for {r, reach} <- world.robots, r != name, in_service.(r), do: reach
+
+      lost =
+        MapSet.difference(world.robots[name], Enum.reduce(others, MapSet.new(), &MapSet.union/2))
+
+      cond do
+        others == [] ->
+          {:error,
+           "robot #{String.slice(name, 1..-1//1)} is the last robot in service: retiring it would leave the floor no robot to run jobs (let a standby robot join first)"}
+
+        MapSet.size(lost) > 0 ->
+          {:error,
+           "robot #{String.slice(name, 1..-1//1)} is the last robot in service that reaches #{lost |> Enum.sort() |> Enum.map_join(", ", &inspect/1)}: retiring it would leave jobs that need it no robot"}
+
+        true ->
+          :ok
+      end
+    else
+      # Already off or leaving: retiring it again changes nothing.
+      :ok
+    end
+  end
+
+  defp robot_states(robot_hosts) do
+    Enum.reduce_while(robot_hosts, {:ok, %{}}, fn {name, host}, {:ok, acc} ->
+      case Tartarus.read_plugin(host, :robot, :state) do
+        {:ok, state} ->
+          {:cont, {:ok, Map.put(acc, name, state)}}
+
+        {:error, reason} ->
+          {:halt,
+           {:error, "robot #{name} could not be read (#{inspect(reason)}): nothing retired"}}
+      end
+    end)
   end
 
   # The distributor's host dies with everything on it, and starts again `down_ms` later
@@ -564,8 +710,12 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp plugin(robot_hosts, i, what) do
+    with {:ok, host} <- robot_host(robot_hosts, i), do: Tartarus.write_plugin(host, :robot, what)
+  end
+
+  defp robot_host(robot_hosts, i) do
     case Map.fetch(robot_hosts, "r#{i}") do
-      {:ok, host} -> Tartarus.write_plugin(host, :robot, what)
+      {:ok, host} -> {:ok, host}
       :error -> {:error, "no robot #{inspect(i)}"}
     end
   end
@@ -583,6 +733,14 @@ defmodule TartarusWarehouse.Floor do
       {:warehouse_applied, event, at} -> [%{event: event, at_us: at} | applied()]
     after
       0 -> []
+    end
+  end
+
+  defp failed do
+    receive do
+      {:warehouse_failed, reason} -> reason
+    after
+      0 -> nil
     end
   end
 
@@ -620,6 +778,7 @@ defmodule TartarusWarehouse.Floor do
              @schema ++ @start_extra,
              "TartarusWarehouse.Floor.start/1"
            ),
+         :ok <- check_standby(opts, "start/1"),
          world = world(opts),
          :ok <- plan_all(opts[:jobs], world) do
       case GenServer.start(__MODULE__, {world, opts}) do
@@ -632,7 +791,9 @@ defmodule TartarusWarehouse.Floor do
 
   @doc """
   Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok`, or
-  `{:error, message}` for a malformed job or an id already submitted (nothing changes).
+  `{:error, message}` for a malformed job (checked by `TartarusWarehouse.Job.plan/2`: the
+  message names the field, what was expected and what arrived), an id already submitted,
+  or a floor that failed (see `status/1`); nothing changes then.
   """
   @spec submit(pid(), map()) :: :ok | {:error, String.t()}
   def submit(floor, job), do: GenServer.call(floor, {:submit, job}, 60_000)
@@ -641,10 +802,14 @@ defmodule TartarusWarehouse.Floor do
   Changes a started floor while it runs: `{:insert, after_task, task_spec}`,
   `{:delete, task}`, `{:retire, i}`, `{:join, i}` or `{:kill_distributor, down_ms}` (see
   `run/1`'s `events`; the kill needs a floor started with `failover: true`, and the floor
-  answers nothing else until its distributor's host is back). `:ok`, or `{:error, reason}`
-  when refused (nothing changes).
+  answers nothing else until its distributor's host is back). `:ok`, or `{:error, message}`
+  when refused, and nothing changes: a malformed change (checked by
+  `TartarusWarehouse.Job.change/2` before anything is asked of the distributor or a
+  robot), an unknown robot, a robot whose retirement would leave no robot in service (or
+  none in service reaching a resource it reaches: the floor would take jobs it cannot
+  run), a task already inserted, or a floor that failed.
   """
-  @spec change(pid(), term()) :: :ok | {:error, term()}
+  @spec change(pid(), term()) :: :ok | {:error, String.t()}
   def change(floor, event) do
     down_ms =
       case event do
@@ -658,16 +823,21 @@ defmodule TartarusWarehouse.Floor do
   @doc """
   What a started floor is doing: `jobs` (ids, in submission order), `done` (ids
   completed), `pending`, `robots` (name => the robot's state, see
-  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`.
+  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`, `failed` (nil, or why
+  the floor failed: its distributor crashed and lost its jobs, or was removed; the floor
+  then takes no more jobs or changes, and `stop/1` still reports what ran) and `errors`
+  (oldest first: requests the floor or the distributor could not handle, each answered
+  `{:error, message}` to its caller, and the failure).
   """
   @spec status(pid()) :: map()
   def status(floor), do: GenServer.call(floor, :status, 30_000)
 
   @doc """
-  Waits until every job submitted so far completed: `:ok`, `{:error, :timeout}`, or
-  `{:error, :stopped}` when the floor is stopped meanwhile.
+  Waits until every job submitted so far completed: `:ok`, `{:error, :timeout}`,
+  `{:error, :stopped}` when the floor is stopped meanwhile, or `{:error, message}` when
+  the floor failed (at once, or as soon as it fails: see `status/1`).
   """
-  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped}
+  @spec await(pid(), timeout()) :: :ok | {:error, :timeout | :stopped | String.t()}
   def await(floor, timeout \\ 60_000) do
     GenServer.call(floor, {:await, timeout}, :infinity)
   end
@@ -693,7 +863,18 @@ defmodule TartarusWarehouse.Floor do
 
     case start_dashboard(opts[:dashboard], ctx, table) do
       {:ok, dash} ->
-        st = %{ctx: ctx, t0: t0, jobs: [], done: %{}, waiters: [], dash: dash, changes: []}
+        st = %{
+          ctx: ctx,
+          t0: t0,
+          jobs: [],
+          done: %{},
+          waiters: [],
+          dash: dash,
+          changes: [],
+          failed: nil,
+          errors: []
+        }
+
         {:ok, Enum.reduce(opts[:jobs], st, &elem(do_submit(&1, &2), 1))}
 
       {:error, message} ->
@@ -714,21 +895,31 @@ defmodule TartarusWarehouse.Floor do
   end
 
   @impl GenServer
+  def handle_call({what, _}, _from, %{failed: reason} = st)
+      when reason != nil and what in [:submit, :change] do
+    {:reply, {:error, failed_message(reason)}, st}
+  end
+
   def handle_call({:submit, job}, _from, st) do
-    {reply, st} = do_submit(job, st)
+    {reply, st} = guarded(st, "submit #{inspect(job, limit: 5)}", &do_submit(job, &1))
     {:reply, reply, st}
   end
 
   def handle_call({:change, event}, _from, st) do
-    result =
-      case event do
-        {:kill_distributor, _} when not st.ctx.failover ->
-          {:error,
-           "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
+    {result, st} =
+      guarded(st, "change #{inspect(event, limit: 5)}", fn st ->
+        result =
+          case event do
+            {:kill_distributor, _} when not st.ctx.failover ->
+              {:error,
+               "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
 
-        _ ->
-          apply_event(event, st.ctx)
-      end
+            _ ->
+              apply_event(event, st.ctx)
+          end
+
+        {result, st}
+      end)
 
     change = %{event: event, at_us: System.system_time(:microsecond), result: result}
     {:reply, result, %{st | changes: [change | st.changes]}}
@@ -750,21 +941,29 @@ defmodule TartarusWarehouse.Floor do
        pending: Enum.reject(st.jobs, &Map.has_key?(st.done, &1)),
        robots: robots,
        hosts: st.ctx.robot_hosts,
-       elapsed_ms: div(System.system_time(:microsecond) - st.t0, 1000)
+       elapsed_ms: div(System.system_time(:microsecond) - st.t0, 1000),
+       failed: st.failed,
+       errors: Enum.reverse(st.errors)
      }, st}
   end
 
   def handle_call({:await, timeout}, from, st) do
-    if all_done?(st) do
-      {:reply, :ok, st}
-    else
-      ref = make_ref()
-      if timeout != :infinity, do: Process.send_after(self(), {:await_timeout, ref}, timeout)
-      {:noreply, %{st | waiters: [{ref, from} | st.waiters]}}
+    cond do
+      all_done?(st) -> {:reply, :ok, st}
+      st.failed -> {:reply, {:error, failed_message(st.failed)}, st}
+      true -> wait(timeout, from, st)
     end
   end
 
-  def handle_call(:stop, _from, st) do
+  def handle_call(:stop, from, st), do: stop_call(from, st)
+
+  defp wait(timeout, from, st) do
+    ref = make_ref()
+    if timeout != :infinity, do: Process.send_after(self(), {:await_timeout, ref}, timeout)
+    {:noreply, %{st | waiters: [{ref, from} | st.waiters]}}
+  end
+
+  defp stop_call(_from, st) do
     result = collect(st.ctx, st.jobs, st.done, st.t0)
 
     result =
@@ -803,6 +1002,17 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
+  # The distributor (or the central server) failed: every job it held is lost. The floor
+  # says so (status/1's `failed`), answers its waiters, and takes no more jobs or changes.
+  def handle_info({:warehouse_distributor_failed, reason}, st), do: {:noreply, fail(st, reason)}
+
+  def handle_info({:tartarus_removed, id, reason}, %{ctx: %{dref: {id, _}}} = st),
+    do: {:noreply, fail(st, "the distributor was removed: #{inspect(reason, limit: 5)}")}
+
+  # A request the distributor could not handle (answered with an error, nothing changed).
+  def handle_info({:warehouse_distributor_error, message}, st),
+    do: {:noreply, %{st | errors: [message | st.errors]}}
+
   def handle_info({:EXIT, dash, _reason}, %{dash: dash} = st), do: {:noreply, %{st | dash: nil}}
   def handle_info(_other, st), do: {:noreply, st}
 
@@ -835,4 +1045,29 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp all_done?(st), do: Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
+
+  defp fail(%{failed: nil} = st, reason) do
+    Enum.each(st.waiters, fn {_, from} ->
+      GenServer.reply(from, {:error, failed_message(reason)})
+    end)
+
+    %{st | failed: reason, waiters: [], errors: [reason | st.errors]}
+  end
+
+  defp fail(st, _reason), do: st
+
+  defp failed_message(reason),
+    do: "the floor failed (#{reason}): it takes no more jobs or changes; stop/1 it for what ran"
+
+  # An exception while the floor handles a request is the caller's answer, `{:error,
+  # message}`, and is kept in status/1's `errors`; the floor goes on, unchanged.
+  defp guarded(st, what, fun) do
+    fun.(st)
+  catch
+    kind, reason ->
+      message =
+        "the floor could not #{what}: " <> Exception.format_banner(kind, reason, __STACKTRACE__)
+
+      {{:error, message}, %{st | errors: [message | st.errors]}}
+  end
 end

@@ -25,7 +25,10 @@ defmodule TartarusWarehouse.Job do
       ]}
 
   `program` defaults to `TartarusWarehouse.Program.Work`, `duration_ms` to 2000 (the
-  thesis's ideal task), `after` to `[]`.
+  thesis's ideal task), `after` to `[]`. Task names, `after` entries and resources are
+  strings or atoms (not nil, true or false; a resource may also be other plain data, such as
+  `{:psi, 1}`); the job's `id` is plain data (no pid,
+  reference, port or function: it travels inside the agents).
 
   ## Cases (§4.5.1)
 
@@ -45,8 +48,8 @@ defmodule TartarusWarehouse.Job do
       {:c, [["T1", "T2", "T3"]]}
   """
 
-  @typedoc "A resource's name."
-  @type resource :: atom() | String.t()
+  @typedoc "A resource's name: an atom or a string (any plain data is accepted, e.g. `{:psi, 1}`)."
+  @type resource :: atom() | String.t() | term()
 
   @typedoc "A task after validation."
   @type task :: %{
@@ -109,15 +112,118 @@ defmodule TartarusWarehouse.Job do
     end
   end
 
-  # -- shape -----------------------------------------------------------------------
+  @typedoc "A change to a running floor (see `change/2`)."
+  @type change ::
+          {:insert, String.t(), task()}
+          | {:delete, String.t()}
+          | {:retire, pos_integer()}
+          | {:join, pos_integer()}
+          | {:kill_distributor, non_neg_integer()}
 
-  defp shape(%{id: id, tasks: []}), do: {:error, "job #{inspect(id)} has no tasks"}
-  defp shape(%{id: id, tasks: tasks}) when is_list(tasks), do: {:ok, id, tasks}
+  @doc """
+  Validates a change to a running floor (`TartarusWarehouse.Floor.change/2`, the `events`
+  of `TartarusWarehouse.Floor.run/1`) against `world`: the one check every door uses (the
+  floor, the distributor). Returns `{:ok, change}` (task names as strings; an inserted
+  task validated like a job's task, its resources known and reached by some robot) or
+  `{:error, message}` naming what was expected and what arrived; nothing changes.
 
-  defp shape(%{id: id, tasks: other}),
+    * `{:insert, after_task, task_spec}` - add a task after the task named `after_task`;
+    * `{:delete, task}` - delete a task;
+    * `{:retire, i}`, `{:join, i}` - robot `i` (a positive integer) leaves, joins;
+    * `{:kill_distributor, down_ms}` - kill the distributor's host for `down_ms` ms.
+
+  Whether robot `i` exists, and whether it may leave, is for the floor to say.
+
+      iex> world = TartarusWarehouse.Job.world([:a, :detour], 2)
+      iex> TartarusWarehouse.Job.change({:insert, :T1, %{name: "X", resources: [:detour]}}, world)
+      ...> |> elem(1) |> Tuple.delete_at(2)
+      {:insert, "T1"}
+      iex> TartarusWarehouse.Job.change({:insert, "T1", "not a map"}, world)
+      {:error, ~s[change {:insert, "T1", _}: expected the task to insert to be a map with :name and :resources (a list), got: "not a map"]}
+      iex> TartarusWarehouse.Job.change({:retire, "2"}, world)
+      {:error, ~s[change {:retire, _}: expected a robot's index (a positive integer), got: "2"]}
+  """
+  @spec change(term(), world()) :: {:ok, change()} | {:error, String.t()}
+  def change({:insert, after_task, spec}, world) do
+    with {:ok, after_task} <- change_name(:insert, "the task to insert after", after_task),
+         :ok <- insert_shape(after_task, spec),
+         {:ok, name} <- task_name({:otfp, after_task}, spec.name),
+         {:ok, plan} <- plan(%{id: {:otfp, name}, tasks: [Map.put(spec, :after, [])]}, world) do
+      [%{tasks: [task]}] = hd(plan.sequences)
+      {:ok, {:insert, after_task, task}}
+    else
+      {:error, "change " <> _} = error ->
+        error
+
+      {:error, message} ->
+        {:error, "change {:insert, #{inspect(after_task)}, _}: #{insert_message(message)}"}
+    end
+  end
+
+  def change({:delete, task}, _world) do
+    with {:ok, task} <- change_name(:delete, "a task's name", task), do: {:ok, {:delete, task}}
+  end
+
+  def change({what, i}, _world) when what in [:retire, :join] do
+    if is_integer(i) and i > 0,
+      do: {:ok, {what, i}},
+      else:
+        {:error,
+         "change {#{inspect(what)}, _}: expected a robot's index (a positive integer), got: #{inspect(i, limit: 5)}"}
+  end
+
+  def change({:kill_distributor, ms}, _world) do
+    if is_integer(ms) and ms >= 0,
+      do: {:ok, {:kill_distributor, ms}},
+      else:
+        {:error,
+         "change {:kill_distributor, _}: expected the ms the host stays down (a non-negative integer), got: #{inspect(ms, limit: 5)}"}
+  end
+
+  def change(other, _world),
     do:
       {:error,
-       "job #{inspect(id)}: expected :tasks to be a list of tasks, got: #{inspect(other)}"}
+       "expected a change: {:insert, after_task, task_spec}, {:delete, task}, {:retire, robot}, {:join, robot} or {:kill_distributor, down_ms}, got: #{inspect(other, limit: 5)}"}
+
+  defp change_name(what, expected, name) do
+    if name?(name),
+      do: {:ok, to_string(name)},
+      else:
+        {:error,
+         "change {#{inspect(what)}, _}: expected #{expected} (a string or an atom), got: #{inspect(name, limit: 5)}"}
+  end
+
+  defp insert_shape(after_task, spec) do
+    if is_map(spec) and Map.has_key?(spec, :name) and is_list(Map.get(spec, :resources)),
+      do: :ok,
+      else:
+        {:error,
+         "change {:insert, #{inspect(after_task)}, _}: expected the task to insert to be a map with :name and :resources (a list), got: #{inspect(spec, limit: 5)}"}
+  end
+
+  # The plan's messages name the inserted task's job `{:otfp, name}`: say it plainly.
+  defp insert_message(message),
+    do: String.replace(message, ~r/ of job \{:otfp, "[^"]*"\}|job \{:otfp, "[^"]*"\}: /, "")
+
+  # -- shape -----------------------------------------------------------------------
+
+  defp shape(%{id: id, tasks: tasks}) do
+    cond do
+      not plain?(id) ->
+        {:error,
+         "expected a job's :id to be plain data (no pid, reference, port or function: it travels with the agents), got: #{inspect(id, limit: 5)}"}
+
+      tasks == [] ->
+        {:error, "job #{inspect(id)} has no tasks"}
+
+      is_list(tasks) ->
+        {:ok, id, tasks}
+
+      true ->
+        {:error,
+         "job #{inspect(id)}: expected :tasks to be a list of tasks, got: #{inspect(tasks, limit: 5)}"}
+    end
+  end
 
   defp shape(other),
     do: {:error, "expected a job with :id and :tasks, got: #{inspect(other, limit: 5)}"}
@@ -136,14 +242,28 @@ defmodule TartarusWarehouse.Job do
   end
 
   defp task(id, %{name: name, resources: rs} = t) when is_list(rs) do
-    name = to_string(name)
-    after_ = t |> Map.get(:after, []) |> List.wrap() |> Enum.map(&to_string/1)
+    with {:ok, name} <- task_name(id, name),
+         {:ok, after_} <- after_names(id, name, Map.get(t, :after, [])) do
+      task(id, name, rs, after_, t)
+    end
+  end
+
+  defp task(id, other),
+    do:
+      {:error,
+       "job #{inspect(id)}: expected a task with :name and :resources (a list), got: #{inspect(other, limit: 5)}"}
+
+  defp task(id, name, rs, after_, t) do
     program = Map.get(t, :program, TartarusWarehouse.Program.Work)
     duration = Map.get(t, :duration_ms, 2000)
 
     cond do
       rs == [] ->
         {:error, "task #{inspect(name)} of job #{inspect(id)} needs no resource"}
+
+      not (plain?(rs) and Enum.all?(rs, &(&1 not in [nil, true, false]))) ->
+        {:error,
+         "task #{inspect(name)} of job #{inspect(id)}: expected :resources to be a list of resources (atoms, strings or other plain data; not nil, true, false, a pid, a reference, a port or a function), got: #{inspect(rs, limit: 5)}"}
 
       not TartarusWarehouse.Program.program?(program) ->
         {:error,
@@ -165,10 +285,44 @@ defmodule TartarusWarehouse.Job do
     end
   end
 
-  defp task(id, other),
-    do:
-      {:error,
-       "job #{inspect(id)}: expected a task with :name and :resources (a list), got: #{inspect(other, limit: 5)}"}
+  defp task_name(id, name) do
+    if name?(name),
+      do: {:ok, to_string(name)},
+      else:
+        {:error,
+         "job #{inspect(id)}: expected a task's :name to be a string or an atom, got: #{inspect(name, limit: 5)}"}
+  end
+
+  defp after_names(id, name, after_) do
+    list = List.wrap(after_)
+
+    if all_names?(list),
+      do: {:ok, Enum.map(list, &to_string/1)},
+      else:
+        {:error,
+         "task #{inspect(name)} of job #{inspect(id)}: expected :after to be a task's name or a list of them (strings or atoms), got: #{inspect(after_, limit: 5)}"}
+  end
+
+  # A task's or a resource's name: a non-empty string, or an atom other than nil, true, false.
+  defp name?(n) when is_binary(n), do: n != ""
+  defp name?(n) when is_atom(n), do: n not in [nil, true, false]
+  defp name?(_), do: false
+
+  defp all_names?([]), do: true
+  defp all_names?([h | t]), do: name?(h) and all_names?(t)
+  defp all_names?(_improper), do: false
+
+  # Data that can travel with an agent and be compared: no pid, reference, port or function.
+  defp plain?(x) when is_pid(x) or is_reference(x) or is_port(x) or is_function(x), do: false
+  defp plain?(x) when is_list(x), do: plain_list?(x)
+  defp plain?(x) when is_tuple(x), do: x |> Tuple.to_list() |> plain_list?()
+  defp plain?(%{} = x), do: Enum.all?(x, fn {k, v} -> plain?(k) and plain?(v) end)
+  defp plain?(_), do: true
+
+  # Improper lists too.
+  defp plain_list?([]), do: true
+  defp plain_list?([h | t]), do: plain?(h) and plain_list?(t)
+  defp plain_list?(t), do: plain?(t)
 
   defp unique(id, tasks) do
     case tasks |> Enum.frequencies_by(& &1.name) |> Enum.filter(fn {_, n} -> n > 1 end) do

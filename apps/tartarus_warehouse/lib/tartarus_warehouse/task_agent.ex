@@ -10,7 +10,9 @@ defmodule TartarusWarehouse.TaskAgent do
   **stays until the robot has run them** (the adaptive clock of §4.5.3), the robot goes to
   the next state, and the agent tells the distributor it is done: it is then re-issued for
   the next job (and migrates on) or retires (stops). When a round of robots finds no match
-  it waits `idle_ms` before the next hop, so idle agents do not spin.
+  it waits `idle_ms` before the next hop, so idle agents do not spin. (The floor never
+  leaves them without a robot: the last robot in service, or the last reaching a
+  resource, cannot retire; see `TartarusWarehouse.Floor.change/2`.)
 
   With `guide: span` (an integer) the agent whose robot goes on to a next block announces,
   as soon as the robot starts its block, the state the robot will be in afterwards: a

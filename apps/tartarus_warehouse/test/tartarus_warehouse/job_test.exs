@@ -190,6 +190,63 @@ defmodule TartarusWarehouse.JobTest do
       assert {:ok, _} = Job.plan(%{id: "J", tasks: [t("T1", [:rack]), t("T2", [:pack])]}, world)
     end
 
+    test "names, predecessors, resources and ids of the wrong kind (each message names the field, what was expected and what arrived)" do
+      assert Job.plan(%{id: "J", tasks: [%{name: %{a: 1}, resources: [:rack]}]}, @world) ==
+               {:error,
+                ~s(job "J": expected a task's :name to be a string or an atom, got: %{a: 1})}
+
+      assert Job.plan(%{id: "J", tasks: [%{name: nil, resources: [:rack]}]}, @world) ==
+               {:error, ~s(job "J": expected a task's :name to be a string or an atom, got: nil)}
+
+      pid = self()
+
+      assert Job.plan(%{id: "J", tasks: [t("T1", [:rack]), t("T2", [:path], [pid])]}, @world) ==
+               {:error,
+                ~s(task "T2" of job "J": expected :after to be a task's name or a list of them (strings or atoms\), got: [#{inspect(pid)}])}
+
+      assert Job.plan(%{id: "J", tasks: [t("T1", [:rack, pid])]}, @world) ==
+               {:error,
+                ~s(task "T1" of job "J": expected :resources to be a list of resources (atoms, strings or other plain data; not nil, true, false, a pid, a reference, a port or a function\), got: [:rack, #{inspect(pid)}])}
+
+      assert {:error,
+              "expected a job's :id to be plain data (no pid, reference, port or function: it travels with the agents), got: {1, #PID<" <>
+                _} = Job.plan(%{id: {1, pid}, tasks: [t("T1", [:rack])]}, @world)
+
+      assert {:ok, _} = Job.plan(%{id: {:batch, 1}, tasks: [t(:T1, [:rack])]}, @world)
+    end
+
+    test "changes: one check for the floor and the distributor" do
+      assert {:ok, {:insert, "T1", %{name: "X", resources: [:rack], after: []}}} =
+               Job.change({:insert, :T1, %{name: :X, resources: [:rack]}}, @world)
+
+      assert Job.change({:insert, "T1", %{name: "X", resources: [:dock]}}, @world) ==
+               {:error,
+                ~s(change {:insert, "T1", _}: task "X" needs unknown resource :dock (known: [:pack, :path, :rack, :shelf, :stamp]\))}
+
+      assert {:error, ~s(change {:insert, "T1", _}: task "X": expected :duration_ms) <> _} =
+               Job.change(
+                 {:insert, "T1", %{name: "X", resources: [:rack], duration_ms: -1}},
+                 @world
+               )
+
+      assert Job.change({:delete, "T1"}, @world) == {:ok, {:delete, "T1"}}
+      assert Job.change({:retire, 2}, @world) == {:ok, {:retire, 2}}
+
+      assert Job.change({:kill_distributor, -5}, @world) ==
+               {:error,
+                "change {:kill_distributor, _}: expected the ms the host stays down (a non-negative integer), got: -5"}
+
+      assert {:error, "expected a change: " <> _} = Job.change({:retire, 1, 2}, @world)
+
+      # the pure distributor refuses the same way, and is unchanged
+      d = TartarusWarehouse.Distributor.new(@world)
+
+      assert {:error, "change {:insert, \"T1\", _}: expected the task to insert" <> _} =
+               TartarusWarehouse.Distributor.insert(d, "T1", "not a map")
+
+      assert {:error, "change {:delete, _}: " <> _} = TartarusWarehouse.Distributor.delete(d, %{})
+    end
+
     test "bad program and duration" do
       assert {:error,
               ~s(task "T1" of job "J": expected :program to be a module implementing TartarusWarehouse.Program, got: Enum)} =
