@@ -86,7 +86,7 @@ defmodule TartarusLats.EdgeCasesTest do
       tag = World.tag(dep.world, :y)
 
       assert {:ok, %{answer: {:in_zone, :c1}}} =
-               TartarusLats.query(dep.hosts[:c2], :where_is, tag, report: false)
+               TartarusLats.query(dep.hosts[:c1], :where_is, tag, report: false)
     after
       Deployment.stop(dep)
     end
