@@ -172,6 +172,65 @@ defmodule Tartarus.DevicesTest do
     end
   end
 
+  defmodule FloodTransport do
+    @moduledoc false
+    # A transport whose device is the test: it tells the test the plugin's pid, and the
+    # test's {:flood, item} messages are the device's items.
+    @behaviour Tartarus.Plugin.Serial.Transport
+
+    @impl true
+    def open(_device, opts) do
+      send(Keyword.fetch!(opts, :test), {:plugin, self()})
+      {:ok, :conn}
+    end
+
+    @impl true
+    def write(_conn, _data), do: :ok
+    @impl true
+    def close(_conn), do: :ok
+    @impl true
+    def message({:flood, item}, conn), do: {[item], conn}
+    def message(_msg, _conn), do: :ignore
+  end
+
+  describe "serial plugin under a flood" do
+    # Issue 32: at a faulty device's rate the plugin's mailbox reached 219,000 messages and
+    # 1.5 GB, and status/1 took 5 s.
+    test "past :max_backlog waiting messages the device's data is dropped and counted" do
+      h = host!()
+
+      :ok =
+        Tartarus.attach_plugin(
+          h,
+          :flood,
+          {Serial,
+           device: "/dev/flood",
+           transport: FloodTransport,
+           transport_opts: [test: self()],
+           max_backlog: 50}
+        )
+
+      assert_receive {:plugin, pid}
+      send(pid, {:flood, :opened})
+      # The plugin is busy (suspended) while the device sends 2,000 chunks.
+      :ok = :sys.suspend(pid)
+      for _ <- 1..2000, do: send(pid, {:flood, {:data, "x\n"}})
+      send(pid, {:flood, {:closed, :unplugged}})
+      :ok = :sys.resume(pid)
+
+      assert {:ok, %{bytes: bytes, dropped: %{chunks: chunks, bytes: dropped}} = status} =
+               Tartarus.read_plugin(h, :flood, :status)
+
+      # Dropped while more than 50 messages waited behind (the last chunks, the "closed" and
+      # perhaps the read): all but the last 49 or 50.
+      assert chunks in 1950..1951
+      assert bytes + dropped == 4000
+      # The device's going away is never dropped.
+      assert status.last_error == :unplugged
+      assert [{:flood, %{dropped: %{chunks: ^chunks}}}] = Tartarus.plugins(h)
+    end
+  end
+
   describe "serial plugin without its device" do
     test "attaches, waits for the device and says why it is not open" do
       h = host!()

@@ -24,6 +24,10 @@ defmodule TartarusLats.Deployment do
   every receiver (and the cloud) has taken them (`{:sync, n}` requests). So
   a run is deterministic for its seed, and between two steps the host
   stores are quiet: queries released then see a consistent snapshot.
+
+  A node's host that goes away without the driver being told (`Tartarus.stop_host/1`, a
+  crash) is found by the next step (its receiver or host is gone) and is dead to the
+  driver from then on, as after `kill_node/2`: the run goes on without it.
   """
 
   alias TartarusLats.{Building, Cloud, DatabaseAgent, HM10, Radio, Region, World}
@@ -258,7 +262,7 @@ defmodule TartarusLats.Deployment do
     if dep.record, do: record(dep.record, t, world, readings)
     {readings, dep} = if dep.replay, do: replayed(dep, t), else: {readings, dep}
     dep = %{dep | world: world, rng: rng, readings: readings, time: t}
-    write_readings(dep, t)
+    dep = dep |> write_readings(t) |> mark_down(dep)
     {dep, sent} = phase(dep, {:sense, t})
     dep = deliver(dep, t, sent, 1)
     {dep, _} = phase(dep, {:tick, t})
@@ -305,6 +309,12 @@ defmodule TartarusLats.Deployment do
   defp count_input({:other_device, _, _}, c), do: %{c | other_devices: c.other_devices + 1}
   defp count_input(_scan_mark, c), do: c
 
+  # What a node whose host is gone answers: the host is unknown, or it is stopping and its
+  # plugins are already gone.
+  @gone %{unknown_host: true, no_such_plugin: true, plugin_down: true}
+
+  # Writes every live node's readings of second t into its receiver; returns the nodes whose
+  # host or receiver is gone (a host stopped or crashed without the driver being told).
   defp write_readings(dep, t) do
     dep.hosts
     |> Enum.reject(fn {node, _host} -> MapSet.member?(dep.down, node) end)
@@ -321,12 +331,26 @@ defmodule TartarusLats.Deployment do
       max_concurrency: 16,
       timeout: 60_000
     )
-    |> Enum.each(fn
-      {:ok, {_node, :ok}} -> :ok
-      {:ok, {_node, {:error, :unknown_host}}} -> :ok
-      {:ok, {_node, {:error, {:unknown_host, _}}}} -> :ok
+    |> Enum.flat_map(fn
+      {:ok, {_node, :ok}} -> []
+      {:ok, {node, {:error, reason}}} when is_map_key(@gone, reason) -> [node]
+      {:ok, {node, {:error, {reason, _}}}} when is_map_key(@gone, reason) -> [node]
       {:ok, {node, other}} -> raise "LATS driver: receiver of #{node} failed: #{inspect(other)}"
     end)
+  end
+
+  # Nodes found gone are dead to the driver from now on, as if `kill_node/2` had been called:
+  # not asked in the phases, nobody waits for messages sent to them.
+  defp mark_down([], dep), do: dep
+
+  defp mark_down(gone, dep) do
+    hosts = MapSet.new(gone, &dep.hosts[&1])
+
+    %{
+      dep
+      | down: Enum.into(gone, dep.down),
+        expected: Map.reject(dep.expected, fn {h, _} -> MapSet.member?(hosts, h) end)
+    }
   end
 
   # At most 10 deliveries a second; what is left waits for the next second's first. The
@@ -343,13 +367,22 @@ defmodule TartarusLats.Deployment do
   # cast has been taken (the barrier). Returns the deployment and the number of handshake
   # messages sent. Raises if an agent does not answer.
   defp phase(dep, msg) do
+    live = Enum.reject(dep.hosts, fn {n, _host} -> MapSet.member?(dep.down, n) end)
+
     replies =
-      dep.hosts
-      |> Enum.reject(fn {n, _host} -> MapSet.member?(dep.down, n) end)
+      live
       |> Enum.map(fn {_n, host} ->
         Task.async(fn -> Tartarus.request({DatabaseAgent.agent_name(), host}, msg, 60_000) end)
       end)
       |> Task.await_many(120_000)
+
+    # A host that went away since the readings were written is dead from now on.
+    gone =
+      for {{n, _host}, {:error, reason}} <- Enum.zip(live, replies),
+          reason == :unknown_host or match?({:unknown_host, _}, reason),
+          do: n
+
+    dep = mark_down(gone, dep)
 
     {expected, uploads, sent} =
       Enum.reduce(replies, {dep.expected, dep.uploads, 0}, fn

@@ -84,12 +84,20 @@ defmodule TartarusLats.Sim do
   def run(%__MODULE__{} = sim, seconds),
     do: Enum.reduce(1..seconds//1, sim, fn _, s -> step(s) end)
 
-  @doc "Advances the deployment by one second (see the moduledoc)."
-  @spec step(t()) :: t()
-  def step(%__MODULE__{} = sim) do
+  @doc """
+  Advances the deployment by one second (see the moduledoc).
+
+  `interfere`, if given, is applied to the second's readings before the nodes hear them:
+  `interfere.(t, readings)` gets `%{node => %{tag => rssi | :missing}}` and returns the
+  readings the receivers report (interference, a faulty receiver, a burst of reflections).
+  The world (the ground truth) is not changed.
+  """
+  @spec step(t(), (integer(), map() -> map()) | nil) :: t()
+  def step(%__MODULE__{} = sim, interfere \\ nil) do
     {world, rng} = World.step(sim.world, sim.rng)
     {readings, rng} = World.readings(world, rng)
     now = world.time
+    readings = if interfere, do: interfere.(now, readings), else: readings
     sim = %{sim | world: world, rng: rng}
 
     nodes = Building.nodes(world.building)

@@ -299,11 +299,23 @@ defmodule TartarusLats.Tracker do
     end
   end
 
-  @doc "How many samples of `tag` were heard in the last `:window` seconds (0 if unknown)."
-  @spec heard_count(t(), Beacon.tag_id()) :: non_neg_integer()
-  def heard_count(%__MODULE__{tags: tags}, tag) do
+  @doc """
+  How many samples of `tag` were heard in the last `:window` seconds (0 if unknown); with
+  `at_least`, only those of at least `at_least` dBm.
+
+      iex> t = TartarusLats.Tracker.new(window: 3, median: 1)
+      iex> tag = {"00000000000000000000000000000001", 1, 1}
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 1, tag, -60)
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 2, tag, :missing)
+      iex> {_, t} = TartarusLats.Tracker.observe(t, 3, tag, -80)
+      iex> {TartarusLats.Tracker.heard_count(t, tag), TartarusLats.Tracker.heard_count(t, tag, -73)}
+      {2, 1}
+  """
+  @spec heard_count(t(), Beacon.tag_id(), number() | nil) :: non_neg_integer()
+  def heard_count(%__MODULE__{tags: tags}, tag, at_least \\ nil) do
     case tags do
-      %{^tag => %{heard: heard}} -> Enum.count(heard, &is_number/1)
+      %{^tag => %{heard: heard}} when at_least == nil -> Enum.count(heard, &is_number/1)
+      %{^tag => %{heard: heard}} -> Enum.count(heard, &(is_number(&1) and &1 >= at_least))
       _ -> 0
     end
   end

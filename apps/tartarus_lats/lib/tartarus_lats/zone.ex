@@ -13,18 +13,30 @@ defmodule TartarusLats.Zone do
   `TartarusLats.DatabaseAgent`). Each node then decides for itself, by the same rule on the
   same numbers as its neighbours:
 
-    * **claim** (the tag enters this zone) when the node hears the tag well (at least
-      `:min_heard` samples in its tracker's window, and an RSSI at or above the far
-      threshold: within about 5 m) and its RSSI is at least `:claim_db` above every
-      neighbour's: for `:claim_dwell` consecutive seconds if no neighbour holds the tag;
-      if one does, the RSSI must also be at least `:margin_db` above that neighbour's, for
-      `:dwell` seconds, or `:fast_db` above it for one second (a walker passing through
-      a zone); the holder releases it in the same second, by the rule below;
-    * **release** (the tag leaves this zone) when some neighbour's RSSI is at least
-      `:margin_db` above its own for `:dwell` consecutive seconds, or `:fast_db` above for
-      one (the neighbour takes the tag in the same second), or when its RSSI stays under the exit threshold
-      (`:exit_db` under the far threshold: the tag is out of range, it left) for
-      `:exit_dwell` seconds.
+    * **evidence**: a node *hears the tag well* when it heard at least `:min_heard`
+      samples in its tracker's window and their mean is at or above the far threshold
+      (within about 5 m);
+    * **claim** (the tag enters this zone, no neighbour holds it) when the node hears the
+      tag well, `:min_heard` of those samples are themselves at or above the far
+      threshold, and its RSSI is at least `:claim_db` above every neighbour's, for
+      `:claim_dwell` consecutive seconds (not while a neighbour is taking the tag from a
+      holder this node does not see: it waits for that hand-over). A tag that comes from
+      no neighbour needs samples in range, not a mean: a 2-sample 0 dBm burst at a far
+      node lifts the mean of its samples above the far threshold for a whole window, but
+      claims nothing (before, it made a stay from and to INFINITY there, long enough to
+      count as real, and Where is X asked there answered `:left_building`);
+    * **take** (a neighbour holds it) when the node hears the tag well and its RSSI is at
+      least `:margin_db` above the holder's for `:dwell` seconds, or `:fast_db` above it
+      for one, and `:claim_db` above any other neighbour taking it; the holder releases it
+      in the same second, by the rule below. A neighbour that is stronger still but neither
+      holds nor takes the tag does not stop the hand-over: a fast walker passing through
+      this zone is already nearer the next node, and the chain of zones must not skip this
+      one (the next node takes the tag from here);
+    * **release** (the tag leaves this zone) when some neighbour that hears the tag well has
+      an RSSI at least `:margin_db` above its own for `:dwell` consecutive seconds, or
+      `:fast_db` above for one (the neighbour takes the tag in the same second), or when its
+      RSSI stays under the exit threshold (`:exit_db` under the far threshold: the tag is
+      out of range, it left) for `:exit_dwell` seconds.
 
   A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
   is the hysteresis: a tag standing still, even on the boundary between two zones, stays
@@ -49,7 +61,7 @@ defmodule TartarusLats.Zone do
       iex> events
       [{:entered_zone, tag, 1}]
       iex> TartarusLats.Zone.report(z, t)
-      %{tag => {-60.0, true}}
+      %{tag => {-60.0, true, true}}
       iex> {events, _z} = TartarusLats.Zone.decide(z, 2, t, %{p2: %{tag => {-53.0, false}}})
       iex> events
       [{:left_zone, tag, 2}]
@@ -92,10 +104,18 @@ defmodule TartarusLats.Zone do
         }
 
   @typedoc """
-  The neighbours' reports of one second: `%{neighbour => %{tag => {rssi, held}}}`, each
-  neighbour's `report/2` (its RSSI of the tag, and whether it held the tag).
+  What a node says of one tag (`report/2`): `{rssi, held, heard}`: its RSSI of the tag,
+  whether it holds the tag (`true`), is taking it from a neighbour (`:taking`: a hand-over
+  under way) or neither (`false`), and whether it hears the tag well (the evidence rule, see
+  the moduledoc). The older form `{rssi, held}` is accepted and counts as heard well.
   """
-  @type reports :: %{term() => %{Beacon.tag_id() => {number(), boolean()}}}
+  @type report :: {number(), boolean() | :taking, boolean()} | {number(), boolean()}
+
+  @typedoc """
+  The neighbours' reports of one second: `%{neighbour => %{tag => report}}`, each
+  neighbour's `report/2`.
+  """
+  @type reports :: %{term() => %{Beacon.tag_id() => report()}}
 
   @typedoc "What the motion vectors are told."
   @type event ::
@@ -203,9 +223,16 @@ defmodule TartarusLats.Zone do
       Enum.reduce(tags, {[], z.tags}, fn tag, {events, states} ->
         state = Map.get(states, tag, %{mine: false, pending: nil})
         own = Tracker.heard_average(tracker, tag) || z.missing_rssi
-        {best, holder} = neighbours(reports, tag, z.missing_rssi)
-        heard = own >= z.far_dbm and Tracker.heard_count(tracker, tag) >= z.min_heard
-        {event, state} = step(z, t, tag, state, heard, own, best, holder)
+
+        heard =
+          cond do
+            Tracker.heard_count(tracker, tag) < z.min_heard -> :none
+            not heard?(z, tracker, tag) -> :weak
+            in_range?(z, tracker, tag) -> :in_range
+            true -> :heard
+          end
+
+        {event, state} = step(z, t, tag, state, heard, own, n(z, reports, tag))
         {if(event, do: [event | events], else: events), store(states, tag, state)}
       end)
 
@@ -213,17 +240,40 @@ defmodule TartarusLats.Zone do
   end
 
   @doc """
-  What this node tells its neighbours after second `t`: `%{tag => {rssi, held}}` for every
-  tag it hears or holds (`rssi` is `TartarusLats.Tracker.heard_average/2`, or the floor).
+  What this node tells its neighbours after second `t`: `%{tag => {rssi, held, heard}}` for
+  every tag it hears or holds (`rssi` is `TartarusLats.Tracker.heard_average/2`, or the
+  floor; see `t:report/0`).
   """
-  @spec report(t(), Tracker.t()) :: %{Beacon.tag_id() => {number(), boolean()}}
+  @spec report(t(), Tracker.t()) :: %{Beacon.tag_id() => report()}
   def report(%__MODULE__{} = z, %Tracker{} = tracker) do
     tags = Enum.uniq(Tracker.tags(tracker) ++ held(z))
 
     Map.new(tags, fn tag ->
-      {tag, {Tracker.heard_average(tracker, tag) || z.missing_rssi, holds?(z, tag)}}
+      held =
+        case z.tags do
+          %{^tag => %{mine: true}} -> true
+          %{^tag => %{pending: {:take, _, _}}} -> :taking
+          _ -> false
+        end
+
+      {tag,
+       {Tracker.heard_average(tracker, tag) || z.missing_rssi, held, heard?(z, tracker, tag)}}
     end)
   end
+
+  # The evidence that a node hears a tag well, the same for a take, a release and what a
+  # neighbour's report counts for: `min_heard` samples heard in the window, and an RSSI (the
+  # mean of the samples heard) at or above the far threshold.
+  defp heard?(z, tracker, tag) do
+    (Tracker.heard_average(tracker, tag) || z.missing_rssi) >= z.far_dbm and
+      Tracker.heard_count(tracker, tag) >= z.min_heard
+  end
+
+  # A claim (no neighbour holds the tag: it comes from nowhere) needs the evidence to be in
+  # range itself: `min_heard` samples at or above the far threshold, not a mean that a
+  # burst of fewer loud samples can lift above it.
+  defp in_range?(z, tracker, tag),
+    do: Tracker.heard_count(tracker, tag, z.far_dbm) >= z.min_heard
 
   @doc "True if this node holds `tag` in its zone."
   @spec holds?(t(), Beacon.tag_id()) :: boolean()
@@ -233,26 +283,50 @@ defmodule TartarusLats.Zone do
   @spec held(t()) :: [Beacon.tag_id()]
   def held(%__MODULE__{tags: tags}), do: Enum.sort(for {tag, %{mine: true}} <- tags, do: tag)
 
-  # Not held: claim once heard, stronger than every neighbour by claim_db and than the
-  # neighbour holding the tag (if one does) by margin_db, for `dwell` seconds.
-  defp step(z, t, tag, %{mine: false} = state, heard, own, best, holder) do
+  # Not held. With no neighbour holding or taking the tag: claim once heard, stronger than
+  # every neighbour by claim_db, for claim_dwell seconds. With a neighbour holding it: take
+  # it once heard and stronger than the holder by margin_db for `dwell` seconds (fast_db:
+  # at once) and than every other neighbour taking it by claim_db; a neighbour that is
+  # stronger but neither holds nor takes the tag does not stop a hand-over under way (a
+  # walker passing through this zone is already nearer the next one: this node takes the
+  # tag, and the next one takes it from here). With a neighbour taking it from a holder this
+  # node does not see: wait for that hand-over (then take it from the new holder).
+  defp step(z, t, tag, %{mine: false} = state, heard, own, n) do
     cond do
-      not heard or own < best + z.claim_db -> {nil, %{state | pending: nil}}
-      holder == nil -> hold(state, t, {:claim, z.claim_dwell}, {:entered_zone, tag}, true)
-      own >= holder + z.fast_db -> hold(state, t, {:take, 1}, {:entered_zone, tag}, true)
-      own >= holder + z.margin_db -> hold(state, t, {:take, z.dwell}, {:entered_zone, tag}, true)
-      true -> {nil, %{state | pending: nil}}
+      heard == :none or (heard == :weak and not taking?(state, n)) ->
+        {nil, %{state | pending: nil}}
+
+      n.holder == nil and n.taker != nil ->
+        {nil, %{state | pending: nil}}
+
+      n.holder == nil ->
+        if heard == :in_range and own >= n.best + z.claim_db,
+          do: hold(state, t, {:claim, z.claim_dwell}, {:entered_zone, tag}, true),
+          else: {nil, %{state | pending: nil}}
+
+      n.taker != nil and own < n.taker + z.claim_db ->
+        {nil, %{state | pending: nil}}
+
+      own >= n.holder + z.fast_db ->
+        hold(state, t, {:take, 1}, {:entered_zone, tag}, true)
+
+      own >= n.holder + z.margin_db ->
+        hold(state, t, {:take, z.dwell}, {:entered_zone, tag}, true)
+
+      true ->
+        {nil, %{state | pending: nil}}
     end
   end
 
-  # Held: release when a neighbour is stronger by margin_db for `dwell` seconds (it takes
-  # the tag), or when out of range (under the exit threshold) for `exit_dwell` seconds.
-  defp step(z, t, tag, %{mine: true} = state, _heard, own, best, _holder) do
+  # Held: release when a neighbour that hears the tag well (the evidence rule) is stronger
+  # by margin_db for `dwell` seconds (it takes the tag), or when out of range (under the
+  # exit threshold) for `exit_dwell` seconds.
+  defp step(z, t, tag, %{mine: true} = state, _heard, own, n) do
     cond do
-      best >= own + z.fast_db ->
+      n.evident >= own + z.fast_db ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
-      best >= own + z.margin_db ->
+      n.evident >= own + z.margin_db ->
         hold(state, t, {:handed, z.dwell}, {:left_zone, tag}, false)
 
       own < z.exit_dbm ->
@@ -262,6 +336,12 @@ defmodule TartarusLats.Zone do
         {nil, %{state | pending: nil}}
     end
   end
+
+  # A take under way goes on while this node still hears the tag (`min_heard` samples) and
+  # the holder is still held, even if the mean dips under the far threshold: a walker
+  # passing through a zone at 2.5 m/s is within its far range for 3-4 s only.
+  defp taking?(%{pending: {:take, _, _}}, %{holder: holder}), do: holder != nil
+  defp taking?(_state, _n), do: false
 
   # A condition (`why`) that must hold `need` consecutive seconds; the event is dated from
   # its first second. A different condition starts the count again.
@@ -277,16 +357,31 @@ defmodule TartarusLats.Zone do
       else: {nil, %{state | pending: {why, since, count}}}
   end
 
-  # The strongest neighbour's RSSI of the tag, and the RSSI of the neighbour that holds it
-  # (nil if none does).
-  defp neighbours(reports, tag, floor) do
-    Enum.reduce(reports, {floor, nil}, fn {_n, values}, {best, holder} ->
+  # What the neighbours say of the tag: the strongest RSSI (`best`), the strongest of those
+  # that hear it well (`evident`, the floor if none does), the RSSI of the neighbour that
+  # holds it and of the strongest one taking it (nil if none). A report of the older form
+  # `{rssi, held}` counts as heard well.
+  defp n(z, reports, tag) do
+    init = %{best: z.missing_rssi, evident: z.missing_rssi, holder: nil, taker: nil}
+
+    Enum.reduce(reports, init, fn {_n, values}, acc ->
       case values do
-        %{^tag => {v, true}} when is_number(v) -> {max(best, v), max(holder || v, v)}
-        %{^tag => {v, _}} when is_number(v) -> {max(best, v), holder}
-        _ -> {best, holder}
+        %{^tag => {v, held}} when is_number(v) -> count(acc, v, held, true)
+        %{^tag => {v, held, heard}} when is_number(v) -> count(acc, v, held, heard == true)
+        _ -> acc
       end
     end)
+  end
+
+  defp count(acc, v, held, heard) do
+    acc = %{acc | best: max(acc.best, v)}
+    acc = if heard, do: %{acc | evident: max(acc.evident, v)}, else: acc
+
+    case held do
+      true -> %{acc | holder: max(acc.holder || v, v)}
+      :taking -> %{acc | taker: max(acc.taker || v, v)}
+      _ -> acc
+    end
   end
 
   # Nothing to remember about a tag that is not held and has nothing pending.

@@ -32,6 +32,40 @@ defmodule TartarusLats.HM10ReceiverTest do
              Receiver.read(:counts, r)
   end
 
+  # Issue 32: a device that never ends its scan grew the unfinished scan without bound
+  # (11 MB, 39,000 tags in 30 s at 100 KiB/s).
+  test "a scan that never ends: the decoder's state stays bounded, the dropped readings counted" do
+    beacon = fn i -> %Beacon{@b | major: div(i, 65_536), minor: rem(i, 65_536)} end
+
+    # 20,000 tags, in chunks of 500 records (~47 KB each), and no OK+DISCE.
+    feed = fn r, range ->
+      scan = HM10.encode_scan(Enum.map(range, beacon))
+      records = binary_part(scan, 8, byte_size(scan) - 16)
+      {_events, r} = Receiver.feed(records, r)
+      r
+    end
+
+    {:ok, r} = Receiver.init(max_tags: 100)
+    {_events, r} = Receiver.feed("OK+DISIS", r)
+    r = feed.(r, 0..499)
+    size = :erts_debug.flat_size(r)
+
+    r = Enum.reduce(1..39, r, fn k, r -> feed.(r, (k * 500)..(k * 500 + 499)) end)
+    assert :erts_debug.flat_size(r) <= size
+
+    assert {:ok, %{beacons: 20_000, dropped_readings: 19_900, scans: 0}, r} =
+             Receiver.read(:counts, r)
+
+    # A tag already in the scan still gets its strongest reading.
+    {_events, r} = Receiver.feed(HM10.encode_scan([%Beacon{beacon.(5) | rssi: -40}]), r)
+    assert {:ok, %{cut_scans: 1, scans: 1}, r} = Receiver.read(:counts, r)
+    assert {:ok, readings, _r} = Receiver.read({:scan, 1}, r)
+    assert readings == %{Beacon.tag_id(beacon.(5)) => -40}
+
+    assert {:error, "invalid options given to TartarusLats.HM10.Receiver for key :max_tags" <> _} =
+             Receiver.init(max_tags: 0)
+  end
+
   test "the plugin spec" do
     assert Receiver.plugin("/dev/ttyUSB0", speed: 115_200) ==
              {Tartarus.Plugin.Serial,

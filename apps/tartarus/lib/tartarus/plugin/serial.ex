@@ -25,6 +25,12 @@ defmodule Tartarus.Plugin.Serial do
       default: "",
       doc: "bytes written each time the device opens (e.g. AT set-up commands)"
     ],
+    max_backlog: [
+      type: :pos_integer,
+      default: 1000,
+      doc:
+        "messages waiting in the plugin's mailbox beyond which the device's data is dropped (and counted) instead of decoded"
+    ],
     poll: [
       type: {:or, [{:in, [nil]}, {:tuple, [:string, :pos_integer]}]},
       expected: "nil or {bytes, interval_ms}",
@@ -59,11 +65,23 @@ defmodule Tartarus.Plugin.Serial do
   was in the middle of (`reset/1`), so the bytes of a half-received record never join the
   bytes of the next device.
 
+  ## A device that floods the line
+
+  The device's data arrives as messages in the plugin's mailbox. When more than
+  `:max_backlog` messages wait there (a faulty device, or a line faster than the decoder),
+  each chunk of data taken from the mailbox is dropped without being decoded, and counted
+  (`:dropped` in `:status` and in the plugin's description: `%{chunks: n, bytes: n}`),
+  until the backlog is under the limit again; the device's "opened" and "closed" are
+  never dropped. Dropping costs next to nothing, so the plugin drains its mailbox faster
+  than a device can fill it: the backlog stays near the limit and a read (`:status`, a
+  host's `Tartarus.status/1`) waits for at most that many cheap drops.
+
   ## Events, reads, writes
 
   Subscribers get the decoder's events and `{:serial, :up}` (opened) and
   `{:serial, :down, reason}` (lost or closed). Reads: `:status` (a map: `:status`
-  `:open | :opening | :closed`, `:device`, `:opens`, `:bytes` received, `:last_error`);
+  `:open | :opening | :closed`, `:device`, `:opens`, `:bytes` received and decoded,
+  `:dropped` (see above), `:last_error`);
   anything else goes to the decoder's `read/2`. Writes: `{:send, iodata}` writes bytes to
   the device (`{:error, :closed}` unless it is open); anything else is
   `{:error, {:bad_argument, arg}}`.
@@ -100,6 +118,7 @@ defmodule Tartarus.Plugin.Serial do
          delay: elem(o[:backoff_ms], 0),
          opens: 0,
          bytes: 0,
+         dropped: %{chunks: 0, bytes: 0},
          last_error: nil
        }}
     end
@@ -126,6 +145,7 @@ defmodule Tartarus.Plugin.Serial do
       kind: :serial,
       device: s.o.device,
       status: s.status,
+      dropped: s.dropped,
       reads: [:status],
       writes: [:send],
       events: [:serial]
@@ -151,6 +171,7 @@ defmodule Tartarus.Plugin.Serial do
        device: s.o.device,
        opens: s.opens,
        bytes: s.bytes,
+       dropped: s.dropped,
        last_error: s.last_error
      }, s}
   end
@@ -198,11 +219,29 @@ defmodule Tartarus.Plugin.Serial do
   def handle_info(msg, %{conn: conn} = s) when conn != nil do
     case s.o.transport.message(msg, conn) do
       :ignore -> {:events, [], s}
-      {items, conn} -> Enum.reduce(items, {:events, [], %{s | conn: conn}}, &item/2)
+      {items, conn} -> Enum.reduce(shed(items, s), {:events, [], %{s | conn: conn}}, &item/2)
     end
   end
 
   def handle_info(_msg, s), do: {:events, [], s}
+
+  # Over the backlog limit, data items become drops (counted, not decoded).
+  defp shed(items, s) do
+    {:message_queue_len, waiting} = Process.info(self(), :message_queue_len)
+
+    if waiting > s.o.max_backlog,
+      do:
+        Enum.map(items, fn
+          {:data, bytes} -> {:drop, bytes}
+          other -> other
+        end),
+      else: items
+  end
+
+  defp item({:drop, bytes}, {:events, events, s}) do
+    dropped = %{chunks: s.dropped.chunks + 1, bytes: s.dropped.bytes + byte_size(bytes)}
+    {:events, events, %{s | dropped: dropped}}
+  end
 
   # The device's state changes and data, in order; events accumulate in order.
   defp item(:opened, {:events, events, s}) do

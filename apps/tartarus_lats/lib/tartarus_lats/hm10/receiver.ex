@@ -21,7 +21,18 @@ defmodule TartarusLats.HM10.Receiver do
       away is dropped, not half-counted.
     * `:last` - `{t, readings}` of the last `{:scan, t}` read, or `nil`;
     * `:counts` - what arrived: `:scans`, `:beacons`, `:other_devices`, `:bad_records`,
-      `:garbage_bytes`, `:cut_scans` (scans cut by the device going away).
+      `:garbage_bytes`, `:cut_scans` (scans cut by the device going away, or by a new scan
+      starting before the last one ended), `:dropped_readings` (see below).
+
+  ## Bounded
+
+  A scan that never ends (a device that never prints `OK+DISCE`, or prints records
+  forever) must not grow the plugin without bound: an unfinished scan keeps at most
+  `:max_tags` tags (option, default #{200}); a reading of a further tag is dropped and
+  counted (`:dropped_readings`, in `:counts` and in the plugin's description), while the
+  tags already in the scan keep their strongest reading. At most #{60} completed scans wait
+  for a read (the oldest are dropped). So the decoder's state is bounded by
+  `max_tags x 61` readings and the parser's 1 KiB buffer, whatever the device prints.
 
   ## Events
 
@@ -47,6 +58,7 @@ defmodule TartarusLats.HM10.Receiver do
 
   # Scans kept while nobody reads them (beyond that the oldest are dropped).
   @max_pending 60
+  @max_tags 200
 
   @doc """
   The plugin spec of an HM-10 receiver on `device`: `Tartarus.Plugin.Serial` with this
@@ -62,22 +74,34 @@ defmodule TartarusLats.HM10.Receiver do
   end
 
   @impl true
-  def init(_opts) do
-    {:ok,
-     %{
-       parser: HM10.new(),
-       scan: nil,
-       pending: [],
-       last: nil,
-       counts: %{
-         scans: 0,
-         beacons: 0,
-         other_devices: 0,
-         bad_records: 0,
-         garbage_bytes: 0,
-         cut_scans: 0
-       }
-     }}
+  def init(opts) do
+    case Keyword.get(opts, :max_tags, @max_tags) do
+      max when is_integer(max) and max > 0 ->
+        {:ok, new(max)}
+
+      other ->
+        {:error,
+         "invalid options given to TartarusLats.HM10.Receiver for key :max_tags: expected a positive integer, got: #{inspect(other)}"}
+    end
+  end
+
+  defp new(max_tags) do
+    %{
+      max_tags: max_tags,
+      parser: HM10.new(),
+      scan: nil,
+      pending: [],
+      last: nil,
+      counts: %{
+        scans: 0,
+        beacons: 0,
+        other_devices: 0,
+        bad_records: 0,
+        garbage_bytes: 0,
+        cut_scans: 0,
+        dropped_readings: 0
+      }
+    }
   end
 
   @impl true
@@ -87,12 +111,27 @@ defmodule TartarusLats.HM10.Receiver do
     {Enum.reverse(out), r}
   end
 
-  defp take(:scan_started = e, {out, r}), do: {[e | out], %{r | scan: %{}}}
+  # A scan that starts before the last one ended: the unfinished one is cut.
+  defp take(:scan_started = e, {out, %{scan: nil} = r}), do: {[e | out], %{r | scan: %{}}}
+
+  defp take(:scan_started = e, {out, r}),
+    do: {[e, {:scan_cut, r.scan} | out], %{r | scan: %{}} |> count(:cut_scans, 1)}
 
   defp take({:beacon, b, _mac} = e, {out, r}) do
     tag = TartarusLats.Beacon.tag_id(b)
-    scan = Map.update(r.scan || %{}, tag, b.rssi, &max(&1, b.rssi))
-    {[e | out], %{r | scan: scan} |> count(:beacons, 1)}
+    scan = r.scan || %{}
+    r = count(r, :beacons, 1)
+
+    cond do
+      is_map_key(scan, tag) ->
+        {[e | out], %{r | scan: Map.update!(scan, tag, &max(&1, b.rssi))}}
+
+      map_size(scan) < r.max_tags ->
+        {[e | out], %{r | scan: Map.put(scan, tag, b.rssi)}}
+
+      true ->
+        {[e | out], count(r, :dropped_readings, 1)}
+    end
   end
 
   defp take(:scan_ended = e, {out, r}) do
