@@ -299,7 +299,7 @@ defmodule TartarusTools.Bench do
   @doc false
   def reset_local_ring(host) do
     {:ok, info} = Tartarus.Host.local(host)
-    :ets.match_delete(info.ledger, {{:hop, :_}, :_})
+    Tartarus.Ledger.reset_hops(info)
   end
 
   @doc """

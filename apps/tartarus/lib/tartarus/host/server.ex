@@ -52,7 +52,7 @@ defmodule Tartarus.Host.Server do
     # Acknowledgements of arrived copies, by source host, until the next batch leaves.
     acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
 
-    :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}, {:hop_seq, 0}])
+    :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
     {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
     # Migrations an earlier run of this host committed: answers for destinations in doubt.
@@ -65,6 +65,7 @@ defmodule Tartarus.Host.Server do
       store: store,
       acks: acks,
       counters: Tartarus.Events.new_counters(),
+      hops: Ledger.new_hop_ring(),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
       journal: journal,
