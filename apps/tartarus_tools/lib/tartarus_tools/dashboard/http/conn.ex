@@ -43,7 +43,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   defp serve(sock, conf) do
     case :inet.sockname(sock) do
       {:ok, {ip, _}} ->
-        names = MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip) | conf.hosts])
+        names =
+          MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip), address(conf.bind) | conf.hosts])
         next(sock, Map.merge(conf, %{names: names, answered: 0}))
 
       {:error, _} ->
