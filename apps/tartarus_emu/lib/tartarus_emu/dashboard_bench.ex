@@ -191,7 +191,7 @@ defmodule TartarusEmu.DashboardBench do
 
   defp sse_connect(port) do
     {:ok, sock} = :gen_tcp.connect(~c"127.0.0.1", port, [:binary, active: false])
-    :ok = :gen_tcp.send(sock, "GET /api/stream HTTP/1.1\r\nHost: bench\r\n\r\n")
+    :ok = :gen_tcp.send(sock, "GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1:#{port}\r\n\r\n")
     {:ok, _head} = :gen_tcp.recv(sock, 0, 5_000)
     sock
   end

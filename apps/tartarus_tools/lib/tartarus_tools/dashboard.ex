@@ -32,13 +32,40 @@ defmodule TartarusTools.Dashboard do
       doc: "events per batch at most (the rest are counted as dropped)"
     ],
     recent: [type: :pos_integer, default: 1_000, doc: "recent events kept for `/api/events`"],
-    max_body: [type: :pos_integer, default: 16_384, doc: "largest request body accepted, bytes"]
+    max_body: [
+      type: :pos_integer,
+      default: 16_384,
+      doc: "largest request body accepted, bytes (chunked or not)"
+    ],
+    hosts: [
+      type: {:list, :string},
+      default: [],
+      doc:
+        "names besides `localhost`, the loopback addresses and the address a client connected to that the `Host` and `Origin` headers may give (e.g. `[\"pi.local\"]`)"
+    ],
+    idle_timeout: [
+      type: :pos_integer,
+      default: 30_000,
+      doc:
+        "ms a connection may wait for its next request line (or take nothing of an answer) before it is closed"
+    ],
+    request_timeout: [
+      type: :pos_integer,
+      default: 10_000,
+      doc: "ms from a request line to the last byte of its body (else 408 and the close)"
+    ],
+    max_clients: [type: :pos_integer, default: 200, doc: "connections served at once"],
+    max_per_client: [
+      type: :pos_integer,
+      default: 16,
+      doc: "connections served at once from one client address (beyond: 503 and the close)"
+    ]
   ]
 
   @moduledoc """
   A live web dashboard for a node: the overlay graph, its agents, per-host counters, hop
-  times, a stream of recent events and actions, served by OTP's own `:inets` HTTP server
-  (no dependency outside OTP). `docs/dashboard.md` is the user guide and documents the JSON
+  times, a stream of recent events and actions, served by a small HTTP/1.1 server on
+  `:gen_tcp` (no dependency outside OTP). `docs/dashboard.md` is the user guide and documents the JSON
   HTTP API the page uses (programs in any language can drive a node through it).
 
       {:ok, dash} = TartarusTools.Dashboard.start_link(port: 4040)
@@ -77,11 +104,29 @@ defmodule TartarusTools.Dashboard do
   from `:token_file`. Without it the page is read-only: actions answer 401 (no token) or 403
   (a wrong one). Request bodies are JSON, at most `:max_body` bytes; decoded JSON never
   creates atoms (hosts, agents and modules are looked up among those that exist).
+
+  The HTTP layer (`TartarusTools.Dashboard.Http`) checks before it reads any body:
+
+    * the `Host` header, and the `Origin` header when sent, must name this dashboard:
+      `localhost`, `127.0.0.1`, `[::1]`, the address the client connected to, or one of
+      `:hosts`, with this port if a port is given; else 403 (`bad_host`, `bad_origin`). A
+      page on another site whose name resolves to this machine (DNS rebinding) is refused;
+    * an action's token (401, 403), then a declared `Content-Length` above `:max_body` (413).
+
+  Bodies are read with the `:max_body` limit whatever the framing: a chunked body is
+  refused with 413 as soon as it goes over. An answer given before the body is read closes
+  the connection (after discarding at most 2 s or 1 MiB of what the client still sends,
+  so that it reads the answer); nothing of a refused body is kept. A connection waits at
+  most `:idle_timeout` for a request line and a request takes at most `:request_timeout`
+  from its line to its body's last byte (408, then the close). At most `:max_clients`
+  connections are served at once, at most `:max_per_client` from one address (503 and the
+  close, nothing read). A request line or header line is at most 8 KiB (414, 431), a
+  request has at most 100 header lines.
   """
 
   use GenServer
 
-  alias TartarusTools.Dashboard.{Feed, Httpd}
+  alias TartarusTools.Dashboard.{Feed, Http}
 
   @typedoc "A running dashboard (its process)."
   @type t :: GenServer.server()
@@ -105,7 +150,7 @@ defmodule TartarusTools.Dashboard do
     with {:ok, opts} <- validate(opts), do: GenServer.start(__MODULE__, opts)
   end
 
-  @doc "Stops a dashboard: the HTTP server, its streams and its event subscription."
+  @doc "Stops a dashboard: the HTTP server, its connections and streams, its event subscription."
   @spec stop(t()) :: :ok
   def stop(dash), do: GenServer.stop(dash)
 
@@ -183,7 +228,6 @@ defmodule TartarusTools.Dashboard do
   @impl true
   def init(opts) do
     Process.flag(:trap_exit, true)
-    {:ok, _} = Application.ensure_all_started(:inets)
     {:ok, feed} = Feed.start_link(opts)
 
     ctx = %{
@@ -196,12 +240,21 @@ defmodule TartarusTools.Dashboard do
       cache: :ets.new(:tartarus_dashboard_cache, [:public, :set, read_concurrency: true])
     }
 
-    case Httpd.start(opts[:bind], opts[:port], ctx) do
-      {:ok, httpd, port} ->
+    conf =
+      opts
+      |> Keyword.take(
+        ~w(bind port max_body idle_timeout request_timeout max_clients max_per_client)a
+      )
+      |> Map.new()
+      |> Map.merge(%{ctx: ctx, hosts: Enum.map(opts[:hosts], &String.downcase/1)})
+
+    case Http.start_link(conf) do
+      {:ok, http} ->
+        port = Http.port(http)
         # The first look at the hosts tells the feed their ids (see Api.topology/1).
         _ = TartarusTools.Dashboard.Api.topology(ctx)
         host = opts[:bind] |> :inet.ntoa() |> to_string()
-        {:ok, %{httpd: httpd, port: port, feed: feed, token: opts[:token], host: host}}
+        {:ok, %{http: http, port: port, feed: feed, token: opts[:token], host: host}}
 
       {:error, reason} ->
         Feed.stop(feed)
@@ -220,7 +273,7 @@ defmodule TartarusTools.Dashboard do
 
   @impl true
   def terminate(_reason, s) do
-    Httpd.stop(s.httpd)
+    Http.stop(s.http)
     Feed.stop(s.feed)
     :ok
   end

@@ -32,6 +32,11 @@ defmodule Mix.Tasks.Tartarus.Node do
     dashboard_token_file: [
       type: :string,
       doc: "read the dashboard's action token from this file (default: a random one, printed)"
+    ],
+    dashboard_hosts: [
+      type: :string,
+      doc:
+        "comma-separated names the dashboard also answers to in `Host`/`Origin` (e.g. `pi.local` with `--dashboard-bind 0.0.0.0`); `localhost`, the loopback addresses and the address a client connected to always work"
     ]
   ]
   @moduledoc """
@@ -159,8 +164,11 @@ defmodule Mix.Tasks.Tartarus.Node do
         _ -> Mix.raise("mix tartarus.node: --dashboard-bind expects an IP address, got: #{opts[:dashboard_bind]}")
       end
 
+    hosts =
+      (opts[:dashboard_hosts] || "") |> String.split(",", trim: true) |> Enum.map(&String.trim/1)
+
     dash_opts =
-      [port: opts[:dashboard], bind: bind] ++
+      [port: opts[:dashboard], bind: bind, hosts: hosts] ++
         if(opts[:dashboard_token_file], do: [token_file: opts[:dashboard_token_file]], else: [])
 
     case TartarusTools.Dashboard.start(dash_opts) do

@@ -1,7 +1,8 @@
 defmodule TartarusTools.Dashboard.Api do
   @moduledoc false
   # The JSON HTTP API (documented in docs/dashboard.md): a request map in
-  # (%{method, path, query, headers, body}), {status, content_type, body} or :stream out.
+  # (%{method, path, query, headers, body}), {status, content_type, body} or :stream out;
+  # admit/2 runs first, on the line and headers alone.
   # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
   # hosts, agents, modules and panels are looked up among those that exist.
 
@@ -10,6 +11,22 @@ defmodule TartarusTools.Dashboard.Api do
 
   @cache_ms 1_000
   @id ~r/\A[0-9a-f]{16}\z/
+
+  # What needs only the request line and the headers, checked before the body is read
+  # (TartarusTools.Dashboard.Http.Conn): an action (a POST on a known endpoint) needs the
+  # token. :ok, or the answer. (The body's size limit is the HTTP layer's.)
+  def admit(%{method: "POST"} = req, ctx) do
+    segs = String.split(req.path, "/", trim: true)
+
+    with true <- known_post?(segs),
+         {:error, status, code, message} <- authorize(req, ctx) do
+      error(status, code, message)
+    else
+      _ -> :ok
+    end
+  end
+
+  def admit(_req, _ctx), do: :ok
 
   def handle(req, ctx) do
     segs = String.split(req.path, "/", trim: true)
@@ -36,7 +53,6 @@ defmodule TartarusTools.Dashboard.Api do
   defp route("POST", ["api" | rest] = segs, req, ctx) do
     if known_post?(segs) do
       with :ok <- authorize(req, ctx),
-           :ok <- size(req, ctx),
            {:ok, params} <- params(req) do
         action(rest, params, ctx)
       else
@@ -446,14 +462,6 @@ defmodule TartarusTools.Dashboard.Api do
       true ->
         {:error, 403, "bad_token", "the token is wrong: the action was refused"}
     end
-  end
-
-  defp size(req, ctx) do
-    if byte_size(req.body) > ctx.max_body,
-      do:
-        {:error, 413, "body_too_large",
-         "the request body has #{byte_size(req.body)} bytes; at most #{ctx.max_body} are accepted"},
-      else: :ok
   end
 
   defp params(%{body: body}) do
