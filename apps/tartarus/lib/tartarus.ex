@@ -200,7 +200,14 @@ defmodule Tartarus do
   `{:error, :not_found}` if no such agent exists where the search leads.
 
   The message follows an agent that keeps moving (it is handed on with the agent, and
-  taken once), and a sender's posts are handled in the order it made them. On a host
+  taken once), and a sender's posts are handled in the order it made them. A paused copy
+  whose stash is full tells the sender to send again (it backs off briefly), so posts to a
+  busy moving agent queue at their senders instead of being lost.
+
+  What an error means: every error but `{:error, :timeout}` means the message was not
+  taken and will not be. `{:error, :timeout}` means the outcome is unknown: the message
+  may still be on its way (in a mailbox or carried by the agent's hand-off) and be handled
+  after the caller gave up. On a host
   started with `durable: true`, `:ok` means the agent has handled the message and
   checkpointed the resulting state (journaled with `data_dir:`); a message whose handling
   crashes the agent returns `{:error, :agent_crashed}`.
@@ -213,7 +220,9 @@ defmodule Tartarus do
   same guarantees as `post/3` (it follows the agent if it moves). Use it from an agent's
   callbacks to message other agents: two agents that `post/3` to each other from their
   callbacks would wait for each other. The outcome, if not `:ok`, is sent to `reply_to`
-  (when given) as `{:tartarus_cast_failed, agent, reason}`.
+  (when given): `{:tartarus_cast_failed, agent, reason}` means the message was not taken
+  and will not be; `{:tartarus_cast_unknown, agent, :timeout}` means the platform does not
+  know (no delivery was confirmed within 5 s; it may still be handled).
   """
   @spec cast(agent_ref(), term(), pid() | nil) :: :ok
   def cast(agent, message, reply_to \\ nil) do
@@ -223,6 +232,9 @@ defmodule Tartarus do
       case Locator.deliver(agent, :post, message, 5_000, from) do
         :ok ->
           :ok
+
+        {:error, :timeout} ->
+          if reply_to, do: send(reply_to, {:tartarus_cast_unknown, agent, :timeout})
 
         {:error, reason} ->
           if reply_to, do: send(reply_to, {:tartarus_cast_failed, agent, reason})

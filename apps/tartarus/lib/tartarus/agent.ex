@@ -335,6 +335,42 @@ defmodule Tartarus.Agent do
     :ok
   end
 
+  @doc """
+  Starts a process linked to the calling agent that ends with it (from a callback). Processes
+  cannot migrate: whenever the agent's process ends (it moved on, stopped, returned, crashed,
+  was killed or removed), this process is killed, even if it traps exits. A process the
+  agent starts otherwise is its own: one linked with `Kernel.spawn_link/1` ends with the
+  agent unless it traps exits (the agent's process never ends with reason `:normal`), an
+  unlinked one outlives it.
+  """
+  @spec spawn_link((() -> any())) :: pid()
+  def spawn_link(fun) when is_function(fun, 0) do
+    ledger = host_info().ledger
+    pid = Kernel.spawn_link(fun)
+    key = {:children, self()}
+
+    kids =
+      case :ets.lookup(ledger, key) do
+        [{_, kids}] -> Enum.filter(kids, &Process.alive?/1)
+        [] -> []
+      end
+
+    :ets.insert(ledger, {key, [pid | kids]})
+    Process.put(:"$tartarus_children", true)
+    pid
+  end
+
+  @doc false
+  # Kills the processes agent process `agent` started with spawn_link/1 (by the agent as it
+  # ends, or by its host when it was killed).
+  @spec end_children(map(), pid()) :: :ok
+  def end_children(%{ledger: ledger}, agent) do
+    case :ets.take(ledger, {:children, agent}) do
+      [{_, kids}] -> Enum.each(kids, &Process.exit(&1, :kill))
+      [] -> :ok
+    end
+  end
+
   @doc "Answers a request (see `c:handle_message/3`). Works from any host."
   @spec reply(from(), term()) :: :ok
   def reply(nil, _value), do: :ok

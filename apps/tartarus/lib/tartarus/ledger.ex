@@ -24,7 +24,8 @@ defmodule Tartarus.Ledger do
   #                                                          ack (and, after a restart with
   #                                                          persistence, every journaled commit)
   #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
-  #   :resident, :visits, :hop_seq, {:count, name}           counters
+  #   :population                 {_, resident, visits}      counters
+  #   {:count, name}              {_, n}
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
 
   @slots 1024
@@ -51,8 +52,7 @@ defmodule Tartarus.Ledger do
         :ets.insert(host.ledger, {{:agent, pid}, env.id, env.name, env.module})
         :ets.delete(host.ledger, {:fwd, env.id})
         if env.name, do: :ets.delete(host.ledger, {:fwd, env.name})
-        :ets.update_counter(host.ledger, :resident, 1)
-        :ets.update_counter(host.ledger, :visits, 1)
+        :ets.update_counter(host.ledger, :population, [{2, 1}, {3, 1}])
         :ok
 
       {:error, _} = error ->
@@ -64,7 +64,7 @@ defmodule Tartarus.Ledger do
     case :ets.take(host.ledger, {:agent, pid}) do
       [{_, id, name, module}] ->
         Tartarus.AgentTable.unregister(id, pid, elem(host.ref, 0), name, module)
-        :ets.update_counter(host.ledger, :resident, -1)
+        :ets.update_counter(host.ledger, :population, {2, -1})
         true
 
       [] ->
@@ -218,6 +218,10 @@ defmodule Tartarus.Ledger do
     for i <- 1..(@slots + 1), do: :atomics.put(ring, i, 0)
     :ok
   end
+
+  # Resident agents and visits so far: one record, one update a hop.
+  def counter(%{ledger: l}, :resident), do: :ets.lookup_element(l, :population, 2)
+  def counter(%{ledger: l}, :visits), do: :ets.lookup_element(l, :population, 3)
 
   def counter(%{ledger: l}, key) do
     case :ets.lookup(l, key) do

@@ -223,6 +223,12 @@ defmodule Tartarus.Locator do
         Process.demonitor(mref, [:flush])
         {:error, reason}
 
+      {^tag, :retry} ->
+        # A paused copy with a full stash did not keep it: send it again a little later.
+        Process.demonitor(mref, [:flush])
+        Process.sleep(min(2, remaining(deadline)))
+        follow(pid, km, ref, tag, deadline, n)
+
       {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
         # Moved on, with our message (handed over) or without it (it came too late).
         follow(next, km, ref, tag, deadline, @max_chase)

@@ -2,7 +2,8 @@ defmodule Tartarus.Agent.Creator do
   @moduledoc false
   # Creating an agent: options checked (`Tartarus.Options.Platform.create_agent/1`), the
   # envelope built and, with `issuer:`, signed; the agent's code shipped to the host's node
-  # if that is another one (like a migration would); then the host starts it.
+  # if that is another one (like a migration would); then the host starts it (a host of this
+  # node without a call to its server: Tartarus.Host.Server.create_local/4).
 
   alias Tartarus.{CodeCache, Envelope, Host}
 
@@ -15,9 +16,26 @@ defmodule Tartarus.Agent.Creator do
          host = Host.address(host),
          {:ok, env} <- sign(new_envelope(host, module, opts), opts[:issuer]),
          :ok <- Tartarus.CodeShipping.ensure(elem(host, 1), Envelope.modules(env)) do
-      Host.call(host, {:create, env, args}, 30_000)
+      start(host, env, args)
     end
   end
+
+  defp start({_, node} = host, env, args) when node == node() do
+    case Host.local(host) do
+      {:ok, info} ->
+        try do
+          Tartarus.Host.Server.create_local(info, env, args, 30_000)
+        rescue
+          # The host stopped while we wrote to its table.
+          ArgumentError -> {:error, {:unknown_host, host}}
+        end
+
+      error ->
+        error
+    end
+  end
+
+  defp start(host, env, args), do: Host.call(host, {:create, env, args}, 30_000)
 
   defp check_agent_module(module) do
     if Tartarus.Agent.agent_module?(module), do: :ok, else: {:error, {:not_an_agent, module}}

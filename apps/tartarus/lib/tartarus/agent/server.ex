@@ -69,6 +69,19 @@ defmodule Tartarus.Agent.Server do
     ])
   end
 
+  @doc false
+  # The same, unmonitored: for a local creator, whose host's server adopts the process
+  # (Tartarus.Host.Server.create_local/4).
+  @spec spawn_agent(map(), reference(), Tartarus.Envelope.t(), term()) :: pid()
+  def spawn_agent(host, key, env, mode) do
+    :erlang.spawn_opt(
+      __MODULE__,
+      :enter,
+      [host, key, env, mode],
+      heap_limit(host.opts.max_heap_size)
+    )
+  end
+
   defp heap_limit(:infinity), do: []
   defp heap_limit(words), do: [max_heap_size: %{size: words, kill: true, error_logger: false}]
 
@@ -145,36 +158,52 @@ defmodule Tartarus.Agent.Server do
   end
 
   @impl true
-
   def handle_continue({:init, args}, data) do
     env = data.env
 
     case callback(data, :init, fn -> env.module.init(args) end) do
       {:ok, action, data} ->
-        case Ledger.register_resident(data.host, data.env, self()) do
-          :ok ->
-            arrived(put_state(data, action_state(action)))
-            emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
-            created(data, {:ok, env.id})
-            act(action, data)
-
-          {:error, reason} ->
-            created(data, {:error, reason})
-            {:stop, {:shutdown, {:create_failed, reason}}, data}
-        end
+        if action?(action),
+          do: init_done(action, data),
+          # Not an action: the create fails (the agent never runs).
+          else: init_failed(data, {:bad_action, action})
 
       # Answered by the host, which sees the exit.
       {:error, {:callback_timeout, _, _} = reason, data} ->
         {:stop, reason, data}
 
       {:error, reason, data} ->
-        created(data, {:error, {:init_failed, reason}})
-        {:stop, {:shutdown, {:init_failed, reason}}, data}
+        init_failed(data, reason)
     end
   end
 
   def handle_continue({:arrive, ctx}, data) do
     run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+  end
+
+  defp init_failed(data, reason) do
+    created(data, {:error, {:init_failed, reason}})
+    {:stop, {:shutdown, {:init_failed, reason}}, data}
+  end
+
+  defp action?({:stay, _}), do: true
+  defp action?({kind, _, _}) when kind in [:move, :clone, :return, :stop], do: true
+  defp action?(_), do: false
+
+  defp init_done(action, data) do
+    env = data.env
+
+    case Ledger.register_resident(data.host, env, self()) do
+      :ok ->
+        arrived(put_state(data, action_state(action)))
+        emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
+        created(data, {:ok, env.id})
+        act(action, data)
+
+      {:error, reason} ->
+        created(data, {:error, reason})
+        {:stop, {:shutdown, {:create_failed, reason}}, data}
+    end
   end
 
   # -- the paused copy (destination side) ---------------------------------------------
@@ -352,8 +381,12 @@ defmodule Tartarus.Agent.Server do
   defp paused_actions([{:stash, msg} | rest], data),
     do: paused_actions(rest, %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}})
 
-  # Over the bound: dropped and counted; a sender waiting for delivery times out.
+  # Over the bound: dropped and counted; a sender of a message is told to send it again
+  # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
   defp paused_actions([{:drop, msg} | rest], data) do
+    with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
+         do: send(pid, {tag, :retry})
+
     {:noreply, data} = dropped(data, msg)
     paused_actions(rest, data)
   end
@@ -409,6 +442,14 @@ defmodule Tartarus.Agent.Server do
 
   @impl true
   def handle_cast(_other, data), do: dropped(data, :cast)
+
+  # Whatever ends this process with a return value (it moved on, stopped, returned,
+  # crashed in a callback): the processes it started with Tartarus.Agent.spawn_link/1 end
+  # too. (Killed, it has no say: its host ends them, see Tartarus.Host.Server.)
+  @impl true
+  def terminate(_reason, data) do
+    if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+  end
 
   # -- actions -------------------------------------------------------------------
 

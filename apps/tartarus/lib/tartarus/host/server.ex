@@ -52,7 +52,7 @@ defmodule Tartarus.Host.Server do
     # Acknowledgements of arrived copies, by source host, until the next batch leaves.
     acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
 
-    :ets.insert(ledger, [{:neighbours, []}, {:resident, 0}, {:visits, 0}])
+    :ets.insert(ledger, [{:neighbours, []}, {:population, 0, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
     {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
     # Migrations an earlier run of this host committed: answers for destinations in doubt.
@@ -108,6 +108,7 @@ defmodule Tartarus.Host.Server do
 
   defp call(:info, _from, state), do: {:reply, state.host, state}
 
+  # A create from another node (a local one does not call this server: create_local/3).
   # Answered by the agent once its init/1 returned, or on its :DOWN (Agent.Server's top).
   defp call({:create, envelope, args}, from, state) do
     case start_agent(state, envelope, {:create, args}, 0, from) do
@@ -387,12 +388,36 @@ defmodule Tartarus.Host.Server do
     reason = overrun || reason
     state = %{state | monitors: monitors, killing: killing, overran: overran}
     resident? = Ledger.forget_resident(state.host, pid)
+    Tartarus.Agent.end_children(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, entry.id, pid)
     :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
     not_created(state, entry, reason)
     if kill, do: killed(state, pid, entry, kill)
     {:noreply, agent_down(state, entry, reason, resident?, kill != nil)}
+  end
+
+  # An agent a local creator started (create_local/4): monitored from now on, like the ones
+  # this server starts. A forged adoption (of a process of this node) costs one entry per
+  # live process at most and changes nothing when that process ends: its :DOWN finds no
+  # resident record, hand-off or arriving entry of its pid, and no creator under an
+  # unguessable key.
+  def handle_info({:"$tartarus_adopt", pid, %{id: id, key: key, owner: owner}}, state)
+      when is_pid(pid) and node(pid) == node() and is_binary(id) and is_reference(key) do
+    if not is_map_key(state.pids, pid) do
+      mref = Process.monitor(pid)
+      entry = %{id: id, key: key, restarts: 0, owner: owner, create: true}
+
+      {:noreply,
+       %{
+         state
+         | monitors: Map.put(state.monitors, mref, entry),
+           pids: Map.put(state.pids, pid, mref)
+       }}
+    else
+      Ledger.count(state.host, :dropped)
+      {:noreply, state}
+    end
   end
 
   # An agent that passed through here ended elsewhere (checked by Tartarus.Host.Directory).
@@ -700,6 +725,50 @@ defmodule Tartarus.Host.Server do
 
       [] ->
         :ok
+    end
+  end
+
+  @doc false
+  # Creates agent `env` on host `host` (this node's, from Tartarus.Host.local/1) without
+  # calling its server: the caller starts the agent's process, the server adopts it (one
+  # message it handles when it can: it monitors the agent from then on, restarts it after a
+  # crash, kills it when the host stops) and the agent answers the caller once its init/1
+  # returned, or the server does when the agent went down first (not_created/3). An agent
+  # that dies before the server adopts it is seen as :noproc by the server's monitor.
+  @spec create_local(map(), Tartarus.Envelope.t(), term(), timeout()) ::
+          {:ok, binary()} | {:error, term()}
+  def create_local(host, env, args, timeout) do
+    if :ets.member(host.ledger, :stopping) do
+      {:error, :host_stopping}
+    else
+      key = make_ref()
+      # The host's server may stop meanwhile (it would answer nobody then).
+      tag = Process.monitor(host.pid)
+      :ets.insert(host.ledger, {{:creating, key}, {self(), tag}})
+      pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
+      send(host.pid, {:"$tartarus_adopt", pid, %{id: env.id, key: key, owner: env.owner}})
+
+      receive do
+        {^tag, reply} ->
+          Process.demonitor(tag, [:flush])
+          reply
+
+        {:DOWN, ^tag, :process, _, _} ->
+          receive do
+            {^tag, reply} -> reply
+          after
+            0 -> {:error, {:unknown_host, host.ref}}
+          end
+      after
+        timeout ->
+          # Unanswered: whoever settles it later finds no entry.
+          Process.demonitor(tag, [:flush])
+
+          case :ets.take(host.ledger, {:creating, key}) do
+            [_] -> {:error, {:timeout, host.ref}}
+            [] -> receive(do: ({^tag, reply} -> reply))
+          end
+      end
     end
   end
 

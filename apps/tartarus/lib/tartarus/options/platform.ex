@@ -73,8 +73,12 @@ defmodule Tartarus.Options.Platform do
     ],
     max_heap_size: [
       type: :pos_integer_or_infinity,
-      default: :infinity,
-      doc: "per-agent heap limit in words; an agent that exceeds it is killed (and restarted)"
+      default: 8_388_608,
+      doc:
+        "per-agent heap limit in words (the default, 8,388,608, is 64 MiB on a 64-bit " <>
+          "node; its mailbox counts too); an agent that exceeds it is killed (and restarted " <>
+          "from its snapshot, up to `:max_restarts`); an arriving agent whose envelope " <>
+          "alone would take half of it is refused. `:infinity` leaves agents unbounded"
     ],
     security: [
       type:
@@ -182,8 +186,19 @@ defmodule Tartarus.Options.Platform do
     end
   end
 
-  @doc "Validates `Tartarus.create_agent/4`'s options."
+  @doc """
+  Validates `Tartarus.create_agent/4`'s options. The options of a plain
+  `create_mobile_agent/4` or `create_static_agent/4` (nothing but `:static`) take a fast path
+  with the same result.
+
+      iex> Tartarus.Options.Platform.create_agent(static: true) ==
+      ...>   Tartarus.Options.validate([static: true], Tartarus.Options.Platform.create_agent_schema(), "x")
+      true
+  """
   @spec create_agent(keyword()) :: {:ok, keyword()} | {:error, String.t()}
+  def create_agent(static: static) when is_boolean(static),
+    do: {:ok, [static: static, ttl: :infinity, payload: %{}, modules: []]}
+
   def create_agent(opts), do: Options.validate(opts, @create, "Tartarus.create_agent/4")
 
   @doc "Validates `Tartarus.connect/3`'s link properties."

@@ -337,6 +337,12 @@ defmodule Tartarus.Security.Admission do
 
   @request_fields [:source, :envelope_bytes, :payload_bytes, :hops, :resident]
 
+  # The well-formed request (every arrival's) in one match; the others get a message.
+  defp check_request(%{source: _, envelope_bytes: e, payload_bytes: p, hops: h, resident: r})
+       when is_integer(e) and e >= 0 and is_integer(p) and p >= 0 and is_integer(h) and h >= 0 and
+              is_integer(r) and r >= 0,
+       do: :ok
+
   defp check_request(%{} = request) do
     case Enum.reject(@request_fields, &Map.has_key?(request, &1)) do
       [] ->

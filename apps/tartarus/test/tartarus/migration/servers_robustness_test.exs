@@ -150,6 +150,22 @@ defmodule Tartarus.Migration.ParkingTest do
     assert {:ok, :parked} = Tartarus.request({id, b}, :state)
   end
 
+  test "a paused copy with a full stash tells a sender to send again, and takes it once it runs" do
+    [a, b] = [host!(), host!()]
+    {_ha, _server, mig, copy, pid, id} = paused_copy(a, b)
+    # The stash holds 1,000 messages; what comes after is not kept.
+    for i <- 1..1_000, do: send(pid, {:filler, i})
+    tag = System.unique_integer([:monotonic, :positive])
+    send(pid, {:"$tartarus_msg", {self(), tag}, :post, :late})
+    assert_receive {^tag, :retry}, 2_000
+
+    # Committed: the copy runs; sent again, the message is taken.
+    send(pid, Protocol.commit(mig, copy, nil))
+    assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
+    send(pid, {:"$tartarus_msg", {self(), tag}, :post, :late})
+    assert_receive {^tag, :delivered}, 2_000
+  end
+
   test "a parked copy is dropped on an aborted answer" do
     [a, b] = [host!(), host!()]
     {ha, server, mig, _copy, pid, id} = paused_copy(a, b)

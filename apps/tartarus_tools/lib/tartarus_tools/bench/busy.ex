@@ -17,8 +17,11 @@ defmodule TartarusTools.Bench.Busy do
   Keys: `messages` (asked), `sent` (posts made before the time budget ran out),
   `acknowledged` (post returned `:ok`), `delivered` (distinct messages in the agent's
   state), `delivered_exactly_once` (taken once), `duplicates`, `acknowledged_missing`
-  (`:ok` but not in the state: must be 0), `delivered_despite_error` (an error returned
-  but the agent had it), `failures` (error reason => count), `order_kept` (true when no
+  (`:ok` but not in the state: must be 0), `delivered_despite_error` (an error other than
+  `:timeout` returned, which means "not delivered", but the agent had it: must be 0),
+  `unknown_outcomes` (posts that returned `{:error, :timeout}`: outcome unknown) and
+  `unknown_delivered` (of those, how many the agent had), `failures` (error reason =>
+  count), `order_kept` (true when no
   sender's message came after a later one of the same sender), `out_of_order`,
   `delivered_pct`, `hops` (the agent's), `wall_ms`, `posts_per_s`.
   """
@@ -113,8 +116,20 @@ defmodule TartarusTools.Bench.Busy do
         got = fn seq -> Hopper.bit(bits, seq) end
         delivered = Enum.count(0..(n - 1)//1, got)
         missing = Enum.count(r.ok, &(not got.(&1)))
-        despite = Enum.count(r.errors, fn {seq, _} -> got.(seq) end)
-        %{sent: r.sent, ok: length(r.ok), delivered: delivered, missing: missing, despite: despite}
+        # A failure report means "not delivered"; a timeout means "unknown" (Tartarus.post/3).
+        {unknown, failed} = Enum.split_with(r.errors, fn {_, reason} -> reason == :timeout end)
+        despite = Enum.count(failed, fn {seq, _} -> got.(seq) end)
+        unknown_delivered = Enum.count(unknown, fn {seq, _} -> got.(seq) end)
+
+        %{
+          sent: r.sent,
+          ok: length(r.ok),
+          delivered: delivered,
+          missing: missing,
+          despite: despite,
+          unknown: length(unknown),
+          unknown_delivered: unknown_delivered
+        }
       end
 
     sum = fn key -> Enum.sum(Enum.map(rows, &Map.fetch!(&1, key))) end
@@ -137,6 +152,8 @@ defmodule TartarusTools.Bench.Busy do
       duplicates: final.duplicates,
       acknowledged_missing: sum.(:missing),
       delivered_despite_error: sum.(:despite),
+      unknown_outcomes: sum.(:unknown),
+      unknown_delivered: sum.(:unknown_delivered),
       failures: failures,
       failed: Enum.sum(Map.values(failures)),
       order_kept: final.out_of_order == 0,
