@@ -17,7 +17,25 @@ defmodule TartarusTools.StatsTest do
       assert {s.q1, s.median, s.q3} == {10, 11, 13}
       assert {s.whisker_low, s.whisker_high} == {10, 13}
       assert s.outliers == [-50, 60]
-      assert_raise ArgumentError, fn -> Stats.box([1, "x"]) end
+      assert_raise ArgumentError, ~r/expected a list of numbers, got an element: "x"/, fn ->
+        Stats.box([1, "x"])
+      end
+
+      s = Stats.box(Enum.to_list(1..9))
+      assert {s.q1, s.median, s.q3} == {3, 5, 7}
+      assert {s.whisker_low, s.whisker_high, s.outliers} == {1, 9, []}
+
+      assert Stats.box([4]) == %{
+               n: 1,
+               min: 4,
+               max: 4,
+               q1: 4,
+               median: 4,
+               q3: 4,
+               whisker_low: 4,
+               whisker_high: 4,
+               outliers: []
+             }
     end
 
     test "describe drops nils and leaves an empty sample's statistics empty" do
