@@ -53,13 +53,14 @@ defmodule TartarusEmu.Sweep do
       `:write` without writing it to the summary; or `:scenario` (and `:base`), above;
     * `:order` - `:seed_major` (default: every arm of the first seed, then the second
       seed, ...) or `:arm_major`: the order of the runs in the result and in `runs.csv`;
-    * `:metrics` - `[{name, key | fun}]`: numbers taken from each summary (`nil` when a run
-      has none), described per arm (`TartarusTools.Stats.describe/1`: n, mean, sd, median,
+    * `:metrics` - `[{name, key | fun}]` or `[{name, key | fun, title}]`: numbers taken from
+      each summary (`nil` when a run has none), described per arm (`TartarusTools.Stats.describe/1`: n, mean, sd, median,
       q1, q3, iqr, min, max) and drawn as a box plot `<metric>.svg` per metric when some
-      arm has two runs or more;
+      arm has two runs or more (titled `title`);
     * `:tests` - `[{arm_a, :greater | :less, arm_b, metric}]`: one-sided Mann-Whitney U
       tests (`TartarusTools.Stats.mann_whitney/3`, exact up to 20 runs an arm) that the
-      metric of `arm_a` tends to be greater (less) than that of `arm_b`;
+      metric of `arm_a` tends to be greater (less) than that of `arm_b`; a fifth element,
+      options of the test (`method: :exact`), is optional;
     * `:csv` - `{header, fn run -> [row] end}`: the rows of `runs.csv` for one run (default:
       `arm, seed` and the metrics, one row a run);
     * `:summary` - `fn result -> map end`: the experiment's own summary keys (`result` has
@@ -69,6 +70,10 @@ defmodule TartarusEmu.Sweep do
       share something global (a dashboard, peer nodes, fixed host names).
 
   A run record is `%{arm:, opts:, seed:, summary:, data:, ms:}`.
+
+  Each run goes in a process of its own, which ends with the run: what must outlive a run
+  (a named ETS table used as a memo, a dashboard) is created by the caller before
+  `run/2`.
 
   ## What `run/2` does
 
@@ -208,11 +213,18 @@ defmodule TartarusEmu.Sweep do
 
       true ->
         metrics = Enum.map(Map.get(spec, :metrics, []), &metric/1)
+        titles = for {m, _, title} <- Map.get(spec, :metrics, []), into: %{}, do: {m, title}
         names = Enum.map(arms, &elem(&1, 0))
 
+        tests =
+          Enum.map(Map.get(spec, :tests, []), fn
+            {a, alt, b, m} -> {a, alt, b, m, []}
+            other -> other
+          end)
+
         bad_test =
-          Enum.find(Map.get(spec, :tests, []), fn
-            {a, alt, b, m} ->
+          Enum.find(tests, fn
+            {a, alt, b, m, opts} when is_list(opts) ->
               not (a in names and b in names and alt in [:greater, :less] and
                      Keyword.has_key?(metrics, m))
 
@@ -234,7 +246,8 @@ defmodule TartarusEmu.Sweep do
              run: runner(spec),
              order: Map.get(spec, :order, :seed_major),
              metrics: metrics,
-             tests: Map.get(spec, :tests, []),
+             titles: titles,
+             tests: tests,
              csv: Map.get(spec, :csv),
              summary: Map.get(spec, :summary, fn _ -> %{} end),
              write: Map.get(spec, :write, fn _, _ -> [] end),
@@ -244,6 +257,7 @@ defmodule TartarusEmu.Sweep do
     end
   end
 
+  defp metric({name, key, _title}), do: metric({name, key})
   defp metric({name, key}) when is_atom(key), do: {name, &Map.get(&1, key)}
   defp metric({name, fun}) when is_function(fun, 1), do: {name, fun}
 
@@ -319,12 +333,12 @@ defmodule TartarusEmu.Sweep do
     end
   end
 
-  defp test({a, alt, b, m}, runs, spec) do
+  defp test({a, alt, b, m, opts}, runs, spec) do
     f = Keyword.fetch!(spec.metrics, m)
     xs = for r <- runs, r.arm == a, v = f.(r.summary), v != nil, do: v
     ys = for r <- runs, r.arm == b, v = f.(r.summary), v != nil, do: v
 
-    Stats.mann_whitney(xs, ys, alternative: alt)
+    Stats.mann_whitney(xs, ys, Keyword.put(opts, :alternative, alt))
     |> Map.merge(%{a: a, alternative: alt, b: b, metric: m})
   end
 
@@ -356,7 +370,7 @@ defmodule TartarusEmu.Sweep do
           plot =
             SVG.box_plot(
               Enum.map(groups, fn {arm, rs} -> {arm, Enum.reject(values(rs, f), &is_nil/1)} end),
-              title: "#{spec.name}: #{m} per run",
+              title: Map.get(spec.titles, m, "#{spec.name}: #{m} per run"),
               y_label: to_string(m)
             )
 
