@@ -260,23 +260,7 @@ defmodule TartarusEmu.Scenario do
     dir = out || Report.default_out_dir(module.name())
     File.mkdir_p!(dir)
 
-    csvs =
-      [Report.write_csv!(dir, "series", Series.header(series), Series.to_rows(series))] ++
-        Enum.map(Series.names(series), fn name ->
-          Report.write_csv!(dir, to_string(name), ["step", to_string(name)], rows(series, name))
-        end)
-
-    charts =
-      Enum.map(Series.to_chart(series), fn chart ->
-        svg =
-          SVG.line_chart([chart],
-            title: "#{module.name()}: #{chart.name}",
-            x_label: "step",
-            y_label: chart.name
-          )
-
-        SVG.write!(Path.join(dir, "#{chart.name}.svg"), svg)
-      end)
+    csvs_and_charts = write_series(dir, module.name(), series)
 
     extra_charts =
       if function_exported?(module, :charts, 1) do
@@ -309,7 +293,38 @@ defmodule TartarusEmu.Scenario do
         comparisons: comparisons
       )
 
-    {dir, csvs ++ charts ++ extra_charts ++ extra ++ summaries}
+    {dir, csvs_and_charts ++ extra_charts ++ extra ++ summaries}
+  end
+
+  @doc """
+  Writes a run's series into `dir` as the runner does: `series.csv` (every series, one
+  column each), and per series a CSV (`step`, value) and an SVG line chart titled
+  `"<name>: <series>"`. Returns the paths written. For an experiment that builds its
+  series itself (a `TartarusEmu.Sweep` whose points are runs).
+  """
+  @spec write_series(Path.t(), String.t(), Series.t()) :: [Path.t()]
+  def write_series(dir, name, series) do
+    File.mkdir_p!(dir)
+
+    csvs =
+      [Report.write_csv!(dir, "series", Series.header(series), Series.to_rows(series))] ++
+        Enum.map(Series.names(series), fn s ->
+          Report.write_csv!(dir, to_string(s), ["step", to_string(s)], rows(series, s))
+        end)
+
+    charts =
+      Enum.map(Series.to_chart(series), fn chart ->
+        svg =
+          SVG.line_chart([chart],
+            title: "#{name}: #{chart.name}",
+            x_label: "step",
+            y_label: chart.name
+          )
+
+        SVG.write!(Path.join(dir, "#{chart.name}.svg"), svg)
+      end)
+
+    csvs ++ charts
   end
 
   defp rows(series, name), do: Enum.map(Series.points(series, name), fn {s, v} -> [s, v] end)

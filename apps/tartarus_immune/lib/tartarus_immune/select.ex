@@ -24,13 +24,22 @@ defmodule TartarusImmune.Select do
   best, converged, convergence step, steps run, test accuracy and regret, migrations,
   clones, deaths, wall ms, convergence events, events run), a population chart per run of the first seed
   (`population_<arm>_<set>.svg` and `.csv`: live iPkts per solution per step, the learning
-  curve), `steps.svg` (box plot of convergence steps per arm, for the multi-seed
-  experiments), `summary.json` and `summary.md`.
+  curve), box plots per arm for the multi-seed experiments (`steps.svg`: convergence
+  steps; `events.svg`, `test_accuracy.svg`, `migrations.svg`), `summary.json` and
+  `summary.md`.
+
+  The runs go through `TartarusEmu.Sweep`: an arm is `"<arm> <set>"` (e.g. `"sharing p2"`),
+  the seeds are `seed..seed + seeds - 1`, runs go in parallel on the schedulers (one at a
+  time with a dashboard or in peer mode; the numbers are the same either way), and the
+  summary gets the sweep's `sweep` key: per arm `steps`, `events`, `test_accuracy`,
+  `migrations` (n, mean, sd, median, quartiles, IQR, min, max) and, for `sharing` and
+  `danger`, one-sided Mann-Whitney tests that sharing (danger signals) converges in fewer
+  steps than the arm without.
   """
 
-  alias TartarusEmu.Scenario
+  alias TartarusEmu.{Scenario, Sweep}
   alias TartarusImmune.{Experiment, Sorting}
-  alias TartarusTools.{Report, Series, SVG}
+  alias TartarusTools.{Report, Series, Stats, SVG}
 
   @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :dynamic, :influx, :barrage, :iot]
 
@@ -72,6 +81,8 @@ defmodule TartarusImmune.Select do
         "serve the web dashboard on this port (127.0.0.1) while the runs go, or dashboard options (`port:`, `token:`, ...): the network of the run going now and the immune panel (`TartarusImmune.Panel`)"
     ]
   ]
+
+  @csv_header ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms convergence_events events_run)
 
   @doc "The option schema."
   def schema, do: @schema
@@ -130,46 +141,104 @@ defmodule TartarusImmune.Select do
 
   defp run_plan(exp, o, out, dash) do
     panel = if dash, do: elem(dash, 1)
-
     t0 = System.monotonic_time(:millisecond)
-    plan = plan(exp, o)
+    # the memo of sorting costs outlives the runs (each runs in its own process)
+    TartarusImmune.Cache.ensure()
 
-    runs =
-      for {arm, set, seed, extra} <- plan do
-        base = [
-          set: set,
-          seed: seed,
-          steps: o.steps,
-          nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
-          topology: o.topology,
-          mode: o.mode,
-          group: o.group,
-          share: o.share,
-          hold: o.hold,
-          eta: o.eta,
-          beta: o.beta,
-          period: o.period,
-          out: false,
-          quiet: o.quiet,
-          panel: panel,
-          label: "#{exp}: #{arm}, #{set}, seed #{seed}"
-        ]
+    # the arms: the plan's first seed (every seed runs the same arms)
+    arms =
+      for {arm, set, seed, extra} <- plan(exp, o),
+          seed == o.seed,
+          do: {"#{arm} #{set}", %{arm: arm, set: set, extra: extra}}
 
-        {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
-        %{arm: arm, set: set, seed: seed, summary: r.summary, series: r.series}
-      end
+    # one run at a time when the runs share a dashboard or peer nodes
+    concurrency = if dash || o.mode == :peer, do: 1, else: System.schedulers_online()
 
-    summary =
-      exp
-      |> summarize(runs, o)
-      |> Map.merge(%{
-        experiment: to_string(exp),
-        wall_ms: System.monotonic_time(:millisecond) - t0
-      })
+    spec = %{
+      name: "select-#{exp}",
+      title: "Immune selection: #{exp}",
+      arms: arms,
+      seeds: seeds(o),
+      run: &run_one(&1, &2, exp, o, panel, concurrency),
+      metrics: [
+        {:steps, &steps/1, "convergence step per run (not converged: the step limit)"},
+        {:events, &events/1, "convergence in log-server events per run"},
+        test_accuracy: :test_accuracy,
+        migrations: :migrations
+      ],
+      tests: tests(exp, o),
+      csv: {@csv_header, &csv_rows/1},
+      concurrency: concurrency,
+      summary: fn r ->
+        exp
+        |> summarize(runs(r), o)
+        |> Map.merge(%{
+          experiment: to_string(exp),
+          wall_ms: System.monotonic_time(:millisecond) - t0
+        })
+      end,
+      write: fn dir, r -> write_populations(dir, runs(r), o) end
+    }
 
-    if out, do: write(out, runs, summary, o)
-    {:ok, %{summary: summary, out: out, runs: runs}}
+    {:ok, r} = Sweep.run(spec, out: out, quiet: o.quiet)
+    {:ok, %{summary: r.summary, out: r.out, runs: runs(r)}}
   end
+
+  defp run_one(arm, seed, exp, o, panel, concurrency) do
+    %{arm: name, set: set, extra: extra} = arm.opts
+
+    base = [
+      set: set,
+      seed: seed,
+      steps: o.steps,
+      nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
+      topology: o.topology,
+      mode: o.mode,
+      group: o.group,
+      share: o.share,
+      hold: o.hold,
+      eta: o.eta,
+      beta: o.beta,
+      period: o.period,
+      out: false,
+      # one progress line at a time
+      quiet: o.quiet or concurrency > 1,
+      panel: panel,
+      label: "#{exp}: #{name}, #{set}, seed #{seed}"
+    ]
+
+    {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
+    {r.summary, r.series}
+  end
+
+  # the sweep's runs as this module's records
+  defp runs(sweep),
+    do:
+      Enum.map(
+        sweep.runs,
+        &%{
+          arm: &1.opts.arm,
+          set: &1.opts.set,
+          seed: &1.seed,
+          summary: &1.summary,
+          series: &1.data
+        }
+      )
+
+  # one-sided tests of the figures' claims: sharing and danger signals converge sooner
+  defp tests(:sharing, o),
+    do: [{"sharing #{o[:set] || :p2}", :less, "no_sharing #{o[:set] || :p2}", :steps}]
+
+  defp tests(:danger, o) do
+    set = o[:set] || :p2
+
+    [
+      {"danger #{set}", :less, "no_danger #{set}", :steps},
+      {"danger #{set}", :less, "no_sharing #{set}", :steps}
+    ]
+  end
+
+  defp tests(_, _), do: []
 
   defp default_nodes(e) when e in [:nodes50, :iot, :dynamic], do: 50
   defp default_nodes(_), do: 10
@@ -236,21 +305,13 @@ defmodule TartarusImmune.Select do
       |> Enum.group_by(&to_string(&1.set))
       |> Map.new(fn {s, rs} -> {s, Enum.map(rs, &get_in(&1, [:summary, key]))} end)
 
-  defp mean([]), do: nil
-  defp mean(xs), do: Enum.sum(xs) / length(xs)
-
-  defp sd(xs) when length(xs) < 2, do: nil
-
-  defp sd(xs) do
-    m = mean(xs)
-    :math.sqrt(Enum.sum(Enum.map(xs, &((&1 - m) * (&1 - m)))) / (length(xs) - 1))
-  end
-
-  defp steps_of(r), do: r.summary.convergence_step || r.summary.steps_run
+  defp steps_of(r), do: steps(r.summary)
+  defp steps(s), do: s.convergence_step || s.steps_run
 
   # the same convergence in the second unit, a log server's count of events (sharing and
   # executions, `TartarusImmune.Experiment`); not converged: the count at the step limit
-  defp events_of(r), do: r.summary.convergence_events || r.summary.events_run
+  defp events_of(r), do: events(r.summary)
+  defp events(s), do: s.convergence_events || s.events_run
   defp events_all_of(r), do: r.summary.convergence_events_all || r.summary.events_all_run
 
   defp common(runs) do
@@ -260,10 +321,12 @@ defmodule TartarusImmune.Select do
       known_best: runs |> per_set(:known_best) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       convergence_steps: per_set(runs, :convergence_step),
       convergence_events: per_set(runs, :convergence_events),
-      test_accuracy: runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
-      test_regret: runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+      test_accuracy:
+        runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
+      test_regret:
+        runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
       test_regret_rel:
-        runs |> per_set(:test_regret_rel) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+        runs |> per_set(:test_regret_rel) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
       seeds: runs |> Enum.map(& &1.seed) |> Enum.uniq(),
       nodes: hd(runs).summary.nodes,
       mode: to_string(hd(runs).summary.mode)
@@ -288,21 +351,21 @@ defmodule TartarusImmune.Select do
       {arm,
        %{
          convergence_steps: Enum.map(rs, & &1.summary.convergence_step),
-         steps_mean: mean(steps),
-         steps_sd: sd(steps),
+         steps_mean: Stats.mean(steps),
+         steps_sd: Stats.sd(steps),
          convergence_events: Enum.map(rs, & &1.summary.convergence_events),
-         events_mean: mean(events),
-         events_sd: sd(events),
-         events_all_mean: mean(events_all),
-         events_all_sd: sd(events_all),
+         events_mean: Stats.mean(events),
+         events_sd: Stats.sd(events),
+         events_all_mean: Stats.mean(events_all),
+         events_all_sd: Stats.sd(events_all),
          converged: Enum.count(rs, & &1.summary.converged),
          runs: length(rs),
          winners: Enum.map(rs, & &1.summary.winner),
-         test_accuracy: mean(Enum.map(rs, & &1.summary.test_accuracy)),
-         test_regret: mean(Enum.map(rs, & &1.summary.test_regret)),
-         migrations_mean: mean(Enum.map(rs, & &1.summary.migrations)),
+         test_accuracy: Stats.mean(Enum.map(rs, & &1.summary.test_accuracy)),
+         test_regret: Stats.mean(Enum.map(rs, & &1.summary.test_regret)),
+         migrations_mean: Stats.mean(Enum.map(rs, & &1.summary.migrations)),
          failed_moves: Enum.map(rs, & &1.summary.failed_moves),
-         wall_ms_mean: mean(Enum.map(rs, & &1.summary.run_ms))
+         wall_ms_mean: Stats.mean(Enum.map(rs, & &1.summary.run_ms))
        }}
     end)
   end
@@ -349,72 +412,47 @@ defmodule TartarusImmune.Select do
 
   # -- files ----------------------------------------------------------------------------
 
-  defp write(dir, runs, summary, o) do
-    File.mkdir_p!(dir)
+  defp csv_rows(run) do
+    %{arm: arm, set: set} = run.opts
+    s = run.summary
 
-    header =
-      ~w(arm set seed winner known_best converged convergence_step steps_run test_accuracy test_regret test_regret_rel migrations failed_moves clones deaths run_ms convergence_events events_run)
-
-    rows =
-      for r <- runs do
-        s = r.summary
-
+    [
+      [arm, set, run.seed, s.winner, s.known_best, s.converged, s.convergence_step, s.steps_run] ++
         [
-          r.arm,
-          r.set,
-          r.seed,
-          s.winner,
-          s.known_best,
-          s.converged,
-          s.convergence_step,
-          s.steps_run
-        ] ++
-          [
-            s.test_accuracy,
-            s.test_regret,
-            s.test_regret_rel,
-            s.migrations,
-            s.failed_moves,
-            s.clones,
-            s.deaths,
-            s.run_ms,
-            s.convergence_events,
-            s.events_run
-          ]
-      end
+          s.test_accuracy,
+          s.test_regret,
+          s.test_regret_rel,
+          s.migrations,
+          s.failed_moves,
+          s.clones,
+          s.deaths,
+          s.run_ms,
+          s.convergence_events,
+          s.events_run
+        ]
+    ]
+  end
 
-    Report.write_csv!(dir, "runs", header, rows)
-
+  defp write_populations(dir, runs, o) do
     for r <- runs, r.seed == o.seed do
       name = "population_#{r.arm}_#{r.set}"
       chart = r.series |> Series.to_chart() |> Enum.reject(&(&1.name == "total"))
 
-      SVG.write!(
-        Path.join(dir, name <> ".svg"),
-        SVG.line_chart(chart,
-          title:
-            "live iPkts per solution, #{r.arm}, #{r.set}, seed #{r.seed}" <> conv_note(r.summary),
-          x_label: "step",
-          y_label: "iPkts"
+      svg =
+        SVG.write!(
+          Path.join(dir, name <> ".svg"),
+          SVG.line_chart(chart,
+            title:
+              "live iPkts per solution, #{r.arm}, #{r.set}, seed #{r.seed}" <>
+                conv_note(r.summary),
+            x_label: "step",
+            y_label: "iPkts"
+          )
         )
-      )
 
-      Report.write_csv!(dir, name, Series.header(r.series), Series.to_rows(r.series))
+      [svg, Report.write_csv!(dir, name, Series.header(r.series), Series.to_rows(r.series))]
     end
-
-    groups = runs |> Enum.group_by(&"#{&1.arm} #{&1.set}") |> Enum.sort()
-
-    if Enum.any?(groups, fn {_, rs} -> length(rs) > 1 end) do
-      SVG.write!(
-        Path.join(dir, "steps.svg"),
-        SVG.box_plot(Enum.map(groups, fn {g, rs} -> {g, Enum.map(rs, &steps_of/1)} end),
-          title: "convergence step per run (not converged: the step limit)",
-          y_label: "step"
-        )
-      )
-    end
-
-    Report.write_summary!(dir, summary, title: "Immune selection: #{o.experiment}")
+    |> List.flatten()
   end
 
   defp conv_note(%{convergence_step: nil}), do: " (not converged)"

@@ -32,6 +32,31 @@ defmodule TartarusImmune.SelectTest do
     assert json =~ ~s("convergence_steps") and json =~ ~s("test_regret")
   end
 
+  @tag :tmp_dir
+  test "two seeds: the sweep's aggregates, box plots and the test of sharing", %{tmp_dir: dir} do
+    opts = [experiment: :sharing, set: :p1, nodes: 4, steps: 25, hold: 5, quiet: true]
+    {:ok, r} = Select.run(opts ++ [seeds: 2, out: dir])
+    sweep = r.summary.sweep
+    assert sweep.arms == ["sharing p1", "no_sharing p1"]
+    assert sweep.runs == 4
+    steps = r.summary.arms["sharing"].convergence_steps
+    assert sweep.aggregates["sharing p1"].steps.n == 2
+    assert [%{a: "sharing p1", b: "no_sharing p1", metric: :steps, method: :exact}] = sweep.tests
+    assert File.exists?(Path.join(dir, "steps.svg"))
+
+    [header | rows] =
+      dir |> Path.join("runs.csv") |> File.read!() |> String.split("\n", trim: true)
+
+    assert header =~ ~r/^arm,set,seed,winner,/
+
+    assert Enum.map(rows, &(&1 |> String.split(",") |> Enum.take(3))) ==
+             [~w(sharing p1 1), ~w(no_sharing p1 1), ~w(sharing p1 2), ~w(no_sharing p1 2)]
+
+    # the same numbers one run at a time (seed 1 alone)
+    {:ok, one} = Select.run(opts ++ [out: false])
+    assert hd(steps) == hd(one.summary.arms["sharing"].convergence_steps)
+  end
+
   test "on the dashboard: the run going now, a row per host; the same results as without it" do
     {:ok, l} = :gen_tcp.listen(0, [])
     {:ok, port} = :inet.port(l)

@@ -60,7 +60,8 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   iterations_to_converge, ipkt_fewer_communications_at_every_size,
   more_ipkts_lower_omega` (size -> whether Omega falls as iPkts are added), `antibodies`
   and `test_success` (null for `sharing`), and the runner's `scenario, seed, steps,
-  setup_ms, run_ms`. With `--json` the last line printed is the summary as one JSON object.
+  setup_ms, run_ms`, and `sweep` (`TartarusEmu.Sweep`: per-arm aggregates, box plots, and
+  for `s1`-`s3` the test of immune against monolithic). With `--json` the last line printed is the summary as one JSON object.
 
   `robots3` (§7.4.2): three robots learn S3 in one arena, each a host of an emulated
   network, sharing their best antibodies every 5 iterations by broadcast or by one packet

@@ -39,8 +39,10 @@ defmodule Mix.Tasks.Tartarus.Select do
 
   Output (in `--out DIR`, default `results/select-<experiment>-<UTC timestamp>`):
   `runs.csv`, `population_<arm>_<set>.svg|csv` (the learning curves of the first seed),
-  `steps.svg` (box plots of convergence steps, when an arm has several seeds),
-  `summary.json`, `summary.md`.
+  `steps.svg` (box plots of convergence steps, when an arm has several seeds; likewise
+  `events.svg`, `test_accuracy.svg`, `migrations.svg`), `summary.json`, `summary.md`. The
+  runs go through `TartarusEmu.Sweep` (in parallel, a line per finished run on standard
+  error).
 
   Summary keys: `experiment, winners` (set -> the winner of most seeds), `winners_by_seed,
   known_best, convergence_steps` (set -> per seed; for arms: arm -> per seed),
@@ -48,7 +50,10 @@ defmodule Mix.Tasks.Tartarus.Select do
   the oracle's), `test_regret` (set -> mean extra cost over the oracle, comparisons +
   moves), `test_regret_rel, seeds, nodes, mode, wall_ms`; `table6_2` adds
   `thesis_best, seeds_matching_thesis, seeds_matching_known_best`; the others add `arms`
-  (per arm: convergence steps, mean, sd, winners, accuracy, regret, migrations, run ms).
+  (per arm: convergence steps, mean, sd, winners, accuracy, regret, migrations, run ms);
+  all add `sweep` (`TartarusEmu.Sweep`: per-arm aggregates of `steps, events,
+  test_accuracy, migrations` and, for `sharing` and `danger`, one-sided Mann-Whitney tests
+  of fewer convergence steps with sharing / with danger signals).
   With `--json` the last line printed is the summary as one JSON object.
   """
   use TartarusTools.CLI

@@ -1,7 +1,15 @@
 defmodule TartarusImmune.Evolution.Experiment do
   @moduledoc """
-  The embodied-evolution experiments of thesis ch. 7 as a `TartarusEmu.Scenario`
-  (`mix tartarus.evolve`).
+  The embodied-evolution experiments of thesis ch. 7 (`mix tartarus.evolve`), each a
+  `TartarusEmu.Sweep` over seeds: this module is their door (options, `run/1`, the
+  registry); each experiment is a module of its own:
+
+  | experiment | module | arms |
+  |---|---|---|
+  | `s1`, `s2`, `s3`, `monolithic` | `TartarusImmune.Evolution.Experiment.Trials` | `<scenario>_<design>` |
+  | `robots3` | `TartarusImmune.Evolution.Experiment.Robots3` | `none`, `broadcast`, `ipkt` |
+  | `sharing` | `TartarusImmune.Evolution.Experiment.SharingSizes` | `<n>: <scheme>` |
+
 
   `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
   scenario on the arena with the immune algorithm and, beside each, the monolithic
@@ -9,7 +17,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   the baseline alone on all three scenarios. A step is one trial. `recovery`, `period`,
   `min_period`, `puck_reward` and `score` are passed to every run. The summary compares the two designs' test
   success over the trials with a one-sided Mann-Whitney U test
-  (`TartarusImmune.Evolution.Stats`, exact): `mann_whitney_u`, `p_value` (immune better
+  (`TartarusTools.Stats.mann_whitney/3`, exact): `mann_whitney_u`, `p_value` (immune better
   than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
 
   `sharing` (§7.4.3, Fig. 7.6): for each network size, social learning by
@@ -22,11 +30,27 @@ defmodule TartarusImmune.Evolution.Experiment do
   `robots3` (§7.4.2): three robots learning S3 in one arena, sharing antibodies by
   broadcast, by a packet agent, or not at all (`TartarusImmune.Evolution.Collective`), on
   the same seeds; a step is one trial.
-  """
-  @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing, Stats}
-  alias TartarusTools.{Report, Series, SVG}
+  Every experiment writes (in `out`) what it always wrote (`runs.csv`, its charts, the
+  series as `series.csv` and one CSV and SVG per series, `summary.json`, `summary.md`)
+  and, from the sweep, box plots per arm of its metrics; the summary keeps the keys of
+  the runner (`scenario`, `seed`, `steps`: points run, `setup_ms`, `run_ms`) and gets the
+  sweep's `sweep` (aggregates per arm and the tests). A step of the series is a trial
+  (`s1`-`s3`, `monolithic`, `robots3`) or a (size, scheme) point (`sharing`).
+  """
+
+  alias TartarusEmu.{Scenario, Sweep}
+  alias TartarusImmune.Evolution.Experiment.{Robots3, SharingSizes, Trials}
+  alias TartarusTools.{Report, Stats}
+
+  @experiments %{
+    s1: Trials,
+    s2: Trials,
+    s3: Trials,
+    monolithic: Trials,
+    robots3: Robots3,
+    sharing: SharingSizes
+  }
 
   @schema [
     experiment: [
@@ -82,36 +106,69 @@ defmodule TartarusImmune.Evolution.Experiment do
   def schema, do: @schema
 
   @doc """
+  The module of each experiment (the registry `run/1` and `mix tartarus.evolve` read).
+
+      iex> TartarusImmune.Evolution.Experiment.experiments()[:robots3]
+      TartarusImmune.Evolution.Experiment.Robots3
+  """
+  @spec experiments() :: %{atom() => module()}
+  def experiments, do: @experiments
+
+  @doc """
   Runs an experiment. Options:
 
   #{Tartarus.Options.docs(@schema)}
 
-  Returns `{:ok, %{summary:, series:, out:, files:}}` (see `TartarusEmu.Scenario.run/2`) or
-  `{:error, message}`.
+  Returns `{:ok, %{summary:, series:, out:, files:}}` or `{:error, message}`.
   """
   @spec run(keyword()) :: {:ok, TartarusEmu.Scenario.result()} | {:error, term()}
   def run(opts \\ []) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "#{inspect(__MODULE__)}.run/1") do
+      p = Map.new(opts)
+      module = Map.fetch!(@experiments, p.experiment)
+
       out =
         Keyword.get_lazy(opts, :out, fn ->
           Report.default_out_dir("evolve-#{opts[:experiment]}")
         end)
 
-      points =
-        if opts[:experiment] == :sharing,
-          do: for(n <- opts[:sizes], scheme <- schemes(n), do: {n, scheme}),
-          else: Enum.to_list(0..(opts[:trials] - 1))
+      t0 = System.monotonic_time(:millisecond)
+      spec = module.spec(p)
 
-      TartarusEmu.Scenario.run(__MODULE__,
-        seed: opts[:seed],
-        out: out,
-        quiet: opts[:quiet],
-        steps: length(points),
-        params: Keyword.drop(opts, [:seed, :out, :quiet]),
-        points: points
-      )
+      # the runner's keys, as when the experiment was a Scenario
+      runner = fn r ->
+        %{
+          scenario: "evolve",
+          seed: p.seed,
+          steps: module.points(p),
+          setup_ms: 0,
+          run_ms: System.monotonic_time(:millisecond) - t0
+        }
+        |> Map.merge(module.summary(runs(r), p))
+      end
+
+      write = fn dir, r ->
+        Scenario.write_series(dir, "evolve", module.series(runs(r), p)) ++
+          module.write(dir, runs(r), p)
+      end
+
+      spec =
+        Map.merge(spec, %{
+          name: "evolve-#{p.experiment}",
+          title:
+            "Embodied evolution (thesis ch. 7): sharing controllers by broadcast or by iPkts",
+          summary: runner,
+          write: write
+        })
+
+      {:ok, r} = Sweep.run(spec, out: out, quiet: p.quiet)
+      series = module.series(runs(r), p)
+      {:ok, %{summary: r.summary, series: series, out: r.out, files: r.files}}
     end
   end
+
+  # the runs' results, in the sweep's order
+  defp runs(sweep), do: Enum.map(sweep.runs, & &1.summary)
 
   @doc """
   The schemes compared on an n-node network: no sharing (the baseline: how fast the
@@ -132,418 +189,8 @@ defmodule TartarusImmune.Evolution.Experiment do
   def label(:broadcast), do: "b-cast"
   def label({:ipkt, x}), do: "iPkt-#{x}"
 
-  @impl true
-  def name, do: "evolve"
-
-  @impl true
-  def title, do: "Embodied evolution (thesis ch. 7): sharing controllers by broadcast or by iPkts"
-
-  @impl true
-  def setup(opts),
-    do:
-      {:ok,
-       %{
-         p: Map.new(opts.params),
-         seed: opts.seed,
-         points: opts.points,
-         runs: [],
-         series: Series.new()
-       }}
-
-  @impl true
-  def step(%{p: %{experiment: :robots3}} = state, k) do
-    trial = Enum.at(state.points, k - 1)
-
-    runs =
-      for scheme <- [:none, :broadcast, :ipkt] do
-        {:ok, r} =
-          Collective.run(
-            scheme: scheme,
-            seed: state.seed + trial,
-            puck_reward: state.p.puck_reward
-          )
-
-        Map.put(r, :trial, trial)
-      end
-
-    series =
-      Enum.reduce(runs, state.series, fn r, series ->
-        Series.record(series, :"test_success_robots3_#{r.scheme}", trial + 1, r.test_success)
-      end)
-
-    %{state | runs: state.runs ++ runs, series: series}
-  end
-
-  def step(%{p: %{experiment: exp}} = state, k) when exp != :sharing do
-    trial = Enum.at(state.points, k - 1)
-    seed = state.seed + trial
-
-    scenarios = if exp == :monolithic, do: [:s1, :s2, :s3], else: [exp]
-    designs = if exp == :monolithic, do: [:monolithic], else: [:immune, :monolithic]
-
-    runs =
-      for sc <- scenarios, d <- designs do
-        {:ok, r} =
-          Embodied.run(
-            scenario: sc,
-            design: d,
-            seed: seed,
-            trace: trial == 0,
-            recovery: state.p.recovery,
-            period: state.p.period,
-            min_period: state.p.min_period,
-            puck_reward: state.p.puck_reward,
-            score: state.p.score
-          )
-
-        Map.merge(r, %{trial: trial})
-      end
-
-    series =
-      Enum.reduce(runs, state.series, fn r, series ->
-        Series.record(
-          series,
-          :"test_success_#{r.scenario}_#{r.design}",
-          trial + 1,
-          r.test_success
-        )
-      end)
-
-    %{state | runs: state.runs ++ runs, series: series}
-  end
-
-  def step(state, k) do
-    {n, scheme} = Enum.at(state.points, k - 1)
-    p = state.p
-
-    runs =
-      for trial <- 0..(p.trials - 1) do
-        {kind, x} = if is_atom(scheme), do: {scheme, 1}, else: scheme
-
-        {:ok, r} =
-          Sharing.run(
-            nodes: n,
-            scheme: kind,
-            ipkts: x,
-            p: p.p,
-            max_iterations: p.max_iterations,
-            mode: p.mode,
-            seed: state.seed + trial
-          )
-
-        Map.merge(r, %{label: label(scheme), trial: trial, wall_ms: nil})
-      end
-
-    series =
-      state.series
-      |> Series.record(:"gamma_avg_n#{n}", k, mean(Enum.map(runs, & &1.gamma_avg)))
-      |> Series.record(:"omega_n#{n}", k, mean(omegas(runs)))
-
-    %{state | runs: state.runs ++ runs, series: series}
-  end
-
-  @impl true
-  def done?(state, k), do: k >= length(state.points)
-
-  @impl true
-  def series(state), do: state.series
-
-  @impl true
-  def write(%{p: %{experiment: :robots3}} = state, dir) do
-    rows =
-      for r <- state.runs, p <- r.per_robot do
-        c = r.communications
-
-        [
-          r.scheme,
-          r.trial,
-          p.robot,
-          p.antibodies,
-          p.external_selections,
-          p.test_success,
-          c.broadcast_messages + c.broadcasts_received + c.departures + c.arrivals
-        ]
-      end
-
-    csv = Path.join(dir, "runs.csv")
-
-    File.write!(
-      csv,
-      Report.to_csv(
-        ~w(scheme trial robot antibodies external_selections test_success communications),
-        rows
-      )
-    )
-
-    [csv]
-  end
-
-  def write(%{p: %{experiment: exp}} = state, dir) when exp != :sharing do
-    rows =
-      for r <- state.runs,
-          do: [
-            r.scenario,
-            r.design,
-            r.trial,
-            r.antibodies,
-            r.switches,
-            Float.round(r.final_fitness, 4),
-            r.test_success
-          ]
-
-    csv = Path.join(dir, "runs.csv")
-
-    File.write!(
-      csv,
-      Report.to_csv(
-        ~w(scenario design trial antibodies switches final_fitness test_success),
-        rows
-      )
-    )
-
-    curves =
-      for r <- state.runs, r.trial == 0 do
-        file = Path.join(dir, "curve_#{r.scenario}_#{r.design}.svg")
-
-        series =
-          r.curve
-          |> Enum.group_by(& &1.antibody)
-          |> Enum.sort()
-          |> Enum.map(fn {id, pts} ->
-            %{name: "Ab#{id}", points: Enum.map(pts, &{&1.iteration, Float.round(&1.fitness, 4)})}
-          end)
-
-        light =
-          case r.light_switches do
-            [on, off] -> "; light on at #{on}, off at #{off}"
-            _ -> ""
-          end
-
-        File.write!(
-          file,
-          SVG.line_chart(series,
-            lines: false,
-            title:
-              "#{String.upcase(to_string(r.scenario))} #{r.design}: fitness by antibody (#{r.switches} switches#{light})",
-            x_label: "iteration",
-            y_label: "fitness per step"
-          )
-        )
-
-        traj = Path.join(dir, "trajectory_#{r.scenario}_#{r.design}.svg")
-
-        points =
-          r.trajectory |> Enum.with_index() |> Enum.map(fn {{x, y, _}, i} -> {i * 0.1, x, y} end)
-
-        File.write!(
-          traj,
-          TartarusArena.Render.trajectories(r.world, %{"robot" => points},
-            title:
-              "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning"
-          )
-        )
-
-        [file, traj]
-      end
-
-    [csv | List.flatten(curves)]
-  end
-
-  def write(state, dir) do
-    rows =
-      for r <- state.runs,
-          do: [
-            r.nodes,
-            r.label,
-            r.trial,
-            r.gamma_avg,
-            r.omega,
-            r.first_solved_at,
-            r.converged_at,
-            r.iterations
-          ]
-
-    csv = Path.join(dir, "runs.csv")
-
-    File.write!(
-      csv,
-      Report.to_csv(
-        ~w(nodes scheme trial gamma_avg omega first_solved_at converged_at iterations),
-        rows
-      )
-    )
-
-    bars = fn key ->
-      for {n, scheme} <- state.points do
-        runs = Enum.filter(state.runs, &(&1.nodes == n and &1.label == label(scheme)))
-
-        v =
-          if key == :gamma_avg, do: mean(Enum.map(runs, & &1.gamma_avg)), else: mean(omegas(runs))
-
-        {"#{n}: #{label(scheme)}", v || 0}
-      end
-    end
-
-    gamma = Path.join(dir, "gamma_avg.svg")
-    omega = Path.join(dir, "omega.svg")
-
-    File.write!(
-      gamma,
-      SVG.bar_chart(bars.(:gamma_avg),
-        title: "Communications per node until convergence (gamma_avg, Fig. 7.6)",
-        y_label: "messages sent + received per node"
-      )
-    )
-
-    File.write!(
-      omega,
-      SVG.bar_chart(bars.(:omega),
-        title: "Convergence count Omega: iterations from the first solution to 90% (Fig. 7.6)",
-        y_label: "iterations"
-      )
-    )
-
-    [csv, gamma, omega]
-  end
-
-  @impl true
-  def summary(%{p: %{experiment: :robots3}} = state) do
-    by = fn f ->
-      Map.new([:none, :broadcast, :ipkt], fn scheme ->
-        {to_string(scheme), f.(Enum.filter(state.runs, &(&1.scheme == scheme)))}
-      end)
-    end
-
-    comm = fn r -> r.communications |> Map.values() |> Enum.sum() end
-
-    %{
-      experiment: "robots3",
-      trials: state.p.trials,
-      puck_reward: to_string(state.p.puck_reward),
-      test_success: by.(fn runs -> mean(Enum.map(runs, & &1.test_success)) end),
-      antibodies: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
-      external_selections:
-        by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.external_selections) end),
-      communications_per_robot: by.(fn runs -> mean(for r <- runs, do: comm.(r) / r.robots) end)
-    }
-  end
-
-  def summary(%{p: %{experiment: exp}} = state) when exp != :sharing do
-    p = state.p
-    arm = fn sc, d -> Enum.filter(state.runs, &(&1.scenario == sc and &1.design == d)) end
-    key = fn sc, d -> "#{sc}_#{d}" end
-
-    arms =
-      for sc <- [:s1, :s2, :s3],
-          d <- [:immune, :monolithic],
-          (runs = arm.(sc, d)) != [],
-          into: %{} do
-        s3 =
-          if sc == :s3,
-            do: %{
-              antibodies_light_on: mean(for r <- runs, do: r.by_light.on),
-              antibodies_light_off: mean(for r <- runs, do: r.by_light.off),
-              antibodies_used_in_both: mean(for r <- runs, do: r.by_light.both),
-              trials_reusing_after_return: Enum.count(runs, &(&1.reused_after_return > 0))
-            },
-            else: %{}
-
-        {key.(sc, d),
-         Map.merge(
-           %{
-             test_success: mean(Enum.map(runs, & &1.test_success)),
-             test_success_by_trial: Enum.map(runs, & &1.test_success),
-             antibodies: mean(Enum.map(runs, & &1.antibodies)),
-             switches: mean(Enum.map(runs, & &1.switches)),
-             final_fitness: mean(Enum.map(runs, & &1.final_fitness)),
-             iterations: hd(runs).iterations,
-             epsilon: hd(runs).epsilon
-           },
-           s3
-         )}
-      end
-
-    main = if exp == :monolithic, do: nil, else: arms[key.(exp, :immune)]
-    mono = if exp == :monolithic, do: nil, else: arms[key.(exp, :monolithic)]
-
-    test =
-      main && mono &&
-        Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial)
-
-    %{
-      experiment: to_string(exp),
-      trials: p.trials,
-      arms: arms,
-      antibodies: main && main.antibodies,
-      test_success:
-        if(main, do: main.test_success, else: Map.new(arms, fn {k, v} -> {k, v.test_success} end)),
-      test_success_monolithic: mono && mono.test_success,
-      recovery: p.recovery,
-      puck_reward: to_string(p.puck_reward),
-      period: p.period,
-      min_period: p.min_period,
-      score: to_string(p.score),
-      mann_whitney_u: test && test.u,
-      p_value: test && Float.round(test.p_value, 4),
-      immune_beats_monolithic: if(test, do: test.p_value < 0.05)
-    }
-  end
-
-  def summary(state) do
-    p = state.p
-
-    by = fn f ->
-      for {n, scheme} <- state.points, reduce: %{} do
-        acc ->
-          runs = Enum.filter(state.runs, &(&1.nodes == n and &1.label == label(scheme)))
-
-          Map.update(
-            acc,
-            to_string(n),
-            %{label(scheme) => f.(runs)},
-            &Map.put(&1, label(scheme), f.(runs))
-          )
-      end
-    end
-
-    gamma = by.(fn runs -> mean(Enum.map(runs, & &1.gamma_avg)) end)
-    omega = by.(fn runs -> mean(omegas(runs)) end)
-
-    %{
-      experiment: to_string(p.experiment),
-      trials: p.trials,
-      sizes: p.sizes,
-      p: p.p,
-      mode: to_string(p.mode),
-      gamma_avg: gamma,
-      omega: omega,
-      omega_median: by.(fn runs -> Report.median(omegas(runs)) end),
-      converged_runs: by.(fn runs -> Enum.count(runs, & &1.converged) end),
-      iterations_to_converge:
-        by.(fn runs -> mean(for r <- runs, r.converged, do: r.converged_at) end),
-      ipkt_fewer_communications_at_every_size:
-        Enum.all?(gamma, fn {_n, g} ->
-          Enum.all?(g, fn {l, v} -> l in ["b-cast", "none"] or v < g["b-cast"] end)
-        end),
-      more_ipkts_lower_omega:
-        Map.new(omega, fn {n, o} ->
-          vs =
-            o
-            |> Enum.filter(&match?({"iPkt-" <> _, _}, &1))
-            |> Enum.sort_by(&ipkts(elem(&1, 0)))
-            |> Enum.map(&elem(&1, 1))
-
-          {n, vs == Enum.sort(vs, :desc)}
-        end),
-      antibodies: nil,
-      test_success: nil
-    }
-  end
-
-  defp ipkts("iPkt-" <> x), do: String.to_integer(x)
-
-  defp omegas(runs), do: for(r <- runs, r.omega != nil, do: r.omega)
-
-  defp mean([]), do: nil
-  defp mean(xs), do: Float.round(Enum.sum(xs) / length(xs), 2)
+  @doc false
+  # the mean to 2 decimals, nil for none (the experiments' summaries)
+  @spec mean2([number()]) :: float() | nil
+  def mean2(xs), do: (m = Stats.mean(xs)) && Float.round(m, 2)
 end

@@ -1,7 +1,8 @@
 defmodule TartarusImmune.Evolution.ExperimentTest do
   use ExUnit.Case, async: true
 
-  alias TartarusImmune.Evolution.{Experiment, Stats}
+  alias TartarusImmune.Evolution.Experiment
+  alias TartarusTools.Stats
 
   test "s1: both designs on the same seeds, compared by an exact Mann-Whitney U test" do
     {:ok, %{summary: s}} =
