@@ -327,15 +327,6 @@ defmodule Tartarus do
   @spec hop_times(host_ref()) :: [non_neg_integer()] | {:error, term()}
   def hop_times(host), do: OnNode.run(host, :hop_times, [])
 
-  @doc """
-  The value at quantile `q` (0..1) of a sorted non-empty list (nearest rank).
-
-      iex> Tartarus.percentile([1, 2, 3, 4, 5], 0.5)
-      3
-  """
-  @spec percentile([number()], float()) :: number()
-  defdelegate percentile(sorted, q), to: OnNode
-
   @doc "Reads `key` from a host's store."
   @spec store_get(host_ref(), term(), term()) :: term()
   def store_get(host, key, default \\ nil), do: OnNode.run(host, :store_get, [key, default])

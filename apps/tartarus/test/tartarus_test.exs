@@ -857,12 +857,10 @@ defmodule TartarusTest do
              }
     end
 
-    test "percentile/2 by nearest rank" do
-      assert Tartarus.percentile([7], 0.5) == 7
-      assert Tartarus.percentile([1, 2, 3, 4], 0.5) == 2
-      assert Tartarus.percentile([1, 2, 3, 4], 0.0) == 1
-      assert Tartarus.percentile([1, 2, 3, 4], 1.0) == 4
-      assert Tartarus.percentile(Enum.to_list(1..100), 0.99) == 99
+    test "hop summaries take percentiles by nearest rank" do
+      assert Tartarus.Host.OnNode.hop_summary([7]).median_us == 7
+      assert Tartarus.Host.OnNode.hop_summary([1, 2, 3, 4]).median_us == 2
+      assert Tartarus.Host.OnNode.hop_summary(Enum.to_list(1..100)).p99_us == 99
     end
   end
 
