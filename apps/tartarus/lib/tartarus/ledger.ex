@@ -88,14 +88,13 @@ defmodule Tartarus.Ledger do
 
   # The agent committed the move `mig` (copy `copy`) to `dest`: its forwarding pointer, which
   # names the commit for a destination that asks (see decision/4), replaces the hand-off
-  # record in one write; then it stops being resident. `notify` (a GenServer from, or nil)
-  # is who waits for the move to finish: a destination that learns of the commit by asking
-  # (the commit message was lost) answers it.
-  def depart(host, id, name, dest, mig, copy, notify) do
+  # record in one write (then the agent stops being resident: forget_resident/2). `notify`
+  # (a GenServer from, or nil) is who waits for the move to finish: a destination that
+  # learns of the commit by asking (the commit message was lost) answers it.
+  def put_pointer(host, id, name, dest, mig, copy, notify) do
     now = System.system_time(:microsecond)
     :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
     if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
-    forget_resident(host, self())
   end
 
   # The agent `env` ended on this host (returned or stopped): the forwarding pointers it left

@@ -1,0 +1,231 @@
+defmodule Tartarus.Migration.Source do
+  @moduledoc false
+  # The source side of a hand-off, run by the agent's own process (so hand-offs of many
+  # agents proceed in parallel): it sends `prepare`, waits for the destination's answer and
+  # hands each event to Tartarus.Migration.Executor, which decides through
+  # Tartarus.Migration.Protocol and orders the effects. This module is the executor's live
+  # backend: the host's ledger (ETS), its journal, real sends, the agent's mailbox.
+  #
+  # `run/6` returns {:moved, new_pid, data}, {:cloned, clone_id, data} or
+  # {:failed, reason, data}; `data` is the agent process's state (Tartarus.Agent.Server).
+
+  @behaviour Tartarus.Migration.Executor
+
+  require Tartarus.Events
+  alias Tartarus.{Envelope, Events, Ledger}
+  alias Tartarus.Migration.{Executor, Inbox, Protocol}
+
+  @doc false
+  @spec run(map(), :move | :clone, term(), pid(), list(), term()) ::
+          {:moved, pid(), map()} | {:cloned, binary(), map()} | {:failed, term(), map()}
+  def run(data, kind, dest, dest_pid, manifest, notify) do
+    host = data.host
+    mig = {host.incarnation, make_ref()}
+    out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind))
+    prepare = seal(Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+    # Before `prepare` leaves: the migration is undecided for whoever asks.
+    Ledger.begin_handoff(host, data.env.id, mig)
+    mref = watch(dest_pid)
+    send(dest_pid, prepare)
+
+    x = %{
+      data: data,
+      dest: dest,
+      dest_pid: dest_pid,
+      mref: mref,
+      manifest: manifest,
+      prepare: prepare,
+      out: out,
+      code_bytes: 0,
+      deadline: System.monotonic_time(:millisecond) + host.opts.migration_timeout
+    }
+
+    wait(Executor.source_state(mig, kind, dest_pid, notify, data.env.id, out.id), x)
+  end
+
+  defp wait(s, x) do
+    mig = s.mig
+    mref = x.mref
+    timeout = max(x.deadline - System.monotonic_time(:millisecond), 0)
+
+    event =
+      receive do
+        {:"$tartarus_prepared", ^mig, _, _} = m -> Protocol.classify(m)
+        {:"$tartarus_refused", ^mig, _} = m -> Protocol.classify(m)
+        {:"$tartarus_need", ^mig, _} = m -> Protocol.classify(m)
+        {:DOWN, ^mref, :process, _, reason} -> {:down, reason}
+        {:nodedown, node} when mref == {:node, node} -> {:down, :noconnection}
+      after
+        timeout -> :timeout
+      end
+
+    case Executor.source_event(s, event, x, __MODULE__) do
+      {:wait, s, x} -> wait(s, x)
+      {:done, outcome, s, x} -> done(outcome, s, x)
+    end
+  end
+
+  defp done({:committed, _copy, new_pid}, %{kind: :move}, x), do: {:moved, new_pid, x.data}
+
+  # The parent's stream advanced by the fork that seeded the clone's (see outgoing/2).
+  defp done({:committed, _copy, _pid}, %{kind: :clone}, x) do
+    data = x.data
+    {:cloned, x.out.id, put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))}
+  end
+
+  defp done({:failed, reason}, _s, x) do
+    if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
+    {:failed, reason, x.data}
+  end
+
+  # -- the executor's effects --------------------------------------------------------
+
+  @impl true
+  def settled(x, {:prepared, pid}) do
+    unwatch(x.mref)
+    Tartarus.Fault.point(:prepared, pid)
+    x
+  end
+
+  def settled(x, :failed) do
+    unwatch(x.mref)
+    x
+  end
+
+  @impl true
+  def decision_put_new(x, mig, copy),
+    do: {Ledger.decide(x.data.host, mig, {:committed, copy}), x}
+
+  @impl true
+  def journal(x, {:decision, mig, id, copy}) do
+    Tartarus.Host.Persistence.committed(x.data.host, mig, id, copy)
+    x
+  end
+
+  def journal(x, {:forget, id}) do
+    Tartarus.Host.Persistence.forget(x.data.host, id)
+    x
+  end
+
+  @impl true
+  def pointer_put(x, mig, copy, notify) do
+    env = x.data.env
+    Ledger.put_pointer(x.data.host, env.id, env.name, x.dest, mig, copy, notify)
+    x
+  end
+
+  @impl true
+  def leave(x) do
+    Ledger.forget_resident(x.data.host, self())
+    x
+  end
+
+  @impl true
+  def handoff_end(x, mig) do
+    Ledger.end_handoff(x.data.host, x.data.env.id, mig)
+    x
+  end
+
+  # The messages this process took and had not handled, then those in its mailbox.
+  @impl true
+  def handover(%{data: data} = x) do
+    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, drain([]))
+    {{msgs, inbox}, %{x | data: %{data | inbox: inbox, pending: []}}}
+  end
+
+  @impl true
+  def send(x, pid, msg) do
+    if elem(msg, 0) == :"$tartarus_commit", do: Tartarus.Fault.point(:committing, pid)
+    Kernel.send(pid, msg)
+    x
+  end
+
+  @impl true
+  def fetch_code(x, mods), do: {Tartarus.CodeShipping.binaries(x.manifest, mods), x}
+
+  @impl true
+  def resend(x, code) do
+    Kernel.send(x.dest_pid, Protocol.with_code(x.prepare, code))
+    %{x | code_bytes: max(:erlang.external_size(code), 1)}
+  end
+
+  @impl true
+  def committed(x, kind, _mig, _copy) do
+    %{data: data, out: out, code_bytes: code_bytes} = x
+    host = data.host
+    bytes = :erlang.external_size(out)
+
+    if kind == :move do
+      emit(
+        host,
+        %{type: :departure, agent: data.env.id, to: x.dest, bytes: bytes, code_bytes: code_bytes},
+        departures: 1,
+        bytes: bytes + code_bytes,
+        code_bytes: code_bytes
+      )
+    else
+      emit(host, %{type: :clone, agent: data.env.id, clone: out.id, to: x.dest, bytes: bytes},
+        clones: 1,
+        bytes: bytes + code_bytes
+      )
+    end
+
+    x
+  end
+
+  # -- helpers -----------------------------------------------------------------------
+
+  defp emit(host, event, counts), do: Events.emit(host, Map.put(event, :host, host.ref), counts)
+
+  defp drain(acc) do
+    receive do
+      {:"$tartarus_msg", _, _, _} = m -> drain([m | acc])
+    after
+      0 -> Enum.reverse(acc)
+    end
+  end
+
+  defp seal(prepare, host) do
+    case host.opts.security do
+      %{keys: keys} -> Tartarus.Security.seal_prepare(prepare, keys)
+      _ -> prepare
+    end
+  end
+
+  # A local destination host is monitored; for a remote one the node is (a node monitor
+  # costs no messages on the wire, a remote process monitor two per hand-off). A host that
+  # dies while its node lives is caught by the timeout.
+  defp watch(pid) when node(pid) == node(), do: Process.monitor(pid)
+
+  defp watch(pid) do
+    Node.monitor(node(pid), true)
+    {:node, node(pid)}
+  end
+
+  defp unwatch({:node, node}) do
+    Node.monitor(node, false)
+
+    receive do
+      {:nodedown, ^node} -> :ok
+    after
+      0 -> :ok
+    end
+  end
+
+  defp unwatch(mref), do: Process.demonitor(mref, [:flush])
+
+  defp outgoing(env, :move), do: %{env | departed_at: System.system_time(:microsecond)}
+
+  defp outgoing(env, :clone) do
+    id = Envelope.new_id()
+
+    %{
+      env
+      | id: id,
+        name: Envelope.clone_name(env.name, id),
+        clone_of: env.id,
+        rng: elem(Tartarus.Random.fork(env.rng), 0),
+        departed_at: System.system_time(:microsecond)
+    }
+  end
+end
