@@ -196,7 +196,7 @@ defmodule Tartarus.Ledger do
 
   # The agent id a paused copy asks its source host about: the agent that left (a clone's
   # parent for a clone).
-  def query_id(%{clone_of: parent}, :clone) when is_binary(parent), do: parent
+  def query_id(%{clone_of: parent}, :clone) when parent != nil, do: parent
   def query_id(env, _kind), do: env.id
 
   # The ring of recent hop times is an atomics array (slot 1: the sequence; slots 2..: the

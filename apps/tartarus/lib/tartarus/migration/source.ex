@@ -22,7 +22,10 @@ defmodule Tartarus.Migration.Source do
     host = data.host
     mig = {host.incarnation, make_ref()}
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind))
-    prepare = seal(Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+
+    prepare =
+      seal(Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+
     # Before `prepare` leaves: the migration is undecided for whoever asks.
     Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)

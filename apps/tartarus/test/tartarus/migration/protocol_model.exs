@@ -21,8 +21,25 @@ defmodule Tartarus.Migration.ProtocolModel do
   # delivered, timers fired): every agent runs exactly once, except, without persistence,
   # agents a crash could take (they were on, or in doubt about, a host when it crashed).
 
+  #
+  # The source side runs the platform's own executor (Tartarus.Migration.Executor) with this
+  # module as its in-memory backend: the effects are the live ones, in the live order, and
+  # during the fault phase the source's host may crash between any two of them (a crash
+  # point in every effect), so an order that a crash could break is found.
+  #
+  # A host's ledger mirrors Tartarus.Ledger: `fwd` holds, under an agent's id, either its
+  # undecided hand-off record {:handoff, mig, pid} or its forwarding pointer {mig, copy,
+  # notify} | :acked (one key: a committed move's pointer replaces the record in one write);
+  # `decisions` holds clones' commits and, after a restart, the journal's.
+
+  @behaviour Tartarus.Migration.Executor
+
   alias Tartarus.Host.Persistence
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Ledger
+  alias Tartarus.Migration.{Executor, Inbox, Protocol}
+
+  # Chance of a crash of the source's host at each effect of the executor (fault phase).
+  @crash_point 0.03
 
   @hosts [:h1, :h2, :h3]
 
@@ -43,7 +60,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     try do
       w = Enum.reduce(1..n, w, fn _, w -> w |> fault_step() |> check() end)
-      w = quiesce(w)
+      w = quiesce(%{w | faulting: false})
       check_final(w)
       {:ok, w.events, w.stats}
     rescue
@@ -65,6 +82,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       park_after: Keyword.get(opts, :park_after, 2),
       trace_n: Keyword.get(opts, :trace, 60),
       trace: [],
+      faulting: true,
       events: 0,
       stats: %{},
       n: 0,
@@ -101,7 +119,6 @@ defmodule Tartarus.Migration.ProtocolModel do
       alive: true,
       inc: inc,
       decisions: Map.new(decided, fn {mig, copy} -> {mig, {:committed, copy}} end),
-      handoffs: %{},
       parked: %{},
       fwd: %{},
       residents: %{},
@@ -336,91 +353,163 @@ defmodule Tartarus.Migration.ProtocolModel do
             {proc.env, w}
           end
 
-        s = Protocol.source(mig, kind, server(w, dest), nil)
+        s = Executor.source_state(mig, kind, server(w, dest), nil, proc.env.id, env.id)
         prepare = Protocol.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
-        w = put_in(w.hosts[h].handoffs[mig], pid)
+        # As Tartarus.Ledger.begin_handoff/3, before `prepare` leaves.
+        w = put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, pid})
         w = note(w, {:start, pid, proc.env.id, kind, h, dest, mig})
         send_msg(w, h, server(w, dest), prepare)
     end
   end
 
+  # The platform's executor carries out the source's actions (this module is its backend).
   defp source_event(w, pid, event) do
     %{src: src} = w.procs[pid]
-    {s, actions} = Protocol.source_step(src.s, event)
-    w = put_in(w.procs[pid].src.s, s)
-    source_actions(w, pid, actions)
-  end
 
-  defp source_actions(w, _pid, []), do: w
+    case Executor.source_event(src.s, event, %{w: w, pid: pid}, __MODULE__) do
+      {:wait, s, %{w: w}} ->
+        put_in(w.procs[pid].src.s, s)
 
-  defp source_actions(w, pid, [action | rest]) do
-    proc = w.procs[pid]
-    h = proc.host
+      {:done, {:committed, _, _}, %{kind: :move}, %{w: w}} ->
+        %{w | procs: Map.delete(w.procs, pid)}
 
-    case action do
-      {:decide, mig, d} ->
-        {decided, w} =
-          if Map.has_key?(w.hosts[h].decisions, mig) do
-            {false, w}
-          else
-            w = put_in(w.hosts[h].decisions[mig], d)
-
-            if Map.has_key?(w.decisions, mig),
-              do: violation(w, {:decision_written_twice, mig, w.decisions[mig], d})
-
-            w = %{w | decisions: Map.put(w.decisions, mig, d)}
-
-            w =
-              if proc.src.s.kind == :clone and match?({:committed, _}, d),
-                do: %{w | known: MapSet.put(w.known, proc.src.out.id)},
-                else: w
-
-            {true, w}
-          end
-
-        {s, more} = Protocol.source_step(w.procs[pid].src.s, {:decided, decided})
-        w = put_in(w.procs[pid].src.s, s)
-        source_actions(w, pid, more ++ rest)
-
-      {:end_handoff, mig} ->
-        w = update_in(w.hosts[h].handoffs, &Map.delete(&1, mig))
-        source_actions(w, pid, rest)
-
-      {:fetch_code, _mods} ->
-        {s, more} = Protocol.source_step(proc.src.s, {:code, {:ok, [:code]}})
-        w = put_in(w.procs[pid].src.s, s)
-        source_actions(w, pid, more ++ rest)
-
-      {:resend, code} ->
-        w = send_msg(w, h, server(w, proc.src.dest), Protocol.with_code(proc.src.prepare, code))
-        source_actions(w, pid, rest)
-
-      {:record_commit, :move, mig, copy} ->
-        id = proc.env.id
-        w = journal(w, h, {:decision, mig, id, copy})
-        w = journal(w, h, {:forget, id})
-        w = put_in(w.hosts[h].fwd[id], {mig, copy, nil})
-        w = update_in(w.hosts[h].residents, &Map.delete(&1, id))
-        w = update_in(w.hosts[h].decisions, &Map.delete(&1, mig))
-        source_actions(w, pid, rest)
-
-      {:record_commit, :clone, mig, copy} ->
-        w = journal(w, h, {:decision, mig, proc.src.out.id, copy})
-        source_actions(w, pid, rest)
-
-      {:send, to, msg} ->
-        source_actions(send_msg(w, h, to, msg), pid, rest)
-
-      {:done, {:committed, _copy, _pid}} ->
-        if proc.src.s.kind == :move,
-          do: %{w | procs: Map.delete(w.procs, pid)},
-          else: put_in(w.procs[pid].src, nil)
-
-      {:done, {:failed, _reason}} ->
+      {:done, _outcome, _s, %{w: w}} ->
         put_in(w.procs[pid].src, nil)
+
+      # The source's host crashed in the middle (the process is gone with it).
+      {:halted, %{w: w}} ->
+        w
     end
   end
+
+  # -- the executor's in-memory backend ----------------------------------------------------
+  # Each effect may first crash the source's host (fault phase only).
+
+  defp effect(%{w: w, pid: pid} = ctx, fun) do
+    %{host: h} = w.procs[pid]
+    {x, w} = uniform(w)
+
+    if w.faulting and x < @crash_point do
+      w = note(w, {:crash_point, h, pid})
+      throw({:halt, %{ctx | w: crash_host(w, h)}})
+    else
+      %{ctx | w: fun.(w, h, w.procs[pid])}
+    end
+  end
+
+  # What the source decided, as the oracle the invariants check against: written at the
+  # first effect that can make it observable (a journaled commit, which a restart reloads;
+  # a move's pointer; a clone's commit once its hand-off record is gone; a commit message),
+  # never changed. A clone's commit entry alone is not observable (a query reads the
+  # hand-off record first): a crash then loses it, rightly.
+  defp decided(w, proc, mig, copy) do
+    d = {:committed, copy}
+
+    case Map.fetch(w.decisions, mig) do
+      {:ok, ^d} ->
+        w
+
+      {:ok, other} ->
+        violation(w, {:decision_written_twice, mig, other, d})
+
+      :error ->
+        w = %{w | decisions: Map.put(w.decisions, mig, d)}
+
+        if proc.src.s.kind == :clone,
+          do: %{w | known: MapSet.put(w.known, proc.src.out.id)},
+          else: w
+    end
+  end
+
+  @impl true
+  def settled(ctx, _event), do: ctx
+
+  @impl true
+  def decision_put_new(ctx, mig, copy) do
+    ctx =
+      effect(ctx, fn w, h, proc ->
+        if Map.has_key?(w.hosts[h].decisions, mig) do
+          violation(w, {:decision_written_twice, mig, w.hosts[h].decisions[mig], copy})
+        else
+          _ = proc
+          put_in(w.hosts[h].decisions[mig], {:committed, copy})
+        end
+      end)
+
+    {true, ctx}
+  end
+
+  @impl true
+  def journal(ctx, {:decision, mig, _id, copy} = rec) do
+    effect(ctx, fn w, h, proc ->
+      w = if w.persist, do: decided(w, proc, mig, copy), else: w
+      journal(w, h, rec)
+    end)
+  end
+
+  def journal(ctx, rec), do: effect(ctx, fn w, h, _proc -> journal(w, h, rec) end)
+
+  @impl true
+  def pointer_put(ctx, mig, copy, notify) do
+    effect(ctx, fn w, h, proc ->
+      w = decided(w, proc, mig, copy)
+      put_in(w.hosts[h].fwd[proc.env.id], {mig, copy, notify})
+    end)
+  end
+
+  @impl true
+  def leave(ctx) do
+    effect(ctx, fn w, h, proc -> update_in(w.hosts[h].residents, &Map.delete(&1, proc.env.id)) end)
+  end
+
+  @impl true
+  def handoff_end(ctx, mig) do
+    effect(ctx, fn w, h, proc ->
+      id = proc.env.id
+
+      # A clone's commit is observable once its hand-off record is gone.
+      w =
+        case w.hosts[h].decisions do
+          %{^mig => {:committed, copy}} -> decided(w, proc, mig, copy)
+          _ -> w
+        end
+
+      case w.hosts[h].fwd do
+        %{^id => {:handoff, ^mig, _}} -> update_in(w.hosts[h].fwd, &Map.delete(&1, id))
+        _ -> w
+      end
+    end)
+  end
+
+  @impl true
+  def handover(ctx), do: {{[], Inbox.new()}, effect(ctx, fn w, _h, _proc -> w end)}
+
+  @impl true
+  def send(ctx, to, msg) do
+    effect(ctx, fn w, h, proc ->
+      w =
+        case msg do
+          {:"$tartarus_commit", mig, copy, _, _} -> decided(w, proc, mig, copy)
+          _ -> w
+        end
+
+      send_msg(w, h, to, msg)
+    end)
+  end
+
+  @impl true
+  def fetch_code(ctx, _mods), do: {{:ok, [:code]}, ctx}
+
+  @impl true
+  def resend(ctx, code) do
+    effect(ctx, fn w, h, proc ->
+      send_msg(w, h, server(w, proc.src.dest), Protocol.with_code(proc.src.prepare, code))
+    end)
+  end
+
+  @impl true
+  def committed(ctx, _kind, _mig, _copy), do: ctx
 
   # -- destination -----------------------------------------------------------------------
 
@@ -465,9 +554,9 @@ defmodule Tartarus.Migration.ProtocolModel do
     a =
       Protocol.answer(
         %{
-          handoff?: Map.has_key?(host.handoffs, mig),
+          handoff?: match?({:handoff, ^mig, _}, Map.get(host.fwd, id)),
           decision: Map.get(host.decisions, mig),
-          pointer: Map.get(host.fwd, id)
+          pointer: with({_, _, _} = p <- Map.get(host.fwd, id), do: p)
         },
         mig,
         copy
@@ -486,14 +575,15 @@ defmodule Tartarus.Migration.ProtocolModel do
     w = count(w, :ack)
 
     w =
-      if Map.get(w.hosts[h].decisions, mig) == {:committed, copy},
-        do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
-        else: w
+      case Map.get(w.hosts[h].fwd, id) do
+        {^mig, ^copy, _} ->
+          put_in(w.hosts[h].fwd[id], :acked)
 
-    w =
-      if Map.get(w.hosts[h].fwd, id) == {mig, copy, nil},
-        do: put_in(w.hosts[h].fwd[id], :acked),
-        else: w
+        _ ->
+          if Map.get(w.hosts[h].decisions, mig) == {:committed, copy},
+            do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
+            else: w
+      end
 
     journal(w, h, {:acked, mig})
   end
@@ -573,7 +663,7 @@ defmodule Tartarus.Migration.ProtocolModel do
             w,
             proc.host,
             server(w, src),
-            Protocol.decision_query(mig, proc.env.id, copy, pid)
+            Protocol.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
           ),
         else: w
 
@@ -593,12 +683,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp ask_parked(w, h) do
     Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
                                                                                       w ->
-      {env, src, _kind} = w.hosts[h].parked[{mig, copy}]
-
-      if alive_host?(w, src),
-        do:
-          send_msg(w, h, server(w, src), Protocol.decision_query(mig, env.id, copy, server(w, h))),
-        else: w
+      {env, src, kind} = w.hosts[h].parked[{mig, copy}]
+      query = Protocol.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
+      if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
     end)
   end
 
@@ -662,27 +749,26 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp crash(w) do
     {h, w} = pick(w, Enum.filter(@hosts, &alive_host?(w, &1)))
+    if h == nil, do: w, else: crash_host(w, h)
+  end
 
-    if h == nil do
-      w
-    else
-      w = note(w, {:crash, h})
+  defp crash_host(w, h) do
+    w = note(w, {:crash, h})
 
-      exposed =
-        for({_pid, p} <- w.procs, p.host == h or (p.role == :copy and p.c.src == h), do: p.env.id) ++
-          for(
-            {g, host} <- w.hosts,
-            {_, {env, src, _}} <- host.parked,
-            g == h or src == h,
-            do: env.id
-          )
+    exposed =
+      for({_pid, p} <- w.procs, p.host == h or (p.role == :copy and p.c.src == h), do: p.env.id) ++
+        for(
+          {g, host} <- w.hosts,
+          {_, {env, src, _}} <- host.parked,
+          g == h or src == h,
+          do: env.id
+        )
 
-      procs = Map.reject(w.procs, fn {_, p} -> p.host == h end)
-      w = put_in(w.hosts[h].parked, %{})
+    procs = Map.reject(w.procs, fn {_, p} -> p.host == h end)
+    w = put_in(w.hosts[h].parked, %{})
 
-      %{w | procs: procs, exposed: MapSet.union(w.exposed, MapSet.new(exposed))}
-      |> put_in([:hosts, h, :alive], false)
-    end
+    %{w | procs: procs, exposed: MapSet.union(w.exposed, MapSet.new(exposed))}
+    |> put_in([:hosts, h, :alive], false)
   end
 
   defp restart(w) do
