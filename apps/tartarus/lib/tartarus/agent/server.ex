@@ -641,15 +641,12 @@ defmodule Tartarus.Agent.Server do
           other
       end
 
-    {handed, inbox} = Inbox.receive_handover(data.inbox, handover)
-
     # Messages that came while paused are new here unless the hand-over says otherwise.
     {msgs, others} =
       Enum.split_with(Enum.reverse(p.stash), &match?({:"$tartarus_msg", _, _, _}, &1))
 
     Enum.each(others, &send(self(), &1))
-    {fresh, inbox} = Inbox.take_new(inbox, msgs)
-    pending = handed ++ fresh
+    {pending, inbox} = Inbox.arrive(data.inbox, handover, msgs)
     data = %{data | inbox: inbox}
     host = data.host
     now = System.system_time(:microsecond)

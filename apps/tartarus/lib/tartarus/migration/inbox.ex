@@ -95,6 +95,18 @@ defmodule Tartarus.Migration.Inbox do
   end
 
   @doc """
+  What a successor handles first when it starts: the hand-over's messages, then the new
+  ones among those it got while it waited (`stashed`), with the hand-over's memory. A
+  missing or malformed hand-over counts as an empty one.
+  """
+  @spec arrive(t(), term(), [tuple()]) :: {[tuple()], t()}
+  def arrive(inbox, handover, stashed) do
+    {handed, inbox} = receive_handover(inbox, handover)
+    {fresh, inbox} = take_new(inbox, stashed)
+    {handed ++ fresh, inbox}
+  end
+
+  @doc """
   The successor's inbox and the messages it handles first, from a received hand-over
   (anything malformed counts as an empty one).
   """
