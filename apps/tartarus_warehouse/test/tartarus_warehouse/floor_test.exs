@@ -1,6 +1,8 @@
 defmodule TartarusWarehouse.FloorTest do
   use ExUnit.Case, async: false
   doctest TartarusWarehouse.Floor
+  doctest TartarusWarehouse.Floor.Build
+  doctest TartarusWarehouse.Floor.Options
 
   alias TartarusWarehouse.{Checker, Experiment, Floor}
   alias TartarusTools.Prop
@@ -28,6 +30,57 @@ defmodule TartarusWarehouse.FloorTest do
     assert length(Checker.completion(r.history, jobs).completed) == 3
     first_of_3 = r.history |> Enum.filter(&(&1.job == 3)) |> Enum.map(& &1.start_us) |> Enum.min()
     assert first_of_3 - r.t0_us >= 120_000
+  end
+
+  test "run/1 drives the floor's one process: the batch's events are its changes, and the floor goes with its caller" do
+    jobs = Experiment.thesis_jobs(3, 1000)
+
+    {:ok, r} =
+      Floor.run(
+        robots: 1,
+        jobs: jobs,
+        scale: 0.01,
+        events: [{1, {:retire, 1}}, {2, {:delete, "T4"}}]
+      )
+
+    assert r.timed_out == [] and r.failed == nil and r.mutex_violations == 0
+
+    assert [
+             %{event: {:retire, 1}, result: {:error, last}},
+             %{event: {:delete, "T4"}, result: :ok}
+           ] = r.changes
+
+    assert last =~ "robot 1 is the last robot in service"
+    assert [%{event: {:delete, "T4"}}] = r.applied_events
+    assert [%{event: {:retire, 1}, reason: ^last}] = r.refused_events
+
+    # The caller of run/1 dies while its jobs run: the floor stops and its hosts go.
+    hosts_before = length(Tartarus.hosts())
+    long = [%{id: 1, tasks: [%{name: "T1", resources: [:a], duration_ms: 400_000}]}]
+    caller = spawn(fn -> Floor.run(robots: 2, jobs: long, scale: 0.01) end)
+    floor = poll(fn -> Enum.find(floors(), &(&1 != nil)) end)
+    ref = Process.monitor(floor)
+    Process.exit(caller, :kill)
+    assert_receive {:DOWN, ^ref, :process, ^floor, _}, 10_000
+    assert length(Tartarus.hosts()) == hosts_before
+  end
+
+  # The floors running now (GenServers of this module).
+  defp floors do
+    for pid <- Process.list(),
+        match?(
+          {Floor, :init, 1},
+          Process.info(pid, :dictionary) |> elem(1) |> Keyword.get(:"$initial_call")
+        ),
+        do: pid
+  end
+
+  defp poll(fun, deadline \\ System.monotonic_time(:millisecond) + 10_000) do
+    cond do
+      v = fun.() -> v
+      System.monotonic_time(:millisecond) > deadline -> flunk("never happened")
+      true -> Process.sleep(20) && poll(fun, deadline)
+    end
   end
 
   test "the centralized baseline runs the same jobs with no migration" do
