@@ -118,7 +118,7 @@ defmodule TartarusArena.Experiment do
         {type,
          for pfa <- PFAs.all(), into: %{} do
            cs = for s <- subs, s.type == type, s.pfa == PFAs.name(pfa), do: s.cost
-           {PFAs.name(pfa), Float.round(Enum.sum(cs) / length(cs), 3)}
+           {PFAs.name(pfa), Float.round(TartarusTools.Stats.mean(cs), 3)}
          end}
       end
 

@@ -86,7 +86,10 @@ defmodule TartarusEmu.DashboardBench do
       runs = Enum.reverse(runs)
 
       median = fn c ->
-        runs |> Enum.filter(&(&1.condition == c)) |> Enum.map(& &1.migrations_per_s) |> median()
+        runs
+        |> Enum.filter(&(&1.condition == c))
+        |> Enum.map(& &1.migrations_per_s)
+        |> TartarusTools.Stats.median()
       end
 
       none = median.(:none)
@@ -215,11 +218,6 @@ defmodule TartarusEmu.DashboardBench do
     receive do
       {:done, from} -> send(from, {:sse_bytes, n})
     end
-  end
-
-  defp median(list) do
-    sorted = Enum.sort(list)
-    Enum.at(sorted, div(length(sorted), 2))
   end
 
   # -- 2. 10,000 hosts -------------------------------------------------------------------

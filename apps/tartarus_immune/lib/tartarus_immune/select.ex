@@ -30,7 +30,7 @@ defmodule TartarusImmune.Select do
 
   alias TartarusEmu.Scenario
   alias TartarusImmune.{Experiment, Sorting}
-  alias TartarusTools.{Report, Series, SVG}
+  alias TartarusTools.{Report, Series, Stats, SVG}
 
   @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :dynamic, :influx, :barrage, :iot]
 
@@ -236,16 +236,6 @@ defmodule TartarusImmune.Select do
       |> Enum.group_by(&to_string(&1.set))
       |> Map.new(fn {s, rs} -> {s, Enum.map(rs, &get_in(&1, [:summary, key]))} end)
 
-  defp mean([]), do: nil
-  defp mean(xs), do: Enum.sum(xs) / length(xs)
-
-  defp sd(xs) when length(xs) < 2, do: nil
-
-  defp sd(xs) do
-    m = mean(xs)
-    :math.sqrt(Enum.sum(Enum.map(xs, &((&1 - m) * (&1 - m)))) / (length(xs) - 1))
-  end
-
   defp steps_of(r), do: r.summary.convergence_step || r.summary.steps_run
 
   # the same convergence in the second unit, a log server's count of events (sharing and
@@ -260,10 +250,12 @@ defmodule TartarusImmune.Select do
       known_best: runs |> per_set(:known_best) |> Map.new(fn {s, ws} -> {s, majority(ws)} end),
       convergence_steps: per_set(runs, :convergence_step),
       convergence_events: per_set(runs, :convergence_events),
-      test_accuracy: runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
-      test_regret: runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+      test_accuracy:
+        runs |> per_set(:test_accuracy) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
+      test_regret:
+        runs |> per_set(:test_regret) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
       test_regret_rel:
-        runs |> per_set(:test_regret_rel) |> Map.new(fn {s, xs} -> {s, mean(xs)} end),
+        runs |> per_set(:test_regret_rel) |> Map.new(fn {s, xs} -> {s, Stats.mean(xs)} end),
       seeds: runs |> Enum.map(& &1.seed) |> Enum.uniq(),
       nodes: hd(runs).summary.nodes,
       mode: to_string(hd(runs).summary.mode)
@@ -288,21 +280,21 @@ defmodule TartarusImmune.Select do
       {arm,
        %{
          convergence_steps: Enum.map(rs, & &1.summary.convergence_step),
-         steps_mean: mean(steps),
-         steps_sd: sd(steps),
+         steps_mean: Stats.mean(steps),
+         steps_sd: Stats.sd(steps),
          convergence_events: Enum.map(rs, & &1.summary.convergence_events),
-         events_mean: mean(events),
-         events_sd: sd(events),
-         events_all_mean: mean(events_all),
-         events_all_sd: sd(events_all),
+         events_mean: Stats.mean(events),
+         events_sd: Stats.sd(events),
+         events_all_mean: Stats.mean(events_all),
+         events_all_sd: Stats.sd(events_all),
          converged: Enum.count(rs, & &1.summary.converged),
          runs: length(rs),
          winners: Enum.map(rs, & &1.summary.winner),
-         test_accuracy: mean(Enum.map(rs, & &1.summary.test_accuracy)),
-         test_regret: mean(Enum.map(rs, & &1.summary.test_regret)),
-         migrations_mean: mean(Enum.map(rs, & &1.summary.migrations)),
+         test_accuracy: Stats.mean(Enum.map(rs, & &1.summary.test_accuracy)),
+         test_regret: Stats.mean(Enum.map(rs, & &1.summary.test_regret)),
+         migrations_mean: Stats.mean(Enum.map(rs, & &1.summary.migrations)),
          failed_moves: Enum.map(rs, & &1.summary.failed_moves),
-         wall_ms_mean: mean(Enum.map(rs, & &1.summary.run_ms))
+         wall_ms_mean: Stats.mean(Enum.map(rs, & &1.summary.run_ms))
        }}
     end)
   end

@@ -55,6 +55,7 @@ defmodule TartarusLats.Experiment do
   @behaviour TartarusEmu.Scenario
 
   alias TartarusLats.{Building, Cloud, Deployment, World}
+  alias TartarusTools.Stats
 
   @settle_inside 20
   @settle_outside 30
@@ -701,7 +702,7 @@ defmodule TartarusLats.Experiment do
   defp time_error(:trace, {:ok, %{path: path}}, %{path: truth})
        when length(path) == length(truth) do
     errors = Enum.zip_with(path, truth, fn p, t -> abs(p.arrived_at - t.entered_at) end)
-    median(errors)
+    Stats.median(errors)
   end
 
   defp time_error(_type, _answer, _truth), do: nil
@@ -748,7 +749,7 @@ defmodule TartarusLats.Experiment do
          %{
            queries: length(rs),
            correct: Enum.count(rs, & &1.correct),
-           median_hops: median(Enum.map(rs, & &1.hops))
+           median_hops: Stats.median(Enum.map(rs, & &1.hops))
          }}
       end)
 
@@ -779,10 +780,11 @@ defmodule TartarusLats.Experiment do
       answers_partial: Enum.count(results, &(&1.unreachable != [])),
       cloud_bytes_centralized: stats.bytes.centralized,
       cloud_bytes_agents: stats.bytes.agents,
-      median_query_hops: median(hops),
+      median_query_hops: Stats.median(hops),
       max_query_hops: List.last(hops),
-      median_query_ms: median(ms) && Float.round(median(ms) * 1.0, 3),
-      trace_time_error_s: median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
+      median_query_ms: Stats.median(ms) && Float.round(Stats.median(ms) * 1.0, 3),
+      trace_time_error_s:
+        Stats.median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
       by_type: by_type,
       world_seconds: dep.time,
       input: if(dep.replay, do: "replay", else: "simulated"),
@@ -791,8 +793,6 @@ defmodule TartarusLats.Experiment do
       replay_garbage_bytes: dep.input.garbage_bytes
     })
   end
-
-  defp median(list), do: TartarusTools.Report.median(list)
 
   # The share of `list` for which `fun` holds (4 decimals), nil for an empty list.
   defp share([], _fun), do: nil

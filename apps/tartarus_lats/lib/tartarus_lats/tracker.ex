@@ -189,7 +189,7 @@ defmodule TartarusLats.Tracker do
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
     raw = Enum.take([value | state.raw], t.median)
     heard = Enum.take([if(rssi == :missing, do: nil, else: rssi) | state.heard], t.window)
-    {avg, filter} = RSSIFilter.push(state.filter, median(raw))
+    {avg, filter} = RSSIFilter.push(state.filter, TartarusTools.Stats.median(raw))
     candidate = Region.classify(avg, t.calibration, state.region, t.hysteresis_db)
     state = %{state | filter: filter, raw: raw, heard: heard}
 
@@ -291,7 +291,7 @@ defmodule TartarusLats.Tracker do
       %{^tag => %{heard: heard}} ->
         case Enum.reject(heard, &is_nil/1) do
           [] -> nil
-          values -> Enum.sum(values) / length(values)
+          values -> TartarusTools.Stats.mean(values)
         end
 
       _ ->
@@ -339,10 +339,6 @@ defmodule TartarusLats.Tracker do
       pending: nil
     }
   end
-
-  # The window is odd (checked in new/1): the middle sample. Computed by the platform's
-  # one percentile definition, which the tooling's medians also use.
-  defp median(values), do: Tartarus.percentile(Enum.sort(values), 0.5)
 
   defp maybe_confirm(t, {uuid, major, minor} = tag, %{pending: {new, since, count, avg}} = state)
        when count >= t.confirm do

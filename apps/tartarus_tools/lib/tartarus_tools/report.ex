@@ -184,36 +184,6 @@ defmodule TartarusTools.Report do
   defp cell(v), do: cell(inspect(v))
 
   @doc """
-  The value at quantile `q` (0..1) of a list of numbers, by nearest rank: an actual sample,
-  never an interpolation; `nil` for an empty list. The one definition of medians and
-  percentiles in the tooling, the emulator and the applications: it sorts and defers to the
-  platform's `Tartarus.percentile/2` (which the platform's own hop statistics use), so a
-  "median" means the same everywhere.
-
-      iex> TartarusTools.Report.percentile([5, 1, 4, 2, 3], 0.5)
-      3
-      iex> TartarusTools.Report.percentile([4, 1, 3, 2], 0.5)
-      2
-      iex> TartarusTools.Report.percentile([1, 2, 3, 4, 100], 0.99)
-      100
-      iex> TartarusTools.Report.percentile([], 0.5)
-      nil
-  """
-  @spec percentile([number], number) :: number | nil
-  def percentile([], _q), do: nil
-  def percentile(samples, q) when is_list(samples), do: Tartarus.percentile(Enum.sort(samples), q)
-
-  @doc """
-  The median (`percentile(samples, 0.5)`: the lower middle sample of an even count), `nil`
-  for an empty list.
-
-      iex> TartarusTools.Report.median([3, 1, 2])
-      2
-  """
-  @spec median([number]) :: number | nil
-  def median(samples), do: percentile(samples, 0.5)
-
-  @doc """
   The default output directory of a run, `results/<scenario>-<UTC timestamp>`. `scenario`
   must be a plain name (letters, digits, `_`, `-`, `.`), so it can never escape `results/`.
 

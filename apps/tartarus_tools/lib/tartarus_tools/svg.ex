@@ -46,19 +46,6 @@ defmodule TartarusTools.SVG do
   @typedoc "One Gantt row."
   @type row :: %{label: term, spans: [span]}
 
-  @typedoc "Summary statistics of one box (Tukey: whiskers reach 1.5 IQR)."
-  @type box_stats :: %{
-          n: pos_integer,
-          min: number,
-          max: number,
-          q1: number,
-          median: number,
-          q3: number,
-          whisker_low: number,
-          whisker_high: number,
-          outliers: [number]
-        }
-
   ## Public helpers
 
   @doc """
@@ -108,51 +95,6 @@ defmodule TartarusTools.SVG do
         do: round(value),
         else: Float.round(value * 1.0, decimals)
     end
-  end
-
-  @doc """
-  Box-plot statistics of a list of numbers, or `nil` for an empty list. Quartiles are
-  samples by nearest rank (`TartarusTools.Report.percentile/2`, the one definition of
-  medians and percentiles in the tooling); whiskers reach the most extreme
-  samples within 1.5 IQR of the box; samples beyond are outliers.
-
-  ## Examples
-
-      iex> TartarusTools.SVG.box_stats([1, 2, 3, 4, 100])
-      %{n: 5, min: 1, max: 100, q1: 2, median: 3, q3: 4, whisker_low: 1, whisker_high: 4, outliers: [100]}
-      iex> TartarusTools.SVG.box_stats([])
-      nil
-  """
-  @spec box_stats([number]) :: box_stats | nil
-  def box_stats([]), do: nil
-
-  def box_stats(samples) when is_list(samples) do
-    Enum.each(samples, fn s ->
-      if not is_number(s) do
-        raise ArgumentError,
-              "SVG.box_stats/1: expected a list of numbers, got an element: #{inspect(s)}"
-      end
-    end)
-
-    sorted = Enum.sort(samples)
-    n = length(sorted)
-    q = fn p -> TartarusTools.Report.percentile(sorted, p) end
-    {q1, median, q3} = {q.(0.25), q.(0.5), q.(0.75)}
-    iqr = q3 - q1
-    {low_fence, high_fence} = {q1 - 1.5 * iqr, q3 + 1.5 * iqr}
-    inside = Enum.filter(sorted, &(&1 >= low_fence and &1 <= high_fence))
-
-    %{
-      n: n,
-      min: hd(sorted),
-      max: List.last(sorted),
-      q1: q1,
-      median: median,
-      q3: q3,
-      whisker_low: hd(inside),
-      whisker_high: List.last(inside),
-      outliers: Enum.reject(sorted, &(&1 >= low_fence and &1 <= high_fence))
-    }
   end
 
   @doc """
@@ -342,7 +284,7 @@ defmodule TartarusTools.SVG do
 
   @doc """
   A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
-  as circles; see `box_stats/1`). Each group is labelled with its name and sample count.
+  as circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and sample count.
 
   ## Examples
 
@@ -355,10 +297,10 @@ defmodule TartarusTools.SVG do
     groups =
       Enum.map(groups, fn
         {name, samples} when is_list(samples) ->
-          {name, box_stats(samples)}
+          {name, TartarusTools.Stats.box(samples)}
 
         %{name: name, samples: samples} when is_list(samples) ->
-          {name, box_stats(samples)}
+          {name, TartarusTools.Stats.box(samples)}
 
         other ->
           raise ArgumentError,

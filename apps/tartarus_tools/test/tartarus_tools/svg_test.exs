@@ -111,33 +111,7 @@ defmodule TartarusEmu.SVGTest do
     end
   end
 
-  describe "box_plot/2 and box_stats/1" do
-    test "statistics" do
-      s = SVG.box_stats(Enum.to_list(1..9))
-      assert {s.q1, s.median, s.q3} == {3, 5, 7}
-      assert {s.whisker_low, s.whisker_high, s.outliers} == {1, 9, []}
-
-      s = SVG.box_stats([10, -50, 11, 12, 13, 60])
-      assert s.outliers == [-50, 60]
-      assert {s.whisker_low, s.whisker_high} == {10, 13}
-
-      assert SVG.box_stats([4]) == %{
-               n: 1,
-               min: 4,
-               max: 4,
-               q1: 4,
-               median: 4,
-               q3: 4,
-               whisker_low: 4,
-               whisker_high: 4,
-               outliers: []
-             }
-
-      assert_raise ArgumentError, ~r/expected a list of numbers, got an element: "x"/, fn ->
-        SVG.box_stats([1, "x"])
-      end
-    end
-
+  describe "box_plot/2" do
     test "renders groups, counts and outliers" do
       svg =
         SVG.box_plot(

@@ -182,7 +182,7 @@ defmodule TartarusImmune.Evolution.Diagnostics do
     by = Enum.group_by(evals, &elem(&1, 0), &elem(&1, 1))
 
     %{
-      mean: Map.new(by, fn {k, xs} -> {k, Float.round(Enum.sum(xs) / length(xs), 3)} end),
+      mean: Map.new(by, fn {k, xs} -> {k, Float.round(TartarusTools.Stats.mean(xs), 3)} end),
       beats:
         for {a, xs} <- by, {b, ys} <- by, a != b, into: %{} do
           wins = for x <- xs, y <- ys, x > y, reduce: 0, do: (k -> k + 1)
@@ -233,7 +233,7 @@ defmodule TartarusImmune.Evolution.Diagnostics do
       %{
         periods: length(ps),
         fitness: Float.round(Enum.sum(Enum.map(ps, & &1.fitness)) / k, 3),
-        fitness_sd: sd(Enum.map(ps, & &1.fitness)),
+        fitness_sd: sd_3(Enum.map(ps, & &1.fitness)),
         steps: Float.round(Enum.sum(Enum.map(ps, & &1.steps)) / k, 1),
         puck_share: Float.round(Enum.sum(Enum.map(ps, & &1.puck_share)) / k, 3)
       }
@@ -364,11 +364,11 @@ defmodule TartarusImmune.Evolution.Diagnostics do
     cut(world, f, left - steps, rule, sc, reading, [p | acc])
   end
 
-  defp sd(xs) when length(xs) < 2, do: 0.0
-
-  defp sd(xs) do
-    m = Enum.sum(xs) / length(xs)
-    Float.round(:math.sqrt(Enum.sum(Enum.map(xs, &((&1 - m) ** 2))) / (length(xs) - 1)), 3)
+  defp sd_3(xs) do
+    case TartarusTools.Stats.sd(xs) do
+      nil -> 0.0
+      sd -> Float.round(sd, 3)
+    end
   end
 
   defp dist(a, b),

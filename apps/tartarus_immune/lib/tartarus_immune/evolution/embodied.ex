@@ -62,6 +62,7 @@ defmodule TartarusImmune.Evolution.Embodied do
   """
 
   alias TartarusArena.World
+  alias TartarusTools.Stats
   alias TartarusImmune.Evolution.{ES, NeuralNet, Objective, Repertoire}
 
   @shape [4, 5, 2]
@@ -289,7 +290,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       trajectory: Enum.reverse(st.traj),
       world: if(o.trace, do: st.world),
       repertoire: st.rep,
-      final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> mean()
+      final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> Stats.mean() || 0.0
     }
     |> Map.merge(s3_stats(o.scenario, curve, switches))
   end
@@ -472,7 +473,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       end)
 
     episodes = List.flatten(episodes)
-    {Float.round(mean(Enum.map(episodes, & &1.success)), 3), episodes, rng}
+    {Float.round(Stats.mean(Enum.map(episodes, & &1.success)) || 0.0, 3), episodes, rng}
   end
 
   @episode_steps 300
@@ -583,7 +584,4 @@ defmodule TartarusImmune.Evolution.Embodied do
   end
 
   defp dist(x0, y0, x1, y1), do: :math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2)
-
-  defp mean([]), do: 0.0
-  defp mean(xs), do: Enum.sum(xs) / length(xs)
 end

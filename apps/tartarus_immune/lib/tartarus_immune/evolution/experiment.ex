@@ -9,7 +9,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   the baseline alone on all three scenarios. A step is one trial. `recovery`, `period`,
   `min_period`, `puck_reward` and `score` are passed to every run. The summary compares the two designs' test
   success over the trials with a one-sided Mann-Whitney U test
-  (`TartarusImmune.Evolution.Stats`, exact): `mann_whitney_u`, `p_value` (immune better
+  (`TartarusTools.Stats.mann_whitney/3`, exact): `mann_whitney_u`, `p_value` (immune better
   than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
 
   `sharing` (§7.4.3, Fig. 7.6): for each network size, social learning by
@@ -25,8 +25,8 @@ defmodule TartarusImmune.Evolution.Experiment do
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing, Stats}
-  alias TartarusTools.{Report, Series, SVG}
+  alias TartarusImmune.Evolution.{Collective, Embodied, Sharing}
+  alias TartarusTools.{Report, Series, Stats, SVG}
 
   @schema [
     experiment: [
@@ -236,8 +236,8 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     series =
       state.series
-      |> Series.record(:"gamma_avg_n#{n}", k, mean(Enum.map(runs, & &1.gamma_avg)))
-      |> Series.record(:"omega_n#{n}", k, mean(omegas(runs)))
+      |> Series.record(:"gamma_avg_n#{n}", k, mean2(Enum.map(runs, & &1.gamma_avg)))
+      |> Series.record(:"omega_n#{n}", k, mean2(omegas(runs)))
 
     %{state | runs: state.runs ++ runs, series: series}
   end
@@ -378,7 +378,9 @@ defmodule TartarusImmune.Evolution.Experiment do
         runs = Enum.filter(state.runs, &(&1.nodes == n and &1.label == label(scheme)))
 
         v =
-          if key == :gamma_avg, do: mean(Enum.map(runs, & &1.gamma_avg)), else: mean(omegas(runs))
+          if key == :gamma_avg,
+            do: mean2(Enum.map(runs, & &1.gamma_avg)),
+            else: mean2(omegas(runs))
 
         {"#{n}: #{label(scheme)}", v || 0}
       end
@@ -420,11 +422,11 @@ defmodule TartarusImmune.Evolution.Experiment do
       experiment: "robots3",
       trials: state.p.trials,
       puck_reward: to_string(state.p.puck_reward),
-      test_success: by.(fn runs -> mean(Enum.map(runs, & &1.test_success)) end),
-      antibodies: by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
+      test_success: by.(fn runs -> mean2(Enum.map(runs, & &1.test_success)) end),
+      antibodies: by.(fn runs -> mean2(for r <- runs, p <- r.per_robot, do: p.antibodies) end),
       external_selections:
-        by.(fn runs -> mean(for r <- runs, p <- r.per_robot, do: p.external_selections) end),
-      communications_per_robot: by.(fn runs -> mean(for r <- runs, do: comm.(r) / r.robots) end)
+        by.(fn runs -> mean2(for r <- runs, p <- r.per_robot, do: p.external_selections) end),
+      communications_per_robot: by.(fn runs -> mean2(for r <- runs, do: comm.(r) / r.robots) end)
     }
   end
 
@@ -441,9 +443,9 @@ defmodule TartarusImmune.Evolution.Experiment do
         s3 =
           if sc == :s3,
             do: %{
-              antibodies_light_on: mean(for r <- runs, do: r.by_light.on),
-              antibodies_light_off: mean(for r <- runs, do: r.by_light.off),
-              antibodies_used_in_both: mean(for r <- runs, do: r.by_light.both),
+              antibodies_light_on: mean2(for r <- runs, do: r.by_light.on),
+              antibodies_light_off: mean2(for r <- runs, do: r.by_light.off),
+              antibodies_used_in_both: mean2(for r <- runs, do: r.by_light.both),
               trials_reusing_after_return: Enum.count(runs, &(&1.reused_after_return > 0))
             },
             else: %{}
@@ -451,11 +453,11 @@ defmodule TartarusImmune.Evolution.Experiment do
         {key.(sc, d),
          Map.merge(
            %{
-             test_success: mean(Enum.map(runs, & &1.test_success)),
+             test_success: mean2(Enum.map(runs, & &1.test_success)),
              test_success_by_trial: Enum.map(runs, & &1.test_success),
-             antibodies: mean(Enum.map(runs, & &1.antibodies)),
-             switches: mean(Enum.map(runs, & &1.switches)),
-             final_fitness: mean(Enum.map(runs, & &1.final_fitness)),
+             antibodies: mean2(Enum.map(runs, & &1.antibodies)),
+             switches: mean2(Enum.map(runs, & &1.switches)),
+             final_fitness: mean2(Enum.map(runs, & &1.final_fitness)),
              iterations: hd(runs).iterations,
              epsilon: hd(runs).epsilon
            },
@@ -468,7 +470,7 @@ defmodule TartarusImmune.Evolution.Experiment do
 
     test =
       main && mono &&
-        Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial)
+        Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial, method: :exact)
 
     %{
       experiment: to_string(exp),
@@ -506,8 +508,8 @@ defmodule TartarusImmune.Evolution.Experiment do
       end
     end
 
-    gamma = by.(fn runs -> mean(Enum.map(runs, & &1.gamma_avg)) end)
-    omega = by.(fn runs -> mean(omegas(runs)) end)
+    gamma = by.(fn runs -> mean2(Enum.map(runs, & &1.gamma_avg)) end)
+    omega = by.(fn runs -> mean2(omegas(runs)) end)
 
     %{
       experiment: to_string(p.experiment),
@@ -517,10 +519,10 @@ defmodule TartarusImmune.Evolution.Experiment do
       mode: to_string(p.mode),
       gamma_avg: gamma,
       omega: omega,
-      omega_median: by.(fn runs -> Report.median(omegas(runs)) end),
+      omega_median: by.(fn runs -> Stats.median(omegas(runs)) end),
       converged_runs: by.(fn runs -> Enum.count(runs, & &1.converged) end),
       iterations_to_converge:
-        by.(fn runs -> mean(for r <- runs, r.converged, do: r.converged_at) end),
+        by.(fn runs -> mean2(for r <- runs, r.converged, do: r.converged_at) end),
       ipkt_fewer_communications_at_every_size:
         Enum.all?(gamma, fn {_n, g} ->
           Enum.all?(g, fn {l, v} -> l in ["b-cast", "none"] or v < g["b-cast"] end)
@@ -544,6 +546,6 @@ defmodule TartarusImmune.Evolution.Experiment do
 
   defp omegas(runs), do: for(r <- runs, r.omega != nil, do: r.omega)
 
-  defp mean([]), do: nil
-  defp mean(xs), do: Float.round(Enum.sum(xs) / length(xs), 2)
+  # the mean to 2 decimals, nil for none
+  defp mean2(xs), do: (m = Stats.mean(xs)) && Float.round(m, 2)
 end

@@ -109,7 +109,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   alias TartarusArena.{PFAs, Paths, Run}
   alias TartarusEmu.{Network, Topology}
   alias TartarusImmune.{Domain, IPkt, Params, PathFollowing}
-  alias TartarusTools.{Report, SVG}
+  alias TartarusTools.{Report, Stats, SVG}
 
   @schema [
     laps: [type: :pos_integer, default: 12, doc: "laps per robot"],
@@ -560,7 +560,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
 
   def plateau_lap(times, tol, tail) do
     last = Enum.take(times, -tail)
-    final = Enum.sum(last) / length(last)
+    final = Stats.mean(last)
     n = length(times)
 
     times
@@ -693,8 +693,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
     end
   end
 
-  defp avg([]), do: 0.0
-  defp avg(xs), do: Enum.sum(xs) / length(xs)
+  defp avg(xs), do: Stats.mean(xs) || 0.0
   defp round3(x), do: Float.round(x * 1.0, 3)
 
   # -- files -----------------------------------------------------------------------------

@@ -81,7 +81,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
   world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
   runner's `scenario, steps, setup_ms, run_ms`. Medians are
-  nearest-rank (`TartarusTools.Report.median/1`). With `--json` the last line printed is the summary as one
+  nearest-rank (`TartarusTools.Stats.median/1`). With `--json` the last line printed is the summary as one
   JSON object.
   """
   use TartarusTools.CLI

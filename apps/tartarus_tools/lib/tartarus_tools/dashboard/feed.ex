@@ -132,9 +132,9 @@ defmodule TartarusTools.Dashboard.Feed do
         _ ->
           %{
             count: length(sorted),
-            p50_us: Tartarus.percentile(sorted, 0.5),
-            p90_us: Tartarus.percentile(sorted, 0.9),
-            p99_us: Tartarus.percentile(sorted, 0.99),
+            p50_us: TartarusTools.Stats.percentile(sorted, 0.5),
+            p90_us: TartarusTools.Stats.percentile(sorted, 0.9),
+            p99_us: TartarusTools.Stats.percentile(sorted, 0.99),
             max_us: List.last(sorted)
           }
       end
