@@ -19,7 +19,7 @@ defmodule TartarusWarehouse do
   | `TartarusWarehouse.Floor` | a floor on the emulator, one process: `start/1` (a floor you drive from iex), `run/1` (a batch: start, submit, await, stop) |
   | `TartarusWarehouse.Panel` | the warehouse on the web dashboard |
   | `TartarusWarehouse.Checker` | Eq. 4.1 (mutual exclusion), completion, Eq. 4.2 (occupancy) over the history |
-  | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` |
+  | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` (one module each, `TartarusWarehouse.Experiment.Robots`, ...; `experiments/0` is the registry) |
   """
 
   @doc """

@@ -4,11 +4,12 @@ defmodule TartarusWarehouse.FloorTest do
   doctest TartarusWarehouse.Floor.Build
   doctest TartarusWarehouse.Floor.Options
 
-  alias TartarusWarehouse.{Checker, Experiment, Floor}
+  alias TartarusWarehouse.{Checker, Floor}
+  alias TartarusWarehouse.Experiment.Jobs
   alias TartarusTools.Prop
 
   test "task agents run 6 jobs on 3 robots: every job completes, no resource is held twice, robots pipeline" do
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
     {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, jitter: 0.3, seed: 3)
     assert r.timed_out == []
     assert Checker.violations(r.history) == []
@@ -24,7 +25,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "jobs arrive asynchronously: a job submitted later starts later and still completes" do
-    jobs = Experiment.thesis_jobs(3, 1000)
+    jobs = Jobs.thesis_jobs(3, 1000)
     {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, arrivals_ms: [0, 0, 120])
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 3
@@ -33,7 +34,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "run/1 drives the floor's one process: the batch's events are its changes, and the floor goes with its caller" do
-    jobs = Experiment.thesis_jobs(3, 1000)
+    jobs = Jobs.thesis_jobs(3, 1000)
 
     {:ok, r} =
       Floor.run(
@@ -84,7 +85,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "the centralized baseline runs the same jobs with no migration" do
-    jobs = Experiment.thesis_jobs(4, 1000)
+    jobs = Jobs.thesis_jobs(4, 1000)
     {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, design: :central)
     assert r.timed_out == []
     assert Checker.violations(r.history) == []
@@ -95,7 +96,7 @@ defmodule TartarusWarehouse.FloorTest do
   test "a central server with a service time makes every robot wait for it between blocks" do
     # One robot: each block starts only after the server handled the previous "finished"
     # (server_ms) and sent the next command. A lower bound only: no timing upper bound.
-    jobs = Experiment.thesis_jobs(2, 1000)
+    jobs = Jobs.thesis_jobs(2, 1000)
     {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, server_ms: 25)
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 2
@@ -169,7 +170,7 @@ defmodule TartarusWarehouse.FloorTest do
       end
       """)
 
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
     t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1000}
 
     {:ok, r} =
@@ -201,7 +202,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "a standby robot joins while the floor runs" do
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
 
     {:ok, r} =
       Floor.run(robots: 2, standby: [2], jobs: jobs, scale: 0.01, events: [{2, {:join, 2}}])
@@ -213,7 +214,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "the distributor's host killed twice and started again on its journal: no job lost, none duplicated" do
-    jobs = Experiment.thesis_jobs(8, 1000)
+    jobs = Jobs.thesis_jobs(8, 1000)
 
     {:ok, r} =
       Floor.run(

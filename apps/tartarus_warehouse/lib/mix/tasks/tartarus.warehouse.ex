@@ -2,7 +2,8 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   @shortdoc "Warehouse: mutual exclusion by a clock-less pipeline of task agents (thesis ch. 4)"
   @moduledoc """
   Runs the warehouse experiments of the thesis (§4.7) on emulated floors (see
-  `TartarusWarehouse.Experiment`): task agents carry each task's program and are the
+  `TartarusWarehouse.Experiment`; the experiment named by `--experiment` is found in its
+  registry, `TartarusWarehouse.Experiment.experiments/0`, one module each): task agents carry each task's program and are the
   tokens of its resources; robots line up into a clock-less pipeline.
 
       mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
@@ -109,28 +110,9 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     end
   end
 
+  # The experiment's own lines (its module, from the registry), then the common ones.
   defp text(s, dir) do
-    lines =
-      case s.experiment do
-        "robots" ->
-          "speed-up (variable durations): #{inspect(s.speedup)}; thesis #{inspect(s.speedup_thesis)}\n" <>
-            "speed-up (equal durations, #{s.jobs_equal} jobs): #{inspect(s.speedup_equal)}"
-
-        "scaling" ->
-          "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
-
-        "failover" ->
-          "kills #{s.kills}: jobs lost #{s.jobs_lost}, duplicated #{s.jobs_duplicated} (without persistence: #{s.jobs_lost_without_persistence} lost)"
-
-        "otfp" ->
-          "tasks per job: #{inspect(s.tasks_in_job)}\nms per task: #{inspect(s.ms_per_task)}"
-
-        "removal" ->
-          "jobs per robot: #{inspect(s.jobs_per_robot)}"
-
-        "mixed" ->
-          "jobs whose two sequences overlapped: #{inspect(s.jobs_with_concurrent_sequences)}"
-      end
+    lines = Experiment.module(String.to_existing_atom(s.experiment)).text(s)
 
     """
     jobs #{s.jobs}, completed #{s.completed_jobs}, tasks run #{s.tasks}, mutex violations #{s.mutex_violations}, deadlocks #{s.deadlocks}
