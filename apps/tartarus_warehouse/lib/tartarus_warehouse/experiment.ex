@@ -84,6 +84,22 @@ defmodule TartarusWarehouse.Experiment do
   @doc "The lines `mix tartarus.warehouse` prints for the summary."
   @callback text(summary :: map()) :: String.t()
 
+  @doc "The kinds of floor the experiment runs (each one's makespan is a sweep metric)."
+  @callback kinds() :: [atom()]
+
+  @doc """
+  The experiment's sweep, when its arms are not its points on the run's seed: `arms`
+  (`[{name, opts}]`), `seeds`, and `point`, a function of an arm's opts and a seed that
+  gives the point to run.
+  """
+  @callback sweep(state()) :: %{
+              arms: [{String.t(), term()}],
+              seeds: [integer()],
+              point: (term(), integer() -> term())
+            }
+
+  @optional_callbacks sweep: 1
+
   @experiments [
     robots: Robots,
     scaling: Scaling,
@@ -202,14 +218,17 @@ defmodule TartarusWarehouse.Experiment do
 
       points = module(opts[:experiment]).points(Map.new(opts))
 
+      # One step: the sweep over the experiment's points (TartarusEmu.Sweep), whose
+      # runs.csv and aggregates go to <out>/sweep.
       TartarusEmu.Scenario.run(__MODULE__,
         seed: opts[:seed],
         out: out,
         quiet: opts[:quiet],
         dashboard: opts[:dashboard],
-        steps: length(points),
-        params: Keyword.drop(opts, [:seed, :out, :quiet, :dashboard]),
-        points: points
+        steps: 1,
+        params: Keyword.drop(opts, [:seed, :out, :dashboard]),
+        points: points,
+        sweep_out: out && Path.join(out, "sweep")
       )
     end
   end
@@ -229,6 +248,8 @@ defmodule TartarusWarehouse.Experiment do
        p: Map.new(opts.params),
        seed: opts.seed,
        points: opts.points,
+       sweep_out: opts.sweep_out,
+       sweep: nil,
        runs: [],
        series: Series.new(),
        # what the web dashboard shows (TartarusWarehouse.Panel)
@@ -236,11 +257,51 @@ defmodule TartarusWarehouse.Experiment do
      }}
   end
 
+  # The experiment's runs are a sweep (`TartarusEmu.Sweep`): its arms and seeds come from
+  # the experiment (`c:sweep/1`: by default an arm a point, on the run's seed), one at a
+  # time (floors are timed on the wall clock, and the dashboard shows one floor); each run
+  # is a point's floors. The series are recorded point by point, in the sweep's order.
   @impl TartarusEmu.Scenario
-  def step(state, k) do
-    point = Enum.at(state.points, k - 1)
-    TartarusWarehouse.Panel.point(state.panel, state.p.experiment, point)
+  def step(state, 1) do
     module = module(state.p.experiment)
+    plan = sweep_plan(module, state)
+
+    spec = %{
+      name: "warehouse-#{state.p.experiment}",
+      title: "#{title()}: #{state.p.experiment}, the runs",
+      arms: plan.arms,
+      seeds: plan.seeds,
+      order: :arm_major,
+      concurrency: 1,
+      run: fn arm, seed -> run_point(module, plan.point.(arm.opts, seed), state) end,
+      metrics: metrics(module)
+    }
+
+    {:ok, sweep} = TartarusEmu.Sweep.run(spec, out: state.sweep_out, quiet: state.p.quiet)
+
+    state =
+      Enum.reduce(sweep.runs, state, fn %{data: {point, runs}}, state ->
+        state = %{state | runs: state.runs ++ runs}
+        %{state | series: module.record(point, state)}
+      end)
+
+    %{state | sweep: sweep.summary.sweep}
+  end
+
+  defp sweep_plan(module, state) do
+    if function_exported?(module, :sweep, 1),
+      do: module.sweep(state),
+      else: %{
+        arms: Enum.map(state.points, &{to_string(&1), &1}),
+        seeds: [state.seed],
+        point: fn point, _seed -> point end
+      }
+  end
+
+  # A point's floors, in order; the sweep's summary of the run: its makespans by kind and
+  # what every run checks.
+  defp run_point(module, point, state) do
+    TartarusWarehouse.Panel.point(state.panel, state.p.experiment, point)
 
     runs =
       for {kind, opts, extra} <- module.runs(point, state) do
@@ -250,12 +311,30 @@ defmodule TartarusWarehouse.Experiment do
         |> Map.merge(extra)
       end
 
-    state = %{state | runs: state.runs ++ runs}
-    %{state | series: module.record(point, state)}
+    summary = %{
+      makespan_ms: Map.new(runs, &{&1.kind, round(&1.makespan_ms)}),
+      completed_jobs: runs |> Enum.map(& &1.completed_jobs) |> Enum.sum(),
+      mutex_violations: runs |> Enum.map(& &1.violations) |> Enum.sum(),
+      deadlocks: runs |> Enum.map(&length(&1.timed_out)) |> Enum.sum()
+    }
+
+    {summary, {point, runs}}
+  end
+
+  defp metrics(module) do
+    makespans =
+      for kind <- module.kinds(), do: {:"makespan_ms_#{kind}", &get_in(&1, [:makespan_ms, kind])}
+
+    makespans ++
+      [
+        completed_jobs: :completed_jobs,
+        mutex_violations: :mutex_violations,
+        deadlocks: :deadlocks
+      ]
   end
 
   @impl TartarusEmu.Scenario
-  def done?(state, k), do: k >= length(state.points)
+  def done?(_state, _k), do: true
 
   @impl TartarusEmu.Scenario
   def network(state), do: fn -> TartarusWarehouse.Panel.network(state.panel) end
@@ -300,7 +379,7 @@ defmodule TartarusWarehouse.Experiment do
       wall_ms: runs |> Enum.map(& &1.wall_ms) |> Enum.sum()
     }
 
-    module(p.experiment).summary(base, state)
+    Map.put(module(p.experiment).summary(base, state), :sweep, state.sweep)
   end
 
   @impl TartarusEmu.Scenario

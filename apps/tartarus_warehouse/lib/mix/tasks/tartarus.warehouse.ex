@@ -47,13 +47,17 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   Output (in `--out DIR`, default `results/warehouse-<experiment>-<UTC timestamp>`):
   `executions.csv` (every task executed: robot, job, task, resources, start, stop), the
   Gantt charts (one lane per robot), the series as CSV and SVG, `summary.json` and
-  `summary.md`.
+  `summary.md`; and in `sweep/` what `TartarusEmu.Sweep` writes for the experiment's runs
+  (an arm a point: a robot count, a job size; for `failover` one arm on seeds S..S+2):
+  `runs.csv` (each run's makespan per floor kind, completed jobs, violations, deadlocks),
+  its own `summary.json` and `summary.md`.
 
   Summary keys (all experiments): `experiment, jobs, tasks, completed_jobs,
   mutex_violations` (Eq. 4.1, pairs of executions on two robots holding one resource at
   one instant), `deadlocks` (jobs not completed within `--timeout-ms`), `speedup` (for
   `robots` an object keyed by robot count, else null), `scale, mode, wall_ms` and the
-  runner's `scenario, seed, steps, setup_ms, run_ms`. `robots` adds `speedup_equal,
+  runner's `scenario, seed, steps, setup_ms, run_ms` (`steps` is 1: the sweep), and
+  `sweep` (`name, seeds, arms, runs`, the per-arm `aggregates` of `TartarusEmu.Sweep`). `robots` adds `speedup_equal,
   makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
   jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central,
   avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, slope_ms_per_task, latency_ms, server_ms,

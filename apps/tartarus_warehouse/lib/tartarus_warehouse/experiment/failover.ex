@@ -14,7 +14,21 @@ defmodule TartarusWarehouse.Experiment.Failover do
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
+  def kinds, do: [:variable, :no_persistence]
+
+  @impl Experiment
   def points(_p), do: [1, 2, 3]
+
+  # The three points are three seeds: one arm, the seeds seed..seed + 2 (point i runs on
+  # seed + i - 1).
+  @impl Experiment
+  def sweep(state) do
+    %{
+      arms: [{"kills", nil}],
+      seeds: Enum.map(points(state.p), &(state.seed + &1 - 1)),
+      point: fn nil, seed -> seed - state.seed + 1 end
+    }
+  end
 
   @impl Experiment
   def runs(i, state) do

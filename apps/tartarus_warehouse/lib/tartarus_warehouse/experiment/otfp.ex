@@ -14,6 +14,9 @@ defmodule TartarusWarehouse.Experiment.Otfp do
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
+  def kinds, do: [:variable, :stream]
+
+  @impl Experiment
   def points(_p), do: [1]
 
   @impl Experiment

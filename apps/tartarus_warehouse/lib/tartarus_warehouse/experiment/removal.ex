@@ -11,6 +11,9 @@ defmodule TartarusWarehouse.Experiment.Removal do
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
+  def kinds, do: [:variable]
+
+  @impl Experiment
   def points(_p), do: [1]
 
   @impl Experiment

@@ -16,6 +16,9 @@ defmodule TartarusWarehouse.Experiment.Robots do
   @thesis_speedup %{2 => 1.75, 3 => 1.84, 4 => 2.21}
 
   @impl Experiment
+  def kinds, do: [:variable, :equal]
+
+  @impl Experiment
   def points(p), do: Enum.to_list(1..p.robots)
 
   @impl Experiment

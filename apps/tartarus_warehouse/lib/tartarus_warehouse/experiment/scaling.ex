@@ -16,6 +16,9 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
+  def kinds, do: [:agents, :central, :guided, :big]
+
+  @impl Experiment
   def points(p) do
     case Enum.filter([5, 10, 20, 30, 40, 50, 60, 80, 100], &(&1 <= p.max_tasks)) do
       [] -> [p.max_tasks]
