@@ -100,6 +100,35 @@ defmodule TartarusWarehouse.Experiment do
 
   @optional_callbacks sweep: 1
 
+  @doc """
+  Makes a module an experiment (`@behaviour TartarusWarehouse.Experiment`) with defaults
+  it may override: one point (`[1]`), no charts, no comparisons, and for its one floor the
+  series `mean_busy_robots` (Eq. 4.2).
+  """
+  defmacro __using__(_opts) do
+    quote do
+      @behaviour TartarusWarehouse.Experiment
+
+      alias TartarusTools.Series
+      alias TartarusWarehouse.Experiment
+
+      @impl Experiment
+      def points(_p), do: [1]
+
+      @impl Experiment
+      def charts(_state), do: []
+
+      @impl Experiment
+      def comparisons(_state), do: []
+
+      @impl Experiment
+      def record(_point, %{runs: [r]} = state),
+        do: Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
+
+      defoverridable points: 1, charts: 1, comparisons: 1, record: 2
+    end
+  end
+
   @experiments [
     robots: Robots,
     scaling: Scaling,

@@ -229,10 +229,12 @@ defmodule TartarusWarehouse.Floor do
     end)
   end
 
-  # `{{:ms, t}, event}`: t ms after the floor started.
+  # `{{:ms, t}, event}`: t ms after `t0` (taken before the first job was submitted).
   defp schedule_events(st) do
+    elapsed_ms = div(System.system_time(:microsecond) - st.t0, 1000)
+
     Enum.each(st.events, fn
-      {{:ms, t}, event} -> Process.send_after(self(), {:event_due, event}, t)
+      {{:ms, t}, event} -> Process.send_after(self(), {:event_due, event}, max(t - elapsed_ms, 0))
       _ -> :ok
     end)
 

@@ -59,11 +59,12 @@ defmodule TartarusWarehouse.FloorTest do
     hosts_before = length(Tartarus.hosts())
     long = [%{id: 1, tasks: [%{name: "T1", resources: [:a], duration_ms: 400_000}]}]
     caller = spawn(fn -> Floor.run(robots: 2, jobs: long, scale: 0.01) end)
-    floor = poll(fn -> Enum.find(floors(), &(&1 != nil)) end)
+    eventually(fn -> floors() != [] end)
+    [floor] = floors()
     ref = Process.monitor(floor)
     Process.exit(caller, :kill)
     assert_receive {:DOWN, ^ref, :process, ^floor, _}, 10_000
-    assert length(Tartarus.hosts()) == hosts_before
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
   end
 
   # The floors running now (GenServers of this module).
@@ -74,14 +75,6 @@ defmodule TartarusWarehouse.FloorTest do
           Process.info(pid, :dictionary) |> elem(1) |> Keyword.get(:"$initial_call")
         ),
         do: pid
-  end
-
-  defp poll(fun, deadline \\ System.monotonic_time(:millisecond) + 10_000) do
-    cond do
-      v = fun.() -> v
-      System.monotonic_time(:millisecond) > deadline -> flunk("never happened")
-      true -> Process.sleep(20) && poll(fun, deadline)
-    end
   end
 
   test "the centralized baseline runs the same jobs with no migration" do

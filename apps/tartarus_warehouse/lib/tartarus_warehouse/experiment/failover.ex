@@ -7,10 +7,8 @@ defmodule TartarusWarehouse.Experiment.Failover do
   persistence, for contrast (not counted in `jobs`, `completed_jobs`, `deadlocks`,
   `tasks`).
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
@@ -66,9 +64,6 @@ defmodule TartarusWarehouse.Experiment.Failover do
   end
 
   @impl Experiment
-  def charts(_state), do: []
-
-  @impl Experiment
   def summary(base, state) do
     kept = Enum.filter(state.runs, &(&1.kind == :variable))
     lost = Enum.find(state.runs, &(&1.kind == :no_persistence))
@@ -96,9 +91,6 @@ defmodule TartarusWarehouse.Experiment.Failover do
       tasks: kept |> Enum.map(&length(&1.history)) |> Enum.sum()
     })
   end
-
-  @impl Experiment
-  def comparisons(_state), do: []
 
   @impl Experiment
   def gantt(%{kind: :variable, run_seed: seed}, _state),

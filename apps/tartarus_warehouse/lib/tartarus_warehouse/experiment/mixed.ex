@@ -4,17 +4,12 @@ defmodule TartarusWarehouse.Experiment.Mixed do
   robots, jobs 1 and 6 purely sequential, jobs 2-5 two independent sequences each: the
   jobs whose two sequences ran at once.
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
   def kinds, do: [:variable]
-
-  @impl Experiment
-  def points(_p), do: [1]
 
   @impl Experiment
   def runs(_point, state) do
@@ -33,13 +28,6 @@ defmodule TartarusWarehouse.Experiment.Mixed do
        ], %{}}
     ]
   end
-
-  @impl Experiment
-  def record(_point, %{runs: [r]} = state),
-    do: Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
-
-  @impl Experiment
-  def charts(_state), do: []
 
   @impl Experiment
   def summary(base, %{runs: [r]}) do
@@ -62,9 +50,6 @@ defmodule TartarusWarehouse.Experiment.Mixed do
   end
 
   defp overlaps?({a0, a1}, {b0, b1}), do: a0 < b1 and b0 < a1
-
-  @impl Experiment
-  def comparisons(_state), do: []
 
   @impl Experiment
   def gantt(%{kind: :variable}, _state),

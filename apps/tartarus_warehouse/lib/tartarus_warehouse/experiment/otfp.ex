@@ -7,17 +7,12 @@ defmodule TartarusWarehouse.Experiment.Otfp do
   6 jobs completed: 1, 1 and 3 tasks) and deleted (3 tasks after 9 jobs): the tasks and
   the time per task of each job (Fig. 4.5).
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
   def kinds, do: [:variable, :stream]
-
-  @impl Experiment
-  def points(_p), do: [1]
 
   @impl Experiment
   def runs(_point, state) do
@@ -120,9 +115,6 @@ defmodule TartarusWarehouse.Experiment.Otfp do
       ms_per_task: Experiment.by(state, :ms_per_task)
     })
   end
-
-  @impl Experiment
-  def comparisons(_state), do: []
 
   @impl Experiment
   def gantt(%{kind: :variable}, _state),

@@ -4,17 +4,12 @@ defmodule TartarusWarehouse.Experiment.Removal do
   robots; robot r2's battery runs low once 2 jobs completed (it finishes its job and
   leaves), and a fourth robot joins once 4 jobs completed: the jobs each robot ran.
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
   def kinds, do: [:variable]
-
-  @impl Experiment
-  def points(_p), do: [1]
 
   @impl Experiment
   def runs(_point, state) do
@@ -37,13 +32,6 @@ defmodule TartarusWarehouse.Experiment.Removal do
   end
 
   @impl Experiment
-  def record(_point, %{runs: [r]} = state),
-    do: Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
-
-  @impl Experiment
-  def charts(_state), do: []
-
-  @impl Experiment
   def summary(base, %{runs: [r]}) do
     jobs_of = fn robot ->
       r.history
@@ -61,9 +49,6 @@ defmodule TartarusWarehouse.Experiment.Removal do
       mean_busy_robots: r.occupancy.mean
     })
   end
-
-  @impl Experiment
-  def comparisons(_state), do: []
 
   @impl Experiment
   def gantt(%{kind: :variable}, _state),

@@ -7,10 +7,8 @@ defmodule TartarusWarehouse.Experiment.Robots do
   makespans, the mean busy robots; compared with the thesis's speed-ups (1.75, 1.84, 2.21
   on 2, 3, 4 robots).
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @thesis_speedup %{2 => 1.75, 3 => 1.84, 4 => 2.21}

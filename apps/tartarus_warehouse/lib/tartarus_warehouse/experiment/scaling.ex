@@ -9,10 +9,8 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   last point also runs 20 jobs of 5 soft tasks in 20 independent pipelines on that many
   robots, agents guided (`big_run` in the summary).
   """
-  @behaviour TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment
 
-  alias TartarusTools.Series
-  alias TartarusWarehouse.Experiment
   alias TartarusWarehouse.Experiment.Jobs
 
   @impl Experiment
@@ -178,9 +176,6 @@ defmodule TartarusWarehouse.Experiment.Scaling do
     sxx = Enum.sum(for {x, _} <- xy, do: (x - mx) * (x - mx))
     Float.round(sxy / sxx, 4)
   end
-
-  @impl Experiment
-  def comparisons(_state), do: []
 
   @impl Experiment
   def gantt(%{kind: :agents, point: n}, %{points: [n | _]}),
