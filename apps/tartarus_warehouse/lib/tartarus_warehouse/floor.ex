@@ -261,7 +261,7 @@ defmodule TartarusWarehouse.Floor do
   # A change, from change/2 or the batch's events, applied and kept with its result.
   defp apply_change(event, st) do
     {result, st} =
-      guarded(st, "change #{inspect(event, limit: 5)}", fn st ->
+      guarded(st, {"change", event}, fn st ->
         {Changes.apply_change(event, st.ctx), st}
       end)
 
@@ -287,7 +287,7 @@ defmodule TartarusWarehouse.Floor do
   end
 
   def handle_call({:submit, job}, _from, st) do
-    {reply, st} = guarded(st, "submit #{inspect(job, limit: 5)}", &do_submit(job, &1))
+    {reply, st} = guarded(st, {"submit", job}, &do_submit(job, &1))
     {:reply, reply, st}
   end
 
@@ -476,12 +476,15 @@ defmodule TartarusWarehouse.Floor do
 
   # An exception while the floor handles a request is the caller's answer, `{:error,
   # message}`, and is kept in status/1's `errors`; the floor goes on, unchanged.
-  defp guarded(st, what, fun) do
+  # `what` is `{verb, term}`, inspected only for the message: a change fired at its time
+  # pays nothing for it.
+  defp guarded(st, {verb, term}, fun) do
     fun.(st)
   catch
     kind, reason ->
       message =
-        "the floor could not #{what}: " <> Exception.format_banner(kind, reason, __STACKTRACE__)
+        "the floor could not #{verb} #{inspect(term, limit: 5)}: " <>
+          Exception.format_banner(kind, reason, __STACKTRACE__)
 
       {{:error, message}, %{st | errors: [message | st.errors]}}
   end
