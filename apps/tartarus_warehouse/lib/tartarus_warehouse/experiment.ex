@@ -441,6 +441,22 @@ defmodule TartarusWarehouse.Experiment do
        entries |> Enum.map(& &1.stop_us) |> Enum.max()}
 
   @doc """
+  The options every floor of an experiment shares: the run's `scale`, `seed`, `mode` and
+  `timeout_ms`.
+
+      iex> TartarusWarehouse.Experiment.floor(%{seed: 3, p: %{scale: 0.01, mode: :virtual, timeout_ms: 9}})
+      [scale: 0.01, seed: 3, mode: :virtual, timeout_ms: 9]
+  """
+  @spec floor(state()) :: keyword()
+  def floor(state),
+    do: [
+      scale: state.p.scale,
+      seed: state.seed,
+      mode: state.p.mode,
+      timeout_ms: state.p.timeout_ms
+    ]
+
+  @doc """
   The time scale applied to a time of the thesis's scale 0.01: `ms * scale / 0.01`,
   rounded (the experiments' event times are written at the default scale).
 

@@ -13,20 +13,8 @@ defmodule TartarusWarehouse.Experiment.Mixed do
 
   @impl Experiment
   def runs(_point, state) do
-    p = state.p
-
-    [
-      {:variable,
-       [
-         robots: 4,
-         jobs: Jobs.mixed_jobs(6, 2000),
-         scale: p.scale,
-         jitter: p.jitter,
-         seed: state.seed,
-         mode: p.mode,
-         timeout_ms: p.timeout_ms
-       ], %{}}
-    ]
+    opts = [robots: 4, jobs: Jobs.mixed_jobs(6, 2000), jitter: state.p.jitter]
+    [{:variable, Experiment.floor(state) ++ opts, %{}}]
   end
 
   @impl Experiment

@@ -25,7 +25,7 @@ defmodule TartarusWarehouse.Experiment.Otfp do
       %{name: "X#{i}", resources: [{:extra, i}], program: detour, duration_ms: 2000}
     end
 
-    floor = [scale: p.scale, seed: state.seed, mode: p.mode, timeout_ms: p.timeout_ms]
+    floor = Experiment.floor(state)
 
     [
       {:variable,

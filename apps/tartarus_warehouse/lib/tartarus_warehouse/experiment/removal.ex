@@ -13,22 +13,15 @@ defmodule TartarusWarehouse.Experiment.Removal do
 
   @impl Experiment
   def runs(_point, state) do
-    p = state.p
-
-    [
-      {:variable,
-       [
-         robots: 4,
-         standby: [4],
-         jobs: Jobs.thesis_jobs(8, 2000),
-         scale: p.scale,
-         jitter: p.jitter,
-         seed: state.seed,
-         mode: p.mode,
-         timeout_ms: p.timeout_ms,
-         events: [{2, {:retire, 2}}, {4, {:join, 4}}]
-       ], %{}}
+    opts = [
+      robots: 4,
+      standby: [4],
+      jobs: Jobs.thesis_jobs(8, 2000),
+      jitter: state.p.jitter,
+      events: [{2, {:retire, 2}}, {4, {:join, 4}}]
     ]
+
+    [{:variable, Experiment.floor(state) ++ opts, %{}}]
   end
 
   @impl Experiment

@@ -23,7 +23,7 @@ defmodule TartarusWarehouse.Experiment.Robots do
   def runs(k, state) do
     p = state.p
     paces = Enum.map(1..k, &(1.0 + 0.1 * rem(&1 * 7, 5)))
-    floor = [robots: k, scale: p.scale, seed: state.seed, mode: p.mode, timeout_ms: p.timeout_ms]
+    floor = [robots: k] ++ Experiment.floor(state)
 
     [
       {:variable, floor ++ [jobs: Jobs.thesis_jobs(p.jobs, 2000), jitter: p.jitter, paces: paces],

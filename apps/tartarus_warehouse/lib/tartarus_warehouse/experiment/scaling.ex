@@ -169,9 +169,8 @@ defmodule TartarusWarehouse.Experiment.Scaling do
 
   def slope(points) do
     xy = for {n, y} <- points, do: {String.to_integer(n) * 1.0, y * 1.0}
-    k = length(xy)
-    mx = Enum.sum(Enum.map(xy, &elem(&1, 0))) / k
-    my = Enum.sum(Enum.map(xy, &elem(&1, 1))) / k
+    mx = TartarusTools.Stats.mean(Enum.map(xy, &elem(&1, 0)))
+    my = TartarusTools.Stats.mean(Enum.map(xy, &elem(&1, 1)))
     sxy = Enum.sum(for {x, y} <- xy, do: (x - mx) * (y - my))
     sxx = Enum.sum(for {x, _} <- xy, do: (x - mx) * (x - mx))
     Float.round(sxy / sxx, 4)
