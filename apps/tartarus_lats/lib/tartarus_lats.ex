@@ -18,7 +18,10 @@ defmodule TartarusLats do
     * `TartarusLats.Deployment` - a building (a `TartarusEmu.Topology`) brought
       to life by `TartarusEmu.Network` with LATS's per-node setup hook, driven
       one world second at a time; `TartarusLats.Experiment` - the thesis's
-      comparison as a `TartarusEmu.Scenario` (`mix tartarus.lats`), reported by
+      comparison as a `TartarusEmu.Scenario` (`mix tartarus.lats`; its queries in
+      `TartarusLats.Experiment.Queries`, its summary in
+      `TartarusLats.Experiment.Summary`), judged by `TartarusLats.Judge` (is an
+      answer true of the bearer in the lag window) and reported by
       `TartarusLats.Report`.
 
   ## Asking from iex

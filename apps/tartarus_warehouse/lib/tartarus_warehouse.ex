@@ -16,10 +16,10 @@ defmodule TartarusWarehouse do
   | `TartarusWarehouse.Robot` | the robot plugin: state, reach, program execution, history |
   | `TartarusWarehouse.Program` | task programs (shipped as code) |
   | `TartarusWarehouse.Central` | the centralized baseline (§4.7.2) |
-  | `TartarusWarehouse.Floor` | a floor on the emulator: `run/1` (a batch), `start/1` (a floor you drive from iex) |
+  | `TartarusWarehouse.Floor` | a floor on the emulator, one process: `start/1` (a floor you drive from iex), `run/1` (a batch: start, submit, await, stop) |
   | `TartarusWarehouse.Panel` | the warehouse on the web dashboard |
   | `TartarusWarehouse.Checker` | Eq. 4.1 (mutual exclusion), completion, Eq. 4.2 (occupancy) over the history |
-  | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` |
+  | `TartarusWarehouse.Experiment` | the experiments of `mix tartarus.warehouse` (one module each, `TartarusWarehouse.Experiment.Robots`, ...; `experiments/0` is the registry) |
   """
 
   @doc """

@@ -36,7 +36,7 @@ defmodule TartarusLats.Experiment do
   seconds late and an exit is decided by a 15 s handshake timeout, so one
   rule judges settled and moving targets alike: an answer is correct when
   it is true of the bearer at some second of the 15 s before its
-  release (`correct?/4` spells it out per answer). For a settled target
+  release (`TartarusLats.Judge.correct?/4` spells it out per answer). For a settled target
   that is exact equality with the truth at release. The summary reports
   `correct_settled` and `correct_moving` (shares of the queries whose target
   was, or was not, settled at release), for both designs. Entry/exit times
@@ -55,11 +55,7 @@ defmodule TartarusLats.Experiment do
   @behaviour TartarusEmu.Scenario
 
   alias TartarusLats.{Building, Cloud, Deployment, World}
-  alias TartarusTools.Stats
-
-  @settle_inside 20
-  @settle_outside 30
-  @warmup 120
+  alias TartarusLats.Experiment.{Queries, Summary}
 
   @schema [
     nodes: [type: :pos_integer, default: 50, doc: "building nodes (at least 10)"],
@@ -243,7 +239,7 @@ defmodule TartarusLats.Experiment do
      %{
        dep: dep,
        rng: :rand.seed_s(:exsss, opts.seed * 7919 + 11),
-       schedule: schedule(opts.queries, duration, opts.release, opts.seed),
+       schedule: Queries.schedule(opts.queries, duration, opts.release, opts.seed),
        faults: faults(opts.kill_nodes, opts.down_s, building, duration, opts.seed),
        kills: 0,
        data_dir: data_dir,
@@ -300,7 +296,7 @@ defmodule TartarusLats.Experiment do
         nodes_down_at_end: MapSet.size(state.dep.down)
       })
 
-    summarize(Enum.reverse(state.results), Cloud.stats(state.dep.cloud), state.dep, meta)
+    Summary.summarize(Enum.reverse(state.results), Cloud.stats(state.dep.cloud), state.dep, meta)
   end
 
   @impl TartarusEmu.Scenario
@@ -368,33 +364,6 @@ defmodule TartarusLats.Experiment do
     end
   end
 
-  # Query instants: %{second => [type]}. Settled release: evenly spread after the warm-up
-  # (each batch then waits for a settled target). Random release: each batch at a world
-  # second drawn uniformly after the warm-up, from the seed.
-  defp schedule(n, duration, release, seed) do
-    instants = max(1, div(n + 2, 3))
-    span = max(duration - @warmup, 1)
-    rng = :rand.seed_s(:exsss, {seed, 3301, 17})
-
-    {acc, _rng} =
-      Enum.reduce(0..(instants - 1), {%{}, rng}, fn k, {acc, rng} ->
-        {t, rng} =
-          case release do
-            :settled ->
-              {min(duration, @warmup + div(k * span, instants)), rng}
-
-            :random ->
-              {x, rng} = :rand.uniform_s(span, rng)
-              {min(duration, @warmup + x), rng}
-          end
-
-        types = Enum.take([:trace, :where_is, :where_am_i], min(3, n - 3 * k))
-        {Map.update(acc, t, types, &(&1 ++ types)), rng}
-      end)
-
-    acc
-  end
-
   # -- node kills ------------------------------------------------------------------
 
   # %{second => [{:kill | :revive, node}]}: k kills at seconds drawn after the warm-up (a
@@ -404,14 +373,14 @@ defmodule TartarusLats.Experiment do
   defp faults(k, down, building, duration, seed) do
     nodes = Building.nodes(building)
     rng = :rand.seed_s(:exsss, {seed, 4409, 23})
-    span = max(duration - @warmup - down, 1)
+    span = max(duration - Queries.warmup() - down, 1)
 
     {acc, _} =
       Enum.reduce(1..k, {%{}, rng}, fn _, {acc, rng} ->
         {x, rng} = :rand.uniform_s(span, rng)
         {i, rng} = :rand.uniform_s(length(nodes), rng)
         node = Enum.at(nodes, i - 1)
-        t = @warmup + x
+        t = Queries.warmup() + x
 
         acc =
           acc
@@ -447,265 +416,15 @@ defmodule TartarusLats.Experiment do
 
     {batch, waiting, rng, k} =
       Enum.reduce(acc.pending, {[], [], acc.rng, acc.k}, fn type, {batch, waiting, rng, k} ->
-        case pick(type, world, acc.dep, rng, k, acc.release) do
+        case Queries.pick(type, world, acc.dep, rng, k, acc.release) do
           {nil, rng} -> {batch, waiting ++ [type], rng, k}
           {q, rng} -> {batch ++ [q], waiting, rng, k + 1}
         end
       end)
 
-    results = run_batch(batch, acc.dep, String.to_existing_atom(acc.meta.agent_cloud))
+    results = Queries.ask(batch, acc.dep, String.to_existing_atom(acc.meta.agent_cloud))
     %{acc | pending: waiting, rng: rng, k: k, results: Enum.reverse(results) ++ acc.results}
   end
-
-  defp settled?(world, name) do
-    case World.visited_path(world, name) do
-      [] ->
-        false
-
-      path ->
-        last = List.last(path)
-        t = world.time
-
-        if last.left_at == nil,
-          do: t - last.entered_at >= @settle_inside,
-          else: t - last.left_at >= @settle_outside
-    end
-  end
-
-  defp inside?(world, name), do: World.current_zone(world, name) != :outside
-
-  # A bearer a query may be about: settled (settled release), or one who has come into the
-  # building at some time (random release: moving or not).
-  defp eligible?(world, name, :settled), do: settled?(world, name)
-  defp eligible?(world, name, :random), do: World.visited_path(world, name) != []
-
-  defp pick(type, world, dep, rng, k, release) do
-    names = World.names(world)
-    scripted = Enum.filter(names, &(Map.fetch!(world.bearers, &1).kind == :scripted))
-    # Queries are asked from nodes that are up.
-    nodes = Deployment.live_nodes(dep)
-
-    candidates =
-      case type do
-        :trace ->
-          # Rotate over the scripted bearers (Fig. 3.9), starting with the k-th.
-          rot = rotate(scripted, div(k, 3))
-          rot |> Enum.filter(&eligible?(world, &1, release)) |> Enum.take(1)
-
-        :where_is ->
-          Enum.filter(names, &eligible?(world, &1, release))
-
-        :where_am_i ->
-          Enum.filter(names, &(eligible?(world, &1, release) and inside?(world, &1)))
-      end
-
-    case candidates do
-      [] ->
-        {nil, rng}
-
-      _ ->
-        {i, rng} = :rand.uniform_s(length(candidates), rng)
-        name = Enum.at(candidates, i - 1)
-
-        {start, rng} =
-          case type do
-            :where_am_i ->
-              ns = Building.neighbours(world.building, World.current_zone(world, name))
-              ns = Enum.filter(ns, &(&1 in nodes))
-              if ns == [], do: {nil, rng}, else: pick_one(ns, rng)
-
-            _ ->
-              pick_one(nodes, rng)
-          end
-
-        if start, do: {query(k, type, name, start, world, dep), rng}, else: {nil, rng}
-    end
-  end
-
-  defp pick_one(list, rng) do
-    {j, rng} = :rand.uniform_s(length(list), rng)
-    {Enum.at(list, j - 1), rng}
-  end
-
-  defp query(k, type, name, start, world, dep) do
-    %{
-      id: k + 1,
-      type: type,
-      person: name,
-      tag: World.tag(world, name),
-      start: start,
-      host: dep.hosts[start],
-      time: world.time,
-      settled: settled?(world, name),
-      path: World.visited_path(world, name),
-      truth: truth(type, world, name)
-    }
-  end
-
-  defp rotate([], _n), do: []
-
-  defp rotate(list, n) do
-    n = rem(n, length(list))
-    Enum.drop(list, n) ++ Enum.take(list, n)
-  end
-
-  defp truth(:trace, world, name) do
-    path = World.visited_path(world, name)
-
-    %{
-      zones: Enum.map(path, & &1.zone),
-      path: path,
-      status: if(inside?(world, name), do: :present, else: :exited)
-    }
-  end
-
-  defp truth(_type, world, name) do
-    case World.current_zone(world, name) do
-      :outside -> :left_building
-      zone -> {:in_zone, zone}
-    end
-  end
-
-  # Releases the batch's agents together, then asks the cloud the same questions.
-  defp run_batch([], _dep, _rule), do: []
-
-  defp run_batch(batch, dep, rule) do
-    released =
-      Enum.map(batch, fn q ->
-        t0 = System.monotonic_time(:microsecond)
-
-        {:ok, id} =
-          TartarusLats.release(q.host, q.type, q.tag,
-            label: "#{q.type}(#{q.person})#{q.id}",
-            seed: {:lats_query, q.id, q.time},
-            cloud: rule
-          )
-
-        {q, id, t0}
-      end)
-
-    # Latency on this VM's clock: from the release to the result's arrival here (the agent
-    # starts and ends on different nodes, whose clocks are not this one's in peer mode).
-    arrived = collect(Map.new(released, fn {_q, id, _t0} -> {id, nil} end), 120_000)
-
-    Enum.map(released, fn {q, id, t0} ->
-      {r, at} = Map.fetch!(arrived, id)
-      central = Cloud.query(dep.cloud, q.type, q.start, q.tag)
-
-      Map.merge(q, %{
-        answer: r.answer,
-        hops: r.hops,
-        ms: (at - t0) / 1000,
-        route: r.route,
-        answered_at: r.answered_at,
-        per_node_contacts: r.per_node_contacts,
-        freshness: r.freshness,
-        evidence_age_s: r.evidence_at && r.asked_at - r.evidence_at,
-        complete: r.complete,
-        unreachable: r.unreachable,
-        per_query_contacts: r.per_query_contacts,
-        central: central,
-        correct: correct?(q.type, r.answer, q.path, q.time),
-        correct_centralized: correct?(q.type, central, q.path, q.time),
-        time_error: time_error(q.type, r.answer, q.truth)
-      })
-    end)
-  end
-
-  # Results of the released agents in the order they arrive, each with its arrival time.
-  defp collect(pending, timeout) do
-    if Enum.all?(pending, fn {_id, v} -> v != nil end) do
-      pending
-    else
-      receive do
-        {:tartarus_result, id, result} when is_map_key(pending, id) ->
-          collect(Map.put(pending, id, {result, System.monotonic_time(:microsecond)}), timeout)
-
-        {:tartarus_removed, id, reason} when is_map_key(pending, id) ->
-          raise "LATS query agent #{id} was removed: #{inspect(reason)}"
-      after
-        timeout -> raise "LATS query agents did not answer within #{timeout} ms"
-      end
-    end
-  end
-
-  @lag 15
-
-  @doc """
-  Whether an answer to a query released at world second `t` is correct, given the
-  bearer's ground-truth path (`TartarusLats.World.visited_path/2` at `t`). One definition
-  for settled and moving targets: the answer must be true of the bearer at some second of
-  the **lag window** `[t - #{@lag}, t]` (#{@lag} s: the motion vectors' handshake timeout,
-  which bounds how late the trackers see a move or an exit):
-
-    * `{:in_zone, z}` - the bearer was in `z` at some second of the window;
-    * `:left_building` - the bearer was outside, after having been inside, at some second
-      of the window;
-    * `{:in_transit, z}` - the bearer was in `z` in the window and is not in `z` at `t`
-      (it left `z` and the next zone has not been confirmed yet);
-    * Trace `{:ok, %{path: p, status: s}}` - at some second `u` of the window, `p`'s zones
-      are exactly the zones the bearer had entered by `u` (pass-through zones included)
-      and `s` is `:present` if the bearer was inside at `u`, `:exited` if outside; an
-      `:in_transit` status is right when, at `u`, the bearer had left the last zone of `p`.
-
-  Anything else (`:not_found`, a wrong zone, a stale answer about an earlier place) is
-  wrong. For a settled target (in its zone for 20 s, or out for 30 s) the window holds a
-  single truth, so this is exact equality with the truth at `t`.
-
-      iex> path = [%{zone: :p1, entered_at: 10, left_at: 50}, %{zone: :p2, entered_at: 50, left_at: nil}]
-      iex> TartarusLats.Experiment.correct?(:where_is, {:in_zone, :p1}, path, 60)
-      true
-      iex> TartarusLats.Experiment.correct?(:where_is, {:in_zone, :p1}, path, 80)
-      false
-      iex> TartarusLats.Experiment.correct?(:where_is, {:in_transit, :p1}, path, 60)
-      true
-  """
-  @spec correct?(atom(), term(), [World.stay()], number()) :: boolean()
-  def correct?(type, answer, path, t) do
-    Enum.any?(max(t - @lag, 0)..t, &true_at?(type, answer, path, &1, t))
-  end
-
-  @doc "The lag window of `correct?/4`, in world seconds."
-  @spec lag_window() :: pos_integer()
-  def lag_window, do: @lag
-
-  defp true_at?(:trace, {:ok, %{path: p, status: status}}, path, u, _t) do
-    entered = Enum.filter(path, &(&1.entered_at <= u))
-
-    Enum.map(p, & &1.node) == Enum.map(entered, & &1.zone) and entered != [] and
-      case status do
-        :present -> zone_at(path, u) not in [:outside, :not_entered]
-        :exited -> zone_at(path, u) == :outside
-        :in_transit -> List.last(entered).left_at != nil and List.last(entered).left_at <= u
-        _ -> false
-      end
-  end
-
-  defp true_at?(:trace, _answer, _path, _u, _t), do: false
-  defp true_at?(_type, {:in_zone, z}, path, u, _t), do: zone_at(path, u) == z
-  defp true_at?(_type, :left_building, path, u, _t), do: zone_at(path, u) == :outside
-
-  defp true_at?(_type, {:in_transit, z}, path, u, t),
-    do: zone_at(path, u) == z and zone_at(path, t) != z
-
-  defp true_at?(_type, _answer, _path, _u, _t), do: false
-
-  # Where the bearer was at second u: a zone, :outside (after having been inside), or
-  # :not_entered.
-  defp zone_at(path, u) do
-    case Enum.find(path, &(&1.entered_at <= u and (&1.left_at == nil or u < &1.left_at))) do
-      %{zone: z} -> z
-      nil -> if Enum.any?(path, &(&1.entered_at <= u)), do: :outside, else: :not_entered
-    end
-  end
-
-  defp time_error(:trace, {:ok, %{path: path}}, %{path: truth})
-       when length(path) == length(truth) do
-    errors = Enum.zip_with(path, truth, fn p, t -> abs(p.arrived_at - t.entered_at) end)
-    Stats.median(errors)
-  end
-
-  defp time_error(_type, _answer, _truth), do: nil
 
   # -- RSSI (Fig. 3.6/3.7) ----------------------------------------------------------
 
@@ -732,69 +451,4 @@ defmodule TartarusLats.Experiment do
 
     %{acc | rssi: [{acc.dep.time, row} | acc.rssi]}
   end
-
-  # -- summary -------------------------------------------------------------------------
-
-  defp summarize(results, stats, dep, meta) do
-    hops = results |> Enum.map(& &1.hops) |> Enum.sort()
-    ms = results |> Enum.map(& &1.ms) |> Enum.sort()
-    c = stats.connections.centralized
-    a = stats.connections.agents
-
-    by_type =
-      results
-      |> Enum.group_by(& &1.type)
-      |> Map.new(fn {type, rs} ->
-        {to_string(type),
-         %{
-           queries: length(rs),
-           correct: Enum.count(rs, & &1.correct),
-           median_hops: Stats.median(Enum.map(rs, & &1.hops))
-         }}
-      end)
-
-    {settled, moving} = Enum.split_with(results, & &1.settled)
-
-    Map.merge(meta, %{
-      queries: length(results),
-      correct: Enum.count(results, & &1.correct),
-      # Correctness (see correct?/4) by whether the target was settled at release.
-      queries_settled: length(settled),
-      queries_moving: length(moving),
-      correct_settled: share(settled, & &1.correct),
-      correct_moving: share(moving, & &1.correct),
-      correct_settled_centralized: share(settled, & &1.correct_centralized),
-      correct_moving_centralized: share(moving, & &1.correct_centralized),
-      correct_centralized: Enum.count(results, & &1.correct_centralized),
-      cloud_connections_centralized: c,
-      cloud_connections_agents: a,
-      cloud_connection_ratio: if(c > 0, do: Float.round(a / c, 4), else: nil),
-      # What the agents' design costs under each rule (the run applied `agent_cloud`).
-      cloud_connections_agents_per_node: Enum.sum(Enum.map(results, & &1.per_node_contacts)),
-      cloud_connections_agents_per_query: Enum.sum(Enum.map(results, & &1.per_query_contacts)),
-      answers_stale: Enum.count(results, &(&1.freshness == :stale)),
-      answers_incomplete: Enum.count(results, &(not &1.complete)),
-      # Answers that said they were complete and were wrong: what a user would trust.
-      answers_complete_wrong: Enum.count(results, &(&1.complete and not &1.correct)),
-      # Answers that name nodes they could not reach (a killed node, a cut link).
-      answers_partial: Enum.count(results, &(&1.unreachable != [])),
-      cloud_bytes_centralized: stats.bytes.centralized,
-      cloud_bytes_agents: stats.bytes.agents,
-      median_query_hops: Stats.median(hops),
-      max_query_hops: List.last(hops),
-      median_query_ms: Stats.median(ms) && Float.round(Stats.median(ms) * 1.0, 3),
-      trace_time_error_s:
-        Stats.median(Enum.reject(Enum.map(results, & &1.time_error), &is_nil/1)),
-      by_type: by_type,
-      world_seconds: dep.time,
-      input: if(dep.replay, do: "replay", else: "simulated"),
-      replay_records: dep.input.records,
-      replay_bad_records: dep.input.bad_records,
-      replay_garbage_bytes: dep.input.garbage_bytes
-    })
-  end
-
-  # The share of `list` for which `fun` holds (4 decimals), nil for an empty list.
-  defp share([], _fun), do: nil
-  defp share(list, fun), do: Float.round(Enum.count(list, fun) / length(list), 4)
 end

@@ -5,7 +5,7 @@ defmodule TartarusLats.Report do
   series (see `TartarusEmu.Scenario`):
 
     * `queries.csv` - every query: type, person, start node, world time, whether the
-      target was settled then (`TartarusLats.Experiment.correct?/4`), answer
+      target was settled then (`TartarusLats.Judge.correct?/4`), answer
       (with its freshness, the age of its evidence, whether it is complete and the
       nodes it could not reach),
       truth, correct (agents, centralized), hops, ms, route;

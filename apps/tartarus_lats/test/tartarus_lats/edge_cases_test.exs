@@ -59,7 +59,7 @@ defmodule TartarusLats.EdgeCasesTest do
             for start <- nodes,
                 t > 5,
                 answer = Query.where_is(sim.tables, start, tag),
-                not Experiment.correct?(:where_is, answer, path, t),
+                not TartarusLats.Judge.correct?(:where_is, answer, path, t),
                 into: wrong,
                 do: {t, start, answer, World.current_zone(sim.world, :x)}
 

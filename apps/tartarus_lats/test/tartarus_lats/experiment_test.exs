@@ -1,6 +1,7 @@
 defmodule TartarusLats.ExperimentTest do
   use ExUnit.Case, async: false
   doctest TartarusLats.Experiment
+  doctest TartarusLats.Experiment.Queries
 
   @tag timeout: 120_000
   @tag :tmp_dir

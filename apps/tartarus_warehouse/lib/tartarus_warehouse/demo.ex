@@ -9,7 +9,7 @@ defmodule TartarusWarehouse.Demo do
 
   @impl true
   def run(opts) do
-    jobs = TartarusWarehouse.Experiment.thesis_jobs(8, 2000)
+    jobs = TartarusWarehouse.Experiment.Jobs.thesis_jobs(8, 2000)
 
     runs =
       for k <- [1, 4] do

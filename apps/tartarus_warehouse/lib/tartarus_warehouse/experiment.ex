@@ -30,17 +30,117 @@ defmodule TartarusWarehouse.Experiment do
       journal, for three seeds (seed, seed + 1, seed + 2): jobs lost, jobs duplicated (a
       task run twice), violations; and once without persistence, for contrast.
 
+  Each experiment is a module (`TartarusWarehouse.Experiment.Robots`, `...Scaling`,
+  `...Otfp`, `...Removal`, `...Mixed`, `...Failover`) that declares its points and the
+  floors each point runs, and reads its series, charts and summary keys from the runs;
+  `experiments/0` is the registry `mix tartarus.warehouse` reads. This module runs them
+  (`TartarusWarehouse.Floor.run/1` on each declared floor) and is the scenario.
+
   Every run's mutual-exclusion violations (Eq. 4.1) and incomplete jobs are counted in
   the summary (`mutex_violations`, `deadlocks`: jobs not completed within `timeout_ms`).
   """
   @behaviour TartarusEmu.Scenario
 
-  alias TartarusTools.{Report, Series, SVG}
+  alias TartarusTools.{Report, Series}
   alias TartarusWarehouse.{Checker, Floor}
+  alias TartarusWarehouse.Experiment.{Failover, Mixed, Otfp, Output, Removal, Robots, Scaling}
+
+  @typedoc """
+  What an experiment's callbacks see: `p` (the options, a map), `seed`, `points`, `runs`
+  (every floor run so far, in order: `TartarusWarehouse.Floor.run/1`'s result with
+  `violations`, `completed_jobs`, `occupancy`, and the run's `kind`, `point`, `specs`
+  and whatever its declaration added), `series`.
+  """
+  @type state :: map()
+
+  @typedoc """
+  A floor to run: its kind (how the experiment names it: `:variable`, `:equal`,
+  `:agents`, ...), the options of `TartarusWarehouse.Floor.run/1`, and keys to add to its
+  run (e.g. `run_seed`).
+  """
+  @type floor_run :: {atom(), keyword(), map()}
+
+  @doc "The points of the experiment (one scenario step each), from the options."
+  @callback points(p :: map()) :: [term()]
+
+  @doc "The floors point `point` runs, in order."
+  @callback runs(point :: term(), state()) :: [floor_run()]
+
+  @doc "The series after point `point` ran (its runs are in `state.runs`)."
+  @callback record(point :: term(), state()) :: Series.t()
+
+  @doc "The charts of the series (see `c:TartarusEmu.Scenario.charts/1`)."
+  @callback charts(state()) :: [map()]
+
+  @doc "The experiment's summary keys, merged over the keys every experiment has (`base`)."
+  @callback summary(base :: map(), state()) :: map()
+
+  @doc "The comparisons with the thesis (see `c:TartarusEmu.Scenario.comparisons/1`)."
+  @callback comparisons(state()) :: [map()]
+
+  @doc "For a run to draw as a Gantt chart: `{what, file}`; nil for none."
+  @callback gantt(run :: map(), state()) :: {String.t(), String.t()} | nil
+
+  @doc "The lines `mix tartarus.warehouse` prints for the summary."
+  @callback text(summary :: map()) :: String.t()
+
+  @doc "The kinds of floor the experiment runs (each one's makespan is a sweep metric)."
+  @callback kinds() :: [atom()]
+
+  @doc """
+  The experiment's sweep, when its arms are not its points on the run's seed: `arms`
+  (`[{name, opts}]`), `seeds`, and `point`, a function of an arm's opts and a seed that
+  gives the point to run.
+  """
+  @callback sweep(state()) :: %{
+              arms: [{String.t(), term()}],
+              seeds: [integer()],
+              point: (term(), integer() -> term())
+            }
+
+  @optional_callbacks sweep: 1
+
+  @doc """
+  Makes a module an experiment (`@behaviour TartarusWarehouse.Experiment`) with defaults
+  it may override: one point (`[1]`), no charts, no comparisons, and for its one floor the
+  series `mean_busy_robots` (Eq. 4.2).
+  """
+  defmacro __using__(_opts) do
+    quote do
+      @behaviour TartarusWarehouse.Experiment
+
+      alias TartarusTools.Series
+      alias TartarusWarehouse.Experiment
+
+      @impl Experiment
+      def points(_p), do: [1]
+
+      @impl Experiment
+      def charts(_state), do: []
+
+      @impl Experiment
+      def comparisons(_state), do: []
+
+      @impl Experiment
+      def record(_point, %{runs: [r]} = state),
+        do: Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
+
+      defoverridable points: 1, charts: 1, comparisons: 1, record: 2
+    end
+  end
+
+  @experiments [
+    robots: Robots,
+    scaling: Scaling,
+    otfp: Otfp,
+    removal: Removal,
+    mixed: Mixed,
+    failover: Failover
+  ]
 
   @schema [
     experiment: [
-      type: {:in, [:robots, :scaling, :otfp, :removal, :mixed, :failover]},
+      type: {:in, Keyword.keys(@experiments)},
       default: :robots,
       doc: "which experiment"
     ],
@@ -86,7 +186,24 @@ defmodule TartarusWarehouse.Experiment do
     timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
   ]
 
-  @thesis_speedup %{2 => 1.75, 3 => 1.84, 4 => 2.21}
+  @doc """
+  The registry: every experiment's name and module, in the order `mix tartarus.warehouse`
+  lists them.
+
+      iex> Keyword.keys(TartarusWarehouse.Experiment.experiments())
+      [:robots, :scaling, :otfp, :removal, :mixed, :failover]
+  """
+  @spec experiments() :: [{atom(), module()}]
+  def experiments, do: @experiments
+
+  @doc """
+  The module of the experiment `name`.
+
+      iex> TartarusWarehouse.Experiment.module(:scaling)
+      TartarusWarehouse.Experiment.Scaling
+  """
+  @spec module(atom()) :: module()
+  def module(name), do: Keyword.fetch!(@experiments, name)
 
   @doc "The options of `run/1`."
   @spec schema() :: Tartarus.Options.schema()
@@ -128,30 +245,20 @@ defmodule TartarusWarehouse.Experiment do
           :error -> Report.default_out_dir("warehouse-#{opts[:experiment]}")
         end
 
-      points = points(opts)
+      points = module(opts[:experiment]).points(Map.new(opts))
 
+      # One step: the sweep over the experiment's points (TartarusEmu.Sweep), whose
+      # runs.csv and aggregates go to <out>/sweep.
       TartarusEmu.Scenario.run(__MODULE__,
         seed: opts[:seed],
         out: out,
         quiet: opts[:quiet],
         dashboard: opts[:dashboard],
-        steps: length(points),
-        params: Keyword.drop(opts, [:seed, :out, :quiet, :dashboard]),
-        points: points
+        steps: 1,
+        params: Keyword.drop(opts, [:seed, :out, :dashboard]),
+        points: points,
+        sweep_out: out && Path.join(out, "sweep")
       )
-    end
-  end
-
-  defp points(opts) do
-    case opts[:experiment] do
-      :robots -> Enum.to_list(1..opts[:robots])
-      :scaling -> Enum.filter([5, 10, 20, 30, 40, 50, 60, 80, 100], &(&1 <= opts[:max_tasks]))
-      :failover -> [1, 2, 3]
-      _single -> [1]
-    end
-    |> case do
-      [] -> [opts[:max_tasks]]
-      list -> list
     end
   end
 
@@ -170,6 +277,8 @@ defmodule TartarusWarehouse.Experiment do
        p: Map.new(opts.params),
        seed: opts.seed,
        points: opts.points,
+       sweep_out: opts.sweep_out,
+       sweep: nil,
        runs: [],
        series: Series.new(),
        # what the web dashboard shows (TartarusWarehouse.Panel)
@@ -177,17 +286,84 @@ defmodule TartarusWarehouse.Experiment do
      }}
   end
 
+  # The experiment's runs are a sweep (`TartarusEmu.Sweep`): its arms and seeds come from
+  # the experiment (`c:sweep/1`: by default an arm a point, on the run's seed), one at a
+  # time (floors are timed on the wall clock, and the dashboard shows one floor); each run
+  # is a point's floors. The series are recorded point by point, in the sweep's order.
   @impl TartarusEmu.Scenario
-  def step(state, k) do
-    point = Enum.at(state.points, k - 1)
+  def step(state, 1) do
+    module = module(state.p.experiment)
+    plan = sweep_plan(module, state)
+
+    spec = %{
+      name: "warehouse-#{state.p.experiment}",
+      title: "#{title()}: #{state.p.experiment}, the runs",
+      arms: plan.arms,
+      seeds: plan.seeds,
+      order: :arm_major,
+      concurrency: 1,
+      run: fn arm, seed -> run_point(module, plan.point.(arm.opts, seed), state) end,
+      metrics: metrics(module)
+    }
+
+    {:ok, sweep} = TartarusEmu.Sweep.run(spec, out: state.sweep_out, quiet: state.p.quiet)
+
+    state =
+      Enum.reduce(sweep.runs, state, fn %{data: {point, runs}}, state ->
+        state = %{state | runs: state.runs ++ runs}
+        %{state | series: module.record(point, state)}
+      end)
+
+    %{state | sweep: sweep.summary.sweep}
+  end
+
+  defp sweep_plan(module, state) do
+    if function_exported?(module, :sweep, 1),
+      do: module.sweep(state),
+      else: %{
+        arms: Enum.map(state.points, &{to_string(&1), &1}),
+        seeds: [state.seed],
+        point: fn point, _seed -> point end
+      }
+  end
+
+  # A point's floors, in order; the sweep's summary of the run: its makespans by kind and
+  # what every run checks.
+  defp run_point(module, point, state) do
     TartarusWarehouse.Panel.point(state.panel, state.p.experiment, point)
-    runs = run_point(state.p.experiment, point, state)
-    state = %{state | runs: state.runs ++ runs}
-    %{state | series: record(state.p.experiment, point, state)}
+
+    runs =
+      for {kind, opts, extra} <- module.runs(point, state) do
+        state.panel
+        |> floor!(opts)
+        |> Map.merge(%{kind: kind, point: point, specs: opts[:jobs]})
+        |> Map.merge(extra)
+      end
+
+    summary = %{
+      makespan_ms: Map.new(runs, &{&1.kind, round(&1.makespan_ms)}),
+      completed_jobs: runs |> Enum.map(& &1.completed_jobs) |> Enum.sum(),
+      mutex_violations: runs |> Enum.map(& &1.violations) |> Enum.sum(),
+      deadlocks: runs |> Enum.map(&length(&1.timed_out)) |> Enum.sum()
+    }
+
+    {summary, {point, runs}}
+  end
+
+  defp metrics(module) do
+    makespans =
+      for kind <- module.kinds(), do: {:"makespan_ms_#{kind}", &get_in(&1, [:makespan_ms, kind])}
+
+    makespans ++
+      [
+        completed_jobs: :completed_jobs,
+        mutex_violations: :mutex_violations,
+        deadlocks: :deadlocks
+      ]
   end
 
   @impl TartarusEmu.Scenario
-  def done?(state, k), do: k >= length(state.points)
+  def done?(_state, _k), do: true
 
   @impl TartarusEmu.Scenario
   def network(state), do: fn -> TartarusWarehouse.Panel.network(state.panel) end
@@ -201,294 +377,6 @@ defmodule TartarusWarehouse.Experiment do
   @impl TartarusEmu.Scenario
   def series(state), do: state.series
 
-  defp run_point(:robots, k, state) do
-    p = state.p
-    paces = Enum.map(1..k, &(1.0 + 0.1 * rem(&1 * 7, 5)))
-
-    variable =
-      floor!(
-        state.panel,
-        robots: k,
-        jobs: thesis_jobs(p.jobs, 2000),
-        scale: p.scale,
-        jitter: p.jitter,
-        paces: paces,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms
-      )
-
-    equal =
-      floor!(
-        state.panel,
-        robots: k,
-        jobs: thesis_jobs(p.equal_jobs, 2000),
-        scale: p.scale,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms
-      )
-
-    [
-      Map.merge(variable, %{kind: :variable, point: k, specs: thesis_jobs(p.jobs, 2000)}),
-      Map.merge(equal, %{kind: :equal, point: k, specs: thesis_jobs(p.equal_jobs, 2000)})
-    ]
-  end
-
-  defp run_point(:scaling, n, state) do
-    p = state.p
-    jobs = soft_jobs(p.scaling_jobs, n, 2000)
-
-    big =
-      if p.big_robots > 0 and n == List.last(state.points) do
-        big_jobs =
-          for j <- 1..20 do
-            %{
-              id: j,
-              tasks:
-                for {prog, i} <- Enum.with_index(TartarusWarehouse.Program.soft(5), 1) do
-                  %{
-                    name: "T#{i}",
-                    resources: [{:psi, i, j}],
-                    after: if(i > 1, do: ["T#{i - 1}"], else: []),
-                    program: prog
-                  }
-                end
-            }
-          end
-
-        r =
-          floor!(
-            state.panel,
-            robots: p.big_robots,
-            jobs: big_jobs,
-            scale: p.scale,
-            guide: true,
-            seed: state.seed,
-            mode: p.mode,
-            timeout_ms: p.timeout_ms
-          )
-
-        [Map.merge(r, %{kind: :big, point: n, specs: big_jobs})]
-      else
-        []
-      end
-
-    big ++
-      for kind <- [:agents, :central, :guided] do
-        r =
-          floor!(
-            state.panel,
-            robots: p.scaling_robots,
-            secondary: p.nodes - p.scaling_robots - 1,
-            jobs: jobs,
-            scale: p.scale,
-            design: if(kind == :central, do: :central, else: :agents),
-            guide: kind == :guided,
-            seed: state.seed,
-            mode: p.mode,
-            latency_ms: p.latency_ms,
-            server_ms: p.server_ms,
-            timeout_ms: p.timeout_ms
-          )
-
-        Map.merge(r, %{kind: kind, point: n, specs: jobs})
-      end
-  end
-
-  defp run_point(:otfp, _, state) do
-    p = state.p
-    detour = detour_program()
-    t = fn ms -> round(ms * p.scale / 0.01) end
-    t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1500}
-    jobs = thesis_jobs(6, 2000)
-
-    gantt =
-      floor!(
-        state.panel,
-        robots: 3,
-        jobs: jobs,
-        resources: [:bay, :line, :rack, :wall, :packing, :return, :detour],
-        scale: p.scale,
-        jitter: p.jitter,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms,
-        events: [
-          {{:ms, t.(45)}, {:insert, "T2", t2a}},
-          {{:ms, t.(95)}, {:delete, "T2A"}},
-          {{:ms, t.(135)}, {:insert, "T2", t2a}}
-        ]
-      )
-
-    soft = soft_jobs(16, 10, 2000)
-
-    extra = fn i ->
-      %{name: "X#{i}", resources: [{:extra, i}], program: detour, duration_ms: 2000}
-    end
-
-    stream =
-      floor!(
-        state.panel,
-        robots: 4,
-        jobs: soft,
-        resources: Enum.map(1..10, &{:psi, &1}) ++ Enum.map(1..5, &{:extra, &1}),
-        scale: p.scale,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms,
-        events: [
-          {2, {:insert, "T10", extra.(1)}},
-          {4, {:insert, "T5", extra.(2)}},
-          {6, {:insert, "T3", extra.(3)}},
-          {6, {:insert, "T7", extra.(4)}},
-          {6, {:insert, "T8", extra.(5)}},
-          {9, {:delete, "X3"}},
-          {9, {:delete, "X4"}},
-          {9, {:delete, "X5"}}
-        ]
-      )
-
-    [
-      Map.merge(gantt, %{kind: :variable, point: 1, specs: jobs}),
-      Map.merge(stream, %{kind: :stream, point: 1, specs: soft})
-    ]
-  end
-
-  defp run_point(:removal, _, state) do
-    p = state.p
-    jobs = thesis_jobs(8, 2000)
-
-    r =
-      floor!(
-        state.panel,
-        robots: 4,
-        standby: [4],
-        jobs: jobs,
-        scale: p.scale,
-        jitter: p.jitter,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms,
-        events: [{2, {:retire, 2}}, {4, {:join, 4}}]
-      )
-
-    [Map.merge(r, %{kind: :variable, point: 1, specs: jobs})]
-  end
-
-  defp run_point(:mixed, _, state) do
-    p = state.p
-    jobs = mixed_jobs(6, 2000)
-
-    r =
-      floor!(
-        state.panel,
-        robots: 4,
-        jobs: jobs,
-        scale: p.scale,
-        jitter: p.jitter,
-        seed: state.seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms
-      )
-
-    [Map.merge(r, %{kind: :variable, point: 1, specs: jobs})]
-  end
-
-  defp run_point(:failover, i, state) do
-    p = state.p
-    jobs = thesis_jobs(10, 2000)
-    t = fn ms -> round(ms * p.scale / 0.01) end
-    seed = state.seed + i - 1
-
-    kills = [
-      {{:ms, t.(40 + 20 * i)}, {:kill_distributor, t.(100)}},
-      {{:ms, t.(240 + 20 * i)}, {:kill_distributor, t.(50)}}
-    ]
-
-    r =
-      floor!(
-        state.panel,
-        robots: 3,
-        jobs: jobs,
-        scale: p.scale,
-        jitter: p.jitter,
-        seed: seed,
-        mode: p.mode,
-        timeout_ms: p.timeout_ms,
-        failover: true,
-        events: kills
-      )
-
-    runs = [Map.merge(r, %{kind: :variable, point: i, specs: jobs, run_seed: seed})]
-
-    if i == 1 do
-      # The same loss without persistence: the distributor and what it knew are gone.
-      lost =
-        floor!(
-          state.panel,
-          robots: 3,
-          jobs: jobs,
-          scale: p.scale,
-          seed: seed,
-          mode: p.mode,
-          timeout_ms: t.(2000),
-          events: [hd(kills)]
-        )
-
-      runs ++ [Map.merge(lost, %{kind: :no_persistence, point: i, specs: jobs, run_seed: seed})]
-    else
-      runs
-    end
-  end
-
-  # A task program written at run time: it ships with its agent as code.
-  defp detour_program do
-    module = TartarusWarehouse.Program.Detour
-
-    if Code.ensure_loaded?(module) do
-      module
-    else
-      {:ok, [^module]} =
-        Tartarus.compile_string("""
-        defmodule TartarusWarehouse.Program.Detour do
-          @moduledoc "A detour from the usual path, written while the warehouse runs."
-          use TartarusWarehouse.Program
-          def work(data), do: Enum.reverse(data)
-        end
-        """)
-
-      module
-    end
-  end
-
-  @doc """
-  `n` jobs of §4.7.5 (Fig. 4.11): the first and the last purely sequential (T1-T4 of
-  `thesis_jobs/2`), the others two independent sequences: Fetch -> Carry -> Pack (`:bay`,
-  `:line`, `:packing`) and Stamp -> Place (`:stamp`, `:shelf`).
-
-      iex> [a, b] = TartarusWarehouse.Experiment.mixed_jobs(3, 2000) |> Enum.take(2)
-      iex> {length(a.tasks), Enum.map(b.tasks, & &1.name)}
-      {4, ["Fetch", "Carry", "Pack", "Stamp", "Place"]}
-  """
-  @spec mixed_jobs(pos_integer(), number()) :: [map()]
-  def mixed_jobs(n, ms) do
-    [seq | _] = thesis_jobs(1, ms)
-
-    for j <- 1..n do
-      if j == 1 or j == n do
-        %{seq | id: j}
-      else
-        %{
-          id: j,
-          tasks:
-            chain([{"Fetch", [:bay]}, {"Carry", [:line]}, {"Pack", [:packing]}], ms) ++
-              chain([{"Stamp", [:stamp]}, {"Place", [:shelf]}], ms)
-        }
-      end
-    end
-  end
-
   defp floor!(panel, opts) do
     {:ok, r} = Floor.run(Keyword.put(opts, :status, panel))
     c = Checker.completion(r.history, opts[:jobs])
@@ -500,99 +388,13 @@ defmodule TartarusWarehouse.Experiment do
     })
   end
 
-  defp record(:robots, k, state) do
-    [v, e] = Enum.filter(state.runs, &(&1.point == k))
-    [v1, e1] = Enum.filter(state.runs, &(&1.point == 1))
-
-    state.series
-    |> Series.record(:speedup_variable, k, Float.round(v1.makespan_ms / v.makespan_ms, 3))
-    |> Series.record(:speedup_equal, k, Float.round(e1.makespan_ms / e.makespan_ms, 3))
-    |> Series.record(:makespan_variable_ms, k, round(v.makespan_ms))
-    |> Series.record(:makespan_equal_ms, k, round(e.makespan_ms))
-    |> Series.record(:mean_busy_robots_equal, k, e.occupancy.mean)
-  end
-
-  defp record(:otfp, _, state) do
-    stream = Enum.find(state.runs, &(&1.kind == :stream))
-
-    Enum.reduce(per_job(stream), state.series, fn {job, tasks, ms_per_task}, series ->
-      series
-      |> Series.record(:tasks_in_job, job, tasks)
-      |> Series.record(:ms_per_task, job, ms_per_task)
-    end)
-  end
-
-  defp record(:failover, i, state) do
-    r = Enum.find(state.runs, &(&1.point == i and &1.kind == :variable))
-
-    state.series
-    |> Series.record(:jobs_lost, i, length(r.jobs) - r.completed_jobs)
-    |> Series.record(:makespan_ms, i, round(r.makespan_ms))
-  end
-
-  defp record(single, _, state) when single in [:removal, :mixed] do
-    [r] = state.runs
-    Series.record(state.series, :mean_busy_robots, 1, r.occupancy.mean)
-  end
-
-  defp record(:scaling, n, state) do
-    [a, c, g] =
-      Enum.filter(state.runs, &(&1.point == n and &1.kind in [:agents, :central, :guided]))
-
-    per = fn r -> Float.round(r.makespan_ms / (length(r.jobs) * n), 3) end
-
-    state.series
-    |> Series.record(:avg_task_ms_agents, n, per.(a))
-    |> Series.record(:avg_task_ms_central, n, per.(c))
-    |> Series.record(:avg_task_ms_agents_guided, n, per.(g))
-    |> Series.record(:migrations_agents_guided, n, g.migrations)
-    |> Series.record(:migrations_agents, n, a.migrations)
-  end
-
   @impl TartarusEmu.Scenario
-  def charts(%{p: %{experiment: :robots}}),
-    do: [
-      %{
-        file: "speedup",
-        title: "Speed-up over one robot",
-        series: [:speedup_variable, :speedup_equal],
-        x_label: "robots",
-        y_label: "speed-up"
-      }
-    ]
-
-  def charts(%{p: %{experiment: :otfp}}),
-    do: [
-      %{
-        file: "otfp",
-        title: "Tasks per job and ms per task as tasks are added and deleted (Fig. 4.5)",
-        series: [:tasks_in_job, :ms_per_task],
-        x_label: "job",
-        y_label: ""
-      }
-    ]
-
-  def charts(%{p: %{experiment: single}}) when single in [:removal, :mixed, :failover], do: []
-
-  def charts(_state),
-    do: [
-      %{
-        file: "avg_task_time",
-        title: "Average time per task: task agents vs central server (Fig. 4.4)",
-        series: [:avg_task_ms_agents, :avg_task_ms_central, :avg_task_ms_agents_guided],
-        x_label: "tasks per job",
-        y_label: "ms per task"
-      }
-    ]
+  def charts(state), do: module(state.p.experiment).charts(state)
 
   @impl TartarusEmu.Scenario
   def summary(state) do
     p = state.p
     runs = state.runs
-
-    by = fn name ->
-      Map.new(Series.points(state.series, name), fn {x, y} -> {to_string(x), y} end)
-    end
 
     base = %{
       experiment: to_string(p.experiment),
@@ -606,338 +408,61 @@ defmodule TartarusWarehouse.Experiment do
       wall_ms: runs |> Enum.map(& &1.wall_ms) |> Enum.sum()
     }
 
-    case p.experiment do
-      :robots ->
-        Map.merge(base, %{
-          speedup: by.(:speedup_variable),
-          speedup_equal: by.(:speedup_equal),
-          makespan_variable_ms: by.(:makespan_variable_ms),
-          makespan_equal_ms: by.(:makespan_equal_ms),
-          jobs_variable: p.jobs,
-          jobs_equal: p.equal_jobs,
-          jitter: p.jitter,
-          speedup_thesis: Map.new(@thesis_speedup, fn {k, v} -> {to_string(k), v} end)
-        })
-
-      :otfp ->
-        [gantt] = Enum.filter(runs, &(&1.kind == :variable))
-        stream = Enum.find(runs, &(&1.kind == :stream))
-
-        Map.merge(base, %{
-          speedup: nil,
-          inserted_runs: Enum.count(gantt.history, &(&1.task == "T2A")),
-          jobs_with_t2a:
-            gantt.history
-            |> Enum.filter(&(&1.task == "T2A"))
-            |> Enum.map(& &1.job)
-            |> Enum.uniq()
-            |> Enum.sort(),
-          skipped_runs: Enum.count(stream.history ++ gantt.history, & &1.skipped),
-          tasks_in_job: by.(:tasks_in_job),
-          ms_per_task: by.(:ms_per_task)
-        })
-
-      :failover ->
-        kept = Enum.filter(runs, &(&1.kind == :variable))
-        lost = Enum.find(runs, &(&1.kind == :no_persistence))
-
-        duplicated = fn r ->
-          r.history
-          |> Enum.frequencies_by(&{&1.job, &1.task})
-          |> Enum.count(fn {_, n} -> n > 1 end)
-        end
-
-        Map.merge(base, %{
-          speedup: nil,
-          seeds: Enum.map(kept, & &1.run_seed),
-          kills: kept |> Enum.map(&length(&1.killed_at_us)) |> Enum.sum(),
-          jobs_lost: kept |> Enum.map(&(length(&1.jobs) - &1.completed_jobs)) |> Enum.sum(),
-          jobs_duplicated: kept |> Enum.map(duplicated) |> Enum.sum(),
-          jobs_lost_by_seed:
-            Map.new(kept, &{to_string(&1.run_seed), length(&1.jobs) - &1.completed_jobs}),
-          makespan_ms_by_seed: Map.new(kept, &{to_string(&1.run_seed), round(&1.makespan_ms)}),
-          jobs_lost_without_persistence: length(lost.timed_out),
-          # The runs without persistence are not counted in jobs/completed_jobs/deadlocks.
-          jobs: kept |> Enum.map(&length(&1.jobs)) |> Enum.sum(),
-          completed_jobs: kept |> Enum.map(& &1.completed_jobs) |> Enum.sum(),
-          deadlocks: kept |> Enum.map(&length(&1.timed_out)) |> Enum.sum(),
-          tasks: kept |> Enum.map(&length(&1.history)) |> Enum.sum()
-        })
-
-      :removal ->
-        [r] = runs
-
-        jobs_of = fn robot ->
-          r.history
-          |> Enum.filter(&(&1.robot == robot))
-          |> Enum.map(& &1.job)
-          |> Enum.uniq()
-          |> Enum.sort()
-        end
-
-        Map.merge(base, %{
-          speedup: nil,
-          removed_robot: "r2",
-          joined_robot: "r4",
-          jobs_per_robot: Map.new(r.robots, &{&1, jobs_of.(&1)}),
-          mean_busy_robots: r.occupancy.mean
-        })
-
-      :mixed ->
-        [r] = runs
-
-        overlapping =
-          for j <- r.jobs,
-              [a, b] <- [
-                r.history
-                |> Enum.filter(&(&1.job == j))
-                |> Enum.group_by(& &1.seq)
-                |> Map.values()
-              ],
-              span(a) |> overlaps?(span(b)),
-              do: j
-
-        Map.merge(base, %{
-          speedup: nil,
-          jobs_with_concurrent_sequences: overlapping,
-          mean_busy_robots: r.occupancy.mean
-        })
-
-      :scaling ->
-        agents = by.(:avg_task_ms_agents)
-        central = by.(:avg_task_ms_central)
-
-        big =
-          case Enum.find(runs, &(&1.kind == :big)) do
-            nil ->
-              nil
-
-            r ->
-              %{
-                robots: length(r.robots),
-                jobs: length(r.jobs),
-                completed_jobs: r.completed_jobs,
-                mutex_violations: r.violations,
-                wall_ms: r.wall_ms,
-                makespan_ms: round(r.makespan_ms),
-                migrations: r.migrations
-              }
-          end
-
-        Map.merge(base, %{
-          big_run: big,
-          speedup: nil,
-          avg_task_ms_agents: agents,
-          avg_task_ms_central: central,
-          avg_task_ms_agents_guided: by.(:avg_task_ms_agents_guided),
-          agents_faster_at:
-            for({n, a} <- agents, a < central[n], do: String.to_integer(n)) |> Enum.sort(),
-          slope_ms_per_task: %{
-            agents: slope(agents),
-            central: slope(central),
-            agents_guided: slope(by.(:avg_task_ms_agents_guided))
-          },
-          latency_ms: p.latency_ms,
-          server_ms: p.server_ms,
-          nodes: p.nodes,
-          robots: p.scaling_robots,
-          jobs_per_run: p.scaling_jobs
-        })
-    end
+    Map.put(module(p.experiment).summary(base, state), :sweep, state.sweep)
   end
 
-  # Least-squares slope of ms per task against tasks per job (keys are strings).
-  defp slope(points) when map_size(points) < 2, do: nil
+  @impl TartarusEmu.Scenario
+  def comparisons(state), do: module(state.p.experiment).comparisons(state)
 
-  defp slope(points) do
-    xy = for {n, y} <- points, do: {String.to_integer(n) * 1.0, y * 1.0}
-    k = length(xy)
-    mx = Enum.sum(Enum.map(xy, &elem(&1, 0))) / k
-    my = Enum.sum(Enum.map(xy, &elem(&1, 1))) / k
-    sxy = Enum.sum(for {x, y} <- xy, do: (x - mx) * (y - my))
-    sxx = Enum.sum(for {x, _} <- xy, do: (x - mx) * (x - mx))
-    Float.round(sxy / sxx, 4)
-  end
+  @impl TartarusEmu.Scenario
+  def write(state, dir), do: Output.write(state, dir, module(state.p.experiment))
 
-  defp span(entries),
+  @doc """
+  A series of the state as a summary object: x (as a string) => y.
+
+      iex> series = TartarusTools.Series.new() |> TartarusTools.Series.record(:speedup, 2, 1.5)
+      iex> TartarusWarehouse.Experiment.by(%{series: series}, :speedup)
+      %{"2" => 1.5}
+  """
+  @spec by(map(), atom()) :: %{String.t() => term()}
+  def by(state, name),
+    do: Map.new(Series.points(state.series, name), fn {x, y} -> {to_string(x), y} end)
+
+  @doc """
+  The span of executions, `{first start, last stop}` in µs.
+
+      iex> TartarusWarehouse.Experiment.span([%{start_us: 5, stop_us: 9}, %{start_us: 2, stop_us: 7}])
+      {2, 9}
+  """
+  @spec span([map()]) :: {integer(), integer()}
+  def span(entries),
     do:
       {entries |> Enum.map(& &1.start_us) |> Enum.min(),
        entries |> Enum.map(& &1.stop_us) |> Enum.max()}
 
-  defp overlaps?({a0, a1}, {b0, b1}), do: a0 < b1 and b0 < a1
+  @doc """
+  The options every floor of an experiment shares: the run's `scale`, `seed`, `mode` and
+  `timeout_ms`.
 
-  # Per job of a run: tasks run (not skipped) and the job's time per task.
-  defp per_job(r) do
-    r.history
-    |> Enum.reject(& &1.skipped)
-    |> Enum.group_by(& &1.job)
-    |> Enum.sort()
-    |> Enum.map(fn {job, es} ->
-      {t0, t1} = span(es)
-      {job, length(es), Float.round((t1 - t0) / 1000 / length(es), 3)}
-    end)
-  end
-
-  @impl TartarusEmu.Scenario
-  def comparisons(%{p: %{experiment: :robots}} = state) do
-    ours = Map.new(Series.points(state.series, :speedup_variable))
-
-    for {k, thesis} <- Enum.sort(@thesis_speedup), Map.has_key?(ours, k) do
-      %{metric: "speed-up on #{k} robots (variable durations)", ours: ours[k], thesis: thesis}
-    end
-  end
-
-  def comparisons(_state), do: []
-
-  @impl TartarusEmu.Scenario
-  def write(state, dir) do
-    rows =
-      for r <- state.runs, e <- r.history do
-        [
-          r.point,
-          r.kind,
-          e.robot,
-          e.job,
-          e.task,
-          Enum.join(Enum.map(e.resources, &inspect/1), " "),
-          Float.round((e.start_us - r.t0_us) / 1000, 3),
-          Float.round((e.stop_us - r.t0_us) / 1000, 3),
-          Float.round(e.ms, 3)
-        ]
-      end
-
-    csv =
-      Report.write_csv!(
-        dir,
-        "executions",
-        ["point", "run", "robot", "job", "task", "resources", "start_ms", "stop_ms", "ms"],
-        rows
-      )
-
-    gantts =
-      for r <- state.runs,
-          r.kind in [:variable, :agents] and (r.kind == :variable or r.point == hd(state.points)) do
-        rows =
-          Enum.map(r.robots, fn robot ->
-            spans =
-              for e <- r.history, e.robot == robot do
-                %{
-                  start: (e.start_us - r.t0_us) / 1000,
-                  stop: (e.stop_us - r.t0_us) / 1000,
-                  label: "J#{e.job}",
-                  group: e.task
-                }
-              end
-
-            %{label: robot, spans: spans}
-          end)
-
-        {what, file} =
-          case state.p.experiment do
-            :robots ->
-              {"#{r.point} robot(s), variable durations", "gantt_#{r.point}_robots.svg"}
-
-            :scaling ->
-              {"#{r.point} tasks per job, agents", "gantt_#{r.point}_tasks.svg"}
-
-            :otfp ->
-              {"T2A added, deleted and added again on the fly (Fig. 4.12)", "gantt_otfp.svg"}
-
-            :removal ->
-              {"r2 leaves after 2 jobs, r4 joins after 4 (Fig. 4.13)", "gantt_removal.svg"}
-
-            :mixed ->
-              {"sequential and independent sequences (Fig. 4.11)", "gantt_mixed.svg"}
-
-            :failover ->
-              {"the distributor's host killed twice, seed #{r.run_seed}",
-               "gantt_failover_seed_#{r.run_seed}.svg"}
-          end
-
-        by_robot =
-          SVG.write!(
-            Path.join(dir, file),
-            SVG.gantt(rows, title: "Warehouse: #{what}", x_label: "ms")
-          )
-
-        # As the thesis draws them: a row per job, bars coloured by robot, labelled with
-        # the task and the ms it took.
-        job_rows =
-          Enum.map(r.jobs, fn job ->
-            spans =
-              for e <- r.history, e.job == job, not e.skipped do
-                %{
-                  start: (e.start_us - r.t0_us) / 1000,
-                  stop: (e.stop_us - r.t0_us) / 1000,
-                  label: "#{e.task} #{round(e.ms)}",
-                  group: e.robot
-                }
-              end
-
-            %{label: "J#{job}", spans: spans}
-          end)
-
-        by_job =
-          SVG.write!(
-            Path.join(dir, String.replace_suffix(file, ".svg", "_by_job.svg")),
-            SVG.gantt(job_rows, title: "Warehouse: #{what}, by job", x_label: "ms")
-          )
-
-        [by_robot, by_job]
-      end
-
-    [csv | List.flatten(gantts)]
-  end
+      iex> TartarusWarehouse.Experiment.floor(%{seed: 3, p: %{scale: 0.01, mode: :virtual, timeout_ms: 9}})
+      [scale: 0.01, seed: 3, mode: :virtual, timeout_ms: 9]
+  """
+  @spec floor(state()) :: keyword()
+  def floor(state),
+    do: [
+      scale: state.p.scale,
+      seed: state.seed,
+      mode: state.p.mode,
+      timeout_ms: state.p.timeout_ms
+    ]
 
   @doc """
-  `n` jobs of the warehouse's four sequential tasks (§4.7.4): T1 leave the bay (`:bay`),
-  T2 follow the line to the rack (`:line`, `:rack`), T3 follow the wall to the packing
-  zone (`:wall`, `:packing`), T4 back to the bay's line (`:return`), each of ideal
-  duration `ms`.
+  The time scale applied to a time of the thesis's scale 0.01: `ms * scale / 0.01`,
+  rounded (the experiments' event times are written at the default scale).
 
-      iex> [j | _] = TartarusWarehouse.Experiment.thesis_jobs(2, 2000)
-      iex> Enum.map(j.tasks, & &1.name)
-      ["T1", "T2", "T3", "T4"]
+      iex> TartarusWarehouse.Experiment.scaled(45, %{scale: 0.02})
+      90
   """
-  @spec thesis_jobs(pos_integer(), number()) :: [map()]
-  def thesis_jobs(n, ms) do
-    resources = [[:bay], [:line, :rack], [:wall, :packing], [:return]]
-
-    for j <- 1..n do
-      %{id: j, tasks: chain(Enum.zip(["T1", "T2", "T3", "T4"], resources), ms)}
-    end
-  end
-
-  @doc """
-  `n` jobs of `tasks` soft tasks each (§4.7.2: Sort, Merge, Add, Sub, Div repeating), task
-  `i` needing resource `{:psi, i}`, each of ideal duration `ms`.
-
-      iex> [j] = TartarusWarehouse.Experiment.soft_jobs(1, 7, 2000)
-      iex> {length(j.tasks), List.last(j.tasks).program}
-      {7, TartarusWarehouse.Program.Merge}
-  """
-  @spec soft_jobs(pos_integer(), pos_integer(), number()) :: [map()]
-  def soft_jobs(n, tasks, ms) do
-    programs = TartarusWarehouse.Program.soft(tasks)
-
-    for j <- 1..n do
-      specs = for {p, i} <- Enum.with_index(programs, 1), do: {"T#{i}", [{:psi, i}], p}
-      %{id: j, tasks: chain(specs, ms)}
-    end
-  end
-
-  defp chain(specs, ms) do
-    specs
-    |> Enum.with_index()
-    |> Enum.map(fn {spec, i} ->
-      {name, rs, program} =
-        case spec do
-          {name, rs} -> {name, rs, TartarusWarehouse.Program.Work}
-          {name, rs, p} -> {name, rs, p}
-        end
-
-      prev = if i > 0, do: [elem(Enum.at(specs, i - 1), 0)], else: []
-      %{name: name, resources: rs, after: prev, program: program, duration_ms: ms}
-    end)
-  end
+  @spec scaled(number(), map()) :: integer()
+  def scaled(ms, p), do: round(ms * p.scale / 0.01)
 end

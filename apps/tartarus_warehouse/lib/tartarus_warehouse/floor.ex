@@ -1,25 +1,22 @@
 defmodule TartarusWarehouse.Floor do
   @moduledoc """
-  A warehouse floor on the emulator: the network of §4.7.1 (robot nodes, secondary nodes
-  that only relay agents, the distributor's node) started with `TartarusEmu.Network`, a
-  robot plugin on each robot host and the distributor (or, for the baseline, the central
-  server and its robot agents) created by the network's per-node setup hook. `run/1` feeds
-  it jobs and returns what happened.
+  A warehouse floor on the emulator, one process (a GenServer) that owns it: it builds the
+  floor (`TartarusWarehouse.Floor.Build`: the network of §4.7.1, a robot plugin on each
+  robot host, the distributor or the central server), takes jobs and changes
+  (`TartarusWarehouse.Floor.Changes`), counts the jobs done, and takes the floor down
+  when stopped. Options are checked before anything starts
+  (`TartarusWarehouse.Floor.Options`).
 
-  ## Topology
+  One driver, two ways to use it:
 
-  Node `"jd"` is the distributor's (the server's in the baseline); robots `"r1".."rk"` are
-  linked to each other (a full mesh up to 16 robots, else a ring with chords to the robots
-  4 and 16 places on) and to `"jd"` (the first 16); secondary nodes `"s1"..` hang on two
-  robots each. Task agents move among robots (`TartarusWarehouse.Roam`).
-
-  ## A floor you drive (iex)
-
-  `run/1` runs a batch of jobs and returns when they are done. `start/1` starts a floor
-  that stays up until `stop/1`: submit jobs when you like (`submit/2`), change it while it
-  runs (`change/2`: insert or delete a task, retire a robot, let a standby robot join),
-  look at it (`status/1`, or the web dashboard with `dashboard: port`), wait for the jobs
-  (`await/2`), and `stop/1` it for what ran (as `run/1` reports it):
+    * `run/1` runs a batch of jobs and returns what happened: it is `start/1`, the jobs
+      submitted (at their arrival times), `await/2` and `stop/1`, with the batch's events
+      (`{n, event}` once n jobs completed, `{{:ms, t}, event}` t ms after the submission)
+      fired by the floor;
+    * `start/1` starts a floor that stays up until `stop/1`: submit jobs when you like
+      (`submit/2`), change it while it runs (`change/2`: insert or delete a task, retire a
+      robot, let a standby robot join), look at it (`status/1`, or the web dashboard with
+      `dashboard: port`), wait for the jobs (`await/2`), and `stop/1` it for what ran:
 
       iex> {:ok, f} = TartarusWarehouse.Floor.start(robots: 2, resources: [:rack, :bay])
       iex> TartarusWarehouse.Floor.submit(f, %{id: 1, tasks: [%{name: "T1", resources: [:rack]}]})
@@ -34,758 +31,71 @@ defmodule TartarusWarehouse.Floor do
 
   use GenServer
 
-  alias TartarusEmu.{Network, Topology}
   alias TartarusTools.Dashboard.Panel
-  alias TartarusWarehouse.{Checker, Job, Robot}
+  alias TartarusWarehouse.{Checker, Job}
+  alias TartarusWarehouse.Floor.{Build, Changes, Options}
 
-  @schema [
-    robots: [type: :pos_integer, default: 4, doc: "robots"],
-    secondary: [type: :non_neg_integer, default: 0, doc: "secondary (relay) nodes"],
-    resources: [
-      type: {:list, :any},
-      default: [],
-      doc: "the resources (default: those the jobs name)"
-    ],
-    reach: [
-      type: :any,
-      default: :all,
-      doc: "`:all`, or a map robot index => resources it reaches"
-    ],
-    jobs: [type: {:list, :any}, default: [], doc: "job specs (see `TartarusWarehouse.Job`)"],
-    arrivals_ms: [
-      type: {:list, :non_neg_integer},
-      default: [],
-      doc: "arrival time of each job (default: all at once)"
-    ],
-    design: [
-      type: {:in, [:agents, :central]},
-      default: :agents,
-      doc: "task agents, or the central server"
-    ],
-    scale: [type: :number, default: 0.01, doc: "time scale of task durations"],
-    paces: [type: {:list, :number}, default: [], doc: "pace of robot i (default 1.0)"],
-    jitter: [
-      type: :number,
-      default: 0.0,
-      doc: "per-execution duration spread (0: equal durations)"
-    ],
-    idle_ms: [
-      type: :non_neg_integer,
-      default: 1,
-      doc: "an agent that found no robot in a round waits this long"
-    ],
-    retire: [
-      type: {:list, :any},
-      default: [],
-      doc:
-        "`{robot_index, n}`: retire the robot once n jobs completed (the event `{n, {:retire, robot_index}}`)"
-    ],
-    events: [
-      type: {:list, :any},
-      default: [],
-      doc:
-        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves; refused when no robot in service would be left, or none reaching a resource it reaches), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming); checked before the floor starts (`TartarusWarehouse.Job.change/2`)"
-    ],
-    standby: [
-      type: {:list, :pos_integer},
-      default: [],
-      doc:
-        "robots that start out of service (they join with `{:join, i}`); at least one robot starts in service"
-    ],
-    mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
-    latency_ms: [
-      type: :non_neg_integer,
-      default: 0,
-      doc:
-        "one-way delay of every link (see `Tartarus.connect/3`: a hand-off pays three, a message between neighbours one each way; the central server's messages and the agents' migrations pay it alike)"
-    ],
-    server_ms: [
-      type: :non_neg_integer,
-      default: 0,
-      doc:
-        "`design: :central`: the server's time to handle one message from a robot (read it, update its tables, send the commands that follow); the server handles one message at a time, so messages queue behind it when robots report faster than it handles (see `TartarusWarehouse.Central`)"
-    ],
-    guide: [
-      type: :boolean,
-      default: false,
-      doc:
-        "agents climb a signal field to the robot that waits for them instead of searching blind (beyond the thesis; see `TartarusWarehouse.TaskAgent`)"
-    ],
-    failover: [
-      type: :boolean,
-      default: false,
-      doc:
-        "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
-    ],
-    seed: [type: :integer, default: 1, doc: "seed"],
-    status: [
-      type: :any,
-      default: nil,
-      doc:
-        "a public ETS table where the floor publishes itself while it runs, for the web dashboard (see `TartarusWarehouse.Panel`); nil: none"
-    ],
-    timeout_ms: [type: :pos_integer, default: 120_000, doc: "give up waiting after this long"]
-  ]
-
-  @doc "The options of `run/1`."
+  @doc "The options of `run/1` (see `TartarusWarehouse.Floor.Options`)."
   @spec schema() :: Tartarus.Options.schema()
-  def schema, do: @schema
+  def schema, do: Options.schema()
 
   @doc """
-  The floor's topology for `robots` robots and `secondary` relay nodes.
-
-      iex> t = TartarusWarehouse.Floor.topology(3, 2)
-      iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
-      {6, true}
+  The floor's topology for `robots` robots and `secondary` relay nodes (see
+  `TartarusWarehouse.Floor.Build.topology/2`).
   """
-  @spec topology(pos_integer(), non_neg_integer()) :: Topology.t()
-  def topology(robots, secondary) do
-    rs = Enum.map(1..robots, &"r#{&1}")
-    ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
-
-    robot_edges = robot_edges(robots)
-    jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
-
-    s_edges =
-      for {s, i} <- Enum.with_index(ss),
-          r <- Enum.uniq([rem(i, robots) + 1, rem(i + 1, robots) + 1]),
-          do: {s, "r#{r}"}
-
-    Topology.new(["jd" | rs] ++ ss, Enum.uniq(robot_edges ++ jd_edges ++ s_edges))
-  end
-
-  # Robots: a full mesh up to 16, else a ring with chords 4 and 16 places on (modulo the
-  # robots: a circulant graph, the same seen from every robot).
-  defp robot_edges(robots) do
-    if robots <= 16,
-      do: for(i <- 1..robots, j <- (i + 1)..robots//1, do: {"r#{i}", "r#{j}"}),
-      else:
-        for(
-          i <- 1..robots,
-          d <- [1, 4, 16],
-          j = rem(i - 1 + d, robots) + 1,
-          j != i,
-          do: {"r#{min(i, j)}", "r#{max(i, j)}"}
-        )
-  end
+  @spec topology(pos_integer(), non_neg_integer()) :: TartarusEmu.Topology.t()
+  defdelegate topology(robots, secondary), to: Build
 
   @doc """
-  Runs jobs on a floor. Options:
+  Runs jobs on a floor: `start/1`, the jobs submitted, `await/2` (at most `timeout_ms`),
+  `stop/1`. Options:
 
-  #{Tartarus.Options.docs(@schema)}
+  #{Tartarus.Options.docs(TartarusWarehouse.Floor.Options.schema())}
 
-  Returns `{:ok, result}` with `history` (every execution: see
-  `TartarusWarehouse.Robot`), `jobs` (ids in submission order), `completed` (id =>
-  completion time, µs), `t0_us` (submission of the first job), `makespan_ms`, `robots`,
-  `migrations`, `bytes`, `messages` (from `TartarusEmu.Log`), `timed_out` (jobs not done),
-  `refused_events` (events that were refused and changed nothing, with the reason),
-  `failed` (nil, or why the distributor failed: its jobs are then lost and `run/1` stops
-  waiting for them),
-  `applied_events` (events applied, each with the time it took effect, µs),
-  `wall_ms`; or `{:error, message}` for bad options or a rejected job.
+  Returns `{:ok, result}`: what `stop/1` returns (`history`, every execution: see
+  `TartarusWarehouse.Robot`; `jobs`, ids in submission order; `completed`, id =>
+  completion time, µs; `t0_us`, the submission of the first job; `makespan_ms`; `robots`;
+  `migrations`, `bytes`, `messages` from `TartarusEmu.Log`; `timed_out`, the jobs not
+  done; `refused_events`, the events that were refused and changed nothing, with the
+  reason; `applied_events`, each with the time it took effect, µs; `killed_at_us`;
+  `failed`, nil or why the distributor failed: its jobs are then lost and `run/1` stops
+  waiting for them; `mutex_violations`; `changes`) and `wall_ms`; or `{:error, message}`
+  for bad options or a rejected job.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1"),
-         :ok <- check_standby(opts, "run/1"),
-         world = world(opts),
-         :ok <- plan_all(opts[:jobs], world),
-         :ok <- check_events(events(opts), world, opts[:robots]) do
-      start_and_run(world, opts)
-    end
-  end
-
-  # At least one robot starts in service, and standby robots are robots of the floor.
-  defp check_standby(opts, fun) do
-    robots = opts[:robots]
-
-    cond do
-      Enum.any?(opts[:standby], &(&1 > robots)) ->
-        {:error,
-         "invalid options given to TartarusWarehouse.Floor.#{fun} for key :standby: expected indices of robots 1..#{robots}, got: #{inspect(opts[:standby])}"}
-
-      Enum.all?(1..robots, &(&1 in opts[:standby])) ->
-        {:error,
-         "invalid options given to TartarusWarehouse.Floor.#{fun} for key :standby: at least one robot must start in service (a floor with none would take jobs it cannot run), got: #{inspect(opts[:standby])}"}
-
-      true ->
-        :ok
-    end
-  end
-
-  # `run/1`'s events (and `retire`), checked before anything starts: when each fires, and
-  # what it is (`TartarusWarehouse.Job.change/2`), with robots of this floor.
-  defp check_events(events, world, robots) do
-    Enum.find_value(events, :ok, fn
-      {:retire_option, other} ->
-        {:error,
-         "invalid options given to TartarusWarehouse.Floor.run/1 for key :retire: expected {robot_index, n}, got: #{inspect(other, limit: 5)}"}
-
-      {n, event} when (is_integer(n) and n >= 0) or (is_tuple(n) and tuple_size(n) == 2) ->
-        with :ok <- check_when(n),
-             {:ok, event} <- Job.change(event, world),
-             :ok <- check_robot(event, robots) do
-          nil
-        end
-
-      other ->
-        {:error,
-         "invalid options given to TartarusWarehouse.Floor.run/1 for key :events: expected {n, event} or {{:ms, t}, event}, got: #{inspect(other, limit: 5)}"}
-    end)
-  end
-
-  defp check_when({:ms, t}) when is_integer(t) and t >= 0, do: :ok
-  defp check_when(n) when is_integer(n) and n >= 0, do: :ok
-
-  defp check_when(other),
-    do:
-      {:error,
-       "invalid options given to TartarusWarehouse.Floor.run/1 for key :events: expected when an event fires to be n (jobs completed) or {:ms, t}, got: #{inspect(other)}"}
-
-  defp check_robot({what, i}, robots) when what in [:retire, :join] and i > robots,
-    do: {:error, "no robot #{inspect(i)} (the floor has robots 1..#{robots})"}
-
-  defp check_robot(_event, _robots), do: :ok
-
-  defp world(opts) do
-    resources =
-      case opts[:resources] do
-        [] ->
-          # Those of well-formed tasks: a malformed job is named by plan_all/2.
-          for %{tasks: tasks} when is_list(tasks) <- opts[:jobs],
-              %{resources: rs} when is_list(rs) <- tasks,
-              r <- rs,
-              uniq: true,
-              do: r
-
-        rs ->
-          rs
-      end
-
-    reach =
-      case opts[:reach] do
-        :all -> opts[:robots]
-        map -> Map.new(1..opts[:robots], &{&1, Map.get(map, &1, [])})
-      end
-
-    world = Job.world(resources, reach)
-    %{world | robots: Map.new(world.robots, fn {i, r} -> {"r#{i}", r} end)}
-  end
-
-  defp plan_all(jobs, world) do
-    Enum.find_value(jobs, :ok, fn spec ->
-      case Job.plan(spec, world) do
-        {:ok, _} -> nil
-        {:error, m} -> {:error, m}
-      end
-    end)
-  end
-
-  defp start_and_run(world, opts) do
     t_start = System.monotonic_time(:millisecond)
-    ctx = start_floor(world, opts, self())
 
-    try do
-      t0 = System.system_time(:microsecond)
-      publish_floor(ctx, length(opts[:jobs]), t0)
-      submit(ctx.dref, opts[:jobs], opts[:arrivals_ms])
-      events = events(opts)
-      fire(events, 0, ctx)
-      completed = await(opts, events, ctx, %{}, length(opts[:jobs]), t0)
-
-      {:ok,
-       ctx
-       |> collect(Enum.map(opts[:jobs], & &1.id), completed, t0)
-       |> Map.merge(%{
-         refused_events: refused(),
-         failed: failed(),
-         applied_events: applied(),
-         killed_at_us: killed(),
-         wall_ms: System.monotonic_time(:millisecond) - t_start
-       })}
-    after
-      stop_floor(ctx)
+    with {:ok, opts, world, events} <- Options.check_run(opts),
+         {:ok, floor} <- launch(world, opts, %{events: events, owner: self()}) do
+      # :ok, {:error, :timeout} or the floor's failure: stop/1's result says which.
+      _ = await(floor, opts[:timeout_ms])
+      {:ok, r} = stop(floor)
+      {:ok, Map.put(r, :wall_ms, System.monotonic_time(:millisecond) - t_start)}
     end
   end
-
-  # Starts the floor's network, robots and distributor (or central server); `owner` gets
-  # `{:warehouse_job_done, id, at_us}` for every job completed.
-  defp start_floor(world, opts, owner) do
-    robots = opts[:robots]
-
-    setup = fn node, host ->
-      case node do
-        "r" <> i ->
-          i = String.to_integer(i)
-
-          :ok =
-            Tartarus.attach_plugin(
-              host,
-              :robot,
-              {Robot,
-               robot: node,
-               reach: if(opts[:reach] == :all, do: :all, else: Map.get(opts[:reach], i, [])),
-               scale: opts[:scale],
-               pace: Enum.at(opts[:paces], i - 1, 1.0),
-               jitter: opts[:jitter],
-               seed: opts[:seed],
-               off: i in opts[:standby]}
-            )
-
-          :ok
-
-        _ ->
-          :ok
-      end
-    end
-
-    data_dir =
-      if opts[:failover],
-        do: Path.join(System.tmp_dir!(), "warehouse-jd-#{System.unique_integer([:positive])}")
-
-    node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
-
-    {:ok, net} =
-      Network.start(topology(robots, opts[:secondary]),
-        mode: opts[:mode],
-        setup: setup,
-        node_opts: node_opts,
-        link: [latency_ms: opts[:latency_ms]]
-      )
-
-    try do
-      start_agents(net, world, opts, owner, data_dir)
-    rescue
-      e ->
-        Network.stop(net)
-        if data_dir, do: File.rm_rf(data_dir)
-        reraise e, __STACKTRACE__
-    end
-  end
-
-  defp start_agents(net, world, opts, owner, data_dir) do
-    robots = opts[:robots]
-    design = opts[:design]
-    {:ok, log} = TartarusEmu.Log.start(net)
-    robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
-    jd = Network.host(net, "jd")
-
-    {:ok, dist} =
-      case design do
-        :agents ->
-          Tartarus.create_static_agent(
-            jd,
-            TartarusWarehouse.DistributorAgent,
-            %{
-              world: world,
-              owner: owner,
-              robots: robot_set(robot_hosts),
-              all_robots: MapSet.new(Map.values(robot_hosts)),
-              idle_ms: opts[:idle_ms],
-              round: min(robots, 16),
-              seed: opts[:seed],
-              validate: opts[:failover],
-              guide: if(opts[:guide], do: robot_span(robots))
-            },
-            # told `{:tartarus_removed, id, reason}` if it is removed
-            owner: owner
-          )
-
-        :central ->
-          agents =
-            Map.new(robot_hosts, fn {name, host} ->
-              {:ok, id} =
-                Tartarus.create_static_agent(host, TartarusWarehouse.CentralRobot, %{
-                  robot: name,
-                  server: nil
-                })
-
-              {name, {id, host}}
-            end)
-
-          {:ok, sid} =
-            Tartarus.create_static_agent(
-              jd,
-              TartarusWarehouse.Central,
-              %{world: world, owner: owner, robots: agents, server_ms: opts[:server_ms]},
-              owner: owner
-            )
-
-          Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
-          {:ok, sid}
-      end
-
-    %{
-      dref: {dist, jd},
-      robot_hosts: robot_hosts,
-      net: net,
-      log: log,
-      status: opts[:status],
-      design: design,
-      guide: opts[:guide],
-      failover: opts[:failover],
-      data_dir: data_dir,
-      world: world
-    }
-  end
-
-  defp publish_floor(ctx, jobs, t0) do
-    Panel.publish(ctx.status, fn t ->
-      :ets.insert(t, [
-        {:floor,
-         %{
-           net: ctx.net,
-           robot_hosts: ctx.robot_hosts,
-           design: ctx.design,
-           guide: ctx.guide,
-           t0_us: t0
-         }},
-        {:jobs, jobs, 0}
-      ])
-    end)
-  end
-
-  # What ran: the robots' histories (the event log), completions, the network's totals.
-  defp collect(ctx, ids, completed, t0) do
-    :ok = TartarusEmu.Log.sync(ctx.log)
-    totals = TartarusEmu.Log.totals(ctx.log)
-
-    history = Robot.history(ctx.robot_hosts)
-
-    last = completed |> Map.values() |> Enum.max(fn -> t0 end)
-
-    %{
-      design: ctx.design,
-      history: history,
-      jobs: ids,
-      completed: completed,
-      timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
-      t0_us: t0,
-      makespan_ms: (last - t0) / 1000,
-      robots:
-        Map.keys(ctx.robot_hosts)
-        |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
-      migrations: Map.get(totals, :departures, 0),
-      bytes: Map.get(totals, :bytes, 0),
-      messages: Map.get(totals, :messages, 0)
-    }
-  end
-
-  defp stop_floor(ctx) do
-    Panel.publish(ctx.status, &:ets.delete(&1, :floor))
-    TartarusEmu.Log.stop(ctx.log)
-    Network.stop(ctx.net)
-    if ctx.data_dir, do: File.rm_rf(ctx.data_dir)
-  end
-
-  # How agents tell robots: by name prefix ("emu<tag>-r"), when every robot's name has it
-  # (nothing that grows with the robots travels with them), else the set of robot hosts.
-  defp robot_set(robot_hosts) do
-    {name, _} = robot_hosts["r1"]
-
-    with true <- is_binary(name) and String.ends_with?(name, "-r1"),
-         prefix = String.slice(name, 0..-2//1),
-         true <-
-           Enum.all?(robot_hosts, fn {r, {n, _}} -> n == prefix <> String.slice(r, 1..-1//1) end) do
-      {:prefix, prefix}
-    else
-      _ -> MapSet.new(Map.values(robot_hosts))
-    end
-  end
-
-  # The hops between the two farthest robots (a full mesh: 1).
-  defp robot_span(robots) when robots <= 16, do: 1
-
-  # How far a field must reach to cover every robot from any robot: the diameter of the
-  # robots' own graph (circulant, so any robot's eccentricity; the other hosts only add
-  # shortcuts, never length).
-  defp robot_span(robots) do
-    robot_topo = Topology.new(Enum.map(1..robots, &"r#{&1}"), robot_edges(robots))
-    robot_topo |> Topology.distances("r1") |> Map.values() |> Enum.max()
-  end
-
-  defp submit(dref, jobs, arrivals) do
-    if arrivals == [] do
-      Enum.each(jobs, &submit_one!(dref, &1))
-    else
-      t0 = System.monotonic_time(:millisecond)
-
-      jobs
-      |> Enum.zip(
-        arrivals ++ List.duplicate(List.last(arrivals), max(length(jobs) - length(arrivals), 0))
-      )
-      |> Enum.sort_by(&elem(&1, 1))
-      |> Enum.each(fn {job, at} ->
-        wait = at - (System.monotonic_time(:millisecond) - t0)
-        if wait > 0, do: Process.sleep(wait)
-        submit_one!(dref, job)
-      end)
-    end
-  end
-
-  # Asked again while the distributor is unreachable (its host restarting), for 30 s.
-  defp submit_one(dref, job, tries \\ 3000) do
-    case Tartarus.request(dref, {:submit, job}, 5_000) do
-      {:ok, :ok} ->
-        :ok
-
-      {:error, _} when tries > 0 ->
-        Process.sleep(10)
-        submit_one(dref, job, tries - 1)
-
-      other ->
-        {:error, "job #{inspect(job.id)} was refused: #{inspect(other)}"}
-    end
-  end
-
-  defp submit_one!(dref, job) do
-    with {:error, message} <- submit_one(dref, job), do: raise(message)
-  end
-
-  # Waits for the jobs, firing the events due: `{n, e}` once n jobs completed, `{{:ms, t}, e}`
-  # t ms after the submission.
-  defp await(opts, events, ctx, done, total, t0) do
-    now_ms = div(System.system_time(:microsecond) - t0, 1000)
-    {due, events} = Enum.split_with(events, &match?({{:ms, t}, _} when t <= now_ms, &1))
-    Enum.each(due, fn {_, e} -> fire_one(e, ctx) end)
-
-    next =
-      events
-      |> Enum.flat_map(fn
-        {{:ms, t}, _} -> [t - now_ms]
-        _ -> []
-      end)
-      |> Enum.min(fn -> opts[:timeout_ms] end)
-
-    cond do
-      map_size(done) >= total ->
-        done
-
-      now_ms > opts[:timeout_ms] ->
-        done
-
-      true ->
-        receive do
-          {:warehouse_job_done, id, at} ->
-            done = Map.put(done, id, at)
-            Panel.publish(ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(done)}))
-            fire(events, map_size(done), ctx)
-            await(opts, events, ctx, done, total, t0)
-
-          # The distributor failed: the jobs it held will not complete; no use waiting.
-          {:warehouse_distributor_failed, reason} ->
-            send(self(), {:warehouse_failed, reason})
-            done
-
-          {:tartarus_removed, id, reason} when id == elem(ctx.dref, 0) ->
-            send(self(), {:warehouse_failed, "the distributor was removed: #{inspect(reason)}"})
-            done
-        after
-          max(min(next, opts[:timeout_ms]), 0) ->
-            await(opts, events, ctx, done, total, t0)
-        end
-    end
-  end
-
-  defp events(opts) do
-    retire =
-      Enum.map(opts[:retire], fn
-        {i, n} -> {n, {:retire, i}}
-        other -> {:retire_option, other}
-      end)
-
-    retire ++ opts[:events]
-  end
-
-  defp fire(events, count, ctx) do
-    for {^count, event} <- events, do: fire_one(event, ctx)
-    :ok
-  end
-
-  # A change the floor refuses (an unknown robot, a task already inserted, ...) changes
-  # nothing; it is reported in the result's `refused_events`.
-  defp fire_one(event, ctx) do
-    case apply_event(event, ctx) do
-      :ok -> send(self(), {:warehouse_applied, event, System.system_time(:microsecond)})
-      {:error, reason} -> send(self(), {:warehouse_refused, event, reason})
-    end
-
-    :ok
-  end
-
-  defp apply_event({:insert, _, _}, %{design: :central}),
-    do: {:error, "the central baseline takes no on-the-fly changes"}
-
-  defp apply_event({:delete, _}, %{design: :central}),
-    do: {:error, "the central baseline takes no on-the-fly changes"}
-
-  # Every change is checked first (`Job.change/2`: the one door for changes); a malformed
-  # one never reaches the distributor or a robot.
-  defp apply_event(event, ctx) do
-    case Job.change(event, ctx.world) do
-      {:ok, event} -> apply_valid(event, ctx)
-      {:error, message} -> {:error, message}
-    end
-  end
-
-  defp apply_valid(event, %{dref: dref, robot_hosts: robot_hosts, net: net} = ctx) do
-    result =
-      case event do
-        {:retire, i} -> retire(ctx, i)
-        {:join, i} -> plugin(robot_hosts, i, :join)
-        {:insert, after_task, task} -> Tartarus.request(dref, {:insert, after_task, task}, 30_000)
-        {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
-        {:kill_distributor, down_ms} -> kill_distributor(net, down_ms)
-      end
-
-    case result do
-      ok when ok in [:ok, {:ok, :ok}] -> :ok
-      {:ok, {:error, reason}} -> {:error, reason}
-      {:error, :timeout} -> {:error, "the distributor did not answer within 30 s"}
-      {:error, reason} when is_binary(reason) -> {:error, reason}
-      {:error, reason} -> {:error, "#{inspect(event)} failed: #{inspect(reason)}"}
-    end
-  end
-
-  # A robot may leave only if the robots still in service (not off, not retiring) reach
-  # every resource it reaches: the floor never takes jobs it has no robot for, and no task
-  # agent searches for a robot that will not come back.
-  defp retire(ctx, i) do
-    name = "r#{i}"
-
-    with {:ok, host} <- robot_host(ctx.robot_hosts, i),
-         {:ok, states} <- robot_states(ctx.robot_hosts),
-         :ok <- still_served(ctx.world, states, name) do
-      Tartarus.write_plugin(host, :robot, :retire)
-    end
-  end
-
-  defp still_served(world, states, name) do
-    in_service = fn r -> match?(%{off: false, retiring: false}, states[r]) end
-
-    if in_service.(name) do
-      others = for {r, reach} <- world.robots, r != name, in_service.(r), do: reach
-
-      lost =
-        MapSet.difference(world.robots[name], Enum.reduce(others, MapSet.new(), &MapSet.union/2))
-
-      cond do
-        others == [] ->
-          {:error,
-           "robot #{String.slice(name, 1..-1//1)} is the last robot in service: retiring it would leave the floor no robot to run jobs (let a standby robot join first)"}
-
-        MapSet.size(lost) > 0 ->
-          {:error,
-           "robot #{String.slice(name, 1..-1//1)} is the last robot in service that reaches #{lost |> Enum.sort() |> Enum.map_join(", ", &inspect/1)}: retiring it would leave jobs that need it no robot"}
-
-        true ->
-          :ok
-      end
-    else
-      # Already off or leaving: retiring it again changes nothing.
-      :ok
-    end
-  end
-
-  defp robot_states(robot_hosts) do
-    Enum.reduce_while(robot_hosts, {:ok, %{}}, fn {name, host}, {:ok, acc} ->
-      case Tartarus.read_plugin(host, :robot, :state) do
-        {:ok, state} ->
-          {:cont, {:ok, Map.put(acc, name, state)}}
-
-        {:error, reason} ->
-          {:halt,
-           {:error, "robot #{name} could not be read (#{inspect(reason)}): nothing retired"}}
-      end
-    end)
-  end
-
-  # The distributor's host dies with everything on it, and starts again `down_ms` later
-  # (on its journal, with `failover: true`).
-  defp kill_distributor(net, down_ms) do
-    :ok = Network.kill_node(net, "jd")
-    send(self(), {:warehouse_killed, System.system_time(:microsecond)})
-    Process.sleep(down_ms)
-    Network.restart_node(net, "jd")
-  end
-
-  defp plugin(robot_hosts, i, what) do
-    with {:ok, host} <- robot_host(robot_hosts, i), do: Tartarus.write_plugin(host, :robot, what)
-  end
-
-  defp robot_host(robot_hosts, i) do
-    case Map.fetch(robot_hosts, "r#{i}") do
-      {:ok, host} -> {:ok, host}
-      :error -> {:error, "no robot #{inspect(i)}"}
-    end
-  end
-
-  defp killed do
-    receive do
-      {:warehouse_killed, at} -> [at | killed()]
-    after
-      0 -> []
-    end
-  end
-
-  defp applied do
-    receive do
-      {:warehouse_applied, event, at} -> [%{event: event, at_us: at} | applied()]
-    after
-      0 -> []
-    end
-  end
-
-  defp failed do
-    receive do
-      {:warehouse_failed, reason} -> reason
-    after
-      0 -> nil
-    end
-  end
-
-  defp refused do
-    receive do
-      {:warehouse_refused, event, reason} -> [%{event: event, reason: reason} | refused()]
-    after
-      0 -> []
-    end
-  end
-
-  # -- a floor you drive ---------------------------------------------------------------
-
-  @start_extra [
-    dashboard: [
-      type: :any,
-      default: nil,
-      doc:
-        "serve the web dashboard on this port (127.0.0.1), or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the floor's hosts and the warehouse panel (`TartarusWarehouse.Panel`); nil: none"
-    ]
-  ]
 
   @doc """
   Starts a floor that stays up until `stop/1` (not linked to the caller). Options: those of
-  `run/1` (the `jobs` given are submitted at once; `events`, `retire`, `arrivals_ms` and
-  `timeout_ms` are for `run/1`: here, call `change/2`), and `dashboard`. Give `resources`
+  `run/1` (the `jobs` given are submitted at their `arrivals_ms`, at once by default;
+  `events`, `retire` and `timeout_ms` are for `run/1`: here, call `change/2`), and
+  `dashboard`. Give `resources`
   for jobs to come (by default the floor knows the resources its first jobs name).
   Returns `{:ok, floor}` or `{:error, message}`.
   """
   @spec start(keyword()) :: {:ok, pid()} | {:error, String.t()}
   def start(opts \\ []) do
-    with {:ok, opts} <-
-           Tartarus.Options.validate(
-             opts,
-             @schema ++ @start_extra,
-             "TartarusWarehouse.Floor.start/1"
-           ),
-         :ok <- check_standby(opts, "start/1"),
-         world = world(opts),
-         :ok <- plan_all(opts[:jobs], world) do
-      case GenServer.start(__MODULE__, {world, opts}) do
-        {:ok, pid} -> {:ok, pid}
-        {:error, {:dashboard, message}} -> {:error, message}
-        {:error, reason} -> {:error, "the floor did not start: #{inspect(reason)}"}
-      end
+    with {:ok, opts, world} <- Options.check_start(opts) do
+      launch(world, opts, %{events: [], owner: nil})
+    end
+  end
+
+  # `run` is the batch's events and, for run/1, its caller: the floor stops if it goes.
+  defp launch(world, opts, run) do
+    case GenServer.start(__MODULE__, {world, opts, run}) do
+      {:ok, pid} -> {:ok, pid}
+      {:error, {:dashboard, message}} -> {:error, message}
+      {:error, reason} -> {:error, "the floor did not start: #{inspect(reason)}"}
     end
   end
 
@@ -843,23 +153,27 @@ defmodule TartarusWarehouse.Floor do
   end
 
   @doc """
-  Stops a started floor and returns `{:ok, result}`: the keys of `run/1`'s result that
-  describe what ran (`history`, `jobs`, `completed`, `timed_out`: the jobs not completed
-  when it stopped, `t0_us`, `makespan_ms`, `robots`, `migrations`, `bytes`, `messages`),
-  with `mutex_violations` (Eq. 4.1, pairs of executions:
-  `TartarusWarehouse.Checker.violations/1`) and `changes` (every `change/2`, with its time
-  and its result, `:ok` or `{:error, reason}`) instead of `run/1`'s event lists.
+  Stops a started floor and returns `{:ok, result}`: what ran (`history`, `jobs`,
+  `completed`, `timed_out`: the jobs not completed when it stopped, `t0_us`,
+  `makespan_ms`, `robots`, `migrations`, `bytes`, `messages`: see
+  `TartarusWarehouse.Floor.Build.collect/4`), `mutex_violations` (Eq. 4.1, pairs of
+  executions: `TartarusWarehouse.Checker.violations/1`), `changes` (every change, from
+  `change/2` or `run/1`'s events, with its time and its result, `:ok` or
+  `{:error, reason}`), the same split as `applied_events` (`event`, `at_us`) and
+  `refused_events` (`event`, `reason`), `killed_at_us` (when the distributor's host was
+  killed) and `failed` (see `status/1`).
   """
   @spec stop(pid()) :: {:ok, map()}
   def stop(floor), do: GenServer.call(floor, :stop, 60_000)
 
   @impl GenServer
-  def init({world, opts}) do
+  def init({world, opts, run}) do
     Process.flag(:trap_exit, true)
-    table = TartarusWarehouse.Panel.new()
-    ctx = start_floor(world, Keyword.put(opts, :status, table), self())
+    if run.owner, do: Process.monitor(run.owner)
+    table = opts[:status] || TartarusWarehouse.Panel.new()
+    ctx = Build.start(world, Keyword.put(opts, :status, table), self())
     t0 = System.system_time(:microsecond)
-    publish_floor(ctx, 0, t0)
+    :ok = Build.publish(ctx, 0, t0)
 
     case start_dashboard(opts[:dashboard], ctx, table) do
       {:ok, dash} ->
@@ -871,16 +185,88 @@ defmodule TartarusWarehouse.Floor do
           waiters: [],
           dash: dash,
           changes: [],
+          killed: [],
           failed: nil,
-          errors: []
+          errors: [],
+          events: run.events,
+          arriving: 0
         }
 
-        {:ok, Enum.reduce(opts[:jobs], st, &elem(do_submit(&1, &2), 1))}
+        {:ok, st |> arrive(opts[:jobs], opts[:arrivals_ms]) |> schedule_events()}
 
       {:error, message} ->
-        stop_floor(ctx)
+        Build.stop(ctx)
         {:stop, {:dashboard, message}}
     end
+  end
+
+  # Jobs due at once are submitted now, the others when they arrive (`{:arrive, job}`);
+  # the events due once 0 jobs completed fire when every job has been submitted.
+  defp arrive(st, jobs, []), do: st |> submit_all(jobs) |> fire(0)
+
+  defp arrive(st, jobs, arrivals) do
+    timed =
+      jobs
+      |> Enum.zip(
+        arrivals ++ List.duplicate(List.last(arrivals), max(length(jobs) - length(arrivals), 0))
+      )
+      |> Enum.sort_by(&elem(&1, 1))
+
+    {now, later} = Enum.split_with(timed, fn {_job, at} -> at <= 0 end)
+    Enum.each(later, fn {job, at} -> Process.send_after(self(), {:arrive, job}, at) end)
+    st = submit_all(st, Enum.map(now, &elem(&1, 0)))
+    if later == [], do: fire(st, 0), else: %{st | arriving: length(later)}
+  end
+
+  # The jobs of run/1 and start/1 were planned before the floor started: a refusal here is
+  # the distributor's, and fails the floor.
+  defp submit_all(st, jobs) do
+    Enum.reduce(jobs, st, fn job, st ->
+      case do_submit(job, st) do
+        {:ok, st} -> st
+        {{:error, message}, st} -> fail(st, message)
+      end
+    end)
+  end
+
+  # `{{:ms, t}, event}`: t ms after `t0` (taken before the first job was submitted).
+  defp schedule_events(st) do
+    elapsed_ms = div(System.system_time(:microsecond) - st.t0, 1000)
+
+    Enum.each(st.events, fn
+      {{:ms, t}, event} -> Process.send_after(self(), {:event_due, event}, max(t - elapsed_ms, 0))
+      _ -> :ok
+    end)
+
+    st
+  end
+
+  # The events due once `count` jobs completed, in the order given; none once the floor
+  # failed.
+  defp fire(%{failed: nil} = st, count) do
+    Enum.reduce(st.events, st, fn
+      {^count, event}, st -> fire_one(event, st)
+      _, st -> st
+    end)
+  end
+
+  defp fire(st, _count), do: st
+
+  defp fire_one(event, st) do
+    at = System.system_time(:microsecond)
+    {_result, st} = apply_change(event, st)
+    if match?({:kill_distributor, _}, event), do: %{st | killed: [at | st.killed]}, else: st
+  end
+
+  # A change, from change/2 or the batch's events, applied and kept with its result.
+  defp apply_change(event, st) do
+    {result, st} =
+      guarded(st, {"change", event}, fn st ->
+        {Changes.apply_change(event, st.ctx), st}
+      end)
+
+    change = %{event: event, at_us: System.system_time(:microsecond), result: result}
+    {result, %{st | changes: [change | st.changes]}}
   end
 
   defp start_dashboard(nil, _ctx, _table), do: {:ok, nil}
@@ -901,28 +287,33 @@ defmodule TartarusWarehouse.Floor do
   end
 
   def handle_call({:submit, job}, _from, st) do
-    {reply, st} = guarded(st, "submit #{inspect(job, limit: 5)}", &do_submit(job, &1))
+    {reply, st} = guarded(st, {"submit", job}, &do_submit(job, &1))
     {:reply, reply, st}
   end
 
-  def handle_call({:change, event}, _from, st) do
-    {result, st} =
-      guarded(st, "change #{inspect(event, limit: 5)}", fn st ->
-        result =
-          case event do
-            {:kill_distributor, _} when not st.ctx.failover ->
-              {:error,
-               "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
-
-            _ ->
-              apply_event(event, st.ctx)
-          end
-
-        {result, st}
-      end)
+  def handle_call(
+        {:change, {:kill_distributor, _} = event},
+        _from,
+        %{ctx: %{failover: false}} = st
+      ) do
+    result =
+      {:error,
+       "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
 
     change = %{event: event, at_us: System.system_time(:microsecond), result: result}
     {:reply, result, %{st | changes: [change | st.changes]}}
+  end
+
+  def handle_call({:change, event}, _from, st) do
+    at = System.system_time(:microsecond)
+    {result, st} = apply_change(event, st)
+
+    st =
+      if match?({:kill_distributor, _}, event) and result == :ok,
+        do: %{st | killed: [at | st.killed]},
+        else: st
+
+    {:reply, result, st}
   end
 
   def handle_call(:status, _from, st) do
@@ -964,12 +355,18 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp stop_call(_from, st) do
-    result = collect(st.ctx, st.jobs, st.done, st.t0)
+    result = Build.collect(st.ctx, st.jobs, st.done, st.t0)
+    changes = Enum.reverse(st.changes)
 
     result =
       Map.merge(result, %{
         mutex_violations: length(Checker.violations(result.history)),
-        changes: Enum.reverse(st.changes)
+        changes: changes,
+        applied_events: for(%{result: :ok} = c <- changes, do: Map.take(c, [:event, :at_us])),
+        refused_events:
+          for(%{event: e, result: {:error, reason}} <- changes, do: %{event: e, reason: reason}),
+        killed_at_us: Enum.reverse(st.killed),
+        failed: st.failed
       })
 
     Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, {:error, :stopped}) end)
@@ -982,6 +379,7 @@ defmodule TartarusWarehouse.Floor do
   def handle_info({:warehouse_job_done, id, at}, st) do
     st = %{st | done: Map.put(st.done, id, at)}
     Panel.publish(st.ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(st.done)}))
+    st = fire(st, map_size(st.done))
 
     if all_done?(st) do
       Enum.each(st.waiters, fn {_, from} -> GenServer.reply(from, :ok) end)
@@ -990,6 +388,22 @@ defmodule TartarusWarehouse.Floor do
       {:noreply, st}
     end
   end
+
+  def handle_info({:arrive, job}, st) do
+    st = submit_all(%{st | arriving: st.arriving - 1}, [job])
+    {:noreply, if(st.arriving == 0, do: fire(st, 0), else: st)}
+  end
+
+  # A batch's timed event; dropped once every job is done (the batch is over) or the floor
+  # failed.
+  def handle_info({:event_due, event}, st) do
+    if st.failed == nil and not all_done?(st),
+      do: {:noreply, fire_one(event, st)},
+      else: {:noreply, st}
+  end
+
+  # run/1's caller is gone: so is its floor.
+  def handle_info({:DOWN, _ref, :process, _pid, _reason}, st), do: {:stop, :normal, st}
 
   def handle_info({:await_timeout, ref}, st) do
     case List.keytake(st.waiters, ref, 0) do
@@ -1028,13 +442,13 @@ defmodule TartarusWarehouse.Floor do
       end
     end
 
-    if st.ctx, do: stop_floor(st.ctx)
+    if st.ctx, do: Build.stop(st.ctx)
   end
 
   defp do_submit(job, st) do
     with {:ok, _} <- Job.plan(job, st.ctx.world),
          false <- job.id in st.jobs,
-         :ok <- submit_one(st.ctx.dref, job) do
+         :ok <- Changes.submit(st.ctx.dref, job) do
       st = %{st | jobs: st.jobs ++ [job.id]}
       Panel.publish(st.ctx.status, &:ets.update_element(&1, :jobs, {2, length(st.jobs)}))
       {:ok, st}
@@ -1044,7 +458,8 @@ defmodule TartarusWarehouse.Floor do
     end
   end
 
-  defp all_done?(st), do: Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
+  # Every job submitted so far completed, and none still to arrive.
+  defp all_done?(st), do: st.arriving == 0 and Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
 
   defp fail(%{failed: nil} = st, reason) do
     Enum.each(st.waiters, fn {_, from} ->
@@ -1061,12 +476,15 @@ defmodule TartarusWarehouse.Floor do
 
   # An exception while the floor handles a request is the caller's answer, `{:error,
   # message}`, and is kept in status/1's `errors`; the floor goes on, unchanged.
-  defp guarded(st, what, fun) do
+  # `what` is `{verb, term}`, inspected only for the message: a change fired at its time
+  # pays nothing for it.
+  defp guarded(st, {verb, term}, fun) do
     fun.(st)
   catch
     kind, reason ->
       message =
-        "the floor could not #{what}: " <> Exception.format_banner(kind, reason, __STACKTRACE__)
+        "the floor could not #{verb} #{inspect(term, limit: 5)}: " <>
+          Exception.format_banner(kind, reason, __STACKTRACE__)
 
       {{:error, message}, %{st | errors: [message | st.errors]}}
   end

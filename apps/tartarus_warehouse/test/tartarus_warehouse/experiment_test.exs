@@ -98,6 +98,14 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert File.read!(Path.join(dir, "gantt_2_robots_by_job.svg")) =~ "J2"
     assert File.read!(Path.join(dir, "summary.json")) =~ ~s("speedup")
     assert File.read!(Path.join(dir, "executions.csv")) =~ "point,run,robot,job,task"
+
+    # The points are a sweep's arms (TartarusEmu.Sweep): a run each, aggregated per arm.
+    assert s.sweep.arms == ["1", "2"] and s.sweep.seeds == [1] and s.sweep.runs == 2
+    assert s.sweep.aggregates["2"].mutex_violations.max == 0
+    assert s.sweep.aggregates["1"].makespan_ms_equal.n == 1
+    runs_csv = File.read!(Path.join([dir, "sweep", "runs.csv"]))
+    assert runs_csv =~ "arm,seed,makespan_ms_variable,makespan_ms_equal"
+    assert length(String.split(runs_csv, "\n", trim: true)) == 3
   end
 
   test "scaling: agents and central keyed by tasks per job", %{tmp_dir: dir} do
@@ -117,6 +125,16 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert Map.keys(s.avg_task_ms_central) == ["5"]
     assert Map.keys(s.avg_task_ms_agents_guided) == ["5"]
     assert s.mutex_violations == 0 and s.deadlocks == 0 and s.completed_jobs == 6 and s.jobs == 6
+  end
+
+  test "failover: the three seeds are the sweep's seeds, one arm; the run without persistence loses jobs" do
+    {:ok, %{summary: s}} = Experiment.run(experiment: :failover, seed: 4, out: false, quiet: true)
+
+    assert s.sweep.arms == ["kills"] and s.sweep.seeds == [4, 5, 6]
+    assert s.seeds == [4, 5, 6] and s.kills == 6
+    assert s.jobs_lost == 0 and s.jobs_duplicated == 0 and s.mutex_violations == 0
+    assert s.jobs == 30 and s.completed_jobs == 30
+    assert s.jobs_lost_without_persistence > 0
   end
 
   test "options are checked with the platform's wording" do

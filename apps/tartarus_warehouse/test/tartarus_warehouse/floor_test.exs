@@ -1,12 +1,15 @@
 defmodule TartarusWarehouse.FloorTest do
   use ExUnit.Case, async: false
   doctest TartarusWarehouse.Floor
+  doctest TartarusWarehouse.Floor.Build
+  doctest TartarusWarehouse.Floor.Options
 
-  alias TartarusWarehouse.{Checker, Experiment, Floor}
+  alias TartarusWarehouse.{Checker, Floor}
+  alias TartarusWarehouse.Experiment.Jobs
   alias TartarusTools.Prop
 
   test "task agents run 6 jobs on 3 robots: every job completes, no resource is held twice, robots pipeline" do
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
     {:ok, r} = Floor.run(robots: 3, jobs: jobs, scale: 0.01, jitter: 0.3, seed: 3)
     assert r.timed_out == []
     assert Checker.violations(r.history) == []
@@ -22,7 +25,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "jobs arrive asynchronously: a job submitted later starts later and still completes" do
-    jobs = Experiment.thesis_jobs(3, 1000)
+    jobs = Jobs.thesis_jobs(3, 1000)
     {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, arrivals_ms: [0, 0, 120])
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 3
@@ -30,8 +33,52 @@ defmodule TartarusWarehouse.FloorTest do
     assert first_of_3 - r.t0_us >= 120_000
   end
 
+  test "run/1 drives the floor's one process: the batch's events are its changes, and the floor goes with its caller" do
+    jobs = Jobs.thesis_jobs(3, 1000)
+
+    {:ok, r} =
+      Floor.run(
+        robots: 1,
+        jobs: jobs,
+        scale: 0.01,
+        events: [{1, {:retire, 1}}, {2, {:delete, "T4"}}]
+      )
+
+    assert r.timed_out == [] and r.failed == nil and r.mutex_violations == 0
+
+    assert [
+             %{event: {:retire, 1}, result: {:error, last}},
+             %{event: {:delete, "T4"}, result: :ok}
+           ] = r.changes
+
+    assert last =~ "robot 1 is the last robot in service"
+    assert [%{event: {:delete, "T4"}}] = r.applied_events
+    assert [%{event: {:retire, 1}, reason: ^last}] = r.refused_events
+
+    # The caller of run/1 dies while its jobs run: the floor stops and its hosts go.
+    hosts_before = length(Tartarus.hosts())
+    long = [%{id: 1, tasks: [%{name: "T1", resources: [:a], duration_ms: 400_000}]}]
+    caller = spawn(fn -> Floor.run(robots: 2, jobs: long, scale: 0.01) end)
+    eventually(fn -> floors() != [] end)
+    [floor] = floors()
+    ref = Process.monitor(floor)
+    Process.exit(caller, :kill)
+    assert_receive {:DOWN, ^ref, :process, ^floor, _}, 10_000
+    eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
+  end
+
+  # The floors running now (GenServers of this module).
+  defp floors do
+    for pid <- Process.list(),
+        match?(
+          {Floor, :init, 1},
+          Process.info(pid, :dictionary) |> elem(1) |> Keyword.get(:"$initial_call")
+        ),
+        do: pid
+  end
+
   test "the centralized baseline runs the same jobs with no migration" do
-    jobs = Experiment.thesis_jobs(4, 1000)
+    jobs = Jobs.thesis_jobs(4, 1000)
     {:ok, r} = Floor.run(robots: 2, jobs: jobs, scale: 0.01, design: :central)
     assert r.timed_out == []
     assert Checker.violations(r.history) == []
@@ -42,7 +89,7 @@ defmodule TartarusWarehouse.FloorTest do
   test "a central server with a service time makes every robot wait for it between blocks" do
     # One robot: each block starts only after the server handled the previous "finished"
     # (server_ms) and sent the next command. A lower bound only: no timing upper bound.
-    jobs = Experiment.thesis_jobs(2, 1000)
+    jobs = Jobs.thesis_jobs(2, 1000)
     {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, server_ms: 25)
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 2
@@ -116,7 +163,7 @@ defmodule TartarusWarehouse.FloorTest do
       end
       """)
 
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
     t2a = %{name: "T2A", resources: [:detour], program: detour, duration_ms: 1000}
 
     {:ok, r} =
@@ -148,7 +195,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "a standby robot joins while the floor runs" do
-    jobs = Experiment.thesis_jobs(6, 1000)
+    jobs = Jobs.thesis_jobs(6, 1000)
 
     {:ok, r} =
       Floor.run(robots: 2, standby: [2], jobs: jobs, scale: 0.01, events: [{2, {:join, 2}}])
@@ -160,7 +207,7 @@ defmodule TartarusWarehouse.FloorTest do
   end
 
   test "the distributor's host killed twice and started again on its journal: no job lost, none duplicated" do
-    jobs = Experiment.thesis_jobs(8, 1000)
+    jobs = Jobs.thesis_jobs(8, 1000)
 
     {:ok, r} =
       Floor.run(

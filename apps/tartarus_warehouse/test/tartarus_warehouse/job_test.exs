@@ -5,6 +5,8 @@ defmodule TartarusWarehouse.JobTest do
   doctest TartarusWarehouse.Program
   doctest TartarusWarehouse.Roam
   doctest TartarusWarehouse.Experiment
+  doctest TartarusWarehouse.Experiment.Jobs
+  doctest TartarusWarehouse.Experiment.Scaling
 
   alias TartarusWarehouse.Job
 

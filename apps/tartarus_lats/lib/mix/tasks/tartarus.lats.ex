@@ -52,7 +52,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   seconds drawn from the seed after a 120 s warm-up, about whoever has come into the
   building, moving or not) or `settled` (only about a target settled in its zone for 20 s or
   out for 30 s). `--noise-db` is the radio's Gaussian noise (default 4 dB). One definition of
-  a correct answer serves both (`TartarusLats.Experiment.correct?/4`): the answer must be
+  a correct answer serves both (`TartarusLats.Judge.correct?/4`): the answer must be
   true of the target at some second of the 15 s before the release (the trackers' lag);
   the summary splits it into `correct_settled` and `correct_moving` (shares of the queries
   whose target was, or was not, settled at release).

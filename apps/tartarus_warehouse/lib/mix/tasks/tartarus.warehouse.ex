@@ -2,7 +2,8 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   @shortdoc "Warehouse: mutual exclusion by a clock-less pipeline of task agents (thesis ch. 4)"
   @moduledoc """
   Runs the warehouse experiments of the thesis (§4.7) on emulated floors (see
-  `TartarusWarehouse.Experiment`): task agents carry each task's program and are the
+  `TartarusWarehouse.Experiment`; the experiment named by `--experiment` is found in its
+  registry, `TartarusWarehouse.Experiment.experiments/0`, one module each): task agents carry each task's program and are the
   tokens of its resources; robots line up into a clock-less pipeline.
 
       mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
@@ -46,13 +47,17 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   Output (in `--out DIR`, default `results/warehouse-<experiment>-<UTC timestamp>`):
   `executions.csv` (every task executed: robot, job, task, resources, start, stop), the
   Gantt charts (one lane per robot), the series as CSV and SVG, `summary.json` and
-  `summary.md`.
+  `summary.md`; and in `sweep/` what `TartarusEmu.Sweep` writes for the experiment's runs
+  (an arm a point: a robot count, a job size; for `failover` one arm on seeds S..S+2):
+  `runs.csv` (each run's makespan per floor kind, completed jobs, violations, deadlocks),
+  its own `summary.json` and `summary.md`.
 
   Summary keys (all experiments): `experiment, jobs, tasks, completed_jobs,
   mutex_violations` (Eq. 4.1, pairs of executions on two robots holding one resource at
   one instant), `deadlocks` (jobs not completed within `--timeout-ms`), `speedup` (for
   `robots` an object keyed by robot count, else null), `scale, mode, wall_ms` and the
-  runner's `scenario, seed, steps, setup_ms, run_ms`. `robots` adds `speedup_equal,
+  runner's `scenario, seed, steps, setup_ms, run_ms` (`steps` is 1: the sweep), and
+  `sweep` (`name, seeds, arms, runs`, the per-arm `aggregates` of `TartarusEmu.Sweep`). `robots` adds `speedup_equal,
   makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
   jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central,
   avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, slope_ms_per_task, latency_ms, server_ms,
@@ -109,28 +114,9 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     end
   end
 
+  # The experiment's own lines (its module, from the registry), then the common ones.
   defp text(s, dir) do
-    lines =
-      case s.experiment do
-        "robots" ->
-          "speed-up (variable durations): #{inspect(s.speedup)}; thesis #{inspect(s.speedup_thesis)}\n" <>
-            "speed-up (equal durations, #{s.jobs_equal} jobs): #{inspect(s.speedup_equal)}"
-
-        "scaling" ->
-          "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
-
-        "failover" ->
-          "kills #{s.kills}: jobs lost #{s.jobs_lost}, duplicated #{s.jobs_duplicated} (without persistence: #{s.jobs_lost_without_persistence} lost)"
-
-        "otfp" ->
-          "tasks per job: #{inspect(s.tasks_in_job)}\nms per task: #{inspect(s.ms_per_task)}"
-
-        "removal" ->
-          "jobs per robot: #{inspect(s.jobs_per_robot)}"
-
-        "mixed" ->
-          "jobs whose two sequences overlapped: #{inspect(s.jobs_with_concurrent_sequences)}"
-      end
+    lines = Experiment.module(String.to_existing_atom(s.experiment)).text(s)
 
     """
     jobs #{s.jobs}, completed #{s.completed_jobs}, tasks run #{s.tasks}, mutex violations #{s.mutex_violations}, deadlocks #{s.deadlocks}

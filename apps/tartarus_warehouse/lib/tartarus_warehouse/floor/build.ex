@@ -1,0 +1,283 @@
+defmodule TartarusWarehouse.Floor.Build do
+  @moduledoc """
+  Builds a warehouse floor on the emulator and takes it down: the network of §4.7.1
+  (robot nodes, secondary nodes that only relay agents, the distributor's node) started
+  with `TartarusEmu.Network`, a robot plugin on each robot host, and the distributor (or,
+  for the baseline, the central server and its robot agents) created on it; what ran, read
+  back from the robots and the network's event log. `TartarusWarehouse.Floor` drives it.
+
+  ## Topology
+
+  Node `"jd"` is the distributor's (the server's in the baseline); robots `"r1".."rk"` are
+  linked to each other (a full mesh up to 16 robots, else a ring with chords to the robots
+  4 and 16 places on) and to `"jd"` (the first 16); secondary nodes `"s1"..` hang on two
+  robots each. Task agents move among robots (`TartarusWarehouse.Roam`).
+  """
+
+  alias TartarusEmu.{Network, Topology}
+  alias TartarusTools.Dashboard.Panel
+  alias TartarusWarehouse.{Job, Robot}
+
+  @typedoc "A started floor (see `start/3`)."
+  @type ctx :: map()
+
+  @doc """
+  The floor's topology for `robots` robots and `secondary` relay nodes.
+
+      iex> t = TartarusWarehouse.Floor.Build.topology(3, 2)
+      iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
+      {6, true}
+  """
+  @spec topology(pos_integer(), non_neg_integer()) :: Topology.t()
+  def topology(robots, secondary) do
+    rs = Enum.map(1..robots, &"r#{&1}")
+    ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
+
+    robot_edges = robot_edges(robots)
+    jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
+
+    s_edges =
+      for {s, i} <- Enum.with_index(ss),
+          r <- Enum.uniq([rem(i, robots) + 1, rem(i + 1, robots) + 1]),
+          do: {s, "r#{r}"}
+
+    Topology.new(["jd" | rs] ++ ss, Enum.uniq(robot_edges ++ jd_edges ++ s_edges))
+  end
+
+  # Robots: a full mesh up to 16, else a ring with chords 4 and 16 places on (modulo the
+  # robots: a circulant graph, the same seen from every robot).
+  defp robot_edges(robots) do
+    if robots <= 16,
+      do: for(i <- 1..robots, j <- (i + 1)..robots//1, do: {"r#{i}", "r#{j}"}),
+      else:
+        for(
+          i <- 1..robots,
+          d <- [1, 4, 16],
+          j = rem(i - 1 + d, robots) + 1,
+          j != i,
+          do: {"r#{min(i, j)}", "r#{max(i, j)}"}
+        )
+  end
+
+  @doc """
+  Starts the floor's network, a robot plugin on each robot host and the distributor (or
+  the central server and its robot agents) for `world` and the checked `opts` (see
+  `TartarusWarehouse.Floor.Options`). `owner` gets `{:warehouse_job_done, id, at_us}` for
+  every job completed, `{:warehouse_distributor_failed, reason}` and
+  `{:tartarus_removed, id, reason}` if the distributor fails. Returns the floor's context
+  (`dref`: the distributor, `robot_hosts`, `net`, `log`, `status`, `design`, `guide`,
+  `failover`, `data_dir`, `world`) for `publish/3`, `collect/4` and `stop/1`.
+  """
+  @spec start(Job.world(), keyword(), pid()) :: ctx()
+  def start(world, opts, owner) do
+    robots = opts[:robots]
+
+    setup = fn node, host ->
+      case node do
+        "r" <> i ->
+          i = String.to_integer(i)
+
+          :ok =
+            Tartarus.attach_plugin(
+              host,
+              :robot,
+              {Robot,
+               robot: node,
+               reach: if(opts[:reach] == :all, do: :all, else: Map.get(opts[:reach], i, [])),
+               scale: opts[:scale],
+               pace: Enum.at(opts[:paces], i - 1, 1.0),
+               jitter: opts[:jitter],
+               seed: opts[:seed],
+               off: i in opts[:standby]}
+            )
+
+          :ok
+
+        _ ->
+          :ok
+      end
+    end
+
+    data_dir =
+      if opts[:failover],
+        do: Path.join(System.tmp_dir!(), "warehouse-jd-#{System.unique_integer([:positive])}")
+
+    node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
+
+    {:ok, net} =
+      Network.start(topology(robots, opts[:secondary]),
+        mode: opts[:mode],
+        setup: setup,
+        node_opts: node_opts,
+        link: [latency_ms: opts[:latency_ms]]
+      )
+
+    try do
+      start_agents(net, world, opts, owner, data_dir)
+    rescue
+      e ->
+        Network.stop(net)
+        if data_dir, do: File.rm_rf(data_dir)
+        reraise e, __STACKTRACE__
+    end
+  end
+
+  defp start_agents(net, world, opts, owner, data_dir) do
+    robots = opts[:robots]
+    design = opts[:design]
+    {:ok, log} = TartarusEmu.Log.start(net)
+    robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
+    jd = Network.host(net, "jd")
+
+    {:ok, dist} =
+      case design do
+        :agents ->
+          Tartarus.create_static_agent(
+            jd,
+            TartarusWarehouse.DistributorAgent,
+            %{
+              world: world,
+              owner: owner,
+              robots: robot_set(robot_hosts),
+              all_robots: MapSet.new(Map.values(robot_hosts)),
+              idle_ms: opts[:idle_ms],
+              round: min(robots, 16),
+              seed: opts[:seed],
+              validate: opts[:failover],
+              guide: if(opts[:guide], do: robot_span(robots))
+            },
+            # told `{:tartarus_removed, id, reason}` if it is removed
+            owner: owner
+          )
+
+        :central ->
+          agents =
+            Map.new(robot_hosts, fn {name, host} ->
+              {:ok, id} =
+                Tartarus.create_static_agent(host, TartarusWarehouse.CentralRobot, %{
+                  robot: name,
+                  server: nil
+                })
+
+              {name, {id, host}}
+            end)
+
+          {:ok, sid} =
+            Tartarus.create_static_agent(
+              jd,
+              TartarusWarehouse.Central,
+              %{world: world, owner: owner, robots: agents, server_ms: opts[:server_ms]},
+              owner: owner
+            )
+
+          Enum.each(agents, fn {_, a} -> :ok = Tartarus.post(a, {:server, {sid, jd}}) end)
+          {:ok, sid}
+      end
+
+    %{
+      dref: {dist, jd},
+      robot_hosts: robot_hosts,
+      net: net,
+      log: log,
+      status: opts[:status],
+      design: design,
+      guide: opts[:guide],
+      failover: opts[:failover],
+      data_dir: data_dir,
+      world: world
+    }
+  end
+
+  @doc """
+  Publishes the floor (its network, robot hosts, design, start time `t0` in µs) and its
+  `jobs` submitted so far to the status table of the dashboard's panel
+  (`TartarusWarehouse.Panel`), if the floor has one.
+  """
+  @spec publish(ctx(), non_neg_integer(), integer()) :: :ok
+  def publish(ctx, jobs, t0) do
+    Panel.publish(ctx.status, fn t ->
+      :ets.insert(t, [
+        {:floor,
+         %{
+           net: ctx.net,
+           robot_hosts: ctx.robot_hosts,
+           design: ctx.design,
+           guide: ctx.guide,
+           t0_us: t0
+         }},
+        {:jobs, jobs, 0}
+      ])
+    end)
+
+    :ok
+  end
+
+  @doc """
+  What ran on the floor: the robots' histories (`history`, see `TartarusWarehouse.Robot`),
+  the jobs submitted (`ids`) and their completions (`completed`: id => µs), `timed_out`
+  (not completed), `t0_us`, `makespan_ms` (from `t0` to the last completion), `robots`
+  (names, in order), and the network's totals from its event log (`migrations`, `bytes`,
+  `messages`).
+  """
+  @spec collect(ctx(), [term()], %{term() => integer()}, integer()) :: map()
+  def collect(ctx, ids, completed, t0) do
+    :ok = TartarusEmu.Log.sync(ctx.log)
+    totals = TartarusEmu.Log.totals(ctx.log)
+
+    history = Robot.history(ctx.robot_hosts)
+
+    last = completed |> Map.values() |> Enum.max(fn -> t0 end)
+
+    %{
+      design: ctx.design,
+      history: history,
+      jobs: ids,
+      completed: completed,
+      timed_out: Enum.reject(ids, &Map.has_key?(completed, &1)),
+      t0_us: t0,
+      makespan_ms: (last - t0) / 1000,
+      robots:
+        Map.keys(ctx.robot_hosts)
+        |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
+      migrations: Map.get(totals, :departures, 0),
+      bytes: Map.get(totals, :bytes, 0),
+      messages: Map.get(totals, :messages, 0)
+    }
+  end
+
+  @doc "Stops the floor: its panel entry, event log, network and journal directory."
+  @spec stop(ctx()) :: :ok
+  def stop(ctx) do
+    Panel.publish(ctx.status, &:ets.delete(&1, :floor))
+    TartarusEmu.Log.stop(ctx.log)
+    Network.stop(ctx.net)
+    if ctx.data_dir, do: File.rm_rf(ctx.data_dir)
+    :ok
+  end
+
+  # How agents tell robots: by name prefix ("emu<tag>-r"), when every robot's name has it
+  # (nothing that grows with the robots travels with them), else the set of robot hosts.
+  defp robot_set(robot_hosts) do
+    {name, _} = robot_hosts["r1"]
+
+    with true <- is_binary(name) and String.ends_with?(name, "-r1"),
+         prefix = String.slice(name, 0..-2//1),
+         true <-
+           Enum.all?(robot_hosts, fn {r, {n, _}} -> n == prefix <> String.slice(r, 1..-1//1) end) do
+      {:prefix, prefix}
+    else
+      _ -> MapSet.new(Map.values(robot_hosts))
+    end
+  end
+
+  # The hops between the two farthest robots (a full mesh: 1).
+  defp robot_span(robots) when robots <= 16, do: 1
+
+  # How far a field must reach to cover every robot from any robot: the diameter of the
+  # robots' own graph (circulant, so any robot's eccentricity; the other hosts only add
+  # shortcuts, never length).
+  defp robot_span(robots) do
+    robot_topo = Topology.new(Enum.map(1..robots, &"r#{&1}"), robot_edges(robots))
+    robot_topo |> Topology.distances("r1") |> Map.values() |> Enum.max()
+  end
+end
