@@ -138,7 +138,7 @@ defmodule Tartarus.Host.OnNode do
     }
   end
 
-  # Nearest rank, as TartarusTools.Stats.percentile/2 (the tooling's statistics; the
+  # Nearest rank, as the tooling's statistics module takes it (the
   # platform does not depend on the tooling, and hop_stats/1 needs only this).
   defp percentile(sorted, q),
     do: Enum.at(sorted, min(length(sorted) - 1, max(0, ceil(q * length(sorted)) - 1)))

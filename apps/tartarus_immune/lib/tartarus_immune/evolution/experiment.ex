@@ -41,7 +41,7 @@ defmodule TartarusImmune.Evolution.Experiment do
 
   alias TartarusEmu.{Scenario, Sweep}
   alias TartarusImmune.Evolution.Experiment.{Robots3, SharingSizes, Trials}
-  alias TartarusTools.{Report, Stats}
+  alias TartarusTools.Report
 
   @experiments %{
     s1: Trials,
@@ -170,27 +170,9 @@ defmodule TartarusImmune.Evolution.Experiment do
   # the runs' results, in the sweep's order
   defp runs(sweep), do: Enum.map(sweep.runs, & &1.summary)
 
-  @doc """
-  The schemes compared on an n-node network: no sharing (the baseline: how fast the
-  nodes get there on their own), broadcast, then iPkts in three numbers proportional to n.
+  @doc "See `TartarusImmune.Evolution.Experiment.Shared.schemes/1`."
+  defdelegate schemes(n), to: TartarusImmune.Evolution.Experiment.Shared
 
-      iex> TartarusImmune.Evolution.Experiment.schemes(20)
-      [:none, :broadcast, {:ipkt, 1}, {:ipkt, 2}, {:ipkt, 4}]
-      iex> TartarusImmune.Evolution.Experiment.schemes(80)
-      [:none, :broadcast, {:ipkt, 4}, {:ipkt, 8}, {:ipkt, 16}]
-  """
-  @spec schemes(pos_integer()) :: [:none | :broadcast | {:ipkt, pos_integer()}]
-  def schemes(n),
-    do: [:none, :broadcast | Enum.map([20, 10, 5], &{:ipkt, max(1, div(n, &1))})] |> Enum.uniq()
-
-  @doc "A scheme's label: `none`, `b-cast` or `iPkt-x`."
-  @spec label(:none | :broadcast | {:ipkt, pos_integer()}) :: String.t()
-  def label(:none), do: "none"
-  def label(:broadcast), do: "b-cast"
-  def label({:ipkt, x}), do: "iPkt-#{x}"
-
-  @doc false
-  # the mean to 2 decimals, nil for none (the experiments' summaries)
-  @spec mean2([number()]) :: float() | nil
-  def mean2(xs), do: (m = Stats.mean(xs)) && Float.round(m, 2)
+  @doc "See `TartarusImmune.Evolution.Experiment.Shared.label/1`."
+  defdelegate label(scheme), to: TartarusImmune.Evolution.Experiment.Shared
 end

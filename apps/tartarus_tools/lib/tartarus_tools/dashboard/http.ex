@@ -17,7 +17,7 @@ defmodule TartarusTools.Dashboard.Http do
   alias TartarusTools.Dashboard.Http.Conn
 
   # A request line or a header line longer than this is refused (414, 431).
-  @line_max 8_192
+  @line_max Conn.line_max()
 
   # conf: %{bind, port, ctx, max_body, idle_timeout, request_timeout, max_clients,
   # max_per_client, hosts}. {:ok, pid} or {:error, message}.

@@ -7,7 +7,7 @@ defmodule TartarusWarehouse.Experiment.Failover do
   persistence, for contrast (not counted in `jobs`, `completed_jobs`, `deadlocks`,
   `tasks`).
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

@@ -4,7 +4,7 @@ defmodule TartarusWarehouse.Experiment.Mixed do
   robots, jobs 1 and 6 purely sequential, jobs 2-5 two independent sequences each: the
   jobs whose two sequences ran at once.
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

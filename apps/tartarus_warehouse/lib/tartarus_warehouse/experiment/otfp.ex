@@ -7,7 +7,7 @@ defmodule TartarusWarehouse.Experiment.Otfp do
   6 jobs completed: 1, 1 and 3 tasks) and deleted (3 tasks after 9 jobs): the tasks and
   the time per task of each job (Fig. 4.5).
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

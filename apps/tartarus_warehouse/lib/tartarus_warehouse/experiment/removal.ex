@@ -4,7 +4,7 @@ defmodule TartarusWarehouse.Experiment.Removal do
   robots; robot r2's battery runs low once 2 jobs completed (it finishes its job and
   leaves), and a fourth robot joins once 4 jobs completed: the jobs each robot ran.
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

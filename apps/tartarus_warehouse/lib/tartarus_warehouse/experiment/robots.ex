@@ -7,7 +7,7 @@ defmodule TartarusWarehouse.Experiment.Robots do
   makespans, the mean busy robots; compared with the thesis's speed-ups (1.75, 1.84, 2.21
   on 2, 3, 4 robots).
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

@@ -9,7 +9,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   last point also runs 20 jobs of 5 soft tasks in 20 independent pipelines on that many
   robots, agents guided (`big_run` in the summary).
   """
-  use TartarusWarehouse.Experiment
+  use TartarusWarehouse.Experiment.Kind
 
   alias TartarusWarehouse.Experiment.Jobs
 

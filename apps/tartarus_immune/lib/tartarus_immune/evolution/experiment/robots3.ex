@@ -8,7 +8,7 @@ defmodule TartarusImmune.Evolution.Experiment.Robots3 do
   `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
-  import TartarusImmune.Evolution.Experiment, only: [mean2: 1]
+  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1]
 
   alias TartarusImmune.Evolution.Collective
   alias TartarusTools.Series

@@ -8,7 +8,7 @@ defmodule TartarusImmune.Evolution.Experiment.SharingSizes do
   point. Run it with `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
-  import TartarusImmune.Evolution.Experiment, only: [mean2: 1, schemes: 1, label: 1]
+  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1, schemes: 1, label: 1]
 
   alias TartarusImmune.Evolution.Sharing
   alias TartarusTools.{Series, Stats, SVG}

@@ -11,7 +11,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
   `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
-  import TartarusImmune.Evolution.Experiment, only: [mean2: 1]
+  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1]
 
   alias TartarusImmune.Evolution.Embodied
   alias TartarusTools.{Series, Stats, SVG}
