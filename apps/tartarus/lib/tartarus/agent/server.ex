@@ -43,11 +43,7 @@ defmodule Tartarus.Agent.Server do
   require Tartarus.Events
 
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.{Inbox, Protocol}
-
-  # How long a host waits before it sends the acknowledgements of its arrivals (one batch per
-  # source host, see Host.Server).
-  @ack_every 200
+  alias Tartarus.Migration.{Arrival, Inbox, Protocol}
 
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
@@ -129,14 +125,8 @@ defmodule Tartarus.Agent.Server do
 
   # `src_pid`: the source agent's process when the prepare came from it (nil for a copy
   # revived from the journal): its commit carries the messages it held.
-  defp start(%{host: host} = data, {:paused, mig, copy, src, kind, src_pid}) do
-    c =
-      Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
-
-    timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
-
-    {:ok, %{data | paused: %{c: c, timer: timer, stash: [], src_pid: src_pid, handover: :none}}}
-  end
+  defp start(data, {:paused, mig, copy, src, kind, src_pid}),
+    do: {:ok, %{data | paused: Arrival.paused(data.host, mig, copy, src, kind, src_pid)}}
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
   # host started again on its data directory.
@@ -207,39 +197,28 @@ defmodule Tartarus.Agent.Server do
   end
 
   # -- the paused copy (destination side) ---------------------------------------------
-  # While paused, every message is an event of Protocol.copy_step/2; this process only
-  # carries out the actions.
+  # Tartarus.Migration.Arrival runs the in-doubt copy and, on its commit, makes it the
+  # agent; the messages it was handed over are handled before handle_arrival/2.
 
   @impl true
   def handle_info(msg, %{paused: p} = data) when p != nil do
-    event =
-      case msg do
-        {:commit_timeout, mig} when mig == p.c.mig ->
-          :timeout
+    case Arrival.step(data, msg) do
+      {:paused, data} ->
+        {:noreply, data}
 
-        _ ->
-          case Protocol.classify(msg) do
-            {:commit, _, _, _} = commit -> commit
-            {:decision, _, _, _} = decision -> decision
-            :other -> {:message, msg}
-            # Stray hand-off messages (of an earlier attempt) are not for the agent.
-            _ -> :ignore
-          end
-      end
+      # Messages that reached the agent while it moved are handled first (an agent that
+      # moves on at every arrival would otherwise carry them for ever); if one of them makes
+      # it leave, the rest travel on with it.
+      {:started, data, pending} ->
+        handle_pending(pending, data, fn data ->
+          ctx = ctx(data)
 
-    # The source's own commit carries its hand-over of messages (see commit/2).
-    p =
-      case {event, msg} do
-        {{:commit, mig, copy, _}, {_, _, _, _, handover}}
-        when mig == p.c.mig and copy == p.c.copy ->
-          %{p | handover: handover}
+          run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
+        end)
 
-        _ ->
-          p
-      end
-
-    {c, actions} = Protocol.copy_step(p.c, event)
-    paused_actions(actions, %{data | paused: %{p | c: c}})
+      {:stop, reason, data} ->
+        {:stop, reason, data}
+    end
   end
 
   # -- messages --------------------------------------------------------------------
@@ -342,53 +321,6 @@ defmodule Tartarus.Agent.Server do
     else
       {:noreply, data}
     end
-  end
-
-  defp paused_actions([], data), do: {:noreply, data}
-  defp paused_actions([{:start, notify} | _], data), do: commit(data, notify)
-
-  defp paused_actions([:abort | _], data) do
-    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig, data.paused.c.copy)
-    {:stop, {:shutdown, :aborted}, data}
-  end
-
-  # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
-  # its stash go (the senders waiting on stashed messages time out).
-  defp paused_actions([:park | _], data) do
-    %{c: c} = data.paused
-    :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
-    {:stop, {:shutdown, :parked}, data}
-  end
-
-  defp paused_actions([{:ask, src, mig, copy} | rest], data) do
-    # The source host's server, found by address each time (the source may have restarted
-    # since it sent `prepare`; the directory drops pids of hosts that went down).
-    id = Ledger.query_id(data.env, data.paused.c.kind)
-
-    with {:ok, pid} <- Tartarus.Host.whereis(src),
-         do: send(pid, Protocol.decision_query(mig, id, copy, self()))
-
-    paused_actions(rest, data)
-  end
-
-  defp paused_actions([{:timer, ms} | rest], data) do
-    timer = Process.send_after(self(), {:commit_timeout, data.paused.c.mig}, ms)
-    paused_actions(rest, %{data | paused: %{data.paused | timer: timer}})
-  end
-
-  # Kept and handled once the agent starts (senders wait for delivery, so each sender's
-  # order is kept).
-  defp paused_actions([{:stash, msg} | rest], data),
-    do: paused_actions(rest, %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}})
-
-  # Over the bound: dropped and counted; a sender of a message is told to send it again
-  # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
-  defp paused_actions([{:drop, msg} | rest], data) do
-    with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
-         do: send(pid, {tag, :retry})
-
-    {:noreply, data} = dropped(data, msg)
-    paused_actions(rest, data)
   end
 
   defp dropped(data, _msg) do
@@ -624,102 +556,9 @@ defmodule Tartarus.Agent.Server do
     end
   end
 
-  # -- arrival (destination side) ----------------------------------------------------
-
-  defp commit(%{paused: %{c: c} = p} = data, notify) do
-    Process.cancel_timer(p.timer)
-    # A move: the source's commit carries the messages it held. If this copy learnt the
-    # decision by asking (the commit is late or lost) while the source process lives, wait
-    # for that commit before taking anything else (the source may be slow, not gone: taking
-    # newer messages first would break a sender's order and the memory of what was taken).
-    handover =
-      case p.handover do
-        :none when c.kind == :move and is_pid(p.src_pid) ->
-          await_commit(c.mig, data.host.opts.migration_timeout, p.src_pid)
-
-        other ->
-          other
-      end
-
-    # Messages that came while paused are new here unless the hand-over says otherwise.
-    {msgs, others} =
-      Enum.split_with(Enum.reverse(p.stash), &match?({:"$tartarus_msg", _, _, _}, &1))
-
-    Enum.each(others, &send(self(), &1))
-    {pending, inbox} = Inbox.arrive(data.inbox, handover, msgs)
-    data = %{data | inbox: inbox}
-    host = data.host
-    now = System.system_time(:microsecond)
-    hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
-    hops = if c.kind == :move, do: data.env.hops + 1, else: data.env.hops
-
-    env = %{
-      data.env
-      | hops: hops,
-        from: c.src,
-        visits: Map.update(data.env.visits, host.ref, 1, &(&1 + 1))
-    }
-
-    data = %{data | env: env, paused: nil}
-
-    case Ledger.register_resident(host, env, self()) do
-      :ok ->
-        arrived(data)
-        :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
-        Tartarus.Host.Persistence.resolved(host, c.mig, c.copy)
-
-        with {pid, _tag} when is_pid(pid) <- notify,
-             do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
-
-        # Running: the source host may forget its record of the commit (acknowledged
-        # lazily: this host sends its acknowledgements in batches, see Host.Server).
-        :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
-
-        if :ets.update_counter(host.ledger, :acks_armed, 1, {:acks_armed, 0}) == 1,
-          do: Process.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
-
-        Ledger.record_hop(host, hop_us)
-
-        emit(data, %{type: :arrival, agent: env.id, from: c.src, hop_us: hop_us, hops: hops},
-          arrivals: 1
-        )
-
-        # Messages that reached the agent while it moved are handled first (an agent that
-        # moves on at every arrival would otherwise carry them for ever); if one of them
-        # makes it leave, the rest travel on with it.
-        handle_pending(pending, data, fn data ->
-          ctx = ctx(data)
-
-          run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
-        end)
-
-      {:error, reason} ->
-        {:stop, reason, data}
-    end
-  end
-
   # -- reaching a busy agent --------------------------------------------------------
   # Tartarus.Migration.Inbox decides what is taken and what is handed over; this process
   # drains its mailbox into the commit (source) and handles the hand-over first (successor).
-
-  # The source's own commit, when the decision came from asking (see commit/2).
-  defp await_commit(mig, timeout, src_pid) do
-    mref = Process.monitor(src_pid)
-
-    receive do
-      # The source ended without sending it (it sends the commit before it ends).
-      {:DOWN, ^mref, :process, _, _} ->
-        nil
-
-      {:"$tartarus_commit", ^mig, _copy, _notify, handover} ->
-        Process.demonitor(mref, [:flush])
-        handover
-    after
-      timeout ->
-        Process.demonitor(mref, [:flush])
-        nil
-    end
-  end
 
   # Handles `msgs` one by one as if they came from the mailbox, then calls `next`; if one
   # of them stops the process (a move), the others are left in data.pending for the
@@ -735,12 +574,7 @@ defmodule Tartarus.Agent.Server do
 
   # -- helpers ---------------------------------------------------------------------
 
-  # The agent is resident here as `data.env`: that is its arrival snapshot, for restarts
-  # after a crash and (with persistence) after the host's restart.
-  defp arrived(data) do
-    :ets.insert(data.host.ledger, {{:snapshot, data.key}, data.env})
-    Tartarus.Host.Persistence.checkpoint(data.host, data.env)
-  end
+  defp arrived(data), do: Arrival.snapshot(data)
 
   defp ctx(data) do
     %{
