@@ -31,8 +31,8 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   runs once, `activation` at τ_init). `--stuck-after S` (default 6) is how long a robot
   may make no progress before the experimenter nudges it 10 cm on, and `--lost-penalty S`
   (default 5) the seconds charged for that and for each put-back on the line. The trials
-  run in parallel (a `TartarusEmu.Sweep`, a trial a seed), a line per finished trial on
-  standard error unless `--quiet`.
+  are a `TartarusEmu.Sweep` (a trial a seed), a line per finished trial on standard error
+  unless `--quiet`.
 
   Output (in `--out DIR`, default `results/pfa-<UTC timestamp>`): `lap_times.csv` (trial,
   seed, path, lap, seconds), `lap_times_trial1.svg` (one trial, Fig. 6.13a),
@@ -53,9 +53,9 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   `best_pfa_table6_5`, `exhaustive_best` and `exhaustive_costs` (every PFA alone over
   every sub-path instance of the first seed), `matches_exhaustive`, `matches_table6_5`,
   `counters` (iPkts injected, born, died, migrations, ...), `sim_seconds`,
-  `wall_seconds` (each trial's own, summed), `sim_speed_x` (simulated seconds per wall
-  second, immune network included), `elapsed_seconds` (the trials together), `sweep` (per
-  metric of `runs.csv`: n, mean, sd, median, quartiles over the trials). With `--json`
+  `wall_seconds`, `sim_speed_x` (simulated seconds per wall second, immune network
+  included), `sweep` (per metric of `runs.csv`: n, mean, sd, median, quartiles over the
+  trials). With `--json`
   the last line printed is the summary as one JSON object.
 
   `--help` prints this text.

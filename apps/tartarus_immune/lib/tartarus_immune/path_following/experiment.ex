@@ -14,10 +14,9 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   | one trial: the world, the network, the immune mechanism as the robots' policy | `TartarusImmune.PathFollowing.Experiment.Trial` |
   | the summary over the trials, the exhaustive reference, the files | `TartarusImmune.PathFollowing.Experiment.Summary` |
 
-  Trials run in parallel (each in its own process, on its own network; a trial's numbers
-  depend on its seed only): `wall_seconds` is each trial's own wall time summed (so
-  `sim_speed_x` stays one trial's speed, as when they ran one after another) and
-  `elapsed_seconds` the time the trials took together. Besides its own files the sweep writes `runs.csv` (a row per
+  Trials run one after another, each in its own process on its own network (a trial's
+  numbers depend on its seed only; two at once would wait on each other's danger signals,
+  `Tartarus.Signal.settle/1`). Besides its own files the sweep writes `runs.csv` (a row per
   trial: `arm, seed` and the metrics below), a box plot per metric over the trials and
   the summary's `sweep` key (per metric n, mean, sd, median, quartiles): the metrics are
   `last3_path1`, `last3_path2` (a trial's mean time of its last 3 laps, s),
@@ -129,7 +128,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
          {:ok, p} <- Params.new(Keyword.merge([mu: 0.8, q_max: 20], o.params)),
          :ok <- check_pfas(o.pfas) do
       o = %{o | pfas: o.pfas || PFAs.all()}
-      t0 = System.monotonic_time(:millisecond)
+      t0 = System.monotonic_time(:microsecond)
       trials = fn r -> Enum.map(r.runs, & &1.summary) end
 
       spec = %{
@@ -139,15 +138,15 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         seeds: Enum.map(0..(o.trials - 1), &(o.seed + &1)),
         run: fn _arm, seed -> Trial.run(o, p, seed) end,
         metrics: metrics(),
+        # one trial at a time: a trial waits for the platform's signals to settle
+        # (Tartarus.Signal.settle/1 waits for every signal in the VM), so two at once
+        # wait on each other (measured: 6 trials took 1.4-2x longer with 2 at a time)
+        concurrency: 1,
         summary: fn r ->
-          # each trial's own wall time, summed (as when they ran one after another), and
-          # the time the trials took together (the exhaustive reference is in neither)
-          wall = (r.runs |> Enum.map(& &1.ms) |> Enum.sum()) / 1000
-          elapsed = (System.monotonic_time(:millisecond) - t0) / 1000
+          # the trials' wall time (the exhaustive reference is not part of it)
+          wall = (System.monotonic_time(:microsecond) - t0) / 1.0e6
           exhaustive = if o.exhaustive, do: Summary.exhaustive(o.pfas, o.seed)
-
           Summary.summarize(o, trials.(r), exhaustive, wall)
-          |> Map.put(:elapsed_seconds, Float.round(elapsed, 3))
         end,
         write: fn dir, r -> Summary.write(dir, o, trials.(r), r.summary) end,
         report: &Summary.report/1

@@ -22,7 +22,7 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
     the robots measured in the laps of all trials (what the mechanism learned from), and
     `measured_best`, the PFA of least mean among those run at least 3 times;
   * `sim_speed_x`: simulated seconds (arena time summed over trials) per wall second of
-    the trials (`wall_seconds`, each trial's own summed), the immune network included.
+    the trials (`wall_seconds`), the immune network included.
   """
 
   alias TartarusArena.{PFAs, Paths}
@@ -107,8 +107,7 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
 
   @doc """
   The summary of `trials` (in seed order) under options `o` (validated, `:pfas` set),
-  with the exhaustive reference (`exhaustive/2`, or `nil`) and the trials' wall seconds
-  (summed):
+  with the exhaustive reference (`exhaustive/2`, or `nil`) and the trials' wall seconds:
   the keys of the module doc, the options and the thesis's figures.
   """
   @spec summarize(map(), [map()], map() | nil, float()) :: map()
