@@ -17,12 +17,10 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   Trials run one after another, each in its own process on its own network (a trial's
   numbers depend on its seed only; two at once would wait on each other's danger signals,
   `Tartarus.Signal.settle/1`). Besides its own files the sweep writes `runs.csv` (a row per
-  trial: `arm, seed` and the metrics below), a box plot per metric over the trials and
-  the summary's `sweep` key (per metric n, mean, sd, median, quartiles): the metrics are
-  `last3_path1`, `last3_path2` (a trial's mean time of its last 3 laps, s),
-  `plateau_lap_path1`, `plateau_lap_path2` (a trial's plateau lap,
-  `TartarusImmune.PathFollowing.Experiment.Summary.plateau_lap/3`) and `lost_path1`,
-  `lost_path2` (times a robot was put back on the line or nudged on).
+  trial: `arm, seed` and the metrics of
+  `TartarusImmune.PathFollowing.Experiment.Summary.metrics/0`), a box plot per metric
+  over the trials and the summary's `sweep` key (per metric n, mean, sd, median,
+  quartiles).
 
   Choices (all options): μ = 0.8 rather than Table 6.1's 0.5, since with ψ_max = 2 (four
   features) μ = 0.5 lets an iPkt recognize sub-paths of other types (sp-a and sp-c, sp-b
@@ -40,7 +38,6 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   alias TartarusEmu.Sweep
   alias TartarusImmune.Params
   alias TartarusImmune.PathFollowing.Experiment.{Summary, Trial}
-  alias TartarusTools.Stats
 
   @schema [
     laps: [type: :pos_integer, default: 12, doc: "laps per robot"],
@@ -137,7 +134,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         arms: [{"pfa", o}],
         seeds: Enum.map(0..(o.trials - 1), &(o.seed + &1)),
         run: fn _arm, seed -> Trial.run(o, p, seed) end,
-        metrics: metrics(),
+        metrics: Summary.metrics(),
         # one trial at a time: a trial waits for the platform's signals to settle
         # (Tartarus.Signal.settle/1 waits for every signal in the VM), so two at once
         # wait on each other (measured: 6 trials took 1.4-2x longer with 2 at a time)
@@ -156,26 +153,6 @@ defmodule TartarusImmune.PathFollowing.Experiment do
       {:ok, %{summary: r.summary, out: r.out, trials: trials.(r), files: r.files}}
     end
   end
-
-  # the sweep's metrics: per trial and path
-  defp metrics do
-    for {id, key} <- [{1, "path1"}, {2, "path2"}], {name, title, f} <- per_path() do
-      {:"#{name}_#{key}", &f.(&1, id), "#{title} (Path-#{id})"}
-    end
-  end
-
-  defp per_path do
-    [
-      {"last3", "mean time of a trial's last 3 laps, s",
-       fn t, id -> t.lap_times[id] |> Enum.take(-3) |> Stats.mean() |> round3() end},
-      {"plateau_lap", "a trial's plateau lap",
-       fn t, id -> Summary.plateau_lap(t.lap_times[id]) end},
-      {"lost", "put back on the line or nudged on, per trial", fn t, id -> t.lost[id] end}
-    ]
-  end
-
-  defp round3(nil), do: nil
-  defp round3(x), do: Float.round(x * 1.0, 3)
 
   defp check_pfas(nil), do: :ok
 

@@ -106,6 +106,26 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
   end
 
   @doc """
+  The numbers of one trial the sweep (`TartarusEmu.Sweep`'s `:metrics`) puts in
+  `runs.csv`, describes over the trials and box-plots, per path (`_path1`, `_path2`):
+  `last3` (the mean of the trial's last 3 laps, s), `plateau_lap` (`plateau_lap/3` of
+  the trial's laps) and `lost` (times its robot was put back on the line or nudged on).
+  """
+  @spec metrics() :: [{atom(), (map() -> number() | nil), String.t()}]
+  def metrics do
+    per_path = [
+      {"last3", "mean time of a trial's last 3 laps, s",
+       fn t, id -> t.lap_times[id] |> Enum.take(-3) |> Stats.mean() |> round3() end},
+      {"plateau_lap", "a trial's plateau lap", fn t, id -> plateau_lap(t.lap_times[id]) end},
+      {"lost", "put back on the line or nudged on, per trial", fn t, id -> t.lost[id] end}
+    ]
+
+    for {id, key} <- [{1, "path1"}, {2, "path2"}], {name, title, f} <- per_path do
+      {:"#{name}_#{key}", &f.(&1, id), "#{title} (Path-#{id})"}
+    end
+  end
+
+  @doc """
   The summary of `trials` (in seed order) under options `o` (validated, `:pfas` set),
   with the exhaustive reference (`exhaustive/2`, or `nil`) and the trials' wall seconds:
   the keys of the module doc, the options and the thesis's figures.
@@ -234,6 +254,7 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
   end
 
   defp avg(xs), do: Stats.mean(xs) || 0.0
+  defp round3(nil), do: nil
   defp round3(x), do: Float.round(x * 1.0, 3)
 
   # -- files -----------------------------------------------------------------------------
@@ -318,29 +339,25 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
       end
     end
 
-    trial1 =
-      SVG.write!(
-        Path.join(out, "lap_times_trial1.svg"),
-        SVG.line_chart(curve.(s.lap_times["trial1"]),
-          title: "Time per lap, one trial (seed #{o.seed}; Fig. 6.13a)",
-          x_label: "lap",
-          y_label: "seconds",
-          y_min: 0
+    charts =
+      for {key, file, title} <- [
+            {"trial1", "lap_times_trial1.svg",
+             "Time per lap, one trial (seed #{o.seed}; Fig. 6.13a)"},
+            {"mean", "lap_times_mean.svg",
+             "Mean time per lap over #{o.trials} trials (Fig. 6.13b)"}
+          ] do
+        SVG.write!(
+          Path.join(out, file),
+          SVG.line_chart(curve.(s.lap_times[key]),
+            title: title,
+            x_label: "lap",
+            y_label: "seconds",
+            y_min: 0
+          )
         )
-      )
+      end
 
-    mean =
-      SVG.write!(
-        Path.join(out, "lap_times_mean.svg"),
-        SVG.line_chart(curve.(s.lap_times["mean"]),
-          title: "Mean time per lap over #{o.trials} trials (Fig. 6.13b)",
-          x_label: "lap",
-          y_label: "seconds",
-          y_min: 0
-        )
-      )
-
-    [lap_times, choices, best, trial1, mean]
+    [lap_times, choices, best | charts]
   end
 
   @doc """
