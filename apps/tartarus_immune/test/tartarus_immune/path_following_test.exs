@@ -8,6 +8,7 @@ defmodule TartarusImmune.PathFollowingTest do
   doctest TartarusImmune.PathFollowing
   doctest TartarusImmune.PathFollowing.Experiment.Summary
   doctest TartarusImmune.Node
+  doctest TartarusImmune.IPkt
 
   describe "the domain" do
     test "an instance's features are its sub-path's, normalized, and the types are the paths'" do

@@ -341,13 +341,7 @@ defmodule TartarusImmune.PathFollowing.Experiment.Trial do
 
   defp bump(st, key, n), do: update_in(st.counters[key], &(&1 + n))
 
-  defp receive_event(run) do
-    receive do
-      {:immune, ^run, ev, _tag, sol} -> {ev, sol}
-    after
-      60_000 -> raise "pfa: an iPkt did not answer in 60 s"
-    end
-  end
+  defp receive_event(run), do: IPkt.next_event(run, 60_000, "pfa: an iPkt did not answer in 60 s")
 
   defp live(st) do
     Enum.flat_map(Map.values(st.hosts), fn h ->
