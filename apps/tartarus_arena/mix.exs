@@ -13,7 +13,8 @@ defmodule TartarusArena.MixProject do
       start_permanent: Mix.env() == :prod,
       deps: [
         {:tartarus, in_umbrella: true},
-        {:tartarus_tools, in_umbrella: true}
+        {:tartarus_tools, in_umbrella: true},
+        {:tartarus_emu, in_umbrella: true}
       ]
     ]
   end

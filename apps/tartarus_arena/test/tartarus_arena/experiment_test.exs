@@ -8,7 +8,7 @@ defmodule TartarusArena.ExperimentTest do
     {:ok, %{summary: s, out: ^dir}} = Experiment.run(seed: 2, laps: 1, bench_seconds: 5, out: dir)
 
     for f <-
-          ~w(lap_times.csv subpaths.csv snapshot.svg bench_snapshot.svg camera.png summary.json summary.md) ++
+          ~w(lap_times.csv subpaths.csv snapshot.svg bench_snapshot.svg camera.png runs.csv summary.json summary.md) ++
             for(i <- 1..8, do: "trajectories_A#{i}.svg"),
         do: assert(File.exists?(Path.join(dir, f)), f)
 
@@ -22,6 +22,18 @@ defmodule TartarusArena.ExperimentTest do
 
     {:ok, json} = TartarusTools.JSON.decode(File.read!(Path.join(dir, "summary.json")))
     assert json["exhaustive_best"]["sp_a"] == s.exhaustive_best.sp_a
+
+    # a PFA is an arm of the sweep: a row of runs.csv each, in the PFAs' order
+    [header | rows] = File.read!(Path.join(dir, "runs.csv")) |> String.split("\n", trim: true)
+    assert header == "arm,seed,lap_path1,lap_path2,lost_path1,lost_path2,subpath_cost"
+    assert Enum.map(rows, &hd(String.split(&1, ","))) == Map.keys(s.lap_times)
+    assert s.sweep.aggregates["A4"].lost_path2.n == 1
+    assert s.sweep.aggregates["A4"].lost_path2.median == s.lost["A4"].path2
+
+    # summary.md: the key table, then the arena's own tables
+    md = File.read!(Path.join(dir, "summary.md"))
+    assert md =~ ~r/^# Arena run \(seed 2\)\n/
+    assert String.ends_with?(md, Experiment.markdown(s))
   end
 
   test "bad options are refused with a message" do

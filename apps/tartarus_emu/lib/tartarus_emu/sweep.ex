@@ -66,6 +66,12 @@ defmodule TartarusEmu.Sweep do
     * `:summary` - `fn result -> map end`: the experiment's own summary keys (`result` has
       `:runs`, `:aggregates`, `:tests`); the sweep adds its own under `:sweep`;
     * `:write` - `fn dir, result -> [path] end`: extra files (charts of one run, ...);
+    * `:report` - `fn summary -> keyword end`: what `summary.json` and `summary.md` show,
+      when it is not just the summary (`summary` is the full one, `:sweep` included):
+      `summary:` the map written (default: the summary; e.g. without a bulky key that
+      has a CSV of its own), `comparisons:` rows `%{metric:, ours:, thesis:}` of an
+      "Ours vs thesis" table, `markdown:` the experiment's own tables after the key table
+      (`TartarusTools.Report.write_summary!/3`). The returned summary is unchanged;
     * `:concurrency` - runs at a time (default: the schedulers online); 1 for runs that
       share something global (a dashboard, peer nodes, fixed host names).
 
@@ -86,7 +92,7 @@ defmodule TartarusEmu.Sweep do
     4. writes into `:out` (default `TartarusTools.Report.default_out_dir(name)`; `false`
        for nothing): `runs.csv`, `<metric>.svg` box plots, the spec's `:write` files,
        `summary.json` and `summary.md` (the spec's summary plus `sweep`: name, seeds, arms,
-       runs, aggregates, tests).
+       runs, aggregates, tests; or what the spec's `:report` says).
 
   It returns `{:ok, %{summary:, runs:, aggregates:, tests:, out:, files:}}`: `summary` is
   JSON-encodable (what a mix task prints with `--json`).
@@ -251,6 +257,7 @@ defmodule TartarusEmu.Sweep do
              csv: Map.get(spec, :csv),
              summary: Map.get(spec, :summary, fn _ -> %{} end),
              write: Map.get(spec, :write, fn _, _ -> [] end),
+             report: Map.get(spec, :report, fn _ -> [] end),
              concurrency: Map.get(spec, :concurrency, System.schedulers_online())
            }}
         end
@@ -381,7 +388,15 @@ defmodule TartarusEmu.Sweep do
       end
 
     extra = spec.write.(dir, result)
-    summaries = Report.write_summary!(dir, result.summary, title: spec.title)
+    report = spec.report.(result.summary)
+
+    summaries =
+      Report.write_summary!(dir, Keyword.get(report, :summary, result.summary),
+        title: spec.title,
+        comparisons: Keyword.get(report, :comparisons, []),
+        markdown: Keyword.get(report, :markdown)
+      )
+
     [csv | boxes] ++ extra ++ summaries
   end
 end

@@ -119,6 +119,40 @@ defmodule TartarusEmu.SweepTest do
     assert File.exists?(Path.join(dir, "extra.csv"))
   end
 
+  test "report: summary.json and summary.md show what the spec says, the result keeps all" do
+    spec = %{
+      name: "rep",
+      title: "Report",
+      arms: [{"a", [k: 2]}],
+      seeds: [1, 2],
+      run: fn arm, seed -> %{x: seed * arm.opts[:k], trace: [seed, seed]} end,
+      metrics: [x: :x],
+      summary: fn r ->
+        %{total: r.runs |> Enum.map(& &1.summary.x) |> Enum.sum(), bulky: [1, 2]}
+      end,
+      report: fn s ->
+        [
+          summary: Map.delete(s, :bulky),
+          comparisons: [%{metric: "total", ours: s.total, thesis: 5}],
+          markdown: "## Runs\n\n#{length(s.bulky)} of them\n"
+        ]
+      end
+    }
+
+    dir = tmp()
+    {:ok, r} = Sweep.run(spec, out: dir, quiet: true)
+    assert r.summary.bulky == [1, 2] and r.summary.total == 6
+    json = dir |> Path.join("summary.json") |> File.read!() |> JSON.decode!()
+    refute Map.has_key?(json, "bulky")
+    assert json["total"] == 6 and json["sweep"]["runs"] == 2
+    assert json["comparisons"] == [%{"metric" => "total", "ours" => 6, "thesis" => 5}]
+    md = File.read!(Path.join(dir, "summary.md"))
+    assert md =~ ~r/^# Report\n/
+    assert md =~ "| total | 6 | 5 |"
+    assert String.ends_with?(md, "\n## Runs\n\n2 of them\n")
+    refute md =~ "bulky"
+  end
+
   test "a run function returning a summary; bad specs are refused with a message" do
     run = fn arm, seed -> %{x: seed * arm.opts[:k]} end
 

@@ -428,14 +428,9 @@ defmodule TartarusImmune.Experiment do
     end
   end
 
-  defp receive_event(run, events) do
-    receive do
-      # births come only in the interaction phase, the rest only in the migration phase
-      {:immune, ^run, ev, _tag, sol} -> {ev, sol}
-    after
-      120_000 -> raise "immune: no #{inspect(events)} in 120 s"
-    end
-  end
+  # births come only in the interaction phase, the rest only in the migration phase
+  defp receive_event(run, events),
+    do: IPkt.next_event(run, 120_000, "immune: no #{inspect(events)} in 120 s")
 
   # -- results -------------------------------------------------------------------------
 

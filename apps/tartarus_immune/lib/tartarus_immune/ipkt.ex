@@ -164,6 +164,27 @@ defmodule TartarusImmune.IPkt do
 
   defp notify(s, event), do: send(s.driver, {:immune, s.run, event, s.tag, s.sol})
 
+  @doc """
+  The driver's side of the reports above: the next report of an iPkt of run `run` as
+  `{event, solution}`, waiting at most `timeout` ms; if none comes, raises `message`
+  (an iPkt that never answers is a bug of the experiment, not something to wait out).
+
+      iex> run = make_ref()
+      iex> send(self(), {:immune, run, :arrived, 7, :a1})
+      iex> TartarusImmune.IPkt.next_event(run, 100, "no report")
+      {:arrived, :a1}
+      iex> TartarusImmune.IPkt.next_event(run, 0, "no report")
+      ** (RuntimeError) no report
+  """
+  @spec next_event(reference(), timeout(), String.t()) :: {atom(), term()}
+  def next_event(run, timeout, message) do
+    receive do
+      {:immune, ^run, ev, _tag, sol} -> {ev, sol}
+    after
+      timeout -> raise message
+    end
+  end
+
   defp enter(s) do
     info = %{sol: s.sol, fv: s.fv, tau: s.tau, hops: s.hops, tag: s.tag, zeta: s.zeta, n: s.n}
     :ok = Tartarus.post({"immune", Tartarus.Agent.host()}, {:enter, Tartarus.Agent.id(), info})

@@ -6,8 +6,9 @@ defmodule TartarusImmune.PathFollowingTest do
   alias TartarusImmune.PathFollowing.Experiment
 
   doctest TartarusImmune.PathFollowing
-  doctest TartarusImmune.PathFollowing.Experiment
+  doctest TartarusImmune.PathFollowing.Experiment.Summary
   doctest TartarusImmune.Node
+  doctest TartarusImmune.IPkt
 
   describe "the domain" do
     test "an instance's features are its sub-path's, normalized, and the types are the paths'" do
@@ -137,7 +138,7 @@ defmodule TartarusImmune.PathFollowingTest do
   end
 
   describe "the experiment" do
-    @small [trials: 1, laps: 4, seed: 3, pfas: [PFA.A1, PFA.A3, PFA.A5]]
+    @small [trials: 1, laps: 4, seed: 3, pfas: [PFA.A1, PFA.A3, PFA.A5], quiet: true]
     @roam [explore: :untried_first, sharing: true]
 
     @tag :tmp_dir
@@ -197,8 +198,45 @@ defmodule TartarusImmune.PathFollowingTest do
              inspect(last)
 
       for f <-
-            ~w(lap_times.csv choices.csv best_pfa.csv lap_times_trial1.svg lap_times_mean.svg summary.json summary.md),
+            ~w(lap_times.csv choices.csv best_pfa.csv lap_times_trial1.svg lap_times_mean.svg summary.json summary.md runs.csv),
           do: assert(File.exists?(Path.join(dir, f)), f)
+
+      # the files show the mean curve, not every trial's (lap_times.csv has those), and
+      # our figures beside the thesis's; the returned summary keeps everything
+      json = dir |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+      refute Map.has_key?(json, "lap_times")
+      assert json["lap_times_mean"]["path1"] == s.lap_times["mean"]["path1"]
+
+      assert hd(json["comparisons"]) == %{
+               "metric" => "plateau lap, Path-1",
+               "ours" => s.plateau_lap["path1"],
+               "thesis" => 6
+             }
+
+      assert File.read!(Path.join(dir, "summary.md")) =~ "## Ours vs thesis"
+
+      # the sweep: a row per trial, and its numbers are the trial's
+      [_header, row] =
+        dir |> Path.join("runs.csv") |> File.read!() |> String.split("\n", trim: true)
+
+      last3 = t.lap_times[1] |> Enum.take(-3) |> TartarusTools.Stats.mean() |> Float.round(3)
+
+      assert row ==
+               Enum.join(
+                 [
+                   "pfa",
+                   3,
+                   last3,
+                   Experiment.Summary.plateau_lap(t.lap_times[1]),
+                   t.lost[1],
+                   Enum.take(t.lap_times[2], -3) |> TartarusTools.Stats.mean() |> Float.round(3),
+                   Experiment.Summary.plateau_lap(t.lap_times[2]),
+                   t.lost[2]
+                 ],
+                 ","
+               )
+
+      assert s.sweep.aggregates["pfa"].last3_path1.n == 1
 
       {:ok, c} = Experiment.run(Keyword.merge(small, seed: 4, out: false, exhaustive: false))
       refute c.summary.lap_times == s.lap_times

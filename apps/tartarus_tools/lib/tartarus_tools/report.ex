@@ -94,7 +94,9 @@ defmodule TartarusTools.Report do
 
     * `:title` - heading of `summary.md` (default `"Summary"`);
     * `:comparisons` - rows `%{metric:, ours:, thesis:}` (optional `:note`) shown in an
-      "Ours vs thesis" table and stored under `"comparisons"` in the JSON.
+      "Ours vs thesis" table and stored under `"comparisons"` in the JSON;
+    * `:markdown` - more Markdown (iodata: an experiment's own tables) appended to
+      `summary.md` after a blank line (not in the JSON).
   """
   @spec write_summary!(Path.t(), map, keyword) :: [Path.t()]
   def write_summary!(dir, summary, opts \\ []) when is_map(summary) do
@@ -124,12 +126,14 @@ defmodule TartarusTools.Report do
 
   @doc """
   Renders the Markdown of `summary.md` (see `write_summary!/3`). Keys are sorted; nested
-  values are shown as compact JSON; `|` in cells is escaped.
+  values are shown as compact JSON; `|` in cells is escaped; `:markdown` is appended.
 
   ## Examples
 
       iex> TartarusTools.Report.summary_markdown(%{seed: 1, hops: 3.5}, comparisons: [%{metric: "hops", ours: 3.5, thesis: 4}])
       "# Summary\\n\\n| key | value |\\n|---|---|\\n| hops | 3.5 |\\n| seed | 1 |\\n\\n## Ours vs thesis\\n\\n| metric | ours | thesis |\\n|---|---|---|\\n| hops | 3.5 | 4 |\\n"
+      iex> TartarusTools.Report.summary_markdown(%{seed: 1}, title: "Run", markdown: "## Laps\\n")
+      "# Run\\n\\n| key | value |\\n|---|---|\\n| seed | 1 |\\n\\n## Laps\\n"
   """
   @spec summary_markdown(map, keyword) :: String.t()
   def summary_markdown(summary, opts \\ []) when is_map(summary) do
@@ -164,7 +168,13 @@ defmodule TartarusTools.Report do
           ["\n## Ours vs thesis\n\n", head, lines]
       end
 
-    IO.iodata_to_binary(["# ", title, "\n\n| key | value |\n|---|---|\n", rows, compare])
+    more =
+      case Keyword.get(opts, :markdown) do
+        nil -> []
+        md -> ["\n", md]
+      end
+
+    IO.iodata_to_binary(["# ", title, "\n\n| key | value |\n|---|---|\n", rows, compare, more])
   end
 
   defp check_comparison!(%{metric: _, ours: _, thesis: _}), do: :ok

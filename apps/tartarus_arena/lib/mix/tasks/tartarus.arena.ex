@@ -10,7 +10,8 @@ defmodule Mix.Tasks.Tartarus.Arena do
   Output (in `--out DIR`, default `results/arena-<UTC timestamp>`): `lap_times.csv` (pfa,
   path, lap, seconds), `subpaths.csv` (pfa, path, sub-path index and type, completed,
   time, on_line, cost), `trajectories_A1.svg` .. `trajectories_A8.svg`, `snapshot.svg`,
-  `bench_snapshot.svg`, `camera.png` (the whole arena from above), `summary.json`,
+  `bench_snapshot.svg`, `camera.png` (the whole arena from above), `runs.csv` (a row per
+  PFA: mean lap time and put-backs per path, mean sub-path cost), `summary.json`,
   `summary.md`.
 
   Summary keys: `seed, laps, lap_times` (per PFA, per path), `lost` (times a robot left
@@ -18,7 +19,8 @@ defmodule Mix.Tasks.Tartarus.Arena do
   per sub-path type and PFA), `exhaustive_best` (the PFA of least cost per sub-path type:
   what trying every PFA everywhere finds), `sim_speed_x` (simulated seconds per wall
   second with `sim_speed_robots` = 3 robots), `sim_speed_cpu_x` (the same against the VM's
-  CPU time, which a busy machine does not inflate), `bench_seconds, wall_ms`. With `--json` the
+  CPU time, which a busy machine does not inflate), `bench_seconds, wall_ms`, `sweep`
+  (the numbers of `runs.csv` per PFA). With `--json` the
   last line printed is the summary as one JSON object. `--help` prints this text.
   """
   use TartarusTools.CLI
@@ -45,8 +47,7 @@ defmodule Mix.Tasks.Tartarus.Arena do
     case Experiment.run(exp_opts) do
       {:ok, %{summary: s, out: dir}} ->
         TartarusTools.CLI.report(s, [json: json?], fn s ->
-          (File.read!(Path.join(dir, "summary.md")) <> "\nOutputs in #{dir}")
-          |> tap(fn _ -> s end)
+          "# Arena run (seed #{s.seed})\n\n" <> Experiment.markdown(s) <> "\nOutputs in #{dir}"
         end)
 
       {:error, message} ->

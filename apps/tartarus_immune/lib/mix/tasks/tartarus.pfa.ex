@@ -13,7 +13,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
                        [--explore untried_first|activation|P] [--n-min 1]
                        [--sharing clones|roam|none] [--stream once|lifelong]
                        [--challenge tried|activation] [--stuck-after 6] [--lost-penalty 5]
-                       [--no-danger] [--no-exhaustive]
+                       [--no-danger] [--no-exhaustive] [--quiet]
 
   `--explore` is when a robot tries a PFA it has not measured on a sub-path's type:
   `untried_first` (default: at its first chance, so every PFA the stream brings is run
@@ -30,13 +30,17 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   is injected again for those types; `--challenge tried` makes it enter at τ_max so it
   runs once, `activation` at τ_init). `--stuck-after S` (default 6) is how long a robot
   may make no progress before the experimenter nudges it 10 cm on, and `--lost-penalty S`
-  (default 5) the seconds charged for that and for each put-back on the line.
+  (default 5) the seconds charged for that and for each put-back on the line. The trials
+  are a `TartarusEmu.Sweep` (a trial a seed), a line per finished trial on standard error
+  unless `--quiet`.
 
   Output (in `--out DIR`, default `results/pfa-<UTC timestamp>`): `lap_times.csv` (trial,
   seed, path, lap, seconds), `lap_times_trial1.svg` (one trial, Fig. 6.13a),
   `lap_times_mean.svg` (the mean over trials, Fig. 6.13b), `choices.csv` (every sub-path
   crossed: the PFA used and its measure, with put-backs, nudges and their penalty), `best_pfa.csv` (the best PFA per sub-path type
-  beside Table 6.5 and the exhaustive search), `summary.json`, `summary.md`.
+  beside Table 6.5 and the exhaustive search), `summary.json`, `summary.md`, and the
+  sweep's `runs.csv` (a row per trial: its seed, the mean of its last 3 laps, its plateau
+  lap and how often its robot was lost, per path) with a box plot per such metric.
 
   Summary keys: `trials, laps, lap_times` (`trial1`, `mean` and `per_trial`, each per
   path), `plateau_lap` (per path: on the mean curve, the first lap L such that every lap
@@ -50,7 +54,9 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   every sub-path instance of the first seed), `matches_exhaustive`, `matches_table6_5`,
   `counters` (iPkts injected, born, died, migrations, ...), `sim_seconds`,
   `wall_seconds`, `sim_speed_x` (simulated seconds per wall second, immune network
-  included). With `--json` the last line printed is the summary as one JSON object.
+  included), `sweep` (per metric of `runs.csv`: n, mean, sd, median, quartiles over the
+  trials). With `--json`
+  the last line printed is the summary as one JSON object.
 
   `--help` prints this text.
   """
