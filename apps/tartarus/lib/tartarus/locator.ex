@@ -144,7 +144,7 @@ defmodule Tartarus.Locator do
   # `from` is the sending agent's host (`sender/0`) when links are emulated on this node: a
   # message between two hosts joined by a link with latency pays it once on the way there
   # and once on the way back (the acknowledgement, or the reply), like a hand-off pays it
-  # for each of its messages (Tartarus.Agent.Server.emulate_link/1).
+  # for each of its messages (Tartarus.Migration.Source.emulate_link/1).
   @spec deliver(term(), :post | :request, term(), timeout(), map() | nil) :: term()
   def deliver(agent, kind, msg, timeout, from \\ sender()) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout

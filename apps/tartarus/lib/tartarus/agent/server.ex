@@ -42,8 +42,8 @@ defmodule Tartarus.Agent.Server do
   use GenServer, restart: :temporary, shutdown: :brutal_kill
   require Tartarus.Events
 
-  alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.{Arrival, Inbox, Protocol}
+  alias Tartarus.{Events, Ledger}
+  alias Tartarus.Migration.{Arrival, Inbox, Protocol, Source}
 
   @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
@@ -347,7 +347,7 @@ defmodule Tartarus.Agent.Server do
 
   def handle_call({:move, dest}, from, data) do
     # The destination answers the caller once the agent runs there.
-    case attempt(data, :move, dest, from) do
+    case Source.attempt(data, :move, dest, from) do
       {:moved, new_pid, data} ->
         # The exit names whose move this was: other callers waiting on this process retry.
         {:stop, {:shutdown, {:migrated, new_pid, from}}, data}
@@ -360,7 +360,7 @@ defmodule Tartarus.Agent.Server do
 
   def handle_call({:clone, dest}, from, data) do
     # The clone answers the caller once it runs.
-    case attempt(data, :clone, dest, from) do
+    case Source.attempt(data, :clone, dest, from) do
       {:cloned, _clone_id, data} -> {:noreply, data}
       {:failed, reason, data} -> {:reply, {:error, reason}, data}
     end
@@ -417,7 +417,7 @@ defmodule Tartarus.Agent.Server do
   defp act({:move, dest, s}, data) do
     data = put_state(data, s)
 
-    case attempt(data, :move, dest) do
+    case Source.attempt(data, :move, dest) do
       {:moved, new_pid, data} -> {:stop, {:shutdown, {:migrated, new_pid, nil}}, data}
       {:failed, reason, data} -> failed(data, dest, reason)
     end
@@ -426,7 +426,7 @@ defmodule Tartarus.Agent.Server do
   defp act({:clone, dest, s}, data) do
     data = put_state(data, s)
 
-    case attempt(data, :clone, dest) do
+    case Source.attempt(data, :clone, dest) do
       {:cloned, _id, data} -> {:noreply, data}
       {:failed, reason, data} -> failed(data, dest, {:clone_failed, reason})
     end
@@ -456,104 +456,6 @@ defmodule Tartarus.Agent.Server do
     run(data, :handle_move_failed, fn ->
       data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state)
     end)
-  end
-
-  # -- hand-off (source side) ------------------------------------------------------
-
-  defp attempt(data, kind, dest_spec, notify \\ nil) do
-    env = data.env
-
-    with :ok <- movable(env, kind),
-         {:ok, dest, data} <- resolve(data, dest_spec),
-         :ok <- linked(data, dest),
-         :ok <- Envelope.portable?(%{state: env.state, payload: env.payload.data}),
-         {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
-         {:ok, dest_pid} <- Tartarus.Host.whereis(dest),
-         {:ok, data} <- link_loss(data, dest) do
-      Tartarus.Migration.Source.run(data, kind, dest, dest_pid, manifest, notify)
-    else
-      {:error, reason} -> {:failed, reason, data}
-      {:error, reason, data} -> {:failed, reason, data}
-    end
-  end
-
-  defp movable(%Envelope{static: true}, :move), do: {:error, :static_agent}
-  defp movable(_env, _kind), do: :ok
-
-  defp resolve(data, :here), do: {:ok, data.host.ref, data}
-
-  defp resolve(data, spec) do
-    if Strategy.strategy?(spec) do
-      info = %{
-        here: data.host.ref,
-        neighbours: Ledger.neighbours(data.host),
-        visits: data.env.visits,
-        gradients: gradients(data, spec)
-      }
-
-      rng = :rand.seed_s(data.env.rng)
-
-      case Strategy.choose(spec, info, rng) do
-        {:ok, dest, rng} ->
-          {:ok, dest, %{data | env: %{data.env | rng: :rand.export_seed_s(rng)}}}
-
-        {:error, reason} ->
-          {:error, reason}
-      end
-    else
-      if Tartarus.Host.address?(spec),
-        do: {:ok, Tartarus.Host.address(spec), data},
-        else: {:error, {:bad_destination, spec}}
-    end
-  end
-
-  defp gradients(data, {:gradient, signal}),
-    do: %{signal => Tartarus.Signal.strategy_gradient(data.host, signal)}
-
-  defp gradients(_data, _spec), do: %{}
-
-  defp linked(%{host: %{ref: ref}}, ref), do: :ok
-
-  defp linked(data, dest) do
-    if data.host.opts.strict_links and dest not in Ledger.neighbours(data.host),
-      do: {:error, {:no_link, dest}},
-      else: :ok
-  end
-
-  # Link emulation is a transport hook (Tartarus.Fault point :link), installed on a node the
-  # first time a host there links with latency or loss (Tartarus.connect/3 with props): a
-  # node that never emulates links pays one :persistent_term read per hand-off.
-  defp link_loss(data, dest) do
-    case Tartarus.Fault.point(:link, {data.host, dest, data.env.rng}) do
-      {:ok, rng} -> {:ok, %{data | env: %{data.env | rng: rng}}}
-      {:error, :link_loss, rng} -> {:error, :link_loss, %{data | env: %{data.env | rng: rng}}}
-      {_host, _dest, _rng} -> {:ok, data}
-    end
-  end
-
-  @doc false
-  # The :link hook: the link's properties from the ledger. Latency is one message's one-way
-  # delay: the hand-off waits for three (prepare, prepared, commit; the modules' round trip
-  # of a first crossing is not charged). Loss makes it fail (the agent's own random state
-  # decides, so runs are reproducible).
-  def emulate_link({host, dest, rng}) do
-    case Ledger.link(host, dest) do
-      %{} = props ->
-        latency = Map.get(props, :latency_ms, 0)
-        if latency > 0, do: Process.sleep(3 * latency)
-        loss = Map.get(props, :loss, 0)
-
-        if loss > 0 do
-          {x, state} = :rand.uniform_s(:rand.seed_s(rng))
-          rng = :rand.export_seed_s(state)
-          if x < loss, do: {:error, :link_loss, rng}, else: {:ok, rng}
-        else
-          {:ok, rng}
-        end
-
-      nil ->
-        {:ok, rng}
-    end
   end
 
   # -- reaching a busy agent --------------------------------------------------------

@@ -226,7 +226,7 @@ defmodule Tartarus.Host.Server do
 
   # Once per node (a :persistent_term write is costly; reads are free).
   defp install_link_hook do
-    hook = {:transform, {Tartarus.Agent.Server, :emulate_link, []}}
+    hook = {:transform, {Tartarus.Migration.Source, :emulate_link, []}}
 
     if :persistent_term.get({Tartarus.Fault, :link}, nil) != hook,
       do: Tartarus.Fault.install(:link, hook)
