@@ -2,6 +2,7 @@ defmodule TartarusEmu.NetworkTest do
   use ExUnit.Case, async: true
 
   import TartarusEmu.EmuCase
+  import Tartarus.TestSupport
   alias TartarusEmu.{Dynamics, Network, Topology}
 
   doctest TartarusEmu.Network
@@ -62,7 +63,7 @@ defmodule TartarusEmu.NetworkTest do
 
     # (the host registry forgets a stopped host a moment later)
     assert :ok =
-             wait_until(fn ->
+             eventually(fn ->
                not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
              end)
 
@@ -206,7 +207,7 @@ defmodule TartarusEmu.NetworkTest do
     hosts = Network.host_list(net)
     assert :ok = Network.stop(net)
     # (The host registry forgets stopped hosts asynchronously.)
-    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+    eventually(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
 
     test = self()
 
@@ -221,7 +222,7 @@ defmodule TartarusEmu.NetworkTest do
     ref = Process.monitor(keeper)
     Process.exit(pid, :kill)
     assert_receive {:DOWN, ^ref, _, _, _}, 5_000
-    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+    eventually(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
   end
 
   test "bad options are reported with the key" do
