@@ -62,10 +62,9 @@ defmodule TartarusEmu.NetworkTest do
              Network.start(Topology.line(3), setup: hook, prefix: "failsetup")
 
     # (the host registry forgets a stopped host a moment later)
-    assert :ok =
-             eventually(fn ->
-               not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
-             end)
+    assert eventually(fn ->
+             not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
+           end)
 
     assert {:error, msg} = Network.start(Topology.line(2), setup: fn -> :ok end)
     assert msg =~ "for key :setup: expected a function of 2 or 3 arguments"
