@@ -16,9 +16,6 @@ defmodule TartarusTools.Dashboard.Http do
 
   alias TartarusTools.Dashboard.Http.Conn
 
-  # A request line or a header line longer than this is refused (414, 431).
-  @line_max 8_192
-
   # conf: %{bind, port, ctx, max_body, idle_timeout, request_timeout, max_clients,
   # max_per_client, hosts}. {:ok, pid} or {:error, message}.
   def start_link(conf) do
@@ -50,9 +47,6 @@ defmodule TartarusTools.Dashboard.Http do
   # How many connections are being served, in all and per client address (for the tests).
   def connections(server), do: GenServer.call(server, :connections)
 
-  @doc false
-  def line_max, do: @line_max
-
   @impl true
   def init(conf) do
     Process.flag(:trap_exit, true)
@@ -62,7 +56,7 @@ defmodule TartarusTools.Dashboard.Http do
       ip: conf.bind,
       active: false,
       packet: :http_bin,
-      packet_size: @line_max,
+      packet_size: Conn.line_max(),
       reuseaddr: true,
       backlog: 128,
       nodelay: true,

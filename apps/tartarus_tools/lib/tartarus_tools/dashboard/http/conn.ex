@@ -7,7 +7,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   #      answer (else the connection is closed; 408 if nothing was answered on it yet);
   #   2. the headers, at most 100 lines (431), and everything up to the body's last byte
   #      within :request_timeout of the request line (408). A request line or header
-  #      line longer than Http.line_max() bytes closes the connection without an answer
+  #      line longer than line_max() bytes closes the connection without an answer
   #      (OTP's packet parsing, which enforces the bound, closes the socket);
   #   3. the Host (and the Origin, if sent) must name this dashboard (403; DNS rebinding);
   #   4. the body's framing: Content-Length or chunked, not both (400), no other coding
@@ -22,13 +22,19 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   # @linger_ms, so that the client reads the answer rather than a reset) and closes.
   # Nothing of a refused body is kept: memory per connection is bounded by :max_body.
 
-  alias TartarusTools.Dashboard.{Api, Feed, Http}
+  alias TartarusTools.Dashboard.{Api, Feed}
   alias TartarusTools.JSON
 
+  # A request line or a header line longer than this is refused (414, 431).
+  @line_max 8_192
   @max_headers 100
   @ping_ms 15_000
   @linger_ms 2_000
   @linger_bytes 1_048_576
+
+  @doc false
+  # The longest request or header line (the listening socket's packet_size).
+  def line_max, do: @line_max
 
   @doc false
   # The process's body: waits for its socket from the acceptor, then serves it.
@@ -330,7 +336,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         # A line longer than the socket's buffer comes in pieces: a piece has no line end.
         if String.ends_with?(line, "\n"),
           do: {:ok, line},
-          else: {:error, 400, "bad_request", "a chunk line is longer than #{Http.line_max()} bytes"}
+          else: {:error, 400, "bad_request", "a chunk line is longer than #{@line_max} bytes"}
 
       {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
       {:error, _} -> :closed
