@@ -18,7 +18,8 @@ defmodule Tartarus.TestSupport.Tags do
   One environment variable chooses the set, `TARTARUS_TESTS`:
 
     * `default` (or unset): everything but `:heavy` (what `scripts/test` runs);
-    * `quick`: also without `:peer`, `:long` and `:browser` (the unit and property tests);
+    * `quick`: also without `:peer`, `:long` and `:browser` (what needs no other node, no
+      browser and less than a minute);
     * `all`: `:heavy` too.
 
   `mix test --include TAG` runs an excluded tag anyway, `--only TAG` only it, and
