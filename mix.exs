@@ -27,17 +27,20 @@ defmodule TartarusUmbrella.MixProject do
 
     {opts, _, _} =
       OptionParser.parse(args,
-        switches: [seed: :integer, only: :keep, exclude: :keep, trace: :boolean]
+        switches: [seed: :integer, only: :keep, include: :keep, exclude: :keep, trace: :boolean]
       )
 
     Code.require_file("test/test_helper.exs")
 
+    # --exclude adds to what test/test_helper.exs excludes (Tartarus.TestSupport.Tags);
+    # --only runs the tag alone, as `mix test --only` does.
+    tags = fn key -> for {^key, tag} <- opts, do: String.to_atom(tag) end
+    only = tags.(:only)
+    excluded = if only == [], do: ExUnit.configuration()[:exclude], else: [:test]
+
     ExUnit.configure(
-      Enum.flat_map(opts, fn
-        {:only, tag} -> [include: [String.to_atom(tag)], exclude: [:test]]
-        {:exclude, tag} -> [exclude: [String.to_atom(tag)]]
-        other -> [other]
-      end)
+      [exclude: excluded ++ tags.(:exclude), include: only ++ tags.(:include)] ++
+        Keyword.take(opts, [:seed, :trace])
     )
 
     Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs"))

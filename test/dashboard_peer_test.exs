@@ -4,6 +4,8 @@ defmodule TartarusEmu.DashboardPeerTest do
   # relay on each peer) and name hosts by their topology names.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   alias TartarusEmu.{Network, Topology}
   alias TartarusTools.JSON
 
@@ -32,23 +34,17 @@ defmodule TartarusEmu.DashboardPeerTest do
       {:ok, id} = Tartarus.create_mobile_agent(h.(:h1), Tartarus.Examples.Echo, nil)
       :ok = Tartarus.move({id, h.(:h1)}, h.(:h2))
 
-      arrived = fn -> get(url, "api/events?type=arrival&agent=#{id}")["events"] end
-      assert [%{"host" => "h2", "from" => "h1"}] = wait(arrived, 10_000)
+      arrived = fn ->
+        events = get(url, "api/events?type=arrival&agent=#{id}")["events"]
+        events != [] && events
+      end
+
+      assert [%{"host" => "h2", "from" => "h1"}] = eventually(arrived, 10_000)
+
       assert %{"agents" => [%{"id" => ^id, "host" => "h2"}]} = get(url, "api/agents?host=h2")
       TartarusTools.Dashboard.stop(dash)
     after
       Network.stop(net)
-    end
-  end
-
-  defp wait(fun, left) do
-    case fun.() do
-      [] when left > 0 ->
-        Process.sleep(100)
-        wait(fun, left - 100)
-
-      other ->
-        other
     end
   end
 end

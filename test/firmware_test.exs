@@ -7,6 +7,8 @@ defmodule TartarusFirmwareTest do
   # simulated devices do.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   @moduletag :firmware
 
   @firmware Path.expand("../firmware", __DIR__)
@@ -110,7 +112,7 @@ defmodule TartarusFirmwareTest do
 
     uart().plug(dev)
     assert_receive {:event, :beacon, {:serial, :up}}, 5_000
-    wait(fn -> String.contains?(uart().written(dev) || "", "AT+DISI?") end)
+    eventually(fn -> String.contains?(uart().written(dev) || "", "AT+DISI?") end)
 
     b = %TartarusLats.Beacon{
       uuid: "74278bdab64445208f0c720eaf059935",
@@ -182,19 +184,4 @@ defmodule TartarusFirmwareTest do
   # The doubles' control modules exist only once setup_all has compiled them.
   defp uart, do: Module.concat(Circuits.UART, Double)
   defp gpio, do: Module.concat(Circuits.GPIO, Double)
-
-  # Waits (bounded) for a condition.
-  defp wait(fun, tries \\ 500) do
-    cond do
-      fun.() ->
-        :ok
-
-      tries == 0 ->
-        flunk("condition not met")
-
-      true ->
-        Process.sleep(10)
-        wait(fun, tries - 1)
-    end
-  end
 end

@@ -4,6 +4,8 @@ defmodule Tartarus.GuaranteesPeerTest do
   # guarantee itself: the agent exists exactly once across the cluster.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   @moduletag :peer
   alias Tartarus.Fault
   alias TartarusTools.Peer
@@ -49,20 +51,6 @@ defmodule Tartarus.GuaranteesPeerTest do
     |> Enum.count(&(&1.id == id))
   end
 
-  defp eventually(fun, tries \\ 100) do
-    if fun.() do
-      true
-    else
-      if tries == 0,
-        do: flunk("condition never held"),
-        else:
-          (
-            Process.sleep(100)
-            eventually(fun, tries - 1)
-          )
-    end
-  end
-
   test "destination killed before it answers prepared: the agent runs on at the source", %{
     a: a,
     b: b
@@ -100,7 +88,7 @@ defmodule Tartarus.GuaranteesPeerTest do
     assert b2 == b
     ^hb = host!(b, :hb, data_dir: Path.join(dir, "b"))
 
-    eventually(fn -> Tartarus.whereis({id, ha}) == {:ok, hb} end)
+    eventually(fn -> Tartarus.whereis({id, ha}) == {:ok, hb} end, 10_000)
     assert {:ok, :s1} = Tartarus.request({id, ha}, :state)
     assert copies(id, [ha, hb]) == 1
   end
@@ -122,7 +110,7 @@ defmodule Tartarus.GuaranteesPeerTest do
     ^a = start_node(na)
     ^ha = host!(a, :ha, data_dir: Path.join(dir, "a"))
 
-    eventually(fn -> copies(id, [hb]) == 1 end)
+    eventually(fn -> copies(id, [hb]) == 1 end, 10_000)
     assert copies(id, [ha, hb]) == 1
     assert {:ok, :s2} = Tartarus.request({id, hb}, :state)
   end
@@ -145,7 +133,7 @@ defmodule Tartarus.GuaranteesPeerTest do
     refute b in :erpc.call(a, Node, :list, [])
 
     :ok = Peer.heal(a, b)
-    eventually(fn -> copies(id, [hb]) == 1 end)
+    eventually(fn -> copies(id, [hb]) == 1 end, 10_000)
     assert copies(id, [ha, hb]) == 1
     assert {:ok, :s3} = Tartarus.request({id, ha}, :state)
   end
@@ -159,7 +147,7 @@ defmodule Tartarus.GuaranteesPeerTest do
     :ok = Tartarus.post({id, ha}, {:go, hb})
     assert_receive {:fault_paused, :committing, s_pid, new_pid}, 5_000
     :erpc.call(a, Kernel, :send, [s_pid, {:fault_continue, s_pid}])
-    eventually(fn -> copies(id, [hb]) == 1 end)
+    eventually(fn -> copies(id, [hb]) == 1 end, 10_000)
     {:ok, hops} = Tartarus.request({id, hb}, :hops)
 
     # The same commit again, from the source's node.

@@ -6,6 +6,8 @@ defmodule Tartarus.MigrationReplayPeerTest do
   # the source. Either way the agent runs exactly once.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   @moduletag :peer
   alias Tartarus.Examples.Echo
   alias Tartarus.Fault
@@ -45,14 +47,6 @@ defmodule Tartarus.MigrationReplayPeerTest do
   defp paused({_, node} = host), do: :erpc.call(node, Tartarus.Host, :call, [host, :paused])
   defp refused({_, node} = host), do: :erpc.call(node, Tartarus, :status, [host]).counts.refused
 
-  defp eventually(fun, tries \\ 100) do
-    cond do
-      fun.() -> true
-      tries == 0 -> flunk("condition never held")
-      true -> Process.sleep(100) && eventually(fun, tries - 1)
-    end
-  end
-
   # Moves the agent a -> b, capturing the sealed prepare as b's server receives it, then
   # on b -> c: the captured prepare is the old migration's.
   defp capture_then_move_on(%{b: b, ha: ha, hb: hb, hc: hc, id: id}) do
@@ -78,7 +72,7 @@ defmodule Tartarus.MigrationReplayPeerTest do
 
     :erpc.call(c, Kernel, :send, [server, prepare])
 
-    eventually(fn -> refused(hb) == before + 1 end)
+    eventually(fn -> refused(hb) == before + 1 end, 10_000)
     assert paused(hb) == 0
     assert copies(id, [ha, hb, hc]) == 1
     assert {:ok, :s0} = Tartarus.request({id, hc}, :state)
@@ -99,7 +93,7 @@ defmodule Tartarus.MigrationReplayPeerTest do
     # the source; the source committed another copy of that migration: aborted.
     assert_receive {:fault_paused, :admitting, ^server, _env}, 5_000
     send(server, {:fault_continue, server})
-    eventually(fn -> paused(hb) == 0 end)
+    eventually(fn -> paused(hb) == 0 end, 10_000)
     assert copies(id, [ha, hb, hc]) == 1
     assert {:ok, :s0} = Tartarus.request({id, hc}, :state)
     assert Tartarus.agents(hb) == []

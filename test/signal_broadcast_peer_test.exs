@@ -3,6 +3,8 @@ defmodule Tartarus.SignalBroadcastPeerTest do
   # ha (node a) - hb (node b) - hc (node c).
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   @moduletag :peer
   @moduletag :overlay
 
@@ -36,14 +38,6 @@ defmodule Tartarus.SignalBroadcastPeerTest do
 
     on_exit(fn -> Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end) end)
     %{nodes: nodes, ha: ha, hb: hb, hc: hc}
-  end
-
-  defp eventually(fun, n \\ 400) do
-    cond do
-      fun.() -> true
-      n == 0 -> false
-      true -> Process.sleep(10) && eventually(fun, n - 1)
-    end
   end
 
   test "a signal spreads hop by hop across nodes and an agent climbs it", ctx do

@@ -1,4 +1,2 @@
-# Tests tagged :known_bug show a bug in lib/ that is not fixed yet (none at the moment); run
-# them with `mix test --only known_bug`. Tests tagged :model_long run the protocol model longer
-# (`mix test --only model_long`).
-ExUnit.start(capture_log: true, exclude: [:known_bug, :model_long])
+# Which tags run (TARTARUS_TESTS=default|quick|all): see Tartarus.TestSupport.Tags.
+Tartarus.TestSupport.Tags.start(capture_log: true)

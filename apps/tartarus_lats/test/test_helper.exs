@@ -1,10 +1,2 @@
-# The serial end-to-end test needs socat (scripts/test installs it).
-exclude =
-  if System.find_executable("socat") do
-    []
-  else
-    IO.puts("socat is not installed: the :socat tests are excluded (scripts/test installs it)")
-    [:socat]
-  end
-
-ExUnit.start(exclude: exclude)
+# Which tags run (TARTARUS_TESTS=default|quick|all): see Tartarus.TestSupport.Tags.
+Tartarus.TestSupport.Tags.start()

@@ -1,6 +1,8 @@
 defmodule TartarusRoadblockTest do
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   doctest TartarusRoadblock
   doctest TartarusRoadblock.Site
   doctest TartarusRoadblock.RescueProgram
@@ -30,7 +32,8 @@ defmodule TartarusRoadblockTest do
 
     {:ok, _} = TartarusRoadblock.start(seed: 1, out: false, dashboard: [port: port, token: token])
 
-    panel = await_panel(url, System.monotonic_time(:millisecond) + 60_000)
+    # The panel offers its button once the run waits.
+    panel = eventually(fn -> offering(first_panel(url)) end, 60_000)
     assert panel["title"] =~ "Roadblock"
     assert [%{"action" => "release"}] = panel["actions"]
     assert ["Santa", "stopped", _] = Enum.find(panel["rows"], &(hd(&1) == "Santa"))
@@ -53,29 +56,6 @@ defmodule TartarusRoadblockTest do
     # Nothing waits any more: the button's action is refused.
     assert TartarusRoadblock.Panel.act(:ets.new(:rb_none, []), "release", %{}) ==
              {:error, :not_waiting}
-  end
-
-  # Polls the dashboard until the roadblock panel offers its button (the run waits).
-  defp await_panel(url, deadline) do
-    panel =
-      case TartarusTools.Dashboard.http_get(url, 5_000) do
-        {:ok, 200, body} ->
-          body |> TartarusTools.JSON.decode!() |> Map.get("panels") |> List.first()
-
-        _ ->
-          nil
-      end
-
-    cond do
-      panel && panel["actions"] != [] ->
-        panel
-
-      System.monotonic_time(:millisecond) > deadline ->
-        flunk("the panel never offered the release button")
-
-      true ->
-        Process.sleep(200) && await_panel(url, deadline)
-    end
   end
 
   @tag :tmp_dir
@@ -159,12 +139,19 @@ defmodule TartarusRoadblockTest do
     assert message =~ "cloud"
   end
 
-  defp wait_until_blocked do
-    if Process.whereis(TartarusRoadblock.Driver) do
-      :ok
-    else
-      Process.sleep(20)
-      wait_until_blocked()
+  defp first_panel(url) do
+    case TartarusTools.Dashboard.http_get(url, 5_000) do
+      {:ok, 200, body} ->
+        body |> TartarusTools.JSON.decode!() |> Map.get("panels") |> List.first()
+
+      _ ->
+        nil
     end
   end
+
+  defp offering(panel), do: panel && panel["actions"] != [] && panel
+
+  # The run waits for the administrator once its driver is registered.
+  defp wait_until_blocked,
+    do: eventually(fn -> Process.whereis(TartarusRoadblock.Driver) end, 60_000)
 end

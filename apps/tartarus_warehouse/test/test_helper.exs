@@ -1,10 +1,2 @@
-# Long runs are tagged :scale and excluded unless TARTARUS_SCALE=1.
-
-exclude =
-  if System.get_env("TARTARUS_SCALE") == "1" do
-    []
-  else
-    [:scale]
-  end
-
-ExUnit.start(capture_log: true, exclude: exclude)
+# Which tags run (TARTARUS_TESTS=default|quick|all): see Tartarus.TestSupport.Tags.
+Tartarus.TestSupport.Tags.start(capture_log: true)

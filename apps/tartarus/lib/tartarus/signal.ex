@@ -86,6 +86,7 @@ defmodule Tartarus.Signal do
       iex> Tartarus.emit_signal(:sig_a, :danger, 100, span: 2, data: %{problem: 7})
       :ok
       iex> Tartarus.Signal.settle()
+      :ok
       iex> for h <- [:sig_a, :sig_b, :sig_c], do: Tartarus.signal(h, :danger)
       [100.0, 50.0, 0.0]
       iex> [%{hops: 1, data: %{problem: 7}}] = Tartarus.Signal.contributions(:sig_b, :danger)
@@ -472,24 +473,41 @@ defmodule Tartarus.Signal do
   Waits until this node's `Tartarus.Overlay` process has no pending message (signal
   relays, broadcasts), so every field that only involves this node's hosts is complete and
   every broadcast between them delivered (for tests and step-driven emulations that run all
-  hosts in one VM; it does not wait for other nodes). Returns `:ok`, also when `timeout`
-  ms pass first.
+  hosts in one VM; it does not wait for other nodes).
+
+  Returns `:ok`, or `{:error, :timeout}` when the overlay still had messages to handle (or
+  did not answer) after `timeout` ms: the fields may then be incomplete.
   """
-  @spec settle(timeout()) :: :ok
+  @spec settle(timeout()) :: :ok | {:error, :timeout}
   def settle(timeout \\ 30_000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
+    deadline =
+      if timeout == :infinity, do: :infinity, else: System.monotonic_time(:millisecond) + timeout
+
     do_settle(deadline)
   end
 
   defp do_settle(deadline) do
-    case GenServer.call(:tartarus_overlay, :idle?, 30_000) do
-      true ->
-        :ok
-
-      false ->
-        if System.monotonic_time(:millisecond) > deadline, do: :ok, else: do_settle(deadline)
+    case idle?(deadline) do
+      true -> :ok
+      false -> if past?(deadline), do: {:error, :timeout}, else: do_settle(deadline)
+      :timeout -> {:error, :timeout}
     end
   end
+
+  # Asks the overlay whether its mailbox is empty, waiting for the answer until `deadline`.
+  defp idle?(deadline) do
+    wait =
+      if deadline == :infinity,
+        do: :infinity,
+        else: max(deadline - System.monotonic_time(:millisecond), 0)
+
+    GenServer.call(:tartarus_overlay, :idle?, wait)
+  catch
+    :exit, {:timeout, _} -> :timeout
+  end
+
+  defp past?(:infinity), do: false
+  defp past?(deadline), do: System.monotonic_time(:millisecond) > deadline
 
   @doc """
   Watches signal `name` at `host` (on any node): `pid` receives

@@ -12,11 +12,14 @@ defmodule Tartarus.HostCase do
   # node.
   use ExUnit.CaseTemplate
 
+  import Tartarus.TestSupport, only: [wait_for: 2]
+
   alias Tartarus.Test.Probe
 
   using do
     quote do
       import Tartarus.HostCase
+      import Tartarus.TestSupport
       alias Tartarus.Test.{Probe, Walker}
     end
   end
@@ -88,35 +91,16 @@ defmodule Tartarus.HostCase do
     result
   end
 
-  @doc "Polls `fun` until it returns a truthy value (returned) or `timeout` ms pass (nil)."
-  def eventually(fun, timeout \\ 1_000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
-    poll(fun, deadline)
-  end
-
-  defp poll(fun, deadline) do
-    cond do
-      result = fun.() ->
-        result
-
-      System.monotonic_time(:millisecond) > deadline ->
-        nil
-
-      true ->
-        Process.sleep(5)
-        poll(fun, deadline)
-    end
-  end
-
   @doc false
   def assert_no_leaks(hosts_before, agents_before) do
-    # Registries drop the entries of dead processes asynchronously: give them a moment.
-    eventually(fn -> Tartarus.hosts() == hosts_before end)
+    # Registries drop the entries of dead processes asynchronously: give them a moment (and
+    # stop what leaked before failing, so that the next test starts clean).
+    wait_for(fn -> Tartarus.hosts() == hosts_before end, 1_000)
     leaked = Tartarus.hosts() -- hosts_before
     Enum.each(leaked, &Tartarus.stop_host/1)
     assert leaked == [], "hosts leaked by the test: #{inspect(leaked)}"
 
-    eventually(fn -> residents() == agents_before end)
+    wait_for(fn -> residents() == agents_before end, 1_000)
     agents = residents()
 
     assert agents == agents_before,

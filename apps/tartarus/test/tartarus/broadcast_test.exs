@@ -92,7 +92,7 @@ defmodule Tartarus.BroadcastTest do
     a_addr = addr(a)
     assert_receive {:tartarus_broadcast, ^a_addr, :hello}, 2_000
     # The one message above was b's; a and c heard nothing.
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     refute_received {:tartarus_broadcast, _, _}
     assert counts(b).broadcasts_received == 1
     assert counts(a).broadcasts_received == 0

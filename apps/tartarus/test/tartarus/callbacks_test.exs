@@ -71,17 +71,6 @@ defmodule Tartarus.CallbacksTest do
     pid
   end
 
-  # Waits until `pid` has `msg` in its mailbox (the agent is stuck in a callback, so it
-  # stays there): proof that whoever sends it has done so.
-  defp await_in_mailbox(pid, msg) do
-    {:messages, msgs} = Process.info(pid, :messages)
-
-    unless msg in msgs do
-      Process.sleep(1)
-      await_in_mailbox(pid, msg)
-    end
-  end
-
   describe "init/1" do
     test "a wedged init/1 leaves its host working: create, kill, start_host, stop_host answer" do
       h = host!(callback_timeout: :infinity)
@@ -224,8 +213,8 @@ defmodule Tartarus.CallbacksTest do
       killing = Task.async(fn -> Tartarus.kill(id) end)
       hpid = host_pid(h)
       # The host has sent its shutdown signal (the agent traps it: a message it cannot take
-      # while its callback runs).
-      await_in_mailbox(stuck, {:EXIT, hpid, :shutdown})
+      # while its callback runs, so it stays in its mailbox).
+      eventually(fn -> {:EXIT, hpid, :shutdown} in elem(Process.info(stuck, :messages), 1) end)
 
       # The kill is under way (the agent is alive, stuck until we release it) and the host
       # answers other calls, a second kill included.

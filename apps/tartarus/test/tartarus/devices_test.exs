@@ -247,8 +247,8 @@ defmodule Tartarus.DevicesTest do
       assert Tartarus.write_plugin(h, :gone, {:send, "AT"}) == {:error, :closed}
       assert Tartarus.read_plugin(h, :gone, :last) == {:ok, nil}
       assert Tartarus.read_plugin(h, :gone, :nope) == {:error, {:bad_argument, :nope}}
-      wait_error(h, :gone, :enoent)
-      wait_error(h, :file, {:not_a_device, :regular})
+      eventually(fn -> last_error(h, :gone) == :enoent end)
+      eventually(fn -> last_error(h, :file) == {:not_a_device, :regular} end)
       # Nothing was created at the device's path.
       refute File.exists?(missing)
 
@@ -276,19 +276,8 @@ defmodule Tartarus.DevicesTest do
     end
   end
 
-  defp wait_error(h, name, expected, tries \\ 200) do
-    {:ok, %{last_error: got}} = Tartarus.read_plugin(h, name, :status)
-
-    cond do
-      got == expected ->
-        :ok
-
-      tries == 0 ->
-        flunk("last_error of #{name}: #{inspect(got)}, expected #{inspect(expected)}")
-
-      true ->
-        Process.sleep(10)
-        wait_error(h, name, expected, tries - 1)
-    end
+  defp last_error(h, name) do
+    {:ok, %{last_error: error}} = Tartarus.read_plugin(h, name, :status)
+    error
   end
 end

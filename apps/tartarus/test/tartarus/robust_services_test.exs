@@ -63,7 +63,7 @@ defmodule Tartarus.RobustServicesTest do
       ref = Process.monitor(old)
       Process.exit(old, :kill)
       assert_receive {:DOWN, ^ref, _, _, _}
-      assert wait_until(fn -> Process.whereis(service) not in [nil, old] end)
+      assert eventually(fn -> Process.whereis(service) not in [nil, old] end)
     end
 
     assert Tartarus.Host.Directory.whereis(addr(a)) == host_pid
@@ -79,7 +79,7 @@ defmodule Tartarus.RobustServicesTest do
 
     Process.exit(pid_a, :kill)
 
-    assert wait_until(fn ->
+    assert eventually(fn ->
              match?({:ok, pid} when pid != pid_a, Tartarus.Host.Directory.whereis(addr(a)))
            end)
 
@@ -102,7 +102,7 @@ defmodule Tartarus.RobustServicesTest do
 
     Process.exit(pid, :kill)
 
-    assert wait_until(fn -> Enum.all?(ids, &answers?(&1, name)) end)
+    assert eventually(fn -> Enum.all?(ids, &answers?(&1, name)) end)
     assert {:ok, new_pid} = Tartarus.Host.Directory.whereis(h)
     assert new_pid != pid
     assert Tartarus.neighbours(name) == [addr(b)]
@@ -122,19 +122,5 @@ defmodule Tartarus.RobustServicesTest do
     lines = log |> String.split("\n") |> Enum.count(&(&1 =~ "Tartarus.CodeCache dropped"))
     assert lines <= elapsed_s + 2
     assert Map.fetch!(Tartarus.Events.dropped(), Tartarus.CodeCache) >= 201
-  end
-
-  defp wait_until(fun, attempts \\ 100) do
-    cond do
-      fun.() ->
-        true
-
-      attempts == 0 ->
-        false
-
-      true ->
-        Process.sleep(20)
-        wait_until(fun, attempts - 1)
-    end
   end
 end

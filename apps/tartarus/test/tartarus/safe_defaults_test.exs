@@ -58,18 +58,23 @@ defmodule Tartarus.SafeDefaultsTest do
     for %{resident: resident} <- counts, do: assert(resident <= limit)
   end
 
-  # Polls the hosts until their resident counts and event counters stop changing.
-  defp settle(hosts, last \\ nil, stable \\ 0) do
-    counts =
+  # Reads the hosts' resident counts and event counters every 100 ms until six reads in a row
+  # agree (the storm is over); fails after 60 s of change.
+  defp settle(hosts) do
+    Stream.repeatedly(fn ->
+      Process.sleep(100)
+
       for h <- hosts do
         s = Tartarus.status(h)
         %{resident: s.resident, clones: s.counts.clones, refused: s.counts.refused}
       end
-
-    cond do
-      counts == last and stable >= 5 -> counts
-      counts == last -> Process.sleep(100) && settle(hosts, counts, stable + 1)
-      true -> Process.sleep(100) && settle(hosts, counts, 0)
+    end)
+    |> Stream.chunk_every(6, 1)
+    |> Stream.take(600)
+    |> Enum.find(&match?([_], Enum.uniq(&1)))
+    |> case do
+      [counts | _] -> counts
+      nil -> flunk("the hosts' counts still changed after 60 s")
     end
   end
 end

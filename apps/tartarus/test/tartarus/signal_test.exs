@@ -51,12 +51,12 @@ defmodule Tartarus.SignalTest do
   test "the strength decays with distance: the thesis's linear law by default" do
     hosts = line!(5)
     :ok = Tartarus.emit_signal(hd(hosts), :danger, 100, span: 4)
-    Signal.settle()
+    :ok = Signal.settle()
     assert values(hosts, :danger) == [100.0, 75.0, 50.0, 25.0, 0.0]
 
     hosts = line!(4)
     :ok = Tartarus.emit_signal(hd(hosts), :heat, 80, span: 3, decay: {:exponential, 0.5})
-    Signal.settle()
+    :ok = Signal.settle()
     assert values(hosts, :heat) == [80.0, 40.0, 20.0, 10.0]
   end
 
@@ -64,7 +64,7 @@ defmodule Tartarus.SignalTest do
     hosts = line!(6)
     [a, b, c, d, _, _] = hosts
     :ok = Tartarus.emit_signal(a, :s, 100, span: 2, decay: :none)
-    Signal.settle()
+    :ok = Signal.settle()
     assert values(hosts, :s) == [100.0, 100.0, 100.0, 0.0, 0.0, 0.0]
     # Relays: a -> b, b -> c; c is at the span and relays no more.
     assert counts(a).signal_messages == 1
@@ -84,7 +84,7 @@ defmodule Tartarus.SignalTest do
   test "a host keeps the strongest contribution per source (ring: the shorter way wins)" do
     hosts = ring!(6)
     :ok = Tartarus.emit_signal(hd(hosts), :p, 80, span: 5, decay: {:exponential, 0.5})
-    Signal.settle()
+    :ok = Signal.settle()
     assert values(hosts, :p) == [80.0, 40.0, 20.0, 10.0, 20.0, 40.0]
     [c] = Signal.contributions(Enum.at(hosts, 2), :p)
     assert c.hops == 2 and c.source == addr(hd(hosts))
@@ -93,7 +93,7 @@ defmodule Tartarus.SignalTest do
   test "one emission is relayed at most once per host, even around a cycle" do
     hosts = ring!(6)
     :ok = Tartarus.emit_signal(hd(hosts), :flat, 10, span: 5, decay: :none, lifetime: 600_000)
-    Signal.settle()
+    :ok = Signal.settle()
     assert Enum.all?(values(hosts, :flat), &(&1 > 9.0 and &1 <= 10.0))
     sent = Enum.map(hosts, &counts(&1).signal_messages)
     # The emitter sends to its two neighbours; every other host relays at most once, to
@@ -107,7 +107,7 @@ defmodule Tartarus.SignalTest do
     [a, b, c] = line!(3)
     :ok = Tartarus.emit_signal(a, :d, 10, span: 2, decay: :none, data: [0.1, 0.2])
     :ok = Tartarus.emit_signal(c, :d, 30, span: 2, decay: :none, data: [0.9])
-    Signal.settle()
+    :ok = Signal.settle()
     assert Tartarus.signal(b, :d) == 30.0
     assert Tartarus.signal(b, :d, combine: :sum) == 40.0
 
@@ -117,12 +117,42 @@ defmodule Tartarus.SignalTest do
     assert src1 == addr(c)
   end
 
+  test "settle/1 says when it timed out: the overlay did not get through its messages in time" do
+    overlay = Process.whereis(:tartarus_overlay)
+    me = self()
+
+    # The overlay held in a system message until released (as if busy with a long relay);
+    # released whatever happens to the test.
+    on_exit(fn -> send(overlay, :release) end)
+
+    holder =
+      Task.async(fn ->
+        :sys.replace_state(
+          overlay,
+          fn state ->
+            send(me, :overlay_held)
+
+            receive do
+              :release -> state
+            end
+          end,
+          :infinity
+        )
+      end)
+
+    assert_receive :overlay_held
+    assert Signal.settle(50) == {:error, :timeout}
+    send(overlay, :release)
+    Task.await(holder)
+    assert Signal.settle() == :ok
+  end
+
   test "the signal evaporates with time, computed on read" do
     hosts = line!(3)
     [a, b, c] = hosts
     # Long-lived: after the field settles it is worth at most its base, and more than 0.
     :ok = Tartarus.emit_signal(a, :long, 100, span: 3, lifetime: 600_000)
-    Signal.settle()
+    :ok = Signal.settle()
     [va, vb, vc] = values(hosts, :long)
     assert va <= 100.0 and va > 99.0
     assert vb <= 66.667 and vb > 65.0
@@ -130,7 +160,7 @@ defmodule Tartarus.SignalTest do
 
     # Short-lived: gone everywhere once its lifetime has passed, with nothing running.
     :ok = Tartarus.emit_signal(a, :short, 100, span: 3, lifetime: 30, evaporation: :step)
-    Signal.settle()
+    :ok = Signal.settle()
     Process.sleep(60)
     assert values(hosts, :short) == [0.0, 0.0, 0.0]
     assert Signal.contributions(b, :short) == []
@@ -150,12 +180,12 @@ defmodule Tartarus.SignalTest do
   test "a stronger re-emission replaces a weaker contribution; a weaker one does not" do
     [a, b] = line!(2)
     :ok = Tartarus.emit_signal(a, :x, 10, span: 1, decay: :none)
-    Signal.settle()
+    :ok = Signal.settle()
     :ok = Tartarus.emit_signal(a, :x, 50, span: 1, decay: :none)
-    Signal.settle()
+    :ok = Signal.settle()
     assert Tartarus.signal(b, :x) == 50.0
     :ok = Tartarus.emit_signal(a, :x, 20, span: 1, decay: :none)
-    Signal.settle()
+    :ok = Signal.settle()
     assert Tartarus.signal(b, :x) == 50.0
     # The weaker emission was not relayed: two relays in all.
     assert counts(a).signal_messages == 2
@@ -165,7 +195,7 @@ defmodule Tartarus.SignalTest do
   test "an agent following {:gradient, name} reaches the emitter on a line and on a grid" do
     hosts = line!(5)
     :ok = Tartarus.emit_signal(List.last(hosts), :danger, 100, span: 4)
-    Signal.settle()
+    :ok = Signal.settle()
     {:ok, id} = Tartarus.create_mobile_agent(hd(hosts), Climber, :danger, owner: self())
     assert_receive {:tartarus_result, ^id, {top, 4, path}}, 5_000
     assert top == addr(List.last(hosts))
@@ -174,7 +204,7 @@ defmodule Tartarus.SignalTest do
     # 3x3 grid, source in a corner, climber in the opposite one: a shortest path (4 hops).
     g = grid!(3)
     :ok = Tartarus.emit_signal(Enum.at(g, 8), :pher, 100, span: 4, decay: {:exponential, 0.7})
-    Signal.settle()
+    :ok = Signal.settle()
     {:ok, id} = Tartarus.create_mobile_agent(hd(g), Climber, :pher, owner: self())
     assert_receive {:tartarus_result, ^id, {top, 4, _path}}, 5_000
     assert top == addr(Enum.at(g, 8))
@@ -239,13 +269,13 @@ defmodule Tartarus.SignalTest do
     refute_receive {:tartarus_signal, _, :w}, 50
     # Another name at the same host wakes nobody.
     :ok = Tartarus.emit_signal(a, :other, 10, span: 2)
-    Signal.settle()
+    :ok = Signal.settle()
     refute_receive {:tartarus_signal, _, _}, 50
 
     :ok = Signal.unwatch(b, :w)
     assert Signal.watchers(b, :w) == []
     :ok = Tartarus.emit_signal(a, :w, 20, span: 2)
-    Signal.settle()
+    :ok = Signal.settle()
     refute_receive {:tartarus_signal, _, :w}, 50
 
     pid = spawn(fn -> receive do: (:stop -> :ok) end)
@@ -263,7 +293,7 @@ defmodule Tartarus.SignalTest do
     [other] = line!(1)
     :ok = Tartarus.emit_signal(other, :kept, 10, span: 1)
     :ok = Tartarus.emit_signal(:watch, :f, 10, span: 2)
-    Signal.settle()
+    :ok = Signal.settle()
 
     # A broadcast subscriber of the host named :watch exits: the overlay forgets it and lives.
     pid = spawn(fn -> receive do: (:stop -> :ok) end)
@@ -307,7 +337,7 @@ defmodule Tartarus.SignalTest do
     assert inside({id, a}, :emit_signal, [:alarm, 60, [span: 1, decay: :none, data: :fire]]) ==
              :ok
 
-    Signal.settle()
+    :ok = Signal.settle()
     assert Tartarus.signal(b, :alarm) == 60.0
     :ok = Tartarus.move({id, a}, b)
     assert inside({id, a}, :signal, [:alarm]) == 60.0

@@ -1,17 +1,16 @@
 defmodule TartarusArena.ServerTest do
   use ExUnit.Case, async: true
 
+  import Tartarus.TestSupport
+
   alias TartarusArena.{Paths, PFA, Run, Server, World}
 
   test "with tick_ms the server steps the world by itself" do
     w = World.new(noise: :none) |> World.add_robot(:r, x: 1, y: 1)
     pid = start_supervised!({Server, world: w, tick_ms: 5})
     :ok = Server.set_wheels(pid, :r, 1.0, 1.0)
-    # wait (up to 5 s) for the ticks to move the robot
-    assert Enum.any?(1..500, fn _ ->
-             Process.sleep(10)
-             elem(Server.pose(pid, :r), 0) > 1.0
-           end)
+    # the ticks move the robot
+    eventually(fn -> elem(Server.pose(pid, :r), 0) > 1.0 end)
 
     assert World.time(Server.world(pid)) > 0
   end

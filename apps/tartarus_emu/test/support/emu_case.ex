@@ -17,23 +17,4 @@ defmodule TartarusEmu.EmuCase do
     |> Enum.map(&TartarusEmu.Network.topo_node(net, &1))
     |> Enum.sort()
   end
-
-  def wait_until(fun, timeout \\ 5_000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
-    do_wait(fun, deadline)
-  end
-
-  defp do_wait(fun, deadline) do
-    cond do
-      fun.() ->
-        :ok
-
-      System.monotonic_time(:millisecond) > deadline ->
-        raise "condition not met in time"
-
-      true ->
-        Process.sleep(10)
-        do_wait(fun, deadline)
-    end
-  end
 end

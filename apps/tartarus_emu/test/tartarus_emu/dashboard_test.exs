@@ -5,6 +5,7 @@ defmodule TartarusEmu.DashboardTest do
   use ExUnit.Case, async: false
 
   import TartarusEmu.EmuCase
+  import Tartarus.TestSupport
   alias TartarusEmu.{Network, Topology}
   alias TartarusTools.JSON
 
@@ -49,9 +50,11 @@ defmodule TartarusEmu.DashboardTest do
   test "break and heal a link, isolate a host and let it rejoin", %{url: url, net: net} do
     assert {200, %{"ok" => true}} = post(url, "/api/links/break", ~s({"a":"h1","b":"h2"}))
     refute Network.live?(net, :h1, :h2)
-    Process.sleep(1_100)
-    {200, %{"links" => links}} = get(url, "/api/links")
-    assert %{"up" => false} = Enum.find(links, &(&1["a"] == "h1" and &1["b"] == "h2"))
+
+    eventually(fn ->
+      {200, %{"links" => links}} = get(url, "/api/links")
+      match?(%{"up" => false}, Enum.find(links, &(&1["a"] == "h1" and &1["b"] == "h2")))
+    end)
 
     assert {200, _} = post(url, "/api/links/heal", ~s({"a":"h1","b":"h2"}))
     assert Network.live?(net, :h1, :h2)
@@ -83,7 +86,7 @@ defmodule TartarusEmu.DashboardTest do
 
     :ets.insert(slot, {:net, net})
 
-    wait_until(fn -> match?({200, %{"total" => 6}}, get(url, "/api/hosts")) end)
+    eventually(fn -> match?({200, %{"total" => 6}}, get(url, "/api/hosts")) end)
     assert {200, %{"ok" => true}} = post(url, "/api/links/break", ~s({"a":"h1","b":"h2"}))
     refute Network.live?(net, :h1, :h2)
     TartarusTools.Dashboard.stop(dash)
@@ -93,7 +96,7 @@ defmodule TartarusEmu.DashboardTest do
     {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :h1), Tartarus.Examples.Echo, nil)
     :ok = Tartarus.move({id, Network.host(net, :h1)}, Network.host(net, :h2))
 
-    wait_until(fn ->
+    eventually(fn ->
       match?({200, %{"events" => [_]}}, get(url, "/api/events?type=arrival&agent=#{id}"))
     end)
 
@@ -161,7 +164,7 @@ defmodule TartarusEmu.DashboardTest do
     assert message =~ "token"
     assert_received {:torn_down, net}
 
-    wait_until(fn ->
+    eventually(fn ->
       Enum.all?(net.topology.nodes, fn n ->
         match?({:error, _}, Tartarus.Host.whereis(TartarusEmu.Network.host(net, n)))
       end)

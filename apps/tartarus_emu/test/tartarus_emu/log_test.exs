@@ -2,6 +2,7 @@ defmodule TartarusEmu.LogTest do
   use ExUnit.Case, async: true
 
   import TartarusEmu.EmuCase
+  import Tartarus.TestSupport
   alias TartarusEmu.{Log, Network, Topology}
 
   doctest TartarusEmu.Log.Counts
@@ -29,7 +30,7 @@ defmodule TartarusEmu.LogTest do
         {id, Network.host(net, n)}
       end
 
-    wait_until(fn ->
+    eventually(fn ->
       total =
         net |> Network.host_list() |> Enum.map(&Tartarus.status(&1).counts.arrivals) |> Enum.sum()
 

@@ -1,11 +1,12 @@
 defmodule TartarusEmu.NetworkScaleTest do
-  # 100 peer nodes: run with TARTARUS_SCALE=1 (see test_helper.exs). Times are printed, not
+  # 100 peer nodes: tagged :heavy, run with TARTARUS_TESTS=all (Tartarus.TestSupport.Tags). Times are printed, not
   # asserted; figures for the docs come from `mix tartarus.emu --mode peer --hosts 100 --json`.
   use ExUnit.Case, async: false
 
   alias TartarusEmu.{Network, Topology}
 
-  @moduletag :scale
+  @moduletag :peer
+  @moduletag :heavy
   @moduletag timeout: 900_000
 
   test "100 peer nodes in a 10x10 grid start, connect to neighbours only, and stop cleanly" do

@@ -2,6 +2,7 @@ defmodule TartarusEmu.NetworkTest do
   use ExUnit.Case, async: true
 
   import TartarusEmu.EmuCase
+  import Tartarus.TestSupport
   alias TartarusEmu.{Dynamics, Network, Topology}
 
   doctest TartarusEmu.Network
@@ -61,10 +62,9 @@ defmodule TartarusEmu.NetworkTest do
              Network.start(Topology.line(3), setup: hook, prefix: "failsetup")
 
     # (the host registry forgets a stopped host a moment later)
-    assert :ok =
-             wait_until(fn ->
-               not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
-             end)
+    assert eventually(fn ->
+             not Enum.any?(Tartarus.hosts(), &match?({"failsetup" <> _, _}, &1))
+           end)
 
     assert {:error, msg} = Network.start(Topology.line(2), setup: fn -> :ok end)
     assert msg =~ "for key :setup: expected a function of 2 or 3 arguments"
@@ -206,7 +206,7 @@ defmodule TartarusEmu.NetworkTest do
     hosts = Network.host_list(net)
     assert :ok = Network.stop(net)
     # (The host registry forgets stopped hosts asynchronously.)
-    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+    eventually(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
 
     test = self()
 
@@ -221,7 +221,7 @@ defmodule TartarusEmu.NetworkTest do
     ref = Process.monitor(keeper)
     Process.exit(pid, :kill)
     assert_receive {:DOWN, ^ref, _, _, _}, 5_000
-    wait_until(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
+    eventually(fn -> Enum.all?(hosts, &(&1 not in Tartarus.hosts())) end)
   end
 
   test "bad options are reported with the key" do

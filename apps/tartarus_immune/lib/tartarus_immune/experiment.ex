@@ -321,7 +321,7 @@ defmodule TartarusImmune.Experiment do
       end
     end
 
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
   end
 
   defp interact(st, _k) do

@@ -1,5 +1,7 @@
 defmodule TartarusImmune.AgentsTest do
   use ExUnit.Case, async: false
+
+  import Tartarus.TestSupport
   alias TartarusEmu.{Network, Topology}
   alias TartarusImmune.{IPkt, Maths, Node, Params, Sorting}
 
@@ -50,7 +52,7 @@ defmodule TartarusImmune.AgentsTest do
   test "danger diffusion on a line: Sg_max at the distressed node, Sg_max/2 one hop away, nothing at l_span" do
     {_net, [h1, h2, h3, h4]} = line(4)
     {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}, {:p2, 1}], 1})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
 
     assert Enum.map([h1, h2, h3, h4], &Tartarus.signal(&1, {:danger, 1})) == [
              100.0,
@@ -66,7 +68,7 @@ defmodule TartarusImmune.AgentsTest do
   test "no danger signal when danger signals are off" do
     {_net, [h1, h2]} = line(2, false)
     {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     assert Tartarus.signal(h2, {:danger, 1}) == 0.0
   end
 
@@ -74,7 +76,7 @@ defmodule TartarusImmune.AgentsTest do
     {net, [h1, h2, h3]} = line(3)
     fx = Sorting.features(Sorting.instance(:p2, 0, 1))
     {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     run = make_ref()
     a = ipkt(h2, fx, run, %{tag: 1})
     # a far feature vector: no recognition
@@ -95,7 +97,7 @@ defmodule TartarusImmune.AgentsTest do
     {net, [h1, h2, _h3]} = line(3)
     fx = Sorting.features(Sorting.instance(:p2, 0, 1))
     {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     p = Params.new!(signal_life: :eq6_5)
 
     where = fn age ->
@@ -149,20 +151,20 @@ defmodule TartarusImmune.AgentsTest do
     {_net, [h1, h2, _h3]} = line(3, true, p)
     fx = Sorting.features(Sorting.instance(:p2, 0, 1))
     {:ok, :ok} = Tartarus.request({"immune", h1}, {:problems, [{:p2, 0}], 1})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     # no barrage-long signal
     assert Tartarus.signal(h2, {:danger, 1}) == 0.0
     # round 1: the queue is empty, the host calls; its neighbour hears 50 and the problem
     assert {:ok, true} = Tartarus.request({"immune", h1}, {:diffuse, {1, 1}})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     assert Tartarus.signal(h2, {:danger, {1, 1}}) == 50.0
     assert [%{data: [^fx]}] = Tartarus.Signal.contributions(h2, {:danger, {1, 1}})
     # five iPkts fill the interaction site: round 2 calls nobody
     run = make_ref()
     for tag <- 1..5, do: ipkt(h1, fx, run, %{tag: tag, p: p})
-    wait_queue(h1, 5)
+    eventually(fn -> length(queue(h1)) == 5 end)
     assert {:ok, false} = Tartarus.request({"immune", h1}, {:diffuse, {1, 2}})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     assert Tartarus.signal(h2, {:danger, {1, 2}}) == 0.0
     assert Tartarus.signal(h1, {:danger, {1, 2}}) == 0.0
   end
@@ -218,26 +220,15 @@ defmodule TartarusImmune.AgentsTest do
     assert Node.interact(members, [0.0 - 2.0], score, p) == :no_candidates
   end
 
-  defp wait_queue(host, n, tries \\ 100) do
-    {:ok, q} = Tartarus.request({"immune", host}, :queue)
-
-    cond do
-      length(q) == n ->
-        :ok
-
-      tries == 0 ->
-        flunk("queue of #{inspect(host)}: #{length(q)} entries, expected #{n}")
-
-      true ->
-        Process.sleep(10)
-        wait_queue(host, n, tries - 1)
-    end
-  end
-
   defp locate(id) do
     case Enum.find(Tartarus.hosts(), fn h -> Enum.any?(Tartarus.agents(h), &(&1.id == id)) end) do
       nil -> :error
       h -> {:ok, h}
     end
+  end
+
+  defp queue(host) do
+    {:ok, q} = Tartarus.request({"immune", host}, :queue)
+    q
   end
 end

@@ -1,5 +1,7 @@
 defmodule TartarusImmune.SelectTest do
   use ExUnit.Case, async: false
+
+  import Tartarus.TestSupport
   alias TartarusImmune.Select
 
   @tag :tmp_dir
@@ -74,14 +76,15 @@ defmodule TartarusImmune.SelectTest do
     url = "http://127.0.0.1:#{port}/api/panels"
 
     panel =
-      Enum.find_value(1..3000, fn _ ->
-        with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url, 5_000),
-             [%{"rows" => [_, _, _, _]} = p] <- TartarusTools.JSON.decode!(body)["panels"] do
-          p
-        else
-          _ -> Process.sleep(10) && nil
-        end
-      end)
+      eventually(
+        fn ->
+          with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url, 5_000),
+               [%{"rows" => [_, _, _, _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
+               do: p,
+               else: (_ -> nil)
+        end,
+        60_000
+      )
 
     assert panel["title"] =~ "Immune selection (thesis ch. 6): sharing: "
     assert panel["text"] =~ ~r/Round \d+, data set p1: live iPkts /
@@ -100,10 +103,10 @@ defmodule TartarusImmune.SelectTest do
     assert {:error, _} = TartarusTools.Dashboard.http_get(url, 2_000)
   end
 
-  # About 2 minutes: excluded by default (TARTARUS_SCALE=1 runs it). The issue's target;
+  # About 1.5 minutes (tag :long: TARTARUS_TESTS=quick leaves it out). The issue's target;
   # met (10 of 10) since a performance score is the solution's own cost over the
   # instance's scale (Params :score_ref), see docs/immune.md.
-  @tag :slow
+  @tag :long
   @tag timeout: 900_000
   test "table6_2 over seeds 1-10 picks IS, QS, IS, QS in at least 9 seeds" do
     {:ok, r} = Select.run(experiment: :table6_2, seeds: 10, quiet: true, out: false)

@@ -6,6 +6,8 @@ defmodule TartarusLats.HM10SerialTest do
   # scan and comes back at the same path.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   @moduletag :socat
 
   alias TartarusLats.{Beacon, HM10}
@@ -274,20 +276,11 @@ defmodule TartarusLats.HM10SerialTest do
     assert_receive {^port, {:exit_status, _}}, 5_000
   end
 
-  # Waits (bounded) until the plugin has received `n` bytes in all.
-  defp wait_bytes(host, n, tries \\ 1000) do
-    {:ok, %{bytes: got}} = Tartarus.read_plugin(host, :beacon, :status)
-
-    cond do
-      got >= n ->
-        :ok
-
-      tries == 0 ->
-        flunk("the plugin received #{got} of #{n} bytes")
-
-      true ->
-        Process.sleep(10)
-        wait_bytes(host, n, tries - 1)
-    end
+  # Waits until the plugin has received `n` bytes in all.
+  defp wait_bytes(host, n) do
+    eventually(fn ->
+      {:ok, %{bytes: got}} = Tartarus.read_plugin(host, :beacon, :status)
+      got >= n
+    end)
   end
 end

@@ -3,6 +3,8 @@ defmodule TartarusTools.ChaosTest do
   # platform promises with persistence (no duplicate, no loss, no transient duplicate).
   use ExUnit.Case, async: false
 
+  @moduletag :peer
+
   @moduletag timeout: 180_000
 
   setup_all do

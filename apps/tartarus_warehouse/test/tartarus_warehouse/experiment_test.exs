@@ -1,6 +1,8 @@
 defmodule TartarusWarehouse.ExperimentTest do
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   alias TartarusWarehouse.Experiment
 
   @moduletag :tmp_dir
@@ -32,12 +34,15 @@ defmodule TartarusWarehouse.ExperimentTest do
 
     # A floor with two robots is shown (the 2-robot point): its hosts and the panel's rows.
     panel =
-      poll(fn ->
-        with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url <> "api/panels", 5_000),
-             [%{"rows" => [_, _ | _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
-             do: p,
-             else: (_ -> nil)
-      end)
+      eventually(
+        fn ->
+          with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url <> "api/panels", 5_000),
+               [%{"rows" => [_, _ | _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
+               do: p,
+               else: (_ -> nil)
+        end,
+        60_000
+      )
 
     assert panel["title"] =~ "Warehouse (thesis ch. 4): robots, 2 robots"
     assert panel["text"] =~ ~r/on 2 robots: \d+ of \d+ jobs done/
@@ -54,14 +59,6 @@ defmodule TartarusWarehouse.ExperimentTest do
     gone = :ets.new(:gone, [])
     :ets.delete(gone)
     assert TartarusWarehouse.Panel.render(gone).text == "The run is over."
-  end
-
-  defp poll(fun, deadline \\ System.monotonic_time(:millisecond) + 60_000) do
-    cond do
-      v = fun.() -> v
-      System.monotonic_time(:millisecond) > deadline -> flunk("the panel never showed a floor")
-      true -> Process.sleep(50) && poll(fun, deadline)
-    end
   end
 
   test "robots: speed-ups keyed by robot count, Gantt charts, the issue's JSON keys", %{

@@ -4,6 +4,8 @@ defmodule TartarusWarehouse.FloorTest do
   doctest TartarusWarehouse.Floor.Build
   doctest TartarusWarehouse.Floor.Options
 
+  import Tartarus.TestSupport
+
   alias TartarusWarehouse.{Checker, Floor}
   alias TartarusWarehouse.Experiment.Jobs
   alias TartarusTools.Prop
@@ -394,20 +396,15 @@ defmodule TartarusWarehouse.FloorTest do
                tasks: [%{name: "T1", resources: [:a], duration_ms: 400_000}]
              })
 
-    waiter = Task.async(fn -> Floor.await(c, 60_000) end)
-    Process.sleep(50)
+    # Stopped once the floor holds the waiter's call: its mailbox has the await before the stop.
+    :erlang.trace(c, true, [:receive])
+    %Task{pid: waiting} = waiter = Task.async(fn -> Floor.await(c, 60_000) end)
+    assert_receive {:trace, ^c, :receive, {:"$gen_call", {^waiting, _}, {:await, 60_000}}}
+    :erlang.trace(c, false, [:receive])
     {:ok, r} = Floor.stop(c)
     assert r.timed_out == [1]
     assert Task.await(waiter) == {:error, :stopped}
     eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
-  end
-
-  defp eventually(fun, deadline \\ System.monotonic_time(:millisecond) + 5_000) do
-    cond do
-      fun.() -> :ok
-      System.monotonic_time(:millisecond) > deadline -> flunk("never happened")
-      true -> Process.sleep(20) && eventually(fun, deadline)
-    end
   end
 
   test "a malformed job is refused before anything starts" do

@@ -52,7 +52,7 @@ defmodule Tartarus.Migration.ProtocolModelTest do
     assert crash_points >= 300
   end
 
-  @tag :model_long
+  @tag :heavy
   test "no violation in ten times as many walks, longer" do
     total = explore(1..(10 * @walks), events: 2 * @events)
     total = total + explore(1..1_000, events: 2 * @events, seen_max: 1)

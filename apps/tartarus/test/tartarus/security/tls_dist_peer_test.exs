@@ -20,6 +20,8 @@ defmodule Tartarus.Security.TLSDistPeerTest do
   # All peers use the same cookie, so every refusal is TLS's, not the cookie's.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   alias Tartarus.Security.{Certs, TLSDist}
 
   @moduletag :peer
@@ -136,7 +138,8 @@ defmodule Tartarus.Security.TLSDistPeerTest do
 
       for {_role, %{pid: pid, node: node}} <- peers do
         refute Process.alive?(pid), "peer #{node} is still running"
-        assert wait_unregistered(node), "peer #{node} is still registered with epmd"
+        # A stopped peer leaves epmd when its VM exits, a moment after :peer.stop/1 returns.
+        eventually(fn -> not registered?(node) end)
       end
     end)
 
@@ -186,7 +189,7 @@ defmodule Tartarus.Security.TLSDistPeerTest do
     assert :peer.call(b.pid, :erpc, :call, [a.node, :erlang, :node, []]) == a.node
     assert :peer.call(a.pid, :erlang, :nodes, []) == [b.node]
     assert :peer.call(a.pid, :erlang, :disconnect_node, [b.node]) == true
-    assert wait_until(fn -> :peer.call(a.pid, :erlang, :nodes, []) == [] end)
+    assert eventually(fn -> :peer.call(a.pid, :erlang, :nodes, []) == [] end)
     assert :peer.call(a.pid, :net_kernel, :connect_node, [b.node]) == true
     assert :peer.call(a.pid, :erlang, :nodes, []) == [b.node]
   end
@@ -214,7 +217,7 @@ defmodule Tartarus.Security.TLSDistPeerTest do
         result = :peer.call(a.pid, :net_kernel, :connect_node, [evil.node], 60_000)
         # The attempt is over once A has no connection to EVIL (any connection that came up
         # has been closed again).
-        assert wait_until(fn -> evil.node not in :peer.call(a.pid, :erlang, :nodes, []) end)
+        assert eventually(fn -> evil.node not in :peer.call(a.pid, :erlang, :nodes, []) end)
         result
       end
 
@@ -272,41 +275,15 @@ defmodule Tartarus.Security.TLSDistPeerTest do
     end
   end
 
-  defp wait_until(fun, attempts \\ 100) do
-    cond do
-      fun.() ->
-        true
-
-      attempts == 0 ->
-        false
-
-      true ->
-        Process.sleep(50)
-        wait_until(fun, attempts - 1)
-    end
-  end
-
   defp peer_args(name, certs) do
     # `logger_level error` keeps the peers' TLS alert notices out of the test output.
     (["-setcookie", @cookie, "-kernel", "logger_level", "error"] ++ TLSDist.erl_flags(name, certs))
     |> Enum.map(&String.to_charlist/1)
   end
 
-  # A stopped peer leaves epmd when its VM exits, a moment after :peer.stop/1 returns.
-  defp wait_unregistered(node, attempts \\ 50) do
+  defp registered?(node) do
     [name, _host] = node |> Atom.to_string() |> String.split("@")
     {:ok, names} = :erl_epmd.names()
-
-    cond do
-      not Enum.any?(names, fn {n, _port} -> List.to_string(n) == name end) ->
-        true
-
-      attempts == 0 ->
-        false
-
-      true ->
-        Process.sleep(100)
-        wait_unregistered(node, attempts - 1)
-    end
+    Enum.any?(names, fn {n, _port} -> List.to_string(n) == name end)
   end
 end

@@ -4,6 +4,8 @@ defmodule TartarusTools.Dashboard.ApiTest do
   # answers hold, bad input, the token, and the live stream.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   alias TartarusTools.Dashboard
   alias TartarusTools.JSON
 
@@ -220,7 +222,8 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
     {:ok, _} = Tartarus.start_host(:"#{c.a}_island")
     on_exit(fn -> Tartarus.stop_host(:"#{c.a}_island") end)
-    Process.sleep(1_100)
+    # The dashboard reads the hosts again once its cached view is a second old.
+    eventually(fn -> match?({200, _, _}, get(c.url, "/api/hosts/#{c.a}_island")) end)
 
     assert {422, _, %{"error" => "action_failed", "message" => m}} =
              post(c.url, "/api/agents/#{lone}/move", ~s({"to":"#{c.a}_island"}))

@@ -4,6 +4,8 @@ defmodule TartarusTools.Dashboard.HttpTest do
   # idle connections are closed; connections per client and in all are bounded.
   use ExUnit.Case, async: false
 
+  import Tartarus.TestSupport
+
   alias TartarusTools.Dashboard
   alias TartarusTools.JSON
 
@@ -417,18 +419,9 @@ defmodule TartarusTools.Dashboard.HttpTest do
     end
   end
 
-  defp await_connections(dash, n, tries \\ 200) do
-    %{total: total} = TartarusTools.Dashboard.Http.connections(:sys.get_state(dash).http)
-
-    cond do
-      total == n -> :ok
-      tries == 0 -> flunk("#{total} connections, not #{n}")
-      true -> wait_a_little(fn -> await_connections(dash, n, tries - 1) end)
-    end
-  end
-
-  defp wait_a_little(then) do
-    Process.sleep(10)
-    then.()
+  defp await_connections(dash, n) do
+    eventually(fn ->
+      TartarusTools.Dashboard.Http.connections(:sys.get_state(dash).http).total == n
+    end)
   end
 end

@@ -186,7 +186,7 @@ defmodule TartarusImmune.PathFollowing.Experiment.Trial do
     epoch = st.epoch + 1
     set = PathFollowing.set_of(st.paths[robot].id)
     {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, [{set, sp.index}], epoch})
-    Tartarus.Signal.settle()
+    :ok = Tartarus.Signal.settle()
     st = migrate(%{st | epoch: epoch})
     {explore?, st} = explore?(st)
 

@@ -1,0 +1,108 @@
+defmodule Tartarus.TestSupport.Tags do
+  @moduledoc """
+  The umbrella's test tags, and the one place that decides which of them a run excludes.
+  Every `test_helper.exs` (each app's and the top-level one) starts ExUnit with
+  `start/1`.
+
+  Tags for what a test costs or needs:
+
+  | tag | the test | runs |
+  | --- | --- | --- |
+  | `:peer` | starts real BEAM nodes (OTP's `:peer`; needs epmd) | by default |
+  | `:long` | takes a minute or more (Table 6.2 over 10 seeds) | by default |
+  | `:heavy` | takes many minutes or 100 nodes (the 100-peer scale test, the long protocol model run) | with `TARTARUS_TESTS=all` |
+  | `:browser` | drives headless Chromium | when Chromium is on the PATH |
+  | `:socat` | needs `socat` (a pseudo-terminal pair) | when socat is on the PATH |
+  | `:known_bug` | shows a bug or a target not met yet | never, unless asked (`--only known_bug`) |
+
+  One environment variable chooses the set, `TARTARUS_TESTS`:
+
+    * `default` (or unset): everything but `:heavy` (what `scripts/test` runs);
+    * `quick`: also without `:peer`, `:long` and `:browser` (what needs no other node, no
+      browser and less than a minute);
+    * `all`: `:heavy` too.
+
+  `mix test --include TAG` runs an excluded tag anyway, `--only TAG` only it, and
+  `--exclude TAG` leaves one out (e.g. `scripts/test --exclude browser`). Other tags
+  (`:property`, `:overlay`, `:durable`, `:firmware`, `:tmp_dir`) only name what a test is
+  about, for `--only`.
+  """
+
+  @levels %{
+    "quick" => [:peer, :long, :heavy, :browser],
+    "default" => [:heavy],
+    "all" => []
+  }
+
+  # A tag that needs a program is excluded when the program is missing.
+  @needs [browser: "Chromium", socat: "socat"]
+
+  @doc """
+  The tags excluded at `level` (`"quick"`, `"default"` or `"all"`) when the programs of
+  `available` (a subset of `:browser` and `:socat`) are installed.
+
+      iex> Tartarus.TestSupport.Tags.excludes("default", [:browser, :socat])
+      [:heavy, :known_bug]
+      iex> Tartarus.TestSupport.Tags.excludes("all", [:socat])
+      [:browser, :known_bug]
+      iex> Tartarus.TestSupport.Tags.excludes("quick", [])
+      [:browser, :heavy, :known_bug, :long, :peer, :socat]
+  """
+  @spec excludes(String.t(), [atom()]) :: [atom()]
+  def excludes(level, available) do
+    missing = for {tag, _} <- @needs, tag not in available, do: tag
+    Enum.sort(Enum.uniq(Map.fetch!(@levels, level) ++ missing ++ [:known_bug]))
+  end
+
+  @doc """
+  The level `TARTARUS_TESTS` asks for (`"default"` when unset or empty); raises on any other
+  value.
+
+      iex> Tartarus.TestSupport.Tags.level(nil)
+      "default"
+      iex> Tartarus.TestSupport.Tags.level("all")
+      "all"
+  """
+  @spec level(String.t() | nil) :: String.t()
+  def level(value) when value in [nil, ""], do: "default"
+  def level(value) when is_map_key(@levels, value), do: value
+
+  def level(value) do
+    raise ArgumentError,
+          "TARTARUS_TESTS must be one of #{Enum.join(Map.keys(@levels), ", ")}, got: #{inspect(value)}"
+  end
+
+  @doc """
+  Starts ExUnit with `opts` (`ExUnit.start/1`'s), excluding what `excludes/2` says for
+  `TARTARUS_TESTS` and the programs found on this machine, besides any `:exclude` in `opts`.
+  Says why a tag that needs a program is left out.
+  """
+  @spec start(keyword()) :: :ok
+  def start(opts \\ []) do
+    level = level(System.get_env("TARTARUS_TESTS"))
+    available = Enum.filter(Keyword.keys(@needs), &available?/1)
+
+    for {tag, program} <- @needs, tag not in available, tag not in @levels[level] do
+      IO.puts(
+        "Excluding #{inspect(tag)} tests: no #{program} on the PATH (scripts/test installs it)"
+      )
+    end
+
+    for old <- ["TARTARUS_SLOW", "TARTARUS_SCALE"], System.get_env(old) do
+      IO.puts("#{old} is not read any more: use TARTARUS_TESTS=all (or default, or quick)")
+    end
+
+    excluded = excludes(level, available)
+    ExUnit.start(Keyword.update(opts, :exclude, excluded, &(&1 ++ excluded)))
+  end
+
+  # The dashboard's browser driver (in the tooling app) knows where Chromium is. The
+  # platform app does not depend on it and has no browser test: where the driver is not
+  # loaded there is nothing to exclude.
+  defp available?(:browser) do
+    browser = TartarusTools.Dashboard.Browser
+    not Code.ensure_loaded?(browser) or apply(browser, :executable, []) != nil
+  end
+
+  defp available?(:socat), do: System.find_executable("socat") != nil
+end
