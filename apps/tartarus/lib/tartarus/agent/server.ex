@@ -1,34 +1,22 @@
 defmodule Tartarus.Agent.Server do
   @moduledoc false
-  # The process of one agent. It runs the agent's callbacks, carries out their actions and,
-  # for a move or a clone, runs the source side of the hand-off itself (so hand-offs of many
-  # agents proceed in parallel; the host server is involved only at the destination, to
-  # admit and create the paused copy). The hand-off's decisions are Tartarus.Migration.Protocol's
-  # (its moduledoc is the specification); this process runs them in three roles, each in its
-  # own section below: the agent, the source of a hand-off, the paused copy at a destination.
+  # The process of one agent. It runs the agent's callbacks (Tartarus.Agent.Callbacks) and
+  # carries out their actions; for a move or a clone it runs the source side of the hand-off
+  # itself (Tartarus.Migration.Source: hand-offs of many agents proceed in parallel; the host
+  # server is involved only at the destination, to admit and create the paused copy); while
+  # it is a paused copy at a destination, Tartarus.Migration.Arrival runs it. The hand-off's
+  # decisions are Tartarus.Migration.Protocol's (its moduledoc is the specification).
   #
   # Callbacks never block the host. The agent's code (init/1 included) runs only in this
-  # process, after it started: GenServer.init/1 here reads the snapshot and returns, so the
-  # host's DynamicSupervisor.start_child (called by the host server) never waits for user code.
+  # process, after it started (the host spawns it and returns at once, see start/4).
   # A create is answered by whoever settles it first, through an ETS entry
   # {{:creating, key}, from} the host writes before it starts the process (:ets.take makes
   # the answer exactly-once): this process once init/1 returned and the agent is resident
   # ({:ok, id}) or failed ({:error, {:init_failed, _}}), else the host when the process
   # goes down ({:error, {:callback_timeout, :init, ms}} or {:error, {:init_failed, reason}}).
   #
-  # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
-  # this process arms :erlang.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
-  # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
-  # handle_message/3 answers, or nil); after it, it erases the entry and cancels the timer.
-  # The host server is the watchdog: when the timer message arrives it reads this process's
-  # dictionary and, if the same tref is still there (the callback has not returned; a forged
-  # message cannot name it), stops the process with exit reason {:callback_timeout,
-  # callback, ms} (:kill if it traps exits), then removes the agent (no restart: the same
-  # callback would hang again). A callback that returns after its timer fired (cancel_timer
-  # answers false) stops this process with the same reason, its result ignored. Either way
-  # a waiting requester gets {ref, {:error, {:callback_timeout, :handle_message, ms}}}
-  # (Tartarus.request/3 returns the error). The host hears only of overruns: the cost per
-  # callback is one timer armed and cancelled (about 1.6 µs).
+  # Each callback has a budget, the host option :callback_timeout (ms): see
+  # Tartarus.Agent.Callbacks (the watchdog).
   #
   # A kill never blocks the host server either: it marks {:kill, pid} in its ledger, sends
   # exit signal :shutdown, and answers the caller when the process is down. An agent that
@@ -37,17 +25,17 @@ defmodule Tartarus.Agent.Server do
   # an agent stuck in a callback is stopped by the watchdog, and the host kills it anyway
   # after the callback budget (5 s with :infinity).
   #
-  # Stopping a host kills its agents outright (shutdown: :brutal_kill): this process has no
-  # terminate work, and an agent that traps exits must not hold up stop_host.
+  # Stopping a host kills its agents outright (its server's terminate/2): this process has no
+  # terminate work but ending its children, and an agent that traps exits must not hold up
+  # stop_host.
   use GenServer, restart: :temporary, shutdown: :brutal_kill
   require Tartarus.Events
 
   alias Tartarus.{Events, Ledger}
+  alias Tartarus.Agent.Callbacks
   alias Tartarus.Migration.{Arrival, Inbox, Protocol, Source}
 
-  @ctx :"$tartarus_envelope"
   @host :"$tartarus_host"
-  @watchdog :"$tartarus_watchdog"
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
@@ -151,7 +139,7 @@ defmodule Tartarus.Agent.Server do
   def handle_continue({:init, args}, data) do
     env = data.env
 
-    case callback(data, :init, fn -> env.module.init(args) end) do
+    case Callbacks.run(data, :init, fn -> env.module.init(args) end) do
       {:ok, action, data} ->
         if action?(action),
           do: init_done(action, data),
@@ -341,7 +329,7 @@ defmodule Tartarus.Agent.Server do
   def handle_call(:info, _from, data), do: {:reply, info(data), data}
 
   def handle_call({:payload, op}, _from, data) do
-    {result, data} = callback_raw(data, fn -> payload_op(op) end)
+    {result, data} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
     {:reply, result, data}
   end
 
@@ -388,7 +376,7 @@ defmodule Tartarus.Agent.Server do
   # `ack`: the sender of a message the host option :durable makes durable before it is
   # acknowledged (nil otherwise). `cb` names the callback for its time budget.
   defp run(data, cb, fun, ack \\ nil) do
-    case callback(data, cb, fun) do
+    case Callbacks.run(data, cb, fun) do
       {:ok, action, data} ->
         data = checkpoint(data, action, Process.delete(:"$tartarus_checkpoint") == true or ack)
         with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
@@ -501,91 +489,6 @@ defmodule Tartarus.Agent.Server do
       [] -> :ok
     end
   end
-
-  # Runs callback `cb` with the agent's envelope in the process dictionary (so the functions
-  # of Tartarus.Agent can read and change payload), catching crashes so they become exits
-  # with a readable reason, within the host's callback budget (see the top of this module).
-  defp callback(data, cb, fun) do
-    dog = arm(data.host, cb)
-
-    outcome =
-      try do
-        {:ok, callback_raw(data, fun)}
-      catch
-        kind, reason -> {:error, {kind, reason, __STACKTRACE__}}
-      end
-
-    case {disarm(dog), outcome} do
-      {:ok, {:ok, {result, data}}} -> {:ok, result, data}
-      {:ok, {:error, reason}} -> {:error, reason, data}
-      {overrun, _} -> {:error, overrun, data}
-    end
-  end
-
-  # `cb` is the callback's name, or {:handle_message, from} for a message.
-  defp arm(host, cb) do
-    case Map.get(host.opts, :callback_timeout, :infinity) do
-      :infinity ->
-        nil
-
-      ms ->
-        {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
-        tref = :erlang.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
-        dog = {tref, name, ms, from}
-        Process.put(@watchdog, dog)
-        dog
-    end
-  end
-
-  defp disarm(nil), do: :ok
-
-  defp disarm({tref, cb, ms, from}) do
-    Process.delete(@watchdog)
-
-    if :erlang.cancel_timer(tref) do
-      :ok
-    else
-      reason = {:callback_timeout, cb, ms}
-      overran(from, reason)
-      reason
-    end
-  end
-
-  @doc false
-  # Tells a requester that the callback handling its request overran (Tartarus.request/3).
-  def overran({pid, ref}, reason) when is_pid(pid), do: send(pid, {ref, {:error, reason}})
-  def overran(_from, _reason), do: :ok
-
-  @doc false
-  # For the host's watchdog: {exit reason, traps exits?, requester} if `pid` is still in the
-  # callback it armed the timer `tref` for, else nil.
-  def overrun(pid, tref) when node(pid) == node() do
-    case Process.info(pid, [:dictionary, :trap_exit]) do
-      [dictionary: dict, trap_exit: trap?] ->
-        case List.keyfind(dict, @watchdog, 0) do
-          {_, {^tref, cb, ms, from}} -> {{:callback_timeout, cb, ms}, trap?, from}
-          _ -> nil
-        end
-
-      nil ->
-        nil
-    end
-  end
-
-  def overrun(_pid, _tref), do: nil
-
-  defp callback_raw(data, fun) do
-    Process.put(@ctx, data.env)
-    result = fun.()
-    {result, %{data | env: Process.get(@ctx)}}
-  end
-
-  defp payload_op({:add, key, value}), do: Tartarus.Agent.put_payload(key, value)
-  defp payload_op({:remove, key}), do: Tartarus.Agent.remove_payload(key)
-  defp payload_op({:shed, key}), do: Tartarus.Agent.shed_payload(key)
-  defp payload_op({:copy, key}), do: Tartarus.Agent.copy_payload(key)
-  defp payload_op({:add_module, mod}), do: Tartarus.Agent.add_module(mod)
-  defp payload_op(:get), do: {:ok, Tartarus.Agent.payload()}
 
   defp info(data) do
     env = data.env

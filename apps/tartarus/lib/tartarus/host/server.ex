@@ -341,14 +341,14 @@ defmodule Tartarus.Host.Server do
   end
 
   # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
-  # callback it is still in counts (Agent.Server.overrun/2 reads it from the agent).
+  # callback it is still in counts (Agent.Callbacks.overrun/2 reads it from the agent).
   def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state)
       when is_reference(tref) and is_pid(pid) do
-    case Tartarus.Agent.Server.overrun(pid, tref) do
+    case Tartarus.Agent.Callbacks.overrun(pid, tref) do
       {reason, trap?, from} ->
         # An agent that traps exits would take any other signal as a message.
         Process.exit(pid, if(trap?, do: :kill, else: reason))
-        Tartarus.Agent.Server.overran(from, reason)
+        Tartarus.Agent.Callbacks.overran(from, reason)
         {:noreply, %{state | overran: Map.put(state.overran, pid, reason)}}
 
       nil ->
