@@ -3,7 +3,7 @@ defmodule Tartarus.Agent.Creator do
   # Creating an agent: options checked (`Tartarus.Options.Platform.create_agent/1`), the
   # envelope built and, with `issuer:`, signed; the agent's code shipped to the host's node
   # if that is another one (like a migration would); then the host starts it (a host of this
-  # node without a call to its server: Tartarus.Host.Server.create_local/4).
+  # node without a call to its server: Tartarus.Host.Agents.create_local/4).
 
   alias Tartarus.{CodeCache, Envelope, Host}
 
@@ -24,7 +24,7 @@ defmodule Tartarus.Agent.Creator do
     case Host.local(host) do
       {:ok, info} ->
         try do
-          Tartarus.Host.Server.create_local(info, env, args, 30_000)
+          Tartarus.Host.Agents.create_local(info, env, args, 30_000)
         rescue
           # The host stopped while we wrote to its table.
           ArgumentError -> {:error, {:unknown_host, host}}

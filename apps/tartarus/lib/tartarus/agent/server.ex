@@ -55,7 +55,7 @@ defmodule Tartarus.Agent.Server do
 
   @doc false
   # The same, unmonitored: for a local creator, whose host's server adopts the process
-  # (Tartarus.Host.Server.create_local/4).
+  # (Tartarus.Host.Agents.create_local/4).
   @spec spawn_agent(map(), reference(), Tartarus.Envelope.t(), term()) :: pid()
   def spawn_agent(host, key, env, mode) do
     :erlang.spawn_opt(

@@ -20,7 +20,8 @@ defmodule Tartarus.Host.Server do
   use GenServer
   require Tartarus.Events
 
-  alias Tartarus.{CodeCache, Envelope, Events, Ledger}
+  alias Tartarus.Ledger
+  alias Tartarus.Host.{Agents, Arrivals}
   alias Tartarus.Migration.Protocol
 
   @hop_slots 1024
@@ -108,10 +109,10 @@ defmodule Tartarus.Host.Server do
 
   defp call(:info, _from, state), do: {:reply, state.host, state}
 
-  # A create from another node (a local one does not call this server: create_local/3).
+  # A create from another node (a local one does not call this server: Agents.create_local/4).
   # Answered by the agent once its init/1 returned, or on its :DOWN (Agent.Server's top).
   defp call({:create, envelope, args}, from, state) do
-    case start_agent(state, envelope, {:create, args}, 0, from) do
+    case Agents.start_agent(state, envelope, {:create, args}, 0, from) do
       {:ok, _pid, state} -> {:noreply, state}
       {:error, reason, state} -> {:reply, {:error, reason}, state}
     end
@@ -157,7 +158,7 @@ defmodule Tartarus.Host.Server do
   # Answered when the agent is down (killed/2, then the :DOWN): never waits here.
   defp call({:kill, agent}, from, state) do
     case Tartarus.Ledger.locate(state.host, agent) do
-      {:here, pid, _id} -> {:noreply, kill(state, pid, from)}
+      {:here, pid, _id} -> {:noreply, Agents.kill(state, pid, from)}
       other -> {:reply, other, state}
     end
   end
@@ -189,7 +190,7 @@ defmodule Tartarus.Host.Server do
 
     {state, pids} =
       Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
-        case start_agent(state, env, :restore) do
+        case Agents.start_agent(state, env, :restore) do
           {:ok, pid, state} -> {state, [pid | pids]}
           {:error, _reason, state} -> {state, pids}
         end
@@ -207,7 +208,7 @@ defmodule Tartarus.Host.Server do
 
     state =
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
-        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+        case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
             :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
             %{state | dest: Protocol.restore_seen(state.dest, mig, copy, pid)}
@@ -220,7 +221,7 @@ defmodule Tartarus.Host.Server do
     {:reply, {:ok, length(agents), length(in_doubt)}, state}
   end
 
-  defp call(:paused, _from, state), do: {:reply, paused(state), state}
+  defp call(:paused, _from, state), do: {:reply, Arrivals.paused(state), state}
 
   defp emulated?(props), do: Map.get(props, :latency_ms, 0) > 0 or Map.get(props, :loss, 0) > 0
 
@@ -275,10 +276,10 @@ defmodule Tartarus.Host.Server do
          ) do
       :ok ->
         {:prepare, p} = Protocol.classify(msg)
-        {:noreply, admission(state, {:prepare, p})}
+        {:noreply, Arrivals.admission(state, {:prepare, p})}
 
       {:error, reason} ->
-        {:noreply, refuse(state, s_pid, mig, env, src, reason)}
+        {:noreply, Arrivals.refuse(state, s_pid, mig, env, src, reason)}
     end
   end
 
@@ -392,12 +393,12 @@ defmodule Tartarus.Host.Server do
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, entry.id, pid)
     :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
-    not_created(state, entry, reason)
-    if kill, do: killed(state, pid, entry, kill)
-    {:noreply, agent_down(state, entry, reason, resident?, kill != nil)}
+    Agents.not_created(state, entry, reason)
+    if kill, do: Agents.killed(state, pid, entry, kill)
+    {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
   end
 
-  # An agent a local creator started (create_local/4): monitored from now on, like the ones
+  # An agent a local creator started (Agents.create_local/4): monitored from now on, like the ones
   # this server starts. A forged adoption (of a process of this node) costs one entry per
   # live process at most and changes nothing when that process ends: its :DOWN finds no
   # resident record, hand-off or arriving entry of its pid, and no creator under an
@@ -501,7 +502,7 @@ defmodule Tartarus.Host.Server do
       :revive ->
         unparked(state, key)
 
-        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+        case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
             :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
             send(pid, Protocol.decision(mig, copy, d))
@@ -516,409 +517,8 @@ defmodule Tartarus.Host.Server do
     end
   end
 
-  # -- admission (the destination side of the protocol) -----------------------------
-
-  # Paused (and parked) copies a host without an admission policy holds at most (with a
-  # policy they count against its max_resident_agents).
-  @max_paused 10_000
-
-  defp admission(state, event) do
-    {dest, actions} = Protocol.destination_step(state.dest, event)
-    Enum.reduce(actions, %{state | dest: dest}, &admission_action/2)
-  end
-
-  defp admission_action({:check, p}, state) do
-    env = Tartarus.Fault.point(:admitting, p.env)
-    p = %{p | env: env}
-
-    {verdict, state} =
-      with :ok <- trusted(state, p),
-           :ok <- heap_fits(state, env),
-           :ok <- capacity(state),
-           :ok <- prepare(state, env, p.manifest, p.code),
-           {:ok, state} <- policy(state, p.src, env) do
-        {:ok, state}
-      else
-        {:need, mods} -> {{:need, mods}, state}
-        {:error, reason} -> {{:error, reason}, state}
-      end
-
-    admission(state, {:checked, p, verdict, copy_token(state.host)})
-  end
-
-  defp admission_action({:probe, p, copy, pid}, state) do
-    paused? =
-      :ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}]
-
-    admission(state, {:probed, p, copy, pid, paused?})
-  end
-
-  defp admission_action({:create, p, copy}, state) do
-    case start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
-      {:ok, pid, state} ->
-        # Findable (messages to it wait until it starts).
-        :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
-        admission(state, {:created, p, copy, pid})
-
-      {:error, reason, state} ->
-        admission(state, {:create_failed, p, reason})
-    end
-  end
-
-  # Durable before `prepared` leaves.
-  defp admission_action({:journal_in_doubt, p, copy}, state) do
-    Tartarus.Host.Persistence.in_doubt(state.host, p.mig, p.env, p.src, p.kind, copy)
-    state
-  end
-
-  defp admission_action({:send, pid, msg}, state) do
-    if is_pid(pid), do: send(pid, msg)
-    state
-  end
-
-  defp admission_action({:refuse, p, reason}, state),
-    do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
-
-  defp paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
-
-  # Unique across this host's runs (its incarnation is random per run); it names a copy, it
-  # does not authenticate anyone (the seal does, for the prepare).
-  defp copy_token(host),
-    do: <<binary_part(host.incarnation, 0, 8)::binary, :erlang.unique_integer([:positive])::64>>
-
-  defp capacity(%{admission: nil} = state) do
-    if paused(state) + parked(state) < @max_paused,
-      do: :ok,
-      else: {:error, {:busy, :paused_copies}}
-  end
-
-  defp capacity(_state), do: :ok
-
-  # An agent whose state alone would not fit in the host's per-agent heap limit is refused
-  # here, not killed after its source committed.
-  defp heap_fits(%{host: %{opts: %{max_heap_size: :infinity}}}, _env), do: :ok
-
-  defp heap_fits(%{host: %{opts: %{max_heap_size: words}}}, env) do
-    size = :erts_debug.flat_size(env)
-    if size * 2 <= words, do: :ok, else: {:error, {:too_large_for_heap, size, words}}
-  end
-
-  defp trusted(state, p) do
-    case state.host.opts.security do
-      %{trust: trust} -> Tartarus.Security.check_prepare(p, trust)
-      _ -> :ok
-    end
-  end
-
-  # The host's admission policy (Tartarus.Security.Admission), if it has one.
-  defp policy(%{admission: nil} = state, _src, _env), do: {:ok, state}
-
-  defp policy(state, src, env) do
-    request = %{
-      source: src,
-      envelope_bytes: :erlang.external_size(env),
-      payload_bytes: :erlang.external_size({env.state, env.payload}),
-      hops: env.hops + 1,
-      # Paused copies count: a stranger's prepares cannot hold more than the limit.
-      resident: map_size(state.monitors) + parked(state)
-    }
-
-    case Tartarus.Security.Admission.admit(
-           state.admission,
-           request,
-           System.monotonic_time(:millisecond)
-         ) do
-      {:ok, admission} -> {:ok, %{state | admission: admission}}
-      {:error, _} = error -> error
-    end
-  end
-
-  defp prepare(_state, env, manifest, code) do
-    with :ok <- check_ttl(env),
-         :ok <- load_code(code) do
-      CodeCache.check(manifest)
-    end
-  end
-
-  defp check_ttl(%Envelope{ttl: :infinity}), do: :ok
-  defp check_ttl(%Envelope{hops: hops, ttl: ttl}) when hops < ttl, do: :ok
-  defp check_ttl(%Envelope{hops: hops}), do: {:error, {:ttl_expired, hops}}
-
-  defp load_code([]), do: :ok
-  defp load_code(code), do: CodeCache.load(code)
-
-  defp refuse(state, s_pid, mig, env, src, reason) do
-    if is_pid(s_pid), do: send(s_pid, {:"$tartarus_refused", mig, reason})
-    agent = with %{id: id} when is_binary(id) <- env, do: id, else: (_ -> nil)
-    src = if Tartarus.Host.address?(src), do: src
-
-    Events.emit(
-      state.host,
-      %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
-      refused: 1
-    )
-
-    state
-  end
-
-  # -- agents ------------------------------------------------------------------
-
-  # How long a killed agent that traps exits may take to stop when its callbacks are not
-  # bounded (with a callback budget, that budget).
-  @kill_grace 5_000
-
-  # The exit signal stops an agent that does not trap exits at once; one that does stops on
-  # it when it next waits for a message (Agent.Server, top), or the watchdog or the
-  # escalation timer kills it. The mark tells the agent the signal is real.
-  defp kill(state, pid, from) do
-    case state.killing do
-      %{^pid => {tref, callers}} ->
-        %{state | killing: %{state.killing | pid => {tref, [from | callers]}}}
-
-      _ ->
-        :ets.insert(state.host.ledger, {{:kill, pid}, true})
-        Process.exit(pid, :shutdown)
-
-        grace =
-          case state.host.opts[:callback_timeout] do
-            ms when is_integer(ms) -> ms
-            _ -> @kill_grace
-          end
-
-        tref = :erlang.start_timer(grace, self(), {:"$tartarus_kill", pid})
-        %{state | killing: Map.put(state.killing, pid, {tref, [from]})}
-    end
-  end
-
-  # The killed agent is down (already gone from the ledger, and from the checkpoints now).
-  # Killed in the middle of a hand-off: abort it (the destination's paused copy learns so
-  # when it asks), unless the move had already committed: then the agent lives on at its
-  # destination and the kill follows it there.
-  defp killed(state, pid, entry, {tref, callers}) do
-    :erlang.cancel_timer(tref)
-    :ets.delete(state.host.ledger, {:kill, pid})
-
-    reply =
-      if Tartarus.Ledger.abort_pending(state.host, entry.id, pid) do
-        Tartarus.Host.Persistence.forget(state.host, entry.id)
-        {:killed, entry.id}
-      else
-        Tartarus.Ledger.locate(state.host, entry.id)
-      end
-
-    Enum.each(callers, &GenServer.reply(&1, reply))
-  end
-
-  # An agent whose init/1 never answered its creator: the host does.
-  defp not_created(_state, %{create: false}, _reason), do: :ok
-
-  defp not_created(state, entry, reason) do
-    case :ets.take(state.host.ledger, {:creating, entry.key}) do
-      [{_, from}] ->
-        GenServer.reply(
-          from,
-          case reason do
-            {:callback_timeout, :init, _} -> {:error, reason}
-            _ -> {:error, {:init_failed, reason}}
-          end
-        )
-
-      [] ->
-        :ok
-    end
-  end
-
-  @doc false
-  # Creates agent `env` on host `host` (this node's, from Tartarus.Host.local/1) without
-  # calling its server: the caller starts the agent's process, the server adopts it (one
-  # message it handles when it can: it monitors the agent from then on, restarts it after a
-  # crash, kills it when the host stops) and the agent answers the caller once its init/1
-  # returned, or the server does when the agent went down first (not_created/3). An agent
-  # that dies before the server adopts it is seen as :noproc by the server's monitor.
-  @spec create_local(map(), Tartarus.Envelope.t(), term(), timeout()) ::
-          {:ok, binary()} | {:error, term()}
-  def create_local(host, env, args, timeout) do
-    if :ets.member(host.ledger, :stopping) do
-      {:error, :host_stopping}
-    else
-      key = make_ref()
-      # The host's server may stop meanwhile (it would answer nobody then).
-      tag = Process.monitor(host.pid)
-      :ets.insert(host.ledger, {{:creating, key}, {self(), tag}})
-      pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
-      send(host.pid, {:"$tartarus_adopt", pid, %{id: env.id, key: key, owner: env.owner}})
-
-      receive do
-        {^tag, reply} ->
-          Process.demonitor(tag, [:flush])
-          reply
-
-        {:DOWN, ^tag, :process, _, _} ->
-          receive do
-            {^tag, reply} -> reply
-          after
-            0 -> {:error, {:unknown_host, host.ref}}
-          end
-      after
-        timeout ->
-          # Unanswered: whoever settles it later finds no entry.
-          Process.demonitor(tag, [:flush])
-
-          case :ets.take(host.ledger, {:creating, key}) do
-            [_] -> {:error, {:timeout, host.ref}}
-            [] -> receive(do: ({^tag, reply} -> reply))
-          end
-      end
-    end
-  end
-
-  # The envelope an agent starts from is its arrival snapshot: kept in the ledger table (not
-  # in this server's or the supervisor's heap, which would then hold and garbage-collect
-  # every resident's state) for restarts, and read by the agent's process when it starts.
-  #
-  # This server starts its agents itself, monitored from their first instant (see
-  # Tartarus.Agent.Server.start/3): no supervisor call on the path of a hop or a create.
-  # Restarts are this server's (agent_down/5); when it stops, its terminate/2 kills them all
-  # (as a supervisor with shutdown: :brutal_kill would). The one case it cannot cover is its
-  # own death by an untrappable :kill: its agents then lose their ledger (owned by this
-  # process) and end at their next step that reads it.
-  #
-  # The envelope goes to the new process as an argument. The host keeps the snapshot a
-  # restart starts from under {:snapshot, key} (the agent writes it once resident; for a
-  # restart or a restore this server writes it first).
-  defp start_agent(state, env, mode, restarts \\ 0, creator \\ nil) do
-    key = make_ref()
-
-    if match?({:restart, _}, mode) or mode == :restore,
-      do: :ets.insert(state.host.ledger, {{:snapshot, key}, env})
-
-    if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
-
-    if :ets.member(state.host.ledger, :stopping) do
-      :ets.delete(state.host.ledger, {:snapshot, key})
-      :ets.delete(state.host.ledger, {:creating, key})
-      {:error, :host_stopping, state}
-    else
-      {pid, mref} = Tartarus.Agent.Server.start(state.host, key, env, mode)
-      entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
-
-      {:ok, pid,
-       %{
-         state
-         | monitors: Map.put(state.monitors, mref, entry),
-           pids: Map.put(state.pids, pid, mref)
-       }}
-    end
-  end
-
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
-
-  defp agent_down(state, entry, reason, resident?, killed?) do
-    host = state.host
-    # Read the snapshot only to restart from it: copying it here on every departure would
-    # fill this process's heap with every passing agent's state.
-    snapshot = fn -> :ets.lookup_element(host.ledger, {:snapshot, entry.key}, 2) end
-    state = after_down(state, entry, reason, resident?, killed?, snapshot)
-    :ets.delete(host.ledger, {:snapshot, entry.key})
-    state
-  end
-
-  defp after_down(state, entry, reason, resident?, killed?, snapshot) do
-    host = state.host
-
-    cond do
-      killed? ->
-        Events.emit(host, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
-        if resident?, do: ended(host, entry)
-        state
-
-      normal_exit?(reason) ->
-        state
-
-      :ets.member(host.ledger, :stopping) ->
-        # The host is stopping (see Tartarus.Host.Keeper): its agents are killed with it.
-        state
-
-      not resident? ->
-        # A paused copy that died before its commit: the source still decides; nothing to do.
-        state
-
-      match?({:callback_timeout, _, _}, reason) ->
-        # Not restarted: the same callback would hang again.
-        ended(host, entry)
-        removed(state, entry, reason)
-
-      not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
-        # It crashed after committing a migration: it lives on at the destination.
-        state
-
-      entry.restarts < host.opts.max_restarts ->
-        n = entry.restarts + 1
-
-        Events.emit(
-          host,
-          %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
-          crashes: 1
-        )
-
-        case start_agent(state, snapshot.(), {:restart, n}, n) do
-          {:ok, _pid, state} ->
-            state
-
-          {:error, why, state} ->
-            ended(host, entry)
-            removed(state, entry, {:restart_failed, why})
-        end
-
-      true ->
-        Events.emit(
-          host,
-          %{
-            type: :crash,
-            host: host.ref,
-            agent: entry.id,
-            reason: reason,
-            restarts: entry.restarts
-          },
-          crashes: 1
-        )
-
-        ended(host, entry)
-        removed(state, entry, {:too_many_restarts, reason})
-    end
-  end
-
-  # A resident agent killed or removed here: the hosts it visited drop their pointers to it
-  # (Tartarus.Ledger.gone/2), as when it stops on its own. Not if it had moved on from here
-  # (a pointer here names its newer place): it lives there.
-  defp ended(host, entry) do
-    unless :ets.member(host.ledger, {:fwd, entry.id}) do
-      case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
-        [{_, env}] -> Ledger.gone(host, env)
-        [] -> :ok
-      end
-    end
-
-    :ok
-  end
-
-  defp removed(state, entry, reason) do
-    Events.emit(
-      state.host,
-      %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
-      removed: 1
-    )
-
-    Tartarus.Host.Persistence.forget(state.host, entry.id)
-    if is_pid(entry.owner), do: send(entry.owner, {:tartarus_removed, entry.id, reason})
-    state
-  end
-
-  defp normal_exit?(:normal), do: true
-  defp normal_exit?(:shutdown), do: true
-  defp normal_exit?({:shutdown, _}), do: true
-  defp normal_exit?(_), do: false
 
   @doc false
   def hop_slots, do: @hop_slots

@@ -1,0 +1,265 @@
+defmodule Tartarus.Host.Agents do
+  @moduledoc false
+  # A host's agents as its server keeps them: starting them (spawned and monitored by the
+  # server, or created by a local caller and adopted), killing them, answering creators, and
+  # what the server does when one goes down (restart from the arrival snapshot, removal, the
+  # pointers of an agent that ended). Runs in the host's server, on the server's state.
+  # Restart and shutdown semantics: see docs/architecture.md, "A node's process tree".
+
+  require Tartarus.Events
+  alias Tartarus.{Events, Ledger}
+
+  # How long a killed agent that traps exits may take to stop when its callbacks are not
+  # bounded (with a callback budget, that budget).
+  @kill_grace 5_000
+
+  # The exit signal stops an agent that does not trap exits at once; one that does stops on
+  # it when it next waits for a message (Agent.Server, top), or the watchdog or the
+  # escalation timer kills it. The mark tells the agent the signal is real.
+  def kill(state, pid, from) do
+    case state.killing do
+      %{^pid => {tref, callers}} ->
+        %{state | killing: %{state.killing | pid => {tref, [from | callers]}}}
+
+      _ ->
+        :ets.insert(state.host.ledger, {{:kill, pid}, true})
+        Process.exit(pid, :shutdown)
+
+        grace =
+          case state.host.opts[:callback_timeout] do
+            ms when is_integer(ms) -> ms
+            _ -> @kill_grace
+          end
+
+        tref = :erlang.start_timer(grace, self(), {:"$tartarus_kill", pid})
+        %{state | killing: Map.put(state.killing, pid, {tref, [from]})}
+    end
+  end
+
+  # The killed agent is down (already gone from the ledger, and from the checkpoints now).
+  # Killed in the middle of a hand-off: abort it (the destination's paused copy learns so
+  # when it asks), unless the move had already committed: then the agent lives on at its
+  # destination and the kill follows it there.
+  def killed(state, pid, entry, {tref, callers}) do
+    :erlang.cancel_timer(tref)
+    :ets.delete(state.host.ledger, {:kill, pid})
+
+    reply =
+      if Tartarus.Ledger.abort_pending(state.host, entry.id, pid) do
+        Tartarus.Host.Persistence.forget(state.host, entry.id)
+        {:killed, entry.id}
+      else
+        Tartarus.Ledger.locate(state.host, entry.id)
+      end
+
+    Enum.each(callers, &GenServer.reply(&1, reply))
+  end
+
+  # An agent whose init/1 never answered its creator: the host does.
+  def not_created(_state, %{create: false}, _reason), do: :ok
+
+  def not_created(state, entry, reason) do
+    case :ets.take(state.host.ledger, {:creating, entry.key}) do
+      [{_, from}] ->
+        GenServer.reply(
+          from,
+          case reason do
+            {:callback_timeout, :init, _} -> {:error, reason}
+            _ -> {:error, {:init_failed, reason}}
+          end
+        )
+
+      [] ->
+        :ok
+    end
+  end
+
+  @doc false
+  # Creates agent `env` on host `host` (this node's, from Tartarus.Host.local/1) without
+  # calling its server: the caller starts the agent's process, the server adopts it (one
+  # message it handles when it can: it monitors the agent from then on, restarts it after a
+  # crash, kills it when the host stops) and the agent answers the caller once its init/1
+  # returned, or the server does when the agent went down first (not_created/3). An agent
+  # that dies before the server adopts it is seen as :noproc by the server's monitor.
+  @spec create_local(map(), Tartarus.Envelope.t(), term(), timeout()) ::
+          {:ok, binary()} | {:error, term()}
+  def create_local(host, env, args, timeout) do
+    if :ets.member(host.ledger, :stopping) do
+      {:error, :host_stopping}
+    else
+      key = make_ref()
+      # The host's server may stop meanwhile (it would answer nobody then).
+      tag = Process.monitor(host.pid)
+      :ets.insert(host.ledger, {{:creating, key}, {self(), tag}})
+      pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
+      send(host.pid, {:"$tartarus_adopt", pid, %{id: env.id, key: key, owner: env.owner}})
+
+      receive do
+        {^tag, reply} ->
+          Process.demonitor(tag, [:flush])
+          reply
+
+        {:DOWN, ^tag, :process, _, _} ->
+          receive do
+            {^tag, reply} -> reply
+          after
+            0 -> {:error, {:unknown_host, host.ref}}
+          end
+      after
+        timeout ->
+          # Unanswered: whoever settles it later finds no entry.
+          Process.demonitor(tag, [:flush])
+
+          case :ets.take(host.ledger, {:creating, key}) do
+            [_] -> {:error, {:timeout, host.ref}}
+            [] -> receive(do: ({^tag, reply} -> reply))
+          end
+      end
+    end
+  end
+
+  # The envelope an agent starts from is its arrival snapshot: kept in the ledger table (not
+  # in this server's or the supervisor's heap, which would then hold and garbage-collect
+  # every resident's state) for restarts, and read by the agent's process when it starts.
+  #
+  # This server starts its agents itself, monitored from their first instant (see
+  # Tartarus.Agent.Server.start/3): no supervisor call on the path of a hop or a create.
+  # Restarts are this server's (agent_down/5); when it stops, its terminate/2 kills them all
+  # (as a supervisor with shutdown: :brutal_kill would). The one case it cannot cover is its
+  # own death by an untrappable :kill: its agents then lose their ledger (owned by this
+  # process) and end at their next step that reads it.
+  #
+  # The envelope goes to the new process as an argument. The host keeps the snapshot a
+  # restart starts from under {:snapshot, key} (the agent writes it once resident; for a
+  # restart or a restore this server writes it first).
+  def start_agent(state, env, mode, restarts \\ 0, creator \\ nil) do
+    key = make_ref()
+
+    if match?({:restart, _}, mode) or mode == :restore,
+      do: :ets.insert(state.host.ledger, {{:snapshot, key}, env})
+
+    if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
+
+    if :ets.member(state.host.ledger, :stopping) do
+      :ets.delete(state.host.ledger, {:snapshot, key})
+      :ets.delete(state.host.ledger, {:creating, key})
+      {:error, :host_stopping, state}
+    else
+      {pid, mref} = Tartarus.Agent.Server.start(state.host, key, env, mode)
+      entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
+
+      {:ok, pid,
+       %{
+         state
+         | monitors: Map.put(state.monitors, mref, entry),
+           pids: Map.put(state.pids, pid, mref)
+       }}
+    end
+  end
+
+  def agent_down(state, entry, reason, resident?, killed?) do
+    host = state.host
+    # Read the snapshot only to restart from it: copying it here on every departure would
+    # fill this process's heap with every passing agent's state.
+    snapshot = fn -> :ets.lookup_element(host.ledger, {:snapshot, entry.key}, 2) end
+    state = after_down(state, entry, reason, resident?, killed?, snapshot)
+    :ets.delete(host.ledger, {:snapshot, entry.key})
+    state
+  end
+
+  defp after_down(state, entry, reason, resident?, killed?, snapshot) do
+    host = state.host
+
+    cond do
+      killed? ->
+        Events.emit(host, %{type: :kill, host: host.ref, agent: entry.id}, kills: 1)
+        if resident?, do: ended(host, entry)
+        state
+
+      normal_exit?(reason) ->
+        state
+
+      :ets.member(host.ledger, :stopping) ->
+        # The host is stopping (see Tartarus.Host.Keeper): its agents are killed with it.
+        state
+
+      not resident? ->
+        # A paused copy that died before its commit: the source still decides; nothing to do.
+        state
+
+      match?({:callback_timeout, _, _}, reason) ->
+        # Not restarted: the same callback would hang again.
+        ended(host, entry)
+        removed(state, entry, reason)
+
+      not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
+        # It crashed after committing a migration: it lives on at the destination.
+        state
+
+      entry.restarts < host.opts.max_restarts ->
+        n = entry.restarts + 1
+
+        Events.emit(
+          host,
+          %{type: :crash, host: host.ref, agent: entry.id, reason: reason, restarts: n},
+          crashes: 1
+        )
+
+        case start_agent(state, snapshot.(), {:restart, n}, n) do
+          {:ok, _pid, state} ->
+            state
+
+          {:error, why, state} ->
+            ended(host, entry)
+            removed(state, entry, {:restart_failed, why})
+        end
+
+      true ->
+        Events.emit(
+          host,
+          %{
+            type: :crash,
+            host: host.ref,
+            agent: entry.id,
+            reason: reason,
+            restarts: entry.restarts
+          },
+          crashes: 1
+        )
+
+        ended(host, entry)
+        removed(state, entry, {:too_many_restarts, reason})
+    end
+  end
+
+  # A resident agent killed or removed here: the hosts it visited drop their pointers to it
+  # (Tartarus.Ledger.gone/2), as when it stops on its own. Not if it had moved on from here
+  # (a pointer here names its newer place): it lives there.
+  defp ended(host, entry) do
+    unless :ets.member(host.ledger, {:fwd, entry.id}) do
+      case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
+        [{_, env}] -> Ledger.gone(host, env)
+        [] -> :ok
+      end
+    end
+
+    :ok
+  end
+
+  defp removed(state, entry, reason) do
+    Events.emit(
+      state.host,
+      %{type: :removed, host: state.host.ref, agent: entry.id, reason: reason},
+      removed: 1
+    )
+
+    Tartarus.Host.Persistence.forget(state.host, entry.id)
+    if is_pid(entry.owner), do: send(entry.owner, {:tartarus_removed, entry.id, reason})
+    state
+  end
+
+  defp normal_exit?(:normal), do: true
+  defp normal_exit?(:shutdown), do: true
+  defp normal_exit?({:shutdown, _}), do: true
+  defp normal_exit?(_), do: false
+end

@@ -1,0 +1,163 @@
+defmodule Tartarus.Host.Arrivals do
+  @moduledoc false
+  # A host's admission of arriving agents: the destination side of the hand-off
+  # (Tartarus.Migration.Protocol.destination_step/2 decides; this module carries out its
+  # actions: check the prepare's trust, size, code, capacity and the host's admission policy,
+  # create the paused copy, journal it, answer `prepared`, `need` or `refused`). It runs in
+  # the host's server (Tartarus.Host.Server), on the server's state.
+
+  require Tartarus.Events
+  alias Tartarus.{CodeCache, Envelope, Events, Ledger}
+  alias Tartarus.Host.Agents
+  alias Tartarus.Migration.Protocol
+
+  # Paused (and parked) copies a host without an admission policy holds at most (with a
+  # policy they count against its max_resident_agents).
+  @max_paused 10_000
+
+  @doc false
+  # One event of admission (Protocol.destination_step/2) and its actions; returns the
+  # server's state.
+  def admission(state, event) do
+    {dest, actions} = Protocol.destination_step(state.dest, event)
+    Enum.reduce(actions, %{state | dest: dest}, &admission_action/2)
+  end
+
+  defp admission_action({:check, p}, state) do
+    env = Tartarus.Fault.point(:admitting, p.env)
+    p = %{p | env: env}
+
+    {verdict, state} =
+      with :ok <- trusted(state, p),
+           :ok <- heap_fits(state, env),
+           :ok <- capacity(state),
+           :ok <- prepare(state, env, p.manifest, p.code),
+           {:ok, state} <- policy(state, p.src, env) do
+        {:ok, state}
+      else
+        {:need, mods} -> {{:need, mods}, state}
+        {:error, reason} -> {{:error, reason}, state}
+      end
+
+    admission(state, {:checked, p, verdict, copy_token(state.host)})
+  end
+
+  defp admission_action({:probe, p, copy, pid}, state) do
+    paused? =
+      :ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}]
+
+    admission(state, {:probed, p, copy, pid, paused?})
+  end
+
+  defp admission_action({:create, p, copy}, state) do
+    case Agents.start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
+      {:ok, pid, state} ->
+        # Findable (messages to it wait until it starts).
+        :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
+        admission(state, {:created, p, copy, pid})
+
+      {:error, reason, state} ->
+        admission(state, {:create_failed, p, reason})
+    end
+  end
+
+  # Durable before `prepared` leaves.
+  defp admission_action({:journal_in_doubt, p, copy}, state) do
+    Tartarus.Host.Persistence.in_doubt(state.host, p.mig, p.env, p.src, p.kind, copy)
+    state
+  end
+
+  defp admission_action({:send, pid, msg}, state) do
+    if is_pid(pid), do: send(pid, msg)
+    state
+  end
+
+  defp admission_action({:refuse, p, reason}, state),
+    do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
+
+  @doc false
+  # Paused copies of this host (monitored agents that are not resident).
+  def paused(state), do: map_size(state.monitors) - Ledger.counter(state.host, :resident)
+
+  # Unique across this host's runs (its incarnation is random per run); it names a copy, it
+  # does not authenticate anyone (the seal does, for the prepare).
+  defp copy_token(host),
+    do: <<binary_part(host.incarnation, 0, 8)::binary, :erlang.unique_integer([:positive])::64>>
+
+  defp capacity(%{admission: nil} = state) do
+    if paused(state) + Ledger.counter(state.host, :parked) < @max_paused,
+      do: :ok,
+      else: {:error, {:busy, :paused_copies}}
+  end
+
+  defp capacity(_state), do: :ok
+
+  # An agent whose state alone would not fit in the host's per-agent heap limit is refused
+  # here, not killed after its source committed.
+  defp heap_fits(%{host: %{opts: %{max_heap_size: :infinity}}}, _env), do: :ok
+
+  defp heap_fits(%{host: %{opts: %{max_heap_size: words}}}, env) do
+    size = :erts_debug.flat_size(env)
+    if size * 2 <= words, do: :ok, else: {:error, {:too_large_for_heap, size, words}}
+  end
+
+  defp trusted(state, p) do
+    case state.host.opts.security do
+      %{trust: trust} -> Tartarus.Security.check_prepare(p, trust)
+      _ -> :ok
+    end
+  end
+
+  # The host's admission policy (Tartarus.Security.Admission), if it has one.
+  defp policy(%{admission: nil} = state, _src, _env), do: {:ok, state}
+
+  defp policy(state, src, env) do
+    request = %{
+      source: src,
+      envelope_bytes: :erlang.external_size(env),
+      payload_bytes: :erlang.external_size({env.state, env.payload}),
+      hops: env.hops + 1,
+      # Paused copies count: a stranger's prepares cannot hold more than the limit.
+      resident: map_size(state.monitors) + Ledger.counter(state.host, :parked)
+    }
+
+    case Tartarus.Security.Admission.admit(
+           state.admission,
+           request,
+           System.monotonic_time(:millisecond)
+         ) do
+      {:ok, admission} -> {:ok, %{state | admission: admission}}
+      {:error, _} = error -> error
+    end
+  end
+
+  defp prepare(_state, env, manifest, code) do
+    with :ok <- check_ttl(env),
+         :ok <- load_code(code) do
+      CodeCache.check(manifest)
+    end
+  end
+
+  defp check_ttl(%Envelope{ttl: :infinity}), do: :ok
+  defp check_ttl(%Envelope{hops: hops, ttl: ttl}) when hops < ttl, do: :ok
+  defp check_ttl(%Envelope{hops: hops}), do: {:error, {:ttl_expired, hops}}
+
+  defp load_code([]), do: :ok
+  defp load_code(code), do: CodeCache.load(code)
+
+  @doc false
+  # Refuses a prepare: the source hears why; nothing was created.
+  def refuse(state, s_pid, mig, env, src, reason) do
+    if is_pid(s_pid), do: send(s_pid, {:"$tartarus_refused", mig, reason})
+    agent = with %{id: id} when is_binary(id) <- env, do: id, else: (_ -> nil)
+    src = if Tartarus.Host.address?(src), do: src
+
+    Events.emit(
+      state.host,
+      %{type: :refused, host: state.host.ref, agent: agent, from: src, reason: reason},
+      refused: 1
+    )
+
+    state
+  end
+end
