@@ -5,6 +5,8 @@ defmodule Tartarus.WireFuzzTest do
 
   alias Tartarus.Envelope
 
+  doctest Tartarus.Wire
+
   @numtests 10_000
 
   setup do

@@ -270,7 +270,7 @@ defmodule Tartarus.Host.Server do
   def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
     msg = Tartarus.Fault.point(:prepare_received, msg)
 
-    case Protocol.check_prepare(
+    case Tartarus.Wire.check_prepare(
            msg,
            Tartarus.Security.Admission.max_message_bytes(state.admission)
          ) do
@@ -284,7 +284,7 @@ defmodule Tartarus.Host.Server do
   end
 
   def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
-    if Protocol.check_decision_query(msg) == :ok do
+    if Tartarus.Wire.check_decision_query(msg) == :ok do
       send(a_pid, Protocol.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
     else
       Ledger.count(state.host, :dropped)
@@ -294,7 +294,7 @@ defmodule Tartarus.Host.Server do
   end
 
   def handle_info({:"$tartarus_acks", acks} = msg, state) do
-    if Protocol.check_acks(msg) == :ok do
+    if Tartarus.Wire.check_acks(msg) == :ok do
       for {mig, id, copy} <- acks do
         Ledger.acknowledge(state.host, mig, id, copy)
         Tartarus.Host.Persistence.acked(state.host, mig)
