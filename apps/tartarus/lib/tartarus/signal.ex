@@ -489,9 +489,16 @@ defmodule Tartarus.Signal do
   defp do_settle(deadline) do
     case idle?(deadline) do
       true -> :ok
-      false -> if past?(deadline), do: {:error, :timeout}, else: do_settle(deadline)
+      # Not yet: ask again after a pause (asking at once keeps a core busy and adds to the
+      # very mailbox that is being drained).
+      false -> if past?(deadline), do: {:error, :timeout}, else: pause_and_settle(deadline)
       :timeout -> {:error, :timeout}
     end
+  end
+
+  defp pause_and_settle(deadline) do
+    Process.sleep(1)
+    do_settle(deadline)
   end
 
   # Asks the overlay whether its mailbox is empty, waiting for the answer until `deadline`.
