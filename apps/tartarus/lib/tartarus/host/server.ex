@@ -67,6 +67,8 @@ defmodule Tartarus.Host.Server do
       acks: acks,
       counters: Tartarus.Events.new_counters(),
       hops: Ledger.new_hop_ring(),
+      # Whether a flush of acknowledgements is armed (see Tartarus.Migration.Arrival).
+      acks_armed: :atomics.new(1, []),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
       journal: journal,
@@ -309,7 +311,7 @@ defmodule Tartarus.Host.Server do
   # A timer that only sends acknowledgements (lazily, batched): it decides nothing. The first
   # arrival after a flush arms it (so an idle host has no timer).
   def handle_info(:"$tartarus_flush_acks", state) do
-    :ets.insert(state.host.ledger, {:acks_armed, 0})
+    :atomics.put(state.host.acks_armed, 1, 0)
     flush_acks(state.host.acks, :ets.first(state.host.acks))
     {:noreply, state}
   end

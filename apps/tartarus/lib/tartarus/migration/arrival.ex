@@ -163,7 +163,9 @@ defmodule Tartarus.Migration.Arrival do
         # lazily: this host sends its acknowledgements in batches, see Host.Server).
         :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
 
-        if :ets.update_counter(host.ledger, :acks_armed, 1, {:acks_armed, 0}) == 1,
+        # The first arrival after a flush arms the next (one atomic flag: every arrival of the
+        # node's agents touches it, a table key would be a hot spot).
+        if :atomics.compare_exchange(host.acks_armed, 1, 0, 1) == :ok,
           do: Process.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
 
         Ledger.record_hop(host, hop_us)
