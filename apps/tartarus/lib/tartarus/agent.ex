@@ -56,10 +56,18 @@ defmodule Tartarus.Agent do
 
   ## Supervision
 
-  Agents run under their host's supervisor. A crashing agent is restarted from the
-  snapshot taken when it arrived on the host (it re-runs `c:handle_arrival/2` with
-  `ctx.restarts` counting restarts), at most `:max_restarts` times (a host option), then
-  removed; its owner then receives `{:tartarus_removed, id, reason}`.
+  Agents are watched by their host's server (not a supervisor's children: a hop or a create
+  waits on no supervisor). A crashing agent is restarted from the snapshot taken when it
+  arrived on the host (it re-runs `c:handle_arrival/2` with `ctx.restarts` counting
+  restarts), at most `:max_restarts` times (a host option), then removed; its owner then
+  receives `{:tartarus_removed, id, reason}`. An agent that overruns a callback's budget or
+  is killed is not restarted. When its host stops, every agent on it is killed at once.
+
+  An `c:init/1` that returns anything but an action fails the create
+  (`{:error, {:init_failed, {:bad_action, returned}}}`). An agent's heap, mailbox included,
+  is bounded by the host option `:max_heap_size` (64 MiB by default): past it the agent is
+  killed and restarted as after a crash. Processes an agent starts with `spawn_link/1` end
+  with it.
 
   ## Time budget
 
