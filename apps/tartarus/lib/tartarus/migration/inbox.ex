@@ -24,40 +24,73 @@ defmodule Tartarus.Migration.Inbox do
       iex> {true, _} = Inbox.take(i, {pid, 2})
   """
 
+  # Senders remembered before the memory is trimmed at all, and how long a sender is kept
+  # after its last message was taken (however many others came since).
   @max 1024
+  @keep_ms 60_000
 
-  @typedoc "The memory of what was taken: sender => {order, last tag}, and the order counter."
-  @type t :: %{seen: %{optional(pid()) => {non_neg_integer(), term()}}, n: non_neg_integer()}
+  @typedoc """
+  The memory of what was taken: sender => {order, last tag, when taken (system time, ms)},
+  the order counter, and the size past which it is next trimmed.
+  """
+  @type t :: %{
+          seen: %{optional(pid()) => {non_neg_integer(), term(), integer()}},
+          n: non_neg_integer(),
+          limit: pos_integer()
+        }
 
   @doc "An empty inbox."
   @spec new() :: t()
-  def new, do: %{seen: %{}, n: 0}
+  def new, do: %{seen: %{}, n: 0, limit: @max}
 
   @doc """
-  Whether a message from `{pid, tag}` is new (then it is remembered as taken). A sender's
-  tags grow, so a tag at or under the last one taken from that sender is old: a copy sent
-  again that arrives after the sender's next message was taken is not taken a second time.
-  At most #{@max} senders are remembered: the oldest half goes when it is full.
+  Whether a message from `{pid, tag}` is new (then it is remembered as taken, at `now`). A
+  sender's tags grow, so a tag at or under the last one taken from that sender is old: a
+  copy sent again that arrives after the sender's next message was taken is not taken a
+  second time.
+
+  The memory is bounded by time, not by a count: past #{@max} senders it drops those
+  whose last message was taken over #{div(@keep_ms, 1000)} s ago (and never one whose
+  message the agent still holds, see `handover/4`). A sender sends a message again only
+  until it is acknowledged, right after the agent's process that had it ends; so a copy
+  sent again reaches the agent well within that time, and is not taken twice, whatever the
+  number of senders (a cast is a sender of its own).
   """
-  @spec take(t(), {pid(), term()}) :: {boolean(), t()}
-  def take(%{seen: seen, n: n} = inbox, {pid, tag}) do
-    case seen do
-      %{^pid => {_, ^tag}} ->
+  @spec take(t(), {pid(), term()}, integer()) :: {boolean(), t()}
+  def take(%{seen: seen} = inbox, {pid, tag}, now \\ System.system_time(:millisecond)) do
+    case Map.fetch(seen, pid) do
+      {:ok, entry} when elem(entry, 1) == tag ->
         {false, inbox}
 
-      %{^pid => {_, last}} when is_integer(last) and is_integer(tag) and tag < last ->
+      {:ok, entry} when is_integer(elem(entry, 1)) and is_integer(tag) and tag < elem(entry, 1) ->
         {false, inbox}
 
       _ ->
-        {true, %{seen: trim(Map.put(seen, pid, {n + 1, tag})), n: n + 1}}
+        n = inbox.n + 1
+        {true, trim(%{inbox | seen: Map.put(seen, pid, {n, tag, now}), n: n}, now, %{})}
     end
   end
 
-  defp trim(seen) when map_size(seen) <= @max, do: seen
+  # Past the limit: senders taken longer ago than @keep_ms go, except those in `keep` (the
+  # senders of messages the agent still holds); the next trim waits until the memory has
+  # doubled (so a memory of young senders is not scanned at every take).
+  defp trim(%{seen: seen, limit: limit} = inbox, _now, _keep) when map_size(seen) <= limit,
+    do: inbox
 
-  defp trim(seen) do
-    seen |> Enum.sort_by(fn {_, {n, _}} -> -n end) |> Enum.take(div(@max, 2)) |> Map.new()
+  defp trim(%{seen: seen} = inbox, now, keep) do
+    cutoff = now - @keep_ms
+
+    seen =
+      :maps.filter(
+        fn pid, entry -> is_map_key(keep, pid) or taken_at(entry) >= cutoff end,
+        seen
+      )
+
+    %{inbox | seen: seen, limit: max(@max, 2 * map_size(seen))}
   end
+
+  defp taken_at({_, _, at}), do: at
+  defp taken_at(_), do: 0
 
   @doc """
   Takes the new messages of `msgs` (a list, proper or not, from anywhere), in order;
@@ -88,10 +121,12 @@ defmodule Tartarus.Migration.Inbox do
   `pending` (messages it took and had not handled) followed by the new ones of `mailbox`
   (what it drained from its mailbox), and its memory.
   """
-  @spec handover(t(), [tuple()], [tuple()]) :: {[tuple()], t()}
-  def handover(inbox, pending, mailbox) do
+  @spec handover(t(), [tuple()], [tuple()], integer()) :: {[tuple()], t()}
+  def handover(inbox, pending, mailbox, now \\ System.system_time(:millisecond)) do
     {fresh, inbox} = take_new(inbox, mailbox)
-    {pending ++ fresh, inbox}
+    msgs = pending ++ fresh
+    keep = for {:"$tartarus_msg", {pid, _}, _, _} <- msgs, into: %{}, do: {pid, true}
+    {msgs, trim(inbox, now, keep)}
   end
 
   @doc """
@@ -113,7 +148,7 @@ defmodule Tartarus.Migration.Inbox do
   @spec receive_handover(t(), term()) :: {[tuple()], t()}
   def receive_handover(_inbox, {msgs, %{seen: seen, n: n} = inbox})
       when is_list(msgs) and is_map(seen) and is_integer(n),
-      do: {msgs, inbox}
+      do: {msgs, %{seen: seen, n: n, limit: max(Map.get(inbox, :limit, @max), @max)}}
 
   def receive_handover(inbox, _), do: {[], inbox}
 end

@@ -43,6 +43,38 @@ defmodule Tartarus.Migration.InboxModelTest do
     end
   end
 
+  # Casts are senders of their own (a process each): thousands of one-message senders. A
+  # copy sent again after many others were taken must still not be taken twice (a memory
+  # bounded by a count of senders forgot them: 28,000 duplicates of 10,000 casts to an agent
+  # hopping at every arrival, in `mix tartarus.bench busy --cast`).
+  test "thousands of one-message senders: a copy sent again is not taken twice" do
+    senders = for _ <- 1..5_000, do: spawn(fn -> :ok end)
+    msgs = for {pid, i} <- Enum.with_index(senders), do: {:"$tartarus_msg", {pid, i}, :post, i}
+    now = System.system_time(:millisecond)
+
+    inbox =
+      Enum.reduce(msgs, Inbox.new(), fn m, inbox ->
+        {true, inbox} = Inbox.take_msg(inbox, m)
+        inbox
+      end)
+
+    # Handed over (the memory travels), then every copy sent again: none is new.
+    {[], inbox} = Inbox.handover(inbox, [], [])
+    {[], inbox} = Inbox.arrive(Inbox.new(), {[], inbox}, [])
+    assert Enum.all?(msgs, fn m -> Inbox.take_msg(inbox, m) |> elem(0) == false end)
+
+    # A minute later their memory may go: the next senders trim it once it has doubled.
+    later = now + 61_000
+
+    inbox =
+      Enum.reduce(1..12_000, inbox, fn i, inbox ->
+        {true, inbox} = Inbox.take(inbox, {spawn(fn -> :ok end), i}, later)
+        inbox
+      end)
+
+    refute Enum.any?(senders, &is_map_key(inbox.seen, &1))
+  end
+
   # -- the walk ------------------------------------------------------------------------
 
   defp walk(seed, sender_pids) do

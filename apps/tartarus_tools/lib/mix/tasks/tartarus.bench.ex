@@ -11,7 +11,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
                                 [--out FILE]
       mix tartarus.bench churn [--migrations N] [--agents K] [--hops H] [--no-persist]
                                [--json] [--out FILE]
-      mix tartarus.bench busy [--messages N] [--senders S] [--dwell-ms D]
+      mix tartarus.bench busy [--messages N] [--senders S] [--dwell-ms D] [--cast]
                               [--max-seconds T] [--json] [--out FILE]
       mix tartarus.bench durability [--agents K] [--hops H] [--messages N] [--senders S]
                                     [--json] [--out FILE]
@@ -45,7 +45,10 @@ defmodule Mix.Tasks.Tartarus.Bench do
   `busy` has S senders (default 4) post N messages in all (default 50,000) to one agent
   hopping continuously between two peer nodes, and reports messages delivered exactly
   once, duplicates, acknowledged but missing, failure reasons with counts and per-sender
-  order. The agent moves on at once at every arrival, or after D ms (`--dwell-ms`);
+  order. With `--cast` the senders cast instead (`Tartarus.cast/3`, 2 ms apart; keys
+  `cast_failed_reports`, `cast_unknown_reports`, `reported_failed_yet_delivered`: a
+  failure report must mean "not delivered"; casts keep no order between them).
+  The agent moves on at once at every arrival, or after D ms (`--dwell-ms`);
   senders stop after T seconds (default 120; the rest counts as not sent). See
   `TartarusTools.Bench.Busy`.
 
@@ -79,6 +82,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
     messages: :integer,
     senders: :integer,
     dwell_ms: :integer,
+    cast: :boolean,
     max_seconds: :integer,
     json: :boolean,
     out: :string
@@ -157,7 +161,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
             messages: opts[:messages] || 50_000,
             senders: opts[:senders] || 4,
             dwell_ms: opts[:dwell_ms] || 0,
-            max_seconds: opts[:max_seconds] || 120
+            max_seconds: opts[:max_seconds] || 120,
+            via: if(opts[:cast], do: :cast, else: :post)
           )
 
         ["durability"] ->

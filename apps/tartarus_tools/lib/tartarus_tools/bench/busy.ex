@@ -33,7 +33,11 @@ defmodule TartarusTools.Bench.Busy do
   50,000), `:senders` (4), `:timeout` (per post, ms, default 5,000), `:max_seconds`
   (time budget for sending, default 120: senders stop there and the rest counts as not
   sent), `:dwell_ms` (how long the agent stays on each host before it moves on, default 0:
-  it moves on at once).
+  it moves on at once), `:via` (`:post`, the default, or `:cast`: each sender casts its
+  messages `:pace_ms` apart, default 2, with `Tartarus.cast/3`, and the keys
+  `cast_failed_reports`, `cast_unknown_reports` and `reported_failed_yet_delivered` say
+  whether a failure report ever meant anything but "not delivered"; order is not kept
+  between casts, which are delivered by separate processes).
   """
   @spec run(keyword()) :: map()
   def run(opts) do
@@ -61,11 +65,17 @@ defmodule TartarusTools.Bench.Busy do
       t0 = System.monotonic_time(:millisecond)
       deadline = t0 + budget_ms
 
+      via = Keyword.get(opts, :via, :post)
+
       results =
         per
         |> Enum.with_index()
         |> Enum.map(fn {n, s} ->
-          Task.async(fn -> send_all({id, h1}, s, n, timeout, deadline) end)
+          Task.async(fn ->
+            if via == :cast,
+              do: cast_all({id, h1}, s, n, Keyword.get(opts, :pace_ms, 2), deadline),
+              else: send_all({id, h1}, s, n, timeout, deadline)
+          end)
         end)
         |> Task.await_many(:infinity)
 
@@ -73,10 +83,57 @@ defmodule TartarusTools.Bench.Busy do
 
       for h <- [h1, h2], do: Tartarus.store_put(h, :busy_stop, true)
       final = final_state({id, h1}, 100)
-      summarize(final, results, per, messages, wall_ms)
+      summary = summarize(final, results, per, messages, wall_ms)
+      if via == :cast, do: cast_summary(summary, results), else: summary
     after
       Tartarus.stop_host(h1)
     end
+  end
+
+  # Casts (Tartarus.cast/3) `n` messages, `pace_ms` apart, then collects the reports of the
+  # delivering processes (each gives up after 5 s): nothing is acknowledged to a cast, so a
+  # message counts as sent, and its failure reports are checked against what the agent had.
+  defp cast_all(ref, s, n, pace_ms, deadline) do
+    sent =
+      Enum.reduce_while(0..(n - 1)//1, 0, fn seq, sent ->
+        if System.monotonic_time(:millisecond) > deadline do
+          {:halt, sent}
+        else
+          :ok = Tartarus.cast(ref, {:m, s, seq}, self())
+          if pace_ms > 0, do: Process.sleep(pace_ms)
+          {:cont, sent + 1}
+        end
+      end)
+
+    until = System.monotonic_time(:millisecond) + 6_000
+    reports = collect_reports(until, %{failed: 0, unknown: 0})
+    %{sent: sent, ok: [], errors: [], reports: reports}
+  end
+
+  defp collect_reports(until, acc) do
+    receive do
+      {:tartarus_cast_failed, _agent, _reason} ->
+        collect_reports(until, %{acc | failed: acc.failed + 1})
+
+      {:tartarus_cast_unknown, _agent, _reason} ->
+        collect_reports(until, %{acc | unknown: acc.unknown + 1})
+    after
+      max(until - System.monotonic_time(:millisecond), 0) -> acc
+    end
+  end
+
+  # A failure report must mean "not delivered": with every message sent once, the agent may
+  # hold at most sent - failed of them.
+  defp cast_summary(summary, results) do
+    failed = Enum.sum(Enum.map(results, & &1.reports.failed))
+    unknown = Enum.sum(Enum.map(results, & &1.reports.unknown))
+
+    Map.merge(summary, %{
+      via: :cast,
+      cast_failed_reports: failed,
+      cast_unknown_reports: unknown,
+      reported_failed_yet_delivered: max(summary.delivered + failed - summary.sent, 0)
+    })
   end
 
   defp send_all(ref, s, n, timeout, deadline) do
