@@ -60,7 +60,8 @@ defmodule TartarusImmune.Experiment do
   @behaviour TartarusEmu.Scenario
 
   alias TartarusEmu.{Network, Topology}
-  alias TartarusImmune.{Cache, Convergence, Domain, IPkt, Maths, Params}
+  alias TartarusImmune.{Cache, Convergence, IPkt, Params}
+  alias TartarusImmune.Experiment.HeldOut
   alias TartarusTools.Dashboard.Panel
   alias TartarusTools.Series
 
@@ -440,7 +441,7 @@ defmodule TartarusImmune.Experiment do
   @impl true
   def summary(st) do
     live = live_ipkts(st)
-    t = test(st, live)
+    t = HeldOut.test(st, live)
     names = fn m -> Map.new(m, fn {s, v} -> {st.domain.solution_name(s), v} end) end
 
     {winner, conv_step} =
@@ -495,59 +496,8 @@ defmodule TartarusImmune.Experiment do
     end)
   end
 
-  @doc false
-  def test(st, live) do
-    p = st.p
-    domain = st.domain
-    pop_order = st.offered
-
-    rows =
-      for {set, i} = ref <- st.test_refs do
-        inst = domain.instance(set, i, st.seed)
-        fx = domain.features(inst)
-        chosen = choose(live, fx, p, pop_order)
-        costs = Map.new(st.offered, &{&1, Cache.score(domain, &1, ref, st.seed, inst)})
-        best = Enum.min_by(st.offered, &costs[&1])
-        extra = costs[chosen] - costs[best]
-        {chosen, best, extra, extra / max(costs[best], 1)}
-      end
-
-    n = max(length(rows), 1)
-    {known, _} = Domain.class_best(domain, st.offered, st.test_refs, st.seed)
-
-    %{
-      accuracy: Enum.count(rows, fn {c, b, _, _} -> c == b end) / n,
-      regret: Enum.sum(Enum.map(rows, &elem(&1, 2))) / n,
-      regret_rel: Enum.sum(Enum.map(rows, &elem(&1, 3))) / n,
-      known_best: domain.solution_name(known),
-      choices: rows |> Enum.map(&domain.solution_name(elem(&1, 0))) |> Enum.frequencies()
-    }
-  end
-
-  @doc """
-  The network's choice for a problem of features `fx` given the live iPkts (maps with
-  `:sol`, `:fv`, `:tau`): the solution with most iPkts that recognize `fx` (ties: larger
-  summed activation, then the order of `order`); with none, the most populous solution.
-  """
-  @spec choose([map()], [float()], map(), [module()]) :: module()
-  def choose(live, fx, p, order) do
-    rec = Enum.filter(live, &Maths.recognizes?(fx, &1.fv, p))
-    pool = if rec == [], do: live, else: rec
-
-    case pool do
-      [] ->
-        hd(order)
-
-      _ ->
-        pool
-        |> Enum.group_by(& &1.sol)
-        |> Enum.min_by(fn {sol, ms} ->
-          {-length(ms), -Enum.sum(Enum.map(ms, & &1.tau)),
-           Enum.find_index(order, &(&1 == sol)) || 99}
-        end)
-        |> elem(0)
-    end
-  end
+  @doc "See `TartarusImmune.Experiment.HeldOut.choose/4`."
+  defdelegate choose(live, fx, p, order), to: TartarusImmune.Experiment.HeldOut
 
   @impl true
   def teardown(st) do
