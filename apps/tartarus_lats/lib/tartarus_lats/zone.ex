@@ -313,6 +313,9 @@ defmodule TartarusLats.Zone do
       own >= n.holder + z.margin_db ->
         hold(state, t, {:take, z.dwell}, {:entered_zone, tag}, true)
 
+      passed_on?(z, state, own, n) ->
+        {{:entered_zone, tag, elem(state.pending, 1)}, %{mine: true, pending: nil}}
+
       true ->
         {nil, %{state | pending: nil}}
     end
@@ -320,9 +323,14 @@ defmodule TartarusLats.Zone do
 
   # Held: release when a neighbour that hears the tag well (the evidence rule) is stronger
   # by margin_db for `dwell` seconds (it takes the tag), or when out of range (under the
-  # exit threshold) for `exit_dwell` seconds.
+  # exit threshold) for `exit_dwell` seconds. A neighbour that holds the tag too (it took
+  # it on a walker passing through, see passed_on?/4) and hears it more strongly by
+  # claim_db has it: let go at once.
   defp step(z, t, tag, %{mine: true} = state, _heard, own, n) do
     cond do
+      n.holder != nil and n.holder >= own + z.claim_db ->
+        hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
+
       n.evident >= own + z.fast_db ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
@@ -343,6 +351,24 @@ defmodule TartarusLats.Zone do
   defp taking?(%{pending: {:take, _, _}}, %{holder: holder}), do: holder != nil
   defp taking?(_state, _n), do: false
 
+  # A take under way that loses its margin over the holder before `dwell` seconds, because
+  # the walker has passed through this zone on to the next, completes now (dated from its
+  # first second) so that the chain of zones does not break here: the holder no longer
+  # hears the tag well, this node is still nearer it than the holder (claim_db), and a
+  # neighbour that neither holds nor takes it hears it well and more strongly than this
+  # node (claim_db). That neighbour then takes the tag from here by the usual rule, and the
+  # old holder, seeing this node hold it more strongly, lets go. Without it the next node
+  # claimed the tag from nowhere and the holder let it go to nobody (`:left_building`).
+  # Evidence as for any take: this node heard the tag well (or went on taking it) for every
+  # second of the take, and the neighbour ahead hears it well; a burst at a node no
+  # neighbour of the holder can take nothing, and a standing tag is heard well by its holder.
+  defp passed_on?(z, %{pending: {:take, _, _}}, own, n) do
+    n.holder != nil and not n.holder_heard and own >= n.holder + z.claim_db and
+      n.ahead >= own + z.claim_db
+  end
+
+  defp passed_on?(_z, _state, _own, _n), do: false
+
   # A condition (`why`) that must hold `need` consecutive seconds; the event is dated from
   # its first second. A different condition starts the count again.
   defp hold(state, t, {why, need}, {kind, tag}, mine_after) do
@@ -362,7 +388,14 @@ defmodule TartarusLats.Zone do
   # holds it and of the strongest one taking it (nil if none). A report of the older form
   # `{rssi, held}` counts as heard well.
   defp n(z, reports, tag) do
-    init = %{best: z.missing_rssi, evident: z.missing_rssi, holder: nil, taker: nil}
+    init = %{
+      best: z.missing_rssi,
+      evident: z.missing_rssi,
+      ahead: z.missing_rssi,
+      holder: nil,
+      holder_heard: false,
+      taker: nil
+    }
 
     Enum.reduce(reports, init, fn {_n, values}, acc ->
       case values do
@@ -378,8 +411,9 @@ defmodule TartarusLats.Zone do
     acc = if heard, do: %{acc | evident: max(acc.evident, v)}, else: acc
 
     case held do
-      true -> %{acc | holder: max(acc.holder || v, v)}
+      true -> %{acc | holder: max(acc.holder || v, v), holder_heard: acc.holder_heard or heard}
       :taking -> %{acc | taker: max(acc.taker || v, v)}
+      _ when heard -> %{acc | ahead: max(acc.ahead, v)}
       _ -> acc
     end
   end
