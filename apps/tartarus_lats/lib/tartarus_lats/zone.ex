@@ -31,12 +31,18 @@ defmodule TartarusLats.Zone do
       in the same second, by the rule below. A neighbour that is stronger still but neither
       holds nor takes the tag does not stop the hand-over: a fast walker passing through
       this zone is already nearer the next node, and the chain of zones must not skip this
-      one (the next node takes the tag from here);
+      one (the next node takes the tag from here). For the same reason a take that loses its
+      margin before `:dwell` seconds **completes** (dated from its first second) when the
+      walker has passed on: the holder no longer hears the tag well, this node's RSSI is
+      still `:claim_db` above the holder's, and a neighbour that neither holds nor takes the
+      tag hears it well and at least as strongly as this node;
     * **release** (the tag leaves this zone) when some neighbour that hears the tag well has
       an RSSI at least `:margin_db` above its own for `:dwell` consecutive seconds, or
       `:fast_db` above for one (the neighbour takes the tag in the same second), or when its
       RSSI stays under the exit threshold (`:exit_db` under the far threshold: the tag is
-      out of range, it left) for `:exit_dwell` seconds.
+      out of range, it left) for `:exit_dwell` seconds, or at once when a neighbour holds
+      the tag too (it completed a take as above) with an RSSI at least `:claim_db` above
+      its own.
 
   A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
   is the hysteresis: a tag standing still, even on the boundary between two zones, stays
@@ -355,8 +361,10 @@ defmodule TartarusLats.Zone do
   # the walker has passed through this zone on to the next, completes now (dated from its
   # first second) so that the chain of zones does not break here: the holder no longer
   # hears the tag well, this node is still nearer it than the holder (claim_db), and a
-  # neighbour that neither holds nor takes it hears it well and more strongly than this
-  # node (claim_db). That neighbour then takes the tag from here by the usual rule, and the
+  # neighbour that neither holds nor takes it hears it well and at least as strongly as
+  # this node (the walker is past the middle of this zone; 1 dB more was too much for a
+  # 2 m/s walker that the next node heard 0.4 dB more strongly in the second the take was
+  # cut). That neighbour then takes the tag from here by the usual rule, and the
   # old holder, seeing this node hold it more strongly, lets go. Without it the next node
   # claimed the tag from nowhere and the holder let it go to nobody (`:left_building`).
   # Evidence as for any take: this node heard the tag well (or went on taking it) for every
@@ -364,7 +372,7 @@ defmodule TartarusLats.Zone do
   # neighbour of the holder can take nothing, and a standing tag is heard well by its holder.
   defp passed_on?(z, %{pending: {:take, _, _}}, own, n) do
     n.holder != nil and not n.holder_heard and own >= n.holder + z.claim_db and
-      n.ahead >= own + z.claim_db
+      n.ahead >= own
   end
 
   defp passed_on?(_z, _state, _own, _n), do: false
