@@ -31,12 +31,18 @@ defmodule TartarusLats.Zone do
       in the same second, by the rule below. A neighbour that is stronger still but neither
       holds nor takes the tag does not stop the hand-over: a fast walker passing through
       this zone is already nearer the next node, and the chain of zones must not skip this
-      one (the next node takes the tag from here);
+      one (the next node takes the tag from here). For the same reason a take that loses its
+      margin before `:dwell` seconds **completes** (dated from its first second) when the
+      walker has passed on: the holder no longer hears the tag well, this node's RSSI is
+      still `:claim_db` above the holder's, and a neighbour that neither holds nor takes the
+      tag hears it well and at least as strongly as this node;
     * **release** (the tag leaves this zone) when some neighbour that hears the tag well has
       an RSSI at least `:margin_db` above its own for `:dwell` consecutive seconds, or
       `:fast_db` above for one (the neighbour takes the tag in the same second), or when its
       RSSI stays under the exit threshold (`:exit_db` under the far threshold: the tag is
-      out of range, it left) for `:exit_dwell` seconds.
+      out of range, it left) for `:exit_dwell` seconds, or at once when a neighbour holds
+      the tag too (it completed a take as above) with an RSSI at least `:claim_db` above
+      its own.
 
   A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
   is the hysteresis: a tag standing still, even on the boundary between two zones, stays
@@ -313,6 +319,9 @@ defmodule TartarusLats.Zone do
       own >= n.holder + z.margin_db ->
         hold(state, t, {:take, z.dwell}, {:entered_zone, tag}, true)
 
+      passed_on?(z, state, own, n) ->
+        {{:entered_zone, tag, elem(state.pending, 1)}, %{mine: true, pending: nil}}
+
       true ->
         {nil, %{state | pending: nil}}
     end
@@ -320,9 +329,14 @@ defmodule TartarusLats.Zone do
 
   # Held: release when a neighbour that hears the tag well (the evidence rule) is stronger
   # by margin_db for `dwell` seconds (it takes the tag), or when out of range (under the
-  # exit threshold) for `exit_dwell` seconds.
+  # exit threshold) for `exit_dwell` seconds. A neighbour that holds the tag too (it took
+  # it on a walker passing through, see passed_on?/4) and hears it more strongly by
+  # claim_db has it: let go at once.
   defp step(z, t, tag, %{mine: true} = state, _heard, own, n) do
     cond do
+      n.holder != nil and n.holder >= own + z.claim_db ->
+        hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
+
       n.evident >= own + z.fast_db ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
@@ -343,6 +357,26 @@ defmodule TartarusLats.Zone do
   defp taking?(%{pending: {:take, _, _}}, %{holder: holder}), do: holder != nil
   defp taking?(_state, _n), do: false
 
+  # A take under way that loses its margin over the holder before `dwell` seconds, because
+  # the walker has passed through this zone on to the next, completes now (dated from its
+  # first second) so that the chain of zones does not break here: the holder no longer
+  # hears the tag well, this node is still nearer it than the holder (claim_db), and a
+  # neighbour that neither holds nor takes it hears it well and at least as strongly as
+  # this node (the walker is past the middle of this zone; 1 dB more was too much for a
+  # 2 m/s walker that the next node heard 0.4 dB more strongly in the second the take was
+  # cut). That neighbour then takes the tag from here by the usual rule, and the
+  # old holder, seeing this node hold it more strongly, lets go. Without it the next node
+  # claimed the tag from nowhere and the holder let it go to nobody (`:left_building`).
+  # Evidence as for any take: this node heard the tag well (or went on taking it) for every
+  # second of the take, and the neighbour ahead hears it well; a burst at a node no
+  # neighbour of the holder can take nothing, and a standing tag is heard well by its holder.
+  defp passed_on?(z, %{pending: {:take, _, _}}, own, n) do
+    n.holder != nil and not n.holder_heard and own >= n.holder + z.claim_db and
+      n.ahead >= own
+  end
+
+  defp passed_on?(_z, _state, _own, _n), do: false
+
   # A condition (`why`) that must hold `need` consecutive seconds; the event is dated from
   # its first second. A different condition starts the count again.
   defp hold(state, t, {why, need}, {kind, tag}, mine_after) do
@@ -362,7 +396,14 @@ defmodule TartarusLats.Zone do
   # holds it and of the strongest one taking it (nil if none). A report of the older form
   # `{rssi, held}` counts as heard well.
   defp n(z, reports, tag) do
-    init = %{best: z.missing_rssi, evident: z.missing_rssi, holder: nil, taker: nil}
+    init = %{
+      best: z.missing_rssi,
+      evident: z.missing_rssi,
+      ahead: z.missing_rssi,
+      holder: nil,
+      holder_heard: false,
+      taker: nil
+    }
 
     Enum.reduce(reports, init, fn {_n, values}, acc ->
       case values do
@@ -378,8 +419,9 @@ defmodule TartarusLats.Zone do
     acc = if heard, do: %{acc | evident: max(acc.evident, v)}, else: acc
 
     case held do
-      true -> %{acc | holder: max(acc.holder || v, v)}
+      true -> %{acc | holder: max(acc.holder || v, v), holder_heard: acc.holder_heard or heard}
       :taking -> %{acc | taker: max(acc.taker || v, v)}
+      _ when heard -> %{acc | ahead: max(acc.ahead, v)}
       _ -> acc
     end
   end

@@ -3,7 +3,7 @@ defmodule TartarusLats.EdgeCasesTest do
   # driver without the driver being told.
   use ExUnit.Case, async: false
 
-  alias TartarusLats.{Building, Deployment, Experiment, Query, Sim, World, Zone}
+  alias TartarusLats.{Building, Deployment, Query, Sim, World, Zone}
 
   # A corridor c1 - c2 - ... - cN, 9 m apart, the door at c1.
   defp corridor(n) do
@@ -40,34 +40,40 @@ defmodule TartarusLats.EdgeCasesTest do
     end
   end
 
-  test "a walker at 2.5 m/s down a corridor is followed: every Where is X is right" do
+  # Seeds 1-40; 8, 13 and 19 broke the chain at one pass-through node (c7 or c4) that took
+  # the tag from its neighbour for 2 s and lost the margin in the third, the walker already
+  # nearer the next node: the next node claimed it from nowhere, the holder let it go to
+  # nobody, and Where is X answered :left_building from the nodes behind.
+  test "a walker at 2.5 m/s down a corridor is followed, 40 seeds: every Where is X is right" do
     {nodes, building} = corridor(8)
     route = [{:c1, 20}] ++ Enum.map(Enum.slice(nodes, 1..6), &{&1, 0}) ++ [{:c8, 10_000}]
     script = %{name: :x, enter_at: 0, entrance: :c1, route: route, exit: :c8}
 
-    for seed <- 1..7 do
-      world = World.new(building: building, walkers: 0, scripts: [script], speed: 2.5)
-      tag = World.tag(world, :x)
+    results =
+      for seed <- 1..40 do
+        world = World.new(building: building, walkers: 0, scripts: [script], speed: 2.5)
+        tag = World.tag(world, :x)
 
-      {_sim, wrong} =
-        Enum.reduce(1..80, {Sim.new(seed: seed, world: world), []}, fn _, {sim, wrong} ->
-          sim = Sim.step(sim)
-          t = sim.world.time
-          path = World.visited_path(sim.world, :x)
+        {_sim, wrong} =
+          Enum.reduce(1..80, {Sim.new(seed: seed, world: world), []}, fn _, {sim, wrong} ->
+            sim = Sim.step(sim)
+            t = sim.world.time
+            path = World.visited_path(sim.world, :x)
 
-          wrong =
-            for start <- nodes,
-                t > 5,
-                answer = Query.where_is(sim.tables, start, tag),
-                not TartarusLats.Judge.correct?(:where_is, answer, path, t),
-                into: wrong,
-                do: {t, start, answer, World.current_zone(sim.world, :x)}
+            now =
+              for start <- nodes,
+                  t > 5,
+                  answer = Query.where_is(sim.tables, start, tag),
+                  not TartarusLats.Judge.correct?(:where_is, answer, path, t),
+                  do: {t, start, answer, World.current_zone(sim.world, :x)}
 
-          {sim, wrong}
-        end)
+            {sim, wrong ++ now}
+          end)
 
-      assert wrong == [], "seed #{seed}: #{inspect(Enum.take(Enum.reverse(wrong), 5))}"
-    end
+        {seed, Enum.take(wrong, 3)}
+      end
+
+    assert for({seed, [_ | _] = wrong} <- results, do: {seed, wrong}) == []
   end
 
   test "a host stopped without telling the driver is a dead node to it" do

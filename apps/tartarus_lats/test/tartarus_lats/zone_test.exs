@@ -109,6 +109,69 @@ defmodule TartarusLats.ZoneTest do
     end
   end
 
+  # A node x between the holder h and the next node n (a corridor h - x - n), one sample a
+  # second (window 1): x takes the tag from h for two seconds (8 dB over h), then in the
+  # third, the walker past x, x is only 5 dB over h and n hears it 1 dB more strongly.
+  defp cut_take(third) do
+    z = Zone.new(calibration: @cal, min_heard: 1)
+    tracker = Tracker.new(calibration: @cal, window: 1, median: 1, confirm: 1)
+    far = z.far_dbm
+
+    first = %{h: %{@tag_id => {far - 3, true, false}}, n: %{@tag_id => {far - 12, false, false}}}
+
+    {[], z, tracker} =
+      Enum.reduce([1, 2], {[], z, tracker}, fn t, {[], z, tracker} ->
+        {_, tracker} = Tracker.observe(tracker, t, @tag_id, far + 5)
+        {events, z} = Zone.decide(z, t, tracker, first)
+        {events, z, tracker}
+      end)
+
+    {_, tracker} = Tracker.observe(tracker, 3, @tag_id, far + 3)
+    {holder, ahead} = third.(far)
+    Zone.decide(z, 3, tracker, %{h: %{@tag_id => holder}, n: %{@tag_id => ahead}})
+  end
+
+  test "a take cut short because the walker passed on completes, dated from its first second" do
+    {events, z} = cut_take(fn far -> {{far - 2, true, false}, {far + 4, false, true}} end)
+    assert events == [{:entered_zone, @tag_id, 1}]
+    assert Zone.holds?(z, @tag_id)
+  end
+
+  test "a take cut short does not complete while the holder hears the tag well, nor without a node ahead hearing it well and as strongly" do
+    cases = [
+      # the holder still hears it well: the tag may be going back
+      fn far -> {{far - 2, true, true}, {far + 4, false, true}} end,
+      # the node ahead does not hear it well (a burst lifted its mean, too few samples)
+      fn far -> {{far - 2, true, false}, {far + 4, false, false}} end,
+      # the node ahead is weaker than this one: the walker has not passed on
+      fn far -> {{far - 2, true, false}, {far + 2, false, true}} end,
+      # this node is not 1 dB nearer than the holder
+      fn far -> {{far + 2.5, true, false}, {far + 4, false, true}} end
+    ]
+
+    for third <- cases do
+      {events, z} = cut_take(third)
+      assert events == []
+      refute Zone.holds?(z, @tag_id)
+    end
+  end
+
+  test "a holder lets go at once to a neighbour that holds the tag too and hears it 1 dB more strongly" do
+    z = Zone.new(calibration: @cal, min_heard: 1, claim_dwell: 1)
+    tracker = Tracker.new(calibration: @cal, window: 1, median: 1, confirm: 1)
+    far = z.far_dbm
+    {_, tracker} = Tracker.observe(tracker, 1, @tag_id, far + 5)
+    {[{:entered_zone, _, 1}], z} = Zone.decide(z, 1, tracker, %{})
+    {_, tracker} = Tracker.observe(tracker, 2, @tag_id, far - 6)
+
+    assert {[], _} = Zone.decide(z, 2, tracker, %{x: %{@tag_id => {far - 5.5, true, false}}})
+
+    assert {[{:left_zone, @tag_id, 2}], z} =
+             Zone.decide(z, 2, tracker, %{x: %{@tag_id => {far - 4, true, false}}})
+
+    refute Zone.holds?(z, @tag_id)
+  end
+
   test "bad options are refused naming the key" do
     assert_raise ArgumentError, ~r/for key :dwell/, fn -> Zone.new(dwell: 0) end
 
