@@ -2,7 +2,11 @@ defmodule Mix.Tasks.Tartarus.Node do
   @shortdoc "Starts a named node with a Tartarus host, for iex --remsh"
 
   @schema [
-    name: [type: :string, required: true, doc: "the node's short name; the node is `NAME@<hostname>`"],
+    name: [
+      type: :string,
+      required: true,
+      doc: "the node's short name; the node is `NAME@<hostname>`"
+    ],
     host: [type: :string, default: "main", doc: "the host's name"],
     neighbours: [type: :string, doc: "comma-separated `host:node` addresses to link to"],
     cookie: [type: :string, default: "tartarus", doc: "the distribution cookie"],
@@ -32,6 +36,11 @@ defmodule Mix.Tasks.Tartarus.Node do
     dashboard_token_file: [
       type: :string,
       doc: "read the dashboard's action token from this file (default: a random one, printed)"
+    ],
+    tls_certs: [
+      type: :string,
+      doc:
+        "run over TLS distribution with the certificates in this directory (made by `mix tartarus.gen.certs`); the VM must be started with the TLS flags, which the task prints if it was not (see \"TLS\" below)"
     ],
     dashboard_hosts: [
       type: :string,
@@ -66,6 +75,26 @@ defmodule Mix.Tasks.Tartarus.Node do
   gives the host an HM-10 that a LATS database agent reads (`Tartarus.read_plugin(:h1,
   :beacon, :counts)` shows what arrived). See `docs/devices.md`.
 
+  A device path that does not exist is reported at once (`warning: --ble /dev/ttyUSB0: no
+  such file`); the plugin is still attached and opens the device when it appears. At start
+  the task lists the plugins it attached (`plugins: beacon (TartarusLats.HM10Plugin)` or
+  `plugins: none`).
+
+  ## TLS
+
+  Distribution over TLS (`Tartarus.Security.TLSDist`) is chosen when the VM boots
+  (`-proto_dist`), before this task runs, so `--tls-certs DIR` cannot switch it on by
+  itself. It checks instead: that `DIR/NAME.ssl_dist.conf` exists (made by
+  `mix tartarus.gen.certs --nodes NAME,me --out DIR`) and that the VM was started with
+  `-proto_dist tartarus_tls`; if not, it stops and prints the exact command to run, with the
+  flags of `Tartarus.Security.TLSDist.erl_flags/2` in `ELIXIR_ERL_OPTIONS`:
+
+      mix tartarus.node --name n1 --host h1 --tls-certs certs
+      # prints: ELIXIR_ERL_OPTIONS="-connect_all false -proto_dist tartarus_tls -ssl_dist_optfile /abs/certs/n1.ssl_dist.conf -pa /abs/_build/dev/lib/tartarus/ebin" mix tartarus.node --name n1 --host h1 --tls-certs certs
+
+  Once the node runs over TLS, the attach hint it prints carries the TLS flags of the shell's
+  own certificate (`DIR/me.ssl_dist.conf`; the task says so when that file is missing).
+
   The host itself starts with `Tartarus.start_host/2`'s defaults (see its documentation),
   among them the admission policy's finite limits.
 
@@ -84,6 +113,7 @@ defmodule Mix.Tasks.Tartarus.Node do
     opts = TartarusTools.CLI.options!(argv, @schema, "tartarus.node")
     neighbours = parse_neighbours(opts[:neighbours])
     name = opts[:name]
+    tls_check!(opts, argv, :init.get_argument(:proto_dist))
     _ = System.cmd("epmd", ["-daemon"])
 
     case Node.start(String.to_atom(name), :shortnames) do
@@ -103,6 +133,7 @@ defmodule Mix.Tasks.Tartarus.Node do
 
     host_name = String.to_atom(opts[:host])
     plugins = plugins!(opts)
+    Enum.each(device_warnings(opts), &Mix.shell().info/1)
 
     case Tartarus.start_host(host_name, neighbours: neighbours, plugins: plugins) do
       {:ok, host} ->
@@ -110,8 +141,11 @@ defmodule Mix.Tasks.Tartarus.Node do
           "host #{inspect(host)} running; neighbours: #{inspect(Tartarus.neighbours(host))}"
         )
 
-        Mix.shell().info(
-          "attach with: iex --sname me --cookie #{Node.get_cookie()} --remsh #{node()}"
+        Mix.shell().info(plugins_line(plugins))
+
+        Enum.each(
+          attach_hint(Node.get_cookie(), node(), opts[:tls_certs]),
+          &Mix.shell().info/1
         )
 
         if opts[:dashboard], do: start_dashboard(opts)
@@ -142,6 +176,86 @@ defmodule Mix.Tasks.Tartarus.Node do
     sensor ++ serial ++ ble
   end
 
+  @doc false
+  # One line naming the plugins the host was started with.
+  @spec plugins_line([{atom(), {module(), keyword()}}]) :: String.t()
+  def plugins_line([]), do: "plugins: none"
+
+  def plugins_line(plugins) do
+    "plugins: " <>
+      Enum.map_join(plugins, ", ", fn {name, {module, _}} -> "#{name} (#{inspect(module)})" end)
+  end
+
+  @doc false
+  # A warning per device flag whose path does not exist (the plugin retries until it appears).
+  @spec device_warnings(keyword()) :: [String.t()]
+  def device_warnings(opts) do
+    for flag <- [:ble, :serial], path <- List.wrap(opts[flag]), not File.exists?(path) do
+      "warning: --#{flag} #{path}: no such file; the plugin is attached and opens the device when it appears"
+    end
+  end
+
+  @doc false
+  # The lines that tell how to attach a remote shell: with TLS flags when the node runs over
+  # TLS distribution (`certs_dir` given), from the shell's own certificate `me`.
+  @spec attach_hint(atom(), node(), Path.t() | nil) :: [String.t()]
+  def attach_hint(cookie, node, nil),
+    do: ["attach with: iex --sname me --cookie #{cookie} --remsh #{node}"]
+
+  def attach_hint(cookie, node, certs_dir) do
+    flags = Enum.join(Tartarus.Security.TLSDist.erl_flags("me", certs_dir), " ")
+    optfile = Tartarus.Security.TLSDist.optfile_path("me", certs_dir)
+
+    missing =
+      if File.exists?(optfile),
+        do: [],
+        else: [
+          "note: #{optfile} is missing: the shell needs a certificate of its own (mix tartarus.gen.certs --nodes #{short(node)},me --out #{certs_dir})"
+        ]
+
+    missing ++
+      [~s(attach with: iex --sname me --cookie #{cookie} --erl "#{flags}" --remsh #{node})]
+  end
+
+  defp short(node), do: node |> Atom.to_string() |> String.split("@") |> hd()
+
+  @doc false
+  # With `--tls-certs DIR`: raises (printing the exact command to run) unless the option file
+  # of the node exists and the VM was started with `-proto_dist tartarus_tls`.
+  @spec tls_check!(keyword(), [String.t()], {:ok, [[charlist()]]} | :error) :: :ok
+  def tls_check!(opts, argv, proto_dist) do
+    case opts[:tls_certs] do
+      nil ->
+        :ok
+
+      dir ->
+        name = opts[:name]
+        optfile = Tartarus.Security.TLSDist.optfile_path(name, dir)
+
+        cond do
+          not File.exists?(optfile) ->
+            Mix.raise(
+              "mix tartarus.node: --tls-certs #{dir}: #{optfile} not found; make it with: mix tartarus.gen.certs --nodes #{name},me --out #{dir}"
+            )
+
+          proto_dist == {:ok, [[~c"tartarus_tls"]]} ->
+            :ok
+
+          true ->
+            flags =
+              Enum.join(
+                ["-connect_all false" | Tartarus.Security.TLSDist.erl_flags(name, dir)],
+                " "
+              )
+
+            Mix.raise(
+              "mix tartarus.node: --tls-certs needs the VM started over TLS distribution, which a task cannot switch on; run:\n" <>
+                ~s(ELIXIR_ERL_OPTIONS="#{flags}" mix tartarus.node #{Enum.join(argv, " ")})
+            )
+        end
+    end
+  end
+
   defp ble_plugin!(path, speed) do
     with {m, f} when is_atom(m) and is_atom(f) <-
            Application.get_env(:tartarus_tools, :ble_plugin),
@@ -160,8 +274,13 @@ defmodule Mix.Tasks.Tartarus.Node do
   defp start_dashboard(opts) do
     bind =
       case :inet.parse_address(String.to_charlist(opts[:dashboard_bind])) do
-        {:ok, ip} -> ip
-        _ -> Mix.raise("mix tartarus.node: --dashboard-bind expects an IP address, got: #{opts[:dashboard_bind]}")
+        {:ok, ip} ->
+          ip
+
+        _ ->
+          Mix.raise(
+            "mix tartarus.node: --dashboard-bind expects an IP address, got: #{opts[:dashboard_bind]}"
+          )
       end
 
     hosts =
@@ -172,8 +291,11 @@ defmodule Mix.Tasks.Tartarus.Node do
         if(opts[:dashboard_token_file], do: [token_file: opts[:dashboard_token_file]], else: [])
 
     case TartarusTools.Dashboard.start(dash_opts) do
-      {:ok, dash} -> Mix.shell().info(TartarusTools.Dashboard.banner(dash))
-      {:error, reason} -> Mix.raise("mix tartarus.node: cannot start the dashboard: #{inspect(reason)}")
+      {:ok, dash} ->
+        Mix.shell().info(TartarusTools.Dashboard.banner(dash))
+
+      {:error, reason} ->
+        Mix.raise("mix tartarus.node: cannot start the dashboard: #{inspect(reason)}")
     end
   end
 
