@@ -173,7 +173,7 @@ defmodule TartarusImmune.PathFollowingTest do
                         1.0e-3
       end
 
-      assert svg =~ "points: mean over 2 trials; bars: 95 % confidence interval"
+      assert svg =~ "points: mean over 2 trials; error bars: 95 % confidence interval"
       assert svg =~ "seeds 3-4, 3 laps" and svg =~ "time per lap (s)"
       refute svg =~ ~r/text-anchor="middle">\d+\.5<\/text>/
     end

@@ -160,13 +160,17 @@ defmodule TartarusTools.SVG do
   The footnote of a chart of means: what its error bars are and over how many samples.
 
       iex> TartarusTools.SVG.ci_note([3, 3, 2], "trials")
-      "points: mean over 2-3 trials; bars: 95 % confidence interval of the mean (Student's t)"
+      "points: mean over 2-3 trials; error bars: 95 % confidence interval of the mean (Student's t)"
+      iex> TartarusTools.SVG.ci_note([5], "trials", "bars")
+      "bars: mean over 5 trials; error bars: 95 % confidence interval of the mean (Student's t)"
   """
-  @spec ci_note([non_neg_integer], String.t()) :: String.t()
-  def ci_note(ns, what) do
+  @spec ci_note([non_neg_integer], String.t(), String.t()) :: String.t()
+  def ci_note(ns, what, mark \\ "points") do
     {lo, hi} = Enum.min_max(ns, fn -> {0, 0} end)
     count = if lo == hi, do: "#{lo}", else: "#{lo}-#{hi}"
-    "points: mean over #{count} #{what}; bars: 95 % confidence interval of the mean (Student's t)"
+
+    "#{mark}: mean over #{count} #{what}; " <>
+      "error bars: 95 % confidence interval of the mean (Student's t)"
   end
 
   ## Line chart

@@ -295,7 +295,7 @@ defmodule TartarusEmu.SVGTest do
       end
 
       assert series.points == [{1, 12.0}, {2, 9.5}, {3, 7.0}]
-      assert svg =~ "points: mean over 1-4 trials; bars: 95 % confidence interval"
+      assert svg =~ "points: mean over 1-4 trials; error bars: 95 % confidence interval"
     end
 
     test "reference lines and thesis points are drawn at their values and named in the legend" do
