@@ -61,14 +61,19 @@ defmodule TartarusEmu.Scenario do
 
   @typedoc """
   An extra chart: `file` (without `.svg`), `title`, `series` (names of series to draw
-  together) and optional `x_label`, `y_label`.
+  together) and optional `x_label`, `y_label`, `labels` (legend names of the series, by
+  series name, instead of the raw keys) and the `TartarusTools.SVG.line_chart/2` options
+  `subtitle`, `note`, `x_unit`, `y_unit`, `y_min`, `y_max`, `references` (an ideal line,
+  the thesis's numbers) and `x_integer`.
   """
   @type chart :: %{
           required(:file) => String.t(),
           required(:title) => String.t(),
           required(:series) => [Series.name()],
           optional(:x_label) => String.t(),
-          optional(:y_label) => String.t()
+          optional(:y_label) => String.t(),
+          optional(:labels) => %{Series.name() => String.t()},
+          optional(atom()) => term()
         }
 
   @typedoc "What `run/2` returns."
@@ -254,6 +259,9 @@ defmodule TartarusEmu.Scenario do
     {state, ran}
   end
 
+  # What a `charts/1` entry may pass to `SVG.line_chart/2` besides its title and labels.
+  @chart_options [:subtitle, :note, :x_unit, :y_unit, :y_min, :y_max, :references, :x_integer]
+
   defp write(_module, _state, false, _summary, _series), do: {nil, []}
 
   defp write(module, state, out, summary, series) do
@@ -267,13 +275,21 @@ defmodule TartarusEmu.Scenario do
         all = Map.new(Series.to_chart(series), &{&1.name, &1})
 
         Enum.map(module.charts(state), fn c ->
-          lines = for name <- c.series, line = all[to_string(name)], do: line
+          labels = Map.get(c, :labels, %{})
+
+          lines =
+            for name <- c.series,
+                line = all[to_string(name)],
+                do: %{line | name: Map.get(labels, name, line.name)}
 
           svg =
-            SVG.line_chart(lines,
-              title: c.title,
-              x_label: Map.get(c, :x_label, "step"),
-              y_label: Map.get(c, :y_label, "")
+            SVG.line_chart(
+              lines,
+              [
+                title: c.title,
+                x_label: Map.get(c, :x_label, "step"),
+                y_label: Map.get(c, :y_label, "")
+              ] ++ Keyword.new(Map.take(c, @chart_options))
             )
 
           SVG.write!(Path.join(dir, "#{c.file}.svg"), svg)
@@ -318,7 +334,8 @@ defmodule TartarusEmu.Scenario do
           SVG.line_chart([chart],
             title: "#{name}: #{chart.name}",
             x_label: "step",
-            y_label: chart.name
+            y_label: chart.name,
+            y_min: if(Enum.all?(chart.points, fn {_, y} -> y >= 0 end), do: 0)
           )
 
         SVG.write!(Path.join(dir, "#{chart.name}.svg"), svg)

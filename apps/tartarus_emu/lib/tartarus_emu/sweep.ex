@@ -378,6 +378,7 @@ defmodule TartarusEmu.Sweep do
             SVG.box_plot(
               Enum.map(groups, fn {arm, rs} -> {arm, Enum.reject(values(rs, f), &is_nil/1)} end),
               title: Map.get(spec.titles, m, "#{spec.name}: #{m} per run"),
+              subtitle: seeds_note(result.runs),
               y_label: to_string(m)
             )
 
@@ -398,5 +399,22 @@ defmodule TartarusEmu.Sweep do
       )
 
     [csv | boxes] ++ extra ++ summaries
+  end
+
+  # "seeds 1-10" (or the list when not a range): what the box plots were drawn from.
+  defp seeds_note(runs) do
+    seeds = runs |> Enum.map(& &1.seed) |> Enum.uniq() |> Enum.sort()
+
+    cond do
+      seeds == [] ->
+        "no runs"
+
+      is_integer(hd(seeds)) and seeds == Enum.to_list(hd(seeds)..List.last(seeds)) and
+          length(seeds) > 1 ->
+        "seeds #{hd(seeds)}-#{List.last(seeds)}"
+
+      true ->
+        "seeds " <> Enum.map_join(seeds, ", ", &to_string/1)
+    end
   end
 end

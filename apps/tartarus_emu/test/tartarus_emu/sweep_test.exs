@@ -92,7 +92,23 @@ defmodule TartarusEmu.SweepTest do
     assert json["sweep"]["aggregates"]["one"]["steps"]["median"] ==
              r.aggregates["one"].steps.median
 
-    assert File.read!(Path.join(dir, "steps.svg")) =~ "<svg"
+    # steps.svg: a box per arm, its median line at the arm's median (Stats', nearest rank),
+    # every run's steps as a dot, the seeds in the subtitle.
+    svg = File.read!(Path.join(dir, "steps.svg"))
+
+    medians =
+      Regex.scan(~r/<g class="median" data-value="([^"]+)">/, svg, capture: :all_but_first)
+
+    assert medians ==
+             for(arm <- ["many", "one"], do: [to_string(r.aggregates[arm].steps.median)])
+
+    dots =
+      Regex.scan(~r/<circle class="sample"[^>]*data-value="(\d+)"/, svg, capture: :all_but_first)
+
+    assert Enum.map(dots, fn [v] -> String.to_integer(v) end) ==
+             Enum.sort(steps.("many")) ++ Enum.sort(steps.("one"))
+
+    assert svg =~ ~r/seeds \d+-\d+/
   end
 
   test "a line per finished run; the experiment's own summary, rows and files" do

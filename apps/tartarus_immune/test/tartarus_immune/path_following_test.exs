@@ -142,6 +142,43 @@ defmodule TartarusImmune.PathFollowingTest do
     @roam [explore: :untried_first, sharing: true]
 
     @tag :tmp_dir
+    test "lap_times_mean.svg: the mean of each lap over the trials with its 95 % interval, on whole laps",
+         %{tmp_dir: dir} do
+      {:ok, %{summary: s}} =
+        Experiment.run([out: dir, trials: 2, laps: 3] ++ Keyword.drop(@small, [:trials, :laps]))
+
+      svg = File.read!(Path.join(dir, "lap_times_mean.svg"))
+      per_trial = s.lap_times["per_trial"]["path1"]
+
+      drawn =
+        Regex.scan(
+          ~r/<g class="interval" data-x="(\d+)" data-lo="([^"]+)" data-hi="([^"]+)"><title>Path-1:/,
+          svg,
+          capture: :all_but_first
+        )
+
+      assert length(drawn) == 3
+
+      for [lap, lo, hi] <- drawn do
+        ci =
+          TartarusTools.Stats.mean_ci(
+            Enum.map(per_trial, &Enum.at(&1, String.to_integer(lap) - 1))
+          )
+
+        assert_in_delta elem(Float.parse(lo), 0), ci.lo, 1.0e-3
+        assert_in_delta elem(Float.parse(hi), 0), ci.hi, 1.0e-3
+
+        assert_in_delta ci.mean,
+                        Enum.at(s.lap_times["mean"]["path1"], String.to_integer(lap) - 1),
+                        1.0e-3
+      end
+
+      assert svg =~ "points: mean over 2 trials; error bars: 95 % confidence interval"
+      assert svg =~ "seeds 3-4, 3 laps" and svg =~ "time per lap (s)"
+      refute svg =~ ~r/text-anchor="middle">\d+\.5<\/text>/
+    end
+
+    @tag :tmp_dir
     test "on a small case (every new PFA tried at once, every iPkt roaming) the network's " <>
            "choice per sub-path type beats the exhaustive best where the laps measured it better, and the same seed gives the same numbers",
          %{tmp_dir: dir} do

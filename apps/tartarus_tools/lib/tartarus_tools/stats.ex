@@ -108,6 +108,58 @@ defmodule TartarusTools.Stats do
   end
 
   @doc """
+  The mean with its two-sided 95 % confidence interval (Student's t with `n - 1` degrees
+  of freedom: `mean ± t * sd / sqrt(n)`), what a chart of means over trials draws as error
+  bars. `nil` for an empty list; a single sample has no interval (`lo` and `hi` are `nil`).
+  Degrees of freedom above 30 use the tabulated value of the next lower entry (30, 40, 60,
+  120), so the interval is never narrower than the exact one.
+
+      iex> ci = TartarusTools.Stats.mean_ci([10, 12, 14])
+      iex> {ci.n, ci.mean, ci.sd, Float.round(ci.lo, 3), Float.round(ci.hi, 3)}
+      {3, 12.0, 2.0, 7.031, 16.969}
+      iex> TartarusTools.Stats.mean_ci([5]).hi
+      nil
+      iex> TartarusTools.Stats.mean_ci([])
+      nil
+  """
+  @spec mean_ci([number]) ::
+          %{
+            n: pos_integer,
+            mean: float,
+            sd: float | nil,
+            half_width: float | nil,
+            lo: float | nil,
+            hi: float | nil
+          }
+          | nil
+  def mean_ci([]), do: nil
+
+  def mean_ci(xs) when is_list(xs) do
+    n = length(xs)
+    m = mean(xs)
+
+    case sd(xs) do
+      nil ->
+        %{n: n, mean: m, sd: nil, half_width: nil, lo: nil, hi: nil}
+
+      s ->
+        h = Float.round(t975(n - 1) * s / :math.sqrt(n), 6)
+        %{n: n, mean: m, sd: s, half_width: h, lo: m - h, hi: m + h}
+    end
+  end
+
+  @t975 {12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
+         2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
+         2.060, 2.056, 2.052, 2.048, 2.045, 2.042}
+
+  # The 0.975 quantile of Student's t with `df` degrees of freedom (two-sided 95 %).
+  defp t975(df) when df <= 30, do: elem(@t975, df - 1)
+  defp t975(df) when df < 40, do: 2.042
+  defp t975(df) when df < 60, do: 2.021
+  defp t975(df) when df < 120, do: 2.000
+  defp t975(_df), do: 1.980
+
+  @doc """
   The value at quantile `q` (0..1), by nearest rank: the `ceil(q * n)`-th smallest sample
   (at least the first), an actual sample; `nil` for an empty list. `xs` need not be sorted.
 

@@ -17,7 +17,11 @@ defmodule TartarusTools.SVG do
   ## Common options
 
     * `:title` - chart title, shown on top and as the document `<title>` (default `"chart"`);
+    * `:subtitle` - a smaller line under the title: the parameters and seed of the run;
+    * `:note` - a footnote at the bottom left (what the error bars or boxes mean);
     * `:x_label`, `:y_label` - axis labels; `:x_unit`, `:y_unit` - appended as `"label (unit)"`;
+    * `:x_integer`, `:y_integer` - integer ticks only (`true`), never (`false`) or when every
+      value on that axis is an integer (`:auto`, the default): no "robot 1.5" or "lap 2.5";
     * `:width`, `:height` - pixels (defaults 720 x 420; a Gantt chart grows with its rows).
 
   Axes get "nice" ticks (1, 2 or 5 times a power of ten, see `nice_ticks/3`). Charts never
@@ -31,11 +35,33 @@ defmodule TartarusTools.SVG do
 
   @palette ~w(#4e79a7 #f28e2b #e15759 #76b7b2 #59a14f #edc948 #b07aa1 #ff9da7 #9c755f #bab0ac)
 
-  @typedoc "One line of a line chart."
-  @type series :: %{name: term, points: [{number, number}]}
+  @typedoc """
+  One line of a line chart; `:intervals` (optional) are error bars `{x, lo, hi}`, as
+  `mean_series/2` builds them.
+  """
+  @type series :: %{
+          required(:name) => term,
+          required(:points) => [{number, number}],
+          optional(:intervals) => [{number, number, number}]
+        }
+
+  @typedoc "A reference drawn over a line chart: a dashed line or points (`style: :points`)."
+  @type ref_series :: %{
+          required(:name) => term,
+          required(:points) => [{number, number}],
+          optional(:style) => :line | :points
+        }
 
   @typedoc "One bar: a map with `:label` and `:value` (and optional `:color`), or `{label, value}`."
   @type bar :: %{label: term, value: number} | {term, number}
+
+  @typedoc "What `mean_series/2` returns: a series with error bars and its sample counts."
+  @type mean_series :: %{
+          name: term,
+          points: [{number, float}],
+          intervals: [{number, float, float}],
+          n: [{number, non_neg_integer}]
+        }
 
   @typedoc "One box of a box plot: `%{name: term, samples: [number]}` or `{name, samples}`."
   @type group :: %{name: term, samples: [number]} | {term, [number]}
@@ -107,13 +133,56 @@ defmodule TartarusTools.SVG do
     path
   end
 
+  @doc """
+  A line-chart series of means over trials with their 95 % confidence intervals, from
+  `[{x, samples}]`: the mean and interval of each `x` are `TartarusTools.Stats.mean_ci/1`'s
+  (Student's t). An `x` with no samples is left out; one with a single sample gets a point
+  and no error bar. Pass the result to `line_chart/2` with a `:note` saying what the bars
+  are (`ci_note/1` writes one).
+
+      iex> s = TartarusTools.SVG.mean_series("path 1", [{1, [10, 12, 14]}, {2, [9]}, {3, []}])
+      iex> {s.points, s.n, length(s.intervals)}
+      {[{1, 12.0}, {2, 9.0}], [{1, 3}, {2, 1}], 1}
+  """
+  @spec mean_series(term, [{number, [number]}]) :: mean_series
+  def mean_series(name, samples_by_x) when is_list(samples_by_x) do
+    cis = for {x, xs} <- samples_by_x, ci = TartarusTools.Stats.mean_ci(xs), do: {x, ci}
+
+    %{
+      name: name,
+      points: Enum.map(cis, fn {x, ci} -> {x, ci.mean * 1.0} end),
+      intervals: for({x, %{lo: lo, hi: hi}} <- cis, lo != nil, do: {x, lo, hi}),
+      n: Enum.map(cis, fn {x, ci} -> {x, ci.n} end)
+    }
+  end
+
+  @doc """
+  The footnote of a chart of means: what its error bars are and over how many samples.
+
+      iex> TartarusTools.SVG.ci_note([3, 3, 2], "trials")
+      "points: mean over 2-3 trials; error bars: 95 % confidence interval of the mean (Student's t)"
+      iex> TartarusTools.SVG.ci_note([5], "trials", "bars")
+      "bars: mean over 5 trials; error bars: 95 % confidence interval of the mean (Student's t)"
+  """
+  @spec ci_note([non_neg_integer], String.t(), String.t()) :: String.t()
+  def ci_note(ns, what, mark \\ "points") do
+    {lo, hi} = Enum.min_max(ns, fn -> {0, 0} end)
+    count = if lo == hi, do: "#{lo}", else: "#{lo}-#{hi}"
+
+    "#{mark}: mean over #{count} #{what}; " <>
+      "error bars: 95 % confidence interval of the mean (Student's t)"
+  end
+
   ## Line chart
 
   @doc """
   A line chart of one or more series `%{name: term, points: [{x, y}]}`, drawn in the given
   order with a legend. Extra options: `:x_min`, `:x_max`, `:y_min`, `:y_max` (force the
   range to include these), `:markers` (draw points; default when a series has at most 60),
-  `:lines` (default true; `false` draws points only: a scatter plot, one colour per series).
+  `:lines` (default true; `false` draws points only: a scatter plot, one colour per series),
+  `:references` (`t:ref_series/0`s drawn in black over the data, dashed or as crosses, with
+  their names in the legend: an ideal line, the thesis's numbers labelled "thesis").
+  A series with `:intervals` gets error bars (see `mean_series/2`).
 
   ## Examples
 
@@ -124,20 +193,22 @@ defmodule TartarusTools.SVG do
   @spec line_chart([series], keyword) :: binary
   def line_chart(series, opts \\ []) when is_list(series) do
     series = Enum.map(series, &check_series!/1)
+    refs = opts |> Keyword.get(:references, []) |> Enum.map(&check_series!/1)
     points = Enum.flat_map(series, & &1.points)
     names = Enum.map(series, & &1.name)
-    layout = layout(opts, legend: names)
+    layout = layout(opts, legend: names ++ Enum.map(refs, & &1.name))
 
-    {xs, ys} = Enum.unzip(points)
-    x_ticks = ticks(xs ++ bounds(opts, :x_min, :x_max))
-    y_ticks = ticks(ys ++ bounds(opts, :y_min, :y_max))
+    {xs, ys} = Enum.unzip(points ++ Enum.flat_map(refs, & &1.points))
+    bars = for s <- series, {_, lo, hi} <- s.intervals, v <- [lo, hi], do: v
+    x_ticks = ticks(xs ++ bounds(opts, :x_min, :x_max), opts, :x_integer)
+    y_ticks = ticks(ys ++ bars ++ bounds(opts, :y_min, :y_max), opts, :y_integer)
     sx = scale(x_ticks, layout.left, layout.left + layout.plot_w)
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
 
     lines =
       series
       |> Enum.with_index()
-      |> Enum.map(fn {%{name: name, points: pts}, i} ->
+      |> Enum.map(fn {%{name: name, points: pts} = s, i} ->
         color = color(i)
         coords = Enum.map(pts, fn {x, y} -> [num(sx.(x)), ",", num(sy.(y)), " "] end)
         lines? = Keyword.get(opts, :lines, true)
@@ -173,20 +244,81 @@ defmodule TartarusTools.SVG do
             ],
             else: []
 
-        [~s(<g class="series">\n), polyline, circles, "</g>\n"]
+        errors =
+          Enum.map(s.intervals, fn {x, lo, hi} ->
+            [cx, ylo, yhi] = [sx.(x), sy.(lo), sy.(hi)]
+
+            [
+              ~s(<g class="interval" data-x="#{fmt(x)}" data-lo="#{fmt(lo)}" data-hi="#{fmt(hi)}">),
+              "<title>",
+              esc(name),
+              ": ",
+              fmt(x),
+              " → ",
+              fmt(lo),
+              "–",
+              fmt(hi),
+              "</title>\n",
+              line(cx, ylo, cx, yhi, color, 1.5),
+              line(cx - 4, ylo, cx + 4, ylo, color, 1.5),
+              line(cx - 4, yhi, cx + 4, yhi, color, 1.5),
+              "</g>\n"
+            ]
+          end)
+
+        [~s(<g class="series">\n), polyline, errors, circles, "</g>\n"]
+      end)
+
+    references =
+      Enum.map(refs, fn %{name: name, points: pts} = r ->
+        if Map.get(r, :style, :line) == :points do
+          Enum.map(pts, fn {x, y} ->
+            [cx, cy] = [sx.(x), sy.(y)]
+
+            [
+              ~s(<g class="reference" data-x="#{fmt(x)}" data-y="#{fmt(y)}"><title>),
+              esc(name),
+              ": (",
+              fmt(x),
+              ", ",
+              fmt(y),
+              ")</title>\n",
+              line(cx - 5, cy - 5, cx + 5, cy + 5, "#000", 2),
+              line(cx - 5, cy + 5, cx + 5, cy - 5, "#000", 2),
+              "</g>\n"
+            ]
+          end)
+        else
+          coords = Enum.map(pts, fn {x, y} -> [num(sx.(x)), ",", num(sy.(y)), " "] end)
+
+          [
+            ~s(<polyline class="reference" fill="none" stroke="#000" stroke-width="1.5" ),
+            ~s(stroke-dasharray="6 4" points="),
+            coords,
+            ~s("><title>),
+            esc(name),
+            "</title></polyline>\n"
+          ]
+        end
+      end)
+
+    ref_legend =
+      Enum.map(refs, fn r ->
+        {r.name, "#000", if(Map.get(r, :style, :line) == :points, do: :cross, else: :dash)}
       end)
 
     body = [
       axes(layout, x_ticks, y_ticks, sx, sy, opts),
       lines,
+      references,
       if(points == [], do: no_data(layout), else: []),
-      legend(layout, Enum.with_index(names, fn name, i -> {name, color(i), :line} end))
+      legend(layout, Enum.with_index(names, fn name, i -> {name, color(i), :line} end) ++ ref_legend)
     ]
 
     document(layout, opts, body)
   end
 
-  defp check_series!(%{name: name, points: points}) when is_list(points) do
+  defp check_series!(%{name: name, points: points} = s) when is_list(points) do
     Enum.each(points, fn
       {x, y} when is_number(x) and is_number(y) ->
         :ok
@@ -197,7 +329,19 @@ defmodule TartarusTools.SVG do
                 "got: #{inspect(other)}"
     end)
 
-    %{name: name, points: points}
+    intervals = Map.get(s, :intervals, [])
+
+    Enum.each(intervals, fn
+      {x, lo, hi} when is_number(x) and is_number(lo) and is_number(hi) and lo <= hi ->
+        :ok
+
+      other ->
+        raise ArgumentError,
+              "SVG.line_chart/2: expected intervals {x, lo, hi} with lo <= hi in series " <>
+                "#{inspect(name)}, got: #{inspect(other)}"
+    end)
+
+    s |> Map.take([:style]) |> Map.merge(%{name: name, points: points, intervals: intervals})
   end
 
   defp check_series!(other) do
@@ -209,7 +353,9 @@ defmodule TartarusTools.SVG do
 
   @doc """
   A bar chart, one bar per entry, in the given order. Bars may carry their own `:color`;
-  values are printed above the bars. Negative values hang below the zero line.
+  values are printed above the bars. Negative values hang below the zero line. A bar with
+  `:lo` and `:hi` gets an error bar (say what it is in `:note`; `TartarusTools.Stats.mean_ci/1`
+  gives a 95 % interval of a mean).
 
   ## Examples
 
@@ -221,8 +367,8 @@ defmodule TartarusTools.SVG do
   def bar_chart(bars, opts \\ []) when is_list(bars) do
     bars = Enum.map(bars, &check_bar!/1)
     layout = layout(opts, [])
-    values = Enum.map(bars, & &1.value)
-    y_ticks = ticks([0 | values] ++ bounds(opts, :y_min, :y_max))
+    values = Enum.flat_map(bars, &[&1.value | for(k <- [:lo, :hi], v = &1[k], do: v)])
+    y_ticks = ticks([0 | values] ++ bounds(opts, :y_min, :y_max), opts, :y_integer)
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
     n = length(bars)
     band = if n > 0, do: layout.plot_w / n, else: layout.plot_w
@@ -238,6 +384,27 @@ defmodule TartarusTools.SVG do
         cx = x + w / 2
         label_y = layout.top + layout.plot_h + 16
 
+        {error, top} =
+          case bar do
+            %{lo: lo, hi: hi} when is_number(lo) and is_number(hi) ->
+              {[
+                 ~s(<g class="interval" data-lo="#{fmt(lo)}" data-hi="#{fmt(hi)}"><title>),
+                 esc(label),
+                 ": ",
+                 fmt(lo),
+                 "–",
+                 fmt(hi),
+                 "</title>\n",
+                 line(cx, sy.(lo), cx, sy.(hi), "#222", 1.5),
+                 line(cx - 5, sy.(lo), cx + 5, sy.(lo), "#222", 1.5),
+                 line(cx - 5, sy.(hi), cx + 5, sy.(hi), "#222", 1.5),
+                 "</g>\n"
+               ], min(y0, sy.(hi))}
+
+            _ ->
+              {[], y0}
+          end
+
         [
           ~s(<rect x="#{num(x)}" y="#{num(y0)}" width="#{num(w)}" height="#{num(max(y1 - y0, 0.5))}" ),
           ~s(fill="#{Map.get(bar, :color) || color(0)}"><title>),
@@ -245,8 +412,10 @@ defmodule TartarusTools.SVG do
           ": ",
           fmt(value),
           "</title></rect>\n",
-          ~s(<text x="#{num(cx)}" y="#{num(if value < 0, do: y1 + 13, else: y0 - 4)}" ),
-          ~s(text-anchor="middle" font-size="11">),
+          error,
+          ~s(<text x="#{num(if error == [], do: cx, else: cx + 8)}" ),
+          ~s(y="#{num(if value < 0, do: y1 + 13, else: top - 4)}" ),
+          ~s(text-anchor="#{if error == [], do: "middle", else: "start"}" font-size="11">),
           fmt(value),
           "</text>\n",
           if rotate? do
@@ -272,7 +441,16 @@ defmodule TartarusTools.SVG do
   end
 
   defp check_bar!({label, value}), do: check_bar!(%{label: label, value: value})
-  defp check_bar!(%{label: _, value: v} = bar) when is_number(v), do: bar
+  defp check_bar!(%{label: _, value: v} = bar) when is_number(v) do
+    case bar do
+      %{lo: lo, hi: hi} when is_number(lo) and is_number(hi) and lo > hi ->
+        raise ArgumentError,
+              "SVG.bar_chart/2: expected lo <= hi in bar #{inspect(bar.label)}, got: #{inspect(bar)}"
+
+      _ ->
+        bar
+    end
+  end
 
   defp check_bar!(other) do
     raise ArgumentError,
@@ -286,6 +464,12 @@ defmodule TartarusTools.SVG do
   A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
   as circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and sample count.
 
+  The median and quartiles are `TartarusTools.Stats`'s, nearest rank: actual samples, the
+  median of an even count being the lower middle one (the median of [11, 13] is 11). A
+  footnote says so (`:note` replaces it), and a group of at most `:points_max` samples
+  (default 20) also shows every sample as a dot beside its box, so a reader sees the data
+  the box summarises.
+
   ## Examples
 
       iex> svg = TartarusTools.SVG.box_plot([{"ring", [1, 2, 3, 10]}, %{name: "grid", samples: []}])
@@ -297,10 +481,10 @@ defmodule TartarusTools.SVG do
     groups =
       Enum.map(groups, fn
         {name, samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples)}
+          {name, TartarusTools.Stats.box(samples), samples}
 
         %{name: name, samples: samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples)}
+          {name, TartarusTools.Stats.box(samples), samples}
 
         other ->
           raise ArgumentError,
@@ -308,8 +492,17 @@ defmodule TartarusTools.SVG do
       end)
 
     layout = layout(opts, [])
-    all = for {_, %{} = s} <- groups, v <- [s.whisker_low, s.whisker_high | s.outliers], do: v
-    y_ticks = ticks(all ++ bounds(opts, :y_min, :y_max))
+    all = for {_, %{} = s, _} <- groups, v <- [s.whisker_low, s.whisker_high | s.outliers], do: v
+    y_ticks = ticks(all ++ bounds(opts, :y_min, :y_max), opts, :y_integer)
+    points_max = Keyword.get(opts, :points_max, 20)
+
+    opts =
+      Keyword.put_new(
+        opts,
+        :note,
+        "box: nearest-rank quartiles and median (of an even n, the lower middle sample); " <>
+          "whiskers 1.5 IQR; circles outliers"
+      )
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
     n = length(groups)
     band = if n > 0, do: layout.plot_w / n, else: layout.plot_w
@@ -317,7 +510,7 @@ defmodule TartarusTools.SVG do
     boxes =
       groups
       |> Enum.with_index()
-      |> Enum.map(fn {{name, stats}, i} ->
+      |> Enum.map(fn {{name, stats, samples}, i} ->
         x = layout.left + i * band + band * 0.2
         w = band * 0.6
         cx = x + w / 2
@@ -332,7 +525,26 @@ defmodule TartarusTools.SVG do
           "</text>\n"
         ]
 
-        [label, if(stats, do: box(stats, name, x, w, cx, sy, color(i)), else: [])]
+        dots =
+          if stats != nil and stats.n <= points_max do
+            samples
+            |> Enum.sort()
+            |> Enum.with_index()
+            |> Enum.map(fn {v, k} ->
+              dx = x + w + 6 + rem(k, 3) * 4
+
+              [
+                ~s(<circle class="sample" cx="#{num(dx)}" cy="#{num(sy.(v))}" r="2" ),
+                ~s(fill="#{color(i)}" data-value="#{fmt(v)}"><title>),
+                fmt(v),
+                "</title></circle>\n"
+              ]
+            end)
+          else
+            []
+          end
+
+        [label, if(stats, do: box(stats, name, x, w, cx, sy, color(i)), else: []), dots]
       end)
 
     body = [
@@ -370,7 +582,9 @@ defmodule TartarusTools.SVG do
       ~s(fill="#{color}" fill-opacity="0.6" stroke="#333"><title>),
       tip,
       "</title></rect>\n",
+      ~s(<g class="median" data-value="#{fmt(s.median)}">),
       line(x, sy.(s.median), x + w, sy.(s.median), "#000", 2),
+      "</g>\n",
       Enum.map(s.outliers, fn o ->
         [
           ~s(<circle cx="#{num(cx)}" cy="#{num(sy.(o))}" r="3" fill="none" stroke="#{color}">),
@@ -415,7 +629,8 @@ defmodule TartarusTools.SVG do
       )
 
     lane_h = layout.plot_h / max(length(rows), 1)
-    x_ticks = ticks(Enum.flat_map(spans, &[&1.start, &1.stop]) ++ bounds(opts, :x_min, :x_max))
+    x_ticks =
+      ticks(Enum.flat_map(spans, &[&1.start, &1.stop]) ++ bounds(opts, :x_min, :x_max), opts, :x_integer)
     sx = scale(x_ticks, layout.left, layout.left + layout.plot_w)
 
     lanes =
@@ -537,7 +752,30 @@ defmodule TartarusTools.SVG do
       ~s(<text x="#{num(w / 2)}" y="26" text-anchor="middle" font-size="16" font-weight="bold">),
       esc(title),
       "</text>\n",
+      case Keyword.get(opts, :subtitle) do
+        nil ->
+          []
+
+        sub ->
+          [
+            ~s(<text class="subtitle" x="#{num(w / 2)}" y="40" text-anchor="middle" ),
+            ~s(font-size="11" fill="#444">),
+            esc(sub),
+            "</text>\n"
+          ]
+      end,
       body,
+      case Keyword.get(opts, :note) do
+        nil ->
+          []
+
+        note ->
+          [
+            ~s(<text class="note" x="8" y="#{num(h - 6)}" font-size="10" fill="#555">),
+            esc(note),
+            "</text>\n"
+          ]
+      end,
       "</svg>\n"
     ])
   end
@@ -634,6 +872,13 @@ defmodule TartarusTools.SVG do
 
           :box ->
             ~s(<rect x="#{num(x)}" y="#{num(y - 6)}" width="18" height="12" fill="#{color}"/>\n)
+
+          :dash ->
+            ~s(<line x1="#{num(x)}" y1="#{num(y)}" x2="#{num(x + 18)}" y2="#{num(y)}" ) <>
+              ~s(stroke="#{color}" stroke-width="1.5" stroke-dasharray="6 4"/>\n)
+
+          :cross ->
+            [line(x + 4, y - 5, x + 14, y + 5, color, 2), line(x + 4, y + 5, x + 14, y - 5, color, 2)]
         end
 
       [swatch, ~s(<text x="#{num(x + 24)}" y="#{num(y + 4)}">), esc(name), "</text>\n"]
@@ -653,6 +898,22 @@ defmodule TartarusTools.SVG do
 
   defp ticks([]), do: nice_ticks(0, 1)
   defp ticks(values), do: nice_ticks(Enum.min(values), Enum.max(values))
+
+  # Ticks of one axis; whole numbers only when the axis is integer (`opts[key]`, or `:auto`:
+  # every value is an integer), widening a fractional step to 1.
+  defp ticks(values, opts, key) do
+    base = ticks(values)
+
+    integer? =
+      case Keyword.get(opts, key, :auto) do
+        :auto -> values != [] and Enum.all?(values, &is_integer/1)
+        flag -> flag == true
+      end
+
+    if integer? and not Enum.all?(base, &is_integer/1),
+      do: Enum.to_list(floor(hd(base))..ceil(List.last(base))),
+      else: base
+  end
 
   defp bounds(opts, min_key, max_key) do
     for key <- [min_key, max_key], v = Keyword.get(opts, key), is_number(v), do: v

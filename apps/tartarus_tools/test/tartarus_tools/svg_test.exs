@@ -192,4 +192,161 @@ defmodule TartarusEmu.SVGTest do
       File.rm_rf!(dir)
     end
   end
+
+  # Reading numbers back from a chart: the y-axis tick labels (text-anchor "end" at the
+  # left margin) give the linear map from data to pixels; the x-axis ones (y below the plot)
+  # the x map.
+  defp y_ticks(svg) do
+    for [_, y, v] <- Regex.scan(~r/<text x="64(?:\.00)?" y="([\d.]+)" text-anchor="end">([^<]+)<\/text>/, svg),
+        do: {String.to_float(y) - 4, v}
+  end
+
+  defp x_ticks(svg) do
+    for [_, x, v] <-
+          Regex.scan(~r/<text x="([\d.]+)" y="376(?:\.00)?" text-anchor="middle">([^<]+)<\/text>/, svg),
+        do: {String.to_float(x), v}
+  end
+
+  defp to_number(v) do
+    case Float.parse(v) do
+      {f, ""} -> f
+      _ -> raise "not a number: #{v}"
+    end
+  end
+
+  # Pixel -> data, from two ticks.
+  defp inverse([{p0, v0}, {p1, v1} | _]) do
+    {v0, v1} = {to_number(v0), to_number(v1)}
+    fn p -> v0 + (p - p0) / (p1 - p0) * (v1 - v0) end
+  end
+
+  describe "numbers read back from the drawing" do
+    test "a box plot's median line sits at Stats.median of its samples (nearest rank)" do
+      groups = [{"even", [13, 11]}, {"odd", [1, 2, 3, 4, 50]}, {"many", Enum.to_list(1..30)}]
+      svg = SVG.box_plot(groups, title: "steps", y_label: "steps")
+      to_value = inverse(y_ticks(svg))
+
+      medians =
+        for [_, v, y] <-
+              Regex.scan(~r/<g class="median" data-value="([^"]+)"><line x1="[\d.]+" y1="([\d.]+)"/, svg),
+            do: {to_number(v), to_value.(String.to_float(y))}
+
+      assert length(medians) == 3
+
+      for {{_, samples}, {v, drawn}} <- Enum.zip(groups, medians) do
+        assert v == TartarusTools.Stats.median(samples)
+        assert_in_delta drawn, TartarusTools.Stats.median(samples), 0.05
+      end
+
+      # [11, 13]: the documented nearest-rank median is 11, and the footnote says so.
+      assert elem(hd(medians), 0) == 11
+      assert svg =~ "of an even n, the lower middle sample"
+      # Small groups show their samples, at their values; the group of 30 does not.
+      dots = Regex.scan(~r/<circle class="sample" cx="[\d.]+" cy="([\d.]+)"[^>]*data-value="([^"]+)"/, svg)
+      assert Enum.map(dots, fn [_, _, v] -> to_number(v) end) == [11, 13, 1, 2, 3, 4, 50]
+
+      for [_, cy, v] <- dots,
+          do: assert_in_delta(to_value.(String.to_float(cy)), to_number(v), 0.05)
+    end
+
+    test "integer axes get integer ticks; fractional data keeps fractional ticks" do
+      svg =
+        SVG.line_chart([%{name: "speed-up", points: [{1, 1.0}, {2, 1.8}, {3, 2.4}, {4, 2.9}]}],
+          title: "robots"
+        )
+
+      xs = Enum.map(x_ticks(svg), &elem(&1, 1))
+      assert xs == ["1", "2", "3", "4"]
+      refute "1.5" in xs
+      assert Enum.any?(y_ticks(svg), fn {_, v} -> v =~ "." end)
+
+      laps = SVG.line_chart([%{name: "lap", points: [{1, 3}, {2, 4}, {3, 5}]}])
+      assert Enum.all?(x_ticks(laps) ++ y_ticks(laps), fn {_, v} -> not (v =~ ".") end)
+
+      forced = SVG.line_chart([%{name: "a", points: [{0.0, 0.0}, {3.0, 1.0}]}], x_integer: true)
+      assert Enum.map(x_ticks(forced), &elem(&1, 1)) == ["0", "1", "2", "3"]
+
+      boxes = SVG.box_plot([{"a", [1, 2, 3]}])
+      assert Enum.map(y_ticks(boxes), &elem(&1, 1)) == ["1", "2", "3"]
+    end
+
+    test "means over trials carry their 95 % intervals, drawn at their values" do
+      trials = [{1, [10, 12, 14]}, {2, [8, 9, 10, 11]}, {3, [7]}]
+      series = SVG.mean_series("path 1", trials)
+      svg = SVG.line_chart([series], title: "laps", note: SVG.ci_note(Enum.map(trials, &length(elem(&1, 1))), "trials"))
+      to_value = inverse(y_ticks(svg))
+
+      drawn =
+        Regex.scan(
+          ~r/<g class="interval" data-x="([^"]+)" data-lo="([^"]+)" data-hi="([^"]+)">.*?<\/title>\n<line x1="[\d.]+" y1="([\d.]+)" x2="[\d.]+" y2="([\d.]+)"/s,
+          svg
+        )
+
+      # The single-trial lap has a point and no bar.
+      assert length(drawn) == 2
+
+      for [_, x, lo, hi, ylo, yhi] <- drawn do
+        {_, samples} = List.keyfind(trials, String.to_integer(x), 0)
+        ci = TartarusTools.Stats.mean_ci(samples)
+        assert_in_delta to_number(lo), ci.lo, 1.0e-3
+        assert_in_delta to_number(hi), ci.hi, 1.0e-3
+        assert_in_delta to_value.(String.to_float(ylo)), ci.lo, 0.05
+        assert_in_delta to_value.(String.to_float(yhi)), ci.hi, 0.05
+      end
+
+      assert series.points == [{1, 12.0}, {2, 9.5}, {3, 7.0}]
+      assert svg =~ "points: mean over 1-4 trials; error bars: 95 % confidence interval"
+    end
+
+    test "reference lines and thesis points are drawn at their values and named in the legend" do
+      svg =
+        SVG.line_chart([%{name: "ours", points: [{1, 1.0}, {2, 1.7}, {3, 2.0}, {4, 2.3}]}],
+          title: "speed-up",
+          subtitle: "jobs 16, seed 1",
+          references: [
+            %{name: "ideal (k robots: k)", points: [{1, 1}, {4, 4}]},
+            %{name: "thesis (§4.7.4)", points: [{2, 1.75}, {3, 1.84}, {4, 2.21}], style: :points}
+          ]
+        )
+
+      t = texts(svg)
+      assert "ideal (k robots: k)" in t and "thesis (§4.7.4)" in t and "jobs 16, seed 1" in t
+      to_value = inverse(y_ticks(svg))
+      to_x = inverse(x_ticks(svg))
+
+      crosses =
+        Regex.scan(
+          ~r/<g class="reference" data-x="([^"]+)" data-y="([^"]+)">.*?<\/title>\n<line x1="([\d.]+)" y1="([\d.]+)"/s,
+          svg
+        )
+
+      assert Enum.map(crosses, fn [_, x, y | _] -> {to_number(x), to_number(y)} end) ==
+               [{2, 1.75}, {3, 1.84}, {4, 2.21}]
+
+      for [_, x, y, px, py] <- crosses do
+        # The cross is centred 5 px right and below its first stroke's start.
+        assert_in_delta to_x.(String.to_float(px) + 5), to_number(x), 0.01
+        assert_in_delta to_value.(String.to_float(py) + 5), to_number(y), 0.01
+      end
+
+      assert svg =~ ~s(stroke-dasharray="6 4")
+    end
+
+    test "a bar's error bar spans lo..hi" do
+      svg = SVG.bar_chart([%{label: "8: shared", value: 5.0, lo: 4.0, hi: 6.5}], note: "95 % CI")
+      to_value = inverse(y_ticks(svg))
+
+      [[_, lo, hi, y1, y2]] =
+        Regex.scan(
+          ~r/<g class="interval" data-lo="([^"]+)" data-hi="([^"]+)">.*?<\/title>\n<line x1="[\d.]+" y1="([\d.]+)" x2="[\d.]+" y2="([\d.]+)"/s,
+          svg
+        )
+
+      assert {to_number(lo), to_number(hi)} == {4.0, 6.5}
+      assert_in_delta to_value.(String.to_float(y1)), 4.0, 0.02
+      assert_in_delta to_value.(String.to_float(y2)), 6.5, 0.02
+      assert "95 % CI" in texts(svg)
+      assert_raise ArgumentError, fn -> SVG.bar_chart([%{label: "x", value: 1, lo: 2, hi: 1}]) end
+    end
+  end
 end

@@ -96,6 +96,26 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert File.read!(Path.join(dir, "summary.json")) =~ ~s("speedup")
     assert File.read!(Path.join(dir, "executions.csv")) =~ "point,run,robot,job,task"
 
+    # speedup.svg: our points are the summary's, under readable names, beside the ideal
+    # line and the thesis's points (labelled "thesis"); robots on integer ticks.
+    svg = File.read!(Path.join(dir, "speedup.svg"))
+
+    drawn =
+      for [_, k, v] <- Regex.scan(~r/<title>ours, variable durations: \((\d+), ([\d.]+)\)</, svg),
+          do: {k, elem(Float.parse(v), 0)}
+
+    assert drawn == Enum.sort(s.speedup) |> Enum.map(fn {k, v} -> {k, v * 1.0} end)
+    refute svg =~ "speedup_variable"
+    assert svg =~ "ideal (k robots: k)" and svg =~ "thesis (§4.7.4)"
+
+    assert Regex.scan(~r/class="reference" data-x="(\d)" data-y="([\d.]+)"/, svg,
+             capture: :all_but_first
+           ) ==
+             [["2", "1.75"], ["3", "1.84"], ["4", "2.21"]]
+
+    assert svg =~ "seed 1"
+    refute svg =~ ~r/text-anchor="middle">\d+\.5<\/text>/
+
     # The points are a sweep's arms (TartarusEmu.Sweep): a run each, aggregated per arm.
     assert s.sweep.arms == ["1", "2"] and s.sweep.seeds == [1] and s.sweep.runs == 2
     assert s.sweep.aggregates["2"].mutex_violations.max == 0

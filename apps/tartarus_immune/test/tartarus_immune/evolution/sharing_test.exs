@@ -66,6 +66,61 @@ defmodule TartarusImmune.Evolution.SharingTest do
 
       assert File.read!(Path.join(dir, "runs.csv")) |> String.split("\n", trim: true) |> length() ==
                5
+
+      assert File.read!(Path.join(dir, "gamma_avg.svg")) =~ "one trial per bar: no interval"
+    after
+      File.rm_rf!(dir)
+    end
+  end
+
+  test "gamma_avg.svg over several trials: each bar is the mean, its error bar the 95 % interval" do
+    dir = Path.join(System.tmp_dir!(), "evolve-test-#{System.unique_integer([:positive])}")
+
+    try do
+      {:ok, %{summary: s}} =
+        Experiment.run(sizes: [10], trials: 3, out: dir, quiet: true, seed: 2)
+
+      svg = File.read!(Path.join(dir, "gamma_avg.svg"))
+
+      [header | rows] =
+        dir
+        |> Path.join("runs.csv")
+        |> File.read!()
+        |> String.split("\n", trim: true)
+        |> Enum.map(&String.split(&1, ","))
+
+      runs = Enum.map(rows, &Map.new(Enum.zip(header, &1)))
+
+      bars =
+        Regex.scan(~r/<rect [^>]*><title>10: ([^:]+): ([^<]+)<\/title>/, svg,
+          capture: :all_but_first
+        )
+
+      assert Enum.map(bars, &hd/1) == ["none", "b-cast", "iPkt-1", "iPkt-2"]
+
+      for [label, v] <- bars do
+        xs =
+          for r <- runs,
+              r["nodes"] == "10" and r["scheme"] == label,
+              do: elem(Float.parse(r["gamma_avg"]), 0)
+
+        assert length(xs) == 3
+        assert_in_delta elem(Float.parse(v), 0), s.gamma_avg["10"][label], 1.0e-9
+        ci = TartarusTools.Stats.mean_ci(xs)
+
+        assert [[lo, hi]] =
+                 Regex.scan(
+                   ~r/<g class="interval" data-lo="([^"]+)" data-hi="([^"]+)"><title>10: #{Regex.escape(label)}:/,
+                   svg,
+                   capture: :all_but_first
+                 )
+
+        assert_in_delta elem(Float.parse(lo), 0), ci.lo, 1.0e-3
+        assert_in_delta elem(Float.parse(hi), 0), ci.hi, 1.0e-3
+      end
+
+      assert svg =~ "bars: mean over 3 trials; error bars: 95 % confidence interval"
+      assert svg =~ "seeds 2-4"
     after
       File.rm_rf!(dir)
     end

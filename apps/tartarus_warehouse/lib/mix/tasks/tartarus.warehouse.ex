@@ -36,7 +36,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       guided by signal fields; `big_run` in the summary, with its wall time);
     * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
       (`gantt_otfp.svg`, Fig. 4.12), then 16 jobs of 10 soft tasks while tasks are added
-      and deleted (`otfp.svg`: tasks and ms per task of each job, Fig. 4.5);
+      and deleted (`otfp.svg`: tasks of each job, `otfp_ms.svg`: its ms per task, Fig. 4.5);
     * `removal`: 8 jobs on 3 robots; r2 leaves once 2 jobs completed (battery low: it
       finishes its job first), a fourth robot joins once 4 completed (`gantt_removal.svg`,
       Fig. 4.13);

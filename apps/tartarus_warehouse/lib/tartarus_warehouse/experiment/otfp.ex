@@ -85,14 +85,28 @@ defmodule TartarusWarehouse.Experiment.Otfp do
   end
 
   @impl Experiment
-  def charts(_state),
+  def charts(state),
     do: [
       %{
         file: "otfp",
-        title: "Tasks per job and ms per task as tasks are added and deleted (Fig. 4.5)",
-        series: [:tasks_in_job, :ms_per_task],
+        title: "Tasks per job as tasks are added and deleted (Fig. 4.5)",
+        subtitle: "seed #{state.seed}",
+        series: [:tasks_in_job],
+        labels: %{tasks_in_job: "tasks in the job"},
         x_label: "job",
-        y_label: ""
+        y_label: "tasks",
+        y_min: 0
+      },
+      %{
+        file: "otfp_ms",
+        title: "Time per task as tasks are added and deleted (Fig. 4.5)",
+        subtitle: "seed #{state.seed}",
+        series: [:ms_per_task],
+        labels: %{ms_per_task: "ms per task"},
+        x_label: "job",
+        y_label: "time per task",
+        y_unit: "ms",
+        y_min: 0
       }
     ]
 

@@ -46,16 +46,36 @@ defmodule TartarusWarehouse.Experiment.Robots do
   end
 
   @impl Experiment
-  def charts(_state),
-    do: [
+  def charts(state) do
+    p = state.p
+
+    [
       %{
         file: "speedup",
-        title: "Speed-up over one robot",
+        title: "Speed-up over one robot (Figs. 4.7-4.10)",
+        subtitle:
+          "#{p.jobs} jobs of variable durations (jitter #{p.jitter}), #{p.equal_jobs} of equal " <>
+            "durations, 1-#{p.robots} robots, seed #{state.seed}",
         series: [:speedup_variable, :speedup_equal],
+        labels: %{
+          speedup_variable: "ours, variable durations",
+          speedup_equal: "ours, equal durations"
+        },
+        references: [
+          %{name: "ideal (k robots: k)", points: [{1, 1}, {max(p.robots, 2), max(p.robots, 2)}]},
+          %{
+            name: "thesis (§4.7.4)",
+            points: Enum.sort(@thesis_speedup),
+            style: :points
+          }
+        ],
         x_label: "robots",
-        y_label: "speed-up"
+        y_label: "speed-up",
+        y_unit: "makespan on 1 robot / on k",
+        y_min: 0
       }
     ]
+  end
 
   @impl Experiment
   def summary(base, state) do

@@ -102,14 +102,22 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   end
 
   @impl Experiment
-  def charts(_state),
+  def charts(state),
     do: [
       %{
         file: "avg_task_time",
         title: "Average time per task: task agents vs central server (Fig. 4.4)",
+        subtitle: "seed #{state.seed}",
         series: [:avg_task_ms_agents, :avg_task_ms_central, :avg_task_ms_agents_guided],
+        labels: %{
+          avg_task_ms_agents: "task agents",
+          avg_task_ms_central: "central server",
+          avg_task_ms_agents_guided: "task agents, guided"
+        },
         x_label: "tasks per job",
-        y_label: "ms per task"
+        y_label: "time per task",
+        y_unit: "ms",
+        y_min: 0
       }
     ]
 

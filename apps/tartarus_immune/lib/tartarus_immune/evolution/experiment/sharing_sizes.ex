@@ -89,35 +89,61 @@ defmodule TartarusImmune.Evolution.Experiment.SharingSizes do
   @doc "Bar charts of gamma_avg and Omega per point (`runs.csv` is the sweep's)."
   @spec write(Path.t(), [map()], map()) :: [Path.t()]
   def write(dir, runs, p) do
+    # A bar per point: the mean over its trials, with the mean's 95 % interval when there
+    # are two trials or more.
+    samples = fn key, runs ->
+      if key == :gamma_avg, do: Enum.map(runs, & &1.gamma_avg), else: omegas(runs)
+    end
+
     bars = fn key ->
       for {n, scheme} <- points_of(p) do
-        runs = Enum.filter(runs, &(&1.nodes == n and &1.label == label(scheme)))
+        xs = samples.(key, of_point(runs, n, scheme))
+        bar = %{label: "#{n}: #{label(scheme)}", value: mean2(xs) || 0, n: length(xs)}
 
-        v =
-          if key == :gamma_avg,
-            do: mean2(Enum.map(runs, & &1.gamma_avg)),
-            else: mean2(omegas(runs))
-
-        {"#{n}: #{label(scheme)}", v || 0}
+        case TartarusTools.Stats.mean_ci(xs) do
+          %{lo: lo, hi: hi} when lo != nil -> Map.merge(bar, %{lo: lo, hi: hi})
+          _ -> bar
+        end
       end
+    end
+
+    opts = fn bars ->
+      [
+        subtitle: "sizes #{Enum.join(p.sizes, ", ")}; seeds #{p.seed}-#{p.seed + p.trials - 1}",
+        note:
+          if(Enum.any?(bars, &Map.has_key?(&1, :lo)),
+            do: SVG.ci_note(Enum.map(bars, & &1.n), "trials", "bars"),
+            else: "one trial per bar: no interval"
+          )
+      ]
     end
 
     gamma = Path.join(dir, "gamma_avg.svg")
     omega = Path.join(dir, "omega.svg")
+    gamma_bars = bars.(:gamma_avg)
+    omega_bars = bars.(:omega)
 
     File.write!(
       gamma,
-      SVG.bar_chart(bars.(:gamma_avg),
-        title: "Communications per node until convergence (gamma_avg, Fig. 7.6)",
-        y_label: "messages sent + received per node"
+      SVG.bar_chart(
+        gamma_bars,
+        [
+          title: "Communications per node until convergence (gamma_avg, Fig. 7.6)",
+          x_label: "nodes: scheme",
+          y_label: "messages sent + received per node"
+        ] ++ opts.(gamma_bars)
       )
     )
 
     File.write!(
       omega,
-      SVG.bar_chart(bars.(:omega),
-        title: "Convergence count Omega: iterations from the first solution to 90% (Fig. 7.6)",
-        y_label: "iterations"
+      SVG.bar_chart(
+        omega_bars,
+        [
+          title: "Convergence count Omega: iterations from the first solution to 90% (Fig. 7.6)",
+          x_label: "nodes: scheme",
+          y_label: "iterations"
+        ] ++ opts.(omega_bars)
       )
     )
 

@@ -339,23 +339,47 @@ defmodule TartarusImmune.PathFollowing.Experiment.Summary do
       end
     end
 
-    charts =
-      for {key, file, title} <- [
-            {"trial1", "lap_times_trial1.svg",
-             "Time per lap, one trial (seed #{o.seed}; Fig. 6.13a)"},
-            {"mean", "lap_times_mean.svg",
-             "Mean time per lap over #{o.trials} trials (Fig. 6.13b)"}
-          ] do
-        SVG.write!(
-          Path.join(out, file),
-          SVG.line_chart(curve.(s.lap_times[key]),
-            title: title,
-            x_label: "lap",
-            y_label: "seconds",
-            y_min: 0
-          )
+    trial1 =
+      SVG.write!(
+        Path.join(out, "lap_times_trial1.svg"),
+        SVG.line_chart(curve.(s.lap_times["trial1"]),
+          title: "Time per lap, one trial (Fig. 6.13a)",
+          subtitle: "seed #{o.seed}, #{o.laps} laps",
+          x_label: "lap",
+          y_label: "time per lap",
+          y_unit: "s",
+          y_min: 0
+        )
+      )
+
+    # The mean curve with a 95 % interval over the trials at every lap.
+    means =
+      for {key, label} <- [{"path1", "Path-1"}, {"path2", "Path-2"}] do
+        lists = s.lap_times["per_trial"][key]
+        laps = lists |> Enum.map(&length/1) |> Enum.min(fn -> 0 end)
+
+        SVG.mean_series(
+          label,
+          for(l <- 1..laps//1, do: {l, for(t <- lists, x = Enum.at(t, l - 1), do: x)})
         )
       end
+
+    mean =
+      SVG.write!(
+        Path.join(out, "lap_times_mean.svg"),
+        SVG.line_chart(means,
+          title: "Mean time per lap over #{o.trials} trials (Fig. 6.13b)",
+          subtitle: "seeds #{o.seed}-#{o.seed + o.trials - 1}, #{o.laps} laps",
+          note:
+            SVG.ci_note(Enum.flat_map(means, fn m -> Enum.map(m.n, &elem(&1, 1)) end), "trials"),
+          x_label: "lap",
+          y_label: "time per lap",
+          y_unit: "s",
+          y_min: 0
+        )
+      )
+
+    charts = [trial1, mean]
 
     [lap_times, choices, best | charts]
   end
