@@ -35,6 +35,8 @@ defmodule TartarusTools.CLI do
 
       @impl Mix.Task
       def run(argv) do
+        TartarusTools.Provenance.record_command(Mix.Task.task_name(__MODULE__), argv)
+
         if TartarusTools.CLI.help?(argv),
           do: TartarusTools.CLI.help(__MODULE__),
           else: super(argv)
@@ -68,6 +70,8 @@ defmodule TartarusTools.CLI do
       end
 
     short = Mix.Task.shortdoc(module)
+    # Option bullets read as flags, as typed (`--seed`, not `:seed`).
+    doc = Regex.replace(~r/^(\s*\* )`:(\w+)`/m, doc, fn _, bullet, key -> bullet <> "`--#{dash(String.to_atom(key))}`" end)
     Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
   end
 
@@ -107,7 +111,7 @@ defmodule TartarusTools.CLI do
 
     case Tartarus.Options.validate(opts, schema, "mix #{task}") do
       {:ok, opts} -> opts
-      {:error, message} -> Mix.raise(flags(message))
+      {:error, message} -> error!(task, message)
     end
   end
 
@@ -117,13 +121,6 @@ defmodule TartarusTools.CLI do
   defp switch(t) when t in [:number, :probability], do: :float
   defp switch(:boolean), do: :boolean
   defp switch(_), do: :string
-
-  # "for key :state_bytes" reads "for --state-bytes" on a command line.
-  defp flags(message) do
-    Regex.replace(~r/(for key|option) :(\w+)/, message, fn _, word, key ->
-      "#{if word == "option", do: "option", else: "for"} --#{dash(String.to_atom(key))}"
-    end)
-  end
 
   @doc """
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
@@ -136,21 +133,84 @@ defmodule TartarusTools.CLI do
     {parsed, args, invalid} = OptionParser.parse(argv, strict: switches)
     args_ok? = Keyword.get(opts, :args, false)
 
-    # A known flag with a value of the wrong type: name the flag, the type and the value.
-    for {flag, value} <- invalid, value != nil, type = switch_type(switches, flag), type do
-      Mix.raise(
-        "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
-      )
+    for {flag, value} <- invalid do
+      case switch_type(switches, flag) do
+        # A known flag with a value of the wrong type: name the flag, the type and the value.
+        type when type != nil and value != nil ->
+          Mix.raise(
+            "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
+          )
+
+        # A known flag given last, or followed by another flag: its value is missing.
+        type when type != nil ->
+          Mix.raise("mix #{task}: missing value for #{flag}: expected #{type_words(type)}")
+
+        nil ->
+          Mix.raise("mix #{task}: unknown flag #{flag}; see `mix help #{task}` or --help")
+      end
     end
 
-    if invalid != [] or (args != [] and not args_ok?) do
-      bad = Enum.map(invalid, &elem(&1, 0)) ++ if(args_ok?, do: [], else: args)
+    if args != [] and not args_ok? do
       Mix.raise(
-        "mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}` or --help"
+        "mix #{task}: unexpected argument #{Enum.join(args, " ")}; see `mix help #{task}` or --help"
       )
     end
 
     if args_ok?, do: {parsed, args}, else: parsed
+  end
+
+  @doc """
+  The documentation of a `Tartarus.Options` schema as a task's `--help` shows it: one bullet
+  per flag, named as typed (`--state-bytes`, not `:state_bytes`), with its doc, whether it
+  is required and its default.
+
+      iex> TartarusTools.CLI.flag_docs(seed: [type: :pos_integer, default: 1, doc: "seed"])
+      "  * `--seed` - seed. Defaults to `1`."
+  """
+  @spec flag_docs(Tartarus.Options.schema()) :: String.t()
+  def flag_docs(schema) do
+    Regex.replace(~r/^(\s*\* )`:(\w+)`/m, Tartarus.Options.docs(schema), fn _, bullet, key ->
+      bullet <> "`--" <> String.replace(key, "_", "-") <> "`"
+    end)
+  end
+
+  @doc """
+  Raises `Mix.Error` with a one-line message for `task`, whatever `reason` is: a message
+  from an experiment's validation (its `:key` words read as `--flag`s, and the module and
+  function it names are dropped, as in "invalid options given to
+  TartarusLats.Experiment.run/1 for key :nodes") or any other term (inspected).
+
+      iex> TartarusTools.CLI.error!("tartarus.x", "invalid options given to TartarusX.Experiment.run/1 for key :state_bytes: expected a positive integer, got: 0")
+      ** (Mix.Error) mix tartarus.x: invalid value for --state-bytes: expected a positive integer, got: 0
+  """
+  @spec error!(String.t(), term()) :: no_return()
+  def error!(task, reason) do
+    message = if is_binary(reason), do: reason, else: inspect(reason)
+
+    message =
+      message
+      |> then(
+        &Regex.replace(
+          ~r/invalid options given to (mix )?[\w.]+(\/\d+)? for key :(\w+)/,
+          &1,
+          fn _, _, _, key -> "invalid value for --#{String.replace(key, "_", "-")}" end
+        )
+      )
+      |> then(&Regex.replace(~r/required option :(\w+) not given.*$/, &1, fn _, key ->
+        "missing required flag --#{String.replace(key, "_", "-")}"
+      end))
+      |> then(&Regex.replace(~r/ given to (mix [\w.]+|[A-Z][\w.]*\/\d+)/, &1, ""))
+      |> then(
+        &Regex.replace(~r/(for key|option|key) :(\w+)/, &1, fn _, word, key ->
+          word = if word == "for key", do: "for ", else: if(word == "key", do: "", else: "option ")
+          word <> "--" <> String.replace(key, "_", "-")
+        end)
+      )
+      |> String.replace(~r/\R+/, " ")
+      |> String.trim()
+
+    prefix = "mix #{task}: "
+    Mix.raise(if String.starts_with?(message, prefix), do: message, else: prefix <> message)
   end
 
   @doc "Raises unless each of `keys` given in `opts` is a positive integer."
@@ -186,11 +246,18 @@ defmodule TartarusTools.CLI do
   @doc """
   Reports a result map: with `json: true` in `opts` prints it as one JSON object (the last
   line of output), else one `key: value` line per key (or `text.(result)` if given). With
-  `out_file: path` also writes the JSON there.
+  `out_file: path` also writes the JSON there. The JSON carries what made the result
+  under `"provenance"` (`TartarusTools.Provenance.collect/0`) unless the result has that
+  key already or `provenance: false` is given.
   """
   @spec report(map(), keyword(), (map() -> String.t()) | nil) :: :ok
   def report(result, opts, text \\ nil) do
-    json = TartarusTools.JSON.encode!(result)
+    json =
+      if (opts[:json] || opts[:out_file]) && Keyword.get(opts, :provenance, true) &&
+           not Map.has_key?(result, :provenance) && not Map.has_key?(result, "provenance"),
+         do: TartarusTools.JSON.encode!(Map.put(result, :provenance, TartarusTools.Provenance.collect())),
+         else: TartarusTools.JSON.encode!(result)
+
     if opts[:out_file], do: File.write!(opts[:out_file], json <> "\n")
 
     cond do

@@ -37,13 +37,13 @@ defmodule TartarusTools.MixTasksTest do
 
   test "a task whose options are a schema documents them and takes its defaults from it" do
     doc = Mix.Task.moduledoc(Mix.Tasks.Tartarus.Demo)
-    assert doc =~ "`:out` - directory of the scenarios' reports. Defaults to `\"results/demo\"`."
+    assert doc =~ "`--out` - directory of the scenarios' reports. Defaults to `\"results/demo\"`."
 
     assert_raise Mix.Error,
-                 "invalid options given to mix tartarus.demo for --seed: expected a positive integer, got: 0",
+                 "mix tartarus.demo: invalid value for --seed: expected a positive integer, got: 0",
                  fn -> Mix.Tasks.Tartarus.Demo.run(["--seed", "0"]) end
 
-    assert_raise Mix.Error, "required option --name not given to mix tartarus.node", fn ->
+    assert_raise Mix.Error, "mix tartarus.node: missing required flag --name", fn ->
       Mix.Tasks.Tartarus.Node.run(["--host", "h1"])
     end
   end
@@ -60,7 +60,7 @@ defmodule TartarusTools.MixTasksTest do
     end
 
     test "refuses bad arguments naming the flag, the expectation and the value", %{dir: dir} do
-      assert_raise Mix.Error, "required option --nodes not given to mix tartarus.gen.certs", fn ->
+      assert_raise Mix.Error, "mix tartarus.gen.certs: missing required flag --nodes", fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir])
       end
 
@@ -69,10 +69,10 @@ defmodule TartarusTools.MixTasksTest do
                    fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "x"]) end
 
       assert_raise Mix.Error,
-                   "invalid options given to mix tartarus.gen.certs for --days: expected a positive integer, got: 0",
+                   "mix tartarus.gen.certs: invalid value for --days: expected a positive integer, got: 0",
                    fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "0"]) end
 
-      assert_raise Mix.Error, ~r/^mix tartarus.gen.certs: invalid arguments --bogus/, fn ->
+      assert_raise Mix.Error, ~r/^mix tartarus.gen.certs: unknown flag --bogus/, fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--bogus", "1"])
       end
     end

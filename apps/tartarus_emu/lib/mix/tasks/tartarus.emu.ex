@@ -92,7 +92,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
     summary =
       case TartarusEmu.Walk.run(run_opts) do
         {:ok, summary} -> summary
-        {:error, reason} -> Mix.raise("mix tartarus.emu: #{format(reason)}")
+        {:error, reason} -> TartarusTools.CLI.error!("tartarus.emu", reason)
       end
 
     unless opts[:json] do
@@ -104,16 +104,26 @@ defmodule Mix.Tasks.Tartarus.Emu do
       )
     end
 
-    if opts[:json], do: IO.puts(TartarusTools.JSON.encode!(summary))
+    if opts[:json], do: TartarusTools.CLI.report(summary, json: true)
   end
-
-  defp format(reason) when is_binary(reason), do: reason
-  defp format(reason), do: inspect(reason)
 
   defp check!(opts) do
     TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
     TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
     TartarusTools.CLI.non_negative!(opts, [:dashboard, :step_ms], "tartarus.emu")
+
+    case opts[:topology] do
+      t when t in [nil, "grid", "ring", "line", "random"] ->
+        :ok
+
+      path ->
+        unless File.regular?(path),
+          do:
+            Mix.raise(
+              "mix tartarus.emu: --topology: file not found: #{path} " <>
+                "(expected grid, ring, line, random or a topology file)"
+            )
+    end
 
     # Absent flags stay absent: the walk's schema supplies the defaults.
     choices = [mode: [:virtual, :peer], strategy: [:random, :conscientious]]

@@ -101,7 +101,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 

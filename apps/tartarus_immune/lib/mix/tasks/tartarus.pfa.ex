@@ -112,7 +112,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 

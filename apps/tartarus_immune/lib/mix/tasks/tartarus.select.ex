@@ -78,7 +78,7 @@ defmodule Mix.Tasks.Tartarus.Select do
 
     case Select.validate(sel_opts) do
       {:ok, _} -> :ok
-      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+      {:error, message} -> TartarusTools.CLI.error!(@task, message)
     end
 
     Mix.Task.run("app.start")
@@ -89,7 +89,7 @@ defmodule Mix.Tasks.Tartarus.Select do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 
