@@ -272,6 +272,49 @@ defmodule TartarusTools.CLI do
     end
   end
 
+  @doc """
+  A value as a task's text output shows it to a person: floats to at most 4 decimals,
+  maps with their keys in numeric order when they are numbers (`"2"` before `"10"`),
+  lists and maps without Elixir's syntax, `nil` as `-`.
+
+      iex> TartarusTools.CLI.show(0.9940000000000001)
+      "0.994"
+      iex> TartarusTools.CLI.show(%{"10" => 2.5, "2" => 1.0, "1" => nil})
+      "{1: -, 2: 1.0, 10: 2.5}"
+      iex> TartarusTools.CLI.show([[1, 2], [3]])
+      "[[1, 2], [3]]"
+      iex> TartarusTools.CLI.show(%{"path1" => [12.25, 11.0], mode: :virtual})
+      "{mode: virtual, path1: [12.25, 11.0]}"
+  """
+  @spec show(term()) :: String.t()
+  def show(nil), do: "-"
+  def show(x) when is_float(x), do: x |> Float.round(4) |> Float.to_string()
+  def show(x) when is_integer(x) or is_atom(x) or is_binary(x), do: to_string(x)
+  def show(list) when is_list(list), do: "[" <> Enum.map_join(list, ", ", &show/1) <> "]"
+
+  def show(map) when is_map(map) and not is_struct(map) do
+    items =
+      map
+      |> Enum.sort_by(fn {k, _} -> key_order(k) end)
+      |> Enum.map_join(", ", fn {k, v} -> "#{show(k)}: #{show(v)}" end)
+
+    "{" <> items <> "}"
+  end
+
+  def show(x), do: inspect(x)
+
+  # Numeric keys (numbers, or strings of digits) first in numeric order, then the rest.
+  defp key_order(k) when is_number(k), do: {0, k, ""}
+
+  defp key_order(k) do
+    text = to_string(k)
+
+    case Integer.parse(text) do
+      {n, ""} -> {0, n, ""}
+      _ -> {1, 0, text}
+    end
+  end
+
   defp switch_type(switches, "--" <> flag) do
     Enum.find_value(switches, fn {key, type} -> if dash(key) == flag, do: type end)
   end

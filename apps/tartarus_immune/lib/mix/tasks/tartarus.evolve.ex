@@ -165,7 +165,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     rows =
       for {n, g} <- Enum.sort_by(s.gamma_avg, &String.to_integer(elem(&1, 0))),
           {label, v} <- Enum.sort_by(g, &order(elem(&1, 0))) do
-        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{v}  Omega #{inspect(s.omega[n][label])}"
+        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{TartarusTools.CLI.show(v)}  Omega #{TartarusTools.CLI.show(s.omega[n][label])}"
       end
 
     Enum.join(
@@ -173,7 +173,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         rows ++
         [
           "  iPkts fewer communications than broadcast at every size: #{s.ipkt_fewer_communications_at_every_size}",
-          "  more iPkts, lower Omega: #{inspect(s.more_ipkts_lower_omega)}",
+          "  more iPkts, lower Omega: #{TartarusTools.CLI.show(s.more_ipkts_lower_omega)}",
           "  written to #{dir}"
         ],
       "\n"

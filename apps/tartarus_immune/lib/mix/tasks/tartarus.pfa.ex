@@ -137,12 +137,12 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   defp text(s, dir) do
     paths =
       for {key, label} <- [{"path1", "Path-1"}, {"path2", "Path-2"}] do
-        "  #{label}: mean lap times #{inspect(s.lap_times["mean"][key])}; plateau at lap #{inspect(s.plateau_lap[key])} (#{inspect(s.plateau_time[key])} s)"
+        "  #{label}: mean lap times #{TartarusTools.CLI.show(s.lap_times["mean"][key])}; plateau at lap #{TartarusTools.CLI.show(s.plateau_lap[key])} (#{TartarusTools.CLI.show(s.plateau_time[key])} s)"
       end
 
     best =
       for type <- ["sp_a", "sp_b", "sp_c", "sp_d"] do
-        "  #{type}: #{inspect(s.best_pfa[type])} #{inspect(s.best_pfa_counts[type])}  Table 6.5: #{s.best_pfa_table6_5[type]}  exhaustive: #{inspect(s.exhaustive_best && s.exhaustive_best[type])}"
+        "  #{type}: #{TartarusTools.CLI.show(s.best_pfa[type])} #{TartarusTools.CLI.show(s.best_pfa_counts[type])}  Table 6.5: #{s.best_pfa_table6_5[type]}  exhaustive: #{TartarusTools.CLI.show(s.exhaustive_best && s.exhaustive_best[type])}"
       end
 
     Enum.join(

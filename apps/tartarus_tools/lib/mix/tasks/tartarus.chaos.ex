@@ -24,7 +24,11 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   lost_on_dead_hosts, migrations_done, agent_moves, posts, post_failures, acknowledged,
   acknowledged_missing, acknowledged_missing_after_kill, acknowledged_of_lost_agents,
   census_rounds, transient_duplicates, census_unanswered, replays, kills, partitions,
-  persist, host_opts, seed, still_in_doubt, wall_ms`.
+  persist, host_opts, seed, still_in_doubt, wall_ms`, the verdict line as `verdict` and
+  `ok` (true when it says OK), and `provenance` (`TartarusTools.Provenance`). Without
+  `--json` the keys are printed one a line, then the verdict line (`verdict/1`):
+
+      3 lost (3 on killed nodes), 0 duplicated, 0 transient duplicates, 0 acknowledged messages missing: OK
   """
   use TartarusTools.CLI
 
@@ -80,8 +84,15 @@ defmodule Mix.Tasks.Tartarus.Chaos do
         progress: progress
       )
 
-    TartarusTools.CLI.report(result, json: opts[:json], out_file: opts[:out])
-    unless opts[:json], do: Mix.shell().info(verdict(result))
+    if opts[:json] || opts[:out] do
+      result = Map.merge(result, %{verdict: verdict(result), ok: verdict(result) =~ ": OK"})
+      TartarusTools.CLI.report(result, json: opts[:json], out_file: opts[:out])
+    end
+
+    unless opts[:json] do
+      if opts[:out] == nil, do: TartarusTools.CLI.report(result, [])
+      Mix.shell().info(verdict(result))
+    end
   end
 
   @doc """
