@@ -36,7 +36,7 @@ defmodule Mix.Tasks.Tartarus.Dashboard.Bench do
 
     opts = TartarusTools.CLI.options!(argv, schema, "tartarus.dashboard.bench")
     {out, json?} = {opts[:out], opts[:json]}
-    opts = Keyword.drop(opts, [:out, :json])
+    opts = opts |> Keyword.drop([:out, :json]) |> Keyword.update(:quiet, json?, &(&1 or json?))
 
     Mix.Task.run("app.start")
 
