@@ -91,13 +91,27 @@ defmodule TartarusTools.CLI do
       [mode: :peer]
       iex> TartarusTools.CLI.options!([], schema, "tartarus.x")
       [mode: :virtual]
+
+  `synonyms: [seeds: :trials]` accepts `--seeds` as another name of `--trials` (one
+  convention across tasks, the old name kept):
+
+      iex> schema = [trials: [type: :pos_integer, default: 10]]
+      iex> TartarusTools.CLI.options!(["--seeds", "3"], schema, "tartarus.x", synonyms: [seeds: :trials])
+      [trials: 3]
   """
-  @spec options!([String.t()], Tartarus.Options.schema(), String.t()) :: keyword()
-  def options!(argv, schema, task) do
+  @spec options!([String.t()], Tartarus.Options.schema(), String.t(), keyword()) :: keyword()
+  def options!(argv, schema, task, opts \\ []) do
+    synonyms = Keyword.get(opts, :synonyms, [])
     switches = for {key, spec} <- schema, do: {key, switch(spec[:type])}
+    switches = switches ++ for {other, key} <- synonyms, do: {other, switches[key]}
 
     opts =
       for {key, value} <- parse!(argv, switches, task) do
+        {Keyword.get(synonyms, key, key), value}
+      end
+
+    opts =
+      for {key, value} <- opts do
         case schema[key][:type] do
           {:in, choices} when is_binary(value) ->
             if Enum.all?(choices, &is_atom/1),
@@ -110,8 +124,19 @@ defmodule TartarusTools.CLI do
       end
 
     case Tartarus.Options.validate(opts, schema, "mix #{task}") do
-      {:ok, opts} -> opts
-      {:error, message} -> error!(task, message)
+      {:ok, opts} ->
+        opts
+
+      {:error, message} ->
+        # The flag named as typed: `--seeds`, when that is what was given for `:trials`.
+        typed =
+          for {other, key} <- synonyms,
+              Enum.any?(argv, &String.starts_with?(&1, "--#{dash(other)}")),
+              reduce: message do
+            message -> String.replace(message, ":#{key}", ":#{other}")
+          end
+
+        error!(task, typed)
     end
   end
 

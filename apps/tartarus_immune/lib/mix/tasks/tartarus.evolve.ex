@@ -4,7 +4,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
+      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--seeds 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--min-period 10] [--puck-reward product|sum]
@@ -69,6 +69,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
   `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
   each per scheme.
+
+  `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
+  `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
   """
   use TartarusTools.CLI
 
@@ -85,7 +88,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
-    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    opts = TartarusTools.CLI.options!(argv, schema, @task, synonyms: [seeds: :trials])
     json? = opts[:json]
 
     exp_opts =

@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   (time, staying on the line) feeds back; each robot receives one new random PFA per lap;
   the mappings travel between the robots as agents (fresh clones, by default).
 
-      mix tartarus.pfa [--laps 12] [--trials 10] [--seed 1] [--out DIR] [--json]
+      mix tartarus.pfa [--laps 12] [--seeds 10] [--seed 1] [--out DIR] [--json]
                        [--explore untried_first|activation|P] [--n-min 1]
                        [--sharing clones|roam|none] [--stream once|lifelong]
                        [--challenge tried|activation] [--stuck-after 6] [--lost-penalty 5]
@@ -59,6 +59,9 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   the last line printed is the summary as one JSON object.
 
   `--help` prints this text.
+
+  `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
+  `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
   """
   use TartarusTools.CLI
 
@@ -78,7 +81,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
       |> Keyword.update!(:challenge, &Keyword.merge(&1, type: :string, default: "tried"))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
-    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    opts = TartarusTools.CLI.options!(argv, schema, @task, synonyms: [seeds: :trials])
     json? = opts[:json]
 
     sharing =
