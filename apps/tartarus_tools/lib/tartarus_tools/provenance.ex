@@ -20,9 +20,18 @@ defmodule TartarusTools.Provenance do
 
   @doc "Records the command line of the running mix task (`mix <task> <argv...>`)."
   @spec record_command(String.t(), [String.t()]) :: :ok
-  def record_command(task, argv) do
-    :persistent_term.put(@key, ["mix", task | argv])
-  end
+  def record_command(task, argv), do: put_argv(["mix", task | argv])
+
+  @doc """
+  Records `argv` as the command line of this VM's results: what a runner node started for
+  a run is given, so that the summary it writes names the command that asked for it.
+  """
+  @spec put_argv([String.t()]) :: :ok
+  def put_argv(argv) when is_list(argv), do: :persistent_term.put(@key, argv)
+
+  @doc "The command line recorded (`record_command/2`, `put_argv/1`), else `System.argv/0`."
+  @spec argv() :: [String.t()]
+  def argv, do: :persistent_term.get(@key, System.argv())
 
   @doc """
   The provenance map: `argv` (list of strings), `git_commit` (hash or `"unknown"`),
@@ -35,7 +44,7 @@ defmodule TartarusTools.Provenance do
     {commit, dirty} = git()
 
     %{
-      argv: :persistent_term.get(@key, System.argv()),
+      argv: argv(),
       git_commit: commit,
       git_dirty: dirty,
       otp: otp_version(),
