@@ -18,6 +18,23 @@ defmodule TartarusTools.CLI do
   A task whose options are a `Tartarus.Options` schema parses them with `options!/3`: the
   flags come from the schema's keys (`state_bytes` is `--state-bytes`), the defaults from
   the schema (the scenario's own, when it has one), and errors use the schema's words.
+
+  ## The convention
+
+    * every user error is one line, `mix TASK: ...`, naming the flag as typed and what is
+      wrong: `missing value for --seed`, `unknown flag --bogus`, `invalid value for
+      --nodes: expected a positive integer, got: 0`, `--topology: file not found: PATH`;
+      it is a `Mix.Error`, which Mix prints without a stack trace and exits with status 1.
+      An experiment's own validation message goes through `error!/2`, which rewrites its
+      `:keys` as `--flags` and drops the module it names;
+    * `--help` shows options as flags (`flag_docs/1`);
+    * `--json` prints the summary as one JSON object, the last line, with its
+      `provenance` (`TartarusTools.Provenance`); so does every `summary.json`;
+    * text output shows values for a person (`show/1`); a run that checks something ends
+      with a verdict line (`mix tartarus.chaos`);
+    * repetitions over seeds are `--seeds N` (seeds `--seed`, `--seed` + 1, ...);
+    * long runs draw "what, k of n, elapsed, ETA" on standard error when it is a terminal
+      and `--json` is not given (`TartarusTools.Progress`, `TartarusEmu.Sweep`).
   """
 
   @doc false
@@ -270,7 +287,8 @@ defmodule TartarusTools.CLI do
 
   @doc """
   Reports a result map: with `json: true` in `opts` prints it as one JSON object (the last
-  line of output), else one `key: value` line per key (or `text.(result)` if given). With
+  line of output), else one `key: value` line per key (values as `show/1` shows them), or
+  `text.(result)` if given. With
   `out_file: path` also writes the JSON there. The JSON carries what made the result
   under `"provenance"` (`TartarusTools.Provenance.collect/0`) unless the result has that
   key already or `provenance: false` is given.
@@ -293,7 +311,7 @@ defmodule TartarusTools.CLI do
         Mix.shell().info(text.(result))
 
       true ->
-        Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
+        Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{show(v)}") end)
     end
   end
 

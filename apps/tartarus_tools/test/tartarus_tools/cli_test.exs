@@ -74,6 +74,11 @@ defmodule Tartarus.CLITest do
       assert_received {:mix_shell, :info, [json]}
       assert {:ok, %{"a" => "x", "b" => 2}} = TartarusTools.JSON.decode(json)
       assert File.read!(path) == json <> "\n"
+      assert %{"provenance" => %{"argv" => _, "git_commit" => _}} = TartarusTools.JSON.decode!(json)
+
+      TartarusTools.CLI.report(%{b: %{"10" => 0.30000000000000004, "2" => nil}, a: "x"}, [])
+      assert_received {:mix_shell, :info, ["  a: x"]}
+      assert_received {:mix_shell, :info, ["  b: {2: -, 10: 0.3}"]}
     after
       Mix.shell(Mix.Shell.IO)
       File.rm(path)
