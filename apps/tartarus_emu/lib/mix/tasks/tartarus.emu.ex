@@ -12,7 +12,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--dashboard PORT] [--step-ms MS]
 
   Defaults (those of `TartarusEmu.Walk.schema/0`): a 16-host grid, 4 agents, 100 steps,
-  virtual mode, random walk, `p = 0`, a random seed (recorded in the summary), output in
+  virtual mode, random walk, `p = 0`, seed 1 (as every task), output in
   `results/walk-<timestamp>/`. `--help` prints this text.
 
   Each step, every agent makes one move (see `TartarusEmu.Walk` for the step model), so a
@@ -80,7 +80,8 @@ defmodule Mix.Tasks.Tartarus.Emu do
       |> Keyword.merge(
         latency_ms: opts[:latency_ms],
         loss: opts[:loss],
-        seed: opts[:seed],
+        # Seed 1 unless given, as every other task.
+        seed: opts[:seed] || 1,
         out: Path.expand(opts[:out] || TartarusTools.Report.default_out_dir("walk")),
         quiet: opts[:quiet] || opts[:json] || false,
         progress_device: progress,
