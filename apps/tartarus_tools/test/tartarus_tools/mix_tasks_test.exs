@@ -59,6 +59,17 @@ defmodule TartarusTools.MixTasksTest do
                ~w(a.key a.pem a.ssl_dist.conf b.key b.pem b.ssl_dist.conf ca.key ca.pem)
     end
 
+    test "--json prints one object: the CA, each node's files, the provenance", %{dir: dir} do
+      Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir, "--nodes", "a", "--json"])
+      assert_received {:mix_shell, :info, [json]}
+      refute_received {:mix_shell, :info, _}
+      s = TartarusTools.JSON.decode!(json)
+      assert s["ca"] == Path.join(Path.expand(dir), "ca.pem") and s["ca_created"] == true
+      assert s["nodes"]["a"] == Enum.map(~w(a.pem a.key a.ssl_dist.conf), &Path.join(Path.expand(dir), &1))
+      assert Enum.all?(s["nodes"]["a"], &File.exists?/1)
+      assert s["provenance"]["argv"] == ["mix", "tartarus.gen.certs", "--out", dir, "--nodes", "a", "--json"]
+    end
+
     test "refuses bad arguments naming the flag, the expectation and the value", %{dir: dir} do
       assert_raise Mix.Error, "mix tartarus.gen.certs: missing required flag --nodes", fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir])
