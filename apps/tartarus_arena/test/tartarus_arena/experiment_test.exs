@@ -33,7 +33,7 @@ defmodule TartarusArena.ExperimentTest do
     # summary.md: the key table, then the arena's own tables
     md = File.read!(Path.join(dir, "summary.md"))
     assert md =~ ~r/^# Arena run \(seed 2\)\n/
-    assert String.ends_with?(md, Experiment.markdown(s))
+    assert md =~ Experiment.markdown(s) and md =~ "## Provenance"
   end
 
   test "bad options are refused with a message" do

@@ -31,7 +31,12 @@ defmodule TartarusEmu.DashboardBench do
     big: [type: :boolean, default: true, doc: "also measure 10,000 hosts"],
     big_rows: [type: :pos_integer, default: 100, doc: "rows of the big grid"],
     big_cols: [type: :pos_integer, default: 100, doc: "columns of the big grid"],
-    big_agents: [type: :pos_integer, default: 1_000, doc: "agents on the big grid"]
+    big_agents: [type: :pos_integer, default: 1_000, doc: "agents on the big grid"],
+    quiet: [
+      type: :boolean,
+      default: false,
+      doc: "no progress line (it is drawn only on a terminal in any case)"
+    ]
   ]
 
   @doc "The options' schema."
@@ -75,13 +80,23 @@ defmodule TartarusEmu.DashboardBench do
       # One warm-up run (code loaded, caches filled), not counted.
       {agents, _} = drive(agents, hosts, opts[:moves])
 
-      {_agents, runs} =
-        Enum.reduce(1..opts[:rounds], {agents, []}, fn round, {agents, runs} ->
-          Enum.reduce([:none, :dashboard, :page], {agents, runs}, fn cond, {agents, runs} ->
+      # What, k of n, elapsed, ETA: one unit per (round, condition).
+      progress =
+        TartarusTools.Progress.new(opts[:rounds] * 3,
+          label: "dashboard bench: runs (rounds x 3 conditions)",
+          quiet: opts[:quiet]
+        )
+
+      {_agents, runs, progress} =
+        Enum.reduce(1..opts[:rounds], {agents, [], progress}, fn round, acc ->
+          Enum.reduce([:none, :dashboard, :page], acc, fn cond, {agents, runs, progress} ->
             {agents, run} = condition(cond, net, agents, hosts, opts, browser)
-            {agents, [Map.merge(run, %{round: round, condition: cond}) | runs]}
+            run = Map.merge(run, %{round: round, condition: cond})
+            {agents, [run | runs], TartarusTools.Progress.advance(progress)}
           end)
         end)
+
+      TartarusTools.Progress.finish(progress)
 
       runs = Enum.reverse(runs)
 

@@ -1,7 +1,11 @@
 defmodule TartarusEmu.Sweep do
   @opts_schema [
     out: [type: :any, doc: "output directory, or `false` for none"],
-    quiet: [type: :boolean, default: false, doc: "no line per run"],
+    quiet: [
+      type: :boolean,
+      default: false,
+      doc: "no line per run (the standard devices get them only when they are a terminal)"
+    ],
     progress_device: [type: :any, default: :standard_error, doc: "where the lines go"],
     concurrency: [type: :pos_integer, doc: "runs at a time (overrides the spec's)"]
   ]
@@ -86,8 +90,9 @@ defmodule TartarusEmu.Sweep do
     1. runs every (arm, seed), `:concurrency` at a time, each in its own process. A run's
        numbers depend on its seed only: results are collected in the declared order,
        whatever order the runs finish in;
-    2. prints a line per finished run on standard error (`[3/20] long seed 2 (1.4 s)`),
-       unless `quiet: true`;
+    2. prints a line per finished run on standard error (`walk [3/20] long seed 2 (1.4 s)
+       elapsed 0:04  ETA 0:23`: what, k of n, elapsed, ETA), unless `quiet: true` or the
+       device is standard error or output and not a terminal;
     3. describes every metric per arm and runs the tests;
     4. writes into `:out` (default `TartarusTools.Report.default_out_dir(name)`; `false`
        for nothing): `runs.csv`, `<metric>.svg` box plots, the spec's `:write` files,
@@ -290,6 +295,12 @@ defmodule TartarusEmu.Sweep do
     total = length(plan)
     concurrency = Map.get(o, :concurrency) || spec.concurrency
 
+    t0 = System.monotonic_time(:millisecond)
+    # The standard devices get the lines only when they are a terminal.
+    quiet? =
+      o.quiet or
+        (o.progress_device in [:standard_error, :standard_io] and not tty?(o.progress_device))
+
     plan
     |> Task.async_stream(fn {arm, seed} -> run_one(spec.run, arm, seed) end,
       max_concurrency: concurrency,
@@ -298,18 +309,38 @@ defmodule TartarusEmu.Sweep do
     )
     |> Stream.with_index(1)
     |> Enum.map(fn {{:ok, run}, done} ->
-      unless o.quiet do
+      unless quiet? do
         secs = :erlang.float_to_binary(run.ms / 1000, decimals: 1)
+
+        # What, k of n, elapsed and ETA (from the mean time per run so far).
+        elapsed = System.monotonic_time(:millisecond) - t0
+        eta = div(elapsed * (total - done), done)
 
         IO.puts(
           o.progress_device,
-          "#{spec.name} [#{done}/#{total}] #{run.arm} seed #{run.seed} (#{secs} s)"
+          "#{spec.name} [#{done}/#{total}] #{run.arm} seed #{run.seed} (#{secs} s)  " <>
+            "elapsed #{clock(elapsed)}  ETA #{clock(eta)}"
         )
       end
 
       run
     end)
     |> order_as(plan)
+  end
+
+  defp tty?(device) do
+    match?({:ok, _}, :io.columns(device))
+  rescue
+    _ -> false
+  end
+
+  defp clock(ms) do
+    s = div(ms, 1000)
+    pad = &String.pad_leading(Integer.to_string(&1), 2, "0")
+
+    if s >= 3600,
+      do: "#{div(s, 3600)}:#{pad.(div(rem(s, 3600), 60))}:#{pad.(rem(s, 60))}",
+      else: "#{div(s, 60)}:#{pad.(rem(s, 60))}"
   end
 
   defp run_one(fun, arm, seed) do

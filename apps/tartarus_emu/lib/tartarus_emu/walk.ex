@@ -101,6 +101,9 @@ defmodule TartarusEmu.Walk do
         case TartarusTools.Peer.start(name, args: args, apps: [:tartarus, :tartarus_emu]) do
           {:ok, peer, node} ->
             try do
+              # The summary the runner writes names the command that asked for it.
+              argv = TartarusTools.Provenance.argv()
+              :ok = :erpc.call(node, TartarusTools.Provenance, :put_argv, [argv])
               result = :erpc.call(node, __MODULE__, :run_here, [opts], :infinity)
 
               with {:ok, summary} <- result,

@@ -129,7 +129,13 @@ defmodule TartarusEmu.SweepTest do
     {_, printed} = StringIO.contents(device)
     lines = String.split(printed, "\n", trim: true)
     assert length(lines) == 4
-    assert Enum.all?(lines, &(&1 =~ ~r/^walks \[\d\/4\] (many|one) seed [78] \(\d+\.\d s\)$/))
+
+    assert Enum.all?(
+             lines,
+             &(&1 =~
+                 ~r/^walks \[\d\/4\] (many|one) seed [78] \(\d+\.\d s\)  elapsed \d+:\d\d  ETA \d+:\d\d$/)
+           )
+
     assert r.summary.fastest == "many"
     assert File.read!(Path.join(dir, "runs.csv")) =~ "arm,seed,hosts\nmany,7,12\n"
     assert File.exists?(Path.join(dir, "extra.csv"))
@@ -165,7 +171,7 @@ defmodule TartarusEmu.SweepTest do
     md = File.read!(Path.join(dir, "summary.md"))
     assert md =~ ~r/^# Report\n/
     assert md =~ "| total | 6 | 5 |"
-    assert String.ends_with?(md, "\n## Runs\n\n2 of them\n")
+    assert md =~ "\n## Runs\n\n2 of them\n\n## Provenance\n"
     refute md =~ "bulky"
   end
 

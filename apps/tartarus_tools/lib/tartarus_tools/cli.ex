@@ -18,6 +18,23 @@ defmodule TartarusTools.CLI do
   A task whose options are a `Tartarus.Options` schema parses them with `options!/3`: the
   flags come from the schema's keys (`state_bytes` is `--state-bytes`), the defaults from
   the schema (the scenario's own, when it has one), and errors use the schema's words.
+
+  ## The convention
+
+    * every user error is one line, `mix TASK: ...`, naming the flag as typed and what is
+      wrong: `missing value for --seed`, `unknown flag --bogus`, `invalid value for
+      --nodes: expected a positive integer, got: 0`, `--topology: file not found: PATH`;
+      it is a `Mix.Error`, which Mix prints without a stack trace and exits with status 1.
+      An experiment's own validation message goes through `error!/2`, which rewrites its
+      `:keys` as `--flags` and drops the module it names;
+    * `--help` shows options as flags (`flag_docs/1`);
+    * `--json` prints the summary as one JSON object, the last line, with its
+      `provenance` (`TartarusTools.Provenance`); so does every `summary.json`;
+    * text output shows values for a person (`show/1`); a run that checks something ends
+      with a verdict line (`mix tartarus.chaos`);
+    * repetitions over seeds are `--seeds N` (seeds `--seed`, `--seed` + 1, ...);
+    * long runs draw "what, k of n, elapsed, ETA" on standard error when it is a terminal
+      and `--json` is not given (`TartarusTools.Progress`, `TartarusEmu.Sweep`).
   """
 
   @doc false
@@ -35,6 +52,8 @@ defmodule TartarusTools.CLI do
 
       @impl Mix.Task
       def run(argv) do
+        TartarusTools.Provenance.record_command(Mix.Task.task_name(__MODULE__), argv)
+
         if TartarusTools.CLI.help?(argv),
           do: TartarusTools.CLI.help(__MODULE__),
           else: super(argv)
@@ -68,6 +87,8 @@ defmodule TartarusTools.CLI do
       end
 
     short = Mix.Task.shortdoc(module)
+    # Option bullets read as flags, as typed (`--seed`, not `:seed`).
+    doc = Regex.replace(~r/^(\s*\* )`:(\w+)`/m, doc, fn _, bullet, key -> bullet <> "`--#{dash(String.to_atom(key))}`" end)
     Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
   end
 
@@ -87,13 +108,27 @@ defmodule TartarusTools.CLI do
       [mode: :peer]
       iex> TartarusTools.CLI.options!([], schema, "tartarus.x")
       [mode: :virtual]
+
+  `synonyms: [seeds: :trials]` accepts `--seeds` as another name of `--trials` (one
+  convention across tasks, the old name kept):
+
+      iex> schema = [trials: [type: :pos_integer, default: 10]]
+      iex> TartarusTools.CLI.options!(["--seeds", "3"], schema, "tartarus.x", synonyms: [seeds: :trials])
+      [trials: 3]
   """
-  @spec options!([String.t()], Tartarus.Options.schema(), String.t()) :: keyword()
-  def options!(argv, schema, task) do
+  @spec options!([String.t()], Tartarus.Options.schema(), String.t(), keyword()) :: keyword()
+  def options!(argv, schema, task, opts \\ []) do
+    synonyms = Keyword.get(opts, :synonyms, [])
     switches = for {key, spec} <- schema, do: {key, switch(spec[:type])}
+    switches = switches ++ for {other, key} <- synonyms, do: {other, switches[key]}
 
     opts =
       for {key, value} <- parse!(argv, switches, task) do
+        {Keyword.get(synonyms, key, key), value}
+      end
+
+    opts =
+      for {key, value} <- opts do
         case schema[key][:type] do
           {:in, choices} when is_binary(value) ->
             if Enum.all?(choices, &is_atom/1),
@@ -106,8 +141,19 @@ defmodule TartarusTools.CLI do
       end
 
     case Tartarus.Options.validate(opts, schema, "mix #{task}") do
-      {:ok, opts} -> opts
-      {:error, message} -> Mix.raise(flags(message))
+      {:ok, opts} ->
+        opts
+
+      {:error, message} ->
+        # The flag named as typed: `--seeds`, when that is what was given for `:trials`.
+        typed =
+          for {other, key} <- synonyms,
+              Enum.any?(argv, &String.starts_with?(&1, "--#{dash(other)}")),
+              reduce: message do
+            message -> String.replace(message, ":#{key}", ":#{other}")
+          end
+
+        error!(task, typed)
     end
   end
 
@@ -117,13 +163,6 @@ defmodule TartarusTools.CLI do
   defp switch(t) when t in [:number, :probability], do: :float
   defp switch(:boolean), do: :boolean
   defp switch(_), do: :string
-
-  # "for key :state_bytes" reads "for --state-bytes" on a command line.
-  defp flags(message) do
-    Regex.replace(~r/(for key|option) :(\w+)/, message, fn _, word, key ->
-      "#{if word == "option", do: "option", else: "for"} --#{dash(String.to_atom(key))}"
-    end)
-  end
 
   @doc """
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
@@ -136,21 +175,84 @@ defmodule TartarusTools.CLI do
     {parsed, args, invalid} = OptionParser.parse(argv, strict: switches)
     args_ok? = Keyword.get(opts, :args, false)
 
-    # A known flag with a value of the wrong type: name the flag, the type and the value.
-    for {flag, value} <- invalid, value != nil, type = switch_type(switches, flag), type do
-      Mix.raise(
-        "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
-      )
+    for {flag, value} <- invalid do
+      case switch_type(switches, flag) do
+        # A known flag with a value of the wrong type: name the flag, the type and the value.
+        type when type != nil and value != nil ->
+          Mix.raise(
+            "mix #{task}: invalid value for #{flag}: expected #{type_words(type)}, got: #{inspect(value)}"
+          )
+
+        # A known flag given last, or followed by another flag: its value is missing.
+        type when type != nil ->
+          Mix.raise("mix #{task}: missing value for #{flag}: expected #{type_words(type)}")
+
+        nil ->
+          Mix.raise("mix #{task}: unknown flag #{flag}; see `mix help #{task}` or --help")
+      end
     end
 
-    if invalid != [] or (args != [] and not args_ok?) do
-      bad = Enum.map(invalid, &elem(&1, 0)) ++ if(args_ok?, do: [], else: args)
+    if args != [] and not args_ok? do
       Mix.raise(
-        "mix #{task}: invalid arguments #{Enum.join(bad, " ")}; see `mix help #{task}` or --help"
+        "mix #{task}: unexpected argument #{Enum.join(args, " ")}; see `mix help #{task}` or --help"
       )
     end
 
     if args_ok?, do: {parsed, args}, else: parsed
+  end
+
+  @doc """
+  The documentation of a `Tartarus.Options` schema as a task's `--help` shows it: one bullet
+  per flag, named as typed (`--state-bytes`, not `:state_bytes`), with its doc, whether it
+  is required and its default.
+
+      iex> TartarusTools.CLI.flag_docs(seed: [type: :pos_integer, default: 1, doc: "seed"])
+      "  * `--seed` - seed. Defaults to `1`."
+  """
+  @spec flag_docs(Tartarus.Options.schema()) :: String.t()
+  def flag_docs(schema) do
+    Regex.replace(~r/^(\s*\* )`:(\w+)`/m, Tartarus.Options.docs(schema), fn _, bullet, key ->
+      bullet <> "`--" <> String.replace(key, "_", "-") <> "`"
+    end)
+  end
+
+  @doc """
+  Raises `Mix.Error` with a one-line message for `task`, whatever `reason` is: a message
+  from an experiment's validation (its `:key` words read as `--flag`s, and the module and
+  function it names are dropped, as in "invalid options given to
+  TartarusLats.Experiment.run/1 for key :nodes") or any other term (inspected).
+
+      iex> TartarusTools.CLI.error!("tartarus.x", "invalid options given to TartarusX.Experiment.run/1 for key :state_bytes: expected a positive integer, got: 0")
+      ** (Mix.Error) mix tartarus.x: invalid value for --state-bytes: expected a positive integer, got: 0
+  """
+  @spec error!(String.t(), term()) :: no_return()
+  def error!(task, reason) do
+    message = if is_binary(reason), do: reason, else: inspect(reason)
+
+    message =
+      message
+      |> then(
+        &Regex.replace(
+          ~r/invalid options given to (mix )?[\w.]+(\/\d+)? for key :(\w+)/,
+          &1,
+          fn _, _, _, key -> "invalid value for --#{String.replace(key, "_", "-")}" end
+        )
+      )
+      |> then(&Regex.replace(~r/required option :(\w+) not given.*$/, &1, fn _, key ->
+        "missing required flag --#{String.replace(key, "_", "-")}"
+      end))
+      |> then(&Regex.replace(~r/ given to (mix [\w.]+|[A-Z][\w.]*\/\d+)/, &1, ""))
+      |> then(
+        &Regex.replace(~r/(for key|option|key) :(\w+)/, &1, fn _, word, key ->
+          word = if word == "for key", do: "for ", else: if(word == "key", do: "", else: "option ")
+          word <> "--" <> String.replace(key, "_", "-")
+        end)
+      )
+      |> String.replace(~r/\R+/, " ")
+      |> String.trim()
+
+    prefix = "mix #{task}: "
+    Mix.raise(if String.starts_with?(message, prefix), do: message, else: prefix <> message)
   end
 
   @doc "Raises unless each of `keys` given in `opts` is a positive integer."
@@ -185,12 +287,20 @@ defmodule TartarusTools.CLI do
 
   @doc """
   Reports a result map: with `json: true` in `opts` prints it as one JSON object (the last
-  line of output), else one `key: value` line per key (or `text.(result)` if given). With
-  `out_file: path` also writes the JSON there.
+  line of output), else one `key: value` line per key (values as `show/1` shows them), or
+  `text.(result)` if given. With
+  `out_file: path` also writes the JSON there. The JSON carries what made the result
+  under `"provenance"` (`TartarusTools.Provenance.collect/0`) unless the result has that
+  key already or `provenance: false` is given.
   """
   @spec report(map(), keyword(), (map() -> String.t()) | nil) :: :ok
   def report(result, opts, text \\ nil) do
-    json = TartarusTools.JSON.encode!(result)
+    json =
+      if (opts[:json] || opts[:out_file]) && Keyword.get(opts, :provenance, true) &&
+           not Map.has_key?(result, :provenance) && not Map.has_key?(result, "provenance"),
+         do: TartarusTools.JSON.encode!(Map.put(result, :provenance, TartarusTools.Provenance.collect())),
+         else: TartarusTools.JSON.encode!(result)
+
     if opts[:out_file], do: File.write!(opts[:out_file], json <> "\n")
 
     cond do
@@ -201,7 +311,50 @@ defmodule TartarusTools.CLI do
         Mix.shell().info(text.(result))
 
       true ->
-        Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{inspect(v)}") end)
+        Enum.each(Enum.sort(result), fn {k, v} -> Mix.shell().info("  #{k}: #{show(v)}") end)
+    end
+  end
+
+  @doc """
+  A value as a task's text output shows it to a person: floats to at most 4 decimals,
+  maps with their keys in numeric order when they are numbers (`"2"` before `"10"`),
+  lists and maps without Elixir's syntax, `nil` as `-`.
+
+      iex> TartarusTools.CLI.show(0.9940000000000001)
+      "0.994"
+      iex> TartarusTools.CLI.show(%{"10" => 2.5, "2" => 1.0, "1" => nil})
+      "{1: -, 2: 1.0, 10: 2.5}"
+      iex> TartarusTools.CLI.show([[1, 2], [3]])
+      "[[1, 2], [3]]"
+      iex> TartarusTools.CLI.show(%{"path1" => [12.25, 11.0], mode: :virtual})
+      "{mode: virtual, path1: [12.25, 11.0]}"
+  """
+  @spec show(term()) :: String.t()
+  def show(nil), do: "-"
+  def show(x) when is_float(x), do: x |> Float.round(4) |> Float.to_string()
+  def show(x) when is_integer(x) or is_atom(x) or is_binary(x), do: to_string(x)
+  def show(list) when is_list(list), do: "[" <> Enum.map_join(list, ", ", &show/1) <> "]"
+
+  def show(map) when is_map(map) and not is_struct(map) do
+    items =
+      map
+      |> Enum.sort_by(fn {k, _} -> key_order(k) end)
+      |> Enum.map_join(", ", fn {k, v} -> "#{show(k)}: #{show(v)}" end)
+
+    "{" <> items <> "}"
+  end
+
+  def show(x), do: inspect(x)
+
+  # Numeric keys (numbers, or strings of digits) first in numeric order, then the rest.
+  defp key_order(k) when is_number(k), do: {0, k, ""}
+
+  defp key_order(k) do
+    text = to_string(k)
+
+    case Integer.parse(text) do
+      {n, ""} -> {0, n, ""}
+      _ -> {1, 0, text}
     end
   end
 

@@ -2,7 +2,7 @@ defmodule TartarusTools.Progress do
   @moduledoc """
   A one-line progress display for long runs, redrawn in place with `\\r` on standard error:
 
-      lats   45.0%   450/1000   123.4/s   ETA 0:04
+      lats  45.0%  450/1000  123.4/s  elapsed 0:03  ETA 0:04
 
   It is plain data threaded through the run loop (no process):
 
@@ -79,6 +79,15 @@ defmodule TartarusTools.Progress do
     end
   end
 
+  @doc """
+  Redraws the line of `p` as it is now (if enabled), unthrottled: for a caller that keeps
+  its own count and is called back at its own pace. Returns `:ok`.
+  """
+  @spec draw(t) :: :ok
+  def draw(%__MODULE__{enabled: false}), do: :ok
+
+  def draw(%__MODULE__{} = p), do: IO.write(p.device, ["\r", render(p, now_ms()), "\e[K"])
+
   @doc "Draws the final line followed by a newline (if enabled). Returns `:ok`."
   @spec finish(t) :: :ok
   def finish(%__MODULE__{enabled: false}), do: :ok
@@ -94,9 +103,9 @@ defmodule TartarusTools.Progress do
 
       iex> p = %TartarusTools.Progress{total: 200, done: 50, label: "run", started_ms: 0}
       iex> TartarusTools.Progress.render(p, 10_000)
-      "run  25.0%  50/200  5.0/s  ETA 0:30"
+      "run  25.0%  50/200  5.0/s  elapsed 0:10  ETA 0:30"
       iex> TartarusTools.Progress.render(%{p | done: 0}, 0)
-      "run  0.0%  0/200  0.0/s  ETA --:--"
+      "run  0.0%  0/200  0.0/s  elapsed 0:00  ETA --:--"
   """
   @spec render(t, integer) :: String.t()
   def render(%__MODULE__{} = p, now_ms) do
@@ -117,7 +126,9 @@ defmodule TartarusTools.Progress do
       "%  ",
       "#{p.done}/#{p.total}  ",
       :erlang.float_to_binary(rate * 1.0, decimals: 1),
-      "/s  ETA ",
+      "/s  elapsed ",
+      clock(trunc(elapsed)),
+      "  ETA ",
       eta
     ]
     |> IO.iodata_to_binary()

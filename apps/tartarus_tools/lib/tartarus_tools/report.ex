@@ -96,7 +96,11 @@ defmodule TartarusTools.Report do
     * `:comparisons` - rows `%{metric:, ours:, thesis:}` (optional `:note`) shown in an
       "Ours vs thesis" table and stored under `"comparisons"` in the JSON;
     * `:markdown` - more Markdown (iodata: an experiment's own tables) appended to
-      `summary.md` after a blank line (not in the JSON).
+      `summary.md` after a blank line (not in the JSON);
+    * `:provenance` - `false` to leave out what made the run; by default both files carry
+      it (`TartarusTools.Provenance.collect/0`: argv, git commit and dirty flag, OTP and
+      Elixir versions, date, machine), under `"provenance"` in the JSON and as a
+      "Provenance" table at the end of `summary.md`.
   """
   @spec write_summary!(Path.t(), map, keyword) :: [Path.t()]
   def write_summary!(dir, summary, opts \\ []) when is_map(summary) do
@@ -116,6 +120,21 @@ defmodule TartarusTools.Report do
           end
 
           Map.put(summary, "comparisons", comparisons)
+      end
+
+    {json, opts} =
+      if Keyword.get(opts, :provenance, true) and not Map.has_key?(summary, :provenance) and
+           not Map.has_key?(summary, "provenance") do
+        provenance = TartarusTools.Provenance.collect()
+        more =
+          case Keyword.get(opts, :markdown) do
+            nil -> provenance_markdown(provenance)
+            md -> [md, "\n", provenance_markdown(provenance)]
+          end
+
+        {Map.put(json, "provenance", provenance), Keyword.put(opts, :markdown, more)}
+      else
+        {json, opts}
       end
 
     [
@@ -175,6 +194,27 @@ defmodule TartarusTools.Report do
       end
 
     IO.iodata_to_binary(["# ", title, "\n\n| key | value |\n|---|---|\n", rows, compare, more])
+  end
+
+  @doc """
+  The "Provenance" section of `summary.md`: one row per key of `provenance` (see
+  `TartarusTools.Provenance.collect/0`), the command line as typed.
+
+      iex> TartarusTools.Report.provenance_markdown(%{argv: ["mix", "tartarus.x", "--seed", "1"], git_commit: "abc", git_dirty: false})
+      "## Provenance\\n\\n| key | value |\\n|---|---|\\n| argv | `mix tartarus.x --seed 1` |\\n| git_commit | abc |\\n| git_dirty | false |\\n"
+  """
+  @spec provenance_markdown(map) :: String.t()
+  def provenance_markdown(provenance) do
+    rows =
+      provenance
+      |> Enum.map(fn
+        {:argv, argv} -> {"argv", "`" <> Enum.join(argv, " ") <> "`"}
+        {k, v} -> {to_string(k), v}
+      end)
+      |> Enum.sort()
+      |> Enum.map(fn {k, v} -> ["| ", cell(k), " | ", cell(v), " |\n"] end)
+
+    IO.iodata_to_binary(["## Provenance\n\n| key | value |\n|---|---|\n", rows])
   end
 
   defp check_comparison!(%{metric: _, ours: _, thesis: _}), do: :ok

@@ -1,15 +1,21 @@
 defmodule Tartarus.CLITest do
   use ExUnit.Case, async: true
   doctest TartarusTools.CLI
+  doctest TartarusTools.Provenance
+  doctest Mix.Tasks.Tartarus.Chaos
 
-  test "unknown flags and stray arguments are refused naming the task" do
+  test "unknown flags, missing values and stray arguments are refused naming the task and flag" do
     assert_raise Mix.Error,
-                 "mix tartarus.x: invalid arguments --nope; see `mix help tartarus.x` or --help",
+                 "mix tartarus.x: unknown flag --nope; see `mix help tartarus.x` or --help",
                  fn ->
                    TartarusTools.CLI.parse!(["--nope"], [hosts: :integer], "tartarus.x")
                  end
 
-    assert_raise Mix.Error, ~r/invalid arguments extra/, fn ->
+    assert_raise Mix.Error, "mix tartarus.x: missing value for --hosts: expected an integer", fn ->
+      TartarusTools.CLI.parse!(["--hosts"], [hosts: :integer], "tartarus.x")
+    end
+
+    assert_raise Mix.Error, ~r/unexpected argument extra/, fn ->
       TartarusTools.CLI.parse!(["extra"], [hosts: :integer], "tartarus.x")
     end
 
@@ -17,6 +23,26 @@ defmodule Tartarus.CLITest do
              TartarusTools.CLI.parse!(["run", "--hosts", "3"], [hosts: :integer], "tartarus.x",
                args: true
              )
+  end
+
+  test "error!/2 turns an experiment's message into one line naming the flag" do
+    assert_raise Mix.Error,
+                 "mix tartarus.x: invalid value for --state-bytes: expected a positive integer, got: 0",
+                 fn ->
+                   TartarusTools.CLI.error!(
+                     "tartarus.x",
+                     "invalid options given to TartarusX.Experiment.run/1 for key :state_bytes: " <>
+                       "expected a positive integer, got: 0"
+                   )
+                 end
+
+    assert_raise Mix.Error, "mix tartarus.x: missing required flag --name", fn ->
+      TartarusTools.CLI.error!("tartarus.x", "required option :name not given to mix tartarus.x")
+    end
+
+    assert_raise Mix.Error, "mix tartarus.x: {:bad, 1}", fn ->
+      TartarusTools.CLI.error!("tartarus.x", {:bad, 1})
+    end
   end
 
   test "checks name the flag, the expectation and the value" do
@@ -48,6 +74,11 @@ defmodule Tartarus.CLITest do
       assert_received {:mix_shell, :info, [json]}
       assert {:ok, %{"a" => "x", "b" => 2}} = TartarusTools.JSON.decode(json)
       assert File.read!(path) == json <> "\n"
+      assert %{"provenance" => %{"argv" => _, "git_commit" => _}} = TartarusTools.JSON.decode!(json)
+
+      TartarusTools.CLI.report(%{b: %{"10" => 0.30000000000000004, "2" => nil}, a: "x"}, [])
+      assert_received {:mix_shell, :info, ["  a: x"]}
+      assert_received {:mix_shell, :info, ["  b: {2: -, 10: 0.3}"]}
     after
       Mix.shell(Mix.Shell.IO)
       File.rm(path)

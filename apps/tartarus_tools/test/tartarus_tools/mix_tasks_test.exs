@@ -37,13 +37,13 @@ defmodule TartarusTools.MixTasksTest do
 
   test "a task whose options are a schema documents them and takes its defaults from it" do
     doc = Mix.Task.moduledoc(Mix.Tasks.Tartarus.Demo)
-    assert doc =~ "`:out` - directory of the scenarios' reports. Defaults to `\"results/demo\"`."
+    assert doc =~ "`--out` - directory of the scenarios' reports. Defaults to `\"results/demo\"`."
 
     assert_raise Mix.Error,
-                 "invalid options given to mix tartarus.demo for --seed: expected a positive integer, got: 0",
+                 "mix tartarus.demo: invalid value for --seed: expected a positive integer, got: 0",
                  fn -> Mix.Tasks.Tartarus.Demo.run(["--seed", "0"]) end
 
-    assert_raise Mix.Error, "required option --name not given to mix tartarus.node", fn ->
+    assert_raise Mix.Error, "mix tartarus.node: missing required flag --name", fn ->
       Mix.Tasks.Tartarus.Node.run(["--host", "h1"])
     end
   end
@@ -59,8 +59,19 @@ defmodule TartarusTools.MixTasksTest do
                ~w(a.key a.pem a.ssl_dist.conf b.key b.pem b.ssl_dist.conf ca.key ca.pem)
     end
 
+    test "--json prints one object: the CA, each node's files, the provenance", %{dir: dir} do
+      Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir, "--nodes", "a", "--json"])
+      assert_received {:mix_shell, :info, [json]}
+      refute_received {:mix_shell, :info, _}
+      s = TartarusTools.JSON.decode!(json)
+      assert s["ca"] == Path.join(Path.expand(dir), "ca.pem") and s["ca_created"] == true
+      assert s["nodes"]["a"] == Enum.map(~w(a.pem a.key a.ssl_dist.conf), &Path.join(Path.expand(dir), &1))
+      assert Enum.all?(s["nodes"]["a"], &File.exists?/1)
+      assert s["provenance"]["argv"] == ["mix", "tartarus.gen.certs", "--out", dir, "--nodes", "a", "--json"]
+    end
+
     test "refuses bad arguments naming the flag, the expectation and the value", %{dir: dir} do
-      assert_raise Mix.Error, "required option --nodes not given to mix tartarus.gen.certs", fn ->
+      assert_raise Mix.Error, "mix tartarus.gen.certs: missing required flag --nodes", fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir])
       end
 
@@ -69,10 +80,10 @@ defmodule TartarusTools.MixTasksTest do
                    fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "x"]) end
 
       assert_raise Mix.Error,
-                   "invalid options given to mix tartarus.gen.certs for --days: expected a positive integer, got: 0",
+                   "mix tartarus.gen.certs: invalid value for --days: expected a positive integer, got: 0",
                    fn -> Mix.Tasks.Tartarus.Gen.Certs.run(["--nodes", "a", "--days", "0"]) end
 
-      assert_raise Mix.Error, ~r/^mix tartarus.gen.certs: invalid arguments --bogus/, fn ->
+      assert_raise Mix.Error, ~r/^mix tartarus.gen.certs: unknown flag --bogus/, fn ->
         Mix.Tasks.Tartarus.Gen.Certs.run(["--bogus", "1"])
       end
     end

@@ -35,7 +35,7 @@ defmodule TartarusEmu.ProgressTest do
 
   test "render/2 formats long ETAs and zero totals" do
     p = %Progress{total: 10_000, done: 1, started_ms: 0}
-    assert Progress.render(p, 1000) == "0.0%  1/10000  1.0/s  ETA 2:46:39"
+    assert Progress.render(p, 1000) == "0.0%  1/10000  1.0/s  elapsed 0:01  ETA 2:46:39"
     assert Progress.render(%Progress{total: 0, done: 0, started_ms: 0}, 5) =~ "100.0%  0/0"
   end
 end

@@ -80,10 +80,25 @@ defmodule TartarusEmu.ReportTest do
       assert text =~ "| queries | 200 | 200 | same workload |"
     end
 
-    test "without comparisons the JSON is the summary", %{dir: dir} do
+    test "without comparisons the JSON is the summary and its provenance", %{dir: dir} do
       [json, md] = Report.write_summary!(dir, %{"a" => [1, 2]})
-      assert TartarusTools.JSON.decode!(File.read!(json)) == %{"a" => [1, 2]}
-      refute File.read!(md) =~ "Ours vs thesis"
+      decoded = TartarusTools.JSON.decode!(File.read!(json))
+      assert Map.delete(decoded, "provenance") == %{"a" => [1, 2]}
+
+      assert Enum.sort(Map.keys(decoded["provenance"])) ==
+               ~w(argv date elixir git_commit git_dirty machine otp)
+
+      assert decoded["provenance"]["elixir"] == System.version()
+      assert {:ok, _, 0} = DateTime.from_iso8601(decoded["provenance"]["date"])
+      assert decoded["provenance"]["machine"]["schedulers"] == System.schedulers_online()
+      text = File.read!(md)
+      refute text =~ "Ours vs thesis"
+      assert text =~ "## Provenance"
+      assert text =~ "| elixir | #{System.version()} |"
+
+      [json, md] = Report.write_summary!(dir, %{"a" => 1}, provenance: false)
+      assert TartarusTools.JSON.decode!(File.read!(json)) == %{"a" => 1}
+      refute File.read!(md) =~ "Provenance"
     end
 
     test "bad comparisons and clashing keys are refused", %{dir: dir} do

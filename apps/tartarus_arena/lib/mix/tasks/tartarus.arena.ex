@@ -51,7 +51,7 @@ defmodule Mix.Tasks.Tartarus.Arena do
         end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 end

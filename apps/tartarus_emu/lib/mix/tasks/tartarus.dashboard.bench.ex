@@ -5,11 +5,11 @@ defmodule Mix.Tasks.Tartarus.Dashboard.Bench do
 
       mix tartarus.dashboard.bench [--rounds 5] [--moves 200] [--agents 16] [--hosts 8]
                                    [--no-big] [--big-rows 100 --big-cols 100 --big-agents 1000]
-                                   [--out results/dashboard-bench.json]
+                                   [--out results/dashboard-bench.json] [--json]
 
   Options (flags are the keys with dashes):
 
-  #{Tartarus.Options.docs(TartarusEmu.DashboardBench.schema())}
+  #{TartarusTools.CLI.flag_docs(TartarusEmu.DashboardBench.schema())}
 
   `--out FILE` (default `results/dashboard-bench.json`) is where the JSON goes; the last
   line printed is the same JSON. The page is a real headless Chromium when `chromium` is
@@ -19,31 +19,38 @@ defmodule Mix.Tasks.Tartarus.Dashboard.Bench do
 
   @impl true
   def run(argv) do
-    {out, argv} = take_out(argv, "results/dashboard-bench.json", [])
+    schema =
+      TartarusEmu.DashboardBench.schema() ++
+        [
+          out: [
+            type: :string,
+            default: "results/dashboard-bench.json",
+            doc: "where the JSON goes"
+          ],
+          json: [
+            type: :boolean,
+            default: false,
+            doc: "print only the JSON (the last line is the JSON in any case)"
+          ]
+        ]
 
-    opts =
-      TartarusTools.CLI.options!(
-        argv,
-        TartarusEmu.DashboardBench.schema(),
-        "tartarus.dashboard.bench"
-      )
+    opts = TartarusTools.CLI.options!(argv, schema, "tartarus.dashboard.bench")
+    {out, json?} = {opts[:out], opts[:json]}
+    opts = opts |> Keyword.drop([:out, :json]) |> Keyword.update(:quiet, json?, &(&1 or json?))
 
     Mix.Task.run("app.start")
 
     case TartarusEmu.DashboardBench.run(opts) do
       {:ok, result} ->
+        result = Map.put_new(result, :provenance, TartarusTools.Provenance.collect())
         json = TartarusTools.JSON.encode!(result, pretty: true)
         File.mkdir_p!(Path.dirname(out))
         File.write!(out, json <> "\n")
-        Mix.shell().info("written to #{out}")
-        IO.puts(TartarusTools.JSON.encode!(result))
+        unless json?, do: Mix.shell().info("written to #{out}")
+        TartarusTools.CLI.report(result, json: true)
 
       {:error, reason} ->
-        Mix.raise("mix tartarus.dashboard.bench: #{reason}")
+        TartarusTools.CLI.error!("tartarus.dashboard.bench", reason)
     end
   end
-
-  defp take_out(["--out", path | rest], _default, acc), do: take_out(rest, path, acc)
-  defp take_out([x | rest], default, acc), do: take_out(rest, default, [x | acc])
-  defp take_out([], default, acc), do: {default, Enum.reverse(acc)}
 end

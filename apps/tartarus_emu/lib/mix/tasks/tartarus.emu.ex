@@ -12,7 +12,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--dashboard PORT] [--step-ms MS]
 
   Defaults (those of `TartarusEmu.Walk.schema/0`): a 16-host grid, 4 agents, 100 steps,
-  virtual mode, random walk, `p = 0`, a random seed (recorded in the summary), output in
+  virtual mode, random walk, `p = 0`, seed 1 (as every task), output in
   `results/walk-<timestamp>/`. `--help` prints this text.
 
   Each step, every agent makes one move (see `TartarusEmu.Walk` for the step model), so a
@@ -80,7 +80,8 @@ defmodule Mix.Tasks.Tartarus.Emu do
       |> Keyword.merge(
         latency_ms: opts[:latency_ms],
         loss: opts[:loss],
-        seed: opts[:seed],
+        # Seed 1 unless given, as every other task.
+        seed: opts[:seed] || 1,
         out: Path.expand(opts[:out] || TartarusTools.Report.default_out_dir("walk")),
         quiet: opts[:quiet] || opts[:json] || false,
         progress_device: progress,
@@ -92,7 +93,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
     summary =
       case TartarusEmu.Walk.run(run_opts) do
         {:ok, summary} -> summary
-        {:error, reason} -> Mix.raise("mix tartarus.emu: #{format(reason)}")
+        {:error, reason} -> TartarusTools.CLI.error!("tartarus.emu", reason)
       end
 
     unless opts[:json] do
@@ -104,16 +105,26 @@ defmodule Mix.Tasks.Tartarus.Emu do
       )
     end
 
-    if opts[:json], do: IO.puts(TartarusTools.JSON.encode!(summary))
+    if opts[:json], do: TartarusTools.CLI.report(summary, json: true)
   end
-
-  defp format(reason) when is_binary(reason), do: reason
-  defp format(reason), do: inspect(reason)
 
   defp check!(opts) do
     TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
     TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
     TartarusTools.CLI.non_negative!(opts, [:dashboard, :step_ms], "tartarus.emu")
+
+    case opts[:topology] do
+      t when t in [nil, "grid", "ring", "line", "random"] ->
+        :ok
+
+      path ->
+        unless File.regular?(path),
+          do:
+            Mix.raise(
+              "mix tartarus.emu: --topology: file not found: #{path} " <>
+                "(expected grid, ring, line, random or a topology file)"
+            )
+    end
 
     # Absent flags stay absent: the walk's schema supplies the defaults.
     choices = [mode: [:virtual, :peer], strategy: [:random, :conscientious]]

@@ -4,7 +4,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--trials 10]
+      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--seeds 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--min-period 10] [--puck-reward product|sum]
@@ -69,6 +69,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
   `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
   each per scheme.
+
+  `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
+  `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
   """
   use TartarusTools.CLI
 
@@ -85,7 +88,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
-    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    opts = TartarusTools.CLI.options!(argv, schema, @task, synonyms: [seeds: :trials])
     json? = opts[:json]
 
     exp_opts =
@@ -101,7 +104,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 
@@ -165,7 +168,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     rows =
       for {n, g} <- Enum.sort_by(s.gamma_avg, &String.to_integer(elem(&1, 0))),
           {label, v} <- Enum.sort_by(g, &order(elem(&1, 0))) do
-        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{v}  Omega #{inspect(s.omega[n][label])}"
+        "  #{String.pad_leading(n, 5)} nodes  #{String.pad_trailing(label, 10)} gamma_avg #{TartarusTools.CLI.show(v)}  Omega #{TartarusTools.CLI.show(s.omega[n][label])}"
       end
 
     Enum.join(
@@ -173,7 +176,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         rows ++
         [
           "  iPkts fewer communications than broadcast at every size: #{s.ipkt_fewer_communications_at_every_size}",
-          "  more iPkts, lower Omega: #{inspect(s.more_ipkts_lower_omega)}",
+          "  more iPkts, lower Omega: #{TartarusTools.CLI.show(s.more_ipkts_lower_omega)}",
           "  written to #{dir}"
         ],
       "\n"

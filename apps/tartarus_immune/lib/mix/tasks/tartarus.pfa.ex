@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   (time, staying on the line) feeds back; each robot receives one new random PFA per lap;
   the mappings travel between the robots as agents (fresh clones, by default).
 
-      mix tartarus.pfa [--laps 12] [--trials 10] [--seed 1] [--out DIR] [--json]
+      mix tartarus.pfa [--laps 12] [--seeds 10] [--seed 1] [--out DIR] [--json]
                        [--explore untried_first|activation|P] [--n-min 1]
                        [--sharing clones|roam|none] [--stream once|lifelong]
                        [--challenge tried|activation] [--stuck-after 6] [--lost-penalty 5]
@@ -59,6 +59,9 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   the last line printed is the summary as one JSON object.
 
   `--help` prints this text.
+
+  `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
+  `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
   """
   use TartarusTools.CLI
 
@@ -78,7 +81,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
       |> Keyword.update!(:challenge, &Keyword.merge(&1, type: :string, default: "tried"))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
-    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    opts = TartarusTools.CLI.options!(argv, schema, @task, synonyms: [seeds: :trials])
     json? = opts[:json]
 
     sharing =
@@ -112,7 +115,7 @@ defmodule Mix.Tasks.Tartarus.Pfa do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 
@@ -137,12 +140,12 @@ defmodule Mix.Tasks.Tartarus.Pfa do
   defp text(s, dir) do
     paths =
       for {key, label} <- [{"path1", "Path-1"}, {"path2", "Path-2"}] do
-        "  #{label}: mean lap times #{inspect(s.lap_times["mean"][key])}; plateau at lap #{inspect(s.plateau_lap[key])} (#{inspect(s.plateau_time[key])} s)"
+        "  #{label}: mean lap times #{TartarusTools.CLI.show(s.lap_times["mean"][key])}; plateau at lap #{TartarusTools.CLI.show(s.plateau_lap[key])} (#{TartarusTools.CLI.show(s.plateau_time[key])} s)"
       end
 
     best =
       for type <- ["sp_a", "sp_b", "sp_c", "sp_d"] do
-        "  #{type}: #{inspect(s.best_pfa[type])} #{inspect(s.best_pfa_counts[type])}  Table 6.5: #{s.best_pfa_table6_5[type]}  exhaustive: #{inspect(s.exhaustive_best && s.exhaustive_best[type])}"
+        "  #{type}: #{TartarusTools.CLI.show(s.best_pfa[type])} #{TartarusTools.CLI.show(s.best_pfa_counts[type])}  Table 6.5: #{s.best_pfa_table6_5[type]}  exhaustive: #{TartarusTools.CLI.show(s.exhaustive_best && s.exhaustive_best[type])}"
       end
 
     Enum.join(

@@ -78,7 +78,7 @@ defmodule Mix.Tasks.Tartarus.Select do
 
     case Select.validate(sel_opts) do
       {:ok, _} -> :ok
-      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+      {:error, message} -> TartarusTools.CLI.error!(@task, message)
     end
 
     Mix.Task.run("app.start")
@@ -89,7 +89,7 @@ defmodule Mix.Tasks.Tartarus.Select do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 
@@ -98,7 +98,7 @@ defmodule Mix.Tasks.Tartarus.Select do
       case s do
         %{arms: arms} ->
           Enum.map_join(arms, "\n", fn {arm, a} ->
-            "  #{arm}: convergence steps #{inspect(a.convergence_steps, charlists: :as_lists)} (mean #{fmt(a.steps_mean)}, sd #{fmt(a.steps_sd)}), winners #{inspect(a.winners, charlists: :as_lists)}"
+            "  #{arm}: convergence steps #{TartarusTools.CLI.show(a.convergence_steps)} (mean #{fmt(a.steps_mean)}, sd #{fmt(a.steps_sd)}), winners #{TartarusTools.CLI.show(a.winners)}"
           end)
 
         _ ->
@@ -106,9 +106,9 @@ defmodule Mix.Tasks.Tartarus.Select do
       end
 
     """
-    winners #{inspect(s.winners, charlists: :as_lists)} (known best #{inspect(s.known_best, charlists: :as_lists)})
-    convergence steps #{inspect(s.convergence_steps, charlists: :as_lists)}
-    test accuracy #{inspect(s.test_accuracy, charlists: :as_lists)}
+    winners #{TartarusTools.CLI.show(s.winners)} (known best #{TartarusTools.CLI.show(s.known_best)})
+    convergence steps #{TartarusTools.CLI.show(s.convergence_steps)}
+    test accuracy #{TartarusTools.CLI.show(s.test_accuracy)}
     #{arms}
     written to #{dir}\
     """

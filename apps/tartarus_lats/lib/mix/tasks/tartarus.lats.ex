@@ -144,7 +144,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
     shown =
       case Experiment.validate(exp_opts) do
         {:ok, shown} -> shown
-        {:error, message} -> Mix.raise("mix tartarus.lats: #{message}")
+        {:error, message} -> TartarusTools.CLI.error!("tartarus.lats", message)
       end
 
     if shown[:record] && shown[:replay],
@@ -168,20 +168,24 @@ defmodule Mix.Tasks.Tartarus.Lats do
     case Experiment.run(exp_opts) do
       {:ok, %{summary: summary, out: dir}} ->
         if json? do
-          Mix.shell().info(TartarusTools.JSON.encode!(summary))
+          TartarusTools.CLI.report(summary, json: true)
         else
           Mix.shell().info("""
-          queries: #{summary.queries}, correct: #{summary.correct} (centralized: #{summary.correct_centralized})
-          correct, settled / moving targets: #{summary.correct_settled} / #{summary.correct_moving} (#{summary.release} release, #{summary.noise_db} dB noise)
-          cloud connections: centralized #{summary.cloud_connections_centralized}, agents #{summary.cloud_connections_agents} (ratio #{summary.cloud_connection_ratio})
-          cloud bytes: centralized #{summary.cloud_bytes_centralized}, agents #{summary.cloud_bytes_agents}
-          median query hops #{summary.median_query_hops}, median latency #{summary.median_query_ms} ms
+          queries: #{show(summary.queries)}, correct: #{show(summary.correct)} (centralized: #{show(summary.correct_centralized)})
+          correct, settled / moving targets: #{show(summary.correct_settled)} / #{show(summary.correct_moving)} (#{show(summary.release)} release, #{show(summary.noise_db)} dB noise)
+          cloud connections: centralized #{show(summary.cloud_connections_centralized)}, agents #{show(summary.cloud_connections_agents)} (ratio #{show(summary.cloud_connection_ratio)})
+          cloud bytes: centralized #{show(summary.cloud_bytes_centralized)}, agents #{show(summary.cloud_bytes_agents)}
+          median query hops #{show(summary.median_query_hops)}, median latency #{show(summary.median_query_ms)} ms
           written to #{dir}\
           """)
         end
 
       {:error, message} ->
-        Mix.raise("mix tartarus.lats: #{message}")
+        TartarusTools.CLI.error!("tartarus.lats", message)
     end
   end
+
+  # A share with no queries behind it (no target moving at release, say) is nil.
+  defp show(nil), do: "- (no such queries)"
+  defp show(x), do: TartarusTools.CLI.show(x)
 end

@@ -56,7 +56,7 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
 
     case TartarusRoadblock.validate(run_opts) do
       {:ok, _} -> :ok
-      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+      {:error, message} -> TartarusTools.CLI.error!(@task, message)
     end
 
     Mix.Task.run("app.start")
@@ -115,5 +115,5 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
     end)
   end
 
-  defp report({:error, message}, _json?), do: Mix.raise("mix #{@task}: #{inspect(message)}")
+  defp report({:error, message}, _json?), do: TartarusTools.CLI.error!(@task, message)
 end

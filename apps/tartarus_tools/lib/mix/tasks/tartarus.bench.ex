@@ -176,9 +176,11 @@ defmodule Mix.Tasks.Tartarus.Bench do
           )
 
         _ ->
+          given = if args == [], do: "none", else: Enum.join(args, " ")
+
           Mix.raise(
-            "usage: mix tartarus.bench migration|agents|churn|busy|durability [options]; " <>
-              "see `mix help tartarus.bench`"
+            "mix tartarus.bench: expected one benchmark, migration, agents, churn, busy or " <>
+              "durability, got: #{given}; see `mix help tartarus.bench`"
           )
       end
 

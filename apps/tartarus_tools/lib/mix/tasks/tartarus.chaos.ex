@@ -24,7 +24,11 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   lost_on_dead_hosts, migrations_done, agent_moves, posts, post_failures, acknowledged,
   acknowledged_missing, acknowledged_missing_after_kill, acknowledged_of_lost_agents,
   census_rounds, transient_duplicates, census_unanswered, replays, kills, partitions,
-  persist, host_opts, seed, still_in_doubt, wall_ms`.
+  persist, host_opts, seed, still_in_doubt, wall_ms`, the verdict line as `verdict` and
+  `ok` (true when it says OK), and `provenance` (`TartarusTools.Provenance`). Without
+  `--json` the keys are printed one a line, then the verdict line (`verdict/1`):
+
+      3 lost (3 on killed nodes), 0 duplicated, 0 transient duplicates, 0 acknowledged messages missing: OK
   """
   use TartarusTools.CLI
 
@@ -49,16 +53,20 @@ defmodule Mix.Tasks.Tartarus.Chaos do
     TartarusTools.CLI.positive!(opts, [:nodes, :agents, :migrations], "tartarus.chaos")
     TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :census_ms, :replays], "tartarus.chaos")
 
+    if opts[:nodes] && opts[:nodes] < 2,
+      do: Mix.raise("mix tartarus.chaos: --nodes must be at least 2, got: #{opts[:nodes]}")
+
     Mix.Task.run("app.start")
     host_opts = durable_opts(opts[:durable])
     Logger.configure(level: :error)
     :ok = TartarusTools.Peer.ensure_distributed("chaos")
     total = opts[:migrations] || 10_000
-    tty? = match?({:ok, _}, :io.columns(:standard_error))
+    # "what, k of n, elapsed, ETA" on a terminal; nothing under --json or when redirected.
+    shown = TartarusTools.Progress.new(total, label: "chaos: migrations", quiet: opts[:json])
 
     progress = fn
-      :done -> if tty?, do: IO.write(:stderr, "\n")
-      n -> if tty?, do: IO.write(:stderr, "\r  migrations attempted: #{min(n, total)}/#{total}")
+      :done -> if shown.enabled, do: IO.write(:stderr, "\n")
+      n -> TartarusTools.Progress.draw(%{shown | done: min(n, total)})
     end
 
     result =
@@ -76,7 +84,63 @@ defmodule Mix.Tasks.Tartarus.Chaos do
         progress: progress
       )
 
-    TartarusTools.CLI.report(result, json: opts[:json], out_file: opts[:out])
+    if opts[:json] || opts[:out] do
+      result = Map.merge(result, %{verdict: verdict(result), ok: verdict(result) =~ ": OK"})
+      TartarusTools.CLI.report(result, json: opts[:json], out_file: opts[:out])
+    end
+
+    unless opts[:json] do
+      if opts[:out] == nil, do: TartarusTools.CLI.report(result, [])
+      Mix.shell().info(verdict(result))
+    end
+  end
+
+  @doc """
+  The verdict line of a chaos run: agents lost, duplicated and seen twice by the census,
+  then `OK`, or `FAILED` with what broke a guarantee: any duplicate (lasting or transient);
+  a lost agent that was not on a killed node (without `--persist`; with it, any lost agent);
+  an acknowledged message missing from a live agent (without `--durable`, those of agents
+  restored from their arrival snapshot after a kill are reported apart, not as a failure).
+
+      iex> Mix.Tasks.Tartarus.Chaos.verdict(%{lost: 0, lost_on_dead_hosts: 0, duplicates: 0, transient_duplicates: 0, acknowledged_missing: 0, acknowledged_missing_after_kill: 0, persist: true, host_opts: "[]"})
+      "0 lost, 0 duplicated, 0 transient duplicates, 0 acknowledged messages missing: OK"
+      iex> Mix.Tasks.Tartarus.Chaos.verdict(%{lost: 3, lost_on_dead_hosts: 3, duplicates: 0, transient_duplicates: 0, acknowledged_missing: 2, acknowledged_missing_after_kill: 2, persist: false, host_opts: "[]"})
+      "3 lost (3 on killed nodes), 0 duplicated, 0 transient duplicates, 2 acknowledged messages missing (2 after a kill): OK"
+      iex> Mix.Tasks.Tartarus.Chaos.verdict(%{lost: 2, lost_on_dead_hosts: 0, duplicates: 1, transient_duplicates: 0, acknowledged_missing: 0, acknowledged_missing_after_kill: 0, persist: true, host_opts: "[]"})
+      "2 lost, 1 duplicated, 0 transient duplicates, 0 acknowledged messages missing: FAILED (2 agents lost, 1 duplicated)"
+  """
+  @spec verdict(map()) :: String.t()
+  def verdict(r) do
+    get = &Map.get(r, &1, 0)
+    {lost, on_dead, missing, after_kill} =
+      {get.(:lost), get.(:lost_on_dead_hosts), get.(:acknowledged_missing),
+       get.(:acknowledged_missing_after_kill)}
+
+    # `host_opts` is the inspected keyword list of the hosts' options.
+    durable? = to_string(Map.get(r, :host_opts, "")) =~ "durable: true"
+    bad_lost = if Map.get(r, :persist, false), do: lost, else: lost - on_dead
+    bad_missing = if durable?, do: missing, else: missing - after_kill
+
+    failures =
+      for {n, what} <- [
+            {bad_lost, "agents lost"},
+            {get.(:duplicates), "duplicated"},
+            {get.(:transient_duplicates), "transient duplicates"},
+            {bad_missing, "acknowledged messages missing"}
+          ],
+          n > 0,
+          do: "#{n} #{what}"
+
+    lost_text = if on_dead > 0, do: "#{lost} lost (#{on_dead} on killed nodes)", else: "#{lost} lost"
+
+    missing_text =
+      if after_kill > 0,
+        do: "#{missing} acknowledged messages missing (#{after_kill} after a kill)",
+        else: "#{missing} acknowledged messages missing"
+
+    "#{lost_text}, #{get.(:duplicates)} duplicated, #{get.(:transient_duplicates)} transient duplicates, " <>
+      "#{missing_text}: " <>
+      if(failures == [], do: "OK", else: "FAILED (#{Enum.join(failures, ", ")})")
   end
 
   # `--durable` is passed to every host as `durable: true`, if the platform has that option.

@@ -4,7 +4,12 @@ defmodule Mix.Tasks.Tartarus.Demo do
   @schema [
     seed: [type: :pos_integer, default: 1, doc: "seed of every random choice"],
     out: [type: :string, default: "results/demo", doc: "directory of the scenarios' reports"],
-    only: [type: :string, doc: "run only the sections whose title starts with this"]
+    only: [
+      type: :string,
+      doc:
+        "run only the sections whose title starts with this (any case: `platform`, " <>
+          "`emulation`, `lats`, ...); an unknown name is refused with the list"
+    ]
   ]
 
   @moduledoc """
@@ -18,7 +23,7 @@ defmodule Mix.Tasks.Tartarus.Demo do
 
   Options (flags are the keys with dashes):
 
-  #{Tartarus.Options.docs(@schema)}
+  #{TartarusTools.CLI.flag_docs(@schema)}
   """
   use TartarusTools.CLI
 
@@ -28,15 +33,37 @@ defmodule Mix.Tasks.Tartarus.Demo do
     Mix.Task.run("app.start")
     Logger.configure(level: :warning)
 
-    for section <- TartarusTools.Demo.sections(),
-        opts[:only] == nil or String.starts_with?(section.title(), opts[:only]) do
+    for section <- sections!(opts[:only]) do
       IO.puts("\n== #{section.title()}")
       t0 = System.monotonic_time(:millisecond)
 
       case section.run(opts) do
         :ok -> IO.puts("  (#{System.monotonic_time(:millisecond) - t0} ms)")
-        {:error, reason} -> Mix.raise("demo section failed: #{inspect(reason)}")
+        {:error, reason} -> TartarusTools.CLI.error!("tartarus.demo", "section failed: #{inspect(reason)}")
       end
     end
   end
+
+  # The sections `--only` names: those whose name (the title before its colon) or title
+  # starts with it, whatever the case; none is an error that lists the names.
+  defp sections!(nil), do: TartarusTools.Demo.sections()
+
+  defp sections!(only) do
+    sections = TartarusTools.Demo.sections()
+    prefix = String.downcase(String.trim(only))
+
+    case Enum.filter(sections, &String.starts_with?(String.downcase(&1.title()), prefix)) do
+      [_ | _] = chosen when prefix != "" ->
+        chosen
+
+      _ ->
+        names = Enum.map_join(sections, ", ", &name/1)
+
+        Mix.raise(
+          "mix tartarus.demo: --only #{inspect(only)} names no section; the sections are: #{names}"
+        )
+    end
+  end
+
+  defp name(section), do: section.title() |> String.split(":") |> hd() |> String.downcase()
 end

@@ -18,6 +18,12 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
     days: [
       type: :pos_integer,
       doc: "validity in days (when not given, `Tartarus.Security.Certs.generate/2`'s default)"
+    ],
+    json: [
+      type: :boolean,
+      default: false,
+      doc:
+        "print one JSON object (`ca`, `ca_created`, `nodes`: name => files) instead of the lines"
     ]
   ]
 
@@ -46,7 +52,7 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
 
   Flags are the keys with dashes; `--help` prints this documentation.
 
-  #{Tartarus.Options.docs(@schema)}
+  #{TartarusTools.CLI.flag_docs(@schema)}
 
   See `Tartarus.Security.Certs` for what the certificates contain and prove.
   """
@@ -71,7 +77,19 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
         Keyword.take(opts, [:days]) ++
         if hosts = opts[:hosts], do: [hosts: split(hosts)], else: []
 
+    json? = opts[:json]
+
     case Certs.generate(out, cert_opts) do
+      {:ok, %{ca: ca, ca_created?: created?}} when json? ->
+        files = fn node ->
+          for ext <- ~w(pem key ssl_dist.conf), do: Path.join(Path.expand(out), "#{node}.#{ext}")
+        end
+
+        TartarusTools.CLI.report(
+          %{ca: ca, ca_created: created?, nodes: Map.new(nodes, &{&1, files.(&1)})},
+          json: true
+        )
+
       {:ok, %{ca: ca, ca_created?: created?}} ->
         Mix.shell().info(
           "#{if created?, do: "created", else: "reused"} CA #{ca}\n" <>
@@ -83,7 +101,7 @@ defmodule Mix.Tasks.Tartarus.Gen.Certs do
         )
 
       {:error, message} ->
-        Mix.raise(message)
+        TartarusTools.CLI.error!("tartarus.gen.certs", message)
     end
   end
 

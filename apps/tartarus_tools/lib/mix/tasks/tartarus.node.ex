@@ -57,7 +57,7 @@ defmodule Mix.Tasks.Tartarus.Node do
 
   Options (flags are the keys with dashes):
 
-  #{Tartarus.Options.docs(@schema)}
+  #{TartarusTools.CLI.flag_docs(@schema)}
 
   ## Devices
 

@@ -94,7 +94,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
 
     case Experiment.validate(exp_opts) do
       {:ok, _} -> :ok
-      {:error, message} -> Mix.raise("mix #{@task}: #{message}")
+      {:error, message} -> TartarusTools.CLI.error!(@task, message)
     end
 
     Mix.Task.run("app.start")
@@ -110,7 +110,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
         TartarusTools.CLI.report(s, [json: json?], fn s -> text(s, dir) end)
 
       {:error, message} ->
-        Mix.raise("mix #{@task}: #{message}")
+        TartarusTools.CLI.error!(@task, message)
     end
   end
 

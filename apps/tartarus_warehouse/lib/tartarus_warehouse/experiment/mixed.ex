@@ -47,5 +47,6 @@ defmodule TartarusWarehouse.Experiment.Mixed do
 
   @impl Experiment
   def text(s),
-    do: "jobs whose two sequences overlapped: #{inspect(s.jobs_with_concurrent_sequences)}"
+    do:
+      "jobs whose two sequences overlapped: #{TartarusTools.CLI.show(s.jobs_with_concurrent_sequences)}"
 end

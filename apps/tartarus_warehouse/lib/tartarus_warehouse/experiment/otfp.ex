@@ -138,5 +138,6 @@ defmodule TartarusWarehouse.Experiment.Otfp do
 
   @impl Experiment
   def text(s),
-    do: "tasks per job: #{inspect(s.tasks_in_job)}\nms per task: #{inspect(s.ms_per_task)}"
+    do:
+      "tasks per job: #{TartarusTools.CLI.show(s.tasks_in_job)}\nms per task: #{TartarusTools.CLI.show(s.ms_per_task)}"
 end

@@ -50,5 +50,5 @@ defmodule TartarusWarehouse.Experiment.Removal do
   def gantt(_run, _state), do: nil
 
   @impl Experiment
-  def text(s), do: "jobs per robot: #{inspect(s.jobs_per_robot)}"
+  def text(s), do: "jobs per robot: #{TartarusTools.CLI.show(s.jobs_per_robot)}"
 end

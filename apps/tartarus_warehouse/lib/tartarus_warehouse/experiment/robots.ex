@@ -110,7 +110,7 @@ defmodule TartarusWarehouse.Experiment.Robots do
 
   @impl Experiment
   def text(s) do
-    "speed-up (variable durations): #{inspect(s.speedup)}; thesis #{inspect(s.speedup_thesis)}\n" <>
-      "speed-up (equal durations, #{s.jobs_equal} jobs): #{inspect(s.speedup_equal)}"
+    "speed-up (variable durations): #{TartarusTools.CLI.show(s.speedup)}; thesis #{TartarusTools.CLI.show(s.speedup_thesis)}\n" <>
+      "speed-up (equal durations, #{s.jobs_equal} jobs): #{TartarusTools.CLI.show(s.speedup_equal)}"
   end
 end

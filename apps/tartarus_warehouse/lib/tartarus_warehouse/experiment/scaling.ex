@@ -192,6 +192,6 @@ defmodule TartarusWarehouse.Experiment.Scaling do
 
   @impl Experiment
   def text(s) do
-    "avg ms per task, agents: #{inspect(s.avg_task_ms_agents)}\navg ms per task, central: #{inspect(s.avg_task_ms_central)}"
+    "avg ms per task, agents: #{TartarusTools.CLI.show(s.avg_task_ms_agents)}\navg ms per task, central: #{TartarusTools.CLI.show(s.avg_task_ms_central)}"
   end
 end
