@@ -80,17 +80,6 @@ defmodule Tartarus.AgentTable do
   def unregister(id, pid, host_name, name, module),
     do: :ets.delete_object(@table, {id, pid, host_name, name, module})
 
-  # Removes `id` if it is still registered to `pid`.
-  def unregister(id, pid) do
-    # delete_object removes exactly this entry: if it was replaced meanwhile, nothing.
-    case :ets.lookup(@table, id) do
-      [{^id, ^pid, _, _, _} = entry] -> :ets.delete_object(@table, entry)
-      _ -> true
-    end
-
-    :ok
-  end
-
   # {:ok, pid, host_name} for a live agent of this node.
   def lookup(id) do
     case :ets.lookup(@table, id) do

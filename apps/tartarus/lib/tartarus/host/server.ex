@@ -24,7 +24,6 @@ defmodule Tartarus.Host.Server do
   alias Tartarus.Host.{Agents, Arrivals}
   alias Tartarus.Migration.Protocol
 
-  @hop_slots 1024
   # Acknowledgements per message (the first arrival after a flush arms the next, see
   # Agent.Server).
   @ack_batch 1_000
@@ -521,7 +520,4 @@ defmodule Tartarus.Host.Server do
 
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
-
-  @doc false
-  def hop_slots, do: @hop_slots
 end
