@@ -148,7 +148,7 @@ defmodule Tartarus.Host.Arrivals do
   @doc false
   # Refuses a prepare: the source hears why; nothing was created.
   def refuse(state, s_pid, mig, env, src, reason) do
-    if is_pid(s_pid), do: send(s_pid, {:"$tartarus_refused", mig, reason})
+    if is_pid(s_pid), do: send(s_pid, Tartarus.Migration.Messages.refused(mig, reason))
     agent = with %{id: id} when is_binary(id) <- env, do: id, else: (_ -> nil)
     src = if Tartarus.Host.address?(src), do: src
 
@@ -159,5 +159,34 @@ defmodule Tartarus.Host.Arrivals do
     )
 
     state
+  end
+
+  # Acknowledgements per message (the first arrival after a flush arms the next, see
+  # Tartarus.Migration.Arrival).
+  @ack_batch 1_000
+
+  @doc false
+  # Sends the acknowledgements of this host's arrivals, one batch per source host: a timer
+  # that only tells sources they may forget their commits (it decides nothing).
+  def flush_acks(host) do
+    :atomics.put(host.acks_armed, 1, 0)
+    flush_acks(host.acks, :ets.first(host.acks))
+  end
+
+  defp flush_acks(_table, :"$end_of_table"), do: :ok
+
+  defp flush_acks(table, src) do
+    next = :ets.next(table, src)
+    acks = table |> :ets.take(src) |> Enum.map(&elem(&1, 1))
+
+    # A source host that is gone needs no acknowledgement (a restarted one keeps the commits
+    # it journaled: they then stay, which is safe).
+    with {:ok, pid} <- Tartarus.Host.whereis(src) do
+      acks
+      |> Enum.chunk_every(@ack_batch)
+      |> Enum.each(&send(pid, Tartarus.Migration.Messages.acks(&1)))
+    end
+
+    flush_acks(table, next)
   end
 end

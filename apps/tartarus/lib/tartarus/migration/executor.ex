@@ -34,7 +34,7 @@ defmodule Tartarus.Migration.Executor do
   the effects after it do not happen and `source/4` returns `{:halted, ctx}`.
   """
 
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Messages, Protocol}
 
   @typedoc "The backend's context, threaded through every effect."
   @type ctx :: term()
@@ -125,7 +125,7 @@ defmodule Tartarus.Migration.Executor do
 
   defp run(s, [{:send, to, {:"$tartarus_commit", mig, copy, notify, _}} | rest], ctx, b) do
     {handover, ctx} = if s.kind == :move, do: b.handover(ctx), else: {nil, ctx}
-    run(s, rest, b.send(ctx, to, Protocol.commit(mig, copy, notify, handover)), b)
+    run(s, rest, b.send(ctx, to, Messages.commit(mig, copy, notify, handover)), b)
   end
 
   defp run(s, [{:send, to, msg} | rest], ctx, b), do: run(s, rest, b.send(ctx, to, msg), b)

@@ -36,7 +36,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
-  alias Tartarus.Migration.{Executor, Inbox, Protocol}
+  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
 
   # Chance of a crash of the source's host at each effect of the executor (fault phase).
   @crash_point 0.03
@@ -281,7 +281,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp dest_host(w, pid), do: with(%{host: h} <- w.procs[pid], do: h)
 
   defp receive_msg(w, {:hs, h, _}, h, msg) do
-    case Protocol.classify(msg) do
+    case Messages.classify(msg) do
       {:prepare, p} ->
         admission(w, h, {:prepare, p})
 
@@ -302,7 +302,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp receive_msg(w, pid, _h, msg) do
     proc = w.procs[pid]
 
-    case {proc.role, Protocol.classify(msg)} do
+    case {proc.role, Messages.classify(msg)} do
       {:copy, {:commit, _, _, _} = e} ->
         copy_event(w, pid, e)
 
@@ -354,7 +354,7 @@ defmodule Tartarus.Migration.ProtocolModel do
           end
 
         s = Executor.source_state(mig, kind, server(w, dest), nil, proc.env.id, env.id)
-        prepare = Protocol.prepare(pid, mig, h, server(w, h), kind, env, [], [])
+        prepare = Messages.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
         # As Tartarus.Ledger.begin_handoff/3, before `prepare` leaves.
         w = put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, pid})
@@ -504,7 +504,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def resend(ctx, code) do
     effect(ctx, fn w, h, proc ->
-      send_msg(w, h, server(w, proc.src.dest), Protocol.with_code(proc.src.prepare, code))
+      send_msg(w, h, server(w, proc.src.dest), Messages.with_code(proc.src.prepare, code))
     end)
   end
 
@@ -544,7 +544,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp admission_action(w, h, {:send, to, msg}), do: send_msg(w, h, to, msg)
 
   defp admission_action(w, h, {:refuse, p, reason}),
-    do: send_msg(count(w, {:refused, reason}), h, p.s_pid, Protocol.refused(p.mig, reason))
+    do: send_msg(count(w, {:refused, reason}), h, p.s_pid, Messages.refused(p.mig, reason))
 
   # -- decision queries (source host) ---------------------------------------------------
 
@@ -567,7 +567,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       |> check_answer(h, mig, copy, a)
       |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
 
-    send_msg(w, h, a_pid, Protocol.decision(mig, copy, a))
+    send_msg(w, h, a_pid, Messages.decision(mig, copy, a))
   end
 
   # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
@@ -639,7 +639,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       # Running: acknowledge to the source host.
       w =
         if alive_host?(w, c.src),
-          do: send_msg(w, h, server(w, c.src), Protocol.acks([{c.mig, env.id, c.copy}])),
+          do: send_msg(w, h, server(w, c.src), Messages.acks([{c.mig, env.id, c.copy}])),
           else: w
 
       {:halt, w}
@@ -663,7 +663,7 @@ defmodule Tartarus.Migration.ProtocolModel do
             w,
             proc.host,
             server(w, src),
-            Protocol.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
+            Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
           ),
         else: w
 
@@ -684,7 +684,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
                                                                                       w ->
       {env, src, kind} = w.hosts[h].parked[{mig, copy}]
-      query = Protocol.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
+      query = Messages.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
       if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
     end)
   end
