@@ -141,10 +141,9 @@ defmodule Tartarus.Locator do
   # watched it, crashed, an aborted copy) makes the search start again, at most
   # @max_chase times in a row without the agent moving.
   #
-  # `from` is the sending agent's host (`sender/0`) when links are emulated on this node: a
-  # message between two hosts joined by a link with latency pays it once on the way there
-  # and once on the way back (the acknowledgement, or the reply), like a hand-off pays it
-  # for each of its messages (Tartarus.Migration.Source.emulate_link/1).
+  # `from` is the sending agent's host (`sender/0`) when an emulator installed a transport
+  # on this node (Tartarus.Transport): a message between two hosts pays the transport's
+  # delay once on the way there and once on the way back (the acknowledgement, or the reply).
   @spec deliver(term(), :post | :request, term(), timeout(), map() | nil) :: term()
   def deliver(agent, kind, msg, timeout, from \\ sender()) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
@@ -155,13 +154,11 @@ defmodule Tartarus.Locator do
   end
 
   @doc false
-  # The calling agent's host when some link on this node emulates latency or loss (its
-  # hook is installed), else nil: a node that emulates nothing pays one
-  # :persistent_term read per message.
+  # The calling agent's host when a transport is installed on this node, else nil: a node
+  # that emulates nothing pays one :persistent_term read per message.
   @spec sender() :: map() | nil
   def sender do
-    if :persistent_term.get({Tartarus.Fault, :link}, nil) != nil,
-      do: Process.get(:"$tartarus_host")
+    if Tartarus.Transport.installed() != nil, do: Process.get(:"$tartarus_host")
   end
 
   defp deliver(agent, km, tag, deadline, n, crashed, from \\ nil)
@@ -199,9 +196,9 @@ defmodule Tartarus.Locator do
   defp link_latency(%{ref: host}, host), do: 0
 
   defp link_latency(from, host) do
-    case Ledger.link(from, host) do
-      %{latency_ms: ms} -> ms
-      _ -> 0
+    case Tartarus.Transport.installed() do
+      nil -> 0
+      transport -> transport.message_delay(from, host)
     end
   end
 

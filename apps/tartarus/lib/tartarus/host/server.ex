@@ -125,7 +125,6 @@ defmodule Tartarus.Host.Server do
          :ok <- link_target(other, from),
          :ok <- neighbour_room(state, ns, other) do
       :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
-      if emulated?(props), do: install_link_hook()
       {:reply, :ok, state}
     else
       error -> {:reply, error, state}
@@ -175,16 +174,6 @@ defmodule Tartarus.Host.Server do
   end
 
   defp call(:paused, _from, state), do: {:reply, Arrivals.paused(state), state}
-
-  defp emulated?(props), do: Map.get(props, :latency_ms, 0) > 0 or Map.get(props, :loss, 0) > 0
-
-  # Once per node (a :persistent_term write is costly; reads are free).
-  defp install_link_hook do
-    hook = {:transform, {Tartarus.Migration.Source, :emulate_link, []}}
-
-    if :persistent_term.get({Tartarus.Fault, :link}, nil) != hook,
-      do: Tartarus.Fault.install(:link, hook)
-  end
 
   # -- overlay (connect/disconnect) ----------------------------------------------
 

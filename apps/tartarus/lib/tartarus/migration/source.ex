@@ -87,39 +87,18 @@ defmodule Tartarus.Migration.Source do
       else: :ok
   end
 
-  # Link emulation is a transport hook (Tartarus.Fault point :link), installed on a node the
-  # first time a host there links with latency or loss (Tartarus.connect/3 with props): a
-  # node that never emulates links pays one :persistent_term read per hand-off.
+  # The node's transport (Tartarus.Transport), if an emulator installed one: it may delay the
+  # hand-off or fail it, drawing from the agent's own random stream.
   defp link_loss(data, dest) do
-    case Tartarus.Fault.point(:link, {data.host, dest, data.env.rng}) do
-      {:ok, rng} -> {:ok, %{data | env: %{data.env | rng: rng}}}
-      {:error, :link_loss, rng} -> {:error, :link_loss, %{data | env: %{data.env | rng: rng}}}
-      {_host, _dest, _rng} -> {:ok, data}
-    end
-  end
-
-  @doc false
-  # The :link hook: the link's properties from the ledger. Latency is one message's one-way
-  # delay: the hand-off waits for three (prepare, prepared, commit; the modules' round trip
-  # of a first crossing is not charged). Loss makes it fail (the agent's own random state
-  # decides, so runs are reproducible).
-  def emulate_link({host, dest, rng}) do
-    case Ledger.link(host, dest) do
-      %{} = props ->
-        latency = Map.get(props, :latency_ms, 0)
-        if latency > 0, do: Process.sleep(3 * latency)
-        loss = Map.get(props, :loss, 0)
-
-        if loss > 0 do
-          {x, state} = :rand.uniform_s(:rand.seed_s(rng))
-          rng = :rand.export_seed_s(state)
-          if x < loss, do: {:error, :link_loss, rng}, else: {:ok, rng}
-        else
-          {:ok, rng}
-        end
-
+    case Tartarus.Transport.installed() do
       nil ->
-        {:ok, rng}
+        {:ok, data}
+
+      transport ->
+        case transport.hand_off(data.host, dest, data.env.rng) do
+          {:ok, rng} -> {:ok, put_in(data.env.rng, rng)}
+          {:error, reason, rng} -> {:error, reason, put_in(data.env.rng, rng)}
+        end
     end
   end
 
