@@ -9,9 +9,11 @@ defmodule Tartarus.Migration.Arrival do
   # :awaiting_commit) calls step/2 for every message and timeout while paused; on
   # {:started, data, pending} it handles the handed-over messages, then handle_arrival/2.
 
+  @behaviour Tartarus.Migration.Executor
+
   require Tartarus.Events
   alias Tartarus.{Events, Ledger}
-  alias Tartarus.Migration.{Inbox, Messages, Protocol}
+  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
 
   # How long a host waits before it sends the acknowledgements of its arrivals (one batch
   # per source host, see Tartarus.Host.Server).
@@ -67,58 +69,65 @@ defmodule Tartarus.Migration.Arrival do
           p
       end
 
-    {c, actions} = Protocol.copy_step(p.c, event)
-    actions(actions, %{data | paused: %{p | c: c}}, [])
+    case Executor.copy_event(p.c, event, {%{data | paused: p}, []}, __MODULE__) do
+      {:paused, {data, timeouts}} -> {:paused, data, timeouts}
+      {:done, result} -> result
+    end
   end
 
-  defp actions([], data, timeouts), do: {:paused, data, timeouts}
-  defp actions([{:start, notify} | _], data, _), do: start(data, notify)
+  # -- the executor's effects (the paused copy's backend) -----------------------------------
+  # The context: {the agent process's state, the state timeouts to set}.
 
-  defp actions([:abort | _], data, _) do
-    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig, data.paused.c.copy)
+  @impl Executor
+  def copy_state({data, timeouts}, c), do: {%{data | paused: %{data.paused | c: c}}, timeouts}
+
+  @impl Executor
+  def start({data, _timeouts}, _c, notify), do: start(data, notify)
+
+  @impl Executor
+  def abort({data, _timeouts}, c) do
+    Tartarus.Host.Persistence.resolved(data.host, c.mig, c.copy)
     {:stop, {:shutdown, :aborted}, data}
   end
 
   # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
   # its stash go (the senders waiting on stashed messages time out).
-  defp actions([:park | _], data, _) do
-    %{c: c} = data.paused
+  @impl Executor
+  def park({data, _timeouts}, c) do
     :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
     {:stop, {:shutdown, :parked}, data}
   end
 
-  defp actions([{:ask, src, mig, copy} | rest], data, timeouts) do
-    # The source host's server, found by address each time (the source may have restarted
-    # since it sent `prepare`; the directory drops pids of hosts that went down).
+  # The source host's server, found by address each time (the source may have restarted
+  # since it sent `prepare`; the directory drops pids of hosts that went down).
+  @impl Executor
+  def ask({data, _} = ctx, src, mig, copy) do
     id = Ledger.query_id(data.env, data.paused.c.kind)
 
     with {:ok, pid} <- Tartarus.Host.whereis(src),
          do: send(pid, Messages.decision_query(mig, id, copy, self()))
 
-    actions(rest, data, timeouts)
+    ctx
   end
 
-  defp actions([{:timer, ms} | rest], data, timeouts),
-    do: actions(rest, data, [{:state_timeout, ms, :commit} | timeouts])
+  @impl Executor
+  def timer({data, timeouts}, ms), do: {data, [{:state_timeout, ms, :commit} | timeouts]}
 
   # Kept and handled once the agent starts (senders wait for delivery, so each sender's
   # order is kept).
-  defp actions([{:stash, msg} | rest], data, timeouts),
-    do:
-      actions(
-        rest,
-        %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}},
-        timeouts
-      )
+  @impl Executor
+  def stash({data, timeouts}, msg),
+    do: {%{data | paused: %{data.paused | stash: [msg | data.paused.stash]}}, timeouts}
 
   # Over the bound: dropped and counted; a sender of a message is told to send it again
   # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
-  defp actions([{:drop, msg} | rest], data, timeouts) do
+  @impl Executor
+  def drop({data, _} = ctx, msg) do
     with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
          do: send(pid, {tag, :retry})
 
     Ledger.count(data.host, :dropped)
-    actions(rest, data, timeouts)
+    ctx
   end
 
   # -- the commit: the copy becomes the agent -------------------------------------------
