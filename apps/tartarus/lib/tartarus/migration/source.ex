@@ -68,9 +68,13 @@ defmodule Tartarus.Migration.Source do
           {:error, reason}
       end
     else
-      if Tartarus.Host.address?(spec),
-        do: {:ok, Tartarus.Host.address(spec), data},
-        else: {:error, {:bad_destination, spec}}
+      # A bare name: the neighbour of that name, else this node's host (Host.resolve/2).
+      if Tartarus.Host.address?(spec) do
+        with {:ok, dest} <- Tartarus.Host.resolve(spec, Ledger.neighbours(data.host)),
+             do: {:ok, dest, data}
+      else
+        {:error, {:bad_destination, spec}}
+      end
     end
   end
 
