@@ -464,11 +464,12 @@ defmodule TartarusTools.SVG do
   A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
   as circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and sample count.
 
-  The median and quartiles are `TartarusTools.Stats`'s, nearest rank: actual samples, the
-  median of an even count being the lower middle one (the median of [11, 13] is 11). A
-  footnote says so (`:note` replaces it), and a group of at most `:points_max` samples
-  (default 20) also shows every sample as a dot beside its box, so a reader sees the data
-  the box summarises.
+  The median line is the conventional median (`TartarusTools.Stats.median_mid/1`: of an
+  even count the mean of the two middle samples, so [11, 13] is drawn at 12), the
+  `median_mid` of a sweep's aggregates; the quartiles are nearest rank, actual samples
+  (`Stats.box/2`). A footnote says so (`:note` replaces it), and a group of at most
+  `:points_max` samples (default 20) also shows every sample as a dot beside its box, so a
+  reader sees the data the box summarises.
 
   ## Examples
 
@@ -481,10 +482,10 @@ defmodule TartarusTools.SVG do
     groups =
       Enum.map(groups, fn
         {name, samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples), samples}
+          {name, TartarusTools.Stats.box(samples, median: :mid), samples}
 
         %{name: name, samples: samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples), samples}
+          {name, TartarusTools.Stats.box(samples, median: :mid), samples}
 
         other ->
           raise ArgumentError,
@@ -500,8 +501,8 @@ defmodule TartarusTools.SVG do
       Keyword.put_new(
         opts,
         :note,
-        "box: nearest-rank quartiles and median (of an even n, the lower middle sample); " <>
-          "whiskers 1.5 IQR; circles outliers"
+        "box: median (of an even n, the mean of the two middle samples), " <>
+          "nearest-rank quartiles; whiskers 1.5 IQR; circles outliers"
       )
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
     n = length(groups)
