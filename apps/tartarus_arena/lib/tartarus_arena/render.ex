@@ -37,7 +37,7 @@ defmodule TartarusArena.Render do
   list of `{t, x, y}` (as `TartarusArena.Run.laps/3` returns), each drawn in its colour
   (named in the legend) from a start disc to an end square, over the objects of `svg/2`
   (robots left out). Options as `svg/2`. Each trajectory is a
-  `<polyline class="trajectory" data-name=".." data-points="n">`.
+  `<polyline class="trajectory" data-name=".." data-samples="n">`.
   """
   @spec trajectories(World.t(), %{term() => [{number(), number(), number()}]}, keyword()) ::
           binary()
@@ -64,7 +64,7 @@ defmodule TartarusArena.Render do
             stroke: colour,
             opacity: 0.85,
             class: "trajectory",
-            data: %{name: label_text(label), points: length(pts)},
+            data: %{name: label_text(label), samples: length(pts)},
             title: label_text(label)
           },
           %{
