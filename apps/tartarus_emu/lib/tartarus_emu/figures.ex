@@ -202,9 +202,15 @@ defmodule TartarusEmu.Figures do
         "nodes on a circle (no positions)"
 
       true ->
-        "positions in plot units (grid spacing 1, ring radius 1)"
+        "positions in plot units (#{plot_units(topo.kind)})"
     end
   end
+
+  defp plot_units(:grid), do: "the grid's spacing is 1"
+  defp plot_units(:line), do: "the spacing is 1"
+  defp plot_units(:ring), do: "the ring's radius is 1"
+  defp plot_units(:random_geometric), do: "nodes drawn in the unit square"
+  defp plot_units(_), do: "no scale"
 
   # The segment a -> b, shortened at both ends and moved a little to its right, so that a
   # hop back along the same link is drawn beside the hop out, and arrowheads stop short of

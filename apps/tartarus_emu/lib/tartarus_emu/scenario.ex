@@ -317,7 +317,8 @@ defmodule TartarusEmu.Scenario do
         comparisons: comparisons
       )
 
-    {dir, csvs_and_charts ++ extra_charts ++ extra ++ summaries}
+    # a chart of charts/1 may redraw a per-series chart under its name (a better title, units)
+    {dir, Enum.uniq(csvs_and_charts ++ extra_charts ++ extra ++ summaries)}
   end
 
   @doc """

@@ -391,6 +391,17 @@ defmodule TartarusEmu.Walk do
   def charts(s) do
     [
       %{
+        file: "coverage",
+        title: "Walk: coverage, the hosts visited so far",
+        subtitle: subtitle(s),
+        y_label: "hosts visited",
+        y_unit: "fraction of all hosts",
+        y_min: 0,
+        y_max: 1,
+        x_integer: true,
+        series: [:coverage]
+      },
+      %{
         file: "moves",
         title: "Walk: migrations and failed moves per step",
         subtitle: subtitle(s),

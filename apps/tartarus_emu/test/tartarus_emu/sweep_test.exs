@@ -63,7 +63,10 @@ defmodule TartarusEmu.SweepTest do
 
   test "aggregates per arm, the test between arms, and the files" do
     dir = tmp()
-    {:ok, r} = Sweep.run(spec(order: :arm_major), out: dir, quiet: true)
+
+    {:ok, r} =
+      Sweep.run(spec(order: :arm_major, subtitle: "ring, 12 hosts"), out: dir, quiet: true)
+
     steps = fn arm -> for run <- r.runs, run.arm == arm, do: run.summary.steps end
 
     assert r.aggregates["one"].steps == TartarusTools.Stats.describe(steps.("one"))
@@ -117,7 +120,7 @@ defmodule TartarusEmu.SweepTest do
     assert Enum.map(dots, fn [v] -> String.to_integer(v) end) ==
              Enum.sort(steps.("many")) ++ Enum.sort(steps.("one"))
 
-    assert svg =~ ~r/seeds \d+-\d+/
+    assert svg =~ "ring, 12 hosts; seeds 1-6"
   end
 
   test "a line per finished run; the experiment's own summary, rows and files" do

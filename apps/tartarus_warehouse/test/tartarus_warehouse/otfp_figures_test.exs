@@ -60,6 +60,6 @@ defmodule TartarusWarehouse.OtfpFiguresTest do
     # tasks are whole: integer ticks from 0; jobs (x) are whole too
     assert Enum.all?(y_ticks(otfp), &(Integer.parse(&1) |> elem(1) == ""))
     assert hd(y_ticks(otfp)) == "0" and hd(y_ticks(otfp_ms)) == "0"
-    assert otfp =~ "seed 1" and otfp_ms =~ "seed 1"
+    assert otfp =~ "on 4 robots, time scale 0.02, seed 1" and otfp_ms =~ "time scale 0.02, seed 1"
   end
 end
