@@ -121,7 +121,7 @@ defmodule TartarusArena.Render do
   defp background(world) do
     {w, h} = world.size
     pucks = Enum.sort_by(world.pucks, &inspect(elem(&1, 0)))
-    label_pucks? = length(pucks) <= 12
+    labels = puck_labels(pucks)
 
     [%{shape: :rect, x: 0, y: 0, w: w, h: h, fill: World.colour_hex(7), class: "floor"}] ++
       for m <- world.markers do
@@ -174,9 +174,45 @@ defmodule TartarusArena.Render do
           class: if(p.tall, do: "puck obstacle", else: "puck"),
           data: %{id: label_text(id)},
           title: "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}",
-          label: if(label_pucks?, do: "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}")
+          label: labels[id]
         }
       end
+  end
+
+  # A label per puck, or one per cluster of pucks closer than 0.2 m to each other (the
+  # first of them: "pucks p1-p6"), so that labels do not overprint; blocks (tall) alone.
+  defp puck_labels(pucks) do
+    {clusters, _} =
+      Enum.reduce(pucks, {[], MapSet.new()}, fn {id, _} = first, {acc, seen} ->
+        if MapSet.member?(seen, id) do
+          {acc, seen}
+        else
+          members = cluster([first], pucks, [first])
+          {[members | acc], Enum.reduce(members, seen, &MapSet.put(&2, elem(&1, 0)))}
+        end
+      end)
+
+    Map.new(Enum.reverse(clusters), fn
+      [{id, p}] ->
+        {id, "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}"}
+
+      [{id, _} | _] = ms ->
+        ids = Enum.map(ms, &label_text(elem(&1, 0)))
+        {id, "#{length(ms)} pucks #{hd(ids)}-#{List.last(ids)}"}
+    end)
+  end
+
+  defp cluster([], _pucks, acc), do: Enum.sort_by(acc, &inspect(elem(&1, 0)))
+
+  defp cluster([{_, p} | rest], pucks, acc) do
+    near =
+      for {_, q} = e <- pucks,
+          not q.tall and not p.tall,
+          e not in acc,
+          :math.sqrt((p.x - q.x) * (p.x - q.x) + (p.y - q.y) * (p.y - q.y)) < 0.2,
+          do: e
+
+    cluster(rest ++ near, pucks, acc ++ near)
   end
 
   defp border?({x1, y1, x2, y2}, w, h) do

@@ -83,6 +83,19 @@ defmodule TartarusArena.FiguresTest do
     assert "Path-1" in labels and "Path-2" in labels
     assert "r1" in labels
 
+    # pucks closer than 0.2 m share one label, so that labels do not overprint
+    close = world() |> World.add_puck(:q1, x: 2.5, y: 1.0) |> World.add_puck(:q2, x: 2.6, y: 1.0)
+
+    labels =
+      for [l] <-
+            Regex.scan(~r/<text class="label"[^>]*>([^<]+)</, Render.svg(close),
+              capture: :all_but_first
+            ),
+          do: l
+
+    assert "2 pucks q1-q2" in labels
+    refute "puck q2" in labels
+
     [puck] = elements(svg, "circle", "puck")
     assert {float(puck["x"]), float(puck["y"])} == {2.0, 2.0}
     [block] = elements(svg, "circle", "puck obstacle")

@@ -824,7 +824,7 @@ defmodule TartarusTools.SVG do
     {x, y} =
       case s do
         %{shape: :line, points: pts} -> List.last(pts)
-        %{shape: :rect, x: x, y: y, w: w, h: h} -> {x + w, y + h / 2}
+        %{shape: :rect, x: x, y: y, w: w, h: h} -> {x + w, y + h}
         %{x: x, y: y} -> {x, y}
       end
 
