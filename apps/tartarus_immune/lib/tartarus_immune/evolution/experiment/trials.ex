@@ -93,7 +93,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
 
   @doc "The fitness curves and paths of the first trial (`runs.csv` is the sweep's)."
   @spec write(Path.t(), [map()], map()) :: [Path.t()]
-  def write(dir, runs, _p) do
+  def write(dir, runs, p) do
     curves =
       for r <- runs, r.trial == 0 do
         file = Path.join(dir, "curve_#{r.scenario}_#{r.design}.svg")
@@ -132,7 +132,8 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
           traj,
           TartarusArena.Render.trajectories(r.world, %{"robot" => points},
             title:
-              "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning"
+              "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning",
+            subtitle: "#{r.scenario}, #{r.design}, the first trial: seed #{p.seed}"
           )
         )
 
