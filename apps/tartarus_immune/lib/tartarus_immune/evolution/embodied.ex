@@ -26,7 +26,14 @@ defmodule TartarusImmune.Evolution.Embodied do
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
      the scored period and divided by its steps (periods cut short compare with full
      ones; `score: :total` leaves the sum undivided, as Eqs. 7.1-7.3 print it); the
-     strategy and the antibody's concentration are told.
+     strategy and the antibody's concentration are told;
+  5. with `loop: :while_in_region` (Algorithm 5, lines 22-24: "while current Ag space is
+     within the AR of BestAb do: Execute and Evolve BestAb"), if the period ran its
+     `period` steps with the epitope still in the antibody's region, steps 3-4 are
+     repeated for the same antibody in the same iteration (at most `max_inner`
+     periods); `loop: :once` (default here; `mix tartarus.evolve` defaults to the
+     printed loop) ends the iteration after one evaluation. The monolithic robot
+     evaluates once per iteration either way (its region is everything).
 
   The recovery period comes from the paper of the (1+1)-online strategy the thesis cites
   (Bredeche, Haasdijk and Eiben 2009), not from the thesis, whose loop has none (the
@@ -165,7 +172,14 @@ defmodule TartarusImmune.Evolution.Embodied do
   to the light, distance moved, best puck gain towards the light),
   `final_fitness` (mean of the last 20 iterations), `unevaluated_rounds` (rounds whose
   recovery period left the antibody's active region), `repertoire` (the trained
-  `TartarusImmune.Evolution.Repertoire`, for `test_repertoire/3`).
+  `TartarusImmune.Evolution.Repertoire`, for `test_repertoire/3`), `evaluations`,
+  `training_steps` (scored), `capped_iterations` (iterations stopped by `max_inner`),
+  `at_sigma_max` (share of the evaluations that were offspring proposed at the sigma
+  ceiling), `loop`, `probes` (`probes/4`). Each curve point also has `inner` (the period's
+  number in its iteration), `champion_fitness` (after the evaluation) and
+  `forward_steps`; each test episode `reached_light`, `objective` and
+  `objective_product` (Eq. 7.x per step, f_puck as printed and as the product),
+  `puck_steps`, `puck_ab_steps` and `longest_puck_run` (see `probes/4`).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
