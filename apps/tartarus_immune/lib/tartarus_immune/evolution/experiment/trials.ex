@@ -6,8 +6,13 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
   (`TartarusImmune.Evolution.Embodied`); `monolithic` runs the baseline alone on all
   three scenarios. A sweep (`TartarusEmu.Sweep`): an arm is `<scenario>_<design>`, the
   seeds are `seed + trial`; the first trial keeps its trace (fitness curves and the
-  robot's path). The summary tests "immune better than monolithic" on test success with
-  an exact one-sided Mann-Whitney U test. Run it with
+  robot's path). The summary tests "immune better than monolithic" on test success and
+  on the objective per step in the test (`test_objective`) with exact one-sided
+  Mann-Whitney U tests, and gives per arm the probes of docs/evolution.md
+  (pre-registration of 2026-11-27: structure, use, behaviours, evaluations per antibody,
+  the trace of the champions' periods) and `done_means`, the pre-registered criteria;
+  with `matched`, the arm `<scenario>_monolithic_matched` is the baseline trained for as
+  many scored steps as the immune robot drove on the same seed. Run it with
   `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
@@ -293,6 +298,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
         mean2(
           Enum.map(runs, &(&1.evaluations / max(map_size(&1.probes.evaluations_by_antibody), 1)))
         ),
+      evaluations_by_antibody_by_trial: Enum.map(pr, & &1.evaluations_by_antibody),
       puck_antibodies: mean2(Enum.map(pr, & &1.puck_antibodies)),
       puck_antibody_evaluations: mean2(Enum.map(pr, & &1.puck_antibody_evaluations)),
       puck_antibody_evaluations_by_trial: Enum.map(pr, & &1.puck_antibody_evaluations),
