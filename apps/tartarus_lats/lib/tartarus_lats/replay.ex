@@ -61,15 +61,17 @@ defmodule TartarusLats.Replay do
 
     beacon =
       Keyword.get_lazy(opts, :beacon, fn ->
-        log.readings |> Enum.frequencies_by(& &1.beacon) |> Enum.max_by(&elem(&1, 1), fn -> {"", 0} end) |> elem(0)
+        log.readings
+        |> Enum.frequencies_by(& &1.beacon)
+        |> Enum.max_by(&elem(&1, 1), fn -> {"", 0} end)
+        |> elem(0)
       end)
 
     known = Map.new(devices, fn {id, d} -> {id, d.name} end)
     {t0, seconds} = Log.per_second(log)
     tag = tag(beacon)
 
-    unknown =
-      log.readings |> Enum.reject(&Map.has_key?(known, &1.receiver)) |> length()
+    unknown = log.readings |> Enum.reject(&Map.has_key?(known, &1.receiver)) |> length()
 
     feed =
       Map.new(seconds, fn {s, by_rx} ->
@@ -85,22 +87,28 @@ defmodule TartarusLats.Replay do
 
     raw =
       Map.new(feed, fn {s, by_node} ->
-        {s, Map.new(Enum.filter(by_node, fn {_n, m} -> is_map_key(m, tag) end), fn {n, m} -> {n, m[tag]} end)}
+        {s,
+         Map.new(Enum.filter(by_node, fn {_n, m} -> is_map_key(m, tag) end), fn {n, m} ->
+           {n, m[tag]}
+         end)}
       end)
 
     building = TartarusLats.Replay.Devices.building(devices)
     last = if seconds == %{}, do: 0, else: seconds |> Map.keys() |> Enum.max()
 
+    positions = Log.positions(log, t0, beacon)
+
     %{
       name: name,
       building: building,
+      positions: positions,
       beacon: beacon,
       tag: tag,
       feed: feed,
       raw: raw,
       last: last,
       t0: t0,
-      truth: Judge.truth(building, Log.positions(log, t0, beacon), last),
+      truth: Judge.truth(building, positions, last),
       lines: log.lines,
       bad: log.bad,
       unknown_receivers: unknown
@@ -109,19 +117,29 @@ defmodule TartarusLats.Replay do
 
   @schema [
     seed: [type: :integer, default: 1, doc: "seed of the query instants and start nodes"],
-    queries: [type: :pos_integer, default: 10, doc: "query instants (a Where is X and a Trace each)"],
+    queries: [
+      type: :pos_integer,
+      default: 10,
+      doc: "query instants (a Where is X and a Trace each)"
+    ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where the hosts run"],
     group: [type: :pos_integer, default: 6, doc: "nodes per BEAM node (peer mode)"],
     calibration: [type: :any, doc: "a `TartarusLats.Replay.Calibration` (default none)"],
     fingerprints: [
       type: :any,
       default: [],
-      doc: "the reference points (`TartarusLats.Replay.Calibration.points/2`) for the kNN baseline"
+      doc:
+        "the reference points (`TartarusLats.Replay.Calibration.points/2`) for the kNN baseline"
     ],
     window: [type: :pos_integer, default: 4, doc: "the trackers' window and the baselines' (s)"],
     far_m: [type: :number, default: 3.5, doc: "the far threshold's distance under the model (m)"],
     near_m: [type: :number, default: 1.5, doc: "the near threshold's distance (m)"],
-    zone: [type: :any, default: [], doc: "options of the nodes' `TartarusLats.Zone`"],
+    zone: [
+      type: :any,
+      default: [margin_db: 3.0, dwell: 2, fast_db: 6.0],
+      doc:
+        "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
+    ],
     k: [type: :pos_integer, default: 3, doc: "neighbours of the kNN baseline"],
     warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"]
   ]
@@ -146,8 +164,7 @@ defmodule TartarusLats.Replay do
     cal = opts[:calibration]
     window = opts[:window]
 
-    corrections =
-      Map.new(Building.nodes(c.building), &{&1, Calibration.correction(cal, &1)})
+    corrections = Map.new(Building.nodes(c.building), &{&1, Calibration.correction(cal, &1)})
 
     thresholds = Calibration.thresholds(cal, near_m: opts[:near_m], far_m: opts[:far_m])
 
@@ -172,7 +189,8 @@ defmodule TartarusLats.Replay do
 
     try do
       {_dep, decisions, answers, _rng, _held} =
-        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, nil}, fn s, {dep, dec, answers, rng, prev} ->
+        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, nil}, fn s,
+                                                               {dep, dec, answers, rng, prev} ->
           dep = Deployment.step(dep)
           {holder, held} = holder(dep, c.tag, prev)
           dec = Map.put(dec, s, holder)
@@ -202,7 +220,9 @@ defmodule TartarusLats.Replay do
       iex> TartarusLats.Replay.instants(60, 5, 3, 1) |> length()
       3
   """
-  @spec instants(non_neg_integer(), non_neg_integer(), pos_integer(), integer()) :: [pos_integer()]
+  @spec instants(non_neg_integer(), non_neg_integer(), pos_integer(), integer()) :: [
+          pos_integer()
+        ]
   def instants(last, warmup, n, seed) do
     pool = Enum.to_list((warmup + 1)..last//1)
     rng = :rand.seed_s(:exsss, {seed, 2811, 28})
@@ -266,20 +286,21 @@ defmodule TartarusLats.Replay do
          end)}
       end)
 
-    designs = %{
-      lats: lats,
-      strongest: Judge.strongest(calibrated, c.last, window),
-      knn:
-        if(opts[:fingerprints] == [],
-          do: %{},
-          else:
+    # Without reference points there is no fingerprinting baseline.
+    knn =
+      if opts[:fingerprints] == [],
+        do: %{},
+        else: %{
+          knn:
             Judge.knn(c.raw, Judge.fingerprints(opts[:fingerprints]), c.building,
               last: c.last,
               window: window,
               k: opts[:k]
             )
-        )
-    }
+        }
+
+    designs =
+      Map.merge(%{lats: lats, strongest: Judge.strongest(calibrated, c.last, window)}, knn)
 
     judged = (opts[:warmup] + 1)..c.last//1
     stays = Judge.stays(c.truth)
@@ -337,7 +358,8 @@ defmodule TartarusLats.Replay do
         log_lines: c.lines,
         log_bad_lines: length(c.bad),
         unknown_receiver_readings: c.unknown_receivers,
-        cloud_connections_lats_per_query: Enum.sum(Enum.map(queries, & &1.result.per_query_contacts))
+        cloud_connections_lats_per_query:
+          Enum.sum(Enum.map(queries, & &1.result.per_query_contacts))
       })
 
     rows =
@@ -347,7 +369,7 @@ defmodule TartarusLats.Replay do
             truth: c.truth[s],
             lats: lats[s],
             strongest: designs.strongest[s],
-            knn: designs.knn[s]
+            knn: designs[:knn][s]
           }
 
     %{summary: summary, seconds: rows, queries: queries}

@@ -112,7 +112,10 @@ defmodule TartarusLats.Replay.Calibration do
 
             :slope ->
               {oa, ob} = line(Enum.zip(expected, means))
-              if ob > 0.2, do: {oa, ob}, else: {Enum.sum(means) / length(pts) - mean(expected), 1.0}
+
+              if ob > 0.2,
+                do: {oa, ob},
+                else: {Enum.sum(means) / length(pts) - mean(expected), 1.0}
           end
 
         corrected = Enum.map(means, &((&1 - offset) / slope))
@@ -197,7 +200,8 @@ defmodule TartarusLats.Replay.Calibration do
           end)
       }
     else
-      other -> raise ArgumentError, "calibration #{path}: not a calibration file: #{inspect(other)}"
+      other ->
+        raise ArgumentError, "calibration #{path}: not a calibration file: #{inspect(other)}"
     end
   end
 end

@@ -69,7 +69,8 @@ defmodule TartarusLats.Replay.Devices do
             {id, %{name: String.to_atom(name), pos: {x * 1.0, y * 1.0, z * 1.0}}}
 
           other ->
-            raise ArgumentError, "devices: expected \"id\": [[x, y, z], ...], got: #{inspect(other)}"
+            raise ArgumentError,
+                  "devices: expected \"id\": [[x, y, z], ...], got: #{inspect(other)}"
         end)
         |> check_names!()
 
@@ -92,7 +93,8 @@ defmodule TartarusLats.Replay.Devices do
           with {x, ""} <- Float.parse(x), {y, ""} <- Float.parse(y), {z, ""} <- Float.parse(z) do
             {id, %{name: String.to_atom(List.first(name) || id), pos: {x, y, z}}}
           else
-            _ -> raise ArgumentError, "devices:#{no}: x, y, z must be numbers, got: #{inspect(line)}"
+            _ ->
+              raise ArgumentError, "devices:#{no}: x, y, z must be numbers, got: #{inspect(line)}"
           end
 
         _ ->
@@ -232,13 +234,16 @@ defmodule TartarusLats.Replay.Devices do
           ["node", name, x, y, z | door] ->
             n = String.to_atom(name)
             pos = List.to_tuple(Enum.map([x, y, z], &float!(&1, no)))
-            {Map.put(nodes, n, pos), edges, if(door == ["entrance"], do: [n | doors], else: doors)}
+
+            {Map.put(nodes, n, pos), edges,
+             if(door == ["entrance"], do: [n | doors], else: doors)}
 
           ["edge", a, b] ->
             {nodes, [{String.to_atom(a), String.to_atom(b)} | edges], doors}
 
           _ ->
-            raise ArgumentError, "floor plan:#{no}: expected node NAME X Y Z [entrance] or edge A B"
+            raise ArgumentError,
+                  "floor plan:#{no}: expected node NAME X Y Z [entrance] or edge A B"
         end
       end)
 

@@ -170,7 +170,8 @@ defmodule TartarusLats.Replay.Judge do
     }
   end
 
-  defp changes(seq), do: seq |> Enum.reject(&is_nil/1) |> merge() |> length() |> Kernel.-(1) |> max(0)
+  defp changes(seq),
+    do: seq |> Enum.reject(&is_nil/1) |> merge() |> length() |> Kernel.-(1) |> max(0)
 
   @doc """
   A sequence with consecutive repeats merged.
@@ -202,8 +203,7 @@ defmodule TartarusLats.Replay.Judge do
         Enum.reduce(1..m//1, {[i], i}, fn j, {acc, left} ->
           cost = if x == elem(b, j - 1), do: 0, else: 1
 
-          v =
-            Enum.min([elem(prev_t, j) + 1, left + 1, elem(prev_t, j - 1) + cost])
+          v = Enum.min([elem(prev_t, j) + 1, left + 1, elem(prev_t, j - 1) + cost])
 
           {[v | acc], v}
         end)

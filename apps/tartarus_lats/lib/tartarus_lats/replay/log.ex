@@ -43,7 +43,11 @@ defmodule TartarusLats.Replay.Log do
         }
 
   @typedoc "A parsed log: readings sorted by time (then line), and the malformed lines."
-  @type t :: %{readings: [reading()], bad: [{pos_integer(), String.t()}], lines: non_neg_integer()}
+  @type t :: %{
+          readings: [reading()],
+          bad: [{pos_integer(), String.t()}],
+          lines: non_neg_integer()
+        }
 
   @doc """
   Parses a log's text (or a list of lines). Never raises on content; see the moduledoc.
@@ -151,7 +155,8 @@ defmodule TartarusLats.Replay.Log do
       iex> TartarusLats.Replay.Log.per_second(log)
       {100.0, %{1 => %{"r1" => %{"aa" => -72}}, 2 => %{"r2" => %{"aa" => -80}}}}
   """
-  @spec per_second(t()) :: {float(), %{pos_integer() => %{String.t() => %{String.t() => integer()}}}}
+  @spec per_second(t()) ::
+          {float(), %{pos_integer() => %{String.t() => %{String.t() => integer()}}}}
   def per_second(%{readings: []}), do: {0.0, %{}}
 
   def per_second(%{readings: [first | _] = readings}) do
