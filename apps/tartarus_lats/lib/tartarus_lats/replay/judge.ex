@@ -58,7 +58,7 @@ defmodule TartarusLats.Replay.Judge do
   The strongest-receiver decisions for seconds 1..`last` from the per-second readings of
   one beacon, `%{second => %{node => rssi}}` (see the moduledoc).
 
-      iex> feed = %{1 => %{a: -70, b: -80}, 2 => %{b: -60}, 3 => %{}}
+      iex> feed = %{1 => %{a: -70, b: -80}, 2 => %{b: -50}, 3 => %{}}
       iex> TartarusLats.Replay.Judge.strongest(feed, 3, 1)
       %{1 => :a, 2 => :b, 3 => :b}
       iex> TartarusLats.Replay.Judge.strongest(feed, 3, 2)

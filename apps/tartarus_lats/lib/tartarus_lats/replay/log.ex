@@ -110,7 +110,7 @@ defmodule TartarusLats.Replay.Log do
 
   defp reading(t, rx, bc, rssi, rest, no) do
     with {:ok, time} <- number(t, "time"),
-         {:ok, rssi} <- number(rssi, "rssi"),
+         {:ok, rssi} <- rssi(rssi),
          :ok <- in_range(rssi),
          :ok <- present(rx, "receiver"),
          :ok <- present(bc, "beacon"),
@@ -136,6 +136,14 @@ defmodule TartarusLats.Replay.Log do
     with {:ok, x} <- number(x, "x"), {:ok, y} <- number(y, "y"), do: {:ok, {x, y}}
   end
 
+  # An RSSI is kept as the receiver wrote it: an integer when it is one.
+  defp rssi(s) do
+    case Integer.parse(s) do
+      {i, ""} -> {:ok, i}
+      _ -> number(s, "rssi")
+    end
+  end
+
   defp number(s, what) do
     case Float.parse(s) do
       {x, ""} -> {:ok, x}
@@ -151,7 +159,7 @@ defmodule TartarusLats.Replay.Log do
   sample a second). Also returns the start time (`t0`, the first reading's time rounded
   down).
 
-      iex> log = TartarusLats.Replay.Log.parse("100.2,r1,aa,-70\\n100.7,r1,aa,-73\\n101.1,r2,aa,-80")
+      iex> log = TartarusLats.Replay.Log.parse("100.2,r1,aa,-70\\n100.7,r1,aa,-74\\n101.1,r2,aa,-80")
       iex> TartarusLats.Replay.Log.per_second(log)
       {100.0, %{1 => %{"r1" => %{"aa" => -72}}, 2 => %{"r2" => %{"aa" => -80}}}}
   """
