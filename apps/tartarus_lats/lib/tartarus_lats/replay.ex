@@ -136,7 +136,7 @@ defmodule TartarusLats.Replay do
     near_m: [type: :number, default: 1.5, doc: "the near threshold's distance (m)"],
     zone: [
       type: :any,
-      default: [margin_db: 3.0, dwell: 2, fast_db: 6.0],
+      default: [margin_db: 3.0, dwell: 2, claim_dwell: 1],
       doc:
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
     ],
