@@ -26,6 +26,7 @@ defmodule Mix.Tasks.Tartarus.Lats.Calibrate do
   def run(argv) do
     task = "tartarus.lats.calibrate"
     opts = TartarusTools.CLI.parse!(argv, @switches, task)
+    kind = TartarusTools.CLI.choice!(opts[:kind], [:offset, :slope], :kind, task, :offset)
 
     for key <- [:fingerprints, :devices, :out],
         opts[key] == nil,
@@ -41,7 +42,6 @@ defmodule Mix.Tasks.Tartarus.Lats.Calibrate do
     unless File.regular?(opts[:devices]),
       do: TartarusTools.CLI.error!(task, "--devices: file not found: #{opts[:devices]}")
 
-    kind = TartarusTools.CLI.choice!(opts[:kind], [:offset, :slope], :kind, task, :offset)
     devices = Devices.read!(opts[:devices])
     points = Calibration.points(opts[:fingerprints], devices)
 
