@@ -141,7 +141,12 @@ defmodule TartarusLats.Replay do
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
     ],
     k: [type: :pos_integer, default: 3, doc: "neighbours of the kNN baseline"],
-    warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"]
+    warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"],
+    repair: [
+      type: :boolean,
+      default: false,
+      doc: "Where is X agents bridge a broken chain (`TartarusLats.Query.WhereIs`, `:repair`)"
+    ]
   ]
 
   @doc "The options of `run/2` (a `Tartarus.Options` schema)."
@@ -196,7 +201,9 @@ defmodule TartarusLats.Replay do
           dec = Map.put(dec, s, holder)
 
           {answers, rng} =
-            if s in instants, do: ask(dep, c.tag, s, answers, rng), else: {answers, rng}
+            if s in instants,
+              do: ask(dep, c.tag, s, answers, rng, opts[:repair]),
+              else: {answers, rng}
 
           {dep, dec, answers, rng, held}
         end)
@@ -254,7 +261,7 @@ defmodule TartarusLats.Replay do
     {h, held}
   end
 
-  defp ask(dep, tag, s, answers, rng) do
+  defp ask(dep, tag, s, answers, rng, repair) do
     nodes = Deployment.live_nodes(dep)
     {i, rng} = :rand.uniform_s(length(nodes), rng)
     {j, rng} = :rand.uniform_s(length(nodes), rng)
@@ -264,7 +271,8 @@ defmodule TartarusLats.Replay do
         {:ok, r} =
           TartarusLats.query(dep.hosts[start], type, tag,
             seed: {:lats_replay, s, type},
-            label: "#{type}@#{s}"
+            label: "#{type}@#{s}",
+            repair: repair
           )
 
         %{type: type, time: s, start: start, result: r}
@@ -352,6 +360,7 @@ defmodule TartarusLats.Replay do
         seconds: c.last,
         seed: opts[:seed],
         mode: opts[:mode],
+        repair: opts[:repair],
         window: window,
         far_m: opts[:far_m],
         calibration: if(cal, do: cal.kind, else: :none),

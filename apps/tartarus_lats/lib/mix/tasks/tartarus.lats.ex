@@ -15,8 +15,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
       mix tartarus.lats --replay-log PATH --devices FILE [--calibration FILE]
                         [--fingerprints DIR] [--floor-plan FILE] [--seed 1] [--seeds 3]
-                        [--queries 10] [--window 4] [--mode virtual|peer] [--group 6]
-                        [--out DIR] [--json]
+                        [--queries 10] [--window 4] [--repair] [--mode virtual|peer]
+                        [--group 6] [--out DIR] [--json]
 
   replays real multi-receiver RSSI logs into LATS instead of the emulated building
   (`TartarusLats.Replay.Experiment`; the rules are in docs/lats.md, "LATS on real BLE
@@ -28,7 +28,8 @@ defmodule Mix.Tasks.Tartarus.Lats do
   `--floor-plan FILE`). `--calibration` is a file written by `mix tartarus.lats.calibrate`;
   `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline. Each
   track runs with seeds `--seed` .. `--seed + --seeds - 1` (the seed draws the query
-  instants and start nodes) through `TartarusEmu.Sweep`. Writes into `--out DIR` (default
+  instants and start nodes) through `TartarusEmu.Sweep`. `--repair` lets the Where is X
+  agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `:repair`). Writes into `--out DIR` (default
   `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
   `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
   box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent
@@ -138,6 +139,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
     floor_plan: :string,
     seeds: :integer,
     window: :integer,
+    repair: :boolean,
     json: :boolean,
     help: :boolean
   ]
@@ -154,7 +156,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   end
 
   @replay_flags [:replay_log, :devices, :calibration, :fingerprints, :floor_plan] ++
-                  [:seed, :seeds, :queries, :window, :mode, :group, :out, :json]
+                  [:seed, :seeds, :queries, :window, :repair, :mode, :group, :out, :json]
 
   defp run_replay(opts) do
     task = "tartarus.lats"
@@ -198,6 +200,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
         :seeds,
         :queries,
         :window,
+        :repair,
         :group,
         :out
       ])

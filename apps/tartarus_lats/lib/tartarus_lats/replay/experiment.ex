@@ -25,6 +25,7 @@ defmodule TartarusLats.Replay.Experiment do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     group: [type: :pos_integer, default: 6, doc: "nodes per BEAM node (peer mode)"],
     window: [type: :pos_integer, doc: "the trackers' and baselines' window (s)"],
+    repair: [type: :boolean, default: false, doc: "Where is X agents bridge broken chains"],
     out: [type: :any, doc: "output directory (`false`: none)"],
     quiet: [type: :boolean, default: false, doc: "no progress lines"]
   ]
@@ -69,7 +70,8 @@ defmodule TartarusLats.Replay.Experiment do
           fingerprints: points,
           queries: opts[:queries],
           mode: opts[:mode],
-          group: opts[:group]
+          group: opts[:group],
+          repair: opts[:repair]
         ] ++ if(opts[:window], do: [window: opts[:window]], else: [])
 
       spec = %{
@@ -179,6 +181,7 @@ defmodule TartarusLats.Replay.Experiment do
 
     %{
       tracks: tracks,
+      repair: hd(runs).summary.repair,
       calibration: if(cal, do: cal.kind, else: :none),
       pass: Enum.all?(tracks, fn {_, t} -> Enum.all?(Map.values(t.pass)) end)
     }
