@@ -62,7 +62,10 @@ defmodule TartarusLats.Query.WhereIs do
   @doc false
   def step(s) do
     {node, mv, neighbours, s} = Walk.look(s)
-    if s.bridge, do: bridge_step(node, mv, neighbours, s), else: decide(node, mv, neighbours, s)
+
+    if Map.get(s, :bridge),
+      do: bridge_step(node, mv, neighbours, s),
+      else: decide(node, mv, neighbours, s)
   end
 
   defp decide(node, mv, neighbours, s) do
@@ -98,7 +101,7 @@ defmodule TartarusLats.Query.WhereIs do
   defp dead_end(answer, node, mv, neighbours, s) do
     stay = Query.latest(mv, s.tag)
 
-    if s.repair and stay != nil and length(s.bridges) < @max_bridges do
+    if Map.get(s, :repair, false) and stay != nil and length(s.bridges) < @max_bridges do
       since = Enum.max([stay.arrived_at | Enum.map(s.bridges, & &1.since)])
 
       bridge = %{
@@ -167,6 +170,6 @@ defmodule TartarusLats.Query.WhereIs do
 
   defp finish(answer, s) do
     {:return, result, s} = Walk.finish(answer, s, true)
-    {:return, Map.put(result, :bridges, s.bridges), s}
+    {:return, Map.put(result, :bridges, Map.get(s, :bridges, [])), s}
   end
 end
