@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
                         [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
                         [--release random|settled] [--noise-db 4.0]
-                        [--kill-nodes 0] [--down-s 60] [--dashboard PORT] [--step-ms MS]
+                        [--kill-nodes 0] [--down-s 60] [--repair] [--dashboard PORT] [--step-ms MS]
 
   ## Real recordings (`--replay-log`)
 
@@ -91,6 +91,10 @@ defmodule Mix.Tasks.Tartarus.Lats do
   such an answer is never `complete`). Kills happen between world seconds, while no query
   agent is walking.
 
+  `--repair` lets the Where is X agents bridge a broken chain of motion vectors: at a dead
+  end they ask the nodes within two rings of it for a later stay of the tag and follow the
+  chain on from there (`TartarusLats.Query.WhereIs`; off by default).
+
   `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
   thesis's scenario 2: from every node where they find data of the tag) or `per_query`
   (once, from where the answer was found). The summary reports what both rules cost for the
@@ -105,7 +109,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   answers_stale, answers_incomplete, answers_complete_wrong,
   cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
-  world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
+  repair, world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
   runner's `scenario, steps, setup_ms, run_ms`. Medians are
   nearest-rank (`TartarusTools.Stats.median/1`). With `--json` the last line printed is the summary as one
   JSON object.
