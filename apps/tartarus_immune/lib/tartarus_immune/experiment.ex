@@ -473,6 +473,7 @@ defmodule TartarusImmune.Experiment do
 
     %{
       set: st.o.set,
+      domain: st.domain.name(),
       nodes: length(st.hosts),
       mode: st.o.mode,
       sharing: st.o.sharing,
