@@ -181,8 +181,8 @@ defmodule TartarusImmune.Select do
       seeds: seeds(o),
       run: &run_one(&1, &2, exp, o, panel, concurrency),
       metrics: [
-        {:steps, &steps/1, "convergence step per run (not converged: the step limit)"},
-        {:events, &events/1, "convergence in log-server events per run"},
+        {:steps, &steps/1, title(exp, :steps, o)},
+        {:events, &events/1, title(exp, :events, o)},
         test_accuracy: :test_accuracy,
         migrations: :migrations
       ],
@@ -246,6 +246,21 @@ defmodule TartarusImmune.Select do
           series: &1.data
         }
       )
+
+  # the box plots' titles; fig6_8's say which figure and configuration they are
+  defp title(:fig6_8, :steps, o),
+    do: "Fig. 6.8 (pre-registered): convergence rounds per run, #{fig_setting(o)}"
+
+  defp title(:fig6_8, :events, o),
+    do:
+      "Fig. 6.8 (pre-registered): log-server events (migrations + executions), #{fig_setting(o)}"
+
+  defp title(_, :steps, _o), do: "convergence step per run (not converged: the step limit)"
+  defp title(_, :events, _o), do: "convergence in log-server events per run"
+
+  defp fig_setting(o),
+    do:
+      "#{o[:set] || :p4}, #{o[:nodes] || 50} hosts, β #{beta(:fig6_8, o)}, not converged: #{o.steps}"
 
   # an arm's name in the sweep: "<arm> <set>", labelled when the cost is not the default
   defp arm_name(arm, set, %{cost: :comparisons}), do: "#{arm} #{set} (comparisons)"
