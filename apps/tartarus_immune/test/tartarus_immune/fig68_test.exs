@@ -138,4 +138,19 @@ defmodule TartarusImmune.Fig68Test do
     assert {:error, msg} = Select.run(opts ++ [cost: :time])
     assert msg =~ ":cost"
   end
+
+  # The pre-registered configuration itself on one seed outside its 40 (999, the smoke
+  # run disclosed in docs/immune.md): about 15 s on a quiet machine, a minute loaded.
+  @tag :long
+  @tag timeout: 600_000
+  test "the pre-registered configuration runs: only the seeds deviate, QS wins every arm" do
+    {:ok, r} = Select.run(experiment: :fig6_8, seed: 999, quiet: true, out: false)
+    p = r.summary.preregistered
+    assert p.deviations == [:seeds]
+    assert r.summary.nodes == 50
+    assert r.summary.winners_by_seed == %{"p4" => ["QS", "QS", "QS"]}
+    # no sharing: nothing migrates; the 40 empty hosts never get an iPkt
+    assert r.summary.arms["no_sharing"].migrations_mean == 0.0
+    assert r.summary.arms["danger"].migrations_mean > 0
+  end
 end
