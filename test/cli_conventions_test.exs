@@ -27,6 +27,7 @@ defmodule TartarusCLIConventionsTest do
     {"tartarus.evolve", "--seeds", ~w(--seeds), ~w(--seeds 0)},
     {"tartarus.gen.certs", "--days", ~w(--nodes a --days), ~w(--nodes a --days 0)},
     {"tartarus.lats", "--nodes", ~w(--nodes), ~w(--nodes 0)},
+    {"tartarus.lats.calibrate", "--kind", ~w(--kind), ~w(--kind bogus)},
     {"tartarus.node", "--speed", ~w(--name n --speed), ~w(--name n --speed 0)},
     {"tartarus.pfa", "--laps", ~w(--laps), ~w(--laps 0)},
     {"tartarus.roadblock", "--steps", ~w(--steps), ~w(--steps 0)},

@@ -155,7 +155,7 @@ defmodule Tartarus.GuaranteesPeerTest do
         do:
           :erpc.call(a, Kernel, :send, [
             new_pid,
-            Tartarus.Migration.Protocol.commit(
+            Tartarus.Migration.Messages.commit(
               {"x", make_ref()},
               :crypto.strong_rand_bytes(16),
               nil

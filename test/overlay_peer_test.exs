@@ -82,4 +82,39 @@ defmodule Tartarus.OverlayPeerTest do
     assert Tartarus.connect(h, o2, latency_ms: 5) == :ok
     assert Enum.sort(Tartarus.neighbours(h)) == Enum.sort([o1, o2])
   end
+
+  test "a host's short name is resolved through the overlay and an agent found by its id alone",
+       %{a: a, b: b} do
+    {:ok, h1} = :erpc.call(a, Tartarus, :start_host, [:h1])
+    {:ok, h2} = :erpc.call(b, Tartarus, :start_host, [:h2])
+    :ok = Tartarus.connect(h1, h2)
+    echo = Tartarus.Examples.Echo
+    {:ok, id} = :erpc.call(a, Tartarus, :create_mobile_agent, [:h1, echo, :kept])
+
+    # As a user on a's node types it: h2 is a neighbour of h1, on the other node.
+    assert :erpc.call(a, Tartarus, :move, [{id, :h1}, :h2]) == :ok
+    # By its id alone, from the node it left (its pointer), from its own node, and from a
+    # node without hosts (this one: it asks the nodes it is connected to).
+    assert :erpc.call(a, Tartarus, :whereis, [id]) == {:ok, h2}
+    assert :erpc.call(b, Tartarus, :whereis, [id]) == {:ok, h2}
+    assert Tartarus.whereis(id) == {:ok, h2}
+    assert {:ok, :kept} = :erpc.call(a, Tartarus, :request, [id, :state])
+    assert :erpc.call(a, Tartarus, :whereis, ["0123456789abcdef"]) == {:error, :not_found}
+
+    # A host named like the neighbour, on the agent's own node: the neighbour is meant.
+    {:ok, _} = :erpc.call(b, Tartarus, :start_host, [:h1])
+    assert :erpc.call(b, Tartarus, :move, [{id, :h2}, :h1]) == :ok
+    assert Tartarus.whereis(id) == {:ok, h1}
+
+    # Two neighbours of that name on other nodes: ambiguous, and the agent stays.
+    {:ok, [{pc, c}]} = TartarusTools.Peer.start_many("overlay_c", 1)
+    on_exit(fn -> TartarusTools.Peer.stop(pc) end)
+    {:ok, h2c} = :erpc.call(c, Tartarus, :start_host, [:h2])
+    :ok = Tartarus.connect(h1, h2c)
+
+    assert :erpc.call(a, Tartarus, :move, [{id, :h1}, :h2]) ==
+             {:error, {:ambiguous_host, :h2, Enum.sort([h2, h2c])}}
+
+    assert Tartarus.whereis(id) == {:ok, h1}
+  end
 end

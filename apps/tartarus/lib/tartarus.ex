@@ -114,7 +114,9 @@ defmodule Tartarus do
 
   #{Tartarus.Options.docs(Platform.link_schema())}
 
-  Emulations use them. `:latency_ms` is the one-way delay of one message over the link:
+  The platform keeps them for a transport (`Tartarus.Transport`), which only an emulator
+  installs; the emulator's applies them as follows. `:latency_ms` is the one-way delay of
+  one message over the link:
   a hand-off over it pays three (prepare, prepared, commit: what stands between the
   source's decision to move and the agent running at the destination), and a message an
   agent sends to an agent on the other end (`post/3`, `cast/3`, `request/3` called from

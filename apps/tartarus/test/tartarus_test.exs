@@ -209,45 +209,27 @@ defmodule TartarusTest do
       assert Tartarus.neighbours(a) == []
     end
 
-    test "a link with loss 1.0 makes every move over it fail with :link_loss" do
+    test "an installed transport is asked before each hand-off and its error fails the move" do
       [a, b] = hosts!(2)
-      :ok = Tartarus.connect(a, b, loss: 1.0)
+      :ok = Tartarus.connect(a, b, latency_ms: 7)
       id = agent!(a)
+      previous = Tartarus.Transport.installed()
+      :persistent_term.put({Tartarus.Test.CutLinks, :cut}, {addr(a), addr(b), self()})
+      Tartarus.Transport.install(Tartarus.Test.CutLinks)
 
-      for _ <- 1..5 do
-        assert Tartarus.move({id, a}, b) == {:error, :link_loss}
-        assert_receive {:probe_move_failed, ^id, ^b, :link_loss, %{host: {^a, _}}}
-      end
+      on_exit(fn ->
+        if previous, do: Tartarus.Transport.install(previous), else: Tartarus.Transport.clear()
+        :persistent_term.erase({Tartarus.Test.CutLinks, :cut})
+      end)
 
+      assert Tartarus.move({id, a}, b) == {:error, :link_cut}
+      # The transport reads the link's properties as connect/3 was given them.
+      assert_receive {:cut_links, %{latency_ms: 7}}
+      assert_receive {:probe_move_failed, ^id, ^b, :link_cut, %{host: {^a, _}}}
       assert Tartarus.whereis(id) == {:ok, addr(a)}
-      # Connecting again replaces the link's properties.
-      :ok = Tartarus.connect(a, b, loss: 0)
+
+      :persistent_term.erase({Tartarus.Test.CutLinks, :cut})
       assert Tartarus.move({id, a}, b) == :ok
-    end
-
-    test "a link with latency still carries agents" do
-      [a, b] = hosts!(2)
-      :ok = Tartarus.connect(a, b, latency_ms: 5, loss: 0.0)
-      id = agent!(a)
-      assert Tartarus.move({id, a}, b) == :ok
-      assert Tartarus.whereis(id) == {:ok, addr(b)}
-    end
-
-    test "a link's latency is paid by each message of a hand-off and by agents' messages both ways" do
-      [a, b] = hosts!(2)
-      :ok = Tartarus.connect(a, b, latency_ms: 100)
-      id = agent!(a)
-      t0 = System.monotonic_time(:millisecond)
-      assert Tartarus.move({id, a}, b) == :ok
-      # prepare, prepared, commit: three one-way delays at least (a lower bound, not a timing)
-      assert System.monotonic_time(:millisecond) - t0 >= 300
-
-      other = agent!(a)
-
-      assert {:ok, {{:ok, %{count: 0}}, ms}} =
-               Tartarus.request(other, {:timed_request, id, :state})
-
-      assert ms >= 200
     end
 
     test "strict links refuse directed moves to hosts that are not neighbours" do

@@ -76,7 +76,9 @@ defmodule TartarusLats do
   true), `:cloud` (`:per_node`, the default: the agent contacts the cloud
   from every node where it finds data of the tag, as in the thesis's
   scenario 2; `:per_query`: once, from where it found the answer), `:seed`
-  (the agent's random seed, for reproducible walks).
+  (the agent's random seed, for reproducible walks), `:repair` (Where is X: bridge a
+  broken chain by asking the nodes around the gap, see `TartarusLats.Query.WhereIs`;
+  default false).
 
   Returns `{:ok, result}` where `result` is what the agent returned (for
   the built-in queries a map with `:answer`, `:hops`, `:route`,
@@ -129,7 +131,8 @@ defmodule TartarusLats do
       tag: tag,
       label: Keyword.get(opts, :label),
       report: Keyword.get(opts, :report, true),
-      cloud: Keyword.get(opts, :cloud, :per_node)
+      cloud: Keyword.get(opts, :cloud, :per_node),
+      repair: Keyword.get(opts, :repair, false)
     }
   end
 end

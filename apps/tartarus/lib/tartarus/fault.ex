@@ -18,12 +18,9 @@ defmodule Tartarus.Fault do
     * `:committing` - the source decided to commit, before `commit` is sent (value: the new pid);
     * `:admitting` - the destination host's server is about to create the paused copy (value: the envelope);
     * `:prepare_received` - a destination host's server received a `prepare`, before any check
-      (value: the whole message, as sent: e.g. to capture a sealed prepare and replay it);
-    * `:link` - the transport hook of a hand-off, before `prepare` is sent (value:
-      `{source_host_info, destination, rng}`; a hook returns `{:ok, rng}` or
-      `{:error, :link_loss, rng}`). Link emulation installs it on a node the first time a
-      host there links with `:latency_ms` or `:loss` (`Tartarus.connect/3`); a node that
-      never emulates links pays nothing more than the point.
+      (value: the whole message, as sent: e.g. to capture a sealed prepare and replay it).
+
+  Link emulation (latency and loss) is not a fault point: see `Tartarus.Transport`.
   """
 
   @typedoc "A hook."

@@ -59,6 +59,37 @@ defmodule Tartarus.Host do
   @spec via(atom(), name()) :: {:via, Registry, {Tartarus.HostRegistry, {atom(), name()}}}
   def via(kind, name), do: {:via, Registry, {Tartarus.HostRegistry, {kind, name}}}
 
+  @doc """
+  The address a host name means to a host whose neighbours are `neighbours` (full
+  addresses): the neighbour of that name if there is one, else the host of that name on this
+  node. A full address means itself. Two neighbours of that name on other nodes are
+  ambiguous.
+
+      iex> Tartarus.Host.resolve(:h2, [{:h2, :n2@pi}, {:h3, node()}])
+      {:ok, {:h2, :n2@pi}}
+      iex> Tartarus.Host.resolve(:h4, [{:h2, :n2@pi}])
+      {:ok, {:h4, node()}}
+      iex> Tartarus.Host.resolve(:h2, [{:h2, :n2@pi}, {:h2, :n3@pi}])
+      {:error, {:ambiguous_host, :h2, [{:h2, :n2@pi}, {:h2, :n3@pi}]}}
+  """
+  @spec resolve(name() | t(), [t()]) :: {:ok, t()} | {:error, term()}
+  def resolve({_name, _node} = host, _neighbours), do: {:ok, host}
+
+  def resolve(name, neighbours) do
+    case for({^name, _} = n <- neighbours, do: n) do
+      [one] ->
+        {:ok, one}
+
+      [] ->
+        {:ok, address(name)}
+
+      many ->
+        if address(name) in many,
+          do: {:ok, address(name)},
+          else: {:error, {:ambiguous_host, name, Enum.sort(many)}}
+    end
+  end
+
   @doc false
   # The pid of a host's server, local or remote.
   @spec whereis(name() | t()) :: {:ok, pid()} | {:error, {:unknown_host, term()}}

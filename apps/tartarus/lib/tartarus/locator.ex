@@ -12,6 +12,10 @@ defmodule Tartarus.Locator do
   alias Tartarus.{Host, Ledger}
 
   @max_chase 64
+  # How far (overlay hops between nodes) and how long (ms per node asked) an agent known by
+  # its id alone is searched for.
+  @search_ttl 8
+  @search_timeout 2_000
 
   @doc false
   # Finds an agent's pid. Returns it with the reference normalized to `{id, host}`.
@@ -141,10 +145,9 @@ defmodule Tartarus.Locator do
   # watched it, crashed, an aborted copy) makes the search start again, at most
   # @max_chase times in a row without the agent moving.
   #
-  # `from` is the sending agent's host (`sender/0`) when links are emulated on this node: a
-  # message between two hosts joined by a link with latency pays it once on the way there
-  # and once on the way back (the acknowledgement, or the reply), like a hand-off pays it
-  # for each of its messages (Tartarus.Migration.Source.emulate_link/1).
+  # `from` is the sending agent's host (`sender/0`) when an emulator installed a transport
+  # on this node (Tartarus.Transport): a message between two hosts pays the transport's
+  # delay once on the way there and once on the way back (the acknowledgement, or the reply).
   @spec deliver(term(), :post | :request, term(), timeout(), map() | nil) :: term()
   def deliver(agent, kind, msg, timeout, from \\ sender()) do
     deadline = if timeout == :infinity, do: :infinity, else: now() + timeout
@@ -155,13 +158,11 @@ defmodule Tartarus.Locator do
   end
 
   @doc false
-  # The calling agent's host when some link on this node emulates latency or loss (its
-  # hook is installed), else nil: a node that emulates nothing pays one
-  # :persistent_term read per message.
+  # The calling agent's host when a transport is installed on this node, else nil: a node
+  # that emulates nothing pays one :persistent_term read per message.
   @spec sender() :: map() | nil
   def sender do
-    if :persistent_term.get({Tartarus.Fault, :link}, nil) != nil,
-      do: Process.get(:"$tartarus_host")
+    if Tartarus.Transport.installed() != nil, do: Process.get(:"$tartarus_host")
   end
 
   defp deliver(agent, km, tag, deadline, n, crashed, from \\ nil)
@@ -199,9 +200,9 @@ defmodule Tartarus.Locator do
   defp link_latency(%{ref: host}, host), do: 0
 
   defp link_latency(from, host) do
-    case Ledger.link(from, host) do
-      %{latency_ms: ms} -> ms
-      _ -> 0
+    case Tartarus.Transport.installed() do
+      nil -> 0
+      transport -> transport.message_delay(from, host)
     end
   end
 
@@ -298,18 +299,71 @@ defmodule Tartarus.Locator do
   end
 
   defp normalize(id) when is_binary(id) do
-    case Tartarus.AgentTable.lookup(id) do
-      {:ok, _pid, host_name} ->
-        {:ok, {id, Host.address(host_name)}}
-
-      :error ->
-        # Perhaps in a hand-off between two hosts of this node: the destination knows.
-        case Enum.find(Host.Starter.hosts(), &Host.OnNode.arriving?(&1, id)) do
-          nil -> {:error, :not_found}
-          host -> {:ok, {id, host}}
-        end
+    case search(id, @search_ttl, [node()]) do
+      {:ok, host} -> {:ok, {id, host}}
+      :error -> {:error, :not_found}
     end
   end
 
   defp normalize(other), do: {:error, {:bad_agent_ref, other}}
+
+  # -- an agent known by its id alone ----------------------------------------------------
+  # Where to start looking for agent `id`: a host of this node where it runs, arrives or left
+  # a forwarding pointer; else the nodes of this node's hosts' overlay neighbours are asked,
+  # and they ask theirs (each node at most once, at most @search_ttl overlay hops away, one
+  # node at a time): the overlay relays the search, no node connects to a node it is not
+  # linked with. A node without hosts asks the nodes it is connected to.
+
+  @doc false
+  @spec search(binary(), non_neg_integer(), [node()]) :: {:ok, Host.t()} | :error
+  def search(id, ttl, visited) do
+    case here(id) do
+      {:ok, host} ->
+        {:ok, host}
+
+      :error when ttl > 0 ->
+        next = next_nodes(Host.Starter.hosts()) -- visited
+        visited = visited ++ next
+        Enum.find_value(next, :error, &ask(&1, id, ttl - 1, visited))
+
+      :error ->
+        :error
+    end
+  end
+
+  defp here(id) do
+    case Tartarus.AgentTable.lookup(id) do
+      {:ok, _pid, host_name} ->
+        {:ok, Host.address(host_name)}
+
+      :error ->
+        Enum.find_value(Host.Starter.hosts(), :error, fn host ->
+          with {:ok, info} <- Host.local(host),
+               result when result != :not_found <- Ledger.locate(info, id),
+               do: {:ok, host},
+               else: (_ -> nil)
+        end)
+    end
+  end
+
+  # The nodes of this node's hosts' neighbours; a node without hosts (a shell, a controller)
+  # asks the nodes it is connected to.
+  defp next_nodes([]), do: Node.list()
+  defp next_nodes(hosts), do: Enum.uniq(for h <- hosts, {_, n} <- neighbours(h), do: n)
+
+  defp neighbours(host) do
+    case Host.local(host) do
+      {:ok, info} -> Ledger.neighbours(info)
+      _ -> []
+    end
+  end
+
+  defp ask(node, id, ttl, visited) do
+    case :erpc.call(node, __MODULE__, :search, [id, ttl, visited], @search_timeout) do
+      {:ok, host} -> {:ok, host}
+      _ -> nil
+    end
+  catch
+    _, _ -> nil
+  end
 end

@@ -12,7 +12,7 @@ defmodule Tartarus.Security do
     * the sending **host's**, made at every hop (host option `security: [keys: keys, ...]`):
       over the whole envelope (state, payload, hop count ...), the module list, and every
       other field of the `prepare` a receiver acts on: the migration id, its kind, the
-      source host and both reply-to pids (`Tartarus.Migration.Protocol.seal_fields/1`).
+      source host and both reply-to pids (`Tartarus.Migration.Messages.seal_fields/1`).
       Tampered state or a redirected reply no longer matches. A replayed `prepare` still
       matches its seal; what makes a replay harmless is the protocol's decision rule
       (`Tartarus.Migration.Protocol`).
@@ -43,13 +43,13 @@ defmodule Tartarus.Security do
   end
 
   @doc """
-  Seals a `prepare` message (`Tartarus.Migration.Protocol.prepare/8`) for one hop with the
+  Seals a `prepare` message (`Tartarus.Migration.Messages.prepare/8`) for one hop with the
   sending host's keys: the seal, put in the envelope, covers the envelope, the manifest and
-  `Tartarus.Migration.Protocol.seal_fields/1`.
+  `Tartarus.Migration.Messages.seal_fields/1`.
   """
   @spec seal_prepare(tuple(), Tartarus.Security.Keys.t()) :: tuple()
   def seal_prepare(prepare, keys) do
-    {:prepare, p} = Tartarus.Migration.Protocol.classify(prepare)
+    {:prepare, p} = Tartarus.Migration.Messages.classify(prepare)
     env = p.env
     sigs = if is_map(env.signature), do: Map.delete(env.signature, :hop), else: %{}
     body = %{env | signature: sigs}
@@ -58,7 +58,7 @@ defmodule Tartarus.Security do
   end
 
   @doc """
-  Checks an arriving `prepare` (its fields as `Tartarus.Migration.Protocol.classify/1`
+  Checks an arriving `prepare` (its fields as `Tartarus.Migration.Messages.classify/1`
   gives them) against a trust list: the issuer's signature over identity and code, and the
   sending host's seal over everything a receiver acts on.
   """
@@ -84,7 +84,7 @@ defmodule Tartarus.Security do
   end
 
   defp sealed(p, body),
-    do: {Tartarus.Migration.Protocol.seal_fields(p), Enum.sort(p.manifest), body}
+    do: {Tartarus.Migration.Messages.seal_fields(p), Enum.sort(p.manifest), body}
 
   defp signatures(%{issuer: issuer, signature: %{} = sigs}) when is_binary(issuer),
     do: {:ok, sigs}

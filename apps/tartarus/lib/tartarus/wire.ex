@@ -16,7 +16,7 @@ defmodule Tartarus.Wire do
   """
 
   alias Tartarus.Envelope
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.Messages
 
   @max_name_bytes 256
   @max_modules 64
@@ -39,7 +39,7 @@ defmodule Tartarus.Wire do
         max_bytes
       ) do
     with :ok <- check(is_pid(s_pid) and is_pid(src_pid), :pids),
-         :ok <- check(Protocol.migration_id?(mig), :migration_id),
+         :ok <- check(Messages.migration_id?(mig), :migration_id),
          :ok <- check(address?(src) and is_tuple(src), :source_host),
          :ok <- check(kind in [:move, :clone], :kind),
          :ok <- check_envelope(env),
@@ -213,8 +213,8 @@ defmodule Tartarus.Wire do
   @spec check_decision_query(term()) :: :ok | {:error, {:bad_message, term()}}
   def check_decision_query({:"$tartarus_decision?", mig, id, copy, pid}) do
     check(
-      Protocol.migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
-        Protocol.copy_token?(copy) and is_pid(pid),
+      Messages.migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+        Messages.copy_token?(copy) and is_pid(pid),
       :decision_query
     )
   end
@@ -233,8 +233,8 @@ defmodule Tartarus.Wire do
       length(list) <= 1_000 and
         Enum.all?(list, fn
           {mig, id, copy} ->
-            Protocol.migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
-              Protocol.copy_token?(copy)
+            Messages.migration_id?(mig) and is_binary(id) and byte_size(id) <= @max_name_bytes and
+              Messages.copy_token?(copy)
 
           _ ->
             false

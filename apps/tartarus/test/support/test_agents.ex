@@ -190,3 +190,26 @@ defmodule Tartarus.Test.NotAPlugin do
   # Has no read/2: not a plugin.
   def init(_opts), do: {:ok, nil}
 end
+
+defmodule Tartarus.Test.CutLinks do
+  @moduledoc false
+  # A transport (Tartarus.Transport) that fails hand-offs over one link, named in
+  # :persistent_term {__MODULE__, :cut} as {from, to, test_pid}, and tells the test what the
+  # link's properties were; every other hand-off and message passes untouched.
+  @behaviour Tartarus.Transport
+
+  @impl true
+  def hand_off(host, dest, rng) do
+    case :persistent_term.get({__MODULE__, :cut}, nil) do
+      {from, ^dest, pid} when from == host.ref ->
+        send(pid, {:cut_links, Tartarus.Transport.link(host, dest)})
+        {:error, :link_cut, rng}
+
+      _ ->
+        {:ok, rng}
+    end
+  end
+
+  @impl true
+  def message_delay(_from, _to), do: 0
+end

@@ -23,7 +23,7 @@ defmodule Tartarus.ReviewRegressionsTest do
 
     send(
       pid,
-      Tartarus.Migration.Protocol.prepare(
+      Tartarus.Migration.Messages.prepare(
         self(),
         mig,
         {:x, node()},

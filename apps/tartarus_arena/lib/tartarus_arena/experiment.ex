@@ -158,14 +158,21 @@ defmodule TartarusArena.Experiment do
       for run <- runs do
         svg =
           Render.trajectories(run.data.world, run.data.trajectories,
-            title: "#{run.arm}: #{laps} laps"
+            title: "#{run.arm}: #{laps} laps on both paths at once",
+            subtitle: "PFA #{run.arm}, one robot per path, #{laps} laps, seed #{run.seed}"
           )
 
         SVG.write!(Path.join(out, "trajectories_#{run.arm}.svg"), svg)
       end
 
     last = List.last(runs).data.world
-    snapshot = SVG.write!(Path.join(out, "snapshot.svg"), Render.svg(last))
+
+    snapshot =
+      SVG.write!(
+        Path.join(out, "snapshot.svg"),
+        Render.svg(last, subtitle: "the end of the last PFA's laps, seed #{List.last(runs).seed}")
+      )
+
     camera = Path.join(out, "camera.png")
     File.write!(camera, Render.png(last, center: {1.5, 1.5}, view: 3.0, pixels: {300, 300}))
     bench = SVG.write!(Path.join(out, "bench_snapshot.svg"), Render.svg(bench_world))

@@ -3,6 +3,7 @@ defmodule TartarusArena.Render do
   Pictures of an arena: an SVG snapshot (`svg/2`), an SVG trajectory plot (`trajectories/3`),
   a PNG as a camera looking straight down on part of the arena would take it (`png/2`), and
   a PNG through a pinhole camera on a pole or on a robot (`camera_png/2`).
+  The SVGs are `TartarusTools.SVG.plan/2` plans in metres, with a scale bar.
   The floor is drawn in its colours (`TartarusArena.World.colour_hex/1`), lines black,
   pucks in their colours, the light as a yellow disc (grey when off), robots as discs with
   a heading mark and their id.
@@ -13,110 +14,239 @@ defmodule TartarusArena.Render do
   @palette ~w(#4e79a7 #f28e2b #e15759 #76b7b2 #59a14f #edc948 #b07aa1 #ff9da7 #9c755f #bab0ac)
 
   @doc """
-  An SVG snapshot of the world. Options: `:scale` (pixels per metre, default 200),
-  `:title` (default "arena at t = ... s").
+  An SVG snapshot of the world (`TartarusTools.SVG.plan/2`, in metres with a scale bar):
+  the floor, its lines and labelled markers, walls (inner walls labelled "wall"), the light
+  ("light (on)" / "light (off)"), pucks labelled by id ("block" for tall ones) and robots
+  with a heading mark and their id. Options: `:title` (default "arena at t = ... s"),
+  `:subtitle` (the parameters and seed of the run), `:note`, `:width` (pixels, default
+  720).
 
       iex> w = TartarusArena.World.new() |> TartarusArena.World.add_robot(:r1, x: 1, y: 1)
       iex> svg = TartarusArena.Render.svg(w)
-      iex> String.starts_with?(svg, "<?xml") and svg =~ "r1"
+      iex> String.starts_with?(svg, "<?xml") and svg =~ "r1" and svg =~ ~s(data-unit="m")
       true
   """
   @spec svg(World.t(), keyword()) :: binary()
   def svg(world, opts \\ []) do
     title = Keyword.get(opts, :title, "arena at t = #{Float.round(world.time, 2)} s")
-    doc(world, opts, title, [background(world, opts), robots(world, opts)])
+    plan(world, opts, title, background(world) ++ robots(world), [])
   end
 
   @doc """
   An SVG of robots' trajectories over the arena's floor: `trajectories` maps a label to a
-  list of `{t, x, y}` (as `TartarusArena.Run.laps/3` returns). Options as `svg/2`.
+  list of `{t, x, y}` (as `TartarusArena.Run.laps/3` returns), each drawn in its colour
+  (named in the legend) from a start disc to an end square, over the objects of `svg/2`
+  (robots left out). Options as `svg/2`. Each trajectory is a
+  `<polyline class="trajectory" data-name=".." data-samples="n">`.
   """
   @spec trajectories(World.t(), %{term() => [{number(), number(), number()}]}, keyword()) ::
           binary()
   def trajectories(world, trajs, opts \\ []) do
-    k = scale(opts)
-    {_, h} = world.size
-
-    lines =
+    drawn =
       trajs
       |> Enum.sort_by(&inspect(elem(&1, 0)))
+      |> Enum.reject(fn {_, pts} -> pts == [] end)
       |> Enum.with_index()
-      |> Enum.map(fn {{label, pts}, i} ->
+
+    lines =
+      Enum.flat_map(drawn, fn {{label, pts}, i} ->
         colour = Enum.at(@palette, rem(i, length(@palette)))
-        coords = Enum.map_join(pts, " ", fn {_t, x, y} -> "#{f(x * k)},#{f((h - y) * k)}" end)
+        {_, x0, y0} = hd(pts)
+        {_, x1, y1} = List.last(pts)
+        xy = Enum.map(pts, fn {_t, x, y} -> {x, y} end)
+        xy = if length(xy) == 1, do: xy ++ xy, else: xy
 
         [
-          ~s(<polyline fill="none" stroke="#{colour}" stroke-width="1.5" stroke-opacity="0.8" points="#{coords}"/>),
-          ~s(<text x="#{8}" y="#{18 + 16 * i}" fill="#{colour}" font-size="13" font-family="sans-serif">#{esc(label)}</text>)
+          %{
+            shape: :line,
+            points: xy,
+            width_px: 1.5,
+            stroke: colour,
+            opacity: 0.85,
+            class: "trajectory",
+            data: %{name: label_text(label), samples: length(pts)},
+            title: label_text(label)
+          },
+          %{
+            shape: :marker,
+            kind: :start,
+            x: x0,
+            y: y0,
+            fill: colour,
+            title: "start: #{label_text(label)}"
+          },
+          %{
+            shape: :marker,
+            kind: :end,
+            x: x1,
+            y: y1,
+            fill: colour,
+            title: "end: #{label_text(label)}"
+          }
         ]
       end)
 
-    doc(world, opts, Keyword.get(opts, :title, "trajectories"), [background(world, opts), lines])
+    legend =
+      Enum.map(drawn, fn {{label, _}, i} ->
+        {label_text(label), Enum.at(@palette, rem(i, length(@palette))), :line}
+      end) ++ [{"start", "#ffffff", :start}, {"end", "#ffffff", :end}]
+
+    plan(
+      world,
+      opts,
+      Keyword.get(opts, :title, "trajectories"),
+      background(world) ++ lines,
+      legend
+    )
   end
 
-  defp doc(world, opts, title, body) do
-    k = scale(opts)
+  defp label_text(label) when is_binary(label), do: label
+  defp label_text(label) when is_atom(label) or is_number(label), do: to_string(label)
+  defp label_text(label), do: inspect(label)
+
+  defp plan(world, opts, title, shapes, legend) do
     {w, h} = world.size
 
-    IO.iodata_to_binary([
-      ~s(<?xml version="1.0" encoding="UTF-8"?>\n),
-      ~s(<svg xmlns="http://www.w3.org/2000/svg" width="#{f(w * k)}" height="#{f(h * k)}" viewBox="0 0 #{f(w * k)} #{f(h * k)}">),
-      "<title>",
-      esc(title),
-      "</title>",
-      body,
-      "</svg>\n"
-    ])
+    TartarusTools.SVG.plan(shapes,
+      title: title,
+      subtitle: Keyword.get(opts, :subtitle),
+      note: Keyword.get(opts, :note),
+      width: Keyword.get(opts, :width, 720),
+      bounds: {0, 0, w, h},
+      unit: "m",
+      legend: legend
+    )
   end
 
-  defp background(world, opts) do
-    k = scale(opts)
+  defp background(world) do
     {w, h} = world.size
-    y = fn v -> f((h - v) * k) end
+    pucks = Enum.sort_by(world.pucks, &inspect(elem(&1, 0)))
+    labels = puck_labels(pucks)
 
-    [
-      ~s(<rect x="0" y="0" width="#{f(w * k)}" height="#{f(h * k)}" fill="#{World.colour_hex(7)}"/>),
+    [%{shape: :rect, x: 0, y: 0, w: w, h: h, fill: World.colour_hex(7), class: "floor"}] ++
       for m <- world.markers do
-        [
-          ~s(<rect x="#{f((m.x - m.w / 2) * k)}" y="#{y.(m.y + m.h / 2)}" width="#{f(m.w * k)}" height="#{f(m.h * k)}" fill="#{World.colour_hex(m.colour)}"/>),
-          if(m.label,
-            do:
-              ~s(<text x="#{f((m.x + m.w / 2) * k + 3)}" y="#{y.(m.y)}" font-size="11" font-family="sans-serif">#{esc(m.label)}</text>),
-            else: []
-          )
-        ]
-      end,
-      for l <- world.lines do
-        pts = Enum.map_join(l.points, " ", fn {px, py} -> "#{f(px * k)},#{y.(py)}" end)
+        %{
+          shape: :rect,
+          x: m.x - m.w / 2,
+          y: m.y - m.h / 2,
+          w: m.w,
+          h: m.h,
+          fill: World.colour_hex(m.colour),
+          label: m.label,
+          class: "marker"
+        }
+      end ++
+      for l <- world.lines, length(l.points) >= 2 do
+        %{shape: :line, points: l.points, width: l.width, stroke: "#111", class: "line"}
+      end ++
+      for {x1, y1, x2, y2} <- world.walls do
+        inner? = not border?({x1, y1, x2, y2}, w, h)
 
-        ~s(<polyline fill="none" stroke="#111" stroke-linejoin="miter" stroke-width="#{f(l.width * k)}" points="#{pts}"/>)
-      end,
-      for {wx1, wy1, wx2, wy2} <- world.walls do
-        ~s(<line x1="#{f(wx1 * k)}" y1="#{y.(wy1)}" x2="#{f(wx2 * k)}" y2="#{y.(wy2)}" stroke="#444" stroke-width="4"/>)
-      end,
-      ~s(<circle cx="#{f(world.light.x * k)}" cy="#{y.(world.light.y)}" r="#{f(0.05 * k)}" fill="#{if world.light.on, do: "#fff35c", else: "#999"}" stroke="#555"/>),
-      for {_, p} <- Enum.sort_by(world.pucks, &inspect(elem(&1, 0))) do
-        ~s(<circle cx="#{f(p.x * k)}" cy="#{y.(p.y)}" r="#{f(p.radius * k)}" fill="#{World.colour_hex(p.colour)}" stroke="#333"/>)
+        %{
+          shape: :line,
+          points: [{x1, y1}, {x2, y2}],
+          width_px: 4,
+          stroke: "#444",
+          class: if(inner?, do: "wall obstacle", else: "wall"),
+          label: if(inner?, do: "wall")
+        }
+      end ++
+      [
+        %{
+          shape: :circle,
+          x: world.light.x,
+          y: world.light.y,
+          r: 0.05,
+          fill: if(world.light.on, do: "#fff35c", else: "#999"),
+          stroke: "#555",
+          class: "light",
+          label: if(world.light.on, do: "light (on)", else: "light (off)")
+        }
+      ] ++
+      for {id, p} <- pucks do
+        %{
+          shape: :circle,
+          x: p.x,
+          y: p.y,
+          r: p.radius,
+          fill: World.colour_hex(p.colour),
+          stroke: "#333",
+          class: if(p.tall, do: "puck obstacle", else: "puck"),
+          data: %{id: label_text(id)},
+          title: "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}",
+          label: labels[id]
+        }
       end
-    ]
   end
 
-  defp robots(world, opts) do
-    k = scale(opts)
-    {_, h} = world.size
+  # A label per puck, or one per cluster of pucks closer than 0.2 m to each other (the
+  # first of them: "pucks p1-p6"), so that labels do not overprint; blocks (tall) alone.
+  defp puck_labels(pucks) do
+    {clusters, _} =
+      Enum.reduce(pucks, {[], MapSet.new()}, fn {id, _} = first, {acc, seen} ->
+        if MapSet.member?(seen, id) do
+          {acc, seen}
+        else
+          members = cluster([first], pucks, [first])
+          {[members | acc], Enum.reduce(members, seen, &MapSet.put(&2, elem(&1, 0)))}
+        end
+      end)
 
-    for {id, r} <- Enum.sort_by(world.robots, &inspect(elem(&1, 0))) do
-      cx = r.x * k
-      cy = (h - r.y) * k
-      hx = (r.x + r.radius * :math.cos(r.theta)) * k
-      hy = (h - r.y - r.radius * :math.sin(r.theta)) * k
+    Map.new(Enum.reverse(clusters), fn
+      [{id, p}] ->
+        {id, "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}"}
 
-      [
-        ~s(<circle cx="#{f(cx)}" cy="#{f(cy)}" r="#{f(r.radius * k)}" fill="#9db7d5" fill-opacity="0.85" stroke="#234"/>),
-        ~s(<line x1="#{f(cx)}" y1="#{f(cy)}" x2="#{f(hx)}" y2="#{f(hy)}" stroke="#234" stroke-width="2"/>),
-        ~s(<text x="#{f(cx + r.radius * k + 2)}" y="#{f(cy - r.radius * k)}" font-size="12" font-family="sans-serif">#{esc(id)}</text>)
-      ]
-    end
+      [{id, _} | _] = ms ->
+        ids = Enum.map(ms, &label_text(elem(&1, 0)))
+        {id, "#{length(ms)} pucks #{hd(ids)}-#{List.last(ids)}"}
+    end)
+  end
+
+  defp cluster([], _pucks, acc), do: Enum.sort_by(acc, &inspect(elem(&1, 0)))
+
+  defp cluster([{_, p} | rest], pucks, acc) do
+    near =
+      for {_, q} = e <- pucks,
+          not q.tall and not p.tall,
+          e not in acc,
+          :math.sqrt((p.x - q.x) * (p.x - q.x) + (p.y - q.y) * (p.y - q.y)) < 0.2,
+          do: e
+
+    cluster(rest ++ near, pucks, acc ++ near)
+  end
+
+  defp border?({x1, y1, x2, y2}, w, h) do
+    on = fn a, b, v -> abs(a - v) < 1.0e-6 and abs(b - v) < 1.0e-6 end
+    on.(x1, x2, 0) or on.(x1, x2, w) or on.(y1, y2, 0) or on.(y1, y2, h)
+  end
+
+  defp robots(world) do
+    for {id, r} <- Enum.sort_by(world.robots, &inspect(elem(&1, 0))),
+        shape <- [
+          %{
+            shape: :circle,
+            x: r.x,
+            y: r.y,
+            r: r.radius,
+            fill: "#9db7d5",
+            stroke: "#234",
+            opacity: 0.9,
+            class: "robot",
+            data: %{id: label_text(id)},
+            label: label_text(id),
+            label_below: true
+          },
+          %{
+            shape: :line,
+            points: [
+              {r.x, r.y},
+              {r.x + r.radius * :math.cos(r.theta), r.y + r.radius * :math.sin(r.theta)}
+            ],
+            width_px: 2,
+            stroke: "#234"
+          }
+        ],
+        do: shape
   end
 
   @doc """
@@ -350,19 +480,4 @@ defmodule TartarusArena.Render do
 
   defp rgb("#" <> <<r::binary-size(2), g::binary-size(2), b::binary-size(2)>>),
     do: {String.to_integer(r, 16), String.to_integer(g, 16), String.to_integer(b, 16)}
-
-  defp scale(opts), do: Keyword.get(opts, :scale, 200)
-  defp f(v), do: :erlang.float_to_binary(v * 1.0, decimals: 1)
-
-  defp esc(term) do
-    s =
-      if is_binary(term),
-        do: term,
-        else: if(is_atom(term) or is_number(term), do: to_string(term), else: inspect(term))
-
-    s
-    |> String.replace("&", "&amp;")
-    |> String.replace("<", "&lt;")
-    |> String.replace(">", "&gt;")
-  end
 end

@@ -465,6 +465,9 @@ defmodule TartarusEmu.Network do
     hb = host(net, b)
     props = [latency_ms: round(props.latency_ms), loss: props.loss]
 
+    if TartarusEmu.Links.emulated?(props),
+      do: TartarusEmu.Links.install([elem(ha, 1), elem(hb, 1)])
+
     with :ok <- Tartarus.connect(ha, hb, props) do
       connect_nodes(elem(ha, 1), elem(hb, 1))
     end

@@ -101,6 +101,12 @@ defmodule TartarusEmu.Scenario do
   @callback charts(state()) :: [chart()]
 
   @doc """
+  The run's parameters and seed in a line (optional): the subtitle of every chart the
+  runner draws (the per-series charts, and `charts/1` entries without their own).
+  """
+  @callback subtitle(state()) :: String.t()
+
+  @doc """
   Rows "ours vs the thesis" for `summary.md` (optional; see
   `TartarusTools.Report.write_summary!/3`).
   """
@@ -130,6 +136,7 @@ defmodule TartarusEmu.Scenario do
 
   @optional_callbacks done?: 2,
                       charts: 1,
+                      subtitle: 1,
                       comparisons: 1,
                       title: 0,
                       write: 2,
@@ -268,7 +275,8 @@ defmodule TartarusEmu.Scenario do
     dir = out || Report.default_out_dir(module.name())
     File.mkdir_p!(dir)
 
-    csvs_and_charts = write_series(dir, module.name(), series)
+    subtitle = if function_exported?(module, :subtitle, 1), do: module.subtitle(state)
+    csvs_and_charts = write_series(dir, module.name(), series, subtitle: subtitle)
 
     extra_charts =
       if function_exported?(module, :charts, 1) do
@@ -289,7 +297,7 @@ defmodule TartarusEmu.Scenario do
                 title: c.title,
                 x_label: Map.get(c, :x_label, "step"),
                 y_label: Map.get(c, :y_label, "")
-              ] ++ Keyword.new(Map.take(c, @chart_options))
+              ] ++ Keyword.new(Map.take(Map.put_new(c, :subtitle, subtitle), @chart_options))
             )
 
           SVG.write!(Path.join(dir, "#{c.file}.svg"), svg)
@@ -309,17 +317,19 @@ defmodule TartarusEmu.Scenario do
         comparisons: comparisons
       )
 
-    {dir, csvs_and_charts ++ extra_charts ++ extra ++ summaries}
+    # a chart of charts/1 may redraw a per-series chart under its name (a better title, units)
+    {dir, Enum.uniq(csvs_and_charts ++ extra_charts ++ extra ++ summaries)}
   end
 
   @doc """
   Writes a run's series into `dir` as the runner does: `series.csv` (every series, one
   column each), and per series a CSV (`step`, value) and an SVG line chart titled
-  `"<name>: <series>"`. Returns the paths written. For an experiment that builds its
-  series itself (a `TartarusEmu.Sweep` whose points are runs).
+  `"<name>: <series>"`, with `opts[:subtitle]` under it (the run's parameters and seed).
+  Returns the paths written. For an experiment that builds its series itself (a
+  `TartarusEmu.Sweep` whose points are runs).
   """
-  @spec write_series(Path.t(), String.t(), Series.t()) :: [Path.t()]
-  def write_series(dir, name, series) do
+  @spec write_series(Path.t(), String.t(), Series.t(), keyword()) :: [Path.t()]
+  def write_series(dir, name, series, opts \\ []) do
     File.mkdir_p!(dir)
 
     csvs =
@@ -333,6 +343,7 @@ defmodule TartarusEmu.Scenario do
         svg =
           SVG.line_chart([chart],
             title: "#{name}: #{chart.name}",
+            subtitle: opts[:subtitle],
             x_label: "step",
             y_label: chart.name,
             y_min: if(Enum.all?(chart.points, fn {_, y} -> y >= 0 end), do: 0)

@@ -50,6 +50,8 @@ defmodule TartarusEmu.Sweep do
 
     * `:name` - a plain name (default output directory `results/<name>-<time>`);
     * `:title` - the title of `summary.md` (default: the name);
+    * `:subtitle` - the parameters the arms share (`"10 hosts (grid), 600 steps at most"`),
+      put before the seeds under the box plots' titles;
     * `:arms` - `[{name, opts}]`: `name` a string, `opts` anything the run reads;
     * `:seeds` - the seeds (a list or a range);
     * `:run` - `fn arm, seed -> summary end`, where `arm` is `%{name:, opts:}`; it may return
@@ -252,6 +254,7 @@ defmodule TartarusEmu.Sweep do
            %{
              name: name,
              title: Map.get(spec, :title, name),
+             subtitle: Map.get(spec, :subtitle),
              arms: Enum.map(arms, fn {n, o} -> %{name: n, opts: o} end),
              seeds: seeds,
              run: runner(spec),
@@ -409,7 +412,8 @@ defmodule TartarusEmu.Sweep do
             SVG.box_plot(
               Enum.map(groups, fn {arm, rs} -> {arm, Enum.reject(values(rs, f), &is_nil/1)} end),
               title: Map.get(spec.titles, m, "#{spec.name}: #{m} per run"),
-              subtitle: seeds_note(result.runs),
+              subtitle:
+                Enum.join(Enum.reject([spec.subtitle, seeds_note(result.runs)], &is_nil/1), "; "),
               y_label: to_string(m)
             )
 

@@ -186,6 +186,8 @@ defmodule TartarusEmu.Walk do
          dyn: Dynamics.new(topo.nodes),
          dyn_rng: :rand.seed_s(:exsss, {seed, 2, 0}),
          visited: MapSet.new(homes, &Network.host(net, &1)),
+         trail: [{0, Network.host(net, hd(homes))}],
+         steps_run: 0,
          until_covered: opt(opts, :until_covered),
          step_timeout: opt(opts, :step_timeout_ms),
          series: Series.new(),
@@ -298,7 +300,7 @@ defmodule TartarusEmu.Walk do
             Tartarus.create_mobile_agent(
               host,
               TartarusEmu.Walker,
-              %{coord: coord, strategy: strategy, step: 0},
+              %{coord: coord, strategy: strategy, step: 0, trace: i == 1},
               seed: {seed, i}
             )
         end)
@@ -320,7 +322,7 @@ defmodule TartarusEmu.Walk do
     Network.apply_dynamics(s.net, events)
     reached = Network.broadcast(s.net, {:emu_step, k})
     deadline = System.monotonic_time(:millisecond) + s.step_timeout
-    {moved, failed, visited} = await(k, reached, 0, 0, s.visited, deadline)
+    {moved, failed, visited, trail} = await(k, reached, {0, 0, s.visited, s.trail}, deadline)
     wall_us = System.monotonic_time(:microsecond) - t0
     lost = reached - moved - failed
     ^k = Log.tick(s.log) - 1
@@ -340,32 +342,42 @@ defmodule TartarusEmu.Walk do
       | dyn: dyn,
         dyn_rng: dyn_rng,
         visited: visited,
+        trail: trail,
         series: series,
         lost: s.lost + lost,
         wall_us: s.wall_us + wall_us,
         migrations: s.migrations + moved,
         failed: s.failed + failed,
-        covered_at: s.covered_at || if(coverage == 1.0, do: k)
+        covered_at: s.covered_at || if(coverage == 1.0, do: k),
+        steps_run: k
     }
   end
 
-  defp await(_k, reached, moved, failed, visited, _deadline) when moved + failed >= reached,
-    do: {moved, failed, visited}
+  # Counts the step's reports: `{moved, failed, visited, trail}`, the trail being the first
+  # agent's hops (newest first).
+  defp await(_k, reached, {moved, failed, _, _} = acc, _deadline) when moved + failed >= reached,
+    do: acc
 
-  defp await(k, reached, moved, failed, visited, deadline) do
+  defp await(k, reached, {moved, failed, visited, trail} = acc, deadline) do
     timeout = max(deadline - System.monotonic_time(:millisecond), 0)
 
     receive do
+      {:emu_traced, ^k, host} ->
+        await(k, reached, {moved, failed, visited, [{k, host} | trail]}, deadline)
+
+      {:emu_traced, _old, _host} ->
+        await(k, reached, acc, deadline)
+
       {:emu_walked, ^k, host, :moved} ->
-        await(k, reached, moved + 1, failed, MapSet.put(visited, host), deadline)
+        await(k, reached, {moved + 1, failed, MapSet.put(visited, host), trail}, deadline)
 
       {:emu_walked, ^k, _host, :failed} ->
-        await(k, reached, moved, failed + 1, visited, deadline)
+        await(k, reached, {moved, failed + 1, visited, trail}, deadline)
 
       {:emu_walked, _old, _host, _} ->
-        await(k, reached, moved, failed, visited, deadline)
+        await(k, reached, acc, deadline)
     after
-      timeout -> {moved, failed, visited}
+      timeout -> acc
     end
   end
 
@@ -376,12 +388,25 @@ defmodule TartarusEmu.Walk do
   def series(s), do: s.series
 
   @impl true
-  def charts(_s) do
+  def charts(s) do
     [
       %{
-        file: "walk",
+        file: "coverage",
+        title: "Walk: coverage, the hosts visited so far",
+        subtitle: subtitle(s),
+        y_label: "hosts visited",
+        y_unit: "fraction of all hosts",
+        y_min: 0,
+        y_max: 1,
+        x_integer: true,
+        series: [:coverage]
+      },
+      %{
+        file: "moves",
         title: "Walk: migrations and failed moves per step",
-        y_label: "count",
+        subtitle: subtitle(s),
+        y_label: "moves per step",
+        labels: %{migrations: "migrations", failed_moves: "failed moves"},
         series: [:migrations, :failed_moves]
       }
     ]
@@ -447,7 +472,58 @@ defmodule TartarusEmu.Walk do
   end
 
   @impl true
-  def write(s, dir), do: Log.write_csv!(s.log, dir)
+  @doc """
+  The parameters and seed of a run, for its figures' subtitles: "grid, 16 hosts, 4 agents,
+  random, p 0, seed 1".
+  """
+  @spec subtitle(map()) :: String.t()
+  def subtitle(s) do
+    "#{s.topology_name}, #{Topology.size(s.topo)} hosts, #{s.agents} agent#{if s.agents == 1, do: "", else: "s"}, " <>
+      "#{s.strategy}, " <>
+      "p #{s.p}, seed #{s.seed}"
+  end
+
+  @impl true
+  def write(s, dir) do
+    Log.write_csv!(s.log, dir) ++ figures(s, dir)
+  end
+
+  # The topology and the first agent's walk over it (`TartarusEmu.Figures`), with the walk
+  # as a CSV, for topologies small enough to draw.
+  defp figures(s, dir) do
+    if Topology.size(s.topo) <= TartarusEmu.Figures.max_nodes() do
+      node_of = Map.new(s.topo.nodes, &{Network.host(s.net, &1), &1})
+      path = s.trail |> Enum.reverse() |> Enum.map(fn {k, host} -> {k, node_of[host]} end)
+      sub = subtitle(s)
+
+      csv =
+        TartarusTools.Report.write_csv!(
+          dir,
+          "walk_path",
+          ["step", "node"],
+          Enum.map(path, fn {k, n} -> [k, n] end)
+        )
+
+      topo_svg =
+        TartarusTools.SVG.write!(
+          Path.join(dir, "topology.svg"),
+          TartarusEmu.Figures.topology(s.topo, subtitle: sub)
+        )
+
+      walk_svg =
+        TartarusTools.SVG.write!(
+          Path.join(dir, "walk.svg"),
+          TartarusEmu.Figures.walk(s.topo, path,
+            title: "Walk of agent 1: #{length(path) - 1} hops in #{s.steps_run} steps",
+            subtitle: sub
+          )
+        )
+
+      [csv, topo_svg, walk_svg]
+    else
+      []
+    end
+  end
 
   @impl true
   def teardown(s) do

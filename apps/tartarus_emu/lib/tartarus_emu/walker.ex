@@ -6,7 +6,9 @@ defmodule TartarusEmu.Walker do
   Its state is `%{coord: pid, strategy: strategy, step: n}`. The step signal
   `{:emu_step, step}` arrives as a plain message (`TartarusEmu.Network.broadcast/2`);
   after the move (or the failed move) the walker sends
-  `{:emu_walked, step, host, :moved | :failed}` to `coord`. Its random choices use its own
+  `{:emu_walked, step, host, :moved | :failed}` to `coord`; a walker with `trace: true` in
+  its state (the walk's first agent) first sends `{:emu_traced, step, host}` for each move,
+  the hop its walk figure draws. Its random choices use its own
   seeded random state (`Tartarus.create_agent/4`'s `seed:`), so its walk is the same on
   every run with the same seed and the same network.
   """
@@ -23,6 +25,7 @@ defmodule TartarusEmu.Walker do
 
   @impl true
   def handle_arrival(ctx, s) do
+    if Map.get(s, :trace), do: send(s.coord, {:emu_traced, s.step, ctx.host})
     send(s.coord, {:emu_walked, s.step, ctx.host, :moved})
     {:stay, s}
   end

@@ -63,7 +63,10 @@ defmodule TartarusEmu.SweepTest do
 
   test "aggregates per arm, the test between arms, and the files" do
     dir = tmp()
-    {:ok, r} = Sweep.run(spec(order: :arm_major), out: dir, quiet: true)
+
+    {:ok, r} =
+      Sweep.run(spec(order: :arm_major, subtitle: "ring, 12 hosts"), out: dir, quiet: true)
+
     steps = fn arm -> for run <- r.runs, run.arm == arm, do: run.summary.steps end
 
     assert r.aggregates["one"].steps == TartarusTools.Stats.describe(steps.("one"))
@@ -92,15 +95,24 @@ defmodule TartarusEmu.SweepTest do
     assert json["sweep"]["aggregates"]["one"]["steps"]["median"] ==
              r.aggregates["one"].steps.median
 
-    # steps.svg: a box per arm, its median line at the arm's median (Stats', nearest rank),
-    # every run's steps as a dot, the seeds in the subtitle.
+    assert json["sweep"]["aggregates"]["one"]["steps"]["median_mid"] ==
+             r.aggregates["one"].steps.median_mid
+
+    # steps.svg: a box per arm, its median line at the arm's conventional median (the
+    # aggregates' median_mid, six runs: the mean of the two middle ones), every run's steps
+    # as a dot, the seeds in the subtitle.
     svg = File.read!(Path.join(dir, "steps.svg"))
 
     medians =
       Regex.scan(~r/<g class="median" data-value="([^"]+)">/, svg, capture: :all_but_first)
 
-    assert medians ==
-             for(arm <- ["many", "one"], do: [to_string(r.aggregates[arm].steps.median)])
+    assert Enum.map(medians, fn [v] -> elem(Float.parse(v), 0) end) ==
+             for(arm <- ["many", "one"], do: r.aggregates[arm].steps.median_mid * 1.0)
+
+    for arm <- ["many", "one"] do
+      sorted = Enum.sort(steps.(arm))
+      assert r.aggregates[arm].steps.median_mid == (Enum.at(sorted, 2) + Enum.at(sorted, 3)) / 2
+    end
 
     dots =
       Regex.scan(~r/<circle class="sample"[^>]*data-value="(\d+)"/, svg, capture: :all_but_first)
@@ -108,7 +120,7 @@ defmodule TartarusEmu.SweepTest do
     assert Enum.map(dots, fn [v] -> String.to_integer(v) end) ==
              Enum.sort(steps.("many")) ++ Enum.sort(steps.("one"))
 
-    assert svg =~ ~r/seeds \d+-\d+/
+    assert svg =~ "ring, 12 hosts; seeds 1-6"
   end
 
   test "a line per finished run; the experiment's own summary, rows and files" do

@@ -177,6 +177,9 @@ defmodule TartarusImmune.Select do
     spec = %{
       name: "select-#{exp}",
       title: "Immune selection: #{exp}",
+      subtitle:
+        "#{exp}, #{o[:nodes] || default_nodes(exp)} hosts (#{o.topology}), " <>
+          "#{o.steps} steps at most",
       arms: arms,
       seeds: seeds(o),
       run: &run_one(&1, &2, exp, o, panel, concurrency),

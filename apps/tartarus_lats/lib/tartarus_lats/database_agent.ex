@@ -24,7 +24,8 @@ defmodule TartarusLats.DatabaseAgent do
       newest first;
     * `{:lats, :clock}` - the last world second processed;
     * `{:lats, :cloud}` - the cloud host, or `nil`;
-    * `{:lats, :filtered}` - `%{tag => filtered RSSI}` of the last second.
+    * `{:lats, :filtered}` - `%{tag => filtered RSSI}` of the last second;
+    * `{:lats, :held}` - the tags the zone decision holds in this node's zone now.
 
   ## Driven in world seconds
 
@@ -125,6 +126,7 @@ defmodule TartarusLats.DatabaseAgent do
     A.store_put({:lats, :neighbours}, s.neighbours)
     A.store_put({:lats, :cloud}, s.cloud)
     A.store_put({:lats, :filtered}, %{})
+    A.store_put({:lats, :held}, [])
     publish(s)
     {:stay, s}
   end
@@ -182,6 +184,7 @@ defmodule TartarusLats.DatabaseAgent do
       if j == 1 do
         heard = Map.new(reports, fn {:rss, node, report} -> {node, report} end)
         {events, zone} = Zone.decide(s.zone, t, s.tracker, heard)
+        A.store_put({:lats, :held}, Zone.held(zone))
         {events, %{s | zone: zone}}
       else
         {[], s}

@@ -47,6 +47,7 @@ defmodule TartarusLats.Deployment do
             replay: nil,
             parsers: %{},
             down: MapSet.new(),
+            feed: nil,
             input: %{records: 0, bad_records: 0, garbage_bytes: 0, other_devices: 0}
 
   @type t :: %__MODULE__{
@@ -65,6 +66,7 @@ defmodule TartarusLats.Deployment do
           replay: TartarusLats.HM10.Recording.t() | nil,
           parsers: %{Building.node_name() => HM10.t()},
           down: MapSet.t(Building.node_name()),
+          feed: %{pos_integer() => %{Building.node_name() => map()}} | nil,
           input: map()
         }
 
@@ -88,7 +90,25 @@ defmodule TartarusLats.Deployment do
       type: :any,
       doc:
         "a recording (`TartarusLats.HM10.Recording.read/1`): the receivers hear it, parsed by `TartarusLats.HM10`, instead of the simulated radio (the world still moves, for the ground truth)"
-    ]
+    ],
+    feed: [
+      type: :any,
+      doc:
+        "real readings, `%{second => %{node => %{tag => rssi}}}` (seconds from 1): each step gives the nodes that second's readings instead of the world's; the world does not move (`TartarusLats.Replay`)"
+    ],
+    calibration: [
+      type: :any,
+      doc:
+        "the near/far thresholds (a `TartarusLats.Region` calibration) of every node (default: the radio model's)"
+    ],
+    corrections: [
+      type: :any,
+      default: %{},
+      doc:
+        "`%{node => {offset, slope}}`: each node's receiver correction, applied by its tracker (`TartarusLats.Replay.Calibration`)"
+    ],
+    tracker: [type: :any, default: [], doc: "more options of every node's `TartarusLats.Tracker`"],
+    zone: [type: :any, default: [], doc: "options of every node's `TartarusLats.Zone`"]
   ]
 
   @doc """
@@ -125,7 +145,8 @@ defmodule TartarusLats.Deployment do
           {c, false}
       end
 
-    setup = node_setup(cloud, opts ++ [calibration: calibration(world)])
+    setup =
+      node_setup(cloud, Keyword.put_new_lazy(opts, :calibration, fn -> calibration(world) end))
 
     {:ok, net} =
       TartarusEmu.Network.start(building,
@@ -144,7 +165,8 @@ defmodule TartarusLats.Deployment do
       cloud: cloud,
       owns_cloud: owns,
       record: opts[:record],
-      replay: opts[:replay]
+      replay: opts[:replay],
+      feed: opts[:feed]
     }
   end
 
@@ -174,8 +196,8 @@ defmodule TartarusLats.Deployment do
   LATS's per-node setup hook for `TartarusEmu.Network.start/2`: attaches the
   receiver (`:beacon`) and creates the database agent, which knows its
   neighbours' hosts and the `cloud`. Options: `:centralized`, `:data_dir`,
-  `:timeout` (see `start/1`) and `:calibration` (a `TartarusLats.Region`
-  calibration).
+  `:timeout`, `:corrections`, `:tracker`, `:zone` (see `start/1`) and `:calibration` (a
+  `TartarusLats.Region` calibration).
   """
   @spec node_setup(Tartarus.host() | nil, keyword()) :: TartarusEmu.Network.setup()
   def node_setup(cloud, opts) do
@@ -190,7 +212,12 @@ defmodule TartarusLats.Deployment do
         cloud: cloud,
         centralized: Keyword.get(opts, :centralized, true),
         data_dir: Keyword.get(opts, :data_dir),
-        tracker: [calibration: Keyword.fetch!(opts, :calibration)],
+        tracker:
+          [
+            calibration: Keyword.fetch!(opts, :calibration),
+            correction: Map.get(Keyword.get(opts, :corrections, %{}), node, {0.0, 1.0})
+          ] ++ Keyword.get(opts, :tracker, []),
+        zone: Keyword.get(opts, :zone, []),
         timeout: Keyword.get(opts, :timeout, 15)
       }
 
@@ -254,6 +281,17 @@ defmodule TartarusLats.Deployment do
   updated.
   """
   @spec step(t()) :: t()
+  def step(%__MODULE__{feed: feed} = dep) when feed != nil do
+    t = dep.time + 1
+    readings = Map.get(feed, t, %{})
+    dep = %{dep | readings: readings, time: t}
+    dep = dep |> write_readings(t) |> mark_down(dep)
+    {dep, sent} = phase(dep, {:sense, t})
+    dep = deliver(dep, t, sent, 1)
+    {dep, _} = phase(dep, {:tick, t})
+    dep
+  end
+
   def step(%__MODULE__{} = dep) do
     {world, rng} = World.step(dep.world, dep.rng)
     # Drawn also when replaying, so the world (the ground truth) moves as when recorded.

@@ -91,6 +91,12 @@ defmodule TartarusLats.Experiment do
       doc:
         "when query agents contact the cloud: from every node where they find data of the tag (the thesis's scenario 2), or once per query"
     ],
+    repair: [
+      type: :boolean,
+      default: false,
+      doc:
+        "Where is X agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `:repair`)"
+    ],
     record: [
       type: :any,
       doc:
@@ -260,7 +266,8 @@ defmodule TartarusLats.Experiment do
          release: to_string(opts.release),
          kill_nodes: opts.kill_nodes,
          down_s: opts.down_s,
-         noise_db: opts.noise_db
+         noise_db: opts.noise_db,
+         repair: opts.repair
        }
      }}
   end
@@ -422,7 +429,14 @@ defmodule TartarusLats.Experiment do
         end
       end)
 
-    results = Queries.ask(batch, acc.dep, String.to_existing_atom(acc.meta.agent_cloud))
+    results =
+      Queries.ask(
+        batch,
+        acc.dep,
+        String.to_existing_atom(acc.meta.agent_cloud),
+        acc.meta.repair
+      )
+
     %{acc | pending: waiting, rng: rng, k: k, results: Enum.reverse(results) ++ acc.results}
   end
 

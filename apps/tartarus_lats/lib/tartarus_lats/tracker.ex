@@ -75,6 +75,7 @@ defmodule TartarusLats.Tracker do
   alias TartarusLats.{Beacon, Region, RSSIFilter}
 
   defstruct calibration: nil,
+            correction: {0.0, 1.0},
             window: 6,
             median: 3,
             confirm: 2,
@@ -109,6 +110,7 @@ defmodule TartarusLats.Tracker do
 
   @type t :: %__MODULE__{
           calibration: Region.calibration(),
+          correction: {number(), number()},
           window: pos_integer(),
           median: pos_integer(),
           confirm: pos_integer(),
@@ -122,6 +124,12 @@ defmodule TartarusLats.Tracker do
       type: :any,
       check: {:struct, Region, "a TartarusLats.Region calibration"},
       doc: "a calibration (default `TartarusLats.Region.calibrate/0`)"
+    ],
+    correction: [
+      type: :any,
+      default: {0.0, 1.0},
+      doc:
+        "this receiver's `{offset, slope}`: every sample becomes `(rssi - offset) / slope` (`TartarusLats.Replay.Calibration`)"
     ],
     window: [type: :pos_integer, default: 6, doc: "moving-average window"],
     median: [
@@ -146,6 +154,10 @@ defmodule TartarusLats.Tracker do
 
     * `:calibration` - a `t:TartarusLats.Region.calibration/0`
       (default `TartarusLats.Region.calibrate/0`: -65 / -73 dBm);
+    * `:correction` - this receiver's `{offset, slope}` (default `{0.0, 1.0}`, none):
+      every RSSI sample becomes `(rssi - offset) / slope` before anything else, so a
+      receiver that reports louder or softer than the common model is put on it
+      (`TartarusLats.Replay.Calibration`);
     * `:window` - moving-average window (default 6);
     * `:median` - spike-rejecting median over this many raw samples before
       the average (odd positive integer, default 3; 1 disables it);
@@ -165,8 +177,19 @@ defmodule TartarusLats.Tracker do
     opts = TartarusLats.Options.validate!(opts, @schema, "TartarusLats.Tracker.new/1")
     cal = Keyword.get_lazy(opts, :calibration, fn -> Region.calibrate() end)
 
+    correction =
+      case opts[:correction] do
+        {o, s} when is_number(o) and is_number(s) and s > 0 ->
+          {o, s}
+
+        other ->
+          raise ArgumentError,
+                "invalid options given to TartarusLats.Tracker.new/1 for key :correction: expected {offset, slope} with slope > 0, got: #{inspect(other)}"
+      end
+
     %__MODULE__{
       calibration: cal,
+      correction: correction,
       window: opts[:window],
       median: opts[:median],
       confirm: opts[:confirm],
@@ -186,6 +209,7 @@ defmodule TartarusLats.Tracker do
       when is_number(time) and is_binary(uuid) and is_integer(major) and is_integer(minor) and
              (is_number(rssi) or rssi == :missing) do
     state = Map.get_lazy(t.tags, tag, fn -> fresh(t) end)
+    rssi = correct(t.correction, rssi)
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
     raw = Enum.take([value | state.raw], t.median)
     heard = Enum.take([if(rssi == :missing, do: nil, else: rssi) | state.heard], t.window)
@@ -329,6 +353,10 @@ defmodule TartarusLats.Tracker do
   def present(%__MODULE__{tags: tags}) do
     Enum.sort(for {tag, %{region: r}} <- tags, r != :beyond, do: tag)
   end
+
+  defp correct(_, :missing), do: :missing
+  defp correct({o, s}, rssi) when o == 0 and s == 1, do: rssi
+  defp correct({o, s}, rssi), do: (rssi - o) / s
 
   defp fresh(t) do
     %{

@@ -60,6 +60,7 @@ defmodule TartarusRoadblock.Scenario do
            requirement: opts[:requirement] || [:drive, :claws],
            block_at: opts[:block_at] || 1.5,
            mode: opts[:mode] || :virtual,
+           seed: opts.seed,
            phase: :driving,
            t: 0.0,
            t0: System.monotonic_time(:millisecond),
@@ -452,7 +453,12 @@ defmodule TartarusRoadblock.Scenario do
     svg =
       TartarusTools.SVG.write!(
         Path.join(dir, "trajectories.svg"),
-        TartarusArena.Render.trajectories(w, trajs)
+        TartarusArena.Render.trajectories(w, trajs,
+          title: "Roadblock: the robots' paths",
+          subtitle:
+            "block placed at #{s.block_at} s, rescue needs #{Enum.join(s.requirement, " + ")}, " <>
+              "#{s.mode} mode, seed #{s.seed}"
+        )
       )
 
     events = Enum.reverse(s.timeline)

@@ -8,7 +8,11 @@ defmodule TartarusTools.Stats do
 
     * **quantiles are nearest rank**: `percentile(xs, q)` is an actual sample (the
       `ceil(q * n)`-th smallest), never an interpolation; the median of an even count is
-      the lower middle sample. The same definition as the platform's hop statistics.
+      the lower middle sample. The same definition as the platform's hop statistics, and
+      what every report's `median` key gives.
+    * **charts draw the conventional median**, `median_mid/1`: the mean of the two middle
+      samples of an even count (of [11, 13], 12.0). `describe/1` gives both (`median`,
+      `median_mid`), so a chart's median line can be read back from the report.
     * **`sd/1` is the sample standard deviation** (divisor `n - 1`), `nil` below two samples.
     * **empty lists give `nil`** (`mean/1`, `median/1`, `percentile/2`, `box/1`, ...), so
       an arm with no runs shows as empty rather than as zero.
@@ -42,6 +46,7 @@ defmodule TartarusTools.Stats do
           mean: float | nil,
           sd: float | nil,
           median: number | nil,
+          median_mid: number | nil,
           q1: number | nil,
           q3: number | nil,
           iqr: number | nil,
@@ -209,6 +214,30 @@ defmodule TartarusTools.Stats do
   def median(xs), do: percentile(xs, 0.5)
 
   @doc """
+  The conventional median: the middle sample of an odd count, the mean of the two middle
+  samples of an even count; `nil` for an empty list. What the charts draw (box plots'
+  median line); `median/1`, nearest rank, is what the reports' `median` keys give.
+
+      iex> TartarusTools.Stats.median_mid([13, 11])
+      12.0
+      iex> TartarusTools.Stats.median_mid([3, 1, 2])
+      2
+      iex> TartarusTools.Stats.median_mid([])
+      nil
+  """
+  @spec median_mid([number]) :: number | nil
+  def median_mid([]), do: nil
+  def median_mid(xs) when is_list(xs), do: sorted_median_mid(Enum.sort(xs))
+
+  defp sorted_median_mid(sorted) do
+    n = length(sorted)
+
+    if rem(n, 2) == 1,
+      do: Enum.at(sorted, div(n, 2)),
+      else: (Enum.at(sorted, div(n, 2) - 1) + Enum.at(sorted, div(n, 2))) / 2
+  end
+
+  @doc """
   The interquartile range, `q3 - q1` (nearest-rank quartiles), `nil` for an empty list.
 
       iex> TartarusTools.Stats.iqr(Enum.to_list(1..9))
@@ -226,16 +255,22 @@ defmodule TartarusTools.Stats do
   Box-plot statistics, or `nil` for an empty list: nearest-rank quartiles and median;
   whiskers reach the most extreme samples within 1.5 IQR of the box; samples beyond are
   outliers (Tukey). Raises `ArgumentError` on an element that is not a number.
+  `median: :mid` gives the conventional median instead (`median_mid/1`), what a chart draws.
 
       iex> TartarusTools.Stats.box([1, 2, 3, 4, 100])
       %{n: 5, min: 1, max: 100, q1: 2, median: 3, q3: 4, whisker_low: 1, whisker_high: 4, outliers: [100]}
+      iex> TartarusTools.Stats.box([11, 13]).median
+      11
+      iex> TartarusTools.Stats.box([11, 13], median: :mid).median
+      12.0
       iex> TartarusTools.Stats.box([])
       nil
   """
-  @spec box([number]) :: box | nil
-  def box([]), do: nil
+  @spec box([number], keyword) :: box | nil
+  def box(xs, opts \\ [])
+  def box([], _opts), do: nil
 
-  def box(xs) when is_list(xs) do
+  def box(xs, opts) when is_list(xs) do
     Enum.each(xs, fn s ->
       if not is_number(s) do
         raise ArgumentError,
@@ -245,6 +280,7 @@ defmodule TartarusTools.Stats do
 
     sorted = Enum.sort(xs)
     [q1, median, q3] = Enum.map([0.25, 0.5, 0.75], &sorted_percentile(sorted, &1))
+    median = if Keyword.get(opts, :median) == :mid, do: sorted_median_mid(sorted), else: median
     iqr = q3 - q1
     inside? = &(&1 >= q1 - 1.5 * iqr and &1 <= q3 + 1.5 * iqr)
     inside = Enum.filter(sorted, inside?)
@@ -263,12 +299,13 @@ defmodule TartarusTools.Stats do
   end
 
   @doc """
-  A description of one sample: `n`, `mean`, `sd`, `median`, `q1`, `q3`, `iqr`, `min`,
-  `max` (what a sweep reports per arm and metric). `nil` values are dropped first (a run
-  that did not produce the metric), so `n` counts the numbers described.
+  A description of one sample: `n`, `mean`, `sd`, `median` (nearest rank), `median_mid`
+  (the conventional median, what a box plot's median line shows), `q1`, `q3`, `iqr`,
+  `min`, `max` (what a sweep reports per arm and metric). `nil` values are dropped first
+  (a run that did not produce the metric), so `n` counts the numbers described.
 
       iex> TartarusTools.Stats.describe([4, 1, nil, 3, 2])
-      %{n: 4, mean: 2.5, sd: 1.2909944487358056, median: 2, q1: 1, q3: 3, iqr: 2, min: 1, max: 4}
+      %{n: 4, mean: 2.5, sd: 1.2909944487358056, median: 2, median_mid: 2.5, q1: 1, q3: 3, iqr: 2, min: 1, max: 4}
       iex> TartarusTools.Stats.describe([]).median
       nil
   """
@@ -282,6 +319,7 @@ defmodule TartarusTools.Stats do
       mean: mean(xs),
       sd: sd(xs),
       median: median,
+      median_mid: median_mid(xs),
       q1: q1,
       q3: q3,
       iqr: if(q1, do: q3 - q1),

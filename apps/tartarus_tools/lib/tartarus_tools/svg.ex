@@ -1,7 +1,8 @@
 defmodule TartarusTools.SVG do
   @moduledoc """
-  Small plain-SVG charts for experiment reports: line charts, bar charts, box plots and
-  Gantt charts, with no dependency beyond Elixir.
+  Small plain-SVG charts for experiment reports: line charts, bar charts, box plots, Gantt
+  charts and plans (shapes in metres or plot units: a topology, a walk over it, an arena,
+  with a scale bar), with no dependency beyond Elixir.
 
   Every chart function takes data and a keyword list of options and returns a standalone SVG
   document as a binary: valid XML (all text is escaped), with a `<title>`, readable in any
@@ -464,11 +465,12 @@ defmodule TartarusTools.SVG do
   A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
   as circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and sample count.
 
-  The median and quartiles are `TartarusTools.Stats`'s, nearest rank: actual samples, the
-  median of an even count being the lower middle one (the median of [11, 13] is 11). A
-  footnote says so (`:note` replaces it), and a group of at most `:points_max` samples
-  (default 20) also shows every sample as a dot beside its box, so a reader sees the data
-  the box summarises.
+  The median line is the conventional median (`TartarusTools.Stats.median_mid/1`: of an
+  even count the mean of the two middle samples, so [11, 13] is drawn at 12), the
+  `median_mid` of a sweep's aggregates; the quartiles are nearest rank, actual samples
+  (`Stats.box/2`). A footnote says so (`:note` replaces it), and a group of at most
+  `:points_max` samples (default 20) also shows every sample as a dot beside its box, so a
+  reader sees the data the box summarises.
 
   ## Examples
 
@@ -481,10 +483,10 @@ defmodule TartarusTools.SVG do
     groups =
       Enum.map(groups, fn
         {name, samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples), samples}
+          {name, TartarusTools.Stats.box(samples, median: :mid), samples}
 
         %{name: name, samples: samples} when is_list(samples) ->
-          {name, TartarusTools.Stats.box(samples), samples}
+          {name, TartarusTools.Stats.box(samples, median: :mid), samples}
 
         other ->
           raise ArgumentError,
@@ -500,8 +502,8 @@ defmodule TartarusTools.SVG do
       Keyword.put_new(
         opts,
         :note,
-        "box: nearest-rank quartiles and median (of an even n, the lower middle sample); " <>
-          "whiskers 1.5 IQR; circles outliers"
+        "box: median (of an even n, the mean of the two middle samples), " <>
+          "nearest-rank quartiles; whiskers 1.5 IQR; circles outliers"
       )
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
     n = length(groups)
@@ -594,6 +596,319 @@ defmodule TartarusTools.SVG do
         ]
       end)
     ]
+  end
+
+  ## Plan (a map in world units)
+
+  @typedoc """
+  One shape of `plan/2`, in world units (metres, or plot units): a map with `:shape` and
+
+    * `:circle` - `:x`, `:y`, and `:r` (world) or `:r_px` (pixels);
+    * `:rect` - `:x`, `:y` (its lower-left corner when y grows upwards), `:w`, `:h`;
+    * `:line` - `:points` `[{x, y}]` (two or more), `:width` (world) or `:width_px`,
+      optional `:dash` (`true`) and `:arrow` (`true`: an arrowhead at the last point);
+    * `:text` - `:x`, `:y`, `:text` (optional `:size`, `:anchor`);
+    * `:marker` - `:x`, `:y`, `:kind`: `:start` (a disc) or `:end` (a smaller square, so
+      that both show where a closed path ends where it began), at a fixed size whatever
+      the scale.
+
+  Any shape may have `:fill`, `:stroke`, `:opacity`, `:label` (a text beside it, at a
+  fixed size, above right, or below right with `label_below: true`), `:title` (a tooltip), `:class` and `:data` (`%{name => value}`, written as
+  `data-name` attributes, so that a test can read the drawing back).
+  """
+  @type shape :: %{
+          required(:shape) => :circle | :rect | :line | :text | :marker,
+          optional(atom) => term
+        }
+
+  @doc """
+  A plan: shapes placed in world coordinates (a topology's node positions, an arena in
+  metres) with one scale for both axes, the common title, subtitle and note, an optional
+  legend and, when `:unit` is given, a scale bar in that unit (`<g class="scale-bar"
+  data-length="0.5" data-px="100.00">`: so many units are so many pixels).
+
+  Options besides the common ones: `:bounds` `{x0, y0, x1, y1}` (default: the shapes'
+  extent, padded), `:unit` (e.g. `"m"`), `:y_up` (default `true`: world y grows upwards),
+  `:legend` `[{name, colour, kind}]` with `kind` one of `:line`, `:dash`, `:box`, `:dot`,
+  `:start`, `:end`, and `:max_height` (pixels of the plan, default 440); the height follows
+  the plan's aspect ratio. Circles and markers carry their world position as
+  `data-x`/`data-y`; the group of shapes carries the scale (`data-px-per-unit`).
+
+      iex> svg = TartarusTools.SVG.plan(
+      ...>   [%{shape: :circle, x: 0, y: 0, r: 0.1, label: "light"},
+      ...>    %{shape: :marker, kind: :start, x: 1, y: 1}],
+      ...>   title: "arena", unit: "m")
+      iex> svg =~ "light" and svg =~ ~s(class="scale-bar")
+      true
+  """
+  @spec plan([shape], keyword) :: binary
+  def plan(shapes, opts \\ []) when is_list(shapes) do
+    Enum.each(shapes, &check_shape!/1)
+    legend = Keyword.get(opts, :legend, [])
+    {x0, y0, x1, y1} = Keyword.get_lazy(opts, :bounds, fn -> extent(shapes) end)
+    {dx, dy} = {max(x1 - x0, 1.0e-9), max(y1 - y0, 1.0e-9)}
+    width = Keyword.get(opts, :width, 720)
+
+    legend_w =
+      if legend == [],
+        do: 0,
+        else: min(220, 46 + (legend |> Enum.map(&text_width(elem(&1, 0))) |> Enum.max()))
+
+    {left, top, bottom} = {20, 50, 48}
+    plot_w = max(width - left - 20 - legend_w, 10)
+    k = min(plot_w / dx, Keyword.get(opts, :max_height, 440) / dy)
+    plot_h = dy * k
+    left = left + (plot_w - dx * k) / 2
+    y_up = Keyword.get(opts, :y_up, true)
+
+    t = %{
+      x: fn x -> left + (x - x0) * k end,
+      y: fn y -> if y_up, do: top + (y1 - y) * k, else: top + (y - y0) * k end,
+      k: k
+    }
+
+    layout = %{
+      width: width,
+      height: round(top + plot_h + bottom),
+      left: left,
+      top: top,
+      plot_w: dx * k,
+      plot_h: plot_h
+    }
+
+    body = [
+      ~s(<g class="plan" data-px-per-unit="#{num(k)}">\n),
+      Enum.map(shapes, &draw_shape(&1, t)),
+      "</g>\n",
+      scale_bar(Keyword.get(opts, :unit), dx, k, left, top + plot_h + 20),
+      plan_legend(legend, width - legend_w, top)
+    ]
+
+    document(layout, opts, body)
+  end
+
+  defp check_shape!(%{shape: :circle, x: x, y: y} = s) when is_number(x) and is_number(y) do
+    if is_number(s[:r]) or is_number(s[:r_px]), do: :ok, else: bad_shape!(s)
+  end
+
+  defp check_shape!(%{shape: :rect, x: x, y: y, w: w, h: h})
+       when is_number(x) and is_number(y) and is_number(w) and is_number(h),
+       do: :ok
+
+  defp check_shape!(%{shape: :line, points: [_, _ | _] = pts} = s) do
+    if Enum.all?(pts, &match?({x, y} when is_number(x) and is_number(y), &1)),
+      do: :ok,
+      else: bad_shape!(s)
+  end
+
+  defp check_shape!(%{shape: :text, x: x, y: y, text: _}) when is_number(x) and is_number(y),
+    do: :ok
+
+  defp check_shape!(%{shape: :marker, x: x, y: y, kind: kind})
+       when is_number(x) and is_number(y) and kind in [:start, :end],
+       do: :ok
+
+  defp check_shape!(other), do: bad_shape!(other)
+
+  defp bad_shape!(other) do
+    raise ArgumentError,
+          "SVG.plan/2: expected shapes %{shape: :circle | :rect | :line | :text | :marker} " <>
+            "with numeric coordinates (see the shape type), got: #{inspect(other)}"
+  end
+
+  defp extent([]), do: {0, 0, 1, 1}
+
+  defp extent(shapes) do
+    pts =
+      Enum.flat_map(shapes, fn
+        %{shape: :line, points: pts} -> pts
+        %{shape: :rect, x: x, y: y, w: w, h: h} -> [{x, y}, {x + w, y + h}]
+        %{shape: :circle, x: x, y: y} = c -> [{x - (c[:r] || 0), y - (c[:r] || 0)}, {x + (c[:r] || 0), y + (c[:r] || 0)}]
+        %{x: x, y: y} -> [{x, y}]
+      end)
+
+    {xs, ys} = Enum.unzip(pts)
+    {a, b, c, d} = {Enum.min(xs), Enum.min(ys), Enum.max(xs), Enum.max(ys)}
+    pad = max(max(c - a, d - b) * 0.08, 0.05)
+    {a - pad, b - pad, c + pad, d + pad}
+  end
+
+  defp draw_shape(s, t) do
+    extra = shape_attrs(s)
+
+    element =
+      case s.shape do
+        :circle ->
+          r = Map.get_lazy(s, :r_px, fn -> s.r * t.k end)
+
+          el(
+            "circle",
+            ~s(cx="#{num(t.x.(s.x))}" cy="#{num(t.y.(s.y))}" r="#{num(max(r, 0.5))}" ) <>
+              ~s(data-x="#{fmt(s.x)}" data-y="#{fmt(s.y)}" fill="#{Map.get(s, :fill, "#4e79a7")}" ) <>
+              ~s(stroke="#{Map.get(s, :stroke, "none")}"#{extra}),
+            s[:title]
+          )
+
+        :rect ->
+          {ya, yb} = {t.y.(s.y), t.y.(s.y + s.h)}
+
+          el(
+            "rect",
+            ~s(x="#{num(t.x.(s.x))}" y="#{num(min(ya, yb))}" width="#{num(s.w * t.k)}" ) <>
+              ~s(height="#{num(abs(yb - ya))}" fill="#{Map.get(s, :fill, "#ccc")}" ) <>
+              ~s(stroke="#{Map.get(s, :stroke, "none")}"#{extra}),
+            s[:title]
+          )
+
+        :line ->
+          pts = Enum.map_join(s.points, " ", fn {x, y} -> "#{num(t.x.(x))},#{num(t.y.(y))}" end)
+          w = max(Map.get_lazy(s, :width_px, fn -> Map.get(s, :width, 0) * t.k end), 0.5)
+          colour = Map.get(s, :stroke, "#333")
+          dash = if s[:dash], do: ~s( stroke-dasharray="6 4"), else: ""
+
+          [
+            el(
+              "polyline",
+              ~s(fill="none" stroke="#{colour}" stroke-width="#{num(w)}" ) <>
+                ~s(stroke-linejoin="round" points="#{pts}"#{dash}#{extra}),
+              s[:title]
+            ),
+            if(s[:arrow], do: arrow_head(s.points, t, colour, w), else: [])
+          ]
+
+        :text ->
+          [
+            ~s(<text x="#{num(t.x.(s.x))}" y="#{num(t.y.(s.y))}" font-size="#{Map.get(s, :size, 11)}" ),
+            ~s(fill="#{Map.get(s, :fill, "#222")}" text-anchor="#{Map.get(s, :anchor, "start")}"#{extra}>),
+            esc(s.text),
+            "</text>\n"
+          ]
+
+        :marker ->
+          {x, y} = {t.x.(s.x), t.y.(s.y)}
+          colour = Map.get(s, :fill, if(s.kind == :start, do: "#2ca02c", else: "#d62728"))
+          at = ~s(data-x="#{fmt(s.x)}" data-y="#{fmt(s.y)}" fill="#{colour}" stroke="#000" stroke-width="1.5")
+
+          case s.kind do
+            :start ->
+              el("circle", ~s(class="start" cx="#{num(x)}" cy="#{num(y)}" r="8" #{at}#{extra}), s[:title])
+
+            :end ->
+              el(
+                "rect",
+                ~s(class="end" x="#{num(x - 4.5)}" y="#{num(y - 4.5)}" width="9" height="9" #{at}#{extra}),
+                s[:title]
+              )
+          end
+      end
+
+    [element, shape_label(s, t)]
+  end
+
+  defp el(tag, attrs, nil), do: ["<", tag, " ", attrs, "/>\n"]
+  defp el(tag, attrs, title), do: ["<", tag, " ", attrs, "><title>", esc(title), "</title></", tag, ">\n"]
+
+  defp shape_attrs(s) do
+    class = if s[:class] && s.shape != :marker, do: ~s( class="#{esc(s.class)}"), else: ""
+    opacity = if s[:opacity], do: ~s( opacity="#{num(s.opacity)}"), else: ""
+
+    data =
+      Enum.map_join(Map.get(s, :data, %{}), fn {k, v} ->
+        ~s( data-#{k}="#{IO.iodata_to_binary(esc(if is_float(v), do: fmt(v), else: v))}")
+      end)
+
+    class <> opacity <> data
+  end
+
+  defp shape_label(%{label: label} = s, t) when label != nil do
+    {x, y} =
+      case s do
+        %{shape: :line, points: pts} -> List.last(pts)
+        %{shape: :rect, x: x, y: y, w: w, h: h} -> {x + w, y + h}
+        %{x: x, y: y} -> {x, y}
+      end
+
+    off =
+      case s do
+        %{shape: :circle} -> Map.get_lazy(s, :r_px, fn -> s.r * t.k end) + 3
+        %{shape: :marker} -> 9
+        _ -> 3
+      end
+
+    dy = if s[:label_below], do: off + 8, else: -off
+
+    [
+      ~s(<text class="label" x="#{num(t.x.(x) + off)}" y="#{num(t.y.(y) + dy)}" font-size="11" ),
+      ~s(fill="#222" stroke="#fff" stroke-width="3" paint-order="stroke">),
+      esc(label),
+      "</text>\n"
+    ]
+  end
+
+  defp shape_label(_s, _t), do: []
+
+  # An arrowhead at the last point of a line, pointing along its last segment.
+  defp arrow_head(points, t, colour, w) do
+    [{xa, ya}, {xb, yb}] = Enum.take(points, -2)
+    {ax, ay, bx, by} = {t.x.(xa), t.y.(ya), t.x.(xb), t.y.(yb)}
+    len = :math.sqrt((bx - ax) * (bx - ax) + (by - ay) * (by - ay))
+
+    if len < 1.0e-6 do
+      []
+    else
+      {ux, uy} = {(bx - ax) / len, (by - ay) / len}
+      size = 5 + 2 * w
+      {px, py} = {bx - ux * size, by - uy * size}
+      {nx, ny} = {-uy * size * 0.5, ux * size * 0.5}
+
+      ~s(<polygon points="#{num(bx)},#{num(by)} #{num(px + nx)},#{num(py + ny)} #{num(px - nx)},#{num(py - ny)}" fill="#{colour}"/>\n)
+    end
+  end
+
+  # A scale bar: the longest 1, 2 or 5 times a power of ten that fits a quarter of the plan.
+  defp scale_bar(nil, _dx, _k, _x, _y), do: []
+
+  defp scale_bar(unit, dx, k, x, y) do
+    target = dx / 4
+    p = :math.pow(10, Float.floor(:math.log10(target)))
+    len = Enum.find([5 * p, 2 * p, p], &(&1 <= target)) || p
+    len = if len == Float.round(len), do: round(len), else: Float.round(len, 6)
+    w = len * k
+
+    [
+      ~s(<g class="scale-bar" data-length="#{fmt(len)}" data-unit="#{esc(unit)}" data-px="#{num(w)}">\n),
+      line(x, y, x + w, y, "#000", 3),
+      line(x, y - 5, x, y + 5, "#000", 1.5),
+      line(x + w, y - 5, x + w, y + 5, "#000", 1.5),
+      ~s(<text x="#{num(x + w + 6)}" y="#{num(y + 4)}">),
+      fmt(len),
+      " ",
+      esc(unit),
+      "</text>\n</g>\n"
+    ]
+  end
+
+  defp plan_legend([], _x, _y), do: []
+
+  defp plan_legend(entries, x, y0) do
+    entries
+    |> Enum.with_index()
+    |> Enum.map(fn {{name, colour, kind}, i} ->
+      y = y0 + 10 + i * 18
+
+      swatch =
+        case kind do
+          :line -> line(x, y, x + 18, y, colour, 3)
+          :dash -> ~s(<line x1="#{num(x)}" y1="#{num(y)}" x2="#{num(x + 18)}" y2="#{num(y)}" stroke="#{colour}" stroke-width="1.5" stroke-dasharray="6 4"/>\n)
+          :box -> ~s(<rect x="#{num(x + 2)}" y="#{num(y - 6)}" width="14" height="12" fill="#{colour}" stroke="#333"/>\n)
+          :dot -> ~s(<circle cx="#{num(x + 9)}" cy="#{num(y)}" r="5" fill="#{colour}" stroke="#333"/>\n)
+          :start -> ~s(<circle cx="#{num(x + 9)}" cy="#{num(y)}" r="7" fill="#{colour}" stroke="#000" stroke-width="1.5"/>\n)
+          :end -> ~s(<rect x="#{num(x + 3.5)}" y="#{num(y - 5.5)}" width="11" height="11" fill="#{colour}" stroke="#000" stroke-width="1.5"/>\n)
+        end
+
+      [swatch, ~s(<text x="#{num(x + 24)}" y="#{num(y + 4)}">), esc(name), "</text>\n"]
+    end)
+    |> then(&[~s(<g class="legend">\n), &1, "</g>\n"])
   end
 
   ## Gantt chart

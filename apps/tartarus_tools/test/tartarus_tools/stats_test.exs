@@ -12,6 +12,20 @@ defmodule TartarusTools.StatsTest do
       assert Stats.median(xs) == 20
     end
 
+    test "the conventional median: the middle sample, or the mean of the two middle ones" do
+      assert Stats.median_mid([13, 11]) == 12.0
+      assert Stats.median_mid([10, 40, 20, 30]) == 25.0
+      assert Stats.median_mid([5, 1, 9]) == 5
+      # it lies between the nearest-rank quartiles, so a box drawn with it stays a box
+      for n <- 1..12 do
+        xs = for i <- 1..n, do: rem(i * 7919, 101)
+        b = Stats.box(xs, median: :mid)
+        assert b.q1 <= b.median and b.median <= b.q3
+        assert b.median == Stats.describe(xs).median_mid
+        assert Map.delete(b, :median) == Map.delete(Stats.box(xs), :median)
+      end
+    end
+
     test "box statistics: whiskers within 1.5 IQR, the rest are outliers" do
       s = Stats.box([10, -50, 11, 12, 13, 60])
       assert {s.q1, s.median, s.q3} == {10, 11, 13}
@@ -44,6 +58,7 @@ defmodule TartarusTools.StatsTest do
                mean: nil,
                sd: nil,
                median: nil,
+               median_mid: nil,
                q1: nil,
                q3: nil,
                iqr: nil,

@@ -221,7 +221,7 @@ defmodule TartarusEmu.SVGTest do
   end
 
   describe "numbers read back from the drawing" do
-    test "a box plot's median line sits at Stats.median of its samples (nearest rank)" do
+    test "a box plot's median line sits at the conventional median of its samples" do
       groups = [{"even", [13, 11]}, {"odd", [1, 2, 3, 4, 50]}, {"many", Enum.to_list(1..30)}]
       svg = SVG.box_plot(groups, title: "steps", y_label: "steps")
       to_value = inverse(y_ticks(svg))
@@ -234,13 +234,14 @@ defmodule TartarusEmu.SVGTest do
       assert length(medians) == 3
 
       for {{_, samples}, {v, drawn}} <- Enum.zip(groups, medians) do
-        assert v == TartarusTools.Stats.median(samples)
-        assert_in_delta drawn, TartarusTools.Stats.median(samples), 0.05
+        assert v == TartarusTools.Stats.median_mid(samples)
+        assert_in_delta drawn, TartarusTools.Stats.median_mid(samples), 0.05
       end
 
-      # [11, 13]: the documented nearest-rank median is 11, and the footnote says so.
-      assert elem(hd(medians), 0) == 11
-      assert svg =~ "of an even n, the lower middle sample"
+      # [11, 13]: the median line is at 12 (not at the nearest-rank 11), and the footnote says so.
+      assert elem(hd(medians), 0) == 12
+      assert_in_delta elem(hd(medians), 1), 12, 0.05
+      assert svg =~ "of an even n, the mean of the two middle samples"
       # Small groups show their samples, at their values; the group of 30 does not.
       dots = Regex.scan(~r/<circle class="sample" cx="[\d.]+" cy="([\d.]+)"[^>]*data-value="([^"]+)"/, svg)
       assert Enum.map(dots, fn [_, _, v] -> to_number(v) end) == [11, 13, 1, 2, 3, 4, 50]

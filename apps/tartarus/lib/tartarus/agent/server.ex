@@ -1,11 +1,24 @@
 defmodule Tartarus.Agent.Server do
   @moduledoc false
-  # The process of one agent. It runs the agent's callbacks (Tartarus.Agent.Callbacks) and
-  # carries out their actions; for a move or a clone it runs the source side of the hand-off
-  # itself (Tartarus.Migration.Source: hand-offs of many agents proceed in parallel; the host
-  # server is involved only at the destination, to admit and create the paused copy); while
-  # it is a paused copy at a destination, Tartarus.Migration.Arrival runs it. The hand-off's
-  # decisions are Tartarus.Migration.Protocol's (its moduledoc is the specification).
+  # The process of one agent: a :gen_statem with four states.
+  #
+  #   * :running: the agent's callbacks run (Tartarus.Agent.Actions carries out what they
+  #     return, within their budgets: Tartarus.Agent.Callbacks);
+  #   * :handing_off: the source side of a move or clone (Tartarus.Migration.Source) waits
+  #     for the destination; what else arrives is kept in data.held (messages for the agent,
+  #     calls, anything) and, if the hand-off fails, handled afterwards in its order; if the
+  #     move commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and
+  #     the rest is left to its senders' retries. The deadline is a state timeout;
+  #   * :paused: the in-doubt copy at a destination (Tartarus.Migration.Arrival); it runs
+  #     nothing until it learns its migration's decision (state timeout: ask the source);
+  #   * :awaiting_commit: a paused copy that learnt its move committed by asking while the
+  #     source process lives: it waits for the source's commit (which carries the messages
+  #     the source held) before taking anything else (everything else is postponed).
+  #
+  # The hand-off's decisions are Tartarus.Migration.Protocol's (its moduledoc is the
+  # specification); Tartarus.Migration.Executor orders their effects. No receive waits
+  # inside a callback: the only receive outside gen_statem's loop is the non-blocking drain
+  # of the mailbox into a committed move's hand-over (Source.handover/1).
   #
   # Callbacks never block the host. The agent's code (init/1 included) runs only in this
   # process, after it started (the host spawns it and returns at once, see start/4).
@@ -14,9 +27,6 @@ defmodule Tartarus.Agent.Server do
   # the answer exactly-once): this process once init/1 returned and the agent is resident
   # ({:ok, id}) or failed ({:error, {:init_failed, _}}), else the host when the process
   # goes down ({:error, {:callback_timeout, :init, ms}} or {:error, {:init_failed, reason}}).
-  #
-  # Each callback has a budget, the host option :callback_timeout (ms): see
-  # Tartarus.Agent.Callbacks (the watchdog).
   #
   # A kill never blocks the host server either: it marks {:kill, pid} in its ledger, sends
   # exit signal :shutdown, and answers the caller when the process is down. An agent that
@@ -28,12 +38,12 @@ defmodule Tartarus.Agent.Server do
   # Stopping a host kills its agents outright (its server's terminate/2): this process has no
   # terminate work but ending its children, and an agent that traps exits must not hold up
   # stop_host.
-  use GenServer, restart: :temporary, shutdown: :brutal_kill
+  @behaviour :gen_statem
   require Tartarus.Events
 
-  alias Tartarus.{Events, Ledger}
-  alias Tartarus.Agent.Callbacks
-  alias Tartarus.Migration.{Arrival, Inbox, Protocol, Source}
+  alias Tartarus.Agent.Actions
+  alias Tartarus.Ledger
+  alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
   @host :"$tartarus_host"
 
@@ -41,7 +51,7 @@ defmodule Tartarus.Agent.Server do
   # their state needs): a host may then hold millions of them. It is off by default because
   # the timer it arms on every wait costs about a fifth of the migration throughput.
   #
-  # The host's server starts agents itself (start/3), monitored from their first instant
+  # The host's server starts agents itself (start/4), monitored from their first instant
   # (spawn_opt's :monitor): no supervisor call and no start-up handshake on the path of a
   # hop or a create. The host's server restarts crashed agents from their snapshots and,
   # when it stops (its terminate/2), kills them all (see Tartarus.Host.Server).
@@ -75,20 +85,25 @@ defmodule Tartarus.Agent.Server do
   # -- start ---------------------------------------------------------------------
 
   @doc false
-  # The new process's entry point (start/4): becomes a gen_server. Spawned plainly (not by
+  # The new process's entry point (start/4): becomes a gen_statem. Spawned plainly (not by
   # proc_lib, whose start-up bookkeeping costs more than the rest of an arrival), it names
-  # itself as its own parent: gen_server stops on any {:EXIT, parent, _} message, and anyone
-  # can send one; this process stops on its host's signals by the rules of handle_info/2.
+  # itself as its own parent: gen_statem stops on any {:EXIT, parent, _} message, and anyone
+  # can send one; this process stops on its host's signals by the rules of :running.
   def enter(host, key, env, mode) do
     Process.put(:"$ancestors", [self()])
     Process.put(:"$initial_call", {__MODULE__, :init, 1})
 
     case init({host, key, env, mode}) do
-      {:ok, data} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data)
-      {:ok, data, cont} -> :gen_server.enter_loop(__MODULE__, loop_opts(host), data, cont)
-      {:stop, reason} -> exit(reason)
+      {:ok, state, data, actions} ->
+        :gen_statem.enter_loop(__MODULE__, loop_opts(host), state, data, actions)
+
+      {:stop, reason} ->
+        exit(reason)
     end
   end
+
+  @impl true
+  def callback_mode, do: :handle_event_function
 
   @impl true
   def init({host, key, env, mode}) do
@@ -100,30 +115,41 @@ defmodule Tartarus.Agent.Server do
       key: key,
       paused: nil,
       inbox: Inbox.new(),
-      pending: []
+      pending: [],
+      handoff: nil,
+      held: []
     }
 
     start(data, mode)
   end
 
-  # The agent's init/1 runs after this process started (see handle_continue({:init, _})).
+  # The agent's init/1 runs after this process started (the first event).
   defp start(data, {:create, args}) do
-    {:ok, put_in(data.env.visits, %{data.host.ref => 1}), {:continue, {:init, args}}}
+    {:ok, :running, put_in(data.env.visits, %{data.host.ref => 1}),
+     [{:next_event, :internal, {:init, args}}]}
   end
 
   # `src_pid`: the source agent's process when the prepare came from it (nil for a copy
   # revived from the journal): its commit carries the messages it held.
-  defp start(data, {:paused, mig, copy, src, kind, src_pid}),
-    do: {:ok, %{data | paused: Arrival.paused(data.host, mig, copy, src, kind, src_pid)}}
+  defp start(data, {:paused, mig, copy, src, kind, src_pid}) do
+    paused = Arrival.paused(data.host, mig, copy, src, kind, src_pid)
+
+    {:ok, :paused, %{data | paused: paused},
+     [{:state_timeout, data.host.opts.migration_timeout, :commit}]}
+  end
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
   # host started again on its data directory.
   defp start(data, {:restart, n}) do
-    data = crashed_on(data)
+    data = Actions.crashed_on(data)
 
     case Ledger.register_resident(data.host, data.env, self()) do
-      :ok -> {:ok, data, {:continue, {:arrive, %{ctx(data) | restarts: n}}}}
-      {:error, reason} -> {:stop, reason}
+      :ok ->
+        {:ok, :running, data,
+         [{:next_event, :internal, {:arrival, %{Actions.ctx(data) | restarts: n}}}]}
+
+      {:error, reason} ->
+        {:stop, reason}
     end
   end
 
@@ -135,380 +161,156 @@ defmodule Tartarus.Agent.Server do
     result
   end
 
+  # -- :running ------------------------------------------------------------------------
+
   @impl true
-  def handle_continue({:init, args}, data) do
-    env = data.env
+  def handle_event(:info, {:"$tartarus_msg", {pid, _}, kind, _} = m, :running, data)
+      when is_pid(pid) and kind in [:post, :request],
+      do: Actions.message(m, data)
 
-    case Callbacks.run(data, :init, fn -> env.module.init(args) end) do
-      {:ok, action, data} ->
-        if action?(action),
-          do: init_done(action, data),
-          # Not an action: the create fails (the agent never runs).
-          else: init_failed(data, {:bad_action, action})
+  # A message handed over (by the agent's previous process or a late commit): already taken.
+  def handle_event(:internal, {:pending, m}, :running, data), do: Actions.handle(m, data)
+  def handle_event(:internal, {:init, args}, :running, data), do: Actions.init(data, args)
+  def handle_event(:internal, {:arrival, ctx}, :running, data), do: Actions.arrival(data, ctx)
 
-      # Answered by the host, which sees the exit.
-      {:error, {:callback_timeout, _, _} = reason, data} ->
-        {:stop, reason, data}
+  # Its host kills it (see the top of this module): an agent that traps exits stops too. The
+  # mark in the host's ledger tells the host's signal from a forged message.
+  def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, %{host: %{pid: pid}} = data) do
+    if :ets.member(data.host.ledger, {:kill, self()}),
+      do: {:stop, :shutdown, data},
+      else: Actions.info(msg, data)
+  end
 
-      {:error, reason, data} ->
-        init_failed(data, reason)
+  # A commit (with its hand-over) that came after this process stopped waiting for it (its
+  # source was slow): what this process took meanwhile is not taken twice.
+  def handle_event(:info, {:"$tartarus_commit", _mig, _copy, _notify, {msgs, _}}, :running, data)
+      when is_list(msgs) do
+    {msgs, inbox} = Inbox.take_new(data.inbox, msgs)
+    {:keep_state, %{data | inbox: inbox}, pending(msgs)}
+  end
+
+  # Malformed messages for the agent, late replies of hand-offs it gave up on, commits or
+  # answers delivered twice: not for the agent's code.
+  def handle_event(:info, msg, :running, data)
+      when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
+      do: Actions.dropped(data)
+
+  def handle_event(:info, msg, :running, data) do
+    if Messages.protocol_message?(msg), do: :keep_state_and_data, else: Actions.info(msg, data)
+  end
+
+  def handle_event({:call, from}, _op, _state, data) when not Tartarus.Events.is_from(from),
+    do: Actions.dropped(data) |> keep_state()
+
+  def handle_event({:call, from}, op, :running, data), do: Actions.call(op, from, data)
+  def handle_event(:cast, _msg, :running, data), do: Actions.dropped(data)
+
+  # -- :handing_off --------------------------------------------------------------------
+  # Tartarus.Migration.Source reads the destination's answers; everything else waits in
+  # data.held (see the top of this module).
+
+  def handle_event(:state_timeout, :handoff, :handing_off, data), do: handoff(data, :timeout)
+
+  def handle_event(:info, msg, :handing_off, data) do
+    case Source.event(data, msg) do
+      nil -> {:keep_state, %{data | held: [{:info, msg} | data.held]}}
+      event -> handoff(data, event)
     end
   end
 
-  def handle_continue({:arrive, ctx}, data) do
-    run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
-  end
+  # The rest of a hand-over being handled when the agent left again: still taken, not handled.
+  def handle_event(:internal, {:pending, m}, :handing_off, data),
+    do: {:keep_state, %{data | pending: data.pending ++ [m]}}
 
-  defp init_failed(data, reason) do
-    created(data, {:error, {:init_failed, reason}})
-    {:stop, {:shutdown, {:init_failed, reason}}, data}
-  end
+  def handle_event(type, content, :handing_off, data),
+    do: {:keep_state, %{data | held: [{type, content} | data.held]}}
 
-  defp action?({:stay, _}), do: true
-  defp action?({kind, _, _}) when kind in [:move, :clone, :return, :stop], do: true
-  defp action?(_), do: false
+  # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
-  defp init_done(action, data) do
-    env = data.env
+  def handle_event(:state_timeout, :commit, :paused, data), do: paused(data, :timeout)
+  def handle_event(:info, msg, :paused, data), do: paused(data, {:info, msg})
 
-    case Ledger.register_resident(data.host, env, self()) do
-      :ok ->
-        arrived(put_state(data, action_state(action)))
-        emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
-        created(data, {:ok, env.id})
-        act(action, data)
-
-      {:error, reason} ->
-        created(data, {:error, reason})
-        {:stop, {:shutdown, {:create_failed, reason}}, data}
+  def handle_event(:info, msg, :awaiting_commit, data) do
+    case Arrival.awaited(data, msg) do
+      {:ok, handover} -> started(Arrival.finish(data, handover))
+      :other -> {:keep_state_and_data, [:postpone]}
     end
   end
 
-  # -- the paused copy (destination side) ---------------------------------------------
-  # Tartarus.Migration.Arrival runs the in-doubt copy and, on its commit, makes it the
-  # agent; the messages it was handed over are handled before handle_arrival/2.
+  def handle_event(:state_timeout, :commit, :awaiting_commit, data),
+    do: started(Arrival.finish(data, nil))
 
+  def handle_event({:call, from}, _op, state, _data) when state in [:paused, :awaiting_commit],
+    do: {:keep_state_and_data, [{:reply, from, {:error, :in_transit}}]}
+
+  def handle_event(_type, _content, :awaiting_commit, _data),
+    do: {:keep_state_and_data, [:postpone]}
+
+  def handle_event(_type, _content, _paused, data), do: Actions.dropped(data) |> keep_state()
+
+  # Whatever ends this process with a return value (it moved on, stopped, returned,
+  # crashed in a callback): the processes it started with Tartarus.Agent.spawn_link/1 end
+  # too. (Killed, it has no say: its host ends them, see Tartarus.Host.Server.)
   @impl true
-  def handle_info(msg, %{paused: p} = data) when p != nil do
-    case Arrival.step(data, msg) do
-      {:paused, data} ->
-        {:noreply, data}
+  def terminate(_reason, _state, data) do
+    if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+  end
 
-      # Messages that reached the agent while it moved are handled first (an agent that
-      # moves on at every arrival would otherwise carry them for ever); if one of them makes
-      # it leave, the rest travel on with it.
-      {:started, data, pending} ->
-        handle_pending(pending, data, fn data ->
-          ctx = ctx(data)
+  # -- helpers ---------------------------------------------------------------------------
 
-          run(data, :handle_arrival, fn -> data.env.module.handle_arrival(ctx, data.env.state) end)
-        end)
+  # One event of the source side: wait on, or the outcome for whoever started the hand-off;
+  # if it failed, what was held is handled now, in its order (after the agent's
+  # handle_move_failed/4, which may start another hand-off: then it waits again).
+  defp handoff(data, event) do
+    case Source.step(data, event) do
+      {:wait, data} ->
+        {:keep_state, data}
+
+      {outcome, by, data} ->
+        held = pending(data.pending) ++ Enum.reverse(data.held, [])
+        result = Actions.handoff_done(outcome, by, %{data | pending: [], held: []})
+        replay(result, Enum.map(held, &next_event/1))
+    end
+  end
+
+  defp next_event({:next_event, _, _} = e), do: e
+  defp next_event({type, content}), do: {:next_event, type, content}
+
+  defp replay({:next_state, state, data, actions}, events),
+    do: {:next_state, state, data, actions ++ events}
+
+  defp replay(stop, _events), do: stop
+
+  # One event of the paused copy.
+  defp paused(data, event) do
+    case Arrival.step(data, event) do
+      {:paused, data, actions} ->
+        {:keep_state, data, actions}
+
+      {:await, data} ->
+        {:next_state, :awaiting_commit, data,
+         [{:state_timeout, data.host.opts.migration_timeout, :commit}]}
+
+      {:started, _data, _pending} = started ->
+        started(started)
 
       {:stop, reason, data} ->
         {:stop, reason, data}
     end
   end
 
-  # -- messages --------------------------------------------------------------------
+  # The copy is the agent: the messages that reached it while it moved are handled first
+  # (an agent that moves on at every arrival would otherwise carry them for ever), then its
+  # handle_arrival/2; if one of them makes it leave, the rest travel on with it.
+  defp started({:started, data, []}), do: Actions.arrival(data)
 
-  # Without the host option :durable a message is acknowledged as it is taken, before the
-  # agent's code runs; with it, once handled and checkpointed (journaled when the host has a
-  # data directory), so an acknowledged change survives SIGKILL and restart.
-  def handle_info({:"$tartarus_msg", {pid, _ref} = from, kind, _msg} = m, data)
-      when is_pid(pid) and kind in [:post, :request] do
-    case Inbox.take(data.inbox, from) do
-      {true, inbox} -> handle_msg(m, %{data | inbox: inbox})
-      {false, _} -> {:noreply, data}
-    end
+  defp started({:started, data, pending}) do
+    {:next_state, :running, data, pending(pending) ++ [{:next_event, :internal, {:arrival, nil}}]}
   end
 
-  # Its host kills it (see the top of this module): an agent that traps exits stops too. The
-  # mark in the host's ledger tells the host's signal from a forged message.
-  def handle_info({:EXIT, pid, :shutdown} = msg, %{host: %{pid: pid}} = data) do
-    if :ets.member(data.host.ledger, {:kill, self()}),
-      do: {:stop, :shutdown, data},
-      else: user_info(msg, data)
-  end
+  defp started({:stop, reason, data}), do: {:stop, reason, data}
 
-  # A commit (with its hand-over) that came after this process stopped waiting for it (its
-  # source was slow): what this process took meanwhile is not taken twice.
-  def handle_info({:"$tartarus_commit", _mig, _copy, _notify, {msgs, _}}, data)
-      when is_list(msgs) do
-    {msgs, inbox} = Inbox.take_new(data.inbox, msgs)
-    handle_pending(msgs, %{data | inbox: inbox}, fn data -> {:noreply, data} end)
-  end
+  defp pending(msgs), do: Enum.map(msgs, &{:next_event, :internal, {:pending, &1}})
 
-  # A late reply to a hand-off this agent already gave up on, a commit or answer delivered
-  # twice, or a timer that fired as it committed: not for the agent's code.
-  def handle_info({:commit_timeout, _}, data), do: {:noreply, data}
-
-  def handle_info(msg, data) when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
-    do: dropped(data, msg)
-
-  def handle_info(msg, data) when is_tuple(msg) and tuple_size(msg) > 0 do
-    if Protocol.protocol_message?(msg), do: {:noreply, data}, else: user_info(msg, data)
-  end
-
-  def handle_info(msg, data), do: user_info(msg, data)
-
-  defp handle_msg({:"$tartarus_msg", {pid, ref}, kind, msg}, data) do
-    durable = Map.get(data.host.opts, :durable, false)
-    unless durable, do: send(pid, {ref, :delivered})
-    bytes = :erlang.external_size(msg)
-
-    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
-      messages: 1,
-      message_bytes: bytes
-    )
-
-    from = if kind == :request, do: {pid, ref}
-
-    if durable do
-      # Unacknowledged until handled: if handling it crashes the agent, the restarted agent
-      # tells the sender (and does not take it again) instead of taking it for good.
-      key = {:handling, data.env.id}
-      :ets.insert(data.host.ledger, {key, {pid, ref}})
-
-      result =
-        run(
-          data,
-          {:handle_message, from},
-          fn -> data.env.module.handle_message(msg, from, data.env.state) end,
-          {pid, ref}
-        )
-
-      case result do
-        {:stop, {kind, _, _}, _} when kind in [:error, :exit, :throw] -> :crashed
-        _ -> :ets.delete(data.host.ledger, key)
-      end
-
-      result
-    else
-      run(data, {:handle_message, from}, fn ->
-        data.env.module.handle_message(msg, from, data.env.state)
-      end)
-    end
-  end
-
-  # After a crash: the message whose handling crashed the agent (host option :durable) is
-  # answered with an error and not taken again.
-  defp crashed_on(data) do
-    case :ets.take(data.host.ledger, {:handling, data.env.id}) do
-      [{_, {pid, ref} = from}] ->
-        send(pid, {ref, {:failed, :agent_crashed}})
-        %{data | inbox: elem(Inbox.take(data.inbox, from), 1)}
-
-      [] ->
-        data
-    end
-  end
-
-  defp user_info(msg, data) do
-    if function_exported?(data.env.module, :handle_info, 2) do
-      run(data, :handle_info, fn -> data.env.module.handle_info(msg, data.env.state) end)
-    else
-      {:noreply, data}
-    end
-  end
-
-  defp dropped(data, _msg) do
-    Ledger.count(data.host, :dropped)
-    {:noreply, data}
-  end
-
-  # -- control (from Tartarus facade) ----------------------------------------------
-
-  @impl true
-  def handle_call(_op, from, data) when not Tartarus.Events.is_from(from),
-    do: dropped(data, :call)
-
-  def handle_call(_op, _from, %{paused: p} = data) when p != nil do
-    {:reply, {:error, :in_transit}, data}
-  end
-
-  def handle_call(:info, _from, data), do: {:reply, info(data), data}
-
-  def handle_call({:payload, op}, _from, data) do
-    {result, data} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
-    {:reply, result, data}
-  end
-
-  def handle_call({:move, dest}, from, data) do
-    # The destination answers the caller once the agent runs there.
-    case Source.attempt(data, :move, dest, from) do
-      {:moved, new_pid, data} ->
-        # The exit names whose move this was: other callers waiting on this process retry.
-        {:stop, {:shutdown, {:migrated, new_pid, from}}, data}
-
-      {:failed, reason, data} ->
-        GenServer.reply(from, {:error, reason})
-        failed(data, dest, reason)
-    end
-  end
-
-  def handle_call({:clone, dest}, from, data) do
-    # The clone answers the caller once it runs.
-    case Source.attempt(data, :clone, dest, from) do
-      {:cloned, _clone_id, data} -> {:noreply, data}
-      {:failed, reason, data} -> {:reply, {:error, reason}, data}
-    end
-  end
-
-  # Anything else (from anywhere): answered, counted, never a crash.
-  def handle_call(_other, _from, data) do
-    {:noreply, data} = dropped(data, :call)
-    {:reply, {:error, :unexpected}, data}
-  end
-
-  @impl true
-  def handle_cast(_other, data), do: dropped(data, :cast)
-
-  # Whatever ends this process with a return value (it moved on, stopped, returned,
-  # crashed in a callback): the processes it started with Tartarus.Agent.spawn_link/1 end
-  # too. (Killed, it has no say: its host ends them, see Tartarus.Host.Server.)
-  @impl true
-  def terminate(_reason, data) do
-    if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
-  end
-
-  # -- actions -------------------------------------------------------------------
-
-  # `ack`: the sender of a message the host option :durable makes durable before it is
-  # acknowledged (nil otherwise). `cb` names the callback for its time budget.
-  defp run(data, cb, fun, ack \\ nil) do
-    case Callbacks.run(data, cb, fun) do
-      {:ok, action, data} ->
-        data = checkpoint(data, action, Process.delete(:"$tartarus_checkpoint") == true or ack)
-        with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
-        act(action, data)
-
-      {:error, reason, data} ->
-        Process.delete(:"$tartarus_checkpoint")
-        {:stop, reason, data}
-    end
-  end
-
-  # The state the callback returned, made the agent's snapshot (Tartarus.Agent.checkpoint/0,
-  # or a message under the host option :durable). A malformed action changes nothing.
-  defp checkpoint(data, action, want)
-       when want not in [nil, false] and is_tuple(action) and
-              tuple_size(action) in [2, 3] do
-    data = put_state(data, action_state(action))
-    arrived(data)
-    data
-  end
-
-  defp checkpoint(data, _action, _want), do: data
-
-  defp act({:stay, s}, data), do: {:noreply, put_state(data, s)}
-
-  defp act({:move, dest, s}, data) do
-    data = put_state(data, s)
-
-    case Source.attempt(data, :move, dest) do
-      {:moved, new_pid, data} -> {:stop, {:shutdown, {:migrated, new_pid, nil}}, data}
-      {:failed, reason, data} -> failed(data, dest, reason)
-    end
-  end
-
-  defp act({:clone, dest, s}, data) do
-    data = put_state(data, s)
-
-    case Source.attempt(data, :clone, dest) do
-      {:cloned, _id, data} -> {:noreply, data}
-      {:failed, reason, data} -> failed(data, dest, {:clone_failed, reason})
-    end
-  end
-
-  defp act({:return, result, s}, data) do
-    data = put_state(data, s)
-    if is_pid(data.env.owner), do: send(data.env.owner, {:tartarus_result, data.env.id, result})
-    stop(data, :returned)
-  end
-
-  defp act({:stop, reason, s}, data), do: stop(put_state(data, s), reason)
-  defp act(other, data), do: {:stop, {:bad_action, other}, data}
-
-  defp stop(data, reason) do
-    # No longer resident: the host must not take the exit for a crash to restart from.
-    Ledger.forget_resident(data.host, self())
-    Tartarus.Host.Persistence.forget(data.host, data.env.id)
-    Ledger.gone(data.host, data.env)
-    emit(data, %{type: :stopped, agent: data.env.id, reason: reason}, stopped: 1)
-    {:stop, {:shutdown, {:stopped, reason}}, data}
-  end
-
-  defp failed(data, dest, reason) do
-    emit(data, %{type: :move_failed, agent: data.env.id, to: dest, reason: reason}, move_failed: 1)
-
-    run(data, :handle_move_failed, fn ->
-      data.env.module.handle_move_failed(dest, reason, ctx(data), data.env.state)
-    end)
-  end
-
-  # -- reaching a busy agent --------------------------------------------------------
-  # Tartarus.Migration.Inbox decides what is taken and what is handed over; this process
-  # drains its mailbox into the commit (source) and handles the hand-over first (successor).
-
-  # Handles `msgs` one by one as if they came from the mailbox, then calls `next`; if one
-  # of them stops the process (a move), the others are left in data.pending for the
-  # hand-over.
-  defp handle_pending([], data, next), do: next.(data)
-
-  defp handle_pending([m | rest], data, next) do
-    case handle_msg(m, %{data | pending: rest}) do
-      {:noreply, data} -> handle_pending(rest, %{data | pending: []}, next)
-      other -> other
-    end
-  end
-
-  # -- helpers ---------------------------------------------------------------------
-
-  defp arrived(data), do: Arrival.snapshot(data)
-
-  defp ctx(data) do
-    %{
-      host: data.host.ref,
-      from: data.env.from,
-      hops: data.env.hops,
-      clone_of: data.env.clone_of,
-      restarts: 0
-    }
-  end
-
-  defp action_state({_, s}), do: s
-  defp action_state({_, _, s}), do: s
-  defp action_state(_), do: nil
-
-  defp put_state(data, s), do: %{data | env: %{data.env | state: s}}
-
-  # The creator of this agent, if no one answered it yet (see the top of this module).
-  defp created(data, reply) do
-    case :ets.take(data.host.ledger, {:creating, data.key}) do
-      [{_, from}] -> GenServer.reply(from, reply)
-      [] -> :ok
-    end
-  end
-
-  defp info(data) do
-    env = data.env
-
-    %{
-      id: env.id,
-      name: env.name,
-      module: env.module,
-      host: data.host.ref,
-      home: env.home,
-      hops: env.hops,
-      static: env.static,
-      state: env.state,
-      payload: env.payload,
-      clone_of: env.clone_of,
-      pid: self()
-    }
-  end
-
-  defp emit(data, event, counts) do
-    Events.emit(data.host, Map.put(event, :host, data.host.ref), counts)
-  end
+  defp keep_state({:next_state, _state, data, actions}), do: {:keep_state, data, actions}
 end

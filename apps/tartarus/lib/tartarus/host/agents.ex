@@ -262,4 +262,44 @@ defmodule Tartarus.Host.Agents do
   defp normal_exit?(:shutdown), do: true
   defp normal_exit?({:shutdown, _}), do: true
   defp normal_exit?(_), do: false
+
+  @doc false
+  # Restores checkpointed agents and in-doubt copies (persistence): {reply, state}. Run once
+  # by the host's server, called by Tartarus.start_host/2 after the host's supervisors are up.
+  def restore(state) do
+    {agents, in_doubt} = state.restore
+    state = %{state | restore: {[], []}}
+
+    {state, pids} =
+      Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
+        case start_agent(state, env, :restore) do
+          {:ok, pid, state} -> {state, [pid | pids]}
+          {:error, _reason, state} -> {state, pids}
+        end
+      end)
+
+    # Each restored agent registers itself as it starts: answer once they have (an agent
+    # that died first is waited for a bounded time; its :DOWN is handled afterwards).
+    for pid <- pids do
+      receive do
+        {:"$tartarus_restored", ^pid} -> :ok
+      after
+        5_000 -> :ok
+      end
+    end
+
+    state =
+      Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
+        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            %{state | dest: Tartarus.Migration.Protocol.restore_seen(state.dest, mig, copy, pid)}
+
+          {:error, _reason, state} ->
+            state
+        end
+      end)
+
+    {{:ok, length(agents), length(in_doubt)}, state}
+  end
 end

@@ -9,23 +9,27 @@ defmodule Tartarus.Host.Arrivals do
   require Tartarus.Events
   alias Tartarus.{CodeCache, Envelope, Events, Ledger}
   alias Tartarus.Host.Agents
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.Executor
 
   # Paused (and parked) copies a host without an admission policy holds at most (with a
   # policy they count against its max_resident_agents).
   @max_paused 10_000
 
+  @behaviour Tartarus.Migration.Executor
+
   @doc false
-  # One event of admission (Protocol.destination_step/2) and its actions; returns the
-  # server's state.
+  # One event of admission (Protocol.destination_step/2, carried out by
+  # Tartarus.Migration.Executor with this module as its backend); returns the server's state.
   def admission(state, event) do
-    {dest, actions} = Protocol.destination_step(state.dest, event)
-    Enum.reduce(actions, %{state | dest: dest}, &admission_action/2)
+    {dest, state} = Executor.destination_event(state.dest, event, state, __MODULE__)
+    %{state | dest: dest}
   end
 
-  defp admission_action({:check, p}, state) do
-    env = Tartarus.Fault.point(:admitting, p.env)
-    p = %{p | env: env}
+  # -- the executor's effects (the destination's backend) -----------------------------------
+
+  @impl Executor
+  def check(state, p) do
+    env = p.env
 
     {verdict, state} =
       with :ok <- trusted(state, p),
@@ -39,41 +43,45 @@ defmodule Tartarus.Host.Arrivals do
         {:error, reason} -> {{:error, reason}, state}
       end
 
-    admission(state, {:checked, p, verdict, copy_token(state.host)})
+    {verdict, copy_token(state.host), state}
   end
 
-  defp admission_action({:probe, p, copy, pid}, state) do
-    paused? =
-      :ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}]
-
-    admission(state, {:probed, p, copy, pid, paused?})
+  @impl Executor
+  def probe(state, p, _copy, pid) do
+    {:ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}],
+     state}
   end
 
-  defp admission_action({:create, p, copy}, state) do
-    case Agents.start_agent(state, p.env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
+  @impl Executor
+  def create(state, p, copy) do
+    env = Tartarus.Fault.point(:admitting, p.env)
+
+    case Agents.start_agent(state, env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
       {:ok, pid, state} ->
         # Findable (messages to it wait until it starts).
-        :ets.insert(state.host.ledger, {{:arriving, p.env.id}, pid})
-        admission(state, {:created, p, copy, pid})
+        :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+        {{:ok, pid}, state}
 
       {:error, reason, state} ->
-        admission(state, {:create_failed, p, reason})
+        {{:error, reason}, state}
     end
   end
 
   # Durable before `prepared` leaves.
-  defp admission_action({:journal_in_doubt, p, copy}, state) do
-    Tartarus.Host.Persistence.in_doubt(state.host, p.mig, p.env, p.src, p.kind, copy)
+  @impl Executor
+  def journal(state, {:in_doubt, mig, env, src, kind, copy}) do
+    Tartarus.Host.Persistence.in_doubt(state.host, mig, env, src, kind, copy)
     state
   end
 
-  defp admission_action({:send, pid, msg}, state) do
-    if is_pid(pid), do: send(pid, msg)
+  @impl Executor
+  def send(state, pid, msg) do
+    if is_pid(pid), do: Kernel.send(pid, msg)
     state
   end
 
-  defp admission_action({:refuse, p, reason}, state),
-    do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
+  @impl Executor
+  def refuse(state, p, reason), do: refuse(state, p.s_pid, p.mig, p.env, p.src, reason)
 
   @doc false
   # Paused copies of this host (monitored agents that are not resident).
@@ -148,7 +156,7 @@ defmodule Tartarus.Host.Arrivals do
   @doc false
   # Refuses a prepare: the source hears why; nothing was created.
   def refuse(state, s_pid, mig, env, src, reason) do
-    if is_pid(s_pid), do: send(s_pid, {:"$tartarus_refused", mig, reason})
+    if is_pid(s_pid), do: Kernel.send(s_pid, Tartarus.Migration.Messages.refused(mig, reason))
     agent = with %{id: id} when is_binary(id) <- env, do: id, else: (_ -> nil)
     src = if Tartarus.Host.address?(src), do: src
 
@@ -159,5 +167,34 @@ defmodule Tartarus.Host.Arrivals do
     )
 
     state
+  end
+
+  # Acknowledgements per message (the first arrival after a flush arms the next, see
+  # Tartarus.Migration.Arrival).
+  @ack_batch 1_000
+
+  @doc false
+  # Sends the acknowledgements of this host's arrivals, one batch per source host: a timer
+  # that only tells sources they may forget their commits (it decides nothing).
+  def flush_acks(host) do
+    :atomics.put(host.acks_armed, 1, 0)
+    flush_acks(host.acks, :ets.first(host.acks))
+  end
+
+  defp flush_acks(_table, :"$end_of_table"), do: :ok
+
+  defp flush_acks(table, src) do
+    next = :ets.next(table, src)
+    acks = table |> :ets.take(src) |> Enum.map(&elem(&1, 1))
+
+    # A source host that is gone needs no acknowledgement (a restarted one keeps the commits
+    # it journaled: they then stay, which is safe).
+    with {:ok, pid} <- Tartarus.Host.whereis(src) do
+      acks
+      |> Enum.chunk_every(@ack_batch)
+      |> Enum.each(&Kernel.send(pid, Tartarus.Migration.Messages.acks(&1)))
+    end
+
+    flush_acks(table, next)
   end
 end

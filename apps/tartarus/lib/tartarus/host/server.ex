@@ -21,14 +21,8 @@ defmodule Tartarus.Host.Server do
   require Tartarus.Events
 
   alias Tartarus.Ledger
-  alias Tartarus.Host.{Agents, Arrivals}
-  alias Tartarus.Migration.Protocol
-
-  # Acknowledgements per message (the first arrival after a flush arms the next, see
-  # Agent.Server).
-  @ack_batch 1_000
-  # How often a host asks the sources of its parked copies.
-  @ask_parked_every 30_000
+  alias Tartarus.Host.{Agents, Arrivals, Parked}
+  alias Tartarus.Migration.{Messages, Protocol}
 
   def start_link({name, opts}) do
     GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.via(:host, name))
@@ -131,7 +125,6 @@ defmodule Tartarus.Host.Server do
          :ok <- link_target(other, from),
          :ok <- neighbour_room(state, ns, other) do
       :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
-      if emulated?(props), do: install_link_hook()
       {:reply, :ok, state}
     else
       error -> {:reply, error, state}
@@ -168,71 +161,19 @@ defmodule Tartarus.Host.Server do
 
   # A paused copy that waited too long parks (Protocol.copy_step/2): only the copy itself,
   # found as its agent's arriving process here, may hand over its record.
-  defp call({:park, mig, copy, env, src, kind}, {pid, _}, state) do
-    if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
-      if :ets.insert_new(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
-        :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
-        if parked(state) == 1, do: schedule_parked()
-      end
+  defp call({:park, mig, copy, env, src, kind}, {pid, _}, state),
+    do: {:reply, Parked.park(state, {mig, copy}, env, src, kind, pid), state}
 
-      {:reply, :ok, state}
-    else
-      {:reply, {:error, :not_paused_here}, state}
-    end
-  end
-
-  defp call(:parked, _from, state), do: {:reply, parked(state), state}
+  defp call(:parked, _from, state), do: {:reply, Parked.count(state), state}
 
   # Restores checkpointed agents and in-doubt copies (persistence); called once by
   # Tartarus.start_host/2 after the host's supervisors are up.
   defp call(:restore, _from, state) do
-    {agents, in_doubt} = state.restore
-    state = %{state | restore: {[], []}}
-
-    {state, pids} =
-      Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
-        case Agents.start_agent(state, env, :restore) do
-          {:ok, pid, state} -> {state, [pid | pids]}
-          {:error, _reason, state} -> {state, pids}
-        end
-      end)
-
-    # Each restored agent registers itself as it starts: answer once they have (an agent
-    # that died first is waited for a bounded time; its :DOWN is handled afterwards).
-    for pid <- pids do
-      receive do
-        {:"$tartarus_restored", ^pid} -> :ok
-      after
-        5_000 -> :ok
-      end
-    end
-
-    state =
-      Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
-        case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
-          {:ok, pid, state} ->
-            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
-            %{state | dest: Protocol.restore_seen(state.dest, mig, copy, pid)}
-
-          {:error, _reason, state} ->
-            state
-        end
-      end)
-
-    {:reply, {:ok, length(agents), length(in_doubt)}, state}
+    {reply, state} = Agents.restore(state)
+    {:reply, reply, state}
   end
 
   defp call(:paused, _from, state), do: {:reply, Arrivals.paused(state), state}
-
-  defp emulated?(props), do: Map.get(props, :latency_ms, 0) > 0 or Map.get(props, :loss, 0) > 0
-
-  # Once per node (a :persistent_term write is costly; reads are free).
-  defp install_link_hook do
-    hook = {:transform, {Tartarus.Migration.Source, :emulate_link, []}}
-
-    if :persistent_term.get({Tartarus.Fault, :link}, nil) != hook,
-      do: Tartarus.Fault.install(:link, hook)
-  end
 
   # -- overlay (connect/disconnect) ----------------------------------------------
 
@@ -276,7 +217,7 @@ defmodule Tartarus.Host.Server do
            Tartarus.Security.Admission.max_message_bytes(state.admission)
          ) do
       :ok ->
-        {:prepare, p} = Protocol.classify(msg)
+        {:prepare, p} = Messages.classify(msg)
         {:noreply, Arrivals.admission(state, {:prepare, p})}
 
       {:error, reason} ->
@@ -286,7 +227,7 @@ defmodule Tartarus.Host.Server do
 
   def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
     if Tartarus.Wire.check_decision_query(msg) == :ok do
-      send(a_pid, Protocol.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
+      send(a_pid, Messages.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
     else
       Ledger.count(state.host, :dropped)
     end
@@ -310,37 +251,19 @@ defmodule Tartarus.Host.Server do
   # A timer that only sends acknowledgements (lazily, batched): it decides nothing. The first
   # arrival after a flush arms it (so an idle host has no timer).
   def handle_info(:"$tartarus_flush_acks", state) do
-    :atomics.put(state.host.acks_armed, 1, 0)
-    flush_acks(state.host.acks, :ets.first(state.host.acks))
+    Arrivals.flush_acks(state.host)
     {:noreply, state}
   end
 
   # Asks the sources of parked copies (a timer that only asks: it never decides anything).
   def handle_info(:"$tartarus_ask_parked", state) do
-    host = state.host
-
-    for {{mig, copy}, env, _src, kind} = rec <-
-          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}])
-          |> Enum.map(fn {{:parked, k}, e, s, kd} -> {k, e, s, kd} end),
-        {:ok, pid} <- [Tartarus.Host.whereis(elem(rec, 2))] do
-      send(pid, Protocol.decision_query(mig, Ledger.query_id(env, kind), copy, self()))
-    end
-
-    if parked(state) > 0, do: schedule_parked()
+    Parked.ask(state)
     {:noreply, state}
   end
 
   # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
-  def handle_info({:"$tartarus_decision", mig, copy, d}, state) do
-    case :ets.lookup(state.host.ledger, {:parked, {mig, copy}}) do
-      [{key, env, src, kind}] ->
-        {:noreply, unpark(state, key, mig, copy, env, src, kind, d)}
-
-      [] ->
-        Ledger.count(state.host, :dropped)
-        {:noreply, state}
-    end
-  end
+  def handle_info({:"$tartarus_decision", mig, copy, d}, state),
+    do: {:noreply, Parked.answer(state, mig, copy, d)}
 
   # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
   # callback it is still in counts (Agent.Callbacks.overrun/2 reads it from the agent).
@@ -460,62 +383,6 @@ defmodule Tartarus.Host.Server do
     Tartarus.Host.Persistence.close(state.host.journal)
   catch
     :exit, _ -> :ok
-  end
-
-  defp flush_acks(_table, :"$end_of_table"), do: :ok
-
-  defp flush_acks(table, src) do
-    next = :ets.next(table, src)
-
-    acks = table |> :ets.take(src) |> Enum.map(&elem(&1, 1))
-
-    # A source host that is gone needs no acknowledgement (a restarted one keeps the commits
-    # it journaled: they then stay, which is safe).
-    with {:ok, pid} <- Tartarus.Host.whereis(src) do
-      acks |> Enum.chunk_every(@ack_batch) |> Enum.each(&send(pid, Protocol.acks(&1)))
-    end
-
-    flush_acks(table, next)
-  end
-
-  # -- parked copies -------------------------------------------------------------------
-
-  defp parked(state), do: Ledger.counter(state.host, :parked)
-
-  defp unparked(state, key) do
-    :ets.delete(state.host.ledger, key)
-    :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
-  end
-
-  defp schedule_parked,
-    do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_parked_every)
-
-  defp unpark(state, key, mig, copy, env, src, kind, d) do
-    case Protocol.parked(d) do
-      :keep ->
-        state
-
-      :drop ->
-        unparked(state, key)
-        Tartarus.Host.Persistence.resolved(state.host, mig, copy)
-        state
-
-      :revive ->
-        unparked(state, key)
-
-        case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
-          {:ok, pid, state} ->
-            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
-            send(pid, Protocol.decision(mig, copy, d))
-            state
-
-          {:error, _reason, state} ->
-            # Kept for the next answer.
-            :ets.insert(state.host.ledger, {key, env, src, kind})
-            :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
-            state
-        end
-    end
   end
 
   defp schedule_sweep(:infinity), do: :ok

@@ -3,15 +3,17 @@ defmodule Tartarus.Migration.Arrival do
   # The destination side of a hand-off, in the arriving copy's own process: the paused (in
   # doubt) copy, which runs nothing until it learns its migration's decision
   # (Tartarus.Migration.Protocol.copy_step/2 decides; this module carries out its actions:
-  # ask, arm the timer, stash or drop, park, abort), and the commit that makes it the agent
-  # (registration, snapshot, the answer to whoever waits for the move, the lazy
-  # acknowledgement, the hop time). Tartarus.Agent.Server calls step/2 for every message
-  # while paused; on {:started, data, pending} it handles the handed-over messages, then
-  # handle_arrival/2.
+  # ask, re-arm its state timeout, stash or drop, park, abort), and the commit that makes it
+  # the agent (registration, snapshot, the answer to whoever waits for the move, the lazy
+  # acknowledgement, the hop time). Tartarus.Agent.Server (states :paused and
+  # :awaiting_commit) calls step/2 for every message and timeout while paused; on
+  # {:started, data, pending} it handles the handed-over messages, then handle_arrival/2.
+
+  @behaviour Tartarus.Migration.Executor
 
   require Tartarus.Events
   alias Tartarus.{Events, Ledger}
-  alias Tartarus.Migration.{Inbox, Protocol}
+  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
 
   # How long a host waits before it sends the acknowledgements of its arrivals (one batch
   # per source host, see Tartarus.Host.Server).
@@ -21,33 +23,38 @@ defmodule Tartarus.Migration.Arrival do
   # The paused copy's state, as the agent process keeps it (data.paused). `src_pid`: the
   # source agent's process when the prepare came from it (nil for a copy revived from the
   # journal): its commit carries the messages it held.
+  # Its first state timeout (:commit) is the host's :migration_timeout.
   @spec paused(map(), term(), term(), term(), :move | :clone, pid() | nil) :: map()
   def paused(host, mig, copy, src, kind, src_pid) do
     c =
       Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
 
-    timer = Process.send_after(self(), {:commit_timeout, mig}, host.opts.migration_timeout)
-    %{c: c, timer: timer, stash: [], src_pid: src_pid, handover: :none}
+    %{c: c, stash: [], src_pid: src_pid, handover: :none, notify: nil, await: nil}
   end
 
   @doc false
-  # One message to the paused copy: {:paused, data}, {:started, data, pending} (it is the
-  # agent now; `pending` are the messages to handle first) or {:stop, reason, data}.
-  @spec step(map(), term()) ::
-          {:paused, map()} | {:started, map(), list()} | {:stop, term(), map()}
-  def step(%{paused: p} = data, msg) do
-    event =
-      case msg do
-        {:commit_timeout, mig} when mig == p.c.mig ->
-          :timeout
+  # One event of the paused copy ({:info, msg} or :timeout, its state timeout):
+  # {:paused, data, actions} (gen_statem actions: its next state timeout), {:await, data}
+  # (wait for the source's commit, see start/2), {:started, data, pending} (it is the agent
+  # now; `pending` are the messages to handle first) or {:stop, reason, data}.
+  @spec step(map(), :timeout | {:info, term()}) ::
+          {:paused, map(), list()}
+          | {:await, map()}
+          | {:started, map(), list()}
+          | {:stop, term(), map()}
+  def step(%{paused: p} = data, event) do
+    {event, msg} =
+      case event do
+        :timeout ->
+          {:timeout, nil}
 
-        _ ->
-          case Protocol.classify(msg) do
-            {:commit, _, _, _} = commit -> commit
-            {:decision, _, _, _} = decision -> decision
-            :other -> {:message, msg}
+        {:info, msg} ->
+          case Messages.classify(msg) do
+            {:commit, _, _, _} = commit -> {commit, msg}
+            {:decision, _, _, _} = decision -> {decision, msg}
+            :other -> {{:message, msg}, msg}
             # Stray hand-off messages (of an earlier attempt) are not for the agent.
-            _ -> :ignore
+            _ -> {:ignore, msg}
           end
       end
 
@@ -62,73 +69,103 @@ defmodule Tartarus.Migration.Arrival do
           p
       end
 
-    {c, actions} = Protocol.copy_step(p.c, event)
-    actions(actions, %{data | paused: %{p | c: c}})
+    case Executor.copy_event(p.c, event, {%{data | paused: p}, []}, __MODULE__) do
+      {:paused, {data, timeouts}} -> {:paused, data, timeouts}
+      {:done, result} -> result
+    end
   end
 
-  defp actions([], data), do: {:paused, data}
-  defp actions([{:start, notify} | _], data), do: start(data, notify)
+  # -- the executor's effects (the paused copy's backend) -----------------------------------
+  # The context: {the agent process's state, the state timeouts to set}.
 
-  defp actions([:abort | _], data) do
-    Tartarus.Host.Persistence.resolved(data.host, data.paused.c.mig, data.paused.c.copy)
+  @impl Executor
+  def copy_state({data, timeouts}, c), do: {%{data | paused: %{data.paused | c: c}}, timeouts}
+
+  @impl Executor
+  def start({data, _timeouts}, _c, notify), do: start(data, notify)
+
+  @impl Executor
+  def abort({data, _timeouts}, c) do
+    Tartarus.Host.Persistence.resolved(data.host, c.mig, c.copy)
     {:stop, {:shutdown, :aborted}, data}
   end
 
   # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
   # its stash go (the senders waiting on stashed messages time out).
-  defp actions([:park | _], data) do
-    %{c: c} = data.paused
+  @impl Executor
+  def park({data, _timeouts}, c) do
     :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
     {:stop, {:shutdown, :parked}, data}
   end
 
-  defp actions([{:ask, src, mig, copy} | rest], data) do
-    # The source host's server, found by address each time (the source may have restarted
-    # since it sent `prepare`; the directory drops pids of hosts that went down).
+  # The source host's server, found by address each time (the source may have restarted
+  # since it sent `prepare`; the directory drops pids of hosts that went down).
+  @impl Executor
+  def ask({data, _} = ctx, src, mig, copy) do
     id = Ledger.query_id(data.env, data.paused.c.kind)
 
     with {:ok, pid} <- Tartarus.Host.whereis(src),
-         do: send(pid, Protocol.decision_query(mig, id, copy, self()))
+         do: send(pid, Messages.decision_query(mig, id, copy, self()))
 
-    actions(rest, data)
+    ctx
   end
 
-  defp actions([{:timer, ms} | rest], data) do
-    timer = Process.send_after(self(), {:commit_timeout, data.paused.c.mig}, ms)
-    actions(rest, %{data | paused: %{data.paused | timer: timer}})
-  end
+  @impl Executor
+  def timer({data, timeouts}, ms), do: {data, [{:state_timeout, ms, :commit} | timeouts]}
 
   # Kept and handled once the agent starts (senders wait for delivery, so each sender's
   # order is kept).
-  defp actions([{:stash, msg} | rest], data),
-    do: actions(rest, %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}})
+  @impl Executor
+  def stash({data, timeouts}, msg),
+    do: {%{data | paused: %{data.paused | stash: [msg | data.paused.stash]}}, timeouts}
 
   # Over the bound: dropped and counted; a sender of a message is told to send it again
   # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
-  defp actions([{:drop, msg} | rest], data) do
+  @impl Executor
+  def drop({data, _} = ctx, msg) do
     with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
          do: send(pid, {tag, :retry})
 
     Ledger.count(data.host, :dropped)
-    actions(rest, data)
+    ctx
   end
 
   # -- the commit: the copy becomes the agent -------------------------------------------
 
+  # A move: the source's commit carries the messages it held. If this copy learnt the
+  # decision by asking (the commit is late or lost) while the source process lives, it waits
+  # for that commit (state :awaiting_commit, see awaited/2) before taking anything else (the
+  # source may be slow, not gone: taking newer messages first would break a sender's order
+  # and the memory of what was taken).
   defp start(%{paused: %{c: c} = p} = data, notify) do
-    Process.cancel_timer(p.timer)
-    # A move: the source's commit carries the messages it held. If this copy learnt the
-    # decision by asking (the commit is late or lost) while the source process lives, wait
-    # for that commit before taking anything else (the source may be slow, not gone: taking
-    # newer messages first would break a sender's order and the memory of what was taken).
-    handover =
-      case p.handover do
-        :none when c.kind == :move and is_pid(p.src_pid) ->
-          await_commit(c.mig, data.host.opts.migration_timeout, p.src_pid)
+    p = %{p | notify: notify}
 
-        other ->
-          other
-      end
+    if p.handover == :none and c.kind == :move and is_pid(p.src_pid) do
+      {:await, %{data | paused: %{p | await: Process.monitor(p.src_pid)}}}
+    else
+      finish(%{data | paused: p}, p.handover)
+    end
+  end
+
+  @doc false
+  # While awaiting the commit: {:ok, handover} for the source's commit (its hand-over) or its
+  # end without one (nil), :other for anything else (postponed).
+  @spec awaited(map(), term()) :: {:ok, term()} | :other
+  def awaited(%{paused: %{c: %{mig: mig}, await: mref}}, msg) do
+    case msg do
+      {:"$tartarus_commit", ^mig, _copy, _notify, handover} -> {:ok, handover}
+      # The source ended without sending it (it sends the commit before it ends).
+      {:DOWN, ^mref, :process, _, _} -> {:ok, nil}
+      _ -> :other
+    end
+  end
+
+  @doc false
+  # The copy becomes the agent, with `handover` (the source's, or nil when it never came).
+  @spec finish(map(), term()) :: {:started, map(), list()} | {:stop, term(), map()}
+  def finish(%{paused: %{c: c} = p} = data, handover) do
+    if p.await, do: Process.demonitor(p.await, [:flush])
+    notify = p.notify
 
     # Messages that came while paused are new here unless the hand-over says otherwise.
     {msgs, others} =
@@ -187,25 +224,6 @@ defmodule Tartarus.Migration.Arrival do
 
       {:error, reason} ->
         {:stop, reason, data}
-    end
-  end
-
-  # The source's own commit, when the decision came from asking (see start/2).
-  defp await_commit(mig, timeout, src_pid) do
-    mref = Process.monitor(src_pid)
-
-    receive do
-      # The source ended without sending it (it sends the commit before it ends).
-      {:DOWN, ^mref, :process, _, _} ->
-        nil
-
-      {:"$tartarus_commit", ^mig, _copy, _notify, handover} ->
-        Process.demonitor(mref, [:flush])
-        handover
-    after
-      timeout ->
-        Process.demonitor(mref, [:flush])
-        nil
     end
   end
 

@@ -1,13 +1,17 @@
 defmodule Tartarus.Migration.Executor do
   @moduledoc """
-  Carries out the source side of a hand-off: the one place that turns the actions of
-  `Tartarus.Migration.Protocol.source_step/2` into effects, in the order the guarantees
-  need, through a backend.
+  Carries out the hand-off: the one place that turns the actions of
+  `Tartarus.Migration.Protocol` into effects, in the order the guarantees need, through a
+  backend, for its three roles: the source (`source_event/4`), the destination host's
+  admission (`destination_event/4`) and the paused copy (`copy_event/4`).
 
-  Two backends run this same code: the live one (`Tartarus.Migration.Source`: the host's
-  ledger in ETS, its journal, real sends, the agent's mailbox) and the in-memory one of the
-  model check (`Tartarus.Migration.ProtocolModelTest`), which may crash the source's host
-  between any two effects. So the order below is what the model explores, not a copy of it.
+  Two backends run this same code: the live ones (`Tartarus.Migration.Source`: the host's
+  ledger in ETS, its journal, real sends, the agent's mailbox; `Tartarus.Host.Arrivals`:
+  admission checks, spawning the copy, its journal record; `Tartarus.Migration.Arrival`:
+  asking, stashing, parking, starting) and the in-memory one of the model check
+  (`apps/tartarus/test/tartarus/migration/protocol_model.exs`), which may crash the source's
+  host between any two of its effects. So the order below is what the model explores, not a
+  copy of it.
 
   ## Effects, in order
 
@@ -30,11 +34,20 @@ defmodule Tartarus.Migration.Executor do
   Before the decision (or the abort) the backend hears `settled/2`: the live backend stops
   watching the destination there.
 
+  An **admission** (`destination_event/4`): the checks (`check/2`: trust, size, code,
+  capacity, policy; a copy token), or `probe/4` for a prepare seen before; then
+  `create/3` (the paused copy), `journal({:in_doubt, ...})` (durable before the answer) and
+  `send(prepared)`; or `send(need)`, or `refuse/3`.
+
+  A **paused copy** (`copy_event/4`): `copy_state/2` (its new protocol state), then
+  `ask/3`, `timer/2`, `stash/2`, `drop/2` in order, and at most one of `start/3`, `abort/2`,
+  `park/2`, which end it: their result is returned as `{:done, result}`.
+
   A backend effect may `throw({:halt, ctx})` (the model's crash of the source's host):
   the effects after it do not happen and `source/4` returns `{:halted, ctx}`.
   """
 
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Messages, Protocol}
 
   @typedoc "The backend's context, threaded through every effect."
   @type ctx :: term()
@@ -50,6 +63,47 @@ defmodule Tartarus.Migration.Executor do
   @callback fetch_code(ctx, [module()]) :: {{:ok, list()} | {:error, term()}, ctx}
   @callback resend(ctx, list()) :: ctx
   @callback committed(ctx, :move | :clone, Protocol.mig(), Protocol.copy_token()) :: ctx
+
+  # The destination's admission.
+  @callback check(ctx, map()) :: {:ok | {:need, list()} | {:error, term()}, term(), ctx}
+  @callback probe(ctx, map(), Protocol.copy_token(), term()) :: {boolean(), ctx}
+  @callback create(ctx, map(), Protocol.copy_token()) :: {{:ok, term()} | {:error, term()}, ctx}
+  @callback refuse(ctx, map(), term()) :: ctx
+
+  # The paused copy.
+  @callback copy_state(ctx, map()) :: ctx
+  @callback ask(ctx, term(), Protocol.mig(), Protocol.copy_token()) :: ctx
+  @callback timer(ctx, non_neg_integer()) :: ctx
+  @callback stash(ctx, term()) :: ctx
+  @callback drop(ctx, term()) :: ctx
+  @callback start(ctx, map(), term()) :: term()
+  @callback abort(ctx, map()) :: term()
+  @callback park(ctx, map()) :: term()
+
+  # Each live backend serves one role.
+  @optional_callbacks settled: 2,
+                      decision_put_new: 3,
+                      journal: 2,
+                      pointer_put: 4,
+                      leave: 1,
+                      handoff_end: 2,
+                      handover: 1,
+                      send: 3,
+                      fetch_code: 2,
+                      resend: 2,
+                      committed: 4,
+                      check: 2,
+                      probe: 4,
+                      create: 3,
+                      refuse: 3,
+                      copy_state: 2,
+                      ask: 4,
+                      timer: 2,
+                      stash: 2,
+                      drop: 2,
+                      start: 3,
+                      abort: 2,
+                      park: 2
 
   @doc """
   The source's state for one attempt: `Tartarus.Migration.Protocol.source/4` with the
@@ -125,7 +179,7 @@ defmodule Tartarus.Migration.Executor do
 
   defp run(s, [{:send, to, {:"$tartarus_commit", mig, copy, notify, _}} | rest], ctx, b) do
     {handover, ctx} = if s.kind == :move, do: b.handover(ctx), else: {nil, ctx}
-    run(s, rest, b.send(ctx, to, Protocol.commit(mig, copy, notify, handover)), b)
+    run(s, rest, b.send(ctx, to, Messages.commit(mig, copy, notify, handover)), b)
   end
 
   defp run(s, [{:send, to, msg} | rest], ctx, b), do: run(s, rest, b.send(ctx, to, msg), b)
@@ -139,4 +193,66 @@ defmodule Tartarus.Migration.Executor do
   defp run(s, [{:resend, code} | rest], ctx, b), do: run(s, rest, b.resend(ctx, code), b)
 
   defp run(s, [{:done, outcome} | _], ctx, _b), do: {:done, outcome, s, ctx}
+
+  # -- the destination's admission ---------------------------------------------------------
+
+  @doc """
+  Feeds `event` to the destination's state `d` (`Protocol.destination_step/2`) and carries
+  out its actions, feeding back what the checks, probes and creates found. Returns
+  `{d, ctx}`.
+  """
+  @spec destination_event(map(), term(), ctx, module()) :: {map(), ctx}
+  def destination_event(d, event, ctx, b) do
+    {d, actions} = Protocol.destination_step(d, event)
+    Enum.reduce(actions, {d, ctx}, fn action, {d, ctx} -> destination(action, d, ctx, b) end)
+  end
+
+  defp destination({:check, p}, d, ctx, b) do
+    {verdict, copy, ctx} = b.check(ctx, p)
+    destination_event(d, {:checked, p, verdict, copy}, ctx, b)
+  end
+
+  defp destination({:probe, p, copy, pid}, d, ctx, b) do
+    {paused?, ctx} = b.probe(ctx, p, copy, pid)
+    destination_event(d, {:probed, p, copy, pid, paused?}, ctx, b)
+  end
+
+  defp destination({:create, p, copy}, d, ctx, b) do
+    case b.create(ctx, p, copy) do
+      {{:ok, pid}, ctx} -> destination_event(d, {:created, p, copy, pid}, ctx, b)
+      {{:error, reason}, ctx} -> destination_event(d, {:create_failed, p, reason}, ctx, b)
+    end
+  end
+
+  # Durable before `prepared` leaves (the next action).
+  defp destination({:journal_in_doubt, p, copy}, d, ctx, b),
+    do: {d, b.journal(ctx, {:in_doubt, p.mig, p.env, p.src, p.kind, copy})}
+
+  defp destination({:send, to, msg}, d, ctx, b), do: {d, b.send(ctx, to, msg)}
+  defp destination({:refuse, p, reason}, d, ctx, b), do: {d, b.refuse(ctx, p, reason)}
+
+  # -- the paused copy -------------------------------------------------------------------
+
+  @doc """
+  Feeds `event` to the paused copy's state `c` (`Protocol.copy_step/2`) and carries out its
+  actions. Returns `{:paused, ctx}` (it waits on) or `{:done, result}` (what the backend's
+  `start/3`, `abort/2` or `park/2` returned).
+  """
+  @spec copy_event(map(), term(), ctx, module()) :: {:paused, ctx} | {:done, term()}
+  def copy_event(c, event, ctx, b) do
+    {c, actions} = Protocol.copy_step(c, event)
+    copy(actions, c, b.copy_state(ctx, c), b)
+  end
+
+  defp copy([], _c, ctx, _b), do: {:paused, ctx}
+  defp copy([{:start, notify} | _], c, ctx, b), do: {:done, b.start(ctx, c, notify)}
+  defp copy([:abort | _], c, ctx, b), do: {:done, b.abort(ctx, c)}
+  defp copy([:park | _], c, ctx, b), do: {:done, b.park(ctx, c)}
+
+  defp copy([{:ask, src, mig, copy} | rest], c, ctx, b),
+    do: copy(rest, c, b.ask(ctx, src, mig, copy), b)
+
+  defp copy([{:timer, ms} | rest], c, ctx, b), do: copy(rest, c, b.timer(ctx, ms), b)
+  defp copy([{:stash, msg} | rest], c, ctx, b), do: copy(rest, c, b.stash(ctx, msg), b)
+  defp copy([{:drop, msg} | rest], c, ctx, b), do: copy(rest, c, b.drop(ctx, msg), b)
 end

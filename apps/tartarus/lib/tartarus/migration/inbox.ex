@@ -7,7 +7,7 @@ defmodule Tartarus.Migration.Inbox do
   it sent it to ends. The agent takes a tag once: the inbox remembers the last tag taken
   from each recent sender (a sender has one message outstanding at a time), and that memory
   travels with the agent from process to process inside the `commit` message
-  (`Tartarus.Migration.Protocol.commit/4`), together with the messages the old process took
+  (`Tartarus.Migration.Messages.commit/4`), together with the messages the old process took
   and had not handled. The successor handles those before anything else. A copy that
   reaches the old process after the hand-over is lost with it and sent again by its sender
   (the old process's exit names its successor). So each message is handled once wherever

@@ -103,130 +103,14 @@ defmodule Tartarus.Migration.Protocol do
       duplicate.
   """
 
+  alias Tartarus.Migration.Messages
+
   @typedoc "A migration id: the source host's incarnation and a unique reference."
   @type mig :: term()
   @typedoc "The token of one paused copy."
   @type copy_token :: term()
   @typedoc "An action for the executing process."
   @type action :: tuple() | atom()
-
-  # -- messages -------------------------------------------------------------------------
-
-  @doc "The `prepare` message."
-  @spec prepare(pid(), mig(), term(), pid(), :move | :clone, term(), list(), list()) :: tuple()
-  def prepare(s_pid, mig, src, src_pid, kind, env, manifest, code),
-    do: {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
-
-  @doc "A `prepare` sent again, now with code."
-  @spec with_code(tuple(), list()) :: tuple()
-  def with_code(prepare, code), do: put_elem(prepare, 8, code)
-
-  @doc "The `need` message."
-  @spec need(mig(), [module()]) :: tuple()
-  def need(mig, mods), do: {:"$tartarus_need", mig, mods}
-
-  @doc "The `prepared` message."
-  @spec prepared(mig(), copy_token(), pid()) :: tuple()
-  def prepared(mig, copy, pid), do: {:"$tartarus_prepared", mig, copy, pid}
-
-  @doc "The `refused` message."
-  @spec refused(mig(), term()) :: tuple()
-  def refused(mig, reason), do: {:"$tartarus_refused", mig, reason}
-
-  @doc """
-  The `commit` message. A move's carries the source process's hand-over of messages,
-  `{msgs, seen}` (`Tartarus.Migration.Inbox.handover/2`): a hop is three messages,
-  `prepare`, `prepared`, `commit`.
-  """
-  @spec commit(mig(), copy_token(), term(), term()) :: tuple()
-  def commit(mig, copy, notify, handover \\ nil),
-    do: {:"$tartarus_commit", mig, copy, notify, handover}
-
-  @doc "The decision query of a paused copy."
-  @spec decision_query(mig(), binary(), copy_token(), pid()) :: tuple()
-  def decision_query(mig, id, copy, pid), do: {:"$tartarus_decision?", mig, id, copy, pid}
-
-  @doc "Acknowledgements of committed copies that run, each `{mig, id, copy}`."
-  @spec acks([{mig(), binary(), copy_token()}]) :: tuple()
-  def acks(list), do: {:"$tartarus_acks", list}
-
-  @doc "The answer to a decision query."
-  @spec decision(mig(), copy_token(), term()) :: tuple()
-  def decision(mig, copy, d), do: {:"$tartarus_decision", mig, copy, d}
-
-  @doc """
-  What a message is to the protocol: `{:prepare, fields}`, `{:prepared, mig, copy, pid}`,
-  `{:need, mig, mods}`, `{:refused, mig, reason}`, `{:commit, mig, copy, notify}`,
-  `{:query, mig, id, copy, pid}`, `{:decision, mig, copy, d}`, `{:acks, [{mig, id, copy}]}`,
-  or `:other`. Total.
-
-      iex> Tartarus.Migration.Protocol.classify(:hello)
-      :other
-  """
-  @spec classify(term()) :: tuple() | :other
-  def classify({:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}),
-    do:
-      {:prepare,
-       %{
-         s_pid: s_pid,
-         mig: mig,
-         src: src,
-         src_pid: src_pid,
-         kind: kind,
-         env: env,
-         manifest: manifest,
-         code: code
-       }}
-
-  def classify({:"$tartarus_prepared", mig, copy, pid}), do: {:prepared, mig, copy, pid}
-  def classify({:"$tartarus_need", mig, mods}), do: {:need, mig, mods}
-  def classify({:"$tartarus_refused", mig, reason}), do: {:refused, mig, reason}
-
-  def classify({:"$tartarus_commit", mig, copy, notify, _handover}),
-    do: {:commit, mig, copy, notify}
-
-  def classify({:"$tartarus_decision?", mig, id, copy, pid}), do: {:query, mig, id, copy, pid}
-  def classify({:"$tartarus_decision", mig, copy, d}), do: {:decision, mig, copy, d}
-  def classify({:"$tartarus_acks", list}), do: {:acks, list}
-  def classify(_), do: :other
-
-  @doc """
-  True for a message of the hand-off protocol (any of the above, well-formed or not).
-
-      iex> Tartarus.Migration.Protocol.protocol_message?({:"$tartarus_need", 1, []})
-      true
-  """
-  @spec protocol_message?(term()) :: boolean()
-  def protocol_message?(msg) when is_tuple(msg) and tuple_size(msg) > 0,
-    do:
-      elem(msg, 0) in [
-        :"$tartarus_prepare",
-        :"$tartarus_need",
-        :"$tartarus_prepared",
-        :"$tartarus_refused",
-        :"$tartarus_commit",
-        :"$tartarus_decision?",
-        :"$tartarus_decision",
-        :"$tartarus_acks"
-      ]
-
-  def protocol_message?(_), do: false
-
-  @doc """
-  The fields of a `prepare` a receiver acts on besides the envelope: what the sending
-  host's seal covers (with the manifest and the envelope).
-  """
-  @spec seal_fields(map()) :: tuple()
-  def seal_fields(p), do: {p.mig, p.kind, p.src, p.s_pid, p.src_pid}
-
-  @doc "True for a migration id as hosts make them."
-  @spec migration_id?(term()) :: boolean()
-  def migration_id?({incarnation, ref}), do: is_binary(incarnation) and is_reference(ref)
-  def migration_id?(_), do: false
-
-  @doc "True for a copy token as hosts make them."
-  @spec copy_token?(term()) :: boolean()
-  def copy_token?(t), do: is_binary(t) and byte_size(t) == 16
 
   # -- source -----------------------------------------------------------------------
 
@@ -267,7 +151,7 @@ defmodule Tartarus.Migration.Protocol do
      [
        {:record_commit, s.kind, mig, copy},
        {:end_handoff, mig},
-       {:send, pid, commit(mig, copy, s.notify)},
+       {:send, pid, Messages.commit(mig, copy, s.notify)},
        {:done, {:committed, copy, pid}}
      ]}
   end
@@ -349,14 +233,14 @@ defmodule Tartarus.Migration.Protocol do
   # Still paused: the same answer again (the first may have been lost). Resolved (it started
   # or was aborted): a replay, refused.
   def destination_step(d, {:probed, p, copy, pid, true}),
-    do: {d, [{:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+    do: {d, [{:send, p.s_pid, Messages.prepared(p.mig, copy, pid)}]}
 
   def destination_step(d, {:probed, p, _copy, _pid, false}), do: {d, [{:refuse, p, :duplicate}]}
 
   def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
 
   def destination_step(d, {:checked, p, {:need, mods}, _copy}),
-    do: {d, [{:send, p.s_pid, need(p.mig, mods)}]}
+    do: {d, [{:send, p.s_pid, Messages.need(p.mig, mods)}]}
 
   # A refusal is not remembered: a forged prepare naming a real migration must not make the
   # real one refused. (Nothing was created; checking again costs only the check.)
@@ -365,7 +249,7 @@ defmodule Tartarus.Migration.Protocol do
 
   def destination_step(d, {:created, p, copy, pid}) do
     {remember(d, p.mig, {:copy, copy, pid}),
-     [{:journal_in_doubt, p, copy}, {:send, p.s_pid, prepared(p.mig, copy, pid)}]}
+     [{:journal_in_doubt, p, copy}, {:send, p.s_pid, Messages.prepared(p.mig, copy, pid)}]}
   end
 
   def destination_step(d, {:create_failed, p, reason}), do: {d, [{:refuse, p, reason}]}

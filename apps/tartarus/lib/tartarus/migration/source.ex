@@ -6,24 +6,28 @@ defmodule Tartarus.Migration.Source do
   # Tartarus.Migration.Protocol and orders the effects. This module is the executor's live
   # backend: the host's ledger (ETS), its journal, real sends, the agent's mailbox.
   #
-  # `run/6` returns {:moved, new_pid, data}, {:cloned, clone_id, data} or
-  # {:failed, reason, data}; `data` is the agent process's state (Tartarus.Agent.Server).
+  # attempt/4 starts a hand-off and returns {:wait, data} (the agent's state machine is then
+  # :handing_off and hands this module each message, event/2, and its deadline, step/2) or
+  # {:failed, reason, data}; step/2 returns {:wait, data} or {outcome, by, data} with outcome
+  # {:moved, new_pid}, {:cloned, clone_id} or {:failed, reason} for `by` (who started it, see
+  # Tartarus.Agent.Actions). `data` is the agent process's state (Tartarus.Agent.Server);
+  # the hand-off's own state is data.handoff while it lasts.
 
   @behaviour Tartarus.Migration.Executor
 
   require Tartarus.Events
   alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.{Executor, Inbox, Protocol}
+  alias Tartarus.Migration.{Executor, Inbox, Messages}
 
   # -- before the hand-off: where to, may it go, with what code ---------------------
 
   @doc false
   # A move or clone of the agent whose process state is `data`, to `dest_spec` (a host or a
-  # strategy); `notify` is who waits for the outcome (a GenServer from, or nil). Returns as
-  # run/6 does.
+  # strategy); `by` = {kind, dest_spec, :act | {:call, from}}: a caller waits for the outcome
+  # (answered by the destination). Returns {:wait, data} or {:failed, reason, data}.
   @spec attempt(map(), :move | :clone, term(), term()) ::
-          {:moved, pid(), map()} | {:cloned, binary(), map()} | {:failed, term(), map()}
-  def attempt(data, kind, dest_spec, notify \\ nil) do
+          {:wait, map()} | {:failed, term(), map()}
+  def attempt(data, kind, dest_spec, by) do
     env = data.env
 
     with :ok <- movable(env, kind),
@@ -33,7 +37,7 @@ defmodule Tartarus.Migration.Source do
          {:ok, manifest} <- CodeCache.manifest(Envelope.modules(env)),
          {:ok, dest_pid} <- Tartarus.Host.whereis(dest),
          {:ok, data} <- link_loss(data, dest) do
-      run(data, kind, dest, dest_pid, manifest, notify)
+      run(data, kind, dest, dest_pid, manifest, by)
     else
       {:error, reason} -> {:failed, reason, data}
       {:error, reason, data} -> {:failed, reason, data}
@@ -64,9 +68,13 @@ defmodule Tartarus.Migration.Source do
           {:error, reason}
       end
     else
-      if Tartarus.Host.address?(spec),
-        do: {:ok, Tartarus.Host.address(spec), data},
-        else: {:error, {:bad_destination, spec}}
+      # A bare name: the neighbour of that name, else this node's host (Host.resolve/2).
+      if Tartarus.Host.address?(spec) do
+        with {:ok, dest} <- Tartarus.Host.resolve(spec, Ledger.neighbours(data.host)),
+             do: {:ok, dest, data}
+      else
+        {:error, {:bad_destination, spec}}
+      end
     end
   end
 
@@ -83,54 +91,32 @@ defmodule Tartarus.Migration.Source do
       else: :ok
   end
 
-  # Link emulation is a transport hook (Tartarus.Fault point :link), installed on a node the
-  # first time a host there links with latency or loss (Tartarus.connect/3 with props): a
-  # node that never emulates links pays one :persistent_term read per hand-off.
+  # The node's transport (Tartarus.Transport), if an emulator installed one: it may delay the
+  # hand-off or fail it, drawing from the agent's own random stream.
   defp link_loss(data, dest) do
-    case Tartarus.Fault.point(:link, {data.host, dest, data.env.rng}) do
-      {:ok, rng} -> {:ok, %{data | env: %{data.env | rng: rng}}}
-      {:error, :link_loss, rng} -> {:error, :link_loss, %{data | env: %{data.env | rng: rng}}}
-      {_host, _dest, _rng} -> {:ok, data}
-    end
-  end
-
-  @doc false
-  # The :link hook: the link's properties from the ledger. Latency is one message's one-way
-  # delay: the hand-off waits for three (prepare, prepared, commit; the modules' round trip
-  # of a first crossing is not charged). Loss makes it fail (the agent's own random state
-  # decides, so runs are reproducible).
-  def emulate_link({host, dest, rng}) do
-    case Ledger.link(host, dest) do
-      %{} = props ->
-        latency = Map.get(props, :latency_ms, 0)
-        if latency > 0, do: Process.sleep(3 * latency)
-        loss = Map.get(props, :loss, 0)
-
-        if loss > 0 do
-          {x, state} = :rand.uniform_s(:rand.seed_s(rng))
-          rng = :rand.export_seed_s(state)
-          if x < loss, do: {:error, :link_loss, rng}, else: {:ok, rng}
-        else
-          {:ok, rng}
-        end
-
+    case Tartarus.Transport.installed() do
       nil ->
-        {:ok, rng}
+        {:ok, data}
+
+      transport ->
+        case transport.hand_off(data.host, dest, data.env.rng) do
+          {:ok, rng} -> {:ok, put_in(data.env.rng, rng)}
+          {:error, reason, rng} -> {:error, reason, put_in(data.env.rng, rng)}
+        end
     end
   end
 
   # -- the hand-off --------------------------------------------------------------
 
   @doc false
-  @spec run(map(), :move | :clone, term(), pid(), list(), term()) ::
-          {:moved, pid(), map()} | {:cloned, binary(), map()} | {:failed, term(), map()}
-  def run(data, kind, dest, dest_pid, manifest, notify) do
+  @spec run(map(), :move | :clone, term(), pid(), list(), term()) :: {:wait, map()}
+  def run(data, kind, dest, dest_pid, manifest, by) do
     host = data.host
     mig = {host.incarnation, make_ref()}
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind))
 
     prepare =
-      seal(Protocol.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+      seal(Messages.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
 
     # Before `prepare` leaves: the migration is undecided for whoever asks.
     Ledger.begin_handoff(host, data.env.id, mig)
@@ -138,7 +124,6 @@ defmodule Tartarus.Migration.Source do
     send(dest_pid, prepare)
 
     x = %{
-      data: data,
       dest: dest,
       dest_pid: dest_pid,
       mref: mref,
@@ -146,45 +131,57 @@ defmodule Tartarus.Migration.Source do
       prepare: prepare,
       out: out,
       code_bytes: 0,
-      deadline: System.monotonic_time(:millisecond) + host.opts.migration_timeout
+      by: by
     }
 
-    wait(Executor.source_state(mig, kind, dest_pid, notify, data.env.id, out.id), x)
+    s = Executor.source_state(mig, kind, dest_pid, notify(by), data.env.id, out.id)
+    {:wait, %{data | handoff: {s, x}}}
   end
 
-  defp wait(s, x) do
-    mig = s.mig
-    mref = x.mref
-    timeout = max(x.deadline - System.monotonic_time(:millisecond), 0)
+  # Who waits for the outcome: the caller of Tartarus.move/2 or clone/2 (answered by the
+  # destination), or nobody (the agent's own action).
+  defp notify({_kind, _dest, {:call, from}}), do: from
+  defp notify(_by), do: nil
 
-    event =
-      receive do
-        {:"$tartarus_prepared", ^mig, _, _} = m -> Protocol.classify(m)
-        {:"$tartarus_refused", ^mig, _} = m -> Protocol.classify(m)
-        {:"$tartarus_need", ^mig, _} = m -> Protocol.classify(m)
-        {:DOWN, ^mref, :process, _, reason} -> {:down, reason}
-        {:nodedown, node} when mref == {:node, node} -> {:down, :noconnection}
-      after
-        timeout -> :timeout
-      end
+  @doc false
+  # The event a message is for the hand-off of the agent whose state is `data`, or nil (not
+  # for it: the agent's state machine keeps it).
+  @spec event(map(), term()) :: term() | nil
+  def event(%{handoff: {%{mig: mig}, %{mref: mref}}}, msg) do
+    case msg do
+      {:"$tartarus_prepared", ^mig, _, _} -> Messages.classify(msg)
+      {:"$tartarus_refused", ^mig, _} -> Messages.classify(msg)
+      {:"$tartarus_need", ^mig, _} -> Messages.classify(msg)
+      {:DOWN, ^mref, :process, _, reason} -> {:down, reason}
+      {:nodedown, node} when mref == {:node, node} -> {:down, :noconnection}
+      _ -> nil
+    end
+  end
 
-    case Executor.source_event(s, event, x, __MODULE__) do
-      {:wait, s, x} -> wait(s, x)
+  @doc false
+  # One event of the hand-off (event/2's, or :timeout at its deadline): {:wait, data} or
+  # {outcome, by, data} (see the top of this module).
+  @spec step(map(), term()) :: {:wait, map()} | {term(), term(), map()}
+  def step(%{handoff: {s, x}} = data, event) do
+    case Executor.source_event(s, event, Map.put(x, :data, %{data | handoff: nil}), __MODULE__) do
+      {:wait, s, x} -> {:wait, %{x.data | handoff: {s, Map.delete(x, :data)}}}
       {:done, outcome, s, x} -> done(outcome, s, x)
     end
   end
 
-  defp done({:committed, _copy, new_pid}, %{kind: :move}, x), do: {:moved, new_pid, x.data}
+  defp done({:committed, _copy, new_pid}, %{kind: :move}, x),
+    do: {{:moved, new_pid}, x.by, x.data}
 
   # The parent's stream advanced by the fork that seeded the clone's (see outgoing/2).
   defp done({:committed, _copy, _pid}, %{kind: :clone}, x) do
     data = x.data
-    {:cloned, x.out.id, put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))}
+    data = put_in(data.env.rng, elem(Tartarus.Random.fork(data.env.rng), 1))
+    {{:cloned, x.out.id}, x.by, data}
   end
 
   defp done({:failed, reason}, _s, x) do
     if match?({:host_down, _}, reason), do: Tartarus.Host.Directory.forget(x.dest)
-    {:failed, reason, x.data}
+    {{:failed, reason}, x.by, x.data}
   end
 
   # -- the executor's effects --------------------------------------------------------
@@ -235,10 +232,12 @@ defmodule Tartarus.Migration.Source do
     x
   end
 
-  # The messages this process took and had not handled, then those in its mailbox.
+  # The messages this process took and had not handled, then those that reached it: kept
+  # while it handed off (data.held), then still in its mailbox (drained without waiting).
   @impl true
   def handover(%{data: data} = x) do
-    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, drain([]))
+    held = for {:info, {:"$tartarus_msg", _, _, _} = m} <- Enum.reverse(data.held), do: m
+    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, held ++ drain([]))
     {{msgs, inbox}, %{x | data: %{data | inbox: inbox, pending: []}}}
   end
 
@@ -254,7 +253,7 @@ defmodule Tartarus.Migration.Source do
 
   @impl true
   def resend(x, code) do
-    Kernel.send(x.dest_pid, Protocol.with_code(x.prepare, code))
+    Kernel.send(x.dest_pid, Messages.with_code(x.prepare, code))
     %{x | code_bytes: max(:erlang.external_size(code), 1)}
   end
 

@@ -36,7 +36,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
-  alias Tartarus.Migration.{Executor, Inbox, Protocol}
+  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
 
   # Chance of a crash of the source's host at each effect of the executor (fault phase).
   @crash_point 0.03
@@ -281,7 +281,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp dest_host(w, pid), do: with(%{host: h} <- w.procs[pid], do: h)
 
   defp receive_msg(w, {:hs, h, _}, h, msg) do
-    case Protocol.classify(msg) do
+    case Messages.classify(msg) do
       {:prepare, p} ->
         admission(w, h, {:prepare, p})
 
@@ -302,7 +302,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp receive_msg(w, pid, _h, msg) do
     proc = w.procs[pid]
 
-    case {proc.role, Protocol.classify(msg)} do
+    case {proc.role, Messages.classify(msg)} do
       {:copy, {:commit, _, _, _} = e} ->
         copy_event(w, pid, e)
 
@@ -354,7 +354,7 @@ defmodule Tartarus.Migration.ProtocolModel do
           end
 
         s = Executor.source_state(mig, kind, server(w, dest), nil, proc.env.id, env.id)
-        prepare = Protocol.prepare(pid, mig, h, server(w, h), kind, env, [], [])
+        prepare = Messages.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
         # As Tartarus.Ledger.begin_handoff/3, before `prepare` leaves.
         w = put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, pid})
@@ -441,6 +441,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
+  def journal(%{dest: _} = ctx, rec), do: dest_effect(ctx, &journal(&1, &2, rec))
+
   def journal(ctx, {:decision, mig, _id, copy} = rec) do
     effect(ctx, fn w, h, proc ->
       w = if w.persist, do: decided(w, proc, mig, copy), else: w
@@ -486,6 +488,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   def handover(ctx), do: {{[], Inbox.new()}, effect(ctx, fn w, _h, _proc -> w end)}
 
   @impl true
+  def send(%{dest: _} = ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
+
   def send(ctx, to, msg) do
     effect(ctx, fn w, h, proc ->
       w =
@@ -504,7 +508,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def resend(ctx, code) do
     effect(ctx, fn w, h, proc ->
-      send_msg(w, h, server(w, proc.src.dest), Protocol.with_code(proc.src.prepare, code))
+      send_msg(w, h, server(w, proc.src.dest), Messages.with_code(proc.src.prepare, code))
     end)
   end
 
@@ -513,38 +517,59 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   # -- destination -----------------------------------------------------------------------
 
+  # The platform's executor carries out admission (this module is its backend: the
+  # context is %{w: world, dest: host}). Each effect that leaves a trace (the copy, its
+  # journal record, the answer) may first crash the destination's host (fault phase only).
   defp admission(w, h, event) do
-    {d, actions} = Protocol.destination_step(w.hosts[h].dest, event)
-    w = put_in(w.hosts[h].dest, d)
-    Enum.reduce(actions, w, &admission_action(&2, h, &1))
+    {d, %{w: w}} =
+      Executor.destination_event(w.hosts[h].dest, event, %{w: w, dest: h}, __MODULE__)
+
+    put_in(w.hosts[h].dest, d)
+  catch
+    {:halt, %{w: w}} -> w
   end
 
-  defp admission_action(w, h, {:check, p}) do
+  defp dest_effect(%{w: w, dest: h} = ctx, fun) do
+    {x, w} = uniform(w)
+
+    if w.faulting and x < @crash_point do
+      w = note(w, {:crash_point, h, :admission})
+      throw({:halt, %{ctx | w: crash_host(w, h)}})
+    else
+      %{ctx | w: fun.(w, h)}
+    end
+  end
+
+  @impl true
+  def check(%{w: w} = ctx, p) do
     {x, w} = uniform(w)
     {copy, w} = fresh(w, :copy)
     verdict = if p.code == [] and x < 0.2, do: {:need, [:mod]}, else: :ok
-    admission(w, h, {:checked, p, verdict, copy})
+    {verdict, copy, %{ctx | w: w}}
   end
 
-  defp admission_action(w, h, {:probe, p, copy, pid}) do
-    paused? = match?(%{role: :copy, host: ^h}, w.procs[pid])
-    admission(w, h, {:probed, p, copy, pid, paused?})
-  end
+  @impl true
+  def probe(%{w: w, dest: h} = ctx, _p, _copy, pid),
+    do: {match?(%{role: :copy, host: ^h}, w.procs[pid]), ctx}
 
-  defp admission_action(w, h, {:create, p, copy}) do
+  @impl true
+  def create(%{w: w} = ctx, p, copy) do
     {pid, w} = fresh(w, :pid)
     c = Protocol.copy(p.mig, copy, p.src, p.kind, park_after: w.park_after)
-    w = put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
-    admission(w, h, {:created, p, copy, pid})
+
+    ctx =
+      dest_effect(%{ctx | w: w}, fn w, h ->
+        put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
+      end)
+
+    {{:ok, pid}, ctx}
   end
 
-  defp admission_action(w, h, {:journal_in_doubt, p, copy}),
-    do: journal(w, h, {:in_doubt, p.mig, p.env, p.src, p.kind, copy})
-
-  defp admission_action(w, h, {:send, to, msg}), do: send_msg(w, h, to, msg)
-
-  defp admission_action(w, h, {:refuse, p, reason}),
-    do: send_msg(count(w, {:refused, reason}), h, p.s_pid, Protocol.refused(p.mig, reason))
+  @impl true
+  def refuse(%{w: w, dest: h} = ctx, p, reason) do
+    w = send_msg(count(w, {:refused, reason}), h, p.s_pid, Messages.refused(p.mig, reason))
+    %{ctx | w: w}
+  end
 
   # -- decision queries (source host) ---------------------------------------------------
 
@@ -567,7 +592,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       |> check_answer(h, mig, copy, a)
       |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
 
-    send_msg(w, h, a_pid, Protocol.decision(mig, copy, a))
+    send_msg(w, h, a_pid, Messages.decision(mig, copy, a))
   end
 
   # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
@@ -611,14 +636,20 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   # -- paused copies -----------------------------------------------------------------
 
+  # The platform's executor carries out the paused copy's actions (this module is its
+  # backend: the context is %{w: world, copy: pid}; start, abort and park return the world).
   defp copy_event(w, pid, event) do
-    proc = w.procs[pid]
-    {c, actions} = Protocol.copy_step(proc.c, event)
-    w = put_in(w.procs[pid].c, c)
-    Enum.reduce_while(actions, w, fn a, w -> copy_action(w, pid, a) end)
+    case Executor.copy_event(w.procs[pid].c, event, %{w: w, copy: pid}, __MODULE__) do
+      {:paused, %{w: w}} -> w
+      {:done, w} -> w
+    end
   end
 
-  defp copy_action(w, pid, {:start, _notify}) do
+  @impl true
+  def copy_state(%{w: w, copy: pid} = ctx, c), do: %{ctx | w: put_in(w.procs[pid].c, c)}
+
+  @impl true
+  def start(%{w: w, copy: pid}, _c, _notify) do
     %{host: h, env: env, c: c} = w.procs[pid]
 
     if w.check_decisions and Map.get(w.decisions, c.mig) != {:committed, c.copy},
@@ -628,7 +659,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     if Map.has_key?(w.hosts[h].residents, env.id) do
       # The agent is already resident here (register fails): this copy stops.
-      {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+      %{w | procs: Map.delete(w.procs, pid)}
     else
       w = journal(w, h, {:resolved, c.mig, c.copy})
       w = journal(w, h, {:agent, env.id, env})
@@ -637,54 +668,51 @@ defmodule Tartarus.Migration.ProtocolModel do
       w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
 
       # Running: acknowledge to the source host.
-      w =
-        if alive_host?(w, c.src),
-          do: send_msg(w, h, server(w, c.src), Protocol.acks([{c.mig, env.id, c.copy}])),
-          else: w
-
-      {:halt, w}
+      if alive_host?(w, c.src),
+        do: send_msg(w, h, server(w, c.src), Messages.acks([{c.mig, env.id, c.copy}])),
+        else: w
     end
   end
 
-  defp copy_action(w, pid, :abort) do
+  @impl true
+  def abort(%{w: w, copy: pid}, _c) do
     w = w |> count(:copy_aborted) |> check_abort(w.procs[pid].c)
     %{c: c, host: h} = w.procs[pid]
     w = journal(w, h, {:resolved, c.mig, c.copy})
-    {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+    %{w | procs: Map.delete(w.procs, pid)}
   end
 
-  defp copy_action(w, pid, {:ask, src, mig, copy}) do
+  @impl true
+  def ask(%{w: w, copy: pid} = ctx, src, mig, copy) do
     proc = w.procs[pid]
-
-    w =
-      if alive_host?(w, src),
-        do:
-          send_msg(
-            w,
-            proc.host,
-            server(w, src),
-            Protocol.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
-          ),
-        else: w
-
-    {:cont, w}
+    query = Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
+    w = if alive_host?(w, src), do: send_msg(w, proc.host, server(w, src), query), else: w
+    %{ctx | w: w}
   end
 
   # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
-  defp copy_action(w, pid, :park) do
+  @impl true
+  def park(%{w: w, copy: pid}, _c) do
     %{host: h, env: env, c: c} = w.procs[pid]
     w = put_in(count(w, :parked).hosts[h].parked[{c.mig, c.copy}], {env, c.src, c.kind})
-    {:halt, %{w | procs: Map.delete(w.procs, pid)}}
+    %{w | procs: Map.delete(w.procs, pid)}
   end
 
-  defp copy_action(w, _pid, _other), do: {:cont, w}
+  # Timers are the model's own events (fire_timer/1); stashes are not modelled here (the
+  # inbox model checks the messages).
+  @impl true
+  def timer(ctx, _ms), do: ctx
+  @impl true
+  def stash(ctx, _msg), do: ctx
+  @impl true
+  def drop(ctx, _msg), do: ctx
 
   # The host asks the sources of its parked copies.
   defp ask_parked(w, h) do
     Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
                                                                                       w ->
       {env, src, kind} = w.hosts[h].parked[{mig, copy}]
-      query = Protocol.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
+      query = Messages.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
       if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
     end)
   end

@@ -62,6 +62,7 @@ defmodule Tartarus.Migration.ProtocolModelTest do
   # Seeds with which the explorer found protocol bugs, before they were fixed (the default
   # walk options; the trace of each is in the fix's commit message).
   doctest Tartarus.Migration.Protocol
+  doctest Tartarus.Migration.Messages
 
   describe "regressions found by the explorer" do
     # A duplicated (or replayed) `prepare` made a second paused copy; the source committed

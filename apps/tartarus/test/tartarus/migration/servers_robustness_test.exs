@@ -6,7 +6,7 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
 
   alias Tartarus.{CodeCache, Envelope}
   alias Tartarus.Examples.Echo
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Messages, Protocol}
 
   defp dropped(host) do
     {:ok, h} = Tartarus.Host.local(host)
@@ -55,7 +55,7 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
     for _ <- 1..5, do: assert({:error, :unexpected} = GenServer.call(apid, {:junk, self()}))
     GenServer.cast(apid, :junk)
     send(apid, {:"$tartarus_msg", {:not_a_pid, make_ref()}, :post, :x})
-    send(apid, Protocol.commit({"x", make_ref()}, :crypto.strong_rand_bytes(16), nil))
+    send(apid, Messages.commit({"x", make_ref()}, :crypto.strong_rand_bytes(16), nil))
 
     assert {:ok, :steady} = Tartarus.request({id, a}, :state)
     assert agent_pid(a, id) == apid
@@ -74,7 +74,7 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
 
         send(
           server,
-          Protocol.prepare(self(), mig, {:nowhere, node()}, self(), :move, env, manifest, [])
+          Messages.prepare(self(), mig, {:nowhere, node()}, self(), :move, env, manifest, [])
         )
 
         receive do
@@ -97,7 +97,7 @@ defmodule Tartarus.Migration.ParkingTest do
 
   alias Tartarus.{CodeCache, Envelope}
   alias Tartarus.Examples.Echo
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Messages, Protocol}
 
   # A prepare from `a` (its incarnation, no hand-off there) admitted by `b`: the paused copy.
   defp paused_copy(a, b) do
@@ -113,7 +113,7 @@ defmodule Tartarus.Migration.ParkingTest do
       rng: Envelope.seed_rng(1)
     }
 
-    send(server, Protocol.prepare(self(), mig, {a, node()}, self(), :move, env, manifest, []))
+    send(server, Messages.prepare(self(), mig, {a, node()}, self(), :move, env, manifest, []))
     assert_receive {:"$tartarus_prepared", ^mig, copy, pid}, 2_000
     {ha, server, mig, copy, pid, env.id}
   end
@@ -124,13 +124,19 @@ defmodule Tartarus.Migration.ParkingTest do
   defp park(ha, pid, mig, id, opts \\ []) do
     :ets.insert(ha.ledger, {{:fwd, id}, :handoff, mig, self()})
     ref = Process.monitor(pid)
-    for _ <- 1..21, do: send(pid, {:commit_timeout, mig})
+
+    # Its next state timeout (the destination's migration_timeout) is its last unanswered
+    # ask: it parks then.
+    :sys.replace_state(pid, fn {state, data} ->
+      {state, put_in(data.paused.c.asks, data.paused.c.park_after)}
+    end)
+
     assert_receive {:DOWN, ^ref, :process, ^pid, {:shutdown, :parked}}, 5_000
     unless opts[:keep_handoff], do: :ets.delete(ha.ledger, {:fwd, id})
   end
 
   test "a parked copy is revived on a committed answer and runs once" do
-    [a, b] = [host!(), host!()]
+    [a, b] = [host!(), host!(migration_timeout: 200)]
     {ha, server, mig, copy, pid, id} = paused_copy(a, b)
     park(ha, pid, mig, id, keep_handoff: true)
     assert Tartarus.Host.call(b, :parked) == 1 and Tartarus.Host.call(b, :paused) == 0
@@ -151,7 +157,7 @@ defmodule Tartarus.Migration.ParkingTest do
   end
 
   test "a paused copy with a full stash tells a sender to send again, and takes it once it runs" do
-    [a, b] = [host!(), host!()]
+    [a, b] = [host!(), host!(migration_timeout: 200)]
     {_ha, _server, mig, copy, pid, id} = paused_copy(a, b)
     # The stash holds 1,000 messages; what comes after is not kept.
     for i <- 1..1_000, do: send(pid, {:filler, i})
@@ -160,14 +166,14 @@ defmodule Tartarus.Migration.ParkingTest do
     assert_receive {^tag, :retry}, 2_000
 
     # Committed: the copy runs; sent again, the message is taken.
-    send(pid, Protocol.commit(mig, copy, nil))
+    send(pid, Messages.commit(mig, copy, nil))
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
     send(pid, {:"$tartarus_msg", {self(), tag}, :post, :late})
     assert_receive {^tag, :delivered}, 2_000
   end
 
   test "a parked copy is dropped on an aborted answer" do
-    [a, b] = [host!(), host!()]
+    [a, b] = [host!(), host!(migration_timeout: 200)]
     {ha, server, mig, _copy, pid, id} = paused_copy(a, b)
     park(ha, pid, mig, id)
     send(server, :"$tartarus_ask_parked")

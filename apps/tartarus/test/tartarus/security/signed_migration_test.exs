@@ -3,7 +3,7 @@ defmodule Tartarus.Security.SignedMigrationTest do
   # unsigned agents, tampered state and tampered code are refused and stay at the source.
   use ExUnit.Case, async: false
 
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{Messages, Protocol}
 
   alias Tartarus.{CodeCache, Envelope}
   alias Tartarus.Security.{Keys, TrustList}
@@ -53,7 +53,7 @@ defmodule Tartarus.Security.SignedMigrationTest do
 
     send(
       pid,
-      Protocol.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
+      Messages.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
     )
 
     receive do
@@ -77,7 +77,7 @@ defmodule Tartarus.Security.SignedMigrationTest do
     env = Tartarus.Security.issue(env, manifest, issuer)
 
     prepare =
-      Protocol.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
+      Messages.prepare(self(), mig, {:elsewhere, node()}, self(), :move, env, manifest, [])
 
     {elem(Tartarus.Security.seal_prepare(prepare, host_keys), 6), manifest}
   end

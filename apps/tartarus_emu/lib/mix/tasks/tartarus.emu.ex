@@ -20,7 +20,9 @@ defmodule Mix.Tasks.Tartarus.Emu do
   `--group K` hosts) in its own BEAM node, connected only to its neighbours' nodes.
 
   The output directory gets `series.csv` and one CSV and SVG per series (`coverage`,
-  `migrations`, `failed_moves`, `down_nodes`, `bytes`), `walk.svg`, the log's CSVs
+  `migrations`, `failed_moves`, `down_nodes`, `bytes`), `moves.svg`, and up to 2,000
+  hosts `topology.svg` (nodes and links) and `walk.svg` (agent 1's walk hop by hop, with
+  `walk_path.csv`; see `TartarusEmu.Figures`), the log's CSVs
   (`log_steps.csv`, `log_hosts.csv`, `log_links.csv`, `log_events.csv` with
   `--keep-events`), `summary.md` and `summary.json`.
 

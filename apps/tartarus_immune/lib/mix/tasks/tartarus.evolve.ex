@@ -7,8 +7,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--seeds 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
-                          [--min-period 10] [--puck-reward product|sum]
-                          [--score per_step|total]
+                          [--loop while_in_region|once] [--max-inner 10]
+                          [--min-period 1] [--puck-reward sum|product]
+                          [--score total|per_step] [--sigma-max 4.0] [--matched]
                           [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
@@ -18,18 +19,23 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   0.45, 0.4, 0.25; 200, 500, 500 iterations) and, on the same seed, one monolithic
   controller (200, 400, 400 iterations); then 10 test episodes of 30 s from fresh poses
   with the learnt controllers frozen. `monolithic` runs the baseline alone on all three.
-  Each evaluation of up to `--period` steps of 0.1 s (30) follows `--recovery` unscored
-  steps (0, as in the thesis; 20 is Bredeche et al.'s recovery period) and, for the immune
-  robot, ends when the sensors leave the
-  antibody's active region after `--min-period` steps (10). `--score` is an evaluation's
-  fitness: the objective per step (`per_step`, default) or summed over the evaluation
-  period (`total`, Eqs. 7.1-7.3 as printed; with `--min-period 1`, the thesis's loop to
-  the letter: docs/evolution.md, "Why S2 is not learnt").
-  `--puck-reward` chooses the reading of Eq. 7.2's f_puck, "a function which rewards puck
-  pushing behavior" (S2, S3 with the light on, `robots3`): `product` (default),
-  `b_puck * v_trans`, moving with a puck in the gripper; `sum`, `b_puck + v_trans`, the
-  equation as printed, which also pays speed without a puck (see
-  `TartarusImmune.Evolution.Objective`).
+  The defaults are the thesis as printed (docs/evolution.md, "Pre-registration of
+  2026-11-27"). Each evaluation of up to `--period` steps of 0.1 s (30) follows
+  `--recovery` unscored steps (0, as in the thesis; 20 is Bredeche et al.'s recovery
+  period) and, for the immune robot, ends when the sensors leave the antibody's active
+  region after `--min-period` steps (1: at once). `--loop while_in_region` (default) is
+  Algorithm 5's lines 22-24: an iteration evaluates and evolves the selected antibody
+  again, period after period, while the epitope stays in its region (at most
+  `--max-inner` periods, 10); `--loop once` is one evaluation per iteration. The
+  monolithic robot evaluates once per iteration either way. `--score` is an evaluation's
+  fitness: summed over the period (`total`, default, Eqs. 7.1-7.3 as printed) or per
+  step (`per_step`). `--puck-reward` chooses the reading of Eq. 7.2's f_puck (S2, S3 with
+  the light on, `robots3`): `sum` (default), `b_puck + v_trans` as printed; `product`,
+  `b_puck * v_trans`, moving with a puck in the gripper (see
+  `TartarusImmune.Evolution.Objective`). `--sigma-max` is the (1+1)-online strategy's
+  sigma ceiling (4.0, Bredeche et al.'s). `--matched` (`s1`, `s2`) adds the arm
+  `<scenario>_monolithic_matched`: the baseline trained for as many scored steps as the
+  immune robot drove on the same seed.
   Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
   design, trial, antibodies, switches, final fitness, test success), for the first trial
   the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
@@ -41,7 +47,13 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   `score`,
   `mann_whitney_u` and `p_value` (exact one-sided Mann-Whitney U test of the immune
   robot's per-trial test success against the baseline's), `immune_beats_monolithic`
-  (`p_value < 0.05`).
+  (`p_value < 0.05`); the probes of docs/evolution.md per arm (`evaluations`,
+  `training_steps`, `puck_antibody_evaluations`, `trials_with_puck_and_obstacle`,
+  `puck_use_pooled`, `test_objective` (Eq. 7.x per step in the test, printed f_puck),
+  `trials_puck_champion_improved`, `first10_failing_a_behaviour`, `at_sigma_max`, the
+  trace's `wall_champions_stalled`, ...), `objective_mann_whitney_u`, `objective_p_value`
+  (immune higher on `test_objective`), `matched_objective_p_value`, `done_means` (the
+  pre-registered criteria), `loop`, `max_inner`, `sigma_max`, `seeds`.
 
   `sharing` (§7.4.3, Fig. 7.6): robot nodes on a dynamic network (0-5 neighbours each,
   links flapping with probability `--p` per iteration) each evolve a 2-3-1 network for the

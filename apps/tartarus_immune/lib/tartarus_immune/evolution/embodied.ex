@@ -26,7 +26,14 @@ defmodule TartarusImmune.Evolution.Embodied do
   4. fitness = the scenario's objective (`TartarusImmune.Evolution.Objective`) summed over
      the scored period and divided by its steps (periods cut short compare with full
      ones; `score: :total` leaves the sum undivided, as Eqs. 7.1-7.3 print it); the
-     strategy and the antibody's concentration are told.
+     strategy and the antibody's concentration are told;
+  5. with `loop: :while_in_region` (Algorithm 5, lines 22-24: "while current Ag space is
+     within the AR of BestAb do: Execute and Evolve BestAb"), if the period ran its
+     `period` steps with the epitope still in the antibody's region, steps 3-4 are
+     repeated for the same antibody in the same iteration (at most `max_inner`
+     periods); `loop: :once` (default here; `mix tartarus.evolve` defaults to the
+     printed loop) ends the iteration after one evaluation. The monolithic robot
+     evaluates once per iteration either way (its region is everything).
 
   The recovery period comes from the paper of the (1+1)-online strategy the thesis cites
   (Bredeche, Haasdijk and Eiben 2009), not from the thesis, whose loop has none (the
@@ -95,6 +102,17 @@ defmodule TartarusImmune.Evolution.Embodied do
       default: :region,
       doc: "test: re-select when the epitope leaves the antibody's region, or every period"
     ],
+    loop: [
+      type: {:in, [:once, :while_in_region]},
+      default: :once,
+      doc:
+        "immune: one evaluation per iteration (`:once`), or Algorithm 5's lines 22-24 as printed (`:while_in_region`): evaluate and evolve the selected antibody again while the epitope stays in its active region"
+    ],
+    max_inner: [
+      type: :pos_integer,
+      default: 10,
+      doc: "`loop: :while_in_region`: evaluation periods per iteration at most"
+    ],
     min_period: [
       type: :pos_integer,
       default: 10,
@@ -121,6 +139,11 @@ defmodule TartarusImmune.Evolution.Embodied do
       doc: "options of each controller's `TartarusImmune.Evolution.ES` strategy"
     ],
     trace: [type: :boolean, default: false, doc: "keep the robot's trajectory (for plots)"],
+    step_budget: [
+      type: :pos_integer,
+      doc:
+        "S1, S2: train until this many scored steps have been driven (instead of `iterations`; the step-matched baseline)"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"]
   ]
 
@@ -149,7 +172,14 @@ defmodule TartarusImmune.Evolution.Embodied do
   to the light, distance moved, best puck gain towards the light),
   `final_fitness` (mean of the last 20 iterations), `unevaluated_rounds` (rounds whose
   recovery period left the antibody's active region), `repertoire` (the trained
-  `TartarusImmune.Evolution.Repertoire`, for `test_repertoire/3`).
+  `TartarusImmune.Evolution.Repertoire`, for `test_repertoire/3`), `evaluations`,
+  `training_steps` (scored), `capped_iterations` (iterations stopped by `max_inner`),
+  `at_sigma_max` (share of the evaluations that were offspring proposed at the sigma
+  ceiling), `loop`, `probes` (`probes/4`). Each curve point also has `inner` (the period's
+  number in its iteration), `champion_fitness` (after the evaluation) and
+  `forward_steps`; each test episode `reached_light`, `objective` and
+  `objective_product` (Eq. 7.x per step, f_puck as printed and as the product),
+  `puck_steps`, `puck_ab_steps` and `longest_puck_run` (see `probes/4`).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -260,23 +290,19 @@ defmodule TartarusImmune.Evolution.Embodied do
     rep =
       Repertoire.new(epsilon: o.epsilon, shape: @shape, p_sharing: 0.0, origin: :self, es: o.es)
 
-    st = %{world: world, rng: rng, rep: rep, curve: [], traj: [], unevaluated: 0}
+    st = %{world: world, rng: rng, rep: rep, curve: [], traj: [], unevaluated: 0, capped: 0}
 
-    st =
-      Enum.reduce(1..o.iterations, st, fn i, st ->
-        light = light_at(o.scenario, switches, i)
-        st = %{st | world: World.set_light(st.world, if(light, do: :on, else: :off))}
-        iteration(o, st, i, light)
-      end)
+    st = train(o, st, switches, 1, 0)
 
     curve = Enum.reverse(st.curve)
     {success, details, _} = test(o, st.rep, st.rng)
+    es = Keyword.merge([sigma_max: 4.0], o.es)
 
     %{
       scenario: o.scenario,
       design: o.design,
       epsilon: o.epsilon,
-      iterations: o.iterations,
+      iterations: curve |> Enum.map(& &1.iteration) |> Enum.max(fn -> 0 end),
       curve: curve,
       antibodies: st.rep.next_id - 1,
       unevaluated_rounds: st.unevaluated,
@@ -290,9 +316,33 @@ defmodule TartarusImmune.Evolution.Embodied do
       trajectory: Enum.reverse(st.traj),
       world: if(o.trace, do: st.world),
       repertoire: st.rep,
-      final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> Stats.mean() || 0.0
+      final_fitness: curve |> Enum.take(-20) |> Enum.map(& &1.fitness) |> Stats.mean() || 0.0,
+      loop: o.loop,
+      evaluations: length(curve),
+      training_steps: curve |> Enum.map(& &1.steps) |> Enum.sum(),
+      capped_iterations: st.capped,
+      at_sigma_max:
+        Enum.count(curve, &(&1.kind == :offspring and &1.sigma >= es[:sigma_max])) /
+          max(length(curve), 1),
+      probes: probes(st.rep, curve, details, o)
     }
     |> Map.merge(s3_stats(o.scenario, curve, switches))
+  end
+
+  # `iterations` iterations, or with `step_budget` until that many scored steps
+  defp train(o, st, switches, i, steps) do
+    more = if o[:step_budget], do: steps < o.step_budget, else: i <= o.iterations
+
+    if more do
+      light = light_at(o.scenario, switches, i)
+      st = %{st | world: World.set_light(st.world, if(light, do: :on, else: :off))}
+      n = length(st.curve)
+      st = iteration(o, st, i, light)
+      new = st.curve |> Enum.take(length(st.curve) - n) |> Enum.map(& &1.steps) |> Enum.sum()
+      train(o, st, switches, i + 1, steps + new)
+    else
+      st
+    end
   end
 
   defp s3_stats(:s3, curve, {on_at, off_at}) do
@@ -371,6 +421,16 @@ defmodule TartarusImmune.Evolution.Embodied do
     ep = World.normalize(readings)
     {rep, cands, rng} = Repertoire.recognize(st.rep, ep, st.rng)
     {rep, key, _, rng} = Repertoire.select(rep, cands, ep, %{}, rng)
+    evaluate(o, %{st | world: world, rep: rep, rng: rng}, i, light, aborted, key, ep, readings, 1)
+  end
+
+  # Lines 22-24 of Algorithm 5: "while current Ag space is within the AR of BestAb do:
+  # Execute and Evolve BestAb". One evaluation period of the antibody `key`; with `loop:
+  # :while_in_region` (immune only) another follows, in the same iteration, while the
+  # period ran to its end with the epitope still in the active region (at most
+  # `max_inner` periods).
+  defp evaluate(o, st, i, light, aborted, key, ep, readings, inner) do
+    %{world: world, rep: rep, rng: rng} = st
     ab = rep.antibodies[key]
     {kind, w, rng} = ES.propose(ab.es, rng)
     {world, readings, traj} = recover(o, world, w, readings, o.recovery, st.traj)
@@ -378,28 +438,49 @@ defmodule TartarusImmune.Evolution.Embodied do
     if aborted < @max_aborted and o.recovery > 0 and
          Repertoire.affinity(World.normalize(readings), ab.paratope) > o.epsilon do
       st = %{st | world: world, rep: rep, rng: rng, traj: traj, unevaluated: st.unevaluated + 1}
-      iteration(o, st, i, light, aborted + 1)
+      # a later period of the same iteration: the antibody's turn is over
+      if inner > 1, do: st, else: iteration(o, st, i, light, aborted + 1)
     else
-      {world, samples, traj} = execute(o, world, w, ab.paratope, readings, o.period, [], traj)
+      {world, samples, traj, next} =
+        execute(o, world, w, ab.paratope, readings, o.period, [], traj)
 
       fitness = score(o, samples)
-
-      rep = Repertoire.put_es(rep, key, ES.tell(ab.es, {kind, w}, fitness))
+      es = ES.tell(ab.es, {kind, w}, fitness)
+      rep = Repertoire.put_es(rep, key, es)
       rep = Repertoire.report(rep, key, fitness)
+      inside = Repertoire.affinity(World.normalize(next), ab.paratope) <= o.epsilon
 
       point = %{
         iteration: i,
+        inner: inner,
         antibody: elem(key, 1),
         fitness: fitness,
+        champion_fitness: es.fitness,
         light_on: light,
         steps: length(samples),
         epitope: ep,
         kind: kind,
         sigma: ab.es.sigma,
-        puck_steps: Enum.count(samples, & &1.puck)
+        puck_steps: Enum.count(samples, & &1.puck),
+        forward_steps: Enum.count(samples, &(&1.v_trans > 0))
       }
 
-      %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+      st = %{st | world: world, rep: rep, rng: rng, curve: [point | st.curve], traj: traj}
+
+      again =
+        o.loop == :while_in_region and o.design == :immune and inside and
+          Map.has_key?(rep.antibodies, key)
+
+      cond do
+        again and inner < o.max_inner ->
+          evaluate(o, st, i, light, 0, key, World.normalize(next), next, inner + 1)
+
+        again ->
+          %{st | capped: st.capped + 1}
+
+        true ->
+          st
+      end
     end
   end
 
@@ -422,7 +503,7 @@ defmodule TartarusImmune.Evolution.Embodied do
   end
 
   # Runs weights `w` for up to `n` steps; stops when the epitope leaves `paratope`'s
-  # active region (after at least one step).
+  # active region (after at least `min_period` steps). Returns the last readings too.
   defp execute(o, world, w, paratope, readings, n, samples, traj) do
     [l, r] = NeuralNet.forward(@shape, w, World.normalize(readings))
     world = World.step(world, %{robot: {l, r}}, o.dt)
@@ -437,7 +518,7 @@ defmodule TartarusImmune.Evolution.Embodied do
         Repertoire.affinity(World.normalize(next), paratope) > o.epsilon
 
     if n <= 1 or done,
-      do: {world, samples, traj},
+      do: {world, samples, traj, next},
       else: execute(o, world, w, paratope, next, n - 1, samples, traj)
   end
 
@@ -482,7 +563,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     {world, rng} = arena(o, rng, light)
     pucks0 = world.pucks
     {x0, y0, _} = World.pose(world, :robot)
-    {world, {bumps, stall}, near} = drive(o, rep, world, @episode_steps, {0, 0}, [])
+    {world, {bumps, stall}, near, acc} = drive(o, rep, world, @episode_steps, {0, 0}, [])
     {x1, y1, _} = World.pose(world, :robot)
     {readings, _} = World.sense(world, :robot)
 
@@ -514,7 +595,13 @@ defmodule TartarusImmune.Evolution.Embodied do
           dist(pucks0[id].x, pucks0[id].y, 1.0, 1.0) - dist(p.x, p.y, 1.0, 1.0)
         end)
         |> Enum.max(fn -> 0.0 end)
-        |> Float.round(3)
+        |> Float.round(3),
+      reached_light: Enum.any?(near),
+      objective: Float.round(acc.sum / max(acc.n, 1), 4),
+      objective_product: Float.round(acc.product / max(acc.n, 1), 4),
+      puck_steps: acc.puck,
+      puck_ab_steps: acc.puck_ab,
+      longest_puck_run: max(acc.best_run, acc.run)
     }
 
     {detail, rng}
@@ -523,14 +610,23 @@ defmodule TartarusImmune.Evolution.Embodied do
   # The learnt controllers, frozen. `test_switch: :period`: the controller is chosen again
   # every `period` steps; `:region`: as in training, also when the epitope has left the
   # chosen antibody's active region after at least `min_period` steps (Algorithm 5, line 22).
-  defp drive(o, rep, world, left, bumps, near),
-    do: drive(o, rep, world, left, bumps, near, nil, 0)
+  #
+  # `acc` counts, for the probes, over the steps: the objective Eq. 7.1-7.3 per step under
+  # the printed f_puck (`sum`) and the product (from the readings sensed after each step,
+  # as in training: the episode's first 299 steps), the steps whose controller was applied
+  # with the colour sensor on yellow (`puck`) and of those the steps run by a puck antibody
+  # (`puck_ab`), and runs of steps with a puck seen while moving forwards.
+  defp drive(o, rep, world, left, bumps, near) do
+    acc = %{n: 0, sum: 0.0, product: 0.0, puck: 0, puck_ab: 0, run: 0, best_run: 0}
+    drive(o, rep, world, left, bumps, near, nil, 0, acc)
+  end
 
-  defp drive(_o, _rep, world, 0, bumps, near, _cur, _k), do: {world, bumps, near}
+  defp drive(_o, _rep, world, 0, bumps, near, _cur, _k, acc), do: {world, bumps, near, acc}
 
-  defp drive(o, rep, world, left, bumps, near, cur, k) do
+  defp drive(o, rep, world, left, bumps, near, cur, k, acc) do
     {r, world} = World.sense(world, :robot)
     ep = World.normalize(r)
+    acc = if left < @episode_steps, do: account(o, acc, sample(world, :robot, r)), else: acc
 
     {cur, k, ep, world} =
       cond do
@@ -550,6 +646,16 @@ defmodule TartarusImmune.Evolution.Embodied do
           {cur, k, ep, world}
       end
 
+    acc =
+      if puck_antibody?(ep),
+        do: %{
+          acc
+          | puck: acc.puck + 1,
+            puck_ab:
+              acc.puck_ab + if(is_map(cur) and puck_antibody?(cur.paratope), do: 1, else: 0)
+        },
+        else: acc
+
     [l, rr] =
       if is_function(cur, 1), do: cur.(ep), else: NeuralNet.forward(@shape, cur.es.champion, ep)
 
@@ -565,8 +671,164 @@ defmodule TartarusImmune.Evolution.Embodied do
       if(bumped, do: {elem(bumps, 0) + 1, elem(bumps, 1) + 1}, else: {elem(bumps, 0), 0}),
       [dist(x, y, 1.0, 1.0) <= 0.4 | near],
       cur,
-      k + 1
+      k + 1,
+      acc
     )
+  end
+
+  defp account(o, acc, sample) do
+    run = if sample.puck and sample.v_trans > 0, do: acc.run + 1, else: 0
+
+    %{
+      acc
+      | n: acc.n + 1,
+        sum: acc.sum + Objective.step(o.scenario, sample, :sum),
+        product: acc.product + Objective.step(o.scenario, sample, :product),
+        run: run,
+        best_run: max(acc.best_run, run)
+    }
+  end
+
+  # -- probes (docs/evolution.md, the pre-registration of 2026-11-27) ------------------
+
+  # the ultrasonic reading (normalized) below which a puck antibody is a
+  # puck-with-obstacle antibody: 40 cm of 200
+  @obstacle 0.2
+  # consecutive steps with a puck seen while moving forwards that count as keeping a puck
+  @kept_run 20
+
+  @doc """
+  What the training periods were (the trace behind the probes): `stalled_share` (periods
+  in which the robot moved forwards in fewer than half of the steps), `full_share`
+  (periods that ran their 30 steps), the mean fitness of stalled and of moving periods
+  (`fitness_stalled`, `fitness_moving`), and of the final repertoire's champions how many
+  were set by a stalled period (`champions_stalled` of `champions`; the champion's period
+  is the last evaluation of the antibody whose fitness is the champion's), and the same
+  for the antibodies of a wall ahead (paratope's ultrasonic below 0.2: `wall_champions`,
+  `wall_champions_stalled`, `wall_champion_steps`, the mean length of their periods).
+  """
+  @spec trace(Repertoire.t(), [map()]) :: map()
+  def trace(rep, curve) do
+    stalled? = &(&1.forward_steps * 2 < &1.steps)
+    {st, mv} = Enum.split_with(curve, stalled?)
+    mean = fn pts -> pts |> Enum.map(& &1.fitness) |> Stats.mean() end
+
+    champs =
+      for ab <- Map.values(rep.antibodies),
+          pt =
+            curve
+            |> Enum.filter(&(&1.antibody == ab.id and &1.fitness == ab.es.fitness))
+            |> List.last(),
+          pt != nil,
+          do: {ab, pt}
+
+    wall = Enum.filter(champs, fn {ab, _} -> Enum.at(ab.paratope, 2) < @obstacle end)
+    champs = Enum.map(champs, &elem(&1, 1))
+    n = max(length(curve), 1)
+
+    %{
+      stalled_share: length(st) / n,
+      full_share: Enum.count(curve, &(&1.steps >= 30)) / n,
+      fitness_stalled: mean.(st),
+      fitness_moving: mean.(mv),
+      champions: length(champs),
+      champions_stalled: Enum.count(champs, stalled?),
+      wall_champions: length(wall),
+      wall_champions_stalled: Enum.count(wall, fn {_, pt} -> stalled?.(pt) end),
+      wall_champion_steps: wall |> Enum.map(fn {_, pt} -> pt.steps end) |> Stats.mean()
+    }
+  end
+
+  @doc """
+  Whether a paratope (or an epitope) has the colour sensor on yellow (3 of 0..9): a
+  **puck antibody** (probe (a) of docs/evolution.md).
+
+      iex> TartarusImmune.Evolution.Embodied.puck_antibody?([0.5, 0.5, 0.9, 3 / 9])
+      true
+      iex> TartarusImmune.Evolution.Embodied.puck_antibody?([0.5, 0.5, 0.9, 7 / 9])
+      false
+  """
+  @spec puck_antibody?([number()]) :: boolean()
+  def puck_antibody?(paratope), do: round(Enum.at(paratope, 3) * 9) == @yellow
+
+  @doc """
+  Whether a paratope is a **puck-with-obstacle antibody**: a puck antibody whose
+  ultrasonic component is below 0.2 (40 cm).
+
+      iex> TartarusImmune.Evolution.Embodied.puck_obstacle_antibody?([0.5, 0.5, 0.1, 3 / 9])
+      true
+      iex> TartarusImmune.Evolution.Embodied.puck_obstacle_antibody?([0.5, 0.5, 0.3, 3 / 9])
+      false
+  """
+  @spec puck_obstacle_antibody?([number()]) :: boolean()
+  def puck_obstacle_antibody?(paratope),
+    do: puck_antibody?(paratope) and Enum.at(paratope, 2) < @obstacle
+
+  @doc """
+  The probes of a trained run (the pre-registration in docs/evolution.md), from the
+  final repertoire `rep`, the training `curve` and the test `episodes` (the light-on ones
+  count):
+
+    * structure: `puck_antibodies`, `puck_obstacle_antibodies`, `holds_puck_and_obstacle`,
+      `puck_ultrasonic` (the puck antibodies' ultrasonic components, ascending);
+    * evaluations: `evaluations_by_antibody` (id => evaluations in training),
+      `puck_antibody_evaluations` (those of the final repertoire's puck antibodies);
+    * use: `puck_steps` (test steps whose controller was applied with the colour sensor
+      on yellow), `puck_ab_steps` (of those, run by a puck antibody), `puck_use` (their
+      ratio, nil without such steps);
+    * learning: `test_objective` (the objective per step, f_puck as printed, mean over
+      the episodes), `test_objective_product`, `puck_champion_gain` (mean over the puck
+      antibodies of their champion's fitness at the end minus after their first
+      evaluation; nil without one), `puck_champion_improved` (gain above 0);
+    * behaviours: `wall_free_episodes` (no refused move), `light_episodes` (within 0.4 m
+      of the light), `puck_kept_episodes` (20 steps in a row with a puck seen while moving
+      forwards), out of `episodes`; `fails_a_behaviour` (one of the three in fewer than
+      half of the episodes).
+  """
+  @spec probes(Repertoire.t(), [map()], [map()], map()) :: map()
+  def probes(rep, curve, episodes, _o) do
+    abs = Map.values(rep.antibodies)
+    puck = Enum.filter(abs, &puck_antibody?(&1.paratope))
+    by_ab = Enum.group_by(curve, & &1.antibody)
+    evals = Map.new(by_ab, fn {id, pts} -> {id, length(pts)} end)
+
+    gains =
+      for ab <- puck, pts = by_ab[ab.id], pts != nil, ab.es.fitness != nil do
+        ab.es.fitness - hd(pts).champion_fitness
+      end
+
+    on = Enum.filter(episodes, & &1.light_on)
+    count = fn pred -> Enum.count(on, pred) end
+    half = length(on) / 2
+    puck_steps = on |> Enum.map(& &1.puck_steps) |> Enum.sum()
+    puck_ab_steps = on |> Enum.map(& &1.puck_ab_steps) |> Enum.sum()
+    gain = Stats.mean(gains)
+
+    behaviours = %{
+      wall_free_episodes: count.(&(&1.bumps == 0)),
+      light_episodes: count.(& &1.reached_light),
+      puck_kept_episodes: count.(&(&1.longest_puck_run >= @kept_run))
+    }
+
+    Map.merge(behaviours, %{
+      trace: trace(rep, curve),
+      episodes: length(on),
+      fails_a_behaviour: on != [] and Enum.any?(Map.values(behaviours), &(&1 < half)),
+      puck_antibodies: length(puck),
+      puck_obstacle_antibodies: Enum.count(puck, &puck_obstacle_antibody?(&1.paratope)),
+      puck_ultrasonic: puck |> Enum.map(&Float.round(Enum.at(&1.paratope, 2), 3)) |> Enum.sort(),
+      holds_puck_and_obstacle:
+        puck != [] and Enum.any?(puck, &puck_obstacle_antibody?(&1.paratope)),
+      evaluations_by_antibody: Map.new(evals, fn {id, n} -> {to_string(id), n} end),
+      puck_antibody_evaluations: puck |> Enum.map(&Map.get(evals, &1.id, 0)) |> Enum.sum(),
+      puck_steps: puck_steps,
+      puck_ab_steps: puck_ab_steps,
+      puck_use: if(puck_steps > 0, do: puck_ab_steps / puck_steps),
+      test_objective: Stats.mean(Enum.map(on, & &1.objective)),
+      test_objective_product: Stats.mean(Enum.map(on, & &1.objective_product)),
+      puck_champion_gain: gain,
+      puck_champion_improved: gain != nil and gain > 0
+    })
   end
 
   defp frozen(rep, ep) do

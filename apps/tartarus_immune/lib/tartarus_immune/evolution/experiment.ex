@@ -15,7 +15,11 @@ defmodule TartarusImmune.Evolution.Experiment do
   scenario on the arena with the immune algorithm and, beside each, the monolithic
   baseline (§7.4.1) on the same seed (`TartarusImmune.Evolution.Embodied`); `monolithic`:
   the baseline alone on all three scenarios. A step is one trial. `recovery`, `period`,
-  `min_period`, `puck_reward` and `score` are passed to every run. The summary compares the two designs' test
+  `min_period`, `loop`, `max_inner`, `sigma_max`, `puck_reward` and `score` are passed to
+  every run; their defaults are the thesis as printed (docs/evolution.md, the
+  pre-registration of 2026-11-27): the inner loop of Algorithm 5, an evaluation stopped
+  at once when the epitope leaves the region, Eqs. 7.1-7.3 summed over the period with
+  `f_puck = b_puck + v_trans`. The summary compares the two designs' test
   success over the trials with a one-sided Mann-Whitney U test
   (`TartarusTools.Stats.mann_whitney/3`, exact): `mann_whitney_u`, `p_value` (immune better
   than monolithic), and `immune_beats_monolithic` is true when `p_value < 0.05`.
@@ -79,19 +83,44 @@ defmodule TartarusImmune.Evolution.Experiment do
     ],
     min_period: [
       type: :pos_integer,
+      default: 1,
+      doc:
+        "`s1`-`s3`, `monolithic`: steps before leaving the active region ends an evaluation (1: at once, as the thesis)"
+    ],
+    loop: [
+      type: {:in, [:while_in_region, :once]},
+      default: :while_in_region,
+      doc:
+        "`s1`-`s3`: Algorithm 5's lines 22-24 as printed (evaluate and evolve again while the epitope stays in the active region) or one evaluation per iteration (`Embodied`)"
+    ],
+    max_inner: [
+      type: :pos_integer,
       default: 10,
-      doc: "`s1`-`s3`, `monolithic`: steps before leaving the active region ends an evaluation"
+      doc: "`s1`-`s3`, `--loop while_in_region`: evaluation periods per iteration at most"
+    ],
+    sigma_max: [
+      type: :number,
+      default: 4.0,
+      doc:
+        "`s1`-`s3`, `monolithic`: the (1+1)-online strategy's sigma ceiling (Bredeche et al. 2009: 4)"
+    ],
+    matched: [
+      type: :boolean,
+      default: false,
+      doc:
+        "`s1`, `s2`: add the arm `<scenario>_monolithic_matched`, the baseline trained for as many scored steps as the immune robot drove on the same seed"
     ],
     puck_reward: [
       type: {:in, [:product, :sum]},
-      default: :product,
-      doc: "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck (`Objective`)"
+      default: :sum,
+      doc:
+        "`s2`, `s3`, `monolithic`, `robots3`: the reading of f_puck, `sum` as printed (`Objective`)"
     ],
     score: [
       type: {:in, [:per_step, :total]},
-      default: :per_step,
+      default: :total,
       doc:
-        "`s1`-`s3`, `monolithic`: an evaluation's fitness per step, or summed over the period as Eqs. 7.1-7.3 print it (`Embodied`)"
+        "`s1`-`s3`, `monolithic`: an evaluation's fitness summed over the period as Eqs. 7.1-7.3 print it, or per step (`Embodied`)"
     ],
     seed: [type: :integer, default: 1, doc: "seed"],
     out: [

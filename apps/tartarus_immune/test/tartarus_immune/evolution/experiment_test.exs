@@ -8,9 +8,9 @@ defmodule TartarusImmune.Evolution.ExperimentTest do
     {:ok, %{summary: s}} =
       Experiment.run(experiment: :s1, trials: 3, seed: 2, out: false, quiet: true, recovery: 5)
 
-    assert s.recovery == 5 and s.period == 30 and s.min_period == 10
-    # the product reading of f_puck is the default
-    assert s.puck_reward == "product"
+    # the thesis as printed is the default: the inner loop, stop at once, the sum
+    assert s.recovery == 5 and s.period == 30 and s.min_period == 1
+    assert s.puck_reward == "sum" and s.score == "total" and s.loop == "while_in_region"
     imm = s.arms["s1_immune"].test_success_by_trial
     mono = s.arms["s1_monolithic"].test_success_by_trial
     assert length(imm) == 3 and length(mono) == 3
@@ -19,5 +19,20 @@ defmodule TartarusImmune.Evolution.ExperimentTest do
     assert s.p_value == Float.round(expected.p_value, 4)
     # three trials a side can never reach p < 0.05 (the smallest is 1 / C(6, 3) = 0.05)
     assert s.p_value >= 0.05 and s.immune_beats_monolithic == false
+  end
+
+  test "the step-matched baseline drives as many scored steps as the immune robot on the same seed; the probes' figures are per arm" do
+    {:ok, %{summary: s}} =
+      Experiment.run(experiment: :s1, trials: 2, seed: 3, out: false, quiet: true, matched: true)
+
+    imm = s.arms["s1_immune"]
+    m = s.arms["s1_monolithic_matched"]
+    assert m.antibodies == 1.0
+    # a budget is met by the period that crosses it: at most one period (30 steps) more
+    assert m.training_steps >= imm.training_steps and m.training_steps < imm.training_steps + 30
+    assert s.arms["s1_monolithic"].training_steps == 200 * 30
+    assert is_float(s.matched_objective_p_value) and is_float(s.objective_p_value)
+    assert length(imm.test_objective_by_trial) == 2
+    assert Map.has_key?(s.done_means, :structure)
   end
 end

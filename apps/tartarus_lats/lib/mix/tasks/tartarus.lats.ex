@@ -9,7 +9,33 @@ defmodule Mix.Tasks.Tartarus.Lats do
                         [--mode virtual|peer] [--group 10] [--seed 1] [--out DIR] [--json]
                         [--record FILE | --replay FILE] [--agent-cloud per_node|per_query]
                         [--release random|settled] [--noise-db 4.0]
-                        [--kill-nodes 0] [--down-s 60] [--dashboard PORT] [--step-ms MS]
+                        [--kill-nodes 0] [--down-s 60] [--repair] [--dashboard PORT] [--step-ms MS]
+
+  ## Real recordings (`--replay-log`)
+
+      mix tartarus.lats --replay-log PATH --devices FILE [--calibration FILE]
+                        [--fingerprints DIR] [--floor-plan FILE] [--seed 1] [--seeds 3]
+                        [--queries 10] [--window 4] [--repair] [--mode virtual|peer]
+                        [--group 6] [--out DIR] [--json]
+
+  replays real multi-receiver RSSI logs into LATS instead of the emulated building
+  (`TartarusLats.Replay.Experiment`; the rules are in docs/lats.md, "LATS on real BLE
+  recordings"). `--replay-log` is a log file, a comma-separated list of them, or a
+  directory (every `.mbd` and `.csv` file in it), one track each; the format is
+  `time, receiver, beacon, rssi[, x, y]` (`TartarusLats.Replay.Log`; the tetam `.mbd` files
+  as they are). `--devices` gives the receivers' positions (tetam `.dev` or CSV `receiver,
+  x, y, z[, name]`); one LATS node per receiver, neighbours by the Delaunay graph (or
+  `--floor-plan FILE`). `--calibration` is a file written by `mix tartarus.lats.calibrate`;
+  `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline. Each
+  track runs with seeds `--seed` .. `--seed + --seeds - 1` (the seed draws the query
+  instants and start nodes) through `TartarusEmu.Sweep`. `--repair` lets the Where is X
+  agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `:repair`). Writes into `--out DIR` (default
+  `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
+  `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
+  box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent
+  rates, zone changes against the true ones, Where is X correct, Trace edit distance,
+  cloud connections; `pass`: the pre-registered criterion). With `--json` the summary is
+  the last line.
 
   `--dashboard PORT` serves the web dashboard (127.0.0.1) while the run goes, with a LATS
   panel (where each tag bearer is heard, the query agents out; `TartarusLats.DashboardPanel`);
@@ -65,6 +91,10 @@ defmodule Mix.Tasks.Tartarus.Lats do
   such an answer is never `complete`). Kills happen between world seconds, while no query
   agent is walking.
 
+  `--repair` lets the Where is X agents bridge a broken chain of motion vectors: at a dead
+  end they ask the nodes within two rings of it for a later stay of the tag and follow the
+  chain on from there (`TartarusLats.Query.WhereIs`; off by default).
+
   `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
   thesis's scenario 2: from every node where they find data of the tag) or `per_query`
   (once, from where the answer was found). The summary reports what both rules cost for the
@@ -79,7 +109,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
   answers_stale, answers_incomplete, answers_complete_wrong,
   cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
   median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
-  world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
+  repair, world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
   runner's `scenario, steps, setup_ms, run_ms`. Medians are
   nearest-rank (`TartarusTools.Stats.median/1`). With `--json` the last line printed is the summary as one
   JSON object.
@@ -106,6 +136,14 @@ defmodule Mix.Tasks.Tartarus.Lats do
     down_s: :integer,
     dashboard: :integer,
     step_ms: :integer,
+    replay_log: :string,
+    devices: :string,
+    calibration: :string,
+    fingerprints: :string,
+    floor_plan: :string,
+    seeds: :integer,
+    window: :integer,
+    repair: :boolean,
     json: :boolean,
     help: :boolean
   ]
@@ -114,12 +152,114 @@ defmodule Mix.Tasks.Tartarus.Lats do
   def run(argv) do
     opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.lats")
 
-    if opts[:help] do
-      Mix.shell().info(@moduledoc)
-    else
-      run_experiment(opts)
+    cond do
+      opts[:help] -> Mix.shell().info(@moduledoc)
+      opts[:replay_log] -> run_replay(opts)
+      true -> run_experiment(opts)
     end
   end
+
+  @replay_flags [:replay_log, :devices, :calibration, :fingerprints, :floor_plan] ++
+                  [:seed, :seeds, :queries, :window, :repair, :mode, :group, :out, :json]
+
+  defp run_replay(opts) do
+    task = "tartarus.lats"
+
+    case Keyword.keys(opts) -- @replay_flags do
+      [] ->
+        :ok
+
+      other ->
+        TartarusTools.CLI.error!(task, "--#{dash(hd(other))} does not go with --replay-log")
+    end
+
+    unless opts[:devices], do: TartarusTools.CLI.error!(task, "--replay-log needs --devices FILE")
+    TartarusTools.CLI.positive!(opts, [:seeds, :queries, :window, :group], task)
+
+    for key <- [:devices, :calibration, :floor_plan],
+        path = opts[key],
+        not File.regular?(path),
+        do: TartarusTools.CLI.error!(task, "--#{dash(key)}: file not found: #{path}")
+
+    if opts[:fingerprints] && not File.dir?(opts[:fingerprints]),
+      do:
+        TartarusTools.CLI.error!(
+          task,
+          "--fingerprints: directory not found: #{opts[:fingerprints]}"
+        )
+
+    logs = replay_logs(opts[:replay_log], task)
+    mode = TartarusTools.CLI.choice!(opts[:mode], [:virtual, :peer], :mode, task, :virtual)
+    json? = Keyword.get(opts, :json, false)
+    Mix.Task.run("app.start")
+
+    exp =
+      opts
+      |> Keyword.take([
+        :devices,
+        :calibration,
+        :fingerprints,
+        :floor_plan,
+        :seed,
+        :seeds,
+        :queries,
+        :window,
+        :repair,
+        :group,
+        :out
+      ])
+      |> Keyword.merge(logs: logs, mode: mode, quiet: json?)
+
+    case TartarusLats.Replay.Experiment.run(exp) do
+      {:ok, %{summary: summary, out: dir}} ->
+        if json? do
+          TartarusTools.CLI.report(summary, json: true)
+        else
+          for {name, t} <- Enum.sort(summary.tracks), d <- [:lats, :strongest, :knn], x = t[d] do
+            Mix.shell().info(
+              "#{name} #{d}: exact #{show(x.exact)}, adjacent #{show(x.adjacent)}, " <>
+                "changes #{x.changes} (true #{x.true_changes}), Where is X #{x.where_is_correct}/#{x.where_is}, " <>
+                "Trace edit #{show(x.trace_edit_mean)}, cloud #{x.cloud_connections_per_run}"
+            )
+          end
+
+          Mix.shell().info("pass (pre-registered criterion): #{summary.pass}\nwritten to #{dir}")
+        end
+
+      {:error, message} ->
+        TartarusTools.CLI.error!(task, message)
+    end
+  end
+
+  defp replay_logs(path, task) do
+    logs =
+      cond do
+        File.dir?(path) ->
+          path
+          |> File.ls!()
+          |> Enum.filter(&(Path.extname(&1) in [".mbd", ".csv"]))
+          |> Enum.sort()
+          |> Enum.map(&Path.join(path, &1))
+
+        true ->
+          String.split(path, ",", trim: true)
+      end
+
+    missing = Enum.reject(logs, &File.regular?/1)
+
+    cond do
+      logs == [] ->
+        TartarusTools.CLI.error!(task, "--replay-log: no .mbd or .csv files in #{path}")
+
+      missing != [] ->
+        TartarusTools.CLI.error!(task, "--replay-log: file not found: #{hd(missing)}")
+
+      true ->
+        logs
+    end
+  end
+
+  defp dash(key), do: key |> Atom.to_string() |> String.replace("_", "-")
 
   defp run_experiment(opts) do
     # Flags that name one of a few values: turned into the experiment's atoms here.

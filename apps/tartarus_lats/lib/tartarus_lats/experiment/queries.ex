@@ -179,12 +179,14 @@ defmodule TartarusLats.Experiment.Queries do
   Asks a batch of queries: releases their agents together (`TartarusLats.release/4`,
   contacting the cloud by `rule`), waits for every result, then asks the cloud the same
   questions; each query comes back with both answers, judged (`TartarusLats.Judge`), the
-  agent's hops, route, cloud contacts and latency (ms, on this VM's clock).
+  agent's hops, route, cloud contacts and latency (ms, on this VM's clock). `repair`: the
+  Where is X agents bridge broken chains (`TartarusLats.Query.WhereIs`).
   """
-  @spec ask([map()], Deployment.t(), :per_node | :per_query) :: [map()]
-  def ask([], _dep, _rule), do: []
+  @spec ask([map()], Deployment.t(), :per_node | :per_query, boolean()) :: [map()]
+  def ask(batch, dep, rule, repair \\ false)
+  def ask([], _dep, _rule, _repair), do: []
 
-  def ask(batch, dep, rule) do
+  def ask(batch, dep, rule, repair) do
     released =
       Enum.map(batch, fn q ->
         t0 = System.monotonic_time(:microsecond)
@@ -193,7 +195,8 @@ defmodule TartarusLats.Experiment.Queries do
           TartarusLats.release(q.host, q.type, q.tag,
             label: "#{q.type}(#{q.person})#{q.id}",
             seed: {:lats_query, q.id, q.time},
-            cloud: rule
+            cloud: rule,
+            repair: repair
           )
 
         {q, id, t0}

@@ -20,7 +20,12 @@ defmodule TartarusLats.Query.WhereAmI do
   alias TartarusLats.Query.{Walk, WhereIs}
 
   @impl true
-  def init(args), do: WhereIs.step(args |> Walk.new(:where_am_i) |> Map.put(:at, nil))
+  def init(args) do
+    args
+    |> Walk.new(:where_am_i)
+    |> Map.merge(%{at: nil, repair: false, bridge: nil, bridges: []})
+    |> WhereIs.step()
+  end
 
   @impl true
   def handle_arrival(_ctx, s), do: WhereIs.step(s)

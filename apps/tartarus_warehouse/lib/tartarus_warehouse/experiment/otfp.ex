@@ -90,7 +90,8 @@ defmodule TartarusWarehouse.Experiment.Otfp do
       %{
         file: "otfp",
         title: "Tasks per job as tasks are added and deleted (Fig. 4.5)",
-        subtitle: "seed #{state.seed}",
+        subtitle:
+          "16 jobs of 10 tasks on 4 robots, time scale #{state.p.scale}, seed #{state.seed}",
         series: [:tasks_in_job],
         labels: %{tasks_in_job: "tasks in the job"},
         x_label: "job",
@@ -100,7 +101,8 @@ defmodule TartarusWarehouse.Experiment.Otfp do
       %{
         file: "otfp_ms",
         title: "Time per task as tasks are added and deleted (Fig. 4.5)",
-        subtitle: "seed #{state.seed}",
+        subtitle:
+          "16 jobs of 10 tasks on 4 robots, time scale #{state.p.scale}, seed #{state.seed}",
         series: [:ms_per_task],
         labels: %{ms_per_task: "ms per task"},
         x_label: "job",

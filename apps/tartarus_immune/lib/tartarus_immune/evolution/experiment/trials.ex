@@ -6,8 +6,13 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
   (`TartarusImmune.Evolution.Embodied`); `monolithic` runs the baseline alone on all
   three scenarios. A sweep (`TartarusEmu.Sweep`): an arm is `<scenario>_<design>`, the
   seeds are `seed + trial`; the first trial keeps its trace (fitness curves and the
-  robot's path). The summary tests "immune better than monolithic" on test success with
-  an exact one-sided Mann-Whitney U test. Run it with
+  robot's path). The summary tests "immune better than monolithic" on test success and
+  on the objective per step in the test (`test_objective`) with exact one-sided
+  Mann-Whitney U tests, and gives per arm the probes of docs/evolution.md
+  (pre-registration of 2026-11-27: structure, use, behaviours, evaluations per antibody,
+  the trace of the champions' periods) and `done_means`, the pre-registered criteria;
+  with `matched`, the arm `<scenario>_monolithic_matched` is the baseline trained for as
+  many scored steps as the immune robot drove on the same seed. Run it with
   `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
@@ -24,17 +29,42 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
     designs = if exp == :monolithic, do: [:monolithic], else: [:immune, :monolithic]
     arms = for sc <- scenarios, d <- designs, do: {"#{sc}_#{d}", %{scenario: sc, design: d}}
 
+    arms =
+      if p[:matched] and exp in [:s1, :s2],
+        do:
+          arms ++
+            [{"#{exp}_monolithic_matched", %{scenario: exp, design: :monolithic, matched: true}}],
+        else: arms
+
+    matched_tests =
+      if p[:matched] and exp in [:s1, :s2],
+        do: [
+          {"#{exp}_immune", :greater, "#{exp}_monolithic_matched", :test_objective,
+           [method: :exact]}
+        ],
+        else: []
+
     tests =
       if exp == :monolithic,
         do: [],
-        else: [{"#{exp}_immune", :greater, "#{exp}_monolithic", :test_success, [method: :exact]}]
+        else: [
+          {"#{exp}_immune", :greater, "#{exp}_monolithic", :test_success, [method: :exact]},
+          {"#{exp}_immune", :greater, "#{exp}_monolithic", :test_objective, [method: :exact]}
+        ]
 
     %{
       arms: arms,
       seeds: Enum.map(0..(p.trials - 1), &(p.seed + &1)),
       run: fn arm, seed -> run_one(arm.opts, seed, p) end,
-      metrics: [test_success: :test_success, antibodies: :antibodies, switches: :switches],
-      tests: tests,
+      metrics: [
+        test_success: :test_success,
+        test_objective: &(&1.probes.test_objective || 0.0),
+        evaluations: :evaluations,
+        puck_antibody_evaluations: & &1.probes.puck_antibody_evaluations,
+        antibodies: :antibodies,
+        switches: :switches
+      ],
+      tests: tests ++ matched_tests,
       csv:
         {~w(scenario design trial antibodies switches final_fitness test_success),
          fn run ->
@@ -55,24 +85,42 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
     }
   end
 
-  defp run_one(%{scenario: sc, design: d}, seed, p) do
+  defp run_one(%{scenario: sc, design: d} = arm, seed, p) do
     trial = seed - p.seed
 
-    {:ok, r} =
-      Embodied.run(
-        scenario: sc,
-        design: d,
-        seed: seed,
-        trace: trial == 0,
-        recovery: p.recovery,
-        period: p.period,
-        min_period: p.min_period,
-        puck_reward: p.puck_reward,
-        score: p.score
-      )
+    # the step-matched baseline: as many scored steps as the immune robot drove (its
+    # training is run again; the same seed gives the same run)
+    budget =
+      if arm[:matched] do
+        {:ok, imm} = Embodied.run(common(sc, :immune, seed, p) ++ [test_episodes: 0])
+        [step_budget: imm.training_steps]
+      else
+        []
+      end
 
-    Map.merge(r, %{trial: trial})
+    {:ok, r} = Embodied.run(common(sc, d, seed, p) ++ [trace: trial == 0] ++ budget)
+    Map.merge(r, %{trial: trial, seed: seed, matched: arm[:matched] == true})
   end
+
+  defp common(sc, d, seed, p) do
+    [
+      scenario: sc,
+      design: d,
+      seed: seed,
+      recovery: p.recovery,
+      period: p.period,
+      min_period: p.min_period,
+      loop: p.loop,
+      max_inner: p.max_inner,
+      es: [sigma_min: 0.5, p_reeval: 0.2, sigma_max: p.sigma_max * 1.0],
+      puck_reward: p.puck_reward,
+      score: p.score
+    ]
+  end
+
+  # a run's design, `monolithic_matched` for the step-matched baseline
+  defp name(%{matched: true}), do: "monolithic_matched"
+  defp name(r), do: to_string(r.design)
 
   @doc "Points of the series: the trials."
   @spec points(map()) :: pos_integer()
@@ -84,7 +132,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
     Enum.reduce(runs, Series.new(), fn r, series ->
       Series.record(
         series,
-        :"test_success_#{r.scenario}_#{r.design}",
+        :"test_success_#{r.scenario}_#{name(r)}",
         r.trial + 1,
         r.test_success
       )
@@ -93,10 +141,10 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
 
   @doc "The fitness curves and paths of the first trial (`runs.csv` is the sweep's)."
   @spec write(Path.t(), [map()], map()) :: [Path.t()]
-  def write(dir, runs, _p) do
+  def write(dir, runs, p) do
     curves =
       for r <- runs, r.trial == 0 do
-        file = Path.join(dir, "curve_#{r.scenario}_#{r.design}.svg")
+        file = Path.join(dir, "curve_#{r.scenario}_#{name(r)}.svg")
 
         series =
           r.curve
@@ -117,13 +165,17 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
           SVG.line_chart(series,
             lines: false,
             title:
-              "#{String.upcase(to_string(r.scenario))} #{r.design}: fitness by antibody (#{r.switches} switches#{light})",
+              "#{String.upcase(to_string(r.scenario))} #{name(r)}, seed #{r.seed}: fitness by antibody (#{r.evaluations} evaluations, #{r.switches} switches#{light})",
             x_label: "iteration",
-            y_label: "fitness per step"
+            y_label:
+              if(p.score == :total,
+                do: "fitness (summed over the period)",
+                else: "fitness per step"
+              )
           )
         )
 
-        traj = Path.join(dir, "trajectory_#{r.scenario}_#{r.design}.svg")
+        traj = Path.join(dir, "trajectory_#{r.scenario}_#{name(r)}.svg")
 
         points =
           r.trajectory |> Enum.with_index() |> Enum.map(fn {{x, y, _}, i} -> {i * 0.1, x, y} end)
@@ -132,7 +184,8 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
           traj,
           TartarusArena.Render.trajectories(r.world, %{"robot" => points},
             title:
-              "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning"
+              "#{String.upcase(to_string(r.scenario))}, #{r.design}: the robot's path while learning",
+            subtitle: "#{r.scenario}, #{r.design}, the first trial: seed #{p.seed}"
           )
         )
 
@@ -146,12 +199,12 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
   @spec summary([map()], map()) :: map()
   def summary(runs, p) do
     exp = p.experiment
-    arm = fn sc, d -> Enum.filter(runs, &(&1.scenario == sc and &1.design == d)) end
+    arm = fn sc, d -> Enum.filter(runs, &(&1.scenario == sc and name(&1) == "#{d}")) end
     key = fn sc, d -> "#{sc}_#{d}" end
 
     arms =
       for sc <- [:s1, :s2, :s3],
-          d <- [:immune, :monolithic],
+          d <- [:immune, :monolithic, :monolithic_matched],
           (runs = arm.(sc, d)) != [],
           into: %{} do
         s3 =
@@ -175,7 +228,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
              iterations: hd(runs).iterations,
              epsilon: hd(runs).epsilon
            },
-           s3
+           Map.merge(s3, probes(runs))
          )}
       end
 
@@ -186,9 +239,31 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       main && mono &&
         Stats.mann_whitney(main.test_success_by_trial, mono.test_success_by_trial, method: :exact)
 
+    obj =
+      main && mono &&
+        Stats.mann_whitney(main.test_objective_by_trial, mono.test_objective_by_trial,
+          method: :exact
+        )
+
+    matched = arms[key.(exp, :monolithic_matched)]
+
+    obj_matched =
+      main && matched &&
+        Stats.mann_whitney(main.test_objective_by_trial, matched.test_objective_by_trial,
+          method: :exact
+        )
+
     %{
       experiment: to_string(exp),
       trials: p.trials,
+      matched_objective_p_value: obj_matched && Float.round(obj_matched.p_value, 6),
+      seeds: [p.seed, p.seed + p.trials - 1],
+      loop: to_string(p.loop),
+      max_inner: p.max_inner,
+      sigma_max: p.sigma_max,
+      objective_mann_whitney_u: obj && obj.u,
+      objective_p_value: obj && Float.round(obj.p_value, 6),
+      done_means: done_means(main, mono, obj, arms),
       arms: arms,
       antibodies: main && main.antibodies,
       test_success:
@@ -202,6 +277,89 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       mann_whitney_u: test && test.u,
       p_value: test && Float.round(test.p_value, 4),
       immune_beats_monolithic: if(test, do: test.p_value < 0.05)
+    }
+  end
+
+  # the per-arm figures of the probes (docs/evolution.md, pre-registration of 2026-11-27)
+  defp probes(runs) do
+    pr = Enum.map(runs, & &1.probes)
+    n = length(runs)
+    share = fn k -> Float.round(k / n, 3) end
+    steps = pr |> Enum.map(& &1.puck_steps) |> Enum.sum()
+    ab_steps = pr |> Enum.map(& &1.puck_ab_steps) |> Enum.sum()
+    first10 = Enum.filter(runs, &(&1.trial < 10))
+
+    %{
+      evaluations: mean2(Enum.map(runs, & &1.evaluations)),
+      evaluations_by_trial: Enum.map(runs, & &1.evaluations),
+      training_steps: mean2(Enum.map(runs, & &1.training_steps)),
+      capped_iterations: mean2(Enum.map(runs, & &1.capped_iterations)),
+      at_sigma_max: mean2(Enum.map(runs, & &1.at_sigma_max)),
+      evaluations_per_antibody:
+        mean2(
+          Enum.map(runs, &(&1.evaluations / max(map_size(&1.probes.evaluations_by_antibody), 1)))
+        ),
+      evaluations_by_antibody_by_trial: Enum.map(pr, & &1.evaluations_by_antibody),
+      puck_antibodies: mean2(Enum.map(pr, & &1.puck_antibodies)),
+      puck_antibody_evaluations: mean2(Enum.map(pr, & &1.puck_antibody_evaluations)),
+      puck_antibody_evaluations_by_trial: Enum.map(pr, & &1.puck_antibody_evaluations),
+      trials_with_puck_antibody: Enum.count(pr, &(&1.puck_antibodies > 0)),
+      trials_with_puck_and_obstacle: Enum.count(pr, & &1.holds_puck_and_obstacle),
+      share_with_puck_and_obstacle: share.(Enum.count(pr, & &1.holds_puck_and_obstacle)),
+      puck_steps: steps,
+      puck_ab_steps: ab_steps,
+      puck_use_pooled: if(steps > 0, do: Float.round(ab_steps / steps, 3)),
+      puck_use_by_trial: Enum.map(pr, &(&1.puck_use && Float.round(&1.puck_use, 3))),
+      test_objective: mean2(Enum.map(pr, &(&1.test_objective || 0.0))),
+      test_objective_by_trial: Enum.map(pr, &Float.round(&1.test_objective || 0.0, 4)),
+      test_objective_product: mean2(Enum.map(pr, &(&1.test_objective_product || 0.0))),
+      puck_champion_gain_by_trial:
+        Enum.map(pr, &(&1.puck_champion_gain && Float.round(&1.puck_champion_gain, 3))),
+      trials_puck_champion_improved: Enum.count(pr, & &1.puck_champion_improved),
+      share_puck_champion_improved: share.(Enum.count(pr, & &1.puck_champion_improved)),
+      wall_free_episodes_by_trial: Enum.map(pr, & &1.wall_free_episodes),
+      light_episodes_by_trial: Enum.map(pr, & &1.light_episodes),
+      puck_kept_episodes_by_trial: Enum.map(pr, & &1.puck_kept_episodes),
+      trials_failing_a_behaviour: Enum.count(pr, & &1.fails_a_behaviour),
+      first10_failing_a_behaviour: Enum.count(first10, & &1.probes.fails_a_behaviour),
+      first10_trials: length(first10),
+      puck_ultrasonic_min_by_trial: Enum.map(pr, &List.first(&1.puck_ultrasonic)),
+      stalled_share: mean2(Enum.map(pr, & &1.trace.stalled_share)),
+      full_period_share: mean2(Enum.map(pr, & &1.trace.full_share)),
+      fitness_stalled: mean2(Enum.flat_map(pr, &List.wrap(&1.trace.fitness_stalled))),
+      fitness_moving: mean2(Enum.flat_map(pr, &List.wrap(&1.trace.fitness_moving))),
+      champions: pr |> Enum.map(& &1.trace.champions) |> Enum.sum(),
+      champions_stalled: pr |> Enum.map(& &1.trace.champions_stalled) |> Enum.sum(),
+      wall_champions: pr |> Enum.map(& &1.trace.wall_champions) |> Enum.sum(),
+      wall_champions_stalled: pr |> Enum.map(& &1.trace.wall_champions_stalled) |> Enum.sum(),
+      wall_champion_steps: mean2(Enum.flat_map(pr, &List.wrap(&1.trace.wall_champion_steps))),
+      wall_free_episodes: mean2(Enum.map(pr, & &1.wall_free_episodes)),
+      light_episodes: mean2(Enum.map(pr, & &1.light_episodes)),
+      puck_kept_episodes: mean2(Enum.map(pr, & &1.puck_kept_episodes))
+    }
+  end
+
+  # the pre-registered criteria (they are S2's; computed for every scenario, the
+  # monolithic one for S2 and S3)
+  defp done_means(main, mono, obj, arms) do
+    mono_fail =
+      arms
+      |> Enum.filter(fn {k, _} -> String.ends_with?(k, "_monolithic") end)
+      |> Map.new(fn {k, a} ->
+        {k, a.first10_trials >= 10 and a.first10_failing_a_behaviour >= 8}
+      end)
+
+    %{
+      structure:
+        if(main,
+          do: main.share_with_puck_and_obstacle >= 0.8 and (main.puck_use_pooled || 0.0) >= 0.75
+        ),
+      learning:
+        if(main && obj,
+          do: obj.p_value < 0.05 and main.share_puck_champion_improved >= 0.7
+        ),
+      monolithic_fails_a_probe_8_of_10: mono_fail,
+      monolithic_arm: mono && mono.first10_failing_a_behaviour
     }
   end
 end

@@ -1,0 +1,96 @@
+defmodule Tartarus.Host.Parked do
+  @moduledoc false
+  # A host's parked copies (Tartarus.Migration.Protocol.copy_step/2, parked/1): a paused copy
+  # that waited too long for its decision hands its record to its host and stops; the host
+  # keeps the record (in its ledger and journal), asks the source at a low rate and revives
+  # or drops the copy only on an answer. Runs in the host's server, on the server's state.
+
+  alias Tartarus.Ledger
+  alias Tartarus.Host.Agents
+  alias Tartarus.Migration.{Messages, Protocol}
+
+  # How often a host asks the sources of its parked copies.
+  @ask_every 30_000
+
+  @doc false
+  # The record of copy `pid` of migration `{mig, copy}`: only the copy itself, found as its
+  # agent's arriving process here, may hand it over.
+  def park(state, {mig, copy}, env, src, kind, pid) do
+    if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
+      if :ets.insert_new(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
+        :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+        if count(state) == 1, do: schedule()
+      end
+
+      :ok
+    else
+      {:error, :not_paused_here}
+    end
+  end
+
+  @doc false
+  def count(state), do: Ledger.counter(state.host, :parked)
+
+  @doc false
+  # Asks the sources of the parked copies (a timer that only asks: it never decides anything).
+  def ask(state) do
+    host = state.host
+
+    for {{:parked, {mig, copy}}, env, src, kind} <-
+          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}]),
+        {:ok, pid} <- [Tartarus.Host.whereis(src)] do
+      send(pid, Messages.decision_query(mig, Ledger.query_id(env, kind), copy, self()))
+    end
+
+    if count(state) > 0, do: schedule()
+    :ok
+  end
+
+  @doc false
+  # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
+  def answer(state, mig, copy, d) do
+    case :ets.lookup(state.host.ledger, {:parked, {mig, copy}}) do
+      [{key, env, src, kind}] ->
+        unpark(state, key, mig, copy, env, src, kind, d)
+
+      [] ->
+        Ledger.count(state.host, :dropped)
+        state
+    end
+  end
+
+  defp unparked(state, key) do
+    :ets.delete(state.host.ledger, key)
+    :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
+  end
+
+  defp schedule, do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_every)
+
+  defp unpark(state, key, mig, copy, env, src, kind, d) do
+    case Protocol.parked(d) do
+      :keep ->
+        state
+
+      :drop ->
+        unparked(state, key)
+        Tartarus.Host.Persistence.resolved(state.host, mig, copy)
+        state
+
+      :revive ->
+        unparked(state, key)
+
+        case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+          {:ok, pid, state} ->
+            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            send(pid, Messages.decision(mig, copy, d))
+            state
+
+          {:error, _reason, state} ->
+            # Kept for the next answer.
+            :ets.insert(state.host.ledger, {key, env, src, kind})
+            :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+            state
+        end
+    end
+  end
+end

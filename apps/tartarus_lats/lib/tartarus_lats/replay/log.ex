@@ -1,0 +1,203 @@
+defmodule TartarusLats.Replay.Log do
+  @moduledoc """
+  A log of RSSI readings from many receivers: the input of a real-data replay
+  (`TartarusLats.Replay`).
+
+  ## The format
+
+  Text, one reading a line, comma-separated:
+
+      time, receiver, beacon, rssi[, x, y[, anything else]]
+
+    * `time` - seconds (a number; Unix seconds with a fraction in the tetam recordings);
+    * `receiver` - the receiver's id as in the devices file (`TartarusLats.Replay.Devices`);
+    * `beacon` - the beacon's id (a MAC such as `e78f135624ce`, or 32 hex digits);
+    * `rssi` - dBm, a number from -127 to 0;
+    * `x, y` - optional, the beacon's true position in metres at that reading (the ground
+      truth). Columns after them are ignored.
+
+  Blank lines, lines starting with `#` and a header line whose first field is `time` are
+  skipped. The tetam `.mbd` files are this format as they are (`x, y, z` and the
+  orientation matrix after the RSSI: `z` and the rest are ignored), and so are its
+  fingerprint files (four columns). Lines are read in any time order and sorted.
+
+  A malformed line (too few fields, a time or RSSI that is not a number, an RSSI out of
+  range, an empty receiver or beacon, an `x` without `y` or a position that is not a number)
+  is skipped and counted with its line number and why: `parse/1` never raises on content.
+
+      iex> log = TartarusLats.Replay.Log.parse("1.5,r1,aa,-70,1.0,2.0\\nbad line\\n2.0,r2,aa,-71")
+      iex> Enum.map(log.readings, &{&1.time, &1.receiver, &1.rssi, &1.pos})
+      [{1.5, "r1", -70, {1.0, 2.0}}, {2.0, "r2", -71, nil}]
+      iex> log.bad
+      [{2, "expected time, receiver, beacon, rssi[, x, y], got 1 field"}]
+  """
+
+  @typedoc "One reading."
+  @type reading :: %{
+          time: float(),
+          receiver: String.t(),
+          beacon: String.t(),
+          rssi: number(),
+          pos: {float(), float()} | nil,
+          line: pos_integer()
+        }
+
+  @typedoc "A parsed log: readings sorted by time (then line), and the malformed lines."
+  @type t :: %{
+          readings: [reading()],
+          bad: [{pos_integer(), String.t()}],
+          lines: non_neg_integer()
+        }
+
+  @doc """
+  Parses a log's text (or a list of lines). Never raises on content; see the moduledoc.
+  """
+  @spec parse(binary() | [binary()]) :: t()
+  def parse(text) when is_binary(text), do: text |> String.split(["\r\n", "\n"]) |> parse()
+
+  def parse(lines) when is_list(lines) do
+    {readings, bad, n} =
+      lines
+      |> Enum.with_index(1)
+      |> Enum.reduce({[], [], 0}, fn {line, no}, {ok, bad, n} ->
+        case parse_line(line, no) do
+          :skip -> {ok, bad, n}
+          {:ok, r} -> {[r | ok], bad, n + 1}
+          {:error, why} -> {ok, [{no, why} | bad], n + 1}
+        end
+      end)
+
+    %{
+      readings: Enum.sort_by(readings, &{&1.time, &1.line}),
+      bad: Enum.reverse(bad),
+      lines: n
+    }
+  end
+
+  @doc "Reads and parses a log file (`parse/1`). Raises `File.Error` if it cannot be read."
+  @spec read!(Path.t()) :: t()
+  def read!(path), do: path |> File.read!() |> parse()
+
+  @doc """
+  Parses one line: `{:ok, reading}`, `:skip` (blank, comment, header) or `{:error, why}`.
+
+      iex> TartarusLats.Replay.Log.parse_line("10,r1,aa,-300", 4)
+      {:error, "rssi out of range (-127..0): -300"}
+      iex> TartarusLats.Replay.Log.parse_line("# a comment", 1)
+      :skip
+  """
+  @spec parse_line(binary(), pos_integer()) :: {:ok, reading()} | :skip | {:error, String.t()}
+  def parse_line(line, no) when is_binary(line) do
+    trimmed = String.trim(line)
+
+    cond do
+      trimmed == "" or String.starts_with?(trimmed, "#") ->
+        :skip
+
+      true ->
+        fields = trimmed |> String.split(",") |> Enum.map(&String.trim/1)
+
+        case fields do
+          ["time" | _] -> :skip
+          [t, rx, bc, rssi | rest] -> reading(t, rx, bc, rssi, rest, no)
+          _ -> {:error, "expected time, receiver, beacon, rssi[, x, y], got #{count(fields)}"}
+        end
+    end
+  end
+
+  defp count([_]), do: "1 field"
+  defp count(fields), do: "#{length(fields)} fields"
+
+  defp reading(t, rx, bc, rssi, rest, no) do
+    with {:ok, time} <- number(t, "time"),
+         {:ok, rssi} <- rssi(rssi),
+         :ok <- in_range(rssi),
+         :ok <- present(rx, "receiver"),
+         :ok <- present(bc, "beacon"),
+         {:ok, pos} <- position(rest) do
+      {:ok,
+       %{time: time, receiver: rx, beacon: String.downcase(bc), rssi: rssi, pos: pos, line: no}}
+    end
+  end
+
+  defp in_range(rssi) when rssi >= -127 and rssi <= 0, do: :ok
+  defp in_range(rssi), do: {:error, "rssi out of range (-127..0): #{fmt(rssi)}"}
+
+  defp fmt(x) when is_float(x) and x == trunc(x), do: Integer.to_string(trunc(x))
+  defp fmt(x), do: to_string(x)
+
+  defp present("", what), do: {:error, "empty #{what}"}
+  defp present(_, _), do: :ok
+
+  defp position([]), do: {:ok, nil}
+  defp position([_x]), do: {:error, "x without y"}
+
+  defp position([x, y | _]) do
+    with {:ok, x} <- number(x, "x"), {:ok, y} <- number(y, "y"), do: {:ok, {x, y}}
+  end
+
+  # An RSSI is kept as the receiver wrote it: an integer when it is one.
+  defp rssi(s) do
+    case Integer.parse(s) do
+      {i, ""} -> {:ok, i}
+      _ -> number(s, "rssi")
+    end
+  end
+
+  defp number(s, what) do
+    case Float.parse(s) do
+      {x, ""} -> {:ok, x}
+      _ -> {:error, "#{what} is not a number: #{inspect(s)}"}
+    end
+  end
+
+  @doc """
+  The readings grouped into whole seconds from the first reading's second, as a replay
+  feeds them (second 1 is the first): `%{second => %{receiver => %{beacon => rssi}}}`,
+  where `rssi` is the mean of the receiver's readings of that beacon in that second,
+  rounded to a whole dBm (a receiver reports about twice a second; the trackers take one
+  sample a second). Also returns the start time (`t0`, the first reading's time rounded
+  down).
+
+      iex> log = TartarusLats.Replay.Log.parse("100.2,r1,aa,-70\\n100.7,r1,aa,-74\\n101.1,r2,aa,-80")
+      iex> TartarusLats.Replay.Log.per_second(log)
+      {100.0, %{1 => %{"r1" => %{"aa" => -72}}, 2 => %{"r2" => %{"aa" => -80}}}}
+  """
+  @spec per_second(t()) ::
+          {float(), %{pos_integer() => %{String.t() => %{String.t() => integer()}}}}
+  def per_second(%{readings: []}), do: {0.0, %{}}
+
+  def per_second(%{readings: [first | _] = readings}) do
+    t0 = Float.floor(first.time)
+
+    grouped =
+      readings
+      |> Enum.group_by(&{second(&1.time, t0), &1.receiver, &1.beacon}, & &1.rssi)
+      |> Enum.reduce(%{}, fn {{s, rx, bc}, values}, acc ->
+        mean = round(Enum.sum(values) / length(values))
+        Map.update(acc, s, %{rx => %{bc => mean}}, &put_in(&1, [Access.key(rx, %{}), bc], mean))
+      end)
+
+    {t0, grouped}
+  end
+
+  @doc "The second (1, 2, ...) of time `time` in a replay that starts at `t0`."
+  @spec second(number(), number()) :: pos_integer()
+  def second(time, t0), do: trunc(Float.floor((time - t0) * 1.0)) + 1
+
+  @doc """
+  The true position of `beacon` in every second that has one: the position of the
+  second's last reading that carries one. `%{second => {x, y}}`.
+  """
+  @spec positions(t(), float(), String.t()) :: %{pos_integer() => {float(), float()}}
+  def positions(%{readings: readings}, t0, beacon) do
+    for %{beacon: ^beacon, pos: {_, _} = pos} = r <- readings,
+        into: %{},
+        do: {second(r.time, t0), pos}
+  end
+
+  @doc "The beacons of a log, sorted."
+  @spec beacons(t()) :: [String.t()]
+  def beacons(%{readings: readings}),
+    do: readings |> Enum.map(& &1.beacon) |> Enum.uniq() |> Enum.sort()
+end
