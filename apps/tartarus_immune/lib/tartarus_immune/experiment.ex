@@ -7,9 +7,10 @@ defmodule TartarusImmune.Experiment do
 
   The network's setup hook creates a `TartarusImmune.Node` agent (`"immune"`) on every
   host. A **training pool** of `train` instances and a disjoint **test set** of `test`
-  instances are drawn from the data set (seeded). Every host gets `per_node` iPkts of each
+  instances are drawn from the data set (seeded). Every host (or, with `seed_hosts: k`, k
+  hosts chosen at random, the others starting empty) gets `per_node` iPkts of each
   initial solution, each with F_y the features of a random pool instance (§6.5.2) and
-  activation τ_init.
+  activation τ_init. On-the-fly additions put one iPkt on every host.
 
   ## A step
 
@@ -86,6 +87,12 @@ defmodule TartarusImmune.Experiment do
     train: [type: :pos_integer, default: 200, doc: "training pool size"],
     test: [type: :pos_integer, default: 50, doc: "held-out test instances"],
     per_node: [type: :pos_integer, default: 1, doc: "initial iPkts per solution per host"],
+    seed_hosts: [
+      type: {:or, [:pos_integer, nil]},
+      default: nil,
+      doc:
+        "hosts that start with the initial iPkts (`per_node` of each solution), chosen at random; the others start empty (default: every host)"
+    ],
     share: [type: :number, default: 0.9, doc: "convergence: the leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps the leader must hold"],
     stop: [type: :boolean, default: true, doc: "stop once converged"],
@@ -183,7 +190,8 @@ defmodule TartarusImmune.Experiment do
         last_step: 0
       }
 
-      st = Enum.reduce(sols, st, fn sol, st -> seed_ipkts(st, sol, o.per_node) end)
+      {homes, st} = initial_hosts(st, o.seed_hosts)
+      st = Enum.reduce(sols, st, fn sol, st -> seed_ipkts(st, sol, o.per_node, homes) end)
       {:ok, st}
     end
   end
@@ -227,8 +235,18 @@ defmodule TartarusImmune.Experiment do
     {elem(st.pool, i - 1), %{st | rng: rng}}
   end
 
-  defp seed_ipkts(st, sol, per_node) do
-    Enum.reduce(st.hosts, st, fn host, st ->
+  # The hosts that get the initial iPkts: every host, or `k` of them chosen at random (the
+  # run's random stream is drawn only then, so runs with every host are unchanged).
+  defp initial_hosts(st, nil), do: {st.hosts, st}
+
+  defp initial_hosts(st, k) do
+    {picked, rng} = sample(length(st.hosts), min(k, length(st.hosts)), st.rng)
+    hosts = List.to_tuple(st.hosts)
+    {Enum.map(picked, &elem(hosts, &1)), %{st | rng: rng}}
+  end
+
+  defp seed_ipkts(st, sol, per_node, homes \\ nil) do
+    Enum.reduce(homes || st.hosts, st, fn host, st ->
       Enum.reduce(1..per_node, st, fn _, st ->
         {{set, i}, st} = pick(st)
         fv = st.domain.features(st.domain.instance(set, i, st.seed))
@@ -455,6 +473,7 @@ defmodule TartarusImmune.Experiment do
 
     %{
       set: st.o.set,
+      domain: st.domain.name(),
       nodes: length(st.hosts),
       mode: st.o.mode,
       sharing: st.o.sharing,

@@ -8,6 +8,7 @@ defmodule TartarusImmune.Select do
   | `table6_2` | P1-P4 on the grid, for `seeds` seeds | Table 6.2, Fig. 6.3 |
   | `sharing` | `set` with and without sharing, `seeds` seeds each | Fig. 6.11 |
   | `danger` | `set` with danger signals, without, and without sharing, `seeds` seeds each | Fig. 6.8 |
+  | `fig6_8` | the pre-registered Fig. 6.8 (`TartarusImmune.Select.Fig68`): P4 on a 50-node grid, β 10, Eq. 6.5's lifetimes, the initial population on 10 hosts; the three arms of `danger`; adds the guard and the verdict | Fig. 6.8 |
   | `otfp` | `set` starting with Shell and Selection; Quick, Insertion, Merge, Heap added at `add_at` | Fig. 6.4 |
   | `nodes50` | P2 and P3 on `nodes` hosts (default 50), one seed | Fig. 6.5 |
   | `dynamic` | `set` (p4) on `nodes` (50) hosts that break off and reconnect with probability p per step, p in `ps` | Fig. 6.6 |
@@ -39,27 +40,46 @@ defmodule TartarusImmune.Select do
 
   alias TartarusEmu.{Scenario, Sweep}
   alias TartarusImmune.{Experiment, Sorting}
+  alias TartarusImmune.Select.Fig68
   alias TartarusTools.{Report, Series, Stats, SVG}
 
-  @experiments [:table6_2, :sharing, :danger, :otfp, :nodes50, :dynamic, :influx, :barrage, :iot]
+  @experiments [
+    :table6_2,
+    :sharing,
+    :danger,
+    :fig6_8,
+    :otfp,
+    :nodes50,
+    :dynamic,
+    :influx,
+    :barrage,
+    :iot
+  ]
 
   @schema [
     experiment: [type: {:in, @experiments}, default: :table6_2, doc: "which experiment"],
     seed: [type: :integer, default: 1, doc: "first seed"],
     seeds: [type: :pos_integer, default: 1, doc: "seeds per arm (seed, seed + 1, ...)"],
-    nodes: [type: :pos_integer, doc: "hosts (default 10; 50 for nodes50 and iot)"],
+    nodes: [type: :pos_integer, doc: "hosts (default 10; 50 for nodes50, dynamic, iot, fig6_8)"],
     topology: [type: {:in, [:grid, :ring, :line]}, default: :grid, doc: "topology"],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "virtual hosts or peers"],
     group: [type: :pos_integer, default: 1, doc: "hosts per BEAM node in peer mode"],
     set: [
       type: :atom,
-      doc: "data set of sharing/danger/otfp/influx/barrage (default p2; otfp p1)"
+      doc:
+        "data set of sharing/danger/otfp/influx/barrage/fig6_8 (default p2; otfp p1; fig6_8 p4)"
     ],
     steps: [type: :pos_integer, default: 600, doc: "step limit per run"],
     share: [type: :number, default: 0.9, doc: "convergence: leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps held"],
     eta: [type: :probability, default: 0.5, doc: "influx rate"],
-    beta: [type: :pos_integer, default: 5, doc: "barrage size"],
+    beta: [type: :pos_integer, doc: "barrage size (default 5; fig6_8 10)"],
+    cost: [
+      type: {:in, [:ops, :comparisons]},
+      default: :ops,
+      doc:
+        "a sorting solution's cost: comparisons + moves (`ops`), or, as a labelled sensitivity run, comparisons alone (`TartarusImmune.Sorting.Comparisons`; the arms' names say so)"
+    ],
     period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
     ps: [type: {:list, :number}, default: [0.0, 0.1, 0.3, 0.5, 0.7, 1.0], doc: "dynamic sweep"],
     etas: [type: {:list, :number}, default: [0.1, 0.3, 0.5, 0.7, 0.9], doc: "influx sweep"],
@@ -149,7 +169,7 @@ defmodule TartarusImmune.Select do
     arms =
       for {arm, set, seed, extra} <- plan(exp, o),
           seed == o.seed,
-          do: {"#{arm} #{set}", %{arm: arm, set: set, extra: extra}}
+          do: {arm_name(arm, set, o), %{arm: arm, set: set, extra: extra}}
 
     # one run at a time when the runs share a dashboard or peer nodes
     concurrency = if dash || o.mode == :peer, do: 1, else: System.schedulers_online()
@@ -164,8 +184,8 @@ defmodule TartarusImmune.Select do
       seeds: seeds(o),
       run: &run_one(&1, &2, exp, o, panel, concurrency),
       metrics: [
-        {:steps, &steps/1, "convergence step per run (not converged: the step limit)"},
-        {:events, &events/1, "convergence in log-server events per run"},
+        {:steps, &steps/1, title(exp, :steps, o)},
+        {:events, &events/1, title(exp, :events, o)},
         test_accuracy: :test_accuracy,
         migrations: :migrations
       ],
@@ -175,6 +195,7 @@ defmodule TartarusImmune.Select do
       summary: fn r ->
         exp
         |> summarize(runs(r), o)
+        |> Map.merge(fig68(exp, r, o))
         |> Map.merge(%{
           experiment: to_string(exp),
           wall_ms: System.monotonic_time(:millisecond) - t0
@@ -201,8 +222,9 @@ defmodule TartarusImmune.Select do
       share: o.share,
       hold: o.hold,
       eta: o.eta,
-      beta: o.beta,
+      beta: beta(exp, o),
       period: o.period,
+      domain: domain(o.cost),
       out: false,
       # one progress line at a time
       quiet: o.quiet or concurrency > 1,
@@ -228,23 +250,54 @@ defmodule TartarusImmune.Select do
         }
       )
 
-  # one-sided tests of the figures' claims: sharing and danger signals converge sooner
-  defp tests(:sharing, o),
-    do: [{"sharing #{o[:set] || :p2}", :less, "no_sharing #{o[:set] || :p2}", :steps}]
+  # the box plots' titles; fig6_8's say which figure and configuration they are
+  defp title(:fig6_8, :steps, o),
+    do: "Fig. 6.8 (pre-registered): convergence rounds per run, #{fig_setting(o)}"
 
-  defp tests(:danger, o) do
+  defp title(:fig6_8, :events, o),
+    do:
+      "Fig. 6.8 (pre-registered): log-server events (migrations + executions), #{fig_setting(o)}"
+
+  defp title(_, :steps, _o), do: "convergence step per run (not converged: the step limit)"
+  defp title(_, :events, _o), do: "convergence in log-server events per run"
+
+  defp fig_setting(o),
+    do:
+      "#{o[:set] || :p4}, #{o[:nodes] || 50} hosts, β #{beta(:fig6_8, o)}, not converged: #{o.steps}"
+
+  # an arm's name in the sweep: "<arm> <set>", labelled when the cost is not the default
+  defp arm_name(arm, set, %{cost: :comparisons}), do: "#{arm} #{set} (comparisons)"
+  defp arm_name(arm, set, _o), do: "#{arm} #{set}"
+
+  defp domain(:ops), do: Sorting
+  defp domain(:comparisons), do: Sorting.Comparisons
+
+  # one-sided tests of the figures' claims: sharing and danger signals converge sooner
+  defp tests(:sharing, o) do
     set = o[:set] || :p2
+    [{arm_name("sharing", set, o), :less, arm_name("no_sharing", set, o), :steps}]
+  end
+
+  defp tests(exp, o) when exp in [:danger, :fig6_8] do
+    set = o[:set] || default_set(exp)
+    [d, nd, ns] = Enum.map(~w(danger no_danger no_sharing), &arm_name(&1, set, o))
 
     [
-      {"danger #{set}", :less, "no_danger #{set}", :steps},
-      {"danger #{set}", :less, "no_sharing #{set}", :steps}
+      {d, :less, nd, :steps},
+      {d, :less, ns, :steps},
+      {d, :less, nd, :events}
     ]
   end
 
   defp tests(_, _), do: []
 
-  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic], do: 50
+  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic, :fig6_8], do: 50
   defp default_nodes(_), do: 10
+
+  defp default_set(:fig6_8), do: :p4
+  defp default_set(_), do: :p2
+
+  defp beta(exp, o), do: o[:beta] || if(exp == :fig6_8, do: Fig68.config()[:beta], else: 5)
 
   defp seeds(o), do: Enum.map(0..(o.seeds - 1), &(o.seed + &1))
 
@@ -269,6 +322,13 @@ defmodule TartarusImmune.Select do
           {"no_sharing", [sharing: false]}
         ],
         do: {arm, set, seed, x}
+  end
+
+  defp plan(:fig6_8, o) do
+    set = o[:set] || :p4
+    c = Fig68.config()
+    fixed = [seed_hosts: c[:seed_hosts], per_node: c[:per_node], params: c[:params]]
+    for seed <- seeds(o), {arm, x} <- Fig68.arms(), do: {arm, set, seed, x ++ fixed}
   end
 
   defp plan(:otfp, o) do
@@ -412,6 +472,78 @@ defmodule TartarusImmune.Select do
       wall_ms_per_run: Map.new(a, fn {arm, x} -> {arm, x.wall_ms_mean} end)
     })
   end
+
+  # The pre-registered experiment's own keys: how the run differs from the pre-registration
+  # (nothing, for the measured run), per arm the rounds and events described, the guard and
+  # the verdict (`TartarusImmune.Select.Fig68`).
+  defp fig68(:fig6_8, r, o) do
+    set = o[:set] || :p4
+    [d, nd, ns] = Enum.map(~w(danger no_danger no_sharing), &arm_name(&1, set, o))
+    agg = r.aggregates
+    rounds = fn arm -> for run <- r.runs, run.arm == arm, do: steps(run.summary) end
+    guard = Fig68.guard(rounds.(d), rounds.(nd), o.period)
+
+    p =
+      Enum.find_value(r.tests, fn t ->
+        if {t.a, t.b, t.metric} == {d, nd, :steps}, do: t.p_value
+      end)
+
+    p_events =
+      Enum.find_value(r.tests, fn t ->
+        if {t.a, t.b, t.metric} == {d, nd, :events}, do: t.p_value
+      end)
+
+    c = Fig68.config()
+
+    effective =
+      Map.merge(
+        Map.new(Keyword.take(Map.to_list(o), [:topology, :eta, :period, :steps, :share, :hold])),
+        %{
+          set: set,
+          nodes: o[:nodes] || 50,
+          beta: beta(:fig6_8, o),
+          seed_hosts: c[:seed_hosts],
+          per_node: c[:per_node],
+          params: c[:params]
+        }
+      )
+
+    deviations =
+      Fig68.deviations(effective, seeds(o)) ++ if(o.cost == :ops, do: [], else: [:cost])
+
+    verdict =
+      Fig68.verdict(
+        danger: agg[d].steps,
+        no_danger: agg[nd].steps,
+        no_sharing: agg[ns].steps,
+        p_value: p,
+        guard: guard
+      )
+
+    per_arm =
+      Map.new([{"danger", d}, {"no_danger", nd}, {"no_sharing", ns}], fn {k, a} ->
+        {k, %{rounds: agg[a].steps, events: agg[a].events}}
+      end)
+
+    %{
+      preregistered: %{
+        date: "2026-11-27",
+        deviations: deviations,
+        as_preregistered: deviations == [],
+        per_arm: per_arm,
+        p_signals_less_rounds: p,
+        p_signals_less_events: p_events,
+        guard:
+          Map.update!(guard, :rounds, &Tuple.to_list/1)
+          |> Map.update!(:at_first, &Tuple.to_list/1)
+          |> Map.update!(:runs, &Tuple.to_list/1),
+        verdict: verdict.outcome,
+        criteria: verdict.criteria
+      }
+    }
+  end
+
+  defp fig68(_exp, _r, _o), do: %{}
 
   # -- files ----------------------------------------------------------------------------
 

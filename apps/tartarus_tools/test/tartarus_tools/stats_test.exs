@@ -119,6 +119,24 @@ defmodule TartarusTools.StatsTest do
       assert_in_delta exact.p_value, normal.p_value, 0.01
     end
 
+    test "40 a side, one-sided less: the normal approximation's known values" do
+      # W = 190 pairs x > y plus 20 ties of 1/2 = 200; R's wilcox.test(1:40, 21:60,
+      # alternative = "less", exact = FALSE) computes p = pnorm((200 - 800 + 0.5) / sigma),
+      # sigma^2 = 1600 / 12 * (81 - 20 * 6 / (80 * 79)) (20 values tied in pairs) = 3.9785e-9
+      r = Stats.mann_whitney(Enum.to_list(1..40), Enum.to_list(21..60), alternative: :less)
+      assert {r.method, r.n1, r.n2, r.u} == {:normal, 40, 40, 200.0}
+      assert_in_delta r.p_value, 3.978476281412657e-9, 1.0e-15
+
+      # four tied blocks of 10 (rounds-like data): the tie-corrected variance
+      # 1600 / 12 * (81 - sum(t^3 - t) / (80 * 79)), t = 10, 20, 20, 20, 10: p = 2.7866e-4
+      xs = List.duplicate(10, 10) ++ List.duplicate(12, 10) ++ List.duplicate(14, 10) ++ List.duplicate(20, 10)
+      ys = List.duplicate(12, 10) ++ List.duplicate(14, 10) ++ List.duplicate(20, 10) ++ List.duplicate(30, 10)
+      r = Stats.mann_whitney(xs, ys, alternative: :less)
+      assert r.u == 450.0
+      assert_in_delta r.p_value, 2.786550200245078e-4, 1.0e-12
+      assert Stats.mann_whitney(xs, ys).p_value > 0.99
+    end
+
     test "empty samples give p = 1" do
       assert Stats.mann_whitney([], [1, 2]).p_value == 1.0
     end

@@ -6,11 +6,12 @@ defmodule Mix.Tasks.Tartarus.Select do
   sorting algorithms) are drawn by danger signals to the hosts where sequences wait to be
   sorted; the best algorithm for each class of sequences takes over the network.
 
-      mix tartarus.select --experiment table6_2|sharing|danger|otfp|nodes50|dynamic|influx|barrage|iot
+      mix tartarus.select --experiment table6_2|sharing|danger|fig6_8|otfp|nodes50|dynamic|influx|barrage|iot
                           [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
                           [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
                           [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]
-                          [--period 10] [--out DIR] [--json] [--dashboard PORT]
+                          [--period 10] [--cost ops|comparisons] [--out DIR] [--json]
+                          [--dashboard PORT]
 
   `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT while the runs go (the
   address and token are printed): the hosts of the run going now and the immune panel
@@ -23,6 +24,13 @@ defmodule Mix.Tasks.Tartarus.Select do
       mean cost on the held-out instances);
     * `sharing`: `--set` (p2) with and without sharing (Fig. 6.11);
     * `danger`: `--set` (p2) with danger signals, without, and without sharing (Fig. 6.8);
+    * `fig6_8`: the pre-registered Fig. 6.8 (docs/immune.md, 2026-11-27;
+      `TartarusImmune.Select.Fig68`): the arms of `danger` on P4, a 50-host grid, β 10,
+      Eq. 6.5's signal lifetimes, the initial iPkts (one of each solution) on 10 random
+      hosts; run it with `--seed 1001 --seeds 40`. Its summary adds `preregistered`:
+      deviations from the pre-registration (none for that command), per arm the rounds
+      and events described, the Mann-Whitney p of signals < no signals, the guard against
+      an uninformative configuration and the verdict (pass, fail or uninformative);
     * `otfp`: `--set` (p1) starting with Shell and Selection only; Quick, Insertion, Merge
       and Heap are added at steps 40, 80, 120, 160; runs all `--steps` (Fig. 6.4);
     * `nodes50`: P2 and P3 on `--nodes` hosts (default 50; also 100, 1000), Fig. 6.5;
@@ -31,6 +39,10 @@ defmodule Mix.Tasks.Tartarus.Select do
     * `influx`: η in 0.1, 0.3, 0.5, 0.7, 0.9 (Fig. 6.7a); `barrage`: β in 1, 2, 5, 10, 20
       (Fig. 6.7b);
     * `iot`: sequences of slowly varying temperature readings on 50 hosts (Fig. 6.10).
+
+  `--cost comparisons` is a labelled sensitivity option (the arms' names say
+  "(comparisons)"): a sorting solution's cost is its key comparisons alone instead of
+  comparisons + moves (`TartarusImmune.Sorting.Comparisons`).
 
   A step is one round of Algorithm 4 at every host (each host solves at most one waiting
   instance) followed by one move of every iPkt. A run stops when it has converged: one
