@@ -89,9 +89,9 @@ defmodule TartarusWarehouse.FloorTest do
 
   test "a central server with a service time makes every robot wait for it between blocks" do
     # One robot: each block starts only after the server handled the previous "finished"
-    # (server_ms) and sent the next command. A lower bound only: no timing upper bound.
+    # (service_ms) and sent the next command. A lower bound only: no timing upper bound.
     jobs = Jobs.thesis_jobs(2, 1000)
-    {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, server_ms: 25)
+    {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, service_ms: 25)
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 2
     runs = Enum.sort_by(r.history, & &1.start_us)
