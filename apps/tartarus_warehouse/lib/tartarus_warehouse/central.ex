@@ -72,10 +72,8 @@ defmodule TartarusWarehouse.Central do
   def handle_info(_msg, s), do: {:stay, s}
 
   # A message received ({:in, message, from}) or a command to send ({:out, agent, command}).
-  defp charge(item, %{svc: %{service_us: 0}} = s) do
-    now = System.monotonic_time(:microsecond)
-    serve(item, %{s | svc: %{s.svc | log: [{now, now, now} | s.svc.log]}})
-  end
+  # No service time: handled at once, and not logged (nothing to measure).
+  defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
 
   defp charge(item, s) do
     {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)

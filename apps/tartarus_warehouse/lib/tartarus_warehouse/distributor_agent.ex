@@ -97,10 +97,8 @@ defmodule TartarusWarehouse.DistributorAgent do
   def handle_message(:status, from, s), do: handle(:status, from, s)
   def handle_message(message, from, s), do: charge({message, from}, s)
 
-  defp charge(item, %{svc: %{service_us: 0}} = s) do
-    now = System.monotonic_time(:microsecond)
-    serve(item, %{s | svc: %{s.svc | log: [{now, now, now} | s.svc.log]}})
-  end
+  # No service time: handled at once, and not logged (nothing to measure).
+  defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
 
   defp charge(item, s) do
     {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)

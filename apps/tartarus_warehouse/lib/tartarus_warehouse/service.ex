@@ -5,7 +5,7 @@ defmodule TartarusWarehouse.Service do
   that arrives at `t` is done at `max(t, the previous message's done) + S`, computed in µs
   (so the millisecond timers that wake the process do not add their rounding up), and is
   only then handled; the process sleeps meanwhile (no CPU, so it does not slow the robots'
-  hosts on the same cores). With `S = 0` a message is handled at once.
+  hosts on the same cores). With `S = 0` a message is handled at once (and not logged).
 
   The owning agent keeps the service in its state: `admit/4` when a message arrives (it
   returns the wake-up to arm, if any), `due/2` when that wake-up comes (the messages now

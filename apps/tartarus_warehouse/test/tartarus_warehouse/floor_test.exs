@@ -135,7 +135,15 @@ defmodule TartarusWarehouse.FloorTest do
 
     for guide <- [false, true] do
       {:ok, back} =
-        Floor.run(robots: 4, jobs: jobs, scale: 0.005, guide: guide, secondary: 2, phi: 2)
+        Floor.run(
+          robots: 4,
+          jobs: jobs,
+          scale: 0.005,
+          guide: guide,
+          secondary: 2,
+          phi: 2,
+          service_ms: 0.2
+        )
 
       {:ok, on} =
         Floor.run(
@@ -145,7 +153,8 @@ defmodule TartarusWarehouse.FloorTest do
           guide: guide,
           continue: true,
           secondary: 2,
-          phi: 2
+          phi: 2,
+          service_ms: 0.2
         )
 
       for r <- [back, on] do

@@ -182,7 +182,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
 
       iex> p = %{scale: 0.1, service_ms: 2.2, scaling_jobs: 120, drop: 10}
       iex> for n <- [30, 60], do: TartarusWarehouse.Experiment.Scaling.predict(n, p)
-      [200.0, 353.293]
+      [200.0, 353.251]
   """
   @spec predict(pos_integer(), map()) :: float()
   def predict(n, p) do
