@@ -456,6 +456,52 @@ defmodule TartarusTools.Stats do
     end
   end
 
+  @doc """
+  The least-squares hinge (broken-line) fit of `points` (`{x, y}`): `y = a + b *
+  max(0, x - knee)`, flat up to the knee, then a line of slope `b`. The knee is searched
+  from the smallest to the largest x in steps of `:step` (default 0.5); for each, `a` and
+  `b` are the ordinary least squares of y on `max(0, x - knee)`; the knee with the least
+  sum of squared residuals wins (the first on a tie). Returns `%{knee:, a:, b:, sse:}`, or
+  nil for fewer than three distinct x.
+
+      iex> pts = [{5, 10.0}, {10, 10.0}, {20, 10.0}, {30, 15.0}, {40, 20.0}]
+      iex> TartarusTools.Stats.hinge_fit(pts)
+      %{knee: 20.0, a: 10.0, b: 0.5, sse: 0.0}
+      iex> TartarusTools.Stats.hinge_fit([{1, 1.0}, {2, 2.0}])
+      nil
+  """
+  @spec hinge_fit([{number, number}], keyword) ::
+          %{knee: float, a: float, b: float, sse: float} | nil
+  def hinge_fit(points, opts \\ []) when is_list(points) do
+    xs = points |> Enum.map(&elem(&1, 0)) |> Enum.uniq()
+
+    if length(xs) < 3 do
+      nil
+    else
+      step = Keyword.get(opts, :step, 0.5)
+      {lo, hi} = Enum.min_max(xs)
+      steps = trunc(Float.floor((hi - lo) / step))
+
+      0..steps
+      |> Enum.map(fn i -> hinge_at(points, lo + i * step) end)
+      |> Enum.reduce(fn fit, best -> if fit.sse < best.sse - 1.0e-9, do: fit, else: best end)
+      |> Map.new(fn {k, v} -> {k, Float.round(v * 1.0, 6)} end)
+    end
+  end
+
+  defp hinge_at(points, knee) do
+    hs = Enum.map(points, fn {x, _} -> max(0, x - knee) end)
+    ys = Enum.map(points, &elem(&1, 1))
+    mh = mean(hs)
+    my = mean(ys)
+    shh = hs |> Enum.map(&((&1 - mh) * (&1 - mh))) |> Enum.sum()
+    shy = Enum.zip(hs, ys) |> Enum.map(fn {h, y} -> (h - mh) * (y - my) end) |> Enum.sum()
+    b = if shh == 0, do: 0.0, else: shy / shh
+    a = my - b * mh
+    sse = Enum.zip(hs, ys) |> Enum.map(fn {h, y} -> :math.pow(y - a - b * h, 2) end) |> Enum.sum()
+    %{knee: knee * 1.0, a: a, b: b, sse: sse}
+  end
+
   defp sorted_percentile(sorted, q) do
     n = length(sorted)
     Enum.at(sorted, min(n - 1, max(0, ceil(q * n) - 1)))

@@ -70,6 +70,28 @@ defmodule TartarusTools.StatsTest do
     end
   end
 
+  describe "hinge_fit/2" do
+    test "finds the knee of a noisy broken line and its slope" do
+      pts =
+        for {x, e} <- Enum.zip([5, 10, 15, 20, 25, 30, 35, 40, 50, 60], [1, -1, 0, 1, -1, 0, 1, -1, 0, 1]),
+            do: {x, 200.0 + 4.0 * max(0, x - 30) + e}
+
+      fit = Stats.hinge_fit(pts)
+      assert_in_delta fit.knee, 30.0, 2.5
+      assert_in_delta fit.b, 4.0, 0.3
+      assert_in_delta fit.a, 200.0, 1.5
+    end
+
+    test "a flat series has no slope, whatever the knee" do
+      fit = Stats.hinge_fit([{5, 3.0}, {10, 3.0}, {20, 3.0}])
+      assert fit.b == 0.0 and fit.a == 3.0 and fit.sse == 0.0
+    end
+
+    test "a straight rising line puts the knee at the smallest x" do
+      assert %{knee: 5.0, b: 2.0} = Stats.hinge_fit([{5, 10.0}, {10, 20.0}, {20, 40.0}])
+    end
+  end
+
   describe "mann_whitney/3" do
     test "complete separation of 10 against 10 has p = 1 / C(20, 10)" do
       r = Stats.mann_whitney(Enum.map(11..20, &(&1 / 1)), Enum.map(1..10, &(&1 / 1)))

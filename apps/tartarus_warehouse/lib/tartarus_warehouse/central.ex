@@ -9,24 +9,27 @@ defmodule TartarusWarehouse.Central do
   (same queue, same first-come-first-served grants): where an assignment would become a
   task agent that looks for its robot, the server sends it to the robot itself (a free
   robot for a first block, the booked one for the others) and waits for the robot's
-  message that it finished. Every grant is two messages through the server (command,
-  finished), so its work grows with the number of tasks.
+  messages that it started and finished. Every task is three messages through the server
+  (command, started, finished), so its work grows with the number of tasks running.
 
-  ## Service time
+  ## Messages and service time
 
-  `server_ms` (default 0) is the time the server takes to handle one message from a
-  robot before it can take the next: a real server reads the request off its socket,
-  updates and logs its tables and acknowledges, and the thesis's server (a Prolog process
-  over TCP) slowed as the messages grew. It is modelled as the server agent being busy
-  (it sleeps, using no CPU, so it does not slow the robots' hosts that share this
-  machine's cores); messages that arrive meanwhile queue in its mailbox, one server
-  handling them in order. With `k` robots busy on tasks of `T` ms, the server is busy a
-  fraction about `k * server_ms / T` of the time; near 1 the queue grows and every
-  hand-over waits. At 0 the server is a BEAM process handling a message in microseconds.
+  Every task costs the server three messages, as in the thesis (§4.7.2): the robot's
+  `{:started, ref, robot}` when it begins the task, its `{:finished, ref, robot, next}`,
+  and the server's command `{:execute, ref, assignment}` to the robot that runs the task
+  (for the next task of a job, "the resource is free: execute"). `service_ms` (a number,
+  default 0) is the server's time for each of them, and for each job submitted: one FIFO
+  server (`TartarusWarehouse.Service`) that handles a message, or sends a command, only
+  once its service is done, the one before it done first. It sleeps meanwhile (no CPU).
+  With `c` tasks running at once, tasks of `T` ms, the server is busy about
+  `3 * c * service_ms / T` of the time; near 1 the queue grows and every hand-over waits.
+  At 0 the server is a BEAM process handling a message in microseconds. The Job
+  Distributor of the agents' design is charged the same way
+  (`TartarusWarehouse.DistributorAgent`).
   """
   use Tartarus.Agent
 
-  alias TartarusWarehouse.Distributor
+  alias TartarusWarehouse.{Distributor, Service}
 
   @doc false
   @impl true
@@ -38,14 +41,64 @@ defmodule TartarusWarehouse.Central do
        states: Map.new(args.robots, fn {name, _agent} -> {name, :free} end),
        busy: MapSet.new(),
        pending: [],
-       messages: 0
-     })
-     |> Map.put_new(:server_ms, 0)}
+       messages: 0,
+       svc: Service.new(Map.get(args, :service_ms, 0))
+     })}
   end
 
   @doc false
   @impl true
-  def handle_message({:submit, spec}, from, s) do
+  def handle_message(:status, from, s) do
+    Tartarus.Agent.reply(from, %{
+      messages: s.messages,
+      waiting: Distributor.waiting(s.d),
+      service_log: s.svc.log
+    })
+
+    {:stay, s}
+  end
+
+  # Every other message waits for its service (see "Messages and service time").
+  def handle_message(message, from, s), do: {:stay, charge({:in, message, from}, s)}
+
+  @doc false
+  @impl true
+  def handle_info(:service_due, s) do
+    {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
+    arm(wake)
+    {:stay, Enum.reduce(items, %{s | svc: svc}, &serve/2)}
+  end
+
+  def handle_info(_msg, s), do: {:stay, s}
+
+  # A message received ({:in, message, from}) or a command to send ({:out, agent, command}).
+  # No service time: handled at once, and not logged (nothing to measure).
+  defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
+
+  defp charge(item, s) do
+    {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)
+    arm(wake)
+    %{s | svc: svc}
+  end
+
+  defp arm(nil), do: :ok
+
+  defp arm({:wake_at_ms, ms}) do
+    Process.send_after(self(), :service_due, ms, abs: true)
+    :ok
+  end
+
+  defp serve({:in, message, from}, s) do
+    {:stay, s} = handle(message, from, %{s | messages: s.messages + 1})
+    s
+  end
+
+  defp serve({:out, agent, command}, s) do
+    Tartarus.cast(agent, command)
+    %{s | messages: s.messages + 1}
+  end
+
+  defp handle({:submit, spec}, from, s) do
     case Distributor.submit(s.d, spec) do
       {:ok, d, actions} ->
         Tartarus.Agent.reply(from, :ok)
@@ -57,26 +110,17 @@ defmodule TartarusWarehouse.Central do
     end
   end
 
-  def handle_message({:finished, ref, robot, next}, _from, s) do
-    if s.server_ms > 0, do: Process.sleep(s.server_ms)
-
-    s = %{
-      s
-      | states: Map.put(s.states, robot, next),
-        busy: MapSet.delete(s.busy, robot),
-        messages: s.messages + 1
-    }
-
+  defp handle({:finished, ref, robot, next}, _from, s) do
+    s = %{s | states: Map.put(s.states, robot, next), busy: MapSet.delete(s.busy, robot)}
     {d, actions} = Distributor.done(s.d, ref)
     {:stay, perform(actions, %{s | d: d})}
   end
 
-  def handle_message(:status, from, s) do
-    Tartarus.Agent.reply(from, %{messages: s.messages, waiting: Distributor.waiting(s.d)})
-    {:stay, s}
-  end
+  # The robot began a task: the server notes it (the thesis's robots tell the server as a
+  # task is initiated); nothing waits for it.
+  defp handle({:started, _ref, _robot}, _from, s), do: {:stay, s}
 
-  def handle_message(_other, _from, s), do: {:stay, s}
+  defp handle(_other, _from, s), do: {:stay, s}
 
   defp perform(actions, s) do
     s = Enum.reduce(actions, s, &act/2)
@@ -103,8 +147,10 @@ defmodule TartarusWarehouse.Central do
             {[{ref, a} | left], s}
 
           robot ->
-            Tartarus.cast(s.robots[robot], {:execute, ref, a})
-            s = %{s | busy: MapSet.put(s.busy, robot), messages: s.messages + 1}
+            # The command goes out once its service is done (the robot is the server's
+            # from now: nothing else is sent to it).
+            s = charge({:out, s.robots[robot], {:execute, ref, a}}, s)
+            s = %{s | busy: MapSet.put(s.busy, robot)}
 
             if a.index == 0 do
               {d, actions} = Distributor.started(s.d, ref)
@@ -138,7 +184,7 @@ defmodule TartarusWarehouse.CentralRobot do
   @moduledoc """
   A robot's end of the centralized baseline: a static agent on the robot's host that runs
   what the server commands (`{:execute, ref, assignment}`) on the robot plugin and tells
-  the server when it finished. The programs are on the robot beforehand (they ship with
+  the server when it started and when it finished. The programs are on the robot beforehand (they ship with
   this agent when it is created).
   """
   use Tartarus.Agent,
@@ -173,6 +219,7 @@ defmodule TartarusWarehouse.CentralRobot do
         {:run, Agent.id(), %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}}
       )
 
+    Tartarus.cast(s.server, {:started, ref, s.robot})
     {:stay, %{s | running: {ref, a.next}}}
   end
 

@@ -54,6 +54,35 @@ defmodule TartarusWarehouse.Distributor do
   `still/2` after a round without work. `delete/2` of a job's own task only tells the
   robots (they skip it).
 
+  ## Agents that continue (the other reading of §4.5.2)
+
+  With `continue: true` an agent released (or re-issued) for a block also gets the
+  **run** of the blocks of the jobs queued after it that are the same block (the same
+  sequence and place in it, tasks, resources): `follow` in its assignment, in job order
+  (the run stops at the first queued block that wants its resources and is not the same
+  block, and a first block's run at any other first block). It serves them one after the
+  other without returning ("μ1 continues to make all robots in state S1* to perform task
+  T1 sequentially"), holding its resources throughout, and reports `done/2` at the end of
+  its run only; a sequence's last block within the run is reported one way with
+  `progress/3` (so the distributor knows when a job is done). A job is then done when
+  each of its sequences' last block is reported. A first block's run keeps the next first
+  blocks waiting until it ends, so robots are still booked in job order.
+
+      iex> alias TartarusWarehouse.Distributor, as: D
+      iex> d = D.new(TartarusWarehouse.Job.world([:a, :b], 2), continue: true)
+      iex> job = %{id: 1, tasks: [%{name: "T1", resources: [:a]}, %{name: "T2", resources: [:b], after: ["T1"]}]}
+      iex> {:ok, d, _} = D.submit(d, job)
+      iex> {:ok, d, []} = D.submit(d, %{job | id: 2})
+      iex> {:ok, d, []} = D.submit(d, %{job | id: 3})
+      iex> {d, [{:reissue, 1, a}]} = D.done(d, 1)
+      iex> {a.job, Enum.map(a.follow, & &1.job)}
+      {2, [3]}
+      iex> {d, [{:job_done, 1}, {:reissue, 2, b}]} = D.done(d, 2)
+      iex> {b.job, Enum.map(b.follow, & &1.job)}
+      {2, [3]}
+      iex> {d, [{:job_done, 2}]} = D.progress(d, 2, {2, 0, 1})
+      iex> {_d, [{:job_done, 3}, {:retire, 2}]} = D.done(d, 2)
+
   ## Example
 
       iex> alias TartarusWarehouse.Distributor, as: D
@@ -123,11 +152,17 @@ defmodule TartarusWarehouse.Distributor do
             next_ref: 1,
             completed: [],
             inserted: %{},
-            changes: []
+            changes: [],
+            continue: false,
+            runs: MapSet.new()
 
-  @doc "A distributor for `world` (see `TartarusWarehouse.Job.world/2`)."
-  @spec new(Job.world()) :: t()
-  def new(world), do: %__MODULE__{world: world}
+  @doc """
+  A distributor for `world` (see `TartarusWarehouse.Job.world/2`). With `continue: true`
+  an agent is given runs of blocks (see "Agents that continue" above).
+  """
+  @spec new(Job.world(), keyword()) :: t()
+  def new(world, opts \\ []),
+    do: %__MODULE__{world: world, continue: Keyword.get(opts, :continue, false)}
 
   @doc """
   A job arrives (asynchronously, at any time). Returns `{:ok, distributor, actions}`, or
@@ -143,7 +178,12 @@ defmodule TartarusWarehouse.Distributor do
       d = %{
         d
         | queue: d.queue ++ assignments,
-          jobs: Map.put(d.jobs, plan.id, length(assignments))
+          jobs:
+            Map.put(
+              d.jobs,
+              plan.id,
+              if(d.continue, do: length(plan.sequences), else: length(assignments))
+            )
       }
 
       {d, actions} = issue(d, nil)
@@ -182,8 +222,11 @@ defmodule TartarusWarehouse.Distributor do
   Unknown refs are ignored.
   """
   @spec started(t(), ref()) :: {t(), [action()]}
-  def started(%__MODULE__{starting: ref} = d, ref) when ref != nil,
-    do: issue(%{d | starting: nil}, nil)
+  def started(%__MODULE__{starting: ref} = d, ref) when ref != nil do
+    # A first block's run books its robots in job order itself: the next first block
+    # waits until the run ends.
+    if MapSet.member?(d.runs, ref), do: {d, []}, else: issue(%{d | starting: nil}, nil)
+  end
 
   def started(%__MODULE__{} = d, _ref), do: {d, []}
 
@@ -205,17 +248,12 @@ defmodule TartarusWarehouse.Distributor do
 
       {a, out} ->
         held = Map.drop(d.held, a.resources)
-        left = d.jobs[a.job] - 1
+        {d, finished} = count_done(d, a)
 
-        {d, finished} =
-          if left == 0,
-            do:
-              {%{d | jobs: Map.delete(d.jobs, a.job), completed: [a.job | d.completed]},
-               [{:job_done, a.job}]},
-            else: {%{d | jobs: Map.put(d.jobs, a.job, left)}, []}
-
-        # A first block that ends before it reported started (it cannot, but be safe).
+        # A first block that ends before it reported started (it cannot, but be safe), or
+        # a first block's run that ends.
         d = if d.starting == ref, do: %{d | starting: nil}, else: d
+        d = %{d | runs: MapSet.delete(d.runs, ref)}
         {d, actions} = issue(%{d | out: out, held: held}, {ref, MapSet.new(a.resources)})
 
         actions =
@@ -225,6 +263,36 @@ defmodule TartarusWarehouse.Distributor do
 
         {d, finished ++ actions}
     end
+  end
+
+  @doc """
+  `continue: true`: agent `ref` finished block `key` (`{job, seq, index}`), a sequence's
+  last block within its run, and goes on (a one-way note). Returns `{:job_done, job}`
+  when that was the job's last sequence; anything else changes nothing.
+  """
+  @spec progress(t(), ref(), {term(), non_neg_integer(), non_neg_integer()}) ::
+          {t(), [action()]}
+  def progress(%__MODULE__{continue: true} = d, ref, {job, _seq, _index})
+      when is_map_key(d.out, ref) and is_map_key(d.jobs, job),
+      do: count_done(d, %{job: job, next: :free})
+
+  def progress(%__MODULE__{} = d, _ref, _key), do: {d, []}
+
+  # A block reported done: one block less of its job (continue: one sequence less, when
+  # it was the sequence's last block).
+  defp count_done(d, a) do
+    left =
+      cond do
+        not d.continue -> d.jobs[a.job] - 1
+        a.next == :free -> d.jobs[a.job] - 1
+        true -> d.jobs[a.job]
+      end
+
+    if left == 0,
+      do:
+        {%{d | jobs: Map.delete(d.jobs, a.job), completed: [a.job | d.completed]},
+         [{:job_done, a.job}]},
+      else: {%{d | jobs: Map.put(d.jobs, a.job, left)}, []}
   end
 
   @doc """
@@ -386,6 +454,57 @@ defmodule TartarusWarehouse.Distributor do
         end
       end)
 
-    {%{d | queue: Enum.reverse(queue)}, Enum.reverse(actions)}
+    take_runs(%{d | queue: Enum.reverse(queue)}, Enum.reverse(actions))
   end
+
+  # continue: each agent released or re-issued takes the run of the same block of the
+  # jobs queued after it (see "Agents that continue").
+  defp take_runs(%__MODULE__{continue: false} = d, actions), do: {d, actions}
+
+  defp take_runs(d, actions) do
+    {actions, d} =
+      Enum.map_reduce(actions, d, fn
+        {kind, ref, a}, d when kind in [:release, :reissue] and not is_map_key(a, :persistent) ->
+          case run_of(a, d.queue) do
+            {[], _} ->
+              {{kind, ref, a}, d}
+
+            {run, queue} ->
+              runs = if a.index == 0, do: MapSet.put(d.runs, ref), else: d.runs
+              d = %{d | queue: queue, out: Map.put(d.out, ref, List.last(run)), runs: runs}
+              {{kind, ref, Map.put(a, :follow, run)}, d}
+          end
+
+        other, d ->
+          {other, d}
+      end)
+
+    {d, actions}
+  end
+
+  defp run_of(a, queue) do
+    same = shape(a)
+    rs = MapSet.new(a.resources)
+
+    {run, rest, _stopped} =
+      Enum.reduce(queue, {[], [], false}, fn b, {run, rest, stopped} ->
+        cond do
+          stopped ->
+            {run, [b | rest], true}
+
+          shape(b) == same and not Map.has_key?(b, :persistent) ->
+            {[b | run], rest, false}
+
+          not MapSet.disjoint?(MapSet.new(b.resources), rs) or (a.index == 0 and b.index == 0) ->
+            {run, [b | rest], true}
+
+          true ->
+            {run, [b | rest], false}
+        end
+      end)
+
+    {Enum.reverse(run), Enum.reverse(rest)}
+  end
+
+  defp shape(a), do: {a.seq, a.index, Enum.map(a.tasks, & &1.name), a.resources, a.needs}
 end

@@ -10,7 +10,17 @@ defmodule TartarusWarehouse.DistributorAgent do
   at any time; the same job submitted again is `:ok` and changes nothing),
   `{:insert, after_task, task_spec}` and `{:delete, task}` (on-the-fly programming: it
   releases a `TartarusWarehouse.SequenceAgent`), `{:started, ref}`, `{:done, ref, key}`,
-  `{:still, ref}` and `{:valid, ref, nonce}` from task agents, `:status`.
+  `{:still, ref}` and `{:valid, ref, nonce}` from task agents, `{:progress, ref, key}`
+  (one way, from an agent that continues to the next job: see
+  `TartarusWarehouse.Distributor`, "Agents that continue"), `:status`.
+
+  ## Service time
+
+  `service_ms` (a number, default 0) is the distributor's time for each message it
+  handles (every request and note above but `:status`), charged as the central
+  server's (`TartarusWarehouse.Central`): one FIFO server (`TartarusWarehouse.Service`)
+  that handles a message only once its service is done. Agents it creates or re-issues in
+  an answer are not charged again.
 
   ## Surviving the loss of its host
 
@@ -34,16 +44,17 @@ defmodule TartarusWarehouse.DistributorAgent do
   """
   use Tartarus.Agent
 
-  alias TartarusWarehouse.Distributor
+  alias TartarusWarehouse.{Distributor, Service}
 
   @doc false
   @impl true
   def init(args) do
     s =
       Map.merge(
-        %{validate: false},
+        %{validate: false, continue: false},
         Map.merge(args, %{
-          d: Distributor.new(args.world),
+          d: Distributor.new(args.world, continue: Map.get(args, :continue, false)),
+          svc: Service.new(Map.get(args, :service_ms, 0)),
           released: 0,
           reissued: 0,
           specs: %{},
@@ -73,16 +84,39 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   def handle_arrival(_ctx, s) do
     if s.effects != [], do: send(self(), :effects)
+    # Messages waiting for their service when the host went down: wake up for them again.
+    s = %{s | svc: %{s.svc | armed: false}}
+    if not :queue.is_empty(s.svc.queue), do: send(self(), :service_due)
     s = if s.d.changes != [], do: act({:sequence, s.d.changes}, s), else: s
     {:stay, s}
   end
 
   @doc false
   @impl true
+  # Every message but :status waits for its service (see "Service time").
+  def handle_message(:status, from, s), do: handle(:status, from, s)
+  def handle_message(message, from, s), do: charge({message, from}, s)
+
+  # No service time: handled at once, and not logged (nothing to measure).
+  defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
+
+  defp charge(item, s) do
+    {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)
+    arm(wake)
+    {:stay, %{s | svc: svc}}
+  end
+
+  defp arm(nil), do: :ok
+
+  defp arm({:wake_at_ms, ms}) do
+    Process.send_after(self(), :service_due, ms, abs: true)
+    :ok
+  end
+
   # A request whose handling raises is answered `{:error, message}` and changes nothing
   # (the distributor is pure until `later/2` returns): a bad message never takes the
   # distributor, and the jobs it holds, down. The owner hears of it too.
-  def handle_message(message, from, s) do
+  defp serve({message, from}, s) do
     handle(message, from, s)
   catch
     kind, reason ->
@@ -173,6 +207,11 @@ defmodule TartarusWarehouse.DistributorAgent do
     later(%{s | d: d}, [{:reply, from, if(mine == [], do: :stay, else: :retire)} | others])
   end
 
+  defp handle({:progress, ref, key}, _from, s) do
+    {d, actions} = Distributor.progress(s.d, ref, key)
+    later(%{s | d: d}, actions)
+  end
+
   defp handle({:valid, ref, nonce}, from, s) do
     Tartarus.Agent.reply(from, Map.get(s.nonces, ref) == nonce)
     {:stay, s}
@@ -184,7 +223,8 @@ defmodule TartarusWarehouse.DistributorAgent do
       held: Distributor.held(s.d),
       pending_jobs: Distributor.pending_jobs(s.d),
       released: s.released,
-      reissued: s.reissued
+      reissued: s.reissued,
+      service_log: s.svc.log
     })
 
     {:stay, s}
@@ -194,6 +234,19 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   @doc false
   @impl true
+  def handle_info(:service_due, s) do
+    {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
+    arm(wake)
+
+    s =
+      Enum.reduce(items, %{s | svc: svc}, fn item, s ->
+        {:stay, s} = serve(item, s)
+        s
+      end)
+
+    {:stay, s}
+  end
+
   def handle_info(:effects, %{effects: []} = s), do: {:stay, s}
 
   def handle_info(:effects, s) do
@@ -228,7 +281,8 @@ defmodule TartarusWarehouse.DistributorAgent do
       idle_ms: s.idle_ms,
       round: s.round,
       validate: s.validate,
-      guide: Map.get(s, :guide)
+      guide: Map.get(s, :guide),
+      continue: s.continue
     }
 
     {:ok, _} =

@@ -9,11 +9,14 @@ defmodule TartarusWarehouse.Experiment do
       and each execution a spread of `jitter`): a Gantt chart per k (Figs. 4.7-4.10) and
       the speed-up over one robot; then `equal_jobs` jobs with equal durations: the
       speed-up of the pipeline in steady state;
-    * `:scaling` - step i runs `scaling_jobs` jobs of n soft tasks (Sort, Merge, Add, Sub,
-      Div repeating, §4.7.2; n = 5, 10, 20, ... up to `max_tasks`) with equal durations on
-      a network of `nodes` nodes (`scaling_robots` robots, the rest secondary), with task
-      agents (searching blind, as in the thesis, and guided by signal fields) and with
-      the central server: the average time per task against tasks per job (Fig. 4.4);
+    * `:scaling` - each job size n of `sizes` and each of `seeds` seeds runs
+      `scaling_jobs` jobs of n soft tasks (Sort, Merge, Add, Sub, Div repeating, §4.7.2)
+      with equal durations on a network of `nodes` nodes (`scaling_robots` robots (R),
+      `phi_nodes` shared-resource nodes (Φ), the rest secondary (Σ)), with the central
+      server and with task agents (searching blind, as in the thesis, and guided by signal
+      fields; returning to the distributor after each block, or continuing to the next
+      job's robot), every central process charged `service_ms` a message: the
+      steady-state time per task against tasks per job (Fig. 4.4);
     * `:otfp` - on-the-fly programming (§4.5.4): 6 warehouse jobs on 3 robots, a task T2A
       (a detour, its program compiled at run time) added after T2 while job 2 runs T2,
       deleted, and added again (Fig. 4.12: a Gantt chart); then 16 jobs of 10 soft tasks
@@ -72,27 +75,57 @@ defmodule TartarusWarehouse.Experiment do
       doc:
         "serve the web dashboard on this port (127.0.0.1) while the experiment runs, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the graph of the floor running now and the warehouse panel (`TartarusWarehouse.Panel`)"
     ],
-    scale: [type: :number, default: 0.01, doc: "time scale: 0.01 runs a 2 s task as 20 ms"],
+    scale: [
+      type: {:custom, &TartarusWarehouse.Experiment.scale?/1},
+      default: nil,
+      doc:
+        "time scale: 0.01 runs a 2 s task as 20 ms (default: 0.1 for `scaling`, 0.01 for the others)"
+    ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
     jobs: [type: :pos_integer, default: 4, doc: "`robots`: jobs with variable durations"],
     jitter: [type: :number, default: 0.3, doc: "`robots`: spread of each execution's duration"],
     equal_jobs: [type: :pos_integer, default: 40, doc: "`robots`: jobs with equal durations"],
-    max_tasks: [type: :pos_integer, default: 60, doc: "`scaling`: tasks per job up to this"],
-    scaling_jobs: [type: :pos_integer, default: 5, doc: "`scaling`: jobs per run"],
+    sizes: [
+      type: {:list, :pos_integer},
+      default: [5, 10, 20, 30, 45, 60],
+      doc: "`scaling`: the tasks per job of its points"
+    ],
+    scaling_jobs: [type: :pos_integer, default: 120, doc: "`scaling`: jobs per run"],
     nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
-    scaling_robots: [type: :pos_integer, default: 10, doc: "`scaling`: robots among them"],
+    scaling_robots: [type: :pos_integer, default: 60, doc: "`scaling`: robots among them"],
+    phi_nodes: [
+      type: :non_neg_integer,
+      default: 20,
+      doc: "`scaling`: shared-resource (Φ) nodes among them (the rest but `jd` are Σ nodes)"
+    ],
+    seeds: [
+      type: :pos_integer,
+      default: 3,
+      doc: "`scaling`: seeds per point (seed, seed + 1, ...); medians over them"
+    ],
+    drop: [
+      type: :non_neg_integer,
+      default: 10,
+      doc: "`scaling`: the first and the last this many jobs are left out of the metric"
+    ],
+    designs: [
+      type: {:list, {:in, [:central, :agents, :agents_continue, :guided, :guided_continue]}},
+      default: [:central, :agents, :agents_continue, :guided, :guided_continue],
+      doc:
+        "`scaling`: the floors of each point: `central`, the blind task agents returning to the distributor after each block (`agents`) or continuing to the next job's robot (`agents_continue`), the guided agents likewise (`guided`, `guided_continue`)"
+    ],
     latency_ms: [
       type: :non_neg_integer,
       default: 0,
       doc:
         "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
-    server_ms: [
-      type: :non_neg_integer,
-      default: 0,
+    service_ms: [
+      type: :number,
+      default: 2.2,
       doc:
-        "`scaling`: the central server's time to handle one robot message (see `TartarusWarehouse.Central`, \"Service time\"); 0: a BEAM process's microseconds"
+        "`scaling`: the time (ms) the central server and the Job Distributor each take for every message they handle (see `TartarusWarehouse.Service`); 0: a BEAM process's microseconds"
     ],
     big_robots: [
       type: :non_neg_integer,
@@ -102,6 +135,11 @@ defmodule TartarusWarehouse.Experiment do
     ],
     timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
   ]
+
+  @doc false
+  # The time scale: a positive number, or nil for the experiment's default.
+  @spec scale?(term()) :: boolean()
+  def scale?(x), do: is_nil(x) or (is_number(x) and x > 0)
 
   @doc """
   The registry: every experiment's name and module, in the order `mix tartarus.warehouse`
@@ -130,8 +168,8 @@ defmodule TartarusWarehouse.Experiment do
   Checks `run/1`'s options; returns them with defaults, or `{:error, message}`.
 
       iex> {:ok, opts} = TartarusWarehouse.Experiment.validate(experiment: :scaling)
-      iex> {opts[:max_tasks], opts[:nodes]}
-      {60, 100}
+      iex> {opts[:sizes], opts[:nodes], opts[:scale]}
+      {[5, 10, 20, 30, 45, 60], 100, 0.1}
       iex> TartarusWarehouse.Experiment.validate(experiment: :nope)
       {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed, :failover], got: :nope"}
   """
@@ -139,11 +177,19 @@ defmodule TartarusWarehouse.Experiment do
   def validate(opts) do
     with {:ok, opts} <-
            Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Experiment.run/1") do
-      if opts[:nodes] < opts[:scaling_robots] + 1,
-        do:
+      need = opts[:scaling_robots] + opts[:phi_nodes] + 1
+
+      cond do
+        opts[:nodes] < need ->
           {:error,
-           "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + 1 (#{opts[:scaling_robots] + 1}), got: #{opts[:nodes]}"},
-        else: {:ok, opts}
+           "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + phi_nodes + 1 (#{need}), got: #{opts[:nodes]}"}
+
+        opts[:scale] == nil ->
+          {:ok, Keyword.put(opts, :scale, if(opts[:experiment] == :scaling, do: 0.1, else: 0.01))}
+
+        true ->
+          {:ok, opts}
+      end
     end
   end
 

@@ -40,11 +40,12 @@ defmodule TartarusWarehouse.Floor do
   def schema, do: Options.schema()
 
   @doc """
-  The floor's topology for `robots` robots and `secondary` relay nodes (see
-  `TartarusWarehouse.Floor.Build.topology/2`).
+  The floor's topology for `robots` robots, `secondary` relay nodes and `phi`
+  shared-resource nodes (see `TartarusWarehouse.Floor.Build.topology/3`).
   """
-  @spec topology(pos_integer(), non_neg_integer()) :: TartarusEmu.Topology.t()
-  defdelegate topology(robots, secondary), to: Build
+  @spec topology(pos_integer(), non_neg_integer(), non_neg_integer()) ::
+          TartarusEmu.Topology.t()
+  defdelegate topology(robots, secondary, phi \\ 0), to: Build
 
   @doc """
   Runs jobs on a floor: `start/1`, the jobs submitted, `await/2` (at most `timeout_ms`),

@@ -31,6 +31,11 @@ defmodule TartarusWarehouse.TaskAgent do
   distributor, after claiming a robot and before running anything, whether it is the
   valid holder of its assignment (see `TartarusWarehouse.DistributorAgent`).
 
+  With `continue: true` (the distributor's, see `TartarusWarehouse.Distributor`, "Agents
+  that continue") an agent given a run of blocks serves them in order: after each it
+  moves on to the next job's robot without returning to the distributor, telling it only,
+  one way, when a sequence's last block ran; it reports `done` at the end of its run.
+
   The agent of an inserted task (on-the-fly programming) looks for robots in state
   `{:inserted, task, _}`, leaves them in the state they would have had, and asks the
   distributor after each fruitless round whether its task was deleted.
@@ -64,9 +69,10 @@ defmodule TartarusWarehouse.TaskAgent do
           :ok = Agent.write(:robot, {:run, Agent.id(), run})
           guide(s)
 
-          if a.index == 0 and ask(s, {:started, s.ref}) == :unreachable,
-            do: {:stop, {:shutdown, :distributor_unreachable}, s},
-            else: {:stay, %{s | misses: 0}}
+          if a.index == 0 and not Map.get(a, :continued, false) and
+               ask(s, {:started, s.ref}) == :unreachable,
+             do: {:stop, {:shutdown, :distributor_unreachable}, s},
+             else: {:stay, %{s | misses: 0}}
         else
           # A stale copy (created again after the distributor's restart): it runs nothing.
           :ok = Agent.write(:robot, {:unclaim, Agent.id()})
@@ -100,7 +106,19 @@ defmodule TartarusWarehouse.TaskAgent do
 
   def handle_info(_msg, s), do: {:stay, s}
 
-  # Its robot ran its block: the next job.
+  # Its robot ran its block: the next job. An agent that continues (a run of blocks, see
+  # `TartarusWarehouse.Distributor`, "Agents that continue") goes on to the next job's
+  # robot without asking: it only tells the distributor, one way, that a sequence's last
+  # block ran.
+  defp finished(%{a: %{follow: [next | rest]}} = s) do
+    a = s.a
+
+    if a.next == :free,
+      do: Tartarus.cast(s.distributor, {:progress, s.ref, {a.job, a.seq, a.index}})
+
+    {:move, strategy(s), %{s | a: Map.merge(next, %{follow: rest, continued: true}), misses: 0}}
+  end
+
   defp finished(s) do
     case ask(s, {:done, s.ref, {s.a.job, s.a.seq, s.a.index}}) do
       {:reissue, a} ->

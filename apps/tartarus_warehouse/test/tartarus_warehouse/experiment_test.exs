@@ -125,23 +125,65 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert length(String.split(runs_csv, "\n", trim: true)) == 3
   end
 
-  test "scaling: agents and central keyed by tasks per job", %{tmp_dir: dir} do
+  test "scaling: the thesis-shaped floor on a tiny size: five designs, two seeds, the steady-state metric, the census",
+       %{tmp_dir: dir} do
     {:ok, %{summary: s}} =
       Experiment.run(
         experiment: :scaling,
-        max_tasks: 5,
-        scaling_jobs: 2,
-        nodes: 20,
+        sizes: [3],
+        scaling_jobs: 6,
+        drop: 1,
+        nodes: 10,
         scaling_robots: 4,
-        scale: 0.005,
+        phi_nodes: 2,
+        seeds: 2,
+        service_ms: 1,
+        scale: 0.01,
         out: dir,
         quiet: true
       )
 
-    assert Map.keys(s.avg_task_ms_agents) == ["5"]
-    assert Map.keys(s.avg_task_ms_central) == ["5"]
-    assert Map.keys(s.avg_task_ms_agents_guided) == ["5"]
-    assert s.mutex_violations == 0 and s.deadlocks == 0 and s.completed_jobs == 6 and s.jobs == 6
+    keys = [
+      :avg_task_ms_central,
+      :avg_task_ms_agents,
+      :avg_task_ms_agents_continue,
+      :avg_task_ms_agents_guided,
+      :avg_task_ms_agents_guided_continue
+    ]
+
+    # The metric: a job's span over its tasks, jobs 2-5 of 6; a task takes 20 ms, so no
+    # design does better than 20 ms a task.
+    for key <- keys do
+      assert Map.keys(s[key]) == ["3"]
+      assert s[key]["3"] >= 20.0
+    end
+
+    assert s.avg_task_ms_by_seed["central"]["3"] |> length() == 2
+    assert s.sweep.arms == ["3"] and s.sweep.seeds == [1, 2] and s.sweep.runs == 2
+
+    # The census: 5 designs x 2 seeds x 6 jobs, all completed, no two robots on one
+    # resource at once, no deadlock.
+    assert s.jobs == 60 and s.completed_jobs == 60
+    assert s.mutex_violations == 0 and s.deadlocks == 0
+    assert s.pass.exclusion
+    assert s.sweep.aggregates["3"].mutex_violations.max == 0
+    assert s.sweep.aggregates["3"].deadlocks.max == 0
+
+    # Every central process was charged: the central server 3 messages a task (and a
+    # submission a job), busier than the returning agents' distributor (1 a task, 1 a job).
+    assert s.utilisation["central"]["3"] > s.utilisation["distributor_agents"]["3"]
+    assert s.utilisation["distributor_agents_guided_continue"]["3"] >= 0
+    assert s.predicted_knee == Float.round(20 / 3, 3)
+    assert File.exists?(Path.join(dir, "avg_task_time.svg"))
+    assert File.read!(Path.join(dir, "service_queue.svg")) =~ "central server"
+  end
+
+  test "scaling: the steady-state metric leaves out the first and the last jobs" do
+    h = fn job, t0, t1 -> %{job: job, start_us: t0, stop_us: t1, skipped: false} end
+    # job 2 takes 10 ms a task; jobs 1 and 3 (dropped) take much longer
+    history = [h.(1, 0, 90_000), h.(2, 0, 10_000), h.(2, 10_000, 20_000), h.(3, 0, 500_000)]
+    st = TartarusWarehouse.Experiment.Scaling.steady(%{jobs: [1, 2, 3], history: history}, 1)
+    assert st.avg_task_ms == 10.0 and st.jobs == 1 and st.window == {0, 20_000}
   end
 
   test "failover: the three seeds are the sweep's seeds, one arm; the run without persistence loses jobs" do
@@ -160,7 +202,7 @@ defmodule TartarusWarehouse.ExperimentTest do
              Experiment.run(robots: 0)
 
     assert {:error,
-            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + 1 (11), got: 5"} =
+            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + phi_nodes + 1 (81), got: 5"} =
              Experiment.run(nodes: 5)
   end
 end

@@ -89,15 +89,81 @@ defmodule TartarusWarehouse.FloorTest do
 
   test "a central server with a service time makes every robot wait for it between blocks" do
     # One robot: each block starts only after the server handled the previous "finished"
-    # (server_ms) and sent the next command. A lower bound only: no timing upper bound.
+    # (service_ms) and sent the next command. A lower bound only: no timing upper bound.
     jobs = Jobs.thesis_jobs(2, 1000)
-    {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, server_ms: 25)
+    {:ok, r} = Floor.run(robots: 1, jobs: jobs, scale: 0.01, design: :central, service_ms: 25)
     assert r.timed_out == []
     assert length(Checker.completion(r.history, jobs).completed) == 2
     runs = Enum.sort_by(r.history, & &1.start_us)
     gaps = for [a, b] <- Enum.chunk_every(runs, 2, 1, :discard), do: b.start_us - a.stop_us
     assert length(gaps) == 7
     assert Enum.all?(gaps, &(&1 >= 25_000))
+  end
+
+  test "the central server handles 3 messages a task and each job; the distributor one a block, one a job" do
+    jobs = Jobs.soft_jobs(3, 4, 2000)
+
+    {:ok, c} = Floor.run(robots: 4, jobs: jobs, scale: 0.005, design: :central, service_ms: 0.5)
+
+    {:ok, a} = Floor.run(robots: 4, jobs: jobs, scale: 0.005, service_ms: 0.5)
+
+    for r <- [c, a] do
+      assert r.timed_out == [] and r.mutex_violations == 0
+      assert length(r.history) == 12
+    end
+
+    # central: 3 submissions + 12 tasks x (started, finished, the command)
+    assert length(c.service_log) == 3 + 12 * 3
+    # agents: 3 submissions + 12 done + 3 started (a job's first block)
+    assert length(a.service_log) == 3 + 12 + 3
+    # one server: no two messages in service at once, each took its 0.5 ms
+    for r <- [c, a] do
+      served = r.service_log |> Enum.sort_by(&elem(&1, 1))
+
+      assert Enum.all?(served, fn {arrived, start, done} ->
+               start >= arrived and done - start == 500
+             end)
+
+      assert served
+             |> Enum.chunk_every(2, 1, :discard)
+             |> Enum.all?(fn [{_, _, d1}, {_, s2, _}] -> s2 >= d1 end)
+    end
+  end
+
+  test "agents that continue serve the next jobs without returning: same tasks, fewer messages to the distributor" do
+    jobs = Jobs.soft_jobs(8, 3, 2000)
+
+    for guide <- [false, true] do
+      {:ok, back} =
+        Floor.run(
+          robots: 4,
+          jobs: jobs,
+          scale: 0.005,
+          guide: guide,
+          secondary: 2,
+          phi: 2,
+          service_ms: 0.2
+        )
+
+      {:ok, on} =
+        Floor.run(
+          robots: 4,
+          jobs: jobs,
+          scale: 0.005,
+          guide: guide,
+          continue: true,
+          secondary: 2,
+          phi: 2,
+          service_ms: 0.2
+        )
+
+      for r <- [back, on] do
+        assert r.timed_out == [] and r.mutex_violations == 0
+        assert length(Checker.completion(r.history, jobs).completed) == 8
+      end
+
+      assert length(on.service_log) < length(back.service_log)
+    end
   end
 
   test "independent sequences run on different robots; a robot retired after job 1 takes no more work" do

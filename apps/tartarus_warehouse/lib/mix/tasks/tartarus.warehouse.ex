@@ -9,8 +9,10 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
                              [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
-                             [--max-tasks 60] [--scaling-jobs 5] [--nodes 100] [--scaling-robots 10]
-                             [--latency-ms 0] [--server-ms 0] [--big-robots 1000]
+                             [--sizes 5,10,20,30,45,60] [--scaling-jobs 120] [--nodes 100]
+                             [--scaling-robots 60] [--phi-nodes 20] [--seeds 3] [--drop 10]
+                             [--designs central,agents,agents_continue,guided,guided_continue]
+                             [--latency-ms 0] [--service-ms 2.2] [--big-robots 1000]
                              [--timeout-ms 300000] [--dashboard PORT]
 
   `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
@@ -26,14 +28,22 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       Gantt chart per robot count (`gantt_<k>_robots.svg`, Figs. 4.7-4.10) and the
       speed-up over one robot (`speedup.svg`, against the thesis's 1.75, 1.84, 2.21); then
       `--equal-jobs` (40) jobs with equal durations: the pipeline's steady-state speed-up;
-    * `scaling`: `--scaling-jobs` jobs of 5..`--max-tasks` soft tasks (Sort, Merge, Add,
-      Sub, Div repeating) on a `--nodes`-node network with `--scaling-robots` robots, task
-      agents (blind as in the thesis, and guided by signal fields) vs the central server:
-      `avg_task_time.svg` (Fig. 4.4); `--latency-ms L` gives every link a one-way delay
-      paid alike by both designs, `--server-ms S` the central server's time to handle one
-      robot message (`TartarusWarehouse.Central`, "Service time"); with `--big-robots N`
-      also one run on N robots (20 jobs of 5 tasks in 20 independent pipelines, agents
-      guided by signal fields; `big_run` in the summary, with its wall time);
+    * `scaling` (Fig. 4.4 under the thesis's load, default `--scale 0.1`): for each job
+      size of `--sizes` and each of `--seeds` seeds (seed, seed + 1, ...), `--scaling-jobs`
+      jobs of that many soft tasks (Sort, Merge, Add, Sub, Div repeating), all submitted
+      at the start, on a `--nodes`-node network (`jd`, `--scaling-robots` robots,
+      `--phi-nodes` shared-resource nodes, the rest secondary) with the floors of
+      `--designs`: the central server (3 messages a task), the blind task agents (the
+      thesis's) returning to the distributor after each block or continuing to the next
+      job's robot, the guided agents likewise; `--service-ms S` is the time the central
+      server and the Job Distributor each take for every message they handle
+      (`TartarusWarehouse.Service`); `--latency-ms L` gives every link a one-way delay paid
+      alike by both designs. The metric is the steady state's time per task (each job's
+      span over its tasks, the first and last `--drop` jobs left out), medians over the
+      seeds: `avg_task_time.svg` (with the utilisation formula's prediction),
+      `service_queue.svg` and `service_busy.svg` (the central processes over time, at the
+      largest size); with `--big-robots N` also one run on N robots (20 jobs of 5 tasks in
+      20 independent pipelines, agents guided by signal fields; `big_run` in the summary);
     * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
       (`gantt_otfp.svg`, Fig. 4.12), then 16 jobs of 10 soft tasks while tasks are added
       and deleted (`otfp.svg`: tasks of each job, `otfp_ms.svg`: its ms per task, Fig. 4.5);
@@ -59,9 +69,15 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   runner's `scenario, seed, steps, setup_ms, run_ms` (`steps` is 1: the sweep), and
   `sweep` (`name, seeds, arms, runs`, the per-arm `aggregates` of `TartarusEmu.Sweep`). `robots` adds `speedup_equal,
   makespan_variable_ms, makespan_equal_ms, speedup_thesis, jobs_variable, jobs_equal,
-  jitter`; `scaling` adds `avg_task_ms_agents, avg_task_ms_central,
-  avg_task_ms_agents_guided` (objects keyed by tasks per job), `agents_faster_at, slope_ms_per_task, latency_ms, server_ms,
-  nodes, robots, jobs_per_run, big_run`; `otfp` adds `inserted_runs,
+  jitter`; `scaling` adds `avg_task_ms_central, avg_task_ms_agents,
+  avg_task_ms_agents_continue, avg_task_ms_agents_guided, avg_task_ms_agents_guided_continue`
+  (medians over the seeds, keyed by tasks per job), `avg_task_ms_by_seed`, `utilisation`
+  and `max_queue` (the central server's and each design's distributor's, medians over the
+  seeds, keyed by tasks per job), `predicted_knee, predicted_central_ms, central_fit`
+  (`knee, a, b, sse` of the hinge fit), `central_rise` (the largest size over the
+  minimum), `crossings` (per agents' design: `below_at`, `below_from`), `pass` (`rise,
+  knee, exclusion`), `latency_ms, service_ms, nodes, robots, phi_nodes, jobs_per_run,
+  drop, seeds, big_run`; `otfp` adds `inserted_runs,
   jobs_with_t2a, skipped_runs, tasks_in_job, ms_per_task`; `removal` adds `jobs_per_robot,
   removed_robot, joined_robot, mean_busy_robots`; `mixed` adds
   `jobs_with_concurrent_sequences, mean_busy_robots`; `failover` adds `jobs_lost,
@@ -84,9 +100,13 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       |> Keyword.update!(:experiment, &Keyword.put(&1, :default, :robots))
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.update!(:dashboard, &Keyword.put(&1, :type, :non_neg_integer))
+      # Typed as flags: --scale 0.1, --sizes 5,10,60, --designs central,guided
+      |> Keyword.update!(:scale, &(&1 |> Keyword.put(:type, :number) |> Keyword.delete(:default)))
+      |> Keyword.update!(:sizes, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:designs, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
-    opts = TartarusTools.CLI.options!(argv, schema, @task)
+    opts = argv |> TartarusTools.CLI.options!(schema, @task) |> lists!()
     {experiment, mode, json?} = {opts[:experiment], opts[:mode], opts[:json]}
     exp_opts = opts |> Keyword.drop([:json]) |> Keyword.put(:quiet, json?)
 
@@ -112,6 +132,49 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       {:error, message} ->
         TartarusTools.CLI.error!(@task, message)
     end
+  end
+
+  # --sizes and --designs: comma-separated lists (a default is already a list).
+  defp lists!(opts) do
+    opts
+    |> Keyword.update!(:sizes, fn
+      list when is_list(list) ->
+        list
+
+      text ->
+        Enum.map(String.split(text, ",", trim: true), fn x ->
+          case Integer.parse(String.trim(x)) do
+            {n, ""} when n > 0 ->
+              n
+
+            _ ->
+              TartarusTools.CLI.error!(
+                @task,
+                "--sizes: expected positive integers separated by commas, got: #{inspect(text)}"
+              )
+          end
+        end)
+    end)
+    |> Keyword.update!(:designs, fn
+      list when is_list(list) ->
+        list
+
+      text ->
+        known = [:central, :agents, :agents_continue, :guided, :guided_continue]
+
+        Enum.map(String.split(text, ",", trim: true), fn x ->
+          case Enum.find(known, &(to_string(&1) == String.trim(x))) do
+            nil ->
+              TartarusTools.CLI.error!(
+                @task,
+                "--designs: expected some of #{Enum.join(known, ", ")} separated by commas, got: #{inspect(text)}"
+              )
+
+            d ->
+              d
+          end
+        end)
+    end)
   end
 
   # The experiment's own lines (its module, from the registry), then the common ones.

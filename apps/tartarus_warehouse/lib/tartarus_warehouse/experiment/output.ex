@@ -8,7 +8,7 @@ defmodule TartarusWarehouse.Experiment.Output do
 
   @doc """
   Writes `executions.csv` (every task executed by every run: point, run, robot, job,
-  task, resources, start, stop, ms) and two Gantt charts for each run the experiment
+  task, resources, start, stop, ms; a point `{n, seed}` as `n/seed`) and two Gantt charts for each run the experiment
   `module` names (`c:TartarusWarehouse.Experiment.gantt/2`): a lane per robot, and a row per
   job as the thesis draws them (`<file>_by_job.svg`). Returns the paths written.
   """
@@ -17,7 +17,7 @@ defmodule TartarusWarehouse.Experiment.Output do
     rows =
       for r <- state.runs, e <- r.history do
         [
-          r.point,
+          point(r.point),
           r.kind,
           e.robot,
           e.job,
@@ -88,4 +88,8 @@ defmodule TartarusWarehouse.Experiment.Output do
 
     [csv | List.flatten(gantts)]
   end
+
+  # A point as a CSV field: `{n, seed}` (scaling) as "n/seed".
+  defp point(p) when is_tuple(p), do: p |> Tuple.to_list() |> Enum.join("/")
+  defp point(p), do: p
 end

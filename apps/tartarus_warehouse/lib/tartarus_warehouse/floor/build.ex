@@ -8,10 +8,12 @@ defmodule TartarusWarehouse.Floor.Build do
 
   ## Topology
 
-  Node `"jd"` is the distributor's (the server's in the baseline); robots `"r1".."rk"` are
-  linked to each other (a full mesh up to 16 robots, else a ring with chords to the robots
-  4 and 16 places on) and to `"jd"` (the first 16); secondary nodes `"s1"..` hang on two
-  robots each. Task agents move among robots (`TartarusWarehouse.Roam`).
+  Node `"jd"` is the distributor's (the server's in the baseline); robots `"r1".."rk"` (R)
+  are linked to each other (a full mesh up to 16 robots, else a ring with chords to the
+  robots 4 and 16 places on) and to `"jd"` (the first 16); shared-resource nodes
+  `"f1"..` (Φ, §4.7.1) and secondary nodes `"s1"..` (Σ) hang on two robots each (Φ node i
+  on robots i and i + 2, Σ node i on robots i and i + 1, modulo the robots). Task agents
+  move among robots (`TartarusWarehouse.Roam`).
   """
 
   alias TartarusEmu.{Network, Topology}
@@ -22,16 +24,21 @@ defmodule TartarusWarehouse.Floor.Build do
   @type ctx :: map()
 
   @doc """
-  The floor's topology for `robots` robots and `secondary` relay nodes.
+  The floor's topology for `robots` robots, `secondary` relay nodes (Σ) and `phi`
+  shared-resource nodes (Φ).
 
       iex> t = TartarusWarehouse.Floor.Build.topology(3, 2)
       iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
       {6, true}
+      iex> t = TartarusWarehouse.Floor.Build.topology(60, 19, 20)
+      iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
+      {100, true}
   """
-  @spec topology(pos_integer(), non_neg_integer()) :: Topology.t()
-  def topology(robots, secondary) do
+  @spec topology(pos_integer(), non_neg_integer(), non_neg_integer()) :: Topology.t()
+  def topology(robots, secondary, phi \\ 0) do
     rs = Enum.map(1..robots, &"r#{&1}")
     ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
+    fs = if phi > 0, do: Enum.map(1..phi, &"f#{&1}"), else: []
 
     robot_edges = robot_edges(robots)
     jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
@@ -41,7 +48,15 @@ defmodule TartarusWarehouse.Floor.Build do
           r <- Enum.uniq([rem(i, robots) + 1, rem(i + 1, robots) + 1]),
           do: {s, "r#{r}"}
 
-    Topology.new(["jd" | rs] ++ ss, Enum.uniq(robot_edges ++ jd_edges ++ s_edges))
+    f_edges =
+      for {f, i} <- Enum.with_index(fs),
+          r <- Enum.uniq([rem(i, robots) + 1, rem(i + 2, robots) + 1]),
+          do: {f, "r#{r}"}
+
+    Topology.new(
+      ["jd" | rs] ++ fs ++ ss,
+      Enum.uniq(robot_edges ++ jd_edges ++ f_edges ++ s_edges)
+    )
   end
 
   # Robots: a full mesh up to 16, else a ring with chords 4 and 16 places on (modulo the
@@ -105,7 +120,7 @@ defmodule TartarusWarehouse.Floor.Build do
     node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
 
     {:ok, net} =
-      Network.start(topology(robots, opts[:secondary]),
+      Network.start(topology(robots, opts[:secondary], opts[:phi]),
         mode: opts[:mode],
         setup: setup,
         node_opts: node_opts,
@@ -144,7 +159,9 @@ defmodule TartarusWarehouse.Floor.Build do
               round: min(robots, 16),
               seed: opts[:seed],
               validate: opts[:failover],
-              guide: if(opts[:guide], do: robot_span(robots))
+              guide: if(opts[:guide], do: robot_span(robots)),
+              service_ms: opts[:service_ms],
+              continue: opts[:continue]
             },
             # told `{:tartarus_removed, id, reason}` if it is removed
             owner: owner
@@ -166,7 +183,7 @@ defmodule TartarusWarehouse.Floor.Build do
             Tartarus.create_static_agent(
               jd,
               TartarusWarehouse.Central,
-              %{world: world, owner: owner, robots: agents, server_ms: opts[:server_ms]},
+              %{world: world, owner: owner, robots: agents, service_ms: opts[:service_ms]},
               owner: owner
             )
 
@@ -216,8 +233,10 @@ defmodule TartarusWarehouse.Floor.Build do
   What ran on the floor: the robots' histories (`history`, see `TartarusWarehouse.Robot`),
   the jobs submitted (`ids`) and their completions (`completed`: id => µs), `timed_out`
   (not completed), `t0_us`, `makespan_ms` (from `t0` to the last completion), `robots`
-  (names, in order), and the network's totals from its event log (`migrations`, `bytes`,
-  `messages`).
+  (names, in order), the network's totals from its event log (`migrations`, `bytes`,
+  `messages`), and `service_log`: what the distributor or the central server served
+  (`{arrived, started, done}`, monotonic µs; `mono_offset_us` is monotonic minus system
+  time, to put them on the histories' clock; see `TartarusWarehouse.Service`).
   """
   @spec collect(ctx(), [term()], %{term() => integer()}, integer()) :: map()
   def collect(ctx, ids, completed, t0) do
@@ -225,6 +244,13 @@ defmodule TartarusWarehouse.Floor.Build do
     totals = TartarusEmu.Log.totals(ctx.log)
 
     history = Robot.history(ctx.robot_hosts)
+
+    # What the distributor (or the central server) served, and when (monotonic µs).
+    service_log =
+      case Tartarus.request(ctx.dref, :status, 30_000) do
+        {:ok, %{service_log: log}} -> log
+        _ -> []
+      end
 
     last = completed |> Map.values() |> Enum.max(fn -> t0 end)
 
@@ -241,7 +267,10 @@ defmodule TartarusWarehouse.Floor.Build do
         |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
       migrations: Map.get(totals, :departures, 0),
       bytes: Map.get(totals, :bytes, 0),
-      messages: Map.get(totals, :messages, 0)
+      messages: Map.get(totals, :messages, 0),
+      service_log: service_log,
+      # monotonic µs minus system µs: the service log's times on the histories' clock
+      mono_offset_us: System.monotonic_time(:microsecond) - System.system_time(:microsecond)
     }
   end
 

@@ -71,11 +71,22 @@ defmodule TartarusWarehouse.Floor.Options do
       doc:
         "one-way delay of every link (see `Tartarus.connect/3`: a hand-off pays three, a message between neighbours one each way; the central server's messages and the agents' migrations pay it alike)"
     ],
-    server_ms: [
-      type: :non_neg_integer,
+    service_ms: [
+      type: :number,
       default: 0,
       doc:
-        "`design: :central`: the server's time to handle one message from a robot (read it, update its tables, send the commands that follow); the server handles one message at a time, so messages queue behind it when robots report faster than it handles (see `TartarusWarehouse.Central`)"
+        "the time (ms, a number) that a process serving every robot takes for each message it handles: the central server (`design: :central`: a robot's started and finished, each command it sends, each job submitted) and the Job Distributor (each request or note of a task agent, each job submitted); each is one FIFO server, so messages queue behind it when they come faster than it serves (see `TartarusWarehouse.Service`)"
+    ],
+    continue: [
+      type: :boolean,
+      default: false,
+      doc:
+        "agents continue to the next job's robot without returning to the distributor after each block (the other reading of §4.5.2; see `TartarusWarehouse.Distributor`, \"Agents that continue\")"
+    ],
+    phi: [
+      type: :non_neg_integer,
+      default: 0,
+      doc: "shared-resource (Φ) nodes in the network (§4.7.1), each on two robots"
     ],
     guide: [
       type: :boolean,
