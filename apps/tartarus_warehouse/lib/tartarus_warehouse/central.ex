@@ -65,7 +65,7 @@ defmodule TartarusWarehouse.Central do
   @impl true
   def handle_info(:service_due, s) do
     {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
-    arm(wake)
+    Service.arm(wake)
     {:stay, Enum.reduce(items, %{s | svc: svc}, &serve/2)}
   end
 
@@ -75,18 +75,7 @@ defmodule TartarusWarehouse.Central do
   # No service time: handled at once, and not logged (nothing to measure).
   defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
 
-  defp charge(item, s) do
-    {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)
-    arm(wake)
-    %{s | svc: svc}
-  end
-
-  defp arm(nil), do: :ok
-
-  defp arm({:wake_at_ms, ms}) do
-    Process.send_after(self(), :service_due, ms, abs: true)
-    :ok
-  end
+  defp charge(item, s), do: %{s | svc: Service.charge(s.svc, item)}
 
   defp serve({:in, message, from}, s) do
     {:stay, s} = handle(message, from, %{s | messages: s.messages + 1})

@@ -100,18 +100,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   # No service time: handled at once, and not logged (nothing to measure).
   defp charge(item, %{svc: %{service_us: 0}} = s), do: serve(item, s)
 
-  defp charge(item, s) do
-    {svc, wake} = Service.admit(s.svc, item, System.monotonic_time(:microsecond), false)
-    arm(wake)
-    {:stay, %{s | svc: svc}}
-  end
-
-  defp arm(nil), do: :ok
-
-  defp arm({:wake_at_ms, ms}) do
-    Process.send_after(self(), :service_due, ms, abs: true)
-    :ok
-  end
+  defp charge(item, s), do: {:stay, %{s | svc: Service.charge(s.svc, item)}}
 
   # A request whose handling raises is answered `{:error, message}` and changes nothing
   # (the distributor is pure until `later/2` returns): a bad message never takes the
@@ -236,7 +225,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   @impl true
   def handle_info(:service_due, s) do
     {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
-    arm(wake)
+    Service.arm(wake)
 
     s =
       Enum.reduce(items, %{s | svc: svc}, fn item, s ->

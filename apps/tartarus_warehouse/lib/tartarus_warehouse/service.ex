@@ -46,6 +46,29 @@ defmodule TartarusWarehouse.Service do
     }
 
   @doc """
+  In the serving process: `item` arrives now (`admit/4`), and the wake-up it asks for is
+  armed (`arm/1`). Returns the service.
+  """
+  @spec charge(t(), term()) :: t()
+  def charge(s, item) do
+    {s, wake} = admit(s, item, System.monotonic_time(:microsecond), false)
+    arm(wake)
+    s
+  end
+
+  @doc """
+  In the serving process: arms the wake-up `admit/4` or `due/2` asked for, a
+  `:service_due` message to this process at that monotonic ms (nothing for nil).
+  """
+  @spec arm({:wake_at_ms, integer()} | nil) :: :ok
+  def arm(nil), do: :ok
+
+  def arm({:wake_at_ms, ms}) do
+    Process.send_after(self(), :service_due, ms, abs: true)
+    :ok
+  end
+
+  @doc """
   A message (`item`) arrives at `now_us` (monotonic µs); `internal` marks a message the
   process sends itself (a command) rather than receives (it is served the same). Returns
   the service and `{:wake_at_ms, ms}` (a monotonic ms at which to call `due/2`) when the
