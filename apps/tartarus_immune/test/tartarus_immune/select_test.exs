@@ -59,6 +59,8 @@ defmodule TartarusImmune.SelectTest do
     assert hd(steps) == hd(one.summary.arms["sharing"].convergence_steps)
   end
 
+  # A few seconds alone; over ExUnit's 60 s when other work loads the machine.
+  @tag timeout: 300_000
   test "on the dashboard: the run going now, a row per host; the same results as without it" do
     {:ok, l} = :gen_tcp.listen(0, [])
     {:ok, port} = :inet.port(l)
