@@ -317,12 +317,15 @@ defmodule Tartarus.Locator do
   @doc false
   @spec search(binary(), non_neg_integer(), [node()]) :: {:ok, Host.t()} | :error
   def search(id, ttl, visited) do
-    case here(id) do
+    # This node's hosts, read once (a host that stopped meanwhile is left out).
+    infos = for h <- Host.Starter.hosts(), {:ok, info} <- [Host.local(h)], do: info
+
+    case here(id, infos) do
       {:ok, host} ->
         {:ok, host}
 
       :error when ttl > 0 ->
-        next = next_nodes(Host.Starter.hosts()) -- visited
+        next = next_nodes(infos) -- visited
         visited = visited ++ next
         Enum.find_value(next, :error, &ask(&1, id, ttl - 1, visited))
 
@@ -331,17 +334,14 @@ defmodule Tartarus.Locator do
     end
   end
 
-  defp here(id) do
+  defp here(id, infos) do
     case Tartarus.AgentTable.lookup(id) do
       {:ok, _pid, host_name} ->
         {:ok, Host.address(host_name)}
 
       :error ->
-        Enum.find_value(Host.Starter.hosts(), :error, fn host ->
-          with {:ok, info} <- Host.local(host),
-               result when result != :not_found <- Ledger.locate(info, id),
-               do: {:ok, host},
-               else: (_ -> nil)
+        Enum.find_value(infos, :error, fn info ->
+          if Ledger.locate(info, id) != :not_found, do: {:ok, info.ref}
         end)
     end
   end
@@ -349,14 +349,9 @@ defmodule Tartarus.Locator do
   # The nodes of this node's hosts' neighbours; a node without hosts (a shell, a controller)
   # asks the nodes it is connected to.
   defp next_nodes([]), do: Node.list()
-  defp next_nodes(hosts), do: Enum.uniq(for h <- hosts, {_, n} <- neighbours(h), do: n)
 
-  defp neighbours(host) do
-    case Host.local(host) do
-      {:ok, info} -> Ledger.neighbours(info)
-      _ -> []
-    end
-  end
+  defp next_nodes(infos),
+    do: Enum.uniq(for info <- infos, {_, n} <- Ledger.neighbours(info), do: n)
 
   defp ask(node, id, ttl, visited) do
     case :erpc.call(node, __MODULE__, :search, [id, ttl, visited], @search_timeout) do

@@ -267,14 +267,11 @@ defmodule Tartarus.Agent.Server do
         {:keep_state, data}
 
       {outcome, by, data} ->
-        held = pending(data.pending) ++ Enum.reverse(data.held, [])
+        held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
         result = Actions.handoff_done(outcome, by, %{data | pending: [], held: []})
-        replay(result, Enum.map(held, &next_event/1))
+        replay(result, pending(data.pending) ++ held)
     end
   end
-
-  defp next_event({:next_event, _, _} = e), do: e
-  defp next_event({type, content}), do: {:next_event, type, content}
 
   defp replay({:next_state, state, data, actions}, events),
     do: {:next_state, state, data, actions ++ events}
