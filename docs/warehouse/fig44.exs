@@ -6,9 +6,10 @@
 #   B:  for s in 11 12 13; do
 #         mix tartarus.warehouse --experiment scaling --designs guided,guided_continue --seeds 1 --seed $s --out DIR/B$s --json
 #       done
-#   C:  for n in 5 10 20 30 45 60; do
-#         mix tartarus.warehouse --experiment scaling --designs agents,agents_continue --sizes $n --seeds 1 --seed 11 --out DIR/C$n --json
-#       done
+#   C:  for s in 11 12 13; do for n in 5 10 20 30 45 60; do
+#         mix tartarus.warehouse --experiment scaling --designs agents,agents_continue --sizes $n --seeds 1 --seed $s --out DIR/C$s-$n --json
+#       done; done
+#       (the first, loaded run had seed 11 only, in DIR/C$n)
 #   mix run docs/warehouse/fig44.exs DIR
 #
 # It prints the combined curves (medians over the seeds present, TartarusTools.Stats.median)
@@ -25,7 +26,14 @@ end
 
 a = read.("A")
 bs = Enum.reject(Enum.map([11, 12, 13], &read.("B#{&1}")), &is_nil/1)
-cs = Enum.reject(Enum.map([5, 10, 20, 30, 45, 60], &read.("C#{&1}")), &is_nil/1)
+
+c_dirs =
+  for n <- [5, 10, 20, 30, 45, 60],
+      sub <- ["C#{n}" | Enum.map([11, 12, 13], &"C#{&1}-#{n}")],
+      do: sub
+
+cs = Enum.reject(Enum.map(c_dirs, read), &is_nil/1)
+c_seeds = cs |> Enum.map(& &1["seed"]) |> Enum.uniq() |> Enum.sort() |> Enum.join(", ")
 
 # A curve from summaries: size => median of every value present.
 curve = fn summaries, key ->
@@ -50,8 +58,8 @@ agents = %{
 labels = %{
   "agents_guided" => "agents, guided, returning",
   "agents_guided_continue" => "agents, guided, continuing",
-  "agents" => "agents, blind, returning (seed 11)",
-  "agents_continue" => "task agents, blind, continuing (seed 11)"
+  "agents" => "agents, blind, returning (seeds #{c_seeds})",
+  "agents_continue" => "task agents, blind, continuing (seeds #{c_seeds})"
 }
 
 predicted = a["predicted_central_ms"]
@@ -76,8 +84,7 @@ SVG.write!(
     subtitle:
       "60 robots, 100 nodes, 120 jobs (11-110 counted), 200 ms tasks, S = 2.2 ms; medians",
     references: [%{name: "central, predicted", points: points.(predicted)}],
-    note:
-      "Off the chart, blind agents continuing (seed 11): #{off_chart} a task (timed out from 20 tasks a job on).",
+    note: "Off the chart, blind agents continuing (seeds #{c_seeds}): #{off_chart} a task.",
     x_label: "tasks per job",
     y_label: "time per task",
     y_unit: "ms",
@@ -138,14 +145,16 @@ IO.puts(
       "agents_guided_continue" =>
         curve.(Enum.map(bs, & &1["utilisation"]), "distributor_agents_guided_continue"),
       "agents" => curve.(Enum.map(cs, & &1["utilisation"]), "distributor_agents"),
-      "agents_continue" => curve.(Enum.map(cs, & &1["utilisation"]), "distributor_agents_continue")
+      "agents_continue" =>
+        curve.(Enum.map(cs, & &1["utilisation"]), "distributor_agents_continue")
     },
     crossings: Map.new(agents, fn {k, v} -> {k, Scaling.crossing(v, central)} end),
-    mutex_violations:
-      Enum.sum(Enum.map([a | bs ++ cs], & &1["mutex_violations"])),
+    mutex_violations: Enum.sum(Enum.map([a | bs ++ cs], & &1["mutex_violations"])),
     deadlocks: Enum.sum(Enum.map([a | bs ++ cs], & &1["deadlocks"])),
     # floors run: a sweep run is a point (size, seed) and runs one floor per design
     floors:
-      Enum.sum(Enum.map([a | bs ++ cs], &(&1["sweep"]["runs"] * map_size(&1["avg_task_ms_by_seed"]))))
+      Enum.sum(
+        Enum.map([a | bs ++ cs], &(&1["sweep"]["runs"] * map_size(&1["avg_task_ms_by_seed"])))
+      )
   })
 )
