@@ -30,11 +30,16 @@ defmodule Tartarus.Ledger do
 
   @slots 1024
 
+  # A host that stops takes its table with it; a message already on its way to the host
+  # (a signal the overlay relays, say) then finds no table: a stopped host has no
+  # neighbours, and its reader carries on.
   def neighbours(%{ledger: l}) do
     case :ets.lookup(l, :neighbours) do
       [{_, ns}] -> ns
       [] -> []
     end
+  rescue
+    ArgumentError -> []
   end
 
   def link(%{ledger: l}, dest) do

@@ -367,4 +367,25 @@ defmodule Tartarus.SignalTest do
     :ok = Tartarus.stop_host(name)
     assert eventually(fn -> :ets.lookup(:tartarus_signals, {name, :gone}) == [] end)
   end
+
+  test "a relay that reaches a host as it stops is taken without a crash (its table is gone)" do
+    [a, b] = line!(2)
+    {:ok, stale} = Tartarus.Host.local(b)
+    :ok = Tartarus.stop_host(b)
+    # What the overlay does with a signal for `b` it looked up just before `b` stopped.
+    source = {{a, node()}, System.unique_integer()}
+    packed = {source, 100, 4, :infinity, {:linear, 20.0}, :none, :linear, nil}
+    me = self()
+
+    try do
+      :sys.replace_state(:tartarus_overlay, fn state ->
+        send(me, {:relayed, Signal.handle_relay(stale, {a, node()}, :late, source, packed, 1, 0)})
+        state
+      end)
+    catch
+      kind, reason -> flunk("the overlay's relay raised #{inspect({kind, reason})}")
+    end
+
+    assert_receive {:relayed, :ok}
+  end
 end
