@@ -145,7 +145,8 @@ defmodule TartarusLats.Replay do
     repair: [
       type: :boolean,
       default: false,
-      doc: "Where is X agents bridge a broken chain (`TartarusLats.Query.WhereIs`, `:repair`)"
+      doc:
+        "Where is X and Trace agents bridge a broken chain (`TartarusLats.Query.WhereIs`, `TartarusLats.Query.Trace`, `:repair`)"
     ]
   ]
 

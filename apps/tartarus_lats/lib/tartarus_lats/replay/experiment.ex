@@ -25,7 +25,11 @@ defmodule TartarusLats.Replay.Experiment do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     group: [type: :pos_integer, default: 6, doc: "nodes per BEAM node (peer mode)"],
     window: [type: :pos_integer, doc: "the trackers' and baselines' window (s)"],
-    repair: [type: :boolean, default: false, doc: "Where is X agents bridge broken chains"],
+    repair: [
+      type: :boolean,
+      default: false,
+      doc: "Where is X and Trace agents bridge broken chains"
+    ],
     out: [type: :any, doc: "output directory (`false`: none)"],
     quiet: [type: :boolean, default: false, doc: "no progress lines"]
   ]
