@@ -136,13 +136,32 @@ defmodule TartarusLats.TraceRepairTest do
       assert nodes(plain.answer) == [:i, :h]
       assert [%{node: :i, kind: :entry, bridged_to: nil}] = plain.breaks
 
-      # Bridged over two rings (e is not a neighbour of i): the zone between is missing,
-      # and the answer says so: not complete, the break named.
+      # Bridged over two rings (e is not a neighbour of i); f is the one zone next to
+      # both, so X passed through it unseen: it goes on the path, between e and i.
       assert {:ok, fixed} = trace(dep, :h, tag, repair: true)
-      assert {:ok, %{entry: :infinity, status: :present}} = fixed.answer
-      assert nodes(fixed.answer) == [:d, :e, :i, :h]
-      assert [%{node: :i, kind: :entry, bridged_to: :e, ring: 2}] = fixed.breaks
-      refute fixed.complete
+      assert {:ok, %{entry: :infinity, status: :present, path: path}} = fixed.answer
+      assert nodes(fixed.answer) == [:d, :e, :f, :i, :h]
+      assert [%{node: :i, kind: :entry, bridged_to: :e, ring: 2, through: :f}] = fixed.breaks
+      [_d, e, f, i, _h] = path
+      assert f.arrived_at == e.left_at and f.left_at == i.arrived_at
+      assert fixed.complete
+
+      # With a second zone next to both e and i (a link e - j here), which one X passed is
+      # unknown: the zone is left out and the answer is not complete.
+      ej = Map.put(Tartarus.store_get(dep.hosts[:j], {:lats, :neighbours}), :e, dep.hosts[:e])
+      je = Map.put(Tartarus.store_get(dep.hosts[:e], {:lats, :neighbours}), :j, dep.hosts[:j])
+      :ok = Tartarus.store_put(dep.hosts[:j], {:lats, :neighbours}, ej)
+      :ok = Tartarus.store_put(dep.hosts[:e], {:lats, :neighbours}, je)
+
+      try do
+        assert {:ok, r} = trace(dep, :h, tag, repair: true)
+        assert nodes(r.answer) == [:d, :e, :i, :h]
+        assert [%{node: :i, bridged_to: :e, ring: 2, through: nil}] = r.breaks
+        refute r.complete
+      after
+        :ok = Tartarus.store_put(dep.hosts[:j], {:lats, :neighbours}, Map.delete(ej, :e))
+        :ok = Tartarus.store_put(dep.hosts[:e], {:lats, :neighbours}, Map.delete(je, :j))
+      end
     end)
   end
 

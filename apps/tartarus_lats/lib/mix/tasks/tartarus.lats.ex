@@ -15,7 +15,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
       mix tartarus.lats --replay-log PATH --devices FILE [--calibration FILE]
                         [--fingerprints DIR] [--floor-plan FILE] [--seed 1] [--seeds 3]
-                        [--queries 10] [--window 4] [--repair] [--mode virtual|peer]
+                        [--queries 10] [--window 4] [--no-repair] [--mode virtual|peer]
                         [--group 6] [--out DIR] [--json]
 
   replays real multi-receiver RSSI logs into LATS instead of the emulated building
@@ -28,9 +28,9 @@ defmodule Mix.Tasks.Tartarus.Lats do
   `--floor-plan FILE`). `--calibration` is a file written by `mix tartarus.lats.calibrate`;
   `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline. Each
   track runs with seeds `--seed` .. `--seed + --seeds - 1` (the seed draws the query
-  instants and start nodes) through `TartarusEmu.Sweep`. `--repair` lets the Where is X
-  and Trace agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`,
-  `TartarusLats.Query.Trace`, `:repair`). Writes into `--out DIR` (default
+  instants and start nodes) through `TartarusEmu.Sweep`. The Where is X and Trace agents bridge
+  a broken chain of motion vectors (`TartarusLats.Query.WhereIs`,
+  `TartarusLats.Query.Trace`, `:repair`) unless `--no-repair` is given. Writes into `--out DIR` (default
   `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
   `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
   box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent

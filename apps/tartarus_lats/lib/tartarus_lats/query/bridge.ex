@@ -22,8 +22,9 @@ defmodule TartarusLats.Query.Bridge do
   the node of the break itself (ring 0), then on its neighbours (ring 1), then on
   theirs (ring 2); it visits a whole ring before choosing, and takes the candidate
   nearest in time to `t` (then the lower ring, then node order). A bridge over ring 2
-  skips the zone between (its node is not a neighbour of the break's), so the answer
-  that uses it is not complete.
+  skips the zone between (its node is not a neighbour of the break's): `through` lists
+  the zones that can be, the neighbours of both. Zones change only between neighbours,
+  so when there is one such zone the tag passed through it.
 
   The pieces are pure functions over a plain map that travels in the agent's state:
   `new/4`, `candidate/4` (the best stay on one node's table), `visit/5` (note a node's
@@ -52,7 +53,22 @@ defmodule TartarusLats.Query.Bridge do
           trail: [term()],
           from_trail: [term()],
           plan: [{term(), [term()]}],
-          best: nil | {number(), non_neg_integer(), MotionVectors.node_name(), [term()], map()}
+          around: [MotionVectors.node_name()],
+          best: nil | found()
+        }
+
+  @typedoc """
+  The stay chosen: on `node`, reached by `trail` (hosts from the gap's), `ring` rings
+  from the gap; `through`: for a stay two rings away, the gap's neighbours that are its
+  node's neighbours too (the zones the tag can have passed between them).
+  """
+  @type found :: %{
+          dt: number(),
+          ring: non_neg_integer(),
+          node: MotionVectors.node_name(),
+          trail: [term()],
+          stay: MotionVectors.segment(),
+          through: [MotionVectors.node_name()]
         }
 
   @doc "How far in time (seconds) from the break a mending stay may be."
@@ -81,6 +97,7 @@ defmodule TartarusLats.Query.Bridge do
       trail: [],
       from_trail: [],
       plan: [],
+      around: [],
       best: nil
     }
   end
@@ -130,13 +147,28 @@ defmodule TartarusLats.Query.Bridge do
   """
   @spec visit(t(), MotionVectors.node_name(), MotionVectors.t() | nil, map(), term()) :: t()
   def visit(%{queue: [{_n, path, depth} | rest]} = b, node, mv, neighbours, tag) do
+    around = if depth == 0, do: Enum.sort(Map.keys(neighbours)), else: b.around
+
     best =
       case candidate(mv, tag, b.want, b.exclude) do
         nil ->
           b.best
 
         stay ->
-          mine = {distance(stay, b.want), depth, node, path, stay}
+          through =
+            if depth == @rings,
+              do: neighbours |> Map.keys() |> Enum.filter(&(&1 in around)) |> Enum.sort(),
+              else: []
+
+          mine = %{
+            dt: distance(stay, b.want),
+            ring: depth,
+            node: node,
+            trail: path,
+            stay: stay,
+            through: through
+          }
+
           if b.best == nil or key(mine) < key(b.best), do: mine, else: b.best
       end
 
@@ -146,17 +178,23 @@ defmodule TartarusLats.Query.Bridge do
           for({n, h} <- Enum.sort(neighbours), n not in b.seen, do: {n, path ++ [h], depth + 1}),
         else: []
 
-    %{b | queue: rest ++ ring, seen: b.seen ++ Enum.map(ring, &elem(&1, 0)), best: best}
+    %{
+      b
+      | queue: rest ++ ring,
+        seen: b.seen ++ Enum.map(ring, &elem(&1, 0)),
+        best: best,
+        around: around
+    }
   end
 
-  defp key({dt, depth, node, _path, _stay}), do: {dt, depth, node}
+  defp key(f), do: {f.dt, f.ring, f.node}
 
   @doc """
   After a move that failed: the agent is where it was before it, and the node at the
   head of the queue (or the one chosen) is given up.
   """
   @spec skip(t()) :: t()
-  def skip(%{best: {_, _, _, path, _}, trail: path} = b),
+  def skip(%{best: %{trail: path}, trail: path} = b),
     do: %{b | best: nil, plan: [], trail: b.from_trail}
 
   def skip(%{queue: [_ | rest]} = b), do: %{b | queue: rest, plan: [], trail: b.from_trail}
@@ -165,8 +203,8 @@ defmodule TartarusLats.Query.Bridge do
   @doc """
   What to do next: `{:move, host, b}` (on the way to the next node to ask, or to the
   chosen one), `{:ask, b}` when the agent stands on the next node to ask (call
-  `visit/5` there), `{:found, node, stay, trail, ring, b}` when it stands on the node of
-  the chosen stay (`trail`: the hosts from the gap's to it), or `:none` when every node
+  `visit/5` there), `{:found, found, b}` when it stands on the node of the chosen stay
+  (`t:found/0`), or `:none` when every node
   within `rings/0` was asked and none had a stay that mends the break.
 
   A ring is finished before a choice is made: once a candidate is known and the next
@@ -175,12 +213,12 @@ defmodule TartarusLats.Query.Bridge do
   @spec next(t()) ::
           {:move, term(), t()}
           | {:ask, t()}
-          | {:found, term(), map(), [term()], non_neg_integer(), t()}
+          | {:found, found(), t()}
           | :none
   def next(%{plan: [{host, trail} | plan]} = b),
     do: {:move, host, %{b | plan: plan, trail: trail, from_trail: b.trail}}
 
-  def next(%{best: {_dt, depth, node, path, stay}} = b) do
+  def next(%{best: %{ring: depth, trail: path} = found} = b) do
     ring_done =
       case b.queue do
         [] -> true
@@ -189,7 +227,7 @@ defmodule TartarusLats.Query.Bridge do
 
     cond do
       not ring_done -> go_to_head(b)
-      b.trail == path -> {:found, node, stay, path, depth, b}
+      b.trail == path -> {:found, found, b}
       true -> plan_to(b, path) |> next()
     end
   end

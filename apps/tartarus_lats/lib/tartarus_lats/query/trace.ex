@@ -42,13 +42,16 @@ defmodule TartarusLats.Query.Trace do
   building" from a node with no door, an MVB whose previous node has no stay leaving
   then, an MVF whose next node has no stay arriving then. Every break is reported in
   the result's `breaks` (`%{node, kind: :entry | :exit | :back_link | :forward_link,
-  at, bridged_to, ring}`: where, what, at what time) and an answer with a break is
+  at, bridged_to, ring, through}`: where, what, at what time) and an answer with a break is
   not complete. With `repair: true` the agent asks the nodes around the break for the
   tag's stays in that time window (`TartarusLats.Query.Bridge`: the node itself, its
   neighbours, theirs) and bridges it with the stay nearest in time that has the same
-  link missing on its side; `bridged_to` names its node and `ring` how far it was.
-  The answer stays complete only when every break was bridged from the node itself or
-  a neighbour (a bridge over two rings skips a zone). At most 6 bridges a query.
+  link missing on its side; `bridged_to` names its node and `ring` how far it was. A
+  bridge over two rings skips a zone: when exactly one zone is a neighbour of both ends
+  (`through`), the tag passed through it unseen (zones change only between neighbours)
+  and it goes on the path, dated between the two stays; otherwise the zone is unknown.
+  The answer stays complete only when every break was bridged with no zone unknown. At
+  most 6 bridges a query.
   Walking back to the first node after the bridges, the agent retraces its own moves
   (between neighbours only).
 
@@ -259,17 +262,25 @@ defmodule TartarusLats.Query.Trace do
       {:move, host, search} ->
         {:move, host, %{s | bridge: %{b | search: search}}}
 
-      {:found, ^node, stay, trail, ring, _search} ->
-        s = %{s | bridge: nil, breaks: s.breaks ++ [brk(b.node, b.kind, b.at, node, ring)]}
+      {:found, %{node: ^node, stay: stay} = found, _search} ->
+        # Two rings away with one zone between (a neighbour of both): the tag passed
+        # through it, unseen (that node was down or missed it); it goes on the path.
+        through = with [v] <- found.through, do: v, else: (_ -> nil)
+        brk = %{brk(b.node, b.kind, b.at, node, found.ring) | through: through}
+        s = %{s | bridge: nil, breaks: s.breaks ++ [brk]}
 
         case b.phase do
           :back ->
             # The way back to the first node with a trace passes the gap again.
-            s = %{s | back_hosts: way_back(b.search.gap_host, trail) ++ s.back_hosts}
+            [gap_stay | _] = s.path
+            s = %{s | back_hosts: way_back(b.search.gap_host, found.trail) ++ s.back_hosts}
+            s = if through, do: %{s | path: [unseen(through, stay, gap_stay) | s.path]}, else: s
             back(node, stay, neighbours, s)
 
           :forward ->
-            forward(node, stay, neighbours, %{s | path: s.path ++ [entry(node, stay)]})
+            gap_stay = List.last(s.path)
+            between = if through, do: [unseen(through, gap_stay, stay)], else: []
+            forward(node, stay, neighbours, %{s | path: s.path ++ between ++ [entry(node, stay)]})
         end
 
       :none ->
@@ -311,7 +322,11 @@ defmodule TartarusLats.Query.Trace do
     do: %{s | breaks: s.breaks ++ [brk(node, kind, at, nil, nil)]}
 
   defp brk(node, kind, at, to, ring),
-    do: %{node: node, kind: kind, at: at, bridged_to: to, ring: ring}
+    do: %{node: node, kind: kind, at: at, bridged_to: to, ring: ring, through: nil}
+
+  # A zone the tag passed through unseen, between stay `before` and stay `after`.
+  defp unseen(node, before, after_),
+    do: %{node: node, arrived_at: before.left_at, left_at: after_.arrived_at}
 
   defp local(nil, s, _fun), do: done(:broken, s)
   defp local(stay, s, fun), do: fun.(stay, s)

@@ -150,18 +150,22 @@ defmodule TartarusLats.Query.Walk do
   end
 
   # Complete: nothing the walk needed was out of reach, every break of the chain it met
-  # was bridged from a neighbour (`TartarusLats.Query.Bridge`; a bridge over two rings
-  # skips a zone), and a Trace walked back to the building's entry (status present or
+  # was bridged from the node itself or a neighbour, or over two rings through the one
+  # zone between (`TartarusLats.Query.Bridge`), and a Trace walked back to the building's entry (status present or
   # exited, not broken or in transit).
   defp complete?(answer, s) do
     s.unreachable == [] and
-      Enum.all?(Map.get(s, :breaks, []), &(&1.bridged_to != nil and &1.ring <= 1)) and
+      Enum.all?(Map.get(s, :breaks, []), &bridged?/1) and
       case answer do
         {:ok, %{status: status, entry: :infinity}} -> status in [:present, :exited]
         {:ok, _} -> false
         _ -> true
       end
   end
+
+  # A break of the chain bridged so that no zone is unknown (see complete?/2).
+  def bridged?(%{bridged_to: to, ring: ring} = b),
+    do: to != nil and (ring <= 1 or Map.get(b, :through) != nil)
 
   defp left_at(%{left_at: t}, _clock) when is_number(t), do: t
   defp left_at(_stay, clock), do: clock

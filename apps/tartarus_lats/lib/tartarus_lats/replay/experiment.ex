@@ -27,8 +27,14 @@ defmodule TartarusLats.Replay.Experiment do
     window: [type: :pos_integer, doc: "the trackers' and baselines' window (s)"],
     repair: [
       type: :boolean,
-      default: false,
+      default: true,
       doc: "Where is X and Trace agents bridge broken chains"
+    ],
+    replay: [
+      type: :keyword,
+      default: [],
+      doc:
+        "further options of `TartarusLats.Replay.run/2` (for instance `zone:`), for trying a configuration"
     ],
     out: [type: :any, doc: "output directory (`false`: none)"],
     quiet: [type: :boolean, default: false, doc: "no progress lines"]
@@ -76,7 +82,7 @@ defmodule TartarusLats.Replay.Experiment do
           mode: opts[:mode],
           group: opts[:group],
           repair: opts[:repair]
-        ] ++ if(opts[:window], do: [window: opts[:window]], else: [])
+        ] ++ if(opts[:window], do: [window: opts[:window]], else: []) ++ opts[:replay]
 
       spec = %{
         name: "lats-replay",
