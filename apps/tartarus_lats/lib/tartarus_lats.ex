@@ -76,9 +76,9 @@ defmodule TartarusLats do
   true), `:cloud` (`:per_node`, the default: the agent contacts the cloud
   from every node where it finds data of the tag, as in the thesis's
   scenario 2; `:per_query`: once, from where it found the answer), `:seed`
-  (the agent's random seed, for reproducible walks), `:repair` (Where is X: bridge a
-  broken chain by asking the nodes around the gap, see `TartarusLats.Query.WhereIs`;
-  default false).
+  (the agent's random seed, for reproducible walks), `:repair` (Where is X and Trace:
+  bridge a broken chain by asking the nodes around the gap, see
+  `TartarusLats.Query.WhereIs` and `TartarusLats.Query.Trace`; default false).
 
   Returns `{:ok, result}` where `result` is what the agent returned (for
   the built-in queries a map with `:answer`, `:hops`, `:route`,

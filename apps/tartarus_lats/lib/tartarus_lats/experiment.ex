@@ -95,7 +95,7 @@ defmodule TartarusLats.Experiment do
       type: :boolean,
       default: false,
       doc:
-        "Where is X agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `:repair`)"
+        "Where is X and Trace agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `TartarusLats.Query.Trace`, `:repair`)"
     ],
     record: [
       type: :any,

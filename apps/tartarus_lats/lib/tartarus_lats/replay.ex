@@ -136,7 +136,13 @@ defmodule TartarusLats.Replay do
     near_m: [type: :number, default: 1.5, doc: "the near threshold's distance (m)"],
     zone: [
       type: :any,
-      default: [margin_db: 3.0, dwell: 2, claim_dwell: 1],
+      default: [
+        margin_db: 3.0,
+        dwell: 2,
+        claim_dwell: 1,
+        release_on_take: true,
+        exit_alone: true
+      ],
       doc:
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
     ],
@@ -144,8 +150,9 @@ defmodule TartarusLats.Replay do
     warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"],
     repair: [
       type: :boolean,
-      default: false,
-      doc: "Where is X agents bridge a broken chain (`TartarusLats.Query.WhereIs`, `:repair`)"
+      default: true,
+      doc:
+        "Where is X and Trace agents bridge a broken chain (`TartarusLats.Query.WhereIs`, `TartarusLats.Query.Trace`, `:repair`; chosen on the tetam tracks, see docs/lats.md)"
     ]
   ]
 

@@ -112,16 +112,24 @@ defmodule TartarusLats.Report do
           q.freshness,
           q.evidence_age_s,
           q.complete,
-          Enum.join(q.unreachable, " ")
+          Enum.join(q.unreachable, " "),
+          q |> Map.get(:breaks, []) |> Enum.map_join(" ", &show_break/1)
         ]
       end)
 
     Report.write_csv!(
       dir,
       "queries",
-      ~w(id type person start time settled answer truth correct correct_centralized hops ms route trace_time_error_s freshness evidence_age_s complete unreachable),
+      ~w(id type person start time settled answer truth correct correct_centralized hops ms route trace_time_error_s freshness evidence_age_s complete unreachable breaks),
       rows
     )
+  end
+
+  # A break of the chain (`TartarusLats.Query.Trace`): `node:kind@t`, then `>node/ring` if
+  # it was bridged.
+  defp show_break(b) do
+    bridged = if b.bridged_to, do: ">#{b.bridged_to}/#{b.ring}", else: ""
+    "#{b.node}:#{b.kind}@#{b.at}#{bridged}"
   end
 
   defp truth(%{type: :trace, truth: t}), do: {t.zones, t.status}

@@ -44,6 +44,15 @@ defmodule TartarusLats.Zone do
       the tag too (it completed a take as above) with an RSSI at least `:claim_db` above
       its own.
 
+  Two options make the hand-over a two-sided one, for receivers whose readings disagree
+  more than the simulated radio's (chosen on real recordings, `TartarusLats.Replay`; off
+  by default): with `:release_on_take` the holder lets a tag go to a neighbour only once
+  that neighbour reports holding it (the rule above that lets go at once), never on its
+  own reading of the margin, and with `:exit_alone` it releases a tag out of its range only
+  when no neighbour hears it above the exit threshold either. Without them a hand-over
+  that the holder sees and the taker does not (each node sees its own neighbours) left
+  the tag with nobody for seconds while receivers still heard it.
+
   A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
   is the hysteresis: a tag standing still, even on the boundary between two zones, stays
   in the zone that holds it unless the other node is `:margin_db` stronger for `:dwell`
@@ -85,6 +94,8 @@ defmodule TartarusLats.Zone do
             dwell: 3,
             exit_dwell: 5,
             exit_dbm: -76.0,
+            exit_alone: false,
+            release_on_take: false,
             far_dbm: -73.0,
             missing_rssi: -100,
             tags: %{}
@@ -99,6 +110,8 @@ defmodule TartarusLats.Zone do
           dwell: pos_integer(),
           exit_dwell: pos_integer(),
           exit_dbm: number(),
+          exit_alone: boolean(),
+          release_on_take: boolean(),
           far_dbm: number(),
           missing_rssi: number(),
           tags: %{
@@ -174,6 +187,18 @@ defmodule TartarusLats.Zone do
       doc:
         "a held tag is out of range when its RSSI is this far (dB) under the far threshold (3 dB: about 1.4 times the far distance, 7 m with the default calibration)"
     ],
+    exit_alone: [
+      type: :boolean,
+      default: false,
+      doc:
+        "a held tag is out of range only when every neighbour hears it under the exit threshold too (it is still in the building while a neighbour hears it)"
+    ],
+    release_on_take: [
+      type: :boolean,
+      default: false,
+      doc:
+        "a held tag is handed over only once the neighbour has taken it (reports holding it), not on the holder's own reading of the margin: a hand-over that one side sees and the other does not leaves the tag with its holder instead of with nobody"
+    ],
     missing_rssi: [type: :number, default: -100, doc: "dBm of a tag a neighbour does not report"]
   ]
 
@@ -210,6 +235,8 @@ defmodule TartarusLats.Zone do
       dwell: opts[:dwell],
       exit_dwell: opts[:exit_dwell],
       exit_dbm: cal.far_dbm - opts[:exit_db],
+      exit_alone: opts[:exit_alone],
+      release_on_take: opts[:release_on_take],
       far_dbm: cal.far_dbm,
       missing_rssi: opts[:missing_rssi]
     }
@@ -337,13 +364,13 @@ defmodule TartarusLats.Zone do
       n.holder != nil and n.holder >= own + z.claim_db ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
-      n.evident >= own + z.fast_db ->
+      n.evident >= own + z.fast_db and not z.release_on_take ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
-      n.evident >= own + z.margin_db ->
+      n.evident >= own + z.margin_db and not z.release_on_take ->
         hold(state, t, {:handed, z.dwell}, {:left_zone, tag}, false)
 
-      own < z.exit_dbm ->
+      own < z.exit_dbm and not (z.exit_alone and n.best >= z.exit_dbm) ->
         hold(state, t, {:exit, z.exit_dwell}, {:left_zone, tag}, false)
 
       true ->

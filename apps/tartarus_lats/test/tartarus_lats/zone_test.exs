@@ -174,6 +174,53 @@ defmodule TartarusLats.ZoneTest do
     refute Zone.holds?(z, @tag_id)
   end
 
+  # A node that holds the tag (heard at `own` dBm from second 2 on) and one neighbour x
+  # reporting `x_report` every second; the events of seconds 2..`last`.
+  defp held_then(opts, own, x_report, last) do
+    z = Zone.new([calibration: @cal, min_heard: 1, claim_dwell: 1, dwell: 2] ++ opts)
+    tracker = Tracker.new(calibration: @cal, window: 1, median: 1, confirm: 1)
+    {_, tracker} = Tracker.observe(tracker, 1, @tag_id, z.far_dbm + 5)
+    {[{:entered_zone, _, 1}], z} = Zone.decide(z, 1, tracker, %{})
+
+    Enum.reduce(2..last, {[], z}, fn t, {events, z} ->
+      {_, tracker} = Tracker.observe(tracker, t, @tag_id, own)
+      {ev, z} = Zone.decide(z, t, tracker, %{x: %{@tag_id => x_report}})
+      {events ++ ev, z}
+    end)
+  end
+
+  test "release_on_take: the holder keeps a tag a stronger neighbour does not take, and lets go once it has" do
+    far = Zone.new(calibration: @cal).far_dbm
+    stronger = {far + 8, false, true}
+
+    # By default a neighbour 7 dB stronger for 2 s takes it: the holder lets go...
+    assert {[{:left_zone, @tag_id, 2}], z} = held_then([], far + 1, stronger, 4)
+    refute Zone.holds?(z, @tag_id)
+
+    # ...with release_on_take it keeps it while the neighbour has not taken it,
+    assert {[], z} = held_then([release_on_take: true], far + 1, stronger, 8)
+    assert Zone.holds?(z, @tag_id)
+
+    # and lets go at once when the neighbour holds it, more strongly.
+    assert {[{:left_zone, @tag_id, 2}], z} =
+             held_then([release_on_take: true], far + 1, {far + 8, true, true}, 4)
+
+    refute Zone.holds?(z, @tag_id)
+  end
+
+  test "exit_alone: a tag out of range of its holder stays held while a neighbour still hears it" do
+    z = Zone.new(calibration: @cal)
+    gone = z.exit_dbm - 6
+    # The neighbour hears it, but not well enough to take it (under the far threshold).
+    heard_there = {z.exit_dbm + 1, false, false}
+    unheard = {z.missing_rssi, false, false}
+
+    assert {[{:left_zone, @tag_id, 2}], _} = held_then([], gone, heard_there, 8)
+    assert {[], z1} = held_then([exit_alone: true], gone, heard_there, 12)
+    assert Zone.holds?(z1, @tag_id)
+    assert {[{:left_zone, @tag_id, 2}], _} = held_then([exit_alone: true], gone, unheard, 8)
+  end
+
   test "bad options are refused naming the key" do
     assert_raise ArgumentError, ~r/for key :dwell/, fn -> Zone.new(dwell: 0) end
 

@@ -15,7 +15,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
 
       mix tartarus.lats --replay-log PATH --devices FILE [--calibration FILE]
                         [--fingerprints DIR] [--floor-plan FILE] [--seed 1] [--seeds 3]
-                        [--queries 10] [--window 4] [--repair] [--mode virtual|peer]
+                        [--queries 10] [--window 4] [--no-repair] [--mode virtual|peer]
                         [--group 6] [--out DIR] [--json]
 
   replays real multi-receiver RSSI logs into LATS instead of the emulated building
@@ -28,8 +28,9 @@ defmodule Mix.Tasks.Tartarus.Lats do
   `--floor-plan FILE`). `--calibration` is a file written by `mix tartarus.lats.calibrate`;
   `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline. Each
   track runs with seeds `--seed` .. `--seed + --seeds - 1` (the seed draws the query
-  instants and start nodes) through `TartarusEmu.Sweep`. `--repair` lets the Where is X
-  agents bridge a broken chain of motion vectors (`TartarusLats.Query.WhereIs`, `:repair`). Writes into `--out DIR` (default
+  instants and start nodes) through `TartarusEmu.Sweep`. The Where is X and Trace agents bridge
+  a broken chain of motion vectors (`TartarusLats.Query.WhereIs`,
+  `TartarusLats.Query.Trace`, `:repair`) unless `--no-repair` is given. Writes into `--out DIR` (default
   `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
   `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
   box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent
@@ -91,9 +92,13 @@ defmodule Mix.Tasks.Tartarus.Lats do
   such an answer is never `complete`). Kills happen between world seconds, while no query
   agent is walking.
 
-  `--repair` lets the Where is X agents bridge a broken chain of motion vectors: at a dead
-  end they ask the nodes within two rings of it for a later stay of the tag and follow the
-  chain on from there (`TartarusLats.Query.WhereIs`; off by default).
+  `--repair` lets the Where is X and Trace agents bridge a broken chain of motion vectors:
+  at a dead end or a break (an entry from outside or an exit where there is no door, a
+  vector with no matching one) they ask the nodes within two rings of it for the tag's
+  stays in that time window and follow the chain on from there
+  (`TartarusLats.Query.WhereIs`, `TartarusLats.Query.Trace`; off by default). Every
+  Trace answer names the breaks it met (`breaks`); one with a break not bridged from a
+  neighbour is not complete.
 
   `--agent-cloud` says when query agents contact the cloud: `per_node` (default, the
   thesis's scenario 2: from every node where they find data of the tag) or `per_query`
@@ -106,9 +111,10 @@ defmodule Mix.Tasks.Tartarus.Lats do
   release, noise_db, kill_nodes, down_s, node_kills, nodes_down_at_end, answers_partial,
   cloud_connections_centralized, cloud_connections_agents, cloud_connection_ratio,
   cloud_connections_agents_per_node, cloud_connections_agents_per_query, agent_cloud,
-  answers_stale, answers_incomplete, answers_complete_wrong,
-  cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
-  median_query_ms, trace_time_error_s, by_type, nodes, bearers, minutes, seed, mode,
+  answers_stale, answers_incomplete, answers_complete_wrong, breaks, breaks_bridged,
+  breaks_bridged_far, cloud_bytes_centralized, cloud_bytes_agents, median_query_hops, max_query_hops,
+  median_query_ms, trace_time_error_s, by_type (per query type: queries, correct,
+  complete_wrong, median_hops), nodes, bearers, minutes, seed, mode,
   repair, world_seconds, input, replay_records, replay_bad_records, replay_garbage_bytes` and the
   runner's `scenario, steps, setup_ms, run_ms`. Medians are
   nearest-rank (`TartarusTools.Stats.median/1`). With `--json` the last line printed is the summary as one

@@ -221,6 +221,7 @@ defmodule TartarusLats.Experiment.Queries do
         evidence_age_s: r.evidence_at && r.asked_at - r.evidence_at,
         complete: r.complete,
         unreachable: r.unreachable,
+        breaks: Map.get(r, :breaks, []),
         per_query_contacts: r.per_query_contacts,
         central: central,
         correct: Judge.correct?(q.type, r.answer, q.path, q.time),

@@ -29,6 +29,7 @@ defmodule TartarusLats.Experiment.Summary do
          %{
            queries: length(rs),
            correct: Enum.count(rs, & &1.correct),
+           complete_wrong: Enum.count(rs, &(&1.complete and not &1.correct)),
            median_hops: Stats.median(Enum.map(rs, & &1.hops))
          }}
       end)
@@ -56,6 +57,15 @@ defmodule TartarusLats.Experiment.Summary do
       answers_incomplete: Enum.count(results, &(not &1.complete)),
       # Answers that said they were complete and were wrong: what a user would trust.
       answers_complete_wrong: Enum.count(results, &(&1.complete and not &1.correct)),
+      # Breaks of the chain of motion vectors the agents met; bridged with no zone unknown;
+      # bridged over two rings with the zone between unknown (`TartarusLats.Query.Trace`).
+      breaks: count_breaks(results, fn _ -> true end),
+      breaks_bridged: count_breaks(results, &TartarusLats.Query.Walk.bridged?/1),
+      breaks_bridged_far:
+        count_breaks(
+          results,
+          &(&1.bridged_to != nil and not TartarusLats.Query.Walk.bridged?(&1))
+        ),
       # Answers that name nodes they could not reach (a killed node, a cut link).
       answers_partial: Enum.count(results, &(&1.unreachable != [])),
       cloud_bytes_centralized: stats.bytes.centralized,
@@ -73,6 +83,9 @@ defmodule TartarusLats.Experiment.Summary do
       replay_garbage_bytes: dep.input.garbage_bytes
     })
   end
+
+  defp count_breaks(results, fun),
+    do: results |> Enum.flat_map(&Map.get(&1, :breaks, [])) |> Enum.count(fun)
 
   # The share of `list` for which `fun` holds (4 decimals), nil for an empty list.
   defp share([], _fun), do: nil

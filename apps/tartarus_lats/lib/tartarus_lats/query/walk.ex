@@ -110,12 +110,15 @@ defmodule TartarusLats.Query.Walk do
   end
 
   def move_failed(s, dest, retry) do
-    s = %{s | failures: s.failures + 1, unreachable: Enum.uniq(s.unreachable ++ [node_of(dest)])}
+    s = %{unreachable(s, dest) | failures: s.failures + 1}
 
     if s.failures > @max_move_failures,
       do: finish({:error, :unreachable}, s, false),
       else: retry.(s)
   end
+
+  # Notes that the node of host `dest` could not be reached (the answer is then not complete).
+  def unreachable(s, dest), do: %{s | unreachable: Enum.uniq(s.unreachable ++ [node_of(dest)])}
 
   # The building node a destination host stands for (the neighbours map names them).
   defp node_of(dest) do
@@ -146,16 +149,23 @@ defmodule TartarusLats.Query.Walk do
     end
   end
 
-  # Complete: nothing the walk needed was out of reach, and a Trace walked back to the
-  # building's entry (status present or exited, not broken or in transit).
+  # Complete: nothing the walk needed was out of reach, every break of the chain it met
+  # was bridged from the node itself or a neighbour, or over two rings through the one
+  # zone between (`TartarusLats.Query.Bridge`), and a Trace walked back to the building's entry (status present or
+  # exited, not broken or in transit).
   defp complete?(answer, s) do
     s.unreachable == [] and
+      Enum.all?(Map.get(s, :breaks, []), &bridged?/1) and
       case answer do
         {:ok, %{status: status, entry: :infinity}} -> status in [:present, :exited]
         {:ok, _} -> false
         _ -> true
       end
   end
+
+  # A break of the chain bridged so that no zone is unknown (see complete?/2).
+  def bridged?(%{bridged_to: to, ring: ring} = b),
+    do: to != nil and (ring <= 1 or Map.get(b, :through) != nil)
 
   defp left_at(%{left_at: t}, _clock) when is_number(t), do: t
   defp left_at(_stay, clock), do: clock
@@ -209,6 +219,8 @@ defmodule TartarusLats.Query.Walk do
       evidence_at: evidence_at,
       freshness: freshness,
       unreachable: s.unreachable,
+      # Where the chain of motion vectors broke, and how each break was bridged.
+      breaks: Map.get(s, :breaks, []),
       complete: complete?(answer, s),
       # What each rule costs for this query, whichever was applied.
       per_node_contacts: length(Enum.uniq(s.data_nodes ++ if(found, do: [node], else: []))),

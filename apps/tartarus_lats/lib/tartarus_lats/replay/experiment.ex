@@ -25,7 +25,17 @@ defmodule TartarusLats.Replay.Experiment do
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     group: [type: :pos_integer, default: 6, doc: "nodes per BEAM node (peer mode)"],
     window: [type: :pos_integer, doc: "the trackers' and baselines' window (s)"],
-    repair: [type: :boolean, default: false, doc: "Where is X agents bridge broken chains"],
+    repair: [
+      type: :boolean,
+      default: true,
+      doc: "Where is X and Trace agents bridge broken chains"
+    ],
+    replay: [
+      type: :keyword,
+      default: [],
+      doc:
+        "further options of `TartarusLats.Replay.run/2` (for instance `zone:`), for trying a configuration"
+    ],
     out: [type: :any, doc: "output directory (`false`: none)"],
     quiet: [type: :boolean, default: false, doc: "no progress lines"]
   ]
@@ -72,7 +82,7 @@ defmodule TartarusLats.Replay.Experiment do
           mode: opts[:mode],
           group: opts[:group],
           repair: opts[:repair]
-        ] ++ if(opts[:window], do: [window: opts[:window]], else: [])
+        ] ++ if(opts[:window], do: [window: opts[:window]], else: []) ++ opts[:replay]
 
       spec = %{
         name: "lats-replay",
