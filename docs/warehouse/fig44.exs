@@ -58,8 +58,8 @@ agents = %{
 labels = %{
   "agents_guided" => "agents, guided, returning",
   "agents_guided_continue" => "agents, guided, continuing",
-  "agents" => "agents, blind, returning (seeds #{c_seeds})",
-  "agents_continue" => "task agents, blind, continuing (seeds #{c_seeds})"
+  "agents" => "agents, blind, returning",
+  "agents_continue" => "agents, blind, continuing"
 }
 
 predicted = a["predicted_central_ms"]
@@ -82,7 +82,7 @@ SVG.write!(
   SVG.line_chart(series,
     title: "Average time per task against tasks per job (Fig. 4.4, under the thesis's load)",
     subtitle:
-      "60 robots, 100 nodes, 120 jobs (11-110 counted), 200 ms tasks, S = 2.2 ms; medians",
+      "60 robots, 100 nodes, 120 jobs (11-110 counted), 200 ms tasks, S = 2.2 ms; medians (blind: seeds #{c_seeds})",
     references: [%{name: "central, predicted", points: points.(predicted)}],
     note: "Off the chart, blind agents continuing (seeds #{c_seeds}): #{off_chart} a task.",
     x_label: "tasks per job",
