@@ -6,39 +6,10 @@ defmodule TartarusLats.TraceRepairTest do
   use ExUnit.Case, async: false
   doctest TartarusLats.Query.Bridge
 
-  alias TartarusLats.{Building, Deployment, World}
+  alias TartarusLats.{Deployment, World}
 
-  #   b
-  #   a   c
-  #   d - e - f - g
-  #       h - i - j
-  defp appendix_world do
-    positions = %{
-      b: {0, 18, 0},
-      a: {0, 9, 0},
-      c: {9, 9, 0},
-      d: {0, 0, 0},
-      e: {9, 0, 0},
-      f: {18, 0, 0},
-      g: {27, 0, 0},
-      h: {9, -9, 0},
-      i: {18, -9, 0},
-      j: {27, -9, 0}
-    }
-
-    adjacency = %{a: [:b, :c, :d], d: [:e], e: [:f], f: [:g, :i], i: [:h, :j]}
-    building = Building.custom(positions: positions, adjacency: adjacency, entrances: [:d])
-
-    script = %{
-      name: :x,
-      enter_at: 0,
-      entrance: :d,
-      route: [{:d, 20}, {:e, 20}, {:f, 20}, {:i, 20}, {:h, 10_000}],
-      exit: :h
-    }
-
-    World.new(building: building, walkers: 0, scripts: [script])
-  end
+  # The thesis's Appendix .2 (see test/support/appendix.ex).
+  defp appendix_world, do: TartarusLats.Test.Appendix.world()
 
   setup_all do
     dep =
