@@ -722,12 +722,15 @@ defmodule TartarusTools.Dashboard.Api do
         {:ok, h}
 
       :error ->
-        case Enum.filter(topology(ctx).hosts, &(Atom.to_string(elem(&1.host, 0)) == id)) do
+        case Enum.filter(topology(ctx).hosts, &short_name?(&1.host, id)) do
           [_, _ | _] -> {:ok, %{id: id, host: String.to_existing_atom(id), up: true}}
           _ -> error(404, "unknown_host", "there is no host #{inspect(id)}")
         end
     end
   end
+
+  defp short_name?({name, _node}, id) when is_atom(name), do: Atom.to_string(name) == id
+  defp short_name?(_, _), do: false
 
   defp agent_ref(id, ctx) do
     cond do
@@ -922,6 +925,7 @@ defmodule TartarusTools.Dashboard.Api do
       node: to_string(elem(h.host, 1)),
       up: h.up,
       pos: pos(Map.get(h, :pos)),
+      floor: Map.get(h, :floor),
       counted: counted,
       residents: 0,
       arrivals: 0,
