@@ -167,9 +167,48 @@ defmodule TartarusTools.Dashboard do
     with {:ok, opts} <- validate(opts), do: GenServer.start(__MODULE__, opts)
   end
 
-  @doc "Stops a dashboard: the HTTP server, its connections and streams, its event subscription."
+  @doc """
+  Stops a dashboard: the HTTP server, its connections and streams, its event subscription.
+
+  When pages are kept (`keep_pages/0`, the `--dashboard-keep` flag of every mix task with
+  `--dashboard`), it keeps the page instead (`keep/1`) and the task, once it has printed its
+  results, waits until the user stops it (Ctrl-C), so that the run's last state and charts
+  stay readable.
+  """
   @spec stop(t()) :: :ok
-  def stop(dash), do: GenServer.stop(dash)
+  def stop(dash) do
+    if :persistent_term.get({__MODULE__, :keep_pages}, false) do
+      :ok = keep(dash)
+      wait_at_exit(url(dash))
+    else
+      GenServer.stop(dash)
+    end
+  end
+
+  @doc """
+  From now on, `stop/1` keeps a dashboard's page (see `stop/1`) rather than stopping it: what
+  `--dashboard-keep` does (`TartarusTools.CLI.parse!/4`).
+  """
+  @spec keep_pages() :: :ok
+  def keep_pages, do: :persistent_term.put({__MODULE__, :keep_pages}, true)
+
+  # Once per node: after the task's own output, say where the page is and wait for Ctrl-C.
+  defp wait_at_exit(url) do
+    unless :persistent_term.get({__MODULE__, :waiting}, false) do
+      :persistent_term.put({__MODULE__, :waiting}, true)
+
+      System.at_exit(fn _ ->
+        IO.puts(
+          :standard_error,
+          "dashboard: the run is over; its page stays readable at #{url} until you stop this task (Ctrl-C)"
+        )
+
+        Process.sleep(:infinity)
+      end)
+    end
+
+    :ok
+  end
 
   @doc """
   Keeps the page as it is now, for a run that has ended: the hosts, links, agents, panels
