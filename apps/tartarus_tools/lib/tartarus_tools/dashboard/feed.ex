@@ -20,8 +20,13 @@ defmodule TartarusTools.Dashboard.Feed do
     :exit, _ -> :ok
   end
 
-  # A stream (the calling HTTP handler process) joins: it gets {:sse, iodata} messages.
-  def join(feed), do: GenServer.call(feed, {:join, self()})
+  # A stream (the calling HTTP handler process) joins: it gets {:sse, iodata} messages. A
+  # message, not a call: a feed with a backlog of events takes the join when it gets to it,
+  # and the stream has answered its head already (the page is "live" at once).
+  def join(feed) do
+    send(feed, {:join, self()})
+    :ok
+  end
 
   # Recent events, oldest first, filtered: %{type:, host:, agent:, since:, limit:}.
   def events(feed, filter), do: GenServer.call(feed, {:events, filter})
@@ -112,11 +117,6 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   @impl true
-  def handle_call({:join, pid}, _from, s) do
-    ref = Process.monitor(pid)
-    {:reply, :ok, %{s | clients: Map.put(s.clients, pid, ref)}}
-  end
-
   def handle_call({:events, f}, _from, s) do
     list =
       s.recent
@@ -228,6 +228,11 @@ defmodule TartarusTools.Dashboard.Feed do
     end
 
     {:noreply, %{roll(s, System.system_time(:second)) | batch: %{}, batch_n: 0, batch_dropped: 0, batch_seen: 0}}
+  end
+
+  def handle_info({:join, pid}, s) when is_pid(pid) do
+    ref = Process.monitor(pid)
+    {:noreply, %{s | clients: Map.put(s.clients, pid, ref)}}
   end
 
   def handle_info({:DOWN, _ref, :process, pid, _}, s),

@@ -182,11 +182,16 @@ defmodule TartarusTools.Dashboard.Fleet do
 
   @doc """
   The last gather: `%{snapshots: [snapshot], at: ms}` (`at` the dashboard node's clock when it
-  ended), gathering now (waiting at most `timeout`) if none was made yet; a gather older than
-  `:fleet_ms` is renewed in the background.
+  ended), gathering now (waiting at most `timeout`, then answering no snapshot) if none was
+  made yet; a gather older than `:fleet_ms` is renewed in the background.
   """
   @spec get(GenServer.server(), timeout()) :: %{snapshots: [map()], at: integer()}
-  def get(fleet, timeout \\ 30_000), do: GenServer.call(fleet, :get, timeout)
+  def get(fleet, timeout \\ 15_000) do
+    GenServer.call(fleet, :get, timeout)
+  catch
+    # The first gather is slow (a node that does not answer): this node alone meanwhile.
+    :exit, {:timeout, _} -> %{snapshots: [], at: System.system_time(:millisecond)}
+  end
 
   @doc "Keeps the last gather as it is from now on (a run that ended: its page stays readable)."
   @spec freeze(GenServer.server()) :: :ok
