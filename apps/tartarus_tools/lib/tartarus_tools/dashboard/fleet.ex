@@ -182,8 +182,9 @@ defmodule TartarusTools.Dashboard.Fleet do
 
   @doc """
   The last gather: `%{snapshots: [snapshot], at: ms}` (`at` the dashboard node's clock when it
-  ended), gathering now (waiting at most `timeout`, then answering no snapshot) if none was
-  made yet; a gather older than `:fleet_ms` is renewed in the background.
+  ended). A gather older than `:fleet_ms` is renewed in the background; one older than five
+  times that, or none yet, is renewed before the answer (waiting at most `timeout`, then
+  answering no snapshot).
   """
   @spec get(GenServer.server(), timeout()) :: %{snapshots: [map()], at: integer()}
   def get(fleet, timeout \\ 15_000) do
@@ -213,10 +214,20 @@ defmodule TartarusTools.Dashboard.Fleet do
   @impl true
   def handle_call(:get, from, %{last: nil} = s), do: {:noreply, start_gather(%{s | waiting: [from | s.waiting]})}
 
-  def handle_call(:get, _from, s) do
-    now = System.system_time(:millisecond)
-    s = if not s.frozen and now - s.last.at > s.every, do: start_gather(s), else: s
-    {:reply, s.last, s}
+  def handle_call(:get, from, s) do
+    age = System.system_time(:millisecond) - s.last.at
+
+    cond do
+      s.frozen or age <= s.every ->
+        {:reply, s.last, s}
+
+      # Nobody asked for a while: what is kept is too old to show, wait for the next one.
+      age > 5 * s.every ->
+        {:noreply, start_gather(%{s | waiting: [from | s.waiting]})}
+
+      true ->
+        {:reply, s.last, start_gather(s)}
+    end
   end
 
   def handle_call(:freeze, _from, s) do
