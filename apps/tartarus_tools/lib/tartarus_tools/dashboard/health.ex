@@ -20,7 +20,9 @@ defmodule TartarusTools.Dashboard.Health do
       node's counters, `Tartarus.Events.totals/0`);
     * `hosts`: per host, for at most `:max_hosts` hosts of this node (in turn):
       `%{residents, arrivals, refused, mailbox_max, hop_p50_us, hop_p99_us}`;
-    * `cost_us`: what taking this sample took.
+    * `cost_us`: what taking this sample took (wall clock: on a busy node it includes the
+      time other processes ran meanwhile), and `cost_reductions`, the work it did in
+      reductions (the sampler's own, which load does not inflate).
 
   Sampling is bounded: a sample reads at most `:max_agents` agents' mailbox lengths and
   `:max_hosts` hosts, whatever the node's size (its `cost_us` is in every sample).
@@ -139,6 +141,7 @@ defmodule TartarusTools.Dashboard.Health do
 
   defp sample(s) do
     t0 = System.monotonic_time(:microsecond)
+    {:reductions, r0} = Process.info(self(), :reductions)
     Process.send_after(self(), :sample, s.every)
     mem = :erlang.memory()
     wall = :erlang.statistics(:scheduler_wall_time)
@@ -171,7 +174,13 @@ defmodule TartarusTools.Dashboard.Health do
       hosts: host_rows
     }
 
-    sample = Map.put(sample, :cost_us, System.monotonic_time(:microsecond) - t0)
+    {:reductions, r1} = Process.info(self(), :reductions)
+
+    sample =
+      Map.merge(sample, %{
+        cost_us: System.monotonic_time(:microsecond) - t0,
+        cost_reductions: r1 - r0
+      })
 
     {ring, n} =
       if s.n >= s.keep,
