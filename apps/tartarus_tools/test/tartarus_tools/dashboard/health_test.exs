@@ -27,6 +27,7 @@ defmodule TartarusTools.Dashboard.HealthTest do
     on_exit(&Health.stop/0)
     n = System.unique_integer([:positive])
     {:ok, h} = Tartarus.start_host(:"health_#{n}")
+    on_exit(fn -> Tartarus.stop_host(h) end)
     {:ok, id} = Tartarus.create_mobile_agent(h, Tartarus.Examples.Echo, nil, name: "loaded")
     {:ok, pid, _} = Tartarus.AgentTable.lookup(id)
     # A mailbox that fills up: the agent is suspended, its messages wait.
@@ -49,7 +50,6 @@ defmodule TartarusTools.Dashboard.HealthTest do
     assert t > 0 and last.processes > 0 and is_list(last.run_queues)
     assert Map.has_key?(last.hosts, "health_#{n}")
     assert last.cost_us >= 0 and last.cost_reductions > 0
-    Tartarus.stop_host(h)
   end
 
   test "events are counted per type per second" do
@@ -66,6 +66,10 @@ defmodule TartarusTools.Dashboard.HealthTest do
   test "/api/fleet, /api/health and /api/rates on a node of its own" do
     n = System.unique_integer([:positive])
     {:ok, h} = Tartarus.start_host(:"hf_#{n}")
+    on_exit(fn -> Tartarus.stop_host(h) end)
+    # A sampler started now: its first sample (taken at once) has the new host.
+    Health.stop()
+    on_exit(&Health.stop/0)
     {:ok, dash} = Dashboard.start_link(token: "health-test-token")
     url = Dashboard.url(dash)
 
@@ -87,6 +91,5 @@ defmodule TartarusTools.Dashboard.HealthTest do
     assert {404, %{"error" => "unknown_node"}} = get(url, "api/health?node=nowhere@nohost")
     assert {400, %{"error" => "bad_param"}} = get(url, "api/rates?seconds=0")
     Dashboard.stop(dash)
-    Tartarus.stop_host(h)
   end
 end
