@@ -127,8 +127,8 @@ defmodule TartarusFirmwareTest do
     :ok = uart().inject(dev, a)
     :ok = uart().inject(dev, z)
     assert_receive {:event, :beacon, {:garbage, "zz"}}, 5_000
-    assert_receive {:event, :beacon, {:beacon, ^b, "000000000000"}}
-    assert_receive {:event, :beacon, {:scan_done, readings}}
+    assert_receive {:event, :beacon, {:beacon, ^b, "000000000000"}}, 5_000
+    assert_receive {:event, :beacon, {:scan_done, readings}}, 5_000
     assert {:ok, ^readings} = Tartarus.read_plugin(host, :beacon, {:scan, 1})
     assert readings == %{TartarusLats.Beacon.tag_id(b) => -66}
 

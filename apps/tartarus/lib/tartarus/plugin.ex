@@ -168,6 +168,21 @@ defmodule Tartarus.Plugin do
     end
   end
 
+  @doc false
+  # The last value a plugin of a host on this node read or announced, and when (system
+  # time, ms): `%{value, at}`, or nil (none yet, or no such plugin). For the dashboard.
+  @spec last_reading(Tartarus.host_name(), atom()) :: %{value: term(), at: integer()} | nil
+  def last_reading(host_name, name) do
+    case Registry.lookup(Tartarus.HostRegistry, {:plugin, host_name, name}) do
+      [{pid, _}] -> GenServer.call(pid, :last_reading, 1_000)
+      [] -> nil
+    end
+  catch
+    :exit, _ -> nil
+  end
+
+  defp last(value), do: %{value: value, at: System.system_time(:millisecond)}
+
   @impl true
   def init({name, module, opts}) do
     {caps, opts} =
@@ -175,7 +190,15 @@ defmodule Tartarus.Plugin do
 
     with true <- (is_list(caps) and Enum.all?(caps, &is_atom/1)) || {:bad_capabilities, caps},
          {:ok, state} <- module.init(opts) do
-      {:ok, %{name: name, module: module, state: state, subscribers: %{}, capabilities: caps}}
+      {:ok,
+       %{
+         name: name,
+         module: module,
+         state: state,
+         subscribers: %{},
+         capabilities: caps,
+         last: nil
+       }}
     else
       {:bad_capabilities, caps} ->
         {:stop, {:bad_option, :capabilities, "expected a list of atoms, got: #{inspect(caps)}"}}
@@ -203,10 +226,12 @@ defmodule Tartarus.Plugin do
 
   def handle_call({:read, args}, _from, s) do
     case s.module.read(args, s.state) do
-      {:ok, value, state} -> {:reply, {:ok, value}, %{s | state: state}}
+      {:ok, value, state} -> {:reply, {:ok, value}, %{s | state: state, last: last(value)}}
       {:error, reason, state} -> {:reply, {:error, reason}, %{s | state: state}}
     end
   end
+
+  def handle_call(:last_reading, _from, s), do: {:reply, s.last, s}
 
   def handle_call({:write, args}, _from, s) do
     case s.module.write(args, s.state) do
@@ -250,6 +275,7 @@ defmodule Tartarus.Plugin do
         send(pid, {:plugin_event, s.name, event})
       end
 
+      s = if events == [], do: s, else: %{s | last: last(List.last(events))}
       {:noreply, %{s | state: state}}
     else
       {:noreply, s}

@@ -82,7 +82,8 @@ defmodule TartarusEmu.Dashboard do
         id: to_string(n),
         host: Network.host(net, n),
         up: Network.up?(net, n),
-        pos: pos(topo.positions[n])
+        pos: pos(topo.positions[n]),
+        floor: topo.floors[n]
       }
     end)
   end

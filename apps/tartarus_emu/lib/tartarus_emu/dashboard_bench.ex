@@ -3,13 +3,16 @@ defmodule TartarusEmu.DashboardBench do
   What the web dashboard costs and how it behaves at scale (`mix tartarus.dashboard.bench`).
 
   1. **Migration throughput with and without a page.** An emulated ring of `:hosts` hosts
+     (or of each of `:sizes`)
      with `:agents` Echo agents, each moved `:moves` times around the ring by its own
      driver process (`Tartarus.move/2`), timed. Three conditions, interleaved in each of
      `:rounds` rounds: `none` (no dashboard), `dashboard` (running, nobody watching) and
      `page` (a real headless Chromium showing the page, live, if Chromium is installed;
      otherwise a raw server-sent-events client, and `page_client` says so). Reports each
      condition's migrations per second (median over rounds) and the ratios to `none`,
-     plus what the page received (events, batches) and what the feed dropped.
+     plus what the page received (events, batches) and what the feed dropped. With
+     `:health` (the default) the dashboard conditions also run the health sampler; it is
+     stopped for `none`, so the baseline is charged nothing of it.
   2. **10,000 emulated hosts.** A `:big_rows` x `:big_cols` grid in a fresh BEAM node
      (large `+P`/`+e`) with `:big_agents` agents, some of them moving, and a dashboard:
      sizes and times of the API's answers (first, cold, and then cached), and the page in
@@ -21,10 +24,21 @@ defmodule TartarusEmu.DashboardBench do
 
   alias TartarusEmu.{Network, Topology}
   alias TartarusTools.Dashboard
-  alias TartarusTools.Dashboard.Browser
+  alias TartarusTools.Dashboard.{Browser, Health}
 
   @schema [
     hosts: [type: :pos_integer, default: 8, doc: "hosts in the throughput ring"],
+    sizes: [
+      type: :any,
+      doc:
+        "measure throughput at each of these host counts instead (a list, or a string like `\"1,10000\"`; 1 host: each move a hop to the same host)"
+    ],
+    health: [
+      type: :boolean,
+      default: true,
+      doc:
+        "the dashboard samples the node's health (`TartarusTools.Dashboard.Health`) while it runs"
+    ],
     agents: [type: :pos_integer, default: 16, doc: "agents moving concurrently"],
     moves: [type: :pos_integer, default: 500, doc: "moves per agent per run"],
     rounds: [type: :pos_integer, default: 5, doc: "rounds (each runs the three conditions)"],
@@ -46,26 +60,63 @@ defmodule TartarusEmu.DashboardBench do
   @doc "Runs both parts (see the moduledoc) and returns the figures."
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts \\ []) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusEmu.DashboardBench") do
-      throughput = throughput(opts)
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusEmu.DashboardBench"),
+         {:ok, sizes} <- sizes(opts) do
+      by_size = Enum.map(sizes, &throughput(Keyword.put(opts, :hosts, &1)))
       big = if opts[:big], do: big(opts), else: nil
-      {:ok, %{throughput: throughput, big: big, chromium: Browser.executable() != nil}}
+
+      {:ok,
+       %{
+         throughput: hd(by_size),
+         throughput_by_hosts: by_size,
+         health_sampling: opts[:health],
+         big: big,
+         chromium: Browser.executable() != nil
+       }}
+    end
+  end
+
+  defp sizes(opts) do
+    case opts[:sizes] do
+      nil ->
+        {:ok, [opts[:hosts]]}
+
+      list when is_list(list) ->
+        if list != [] and Enum.all?(list, &(is_integer(&1) and &1 > 0)),
+          do: {:ok, list},
+          else: {:error, "sizes: expected positive integers, got: #{inspect(list)}"}
+
+      text when is_binary(text) ->
+        text
+        |> String.split(",", trim: true)
+        |> Enum.map(&Integer.parse(String.trim(&1)))
+        |> Enum.map(fn
+          {n, ""} -> n
+          _ -> nil
+        end)
+        |> then(&sizes(Keyword.put(opts, :sizes, &1)))
     end
   end
 
   # -- 1. throughput ---------------------------------------------------------------------
 
+  # One host: a topology of one node (each move a hop to the same host); two: a line.
+  defp ring(1), do: Topology.new([:h1], [])
+  defp ring(2), do: Topology.line(2)
+  defp ring(n), do: Topology.ring(n)
+
   defp throughput(opts) do
-    {:ok, net} = Network.start(Topology.ring(opts[:hosts]))
-    hosts = Network.host_list(net)
-    n = length(hosts)
+    t_net = System.monotonic_time(:millisecond)
+    {:ok, net} = Network.start(ring(opts[:hosts]))
+    network_ms = System.monotonic_time(:millisecond) - t_net
+    hosts = net |> Network.host_list() |> List.to_tuple()
+    n = tuple_size(hosts)
 
     agents =
       for i <- 0..(opts[:agents] - 1) do
         home = rem(i, n)
 
-        {:ok, id} =
-          Tartarus.create_mobile_agent(Enum.at(hosts, home), Tartarus.Examples.Echo, nil)
+        {:ok, id} = Tartarus.create_mobile_agent(elem(hosts, home), Tartarus.Examples.Echo, nil)
 
         {id, home}
       end
@@ -111,6 +162,9 @@ defmodule TartarusEmu.DashboardBench do
 
       %{
         hosts: opts[:hosts],
+        network_ms: network_ms,
+        health_sampling: opts[:health],
+        sample_cost_us: sample_cost(runs),
         agents: opts[:agents],
         moves_per_run: opts[:agents] * opts[:moves],
         rounds: opts[:rounds],
@@ -131,19 +185,24 @@ defmodule TartarusEmu.DashboardBench do
   end
 
   defp condition(:none, _net, agents, hosts, opts, _b) do
+    # The health sampler is node-wide and outlives a dashboard: the baseline runs without it.
+    Health.stop()
     {agents, us} = drive(agents, hosts, opts[:moves])
     {agents, rate(opts, us)}
   end
 
   defp condition(:dashboard, net, agents, hosts, opts, _b) do
-    {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
+    Health.stop()
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(net, health: opts[:health])
     {agents, us} = drive(agents, hosts, opts[:moves])
+    costs = sampled_costs(opts)
     Dashboard.stop(dash)
-    {agents, rate(opts, us)}
+    {agents, rate(opts, us) |> Map.put(:sample_costs_us, costs)}
   end
 
   defp condition(:page, net, agents, hosts, opts, browser) do
-    {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
+    Health.stop()
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(net, health: opts[:health])
 
     {agents, us, seen} =
       if browser do
@@ -176,8 +235,34 @@ defmodule TartarusEmu.DashboardBench do
 
     {:ok, body} = get(Dashboard.url(dash) <> "api/summary")
     feed = TartarusTools.JSON.decode!(body)["feed"]
+    costs = sampled_costs(opts)
     Dashboard.stop(dash)
-    {agents, rate(opts, us) |> Map.merge(seen) |> Map.put(:feed_dropped, feed["dropped"])}
+
+    {agents,
+     rate(opts, us)
+     |> Map.merge(seen)
+     |> Map.merge(%{feed_dropped: feed["dropped"], sample_costs_us: costs})}
+  end
+
+  # What the health samples taken during a run cost (µs each), newest last.
+  defp sampled_costs(opts) do
+    if opts[:health], do: Enum.map(Health.series(300), & &1.cost_us), else: []
+  end
+
+  defp sample_cost(runs) do
+    costs = Enum.flat_map(runs, &Map.get(&1, :sample_costs_us, []))
+
+    case costs do
+      [] ->
+        nil
+
+      _ ->
+        %{
+          samples: length(costs),
+          median_us: TartarusTools.Stats.median(costs),
+          max_us: Enum.max(costs)
+        }
+    end
   end
 
   defp rate(opts, us) do
@@ -187,7 +272,7 @@ defmodule TartarusEmu.DashboardBench do
 
   # Every agent moves `moves` times to the next host of the ring, each by its own process.
   defp drive(agents, hosts, moves) do
-    n = length(hosts)
+    n = tuple_size(hosts)
     t0 = System.monotonic_time(:microsecond)
 
     agents =
@@ -196,7 +281,7 @@ defmodule TartarusEmu.DashboardBench do
         Task.async(fn ->
           Enum.reduce(1..moves, at, fn _, at ->
             to = rem(at + 1, n)
-            :ok = Tartarus.move({id, Enum.at(hosts, at)}, Enum.at(hosts, to))
+            :ok = Tartarus.move({id, elem(hosts, at)}, elem(hosts, to))
             to
           end)
           |> then(&{id, &1})

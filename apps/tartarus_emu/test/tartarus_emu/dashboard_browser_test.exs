@@ -162,4 +162,33 @@ defmodule TartarusEmu.DashboardBrowserTest do
     assert :ok = Browser.screenshot(b, @screenshot)
     assert <<0x89, "PNG", _::binary>> = File.read!(@screenshot)
   end
+
+  test "a building's floors are drawn side by side", %{b: b} do
+    topo =
+      Topology.new([:f1, :f2, :g1, :g2], [{:f1, :f2}, {:g1, :g2}, {:f1, :g1}],
+        positions: %{f1: {0, 0, 0}, f2: {9, 0, 0}, g1: {0, 0, 4}, g2: {9, 0, 4}},
+        floors: %{f1: 0, f2: 0, g1: 1, g2: 1}
+      )
+
+    net = start_network!(topo)
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
+    :ok = Browser.open(b, TartarusTools.Dashboard.url(dash))
+    :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 60_000)
+
+    assert eval!(
+             b,
+             "[...document.querySelectorAll('#overlay rect[data-floor]')].map(r => r.dataset.floor)"
+           ) ==
+             ["0", "1"]
+
+    # Hosts at the same x and y on two floors are not drawn on top of each other.
+    x = fn h ->
+      eval!(
+        b,
+        ~s|+document.querySelector('#overlay g.host[data-host="#{h}"]').getAttribute('transform').match(/\\(([\\d.]+)/)[1]|
+      )
+    end
+
+    assert x.("f2") < x.("g1")
+  end
 end

@@ -177,4 +177,27 @@ defmodule TartarusEmu.DashboardTest do
     assert_received {:torn_down, _}
     :gen_tcp.close(l)
   end
+
+  test "a kept page outlives its network: the last hosts, agents and health stay readable" do
+    {:ok, net} = Network.start(Topology.grid(2, 2))
+    {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :h1), Tartarus.Examples.Echo, nil)
+    {:ok, dash} = TartarusEmu.Dashboard.start_link(net, token: @token)
+    url = TartarusTools.Dashboard.url(dash)
+    eventually(fn -> match?({200, %{"points" => [_ | _]}}, get(url, "/api/health")) end)
+
+    :ok = TartarusTools.Dashboard.keep(dash)
+    Network.stop(net)
+
+    {200, %{"hosts" => hosts}} = get(url, "/api/hosts")
+    assert Enum.map(hosts, & &1["id"]) == ~w(h1 h2 h3 h4)
+    assert {200, %{"agents" => [%{"id" => ^id, "host" => "h1"}]}} = get(url, "/api/agents")
+    assert {200, %{"links" => [_, _, _, _]}} = get(url, "/api/links")
+    assert {200, %{"kept" => true}} = get(url, "/api/fleet")
+    {200, %{"points" => kept}} = get(url, "/api/health")
+    assert kept != []
+    # The charts are the run's: they do not move on after it.
+    Process.sleep(1_500)
+    assert {200, %{"points" => ^kept}} = get(url, "/api/health")
+    TartarusTools.Dashboard.stop(dash)
+  end
 end

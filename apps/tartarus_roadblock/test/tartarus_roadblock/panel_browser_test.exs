@@ -42,10 +42,17 @@ defmodule TartarusRoadblock.PanelBrowserTest do
                ~s|[...document.querySelectorAll('section[data-panel="roadblock"] td')].some(td => td.textContent === 'stopped')|
              )
 
+    # The panel has a tab of its own.
     {:ok, true} =
       Browser.eval(
         b,
-        ~s|document.querySelector('section[data-panel="roadblock"]').scrollIntoView(); true|
+        ~s|document.querySelector('#tabs button[data-tab="panel:roadblock"]').click(); true|
+      )
+
+    {:ok, true} =
+      Browser.eval(
+        b,
+        ~s|getComputedStyle(document.querySelector('section[data-panel="roadblock"]')).display !== 'none'|
       )
 
     File.mkdir_p!(Path.dirname(@screenshot))

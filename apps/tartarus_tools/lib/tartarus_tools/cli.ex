@@ -89,6 +89,12 @@ defmodule TartarusTools.CLI do
     short = Mix.Task.shortdoc(module)
     # Option bullets read as flags, as typed (`--seed`, not `:seed`).
     doc = Regex.replace(~r/^(\s*\* )`:(\w+)`/m, doc, fn _, bullet, key -> bullet <> "`--#{dash(String.to_atom(key))}`" end)
+
+    doc =
+      if doc =~ "--dashboard",
+        do: doc <> "\n`--dashboard-keep` keeps the page after the run: its last state and charts stay readable until you stop the task (Ctrl-C).\n",
+        else: doc
+
     Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
   end
 
@@ -167,12 +173,25 @@ defmodule TartarusTools.CLI do
   @doc """
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
   `Mix.Error` naming the task. Returns the options, or `{options, arguments}` with
-  `args: true`.
+  `args: true`. A task with a `--dashboard` switch also takes `--dashboard-keep`, which
+  keeps its page after the run (`TartarusTools.Dashboard.keep_pages/0`).
   """
   @spec parse!([String.t()], keyword(), String.t(), keyword()) ::
           keyword() | {keyword(), [String.t()]}
   def parse!(argv, switches, task, opts \\ []) do
+    # Every task that serves a page (`--dashboard`) may keep it after its run.
+    keep? = Keyword.has_key?(switches, :dashboard) and not Keyword.has_key?(switches, :dashboard_keep)
+    switches = if keep?, do: switches ++ [dashboard_keep: :boolean], else: switches
     {parsed, args, invalid} = OptionParser.parse(argv, strict: switches)
+
+    parsed =
+      if keep? do
+        if parsed[:dashboard_keep], do: TartarusTools.Dashboard.keep_pages()
+        Keyword.delete(parsed, :dashboard_keep)
+      else
+        parsed
+      end
+
     args_ok? = Keyword.get(opts, :args, false)
 
     for {flag, value} <- invalid do

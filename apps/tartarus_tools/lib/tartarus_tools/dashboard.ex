@@ -55,6 +55,23 @@ defmodule TartarusTools.Dashboard do
       doc: "ms from a request line to the last byte of its body (else 408 and the close)"
     ],
     max_clients: [type: :pos_integer, default: 200, doc: "connections served at once"],
+    health: [
+      type: :boolean,
+      default: true,
+      doc: "sample this node's health (`TartarusTools.Dashboard.Health`) for the page's charts"
+    ],
+    fleet: [
+      type: :boolean,
+      default: true,
+      doc:
+        "without an emulation, show every node the overlay reaches (`TartarusTools.Dashboard.Fleet`)"
+    ],
+    fleet_ttl: [type: :pos_integer, default: 8, doc: "overlay hops the fleet's gather goes at most"],
+    fleet_ms: [
+      type: :pos_integer,
+      default: 2_000,
+      doc: "how old the fleet's last gather may be before a request starts the next"
+    ],
     max_per_client: [
       type: :pos_integer,
       default: 16,
@@ -126,7 +143,7 @@ defmodule TartarusTools.Dashboard do
 
   use GenServer
 
-  alias TartarusTools.Dashboard.{Feed, Http}
+  alias TartarusTools.Dashboard.{Api, Feed, Fleet, Health, Http}
 
   @typedoc "A running dashboard (its process)."
   @type t :: GenServer.server()
@@ -150,9 +167,56 @@ defmodule TartarusTools.Dashboard do
     with {:ok, opts} <- validate(opts), do: GenServer.start(__MODULE__, opts)
   end
 
-  @doc "Stops a dashboard: the HTTP server, its connections and streams, its event subscription."
+  @doc """
+  Stops a dashboard: the HTTP server, its connections and streams, its event subscription.
+
+  When pages are kept (`keep_pages/0`, the `--dashboard-keep` flag of every mix task with
+  `--dashboard`), it keeps the page instead (`keep/1`) and the task, once it has printed its
+  results, waits until the user stops it (Ctrl-C), so that the run's last state and charts
+  stay readable.
+  """
   @spec stop(t()) :: :ok
-  def stop(dash), do: GenServer.stop(dash)
+  def stop(dash) do
+    if :persistent_term.get({__MODULE__, :keep_pages}, false) do
+      :ok = keep(dash)
+      wait_at_exit(url(dash))
+    else
+      GenServer.stop(dash)
+    end
+  end
+
+  @doc """
+  From now on, `stop/1` keeps a dashboard's page (see `stop/1`) rather than stopping it: what
+  `--dashboard-keep` does (`TartarusTools.CLI.parse!/4`).
+  """
+  @spec keep_pages() :: :ok
+  def keep_pages, do: :persistent_term.put({__MODULE__, :keep_pages}, true)
+
+  # Once per node: after the task's own output, say where the page is and wait for Ctrl-C.
+  defp wait_at_exit(url) do
+    unless :persistent_term.get({__MODULE__, :waiting}, false) do
+      :persistent_term.put({__MODULE__, :waiting}, true)
+
+      System.at_exit(fn _ ->
+        IO.puts(
+          :standard_error,
+          "dashboard: the run is over; its page stays readable at #{url} until you stop this task (Ctrl-C)"
+        )
+
+        Process.sleep(:infinity)
+      end)
+    end
+
+    :ok
+  end
+
+  @doc """
+  Keeps the page as it is now, for a run that has ended: the hosts, links, agents, panels
+  and health series are read once more and then served unchanged until the dashboard stops
+  (the page says "run over, kept"). Call it before the run's hosts stop.
+  """
+  @spec keep(t()) :: :ok
+  def keep(dash), do: GenServer.call(dash, :keep, 120_000)
 
   @doc "The page's address, e.g. `\"http://127.0.0.1:4040/\"`."
   @spec url(t()) :: String.t()
@@ -229,6 +293,13 @@ defmodule TartarusTools.Dashboard do
   def init(opts) do
     Process.flag(:trap_exit, true)
     {:ok, feed} = Feed.start_link(opts)
+    if opts[:health], do: Health.ensure_started()
+
+    fleet =
+      if opts[:fleet] and opts[:emulation] == nil do
+        {:ok, f} = Fleet.start_link(ttl: opts[:fleet_ttl], fleet_ms: opts[:fleet_ms])
+        f
+      end
 
     ctx = %{
       feed: feed,
@@ -236,6 +307,7 @@ defmodule TartarusTools.Dashboard do
       catalog: opts[:catalog],
       emulation: opts[:emulation],
       panels: opts[:panels],
+      fleet: fleet,
       max_body: opts[:max_body],
       cache: :ets.new(:tartarus_dashboard_cache, [:public, :set, read_concurrency: true])
     }
@@ -252,9 +324,9 @@ defmodule TartarusTools.Dashboard do
       {:ok, http} ->
         port = Http.port(http)
         # The first look at the hosts tells the feed their ids (see Api.topology/1).
-        _ = TartarusTools.Dashboard.Api.topology(ctx)
+        _ = Api.topology(ctx)
         host = opts[:bind] |> :inet.ntoa() |> to_string()
-        {:ok, %{http: http, port: port, feed: feed, token: opts[:token], host: host}}
+        {:ok, %{http: http, port: port, feed: feed, token: opts[:token], host: host, ctx: ctx}}
 
       {:error, reason} ->
         Feed.stop(feed)
@@ -266,6 +338,7 @@ defmodule TartarusTools.Dashboard do
   def handle_call(:url, _from, s), do: {:reply, "http://#{s.host}:#{s.port}/", s}
   def handle_call(:port, _from, s), do: {:reply, s.port, s}
   def handle_call(:token, _from, s), do: {:reply, s.token, s}
+  def handle_call(:keep, _from, s), do: {:reply, Api.freeze(s.ctx), s}
 
   @impl true
   def handle_info({:EXIT, _pid, reason}, s), do: {:stop, reason, s}

@@ -6,7 +6,7 @@ defmodule TartarusTools.Dashboard.Api do
   # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
   # hosts, agents, modules and panels are looked up among those that exist.
 
-  alias TartarusTools.Dashboard.{Feed, Page, Panel}
+  alias TartarusTools.Dashboard.{Feed, Fleet, Health, Page, Panel}
   alias TartarusTools.JSON
 
   @cache_ms 1_000
@@ -49,6 +49,9 @@ defmodule TartarusTools.Dashboard.Api do
   defp route("GET", ["api", "events"], req, ctx), do: with_query(req, &events(&1, ctx))
   defp route("GET", ["api", "catalog"], _req, ctx), do: json(200, %{catalog: catalog(ctx)})
   defp route("GET", ["api", "panels"], _req, ctx), do: json(200, %{panels: panels(ctx)})
+  defp route("GET", ["api", "fleet"], _req, ctx), do: json(200, fleet(ctx))
+  defp route("GET", ["api", "health"], req, ctx), do: with_query(req, &health(&1, ctx))
+  defp route("GET", ["api", "rates"], req, ctx), do: with_query(req, &rates(&1, ctx))
 
   defp route("POST", ["api" | rest] = segs, req, ctx) do
     if known_post?(segs) do
@@ -73,7 +76,7 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp not_found(req), do: error(404, "not_found", "no such endpoint: #{req.method} #{req.path}")
 
-  defp routable("GET", ["api", x]) when x in ~w(info hosts links summary agents events catalog panels stream),
+  defp routable("GET", ["api", x]) when x in ~w(info hosts links summary agents events catalog panels stream fleet health rates),
     do: {:ok, x}
 
   defp routable("GET", ["api", x, _]) when x in ~w(hosts agents), do: {:ok, x}
@@ -101,6 +104,9 @@ defmodule TartarusTools.Dashboard.Api do
       "GET /api/stream (text/event-stream)",
       "GET /api/catalog",
       "GET /api/panels",
+      "GET /api/fleet",
+      "GET /api/health?node=NODE&host=ID&points=300",
+      "GET /api/rates?seconds=120",
       "POST /api/agents {host, module, args?, static?}",
       "POST /api/agents/ID/move {to}",
       "POST /api/agents/ID/clone {to}",
@@ -123,6 +129,8 @@ defmodule TartarusTools.Dashboard.Api do
       hosts: length(topology(ctx).hosts),
       catalog: catalog(ctx),
       panels: Enum.map(ctx.panels, fn {m, a} -> m.name(a) end),
+      fleet: ctx.fleet != nil,
+      kept: frozen?(ctx),
       token_required_for: "POST",
       max_body: ctx.max_body
     }
@@ -158,17 +166,18 @@ defmodule TartarusTools.Dashboard.Api do
   defp host_detail(id, ctx) do
     with {:ok, h} <- find_host(id, ctx) do
       view = Enum.find(host_views(ctx), &(&1.id == id)) || host_view(h)
-
-      agents =
-        case Tartarus.agents(h.host) do
-          list when is_list(list) -> Enum.map(list, &agent_view(&1, id))
-          _ -> []
-        end
+      agents = collect_agents([h])
 
       hop =
-        case Tartarus.hop_stats(h.host) do
-          m when is_map(m) -> m
-          _ -> %{}
+        case Map.get(h, :remote) do
+          %{} = r ->
+            %{median_us: r.hop_median_us, p99_us: r.hop_p99_us}
+
+          nil ->
+            case Tartarus.hop_stats(h.host) do
+              m when is_map(m) -> m
+              _ -> %{}
+            end
         end
 
       json(200, Map.merge(view, %{agents: agents, hop: hop}))
@@ -249,16 +258,34 @@ defmodule TartarusTools.Dashboard.Api do
   end
 
   defp collect_agents(hosts) do
-    Enum.flat_map(hosts, fn h ->
-      case h.up && Tartarus.agents(h.host) do
-        list when is_list(list) -> Enum.map(list, &agent_view(&1, h.id))
-        _ -> []
-      end
+    Enum.flat_map(hosts, fn
+      %{remote: %{}} = h ->
+        remote_agents(h)
+
+      h ->
+        local_agents(h)
     end)
   end
 
-  defp agent_view(a, host_id) do
-    %{id: a.id, name: Feed.term(a.name), module: inspect(a.module), host: host_id}
+  # A remote host's agents, from its node's snapshot (no call to that node).
+  defp remote_agents(%{host: {_name, node}} = h),
+    do: Enum.map(h.agents, &agent_view(&1, h.id, node))
+
+  defp local_agents(h) do
+      case h.up && Tartarus.agents(h.host) do
+        list when is_list(list) -> Enum.map(list, &agent_view(&1, h.id, elem(h.host, 1)))
+        _ -> []
+      end
+  end
+
+  defp agent_view(a, host_id, node) do
+    %{
+      id: a.id,
+      name: Feed.term(a.name),
+      module: inspect(a.module),
+      host: host_id,
+      node: node && to_string(node)
+    }
   end
 
   defp agent_detail(id, ctx) do
@@ -326,6 +353,13 @@ defmodule TartarusTools.Dashboard.Api do
   end
 
   defp panels(ctx) do
+    case :ets.lookup(ctx.cache, :panels) do
+      [{:panels, :kept, v}] -> v
+      _ -> panels_now(ctx)
+    end
+  end
+
+  defp panels_now(ctx) do
     Enum.map(ctx.panels, fn {m, a} ->
       v = m.render(a)
 
@@ -340,6 +374,157 @@ defmodule TartarusTools.Dashboard.Api do
         image_alt: get_in(v, [Access.key(:image, %{}), Access.key(:alt, v.title)]) || v.title
       }
     end)
+  end
+
+  # -- the fleet, health and rates ---------------------------------------------------------
+
+  defp fleet(ctx) do
+    {snaps, at} =
+      case ctx.fleet do
+        nil -> {[%{node: node(), path: [node()], health: Health.latest()}], now_ms()}
+        f -> with(%{snapshots: s, at: at} <- Fleet.get(f), do: {s, at})
+      end
+
+    views = host_views(ctx)
+
+    nodes =
+      Enum.map(snaps, fn
+        %{error: e} = snap ->
+          %{node: to_string(snap.node), reachable: false, error: e, path: Enum.map(snap.path, &to_string/1)}
+
+        snap ->
+          mine = Enum.filter(views, &(&1.node == to_string(snap.node)))
+
+          %{
+            node: to_string(snap.node),
+            reachable: true,
+            path: Enum.map(snap.path, &to_string/1),
+            age_ms: if(snap.node == node(), do: 0, else: now_ms() - at),
+            hosts: Enum.map(mine, & &1.id),
+            agents: Map.get(snap, :agents_total, Enum.sum(Enum.map(mine, & &1.residents))),
+            plugins: Enum.sum(Enum.map(mine, &length(&1.plugins))),
+            health: health_view(snap.health)
+          }
+      end)
+
+    %{nodes: nodes, gathered_at: at, age_ms: now_ms() - at, kept: frozen?(ctx)}
+  end
+
+  defp health_view(nil), do: nil
+  defp health_view(sample), do: Map.delete(sample, :hosts)
+
+  defp health(q, ctx) do
+    with {:ok, points} <- int(q, "points", 300, 1, 3_600),
+         {:ok, path} <- health_path(q["node"], ctx),
+         {:ok, series} <- health_series(path, points, ctx) do
+      node = List.last(path) |> to_string()
+
+      case blank(q["host"]) do
+        nil ->
+          json(200, %{
+            node: node,
+            points: Enum.map(series, &health_view/1),
+            hosts: series |> Enum.flat_map(&Map.keys(&1.hosts)) |> Enum.uniq() |> Enum.sort()
+          })
+
+        host ->
+          name = host |> String.split("@") |> hd()
+
+          points =
+            for p <- series, row = p.hosts[name], do: Map.put(row, :t, p.t)
+
+          json(200, %{node: node, host: host, points: points})
+      end
+    end
+  end
+
+  defp health_path(nil, _ctx), do: {:ok, [node()]}
+  defp health_path("", _ctx), do: {:ok, [node()]}
+
+  defp health_path(name, ctx) do
+    snaps = if ctx.fleet, do: Fleet.get(ctx.fleet).snapshots, else: []
+
+    cond do
+      name == to_string(node()) ->
+        {:ok, [node()]}
+
+      snap = Enum.find(snaps, &(to_string(&1.node) == name and not Map.has_key?(&1, :error))) ->
+        {:ok, snap.path}
+
+      true ->
+        error(404, "unknown_node", "no node #{inspect(name)} is reachable through the overlay")
+    end
+  end
+
+  defp health_series(path, points, ctx) do
+    case frozen_health(ctx, path) do
+      {:ok, series} ->
+        {:ok, Enum.take(series, -points)}
+
+      :none ->
+        case Fleet.forward(path, {:health, points}) do
+          {:ok, series} -> {:ok, series}
+          {:error, why} -> error(502, "node_unreachable", "cannot read #{List.last(path)}: #{why}")
+        end
+    end
+  end
+
+  defp frozen_health(ctx, path) do
+    case :ets.lookup(ctx.cache, {:frozen_health, List.last(path)}) do
+      [{_, series}] -> {:ok, series}
+      [] -> :none
+    end
+  end
+
+  defp rates(q, ctx) do
+    with {:ok, seconds} <- int(q, "seconds", 120, 1, 300) do
+      json(200, Feed.rates(ctx.feed, seconds))
+    end
+  end
+
+  defp frozen?(ctx), do: :ets.member(ctx.cache, :frozen)
+
+  @doc false
+  # Keeps what the page shows as it is now (a run that ended): the hosts, links, views,
+  # agents, summary parts, panels and this node's (and the fleet's) health series are
+  # computed once more and then served as they are until the dashboard stops.
+  def freeze(ctx) do
+    if ctx.fleet, do: Fleet.freeze(ctx.fleet)
+    for k <- [:topology, :views, :agents, :index], do: :ets.delete(ctx.cache, k)
+    _ = topology(ctx)
+    _ = host_views(ctx)
+    _ = index(ctx)
+    _ = cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end)
+    :ets.insert(ctx.cache, {:panels, :kept, panels_now(ctx)})
+    nodes = topology(ctx).hosts |> Enum.map(&elem(&1.host, 1)) |> Enum.uniq()
+
+    for n <- Enum.uniq([node() | nodes]) do
+      path = if n == node(), do: [node()], else: fleet_path(ctx, n)
+
+      case path && Fleet.forward(path, {:health, 3_600}) do
+        {:ok, series} -> :ets.insert(ctx.cache, {{:frozen_health, n}, series})
+        _ -> :ok
+      end
+    end
+
+    for k <- [:topology, :views, :agents, :index] do
+      case :ets.lookup(ctx.cache, k) do
+        [{^k, _until, v}] -> :ets.insert(ctx.cache, {k, :kept, v})
+        _ -> :ok
+      end
+    end
+
+    :ets.insert(ctx.cache, {:frozen})
+    :ok
+  end
+
+  defp fleet_path(%{fleet: nil}, _n), do: nil
+
+  defp fleet_path(ctx, n) do
+    case Enum.find(Fleet.get(ctx.fleet).snapshots, &(&1.node == n)) do
+      %{path: p} -> p
+      _ -> nil
+    end
   end
 
   # -- actions --------------------------------------------------------------------------
@@ -528,12 +713,24 @@ defmodule TartarusTools.Dashboard.Api do
     end
   end
 
+  # A host by its id, by `name@node`, or by a short name that several hosts share: the
+  # platform then resolves it through the overlay (Tartarus.Host.resolve/2) or says it is
+  # ambiguous.
   defp find_host(id, ctx) do
     case Map.fetch(index(ctx), id) do
-      {:ok, h} -> {:ok, h}
-      :error -> error(404, "unknown_host", "there is no host #{inspect(id)}")
+      {:ok, h} ->
+        {:ok, h}
+
+      :error ->
+        case Enum.filter(topology(ctx).hosts, &short_name?(&1.host, id)) do
+          [_, _ | _] -> {:ok, %{id: id, host: String.to_existing_atom(id), up: true}}
+          _ -> error(404, "unknown_host", "there is no host #{inspect(id)}")
+        end
     end
   end
+
+  defp short_name?({name, _node}, id) when is_atom(name), do: Atom.to_string(name) == id
+  defp short_name?(_, _), do: false
 
   defp agent_ref(id, ctx) do
     cond do
@@ -545,6 +742,10 @@ defmodule TartarusTools.Dashboard.Api do
 
       a = Enum.find(cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end), &(&1.id == id)) ->
         {:ok, {id, Map.fetch!(index(ctx), a.host).host}}
+
+      ctx.fleet != nil ->
+        # Not seen on the hosts shown: the platform looks for it through the overlay.
+        {:ok, id}
 
       true ->
         error(404, "unknown_agent", "there is no agent #{id} on the hosts shown here")
@@ -615,21 +816,55 @@ defmodule TartarusTools.Dashboard.Api do
           %{hosts: hosts, links: m.links(a)}
 
         nil ->
-          hosts =
-            Enum.map(Tartarus.hosts(), fn {name, _} = h -> %{id: to_string(name), host: h, up: true} end)
-
-          ids = MapSet.new(hosts, & &1.id)
-
-          links =
-            for h <- hosts,
-                n <- neighbours(h.host),
-                b = Feed.host_id(n),
-                h.id < b and MapSet.member?(ids, b),
-                do: %{a: h.id, b: b, up: true}
-
-          %{hosts: hosts, links: links}
-    end
+          fleet_topology(ctx)
+      end
   end
+
+  # This node's hosts and, through the fleet's gather, those of every node the overlay
+  # reaches; a host is named by its name, or `name@node` when another host has that name.
+  defp fleet_topology(ctx) do
+    local = Enum.map(Tartarus.hosts(), fn h -> %{host: h, up: true, remote: nil} end)
+    fleet = if ctx.fleet, do: Fleet.get(ctx.fleet), else: %{snapshots: [], at: now_ms()}
+
+    remote =
+      for snap <- fleet.snapshots,
+          snap.node != node(),
+          by_host = Enum.group_by(Map.get(snap, :agents, []), & &1.host),
+          h <- Map.get(snap, :hosts, []),
+          do: %{
+            host: {h.name, h.node},
+            up: true,
+            remote: h,
+            agents: Map.get(by_host, h.name, []),
+            seen_at: fleet.at
+          }
+
+    all = local ++ remote
+    counts = Enum.frequencies_by(all, fn h -> elem(h.host, 0) end)
+
+    hosts =
+      Enum.map(all, fn %{host: {name, node}} = h ->
+        id =
+          if counts[name] == 1 or h.remote == nil,
+            do: to_string(name),
+            else: "#{name}@#{node}"
+
+        Map.put(h, :id, id)
+      end)
+
+    ids = Map.new(hosts, &{&1.host, &1.id})
+
+    links =
+      for h <- hosts,
+          n <- if(h.remote, do: h.remote.neighbours, else: neighbours(h.host)),
+          b = Map.get(ids, n),
+          b != nil and h.id < b,
+          do: %{a: h.id, b: b, up: true, cross: elem(h.host, 1) != elem(n, 1)}
+
+    %{hosts: hosts, links: Enum.uniq(links)}
+  end
+
+  defp now_ms, do: System.system_time(:millisecond)
 
   defp neighbours(h) do
     case Tartarus.neighbours(h) do
@@ -638,7 +873,13 @@ defmodule TartarusTools.Dashboard.Api do
     end
   end
 
-  defp index(ctx), do: cached(ctx, :index, fn -> Map.new(topology(ctx).hosts, &{&1.id, &1}) end)
+  defp index(ctx) do
+    cached(ctx, :index, fn ->
+      hosts = topology(ctx).hosts
+      full = Map.new(hosts, fn %{host: {name, node}} = h -> {"#{name}@#{node}", h} end)
+      Map.merge(full, Map.new(hosts, &{&1.id, &1}))
+    end)
+  end
 
   # Up to @status_limit hosts, each host's counters come from Tartarus.status/1 (counted
   # since the host started). Beyond, status/1 is too dear (it lists the host's plugins
@@ -651,12 +892,17 @@ defmodule TartarusTools.Dashboard.Api do
     cached(ctx, :views, fn ->
       hosts = topology(ctx).hosts
 
-      if length(hosts) <= @status_limit do
-        Enum.map(hosts, &host_view/1)
-      else
-        counts = Feed.host_counts(ctx.feed)
-        Enum.map(hosts, &light_view(&1, Map.get(counts, &1.id, %{})))
-      end
+      {remote, local} = Enum.split_with(hosts, &Map.get(&1, :remote))
+
+      local =
+        if length(local) <= @status_limit do
+          Enum.map(local, &host_view/1)
+        else
+          counts = Feed.host_counts(ctx.feed)
+          Enum.map(local, &light_view(&1, Map.get(counts, &1.id, %{})))
+        end
+
+      local ++ Enum.map(remote, &remote_view/1)
     end)
   end
 
@@ -679,6 +925,7 @@ defmodule TartarusTools.Dashboard.Api do
       node: to_string(elem(h.host, 1)),
       up: h.up,
       pos: pos(Map.get(h, :pos)),
+      floor: Map.get(h, :floor),
       counted: counted,
       residents: 0,
       arrivals: 0,
@@ -688,8 +935,42 @@ defmodule TartarusTools.Dashboard.Api do
       messages: 0,
       move_failed: 0,
       hop_median_us: nil,
-      hop_p99_us: nil
+      hop_p99_us: nil,
+      age_ms: 0,
+      plugins: []
     }
+  end
+
+  # A host of another node, as its node's snapshot gave it (`age_ms`: how old the gather is).
+  defp remote_view(%{remote: r} = h) do
+    h
+    |> base_view("host")
+    |> Map.merge(Map.take(r, ~w(residents arrivals departures refused bytes messages move_failed hop_median_us hop_p99_us)a))
+    |> Map.merge(%{age_ms: now_ms() - h.seen_at, plugins: Enum.map(r.plugins, &plugin_view/1)})
+  end
+
+  defp plugin_view(p) do
+    %{
+      name: Atom.to_string(p.name),
+      kind: Feed.term(p.kind),
+      capabilities: Enum.map(p.capabilities, &Feed.term/1),
+      last: Feed.term(p.last),
+      last_at: p.last_at
+    }
+  end
+
+  defp local_plugins({name, _} = host, plugins) do
+    Enum.map(plugins, fn {pname, desc} ->
+      last = if elem(host, 1) == node(), do: Tartarus.Plugin.last_reading(name, pname)
+
+      plugin_view(%{
+        name: pname,
+        kind: Map.get(desc, :kind),
+        capabilities: Map.get(desc, :capabilities, []),
+        last: last && last.value,
+        last_at: last && last.at
+      })
+    end)
   end
 
   defp host_view(h) do
@@ -709,7 +990,8 @@ defmodule TartarusTools.Dashboard.Api do
             messages: c.messages,
             move_failed: c.move_failed,
             hop_median_us: Map.get(hops, :median_us),
-            hop_p99_us: Map.get(hops, :p99_us)
+            hop_p99_us: Map.get(hops, :p99_us),
+            plugins: local_plugins(h.host, Map.get(st, :plugins, []))
         }
 
       _ ->
@@ -726,6 +1008,9 @@ defmodule TartarusTools.Dashboard.Api do
     now = System.monotonic_time(:millisecond)
 
     case :ets.lookup(ctx.cache, key) do
+      [{^key, :kept, value}] ->
+        value
+
       [{^key, until, value}] when now < until ->
         value
 
@@ -750,6 +1035,10 @@ defmodule TartarusTools.Dashboard.Api do
   def describe(:not_found), do: "no such agent (it may have stopped)"
   def describe({:no_link, h}), do: "there is no live link to #{Feed.host_id(h)}"
   def describe({:unknown_host, h}), do: "unknown host #{Feed.host_id(h)}"
+
+  def describe({:ambiguous_host, name, hosts}),
+    do:
+      "#{name} names several hosts (#{Enum.map_join(hosts, ", ", fn {n, node} -> "#{n}@#{node}" end)}): give one as name@node"
   def describe({:refused, r}), do: "the destination refused it (#{describe(r)})"
   def describe(:timeout), do: "no answer in time"
 

@@ -28,7 +28,7 @@ defmodule TartarusTools.Dashboard.Browser do
 
   @doc """
   Starts headless Chromium with one blank page (options: `:width`, `:height`,
-  `:timeout` in ms to wait for it). Returns `{:ok, browser}` or `{:error, reason}`.
+  `:timeout` in ms to wait for it, default 90 s: a loaded machine starts it slowly). Returns `{:ok, browser}` or `{:error, reason}`.
   """
   @spec start(keyword()) :: {:ok, t()} | {:error, term()}
   def start(opts \\ []), do: GenServer.start(__MODULE__, {self(), opts})
@@ -142,7 +142,7 @@ defmodule TartarusTools.Dashboard.Browser do
       {:os_pid, pid} = Port.info(port, :os_pid)
       s = %{port: port, pid: pid, dir: dir, sock: nil, buf: "", next: 1}
 
-      case devtools_url(port, "", System.monotonic_time(:millisecond) + (opts[:timeout] || 20_000)) do
+      case devtools_url(port, "", System.monotonic_time(:millisecond) + (opts[:timeout] || 90_000)) do
         {:ok, url} ->
           case page_socket(url) do
             {:ok, sock, rest} ->

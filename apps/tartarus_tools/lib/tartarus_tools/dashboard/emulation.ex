@@ -8,7 +8,7 @@ defmodule TartarusTools.Dashboard.Emulation do
   neighbour links among them, and refuses link actions (404 `not_emulated`).
 
   Host ids are strings that name a host uniquely (a topology node's name); the page and the
-  JSON API use them.
+  JSON API use them. A host's `:floor` (optional) draws each floor beside the others.
   """
 
   @typedoc "A host as the emulation names it."
@@ -16,7 +16,8 @@ defmodule TartarusTools.Dashboard.Emulation do
           required(:id) => String.t(),
           required(:host) => Tartarus.host(),
           required(:up) => boolean(),
-          optional(:pos) => {number(), number()} | nil
+          optional(:pos) => {number(), number()} | nil,
+          optional(:floor) => integer() | nil
         }
 
   @typedoc "An edge of the topology: `up` is false when it is broken or an end is down."

@@ -20,8 +20,13 @@ defmodule TartarusTools.Dashboard.Feed do
     :exit, _ -> :ok
   end
 
-  # A stream (the calling HTTP handler process) joins: it gets {:sse, iodata} messages.
-  def join(feed), do: GenServer.call(feed, {:join, self()})
+  # A stream (the calling HTTP handler process) joins: it gets {:sse, iodata} messages. A
+  # message, not a call: a feed with a backlog of events takes the join when it gets to it,
+  # and the stream has answered its head already (the page is "live" at once).
+  def join(feed) do
+    send(feed, {:join, self()})
+    :ok
+  end
 
   # Recent events, oldest first, filtered: %{type:, host:, agent:, since:, limit:}.
   def events(feed, filter), do: GenServer.call(feed, {:events, filter})
@@ -31,6 +36,10 @@ defmodule TartarusTools.Dashboard.Feed do
 
   # The last host where the feed saw the agent (a host id), or nil.
   def place(feed, id), do: GenServer.call(feed, {:place, id})
+
+  # Events per type per second over the last `seconds` (at most @rate_keep):
+  # %{t: [unix second], counts: %{type => [n]}} (aligned, oldest first; the current second last).
+  def rates(feed, seconds), do: GenServer.call(feed, {:rates, seconds})
 
   # Which id stands for which host address (%{host => id}); others are named by name.
   def names(feed, names), do: GenServer.cast(feed, {:names, names})
@@ -42,6 +51,7 @@ defmodule TartarusTools.Dashboard.Feed do
   # Subscribes remote nodes' events too (hosts of an emulation in peer mode).
   def watch_nodes(feed, nodes), do: GenServer.cast(feed, {:watch_nodes, nodes})
 
+  @rate_keep 300
   @relay_ms 200
   @relay_max 1_000
 
@@ -84,8 +94,13 @@ defmodule TartarusTools.Dashboard.Feed do
        max_batch: opts[:max_batch],
        recent_max: opts[:recent],
        clients: %{},
-       batch: [],
+       batch: %{},
        batch_n: 0,
+       batch_seen: 0,
+       sec: System.system_time(:second),
+       sec_counts: %{},
+       rates: :queue.new(),
+       rates_n: 0,
        batch_dropped: 0,
        seq: 0,
        dropped: 0,
@@ -102,11 +117,6 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   @impl true
-  def handle_call({:join, pid}, _from, s) do
-    ref = Process.monitor(pid)
-    {:reply, :ok, %{s | clients: Map.put(s.clients, pid, ref)}}
-  end
-
   def handle_call({:events, f}, _from, s) do
     list =
       s.recent
@@ -149,6 +159,19 @@ defmodule TartarusTools.Dashboard.Feed do
      }, s}
   end
 
+  def handle_call({:rates, seconds}, _from, s) do
+    s = roll(s, System.system_time(:second))
+    done = s.rates |> :queue.to_list() |> Enum.take(-(seconds - 1))
+    list = done ++ [{s.sec, s.sec_counts}]
+    types = list |> Enum.flat_map(fn {_, c} -> Map.keys(c) end) |> Enum.uniq()
+
+    {:reply,
+     %{
+       t: Enum.map(list, &elem(&1, 0)),
+       counts: Map.new(types, fn t -> {t, Enum.map(list, fn {_, c} -> Map.get(c, t, 0) end)} end)
+     }, s}
+  end
+
   def handle_call({:place, id}, _from, s), do: {:reply, Map.get(s.places, id), s}
   def handle_call(:host_counts, _from, s), do: {:reply, s.host_counts, s}
 
@@ -186,7 +209,12 @@ defmodule TartarusTools.Dashboard.Feed do
         TartarusTools.JSON.encode!(%{
           seq: s.seq,
           dropped: s.batch_dropped,
-          events: s.batch |> Enum.reverse() |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
+          seen: s.batch_seen,
+          events:
+            s.batch
+            |> Map.values()
+            |> Enum.sort()
+            |> Enum.map(fn {seq, e} -> view(e, seq, s.names) end)
         })
 
       msg = {:sse, ["event: batch\ndata: ", data, "\n\n"]}
@@ -199,7 +227,12 @@ defmodule TartarusTools.Dashboard.Feed do
       end)
     end
 
-    {:noreply, %{s | batch: [], batch_n: 0, batch_dropped: 0}}
+    {:noreply, %{roll(s, System.system_time(:second)) | batch: %{}, batch_n: 0, batch_dropped: 0, batch_seen: 0}}
+  end
+
+  def handle_info({:join, pid}, s) when is_pid(pid) do
+    ref = Process.monitor(pid)
+    {:noreply, %{s | clients: Map.put(s.clients, pid, ref)}}
   end
 
   def handle_info({:DOWN, _ref, :process, pid, _}, s),
@@ -214,6 +247,7 @@ defmodule TartarusTools.Dashboard.Feed do
     t = e[:type]
     h = name(e[:host], s.names)
     s = %{s | seq: seq, counts: Map.update(s.counts, t, 1, &(&1 + 1))}
+    s = per_second(t, s)
     s = track(t, e, h, s)
     s = count(t, e, h, s)
     s = if t == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
@@ -226,9 +260,42 @@ defmodule TartarusTools.Dashboard.Feed do
 
     s = %{s | recent: recent, recent_n: n}
 
-    if s.batch_n < s.max_batch,
-      do: %{s | batch: [raw | s.batch], batch_n: s.batch_n + 1},
-      else: %{s | batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
+    seen = s.batch_seen + 1
+    s = %{s | batch_seen: seen}
+
+    # A batch is a uniform sample of the events of its interval (reservoir sampling): at most
+    # max_batch of them, the others counted as skipped.
+    cond do
+      s.batch_n < s.max_batch ->
+        %{s | batch: Map.put(s.batch, s.batch_n, raw), batch_n: s.batch_n + 1}
+
+      (j = :rand.uniform(seen) - 1) < s.max_batch ->
+        %{s | batch: Map.put(s.batch, j, raw), batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
+
+      true ->
+        %{s | batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
+    end
+  end
+
+  # Counts per type in the current second; a new second closes the last into the ring.
+  defp per_second(t, s) do
+    s = roll(s, System.system_time(:second))
+    %{s | sec_counts: Map.update(s.sec_counts, t, 1, &(&1 + 1))}
+  end
+
+  defp roll(%{sec: sec} = s, sec), do: s
+
+  defp roll(s, now) do
+    # Seconds without events are kept as empty (at most the ring's size of them).
+    gap = min(now - s.sec - 1, @rate_keep)
+    closed = [{s.sec, s.sec_counts} | for(i <- gap..1//-1, gap > 0, do: {now - i, %{}})]
+
+    {q, n} =
+      Enum.reduce(closed, {s.rates, s.rates_n}, fn x, {q, n} ->
+        if n >= @rate_keep, do: {:queue.in(x, :queue.drop(q)), n}, else: {:queue.in(x, q), n + 1}
+      end)
+
+    %{s | sec: now, sec_counts: %{}, rates: q, rates_n: n}
   end
 
   defp track(t, %{agent: a}, h, s) when t in [:created, :arrival],

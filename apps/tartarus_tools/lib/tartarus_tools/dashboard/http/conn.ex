@@ -478,9 +478,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
       "HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\n" <>
         "Connection: close\r\n\r\nretry: 2000\n\n"
 
-    :ok = Feed.join(ctx.feed)
-
     with :ok <- :gen_tcp.send(sock, head),
+         :ok <- Feed.join(ctx.feed),
          :ok <- :inet.setopts(sock, packet: :raw, active: :once) do
       events(sock)
     end
