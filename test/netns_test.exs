@@ -443,9 +443,9 @@ defmodule Tartarus.NetnsTest do
       """)
 
     # The faults, one at a time, in an order drawn from the seed: a cut takes a node's link
-    # down for 1 to 8 s (net_ticktime is 4 s: some cuts outlast it, some do not); a kill is
-    # SIGKILL of the node's VM and, a second later, `bin/tartarus start` again on the same
-    # configuration and data directory.
+    # down for 1 to 7 s (net_ticktime is 4 s: some cuts outlast it, some do not); a kill is
+    # SIGKILL of the node's VM and, half a second later, `bin/tartarus start` again on the
+    # same configuration and data directory.
     :rand.seed(:exsss, {seed, 0, 0})
     faults = Enum.shuffle(List.duplicate(:cut, 20) ++ List.duplicate(:kill, 5))
     t0 = System.monotonic_time(:millisecond)
@@ -453,24 +453,26 @@ defmodule Tartarus.NetnsTest do
     log =
       for fault <- faults do
         i = Enum.random(1..@nodes)
-        Process.sleep(1_000 + :rand.uniform(2_000))
+        Process.sleep(500 + :rand.uniform(1_000))
 
         case fault do
           :cut ->
-            ms = 1_000 + :rand.uniform(7_000)
+            ms = 1_000 + :rand.uniform(6_000)
             Bed.link(bed, i, :down)
             Process.sleep(ms)
             Bed.link(bed, i, :up)
             {:cut, i, ms}
 
           :kill ->
+            # Not waited for: the next faults go on while it boots (and may hit it).
             Bed.kill_node(bed, i)
-            Process.sleep(1_000)
+            Process.sleep(500)
             Bed.start_node!(bed, i, node_config(i))
-            Bed.await_up!(bed, i)
             {:kill, i}
         end
       end
+
+    for i <- 1..@nodes, do: Bed.await_up!(bed, i)
 
     faults_ms = System.monotonic_time(:millisecond) - t0
     counts = Bed.ctl!(bed, "Tt29Chaos.stop()")
