@@ -8,7 +8,26 @@ defmodule TartarusUmbrella.MixProject do
       start_permanent: Mix.env() == :prod,
       deps: [],
       aliases: aliases(),
-      preferred_cli_env: ["test.top": :test]
+      preferred_cli_env: ["test.top": :test],
+      releases: [tartarus: release()]
+    ]
+  end
+
+  # `MIX_ENV=prod mix release`: the deployable node (apps/tartarus_node), configured at boot
+  # from a file (config/runtime.exs, rel/env.sh.eex; see docs/devices.md). With
+  # TARTARUS_RELEASE_ERTS=false the release carries no ERTS and runs on any machine with a
+  # matching Erlang/OTP (e.g. Debian's on a Pi); TARTARUS_RELEASE_LATS=false leaves LATS (the
+  # HM-10 BLE receiver) out.
+  defp release do
+    lats =
+      if System.get_env("TARTARUS_RELEASE_LATS") == "false",
+        do: [],
+        else: [tartarus_lats: :permanent]
+
+    [
+      applications: [tartarus_node: :permanent] ++ lats,
+      include_erts: System.get_env("TARTARUS_RELEASE_ERTS") != "false",
+      include_executables_for: [:unix]
     ]
   end
 

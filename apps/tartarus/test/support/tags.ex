@@ -13,13 +13,15 @@ defmodule Tartarus.TestSupport.Tags do
   | `:heavy` | takes many minutes or 100 nodes (the 100-peer scale test, the long protocol model run) | with `TARTARUS_TESTS=all` |
   | `:browser` | drives headless Chromium | when Chromium is on the PATH |
   | `:socat` | needs `socat` (a pseudo-terminal pair) | when socat is on the PATH |
+  | `:release` | builds the release (`MIX_ENV=prod mix release`) and runs it | by default |
+  | `:netns` | the network-namespace bed (root, `ip netns`; nodes from the built release) | when root and namespaces are available |
   | `:known_bug` | shows a bug or a target not met yet | never, unless asked (`--only known_bug`) |
 
   One environment variable chooses the set, `TARTARUS_TESTS`:
 
     * `default` (or unset): everything but `:heavy` (what `scripts/test` runs);
-    * `quick`: also without `:peer`, `:long` and `:browser` (what needs no other node, no
-      browser and less than a minute);
+    * `quick`: also without `:peer`, `:long`, `:browser`, `:release` and `:netns` (what
+      needs no other node, no browser, no release build and less than a minute);
     * `all`: `:heavy` too.
 
   `mix test --include TAG` runs an excluded tag anyway, `--only TAG` only it, and
@@ -29,24 +31,24 @@ defmodule Tartarus.TestSupport.Tags do
   """
 
   @levels %{
-    "quick" => [:peer, :long, :heavy, :browser],
+    "quick" => [:peer, :long, :heavy, :browser, :release, :netns],
     "default" => [:heavy],
     "all" => []
   }
 
   # A tag that needs a program is excluded when the program is missing.
-  @needs [browser: "Chromium", socat: "socat"]
+  @needs [browser: "Chromium", socat: "socat", netns: "network namespaces"]
 
   @doc """
   The tags excluded at `level` (`"quick"`, `"default"` or `"all"`) when the programs of
-  `available` (a subset of `:browser` and `:socat`) are installed.
+  `available` (a subset of `:browser`, `:socat` and `:netns`) are installed.
 
-      iex> Tartarus.TestSupport.Tags.excludes("default", [:browser, :socat])
+      iex> Tartarus.TestSupport.Tags.excludes("default", [:browser, :socat, :netns])
       [:heavy, :known_bug]
       iex> Tartarus.TestSupport.Tags.excludes("all", [:socat])
-      [:browser, :known_bug]
+      [:browser, :known_bug, :netns]
       iex> Tartarus.TestSupport.Tags.excludes("quick", [])
-      [:browser, :heavy, :known_bug, :long, :peer, :socat]
+      [:browser, :heavy, :known_bug, :long, :netns, :peer, :release, :socat]
   """
   @spec excludes(String.t(), [atom()]) :: [atom()]
   def excludes(level, available) do
@@ -83,9 +85,7 @@ defmodule Tartarus.TestSupport.Tags do
     available = Enum.filter(Keyword.keys(@needs), &available?/1)
 
     for {tag, program} <- @needs, tag not in available, tag not in @levels[level] do
-      IO.puts(
-        "Excluding #{inspect(tag)} tests: no #{program} on the PATH (scripts/test installs it)"
-      )
+      IO.puts("Excluding #{inspect(tag)} tests: #{why_missing(tag, program)}")
     end
 
     for old <- ["TARTARUS_SLOW", "TARTARUS_SCALE"], System.get_env(old) do
@@ -105,4 +105,42 @@ defmodule Tartarus.TestSupport.Tags do
   end
 
   defp available?(:socat), do: System.find_executable("socat") != nil
+  defp available?(:netns), do: netns() == :ok
+
+  defp why_missing(:netns, _), do: elem(netns(), 1)
+  defp why_missing(_tag, program), do: "no #{program} on the PATH (scripts/test installs it)"
+
+  @doc """
+  `:ok` when this machine can run the network-namespace bed (Linux, root, `ip`, and `ip
+  netns add` works: checked by adding and deleting a namespace `tt29-probe-<n>`), else
+  `{:error, reason}`. `TARTARUS_NETNS=off` turns the bed off.
+  """
+  @spec netns() :: :ok | {:error, String.t()}
+  def netns do
+    cond do
+      System.get_env("TARTARUS_NETNS") == "off" ->
+        {:error, "TARTARUS_NETNS=off"}
+
+      :os.type() != {:unix, :linux} ->
+        {:error, "not Linux"}
+
+      System.cmd("id", ["-u"]) |> elem(0) |> String.trim() != "0" ->
+        {:error, "not root (network namespaces need root)"}
+
+      System.find_executable("ip") == nil ->
+        {:error, "no `ip` (iproute2) on the PATH"}
+
+      true ->
+        probe = "tt29-probe-#{System.unique_integer([:positive])}"
+
+        case System.cmd("ip", ["netns", "add", probe], stderr_to_stdout: true) do
+          {_, 0} ->
+            System.cmd("ip", ["netns", "del", probe], stderr_to_stdout: true)
+            :ok
+
+          {out, _} ->
+            {:error, "`ip netns add` failed: #{String.trim(out)}"}
+        end
+    end
+  end
 end

@@ -22,7 +22,8 @@ defmodule Tartarus.Security.Certs do
   Keys are ECDSA P-256, signatures ECDSA with SHA-256, serials random 64-bit. The CA has
   `basicConstraints CA:TRUE` and `keyUsage keyCertSign, cRLSign`. A node certificate has
   `CN=<node>`, a `subjectAltName` listing the host part of the node name (if any) and the
-  `:hosts` (DNS names, or IP addresses as `iPAddress` entries),
+  `:hosts` (DNS names, or IP addresses as `iPAddress` entries and again as `dNSName`
+  entries with their text, which OTP 25's hostname check compares a dialled address with),
   `keyUsage digitalSignature` and `extKeyUsage serverAuth, clientAuth`, since every node is
   both a TLS server and a client. Validity starts one hour in the past (clock skew) and lasts
   `:days`.
@@ -104,7 +105,7 @@ defmodule Tartarus.Security.Certs do
       ext(@basic_constraints, false, {:BasicConstraints, false, :asn1_NOVALUE}),
       ext(@key_usage, true, [:digitalSignature]),
       ext(@ext_key_usage, false, [@server_auth, @client_auth]),
-      ext(@subject_alt_name, false, Enum.map(hosts, &alt_name/1)),
+      ext(@subject_alt_name, false, Enum.flat_map(hosts, &alt_names/1)),
       ext(@subject_key_id, false, key_id(key)),
       ext(
         @authority_key_id,
@@ -268,16 +269,21 @@ defmodule Tartarus.Security.Certs do
 
   defp pad(n), do: n |> Integer.to_string() |> String.pad_leading(2, "0")
 
-  defp alt_name(host) do
+  # An IP address is listed twice: as `iPAddress`, and as a `dNSName` with its text, which is
+  # what OTP 25's hostname check compares the dialled host (a string, also for an address) with.
+  defp alt_names(host) do
     case :inet.parse_address(String.to_charlist(host)) do
       {:ok, ip} when tuple_size(ip) == 4 ->
-        {:iPAddress, :erlang.list_to_binary(Tuple.to_list(ip))}
+        [{:iPAddress, :erlang.list_to_binary(Tuple.to_list(ip))}, {:dNSName, ~c"#{host}"}]
 
       {:ok, ip} ->
-        {:iPAddress, for(part <- Tuple.to_list(ip), into: <<>>, do: <<part::16>>)}
+        [
+          {:iPAddress, for(part <- Tuple.to_list(ip), into: <<>>, do: <<part::16>>)},
+          {:dNSName, ~c"#{host}"}
+        ]
 
       {:error, _} ->
-        {:dNSName, String.to_charlist(host)}
+        [{:dNSName, String.to_charlist(host)}]
     end
   end
 

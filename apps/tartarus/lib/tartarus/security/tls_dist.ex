@@ -635,7 +635,7 @@ defmodule :tartarus_tls_dist do
       [cn] ->
         case :string.split(cn, ~c"@") do
           [_name, _host] -> [cn]
-          [name] -> :lists.map(fn host -> name ++ ~c"@" ++ host end, dns_names(extensions))
+          [name] -> :lists.map(fn host -> name ++ ~c"@" ++ host end, uniq(dns_names(extensions)))
         end
 
       _none_or_many ->
@@ -685,6 +685,11 @@ defmodule :tartarus_tls_dist do
   end
 
   defp dns_names(_), do: []
+
+  # The first of each (an address is listed as `iPAddress` and as `dNSName`: see
+  # `Tartarus.Security.Certs`).
+  defp uniq([]), do: []
+  defp uniq([h | t]), do: [h | uniq(:lists.filter(fn x -> x != h end, t))]
 
   defp ip_text(ip) when is_binary(ip), do: ip_text(:erlang.binary_to_list(ip))
 

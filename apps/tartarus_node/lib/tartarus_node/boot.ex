@@ -1,0 +1,69 @@
+defmodule TartarusNode.Boot do
+  @moduledoc """
+  The configured node's host: started with the configuration's plugins, persistence and
+  trust list (`TartarusNode.Config.host_options/1`), its neighbours linked as soon as they
+  answer (a device may boot before its neighbours: each missing link is tried again every
+  2 s), and the dashboard when `dashboard:` is set.
+
+  It logs one line when the host runs (`tartarus: host {h1, :"tartarus@198.18.0.1"}
+  running; plugins: ...`).
+  """
+  use GenServer
+  require Logger
+
+  @retry_ms 2_000
+
+  @doc false
+  def start_link(config), do: GenServer.start_link(__MODULE__, config, name: __MODULE__)
+
+  @doc "The host this node runs, `{name, node()}`."
+  @spec host() :: Tartarus.host()
+  def host, do: GenServer.call(__MODULE__, :host)
+
+  @doc "The configured neighbours not linked yet."
+  @spec missing_neighbours() :: [Tartarus.host()]
+  def missing_neighbours, do: GenServer.call(__MODULE__, :missing)
+
+  @impl true
+  def init(config) do
+    if config.data_dir, do: File.mkdir_p!(config.data_dir)
+
+    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
+      {:ok, host} ->
+        Logger.notice(
+          "tartarus: host #{inspect(host)} running; plugins: " <>
+            Enum.map_join(config.plugins, ", ", fn {n, {m, _}} -> "#{n} (#{inspect(m)})" end)
+        )
+
+        dash = if config.dashboard, do: start_dashboard(config.dashboard)
+        send(self(), :link)
+        {:ok, %{host: host, missing: config.neighbours, dashboard: dash}}
+
+      {:error, reason} ->
+        {:stop, {:host_not_started, reason}}
+    end
+  end
+
+  @impl true
+  def handle_call(:host, _from, s), do: {:reply, s.host, s}
+  def handle_call(:missing, _from, s), do: {:reply, s.missing, s}
+
+  @impl true
+  def handle_info(:link, s) do
+    missing = Enum.reject(s.missing, &(Tartarus.connect(s.host, &1) == :ok))
+    if missing != [], do: Process.send_after(self(), :link, @retry_ms)
+    {:noreply, %{s | missing: missing}}
+  end
+
+  defp start_dashboard(opts) do
+    case TartarusTools.Dashboard.start(opts) do
+      {:ok, dash} ->
+        Logger.notice(TartarusTools.Dashboard.banner(dash))
+        dash
+
+      {:error, reason} ->
+        Logger.error("tartarus: cannot start the dashboard: #{inspect(reason)}")
+        nil
+    end
+  end
+end

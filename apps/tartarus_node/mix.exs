@@ -1,0 +1,24 @@
+defmodule TartarusNode.MixProject do
+  use Mix.Project
+
+  # The deployable node: what `mix release` boots on a Linux device or server. It reads the
+  # node's configuration file (config/runtime.exs, `TartarusNode.Config`) and starts one
+  # Tartarus host with its plugins, persistence, trust list and dashboard (`TartarusNode.Boot`).
+  def project do
+    [
+      app: :tartarus_node,
+      version: "0.1.0",
+      build_path: "../../_build",
+      config_path: "../../config/config.exs",
+      deps_path: "../../deps",
+      lockfile: "../../mix.lock",
+      elixir: "~> 1.14",
+      start_permanent: Mix.env() == :prod,
+      deps: [{:tartarus, in_umbrella: true}, {:tartarus_tools, in_umbrella: true}]
+    ]
+  end
+
+  def application do
+    [extra_applications: [:logger], mod: {TartarusNode.Application, []}]
+  end
+end
