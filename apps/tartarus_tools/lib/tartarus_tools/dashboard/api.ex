@@ -977,22 +977,10 @@ defmodule TartarusTools.Dashboard.Api do
     base = base_view(h, "host")
 
     case h.up && Tartarus.status(h.host) do
-      %{counts: c} = st ->
-        hops = Map.get(st, :hops) || %{}
-
-        %{
-          base
-          | residents: st.resident,
-            arrivals: c.arrivals,
-            departures: c.departures,
-            refused: c.refused,
-            bytes: c.bytes,
-            messages: c.messages,
-            move_failed: c.move_failed,
-            hop_median_us: Map.get(hops, :median_us),
-            hop_p99_us: Map.get(hops, :p99_us),
-            plugins: local_plugins(h.host, Map.get(st, :plugins, []))
-        }
+      %{counts: _} = st ->
+        base
+        |> Map.merge(Fleet.counters(st))
+        |> Map.put(:plugins, local_plugins(h.host, Map.get(st, :plugins, [])))
 
       _ ->
         base

@@ -68,25 +68,16 @@ defmodule TartarusTools.Dashboard.Fleet do
 
   defp host({name, node} = h) do
     case Tartarus.status(h) do
-      %{counts: c} = st ->
-        hops = Map.get(st, :hops) || %{}
-
+      %{counts: _} = st ->
         [
-          %{
+          st
+          |> counters()
+          |> Map.merge(%{
             name: name,
             node: node,
-            residents: st.resident,
-            arrivals: c.arrivals,
-            departures: c.departures,
-            refused: c.refused,
-            bytes: c.bytes,
-            messages: c.messages,
-            move_failed: c.move_failed,
-            hop_median_us: Map.get(hops, :median_us),
-            hop_p99_us: Map.get(hops, :p99_us),
             neighbours: st.neighbours,
             plugins: Enum.map(st.plugins, &plugin(name, &1))
-          }
+          })
         ]
 
       _ ->
@@ -261,5 +252,23 @@ defmodule TartarusTools.Dashboard.Fleet do
   defp gather(ttl) do
     {snaps, _} = collect(ttl, [node()])
     %{snapshots: snaps, at: System.system_time(:millisecond)}
+  end
+
+  @doc false
+  # A host's counters from its `Tartarus.status/1`, as the fleet and the API show them.
+  def counters(%{counts: c} = st) do
+    hops = Map.get(st, :hops) || %{}
+
+    %{
+      residents: st.resident,
+      arrivals: c.arrivals,
+      departures: c.departures,
+      refused: c.refused,
+      bytes: c.bytes,
+      messages: c.messages,
+      move_failed: c.move_failed,
+      hop_median_us: Map.get(hops, :median_us),
+      hop_p99_us: Map.get(hops, :p99_us)
+    }
   end
 end
