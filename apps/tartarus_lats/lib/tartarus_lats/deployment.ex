@@ -284,12 +284,7 @@ defmodule TartarusLats.Deployment do
   def step(%__MODULE__{feed: feed} = dep) when feed != nil do
     t = dep.time + 1
     readings = Map.get(feed, t, %{})
-    dep = %{dep | readings: readings, time: t}
-    dep = dep |> write_readings(t) |> mark_down(dep)
-    {dep, sent} = phase(dep, {:sense, t})
-    dep = deliver(dep, t, sent, 1)
-    {dep, _} = phase(dep, {:tick, t})
-    dep
+    sense_and_tick(%{dep | readings: readings, time: t}, t)
   end
 
   def step(%__MODULE__{} = dep) do
@@ -299,7 +294,12 @@ defmodule TartarusLats.Deployment do
     t = world.time
     if dep.record, do: record(dep.record, t, world, readings)
     {readings, dep} = if dep.replay, do: replayed(dep, t), else: {readings, dep}
-    dep = %{dep | world: world, rng: rng, readings: readings, time: t}
+    sense_and_tick(%{dep | world: world, rng: rng, readings: readings, time: t}, t)
+  end
+
+  # Second t on the nodes, once its readings are in `dep`: written, the nodes' sense phase
+  # and its messages, then their tick.
+  defp sense_and_tick(dep, t) do
     dep = dep |> write_readings(t) |> mark_down(dep)
     {dep, sent} = phase(dep, {:sense, t})
     dep = deliver(dep, t, sent, 1)
