@@ -16,7 +16,9 @@ defmodule Tartarus.Envelope do
     * `:owner` - a pid that receives `{:tartarus_result, id, result}` on `{:return, ...}`
     * `:home` - the host where the agent was created
     * `:hops` - number of completed migrations; `:ttl` - maximum hops (`:infinity` default)
-    * `:visits` - `%{host => times visited}` (used by conscientious migration)
+    * `:visits` - `%{host => times visited}` (used by conscientious migration), for the
+      `max_visits` hosts it visited most recently (a platform option, 64 by default; see
+      `visit/3`); `:visit_order` - those hosts, the most recent first
     * `:from` - the previous host; `:departed_at` - system time in µs of the last departure
     * `:static` - static agents never leave their host
     * `:rng` - the agent's exported `:rand` state, so its random choices travel with it
@@ -44,6 +46,7 @@ defmodule Tartarus.Envelope do
             hops: 0,
             ttl: :infinity,
             visits: %{},
+            visit_order: [],
             from: nil,
             departed_at: nil,
             static: false,
@@ -124,6 +127,46 @@ defmodule Tartarus.Envelope do
   defp root(name), do: inspect(name)
 
   defp hex?(s), do: s |> :binary.bin_to_list() |> Enum.all?(&(&1 in ?0..?9 or &1 in ?a..?f))
+
+  @doc """
+  Records a visit of `host`: its count goes up by one and it becomes the most recent of
+  `:visit_order`. At most `max` hosts are remembered: beyond that the least recently visited
+  are forgotten, so what an agent carries (and what every hop copies, checks and ships) stays
+  bounded however many hosts it has seen. A forgotten host counts as never visited again
+  (`Tartarus.Strategy`'s conscientious choice may return to it), and it is not told to drop
+  its forwarding pointer when the agent ends (`forward_ttl` sweeps it).
+
+      iex> env = %Tartarus.Envelope{id: "0123456789abcdef", module: Tartarus.Examples.Echo}
+      iex> env = env |> Tartarus.Envelope.visit(:a, 2) |> Tartarus.Envelope.visit(:b, 2)
+      iex> env = Tartarus.Envelope.visit(env, :a, 2)
+      iex> {env.visits, env.visit_order}
+      {%{a: 2, b: 1}, [:a, :b]}
+      iex> env = Tartarus.Envelope.visit(env, :c, 2)
+      iex> {env.visits, env.visit_order}
+      {%{a: 2, c: 1}, [:c, :a]}
+  """
+  @spec visit(t(), Tartarus.host() | term(), pos_integer() | :infinity) :: t()
+  def visit(env, host, max) do
+    # An envelope journaled before `:visit_order` existed has none: its order is its keys'.
+    order = Map.get(env, :visit_order) || Map.keys(env.visits)
+    visits = env.visits
+
+    {order, visits} =
+      case visits do
+        %{^host => n} ->
+          {[host | List.delete(order, host)], %{visits | host => n + 1}}
+
+        _ when max != :infinity and map_size(visits) >= max ->
+          # Full: the least recent goes (the order lists every key once, see Tartarus.Wire).
+          {kept, gone} = :lists.split(max - 1, order)
+          {[host | kept], visits |> Map.drop(gone) |> Map.put(host, 1)}
+
+        _ ->
+          {[host | order], Map.put(visits, host, 1)}
+      end
+
+    env |> Map.put(:visits, visits) |> Map.put(:visit_order, order)
+  end
 
   @doc "A fresh exported `:rand` state seeded from `seed` (any term)."
   @spec seed_rng(term()) :: term()

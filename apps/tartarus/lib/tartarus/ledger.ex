@@ -105,8 +105,9 @@ defmodule Tartarus.Ledger do
   # The agent `env` ended on this host (returned or stopped): the forwarding pointers it left
   # on the hosts it visited lead nowhere now. Each of those hosts is told once (through its
   # node's Tartarus.Host.Directory, without opening connections: a host on a node no longer
-  # connected keeps its pointer), and drops them (forget_pointers/3). Nothing else reclaims
-  # the pointer of an agent that ended elsewhere.
+  # connected keeps its pointer), and drops them (forget_pointers/3). Only the hosts its
+  # `visits` still remembers (the `max_visits` last) are told. Nothing else but `forward_ttl`
+  # reclaims the pointer of an agent that ended elsewhere.
   def gone(host, env) do
     for {{name, node} = h, _} <- env.visits, h != host.ref do
       :erlang.send(

@@ -72,6 +72,7 @@ defmodule Tartarus.Wire do
           hops: hops,
           ttl: ttl,
           visits: visits,
+          visit_order: order,
           from: from,
           departed_at: departed_at,
           static: static,
@@ -112,8 +113,8 @@ defmodule Tartarus.Wire do
       not (ttl == :infinity or (is_integer(ttl) and ttl > 0)) ->
         bad(:ttl)
 
-      not visits?(visits) ->
-        bad(:visits)
+      not visited?(visits, order) ->
+        if is_map(visits) and visits?(visits), do: bad(:visit_order), else: bad(:visits)
 
       not (is_nil(from) or address?(from)) ->
         bad(:from)
@@ -163,6 +164,20 @@ defmodule Tartarus.Wire do
   end
 
   defp visits?(_), do: false
+
+  # `visits` and its order (most recent first) in one pass: the order is a proper list (a
+  # guard's length/1 is false for any other) of every key of `visits` once, each an address
+  # with a count. (Every hop checks this: it is as long as the agent's `max_visits`.)
+  defp visited?(visits, order) when is_map(visits) and length(order) == map_size(visits) do
+    Enum.all?(order, fn h ->
+      case visits do
+        %{^h => n} when is_integer(n) and n >= 0 -> address?(h)
+        _ -> false
+      end
+    end) and map_size(:maps.from_keys(order, [])) == map_size(visits)
+  end
+
+  defp visited?(_, _), do: false
 
   # An exported :rand state: {algorithm, state}; :rand.seed_s/1 checks the rest when used.
   defp rng?({alg, _state})

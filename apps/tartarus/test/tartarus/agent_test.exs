@@ -70,6 +70,40 @@ defmodule Tartarus.AgentTest do
       assert inside(ref, :neighbours) == [addr(a), addr(c)]
     end
 
+    test "visits remember the max_visits most recent hosts, so what travels stays bounded" do
+      hosts = line!(6, max_visits: 3)
+      [a, b, c, d, e, f] = hosts
+      {:ok, id} = Tartarus.create_agent(a, Probe, %{}, payload: %{test: self()})
+
+      # a b c d e f, then back to e and d: 8 visits of 6 hosts, the last 3 remembered.
+      for {from, to} <- [{a, b}, {b, c}, {c, d}, {d, e}, {e, f}, {f, e}, {e, d}] do
+        :ok = Tartarus.move({id, from}, to)
+      end
+
+      assert inside({id, d}, :visits) == %{addr(d) => 2, addr(e) => 2, addr(f) => 1}
+      assert inside({id, d}, :hops) == 7
+
+      # Down to a and up to f twice: never more than 3 hosts carried, the 3 last ones.
+      walk = [c, b, a, b, c, d, e, f, e, d, c, b, a, b, c, d, e, f]
+
+      Enum.reduce(walk, d, fn to, at ->
+        :ok = Tartarus.move({id, at}, to)
+        assert map_size(inside({id, to}, :visits)) <= 3
+        to
+      end)
+
+      assert inside({id, f}, :visits) |> Map.keys() |> Enum.sort() ==
+               Enum.sort([addr(d), addr(e), addr(f)])
+    end
+
+    test "without a bound (max_visits: :infinity) every host visited is remembered" do
+      [a, b, c] = line!(3, max_visits: :infinity)
+      {:ok, id} = Tartarus.create_agent(a, Probe, %{}, payload: %{test: self()})
+      :ok = Tartarus.move({id, a}, b)
+      :ok = Tartarus.move({id, b}, c)
+      assert inside({id, c}, :visits) == %{addr(a) => 1, addr(b) => 1, addr(c) => 1}
+    end
+
     test "payload functions" do
       h = host!()
       id = agent!(h, %{}, payload: %{k: 1})

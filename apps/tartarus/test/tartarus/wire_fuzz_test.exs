@@ -102,6 +102,7 @@ defmodule Tartarus.WireFuzzTest do
   defp bad(:signature, v) when is_map(v), do: 42
   defp bad(:departed_at, v) when is_integer(v), do: :yesterday
   defp bad(:visits, v) when v == %{}, do: %{:nowhere => -1}
+  defp bad(:visit_order, v) when v == [], do: [{:h, :n@x}]
   defp bad(:module, v) when is_atom(v) and v != nil, do: "Mod"
   defp bad(_f, v), do: v
 

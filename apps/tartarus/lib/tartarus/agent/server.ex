@@ -125,8 +125,9 @@ defmodule Tartarus.Agent.Server do
 
   # The agent's init/1 runs after this process started (the first event).
   defp start(data, {:create, args}) do
-    {:ok, :running, put_in(data.env.visits, %{data.host.ref => 1}),
-     [{:next_event, :internal, {:init, args}}]}
+    env = %{data.env | visits: %{}, visit_order: []} |> Tartarus.Envelope.visit(data.host.ref, 1)
+
+    {:ok, :running, %{data | env: env}, [{:next_event, :internal, {:init, args}}]}
   end
 
   # `src_pid`: the source agent's process when the prepare came from it (nil for a copy

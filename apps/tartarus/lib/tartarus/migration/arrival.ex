@@ -178,12 +178,9 @@ defmodule Tartarus.Migration.Arrival do
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
     hops = if c.kind == :move, do: data.env.hops + 1, else: data.env.hops
 
-    env = %{
-      data.env
-      | hops: hops,
-        from: c.src,
-        visits: Map.update(data.env.visits, host.ref, 1, &(&1 + 1))
-    }
+    env =
+      %{data.env | hops: hops, from: c.src}
+      |> Tartarus.Envelope.visit(host.ref, Map.get(host.opts, :max_visits, 64))
 
     data = %{data | env: env, paused: nil, inbox: inbox}
 

@@ -107,6 +107,15 @@ defmodule Tartarus.Options.Platform do
           "also what a destination in doubt asks about: keep it well above the longest " <>
           "partition you expect, or such an agent never starts"
     ],
+    max_visits: [
+      type: :pos_integer_or_infinity,
+      default: 64,
+      doc:
+        "hosts an agent's `visits` remembers (the most recently visited; see " <>
+          "`Tartarus.Envelope.visit/3`): what every hop copies and ships stays bounded. " <>
+          "A forgotten host counts as unvisited again, and keeps its forwarding pointer " <>
+          "after the agent ends until `forward_ttl` sweeps it"
+    ],
     hibernate_after: [
       type: :timeout,
       default: :infinity,

@@ -242,15 +242,20 @@ defmodule TartarusTools.Dashboard.Feed do
 
   # Per event only counts, places and rings of raw events: the conversion to JSON-able
   # views happens when a batch goes out or /api/events asks, for at most a batch or a ring.
-  defp take(e, s) do
+  defp take(e, s) when is_map(e) do
     seq = s.seq + 1
-    t = e[:type]
-    h = name(e[:host], s.names)
+    t = Map.get(e, :type)
+    h = name(Map.get(e, :host), s.names)
     s = %{s | seq: seq, counts: Map.update(s.counts, t, 1, &(&1 + 1))}
-    s = per_second(t, s)
+    s = per_second(t, e, s)
     s = track(t, e, h, s)
     s = count(t, e, h, s)
-    s = if t == :arrival and is_integer(e[:hop_us]), do: hop(e.hop_us, s), else: s
+
+    s =
+      case e do
+        %{type: :arrival, hop_us: us} when is_integer(us) -> hop(us, s)
+        _ -> s
+      end
     raw = {seq, e}
 
     {recent, n} =
@@ -269,7 +274,9 @@ defmodule TartarusTools.Dashboard.Feed do
       s.batch_n < s.max_batch ->
         %{s | batch: Map.put(s.batch, s.batch_n, raw), batch_n: s.batch_n + 1}
 
-      (j = :rand.uniform(seen) - 1) < s.max_batch ->
+      # (A hash of the sequence number stands in for a random draw: as uniform here, and
+      # without a random state to read and write per event.)
+      (j = :erlang.phash2(seq, seen)) < s.max_batch ->
         %{s | batch: Map.put(s.batch, j, raw), batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
 
       true ->
@@ -277,9 +284,17 @@ defmodule TartarusTools.Dashboard.Feed do
     end
   end
 
-  # Counts per type in the current second; a new second closes the last into the ring.
-  defp per_second(t, s) do
-    s = roll(s, System.system_time(:second))
+  # Counts per type in the current second (the event's own time, set when it was emitted);
+  # a new second closes the last into the ring. An event of a second already closed (a
+  # relayed one, late) counts in the current one.
+  defp per_second(t, e, s) do
+    sec =
+      case e do
+        %{time: us} when is_integer(us) -> div(us, 1_000_000)
+        _ -> System.system_time(:second)
+      end
+
+    s = if sec > s.sec, do: roll(s, sec), else: s
     %{s | sec_counts: Map.update(s.sec_counts, t, 1, &(&1 + 1))}
   end
 

@@ -25,7 +25,9 @@ defmodule TartarusTools.Dashboard.Health do
       reductions (the sampler's own, which load does not inflate).
 
   Sampling is bounded: a sample reads at most `:max_agents` agents' mailbox lengths and
-  `:max_hosts` hosts, whatever the node's size (its `cost_us` is in every sample).
+  `:max_hosts` hosts, whatever the node's size (its `cost_us` is in every sample); the list
+  of the node's hosts it takes them from is read again every 30 samples (on a node of 10,000
+  hosts listing them costs more than the rest of a sample).
   """
 
   use GenServer
@@ -124,6 +126,8 @@ defmodule TartarusTools.Dashboard.Health do
       totals: Tartarus.Events.totals(),
       host_totals: %{},
       agent_cont: nil,
+      hosts: {},
+      hosts_age: nil,
       host_offset: 0
     }
 
@@ -147,7 +151,8 @@ defmodule TartarusTools.Dashboard.Health do
     wall = :erlang.statistics(:scheduler_wall_time)
     totals = Tartarus.Events.totals()
     {boxes, cont} = mailboxes(s.agent_cont, s.max_agents)
-    {hosts, offset} = host_slice(s.host_offset, s.max_hosts)
+    {s, all} = host_list(s)
+    {hosts, offset} = host_slice(all, s.host_offset, s.max_hosts)
     {host_rows, hops, host_totals} = host_rows(hosts, boxes, s.host_totals)
     sorted = Enum.sort(hops)
     pct = fn q -> TartarusTools.Stats.percentile(sorted, q) end
@@ -231,15 +236,26 @@ defmodule TartarusTools.Dashboard.Health do
     end
   end
 
-  # At most `max` of this node's hosts, from `offset` on (in turn, sample after sample).
-  defp host_slice(offset, max) do
-    all = Tartarus.hosts()
-    n = length(all)
+  # This node's hosts (a tuple), listed again every @list_every samples: listing every host
+  # of a node of 10,000 takes tens of ms, more than the rest of a sample. A host started
+  # meanwhile is read from the next listing on; one stopped is skipped (its status fails).
+  @list_every 30
 
-    cond do
-      n <= max -> {all, 0}
-      true -> {all |> Stream.cycle() |> Stream.drop(offset) |> Enum.take(max), rem(offset + max, n)}
-    end
+  defp host_list(%{hosts: hosts, hosts_age: age} = s) when is_integer(age) and age < @list_every,
+    do: {%{s | hosts_age: age + 1}, hosts}
+
+  defp host_list(s) do
+    hosts = List.to_tuple(Tartarus.hosts())
+    {%{s | hosts: hosts, hosts_age: 1}, hosts}
+  end
+
+  # At most `max` of `all` (a tuple), from `offset` on (in turn, sample after sample).
+  defp host_slice(all, offset, max) do
+    n = tuple_size(all)
+
+    if n <= max,
+      do: {Tuple.to_list(all), 0},
+      else: {for(i <- 0..(max - 1), do: elem(all, rem(offset + i, n))), rem(offset + max, n)}
   end
 
   defp host_rows(hosts, boxes, prev) do
