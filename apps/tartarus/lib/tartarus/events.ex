@@ -76,6 +76,28 @@ defmodule Tartarus.Events do
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
 
+  # Event types (the table above), counted node-wide per type; any other type counts as :other.
+  @types [
+    :created,
+    :arrival,
+    :departure,
+    :move_failed,
+    :clone,
+    :kill,
+    :stopped,
+    :crash,
+    :removed,
+    :message,
+    :refused,
+    :dropped,
+    :broadcast,
+    :broadcast_received,
+    :signal,
+    :signal_relay,
+    :other
+  ]
+  @type_index @types |> Enum.with_index(1) |> Map.new()
+
   @typedoc "The name of a counter; see the table in the moduledoc."
   @type counter :: atom()
 
@@ -96,6 +118,11 @@ defmodule Tartarus.Events do
     :persistent_term.put(
       {__MODULE__, :counters},
       :counters.new(map_size(@index), [:write_concurrency])
+    )
+
+    :persistent_term.put(
+      {__MODULE__, :types},
+      :counters.new(map_size(@type_index), [:write_concurrency])
     )
 
     if :ets.whereis(@dropped_table) == :undefined do
@@ -154,10 +181,34 @@ defmodule Tartarus.Events do
   Subscribes the caller to every event of every host on this node. The subscription ends
   with `unsubscribe/0` or when the process exits. To watch another node, subscribe from a
   process started there (for instance with `:erpc.call/4`).
+
+  With `budget: {n, ms}` the caller gets at most about `n` events in each window of `ms`
+  milliseconds: the first ones of the window; the others are not sent at all (emitting them
+  costs the emitter two atomic operations, not a message), and they are still counted in
+  `type_totals/0` and the hosts' counters. For a watcher that shows a sample of the events
+  and exact counts, without a message per event however busy the node is.
+
+      iex> Tartarus.Events.subscribe(budget: {100, 250})
+      :ok
+      iex> Tartarus.Events.unsubscribe()
+      :ok
   """
-  @spec subscribe() :: :ok
-  def subscribe do
-    {:ok, _} = Registry.register(Tartarus.Events.Registry, :events, nil)
+  @spec subscribe(keyword()) :: :ok
+  def subscribe(opts \\ []) do
+    value =
+      case Keyword.get(opts, :budget) do
+        nil ->
+          nil
+
+        {n, ms} when is_integer(n) and n > 0 and is_integer(ms) and ms > 0 ->
+          {:budget, :atomics.new(2, signed: true), n, ms}
+
+        other ->
+          raise ArgumentError,
+                "budget: expected {events, ms} (positive integers), got: #{inspect(other)}"
+      end
+
+    {:ok, _} = Registry.register(Tartarus.Events.Registry, :events, value)
     # Emitters look for subscribers only once somebody has subscribed (a persistent_term
     # flag: free to read, written once).
     unless :persistent_term.get({__MODULE__, :subscribed}, false),
@@ -184,6 +235,29 @@ defmodule Tartarus.Events do
     Map.new(@index, fn {name, i} -> {name, :counters.get(ref, i)} end)
   end
 
+  @doc """
+  Node-wide counts of the events emitted since the application started, per event type (the
+  table above; any other type under `:other`), whoever subscribed or not.
+
+      iex> Map.has_key?(Tartarus.Events.type_totals(), :arrival)
+      true
+  """
+  @spec type_totals() :: %{atom() => non_neg_integer()}
+  def type_totals do
+    ref = :persistent_term.get({__MODULE__, :types})
+    Map.new(@type_index, fn {type, i} -> {type, :counters.get(ref, i)} end)
+  end
+
+  @doc """
+  One host's counters (as `totals/0`, counted since the host started), read without asking
+  the host: `{:error, {:unknown_host, host}}` for a host not on this node.
+  """
+  @spec host_totals(Tartarus.host() | term()) ::
+          %{counter() => non_neg_integer()} | {:error, term()}
+  def host_totals(host) do
+    with {:ok, h} <- Tartarus.Host.local(host), do: host_counts(h)
+  end
+
   @doc false
   # Counts `amounts` (a keyword list of counter => increment) for `host` (a host's info map,
   # or nil) and node-wide, and hands the event to subscribers if there are any.
@@ -197,18 +271,49 @@ defmodule Tartarus.Events do
       if host, do: :counters.add(host.counters, i, n)
     end)
 
+    :counters.add(
+      :persistent_term.get({__MODULE__, :types}),
+      Map.get(@type_index, Map.get(event, :type), map_size(@type_index)),
+      1
+    )
+
     if :persistent_term.get({__MODULE__, :subscribed}, false) do
       case subscribers() do
         [] ->
           :ok
 
         subscribers ->
-          event = Map.put_new(event, :time, System.system_time(:microsecond))
-          Enum.each(subscribers, fn {pid, _} -> send(pid, {:tartarus_event, event}) end)
+          msg = {:tartarus_event, Map.put_new(event, :time, System.system_time(:microsecond))}
+
+          Enum.each(subscribers, fn
+            {pid, nil} -> send(pid, msg)
+            {pid, {:budget, ref, n, ms}} -> if within?(ref, n, ms), do: send(pid, msg)
+            _ -> :ok
+          end)
       end
     end
 
     :ok
+  end
+
+  # A budgeted subscriber's window: slot 1 holds the window's number, slot 2 the events sent
+  # in it. The emitter that first sees a new window resets the count (a few emitters racing
+  # there may let a few more through: "at most about n").
+  defp within?(ref, n, ms) do
+    w = div(System.monotonic_time(:millisecond), ms)
+
+    case :atomics.get(ref, 1) do
+      ^w ->
+        :ok
+
+      old when old < w ->
+        if :atomics.compare_exchange(ref, 1, old, w) == :ok, do: :atomics.put(ref, 2, 0)
+
+      _ ->
+        :ok
+    end
+
+    :atomics.add_get(ref, 2, 1) <= n
   end
 
   @doc false

@@ -215,7 +215,17 @@ defmodule Tartarus.Ledger do
   end
 
   def hop_times(%{hops: ring}) do
-    for i <- 2..(@slots + 1), (t = :atomics.get(ring, i)) > 0, do: t - 1
+    # Only the slots written so far: a host that saw 5 hops costs 5 reads, not @slots.
+    case :atomics.get(ring, 1) do
+      0 ->
+        []
+
+      seq when seq < @slots ->
+        for k <- 1..seq, (t = :atomics.get(ring, 2 + rem(k, @slots))) > 0, do: t - 1
+
+      _ ->
+        for i <- 2..(@slots + 1), (t = :atomics.get(ring, i)) > 0, do: t - 1
+    end
   end
 
   # Empties the ring (benchmarks measure a phase at a time).

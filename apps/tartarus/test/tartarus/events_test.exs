@@ -132,6 +132,51 @@ defmodule Tartarus.EventsTest do
     assert {:too_many_restarts, _} = removed.reason
   end
 
+  test "a budgeted subscriber gets the first events of its window only; type_totals/0 counts them all" do
+    [a, b] = line!(2)
+    id = agent!(a)
+    me = self()
+
+    # A window of an hour: the test lies in one (or, once an hour, two) of them.
+    watcher =
+      spawn_link(fn ->
+        :ok = Events.subscribe(budget: {5, 3_600_000})
+        send(me, :subscribed)
+
+        collect = fn collect, n ->
+          receive do
+            {:tartarus_event, _} -> collect.(collect, n + 1)
+            {:count, from} -> send(from, {:count, n})
+          end
+        end
+
+        collect.(collect, 0)
+      end)
+
+    assert_receive :subscribed
+    types0 = Events.type_totals()
+    totals0 = Events.totals()
+
+    Enum.reduce(1..20, a, fn _, at ->
+      to = if at == a, do: b, else: a
+      :ok = Tartarus.move({id, at}, to)
+      to
+    end)
+
+    types = Events.type_totals()
+    assert types.arrival - types0.arrival == Events.totals().arrivals - totals0.arrivals
+    assert types.arrival - types0.arrival >= 20
+    assert types.departure - types0.departure >= 20
+
+    # This (unbudgeted) test process got every one of them.
+    for _ <- 1..20, do: assert_event(:arrival, id)
+
+    send(watcher, {:count, self()})
+    assert_receive {:count, n}
+    assert n >= 5 and n <= 10
+    assert_raise ArgumentError, fn -> Events.subscribe(budget: {0, 10}) end
+  end
+
   test "unsubscribe/0 ends the subscription" do
     :ok = Events.unsubscribe()
     h = host!()

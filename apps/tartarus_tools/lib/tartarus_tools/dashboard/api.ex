@@ -881,11 +881,10 @@ defmodule TartarusTools.Dashboard.Api do
     end)
   end
 
-  # Up to @status_limit hosts, each host's counters come from Tartarus.status/1 (counted
-  # since the host started). Beyond, status/1 is too dear (it lists the host's plugins
-  # with a select over the whole host registry: about 1 ms a host at 2,000 hosts), so the
-  # counters are the feed's, counted from the events since the dashboard started, and the
-  # residents come from Tartarus.agents/1; `counted` says which.
+  # Up to @status_limit hosts, each host's view comes from Tartarus.status/1. Beyond,
+  # status/1 is too dear (it also lists the host's plugins and forwarding pointers), so the
+  # counters come from Tartarus.Events.host_totals/1 and the residents from
+  # Tartarus.agents/1. Both are counted since the host started.
   @status_limit 500
 
   defp host_views(ctx) do
@@ -898,12 +897,20 @@ defmodule TartarusTools.Dashboard.Api do
         if length(local) <= @status_limit do
           Enum.map(local, &host_view/1)
         else
-          counts = Feed.host_counts(ctx.feed)
-          Enum.map(local, &light_view(&1, Map.get(counts, &1.id, %{})))
+          Enum.map(local, &light_view(&1, light_counts(&1)))
         end
 
       local ++ Enum.map(remote, &remote_view/1)
     end)
+  end
+
+  @light_counts [:arrivals, :departures, :refused, :messages, :move_failed, :bytes]
+
+  defp light_counts(h) do
+    case h.up && Tartarus.Events.host_totals(h.host) do
+      %{} = c -> Map.take(c, @light_counts)
+      _ -> %{}
+    end
   end
 
   defp light_view(h, counts) do
@@ -914,7 +921,7 @@ defmodule TartarusTools.Dashboard.Api do
       end
 
     h
-    |> base_view("dashboard")
+    |> base_view("host")
     |> Map.merge(counts)
     |> Map.put(:residents, residents)
   end

@@ -1,10 +1,13 @@
 defmodule TartarusTools.Dashboard.Feed do
   @moduledoc false
-  # The dashboard's one subscriber to Tartarus.Events. Per event: a few map updates (the
-  # agent's last known host, a bounded ring of recent events, a bounded ring of hop times,
-  # the next batch if it has room). Every batch_ms the batch goes to the connected streams
-  # as one server-sent event. Nothing here blocks an emitter: emitting is a send/2, and if
-  # the mailbox grows past @max_backlog the feed throws the backlog away and counts it.
+  # The dashboard's one subscriber to Tartarus.Events, with a budget: the platform sends it
+  # at most max_batch events per batch_ms (the first of each window) and skips the others
+  # without a message; the counts per type come from Tartarus.Events.type_totals/0, read at
+  # every flush, so they are exact however many events were skipped. Per event received: a
+  # few map updates (the agent's last known host, a bounded ring of recent events, a bounded
+  # ring of hop times, the next batch). Every batch_ms the batch goes to the connected
+  # streams as one server-sent event. Nothing here blocks an emitter, and if the mailbox
+  # grows past @max_backlog (relayed events) the feed throws the backlog away and counts it.
 
   use GenServer
 
@@ -44,10 +47,6 @@ defmodule TartarusTools.Dashboard.Feed do
   # Which id stands for which host address (%{host => id}); others are named by name.
   def names(feed, names), do: GenServer.cast(feed, {:names, names})
 
-  # Per host id: arrivals, departures, refused, bytes, messages, move_failed since the feed
-  # started (for networks too large to ask every host for its status).
-  def host_counts(feed), do: GenServer.call(feed, :host_counts, 30_000)
-
   # Subscribes remote nodes' events too (hosts of an emulation in peer mode).
   def watch_nodes(feed, nodes), do: GenServer.cast(feed, {:watch_nodes, nodes})
 
@@ -85,7 +84,7 @@ defmodule TartarusTools.Dashboard.Feed do
 
   @impl true
   def init(opts) do
-    Tartarus.Events.subscribe()
+    Tartarus.Events.subscribe(budget: {opts[:max_batch], opts[:batch_ms]})
     Process.send_after(self(), :flush, opts[:batch_ms])
 
     {:ok,
@@ -112,7 +111,9 @@ defmodule TartarusTools.Dashboard.Feed do
        counts: %{},
        watched: MapSet.new([node()]),
        names: %{},
-       host_counts: %{}
+       # This node's events per type as last read, and how many of them arrived since.
+       types: Tartarus.Events.type_totals(),
+       received: 0
      }}
   end
 
@@ -173,7 +174,6 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   def handle_call({:place, id}, _from, s), do: {:reply, Map.get(s.places, id), s}
-  def handle_call(:host_counts, _from, s), do: {:reply, s.host_counts, s}
 
   @impl true
   def handle_cast({:names, names}, s), do: {:noreply, %{s | names: names}}
@@ -186,7 +186,7 @@ defmodule TartarusTools.Dashboard.Feed do
 
   @impl true
   def handle_info({:tartarus_event, e}, s) do
-    s = take(e, s)
+    s = take(e, %{s | received: s.received + 1}, false)
 
     if rem(s.seq, 1_000) == 0 do
       {:message_queue_len, n} = Process.info(self(), :message_queue_len)
@@ -197,12 +197,13 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   def handle_info({:tartarus_events, events, dropped}, s) do
-    s = Enum.reduce(events, s, &take/2)
+    s = Enum.reduce(events, s, &take(&1, &2, true))
     {:noreply, %{s | dropped: s.dropped + dropped, batch_dropped: s.batch_dropped + dropped}}
   end
 
   def handle_info(:flush, s) do
     Process.send_after(self(), :flush, s.batch_ms)
+    s = count_local(s)
 
     if s.batch_n > 0 and map_size(s.clients) > 0 do
       data =
@@ -242,14 +243,14 @@ defmodule TartarusTools.Dashboard.Feed do
 
   # Per event only counts, places and rings of raw events: the conversion to JSON-able
   # views happens when a batch goes out or /api/events asks, for at most a batch or a ring.
-  defp take(e, s) when is_map(e) do
+  # `relayed`: an event of another node (this node's are counted from its totals).
+  defp take(e, s, relayed) when is_map(e) do
     seq = s.seq + 1
     t = Map.get(e, :type)
     h = name(Map.get(e, :host), s.names)
-    s = %{s | seq: seq, counts: Map.update(s.counts, t, 1, &(&1 + 1))}
-    s = per_second(t, e, s)
+    s = %{s | seq: seq}
+    s = if relayed, do: add_counts(s, %{t => 1}), else: s
     s = track(t, e, h, s)
-    s = count(t, e, h, s)
 
     s =
       case e do
@@ -284,18 +285,29 @@ defmodule TartarusTools.Dashboard.Feed do
     end
   end
 
-  # Counts per type in the current second (the event's own time, set when it was emitted);
-  # a new second closes the last into the ring. An event of a second already closed (a
-  # relayed one, late) counts in the current one.
-  defp per_second(t, e, s) do
-    sec =
-      case e do
-        %{time: us} when is_integer(us) -> div(us, 1_000_000)
-        _ -> System.system_time(:second)
-      end
+  # This node's events since the last flush, per type, from the platform's counts: added to
+  # the totals and to the current second; those not received were skipped (the budget).
+  defp count_local(s) do
+    now = Tartarus.Events.type_totals()
 
-    s = if sec > s.sec, do: roll(s, sec), else: s
-    %{s | sec_counts: Map.update(s.sec_counts, t, 1, &(&1 + 1))}
+    delta =
+      for {t, n} <- now, (d = n - Map.get(s.types, t, 0)) > 0, into: %{}, do: {t, d}
+
+    skipped = max(Enum.sum(Map.values(delta)) - s.received, 0)
+
+    %{
+      add_counts(s, delta)
+      | types: now,
+        received: 0,
+        dropped: s.dropped + skipped,
+        batch_dropped: s.batch_dropped + skipped
+    }
+  end
+
+  defp add_counts(s, counts) do
+    s = roll(s, System.system_time(:second))
+    add = fn acc -> Map.merge(acc, counts, fn _t, a, b -> a + b end) end
+    %{s | counts: add.(s.counts), sec_counts: add.(s.sec_counts)}
   end
 
   defp roll(%{sec: sec} = s, sec), do: s
@@ -323,30 +335,6 @@ defmodule TartarusTools.Dashboard.Feed do
     do: %{s | places: Map.delete(s.places, a)}
 
   defp track(_, _, _, s), do: s
-
-  @counted %{
-    arrival: :arrivals,
-    departure: :departures,
-    refused: :refused,
-    message: :messages,
-    move_failed: :move_failed
-  }
-
-  defp count(t, e, h, s) when is_map_key(@counted, t) and is_binary(h) do
-    key = Map.fetch!(@counted, t)
-    bytes = if t == :departure and is_integer(e[:bytes]), do: e.bytes, else: 0
-
-    c =
-      case s.host_counts do
-        %{^h => c} -> c
-        _ -> %{arrivals: 0, departures: 0, refused: 0, messages: 0, move_failed: 0, bytes: 0}
-      end
-
-    c = %{c | key => Map.fetch!(c, key) + 1, bytes: c.bytes + bytes}
-    %{s | host_counts: Map.put(s.host_counts, h, c)}
-  end
-
-  defp count(_t, _e, _h, s), do: s
 
   defp hop(us, s) do
     if s.hops_n >= @hop_samples,

@@ -52,15 +52,38 @@ defmodule TartarusTools.Dashboard.HealthTest do
     assert last.cost_us >= 0 and last.cost_reductions > 0
   end
 
-  test "events are counted per type per second" do
-    {:ok, feed} = Feed.start_link(batch_ms: 50, max_batch: 10, recent: 100)
-    on_exit(fn -> Feed.stop(feed) end)
-    for _ <- 1..3, do: send(feed, {:tartarus_event, %{type: :arrival, host: {:x, node()}}})
-    send(feed, {:tartarus_event, %{type: :refused, host: {:x, node()}}})
+  test "events are counted per type per second, exactly, though the feed receives few" do
+    n = System.unique_integer([:positive])
+    {:ok, a} = Tartarus.start_host(:"rate_a_#{n}")
+    {:ok, b} = Tartarus.start_host(:"rate_b_#{n}")
+    on_exit(fn -> Enum.each([a, b], &Tartarus.stop_host/1) end)
+    :ok = Tartarus.connect(a, b)
+    {:ok, id} = Tartarus.create_mobile_agent(a, Tartarus.Examples.Echo, nil)
 
-    rates = eventually(fn -> r = Feed.rates(feed, 10); Enum.sum(r.counts[:arrival] || [0]) == 3 && r end)
-    assert Enum.sum(rates.counts[:refused]) == 1
+    # A budget of one event per second: the platform sends the feed almost none of them.
+    {:ok, feed} = Feed.start_link(batch_ms: 1_000, max_batch: 1, recent: 100)
+    on_exit(fn -> Feed.stop(feed) end)
+    # A call: the feed has read its starting counts before the moves.
+    _ = Feed.stats(feed)
+
+    Enum.reduce(1..6, a, fn _, at ->
+      to = if at == a, do: b, else: a
+      :ok = Tartarus.move({id, at}, to)
+      to
+    end)
+
+    rates =
+      eventually(fn ->
+        r = Feed.rates(feed, 10)
+        Enum.sum(r.counts[:arrival] || [0]) == 6 && r
+      end)
+
+    assert Enum.sum(rates.counts[:departure]) == 6
     assert length(rates.t) == length(rates.counts[:arrival])
+    stats = Feed.stats(feed)
+    assert stats.counts[:arrival] == 6
+    # Received: at most a couple (one per one-second window); the rest were skipped, counted.
+    assert stats.seq <= 4 and stats.dropped >= 8
   end
 
   test "/api/fleet, /api/health and /api/rates on a node of its own" do
