@@ -314,6 +314,24 @@ defmodule Tartarus do
   def status(host), do: OnNode.run(host, :status, [])
 
   @doc """
+  Part of a host's status: only the keys asked for (of `:host`, `:resident`, `:visits`,
+  `:neighbours`, `:counts`, `:hops`, `:forwarding_pointers`, `:plugins`), each as in
+  `status/1`, and only they are computed: `[:resident, :counts]` reads a counter and the
+  host's event counts, where the whole status also lists its plugins and pointers (for
+  watchers of thousands of hosts).
+
+      iex> Tartarus.status(:no_such_host, [:resident, :colour])
+      {:error, {:unknown_status_keys, [:colour]}}
+  """
+  @spec status(host_ref(), [atom()]) :: map() | {:error, term()}
+  def status(host, keys) when is_list(keys) do
+    case keys -- OnNode.status_keys() do
+      [] -> OnNode.run(host, :status, [keys])
+      unknown -> {:error, {:unknown_status_keys, unknown}}
+    end
+  end
+
+  @doc """
   Statistics of the most recent (up to 1024) hop times of arrivals at a host, in µs:
   `%{count, median_us, p99_us, mean_us, max_us}`. A hop time runs from the moment the
   source froze the agent to its start at the destination (both clocks must agree: on one

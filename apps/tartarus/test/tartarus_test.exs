@@ -793,6 +793,21 @@ defmodule TartarusTest do
       assert status_a.forwarding_pointers == 1
     end
 
+    test "status/2 computes only the keys asked for, the same as status/1's" do
+      [a, b] = line!(2)
+      id = agent!(a)
+      :ok = Tartarus.move({id, a}, b)
+      full = Tartarus.status(b)
+      part = Tartarus.status(b, [:resident, :counts])
+      assert part == Map.take(full, [:resident, :counts])
+      assert Tartarus.status(b, []) == %{}
+
+      assert Tartarus.status(b, [:plugins, :colour]) ==
+               {:error, {:unknown_status_keys, [:colour]}}
+
+      assert {:error, {:unknown_host, _}} = Tartarus.status(:"nowhere_#{id}", [:resident])
+    end
+
     test "hop_stats of a host without arrivals" do
       h = host!()
 

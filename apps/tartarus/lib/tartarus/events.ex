@@ -185,7 +185,7 @@ defmodule Tartarus.Events do
   With `budget: {n, ms}` the caller gets at most about `n` events in each window of `ms`
   milliseconds: the first ones of the window; the others are not sent at all (emitting them
   costs the emitter two atomic operations, not a message), and they are still counted in
-  `type_totals/0` and the hosts' counters. For a watcher that shows a sample of the events
+  `type_totals/0` and the hosts' counters (`Tartarus.status/2`). For a watcher that shows a sample of the events
   and exact counts, without a message per event however busy the node is.
 
       iex> Tartarus.Events.subscribe(budget: {100, 250})
@@ -246,16 +246,6 @@ defmodule Tartarus.Events do
   def type_totals do
     ref = :persistent_term.get({__MODULE__, :types})
     Map.new(@type_index, fn {type, i} -> {type, :counters.get(ref, i)} end)
-  end
-
-  @doc """
-  One host's counters (as `totals/0`, counted since the host started), read without asking
-  the host: `{:error, {:unknown_host, host}}` for a host not on this node.
-  """
-  @spec host_totals(Tartarus.host() | term()) ::
-          %{counter() => non_neg_integer()} | {:error, term()}
-  def host_totals(host) do
-    with {:ok, h} <- Tartarus.Host.local(host), do: host_counts(h)
   end
 
   @doc false

@@ -46,21 +46,33 @@ defmodule Tartarus.Host.OnNode do
     end
   end
 
+  @status_keys [
+    :host,
+    :resident,
+    :visits,
+    :neighbours,
+    :counts,
+    :hops,
+    :forwarding_pointers,
+    :plugins
+  ]
+
   @doc false
-  def status(host) do
-    with {:ok, h} <- Host.local(host) do
-      %{
-        host: h.ref,
-        resident: Ledger.counter(h, :resident),
-        visits: Ledger.counter(h, :visits),
-        neighbours: Ledger.neighbours(h),
-        counts: Tartarus.Events.host_counts(h),
-        hops: hop_summary(Ledger.hop_times(h)),
-        forwarding_pointers: length(Ledger.forwarding_pointers(h)),
-        plugins: Tartarus.Plugin.list(elem(h.ref, 0))
-      }
-    end
+  def status_keys, do: @status_keys
+
+  @doc false
+  def status(host, keys \\ @status_keys) do
+    with {:ok, h} <- Host.local(host), do: Map.new(keys, &{&1, status_of(h, &1)})
   end
+
+  defp status_of(h, :host), do: h.ref
+  defp status_of(h, :resident), do: Ledger.counter(h, :resident)
+  defp status_of(h, :visits), do: Ledger.counter(h, :visits)
+  defp status_of(h, :neighbours), do: Ledger.neighbours(h)
+  defp status_of(h, :counts), do: Tartarus.Events.host_counts(h)
+  defp status_of(h, :hops), do: hop_summary(Ledger.hop_times(h))
+  defp status_of(h, :forwarding_pointers), do: length(Ledger.forwarding_pointers(h))
+  defp status_of(h, :plugins), do: Tartarus.Plugin.list(elem(h.ref, 0))
 
   @doc false
   def hop_times(host), do: with({:ok, h} <- Host.local(host), do: Ledger.hop_times(h))

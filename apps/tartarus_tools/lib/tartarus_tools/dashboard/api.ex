@@ -882,9 +882,9 @@ defmodule TartarusTools.Dashboard.Api do
   end
 
   # Up to @status_limit hosts, each host's view comes from Tartarus.status/1. Beyond,
-  # status/1 is too dear (it also lists the host's plugins and forwarding pointers), so the
-  # counters come from Tartarus.Events.host_totals/1 and the residents from
-  # Tartarus.agents/1. Both are counted since the host started.
+  # the whole status is too dear (it also lists the host's plugins and forwarding
+  # pointers), so the view takes only the residents and counters (Tartarus.status/2).
+  # Both are counted since the host started.
   @status_limit 500
 
   defp host_views(ctx) do
@@ -897,7 +897,7 @@ defmodule TartarusTools.Dashboard.Api do
         if length(local) <= @status_limit do
           Enum.map(local, &host_view/1)
         else
-          Enum.map(local, &light_view(&1, light_counts(&1)))
+          Enum.map(local, &light_view/1)
         end
 
       local ++ Enum.map(remote, &remote_view/1)
@@ -906,18 +906,11 @@ defmodule TartarusTools.Dashboard.Api do
 
   @light_counts [:arrivals, :departures, :refused, :messages, :move_failed, :bytes]
 
-  defp light_counts(h) do
-    case h.up && Tartarus.Events.host_totals(h.host) do
-      %{} = c -> Map.take(c, @light_counts)
-      _ -> %{}
-    end
-  end
-
-  defp light_view(h, counts) do
-    residents =
-      case h.up && Tartarus.agents(h.host) do
-        list when is_list(list) -> length(list)
-        _ -> 0
+  defp light_view(h) do
+    {residents, counts} =
+      case h.up && Tartarus.status(h.host, [:resident, :counts]) do
+        %{resident: r, counts: c} -> {r, Map.take(c, @light_counts)}
+        _ -> {0, %{}}
       end
 
     h

@@ -262,7 +262,7 @@ defmodule TartarusTools.Dashboard.Health do
     by_host = Enum.group_by(boxes, & &1.host, & &1.len)
 
     Enum.reduce(hosts, {%{}, [], prev}, fn {name, _} = h, {rows, hops, totals} ->
-      case Tartarus.status(h) do
+      case Tartarus.status(h, [:resident, :counts]) do
         %{counts: c} = st ->
           times = Tartarus.hop_times(h)
           times = if is_list(times), do: times, else: []
