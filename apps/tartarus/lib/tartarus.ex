@@ -307,6 +307,14 @@ defmodule Tartarus do
   def agents(host), do: OnNode.run(host, :agents, [])
 
   @doc """
+  Every agent resident on this node's hosts, as `agents/1` gives them plus `:host` (its
+  host's address), in no particular order: one read of the node's agent table, however many
+  hosts the node has (`agents/1` host by host costs a scan of each host's ledger).
+  """
+  @spec agents() :: [map()]
+  def agents, do: Tartarus.AgentTable.all()
+
+  @doc """
   A host's status: resident agents, neighbours, visits, event counts, hop statistics,
   forwarding pointers and plugins.
   """

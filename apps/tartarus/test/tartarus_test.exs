@@ -285,6 +285,20 @@ defmodule TartarusTest do
       assert Tartarus.status(h).resident == 3
     end
 
+    test "agents/0 lists this node's residents of every host, with their host" do
+      [a, b] = line!(2)
+      x = agent!(a, %{}, name: "x")
+      y = agent!(b, %{}, name: "y")
+      :ok = Tartarus.move({x, a}, b)
+      mine = Enum.filter(Tartarus.agents(), &(&1.id in [x, y]))
+
+      assert Enum.sort_by(mine, & &1.name) |> Enum.map(&{&1.id, &1.name, &1.host}) ==
+               [{x, "x", addr(b)}, {y, "y", addr(b)}]
+
+      assert Enum.all?(mine, &(is_pid(&1.pid) and &1.module == Probe))
+      assert Enum.sort(Enum.map(Tartarus.agents(b), & &1.id)) == Enum.sort([x, y])
+    end
+
     test "agents/1 of an unknown host" do
       x = unique_name()
       assert Tartarus.agents(x) == {:error, {:unknown_host, addr(x)}}

@@ -93,6 +93,12 @@ defmodule Tartarus.AgentTable do
 
   def count, do: :ets.info(@table, :size)
 
+  # Every registered (resident) agent of this node.
+  def all do
+    for {id, pid, host_name, name, module} <- :ets.tab2list(@table),
+        do: %{id: id, name: name, module: module, pid: pid, host: {host_name, node()}}
+  end
+
   def running?(module), do: :ets.match(@table, {:_, :_, :_, :_, module}, 1) != :"$end_of_table"
 
   defp alive?(pid) when node(pid) == node(), do: Process.alive?(pid)

@@ -75,6 +75,8 @@ defmodule Tartarus.Events do
     :signal_bytes
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
+  # {name, index} of every counter, in order (a list: read per host, often).
+  @named Enum.with_index(@counter_names, 1)
 
   # Event types (the table above), counted node-wide per type; any other type counts as :other.
   @types [
@@ -230,10 +232,7 @@ defmodule Tartarus.Events do
       true
   """
   @spec totals() :: %{counter() => non_neg_integer()}
-  def totals do
-    ref = counters()
-    Map.new(@index, fn {name, i} -> {name, :counters.get(ref, i)} end)
-  end
+  def totals, do: read(counters(), @named)
 
   @doc """
   Node-wide counts of the events emitted since the application started, per event type (the
@@ -340,9 +339,10 @@ defmodule Tartarus.Events do
   @doc false
   # Per-host counts.
   @spec host_counts(map()) :: %{counter() => non_neg_integer()}
-  def host_counts(%{counters: ref}) do
-    Map.new(@index, fn {name, i} -> {name, :counters.get(ref, i)} end)
-  end
+  def host_counts(%{counters: ref}), do: read(ref, @named)
+
+  defp read(ref, named),
+    do: :maps.from_list(for {name, i} <- named, do: {name, :counters.get(ref, i)})
 
   defp counters, do: :persistent_term.get({__MODULE__, :counters})
 end
