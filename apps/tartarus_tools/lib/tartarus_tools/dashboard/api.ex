@@ -185,39 +185,52 @@ defmodule TartarusTools.Dashboard.Api do
   end
 
   defp summary(ctx) do
-    views = host_views(ctx)
-    topo = topology(ctx)
     stats = Feed.stats(ctx.feed)
 
-    by_node =
-      views
-      |> Enum.group_by(& &1.node)
-      |> Enum.map(fn {node, vs} -> Map.put(sum(vs), :node, node) end)
-      |> Enum.sort_by(& &1.node)
-
-    n = length(views)
-    per = max(1, div(n + 99, 100))
-
-    buckets =
-      views
-      |> Enum.chunk_every(per)
-      |> Enum.map(fn vs ->
-        Map.merge(sum(vs), %{first: hd(vs).id, last: List.last(vs).id})
-      end)
-
-    %{
-      hosts: n,
-      hosts_down: Enum.count(views, &(!&1.up)),
-      links: length(topo.links),
-      links_down: Enum.count(topo.links, &(!&1.up)),
+    ctx
+    |> summary_views()
+    |> Map.merge(%{
       totals: Map.take(Tartarus.Events.totals(), [:created, :arrivals, :departures, :refused, :bytes, :messages, :move_failed, :kills, :crashes]),
       hop: stats.hop,
       feed: Map.take(stats, [:seq, :dropped, :clients]),
-      counts: stats.counts,
-      by_node: by_node,
-      buckets: buckets,
-      top: views |> Enum.sort_by(&(-&1.residents)) |> Enum.take(20)
-    }
+      counts: stats.counts
+    })
+  end
+
+  # The summary's parts drawn from every host's view, cached as the views are: a page of
+  # 10,000 hosts asks every few seconds, and reading the views out of the cache costs more
+  # than this small result.
+  defp summary_views(ctx) do
+    cached(ctx, :summary, fn ->
+      views = host_views(ctx)
+      topo = topology(ctx)
+
+      by_node =
+        views
+        |> Enum.group_by(& &1.node)
+        |> Enum.map(fn {node, vs} -> Map.put(sum(vs), :node, node) end)
+        |> Enum.sort_by(& &1.node)
+
+      n = length(views)
+      per = max(1, div(n + 99, 100))
+
+      buckets =
+        views
+        |> Enum.chunk_every(per)
+        |> Enum.map(fn vs ->
+          Map.merge(sum(vs), %{first: hd(vs).id, last: List.last(vs).id})
+        end)
+
+      %{
+        hosts: n,
+        hosts_down: Enum.count(views, &(!&1.up)),
+        links: length(topo.links),
+        links_down: Enum.count(topo.links, &(!&1.up)),
+        by_node: by_node,
+        buckets: buckets,
+        top: views |> Enum.sort_by(&(-&1.residents)) |> Enum.take(20)
+      }
+    end)
   end
 
   defp sum(vs) do
@@ -396,7 +409,7 @@ defmodule TartarusTools.Dashboard.Api do
         f -> with(%{snapshots: s, at: at} <- Fleet.get(f), do: {s, at})
       end
 
-    views = host_views(ctx)
+    per_node = fleet_views(ctx)
 
     nodes =
       Enum.map(snaps, fn
@@ -404,21 +417,38 @@ defmodule TartarusTools.Dashboard.Api do
           %{node: to_string(snap.node), reachable: false, error: e, path: Enum.map(snap.path, &to_string/1)}
 
         snap ->
-          mine = Enum.filter(views, &(&1.node == to_string(snap.node)))
+          mine = Map.get(per_node, to_string(snap.node), %{hosts: [], residents: 0, plugins: 0})
 
           %{
             node: to_string(snap.node),
             reachable: true,
             path: Enum.map(snap.path, &to_string/1),
             age_ms: if(snap.node == node(), do: 0, else: now_ms() - at),
-            hosts: Enum.map(mine, & &1.id),
-            agents: Map.get(snap, :agents_total, Enum.sum(Enum.map(mine, & &1.residents))),
-            plugins: Enum.sum(Enum.map(mine, &length(&1.plugins))),
+            hosts: mine.hosts,
+            agents: Map.get(snap, :agents_total, mine.residents),
+            plugins: mine.plugins,
             health: health_view(snap.health)
           }
       end)
 
     %{nodes: nodes, gathered_at: at, age_ms: now_ms() - at, kept: frozen?(ctx)}
+  end
+
+  # Per node: its hosts' ids, residents and plugins, from the views (cached as they are).
+  defp fleet_views(ctx) do
+    cached(ctx, :fleet_views, fn ->
+      ctx
+      |> host_views()
+      |> Enum.group_by(& &1.node)
+      |> Map.new(fn {node, vs} ->
+        {node,
+         %{
+           hosts: Enum.map(vs, & &1.id),
+           residents: Enum.sum(Enum.map(vs, & &1.residents)),
+           plugins: Enum.sum(Enum.map(vs, &length(&1.plugins)))
+         }}
+      end)
+    end)
   end
 
   defp health_view(nil), do: nil
@@ -495,17 +525,22 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp frozen?(ctx), do: :ets.member(ctx.cache, :frozen)
 
+  # What a kept page serves as it was when its run ended.
+  @kept [:topology, :views, :agents, :index, :summary, :fleet_views]
+
   @doc false
   # Keeps what the page shows as it is now (a run that ended): the hosts, links, views,
   # agents, summary parts, panels and this node's (and the fleet's) health series are
   # computed once more and then served as they are until the dashboard stops.
   def freeze(ctx) do
     if ctx.fleet, do: Fleet.freeze(ctx.fleet)
-    for k <- [:topology, :views, :agents, :index], do: :ets.delete(ctx.cache, k)
+    for k <- @kept, do: :ets.delete(ctx.cache, k)
     _ = topology(ctx)
     _ = host_views(ctx)
     _ = index(ctx)
     _ = cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end)
+    _ = summary_views(ctx)
+    _ = fleet_views(ctx)
     :ets.insert(ctx.cache, {:panels, :kept, panels_now(ctx)})
     nodes = topology(ctx).hosts |> Enum.map(&elem(&1.host, 1)) |> Enum.uniq()
 
@@ -518,7 +553,7 @@ defmodule TartarusTools.Dashboard.Api do
       end
     end
 
-    for k <- [:topology, :views, :agents, :index] do
+    for k <- @kept do
       case :ets.lookup(ctx.cache, k) do
         [{^k, _until, v}] -> :ets.insert(ctx.cache, {k, :kept, v})
         _ -> :ok
