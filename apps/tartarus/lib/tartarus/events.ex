@@ -203,7 +203,10 @@ defmodule Tartarus.Events do
           nil
 
         {n, ms} when is_integer(n) and n > 0 and is_integer(ms) and ms > 0 ->
-          {:budget, :atomics.new(2, signed: true), n, ms}
+          ref = :atomics.new(2, signed: true)
+          # The window now (monotonic time may be negative: windows only grow from here).
+          :atomics.put(ref, 1, div(System.monotonic_time(:millisecond), ms))
+          {:budget, ref, n, ms}
 
         other ->
           raise ArgumentError,

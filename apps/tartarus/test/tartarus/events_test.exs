@@ -174,6 +174,36 @@ defmodule Tartarus.EventsTest do
     send(watcher, {:count, self()})
     assert_receive {:count, n}
     assert n >= 5 and n <= 10
+
+    # Short windows: the budget comes back in each new window.
+    short =
+      spawn_link(fn ->
+        :ok = Events.subscribe(budget: {3, 100})
+        send(me, :subscribed)
+
+        collect = fn collect, n ->
+          receive do
+            {:tartarus_event, _} -> collect.(collect, n + 1)
+            {:count, from} -> send(from, {:count, n})
+          end
+        end
+
+        collect.(collect, 0)
+      end)
+
+    assert_receive :subscribed
+
+    Enum.reduce(1..6, a, fn _, at ->
+      Process.sleep(120)
+      to = if at == a, do: b, else: a
+      :ok = Tartarus.move({id, at}, to)
+      to
+    end)
+
+    send(short, {:count, self()})
+    assert_receive {:count, got}
+    # Six windows of two events or more each (a departure and an arrival): 3 from each at most.
+    assert got >= 12 and got <= 18
     assert_raise ArgumentError, fn -> Events.subscribe(budget: {0, 10}) end
   end
 
