@@ -74,10 +74,17 @@ defmodule TartarusEmu.DashboardBrowserTest do
                5_000
              )
 
-    assert eval!(
-             b,
-             "[...document.querySelectorAll('#events div.arrival')].some(d => d.textContent.includes('#{a1}'))"
-           )
+    # The arrival is in the Events tab's list (drawn when the tab is shown).
+    eval!(b, ~s|document.querySelector('#tabs button[data-tab="events"]').click(); true|)
+
+    assert :ok =
+             Browser.wait(
+               b,
+               "[...document.querySelectorAll('#events div.arrival')].some(d => d.textContent.includes('#{a1}'))",
+               5_000
+             )
+
+    eval!(b, ~s|document.querySelector('#tabs button[data-tab="overlay"]').click(); true|)
 
     # Without the token the page is read-only: a click on "kill" is refused, in plain words.
     assert eval!(b, "document.getElementById('mode').textContent") == "read-only"
