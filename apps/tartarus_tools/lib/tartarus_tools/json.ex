@@ -158,10 +158,7 @@ defmodule TartarusTools.JSON do
   end
 
   defp enc(map, indent) when is_map(map) do
-    pairs =
-      map
-      |> Enum.map(fn {k, v} -> {key(k), v} end)
-      |> Enum.sort_by(&elem(&1, 0))
+    pairs = :lists.keysort(1, :maps.fold(fn k, v, acc -> [{key(k), v} | acc] end, [], map))
 
     check_duplicate_keys(pairs, map)
 
@@ -229,20 +226,16 @@ defmodule TartarusTools.JSON do
             "expected an atom or a string"
   end
 
-  defp check_duplicate_keys(pairs, map) do
-    pairs
-    |> Enum.chunk_every(2, 1, :discard)
-    |> Enum.find(fn [{a, _}, {b, _}] -> a == b end)
-    |> case do
-      nil ->
-        :ok
-
-      [{k, _}, _] ->
-        raise ArgumentError,
-              "TartarusTools.JSON.encode!/2 cannot encode map #{inspect(map)}: " <>
-                "expected unique keys, got two keys that both encode as #{inspect(k)}"
-    end
+  # The keys, sorted, side by side: two equal ones (an atom and a string that both encode
+  # as "a") are refused. One pass (this runs for every map encoded).
+  defp check_duplicate_keys([{a, _}, {a, _} | _], map) do
+    raise ArgumentError,
+          "TartarusTools.JSON.encode!/2 cannot encode map #{inspect(map)}: " <>
+            "expected unique keys, got two keys that both encode as #{inspect(a)}"
   end
+
+  defp check_duplicate_keys([_ | rest], map), do: check_duplicate_keys(rest, map)
+  defp check_duplicate_keys([], _map), do: :ok
 
   defp string(bin) do
     if not String.valid?(bin) do
