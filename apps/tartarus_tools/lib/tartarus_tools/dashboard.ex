@@ -25,7 +25,11 @@ defmodule TartarusTools.Dashboard do
       default: [],
       doc: "`[{module, arg}]`: `TartarusTools.Dashboard.Panel`s shown below the graph"
     ],
-    batch_ms: [type: :pos_integer, default: 250, doc: "how often the live stream sends a batch"],
+    batch_ms: [
+      type: :pos_integer,
+      default: 1_000,
+      doc: "how often the live stream sends a batch (the page draws at most once a second)"
+    ],
     max_batch: [
       type: :pos_integer,
       default: 200,
@@ -106,13 +110,15 @@ defmodule TartarusTools.Dashboard do
 
   ## Live updates, and never slowing the platform
 
-  One process (`TartarusTools.Dashboard.Feed`) subscribes to `Tartarus.Events`: per event it
-  does a few map updates (last known place of each agent, a bounded ring of recent events,
-  a bounded sample of hop times). Every `:batch_ms` it sends the connected pages one batch of
-  at most `:max_batch` events (server-sent events on `/api/stream`); what does not fit is
-  counted, not queued. A page that does not read fast enough gets no more batches until it
-  catches up. If events arrive faster than the feed handles them, it drops the backlog and
-  counts it: the platform never waits for the dashboard (emitting an event is a `send/2`).
+  One process (`TartarusTools.Dashboard.Feed`) subscribes to `Tartarus.Events` with a budget:
+  the platform sends it at most `:max_batch` events per `:batch_ms` and skips the rest
+  without a message; the counts per type come from the platform's own count of every event
+  (`Tartarus.Events.type_totals/0`), so they are exact. Per event received it does a few map
+  updates (last known place of each agent, a bounded ring of recent events, a bounded sample
+  of hop times). Every `:batch_ms` it sends the connected pages one batch of those events
+  (server-sent events on `/api/stream`); what was skipped is counted, not queued. A page that
+  does not read fast enough gets no more batches until it catches up: the platform never
+  waits for the dashboard.
 
   ## Security
 
