@@ -135,25 +135,8 @@ defmodule Tartarus.EventsTest do
   test "a budgeted subscriber gets the first events of its window only; type_totals/0 counts them all" do
     [a, b] = line!(2)
     id = agent!(a)
-    me = self()
-
     # A window of an hour: the test lies in one (or, once an hour, two) of them.
-    watcher =
-      spawn_link(fn ->
-        :ok = Events.subscribe(budget: {5, 3_600_000})
-        send(me, :subscribed)
-
-        collect = fn collect, n ->
-          receive do
-            {:tartarus_event, _} -> collect.(collect, n + 1)
-            {:count, from} -> send(from, {:count, n})
-          end
-        end
-
-        collect.(collect, 0)
-      end)
-
-    assert_receive :subscribed
+    watcher = counting_subscriber({5, 3_600_000})
     types0 = Events.type_totals()
     totals0 = Events.totals()
 
@@ -176,22 +159,7 @@ defmodule Tartarus.EventsTest do
     assert n >= 5 and n <= 10
 
     # Short windows: the budget comes back in each new window.
-    short =
-      spawn_link(fn ->
-        :ok = Events.subscribe(budget: {3, 100})
-        send(me, :subscribed)
-
-        collect = fn collect, n ->
-          receive do
-            {:tartarus_event, _} -> collect.(collect, n + 1)
-            {:count, from} -> send(from, {:count, n})
-          end
-        end
-
-        collect.(collect, 0)
-      end)
-
-    assert_receive :subscribed
+    short = counting_subscriber({3, 100})
 
     Enum.reduce(1..6, a, fn _, at ->
       Process.sleep(120)
@@ -205,6 +173,29 @@ defmodule Tartarus.EventsTest do
     # Six windows of two events or more each (a departure and an arrival): 3 from each at most.
     assert got >= 12 and got <= 18
     assert_raise ArgumentError, fn -> Events.subscribe(budget: {0, 10}) end
+  end
+
+  # A process subscribed with `budget` that counts the events it gets and tells `{:count, n}`
+  # to whoever sends it `{:count, pid}`.
+  defp counting_subscriber(budget) do
+    me = self()
+
+    pid =
+      spawn_link(fn ->
+        :ok = Events.subscribe(budget: budget)
+        send(me, :subscribed)
+        count_events(0)
+      end)
+
+    assert_receive :subscribed
+    pid
+  end
+
+  defp count_events(n) do
+    receive do
+      {:tartarus_event, _} -> count_events(n + 1)
+      {:count, from} -> send(from, {:count, n})
+    end
   end
 
   test "unsubscribe/0 ends the subscription" do
