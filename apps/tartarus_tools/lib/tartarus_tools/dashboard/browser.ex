@@ -12,7 +12,9 @@ defmodule TartarusTools.Dashboard.Browser do
 
   Chromium runs in its own process group (started with `setsid`) with a throw-away
   profile directory; `stop/1` kills the whole group and removes the directory, and so does
-  the exit of the process that started it. `executable/0` finds Debian's `chromium`.
+  the exit of the process that started it. If the whole BEAM goes without either (a script
+  that ends, a node killed), the small shell that started Chromium sees its input close
+  and kills it: no browser outlives its node. `executable/0` finds Debian's `chromium`.
   """
 
   use GenServer
@@ -107,13 +109,31 @@ defmodule TartarusTools.Dashboard.Browser do
 
   # -- the server: owns Chromium's port and the WebSocket -------------------------------
 
+  # Starts `setsid -w chromium ...` ($2...) and waits for it (its end ends the port). A
+  # watcher reads the port's input: when it closes (the port closed, or the BEAM is gone
+  # without stopping the browser), it kills Chromium's process group, setsid, and anything
+  # still naming the profile directory ($1).
+  @guard """
+  dir=$1; shift
+  exec 3<&0
+  "$@" </dev/null &
+  p=$!
+  ( cat <&3 >/dev/null
+    for c in $(pgrep -P "$p"); do kill -KILL -- "-$c" 2>/dev/null; done
+    kill -KILL "$p" 2>/dev/null
+    pkill -KILL -f -- "$dir" 2>/dev/null ) &
+  exec 3<&-
+  wait "$p"
+  """
+
   @impl true
   def init({owner, opts}) do
     Process.flag(:trap_exit, true)
     Process.monitor(owner)
 
     with exe when is_binary(exe) <- executable() || {:error, :no_chromium},
-         setsid when is_binary(setsid) <- System.find_executable("setsid") || {:error, :no_setsid} do
+         setsid when is_binary(setsid) <- System.find_executable("setsid") || {:error, :no_setsid},
+         sh when is_binary(sh) <- System.find_executable("sh") || {:error, :no_sh} do
       dir = Path.join(System.tmp_dir!(), "tartarus-chromium-#{System.unique_integer([:positive])}")
       File.mkdir_p!(dir)
 
@@ -132,11 +152,11 @@ defmodule TartarusTools.Dashboard.Browser do
       ]
 
       port =
-        Port.open({:spawn_executable, setsid}, [
+        Port.open({:spawn_executable, sh}, [
           :binary,
           :exit_status,
           :stderr_to_stdout,
-          args: ["-w" | args]
+          args: ["-c", @guard, "tartarus-chromium", dir, setsid, "-w" | args]
         ])
 
       {:os_pid, pid} = Port.info(port, :os_pid)
@@ -336,8 +356,11 @@ defmodule TartarusTools.Dashboard.Browser do
     # `setsid -w` made Chromium (its child) the leader of a new process group: end the
     # group, then any process still naming our profile directory (the crash handler
     # detaches into a group of its own).
-    groups = for pid <- children(s.pid), do: "-#{pid}"
-    _ = System.cmd("kill", ["-KILL", "--" | groups] ++ ["#{s.pid}"], stderr_to_stdout: true)
+    # (s.pid is the guarding shell; setsid is its child, Chromium setsid's.)
+    setsids = children(s.pid)
+    groups = for p <- setsids, pid <- children(p), do: "-#{pid}"
+    pids = Enum.map([s.pid | setsids], &to_string/1)
+    _ = System.cmd("kill", ["-KILL", "--" | groups] ++ pids, stderr_to_stdout: true)
     _ = System.cmd("kill", ["-KILL" | Enum.map(naming(s.dir), &to_string/1)], stderr_to_stdout: true)
     File.rm_rf(s.dir)
     :ok
