@@ -168,6 +168,26 @@ defmodule Tartarus.Envelope do
     env |> Map.put(:visits, visits) |> Map.put(:visit_order, order)
   end
 
+  @doc """
+  An envelope as this version makes them, from one an earlier version journaled: fields it
+  lacks get their defaults, and a missing `:visit_order` lists its `:visits` (so that it
+  passes `Tartarus.Wire` when it travels on). A current envelope is returned as it is.
+
+      iex> old = %{__struct__: Tartarus.Envelope, id: "0123456789abcdef", module: Tartarus.Examples.Echo, visits: %{a: 1}}
+      iex> Tartarus.Envelope.upgrade(old).visit_order
+      [:a]
+  """
+  @spec upgrade(map()) :: t()
+  def upgrade(%{__struct__: __MODULE__} = env) do
+    if Map.has_key?(env, :visit_order) and
+         map_size(env) == map_size(%__MODULE__{id: nil, module: nil}) do
+      env
+    else
+      order = Map.get(env, :visit_order) || Map.keys(Map.get(env, :visits, %{}))
+      struct(__MODULE__, env |> Map.delete(:__struct__) |> Map.put(:visit_order, order))
+    end
+  end
+
   @doc "A fresh exported `:rand` state seeded from `seed` (any term)."
   @spec seed_rng(term()) :: term()
   def seed_rng(seed) do

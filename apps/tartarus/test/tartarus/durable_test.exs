@@ -81,6 +81,38 @@ defmodule Tartarus.DurableTest do
     assert Tartarus.status(h).counts.crashes == 1
   end
 
+  test "an agent journaled by an earlier version (no :visit_order) is restored and travels on" do
+    dir = Path.join(System.tmp_dir!(), "durable_old_#{System.unique_integer([:positive])}")
+    on_exit(fn -> File.rm_rf!(dir) end)
+    File.mkdir_p!(dir)
+    name = unique_name("old")
+    id = Tartarus.Envelope.new_id()
+
+    old =
+      %Tartarus.Envelope{
+        id: id,
+        module: Tartarus.Examples.Echo,
+        rng: Tartarus.Envelope.seed_rng(1),
+        visits: %{{:gone, node()} => 3}
+      }
+      |> Map.from_struct()
+      |> Map.delete(:visit_order)
+      |> Map.put(:__struct__, Tartarus.Envelope)
+
+    bin = :erlang.term_to_binary({:agent, id, old})
+    File.write!(Path.join(dir, "host-#{name}.journal"), <<byte_size(bin)::32, bin::binary>>)
+
+    {:ok, _} = Tartarus.start_host(name, data_dir: dir)
+    on_exit(fn -> Tartarus.stop_host(name) end)
+    other = host!()
+    :ok = Tartarus.connect(name, other)
+
+    assert eventually(fn -> Enum.any?(Tartarus.agents(name), &(&1.id == id)) end, 5_000)
+    # The destination checks the envelope (Tartarus.Wire): an old one would be refused.
+    assert :ok = Tartarus.move({id, name}, other)
+    assert [%{id: ^id}] = Tartarus.agents(other)
+  end
+
   test "checkpoint/0 outside an agent's callbacks is an error" do
     assert_raise ArgumentError, fn -> Tartarus.Agent.checkpoint() end
   end

@@ -154,9 +154,13 @@ defmodule Tartarus.Host.Persistence do
   @doc false
   # {agents, in_doubt as [{mig, env, src, kind, copy}], decisions as [{mig, copy}]}.
   def restored(s) do
-    {Map.values(s.agents),
-     Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} -> {mig, env, src, kind, copy} end),
-     Enum.map(s.decisions, fn {mig, {_id, copy}} -> {mig, copy} end)}
+    # Envelopes an earlier version journaled take this version's shape.
+    up = &Tartarus.Envelope.upgrade/1
+
+    {Enum.map(Map.values(s.agents), up),
+     Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} ->
+       {mig, up.(env), src, kind, copy}
+     end), Enum.map(s.decisions, fn {mig, {_id, copy}} -> {mig, copy} end)}
   end
 
   defp safe(name), do: name |> to_string() |> String.replace(~r/[^A-Za-z0-9_.-]/, "_")
