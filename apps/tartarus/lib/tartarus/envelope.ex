@@ -177,7 +177,7 @@ defmodule Tartarus.Envelope do
       iex> Tartarus.Envelope.upgrade(old).visit_order
       [:a]
   """
-  @spec upgrade(map()) :: t()
+  @spec upgrade(term()) :: t() | term()
   def upgrade(%{__struct__: __MODULE__} = env) do
     if Map.has_key?(env, :visit_order) and
          map_size(env) == map_size(%__MODULE__{id: nil, module: nil}) do
@@ -187,6 +187,9 @@ defmodule Tartarus.Envelope do
       struct(__MODULE__, env |> Map.delete(:__struct__) |> Map.put(:visit_order, order))
     end
   end
+
+  # Anything else (the protocol model's stand-in envelopes) is left as it is.
+  def upgrade(other), do: other
 
   @doc "A fresh exported `:rand` state seeded from `seed` (any term)."
   @spec seed_rng(term()) :: term()
