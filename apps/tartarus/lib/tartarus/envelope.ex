@@ -146,10 +146,8 @@ defmodule Tartarus.Envelope do
       {%{a: 2, c: 1}, [:c, :a]}
   """
   @spec visit(t(), Tartarus.host() | term(), pos_integer() | :infinity) :: t()
-  def visit(env, host, max) do
-    # An envelope journaled before `:visit_order` existed has none: its order is its keys'.
-    order = Map.get(env, :visit_order) || Map.keys(env.visits)
-    visits = env.visits
+  def visit(%__MODULE__{visits: visits, visit_order: order} = env, host, max) do
+    # (An envelope journaled before `:visit_order` existed is upgraded on restore: upgrade/1.)
 
     {order, visits} =
       case visits do
@@ -165,7 +163,7 @@ defmodule Tartarus.Envelope do
           {[host | order], Map.put(visits, host, 1)}
       end
 
-    env |> Map.put(:visits, visits) |> Map.put(:visit_order, order)
+    %{env | visits: visits, visit_order: order}
   end
 
   @doc """

@@ -99,6 +99,7 @@ defmodule Tartarus.Events do
     :other
   ]
   @type_index @types |> Enum.with_index(1) |> Map.new()
+  @typed Enum.with_index(@types, 1)
 
   @typedoc "The name of a counter; see the table in the moduledoc."
   @type counter :: atom()
@@ -187,8 +188,8 @@ defmodule Tartarus.Events do
   With `budget: {n, ms}` the caller gets at most about `n` events in each window of `ms`
   milliseconds: the first ones of the window; the others are not sent at all (emitting them
   costs the emitter two atomic operations, not a message), and they are still counted in
-  `type_totals/0` and the hosts' counters (`Tartarus.status/2`). For a watcher that shows a sample of the events
-  and exact counts, without a message per event however busy the node is.
+  `type_totals/0` and the hosts' counters (`Tartarus.status/2`). For a watcher that shows a
+  sample of the events and exact counts, without a message per event however busy the node is.
 
       iex> Tartarus.Events.subscribe(budget: {100, 250})
       :ok
@@ -246,8 +247,7 @@ defmodule Tartarus.Events do
   """
   @spec type_totals() :: %{atom() => non_neg_integer()}
   def type_totals do
-    ref = :persistent_term.get({__MODULE__, :types})
-    Map.new(@type_index, fn {type, i} -> {type, :counters.get(ref, i)} end)
+    read(:persistent_term.get({__MODULE__, :types}), @typed)
   end
 
   @doc false

@@ -272,10 +272,7 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp collect_agents(hosts) do
     # This node's agents in one read of its agent table (not a scan of every host's ledger).
-    here =
-      if Enum.any?(hosts, &(elem(&1.host, 1) == node() and not is_map(Map.get(&1, :remote)))),
-        do: Enum.group_by(Tartarus.agents(), & &1.host),
-        else: %{}
+    here = Enum.group_by(Tartarus.agents(), & &1.host)
 
     Enum.flat_map(hosts, fn
       %{remote: %{}} = h ->

@@ -241,9 +241,9 @@ defmodule TartarusTools.Dashboard.Feed do
 
   def handle_info(_other, s), do: {:noreply, s}
 
-  # Per event only counts, places and rings of raw events: the conversion to JSON-able
+  # Per event only places and rings of raw events, and counts for a `relayed` one (another
+  # node's; this node's come from its totals at each flush). The conversion to JSON-able
   # views happens when a batch goes out or /api/events asks, for at most a batch or a ring.
-  # `relayed`: an event of another node (this node's are counted from its totals).
   defp take(e, s, relayed) when is_map(e) do
     seq = s.seq + 1
     t = Map.get(e, :type)
