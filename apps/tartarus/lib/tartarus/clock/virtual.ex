@@ -1,0 +1,244 @@
+defmodule Tartarus.Clock.Virtual do
+  @moduledoc """
+  The virtual clock of `Tartarus.Clock`: time that is the emulated network's, not the
+  machine's. An emulator installs it for a network that runs in one VM (`install/1`), runs
+  the network, and removes it (`uninstall/0`); `run/2` does the three around a function.
+
+  ## Semantics
+
+    * **Time stands still while anything runs.** The clock's process (the *advancer*) moves
+      time only when the VM is idle: no process or port of the VM is runnable or running but
+      itself, and none ran between two readings of the VM's reduction counters. Then it takes
+      the earliest timer, sets the time to its due instant (time never goes back), and fires
+      it. A computation therefore costs no virtual time, however long it runs: a design that
+      wants it to cost time says so (`Tartarus.Clock.sleep/1`).
+    * **One timer at a time.** Timers due at the same instant fire one by one, each once the
+      VM went idle after the previous one, in an order drawn from the seed (a hash of the seed
+      and the order they were armed in). With the same seed, the same program arms the same
+      timers in the same order, so a run is replayed exactly, whatever else the machine is
+      doing.
+    * **Idle with no timer** is a network that waits for the outside (a test's next call, a
+      message from a real node): the advancer polls every millisecond of real time.
+
+  ## What it cannot represent
+
+    * Work outside the VM's processes: a port or a NIF that waits on the operating system
+      (a file read is a NIF call and runs; a socket's answer arriving later does not hold the
+      time). Networks of real BEAM nodes (`:peer`, network namespaces) run in real time.
+    * Real-time timers that bypass `Tartarus.Clock` (the BEAM's own `after`, gen_statem's
+      timeouts, `GenServer.call/3`'s timeout): they fire in real time, and time may jump past
+      them. `scripts/check-clock` keeps them out of `apps/*/lib` but for the allowed ones.
+    * Any process that never goes idle (a busy loop outside the emulation) holds the time
+      forever.
+
+  One virtual clock per VM: installing it switches every caller of `Tartarus.Clock` in the
+  VM, so install it before the network starts and remove it after it stopped (a timer armed
+  in one mode is unknown to the other).
+  """
+
+  use GenServer
+
+  @typedoc "Options of `install/1`."
+  @type option :: {:seed, integer()} | {:start_us, integer()}
+
+  @doc """
+  Installs the virtual clock in this VM and starts its advancer (linked to the caller).
+
+  Options: `:seed` (integer, default 0: the order of timers due at one instant),
+  `:start_us` (the virtual monotonic time to start at, µs; default the real monotonic time
+  now, so time read before and after the install never goes back).
+
+  Returns `{:ok, pid}`, or `{:error, :already_installed}`.
+  """
+  @spec install([option()]) :: {:ok, pid()} | {:error, :already_installed}
+  def install(opts \\ []) do
+    if Tartarus.Clock.virtual?() do
+      {:error, :already_installed}
+    else
+      GenServer.start_link(__MODULE__, opts)
+    end
+  end
+
+  @doc "Removes the virtual clock (pending timers are dropped); `:ok` if none was installed."
+  @spec uninstall() :: :ok
+  def uninstall do
+    case :persistent_term.get({__MODULE__, :advancer}, nil) do
+      pid when is_pid(pid) ->
+        try do
+          GenServer.stop(pid, :normal, 10_000)
+        catch
+          :exit, _ -> clear()
+        end
+
+      nil ->
+        clear()
+    end
+
+    :ok
+  end
+
+  @doc """
+  Runs `fun` with the virtual clock installed (options as `install/1`) and removes it after,
+  whatever `fun` did. Returns what `fun` returned.
+  """
+  @spec run([option()], (() -> result)) :: result when result: term()
+  def run(opts \\ [], fun) when is_function(fun, 0) do
+    {:ok, _} = install(opts)
+
+    try do
+      fun.()
+    after
+      uninstall()
+    end
+  end
+
+  @doc """
+  What the advancer did so far: `:fired` timers, `:virtual_ms` since the install, `:wall_ms`
+  since the install, `:pending` timers, `:idle_checks`. Nil in real mode.
+  """
+  @spec stats() :: map() | nil
+  def stats do
+    case :persistent_term.get({__MODULE__, :advancer}, nil) do
+      pid when is_pid(pid) -> GenServer.call(pid, :stats)
+      nil -> nil
+    end
+  end
+
+  # -- the advancer --------------------------------------------------------------------
+
+  @impl true
+  def init(opts) do
+    seed = Keyword.get(opts, :seed, 0)
+    start_us = Keyword.get(opts, :start_us, System.monotonic_time(:microsecond))
+    tab = :ets.new(__MODULE__, [:ordered_set, :public, write_concurrency: true])
+    at = :atomics.new(3, signed: true)
+    :atomics.put(at, 1, start_us)
+    :atomics.put(at, 3, System.system_time(:microsecond) - start_us)
+    :persistent_term.put({__MODULE__, :advancer}, self())
+    :persistent_term.put(Tartarus.Clock.__key__(), {tab, at, seed})
+    Process.flag(:trap_exit, true)
+    send(self(), :advance)
+
+    {:ok,
+     %{
+       tab: tab,
+       at: at,
+       start_us: start_us,
+       wall0: System.monotonic_time(:millisecond),
+       fired: 0,
+       checks: 0,
+       calib: calibrate()
+     }}
+  end
+
+  @impl true
+  def handle_call(:stats, _from, s) do
+    {:reply,
+     %{
+       fired: s.fired,
+       virtual_ms: div(:atomics.get(s.at, 1) - s.start_us, 1000),
+       wall_ms: System.monotonic_time(:millisecond) - s.wall0,
+       pending: :ets.info(s.tab, :size),
+       idle_checks: s.checks
+     }, s}
+  end
+
+  @impl true
+  def handle_info(:advance, s) do
+    s = advance(s, 200)
+    send(self(), :advance)
+    {:noreply, s}
+  end
+
+  def handle_info({:EXIT, _pid, reason}, s), do: {:stop, reason, s}
+  def handle_info(_other, s), do: {:noreply, s}
+
+  @impl true
+  def terminate(_reason, _s), do: clear()
+
+  defp clear do
+    _ = :persistent_term.erase(Tartarus.Clock.__key__())
+    _ = :persistent_term.erase({__MODULE__, :advancer})
+    :ok
+  end
+
+  # Up to `n` rounds of "wait for idle, fire the earliest timer", then back to the mailbox
+  # (stats, stop). Waiting spins with yields (the VM's work runs meanwhile) and sleeps 1 ms
+  # of real time when nothing is due (this is the clock itself: its one real timer).
+  defp advance(s, 0), do: s
+
+  defp advance(s, n) do
+    s = %{s | checks: s.checks + 1}
+
+    cond do
+      not idle?(s.calib) ->
+        :erlang.yield()
+        advance(s, n - 1)
+
+      true ->
+        case :ets.first(s.tab) do
+          :"$end_of_table" ->
+            # credo:disable-for-next-line
+            receive do
+            after
+              1 -> s
+            end
+
+          key ->
+            fire(s, key)
+            advance(%{s | fired: s.fired + 1}, n - 1)
+        end
+    end
+  end
+
+  defp fire(s, {due, _rank, seq} = key) do
+    case :ets.take(s.tab, key) do
+      [{_, dest, what}] ->
+        if due > :atomics.get(s.at, 1), do: :atomics.put(s.at, 1, due)
+
+        msg =
+          case what do
+            {:send, msg} -> msg
+            {:timeout, msg} -> {:timeout, {:"$tartarus_clock", due, seq}, msg}
+          end
+
+        try do
+          send(dest, msg)
+        rescue
+          ArgumentError -> :ok
+        end
+
+      [] ->
+        :ok
+    end
+  end
+
+  # Idle: this process is the only one runnable or running (processes, ports, dirty work),
+  # and nothing else ran between two readings of the VM's reductions. The readings cost this
+  # process a fixed number of reductions that the VM's count sees and its own does not (or
+  # the other way round): `calib`, the most frequent difference in a quiet VM.
+  defp idle?(calib), do: others() == {1, calib}
+
+  # The first yield settles this process's own count (what ran before does not change the
+  # difference); the second lets anything runnable on this scheduler run between readings.
+  defp others do
+    :erlang.yield()
+    {:reductions, me0} = Process.info(self(), :reductions)
+    {all0, _} = :erlang.statistics(:exact_reductions)
+    :erlang.yield()
+    active = :erlang.statistics(:total_active_tasks_all)
+    {all1, _} = :erlang.statistics(:exact_reductions)
+    {:reductions, me1} = Process.info(self(), :reductions)
+    {active, all1 - all0 - (me1 - me0)}
+  end
+
+  defp calibrate do
+    {calib, _} =
+      1..200
+      |> Enum.map(fn _ -> elem(others(), 1) end)
+      |> Enum.frequencies()
+      |> Enum.max_by(fn {_, n} -> n end)
+
+    calib
+  end
+end
