@@ -90,9 +90,9 @@ defmodule Tartarus.Broadcast do
     targets = Ledger.neighbours(info)
 
     bytes =
-      Enum.reduce(targets, 0, fn {_, node} = to, acc ->
+      Enum.reduce(targets, 0, fn to, acc ->
         msg = {:"$tartarus_broadcast", to, info.ref, message}
-        send({:tartarus_overlay, node}, msg)
+        Host.overlay_send(to, msg, Tartarus.Transport.delay(info, to))
         acc + :erlang.external_size(msg)
       end)
 

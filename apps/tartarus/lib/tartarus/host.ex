@@ -145,22 +145,72 @@ defmodule Tartarus.Host do
   end
 
   @doc false
-  # Calls the node-level overlay process (`Tartarus.Overlay`, registered as
-  # :tartarus_overlay) of the host's node with `{request, host}`, turning a dead host or
-  # node into an error. Signal and Broadcast call it (by name: no xref cycle).
+  # Calls the overlay process of a host (`Tartarus.Overlay.Host`) with `{request, host}`:
+  # directly on this node, through the node's door (`:tartarus_overlay`) on another, turning
+  # a dead host or node into an error. Signal and Broadcast call it (by name: no xref cycle).
   @spec overlay_call(term(), term()) :: term()
   def overlay_call(host, request) do
     if address?(host) do
-      {_, node} = host = address(host)
+      {name, node} = host = address(host)
+
+      dest = if node == node(), do: overlay_pid(name), else: {:tartarus_overlay, node}
 
       try do
-        GenServer.call({:tartarus_overlay, node}, {request, host}, 10_000)
+        if dest == nil, do: exit(:noproc), else: GenServer.call(dest, {request, host}, 10_000)
       catch
         :exit, _ -> {:error, {:unknown_host, host}}
       end
     else
       {:error, {:unknown_host, host}}
     end
+  end
+
+  @doc false
+  # The overlay process (Tartarus.Overlay.Host) of a host of this node, or nil.
+  @spec overlay_pid(name()) :: pid() | nil
+  def overlay_pid(name) do
+    case Registry.lookup(Tartarus.HostRegistry, {:overlay, name}) do
+      [{pid, _}] -> pid
+      [] -> nil
+    end
+  end
+
+  @doc false
+  # Sends an overlay message (a signal relay, a broadcast) to host `to` (an address):
+  # straight to its overlay process on this node, through its node's door
+  # (`:tartarus_overlay`) otherwise; after `delay` ms of the clock when the link has a
+  # latency (on this node counted in flight until the receiver takes it, for
+  # Tartarus.Signal.settle/1).
+  @spec overlay_send(t(), tuple(), non_neg_integer()) :: :ok
+  def overlay_send({name, node}, msg, delay) do
+    dest = if node == node(), do: overlay_pid(name), else: {:tartarus_overlay, node}
+
+    cond do
+      dest == nil ->
+        :ok
+
+      delay == 0 ->
+        send(dest, msg)
+        :ok
+
+      node == node() ->
+        overlay_in_flight(name, 1)
+        Tartarus.Clock.send_after(dest, {:"$tartarus_delayed", msg}, delay)
+        :ok
+
+      true ->
+        Tartarus.Clock.send_after(dest, msg, delay)
+        :ok
+    end
+  end
+
+  @doc false
+  # Adds n to the overlay messages in flight to host `name` of this node; the count after.
+  @spec overlay_in_flight(name(), integer()) :: integer()
+  def overlay_in_flight(name, n) do
+    :ets.update_counter(:tartarus_overlay_in_flight, name, n, {name, 0})
+  rescue
+    ArgumentError -> 0
   end
 
   @doc false

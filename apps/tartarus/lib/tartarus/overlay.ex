@@ -1,31 +1,39 @@
 defmodule Tartarus.Overlay do
   @moduledoc """
-  The node-level process for what hosts send to their neighbours without an agent: signal
-  relays (`Tartarus.Signal`) and neighbour broadcasts (`Tartarus.Broadcast`).
+  What hosts send to their neighbours without an agent: signal relays (`Tartarus.Signal`)
+  and neighbour broadcasts (`Tartarus.Broadcast`). Each host has its own overlay process
+  (`Tartarus.Overlay.Host`, in the host's tree), as a host on its own device would: a host
+  flooded with relays queues them in its own mailbox, and no other host's signal waits
+  behind them.
 
-  It is registered as `:tartarus_overlay` on every node, so a host addresses a neighbour's
-  node as `{:tartarus_overlay, node}` (an atom, not this module's name, so that
-  `Tartarus.Signal` and `Tartarus.Broadcast`, which this module calls, do not depend on it
-  back: no xref cycle). It owns three ETS tables, read directly by everyone:
-  `:tartarus_signals` (the signal fields of this node's hosts),
-  `:tartarus_broadcast_subscribers` (broadcast subscriptions) and
-  `:tartarus_signal_watchers` (processes watching a signal at a host,
-  `Tartarus.Signal.watch/3`). It monitors the hosts it holds fields for, the subscribers
-  and the watchers, and forgets them when they go.
+  This module is the node's door for the overlay (registered as `:tartarus_overlay`, an
+  atom rather than this module's name, so that `Tartarus.Signal` and `Tartarus.Broadcast`
+  do not depend on it back: no xref cycle): what another node sends to a host of this node
+  arrives here and is passed on to the host's overlay process, as a device's network
+  interface passes it to the one host it runs. Hosts of one node send to each other's
+  overlay processes directly. It owns the three ETS tables the hosts' overlay processes
+  write and everyone reads: `:tartarus_signals` (the signal fields of this node's hosts),
+  `:tartarus_broadcast_subscribers` and `:tartarus_signal_watchers`
+  (`Tartarus.Signal.watch/3`), and a table of the relays in flight over links with a latency
+  (`Tartarus.Signal.settle/1` waits for them). It monitors the hosts' overlay processes and
+  drops what a host's process left in the tables when it goes.
 
-  Wire messages (maintainer notes):
+  Wire messages (maintainer notes), to `{:tartarus_overlay, node}` from another node or to a
+  host's overlay process:
 
       {:"$tartarus_signal", to_host, from_host, name, source, emission, from_hops, age_us}
         (emission packed as {id, strength, span, lifetime, decay, lifetime_decay,
          evaporation, data})
       {:"$tartarus_broadcast", to_host, from_host, message}
 
-  A message for a host that does not run on this node is dropped.
+  A message for a host that does not run on this node is dropped. Calls `{request, host}`
+  from another node (emit, subscribe, watch, ...) are passed on to the host's overlay
+  process, which answers the caller itself.
   """
   use GenServer
   require Tartarus.Events
 
-  alias Tartarus.{Broadcast, Host, Signal}
+  alias Tartarus.Host
 
   @doc false
   def start_link(_opts), do: GenServer.start_link(__MODULE__, nil, name: :tartarus_overlay)
@@ -35,16 +43,32 @@ defmodule Tartarus.Overlay do
     # Ordered by key ({host, name}), so a host's fields are one range: dropping them when
     # the host stops visits that range only (a :set needs a scan of every field of every
     # host: 1,000 hosts stopping with 100 fields each took 8 s of this process, 0.14 s so).
-    :ets.new(:tartarus_signals, [:ordered_set, :protected, :named_table, read_concurrency: true])
+    # Public: each host's overlay process writes its own host's rows.
+    :ets.new(:tartarus_signals, [
+      :ordered_set,
+      :public,
+      :named_table,
+      read_concurrency: true,
+      write_concurrency: true
+    ])
 
     :ets.new(:tartarus_broadcast_subscribers, [
       :bag,
-      :protected,
+      :public,
       :named_table,
-      read_concurrency: true
+      read_concurrency: true,
+      write_concurrency: true
     ])
 
-    :ets.new(:tartarus_signal_watchers, [:bag, :protected, :named_table, read_concurrency: true])
+    :ets.new(:tartarus_signal_watchers, [
+      :bag,
+      :public,
+      :named_table,
+      read_concurrency: true,
+      write_concurrency: true
+    ])
+
+    :ets.new(:tartarus_overlay_in_flight, [:set, :public, :named_table, write_concurrency: true])
 
     {:ok, %{hosts: %{}, subs: %{}}}
   end
@@ -55,24 +79,163 @@ defmodule Tartarus.Overlay do
     {:noreply, state}
   end
 
+  # A call from another node for one of this node's hosts: its overlay process answers.
+  def handle_call({_request, host} = msg, from, state) do
+    with true <- Host.address?(host),
+         {name, node} when node == node() <- Host.address(host),
+         pid when is_pid(pid) <- Host.overlay_pid(name) do
+      send(pid, {:"$gen_call", from, msg})
+    else
+      _ ->
+        Tartarus.Events.drop(:tartarus_overlay, :call, msg)
+        Tartarus.Events.reply(from, {:error, {:unknown_host, host}})
+    end
+
+    {:noreply, state}
+  end
+
+  # Anything else (from another node, well-formed or not) is dropped and counted.
+  def handle_call(msg, from, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :call, msg)
+    Tartarus.Events.reply(from, {:error, :unexpected_call})
+    {:noreply, state}
+  end
+
+  # A host's overlay process says it started: watched, so what it leaves is dropped.
+  @impl true
+  def handle_cast({:"$tartarus_host_overlay", name, pid}, state) when is_pid(pid) do
+    if node(pid) == node() and Host.overlay_pid(name) == pid do
+      case state.hosts do
+        %{^name => {mref, _}} -> Process.demonitor(mref, [:flush])
+        _ -> :ok
+      end
+
+      {:noreply, %{state | hosts: Map.put(state.hosts, name, {Process.monitor(pid), pid})}}
+    else
+      {:noreply, state}
+    end
+  end
+
+  # A host's overlay process took a subscription (a broadcast subscriber or a signal
+  # watcher): watched here, so it outlives the host's process (as the host's restart does)
+  # and goes when the subscriber goes.
+  def handle_cast({:"$tartarus_sub", table, {_key, pid} = object}, state)
+      when table in [:tartarus_broadcast_subscribers, :tartarus_signal_watchers] and is_pid(pid) do
+    {:noreply, %{state | subs: Map.put(state.subs, Process.monitor(pid), {table, object})}}
+  end
+
+  def handle_cast({:"$tartarus_unsub", table, object}, state) do
+    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub === {table, object} end)
+    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
+    {:noreply, %{state | subs: Map.new(subs)}}
+  end
+
+  def handle_cast(msg, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :cast, msg)
+    {:noreply, state}
+  end
+
+  @impl true
+  def handle_info({:"$tartarus_signal", to, _, _, _, _, _, _} = msg, state),
+    do: {:noreply, pass_on(state, to, msg)}
+
+  def handle_info({:"$tartarus_broadcast", to, _, _} = msg, state),
+    do: {:noreply, pass_on(state, to, msg)}
+
+  def handle_info({:DOWN, mref, :process, pid, _reason}, state) do
+    case Map.pop(state.subs, mref) do
+      {{table, object}, subs} ->
+        :ets.delete_object(table, object)
+        {:noreply, %{state | subs: subs}}
+
+      {nil, _} ->
+        case Enum.find(state.hosts, fn {_, entry} -> entry == {mref, pid} end) do
+          {name, _} ->
+            Tartarus.Overlay.Host.forget(name, pid)
+            {:noreply, %{state | hosts: Map.delete(state.hosts, name)}}
+
+          nil ->
+            {:noreply, state}
+        end
+    end
+  end
+
+  def handle_info(other, state) do
+    Tartarus.Events.drop(:tartarus_overlay, :info, other)
+    {:noreply, state}
+  end
+
+  defp pass_on(state, to, msg) do
+    with true <- Host.address?(to),
+         {name, node} when node == node() <- Host.address(to),
+         pid when is_pid(pid) <- Host.overlay_pid(name) do
+      send(pid, msg)
+    end
+
+    state
+  end
+end
+
+defmodule Tartarus.Overlay.Host do
+  @moduledoc false
+  # One host's overlay process (a child of the host's supervisor, registered as
+  # {:overlay, name} in Tartarus.HostRegistry): it takes the host's signal emissions and
+  # relays, its broadcasts, and its subscriptions and watches, and writes the host's rows of
+  # the node's overlay tables (see Tartarus.Overlay). When it stops, the host's fields go
+  # with it; subscribers and watchers stay until they go (the node's overlay watches them).
+  use GenServer
+  require Tartarus.Events
+
+  alias Tartarus.{Broadcast, Host, Signal}
+
+  def start_link(name),
+    do: GenServer.start_link(__MODULE__, name, name: Host.via(:overlay, name))
+
+  @impl true
+  def init(name) do
+    Process.flag(:trap_exit, true)
+    # What an earlier incarnation of this host left (it was killed).
+    forget(name, nil)
+    GenServer.cast(:tartarus_overlay, {:"$tartarus_host_overlay", name, self()})
+    {:ok, %{name: name}}
+  end
+
+  @impl true
+  def terminate(_reason, %{name: name}), do: forget(name, self())
+
+  @doc false
+  # Drops host `name`'s fields and its count of relays in flight, unless a newer overlay
+  # process than `pid` runs for it.
+  def forget(name, pid) do
+    if pid == nil or Host.overlay_pid(name) in [nil, pid] do
+      :ets.select_delete(:tartarus_signals, fields_of(name))
+      :ets.delete(:tartarus_overlay_in_flight, name)
+    end
+
+    :ok
+  rescue
+    ArgumentError -> :ok
+  end
+
+  @impl true
+  def handle_call(msg, from, state) when not Tartarus.Events.is_from(from) do
+    Tartarus.Events.drop(:tartarus_overlay, :call, msg)
+    {:noreply, state}
+  end
+
   def handle_call({{:emit, name, e}, host}, _from, state) do
-    case local(host) do
+    case local(host, state) do
       {:ok, info} ->
         Signal.handle_emit(info, name, e)
-        {:reply, :ok, watch_host(state, info)}
+        {:reply, :ok, state}
 
       error ->
         {:reply, error, state}
     end
   end
 
-  def handle_call(:idle?, _from, state) do
-    {:message_queue_len, n} = Process.info(self(), :message_queue_len)
-    {:reply, n == 0, state}
-  end
-
   def handle_call({{:subscribe, pid}, host}, _from, state) when is_pid(pid) do
-    case local(host) do
+    case local(host, state) do
       {:ok, %{ref: {name, _}}} ->
         {:reply, :ok, add_sub(state, :tartarus_broadcast_subscribers, {name, pid})}
 
@@ -87,7 +250,7 @@ defmodule Tartarus.Overlay do
   end
 
   def handle_call({{:watch, name, pid}, host}, _from, state) when is_pid(pid) do
-    case local(host) do
+    case local(host, state) do
       {:ok, %{ref: {host_name, _}}} ->
         {:reply, :ok, add_sub(state, :tartarus_signal_watchers, {{host_name, name}, pid})}
 
@@ -101,7 +264,6 @@ defmodule Tartarus.Overlay do
     {:reply, :ok, drop_sub(state, :tartarus_signal_watchers, {{host_name, name}, pid})}
   end
 
-  # Anything else (from another node, well-formed or not) is dropped and counted.
   def handle_call(msg, from, state) do
     Tartarus.Events.drop(:tartarus_overlay, :call, msg)
     Tartarus.Events.reply(from, {:error, :unexpected_call})
@@ -115,37 +277,27 @@ defmodule Tartarus.Overlay do
   end
 
   @impl true
-  def handle_info({:"$tartarus_signal", to, from, name, source, e, hops, age}, state)
-      when is_tuple(e) and tuple_size(e) == 8 and is_integer(hops) and is_integer(age) do
-    case local(to) do
-      {:ok, info} ->
-        Signal.handle_relay(info, from, name, source, e, hops, age)
-        {:noreply, watch_host(state, info)}
-
-      _ ->
-        {:noreply, state}
-    end
+  def handle_info({:"$tartarus_delayed", msg}, state) do
+    Host.overlay_in_flight(state.name, -1)
+    handle_info(msg, state)
   end
 
-  def handle_info({:"$tartarus_broadcast", to, from, message} = msg, state) do
-    case local(to) do
-      {:ok, info} -> Broadcast.deliver(info, from, message, :erlang.external_size(msg))
-      _ -> :ok
-    end
+  def handle_info({:"$tartarus_signal", to, from, name, source, e, hops, age}, state)
+      when is_tuple(e) and tuple_size(e) == 8 and is_integer(hops) and is_integer(age) do
+    with {:ok, info} <- local(to, state),
+         do: Signal.handle_relay(info, from, name, source, e, hops, age)
 
     {:noreply, state}
   end
 
-  def handle_info({:DOWN, mref, :process, _pid, _reason}, state) do
-    case Map.pop(state.subs, mref) do
-      {{table, object}, subs} ->
-        :ets.delete_object(table, object)
-        {:noreply, %{state | subs: subs}}
+  def handle_info({:"$tartarus_broadcast", to, from, message} = msg, state) do
+    with {:ok, info} <- local(to, state),
+         do: Broadcast.deliver(info, from, message, :erlang.external_size(msg))
 
-      {nil, _} ->
-        {:noreply, forget_host(state, mref)}
-    end
+    {:noreply, state}
   end
+
+  def handle_info({:EXIT, _pid, reason}, state), do: {:stop, reason, state}
 
   def handle_info(other, state) do
     Tartarus.Events.drop(:tartarus_overlay, :info, other)
@@ -153,40 +305,28 @@ defmodule Tartarus.Overlay do
   end
 
   # A subscription (a broadcast subscriber, or a signal watcher): `object` {key, pid} in
-  # `table`, once, the pid monitored; `subs` maps the monitor to {table, object}. Keys are
-  # compared exactly (not as match patterns: a host may be named :_).
-  defp add_sub(state, table, {key, pid} = object) do
-    if Enum.any?(:ets.lookup(table, key), &(&1 === object)) do
-      state
-    else
+  # `table`, once; the node's overlay monitors the pid. Keys are compared exactly (not as
+  # match patterns: a host may be named :_).
+  defp add_sub(state, table, {key, _pid} = object) do
+    unless Enum.any?(:ets.lookup(table, key), &(&1 === object)) do
       :ets.insert(table, object)
-      %{state | subs: Map.put(state.subs, Process.monitor(pid), {table, object})}
+      GenServer.cast(:tartarus_overlay, {:"$tartarus_sub", table, object})
     end
+
+    state
   end
 
   defp drop_sub(state, table, object) do
     :ets.delete_object(table, object)
-    {gone, subs} = Enum.split_with(state.subs, fn {_, sub} -> sub === {table, object} end)
-    Enum.each(gone, fn {mref, _} -> Process.demonitor(mref, [:flush]) end)
-    %{state | subs: Map.new(subs)}
+    GenServer.cast(:tartarus_overlay, {:"$tartarus_unsub", table, object})
+    state
   end
 
-  defp local(host) do
-    if Host.address?(host) and elem(Host.address(host), 1) == node(),
+  # Only this process's own host.
+  defp local(host, %{name: name}) do
+    if Host.address?(host) and Host.address(host) == {name, node()},
       do: Host.local(host),
       else: {:error, {:unknown_host, host}}
-  end
-
-  # Fields of a host are dropped when the host's server stops.
-  defp watch_host(state, %{ref: {name, _}, pid: pid}) do
-    case state.hosts do
-      %{^name => {_mref, ^pid}} ->
-        state
-
-      _ ->
-        mref = Process.monitor(pid)
-        %{state | hosts: Map.put(state.hosts, name, {mref, pid})}
-    end
   end
 
   # The match spec of a host's fields: its range of the ordered_set (the name bound in the
@@ -195,19 +335,5 @@ defmodule Tartarus.Overlay do
     if is_atom(name) and (name == :_ or String.starts_with?(Atom.to_string(name), "$")),
       do: [{{{:"$1", :_}, :_}, [{:"=:=", :"$1", {:const, name}}], [true]}],
       else: [{{{name, :_}, :_}, [], [true]}]
-  end
-
-  defp forget_host(state, mref) do
-    case Enum.find(state.hosts, fn {_, {m, _}} -> m == mref end) do
-      {name, _} ->
-        :ets.select_delete(:tartarus_signals, fields_of(name))
-
-        # Its watchers stay until they go (their monitors clear them).
-
-        %{state | hosts: Map.delete(state.hosts, name)}
-
-      nil ->
-        state
-    end
   end
 end

@@ -99,7 +99,7 @@ defmodule Tartarus.Signal do
   less.)
   """
 
-  alias Tartarus.{Events, Host, Ledger, Options}
+  alias Tartarus.{Clock, Events, Host, Ledger, Options}
 
   @typedoc "A signal's name: any plain term."
   @type name :: term()
@@ -470,51 +470,63 @@ defmodule Tartarus.Signal do
   end
 
   @doc """
-  Waits until this node's `Tartarus.Overlay` process has no pending message (signal
-  relays, broadcasts), so every field that only involves this node's hosts is complete and
-  every broadcast between them delivered (for tests and step-driven emulations that run all
-  hosts in one VM; it does not wait for other nodes).
+  Waits until no overlay process of this node (`Tartarus.Overlay` and each host's) has a
+  pending message (signal relays, broadcasts) and no relay to a host of this node is still
+  in flight over a link with a latency, so every field that only involves this node's hosts
+  is complete and every broadcast between them delivered (for tests and step-driven
+  emulations that run all hosts in one VM; it does not wait for other nodes). It waits on
+  `Tartarus.Clock` (in virtual time the relays in flight arrive meanwhile).
 
-  Returns `:ok`, or `{:error, :timeout}` when the overlay still had messages to handle (or
-  did not answer) after `timeout` ms: the fields may then be incomplete.
+  Returns `:ok`, or `{:error, :timeout}` when there were still messages to handle after
+  `timeout` ms: the fields may then be incomplete.
   """
   @spec settle(timeout()) :: :ok | {:error, :timeout}
   def settle(timeout \\ 30_000) do
     deadline =
-      if timeout == :infinity, do: :infinity, else: System.monotonic_time(:millisecond) + timeout
+      if timeout == :infinity, do: :infinity, else: Clock.monotonic_time(:millisecond) + timeout
 
-    do_settle(deadline)
+    do_settle(deadline, 0)
   end
 
-  defp do_settle(deadline) do
-    case idle?(deadline) do
-      true -> :ok
-      # Not yet: ask again after a pause (asking at once keeps a core busy and adds to the
-      # very mailbox that is being drained).
-      false -> if past?(deadline), do: {:error, :timeout}, else: pause_and_settle(deadline)
-      :timeout -> {:error, :timeout}
+  # Idle twice in a row (a relay being handled sends the next one before its process waits).
+  defp do_settle(_deadline, 2), do: :ok
+
+  defp do_settle(deadline, n) do
+    cond do
+      idle?() -> do_settle(deadline, n + 1)
+      past?(deadline) -> {:error, :timeout}
+      # Not yet: look again after a pause (looking at once keeps a core busy).
+      true -> pause_and_settle(deadline)
     end
   end
 
   defp pause_and_settle(deadline) do
-    Process.sleep(1)
-    do_settle(deadline)
+    Clock.sleep(1)
+    do_settle(deadline, 0)
   end
 
-  # Asks the overlay whether its mailbox is empty, waiting for the answer until `deadline`.
-  defp idle?(deadline) do
-    wait =
-      if deadline == :infinity,
-        do: :infinity,
-        else: max(deadline - System.monotonic_time(:millisecond), 0)
+  defp idle? do
+    overlays =
+      Registry.select(Tartarus.HostRegistry, [{{{:overlay, :"$1"}, :"$2", :_}, [], [:"$2"]}])
 
-    GenServer.call(:tartarus_overlay, :idle?, wait)
-  catch
-    :exit, {:timeout, _} -> :timeout
+    Enum.all?([Process.whereis(:tartarus_overlay) | overlays], &quiet?/1) and
+      Enum.all?(:ets.tab2list(:tartarus_overlay_in_flight), fn {name, n} ->
+        n <= 0 or Host.overlay_pid(name) == nil
+      end)
+  end
+
+  defp quiet?(nil), do: true
+
+  defp quiet?(pid) do
+    case Process.info(pid, [:message_queue_len, :status]) do
+      [message_queue_len: 0, status: :waiting] -> true
+      nil -> true
+      _ -> false
+    end
   end
 
   defp past?(:infinity), do: false
-  defp past?(deadline), do: System.monotonic_time(:millisecond) > deadline
+  defp past?(deadline), do: Clock.monotonic_time(:millisecond) > deadline
 
   @doc """
   Watches signal `name` at `host` (on any node): `pid` receives
@@ -607,9 +619,9 @@ defmodule Tartarus.Signal do
     targets = info |> Ledger.neighbours() |> List.delete(from)
 
     bytes =
-      Enum.reduce(targets, 0, fn {_, node} = to, acc ->
+      Enum.reduce(targets, 0, fn to, acc ->
         msg = {:"$tartarus_signal", to, info.ref, name, source, pack(e), hops, age_us}
-        send({:tartarus_overlay, node}, msg)
+        Host.overlay_send(to, msg, Tartarus.Transport.delay(info, to))
         acc + :erlang.external_size(msg)
       end)
 
@@ -657,7 +669,7 @@ defmodule Tartarus.Signal do
   end
 
   @doc false
-  def now_us, do: System.monotonic_time(:microsecond)
+  def now_us, do: Clock.monotonic_time(:microsecond)
 
   defp on_node(host, fun, args), do: Host.on_node(host, __MODULE__, fun, args)
 end

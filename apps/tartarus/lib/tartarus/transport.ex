@@ -52,6 +52,23 @@ defmodule Tartarus.Transport do
   def installed, do: :persistent_term.get(@key, nil)
 
   @doc """
+  The one-way delay, in ms, of a message from host `from` (as a transport is given it) to
+  host `to`: the installed transport's `c:message_delay/2`, or 0 when none is installed.
+  Every message between hosts that the platform sends (an agent's message, a signal relay,
+  a broadcast) pays it.
+  """
+  @spec delay(host() | nil, Tartarus.host()) :: non_neg_integer()
+  def delay(nil, _to), do: 0
+  def delay(%{ref: to}, to), do: 0
+
+  def delay(from, to) do
+    case installed() do
+      nil -> 0
+      transport -> transport.message_delay(from, to)
+    end
+  end
+
+  @doc """
   The properties of the link from `host` (as a transport is given it) to `dest`, as given
   to `Tartarus.connect/3` (a map), or nil when they are not linked.
   """

@@ -117,12 +117,13 @@ defmodule Tartarus.SignalTest do
     assert src1 == addr(c)
   end
 
-  test "settle/1 says when it timed out: the overlay did not get through its messages in time" do
-    overlay = Process.whereis(:tartarus_overlay)
+  test "settle/1 says when it timed out: a host's overlay did not get through its messages in time" do
+    [a, b] = line!(2)
+    overlay = Tartarus.Host.overlay_pid(b)
     me = self()
 
-    # The overlay held in a system message until released (as if busy with a long relay);
-    # released whatever happens to the test.
+    # The host's overlay held in a system message until released (as if busy with a long
+    # relay), with a broadcast waiting behind; released whatever happens to the test.
     on_exit(fn -> send(overlay, :release) end)
 
     holder =
@@ -141,6 +142,7 @@ defmodule Tartarus.SignalTest do
       end)
 
     assert_receive :overlay_held
+    send(overlay, {:"$tartarus_broadcast", addr(b), addr(a), :hello})
     assert Signal.settle(50) == {:error, :timeout}
     send(overlay, :release)
     Task.await(holder)

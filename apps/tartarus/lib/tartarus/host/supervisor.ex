@@ -5,6 +5,7 @@ defmodule Tartarus.Host.Supervisor do
   #   Host.Supervisor        :one_for_all, at most @max_restarts restarts in @max_seconds s
   #   ├── Host.Server        owns the ledger and store tables; starts, monitors, restarts
   #   │                      and (when it stops) kills the host's agents
+  #   ├── Overlay.Host       the host's signals, relays, broadcasts (Tartarus.Overlay)
   #   ├── plugins            DynamicSupervisor of the host's plugins
   #   └── Host.Keeper        brings a restarted host back (see below)
   #
@@ -42,6 +43,7 @@ defmodule Tartarus.Host.Supervisor do
 
     children = [
       {Tartarus.Host.Server, {name, opts}},
+      %{id: :overlay, start: {Tartarus.Overlay.Host, :start_link, [name]}},
       %{
         id: :plugins,
         start:
