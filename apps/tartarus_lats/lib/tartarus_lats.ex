@@ -61,7 +61,10 @@ defmodule TartarusLats do
   `query/4` takes the three built-in types by name or any agent module.
   """
 
+  alias Tartarus.Clock
   alias TartarusLats.Query
+
+  require Tartarus.Clock
 
   @typedoc "A query type, or an agent module."
   @type query_type :: :where_am_i | :where_is | :trace | module()
@@ -84,8 +87,8 @@ defmodule TartarusLats do
   the built-in queries a map with `:answer`, `:hops`, `:route`,
   `:answered_at`, `:cloud_contacts`, `:per_node_contacts`,
   `:per_query_contacts`, `:elapsed_us`), or `{:error, reason}`.
-  `:elapsed_us` is the answering node's monotonic clock minus the starting
-  node's: meaningful only when both run in one VM. `TartarusLats.Experiment`
+  `:elapsed_us` is the answering node's `Tartarus.Clock.monotonic_time/1` minus the
+  starting node's: meaningful only when both run in one VM. `TartarusLats.Experiment`
   measures latency in the releasing process instead (one clock).
   """
   @spec query(Tartarus.host_ref(), query_type(), term(), keyword()) ::
@@ -118,7 +121,7 @@ defmodule TartarusLats do
   @doc "Waits for the result of a released query agent."
   @spec await(Tartarus.agent_id(), timeout()) :: {:ok, term()} | {:error, term()}
   def await(id, timeout \\ 60_000) do
-    receive do
+    Clock.receive do
       {:tartarus_result, ^id, result} -> {:ok, result}
       {:tartarus_removed, ^id, reason} -> {:error, {:removed, reason}}
     after

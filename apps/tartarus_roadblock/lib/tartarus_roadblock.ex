@@ -36,7 +36,10 @@ defmodule TartarusRoadblock do
   `TartarusArena.CameraPlugin`.
   """
 
+  alias Tartarus.Clock
   alias TartarusArena.World
+
+  require Tartarus.Clock
 
   @schema [
     seed: [type: :integer, default: 1, doc: "seed of the arena's noise and the block's place"],
@@ -120,14 +123,21 @@ defmodule TartarusRoadblock do
     end
   end
 
-  # The background run answers await/1 (from any process) for 10 minutes.
+  # The background run answers await/1 (from any process) until 10 minutes pass without a
+  # request: minutes of the machine's time (a person's, in iex), which in virtual time would
+  # go by at once while the VM waits for that person.
   defp serve_result(result) do
+    tag = make_ref()
+    timer = Clock.machine_send_after(self(), {:roadblock_served, tag}, 600_000)
+
     receive do
       {:roadblock_await, from, ref} ->
+        Clock.cancel_timer(timer)
         send(from, {ref, result})
         serve_result(result)
-    after
-      600_000 -> :ok
+
+      {:roadblock_served, ^tag} ->
+        :ok
     end
   end
 
@@ -151,7 +161,7 @@ defmodule TartarusRoadblock do
     with pid when is_pid(pid) <- :persistent_term.get({__MODULE__, :run}, nil),
          ref = Process.monitor(pid),
          _ = send(pid, {:roadblock_await, self(), ref}) do
-      receive do
+      Clock.receive do
         {^ref, result} ->
           Process.demonitor(ref, [:flush])
           result
@@ -186,7 +196,7 @@ defmodule TartarusRoadblock do
   end
 
   defp await_reply(ref) do
-    receive do
+    Clock.receive do
       {^ref, reply} -> reply
     after
       15_000 -> nil

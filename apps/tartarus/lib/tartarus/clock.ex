@@ -352,8 +352,13 @@ defmodule Tartarus.Clock do
   # first, then a rank drawn from the seed and the arming sequence (a seeded order of the
   # timers due at one instant), then the sequence itself (unique). The atomics hold: 1 the
   # time now (µs), 2 the arming sequence, 3 the wall clock's offset (µs).
-  defp due({_tab, at, _}, time, opts) when is_integer(time) and time >= 0 do
-    if opts[:abs], do: time * 1000, else: :atomics.get(at, 1) + time * 1000
+  # An absolute time may be negative (the BEAM's monotonic time usually is).
+  defp due({_tab, at, _}, time, opts) when is_integer(time) do
+    cond do
+      opts[:abs] -> time * 1000
+      time >= 0 -> :atomics.get(at, 1) + time * 1000
+      true -> raise ArgumentError, "expected a non-negative time in ms, got: #{time}"
+    end
   end
 
   defp arm({tab, at, seed}, due_us, dest, what) do

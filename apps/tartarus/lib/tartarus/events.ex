@@ -10,7 +10,7 @@ defmodule Tartarus.Events do
 
   Each event is delivered to subscribers as `{:tartarus_event, event}` where `event` is a map
   with at least `:type`, `:host` (the host it happened on, as `{name, node}`) and `:time`
-  (`System.system_time(:microsecond)`). The types and their extra keys:
+  (`Tartarus.Clock.system_time(:microsecond)`). The types and their extra keys:
 
   | type           | extra keys                                   | counted as        |
   |----------------|----------------------------------------------|-------------------|
@@ -158,7 +158,8 @@ defmodule Tartarus.Events do
   @spec drop(term(), :info | :cast | :call, term(), map() | nil) :: :ok
   def drop(service, kind, message, host \\ nil) do
     n = :ets.update_counter(@dropped_table, service, {2, 1}, {service, 0, -@log_interval_ms})
-    now = System.monotonic_time(:millisecond)
+    # A rate of log lines, for whoever reads the log: the machine's time in either mode.
+    now = Tartarus.Clock.machine_time(:millisecond)
     last = :ets.lookup_element(@dropped_table, service, 3)
 
     if now - last >= @log_interval_ms do
@@ -186,7 +187,7 @@ defmodule Tartarus.Events do
   process started there (for instance with `:erpc.call/4`).
 
   With `budget: {n, ms}` the caller gets at most about `n` events in each window of `ms`
-  milliseconds: the first ones of the window; the others are not sent at all (emitting them
+  milliseconds (of `Tartarus.Clock.monotonic_time/1`): the first ones of the window; the others are not sent at all (emitting them
   costs the emitter two atomic operations, not a message), and they are still counted in
   `type_totals/0` and the hosts' counters (`Tartarus.status/2`). For a watcher that shows a
   sample of the events and exact counts, without a message per event however busy the node is.
@@ -206,7 +207,7 @@ defmodule Tartarus.Events do
         {n, ms} when is_integer(n) and n > 0 and is_integer(ms) and ms > 0 ->
           ref = :atomics.new(2, signed: true)
           # The window now (monotonic time may be negative: windows only grow from here).
-          :atomics.put(ref, 1, div(System.monotonic_time(:millisecond), ms))
+          :atomics.put(ref, 1, div(Tartarus.Clock.monotonic_time(:millisecond), ms))
           {:budget, ref, n, ms}
 
         other ->
@@ -275,7 +276,8 @@ defmodule Tartarus.Events do
           :ok
 
         subscribers ->
-          msg = {:tartarus_event, Map.put_new(event, :time, System.system_time(:microsecond))}
+          time = Tartarus.Clock.system_time(:microsecond)
+          msg = {:tartarus_event, Map.put_new(event, :time, time)}
 
           Enum.each(subscribers, fn
             {pid, nil} -> send(pid, msg)
@@ -292,7 +294,7 @@ defmodule Tartarus.Events do
   # in it. The emitter that first sees a new window resets the count (a few emitters racing
   # there may let a few more through: "at most about n").
   defp within?(ref, n, ms) do
-    w = div(System.monotonic_time(:millisecond), ms)
+    w = div(Tartarus.Clock.monotonic_time(:millisecond), ms)
 
     case :atomics.get(ref, 1) do
       ^w ->

@@ -97,7 +97,7 @@ defmodule Tartarus.Ledger do
   # (a GenServer from, or nil) is who waits for the move to finish: a destination that
   # learns of the commit by asking (the commit message was lost) answers it.
   def put_pointer(host, id, name, dest, mig, copy, notify) do
-    now = System.system_time(:microsecond)
+    now = Tartarus.Clock.system_time(:microsecond)
     :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
     if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
   end

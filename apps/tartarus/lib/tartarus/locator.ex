@@ -9,7 +9,8 @@ defmodule Tartarus.Locator do
   # that start again count against @max_chase.
 
   import Bitwise, only: [<<<: 2]
-  alias Tartarus.{Host, Ledger}
+  require Tartarus.Clock
+  alias Tartarus.{Clock, Host, Ledger}
 
   @max_chase 64
   # How far (overlay hops between nodes) and how long (ms per node asked) an agent known by
@@ -58,7 +59,7 @@ defmodule Tartarus.Locator do
       mref = Process.monitor(pid)
       send(pid, {:"$gen_call", {self(), mref}, op})
 
-      receive do
+      Clock.receive do
         {^mref, {:error, :in_transit}} ->
           Process.demonitor(mref, [:flush])
           backoff(n)
@@ -84,17 +85,13 @@ defmodule Tartarus.Locator do
        when tag == mref do
     new_ref = Process.monitor(new_pid)
 
-    receive do
+    Clock.receive do
       {^mref, reply} ->
         Process.demonitor(new_ref, [:flush])
         reply
 
       {:DOWN, ^new_ref, :process, _, reason} ->
-        receive do
-          {^mref, reply} -> reply
-        after
-          0 -> {:error, {:destination_down, reason}}
-        end
+        reply_or(mref, {:error, {:destination_down, reason}})
     after
       60_000 ->
         Process.demonitor(new_ref, [:flush])
@@ -108,10 +105,19 @@ defmodule Tartarus.Locator do
   # A clone is never retried (that could make a second clone): if the agent took the
   # request, the answer still comes from the clone.
   defp after_down({:clone, _}, mref, reason, _ref, _n) do
-    receive do
+    Clock.receive do
       {^mref, reply} -> reply
     after
       10_000 -> {:error, {:outcome_unknown, reason}}
+    end
+  end
+
+  # The reply `tag` if it is in the mailbox already, else `default`.
+  defp reply_or(tag, default) do
+    receive do
+      {^tag, reply} -> reply
+    after
+      0 -> default
     end
   end
 
@@ -179,9 +185,9 @@ defmodule Tartarus.Locator do
               follow(pid, km, ref, tag, deadline, n)
 
             ms ->
-              Process.sleep(ms)
+              Clock.sleep(ms)
               result = follow(pid, km, ref, tag, deadline, n)
-              Process.sleep(ms)
+              Clock.sleep(ms)
               result
           end
 
@@ -214,7 +220,7 @@ defmodule Tartarus.Locator do
     mref = Process.monitor(pid)
     send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
 
-    receive do
+    Clock.receive do
       {^tag, :delivered} ->
         Process.demonitor(mref, [:flush])
         if kind == :post, do: :ok, else: await_reply(tag, deadline)
@@ -227,7 +233,7 @@ defmodule Tartarus.Locator do
       {^tag, :retry} ->
         # A paused copy with a full stash did not keep it: send it again a little later.
         Process.demonitor(mref, [:flush])
-        Process.sleep(min(2, remaining(deadline)))
+        Clock.sleep(min(2, remaining(deadline)))
         follow(pid, km, ref, tag, deadline, n)
 
       {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
@@ -245,7 +251,7 @@ defmodule Tartarus.Locator do
   end
 
   defp await_reply(tag, deadline) do
-    receive do
+    Clock.receive do
       {^tag, {:reply, value}} -> {:ok, value}
       {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
     after
@@ -256,7 +262,7 @@ defmodule Tartarus.Locator do
   defp in_time(:infinity), do: :ok
   defp in_time(deadline), do: if(now() < deadline, do: :ok, else: {:error, :timeout})
 
-  defp now, do: System.monotonic_time(:millisecond)
+  defp now, do: Clock.monotonic_time(:millisecond)
   defp remaining(:infinity), do: :infinity
   defp remaining(deadline), do: max(deadline - now(), 0)
 
@@ -276,7 +282,7 @@ defmodule Tartarus.Locator do
         :exit, _ -> control(ref, op, n - 1)
       else
         {:error, :in_transit} ->
-          Process.sleep(5)
+          Clock.sleep(5)
           control(ref, op, n - 1)
 
         result ->
@@ -288,7 +294,7 @@ defmodule Tartarus.Locator do
   # Between retries of an agent caught in a hand-off: 1, 2, 4 ... 200 ms, about 12 s in all
   # (a paused copy in doubt waits for the migration timeout, 5 s by default, then asks).
   defp backoff(n) do
-    Process.sleep(min(1 <<< min(max(@max_chase - n, 0), 8), 200))
+    Clock.sleep(min(1 <<< min(max(@max_chase - n, 0), 8), 200))
     true
   end
 

@@ -181,7 +181,7 @@ defmodule Tartarus.Plugin do
     :exit, _ -> nil
   end
 
-  defp last(value), do: %{value: value, at: System.system_time(:millisecond)}
+  defp last(value), do: %{value: value, at: Tartarus.Clock.system_time(:millisecond)}
 
   @impl true
   def init({name, module, opts}) do

@@ -539,7 +539,8 @@ defmodule Tartarus.Signal do
       iex> Tartarus.emit_signal(:sw_a, :food, 10, span: 2)
       :ok
       iex> b = Tartarus.Host.address(:sw_b)
-      iex> receive do {:tartarus_signal, ^b, :food} -> :arrived after 5_000 -> :missed end
+      iex> require Tartarus.Clock
+      iex> Tartarus.Clock.receive do {:tartarus_signal, ^b, :food} -> :arrived after 5_000 -> :missed end
       :arrived
       iex> Enum.each([:sw_a, :sw_b], &Tartarus.stop_host/1)
   """

@@ -69,6 +69,24 @@ defmodule Tartarus.Transport do
   end
 
   @doc """
+  The links of host `host` of this node, as `[{neighbour, props}]` (props as given to
+  `Tartarus.connect/3`, a map); `[]` for a host that is not on this node. For transports
+  that charge a message by its route.
+  """
+  @spec links_of(Tartarus.host()) :: [{Tartarus.host(), map()}]
+  def links_of(host) do
+    case Tartarus.Host.local(host) do
+      {:ok, info} ->
+        for n <- Tartarus.Ledger.neighbours(info), do: {n, Tartarus.Ledger.link(info, n) || %{}}
+
+      _ ->
+        []
+    end
+  rescue
+    ArgumentError -> []
+  end
+
+  @doc """
   The properties of the link from `host` (as a transport is given it) to `dest`, as given
   to `Tartarus.connect/3` (a map), or nil when they are not linked.
   """

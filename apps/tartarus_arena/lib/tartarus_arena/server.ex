@@ -5,8 +5,8 @@ defmodule TartarusArena.Server do
   `TartarusArena.RobotPlugin` naming its robot) sense and drive robots in the same world.
 
   Time advances only by `step/2` (a driver, e.g. a scenario, steps it: deterministic) or,
-  with the `:tick_ms` option, by one `:dt` step every `tick_ms` of wall time (a live arena
-  for interactive runs; not deterministic in the order commands arrive).
+  with the `:tick_ms` option, by one `:dt` step every `tick_ms` of `Tartarus.Clock` time (a
+  live arena for interactive runs; not deterministic in the order commands arrive).
 
       iex> {:ok, pid} = TartarusArena.Server.start_link(world: TartarusArena.World.new(noise: :none) |> TartarusArena.World.add_robot(:r, x: 1, y: 1))
       iex> :ok = TartarusArena.Server.set_wheels(pid, :r, 1.0, 1.0)
@@ -19,6 +19,7 @@ defmodule TartarusArena.Server do
   """
   use GenServer
 
+  alias Tartarus.Clock
   alias TartarusArena.World
 
   @typedoc "A server: pid or registered name."
@@ -78,8 +79,9 @@ defmodule TartarusArena.Server do
   @impl true
   def init(opts) do
     tick = Keyword.get(opts, :tick_ms)
-    if is_integer(tick) and tick > 0, do: :timer.send_interval(tick, :tick)
-    {:ok, %{world: Keyword.fetch!(opts, :world), dt: Keyword.get(opts, :dt, 0.02)}}
+    tick = if is_integer(tick) and tick > 0, do: tick
+    s = %{world: Keyword.fetch!(opts, :world), dt: Keyword.get(opts, :dt, 0.02), tick: tick}
+    {:ok, if(tick, do: arm_tick(s, Clock.monotonic_time(:millisecond) + tick), else: s)}
   end
 
   @impl true
@@ -106,6 +108,17 @@ defmodule TartarusArena.Server do
   end
 
   @impl true
+  def handle_info({:tick, at}, %{next_tick: at} = s),
+    do: handle_info(:tick, arm_tick(s, at + s.tick))
+
   def handle_info(:tick, s), do: {:noreply, %{s | world: World.step(s.world, %{}, s.dt)}}
   def handle_info(_msg, s), do: {:noreply, s}
+
+  # One tick every `tick` ms at fixed instants of Tartarus.Clock (as :timer.send_interval/2:
+  # a late tick does not delay the next ones). A relative delay, not `abs: true`: the
+  # monotonic time may be negative.
+  defp arm_tick(s, at) do
+    Clock.send_after(self(), {:tick, at}, max(at - Clock.monotonic_time(:millisecond), 0))
+    Map.put(s, :next_tick, at)
+  end
 end

@@ -23,6 +23,9 @@ defmodule TartarusEmu.DashboardBench do
   """
 
   alias TartarusEmu.{Network, Topology}
+  alias Tartarus.Clock
+  alias TartarusTools.MachineClock
+  require TartarusTools.MachineClock
   alias TartarusTools.Dashboard
   alias TartarusTools.Dashboard.{Browser, Health}
 
@@ -106,9 +109,9 @@ defmodule TartarusEmu.DashboardBench do
   defp ring(n), do: Topology.ring(n)
 
   defp throughput(opts) do
-    t_net = System.monotonic_time(:millisecond)
+    t_net = Clock.machine_time(:millisecond)
     {:ok, net} = Network.start(ring(opts[:hosts]))
-    network_ms = System.monotonic_time(:millisecond) - t_net
+    network_ms = Clock.machine_time(:millisecond) - t_net
     hosts = net |> Network.host_list() |> List.to_tuple()
     n = tuple_size(hosts)
 
@@ -214,7 +217,7 @@ defmodule TartarusEmu.DashboardBench do
 
         {:ok, r0} = Browser.eval(browser, "S.received")
         {agents, us} = drive(agents, hosts, opts[:moves])
-        Process.sleep(600)
+        Clock.machine_sleep(600)
         {:ok, r1} = Browser.eval(browser, "[S.received, S.batches]")
         :ok = Browser.open(browser, "about:blank")
         {agents, us, %{page_events: hd(r1) - r0, page_batches: List.last(r1)}}
@@ -222,7 +225,7 @@ defmodule TartarusEmu.DashboardBench do
         sock = sse_connect(Dashboard.port(dash))
         reader = spawn_link(fn -> sse_drain(sock, 0) end)
         {agents, us} = drive(agents, hosts, opts[:moves])
-        Process.sleep(600)
+        Clock.machine_sleep(600)
         send(reader, {:done, self()})
 
         bytes =
@@ -273,7 +276,7 @@ defmodule TartarusEmu.DashboardBench do
   # Every agent moves `moves` times to the next host of the ring, each by its own process.
   defp drive(agents, hosts, moves) do
     n = tuple_size(hosts)
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Clock.machine_time(:microsecond)
 
     agents =
       agents
@@ -289,7 +292,7 @@ defmodule TartarusEmu.DashboardBench do
       end)
       |> Task.await_many(:infinity)
 
-    {agents, System.monotonic_time(:microsecond) - t0}
+    {agents, Clock.machine_time(:microsecond) - t0}
   end
 
   defp sse_connect(port) do
@@ -340,7 +343,7 @@ defmodule TartarusEmu.DashboardBench do
       holder = Node.spawn(node, __MODULE__, :hold, [me, rows, cols, opts[:big_agents]])
       ref = Process.monitor(holder)
 
-      receive do
+      MachineClock.receive do
         {:ready, info} -> measure_big(info, hosts, opts)
         {:DOWN, ^ref, _, _, reason} -> %{error: "the big network failed: #{inspect(reason)}"}
       after
@@ -355,10 +358,10 @@ defmodule TartarusEmu.DashboardBench do
   # Runs on the big node: starts the grid, its agents and a dashboard, reports, keeps 100
   # agents moving, and lives until the node stops.
   def hold(from, rows, cols, n_agents) do
-    t0 = System.monotonic_time(:millisecond)
+    t0 = Clock.machine_time(:millisecond)
     topo = Topology.grid(rows, cols)
     {:ok, net} = Network.start(topo)
-    t1 = System.monotonic_time(:millisecond)
+    t1 = Clock.machine_time(:millisecond)
     nodes = topo.nodes
     count = length(nodes)
     step = max(div(count, n_agents), 1)
@@ -374,7 +377,7 @@ defmodule TartarusEmu.DashboardBench do
       end
 
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
-    t2 = System.monotonic_time(:millisecond)
+    t2 = Clock.machine_time(:millisecond)
 
     send(from, {:ready, %{url: Dashboard.url(dash), network_ms: t1 - t0, agents_ms: t2 - t1}})
     walk(net, topo, Enum.take(agents, 100))
@@ -391,7 +394,7 @@ defmodule TartarusEmu.DashboardBench do
         end
       end)
 
-    Process.sleep(100)
+    Clock.sleep(100)
     walk(net, topo, agents)
   end
 
@@ -414,9 +417,9 @@ defmodule TartarusEmu.DashboardBench do
       Map.new(@big_paths, fn path ->
         times =
           for _ <- 1..3 do
-            t0 = System.monotonic_time(:microsecond)
+            t0 = Clock.machine_time(:microsecond)
             {:ok, body} = get(base <> path)
-            {System.monotonic_time(:microsecond) - t0, byte_size(body)}
+            {Clock.machine_time(:microsecond) - t0, byte_size(body)}
           end
 
         {path,
@@ -431,11 +434,11 @@ defmodule TartarusEmu.DashboardBench do
       case Browser.executable() && Browser.start() do
         {:ok, b} ->
           try do
-            t0 = System.monotonic_time(:millisecond)
+            t0 = Clock.machine_time(:millisecond)
             :ok = Browser.open(b, info.url)
             :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 60_000)
-            ready = System.monotonic_time(:millisecond) - t0
-            Process.sleep(4_000)
+            ready = Clock.machine_time(:millisecond) - t0
+            Clock.machine_sleep(4_000)
 
             {:ok, seen} =
               Browser.eval(b, """

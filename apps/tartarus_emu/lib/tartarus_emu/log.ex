@@ -37,6 +37,7 @@ defmodule TartarusEmu.Log do
   use GenServer
 
   alias TartarusEmu.Log.{Counts, Forwarder}
+  alias Tartarus.Clock
   alias TartarusTools.Report
 
   @typedoc "A running log."
@@ -128,7 +129,7 @@ defmodule TartarusEmu.Log do
     if settled or timeout_ms <= 0 do
       t
     else
-      Process.sleep(10)
+      Clock.sleep(10)
       settled_totals(log, timeout_ms - 10)
     end
   end

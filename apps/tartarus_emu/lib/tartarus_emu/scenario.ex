@@ -55,6 +55,7 @@ defmodule TartarusEmu.Scenario do
   """
 
   alias TartarusTools.{Progress, Report, Series, SVG}
+  alias Tartarus.Clock
 
   @typedoc "A scenario's state (anything)."
   @type state :: term()
@@ -183,14 +184,14 @@ defmodule TartarusEmu.Scenario do
         |> Map.new()
         |> Map.merge(%{seed: seed, rng: :rand.seed_s(:exsss, seed), steps: steps})
 
-      t0 = System.monotonic_time(:millisecond)
+      t0 = Clock.machine_time(:millisecond)
 
       with {:ok, state} <- module.setup(setup_opts),
            {:ok, dash} <- dashboard(module, state, runner) do
         try do
-          t1 = System.monotonic_time(:millisecond)
+          t1 = Clock.machine_time(:millisecond)
           {state, ran} = loop(module, state, steps, runner)
-          t2 = System.monotonic_time(:millisecond)
+          t2 = Clock.machine_time(:millisecond)
 
           runner_keys = %{
             scenario: module.name(),
@@ -254,7 +255,7 @@ defmodule TartarusEmu.Scenario do
     {state, ran, progress} =
       Enum.reduce_while(1..steps, {state, 0, progress}, fn step, {state, _, progress} ->
         state = module.step(state, step)
-        if runner[:step_ms] > 0, do: Process.sleep(runner[:step_ms])
+        if runner[:step_ms] > 0, do: Clock.sleep(runner[:step_ms])
         progress = Progress.advance(progress)
 
         if done? and module.done?(state, step),

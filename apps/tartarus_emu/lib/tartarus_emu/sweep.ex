@@ -110,6 +110,7 @@ defmodule TartarusEmu.Sweep do
   """
 
   alias TartarusTools.{Report, Stats, SVG}
+  alias Tartarus.Clock
 
   @typedoc "One arm: a name and the options its runs read."
   @type arm :: %{name: String.t(), opts: term()}
@@ -298,7 +299,7 @@ defmodule TartarusEmu.Sweep do
     total = length(plan)
     concurrency = Map.get(o, :concurrency) || spec.concurrency
 
-    t0 = System.monotonic_time(:millisecond)
+    t0 = Clock.machine_time(:millisecond)
     # The standard devices get the lines only when they are a terminal.
     quiet? =
       o.quiet or
@@ -316,7 +317,7 @@ defmodule TartarusEmu.Sweep do
         secs = :erlang.float_to_binary(run.ms / 1000, decimals: 1)
 
         # What, k of n, elapsed and ETA (from the mean time per run so far).
-        elapsed = System.monotonic_time(:millisecond) - t0
+        elapsed = Clock.machine_time(:millisecond) - t0
         eta = div(elapsed * (total - done), done)
 
         IO.puts(
@@ -347,7 +348,7 @@ defmodule TartarusEmu.Sweep do
   end
 
   defp run_one(fun, arm, seed) do
-    t0 = System.monotonic_time(:millisecond)
+    t0 = Clock.machine_time(:millisecond)
 
     {summary, data} =
       case fun.(arm, seed) do
@@ -355,7 +356,7 @@ defmodule TartarusEmu.Sweep do
         summary when is_map(summary) -> {summary, nil}
       end
 
-    ms = System.monotonic_time(:millisecond) - t0
+    ms = Clock.machine_time(:millisecond) - t0
     %{arm: arm.name, opts: arm.opts, seed: seed, summary: summary, data: data, ms: ms}
   end
 

@@ -54,6 +54,8 @@ defmodule TartarusEmu.Walk do
 
   alias TartarusEmu.{Dynamics, Energy, Log, Network, Topology}
   alias TartarusTools.Series
+  alias Tartarus.Clock
+  require Tartarus.Clock
 
   @schema [
     topology: [type: :any, default: "grid", doc: "grid, ring, line, random, a file or a topology"],
@@ -152,7 +154,7 @@ defmodule TartarusEmu.Walk do
     strategy = opt(opts, :strategy)
     p = opt(opts, :p)
     seed = opts.seed
-    t_start = System.monotonic_time(:millisecond)
+    t_start = Clock.machine_time(:millisecond)
 
     with {:ok, topo} <- topology(opts),
          :ok <- check(strategy in [:random, :conscientious], "strategy", strategy),
@@ -164,14 +166,14 @@ defmodule TartarusEmu.Walk do
              link: link_opts(opts),
              host_opts: [migration_timeout: opt(opts, :migration_timeout_ms)]
            ) do
-      t_net = System.monotonic_time(:millisecond)
+      t_net = Clock.machine_time(:millisecond)
       {:ok, log} = Log.start(net, keep_events: opt(opts, :keep_events))
       place_rng = :rand.seed_s(:exsss, {seed, 1, 0})
       agents = opt(opts, :agents)
       {homes, _} = homes(topo, agents, place_rng)
       :ok = create_agents(net, homes, strategy, seed)
       1 = Log.tick(log)
-      t_agents = System.monotonic_time(:millisecond)
+      t_agents = Clock.machine_time(:millisecond)
 
       {:ok,
        %{
@@ -314,16 +316,16 @@ defmodule TartarusEmu.Walk do
 
   @impl true
   def step(s, k) do
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Clock.machine_time(:microsecond)
 
     {events, dyn, dyn_rng} =
       if s.p > 0, do: Dynamics.step(s.dyn, s.p, s.dyn_rng), else: {[], s.dyn, s.dyn_rng}
 
     Network.apply_dynamics(s.net, events)
     reached = Network.broadcast(s.net, {:emu_step, k})
-    deadline = System.monotonic_time(:millisecond) + s.step_timeout
+    deadline = Clock.monotonic_time(:millisecond) + s.step_timeout
     {moved, failed, visited, trail} = await(k, reached, {0, 0, s.visited, s.trail}, deadline)
-    wall_us = System.monotonic_time(:microsecond) - t0
+    wall_us = Clock.machine_time(:microsecond) - t0
     lost = reached - moved - failed
     ^k = Log.tick(s.log) - 1
     totals = Log.totals(s.log, k)
@@ -359,9 +361,9 @@ defmodule TartarusEmu.Walk do
     do: acc
 
   defp await(k, reached, {moved, failed, visited, trail} = acc, deadline) do
-    timeout = max(deadline - System.monotonic_time(:millisecond), 0)
+    timeout = max(deadline - Clock.monotonic_time(:millisecond), 0)
 
-    receive do
+    Clock.receive do
       {:emu_traced, ^k, host} ->
         await(k, reached, {moved, failed, visited, [{k, host} | trail]}, deadline)
 

@@ -60,6 +60,7 @@ defmodule TartarusImmune.Experiment do
   """
   @behaviour TartarusEmu.Scenario
 
+  alias Tartarus.Clock
   alias TartarusEmu.{Network, Topology}
   alias TartarusImmune.{Cache, Convergence, IPkt, Params}
   alias TartarusImmune.Experiment.HeldOut
@@ -336,7 +337,7 @@ defmodule TartarusImmune.Experiment do
 
       for _ <- 1..3 do
         :erpc.multicall(nodes, Tartarus.Signal, :settle, [], 60_000)
-        Process.sleep(20)
+        Clock.sleep(20)
       end
     end
 

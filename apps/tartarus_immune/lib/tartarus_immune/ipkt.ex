@@ -33,7 +33,10 @@ defmodule TartarusImmune.IPkt do
   """
   use Tartarus.Agent
 
+  alias Tartarus.Clock
   alias TartarusImmune.Maths
+
+  require Tartarus.Clock
 
   @doc """
   Creates a fresh iPkt of solution `sol` mapped to feature vector `fv` on `host`, for an
@@ -178,7 +181,7 @@ defmodule TartarusImmune.IPkt do
   """
   @spec next_event(reference(), timeout(), String.t()) :: {atom(), term()}
   def next_event(run, timeout, message) do
-    receive do
+    Clock.receive do
       {:immune, ^run, ev, _tag, sol} -> {ev, sol}
     after
       timeout -> raise message

@@ -11,6 +11,8 @@ defmodule TartarusNode.Boot do
   use GenServer
   require Logger
 
+  alias Tartarus.Clock
+
   @retry_ms 2_000
 
   @doc false
@@ -51,7 +53,7 @@ defmodule TartarusNode.Boot do
   @impl true
   def handle_info(:link, s) do
     missing = Enum.reject(s.missing, &(Tartarus.connect(s.host, &1) == :ok))
-    if missing != [], do: Process.send_after(self(), :link, @retry_ms)
+    if missing != [], do: Clock.send_after(self(), :link, @retry_ms)
     {:noreply, %{s | missing: missing}}
   end
 

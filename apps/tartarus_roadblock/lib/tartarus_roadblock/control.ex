@@ -3,8 +3,13 @@ defmodule TartarusRoadblock.Control do
   The administrator's hand on a run that waits (`TartarusRoadblock.start/1`): releasing the
   rescue agent, for `TartarusRoadblock.release_rescue/1` in iex and the dashboard's
   button (`TartarusRoadblock.Panel`). It talks to the run's driver (the process registered
-  as `TartarusRoadblock.Driver`) by message, and depends on nothing else.
+  as `TartarusRoadblock.Driver`) by message, and depends on nothing else but
+  `Tartarus.Clock`.
   """
+
+  alias Tartarus.Clock
+
+  require Tartarus.Clock
 
   @doc """
   Releases the rescue agent of the run waiting for its administrator (see
@@ -21,7 +26,7 @@ defmodule TartarusRoadblock.Control do
         ref = make_ref()
         send(pid, {:roadblock_release, self(), ref, opts})
 
-        receive do
+        Clock.receive do
           {^ref, reply} -> reply
         after
           60_000 -> {:error, :no_run_waiting}

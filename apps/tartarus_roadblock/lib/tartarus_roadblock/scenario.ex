@@ -15,13 +15,16 @@ defmodule TartarusRoadblock.Scenario do
   a `:tick` request, then the arena steps. The world stands still while the network
   works (the report, the snapshot, the administrator, the rescue agent's walk), so the
   same seed gives the same run in either mode; the timeline records both the arena's time
-  and the wall clock.
+  and the wall clock (the machine's, `Tartarus.Clock.machine_time/1`).
   """
   @behaviour TartarusEmu.Scenario
 
+  alias Tartarus.Clock
   alias TartarusArena.{Server, World}
   alias TartarusEmu.Network
   alias TartarusRoadblock.{Admin, Commuter, Monitor, Rescuer}
+
+  require Tartarus.Clock
 
   @dt 0.05
   @driver TartarusRoadblock.Driver
@@ -63,7 +66,7 @@ defmodule TartarusRoadblock.Scenario do
            seed: opts.seed,
            phase: :driving,
            t: 0.0,
-           t0: System.monotonic_time(:millisecond),
+           t0: Clock.machine_time(:millisecond),
            block_placed: false,
            santa: %{phase: :driving},
            santa_host: Network.host(net, :pc1),
@@ -246,7 +249,7 @@ defmodule TartarusRoadblock.Scenario do
     s = %{s | paused_ms: now(s)}
 
     {png, report} =
-      receive do
+      Clock.receive do
         {:roadblock_snapshot, png, report} -> {png, report}
       after
         30_000 -> raise "roadblock: no snapshot reached the administrator within 30 s"
@@ -306,7 +309,7 @@ defmodule TartarusRoadblock.Scenario do
   end
 
   defp await_install(s) do
-    receive do
+    Clock.receive do
       {:roadblock_visit, host, robot, caps} ->
         what = if robot, do: "#{robot}: #{Enum.join(caps, ", ")}", else: "no robot"
 
@@ -345,7 +348,7 @@ defmodule TartarusRoadblock.Scenario do
 
     if r.phase == :done do
       result =
-        receive do
+        Clock.receive do
           {:tartarus_result, _, result} -> result
         after
           10_000 -> raise "roadblock: the rescue agent did not return"
@@ -528,7 +531,8 @@ defmodule TartarusRoadblock.Scenario do
     %{s | timeline: [e | s.timeline]}
   end
 
-  defp now(s), do: System.monotonic_time(:millisecond) - s.t0
+  # The wall clock's ms since the setup (the timeline's `wall_ms`: the machine's time).
+  defp now(s), do: Clock.machine_time(:millisecond) - s.t0
 
   defp host_name(s, host) do
     case Network.topo_node(s.net, host) do

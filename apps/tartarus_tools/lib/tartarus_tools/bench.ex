@@ -14,6 +14,8 @@ defmodule TartarusTools.Bench do
   throughput from wall-clock time of the whole run.
   """
 
+  require Tartarus.Clock
+
   @bouncer """
   defmodule TartarusTools.Bench.Bouncer do
     @moduledoc false
@@ -121,10 +123,12 @@ defmodule TartarusTools.Bench do
     try do
       apply(fun, peers)
     after
-      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
+      stop_peers(peers)
       File.rm_rf(dir)
     end
   end
+
+  defp stop_peers(peers), do: Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
 
   @doc false
   # Runs on the node that hosts the agents' home; `h2` is the other end (here or remote).
@@ -282,18 +286,18 @@ defmodule TartarusTools.Bench do
       end
 
     # Timed from the first order to move (creating the agents is not a migration).
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Tartarus.Clock.machine_time(:microsecond)
     Enum.each(ids, fn id -> :ok = Tartarus.post({id, h1}, :go) end)
 
     Enum.each(ids, fn id ->
-      receive do
+      Tartarus.Clock.receive do
         {:tartarus_result, ^id, :done} -> :ok
       after
         300_000 -> raise "agent #{id} did not finish its hops within 5 minutes"
       end
     end)
 
-    max(System.monotonic_time(:microsecond) - t0, 1)
+    max(Tartarus.Clock.machine_time(:microsecond) - t0, 1)
   end
 
   @doc false
@@ -335,7 +339,7 @@ defmodule TartarusTools.Bench do
     :erlang.garbage_collect()
     mem0 = :erlang.memory(:total)
     if profile, do: :ok = TartarusTools.Bench.Profile.start()
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Tartarus.Clock.machine_time(:microsecond)
     per = div(count, creators)
 
     1..creators
@@ -349,10 +353,10 @@ defmodule TartarusTools.Bench do
     end)
     |> Task.await_many(:infinity)
 
-    wall_us = max(System.monotonic_time(:microsecond) - t0, 1)
+    wall_us = max(Tartarus.Clock.machine_time(:microsecond) - t0, 1)
     profiled = if profile, do: %{profile: TartarusTools.Bench.Profile.stop(30)}, else: %{}
     # Resident and idle: let the agents hibernate (they do after 1 s without messages).
-    Process.sleep(3_000)
+    Tartarus.Clock.machine_sleep(3_000)
     mem1 = :erlang.memory(:total)
     resident = Tartarus.status(host).resident
 

@@ -67,6 +67,8 @@ defmodule TartarusTools.Chaos do
 
   alias TartarusTools.Peer
   alias TartarusTools.Chaos.Counter
+  alias Tartarus.Clock
+  require Tartarus.Clock
 
   @workers 8
 
@@ -111,7 +113,7 @@ defmodule TartarusTools.Chaos do
 
     world = Map.put(world, :arrivals, spawn_link(fn -> arrivals_loop(world.table) end))
 
-    t0 = System.monotonic_time(:millisecond)
+    t0 = Clock.machine_time(:millisecond)
 
     try do
       nodes = Enum.map(names, &start_node(world, &1))
@@ -188,7 +190,7 @@ defmodule TartarusTools.Chaos do
   defp loop(world, ids, hosts, migrations, counter, rng) do
     # Workers hold off while a killed node restarts: failed attempts are quick, and without
     # this the schedule's later faults would all fall due at once, with nobody moving.
-    if :atomics.get(counter, 3) == 1, do: Process.sleep(20)
+    if :atomics.get(counter, 3) == 1, do: Clock.sleep(20)
 
     {i, rng} = :rand.uniform_s(tuple_size(ids), rng)
     {j, rng} = :rand.uniform_s(tuple_size(hosts), rng)
@@ -340,7 +342,7 @@ defmodule TartarusTools.Chaos do
     progress.(attempted)
 
     if :atomics.get(counter, 2) < mark and attempted <= migrations do
-      Process.sleep(10)
+      Clock.sleep(10)
       wait_for(counter, mark, migrations, progress)
     end
   end
@@ -357,7 +359,7 @@ defmodule TartarusTools.Chaos do
 
     Peer.kill(node)
     :atomics.put(counter, 3, 1)
-    Process.sleep(100)
+    Clock.sleep(100)
     name = node |> Atom.to_string() |> String.split("@") |> hd() |> String.to_atom()
     ^node = start_node(world, name)
     :ets.delete(world.table, {:dead, node})
@@ -379,7 +381,7 @@ defmodule TartarusTools.Chaos do
       _, _ -> :ok
     end
 
-    Process.sleep(300)
+    Clock.sleep(300)
     Peer.heal(a, b)
   end
 
@@ -469,7 +471,7 @@ defmodule TartarusTools.Chaos do
   end
 
   defp rogue_loop(world, node, replays, counter, rng, sent) do
-    receive do
+    Clock.receive do
       # The workers are done: what is still due goes now.
       :stop -> elem(replay(world, node, replays - sent, rng), 1) + sent
     after
@@ -516,7 +518,7 @@ defmodule TartarusTools.Chaos do
     paused = Enum.sum(for h <- hosts, do: paused(h))
 
     if paused > 0 and tries > 0 do
-      Process.sleep(100)
+      Clock.sleep(100)
       settle(hosts, tries - 1)
     else
       paused
@@ -545,7 +547,7 @@ defmodule TartarusTools.Chaos do
   defp census(world, hosts, every_ms), do: census(world, hosts, every_ms, {0, 0, 0})
 
   defp census(world, hosts, every_ms, {rounds, dups, unanswered}) do
-    receive do
+    Clock.receive do
       :stop -> %{census_rounds: rounds, transient_duplicates: dups, census_unanswered: unanswered}
     after
       every_ms ->
@@ -582,7 +584,7 @@ defmodule TartarusTools.Chaos do
       |> Enum.filter(fn {_, pids} -> length(Enum.uniq(pids)) > 1 end)
       |> Enum.filter(fn {_, pids} -> Enum.count(pids, &alive?/1) > 1 end)
 
-    if suspects != [], do: Process.sleep(200)
+    if suspects != [], do: Clock.sleep(200)
 
     dups =
       Enum.count(suspects, fn {id, pids} ->
@@ -656,7 +658,7 @@ defmodule TartarusTools.Chaos do
       host_opts: inspect(world.host_opts),
       seed: seed,
       still_in_doubt: settle(hosts, 0),
-      wall_ms: System.monotonic_time(:millisecond) - t0
+      wall_ms: Clock.machine_time(:millisecond) - t0
     }
   end
 

@@ -209,7 +209,7 @@ defmodule TartarusTools.Dashboard do
           "dashboard: the run is over; its page stays readable at #{url} until you stop this task (Ctrl-C)"
         )
 
-        Process.sleep(:infinity)
+        Tartarus.Clock.machine_sleep(:infinity)
       end)
     end
 

@@ -129,9 +129,11 @@ defmodule TartarusTools.Demo.Platform do
 
       :ok
     after
-      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
+      stop_peers(peers)
     end
   end
+
+  defp stop_peers(peers), do: Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
 
   defp loaded?(node, mod), do: :erpc.call(node, :code, :is_loaded, [mod]) != false
 end

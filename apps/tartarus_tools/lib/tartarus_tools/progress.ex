@@ -147,5 +147,5 @@ defmodule TartarusTools.Progress do
     _ -> false
   end
 
-  defp now_ms, do: System.monotonic_time(:millisecond)
+  defp now_ms, do: Tartarus.Clock.machine_time(:millisecond)
 end

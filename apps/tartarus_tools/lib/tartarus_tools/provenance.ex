@@ -49,7 +49,7 @@ defmodule TartarusTools.Provenance do
       git_dirty: dirty,
       otp: otp_version(),
       elixir: System.version(),
-      date: DateTime.utc_now() |> DateTime.truncate(:second) |> DateTime.to_iso8601(),
+      date: Tartarus.Clock.machine_system_time(:second) |> DateTime.from_unix!() |> DateTime.to_iso8601(),
       machine: %{
         schedulers: System.schedulers_online(),
         logical_processors: :erlang.system_info(:logical_processors_available) |> known(),

@@ -243,11 +243,16 @@ defmodule TartarusTools.Report do
       "results/lats-20240301-090507"
   """
   @spec default_out_dir(String.t() | atom, DateTime.t()) :: Path.t()
-  def default_out_dir(scenario, now \\ DateTime.utc_now()) do
+  def default_out_dir(scenario, now \\ machine_now()) do
     name = safe_name!(to_string(scenario), "default_out_dir/2")
     stamp = Calendar.strftime(now, "%Y%m%d-%H%M%S")
     Path.join("results", "#{name}-#{stamp}")
   end
+
+  # The machine's wall clock (an output directory names when the run was made, in either
+  # mode of Tartarus.Clock).
+  defp machine_now,
+    do: DateTime.from_unix!(Tartarus.Clock.machine_system_time(:microsecond), :microsecond)
 
   defp safe_name!(name, fun) do
     if Regex.match?(~r/\A[A-Za-z0-9_.\-]+\z/, name) and name not in [".", ".."] do

@@ -237,8 +237,8 @@ defmodule Tartarus.Agent.Actions do
   defp hand_off(data, kind, dest, by) do
     case Source.attempt(data, kind, dest, {kind, dest, by}) do
       {:wait, data} ->
-        {:next_state, :handing_off, data,
-         [{:state_timeout, data.host.opts.migration_timeout, :handoff}]}
+        ms = data.host.opts.migration_timeout
+        {:next_state, :handing_off, Tartarus.Agent.Server.state_timeout(data, :handing_off, ms)}
 
       {:failed, reason, data} ->
         handoff_done({:failed, reason}, {kind, dest, by}, data)

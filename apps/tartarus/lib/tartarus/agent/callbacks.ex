@@ -4,7 +4,7 @@ defmodule Tartarus.Agent.Callbacks do
   # run/3 for each callback).
   #
   # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
-  # this process arms :erlang.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
+  # this process arms Tartarus.Clock.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
   # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
   # handle_message/3 answers, or nil); after it, it erases the entry and cancels the timer.
   # The host server is the watchdog: when the timer message arrives it reads this process's
@@ -16,6 +16,13 @@ defmodule Tartarus.Agent.Callbacks do
   # a waiting requester gets {ref, {:error, {:callback_timeout, :handle_message, ms}}}
   # (Tartarus.request/3 returns the error). The host hears only of overruns: the cost per
   # callback is one timer armed and cancelled (about 1.6 µs).
+  #
+  # The budget is the design's time (Tartarus.Clock): in virtual time a callback that waits
+  # (a receive, Tartarus.Clock.sleep/1) overruns when its budget of virtual time has passed;
+  # one that computes costs no time and never overruns (a callback that never returns holds
+  # virtual time still, see Tartarus.Clock.Virtual).
+
+  alias Tartarus.Clock
 
   @ctx :"$tartarus_envelope"
   @watchdog :"$tartarus_watchdog"
@@ -49,7 +56,7 @@ defmodule Tartarus.Agent.Callbacks do
 
       ms ->
         {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
-        tref = :erlang.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
+        tref = Clock.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
         dog = {tref, name, ms, from}
         Process.put(@watchdog, dog)
         dog
@@ -61,7 +68,7 @@ defmodule Tartarus.Agent.Callbacks do
   defp disarm({tref, cb, ms, from}) do
     Process.delete(@watchdog)
 
-    if :erlang.cancel_timer(tref) do
+    if Clock.cancel_timer(tref) do
       :ok
     else
       reason = {:callback_timeout, cb, ms}

@@ -38,14 +38,24 @@ defmodule Tartarus.Agent.Server do
   # Stopping a host kills its agents outright (its server's terminate/2): this process has no
   # terminate work but ending its children, and an agent that traps exits must not hold up
   # stop_host.
+  #
+  # State timeouts are timers of Tartarus.Clock (so that a network in virtual time times its
+  # hand-offs in that time), not gen_statem's own, with gen_statem's semantics: data.timer
+  # is {timer, state} for the one armed (state_timeout/3), or nil. Arming one replaces the
+  # other; leaving the state it was armed in cancels it (every way out of :handing_off,
+  # :paused and :awaiting_commit does: cancel_state_timeout/1); and its message counts only
+  # while both are still the same (a stale one, e.g. fired as it was cancelled, is ignored
+  # in any state). Per hand-off that is what gen_statem did: one timer armed, one cancelled.
   @behaviour :gen_statem
   require Tartarus.Events
 
   alias Tartarus.Agent.Actions
+  alias Tartarus.Clock
   alias Tartarus.Ledger
   alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
   @host :"$tartarus_host"
+  @timeout :"$tartarus_state_timeout"
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
   # their state needs): a host may then hold millions of them. It is off by default because
@@ -117,7 +127,8 @@ defmodule Tartarus.Agent.Server do
       inbox: Inbox.new(),
       pending: [],
       handoff: nil,
-      held: []
+      held: [],
+      timer: nil
     }
 
     start(data, mode)
@@ -135,8 +146,8 @@ defmodule Tartarus.Agent.Server do
   defp start(data, {:paused, mig, copy, src, kind, src_pid}) do
     paused = Arrival.paused(data.host, mig, copy, src, kind, src_pid)
 
-    {:ok, :paused, %{data | paused: paused},
-     [{:state_timeout, data.host.opts.migration_timeout, :commit}]}
+    data = state_timeout(%{data | paused: paused}, :paused, data.host.opts.migration_timeout)
+    {:ok, :paused, data, []}
   end
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
@@ -162,9 +173,16 @@ defmodule Tartarus.Agent.Server do
     result
   end
 
-  # -- :running ------------------------------------------------------------------------
+  # -- state timeouts (see the top of this module) --------------------------------------
 
   @impl true
+  def handle_event(:info, {:timeout, t, {@timeout, what}}, state, %{timer: {t, state}} = data),
+    do: timed_out(what, state, %{data | timer: nil})
+
+  def handle_event(:info, {:timeout, _, {@timeout, _}}, _state, _data), do: :keep_state_and_data
+
+  # -- :running ------------------------------------------------------------------------
+
   def handle_event(:info, {:"$tartarus_msg", {pid, _}, kind, _} = m, :running, data)
       when is_pid(pid) and kind in [:post, :request],
       do: Actions.message(m, data)
@@ -210,8 +228,6 @@ defmodule Tartarus.Agent.Server do
   # Tartarus.Migration.Source reads the destination's answers; everything else waits in
   # data.held (see the top of this module).
 
-  def handle_event(:state_timeout, :handoff, :handing_off, data), do: handoff(data, :timeout)
-
   def handle_event(:info, msg, :handing_off, data) do
     case Source.event(data, msg) do
       nil -> {:keep_state, %{data | held: [{:info, msg} | data.held]}}
@@ -228,18 +244,14 @@ defmodule Tartarus.Agent.Server do
 
   # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
-  def handle_event(:state_timeout, :commit, :paused, data), do: paused(data, :timeout)
   def handle_event(:info, msg, :paused, data), do: paused(data, {:info, msg})
 
   def handle_event(:info, msg, :awaiting_commit, data) do
     case Arrival.awaited(data, msg) do
-      {:ok, handover} -> started(Arrival.finish(data, handover))
+      {:ok, handover} -> started(Arrival.finish(cancel_state_timeout(data), handover))
       :other -> {:keep_state_and_data, [:postpone]}
     end
   end
-
-  def handle_event(:state_timeout, :commit, :awaiting_commit, data),
-    do: started(Arrival.finish(data, nil))
 
   def handle_event({:call, from}, _op, state, _data) when state in [:paused, :awaiting_commit],
     do: {:keep_state_and_data, [{:reply, from, {:error, :in_transit}}]}
@@ -259,6 +271,41 @@ defmodule Tartarus.Agent.Server do
 
   # -- helpers ---------------------------------------------------------------------------
 
+  # A state timeout that still counts (the handler above): its state's timeout event.
+  defp timed_out(:handoff, :handing_off, data), do: handoff(data, :timeout)
+  defp timed_out(:commit, :paused, data), do: paused(data, :timeout)
+  defp timed_out(:commit, :awaiting_commit, data), do: started(Arrival.finish(data, nil))
+  defp timed_out(_what, _state, _data), do: :keep_state_and_data
+
+  @doc false
+  # Arms the state timeout of `state` (the state this process is in, or enters with `data`):
+  # `ms` ms of Tartarus.Clock, then its event (`:handoff` in :handing_off, `:commit` in
+  # :paused and :awaiting_commit). Replaces the one armed before, as gen_statem's would.
+  @spec state_timeout(map(), :handing_off | :paused | :awaiting_commit, timeout()) :: map()
+  def state_timeout(data, state, ms) do
+    data = cancel_state_timeout(data)
+
+    case ms do
+      :infinity ->
+        data
+
+      ms ->
+        what = if state == :handing_off, do: :handoff, else: :commit
+        %{data | timer: {Clock.start_timer(ms, self(), {@timeout, what}), state}}
+    end
+  end
+
+  @doc false
+  # Cancels the state timeout armed (leaving its state). A message it already sent is
+  # stale now and ignored when it comes.
+  @spec cancel_state_timeout(map()) :: map()
+  def cancel_state_timeout(%{timer: nil} = data), do: data
+
+  def cancel_state_timeout(%{timer: {t, _state}} = data) do
+    Clock.cancel_timer(t)
+    %{data | timer: nil}
+  end
+
   # One event of the source side: wait on, or the outcome for whoever started the hand-off;
   # if it failed, what was held is handled now, in its order (after the agent's
   # handle_move_failed/4, which may start another hand-off: then it waits again).
@@ -268,6 +315,8 @@ defmodule Tartarus.Agent.Server do
         {:keep_state, data}
 
       {outcome, by, data} ->
+        # :handing_off ends here (whatever comes next: another hand-off arms its own).
+        data = cancel_state_timeout(data)
         held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
         result = Actions.handoff_done(outcome, by, %{data | pending: [], held: []})
         replay(result, pending(data.pending) ++ held)
@@ -282,18 +331,19 @@ defmodule Tartarus.Agent.Server do
   # One event of the paused copy.
   defp paused(data, event) do
     case Arrival.step(data, event) do
-      {:paused, data, actions} ->
-        {:keep_state, data, actions}
+      # Its state timeout re-armed, or left as it was.
+      {:paused, data} ->
+        {:keep_state, data}
 
       {:await, data} ->
-        {:next_state, :awaiting_commit, data,
-         [{:state_timeout, data.host.opts.migration_timeout, :commit}]}
+        ms = data.host.opts.migration_timeout
+        {:next_state, :awaiting_commit, state_timeout(data, :awaiting_commit, ms)}
 
-      {:started, _data, _pending} = started ->
-        started(started)
+      {:started, data, pending} ->
+        started({:started, cancel_state_timeout(data), pending})
 
       {:stop, reason, data} ->
-        {:stop, reason, data}
+        {:stop, reason, cancel_state_timeout(data)}
     end
   end
 

@@ -24,7 +24,11 @@ defmodule Tartarus.Clock.Virtual do
 
     * Work outside the VM's processes: a port or a NIF that waits on the operating system
       (a file read is a NIF call and runs; a socket's answer arriving later does not hold the
-      time). Networks of real BEAM nodes (`:peer`, network namespaces) run in real time.
+      time), console output included (a process waiting for its `IO.puts` to be written
+      looks idle): a run in virtual time should print nothing while it runs (the mix tasks'
+      `--json` and the sweeps' quiet mode do so). Modules are loaded at `install/1` for the
+      same reason (a module loaded on first use is a wait on the file system). Networks of
+      real BEAM nodes (`:peer`, network namespaces) run in real time.
     * Real-time timers that bypass `Tartarus.Clock` (the BEAM's own `after`, gen_statem's
       timeouts, `GenServer.call/3`'s timeout): they fire in real time, and time may jump past
       them. `scripts/check-clock` keeps them out of `apps/*/lib` but for the allowed ones.
@@ -108,6 +112,7 @@ defmodule Tartarus.Clock.Virtual do
 
   @impl true
   def init(opts) do
+    preload()
     seed = Keyword.get(opts, :seed, 0)
     start_us = Keyword.get(opts, :start_us, System.monotonic_time(:microsecond))
     tab = :ets.new(__MODULE__, [:ordered_set, :public, write_concurrency: true])
@@ -194,18 +199,11 @@ defmodule Tartarus.Clock.Virtual do
   defp fire(s, {due, _rank, seq} = key) do
     case :ets.take(s.tab, key) do
       [{_, dest, what}] ->
-        if due > :atomics.get(s.at, 1), do: :atomics.put(s.at, 1, due)
-
-        msg =
-          case what do
-            {:send, msg} -> msg
-            {:timeout, msg} -> {:timeout, {:"$tartarus_clock", due, seq}, msg}
-          end
-
-        try do
-          send(dest, msg)
-        rescue
-          ArgumentError -> :ok
+        # A timer of a process that ended is dropped without moving the time (the BEAM
+        # cancels a dead process's own timers too).
+        if alive?(dest) do
+          if due > :atomics.get(s.at, 1), do: :atomics.put(s.at, 1, due)
+          deliver(dest, what, due, seq)
         end
 
       [] ->
@@ -213,11 +211,30 @@ defmodule Tartarus.Clock.Virtual do
     end
   end
 
+  defp alive?(pid) when is_pid(pid) and node(pid) == node(), do: Process.alive?(pid)
+  defp alive?(name) when is_atom(name), do: Process.whereis(name) != nil
+  defp alive?(_), do: true
+
+  defp deliver(dest, what, due, seq) do
+    msg =
+      case what do
+        {:send, msg} -> msg
+        {:timeout, msg} -> {:timeout, {:"$tartarus_clock", due, seq}, msg}
+      end
+
+    send(dest, msg)
+  rescue
+    ArgumentError -> :ok
+  end
+
   # Idle: this process is the only one runnable or running (processes, ports, dirty work),
   # and nothing else ran between two readings of the VM's reductions. The readings cost this
   # process a fixed number of reductions that the VM's count sees and its own does not (or
   # the other way round): `calib`, the most frequent difference in a quiet VM.
-  defp idle?(calib), do: others() == {1, calib}
+  # Three readings in a row, so that a process woken by something outside (a port's answer)
+  # has the time to be seen.
+  defp idle?(calib),
+    do: others() == {1, calib} and others() == {1, calib} and others() == {1, calib}
 
   # The first yield settles this process's own count (what ran before does not change the
   # difference); the second lets anything runnable on this scheduler run between readings.
@@ -230,6 +247,18 @@ defmodule Tartarus.Clock.Virtual do
     {all1, _} = :erlang.statistics(:exact_reductions)
     {:reductions, me1} = Process.info(self(), :reductions)
     {active, all1 - all0 - (me1 - me0)}
+  end
+
+  # Every module of every loaded application, loaded now: a process that calls a module not
+  # yet loaded waits for the code server, which reads the file meanwhile, and the VM would
+  # look idle (the time would jump past the caller's timers).
+  defp preload do
+    for {app, _, _} <- Application.loaded_applications(),
+        {:ok, modules} = :application.get_key(app, :modules),
+        m <- modules,
+        do: :code.ensure_loaded(m)
+
+    :ok
   end
 
   defp calibrate do

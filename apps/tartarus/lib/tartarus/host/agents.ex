@@ -6,8 +6,8 @@ defmodule Tartarus.Host.Agents do
   # pointers of an agent that ended). Runs in the host's server, on the server's state.
   # Restart and shutdown semantics: see docs/architecture.md, "A node's process tree".
 
-  require Tartarus.Events
-  alias Tartarus.{Events, Ledger}
+  require Tartarus.{Clock, Events}
+  alias Tartarus.{Clock, Events, Ledger}
 
   # How long a killed agent that traps exits may take to stop when its callbacks are not
   # bounded (with a callback budget, that budget).
@@ -31,7 +31,7 @@ defmodule Tartarus.Host.Agents do
             _ -> @kill_grace
           end
 
-        tref = :erlang.start_timer(grace, self(), {:"$tartarus_kill", pid})
+        tref = Clock.start_timer(grace, self(), {:"$tartarus_kill", pid})
         %{state | killing: Map.put(state.killing, pid, {tref, [from]})}
     end
   end
@@ -41,7 +41,7 @@ defmodule Tartarus.Host.Agents do
   # when it asks), unless the move had already committed: then the agent lives on at its
   # destination and the kill follows it there.
   def killed(state, pid, entry, {tref, callers}) do
-    :erlang.cancel_timer(tref)
+    Clock.cancel_timer(tref)
     :ets.delete(state.host.ledger, {:kill, pid})
 
     reply =
@@ -94,17 +94,13 @@ defmodule Tartarus.Host.Agents do
       pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
       send(host.pid, {:"$tartarus_adopt", pid, %{id: env.id, key: key, owner: env.owner}})
 
-      receive do
+      Clock.receive do
         {^tag, reply} ->
           Process.demonitor(tag, [:flush])
           reply
 
         {:DOWN, ^tag, :process, _, _} ->
-          receive do
-            {^tag, reply} -> reply
-          after
-            0 -> {:error, {:unknown_host, host.ref}}
-          end
+          reply_or(tag, {:error, {:unknown_host, host.ref}})
       after
         timeout ->
           # Unanswered: whoever settles it later finds no entry.
@@ -115,6 +111,15 @@ defmodule Tartarus.Host.Agents do
             [] -> receive(do: ({^tag, reply} -> reply))
           end
       end
+    end
+  end
+
+  # The reply `tag` if it is in the mailbox already, else `default`.
+  defp reply_or(tag, default) do
+    receive do
+      {^tag, reply} -> reply
+    after
+      0 -> default
     end
   end
 
@@ -281,7 +286,7 @@ defmodule Tartarus.Host.Agents do
     # Each restored agent registers itself as it starts: answer once they have (an agent
     # that died first is waited for a bounded time; its :DOWN is handled afterwards).
     for pid <- pids do
-      receive do
+      Clock.receive do
         {:"$tartarus_restored", ^pid} -> :ok
       after
         5_000 -> :ok

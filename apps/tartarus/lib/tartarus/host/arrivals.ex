@@ -7,7 +7,7 @@ defmodule Tartarus.Host.Arrivals do
   # the host's server (Tartarus.Host.Server), on the server's state.
 
   require Tartarus.Events
-  alias Tartarus.{CodeCache, Envelope, Events, Ledger}
+  alias Tartarus.{Clock, CodeCache, Envelope, Events, Ledger}
   alias Tartarus.Host.Agents
   alias Tartarus.Migration.Executor
 
@@ -132,7 +132,7 @@ defmodule Tartarus.Host.Arrivals do
     case Tartarus.Security.Admission.admit(
            state.admission,
            request,
-           System.monotonic_time(:millisecond)
+           Clock.monotonic_time(:millisecond)
          ) do
       {:ok, admission} -> {:ok, %{state | admission: admission}}
       {:error, _} = error -> error

@@ -64,7 +64,7 @@ defmodule Tartarus.Host.Parked do
     :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
   end
 
-  defp schedule, do: Process.send_after(self(), :"$tartarus_ask_parked", @ask_every)
+  defp schedule, do: Tartarus.Clock.send_after(self(), :"$tartarus_ask_parked", @ask_every)
 
   defp unpark(state, key, mig, copy, env, src, kind, d) do
     case Protocol.parked(d) do

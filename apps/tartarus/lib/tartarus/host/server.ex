@@ -20,7 +20,7 @@ defmodule Tartarus.Host.Server do
   use GenServer
   require Tartarus.Events
 
-  alias Tartarus.Ledger
+  alias Tartarus.{Clock, Ledger}
   alias Tartarus.Host.{Agents, Arrivals, Parked}
   alias Tartarus.Migration.{Messages, Protocol}
 
@@ -267,8 +267,7 @@ defmodule Tartarus.Host.Server do
 
   # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
   # callback it is still in counts (Agent.Callbacks.overrun/2 reads it from the agent).
-  def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state)
-      when is_reference(tref) and is_pid(pid) do
+  def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state) when is_pid(pid) do
     case Tartarus.Agent.Callbacks.overrun(pid, tref) do
       {reason, trap?, from} ->
         # An agent that traps exits would take any other signal as a message.
@@ -352,7 +351,7 @@ defmodule Tartarus.Host.Server do
   end
 
   def handle_info(:sweep, %{host: %{opts: %{forward_ttl: ttl}}} = state) when is_integer(ttl) do
-    Ledger.sweep_pointers(state.host, System.system_time(:microsecond) - ttl * 1000)
+    Ledger.sweep_pointers(state.host, Clock.system_time(:microsecond) - ttl * 1000)
     schedule_sweep(ttl)
     {:noreply, state}
   end
@@ -386,5 +385,5 @@ defmodule Tartarus.Host.Server do
   end
 
   defp schedule_sweep(:infinity), do: :ok
-  defp schedule_sweep(ttl), do: Process.send_after(self(), :sweep, max(div(ttl, 2), 10))
+  defp schedule_sweep(ttl), do: Clock.send_after(self(), :sweep, max(div(ttl, 2), 10))
 end

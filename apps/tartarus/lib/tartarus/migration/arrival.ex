@@ -12,7 +12,7 @@ defmodule Tartarus.Migration.Arrival do
   @behaviour Tartarus.Migration.Executor
 
   require Tartarus.Events
-  alias Tartarus.{Events, Ledger}
+  alias Tartarus.{Clock, Events, Ledger}
   alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
 
   # How long a host waits before it sends the acknowledgements of its arrivals (one batch
@@ -34,11 +34,12 @@ defmodule Tartarus.Migration.Arrival do
 
   @doc false
   # One event of the paused copy ({:info, msg} or :timeout, its state timeout):
-  # {:paused, data, actions} (gen_statem actions: its next state timeout), {:await, data}
-  # (wait for the source's commit, see start/2), {:started, data, pending} (it is the agent
-  # now; `pending` are the messages to handle first) or {:stop, reason, data}.
+  # {:paused, data} (it waits on; its state timeout re-armed in data, see timer/2, or as it
+  # was), {:await, data} (wait for the source's commit, see start/2), {:started, data,
+  # pending} (it is the agent now; `pending` are the messages to handle first) or
+  # {:stop, reason, data}.
   @spec step(map(), :timeout | {:info, term()}) ::
-          {:paused, map(), list()}
+          {:paused, map()}
           | {:await, map()}
           | {:started, map(), list()}
           | {:stop, term(), map()}
@@ -69,23 +70,23 @@ defmodule Tartarus.Migration.Arrival do
           p
       end
 
-    case Executor.copy_event(p.c, event, {%{data | paused: p}, []}, __MODULE__) do
-      {:paused, {data, timeouts}} -> {:paused, data, timeouts}
+    case Executor.copy_event(p.c, event, %{data | paused: p}, __MODULE__) do
+      {:paused, data} -> {:paused, data}
       {:done, result} -> result
     end
   end
 
   # -- the executor's effects (the paused copy's backend) -----------------------------------
-  # The context: {the agent process's state, the state timeouts to set}.
+  # The context: the agent process's state.
 
   @impl Executor
-  def copy_state({data, timeouts}, c), do: {%{data | paused: %{data.paused | c: c}}, timeouts}
+  def copy_state(data, c), do: %{data | paused: %{data.paused | c: c}}
 
   @impl Executor
-  def start({data, _timeouts}, _c, notify), do: start(data, notify)
+  def start(data, _c, notify), do: start(data, notify)
 
   @impl Executor
-  def abort({data, _timeouts}, c) do
+  def abort(data, c) do
     Tartarus.Host.Persistence.resolved(data.host, c.mig, c.copy)
     {:stop, {:shutdown, :aborted}, data}
   end
@@ -93,7 +94,7 @@ defmodule Tartarus.Migration.Arrival do
   # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
   # its stash go (the senders waiting on stashed messages time out).
   @impl Executor
-  def park({data, _timeouts}, c) do
+  def park(data, c) do
     :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
     {:stop, {:shutdown, :parked}, data}
   end
@@ -101,33 +102,33 @@ defmodule Tartarus.Migration.Arrival do
   # The source host's server, found by address each time (the source may have restarted
   # since it sent `prepare`; the directory drops pids of hosts that went down).
   @impl Executor
-  def ask({data, _} = ctx, src, mig, copy) do
+  def ask(data, src, mig, copy) do
     id = Ledger.query_id(data.env, data.paused.c.kind)
 
     with {:ok, pid} <- Tartarus.Host.whereis(src),
          do: send(pid, Messages.decision_query(mig, id, copy, self()))
 
-    ctx
+    data
   end
 
+  # The paused copy's state timeout (:commit), re-armed (Tartarus.Agent.Server's timer).
   @impl Executor
-  def timer({data, timeouts}, ms), do: {data, [{:state_timeout, ms, :commit} | timeouts]}
+  def timer(data, ms), do: Tartarus.Agent.Server.state_timeout(data, :paused, ms)
 
   # Kept and handled once the agent starts (senders wait for delivery, so each sender's
   # order is kept).
   @impl Executor
-  def stash({data, timeouts}, msg),
-    do: {%{data | paused: %{data.paused | stash: [msg | data.paused.stash]}}, timeouts}
+  def stash(data, msg), do: %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}}
 
   # Over the bound: dropped and counted; a sender of a message is told to send it again
   # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
   @impl Executor
-  def drop({data, _} = ctx, msg) do
+  def drop(data, msg) do
     with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
          do: send(pid, {tag, :retry})
 
     Ledger.count(data.host, :dropped)
-    ctx
+    data
   end
 
   # -- the commit: the copy becomes the agent -------------------------------------------
@@ -174,7 +175,7 @@ defmodule Tartarus.Migration.Arrival do
     Enum.each(others, &send(self(), &1))
     {pending, inbox} = Inbox.arrive(data.inbox, handover, msgs)
     host = data.host
-    now = System.system_time(:microsecond)
+    now = Clock.system_time(:microsecond)
     hop_us = if data.env.departed_at, do: max(now - data.env.departed_at, 0), else: 0
     hops = if c.kind == :move, do: data.env.hops + 1, else: data.env.hops
 
@@ -200,7 +201,7 @@ defmodule Tartarus.Migration.Arrival do
         # The first arrival after a flush arms the next (one atomic flag: every arrival of the
         # node's agents touches it, a table key would be a hot spot).
         if :atomics.compare_exchange(host.acks_armed, 1, 0, 1) == :ok,
-          do: Process.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
+          do: Clock.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
 
         Ledger.record_hop(host, hop_us)
 

@@ -57,7 +57,7 @@ defmodule Tartarus.Migration.Inbox do
   number of senders (a cast is a sender of its own).
   """
   @spec take(t(), {pid(), term()}, integer()) :: {boolean(), t()}
-  def take(%{seen: seen} = inbox, {pid, tag}, now \\ System.system_time(:millisecond)) do
+  def take(%{seen: seen} = inbox, {pid, tag}, now \\ Tartarus.Clock.system_time(:millisecond)) do
     case Map.fetch(seen, pid) do
       {:ok, entry} when elem(entry, 1) == tag ->
         {false, inbox}
@@ -122,7 +122,7 @@ defmodule Tartarus.Migration.Inbox do
   (what it drained from its mailbox), and its memory.
   """
   @spec handover(t(), [tuple()], [tuple()], integer()) :: {[tuple()], t()}
-  def handover(inbox, pending, mailbox, now \\ System.system_time(:millisecond)) do
+  def handover(inbox, pending, mailbox, now \\ Tartarus.Clock.system_time(:millisecond)) do
     {fresh, inbox} = take_new(inbox, mailbox)
     msgs = pending ++ fresh
     keep = for {:"$tartarus_msg", {pid, _}, _, _} <- msgs, into: %{}, do: {pid, true}

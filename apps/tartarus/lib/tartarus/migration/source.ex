@@ -16,7 +16,7 @@ defmodule Tartarus.Migration.Source do
   @behaviour Tartarus.Migration.Executor
 
   require Tartarus.Events
-  alias Tartarus.{CodeCache, Envelope, Events, Ledger, Strategy}
+  alias Tartarus.{Clock, CodeCache, Envelope, Events, Ledger, Strategy}
   alias Tartarus.Migration.{Executor, Inbox, Messages}
 
   # -- before the hand-off: where to, may it go, with what code ---------------------
@@ -322,7 +322,7 @@ defmodule Tartarus.Migration.Source do
 
   defp unwatch(mref), do: Process.demonitor(mref, [:flush])
 
-  defp outgoing(env, :move), do: %{env | departed_at: System.system_time(:microsecond)}
+  defp outgoing(env, :move), do: %{env | departed_at: Clock.system_time(:microsecond)}
 
   defp outgoing(env, :clone) do
     id = Envelope.new_id()
@@ -333,7 +333,7 @@ defmodule Tartarus.Migration.Source do
         name: Envelope.clone_name(env.name, id),
         clone_of: env.id,
         rng: elem(Tartarus.Random.fork(env.rng), 0),
-        departed_at: System.system_time(:microsecond)
+        departed_at: Clock.system_time(:microsecond)
     }
   end
 end

@@ -104,14 +104,16 @@ defmodule Tartarus.Plugin.Serial do
          {:ok, decoder_state} <- o[:decoder].init(o[:decoder_opts]) do
       send(self(), {__MODULE__, :connect})
 
-      case o[:poll] do
-        {_bytes, interval} -> :timer.send_interval(interval, {__MODULE__, :poll})
-        nil -> :ok
-      end
+      poll =
+        case o[:poll] do
+          {_bytes, interval} -> poll(Tartarus.Clock.monotonic_time(:millisecond), interval)
+          nil -> nil
+        end
 
       {:ok,
        %{
          o: Map.new(o),
+         poll: poll,
          conn: nil,
          status: :closed,
          decoder: decoder_state,
@@ -208,11 +210,14 @@ defmodule Tartarus.Plugin.Serial do
     end
   end
 
-  def handle_info({__MODULE__, :poll}, %{status: :open} = s) do
-    {bytes, _} = s.o.poll
-    _ = s.o.transport.write(s.conn, bytes)
-    {:events, [], s}
+  # Every poll interval, open or not (only an open device is written to).
+  def handle_info({__MODULE__, :poll, at}, %{poll: at} = s) do
+    {bytes, interval} = s.o.poll
+    if s.status == :open, do: s.o.transport.write(s.conn, bytes)
+    {:events, [], %{s | poll: poll(at, interval)}}
   end
+
+  def handle_info({__MODULE__, :poll, _stale}, s), do: {:events, [], s}
 
   def handle_info({__MODULE__, _}, s), do: {:events, [], s}
 
@@ -267,8 +272,16 @@ defmodule Tartarus.Plugin.Serial do
     {:events, events ++ dropped ++ down, s}
   end
 
+  # The next poll, one interval after the one before (no drift, as with
+  # :timer.send_interval/2), in Tartarus.Clock's time: its due time tells it from any other.
+  defp poll(at, interval) do
+    at = at + interval
+    Tartarus.Clock.send_after(self(), {__MODULE__, :poll, at}, at, abs: true)
+    at
+  end
+
   defp retry(s) do
-    Process.send_after(self(), {__MODULE__, :connect}, s.delay)
+    Tartarus.Clock.send_after(self(), {__MODULE__, :connect}, s.delay)
     %{s | status: :closed, conn: nil, delay: min(s.delay * 2, elem(s.o.backoff_ms, 1))}
   end
 end

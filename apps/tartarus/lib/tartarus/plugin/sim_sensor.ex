@@ -21,8 +21,18 @@ defmodule Tartarus.Plugin.SimSensor do
     case Keyword.get(opts, :signal) do
       [_ | _] = signal ->
         interval = Keyword.get(opts, :interval_ms)
-        if is_integer(interval) and interval > 0, do: :timer.send_interval(interval, :tick)
-        {:ok, %{signal: List.to_tuple(signal), i: 0, unit: Keyword.get(opts, :unit, "unit")}}
+
+        tick =
+          if is_integer(interval) and interval > 0,
+            do: tick(%{interval: interval, at: Tartarus.Clock.monotonic_time(:millisecond)})
+
+        {:ok,
+         %{
+           signal: List.to_tuple(signal),
+           i: 0,
+           unit: Keyword.get(opts, :unit, "unit"),
+           tick: tick
+         }}
 
       other ->
         {:error,
@@ -52,8 +62,19 @@ defmodule Tartarus.Plugin.SimSensor do
   def write(arg, s), do: {:error, {:bad_argument, arg}, s}
 
   @impl true
+  def handle_info({:tick, at}, %{tick: %{at: at} = tick} = s),
+    do: {:events, [{:reading, current(s)}], advance(%{s | tick: tick(tick)})}
+
   def handle_info(:tick, s), do: {:events, [{:reading, current(s)}], advance(s)}
   def handle_info(_msg, s), do: {:events, [], s}
+
+  # Every `interval` ms of Tartarus.Clock: each tick arms the next, due one interval after
+  # the one before (no drift, as with :timer.send_interval/2); only the tick due is one.
+  defp tick(%{interval: interval, at: at}) do
+    at = at + interval
+    Tartarus.Clock.send_after(self(), {:tick, at}, at, abs: true)
+    %{interval: interval, at: at}
+  end
 
   defp current(s), do: elem(s.signal, s.i)
   defp advance(s), do: %{s | i: rem(s.i + 1, tuple_size(s.signal))}

@@ -60,13 +60,13 @@ defmodule Tartarus.Security.Admission do
   The host keeps an `Admission` state, asks `admit/3` about every arriving agent *after* its
   signature was checked (see `Tartarus.Security.Signer`), and keeps the new state only when the
   agent is admitted. Nothing here runs a process or reads a clock: the caller passes `now_ms`
-  (any monotonic millisecond clock, e.g. `System.monotonic_time(:millisecond)`).
+  (any monotonic millisecond clock, e.g. `Tartarus.Clock.monotonic_time(:millisecond)`).
 
       {:ok, admission} = Tartarus.Security.Admission.new(max_resident_agents: 100, rate: {10, 1_000})
 
       request = %{source: :"host_a@lab", envelope_bytes: 2_048, payload_bytes: 512, hops: 3, resident: 12}
 
-      case Tartarus.Security.Admission.admit(admission, request, System.monotonic_time(:millisecond)) do
+      case Tartarus.Security.Admission.admit(admission, request, Tartarus.Clock.monotonic_time(:millisecond)) do
         {:ok, admission} -> admission
         {:error, reason} -> # refuse: send reason back to the sender, emit an event
       end

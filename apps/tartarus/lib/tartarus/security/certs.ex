@@ -218,7 +218,9 @@ defmodule Tartarus.Security.Certs do
 
   defp sign(subject, issuer, key, signing_key, days, extensions) do
     {:ECPrivateKey, _, _, _, public_point, _} = key
-    now = System.os_time(:second)
+    # The machine's wall clock, in either mode: :ssl checks a certificate's validity against
+    # it (the OS time), never against virtual time, which may run days ahead of it.
+    now = Tartarus.Clock.machine_system_time(:second)
 
     tbs(
       version: :v3,

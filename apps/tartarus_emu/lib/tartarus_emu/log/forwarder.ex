@@ -10,6 +10,9 @@ defmodule TartarusEmu.Log.Forwarder do
   #                L -> F {:flush, l_pid, ref};  F -> L {ref, :flushed, f_pid}
 
   alias TartarusEmu.Log.Counts
+  alias Tartarus.Clock
+  alias TartarusTools.MachineClock
+  require TartarusTools.MachineClock
 
   # Called on the forwarder's node (by :erpc). Returns its pid once it is subscribed.
   def start(log, hosts, keep_events?, flush_ms) do
@@ -24,7 +27,7 @@ defmodule TartarusEmu.Log.Forwarder do
           :ok = Tartarus.Events.subscribe()
           mref = Process.monitor(log)
           send(caller, {ref, :subscribed})
-          Process.send_after(self(), :tick, flush_ms)
+          Clock.machine_send_after(self(), :tick, flush_ms)
 
           loop(%{
             log: log,
@@ -39,7 +42,7 @@ defmodule TartarusEmu.Log.Forwarder do
         [{:message_queue_data, :off_heap}]
       )
 
-    receive do
+    MachineClock.receive do
       {^ref, :subscribed} -> {:ok, pid}
     after
       10_000 -> {:error, :forwarder_timeout}
@@ -59,7 +62,7 @@ defmodule TartarusEmu.Log.Forwarder do
         end
 
       :tick ->
-        Process.send_after(self(), :tick, s.flush_ms)
+        Clock.machine_send_after(self(), :tick, s.flush_ms)
         loop(flush(s))
 
       {:flush, from, ref} ->

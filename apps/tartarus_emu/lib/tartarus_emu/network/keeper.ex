@@ -11,6 +11,9 @@ defmodule TartarusEmu.Network.Keeper do
   # start their peers at once (bounded concurrency) while the caller waits.
   use GenServer
 
+  alias TartarusTools.MachineClock
+  require TartarusTools.MachineClock
+
   @spec start(pid()) :: {:ok, pid(), :ets.tid()}
   def start(owner) do
     {:ok, pid} = GenServer.start(__MODULE__, owner)
@@ -84,7 +87,7 @@ defmodule TartarusEmu.Network.Keeper do
     ref = Process.monitor(owner)
     send(owner, {:stop, self(), ref})
 
-    receive do
+    MachineClock.receive do
       {:DOWN, ^ref, _, _, _} -> :ok
     after
       60_000 ->

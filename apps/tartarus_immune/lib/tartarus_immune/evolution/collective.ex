@@ -26,6 +26,7 @@ defmodule TartarusImmune.Evolution.Collective do
   like a single robot's.
   """
 
+  alias Tartarus.Clock
   alias TartarusArena.World
   alias TartarusEmu.{Log, Network, Topology}
 
@@ -39,6 +40,8 @@ defmodule TartarusImmune.Evolution.Collective do
     Objective,
     Repertoire
   }
+
+  require Tartarus.Clock
 
   @shape [4, 5, 2]
 
@@ -327,7 +330,7 @@ defmodule TartarusImmune.Evolution.Collective do
     if c.scheme == :ipkt do
       {:ok, :ok} = Tartarus.request(pkt, :visit, 10_000)
 
-      receive do
+      Clock.receive do
         {tag, ^pkt} when tag in [:ipkt_moved, :ipkt_stayed] -> :ok
       after
         10_000 -> raise "the antibody packet neither moved nor stayed within 10 s"

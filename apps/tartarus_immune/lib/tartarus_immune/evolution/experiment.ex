@@ -43,6 +43,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   (`s1`-`s3`, `monolithic`, `robots3`) or a (size, scheme) point (`sharing`).
   """
 
+  alias Tartarus.Clock
   alias TartarusEmu.{Scenario, Sweep}
   alias TartarusImmune.Evolution.Experiment.{Robots3, SharingSizes, Trials}
   alias TartarusTools.Report
@@ -161,7 +162,7 @@ defmodule TartarusImmune.Evolution.Experiment do
           Report.default_out_dir("evolve-#{opts[:experiment]}")
         end)
 
-      t0 = System.monotonic_time(:millisecond)
+      t0 = Clock.machine_time(:millisecond)
       spec = module.spec(p)
 
       # the runner's keys, as when the experiment was a Scenario
@@ -171,7 +172,7 @@ defmodule TartarusImmune.Evolution.Experiment do
           seed: p.seed,
           steps: module.points(p),
           setup_ms: 0,
-          run_ms: System.monotonic_time(:millisecond) - t0
+          run_ms: Clock.machine_time(:millisecond) - t0
         }
         |> Map.merge(module.summary(runs(r), p))
       end

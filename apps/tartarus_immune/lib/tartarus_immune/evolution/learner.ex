@@ -177,6 +177,7 @@ defmodule TartarusImmune.Evolution.Courier do
   """
 
   alias Tartarus.Agent
+  alias Tartarus.Clock
 
   @doc """
   The action that moves the calling agent on to a neighbour it visited least
@@ -195,7 +196,7 @@ defmodule TartarusImmune.Evolution.Courier do
   end
 
   @doc """
-  For the experiments' drivers: polls `count.()` every millisecond until it reaches
+  For the experiments' drivers: polls `count.()` every millisecond (of `Tartarus.Clock`) until it reaches
   `target` (a broadcast is received a moment after the call that sent it returned; waiting
   for it keeps a run independent of the scheduler). Raises, naming `what`, after `tries`
   polls: in these experiments no host stops, so a message that never arrives is an error.
@@ -213,7 +214,7 @@ defmodule TartarusImmune.Evolution.Courier do
         raise "#{target - got} of #{target} #{what} not received"
 
       true ->
-        Process.sleep(1)
+        Clock.sleep(1)
         await_count(count, target, tries - 1, what)
     end
   end

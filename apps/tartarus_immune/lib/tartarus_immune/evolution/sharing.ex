@@ -38,8 +38,11 @@ defmodule TartarusImmune.Evolution.Sharing do
   `omega: nil`.
   """
 
+  alias Tartarus.Clock
   alias TartarusEmu.{Dynamics, Log, Network, Topology}
   alias TartarusImmune.Evolution.{Courier, IPkt, Learner}
+
+  require Tartarus.Clock
 
   @schema [
     nodes: [type: :pos_integer, default: 20, doc: "robot nodes"],
@@ -227,7 +230,7 @@ defmodule TartarusImmune.Evolution.Sharing do
     Enum.each(s.ipkts, fn id -> {:ok, :ok} = Tartarus.request(id, :visit, 10_000) end)
 
     Enum.each(s.ipkts, fn id ->
-      receive do
+      Clock.receive do
         {tag, ^id} when tag in [:ipkt_moved, :ipkt_stayed] -> :ok
       after
         10_000 -> raise "iPkt #{id} neither moved nor stayed within 10 s"

@@ -34,6 +34,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
   removes.
   """
 
+  alias Tartarus.Clock
   alias TartarusArena.PFAs
   alias TartarusEmu.Sweep
   alias TartarusImmune.Params
@@ -125,7 +126,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
          {:ok, p} <- Params.new(Keyword.merge([mu: 0.8, q_max: 20], o.params)),
          :ok <- check_pfas(o.pfas) do
       o = %{o | pfas: o.pfas || PFAs.all()}
-      t0 = System.monotonic_time(:microsecond)
+      t0 = Clock.machine_time(:microsecond)
       trials = fn r -> Enum.map(r.runs, & &1.summary) end
 
       spec = %{
@@ -141,7 +142,7 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         concurrency: 1,
         summary: fn r ->
           # the trials' wall time (the exhaustive reference is not part of it)
-          wall = (System.monotonic_time(:microsecond) - t0) / 1.0e6
+          wall = (Clock.machine_time(:microsecond) - t0) / 1.0e6
           exhaustive = if o.exhaustive, do: Summary.exhaustive(o.pfas, o.seed)
           Summary.summarize(o, trials.(r), exhaustive, wall)
         end,

@@ -6,7 +6,10 @@ defmodule TartarusLats.Experiment.Queries do
   `TartarusLats.Experiment`, "Queries and ground truth".
   """
 
+  alias Tartarus.Clock
   alias TartarusLats.{Building, Cloud, Deployment, Judge, World}
+
+  require Tartarus.Clock
 
   @settle_inside 20
   @settle_outside 30
@@ -179,7 +182,7 @@ defmodule TartarusLats.Experiment.Queries do
   Asks a batch of queries: releases their agents together (`TartarusLats.release/4`,
   contacting the cloud by `rule`), waits for every result, then asks the cloud the same
   questions; each query comes back with both answers, judged (`TartarusLats.Judge`), the
-  agent's hops, route, cloud contacts and latency (ms, on this VM's clock). `repair`: the
+  agent's hops, route, cloud contacts and latency (ms, on this VM's `Tartarus.Clock`). `repair`: the
   Where is X agents bridge broken chains (`TartarusLats.Query.WhereIs`).
   """
   @spec ask([map()], Deployment.t(), :per_node | :per_query, boolean()) :: [map()]
@@ -189,7 +192,7 @@ defmodule TartarusLats.Experiment.Queries do
   def ask(batch, dep, rule, repair) do
     released =
       Enum.map(batch, fn q ->
-        t0 = System.monotonic_time(:microsecond)
+        t0 = Clock.monotonic_time(:microsecond)
 
         {:ok, id} =
           TartarusLats.release(q.host, q.type, q.tag,
@@ -202,8 +205,9 @@ defmodule TartarusLats.Experiment.Queries do
         {q, id, t0}
       end)
 
-    # Latency on this VM's clock: from the release to the result's arrival here (the agent
-    # starts and ends on different nodes, whose clocks are not this one's in peer mode).
+    # Latency on this VM's Tartarus.Clock (design time): from the release to the result's
+    # arrival here (the agent starts and ends on different nodes, whose clocks are not this
+    # one's in peer mode).
     arrived = collect(Map.new(released, fn {_q, id, _t0} -> {id, nil} end), 120_000)
 
     Enum.map(released, fn {q, id, t0} ->
@@ -236,9 +240,9 @@ defmodule TartarusLats.Experiment.Queries do
     if Enum.all?(pending, fn {_id, v} -> v != nil end) do
       pending
     else
-      receive do
+      Clock.receive do
         {:tartarus_result, id, result} when is_map_key(pending, id) ->
-          collect(Map.put(pending, id, {result, System.monotonic_time(:microsecond)}), timeout)
+          collect(Map.put(pending, id, {result, Clock.monotonic_time(:microsecond)}), timeout)
 
         {:tartarus_removed, id, reason} when is_map_key(pending, id) ->
           raise "LATS query agent #{id} was removed: #{inspect(reason)}"

@@ -9,6 +9,7 @@ defmodule TartarusLats.Query.Walk do
   # rules, how many it would have made (`data_nodes`, `found`).
 
   alias Tartarus.Agent, as: A
+  alias Tartarus.Clock
 
   @max_move_failures 3
 
@@ -32,7 +33,7 @@ defmodule TartarusLats.Query.Walk do
       data_nodes: [],
       unreachable: [],
       max_hops: Map.get(args, :max_hops, 500),
-      started_us: System.monotonic_time(:microsecond),
+      started_us: Clock.monotonic_time(:microsecond),
       route: [],
       known: [],
       visited: [],
@@ -225,7 +226,7 @@ defmodule TartarusLats.Query.Walk do
       # What each rule costs for this query, whichever was applied.
       per_node_contacts: length(Enum.uniq(s.data_nodes ++ if(found, do: [node], else: []))),
       per_query_contacts: if(found, do: 1, else: 0),
-      elapsed_us: System.monotonic_time(:microsecond) - s.started_us
+      elapsed_us: Clock.monotonic_time(:microsecond) - s.started_us
     }
 
     {:return, result, s}

@@ -38,6 +38,8 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
   """
   use TartarusTools.CLI
 
+  alias Tartarus.Clock
+
   @task "tartarus.roadblock"
 
   @impl true
@@ -100,7 +102,7 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
          match?({:ok, _}, TartarusRoadblock.snapshot(Path.join(System.tmp_dir!(), "rb.png"))) do
       :ok
     else
-      Process.sleep(100)
+      Clock.sleep(100)
       wait_for_blocked()
     end
   end

@@ -150,7 +150,7 @@ defmodule Mix.Tasks.Tartarus.Node do
 
         if opts[:dashboard], do: start_dashboard(opts)
 
-        Process.sleep(:infinity)
+        Tartarus.Clock.sleep(:infinity)
 
       {:error, reason} ->
         Mix.raise("mix tartarus.node: cannot start host: #{inspect(reason)}")

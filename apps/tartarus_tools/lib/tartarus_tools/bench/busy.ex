@@ -27,6 +27,8 @@ defmodule TartarusTools.Bench.Busy do
   """
 
   alias TartarusTools.Bench.Busy.Hopper
+  alias Tartarus.Clock
+  require Tartarus.Clock
 
   @doc """
   Runs the busy-agent benchmark on two fresh peer nodes. Options: `:messages` (default
@@ -62,7 +64,7 @@ defmodule TartarusTools.Bench.Busy do
       state = Hopper.new(h1, h2, per, Keyword.get(opts, :dwell_ms, 0))
       {:ok, id} = Tartarus.create_mobile_agent(h1, Hopper, state)
       :ok = Tartarus.post({id, h1}, :go)
-      t0 = System.monotonic_time(:millisecond)
+      t0 = Clock.machine_time(:millisecond)
       deadline = t0 + budget_ms
 
       via = Keyword.get(opts, :via, :post)
@@ -79,7 +81,7 @@ defmodule TartarusTools.Bench.Busy do
         end)
         |> Task.await_many(:infinity)
 
-      wall_ms = max(System.monotonic_time(:millisecond) - t0, 1)
+      wall_ms = max(Clock.machine_time(:millisecond) - t0, 1)
 
       for h <- [h1, h2], do: Tartarus.store_put(h, :busy_stop, true)
       final = final_state({id, h1}, 100)
@@ -96,29 +98,29 @@ defmodule TartarusTools.Bench.Busy do
   defp cast_all(ref, s, n, pace_ms, deadline) do
     sent =
       Enum.reduce_while(0..(n - 1)//1, 0, fn seq, sent ->
-        if System.monotonic_time(:millisecond) > deadline do
+        if Clock.machine_time(:millisecond) > deadline do
           {:halt, sent}
         else
           :ok = Tartarus.cast(ref, {:m, s, seq}, self())
-          if pace_ms > 0, do: Process.sleep(pace_ms)
+          if pace_ms > 0, do: Clock.sleep(pace_ms)
           {:cont, sent + 1}
         end
       end)
 
-    until = System.monotonic_time(:millisecond) + 6_000
+    until = Clock.monotonic_time(:millisecond) + 6_000
     reports = collect_reports(until, %{failed: 0, unknown: 0})
     %{sent: sent, ok: [], errors: [], reports: reports}
   end
 
   defp collect_reports(until, acc) do
-    receive do
+    Clock.receive do
       {:tartarus_cast_failed, _agent, _reason} ->
         collect_reports(until, %{acc | failed: acc.failed + 1})
 
       {:tartarus_cast_unknown, _agent, _reason} ->
         collect_reports(until, %{acc | unknown: acc.unknown + 1})
     after
-      max(until - System.monotonic_time(:millisecond), 0) -> acc
+      max(until - Clock.monotonic_time(:millisecond), 0) -> acc
     end
   end
 
@@ -138,7 +140,7 @@ defmodule TartarusTools.Bench.Busy do
 
   defp send_all(ref, s, n, timeout, deadline) do
     Enum.reduce(0..(n - 1)//1, %{sent: 0, ok: [], errors: []}, fn seq, acc ->
-      if System.monotonic_time(:millisecond) > deadline do
+      if Clock.machine_time(:millisecond) > deadline do
         acc
       else
         case Tartarus.post(ref, {:m, s, seq}, timeout) do
@@ -158,7 +160,7 @@ defmodule TartarusTools.Bench.Busy do
         Map.put(s, :hops, hops)
 
       _ when tries > 0 ->
-        Process.sleep(100)
+        Clock.sleep(100)
         final_state(ref, tries - 1)
 
       other ->
@@ -267,7 +269,7 @@ defmodule TartarusTools.Bench.Busy.Hopper do
   def handle_arrival(_ctx, %{dwell_ms: 0} = s), do: next(s)
 
   def handle_arrival(_ctx, s) do
-    Process.send_after(self(), :hop, s.dwell_ms)
+    Tartarus.Clock.send_after(self(), :hop, s.dwell_ms)
     {:stay, s}
   end
 

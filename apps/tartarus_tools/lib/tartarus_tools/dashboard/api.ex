@@ -7,6 +7,7 @@ defmodule TartarusTools.Dashboard.Api do
   # hosts, agents, modules and panels are looked up among those that exist.
 
   alias TartarusTools.Dashboard.{Feed, Fleet, Health, Page, Panel}
+  alias Tartarus.Clock
   alias TartarusTools.JSON
 
   @cache_ms 1_000
@@ -907,7 +908,7 @@ defmodule TartarusTools.Dashboard.Api do
     %{hosts: hosts, links: Enum.uniq(links)}
   end
 
-  defp now_ms, do: System.system_time(:millisecond)
+  defp now_ms, do: Clock.machine_system_time(:millisecond)
 
   defp neighbours(h) do
     case Tartarus.neighbours(h) do
@@ -1037,7 +1038,7 @@ defmodule TartarusTools.Dashboard.Api do
   # longer: however often pages ask, recomputing takes at most a tenth of one core (10,000
   # hosts' statuses are not read again for every request).
   defp cached(ctx, key, fun) do
-    now = System.monotonic_time(:millisecond)
+    now = Clock.machine_time(:millisecond)
 
     case :ets.lookup(ctx.cache, key) do
       [{^key, :kept, value}] ->
@@ -1048,7 +1049,7 @@ defmodule TartarusTools.Dashboard.Api do
 
       _ ->
         value = fun.()
-        took = System.monotonic_time(:millisecond) - now
+        took = Clock.machine_time(:millisecond) - now
         :ets.insert(ctx.cache, {key, now + max(@cache_ms, 10 * took), value})
         value
     end

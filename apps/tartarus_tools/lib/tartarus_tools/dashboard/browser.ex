@@ -19,6 +19,10 @@ defmodule TartarusTools.Dashboard.Browser do
 
   use GenServer
 
+  alias Tartarus.Clock
+  alias TartarusTools.MachineClock
+  require TartarusTools.MachineClock
+
   @typedoc "A running browser."
   @type t :: pid()
 
@@ -75,7 +79,7 @@ defmodule TartarusTools.Dashboard.Browser do
   """
   @spec wait(t(), String.t(), non_neg_integer()) :: :ok | {:error, :timeout}
   def wait(b, expression, timeout \\ 5_000) do
-    deadline = System.monotonic_time(:millisecond) + timeout
+    deadline = Clock.machine_time(:millisecond) + timeout
     poll(b, expression, deadline)
   end
 
@@ -85,10 +89,10 @@ defmodule TartarusTools.Dashboard.Browser do
         :ok
 
       _ ->
-        if System.monotonic_time(:millisecond) > deadline do
+        if Clock.machine_time(:millisecond) > deadline do
           {:error, :timeout}
         else
-          Process.sleep(50)
+          Clock.machine_sleep(50)
           poll(b, expression, deadline)
         end
     end
@@ -162,7 +166,7 @@ defmodule TartarusTools.Dashboard.Browser do
       {:os_pid, pid} = Port.info(port, :os_pid)
       s = %{port: port, pid: pid, dir: dir, sock: nil, buf: "", next: 1}
 
-      case devtools_url(port, "", System.monotonic_time(:millisecond) + (opts[:timeout] || 90_000)) do
+      case devtools_url(port, "", Clock.machine_time(:millisecond) + (opts[:timeout] || 90_000)) do
         {:ok, url} ->
           case page_socket(url) do
             {:ok, sock, rest} ->
@@ -183,9 +187,9 @@ defmodule TartarusTools.Dashboard.Browser do
   end
 
   defp devtools_url(port, acc, deadline) do
-    left = deadline - System.monotonic_time(:millisecond)
+    left = deadline - Clock.machine_time(:millisecond)
 
-    receive do
+    MachineClock.receive do
       {^port, {:data, data}} ->
         acc = acc <> data
 

@@ -11,6 +11,8 @@ defmodule TartarusTools.Dashboard.Feed do
 
   use GenServer
 
+  alias Tartarus.Clock
+
   @max_backlog 20_000
   @hop_samples 2_048
   @slow_client 20
@@ -60,7 +62,7 @@ defmodule TartarusTools.Dashboard.Feed do
   def relay(feed) do
     ref = Process.monitor(feed)
     Tartarus.Events.subscribe()
-    Process.send_after(self(), :relay_flush, @relay_ms)
+    Clock.machine_send_after(self(), :relay_flush, @relay_ms)
     relay_loop(feed, ref, [], 0, 0)
   end
 
@@ -74,7 +76,7 @@ defmodule TartarusTools.Dashboard.Feed do
 
       :relay_flush ->
         if n > 0 or dropped > 0, do: send(feed, {:tartarus_events, Enum.reverse(acc), dropped})
-        Process.send_after(self(), :relay_flush, @relay_ms)
+        Clock.machine_send_after(self(), :relay_flush, @relay_ms)
         relay_loop(feed, ref, [], 0, 0)
 
       {:DOWN, ^ref, _, _, _} ->
@@ -85,7 +87,7 @@ defmodule TartarusTools.Dashboard.Feed do
   @impl true
   def init(opts) do
     Tartarus.Events.subscribe(budget: {opts[:max_batch], opts[:batch_ms]})
-    Process.send_after(self(), :flush, opts[:batch_ms])
+    Clock.machine_send_after(self(), :flush, opts[:batch_ms])
 
     {:ok,
      %{
@@ -96,7 +98,7 @@ defmodule TartarusTools.Dashboard.Feed do
        batch: %{},
        batch_n: 0,
        batch_seen: 0,
-       sec: System.system_time(:second),
+       sec: Clock.machine_system_time(:second),
        sec_counts: %{},
        rates: :queue.new(),
        rates_n: 0,
@@ -161,7 +163,7 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   def handle_call({:rates, seconds}, _from, s) do
-    s = roll(s, System.system_time(:second))
+    s = roll(s, Clock.machine_system_time(:second))
     done = s.rates |> :queue.to_list() |> Enum.take(-(seconds - 1))
     list = done ++ [{s.sec, s.sec_counts}]
     types = list |> Enum.flat_map(fn {_, c} -> Map.keys(c) end) |> Enum.uniq()
@@ -202,7 +204,7 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   def handle_info(:flush, s) do
-    Process.send_after(self(), :flush, s.batch_ms)
+    Clock.machine_send_after(self(), :flush, s.batch_ms)
     s = count_local(s)
 
     if s.batch_n > 0 and map_size(s.clients) > 0 do
@@ -228,7 +230,7 @@ defmodule TartarusTools.Dashboard.Feed do
       end)
     end
 
-    {:noreply, %{roll(s, System.system_time(:second)) | batch: %{}, batch_n: 0, batch_dropped: 0, batch_seen: 0}}
+    {:noreply, %{roll(s, Clock.machine_system_time(:second)) | batch: %{}, batch_n: 0, batch_dropped: 0, batch_seen: 0}}
   end
 
   def handle_info({:join, pid}, s) when is_pid(pid) do
@@ -305,7 +307,7 @@ defmodule TartarusTools.Dashboard.Feed do
   end
 
   defp add_counts(s, counts) do
-    s = roll(s, System.system_time(:second))
+    s = roll(s, Clock.machine_system_time(:second))
     add = fn acc -> Map.merge(acc, counts, fn _t, a, b -> a + b end) end
     %{s | counts: add.(s.counts), sec_counts: add.(s.sec_counts)}
   end

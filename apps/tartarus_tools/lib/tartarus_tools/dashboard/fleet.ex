@@ -27,6 +27,8 @@ defmodule TartarusTools.Dashboard.Fleet do
 
   use GenServer
 
+  alias Tartarus.Clock
+
   @max_hosts 500
   @max_agents 1_000
   @call_ms 5_000
@@ -56,7 +58,7 @@ defmodule TartarusTools.Dashboard.Fleet do
 
     %{
       node: node(),
-      at: System.system_time(:millisecond),
+      at: Clock.machine_system_time(:millisecond),
       path: path,
       hosts_total: length(hosts),
       hosts: Enum.flat_map(shown, &host/1),
@@ -182,7 +184,7 @@ defmodule TartarusTools.Dashboard.Fleet do
     GenServer.call(fleet, :get, timeout)
   catch
     # The first gather is slow (a node that does not answer): this node alone meanwhile.
-    :exit, {:timeout, _} -> %{snapshots: [], at: System.system_time(:millisecond)}
+    :exit, {:timeout, _} -> %{snapshots: [], at: Clock.machine_system_time(:millisecond)}
   end
 
   @doc "Keeps the last gather as it is from now on (a run that ended: its page stays readable)."
@@ -206,7 +208,7 @@ defmodule TartarusTools.Dashboard.Fleet do
   def handle_call(:get, from, %{last: nil} = s), do: {:noreply, start_gather(%{s | waiting: [from | s.waiting]})}
 
   def handle_call(:get, from, s) do
-    age = System.system_time(:millisecond) - s.last.at
+    age = Clock.machine_system_time(:millisecond) - s.last.at
 
     cond do
       s.frozen or age <= s.every ->
@@ -231,7 +233,7 @@ defmodule TartarusTools.Dashboard.Fleet do
     result =
       case reason do
         {:gathered, result} -> result
-        other -> s.last || %{snapshots: [], at: System.system_time(:millisecond), error: inspect(other)}
+        other -> s.last || %{snapshots: [], at: Clock.machine_system_time(:millisecond), error: inspect(other)}
       end
 
     Enum.each(s.waiting, &GenServer.reply(&1, result))
@@ -251,7 +253,7 @@ defmodule TartarusTools.Dashboard.Fleet do
 
   defp gather(ttl) do
     {snaps, _} = collect(ttl, [node()])
-    %{snapshots: snaps, at: System.system_time(:millisecond)}
+    %{snapshots: snaps, at: Clock.machine_system_time(:millisecond)}
   end
 
   @doc false

@@ -32,6 +32,8 @@ defmodule TartarusTools.Dashboard.Health do
 
   use GenServer
 
+  alias Tartarus.Clock
+
   @schema [
     every_ms: [type: :pos_integer, default: 1_000, doc: "ms between samples"],
     keep: [type: :pos_integer, default: 300, doc: "samples kept (the ring's size)"],
@@ -144,9 +146,9 @@ defmodule TartarusTools.Dashboard.Health do
   def handle_info(_other, s), do: {:noreply, s}
 
   defp sample(s) do
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Clock.machine_time(:microsecond)
     {:reductions, r0} = Process.info(self(), :reductions)
-    Process.send_after(self(), :sample, s.every)
+    Clock.machine_send_after(self(), :sample, s.every)
     mem = :erlang.memory()
     wall = :erlang.statistics(:scheduler_wall_time)
     totals = Tartarus.Events.totals()
@@ -158,7 +160,7 @@ defmodule TartarusTools.Dashboard.Health do
     pct = fn q -> TartarusTools.Stats.percentile(sorted, q) end
 
     sample = %{
-      t: System.system_time(:millisecond),
+      t: Clock.machine_system_time(:millisecond),
       memory: %{
         total: mem[:total],
         processes: mem[:processes],
@@ -183,7 +185,7 @@ defmodule TartarusTools.Dashboard.Health do
 
     sample =
       Map.merge(sample, %{
-        cost_us: System.monotonic_time(:microsecond) - t0,
+        cost_us: Clock.machine_time(:microsecond) - t0,
         cost_reductions: r1 - r0
       })
 

@@ -160,7 +160,7 @@ defmodule TartarusTools.Dashboard.Http do
       {:error, _out_of_descriptors_or_other} ->
         # Out of file descriptors (emfile, enfile) or a connection reset before it was
         # accepted: wait a little rather than spin.
-        Process.sleep(50)
+        Tartarus.Clock.machine_sleep(50)
         accept(server, listen)
     end
   end

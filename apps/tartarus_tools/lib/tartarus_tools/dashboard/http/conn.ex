@@ -23,6 +23,9 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   # Nothing of a refused body is kept: memory per connection is bounded by :max_body.
 
   alias TartarusTools.Dashboard.{Api, Feed}
+  alias Tartarus.Clock
+  alias TartarusTools.MachineClock
+  require TartarusTools.MachineClock
   alias TartarusTools.JSON
 
   # The longest request, header or chunk line (the listening socket's packet_size).
@@ -39,7 +42,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   @doc false
   # The process's body: waits for its socket from the acceptor, then serves it.
   def start(conf) do
-    receive do
+    MachineClock.receive do
       {:go, sock} -> serve(sock, conf)
     after
       5_000 -> :ok
@@ -490,7 +493,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   defp events(sock) do
     data =
-      receive do
+      MachineClock.receive do
         {:sse, data} -> data
         {:tcp_closed, ^sock} -> :stop
         {:tcp_error, ^sock, _} -> :stop
@@ -504,7 +507,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   # -- time --------------------------------------------------------------------------------
 
-  defp now, do: System.monotonic_time(:millisecond)
+  defp now, do: Clock.machine_time(:millisecond)
   defp left(deadline), do: max(deadline - now(), 0)
   defp sent(:ok), do: :ok
   defp sent({:error, _}), do: :closed
