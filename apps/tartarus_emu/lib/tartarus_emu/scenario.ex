@@ -158,7 +158,14 @@ defmodule TartarusEmu.Scenario do
           "keeps its network under `:net` or it defines `c:network/1`; see " <>
           "`TartarusEmu.Dashboard`), or dashboard options"
     ],
-    step_ms: [type: :non_neg_integer, default: 0, doc: "pause after each step (to watch a run)"]
+    step_ms: [type: :non_neg_integer, default: 0, doc: "pause after each step (to watch a run)"],
+    time: [
+      type: {:in, [:real, :virtual]},
+      default: :real,
+      doc:
+        "the run's clock: `:real`, or `:virtual` (`Tartarus.Clock.Virtual`, seeded with the " <>
+          "run's seed: CPU time is no time, the same seed gives the same run; one VM only)"
+    ]
   ]
 
   @doc """
@@ -184,31 +191,38 @@ defmodule TartarusEmu.Scenario do
         |> Map.new()
         |> Map.merge(%{seed: seed, rng: :rand.seed_s(:exsss, seed), steps: steps})
 
-      t0 = Clock.machine_time(:millisecond)
+      Tartarus.Clock.Virtual.within(runner[:time], seed, fn ->
+        run(module, setup_opts, seed, runner)
+      end)
+    end
+  end
 
-      with {:ok, state} <- module.setup(setup_opts),
-           {:ok, dash} <- dashboard(module, state, runner) do
-        try do
-          t1 = Clock.machine_time(:millisecond)
-          {state, ran} = loop(module, state, steps, runner)
-          t2 = Clock.machine_time(:millisecond)
+  defp run(module, setup_opts, seed, runner) do
+    t0 = Clock.machine_time(:millisecond)
 
-          runner_keys = %{
-            scenario: module.name(),
-            seed: seed,
-            steps: ran,
-            setup_ms: t1 - t0,
-            run_ms: t2 - t1
-          }
+    with {:ok, state} <- module.setup(setup_opts),
+         {:ok, dash} <- dashboard(module, state, runner) do
+      try do
+        t1 = Clock.machine_time(:millisecond)
+        {state, ran} = loop(module, state, setup_opts.steps, runner)
+        t2 = Clock.machine_time(:millisecond)
 
-          summary = Map.merge(runner_keys, module.summary(state))
-          series = module.series(state)
-          {dir, files} = write(module, state, runner[:out], summary, series)
-          {:ok, %{summary: summary, series: series, out: dir, files: files}}
-        after
-          if dash, do: TartarusTools.Dashboard.stop(dash)
-          teardown(module, state)
-        end
+        runner_keys = %{
+          scenario: module.name(),
+          seed: seed,
+          steps: ran,
+          setup_ms: t1 - t0,
+          run_ms: t2 - t1,
+          time: runner[:time]
+        }
+
+        summary = Map.merge(runner_keys, module.summary(state))
+        series = module.series(state)
+        {dir, files} = write(module, state, runner[:out], summary, series)
+        {:ok, %{summary: summary, series: series, out: dir, files: files}}
+      after
+        if dash, do: TartarusTools.Dashboard.stop(dash)
+        teardown(module, state)
       end
     end
   end

@@ -7,7 +7,14 @@ defmodule TartarusEmu.Sweep do
       doc: "no line per run (the standard devices get them only when they are a terminal)"
     ],
     progress_device: [type: :any, default: :standard_error, doc: "where the lines go"],
-    concurrency: [type: :pos_integer, doc: "runs at a time (overrides the spec's)"]
+    concurrency: [type: :pos_integer, doc: "runs at a time (overrides the spec's)"],
+    time: [
+      type: {:in, [:real, :virtual]},
+      default: :real,
+      doc:
+        "each run's clock: `:real`, or `:virtual` (each run in `Tartarus.Clock.Virtual` " <>
+          "seeded with its seed, one run at a time: the VM has one clock)"
+    ]
   ]
 
   @moduledoc """
@@ -297,7 +304,8 @@ defmodule TartarusEmu.Sweep do
   defp run_all(spec, o) do
     plan = plan(spec)
     total = length(plan)
-    concurrency = Map.get(o, :concurrency) || spec.concurrency
+    # Virtual time is the VM's: runs in it go one at a time.
+    concurrency = if o.time == :virtual, do: 1, else: Map.get(o, :concurrency) || spec.concurrency
 
     t0 = Clock.machine_time(:millisecond)
     # The standard devices get the lines only when they are a terminal.
@@ -306,7 +314,10 @@ defmodule TartarusEmu.Sweep do
         (o.progress_device in [:standard_error, :standard_io] and not tty?(o.progress_device))
 
     plan
-    |> Task.async_stream(fn {arm, seed} -> run_one(spec.run, arm, seed) end,
+    |> Task.async_stream(
+      fn {arm, seed} ->
+        Tartarus.Clock.Virtual.within(o.time, seed, fn -> run_one(spec.run, arm, seed) end)
+      end,
       max_concurrency: concurrency,
       ordered: false,
       timeout: :infinity

@@ -128,12 +128,13 @@ defmodule TartarusEmu.Walk do
     end
   end
 
-  # Processes: per host a supervisor, a server and two dynamic supervisors; per agent its
-  # process and, while it migrates, its paused copy at the destination.
+  # Processes: per host a supervisor, a server, its overlay process, the plugins'
+  # supervisor and the keeper; per agent its process and, while it migrates, its paused
+  # copy at the destination.
   defp runner_limits(opts) do
     hosts = Keyword.get(opts, :hosts, default(:hosts))
     agents = Keyword.get(opts, :agents, default(:agents))
-    procs = hosts * 5 + agents * 2 + 50_000
+    procs = hosts * 6 + agents * 2 + 50_000
     tables = hosts * 2 + 2_000
 
     virtual? = Keyword.get(opts, :mode, default(:mode)) == :virtual

@@ -29,6 +29,7 @@ defmodule TartarusWarehouse.Central do
   """
   use Tartarus.Agent
 
+  alias Tartarus.Clock
   alias TartarusWarehouse.{Distributor, Service}
 
   @doc false
@@ -64,7 +65,7 @@ defmodule TartarusWarehouse.Central do
   @doc false
   @impl true
   def handle_info(:service_due, s) do
-    {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
+    {svc, items, wake} = Service.due(s.svc, Clock.monotonic_time(:microsecond))
     Service.arm(wake)
     {:stay, Enum.reduce(items, %{s | svc: svc}, &serve/2)}
   end
@@ -121,7 +122,7 @@ defmodule TartarusWarehouse.Central do
   defp act({:reissue, ref, a}, s), do: %{s | pending: s.pending ++ [{ref, a}]}
 
   defp act({:job_done, id}, s) do
-    if s.owner, do: send(s.owner, {:warehouse_job_done, id, System.system_time(:microsecond)})
+    if s.owner, do: send(s.owner, {:warehouse_job_done, id, Clock.system_time(:microsecond)})
     s
   end
 
@@ -187,11 +188,12 @@ defmodule TartarusWarehouse.CentralRobot do
     ]
 
   alias Tartarus.Agent
+  alias Tartarus.Clock
 
   @doc false
   @impl true
   def init(args) do
-    Process.send_after(self(), :subscribe, 0)
+    Clock.send_after(self(), :subscribe, 0)
     {:stay, Map.put(args, :running, nil)}
   end
 

@@ -44,6 +44,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   """
   use Tartarus.Agent
 
+  alias Tartarus.Clock
   alias TartarusWarehouse.{Distributor, Service}
 
   @doc false
@@ -224,7 +225,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   @doc false
   @impl true
   def handle_info(:service_due, s) do
-    {svc, items, wake} = Service.due(s.svc, System.monotonic_time(:microsecond))
+    {svc, items, wake} = Service.due(s.svc, Clock.monotonic_time(:microsecond))
     Service.arm(wake)
 
     s =
@@ -259,7 +260,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   end
 
   defp act({:release, ref, a}, s) do
-    nonce = {System.system_time(:microsecond), :erlang.unique_integer([:positive])}
+    nonce = {Clock.system_time(:microsecond), :erlang.unique_integer([:positive])}
 
     args = %{
       ref: ref,
@@ -284,7 +285,7 @@ defmodule TartarusWarehouse.DistributorAgent do
   end
 
   defp act({:job_done, id}, s) do
-    if s.owner, do: send(s.owner, {:warehouse_job_done, id, System.system_time(:microsecond)})
+    if s.owner, do: send(s.owner, {:warehouse_job_done, id, Clock.system_time(:microsecond)})
     s
   end
 

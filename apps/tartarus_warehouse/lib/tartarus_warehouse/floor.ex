@@ -31,6 +31,7 @@ defmodule TartarusWarehouse.Floor do
 
   use GenServer
 
+  alias Tartarus.Clock
   alias TartarusTools.Dashboard.Panel
   alias TartarusWarehouse.{Checker, Job}
   alias TartarusWarehouse.Floor.{Build, Changes, Options}
@@ -60,19 +61,29 @@ defmodule TartarusWarehouse.Floor do
   done; `refused_events`, the events that were refused and changed nothing, with the
   reason; `applied_events`, each with the time it took effect, µs; `killed_at_us`;
   `failed`, nil or why the distributor failed: its jobs are then lost and `run/1` stops
-  waiting for them; `mutex_violations`; `changes`) and `wall_ms`; or `{:error, message}`
-  for bad options or a rejected job.
+  waiting for them; `mutex_violations`; `changes`), `wall_ms` (the machine's time the run
+  took, `Tartarus.Clock.machine_time/1`) and `duration_ms` (the run's time on the floor's
+  own clock, `Tartarus.Clock.monotonic_time/1`: in virtual time, the emulated time); or
+  `{:error, message}` for bad options or a rejected job.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
-    t_start = System.monotonic_time(:millisecond)
+    # wall_ms: the machine's time the run took (the apparatus); duration_ms: the floor's
+    # own (design) time, which in virtual time is the emulated time.
+    t_start = Clock.machine_time(:millisecond)
+    d_start = Clock.monotonic_time(:millisecond)
 
     with {:ok, opts, world, events} <- Options.check_run(opts),
          {:ok, floor} <- launch(world, opts, %{events: events, owner: self()}) do
       # :ok, {:error, :timeout} or the floor's failure: stop/1's result says which.
       _ = await(floor, opts[:timeout_ms])
       {:ok, r} = stop(floor)
-      {:ok, Map.put(r, :wall_ms, System.monotonic_time(:millisecond) - t_start)}
+
+      {:ok,
+       Map.merge(r, %{
+         wall_ms: Clock.machine_time(:millisecond) - t_start,
+         duration_ms: Clock.monotonic_time(:millisecond) - d_start
+       })}
     end
   end
 
@@ -173,7 +184,7 @@ defmodule TartarusWarehouse.Floor do
     if run.owner, do: Process.monitor(run.owner)
     table = opts[:status] || TartarusWarehouse.Panel.new()
     ctx = Build.start(world, Keyword.put(opts, :status, table), self())
-    t0 = System.system_time(:microsecond)
+    t0 = Clock.system_time(:microsecond)
     :ok = Build.publish(ctx, 0, t0)
 
     case start_dashboard(opts[:dashboard], ctx, table) do
@@ -214,7 +225,7 @@ defmodule TartarusWarehouse.Floor do
       |> Enum.sort_by(&elem(&1, 1))
 
     {now, later} = Enum.split_with(timed, fn {_job, at} -> at <= 0 end)
-    Enum.each(later, fn {job, at} -> Process.send_after(self(), {:arrive, job}, at) end)
+    Enum.each(later, fn {job, at} -> Clock.send_after(self(), {:arrive, job}, at) end)
     st = submit_all(st, Enum.map(now, &elem(&1, 0)))
     if later == [], do: fire(st, 0), else: %{st | arriving: length(later)}
   end
@@ -232,10 +243,10 @@ defmodule TartarusWarehouse.Floor do
 
   # `{{:ms, t}, event}`: t ms after `t0` (taken before the first job was submitted).
   defp schedule_events(st) do
-    elapsed_ms = div(System.system_time(:microsecond) - st.t0, 1000)
+    elapsed_ms = div(Clock.system_time(:microsecond) - st.t0, 1000)
 
     Enum.each(st.events, fn
-      {{:ms, t}, event} -> Process.send_after(self(), {:event_due, event}, max(t - elapsed_ms, 0))
+      {{:ms, t}, event} -> Clock.send_after(self(), {:event_due, event}, max(t - elapsed_ms, 0))
       _ -> :ok
     end)
 
@@ -254,7 +265,7 @@ defmodule TartarusWarehouse.Floor do
   defp fire(st, _count), do: st
 
   defp fire_one(event, st) do
-    at = System.system_time(:microsecond)
+    at = Clock.system_time(:microsecond)
     {_result, st} = apply_change(event, st)
     if match?({:kill_distributor, _}, event), do: %{st | killed: [at | st.killed]}, else: st
   end
@@ -266,7 +277,7 @@ defmodule TartarusWarehouse.Floor do
         {Changes.apply_change(event, st.ctx), st}
       end)
 
-    change = %{event: event, at_us: System.system_time(:microsecond), result: result}
+    change = %{event: event, at_us: Clock.system_time(:microsecond), result: result}
     {result, %{st | changes: [change | st.changes]}}
   end
 
@@ -301,12 +312,12 @@ defmodule TartarusWarehouse.Floor do
       {:error,
        "the distributor's host can be killed only on a floor started with failover: true (without it every job stops)"}
 
-    change = %{event: event, at_us: System.system_time(:microsecond), result: result}
+    change = %{event: event, at_us: Clock.system_time(:microsecond), result: result}
     {:reply, result, %{st | changes: [change | st.changes]}}
   end
 
   def handle_call({:change, event}, _from, st) do
-    at = System.system_time(:microsecond)
+    at = Clock.system_time(:microsecond)
     {result, st} = apply_change(event, st)
 
     st =
@@ -333,7 +344,7 @@ defmodule TartarusWarehouse.Floor do
        pending: Enum.reject(st.jobs, &Map.has_key?(st.done, &1)),
        robots: robots,
        hosts: st.ctx.robot_hosts,
-       elapsed_ms: div(System.system_time(:microsecond) - st.t0, 1000),
+       elapsed_ms: div(Clock.system_time(:microsecond) - st.t0, 1000),
        failed: st.failed,
        errors: Enum.reverse(st.errors)
      }, st}
@@ -351,7 +362,7 @@ defmodule TartarusWarehouse.Floor do
 
   defp wait(timeout, from, st) do
     ref = make_ref()
-    if timeout != :infinity, do: Process.send_after(self(), {:await_timeout, ref}, timeout)
+    if timeout != :infinity, do: Clock.send_after(self(), {:await_timeout, ref}, timeout)
     {:noreply, %{st | waiters: [{ref, from} | st.waiters]}}
   end
 

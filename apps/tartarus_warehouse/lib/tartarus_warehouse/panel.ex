@@ -95,7 +95,7 @@ defmodule TartarusWarehouse.Panel do
         end
       end)
 
-    secs = (System.system_time(:microsecond) - f.t0_us) / 1_000_000
+    secs = (Tartarus.Clock.system_time(:microsecond) - f.t0_us) / 1_000_000
 
     %{
       title: title(table),

@@ -54,10 +54,10 @@ defmodule TartarusWarehouse.Program do
   """
   @spec timed(ctx(), (list() -> term())) :: term()
   def timed(ctx, work) do
-    t0 = System.monotonic_time(:microsecond)
+    t0 = Tartarus.Clock.monotonic_time(:microsecond)
     result = work.(Enum.to_list(100..1//-1))
-    left = round(ctx.ms - (System.monotonic_time(:microsecond) - t0) / 1000)
-    if left > 0, do: Process.sleep(left)
+    left = round(ctx.ms - (Tartarus.Clock.monotonic_time(:microsecond) - t0) / 1000)
+    if left > 0, do: Tartarus.Clock.sleep(left)
     result
   end
 

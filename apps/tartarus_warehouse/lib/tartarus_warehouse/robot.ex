@@ -56,11 +56,13 @@ defmodule TartarusWarehouse.Robot do
 
   `read(:robot, :history)` gives every execution, oldest first: maps with `robot, job,
   seq, task, resources, agent, claimed_us, start_us, stop_us, ms, ideal_ms` (times are
-  `System.system_time(:microsecond)`; `claimed_us`: when the agent claimed the robot for
+  `Tartarus.Clock.system_time(:microsecond)`; `claimed_us`: when the agent claimed the robot for
   the block the task belongs to). It is the event log the checker reads
   (`TartarusWarehouse.Checker`).
   """
   @behaviour Tartarus.Plugin
+
+  alias Tartarus.Clock
 
   @doc """
   Every execution the robots ran so far (`robot_hosts`: `%{name => host}` or a list of
@@ -154,7 +156,7 @@ defmodule TartarusWarehouse.Robot do
   def write({:claim, look_for, needs, agent}, s) do
     if s.busy == nil and not s.off and matches?(s.state, look_for) and
          (look_for != :free or (not s.retiring and reaches?(s, needs))) do
-      {:ok, %{s | busy: agent, claimed_us: System.system_time(:microsecond)}}
+      {:ok, %{s | busy: agent, claimed_us: Clock.system_time(:microsecond)}}
     else
       {:error, :no_match, s}
     end
@@ -261,7 +263,7 @@ defmodule TartarusWarehouse.Robot do
   end
 
   defp skip(task, run, agent, ctx) do
-    now = System.system_time(:microsecond)
+    now = Clock.system_time(:microsecond)
 
     %{
       robot: ctx.robot,
@@ -281,10 +283,10 @@ defmodule TartarusWarehouse.Robot do
 
   defp perform(task, run, agent, ctx) do
     ms = task.duration_ms * ctx.scale * ctx.pace * factor(ctx, run.job, task.name)
-    start = System.system_time(:microsecond)
-    t0 = System.monotonic_time(:microsecond)
+    start = Clock.system_time(:microsecond)
+    t0 = Clock.monotonic_time(:microsecond)
     task.program.run(%{job: run.job, task: task.name, robot: ctx.robot, ms: ms})
-    took = System.monotonic_time(:microsecond) - t0
+    took = Clock.monotonic_time(:microsecond) - t0
 
     %{
       robot: ctx.robot,

@@ -10,6 +10,7 @@ defmodule TartarusWarehouse.SequenceAgent do
   use Tartarus.Agent
 
   alias Tartarus.Agent
+  alias Tartarus.Clock
 
   @doc false
   @impl true
@@ -27,7 +28,7 @@ defmodule TartarusWarehouse.SequenceAgent do
 
     if MapSet.size(s.left) == 0 do
       if s.owner,
-        do: send(s.owner, {:warehouse_sequence_done, s.change, System.system_time(:microsecond)})
+        do: send(s.owner, {:warehouse_sequence_done, s.change, Clock.system_time(:microsecond)})
 
       {:stop, :normal, s}
     else
@@ -38,7 +39,7 @@ defmodule TartarusWarehouse.SequenceAgent do
   @doc false
   @impl true
   def handle_move_failed(_dest, _reason, _ctx, s) do
-    Process.send_after(self(), :roam, 5)
+    Clock.send_after(self(), :roam, 5)
     {:stay, s}
   end
 

@@ -10,7 +10,8 @@ defmodule TartarusWarehouse.Service do
   The owning agent keeps the service in its state: `admit/4` when a message arrives (it
   returns the wake-up to arm, if any), `due/2` when that wake-up comes (the messages now
   done, to handle in order). Every message served is logged as `{arrived_us, started_us,
-  done_us}` (monotonic µs); `stats/3` and `timeline/4` read the log: the busy fraction
+  done_us}` (µs of `Tartarus.Clock.monotonic_time/1`: in virtual time, the declared service
+  time, not the machine's); `stats/3` and `timeline/4` read the log: the busy fraction
   (utilisation) and the queue length (messages waiting or in service) over time.
 
       iex> alias TartarusWarehouse.Service
@@ -24,6 +25,8 @@ defmodule TartarusWarehouse.Service do
       iex> Service.stats(s.log, 1_000, 5_000)
       %{busy: 1.0, messages: 2, mean_wait_ms: 0.75, max_queue: 2}
   """
+
+  alias Tartarus.Clock
 
   @typedoc "A service: its time per message (µs), the queue, when it is next free, the log."
   @type t :: %{
@@ -51,20 +54,21 @@ defmodule TartarusWarehouse.Service do
   """
   @spec charge(t(), term()) :: t()
   def charge(s, item) do
-    {s, wake} = admit(s, item, System.monotonic_time(:microsecond), false)
+    {s, wake} = admit(s, item, Clock.monotonic_time(:microsecond), false)
     arm(wake)
     s
   end
 
   @doc """
   In the serving process: arms the wake-up `admit/4` or `due/2` asked for, a
-  `:service_due` message to this process at that monotonic ms (nothing for nil).
+  `:service_due` message to this process at that ms of `Tartarus.Clock.monotonic_time/1`
+  (a timer of `Tartarus.Clock`; nothing for nil).
   """
   @spec arm({:wake_at_ms, integer()} | nil) :: :ok
   def arm(nil), do: :ok
 
   def arm({:wake_at_ms, ms}) do
-    Process.send_after(self(), :service_due, ms, abs: true)
+    Clock.send_after(self(), :service_due, ms, abs: true)
     :ok
   end
 

@@ -48,6 +48,7 @@ defmodule TartarusWarehouse.TaskAgent do
   use Tartarus.Agent
 
   alias Tartarus.Agent
+  alias Tartarus.Clock
 
   @doc false
   @impl true
@@ -136,7 +137,7 @@ defmodule TartarusWarehouse.TaskAgent do
   @doc false
   @impl true
   def handle_move_failed(_dest, _reason, _ctx, s) do
-    Process.send_after(self(), :roam, max(s.idle_ms, 1))
+    Clock.send_after(self(), :roam, max(s.idle_ms, 1))
     {:stay, s}
   end
 
@@ -191,14 +192,14 @@ defmodule TartarusWarehouse.TaskAgent do
   defp wait(s, why) do
     ref = make_ref()
     key = {Agent.host(), s.a.look_for, self()}
-    now = System.monotonic_time(:millisecond)
+    now = Clock.monotonic_time(:millisecond)
 
     cond do
       Map.get(s, :watching) == key and why == :no_field and now - s.since > @give_up_ms ->
         {:move, strategy(s), Map.delete(s, :watching)}
 
       Map.get(s, :watching) == key ->
-        Process.send_after(self(), {:guided, ref}, @safety_ms)
+        Clock.send_after(self(), {:guided, ref}, @safety_ms)
         {:stay, Map.put(s, :wait_timer, ref)}
 
       Agent.subscribe(:robot) == :ok and
@@ -209,7 +210,7 @@ defmodule TartarusWarehouse.TaskAgent do
       # It could not listen (the robot or the node's signal process did not answer): it
       # looks again soon, and tries to listen again then.
       true ->
-        Process.send_after(self(), {:guided, ref}, max(s.idle_ms, 1))
+        Clock.send_after(self(), {:guided, ref}, max(s.idle_ms, 1))
         {:stay, Map.put(s, :wait_timer, ref)}
     end
   end
@@ -220,7 +221,7 @@ defmodule TartarusWarehouse.TaskAgent do
         {:stop, :normal, s}
 
       s.misses >= s.round and s.idle_ms > 0 ->
-        Process.send_after(self(), :roam, s.idle_ms)
+        Clock.send_after(self(), :roam, s.idle_ms)
         {:stay, %{s | misses: 0}}
 
       true ->
@@ -238,18 +239,18 @@ defmodule TartarusWarehouse.TaskAgent do
   # restarting; its answers are the same when asked twice), for at most 8 s; then
   # `:unreachable` (the distributor is gone: the agent stops, its token with it).
   defp ask(s, message, deadline \\ nil) do
-    deadline = deadline || System.monotonic_time(:millisecond) + 8_000
+    deadline = deadline || Clock.monotonic_time(:millisecond) + 8_000
 
     case Tartarus.request(s.distributor, message, 2_000) do
       {:ok, answer} ->
         answer
 
       {:error, reason} ->
-        if System.monotonic_time(:millisecond) > deadline do
+        if Clock.monotonic_time(:millisecond) > deadline do
           _ = reason
           :unreachable
         else
-          Process.sleep(10)
+          Clock.sleep(10)
           ask(s, message, deadline)
         end
     end

@@ -97,6 +97,18 @@ defmodule Tartarus.Clock.Virtual do
   end
 
   @doc """
+  Runs `fun` in `time`: `:virtual` installs the clock around it (with `seed`) unless one is
+  installed already (a run inside a sweep that installed it); `:real` just runs it. The one
+  entry of the emulator's runners (`TartarusEmu.Scenario`, `TartarusEmu.Sweep`).
+  """
+  @spec within(:real | :virtual, integer(), (() -> result)) :: result when result: term()
+  def within(:virtual, seed, fun) do
+    if Tartarus.Clock.virtual?(), do: fun.(), else: run([seed: seed], fun)
+  end
+
+  def within(:real, _seed, fun), do: fun.()
+
+  @doc """
   What the advancer did so far: `:fired` timers, `:virtual_ms` since the install, `:wall_ms`
   since the install, `:pending` timers, `:idle_checks`. Nil in real mode.
   """

@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
                        [--strategy random|conscientious] [--p P] [--latency-ms MS]
                        [--loss P] [--seed N] [--out DIR] [--until-covered]
                        [--keep-events] [--quiet] [--json] [--help]
-                       [--dashboard PORT] [--step-ms MS]
+                       [--dashboard PORT] [--step-ms MS] [--time real|virtual]
 
   Defaults (those of `TartarusEmu.Walk.schema/0`): a 16-host grid, 4 agents, 100 steps,
   virtual mode, random walk, `p = 0`, seed 1 (as every task), output in
@@ -34,6 +34,12 @@ defmodule Mix.Tasks.Tartarus.Emu do
   while the walk runs and prints its address and action token; `--step-ms MS` pauses
   after each step so that a person can watch (see `docs/dashboard.md`).
 
+  `--time virtual` runs the walk in virtual time (`Tartarus.Clock.Virtual`, seeded with
+  `--seed`): the links' latencies and the agents' waits are the only time, CPU is none, and
+  the same seed gives the same numbers however loaded the machine is (`wall_ms` stays the
+  machine's). Only with `--mode virtual`: networks of real BEAM nodes run in real time. See
+  `docs/emulator.md`, "Time".
+
   Large virtual runs (more processes or ETS tables than this VM allows, e.g. 10,000 hosts
   and 100,000 agents) run in a fresh BEAM node started with `+P` and `+e` large enough, so
   no `ELIXIR_ERL_OPTIONS` are needed; the summary's `runner` says where the run ran.
@@ -57,6 +63,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
     keep_events: :boolean,
     dashboard: :integer,
     step_ms: :integer,
+    time: :string,
     quiet: :boolean,
     json: :boolean,
     help: :boolean
@@ -88,7 +95,8 @@ defmodule Mix.Tasks.Tartarus.Emu do
         quiet: opts[:quiet] || opts[:json] || false,
         progress_device: progress,
         dashboard: opts[:dashboard],
-        step_ms: opts[:step_ms]
+        step_ms: opts[:step_ms],
+        time: opts[:time] && String.to_existing_atom(opts[:time])
       )
       |> Enum.reject(fn {_, v} -> is_nil(v) end)
 
@@ -114,6 +122,19 @@ defmodule Mix.Tasks.Tartarus.Emu do
     TartarusTools.CLI.positive!(opts, [:hosts, :agents, :steps, :group], "tartarus.emu")
     TartarusTools.CLI.probability!(opts, [:p, :loss], "tartarus.emu")
     TartarusTools.CLI.non_negative!(opts, [:dashboard, :step_ms], "tartarus.emu")
+
+    case {opts[:time], opts[:mode]} do
+      {t, _} when t not in [nil, "real", "virtual"] ->
+        Mix.raise("mix tartarus.emu: --time: expected real or virtual, got: #{inspect(t)}")
+
+      {"virtual", "peer"} ->
+        Mix.raise(
+          "mix tartarus.emu: --time virtual needs --mode virtual (networks of real BEAM nodes run in real time)"
+        )
+
+      _ ->
+        :ok
+    end
 
     case opts[:topology] do
       t when t in [nil, "grid", "ring", "line", "random"] ->

@@ -462,6 +462,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       completed_jobs: r.completed_jobs,
       mutex_violations: r.violations,
       wall_ms: r.wall_ms,
+      duration_ms: r.duration_ms,
       makespan_ms: round(r.makespan_ms),
       migrations: r.migrations
     }

@@ -16,6 +16,7 @@ defmodule TartarusWarehouse.Floor.Build do
   move among robots (`TartarusWarehouse.Roam`).
   """
 
+  alias Tartarus.Clock
   alias TartarusEmu.{Network, Topology}
   alias TartarusTools.Dashboard.Panel
   alias TartarusWarehouse.{Job, Robot}
@@ -270,7 +271,7 @@ defmodule TartarusWarehouse.Floor.Build do
       messages: Map.get(totals, :messages, 0),
       service_log: service_log,
       # monotonic µs minus system µs: the service log's times on the histories' clock
-      mono_offset_us: System.monotonic_time(:microsecond) - System.system_time(:microsecond)
+      mono_offset_us: Clock.monotonic_time(:microsecond) - Clock.system_time(:microsecond)
     }
   end
 

@@ -7,6 +7,7 @@ defmodule TartarusWarehouse.Floor.Changes do
   has no robot for, and no task agent searches for a robot that will not come back.
   """
 
+  alias Tartarus.Clock
   alias TartarusEmu.Network
   alias TartarusWarehouse.Job
 
@@ -22,7 +23,7 @@ defmodule TartarusWarehouse.Floor.Changes do
         :ok
 
       {:error, _} when tries > 0 ->
-        Process.sleep(10)
+        Clock.sleep(10)
         submit(dref, job, tries - 1)
 
       other ->
@@ -131,7 +132,7 @@ defmodule TartarusWarehouse.Floor.Changes do
   # (on its journal, with `failover: true`).
   defp kill_distributor(net, down_ms) do
     :ok = Network.kill_node(net, "jd")
-    Process.sleep(down_ms)
+    Clock.sleep(down_ms)
     Network.restart_node(net, "jd")
   end
 
