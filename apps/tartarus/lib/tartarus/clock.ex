@@ -221,6 +221,35 @@ defmodule Tartarus.Clock do
   def machine_sleep(ms), do: Process.sleep(ms)
 
   @doc """
+  `n` bytes for identities (agent ids): from the system's strong random source in real mode;
+  in virtual mode drawn from the clock's seed and a counter, so that a run replayed with
+  the same seed gets the same ids (maps keyed by them iterate in the same order, and so
+  every choice made by walking one is the same).
+  """
+  @spec unique_bytes(pos_integer()) :: binary()
+  def unique_bytes(n) do
+    case virtual() do
+      nil ->
+        :crypto.strong_rand_bytes(n)
+
+      {_tab, at, seed} ->
+        k = :atomics.add_get(at, 4, 1)
+        stream(seed, k, n, <<>>)
+    end
+  end
+
+  defp stream(_seed, _k, n, acc) when byte_size(acc) >= n, do: binary_part(acc, 0, n)
+
+  defp stream(seed, k, n, acc),
+    do:
+      stream(
+        seed,
+        k,
+        n,
+        acc <> :crypto.hash(:sha256, :erlang.term_to_binary({seed, k, byte_size(acc)}))
+      )
+
+  @doc """
   `GenServer.call/3` whose timeout is this clock's: in virtual mode the caller gives up
   after `timeout` ms of virtual time (a server on another node is called in real time).
   """
@@ -351,7 +380,8 @@ defmodule Tartarus.Clock do
   # Timers live in the virtual clock's ordered_set as {{due_us, rank, seq}, dest, what}: due
   # first, then a rank drawn from the seed and the arming sequence (a seeded order of the
   # timers due at one instant), then the sequence itself (unique). The atomics hold: 1 the
-  # time now (µs), 2 the arming sequence, 3 the wall clock's offset (µs).
+  # time now (µs), 2 the arming sequence, 3 the wall clock's offset (µs), 4 the count of
+  # unique_bytes/1 draws.
   # An absolute time may be negative (the BEAM's monotonic time usually is).
   defp due({_tab, at, _}, time, opts) when is_integer(time) do
     cond do

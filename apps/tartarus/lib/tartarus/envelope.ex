@@ -67,13 +67,13 @@ defmodule Tartarus.Envelope do
   """
   @spec new_id() :: String.t()
   def new_id do
-    # 64 bits from the system's strong random source, as from :crypto.strong_rand_bytes(8)
-    # per id, but drawn 64 ids at a time into the calling process's dictionary (one crypto
+    # 64 bits from the system's strong random source (in virtual time a seeded stream:
+    # Tartarus.Clock.unique_bytes/1), as from :crypto.strong_rand_bytes(8) per id, but drawn 64 ids at a time into the calling process's dictionary (one crypto
     # call per 64 ids: creations and clones are this much cheaper).
     <<bits::binary-size(8), rest::binary>> =
       case Process.get(:"$tartarus_id_pool") do
         <<_::binary-size(8), _::binary>> = pool -> pool
-        _ -> :crypto.strong_rand_bytes(8 * 64)
+        _ -> Tartarus.Clock.unique_bytes(8 * 64)
       end
 
     Process.put(:"$tartarus_id_pool", rest)

@@ -7,6 +7,10 @@ defmodule TartarusEmu.Application do
 
   @impl true
   def start(_type, _args) do
+    # The networks' tags (TartarusEmu.Network): a counter of this VM, so that the n-th
+    # network of a run has the same host names on every run.
+    :persistent_term.put({TartarusEmu.Network, :tags}, :atomics.new(1, signed: false))
+
     children = [
       # Starts a worker by calling: TartarusEmu.Worker.start_link(arg)
       # {TartarusEmu.Worker, arg}

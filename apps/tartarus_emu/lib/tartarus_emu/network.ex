@@ -188,9 +188,13 @@ defmodule TartarusEmu.Network do
              "TartarusEmu.Network.start/2 (:link)"
            ) do
       # Fixed width (6 base-36 digits, unique for 2 billion networks per VM), so that host
-      # names, and the bytes of envelopes that carry them, have the same size on every run.
+      # names, and the bytes of envelopes that carry them, have the same size on every run;
+      # the n-th network of this VM (a counter, not System.unique_integer/1, whose value
+      # depends on the scheduler that asks), so that its host names are the same on every
+      # run: the order of maps keyed by them, and so every choice made by walking one, too.
       tag =
-        System.unique_integer([:positive])
+        :persistent_term.get({__MODULE__, :tags})
+        |> :atomics.add_get(1, 1)
         |> rem(2_176_782_336)
         |> Integer.to_string(36)
         |> String.pad_leading(6, "0")

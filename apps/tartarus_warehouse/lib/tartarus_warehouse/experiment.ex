@@ -82,6 +82,14 @@ defmodule TartarusWarehouse.Experiment do
         "time scale: 0.01 runs a 2 s task as 20 ms (default: 0.1 for `scaling`, 0.01 for the others)"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
+    time: [
+      type: {:in, [:real, :virtual]},
+      default: :real,
+      doc:
+        "the floors' clock: `real`, or `virtual` (`Tartarus.Clock.Virtual`, seeded with " <>
+          "the seed: task durations, service times and link latencies are the only time, " <>
+          "CPU is none; with `mode: :virtual` only)"
+    ],
     robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
     jobs: [type: :pos_integer, default: 4, doc: "`robots`: jobs with variable durations"],
     jitter: [type: :number, default: 0.3, doc: "`robots`: spread of each execution's duration"],
@@ -180,6 +188,10 @@ defmodule TartarusWarehouse.Experiment do
       need = opts[:scaling_robots] + opts[:phi_nodes] + 1
 
       cond do
+        opts[:time] == :virtual and opts[:mode] == :peer ->
+          {:error,
+           "invalid options given to TartarusWarehouse.Experiment.run/1 for key :time: virtual time needs mode: :virtual (networks of real BEAM nodes run in real time), got: mode: :peer"}
+
         opts[:nodes] < need ->
           {:error,
            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + phi_nodes + 1 (#{need}), got: #{opts[:nodes]}"}
@@ -217,6 +229,7 @@ defmodule TartarusWarehouse.Experiment do
         out: out,
         quiet: opts[:quiet],
         dashboard: opts[:dashboard],
+        time: opts[:time],
         steps: 1,
         params: Keyword.drop(opts, [:seed, :out, :dashboard]),
         points: points,
@@ -368,6 +381,7 @@ defmodule TartarusWarehouse.Experiment do
       deadlocks: runs |> Enum.map(&length(&1.timed_out)) |> Enum.sum(),
       scale: p.scale,
       mode: to_string(p.mode),
+      time: to_string(p.time),
       wall_ms: runs |> Enum.map(& &1.wall_ms) |> Enum.sum()
     }
 

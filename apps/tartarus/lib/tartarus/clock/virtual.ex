@@ -125,10 +125,14 @@ defmodule Tartarus.Clock.Virtual do
   @impl true
   def init(opts) do
     preload()
+    # One scheduler: the order in which processes run is then the program's, not the
+    # machine's (see idle?/1), and the same seed gives the same run.
+    schedulers = :erlang.system_flag(:schedulers_online, 1)
+    :persistent_term.put({__MODULE__, :schedulers}, schedulers)
     seed = Keyword.get(opts, :seed, 0)
     start_us = Keyword.get(opts, :start_us, System.monotonic_time(:microsecond))
     tab = :ets.new(__MODULE__, [:ordered_set, :public, write_concurrency: true])
-    at = :atomics.new(3, signed: true)
+    at = :atomics.new(4, signed: true)
     :atomics.put(at, 1, start_us)
     :atomics.put(at, 3, System.system_time(:microsecond) - start_us)
     :persistent_term.put({__MODULE__, :advancer}, self())
@@ -174,6 +178,12 @@ defmodule Tartarus.Clock.Virtual do
   def terminate(_reason, _s), do: clear()
 
   defp clear do
+    case :persistent_term.get({__MODULE__, :schedulers}, nil) do
+      n when is_integer(n) -> :erlang.system_flag(:schedulers_online, n)
+      nil -> :ok
+    end
+
+    _ = :persistent_term.erase({__MODULE__, :schedulers})
     _ = :persistent_term.erase(Tartarus.Clock.__key__())
     _ = :persistent_term.erase({__MODULE__, :advancer})
     :ok
@@ -243,13 +253,22 @@ defmodule Tartarus.Clock.Virtual do
   # and nothing else ran between two readings of the VM's reductions. The readings cost this
   # process a fixed number of reductions that the VM's count sees and its own does not (or
   # the other way round): `calib`, the most frequent difference in a quiet VM.
-  # Three readings in a row, so that a process woken by something outside (a port's answer)
-  # has the time to be seen.
-  defp idle?(calib),
-    do: others() == {1, calib} and others() == {1, calib} and others() == {1, calib}
+  # The VM runs on one scheduler while the clock is installed (init/1): every runnable
+  # process is then in this scheduler's queue, and a yield lets all of them run before this
+  # process goes on. Idle: twice in a row, nothing but this process ran across a yield (the
+  # VM's reductions grew by this process's own, `calib` being the readings' fixed
+  # difference) and no dirty scheduler has work (a file write of a journal). The VM's count
+  # of active tasks is not used: it can stay above 1 with nothing to run (stale run-queue
+  # entries of processes that went back to waiting, seen with thousands of agents).
+  defp idle?(calib), do: quiet?(calib) and quiet?(calib)
 
-  # The first yield settles this process's own count (what ran before does not change the
-  # difference); the second lets anything runnable on this scheduler run between readings.
+  defp quiet?(calib) do
+    {_active, delta} = others()
+
+    delta == calib and
+      :erlang.statistics(:total_active_tasks_all) == :erlang.statistics(:total_active_tasks)
+  end
+
   defp others do
     :erlang.yield()
     {:reductions, me0} = Process.info(self(), :reductions)
@@ -273,13 +292,15 @@ defmodule Tartarus.Clock.Virtual do
     :ok
   end
 
-  defp calibrate do
-    {calib, _} =
-      1..200
-      |> Enum.map(fn _ -> elem(others(), 1) end)
-      |> Enum.frequencies()
-      |> Enum.max_by(fn {_, n} -> n end)
+  defp calibrate, do: mode(fn -> elem(others(), 1) end, 200)
 
-    calib
+  defp mode(f, n) do
+    {value, _} =
+      1..n
+      |> Enum.map(fn _ -> f.() end)
+      |> Enum.frequencies()
+      |> Enum.max_by(fn {_, k} -> k end)
+
+    value
   end
 end

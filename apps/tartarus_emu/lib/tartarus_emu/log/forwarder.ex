@@ -27,7 +27,7 @@ defmodule TartarusEmu.Log.Forwarder do
           :ok = Tartarus.Events.subscribe()
           mref = Process.monitor(log)
           send(caller, {ref, :subscribed})
-          Clock.machine_send_after(self(), :tick, flush_ms)
+          Clock.send_after(self(), :tick, flush_ms)
 
           loop(%{
             log: log,
@@ -62,7 +62,7 @@ defmodule TartarusEmu.Log.Forwarder do
         end
 
       :tick ->
-        Clock.machine_send_after(self(), :tick, s.flush_ms)
+        Clock.send_after(self(), :tick, s.flush_ms)
         loop(flush(s))
 
       {:flush, from, ref} ->
