@@ -49,8 +49,9 @@ defmodule Tartarus.Clock.Virtual do
   Installs the virtual clock in this VM and starts its advancer (linked to the caller).
 
   Options: `:seed` (integer, default 0: the order of timers due at one instant),
-  `:start_us` (the virtual monotonic time to start at, µs; default the real monotonic time
-  now, so time read before and after the install never goes back).
+  `:start_us` (the virtual monotonic time to start at, µs; default 0: the same on every run,
+  so that whatever rounds the time to a grid rounds it alike; time read before the install
+  is not comparable with time read after it).
 
   Returns `{:ok, pid}`, or `{:error, :already_installed}`.
   """
@@ -130,7 +131,7 @@ defmodule Tartarus.Clock.Virtual do
     schedulers = :erlang.system_flag(:schedulers_online, 1)
     :persistent_term.put({__MODULE__, :schedulers}, schedulers)
     seed = Keyword.get(opts, :seed, 0)
-    start_us = Keyword.get(opts, :start_us, System.monotonic_time(:microsecond))
+    start_us = Keyword.get(opts, :start_us, 0)
     tab = :ets.new(__MODULE__, [:ordered_set, :public, write_concurrency: true])
     at = :atomics.new(4, signed: true)
     :atomics.put(at, 1, start_us)
@@ -257,7 +258,8 @@ defmodule Tartarus.Clock.Virtual do
   # process is then in this scheduler's queue, and a yield lets all of them run before this
   # process goes on. Idle: twice in a row, nothing but this process ran across a yield (the
   # VM's reductions grew by this process's own, `calib` being the readings' fixed
-  # difference) and no dirty scheduler has work (a file write of a journal). The VM's count
+  # difference) and no run queue (dirty ones included) holds a process (an exiting process
+  # sits there while its exit runs). The VM's count
   # of active tasks is not used: it can stay above 1 with nothing to run (stale run-queue
   # entries of processes that went back to waiting, seen with thousands of agents).
   defp idle?(calib), do: quiet?(calib) and quiet?(calib)
@@ -265,8 +267,7 @@ defmodule Tartarus.Clock.Virtual do
   defp quiet?(calib) do
     {_active, delta} = others()
 
-    delta == calib and
-      :erlang.statistics(:total_active_tasks_all) == :erlang.statistics(:total_active_tasks)
+    delta == calib and :erlang.statistics(:total_run_queue_lengths_all) == 0
   end
 
   defp others do
