@@ -238,7 +238,7 @@ defmodule Tartarus.Agent.Actions do
     case Source.attempt(data, kind, dest, {kind, dest, by}) do
       {:wait, data} ->
         ms = data.host.opts.migration_timeout
-        {:next_state, :handing_off, Tartarus.Agent.Server.state_timeout(data, :handing_off, ms)}
+        {:next_state, :handing_off, Tartarus.Agent.StateTimer.arm(data, :handing_off, ms)}
 
       {:failed, reason, data} ->
         handoff_done({:failed, reason}, {kind, dest, by}, data)

@@ -49,8 +49,7 @@ defmodule Tartarus.Agent.Server do
   @behaviour :gen_statem
   require Tartarus.Events
 
-  alias Tartarus.Agent.Actions
-  alias Tartarus.Clock
+  alias Tartarus.Agent.{Actions, StateTimer}
   alias Tartarus.Ledger
   alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
@@ -146,7 +145,7 @@ defmodule Tartarus.Agent.Server do
   defp start(data, {:paused, mig, copy, src, kind, src_pid}) do
     paused = Arrival.paused(data.host, mig, copy, src, kind, src_pid)
 
-    data = state_timeout(%{data | paused: paused}, :paused, data.host.opts.migration_timeout)
+    data = StateTimer.arm(%{data | paused: paused}, :paused, data.host.opts.migration_timeout)
     {:ok, :paused, data, []}
   end
 
@@ -248,7 +247,7 @@ defmodule Tartarus.Agent.Server do
 
   def handle_event(:info, msg, :awaiting_commit, data) do
     case Arrival.awaited(data, msg) do
-      {:ok, handover} -> started(Arrival.finish(cancel_state_timeout(data), handover))
+      {:ok, handover} -> started(Arrival.finish(StateTimer.cancel(data), handover))
       :other -> {:keep_state_and_data, [:postpone]}
     end
   end
@@ -277,35 +276,6 @@ defmodule Tartarus.Agent.Server do
   defp timed_out(:commit, :awaiting_commit, data), do: started(Arrival.finish(data, nil))
   defp timed_out(_what, _state, _data), do: :keep_state_and_data
 
-  @doc false
-  # Arms the state timeout of `state` (the state this process is in, or enters with `data`):
-  # `ms` ms of Tartarus.Clock, then its event (`:handoff` in :handing_off, `:commit` in
-  # :paused and :awaiting_commit). Replaces the one armed before, as gen_statem's would.
-  @spec state_timeout(map(), :handing_off | :paused | :awaiting_commit, timeout()) :: map()
-  def state_timeout(data, state, ms) do
-    data = cancel_state_timeout(data)
-
-    case ms do
-      :infinity ->
-        data
-
-      ms ->
-        what = if state == :handing_off, do: :handoff, else: :commit
-        %{data | timer: {Clock.start_timer(ms, self(), {@timeout, what}), state}}
-    end
-  end
-
-  @doc false
-  # Cancels the state timeout armed (leaving its state). A message it already sent is
-  # stale now and ignored when it comes.
-  @spec cancel_state_timeout(map()) :: map()
-  def cancel_state_timeout(%{timer: nil} = data), do: data
-
-  def cancel_state_timeout(%{timer: {t, _state}} = data) do
-    Clock.cancel_timer(t)
-    %{data | timer: nil}
-  end
-
   # One event of the source side: wait on, or the outcome for whoever started the hand-off;
   # if it failed, what was held is handled now, in its order (after the agent's
   # handle_move_failed/4, which may start another hand-off: then it waits again).
@@ -316,7 +286,7 @@ defmodule Tartarus.Agent.Server do
 
       {outcome, by, data} ->
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
-        data = cancel_state_timeout(data)
+        data = StateTimer.cancel(data)
         held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
         result = Actions.handoff_done(outcome, by, %{data | pending: [], held: []})
         replay(result, pending(data.pending) ++ held)
@@ -337,13 +307,13 @@ defmodule Tartarus.Agent.Server do
 
       {:await, data} ->
         ms = data.host.opts.migration_timeout
-        {:next_state, :awaiting_commit, state_timeout(data, :awaiting_commit, ms)}
+        {:next_state, :awaiting_commit, StateTimer.arm(data, :awaiting_commit, ms)}
 
       {:started, data, pending} ->
-        started({:started, cancel_state_timeout(data), pending})
+        started({:started, StateTimer.cancel(data), pending})
 
       {:stop, reason, data} ->
-        {:stop, reason, cancel_state_timeout(data)}
+        {:stop, reason, StateTimer.cancel(data)}
     end
   end
 

@@ -100,7 +100,7 @@ defmodule Tartarus.Clock.Virtual do
   @doc """
   Runs `fun` in `time`: `:virtual` installs the clock around it (with `seed`) unless one is
   installed already (a run inside a sweep that installed it); `:real` just runs it. The one
-  entry of the emulator's runners (`TartarusEmu.Scenario`, `TartarusEmu.Sweep`).
+  entry of the emulator's runners.
   """
   @spec within(:real | :virtual, integer(), (() -> result)) :: result when result: term()
   def within(:virtual, seed, fun) do

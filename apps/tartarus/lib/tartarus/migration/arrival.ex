@@ -113,7 +113,7 @@ defmodule Tartarus.Migration.Arrival do
 
   # The paused copy's state timeout (:commit), re-armed (Tartarus.Agent.Server's timer).
   @impl Executor
-  def timer(data, ms), do: Tartarus.Agent.Server.state_timeout(data, :paused, ms)
+  def timer(data, ms), do: Tartarus.Agent.StateTimer.arm(data, :paused, ms)
 
   # Kept and handled once the agent starts (senders wait for delivery, so each sender's
   # order is kept).
