@@ -258,8 +258,8 @@ defmodule Tartarus.Clock.Virtual do
   # process is then in this scheduler's queue, and a yield lets all of them run before this
   # process goes on. Idle: twice in a row, nothing but this process ran across a yield (the
   # VM's reductions grew by this process's own, `calib` being the readings' fixed
-  # difference) and no run queue (dirty ones included) holds a process (an exiting process
-  # sits there while its exit runs). The VM's count
+  # difference), no run queue (dirty ones included) holds a process (an exiting process
+  # sits there while its exit runs) and no dirty scheduler runs one (a file write). The VM's count
   # of active tasks is not used: it can stay above 1 with nothing to run (stale run-queue
   # entries of processes that went back to waiting, seen with thousands of agents).
   defp idle?(calib), do: quiet?(calib) and quiet?(calib)
@@ -267,7 +267,8 @@ defmodule Tartarus.Clock.Virtual do
   defp quiet?(calib) do
     {_active, delta} = others()
 
-    delta == calib and :erlang.statistics(:total_run_queue_lengths_all) == 0
+    delta == calib and :erlang.statistics(:total_run_queue_lengths_all) == 0 and
+      :erlang.statistics(:total_active_tasks_all) == :erlang.statistics(:total_active_tasks)
   end
 
   defp others do
