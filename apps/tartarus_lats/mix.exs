@@ -24,7 +24,12 @@ defmodule TartarusLats.MixProject do
     [
       extra_applications: [:logger],
       mod: {TartarusLats.Application, []},
-      env: [tartarus_demo: [TartarusLats.Demo]]
+      # tartarus_ble_plugin: the BLE receiver a node's {:ble, device} plugin and
+      # `mix tartarus.node --ble` use (Tartarus.Plugin.Shorthand finds it here).
+      env: [
+        tartarus_demo: [TartarusLats.Demo],
+        tartarus_ble_plugin: {TartarusLats.HM10.Receiver, :plugin}
+      ]
     ]
   end
 

@@ -19,6 +19,7 @@ defmodule TartarusNode.MixProject do
   end
 
   def application do
-    [extra_applications: [:logger], mod: {TartarusNode.Application, []}]
+    # runtime_tools: :observer, :dbg and recon attach to a running node.
+    [extra_applications: [:logger, :runtime_tools], mod: {TartarusNode.Application, []}]
   end
 end

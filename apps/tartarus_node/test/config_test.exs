@@ -1,6 +1,7 @@
 defmodule TartarusNode.ConfigTest do
   use ExUnit.Case, async: true
   doctest TartarusNode.Config
+  doctest TartarusNode.Operator
 
   alias TartarusNode.Config
 
@@ -24,7 +25,7 @@ defmodule TartarusNode.ConfigTest do
         host: "h1",
         tls: [dir: #{inspect(certs)}],
         neighbours: [h2: "tartarus@198.18.0.2"],
-        plugins: [temp: {:sensor, unit: "K"}, io: {Tartarus.Plugin.GPIO, pins: [led: {17, :output}]}],
+        plugins: [temp: {:sensor, unit: "K"}, io: {Tartarus.Plugin.GPIO, pins: [led: {17, :output}], backend: Tartarus.Plugin.GPIO.Sim}],
         data_dir: #{inspect(Path.join(dir, "data"))},
         durable: true,
         dashboard: [port: 4000, bind: "0.0.0.0"]
@@ -57,7 +58,14 @@ defmodule TartarusNode.ConfigTest do
       {"[node: \"a@b.c\", cookie: \"c\", dashboard: [port: 4000, bind: \"nowhere\"]]", "dashboard: bind"},
       {"[node: \"a@b.c\", cookie: \"c\", trusted: \"/nonexistent\"]", "trusted: no such directory"},
       {"[node: \"a@b.c\", cookie: \"c\", neighbours: [h2: \"nonode\"]]", "neighbours: h2"},
-      {"raise \"boom\"", "evaluating it raised RuntimeError: boom"}
+      {"raise \"boom\"", "evaluating it raised RuntimeError: boom"},
+      {"[node: \"a@b.c\", cookie: \"c\", plugins: [io: {Tartarus.Plugin.GPIO, pins: [led: {17, :output}]}]]",
+       "plugins: io: Tartarus.Plugin.GPIO: no GPIO backend on this node for pins led (line 17)"},
+      {"[node: \"a@b.c\", cookie: \"c\", plugins: [tty: {:serial, \"/dev/nonexistent-41\"}]]",
+       "plugins: tty: no such device /dev/nonexistent-41 (plug it in, or say hotplug: true"},
+      {"[node: \"a@b.c\", cookie: \"c\", data_dir: #{inspect(Path.join(file_in(dir), "data"))}]",
+       "data_dir: #{file_in(dir)} is not a directory"},
+      {"[node: \"a@b.c\", cookie: \"c\", tls: [dir: \"/x\", operator: \"a b\"]]", "tls: cert: no such file"}
     ]
 
     for {text, expected} <- cases do
@@ -67,6 +75,38 @@ defmodule TartarusNode.ConfigTest do
       assert line =~ expected
       refute line =~ "\n"
     end
+  end
+
+  defp file_in(dir) do
+    path = Path.join(dir, "a-file")
+    File.write!(path, "")
+    path
+  end
+
+  test "a device that may come later (hotplug: true) is taken; the rpc side takes any path" do
+    spec = {:serial, "/dev/nonexistent-41", hotplug: true}
+    assert {:ok, c} = Config.check(node: "a@b.c", cookie: "c", plugins: [tty: spec])
+    assert [tty: {Tartarus.Plugin.Serial, opts}] = c.plugins
+    assert opts[:device] == "/dev/nonexistent-41" and not Keyword.has_key?(opts, :hotplug)
+
+    assert {:ok, _} =
+             Config.check([node: "a@b.c", cookie: "c", plugins: [tty: {:serial, "/dev/nonexistent-41"}]],
+               devices: :any
+             )
+  end
+
+  test "a BLE plugin finds the receiver an application on the code path declares, with no configuration" do
+    # As in the release's check VM (no sys.config): nothing configured, LATS's .app says it.
+    assert Application.get_env(:tartarus_tools, :ble_plugin) == nil
+    assert {:ok, c} = Config.check(node: "a@b.c", cookie: "c", plugins: [b: {:ble, "/dev/null"}])
+    assert [b: {Tartarus.Plugin.Serial, opts}] = c.plugins
+    assert opts[:decoder] == TartarusLats.HM10.Receiver and opts[:device] == "/dev/null"
+  end
+
+  test "the operator's commands dial without the node's listening port" do
+    {:ok, c} = Config.check(node: "a@198.18.0.1", cookie: "x", dist_port: 9100)
+    refute "inet_dist_listen_min" in Config.erl_flags(c, "/o", :client)
+    assert "inet_dist_listen_min" in Config.erl_flags(c, "/o")
   end
 
   test "short names when the host part has no dot and is no address" do

@@ -6,7 +6,11 @@ defmodule TartarusNode.Boot do
   2 s), and the dashboard when `dashboard:` is set.
 
   It logs one line when the host runs (`tartarus: host {h1, :"tartarus@198.18.0.1"}
-  running; plugins: ...`).
+  running; plugins: ...`). A host that cannot start (its data directory cannot be made, a
+  plugin's device refuses to open) stops the node with one line on standard error and
+  status 1, not a crash report and an `erl_crash.dump`:
+
+      tartarus: cannot start host pi1: {:gpio_open_failed, :led, 17, :no_gpio_backend}
   """
   use GenServer
   require Logger
@@ -28,22 +32,43 @@ defmodule TartarusNode.Boot do
 
   @impl true
   def init(config) do
-    if config.data_dir, do: File.mkdir_p!(config.data_dir)
+    with :ok <- make_data_dir(config.data_dir),
+         {:ok, host} <- start_host(config) do
+      Logger.notice(
+        "tartarus: host #{inspect(host)} running; plugins: " <>
+          Enum.map_join(config.plugins, ", ", fn {n, {m, _}} -> "#{n} (#{inspect(m)})" end)
+      )
 
-    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
-      {:ok, host} ->
-        Logger.notice(
-          "tartarus: host #{inspect(host)} running; plugins: " <>
-            Enum.map_join(config.plugins, ", ", fn {n, {m, _}} -> "#{n} (#{inspect(m)})" end)
-        )
-
-        dash = if config.dashboard, do: start_dashboard(config.dashboard)
-        send(self(), :link)
-        {:ok, %{host: host, missing: config.neighbours, dashboard: dash}}
-
-      {:error, reason} ->
-        {:stop, {:host_not_started, reason}}
+      dash = if config.dashboard, do: start_dashboard(config.dashboard)
+      send(self(), :link)
+      {:ok, %{host: host, missing: config.neighbours, dashboard: dash}}
+    else
+      {:error, why} -> fail("tartarus: cannot start host #{config.host}: #{why}")
     end
+  end
+
+  defp make_data_dir(nil), do: :ok
+
+  defp make_data_dir(dir) do
+    case File.mkdir_p(dir) do
+      :ok -> :ok
+      {:error, reason} -> {:error, "data_dir: cannot make #{dir} (#{:file.format_error(reason)})"}
+    end
+  end
+
+  defp start_host(config) do
+    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
+      {:ok, host} -> {:ok, host}
+      {:error, reason} when is_binary(reason) -> {:error, reason}
+      {:error, reason} -> {:error, inspect(reason)}
+    end
+  end
+
+  # The node was started to run this host and cannot: one line, status 1 (the release's
+  # unit does not restart a node that exits 1 in a loop).
+  defp fail(line) do
+    IO.puts(:stderr, line)
+    System.halt(1)
   end
 
   @impl true
