@@ -62,7 +62,12 @@ defmodule TartarusUmbrella.MixProject do
         Keyword.take(opts, [:seed, :trace])
     )
 
-    Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs"))
+    # A test file that does not compile fails the run (it would otherwise leave its tests out).
+    case Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs")) do
+      {:ok, _, _} -> :ok
+      {:error, _, _} -> Mix.raise("top-level tests failed: a test file does not compile")
+    end
+
     %{failures: failures} = ExUnit.run()
     if failures > 0, do: Mix.raise("top-level tests failed")
   end
