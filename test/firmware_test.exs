@@ -146,6 +146,35 @@ defmodule TartarusFirmwareTest do
              host |> Tartarus.plugins() |> Keyword.fetch(:beacon)
   end
 
+  @tag :tmp_dir
+  test "the node links its configured neighbours as soon as they answer (issue 41)", %{
+    tmp_dir: dir
+  } do
+    neighbour = {:"fw41_nb_#{System.unique_integer([:positive])}", node()}
+    Application.put_env(:tartarus_firmware, :data, dir)
+    Application.put_env(:tartarus_firmware, :plugins, [])
+    Application.put_env(:tartarus_firmware, :neighbours, [neighbour])
+    # (Compiled at run time, in setup_all: named through a variable.)
+    fw_node = Module.concat(TartarusFirmware, Node)
+    fw = TartarusFirmware
+    {:ok, pid} = fw_node.start_link([])
+
+    try do
+      # The neighbour is not up yet: the link waits for it.
+      assert fw_node.missing_neighbours() == [neighbour]
+      {:ok, _} = Tartarus.start_host(elem(neighbour, 0))
+      eventually(fn -> fw_node.missing_neighbours() == [] end, 10_000)
+      assert neighbour in Tartarus.neighbours(fw.host())
+    after
+      GenServer.stop(pid)
+      Tartarus.stop_host(fw.host())
+      Tartarus.stop_host(elem(neighbour, 0))
+
+      for key <- [:data, :plugins, :neighbours],
+          do: Application.delete_env(:tartarus_firmware, key)
+    end
+  end
+
   test "GPIO over Circuits.GPIO: the simulated pins' contract on the Pi's pins" do
     host = :"fw_gpio_#{System.unique_integer([:positive])}"
 

@@ -194,7 +194,8 @@ defmodule Tartarus.ReleaseTest do
 
       Port.command(
         remote,
-        "{:ok, _} = Tartarus.start_host(:op2); {:ok, id} = Tartarus.create_mobile_agent(:pi1, TartarusTools.Chaos.Counter, {1, self()}); IO.puts(\"moved: \#{inspect(Tartarus.move({id, :pi1}, {:op2, node()}))} on \#{node()}\")\n"
+        ~S|{:ok, [m]} = Tartarus.compile_string("defmodule Op41 do use Tartarus.Agent; def init(s), do: {:stay, s} end"); {:ok, _} = Tartarus.start_host(:op2); {:ok, id} = Tartarus.create_mobile_agent(:pi1, m, :x); IO.puts("moved: #{inspect(Tartarus.move({id, :pi1}, {:op2, node()}))} on #{node()}")| <>
+          "\n"
       )
 
       await_pty(remote, "moved: :ok on #{name}")

@@ -14,6 +14,7 @@ defmodule TartarusLats.MixProject do
       start_permanent: Mix.env() == :prod,
       deps: [
         {:tartarus, in_umbrella: true},
+        {:tartarus_lats_device, in_umbrella: true},
         {:tartarus_tools, in_umbrella: true},
         {:tartarus_emu, in_umbrella: true}
       ]
@@ -23,13 +24,7 @@ defmodule TartarusLats.MixProject do
   def application do
     [
       extra_applications: [:logger],
-      mod: {TartarusLats.Application, []},
-      # tartarus_ble_plugin: the BLE receiver a node's {:ble, device} plugin and
-      # `mix tartarus.node --ble` use (Tartarus.Plugin.Shorthand finds it here).
-      env: [
-        tartarus_demo: [TartarusLats.Demo],
-        tartarus_ble_plugin: {TartarusLats.HM10.Receiver, :plugin}
-      ]
+      env: [tartarus_demo: [TartarusLats.Demo]]
     ]
   end
 

@@ -103,6 +103,12 @@ defmodule TartarusNode.ConfigTest do
     assert opts[:decoder] == TartarusLats.HM10.Receiver and opts[:device] == "/dev/null"
   end
 
+  test "the dashboard is the one an application provides (the tooling app's here)" do
+    assert Config.dashboard_module() == {:ok, TartarusTools.Dashboard}
+    assert {:ok, c} = Config.check(node: "a@b.c", cookie: "c", dashboard: [port: 0])
+    assert c.dashboard[:port] == 0
+  end
+
   test "the operator's commands dial without the node's listening port" do
     {:ok, c} = Config.check(node: "a@198.18.0.1", cookie: "x", dist_port: 9100)
     refute "inet_dist_listen_min" in Config.erl_flags(c, "/o", :client)

@@ -83,9 +83,11 @@ defmodule TartarusNode.Boot do
   end
 
   defp start_dashboard(opts) do
-    case TartarusTools.Dashboard.start(opts) do
+    {:ok, module} = TartarusNode.Config.dashboard_module()
+
+    case module.start(opts) do
       {:ok, dash} ->
-        Logger.notice(TartarusTools.Dashboard.banner(dash))
+        Logger.notice(module.banner(dash))
         dash
 
       {:error, reason} ->

@@ -42,7 +42,7 @@ defmodule TartarusNode.Config do
       tartarus: bad configuration /etc/tartarus/node.exs: cookie: required without tls:
 
   `read/1` and `check/1` are pure (but for reading files and checking they exist);
-  `shell_main/0` is what the release's `env.sh` runs before the VM boots.
+  `TartarusNode.EnvSh.main/0` is what the release's `env.sh` runs before the VM boots.
   """
 
   @typedoc "A checked configuration."
@@ -386,10 +386,32 @@ defmodule TartarusNode.Config do
   defp durable(true, _), do: {:ok, true}
   defp durable(other, _), do: {:error, "durable: expected true or false, got: #{inspect(other)}"}
 
+  @doc """
+  The dashboard this node's applications provide (`tartarus_dashboard:` in an application's
+  environment, see `Tartarus.Provides`: the tooling app's `TartarusTools.Dashboard`), or the
+  one line saying there is none: a release is built without it unless
+  `TARTARUS_RELEASE_DASHBOARD=true`.
+  """
+  @spec dashboard_module() :: {:ok, module()} | {:error, String.t()}
+  def dashboard_module do
+    case Tartarus.Provides.find(:tartarus_dashboard) do
+      [{_app, module} | _] when is_atom(module) ->
+        if Code.ensure_loaded?(module) and function_exported?(module, :start, 1),
+          do: {:ok, module},
+          else: {:error, "dashboard: #{inspect(module)} is not in this node's code"}
+
+      _ ->
+        {:error,
+         "dashboard: this node has no dashboard (a release carries it only when built with " <>
+           "TARTARUS_RELEASE_DASHBOARD=true, which brings the tooling app)"}
+    end
+  end
+
   defp dashboard(nil), do: {:ok, nil}
 
   defp dashboard(opts) when is_list(opts) do
     with :ok <- only(:dashboard, opts, [:port, :bind, :hosts, :token_file]),
+         {:ok, _module} <- dashboard_module(),
          true <- is_integer(opts[:port]) and opts[:port] in 0..65_535,
          {:ok, bind} <- :inet.parse_address(~c"#{opts[:bind] || "127.0.0.1"}") do
       {:ok,
@@ -496,56 +518,4 @@ defmodule TartarusNode.Config do
   end
 
   defp quote_sh(s), do: "'" <> String.replace(s, "'", "'\\''") <> "'"
-
-  @doc """
-  What the release's `env.sh` runs (in a VM of its own, before the node's): reads `path/0`
-  and prints the shell assignments, or prints the one error line on stderr and halts with
-  status 1.
-
-  For the commands that start the node, it writes the node's TLS option file into
-  `TARTARUS_TMP` (when `tls:` is set) and prints `shell/2`. For the operator's commands
-  (`remote`, `rpc`, `stop`, `restart`, `pid`: `RELEASE_COMMAND`) on a TLS node it checks the
-  operator's certificate and prints the assignments of `TartarusNode.Operator.shell/3`,
-  which `env.sh` uses to run the command under the operator's name; a refusal is one line
-  naming the cause (`TartarusNode.Operator.check/2`).
-  """
-  @spec shell_main() :: no_return()
-  def shell_main do
-    path = path()
-    command = System.get_env("RELEASE_COMMAND")
-    client? = TartarusNode.Operator.command?(command)
-    tmp = System.get_env("TARTARUS_TMP") || System.tmp_dir!()
-
-    with {:ok, c} <- read(path, devices: if(client?, do: :any, else: :present)),
-         {:ok, text} <- shell_text(c, command, client?, tmp) do
-      IO.write(text)
-      System.halt(0)
-    else
-      {:error, line} ->
-        IO.puts(:stderr, line)
-        System.halt(1)
-    end
-  end
-
-  defp shell_text(%{tls: tls} = c, command, true, tmp) when tls != nil do
-    with {:ok, op} <- TartarusNode.Operator.check(c, tmp) do
-      {:ok, TartarusNode.Operator.shell(c, op, command)}
-    end
-  rescue
-    e in File.Error -> {:error, "tartarus: #{command}: #{Exception.message(e)}"}
-  end
-
-  defp shell_text(c, _command, true, _tmp), do: {:ok, shell(c, "", :client)}
-
-  defp shell_text(c, _command, false, tmp) do
-    optfile = Path.join(tmp, "ssl_dist.conf")
-
-    if c.tls do
-      File.mkdir_p!(Path.dirname(optfile))
-      text = :io_lib.format(~c"~tp.~n", [optfile_terms(c)])
-      File.write!(optfile, ["%% ssl_dist options for #{c.node}; written at boot.\n", text])
-    end
-
-    {:ok, shell(c, optfile)}
-  end
 end

@@ -2,7 +2,7 @@ defmodule Tartarus.Plugin.Shorthand do
   @moduledoc """
   Plugin specs as configuration files and command lines write them, turned into
   `{module, opts}` by one function, `parse/3`, which the release's configuration check
-  (`TartarusNode.Config`) and `mix tartarus.node` both call.
+  (the node app's) and `mix tartarus.node` both call.
 
     * `{module, opts}`: a plugin module (it must be in this node's code and define `init/1`;
       if it defines `check/1`, the options are checked there, without touching a device:
@@ -17,14 +17,15 @@ defmodule Tartarus.Plugin.Shorthand do
   The platform names no application, so an application that brings a BLE receiver says so
   in its application environment (its `mix.exs`), as LATS does:
 
-      def application, do: [env: [tartarus_ble_plugin: {TartarusLats.HM10.Receiver, :plugin}]]
+      def application, do: [env: [tartarus_ble_plugin: {MyApp.Receiver, :plugin}]]
+
+  (LATS's device app, `apps/tartarus_lats_device`, says so for its HM-10 receiver.)
 
   `function(device, opts)` returns the plugin spec. `ble_receiver/0` finds it in the
-  applications on the code path, loaded or not (their `.app` files are read, nothing is
-  loaded or started), so the answer is the same in a running node, in `mix`, and in the
-  short VM that checks a release's configuration before the node boots (started without
-  the release's `sys.config`, where an application environment set by `config/*.exs` would
-  not be seen).
+  applications on the code path, loaded or not (`Tartarus.Provides`), so the answer is the
+  same in a running node, in `mix`, and in the short VM that checks a release's
+  configuration before the node boots (started without the release's `sys.config`, where an
+  application environment set by `config/*.exs` would not be seen).
 
   ## Devices that are not there
 
@@ -163,10 +164,7 @@ defmodule Tartarus.Plugin.Shorthand do
   """
   @spec ble_receiver() :: {:ok, {module(), atom()}} | :none | {:error, String.t()}
   def ble_receiver do
-    found =
-      for {app, env} <- app_envs(), Keyword.has_key?(env, @app_key), do: {app, env[@app_key]}
-
-    case Enum.sort(found) do
+    case Tartarus.Provides.find(@app_key) do
       [] ->
         :none
 
@@ -176,21 +174,5 @@ defmodule Tartarus.Plugin.Shorthand do
       [{app, other} | _] ->
         {:error, "application #{app}'s :#{@app_key} is not {module, function}: #{inspect(other)}"}
     end
-  end
-
-  # Every application on the code path with its environment: loaded ones from the
-  # application controller, the others from their `.app` files.
-  defp app_envs do
-    loaded = for {app, _, _} <- Application.loaded_applications(), into: %{}, do: {app, nil}
-
-    from_files =
-      for dir <- :code.get_path(),
-          file <- Path.wildcard(Path.join(List.to_string(dir), "*.app")),
-          app = file |> Path.basename(".app") |> String.to_atom(),
-          not Map.has_key?(loaded, app),
-          {:ok, [{:application, ^app, props}]} <- [:file.consult(file)],
-          do: {app, Keyword.get(props, :env, [])}
-
-    for({app, _} <- loaded, do: {app, Application.get_all_env(app)}) ++ from_files
   end
 end
