@@ -129,7 +129,7 @@ defmodule Tartarus.ReleaseTest do
         ~s(tls: [dir: "/etc/tartarus/certs"]),
         "tls: [dir: #{inspect(certs)}, operator: #{inspect(operator)}]"
       )
-      |> String.replace(~s("/dev/ttyS0"), inspect(tty))
+      |> String.replace(~s("/dev/serial0"), inspect(tty))
       |> String.replace(~s("/var/lib/tartarus/host"), inspect(Path.join(dir, "data")))
       |> String.replace(~s(port: 4000, bind: "0.0.0.0"), ~s(port: 0, bind: "127.0.0.1"))
 

@@ -55,9 +55,12 @@ config :vintage_net,
       {"eth0", %{type: VintageNetEthernet, ipv4: %{method: :dhcp}}}
     ] ++ wifi
 
-# mDNS: the Pi answers to <hostname>.local and advertises ssh and epmd.
+# mDNS: the Pi answers to <hostname>.local and, until it has certificates, tartarus.local
+# too is worth trying (every Pi of this firmware answers to it: with one fresh Pi on the
+# network, `ssh tartarus.local` reaches it and tells its node name; see docs/devices.md).
+# It advertises ssh and epmd.
 config :mdns_lite,
-  hosts: [:hostname],
+  hosts: [:hostname, "tartarus"],
   ttl: 120,
   services: [
     %{protocol: "ssh", transport: "tcp", port: 22},
