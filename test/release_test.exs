@@ -188,6 +188,12 @@ defmodule Tartarus.ReleaseTest do
       {:os_pid, os_pid} = Port.info(node, :os_pid)
       assert {"#{os_pid}\n", 0} == cmd(bin, ["pid"], path, dir)
 
+      # The adapter unplugged: the node goes on (the plugin waits for it), and so does the
+      # operator (only the commands that start a node want their devices there).
+      stop_port(socat)
+      File.rm(tty)
+      assert {"still here\n", 0} = cmd(bin, ["rpc", ~s|IO.puts("still here")|], path, dir)
+
       # The operator's shell through a pty: evaluates on the node and moves an agent.
       remote = pty!("#{bin} remote", env(path, dir))
       await_pty(remote, "iex(#{name})1>")

@@ -138,8 +138,9 @@ defmodule TartarusNode.Config do
   Checks a configuration term (the file's value) and fills in the defaults.
 
   Option `devices:` (`:present`, the default, or `:any`): whether a serial or BLE device
-  must exist (see `Tartarus.Plugin.Shorthand`); the release's `rpc`, `remote`, `stop` and
-  `pid` read the file with `:any`, so an unplugged adapter does not lock the operator out.
+  must exist (see `Tartarus.Plugin.Shorthand`); every release command but those that start
+  the node (`rpc`, `remote`, `stop`, `pid`, `eval`) reads the file with `:any`, so an
+  unplugged adapter does not lock the operator out.
 
       iex> {:ok, c} = TartarusNode.Config.check(node: "tartarus@198.18.0.1", cookie: "c")
       iex> {c.node, c.distribution, c.host, c.net_ticktime}

@@ -26,7 +26,11 @@ defmodule TartarusNode.EnvSh do
     client? = TartarusNode.Operator.command?(command)
     tmp = System.get_env("TARTARUS_TMP") || System.tmp_dir!()
 
-    with {:ok, c} <- Config.read(path, devices: if(client?, do: :any, else: :present)),
+    # Only the commands that start the node need its devices there (an unplugged adapter
+    # must not lock the operator out, nor `eval`).
+    devices = if command in ~w(start start_iex daemon daemon_iex), do: :present, else: :any
+
+    with {:ok, c} <- Config.read(path, devices: devices),
          {:ok, text} <- shell_text(c, command, client?, tmp) do
       IO.write(text)
       System.halt(0)
