@@ -252,6 +252,7 @@ defmodule Tartarus.ReleaseTest do
       assert {_, 0} = cmd(bin, ["stop"], path, dir)
       assert_receive {^node, {:exit_status, 0}}, 60_000
     after
+      stop_ptys()
       stop_port(node)
       stop_port(socat)
       File.rm(tty)
@@ -285,14 +286,32 @@ defmodule Tartarus.ReleaseTest do
   end
 
   # A terminal session (`script` gives the command a pty, as a person's terminal would).
+  # Each is ended, with what it runs, after the test (`stop_ptys/0`), whatever happened.
   defp pty!(command, env) do
-    Port.open({:spawn_executable, System.find_executable("script")}, [
-      :binary,
-      :exit_status,
-      :stderr_to_stdout,
-      args: ["-qfc", command, "/dev/null"],
-      env: for({k, v} <- env, do: {~c"#{k}", ~c"#{v}"})
-    ])
+    port =
+      Port.open({:spawn_executable, System.find_executable("script")}, [
+        :binary,
+        :exit_status,
+        :stderr_to_stdout,
+        args: ["-qfc", command, "/dev/null"],
+        env: for({k, v} <- env, do: {~c"#{k}", ~c"#{v}"})
+      ])
+
+    {:os_pid, pid} = Port.info(port, :os_pid)
+    Process.put(:ptys, [pid | Process.get(:ptys, [])])
+    port
+  end
+
+  defp stop_ptys do
+    for pid <- Process.get(:ptys, []), do: kill_tree(pid)
+    :ok
+  end
+
+  # The process and its descendants (script -> sh -> the VM), by their pids.
+  defp kill_tree(pid) do
+    {children, _} = System.cmd("pgrep", ["-P", "#{pid}"], stderr_to_stdout: true)
+    for child <- String.split(children, "\n", trim: true), do: kill_tree(child)
+    System.cmd("kill", ["-9", "#{pid}"], stderr_to_stdout: true)
   end
 
   defp await_pty(port, pattern, acc \\ "") do
