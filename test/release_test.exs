@@ -143,7 +143,7 @@ defmodule Tartarus.ReleaseTest do
   defp cmd(bin, args, path, dir),
     do: System.cmd(bin, args, env: env(path, dir), stderr_to_stdout: true)
 
-  test "the documented configuration: BLE on a tty; the operator over TLS (remote, rpc, pid, stop); a bad certificate refused in one line",
+  test "the documented configuration: BLE on a tty, Where am I answered; the operator over TLS (remote, rpc, pid, stop); a bad certificate refused in one line",
        %{bin: bin, tmp_dir: dir} do
     u = System.unique_integer([:positive])
     name = "tt41tls#{u}@127.0.0.1"
@@ -178,15 +178,34 @@ defmodule Tartarus.ReleaseTest do
       Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
       tag = TartarusLats.Beacon.tag_id(beacon)
 
-      read = ~s|IO.inspect(Tartarus.read_plugin(:pi1, :beacon, {:scan, 0}), limit: :infinity)|
+      # (Counts: the node's database agent takes each second's readings itself.)
+      read = ~s|IO.inspect(Tartarus.read_plugin(:pi1, :beacon, :counts))|
 
       assert eventually(fn ->
                {out, 0} = cmd(bin, ["rpc", read], path, dir)
-               out =~ inspect(tag) and out =~ "-61"
+               out =~ ~r/beacons: [1-9]/ and out =~ ~r/scans: [1-9]/
              end)
 
       {:os_pid, os_pid} = Port.info(node, :os_pid)
       assert {"#{os_pid}\n", 0} == cmd(bin, ["pid"], path, dir)
+
+      # LATS on the node (the example's services:): the tag keeps being heard, and a
+      # Where am I released on the node answers the node's zone.
+      for _ <- 1..6 do
+        Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
+        Process.sleep(700)
+      end
+
+      where_am_i =
+        "{:ok, id} = Tartarus.create_mobile_agent(:pi1, TartarusLats.Query.WhereAmI, " <>
+          "%{tag: #{inspect(tag)}, label: nil, report: false, cloud: :per_node, repair: false}, owner: self()); " <>
+          "receive do {:tartarus_result, ^id, r} -> IO.inspect(r.answer) after 10_000 -> IO.puts(:none) end"
+
+      assert eventually(fn ->
+               Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
+               {out, 0} = cmd(bin, ["rpc", where_am_i], path, dir)
+               out =~ "{:in_zone, :pi1}"
+             end)
 
       # The adapter unplugged: the node goes on (the plugin waits for it), and so does the
       # operator (only the commands that start a node want their devices there).

@@ -13,10 +13,14 @@ defmodule TartarusNode.ConfigTest do
     path
   end
 
-  test "a full file is read: plugins, neighbours, TLS files, persistence, dashboard", %{tmp_dir: dir} do
+  test "a full file is read: plugins, neighbours, TLS files, persistence, dashboard", %{
+    tmp_dir: dir
+  } do
     certs = Path.join(dir, "certs")
     File.mkdir_p!(certs)
-    for f <- ~w(tartarus@198.18.0.1.pem tartarus@198.18.0.1.key ca.pem), do: File.write!(Path.join(certs, f), "x")
+
+    for f <- ~w(tartarus@198.18.0.1.pem tartarus@198.18.0.1.key ca.pem),
+        do: File.write!(Path.join(certs, f), "x")
 
     path =
       write(dir, """
@@ -41,7 +45,10 @@ defmodule TartarusNode.ConfigTest do
     assert c.dashboard[:bind] == {0, 0, 0, 0}
 
     flags = Config.erl_flags(c, "/x/ssl_dist.conf")
-    assert ["-proto_dist", "tartarus_tls", "-ssl_dist_optfile", "/x/ssl_dist.conf"] = Enum.take(flags, -4)
+
+    assert ["-proto_dist", "tartarus_tls", "-ssl_dist_optfile", "/x/ssl_dist.conf"] =
+             Enum.take(flags, -4)
+
     assert Config.host_options(c)[:data_dir] == Path.join(dir, "data")
     assert [server: server, client: _] = Config.optfile_terms(c)
     assert server[:fail_if_no_peer_cert]
@@ -51,12 +58,16 @@ defmodule TartarusNode.ConfigTest do
     cases = [
       {"[node: \"x\"", "missing terminator"},
       {"[node: \"nohost\", cookie: \"c\"]", "node: expected name@host"},
-      {"[node: \"a@b.c\", tls: [dir: \"/nonexistent\"]]", "tls: cert: no such file /nonexistent/a@b.c.pem"},
+      {"[node: \"a@b.c\", tls: [dir: \"/nonexistent\"]]",
+       "tls: cert: no such file /nonexistent/a@b.c.pem"},
       {"[node: \"a@b.c\", cookie: \"c\", plugins: [x: {:serial, 5}]]", "plugins: x: expected"},
-      {"[node: \"a@b.c\", cookie: \"c\", plugins: [x: {Enum, []}]]", "Enum is not a plugin module"},
+      {"[node: \"a@b.c\", cookie: \"c\", plugins: [x: {Enum, []}]]",
+       "Enum is not a plugin module"},
       {"[node: \"a@b.c\", cookie: \"c\", durable: true]", "durable: true needs data_dir:"},
-      {"[node: \"a@b.c\", cookie: \"c\", dashboard: [port: 4000, bind: \"nowhere\"]]", "dashboard: bind"},
-      {"[node: \"a@b.c\", cookie: \"c\", trusted: \"/nonexistent\"]", "trusted: no such directory"},
+      {"[node: \"a@b.c\", cookie: \"c\", dashboard: [port: 4000, bind: \"nowhere\"]]",
+       "dashboard: bind"},
+      {"[node: \"a@b.c\", cookie: \"c\", trusted: \"/nonexistent\"]",
+       "trusted: no such directory"},
       {"[node: \"a@b.c\", cookie: \"c\", neighbours: [h2: \"nonode\"]]", "neighbours: h2"},
       {"raise \"boom\"", "evaluating it raised RuntimeError: boom"},
       {"[node: \"a@b.c\", cookie: \"c\", plugins: [io: {Tartarus.Plugin.GPIO, pins: [led: {17, :output}]}]]",
@@ -65,7 +76,10 @@ defmodule TartarusNode.ConfigTest do
        "plugins: tty: no such device /dev/nonexistent-41 (plug it in, or say hotplug: true"},
       {"[node: \"a@b.c\", cookie: \"c\", data_dir: #{inspect(Path.join(file_in(dir), "data"))}]",
        "data_dir: #{file_in(dir)} is not a directory"},
-      {"[node: \"a@b.c\", cookie: \"c\", tls: [dir: \"/x\", operator: \"a b\"]]", "tls: cert: no such file"}
+      {"[node: \"a@b.c\", cookie: \"c\", tls: [dir: \"/x\", operator: \"a b\"]]",
+       "tls: cert: no such file"},
+      {"[node: \"a@b.c\", cookie: \"c\", services: [{Nope.Service41, []}]]",
+       "services: Nope.Service41 is not in this node's code"}
     ]
 
     for {text, expected} <- cases do
@@ -90,7 +104,8 @@ defmodule TartarusNode.ConfigTest do
     assert opts[:device] == "/dev/nonexistent-41" and not Keyword.has_key?(opts, :hotplug)
 
     assert {:ok, _} =
-             Config.check([node: "a@b.c", cookie: "c", plugins: [tty: {:serial, "/dev/nonexistent-41"}]],
+             Config.check(
+               [node: "a@b.c", cookie: "c", plugins: [tty: {:serial, "/dev/nonexistent-41"}]],
                devices: :any
              )
   end

@@ -3,7 +3,8 @@ defmodule TartarusNode.Boot do
   The configured node's host: started with the configuration's plugins, persistence and
   trust list (`TartarusNode.Config.host_options/1`), its neighbours linked as soon as they
   answer (a device may boot before its neighbours: each missing link is tried again every
-  2 s), and the dashboard when `dashboard:` is set.
+  2 s), the dashboard when `dashboard:` is set, and the configured `services:`
+  (`module.start_link(opts ++ [host: host])`, each under `TartarusNode.Supervisor`).
 
   It logs one line when the host runs (`tartarus: host {h1, :"tartarus@198.18.0.1"}
   running; plugins: ...`). A host that cannot start (its data directory cannot be made, a
@@ -41,7 +42,9 @@ defmodule TartarusNode.Boot do
 
       dash = if config.dashboard, do: start_dashboard(config.dashboard)
       send(self(), :link)
-      {:ok, %{host: host, missing: config.neighbours, dashboard: dash}}
+
+      {:ok, %{host: host, missing: config.neighbours, dashboard: dash},
+       {:continue, {:services, Map.get(config, :services, [])}}}
     else
       {:error, why} -> fail("tartarus: cannot start host #{config.host}: #{why}")
     end
@@ -69,6 +72,21 @@ defmodule TartarusNode.Boot do
   defp fail(line) do
     IO.puts(:stderr, line)
     System.halt(1)
+  end
+
+  # After init: the supervisor starting this process is free again to start the services.
+  @impl true
+  def handle_continue({:services, services}, s) do
+    for {module, opts} <- services do
+      spec = %{id: {:service, module}, start: {module, :start_link, [opts ++ [host: s.host]]}}
+
+      case Supervisor.start_child(TartarusNode.Supervisor, spec) do
+        {:ok, _} -> :ok
+        {:error, reason} -> fail("tartarus: cannot start service #{inspect(module)}: #{inspect(reason)}")
+      end
+    end
+
+    {:noreply, s}
   end
 
   @impl true

@@ -23,7 +23,8 @@ defmodule TartarusNode.Config do
         durable: false,
         trusted: "/etc/tartarus/trusted",     # issuers' .pub keys: admit only agents they signed
         keys: "/etc/tartarus/keys",           # this host's issuer key pair (issuer.key, issuer.pub)
-        dashboard: [port: 4000, bind: "0.0.0.0", hosts: ["pi.local"]]
+        dashboard: [port: 4000, bind: "0.0.0.0", hosts: ["pi.local"]],
+        services: [{TartarusLats.Device, node: :hall}]
       ]
 
   Only `node` is required (and `cookie` or `tls`). `tls:` takes `dir:` and/or `cert:`,
@@ -36,6 +37,11 @@ defmodule TartarusNode.Config do
   `Tartarus.Plugin.Shorthand.parse/3`, as `mix tartarus.node` parses its flags. A serial or
   BLE device that does not exist is refused (`hotplug: true` in its options waits for it
   instead), and so is a GPIO plugin with no GPIO backend (`Tartarus.Plugin.GPIO.check/1`).
+
+  `services:` are processes started once the host runs, each `{module, opts}`: the node
+  calls `module.start_link(opts ++ [host: host])` under its supervisor (LATS's
+  `TartarusLats.Device` drives the node's database agent every second, so query agents find
+  what it saw). A module that is not in the release is refused at the check.
 
   Everything wrong with the file is one line, `error_line/2`:
 
@@ -60,7 +66,8 @@ defmodule TartarusNode.Config do
           durable: boolean(),
           trusted: nil | Path.t(),
           keys: nil | Path.t(),
-          dashboard: nil | keyword()
+          dashboard: nil | keyword(),
+          services: [{module(), keyword()}]
         }
 
   @keys [
@@ -76,7 +83,8 @@ defmodule TartarusNode.Config do
     :durable,
     :trusted,
     :keys,
-    :dashboard
+    :dashboard,
+    :services
   ]
 
   @default_path "/etc/tartarus/node.exs"
@@ -148,7 +156,7 @@ defmodule TartarusNode.Config do
       iex> TartarusNode.Config.check(node: "tartarus@198.18.0.1")
       {:error, "cookie: required without tls:"}
       iex> TartarusNode.Config.check(node: "n@h", cookie: "c", colour: :red)
-      {:error, "unknown key colour: (known: node, host, cookie, tls, net_ticktime, dist_port, neighbours, plugins, data_dir, durable, trusted, keys, dashboard)"}
+      {:error, "unknown key colour: (known: node, host, cookie, tls, net_ticktime, dist_port, neighbours, plugins, data_dir, durable, trusted, keys, dashboard, services)"}
       iex> TartarusNode.Config.check(%{node: "x"})
       {:error, "expected a keyword list, got: %{node: \\"x\\"}"}
   """
@@ -169,7 +177,8 @@ defmodule TartarusNode.Config do
          {:ok, durable} <- durable(term[:durable], data_dir),
          {:ok, trusted} <- dir_opt(:trusted, term[:trusted]),
          {:ok, keys} <- dir_opt(:keys, term[:keys]),
-         {:ok, dashboard} <- dashboard(term[:dashboard]) do
+         {:ok, dashboard} <- dashboard(term[:dashboard]),
+         {:ok, services} <- services(term[:services] || []) do
       {:ok,
        %{
          node: node,
@@ -185,7 +194,8 @@ defmodule TartarusNode.Config do
          durable: durable,
          trusted: trusted,
          keys: keys,
-         dashboard: dashboard
+         dashboard: dashboard,
+         services: services
        }}
     end
   end
@@ -407,6 +417,23 @@ defmodule TartarusNode.Config do
            "TARTARUS_RELEASE_DASHBOARD=true, which brings the tooling app)"}
     end
   end
+
+  defp services(list) when is_list(list) do
+    Enum.reduce_while(list, {:ok, []}, fn
+      {module, opts}, {:ok, acc} when is_atom(module) and is_list(opts) ->
+        if Code.ensure_loaded?(module) and function_exported?(module, :start_link, 1),
+          do: {:cont, {:ok, acc ++ [{module, opts}]}},
+          else:
+            {:halt,
+             {:error, "services: #{inspect(module)} is not in this node's code (or has no start_link/1)"}}
+
+      other, _ ->
+        {:halt, {:error, "services: expected {module, opts} items, got: #{inspect(other)}"}}
+    end)
+  end
+
+  defp services(other),
+    do: {:error, "services: expected a list of {module, opts}, got: #{inspect(other)}"}
 
   defp dashboard(nil), do: {:ok, nil}
 
