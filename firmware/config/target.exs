@@ -93,6 +93,8 @@ config :tartarus_firmware,
   node_basename: "tartarus",
   data: "/data/tartarus",
   neighbours: neighbours,
+  # LATS on this Pi: its database agent, driven every second (Where am I? answers here).
+  services: [{TartarusLats.Device, []}],
   plugins: [
     # An HM-10 on the Pi's UART: a LATS node's BLE receiver.
     beacon: {TartarusFirmware.HM10, device: uart, speed: 9600},

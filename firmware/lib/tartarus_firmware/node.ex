@@ -5,7 +5,10 @@ defmodule TartarusFirmware.Node do
   trust list: only agents signed by those issuers are admitted. Then it links the
   configured neighbours (`config :tartarus_firmware, neighbours: [pi2: :"tartarus@tartarus-3c4d.local"]`)
   as soon as each answers: a Pi may boot before its neighbours, so each missing link is
-  tried again every 2 s.
+  tried again every 2 s. Last it starts the configured services, as a release node does
+  (`config :tartarus_firmware, services: [{TartarusLats.Device, []}]`:
+  `module.start_link(opts ++ [host: host])`, under a supervisor of this process's own, which
+  restarts a service that dies and stops them all when this process stops).
   """
   use GenServer
   require Logger
@@ -51,11 +54,21 @@ defmodule TartarusFirmware.Node do
       {:ok, host} ->
         Logger.info("tartarus: host #{inspect(host)} started")
         send(self(), :link)
-        {:ok, %{host: host, missing: neighbours()}}
+        {:ok, %{host: host, missing: neighbours()}, {:continue, :services}}
 
       {:error, reason} ->
         {:stop, {:host_not_started, reason}}
     end
+  end
+
+  @impl true
+  def handle_continue(:services, s) do
+    specs =
+      for {module, opts} <- Application.get_env(:tartarus_firmware, :services, []),
+          do: %{id: module, start: {module, :start_link, [opts ++ [host: s.host]]}}
+
+    {:ok, _} = Supervisor.start_link(specs, strategy: :one_for_one)
+    {:noreply, s}
   end
 
   @impl true
