@@ -99,7 +99,12 @@ defmodule TartarusWarehouse.Experiment do
       default: [5, 10, 20, 30, 45, 60],
       doc: "`scaling`: the tasks per job of its points"
     ],
-    scaling_jobs: [type: :pos_integer, default: 120, doc: "`scaling`: jobs per run"],
+    scaling_jobs: [
+      type: {:custom, &TartarusWarehouse.Experiment.jobs_spec?/1},
+      default: 120,
+      doc:
+        "`scaling`: jobs per run: a positive integer, or `{:per_size, a, b}` for a·n + b jobs at n tasks per job (the flag's `2n+20`)"
+    ],
     nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
     scaling_robots: [type: :pos_integer, default: 60, doc: "`scaling`: robots among them"],
     phi_nodes: [
@@ -143,6 +148,16 @@ defmodule TartarusWarehouse.Experiment do
     ],
     timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
   ]
+
+  @doc false
+  # Jobs per run of `scaling`: a count, or {:per_size, a, b} (a·n + b at n tasks per job).
+  @spec jobs_spec?(term()) :: boolean()
+  def jobs_spec?(n) when is_integer(n), do: n > 0
+
+  def jobs_spec?({:per_size, a, b}) when is_integer(a) and is_integer(b),
+    do: a >= 0 and b >= 0 and a + b > 0
+
+  def jobs_spec?(_), do: false
 
   @doc false
   # The time scale: a positive number, or nil for the experiment's default.
