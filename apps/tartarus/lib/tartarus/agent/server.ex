@@ -192,11 +192,14 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:internal, {:arrival, ctx}, :running, data), do: Actions.arrival(data, ctx)
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
-  # mark in the host's ledger tells the host's signal from a forged message.
-  def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, %{host: %{pid: pid}} = data) do
-    if :ets.member(data.host.ledger, {:kill, self()}),
-      do: {:stop, :shutdown, data},
-      else: Actions.info(msg, data)
+  # mark in the host's ledger tells the host's signal from a forged message. The host's
+  # server may have been restarted since this process started: the current one counts.
+  def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, data)
+      when pid == data.host.pid or node(pid) == node() do
+    if (pid == data.host.pid or pid == Tartarus.Host.server(data.host)) and
+         :ets.member(data.host.ledger, {:kill, self()}),
+       do: {:stop, :shutdown, data},
+       else: Actions.info(msg, data)
   end
 
   # A commit (with its hand-over) that came after this process stopped waiting for it (its

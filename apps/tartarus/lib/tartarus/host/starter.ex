@@ -38,6 +38,10 @@ defmodule Tartarus.Host.Starter do
         {:error, {:shutdown, {:failed_to_start_child, _, {:already_started, _}}}} ->
           {:error, {:already_started, Host.address(name)}}
 
+        # Its data directory cannot be made, read or written: one error naming it.
+        {:error, {:shutdown, {:failed_to_start_child, :warden, {:journal, _, _} = why}}} ->
+          {:error, why}
+
         {:error, reason} ->
           {:error, reason}
       end

@@ -116,7 +116,19 @@ defmodule Tartarus.Migration.Source do
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind))
 
     prepare =
-      seal(Messages.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+      seal(
+        Messages.prepare(
+          self(),
+          mig,
+          host.ref,
+          Tartarus.Host.server(host),
+          kind,
+          out,
+          manifest,
+          []
+        ),
+        host
+      )
 
     # Before `prepare` leaves: the migration is undecided for whoever asks.
     Ledger.begin_handoff(host, data.env.id, mig)
