@@ -232,11 +232,11 @@ defmodule Tartarus.Migration.Arrival do
 
   @doc false
   # The agent is resident here as `data.env`: that is its arrival snapshot, for restarts
-  # after a crash and (with persistence) after the host's restart.
-  @spec snapshot(map()) :: :ok
+  # after a crash and (with persistence) after the host's restart. :ok, or the journal's
+  # error when it could not be written (the ledger's snapshot is taken all the same).
+  @spec snapshot(map()) :: :ok | {:error, {:journal, term()}}
   def snapshot(data) do
     :ets.insert(data.host.ledger, {{:snapshot, data.key}, data.env})
     Tartarus.Host.Persistence.checkpoint(data.host, data.env)
-    :ok
   end
 end

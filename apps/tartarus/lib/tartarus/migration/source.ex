@@ -30,7 +30,10 @@ defmodule Tartarus.Migration.Source do
   def attempt(data, kind, dest_spec, by) do
     env = data.env
 
+    # A host whose journal cannot be written (a full disk) starts no hand-off: it could not
+    # make its decision durable.
     with :ok <- movable(env, kind),
+         :ok <- Tartarus.Host.Persistence.healthy(data.host),
          {:ok, dest, data} <- resolve(data, dest_spec),
          :ok <- linked(data, dest),
          :ok <- Envelope.portable?(%{state: env.state, payload: env.payload.data}),
