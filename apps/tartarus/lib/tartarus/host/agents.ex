@@ -6,6 +6,7 @@ defmodule Tartarus.Host.Agents do
   # pointers of an agent that ended). Runs in the host's server, on the server's state.
   # Restart and shutdown semantics: see docs/architecture.md, "A node's process tree".
 
+  require Logger
   require Tartarus.{Clock, Events}
   alias Tartarus.{Clock, Events, Ledger}
 
@@ -296,6 +297,12 @@ defmodule Tartarus.Host.Agents do
   # by the host's server, called by Tartarus.start_host/2 after the host's supervisors are up.
   def restore(state) do
     {agents, in_doubt} = Tartarus.Host.Warden.take_restore(elem(state.host.ref, 0))
+    # An agent whose code this node cannot run (not installed, not kept in the journal) is
+    # not started, and keeps its records: a later start with its module installed restores
+    # it (starting it would crash it until it was removed, and forgotten for good).
+    {agents, unrunnable} = Enum.split_with(agents, &runnable?/1)
+    {in_doubt, unrunnable_copies} = Enum.split_with(in_doubt, &runnable?(elem(&1, 1)))
+    not_started(state.host, unrunnable ++ Enum.map(unrunnable_copies, &elem(&1, 1)))
 
     {state, pids} =
       Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
@@ -328,5 +335,18 @@ defmodule Tartarus.Host.Agents do
       end)
 
     {{:ok, length(agents), length(in_doubt)}, state}
+  end
+
+  defp runnable?(env),
+    do: match?({:ok, _}, Tartarus.CodeCache.manifest(Tartarus.Envelope.modules(env)))
+
+  defp not_started(_host, []), do: :ok
+
+  defp not_started(host, envs) do
+    Logger.error(
+      "host #{inspect(host.ref)}: #{length(envs)} journaled agents not restored, their code " <>
+        "is missing (#{inspect(Enum.uniq(Enum.map(envs, & &1.module)), limit: 8)}); their " <>
+        "records are kept for a start with it installed"
+    )
   end
 end

@@ -44,11 +44,13 @@ defmodule Tartarus.Host.Persistence do
     with :ok <- mkdir(dir),
          {:ok, state, damage} <- read_checked(path),
          {:ok, moved} <- set_aside(path, damage),
-         {:ok, live} <- rewrite(path, state),
+         {:ok, live} <- rewrite(path, state, true),
+         unloadable = load_code(path, state),
          health = :atomics.new(1, []),
          {:ok, pid} <- Tartarus.Host.Persistence.Writer.start_link(path, live, health) do
       damage = if damage, do: Map.put(damage, :moved_to, moved)
-      {:ok, %{io: pid, path: path, damage: damage, health: health}, restored(state)}
+      journal = %{io: pid, path: path, damage: damage, health: health, unloadable: unloadable}
+      {:ok, journal, restored(state)}
     else
       {:error, {:journal, _, _}} = error -> error
       {:error, reason} -> {:error, {:journal, path, reason}}
@@ -94,12 +96,14 @@ defmodule Tartarus.Host.Persistence do
   @doc false
   # Rewrites the journal at `path` with the live records of `state` (written to a temporary
   # file, then renamed over it). Returns {:ok, bytes} or {:error, reason}.
-  def rewrite(path, state) do
+  def rewrite(path, state, gc_code \\ false) do
+    state = if gc_code, do: needed_code(state), else: state
     tmp = path <> ".tmp"
     bin = IO.iodata_to_binary(Enum.map(records(state), &frame/1))
 
     with :ok <- File.write(tmp, bin),
          :ok <- File.rename(tmp, path) do
+      if gc_code, do: drop_unused_code(path, state)
       {:ok, byte_size(bin)}
     else
       {:error, reason} ->
@@ -131,15 +135,19 @@ defmodule Tartarus.Host.Persistence do
   # Each write answers :ok once written, or {:error, {:journal, reason}} (a full disk:
   # {:journal, :enospc}) when it could not be: nothing of it is then in the file.
   def checkpoint(%{journal: nil}, _env), do: :ok
-  def checkpoint(%{journal: j}, env), do: append(j, {:agent, env.id, env})
+
+  def checkpoint(%{journal: j} = host, env) do
+    with :ok <- save_code(host, env), do: append(j, {:agent, env.id, env})
+  end
 
   def forget(%{journal: nil}, _id), do: :ok
   def forget(%{journal: j}, id), do: append(j, {:forget, id})
 
   def in_doubt(%{journal: nil}, _mig, _env, _src, _kind, _copy), do: :ok
 
-  def in_doubt(%{journal: j}, mig, env, src, kind, copy),
-    do: append(j, {:in_doubt, mig, env, src, kind, copy})
+  def in_doubt(%{journal: j} = host, mig, env, src, kind, copy) do
+    with :ok <- save_code(host, env), do: append(j, {:in_doubt, mig, env, src, kind, copy})
+  end
 
   def resolved(%{journal: nil}, _mig, _copy), do: :ok
   def resolved(%{journal: j}, mig, copy), do: append(j, {:resolved, mig, copy})
@@ -149,6 +157,113 @@ defmodule Tartarus.Host.Persistence do
 
   def committed(%{journal: nil}, _mig, _id, _copy), do: :ok
   def committed(%{journal: j}, mig, id, copy), do: append(j, {:decision, mig, id, copy})
+
+  # -- shipped code ----------------------------------------------------------------------
+  #
+  # The code of a journaled agent that is not on the node's code path (shipped from another
+  # node, or compiled at run time) is kept beside the journal, content-addressed: the BEAM
+  # binary in `code/<md5 in hex>.beam` (written once, to a temporary file renamed into
+  # place), and a record {:code, module, md5} in the journal. Replaying keeps the last md5
+  # of each module; the compaction of opening keeps the records of the modules a live agent
+  # or in-doubt copy needs and deletes the files of the others (the last agent that needed
+  # them is gone; compactions while the host runs keep every code record, so the ledger's
+  # memory of what was saved stays true). Opening the journal loads each kept module whose md5 the node does not run
+  # already (Tartarus.CodeCache.load/1 checks the binary's md5), before any agent is
+  # restored. Each module is saved once per run of the host (a ledger entry remembers it).
+
+  defp save_code(host, env) do
+    Enum.reduce_while(Tartarus.Envelope.modules(env), :ok, fn mod, :ok ->
+      case save_module(host, mod) do
+        :ok -> {:cont, :ok}
+        error -> {:halt, error}
+      end
+    end)
+  end
+
+  defp save_module(%{journal: j, ledger: ledger}, mod) do
+    with false <- on_code_path?(mod),
+         {:ok, md5} <- Tartarus.CodeCache.md5(mod),
+         false <- :ets.member(ledger, {:code_saved, mod, md5}),
+         {:ok, bin} <- Tartarus.CodeCache.fetch_binary(mod, md5),
+         :ok <- write_code(j, md5, bin),
+         :ok <- append(j, {:code, mod, md5}) do
+      :ets.insert(ledger, {{:code_saved, mod, md5}, true})
+      :ok
+    else
+      true -> :ok
+      # Not loaded (it cannot run here either) or no binary: nothing to keep.
+      :error -> :ok
+      {:error, {:no_object_code, _}} -> :ok
+      {:error, _} = error -> error
+    end
+  end
+
+  defp on_code_path?(mod) do
+    case :code.which(mod) do
+      path when is_list(path) -> String.ends_with?(List.to_string(path), ".beam")
+      _ -> false
+    end
+  end
+
+  defp code_path(journal_path, md5),
+    do:
+      Path.join([Path.dirname(journal_path), "code", Base.encode16(md5, case: :lower) <> ".beam"])
+
+  defp write_code(%{path: path}, md5, bin) do
+    file = code_path(path, md5)
+    tmp = file <> ".tmp"
+
+    with false <- File.exists?(file),
+         :ok <- File.mkdir_p(Path.dirname(file)),
+         :ok <- File.write(tmp, bin),
+         :ok <- File.rename(tmp, file) do
+      :ok
+    else
+      true ->
+        :ok
+
+      {:error, reason} ->
+        _ = File.rm(tmp)
+        {:error, {:journal, reason}}
+    end
+  end
+
+  # Loads the modules the journal kept (state.code) that this node does not run in that
+  # version: [{module, error}] for those that could not be loaded.
+  defp load_code(path, state) do
+    for {mod, md5} <- state.code,
+        Tartarus.CodeCache.md5(mod) != {:ok, md5},
+        result = load_module(path, mod, md5),
+        result != :ok,
+        do: {mod, result}
+  end
+
+  defp load_module(path, mod, md5) do
+    with {:ok, bin} <- File.read(code_path(path, md5)) do
+      Tartarus.CodeCache.load([{mod, md5, bin}])
+    end
+  end
+
+  # Deletes the kept binaries no live record needs any more (compaction).
+  defp drop_unused_code(path, state) do
+    dir = Path.join(Path.dirname(path), "code")
+
+    keep =
+      MapSet.new(state.code, fn {_mod, md5} -> Base.encode16(md5, case: :lower) <> ".beam" end)
+
+    case File.ls(dir) do
+      {:ok, files} ->
+        for f <- files,
+            String.ends_with?(f, ".beam"),
+            f not in keep,
+            do: File.rm(Path.join(dir, f))
+
+        :ok
+
+      {:error, _} ->
+        :ok
+    end
+  end
 
   @doc false
   # :ok, or the error of the journal's last write if it failed (nothing written since): a
@@ -318,12 +433,13 @@ defmodule Tartarus.Host.Persistence do
   def record?({:resolved, _mig, _copy}), do: true
   def record?({:acked, _mig}), do: true
   def record?({:decision, _mig, id, _copy}) when is_binary(id), do: true
+  def record?({:code, mod, md5}) when is_atom(mod) and is_binary(md5), do: true
   def record?(_), do: false
 
   @doc false
   # The replayed state of an empty journal (the fold of apply_record/2 over the records;
   # the protocol model folds the same way).
-  def empty, do: %{agents: %{}, in_doubt: %{}, decisions: %{}}
+  def empty, do: %{agents: %{}, in_doubt: %{}, decisions: %{}, code: %{}}
 
   @doc false
   def apply_record({:agent, id, env}, s),
@@ -350,14 +466,31 @@ defmodule Tartarus.Host.Persistence do
 
   def apply_record({:acked, mig}, s), do: %{s | decisions: Map.delete(s.decisions, mig)}
 
+  def apply_record({:code, mod, md5}, s),
+    do: %{s | code: Map.put(Map.get(s, :code, %{}), mod, md5)}
+
   # A record of an unknown shape (read/1 sets such frames aside): skipped.
   def apply_record(_other, s), do: s
 
   defp drop_agent(in_doubt, id, keep \\ nil),
     do: Map.reject(in_doubt, fn {{mig, _copy}, {env, _, _}} -> env.id == id and mig != keep end)
 
+  # The code records a live agent or in-doubt copy needs (the others are dropped).
+  defp needed_code(s) do
+    envs = Map.values(s.agents) ++ Enum.map(Map.values(s.in_doubt), &elem(&1, 0))
+    needed = MapSet.new(Enum.flat_map(envs, &modules_of/1))
+    %{s | code: Map.filter(Map.get(s, :code, %{}), fn {mod, _} -> mod in needed end)}
+  end
+
+  defp modules_of(env) do
+    Tartarus.Envelope.modules(Tartarus.Envelope.upgrade(env))
+  rescue
+    _ -> []
+  end
+
   defp records(s) do
-    Enum.map(s.decisions, fn {mig, {id, copy}} -> {:decision, mig, id, copy} end) ++
+    Enum.map(Map.get(s, :code, %{}), fn {mod, md5} -> {:code, mod, md5} end) ++
+      Enum.map(s.decisions, fn {mig, {id, copy}} -> {:decision, mig, id, copy} end) ++
       Enum.map(s.in_doubt, fn {{mig, copy}, {env, src, kind}} ->
         {:in_doubt, mig, env, src, kind, copy}
       end) ++
