@@ -60,11 +60,16 @@ defmodule Tartarus.ShippedCodeJournalTest do
     refute Code.ensure_loaded?(ctx.mod)
     start!(name, ctx.dir)
     assert listed(name) == ids
-    assert Enum.all?(Enum.with_index(ids), fn {id, _} -> match?({:ok, n} when is_integer(n), Tartarus.request({id, addr(name)}, :state)) end)
+
+    assert Enum.all?(Enum.with_index(ids), fn {id, _} ->
+             match?({:ok, n} when is_integer(n), Tartarus.request({id, addr(name)}, :state))
+           end)
+
     assert ctx.mod.module_info(:md5) == md5
   end
 
-  test "a restore without the module keeps the agents' records: installed later, all 60 return", ctx do
+  test "a restore without the module keeps the agents' records: installed later, all 60 return",
+       ctx do
     :ok = install(ctx.mod)
     name = start!(unique_name(), ctx.dir)
     ids = Enum.sort(for i <- 1..@n, do: elem(Tartarus.create_agent(name, ctx.mod, i), 1))
