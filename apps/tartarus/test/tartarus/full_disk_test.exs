@@ -70,15 +70,22 @@ defmodule Tartarus.FullDiskTest do
     name = unique_name()
     {:ok, _} = Tartarus.start_host(name, data_dir: dir, durable: true)
     on_exit(fn -> Tartarus.stop_host(name) end)
-    {:ok, id} = Tartarus.create_agent(name, Tartarus.Test.Probe, %{count: 0})
+    pad = :binary.copy("x", 2_048)
+    {:ok, id} = Tartarus.create_agent(name, Tartarus.Test.Probe, %{count: 0, pad: pad})
     {_ids, {:error, {:journal, :enospc}}} = fill(name)
 
+    # Each post journals the agent's new state (over 2 KiB): posts until one is refused.
+    oks = Enum.take_while(1..1_000, fn _ -> Tartarus.post({id, addr(name)}, :inc) == :ok end)
+    assert length(oks) < 1_000
     assert {:error, {:journal, :enospc}} = Tartarus.post({id, addr(name)}, :inc)
-    # The agent goes on from the state before the refused message.
-    assert {:ok, %{count: 0}} = Tartarus.request({id, addr(name)}, :state)
+    # The agent goes on from the state before the refused messages: only the acknowledged
+    # ones count, and a read is served.
+    n = length(oks)
+    assert {:ok, %{count: ^n}} = Tartarus.request({id, addr(name)}, :state)
 
     :ok = Tags.resize_tmpfs(dir, "1m")
     assert :ok = Tartarus.post({id, addr(name)}, :inc)
-    assert {:ok, %{count: 1}} = Tartarus.request({id, addr(name)}, :state)
+    m = n + 1
+    assert {:ok, %{count: ^m}} = Tartarus.request({id, addr(name)}, :state)
   end
 end

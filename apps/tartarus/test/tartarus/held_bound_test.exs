@@ -65,8 +65,10 @@ defmodule Tartarus.HeldBoundTest do
     resume.()
     Task.await(task, 10_000)
     late = results(16)
-    # 1 MiB holds 15 of them (each a little over 64 KiB): those are taken once the move ends.
-    assert Enum.count(late, &(&1 == :ok)) == 15
+    # 1 MiB holds 15 of them (each a little over 64 KiB): those are taken once the move
+    # ends (a sender that came after it ended is taken too); none was lost.
+    assert Enum.count(late, &(&1 == :ok)) >= 15
+    assert Enum.all?(late, &(&1 == :ok or match?({:error, {:overloaded, ^id}}, &1)))
   end
 
   test "a flood of small messages: refused beyond the bound, no acknowledged post reverted" do
