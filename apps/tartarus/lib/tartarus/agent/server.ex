@@ -277,9 +277,16 @@ defmodule Tartarus.Agent.Server do
   # Whatever ends this process with a return value (it moved on, stopped, returned,
   # crashed in a callback): the processes it started with Tartarus.Agent.spawn_link/1 end
   # too. (Killed, it has no say: its host ends them, see Tartarus.Host.Server.)
+  #
+  # A crash's reason is also left in the host's ledger ({:exit_reason, pid}): a server that
+  # adopts this process only after it ended (a local create, a server restarted meanwhile)
+  # sees :noproc, and reads the reason there.
   @impl true
-  def terminate(_reason, _state, data) do
+  def terminate(reason, _state, data) do
     if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+
+    unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
+      do: :ets.insert(data.host.ledger, {{:exit_reason, self()}, reason})
   end
 
   # -- helpers ---------------------------------------------------------------------------

@@ -322,7 +322,7 @@ defmodule Tartarus.Host.Server do
     reason =
       case overrun do
         [{_, why}] -> why
-        [] -> reason
+        [] -> exit_reason(state, pid, reason)
       end
 
     {kill, killing} = Map.pop(state.killing, pid)
@@ -335,6 +335,20 @@ defmodule Tartarus.Host.Server do
     Agents.not_created(state, entry, reason)
     if kill, do: Agents.killed(state, pid, entry, kill)
     {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
+  end
+
+  # A crash's reason as the agent left it (Agent.Server.terminate/3): the one the :DOWN
+  # gives is :noproc when the process ended before this server monitored it.
+  defp exit_reason(_state, _pid, reason)
+       when reason in [:normal, :shutdown] or
+              (is_tuple(reason) and elem(reason, 0) == :shutdown),
+       do: reason
+
+  defp exit_reason(state, pid, reason) do
+    case :ets.take(state.host.ledger, {:exit_reason, pid}) do
+      [{_, why}] -> why
+      [] -> reason
+    end
   end
 
   @impl true
