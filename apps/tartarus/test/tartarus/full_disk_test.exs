@@ -88,4 +88,12 @@ defmodule Tartarus.FullDiskTest do
     m = n + 1
     assert {:ok, %{count: ^m}} = Tartarus.request({id, addr(name)}, :state)
   end
+
+  test "a read-only file system: start_host answers one error naming the directory", %{dir: dir} do
+    {_, 0} = System.cmd("mount", ["-o", "remount,ro", dir], stderr_to_stdout: true)
+    name = unique_name()
+    data = Path.join(dir, "data")
+    assert {:error, {:journal, ^data, :erofs}} = Tartarus.start_host(name, data_dir: data)
+    assert Tartarus.Host.local(name) == {:error, {:unknown_host, name}}
+  end
 end
