@@ -1,7 +1,9 @@
 defmodule Tartarus.Host.Persistence do
   @moduledoc false
   # A host's durable journal (host option :data_dir): one append-only file per host,
-  # `host-<name>.journal`, of length-prefixed terms:
+  # `host-<name>.journal`, owned by the host's warden (Tartarus.Host.Warden), of frames
+  # `<<0xA7, size::32, crc32(size and term)::32, term>>` (frame/1; read/1 reads them, sets
+  # aside what does not read and resynchronises on the next frame) holding the records:
   #
   #   {:agent, id, env}                  agent arrived (or was created): its snapshot
   #   {:forget, id}                      agent stopped, or was killed
@@ -9,6 +11,8 @@ defmodule Tartarus.Host.Persistence do
   #   {:resolved, mig, copy}             that copy was committed or aborted
   #   {:acked, mig}                      the committed copy of mig runs: its decision record
   #                                      is no longer needed (source)
+  #   {:code, module, md5}               the binary of `module` a journaled agent needs is
+  #                                      kept in code/<md5>.beam (see "shipped code" below)
   #
   # In-doubt copies are keyed by {mig, copy}: a second copy of one migration (a duplicated or
   # replayed prepare the host no longer remembered) must not replace the first's record.
@@ -22,7 +26,10 @@ defmodule Tartarus.Host.Persistence do
   # (Tartarus.Host.Persistence.Writer, one process per host, owning the file) compacts it
   # between two writes once it has grown by more than twice its live size (at least
   # @compact_min bytes), so its size stays proportional to what is live (resident agents,
-  # in-doubt copies, unacknowledged commits), not to the migrations that passed.
+  # in-doubt copies, unacknowledged commits), not to the migrations that passed. A journal
+  # that does not read whole is never compacted over: on open it is renamed aside
+  # (`.damaged-<n>`, kept for a person) before a fresh one takes the records that read; while
+  # the host runs it is left as it is.
   #
   # Each write goes to the file with write(2) before the host sends the message that depends
   # on it (the destination records the in-doubt copy before answering `prepared`; the source
