@@ -77,6 +77,7 @@ defmodule TartarusWarehouse.Experiment do
     ],
     scale: [
       type: {:custom, &TartarusWarehouse.Experiment.scale?/1},
+      expected: "a number from 0.0001 to 1000",
       default: nil,
       doc:
         "time scale: 0.01 runs a 2 s task as 20 ms (default: 0.1 for `scaling`, 0.01 for the others)"
@@ -92,7 +93,11 @@ defmodule TartarusWarehouse.Experiment do
     ],
     robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
     jobs: [type: :pos_integer, default: 4, doc: "`robots`: jobs with variable durations"],
-    jitter: [type: :number, default: 0.3, doc: "`robots`: spread of each execution's duration"],
+    jitter: [
+      type: {:range, 0, 0.95},
+      default: 0.3,
+      doc: "`robots`: spread of each execution's duration (a factor in 1 ± jitter)"
+    ],
     equal_jobs: [type: :pos_integer, default: 40, doc: "`robots`: jobs with equal durations"],
     sizes: [
       type: {:list, :pos_integer},
@@ -135,7 +140,7 @@ defmodule TartarusWarehouse.Experiment do
         "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
     service_ms: [
-      type: :number,
+      type: {:range, 0, 60_000},
       default: 2.2,
       doc:
         "`scaling`: the time (ms) the central server and the Job Distributor each take for every message they handle (see `TartarusWarehouse.Service`); 0: a BEAM process's microseconds"
@@ -162,7 +167,7 @@ defmodule TartarusWarehouse.Experiment do
   @doc false
   # The time scale: a positive number, or nil for the experiment's default.
   @spec scale?(term()) :: boolean()
-  def scale?(x), do: is_nil(x) or (is_number(x) and x > 0)
+  def scale?(x), do: is_nil(x) or (is_number(x) and x >= 1.0e-4 and x <= 1000)
 
   @doc """
   The registry: every experiment's name and module, in the order `mix tartarus.warehouse`
