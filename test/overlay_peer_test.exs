@@ -117,4 +117,63 @@ defmodule Tartarus.OverlayPeerTest do
 
     assert Tartarus.whereis(id) == {:ok, h1}
   end
+
+  # The walk carries the nodes it asked back up: a search for an unknown id asks each node of
+  # a 4x4 grid once (before, siblings did not learn what the other had asked: 131 calls
+  # from a corner). Counted with call_count tracing of the search on every node.
+  @tag timeout: 180_000
+  test "a search for an unknown id asks each node of a 4x4 grid at most once" do
+    {:ok, peers} = TartarusTools.Peer.start_many("grid", 16)
+    nodes = Enum.map(peers, &elem(&1, 1))
+    on_exit(fn -> Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end) end)
+
+    hosts =
+      for {n, i} <- Enum.with_index(nodes) do
+        {:ok, h} = :erpc.call(n, Tartarus, :start_host, [:"g#{i}"])
+        h
+      end
+
+    grid = List.to_tuple(hosts)
+
+    for i <- 0..15, j <- [i + 1, i + 4], j < 16, j == i + 4 or rem(i, 4) != 3 do
+      :ok = Tartarus.connect(elem(grid, i), elem(grid, j))
+    end
+
+    # (Loaded first: a pattern matches only the functions of loaded modules.)
+    for n <- nodes do
+      {:module, _} = :erpc.call(n, :code, :ensure_loaded, [Tartarus.Locator])
+      pattern = {Tartarus.Locator, :search, :_}
+      assert :erpc.call(n, :erlang, :trace_pattern, [pattern, true, [:call_count]]) > 0
+    end
+
+    assert :erpc.call(hd(nodes), Tartarus, :whereis, ["0123456789abcdef"]) == {:error, :not_found}
+
+    counts =
+      for n <- nodes do
+        for arity <- [3, 4], reduce: 0 do
+          acc ->
+            case :erpc.call(n, :erlang, :trace_info, [
+                   {Tartarus.Locator, :search, arity},
+                   :call_count
+                 ]) do
+              {:call_count, c} when is_integer(c) -> acc + c
+              _ -> acc
+            end
+        end
+      end
+
+    # The corner calls search/3 and search/4 itself; every other node is asked once.
+    assert Enum.sum(counts) <= 17
+    assert Enum.all?(tl(counts), &(&1 <= 1))
+
+    # An agent on the far corner is still found.
+    {:ok, far} =
+      :erpc.call(List.last(nodes), Tartarus, :create_mobile_agent, [
+        :g15,
+        Tartarus.Examples.Echo,
+        :kept
+      ])
+
+    assert :erpc.call(hd(nodes), Tartarus, :whereis, [far]) == {:ok, elem(grid, 15)}
+  end
 end

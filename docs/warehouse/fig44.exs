@@ -1,5 +1,5 @@
-# Draws docs/warehouse/fig44_scaling.svg (Fig. 4.4 under the thesis's load, issue 25) and
-# docs/warehouse/fig44_service.svg (the central processes' queues over time) from the runs
+# Draws docs/warehouse/fig44_scaling_issue25.svg (Fig. 4.4 under the thesis's load, issue 25) and
+# docs/warehouse/fig44_service_issue25.svg (the central processes' queues over time) from the runs
 # of the pre-registration in docs/warehouse.md ("Fig. 4.4 under the thesis's load"):
 #
 #   A:  mix tartarus.warehouse --experiment scaling --designs central --seeds 3 --seed 11 --out DIR/A --json
@@ -78,7 +78,7 @@ off_chart =
   |> Enum.map_join(", ", fn {n, v} -> "#{n}: #{Float.round(v / 1000, 1)} s" end)
 
 SVG.write!(
-  "docs/warehouse/fig44_scaling.svg",
+  "docs/warehouse/fig44_scaling_issue25.svg",
   SVG.line_chart(series,
     title: "Average time per task against tasks per job (Fig. 4.4, under the thesis's load)",
     subtitle:
@@ -117,7 +117,7 @@ qs =
 
 if qs != [] do
   SVG.write!(
-    "docs/warehouse/fig44_service.svg",
+    "docs/warehouse/fig44_service_issue25.svg",
     SVG.line_chart(qs,
       title: "Messages waiting or in service at the central process, 60 tasks per job",
       subtitle: "seed 11, S = 2.2 ms a message, 50 ms bins",

@@ -309,21 +309,27 @@ defmodule Tartarus do
   @doc """
   Every agent resident on this node's hosts, as `agents/1` gives them plus `:host` (its
   host's address), in no particular order: one read of the node's agent table, however many
-  hosts the node has (`agents/1` host by host costs a scan of each host's ledger).
+  hosts the node has (`agents/1` host by host costs a scan of each host's ledger). Only
+  agents that exist: a stopped host's agents leave the table with it, and an entry whose
+  process is gone is not listed.
   """
   @spec agents() :: [map()]
   def agents, do: Tartarus.AgentTable.all()
 
   @doc """
   A host's status: resident agents, neighbours, visits, event counts, hop statistics,
-  forwarding pointers and plugins.
+  forwarding pointers, plugins and, under `:journal`, its journal (nil without `data_dir:`):
+  `:path`, `:bytes`, `:refused_writes` (writes refused since it started, e.g. on a full
+  disk), `:last_error` (nil once a write succeeded again) and `:damaged` (nil, or what the
+  host could not read when it started: `:ranges` of `{offset, length}`, `:records` read,
+  `:moved_to`, the original file kept aside).
   """
   @spec status(host_ref()) :: map() | {:error, term()}
   def status(host), do: OnNode.run(host, :status, [])
 
   @doc """
   Part of a host's status: only the keys asked for (of `:host`, `:resident`, `:visits`,
-  `:neighbours`, `:counts`, `:hops`, `:forwarding_pointers`, `:plugins`), each as in
+  `:neighbours`, `:counts`, `:hops`, `:forwarding_pointers`, `:plugins`, `:journal`), each as in
   `status/1`, and only they are computed: `[:resident, :counts]` reads a counter and the
   host's event counts, where the whole status also lists its plugins and pointers (for
   watchers of thousands of hosts).

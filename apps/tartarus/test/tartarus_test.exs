@@ -784,6 +784,7 @@ defmodule TartarusTest do
                  :forwarding_pointers,
                  :hops,
                  :host,
+                 :journal,
                  :neighbours,
                  :plugins,
                  :resident,

@@ -93,9 +93,10 @@ defmodule Tartarus.AgentTable do
 
   def count, do: :ets.info(@table, :size)
 
-  # Every registered (resident) agent of this node.
+  # Every registered (resident) agent of this node whose process lives.
   def all do
     for {id, pid, host_name, name, module} <- :ets.tab2list(@table),
+        alive?(pid),
         do: %{id: id, name: name, module: module, pid: pid, host: {host_name, node()}}
   end
 

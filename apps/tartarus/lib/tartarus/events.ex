@@ -30,6 +30,13 @@ defmodule Tartarus.Events do
   | `:broadcast_received` | `:from`, `:bytes`                     | `:broadcasts_received` |
   | `:signal`      | `:name`, `:strength`, `:span` (see `Tartarus.Signal`) | `:signals`  |
   | `:signal_relay` | `:name`, `:source`, `:to`, `:messages`, `:bytes` | `:signal_messages`, `:signal_bytes` |
+  | `:journal_damaged` | `:path`, `:moved_to`, `:ranges`, `:unreadable_bytes`, `:records` | `:journal_damaged`, `:journal_unreadable_bytes` |
+  | `:journal_refused` | `:agent`, `:reason` (a write the journal could not take) | `:journal_refused` |
+
+  A `:journal_damaged` event comes once, when a host opens a journal it could not read whole
+  (`Tartarus.start_host/2` with `data_dir:`): `:ranges` are the `{offset, length}` of the
+  bytes it could not read (a torn tail, a damaged frame, junk), `:records` the records it
+  did read and restored, `:moved_to` where the original file now is (kept, never deleted).
 
   A `:dropped` event is a message, cast or call that a platform process did not expect (from
   another node, well-formed or not) and dropped instead of crashing (`:host` is `nil` for the
@@ -72,7 +79,10 @@ defmodule Tartarus.Events do
     :broadcasts_received,
     :signals,
     :signal_messages,
-    :signal_bytes
+    :signal_bytes,
+    :journal_damaged,
+    :journal_unreadable_bytes,
+    :journal_refused
   ]
   @index @counter_names |> Enum.with_index(1) |> Map.new()
   # {name, index} of every counter, in order (a list: read per host, often).
@@ -96,6 +106,8 @@ defmodule Tartarus.Events do
     :broadcast_received,
     :signal,
     :signal_relay,
+    :journal_damaged,
+    :journal_refused,
     :other
   ]
   @type_index @types |> Enum.with_index(1) |> Map.new()

@@ -116,6 +116,18 @@ defmodule Tartarus.Host do
   end
 
   @doc false
+  # The pid of the current server of a host of this node, given the host map an agent holds
+  # (Tartarus.Host.local/1): the server may have been restarted since the map was read (its
+  # :pid is then a dead one, and stays the answer only if no server runs).
+  @spec server(map()) :: pid()
+  def server(%{ref: {name, _}, pid: pid}) do
+    case Registry.lookup(Tartarus.HostRegistry, {:host, name}) do
+      [{current, _}] -> current
+      [] -> pid
+    end
+  end
+
+  @doc false
   # Runs `module.fun(host, args...)` for a host on this node, or remotely on the host's node
   # with :erpc (each function takes the host's full address first). A host that is gone (or
   # whose node is) answers `{:error, {:unknown_host, host}}`. Tartarus.Host.OnNode, Signal and

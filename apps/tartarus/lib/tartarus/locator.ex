@@ -13,9 +13,11 @@ defmodule Tartarus.Locator do
   alias Tartarus.{Clock, Host, Ledger}
 
   @max_chase 64
-  # How far (overlay hops between nodes) and how long (ms per node asked) an agent known by
-  # its id alone is searched for.
-  @search_ttl 8
+  # How deep (overlay hops between nodes along the walk) and how long (ms for the whole walk)
+  # an agent known by its id alone is searched for. The walk asks each node once, so its
+  # cost is bounded by the nodes reachable and the time, not by the paths between them; the
+  # depth bound is generous because a depth-first walk may reach a near node by a long path.
+  @search_ttl 32
   @search_timeout 2_000
 
   @doc false
@@ -316,13 +318,32 @@ defmodule Tartarus.Locator do
   # -- an agent known by its id alone ----------------------------------------------------
   # Where to start looking for agent `id`: a host of this node where it runs, arrives or left
   # a forwarding pointer; else the nodes of this node's hosts' overlay neighbours are asked,
-  # and they ask theirs (each node at most once, at most @search_ttl overlay hops away, one
-  # node at a time): the overlay relays the search, no node connects to a node it is not
-  # linked with. A node without hosts asks the nodes it is connected to.
+  # and they ask theirs: one walk, depth first, at most @search_ttl overlay hops away, one
+  # node at a time. The set of nodes asked travels with the walk and comes back with each
+  # answer, so no node is asked twice however many paths lead to it (a 4x4 grid of 16 nodes:
+  # at most 16 calls, where a visited set passed only downwards made 131 from a corner). The
+  # walk has one time budget (@search_timeout in all): each node is given what is left, and
+  # gives up when it is spent, so no part of a search outlives its caller by more than one
+  # call. The overlay relays the search: no node connects to a node it is not linked with. A
+  # node without hosts asks the nodes it is connected to.
 
   @doc false
   @spec search(binary(), non_neg_integer(), [node()]) :: {:ok, Host.t()} | :error
   def search(id, ttl, visited) do
+    case search(id, ttl, visited, @search_timeout) do
+      {:ok, host} -> {:ok, host}
+      {:not_found, _asked} -> :error
+    end
+  end
+
+  @doc false
+  # One step of the walk, on the node asked: `{:ok, host}`, or `{:not_found, asked}` with
+  # every node the walk has asked so far (`visited` and those asked from here).
+  @spec search(binary(), non_neg_integer(), [node()], non_neg_integer()) ::
+          {:ok, Host.t()} | {:not_found, [node()]}
+  def search(id, ttl, visited, budget_ms) do
+    deadline = Clock.monotonic_time(:millisecond) + budget_ms
+    visited = if node() in visited, do: visited, else: [node() | visited]
     # This node's hosts, read once (a host that stopped meanwhile is left out).
     infos = for h <- Host.Starter.hosts(), {:ok, info} <- [Host.local(h)], do: info
 
@@ -331,12 +352,18 @@ defmodule Tartarus.Locator do
         {:ok, host}
 
       :error when ttl > 0 ->
-        next = next_nodes(infos) -- visited
-        visited = visited ++ next
-        Enum.find_value(next, :error, &ask(&1, id, ttl - 1, visited))
+        Enum.reduce_while(next_nodes(infos), {:not_found, visited}, fn n, {:not_found, asked} ->
+          left = deadline - Clock.monotonic_time(:millisecond)
+
+          cond do
+            n in asked -> {:cont, {:not_found, asked}}
+            left <= 0 -> {:halt, {:not_found, asked}}
+            true -> ask(n, id, ttl - 1, [n | asked], left)
+          end
+        end)
 
       :error ->
-        :error
+        {:not_found, visited}
     end
   end
 
@@ -359,12 +386,15 @@ defmodule Tartarus.Locator do
   defp next_nodes(infos),
     do: Enum.uniq(for info <- infos, {_, n} <- Ledger.neighbours(info), do: n)
 
-  defp ask(node, id, ttl, visited) do
-    case :erpc.call(node, __MODULE__, :search, [id, ttl, visited], @search_timeout) do
-      {:ok, host} -> {:ok, host}
-      _ -> nil
+  # {:halt, found} or {:cont, {:not_found, asked}} for the walk's reduce; a node that does
+  # not answer in time (or at all) counts as asked.
+  defp ask(node, id, ttl, asked, budget_ms) do
+    case :erpc.call(node, __MODULE__, :search, [id, ttl, asked, budget_ms], budget_ms) do
+      {:ok, host} -> {:halt, {:ok, host}}
+      {:not_found, more} when is_list(more) -> {:cont, {:not_found, Enum.uniq(more ++ asked)}}
+      _ -> {:cont, {:not_found, asked}}
     end
   catch
-    _, _ -> nil
+    _, _ -> {:cont, {:not_found, asked}}
   end
 end

@@ -36,7 +36,9 @@ defmodule Tartarus.Options do
 
   @typedoc """
   A type in a schema: `:any`, `:atom`, `:boolean`, `:integer`, `:pos_integer`,
-  `:non_neg_integer`, `:number`, `:probability` (a number in 0..1), `:timeout`
+  `:non_neg_integer`, `:number`, `:probability` (a number in 0..1), `{:range, lo, hi}` (a
+  number from `lo` to `hi`, both included: finite, so `1.0e308` is refused where a
+  duration is asked for), `:timeout`
   (non-negative integer or `:infinity`), `:pos_integer_or_infinity`, `:host`, `:map`,
   `:string`, `:keyword`, `{:list, type}`, `{:in, values}`, `{:fun, arity}`,
   `{:tuple, [type]}` (a tuple of that size, element by element), `{:or, [type]}` (any of the
@@ -49,6 +51,7 @@ defmodule Tartarus.Options do
           atom()
           | {:list, type()}
           | {:in, list()}
+          | {:range, number(), number()}
           | {:fun, non_neg_integer()}
           | {:tuple, [type()]}
           | {:or, [type()]}
@@ -226,6 +229,7 @@ defmodule Tartarus.Options do
   def valid?(:non_neg_integer, v), do: is_integer(v) and v >= 0
   def valid?(:number, v), do: is_number(v)
   def valid?(:probability, v), do: is_number(v) and v >= 0 and v <= 1
+  def valid?({:range, lo, hi}, v), do: is_number(v) and v >= lo and v <= hi
   def valid?(:timeout, v), do: v == :infinity or (is_integer(v) and v >= 0)
   def valid?(:pos_integer_or_infinity, v), do: v == :infinity or (is_integer(v) and v > 0)
   def valid?(:string, v), do: is_binary(v)
@@ -262,6 +266,7 @@ defmodule Tartarus.Options do
   def describe(:non_neg_integer), do: "a non-negative integer"
   def describe(:number), do: "a number"
   def describe(:probability), do: "a number between 0 and 1"
+  def describe({:range, lo, hi}), do: "a number from #{lo} to #{hi}"
   def describe(:timeout), do: "a non-negative integer or :infinity"
   def describe(:pos_integer_or_infinity), do: "a positive integer or :infinity"
   def describe(:string), do: "a string"

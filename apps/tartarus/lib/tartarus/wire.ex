@@ -265,6 +265,7 @@ defmodule Tartarus.Wire do
   def check_call(:info), do: :ok
   def check_call(:monitored), do: :ok
   def check_call(:restore), do: :ok
+  def check_call(:adopted), do: :ok
   def check_call(:paused), do: :ok
   def check_call(:parked), do: :ok
   def check_call({:create, env, _args}), do: check_envelope(env)

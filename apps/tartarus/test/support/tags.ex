@@ -15,6 +15,7 @@ defmodule Tartarus.TestSupport.Tags do
   | `:socat` | needs `socat` (a pseudo-terminal pair) | when socat is on the PATH |
   | `:release` | builds the release (`MIX_ENV=prod mix release`) and runs it | by default |
   | `:netns` | the network-namespace bed (root, `ip netns`; nodes from the built release) | when root and namespaces are available |
+  | `:tmpfs` | mounts a small tmpfs (a disk that fills up: root, `mount`) | when a tmpfs can be mounted |
   | `:known_bug` | shows a bug or a target not met yet | never, unless asked (`--only known_bug`) |
 
   One environment variable chooses the set, `TARTARUS_TESTS`:
@@ -37,18 +38,18 @@ defmodule Tartarus.TestSupport.Tags do
   }
 
   # A tag that needs a program is excluded when the program is missing.
-  @needs [browser: "Chromium", socat: "socat", netns: "network namespaces"]
+  @needs [browser: "Chromium", socat: "socat", netns: "network namespaces", tmpfs: "tmpfs"]
 
   @doc """
   The tags excluded at `level` (`"quick"`, `"default"` or `"all"`) when the programs of
-  `available` (a subset of `:browser`, `:socat` and `:netns`) are installed.
+  `available` (a subset of `:browser`, `:socat`, `:netns` and `:tmpfs`) are installed.
 
-      iex> Tartarus.TestSupport.Tags.excludes("default", [:browser, :socat, :netns])
+      iex> Tartarus.TestSupport.Tags.excludes("default", [:browser, :socat, :netns, :tmpfs])
       [:heavy, :known_bug]
-      iex> Tartarus.TestSupport.Tags.excludes("all", [:socat])
+      iex> Tartarus.TestSupport.Tags.excludes("all", [:socat, :tmpfs])
       [:browser, :known_bug, :netns]
       iex> Tartarus.TestSupport.Tags.excludes("quick", [])
-      [:browser, :heavy, :known_bug, :long, :netns, :peer, :release, :socat]
+      [:browser, :heavy, :known_bug, :long, :netns, :peer, :release, :socat, :tmpfs]
   """
   @spec excludes(String.t(), [atom()]) :: [atom()]
   def excludes(level, available) do
@@ -106,9 +107,62 @@ defmodule Tartarus.TestSupport.Tags do
 
   defp available?(:socat), do: System.find_executable("socat") != nil
   defp available?(:netns), do: netns() == :ok
+  defp available?(:tmpfs), do: tmpfs() == :ok
 
   defp why_missing(:netns, _), do: elem(netns(), 1)
+  defp why_missing(:tmpfs, _), do: elem(tmpfs(), 1)
   defp why_missing(_tag, program), do: "no #{program} on the PATH (scripts/test installs it)"
+
+  @doc """
+  `:ok` when a small tmpfs can be mounted here (Linux, root, `mount -t tmpfs` works: checked
+  by mounting one on a fresh temporary directory and unmounting it), else
+  `{:error, reason}`. The full-disk tests fill one up.
+  """
+  @spec tmpfs() :: :ok | {:error, String.t()}
+  def tmpfs do
+    dir = Path.join(System.tmp_dir!(), "tt-tmpfs-probe-#{System.unique_integer([:positive])}")
+    File.mkdir_p!(dir)
+
+    try do
+      case mount_tmpfs(dir, "16k") do
+        :ok ->
+          unmount(dir)
+          :ok
+
+        {:error, why} ->
+          {:error, "cannot mount a tmpfs (#{why}); the full-disk tests need root"}
+      end
+    after
+      File.rmdir(dir)
+    end
+  end
+
+  @doc "Mounts a tmpfs of `size` (e.g. `\"64k\"`) on `dir`: `:ok` or `{:error, output}`."
+  @spec mount_tmpfs(Path.t(), String.t()) :: :ok | {:error, String.t()}
+  def mount_tmpfs(dir, size) do
+    case System.find_executable("mount") &&
+           System.cmd("mount", ["-t", "tmpfs", "-o", "size=#{size}", "tmpfs", dir],
+             stderr_to_stdout: true
+           ) do
+      {_, 0} -> :ok
+      {out, _} -> {:error, String.trim(out)}
+      nil -> {:error, "no mount on the PATH"}
+    end
+  end
+
+  @doc "Gives the tmpfs on `dir` a new size (`mount -o remount`)."
+  @spec resize_tmpfs(Path.t(), String.t()) :: :ok
+  def resize_tmpfs(dir, size) do
+    {_, 0} = System.cmd("mount", ["-o", "remount,size=#{size}", dir], stderr_to_stdout: true)
+    :ok
+  end
+
+  @doc "Unmounts `dir`."
+  @spec unmount(Path.t()) :: :ok
+  def unmount(dir) do
+    _ = System.cmd("umount", [dir], stderr_to_stdout: true)
+    :ok
+  end
 
   @doc """
   `:ok` when this machine can run the network-namespace bed (Linux, root, `ip`, and `ip

@@ -28,14 +28,9 @@ defmodule Tartarus.DurableTest do
 
   defp journal_state(host, id) do
     {:ok, info} = Tartarus.Host.local(host)
-    s = frames(File.read!(info.journal.path), Tartarus.Host.Persistence.empty())
+    {:ok, s, %{ranges: []}} = Tartarus.Host.Persistence.read(info.journal.path)
     s.agents[id].state
   end
-
-  defp frames(<<size::32, bin::binary-size(size), rest::binary>>, s),
-    do: frames(rest, Tartarus.Host.Persistence.apply_record(:erlang.binary_to_term(bin), s))
-
-  defp frames(_, s), do: s
 
   defp dir do
     dir = Path.join(System.tmp_dir!(), "durable_#{System.unique_integer([:positive])}")

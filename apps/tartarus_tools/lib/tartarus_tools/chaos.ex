@@ -62,7 +62,11 @@ defmodule TartarusTools.Chaos do
       restarted under the same name a moment later (on the same data directory with
       persistence, empty without);
     * a partition gives two nodes wrong cookies for each other and closes their connection,
-      so neither can reconnect until it is healed (`TartarusTools.Peer.partition/2`).
+      so neither can reconnect until it is healed (`TartarusTools.Peer.partition/2`);
+    * a server kill (`:server_kills`, default 0) is an untrappable `Process.exit(pid, :kill)`
+      of a node's host server: the node and its agents stay up, the host's supervisor
+      starts a new server that adopts them (`Tartarus.Host.Warden`). Its agents are not
+      marked as on a killed node: one lost to it counts as lost.
   """
 
   alias TartarusTools.Peer
@@ -88,6 +92,7 @@ defmodule TartarusTools.Chaos do
     migrations = Keyword.get(opts, :migrations, 10_000)
     kills = Keyword.get(opts, :kills, 20)
     partitions = Keyword.get(opts, :partitions, 20)
+    server_kills = Keyword.get(opts, :server_kills, 0)
     persist = Keyword.get(opts, :persist, false)
     seed = Keyword.get(opts, :seed, 1)
     progress = Keyword.get(opts, :progress, fn _ -> :ok end)
@@ -129,7 +134,7 @@ defmodule TartarusTools.Chaos do
 
       rng = :rand.seed_s(:exsss, {seed, 7, 11})
       # Marks in successful migrations, spread over the first two thirds of the run.
-      faults = schedule(div(migrations * 2, 3), kills, partitions, rng)
+      faults = schedule(div(migrations * 2, 3), kills, partitions, server_kills, rng)
       # 1: migrations attempted, 2: migrations done, 3: 1 while a killed node restarts
       counter = :atomics.new(3, [])
 
@@ -153,6 +158,7 @@ defmodule TartarusTools.Chaos do
       |> count(ids, hosts, counter, kills, partitions, persist, seed, n, t0)
       |> Map.merge(census_result)
       |> Map.put(:replays, replays_sent)
+      |> Map.put(:server_kills, server_kills)
     after
       for pid <- [world.captured, world.arrivals], is_pid(pid) do
         Process.unlink(pid)
@@ -166,10 +172,11 @@ defmodule TartarusTools.Chaos do
 
   # Migrations are spread over the run; each fault fires when the number of migrations
   # attempted so far reaches its mark.
-  defp schedule(migrations, kills, partitions, rng) do
+  defp schedule(migrations, kills, partitions, server_kills, rng) do
     {marks, _} =
       Enum.map_reduce(
-        List.duplicate(:kill, kills) ++ List.duplicate(:partition, partitions),
+        List.duplicate(:kill, kills) ++
+          List.duplicate(:partition, partitions) ++ List.duplicate(:server_kill, server_kills),
         rng,
         fn kind, rng ->
           {x, rng} = :rand.uniform_s(max(migrations, 1), rng)
@@ -329,6 +336,7 @@ defmodule TartarusTools.Chaos do
     case kind do
       :kill -> kill_and_restart(world, node_a, counter)
       :partition -> partition_for_a_while(node_a, node_b)
+      :server_kill -> kill_server(node_a)
     end
 
     run_faults(world, rest, counter, nodes, progress, {seed, k + 1})
@@ -371,6 +379,17 @@ defmodule TartarusTools.Chaos do
     # Nobody keeps a partition against the new incarnation.
     for other <- nodes_of(world), other != node, do: Peer.heal(node, other)
     :atomics.put(counter, 3, 0)
+  end
+
+  # The host's server on `node`, killed (untrappable); its supervisor starts another.
+  defp kill_server(node) do
+    case :erpc.call(node, Tartarus.Host, :whereis, [{:h, node}], 5_000) do
+      {:ok, pid} -> :erpc.call(node, Process, :exit, [pid, :kill], 5_000)
+      _ -> :ok
+    end
+  catch
+    # The node may be down (restarting): nothing to kill.
+    _, _ -> :ok
   end
 
   defp partition_for_a_while(a, b) do

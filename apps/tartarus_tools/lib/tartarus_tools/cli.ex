@@ -100,7 +100,7 @@ defmodule TartarusTools.CLI do
 
   @doc """
   Parses `argv` against a `Tartarus.Options` schema: each key is a flag (`:state_bytes` is
-  `--state-bytes`; `:integer`-like types parse as integers, `:number` and `:probability` as
+  `--state-bytes`; `:integer`-like types parse as integers, `:number`, `:probability` and `{:range, lo, hi}` as
   floats, `:boolean` as a switch, a choice among atoms (`{:in, [:virtual, :peer]}`) as the
   atom its string names, the rest as strings), then the values are validated with
   `Tartarus.Options.validate/3` and the schema's defaults filled in. Raises `Mix.Error`
@@ -167,6 +167,7 @@ defmodule TartarusTools.CLI do
     do: :integer
 
   defp switch(t) when t in [:number, :probability], do: :float
+  defp switch({:range, _lo, _hi}), do: :float
   defp switch(:boolean), do: :boolean
   defp switch(_), do: :string
 

@@ -1027,6 +1027,102 @@ defmodule TartarusTools.SVG do
 
   ## Layout and drawing helpers
 
+  ## Grid chart
+
+  @doc """
+  A grid of labelled cells, one row per `rows` entry and one column per `columns` entry:
+  where each of a few outcomes holds across two factors (which design wins at which
+  setting and size). `cells` maps `{row, column}` to `%{class: term, label: text}` (the
+  label is written in the cell, e.g. a ratio); `classes` lists `{class, name}` in legend
+  order, each class one colour; a cell that is missing is drawn empty and grey ("not
+  run"). Options as the other charts (`:title`, `:subtitle`, `:note`, `:x_label`,
+  `:y_label`, `:width`).
+
+  ## Examples
+
+      iex> cells = %{{"k 60", 5} => %{class: :central, label: "0.5"}}
+      iex> svg = TartarusTools.SVG.grid_chart(["k 60", "k 20"], [5, 10], cells,
+      ...>   classes: [central: "central faster"], title: "map")
+      iex> svg =~ "central faster" and svg =~ "not run" and svg =~ "0.5"
+      true
+  """
+  @spec grid_chart([term], [term], %{{term, term} => map()}, keyword) :: binary
+  def grid_chart(rows, columns, cells, opts \\ []) when is_list(rows) and is_list(columns) do
+    classes = Keyword.get(opts, :classes, [])
+    class_color = classes |> Enum.with_index() |> Map.new(fn {{c, _}, i} -> {c, color(i)} end)
+    legend = Enum.map(classes, &elem(&1, 1)) ++ ["not run"]
+    left = 20 + Enum.max([60 | Enum.map(rows, &text_width/1)])
+    lay = layout(opts, legend: legend, left: left)
+    {cw, ch} = {lay.plot_w / max(length(columns), 1), lay.plot_h / max(length(rows), 1)}
+
+    grid =
+      for {r, i} <- Enum.with_index(rows), {c, j} <- Enum.with_index(columns) do
+        {x, y} = {lay.left + j * cw, lay.top + i * ch}
+
+        {fill, label} =
+          case Map.get(cells, {r, c}) do
+            %{class: class} = cell -> {Map.get(class_color, class, "#999999"), Map.get(cell, :label, "")}
+            nil -> {"#eeeeee", ""}
+          end
+
+        [
+          ~s(<rect x="#{num(x + 1)}" y="#{num(y + 1)}" width="#{num(cw - 2)}" height="#{num(ch - 2)}" fill="#{fill}"><title>),
+          esc("#{plain(r)}, #{plain(c)}: #{plain(label)}"),
+          "</title></rect>\n",
+          ~s(<text x="#{num(x + cw / 2)}" y="#{num(y + ch / 2 + 4)}" text-anchor="middle" font-size="11">),
+          esc(label),
+          "</text>\n"
+        ]
+      end
+
+    row_labels =
+      for {r, i} <- Enum.with_index(rows) do
+        [
+          ~s(<text x="#{num(lay.left - 6)}" y="#{num(lay.top + i * ch + ch / 2 + 4)}" text-anchor="end">),
+          esc(r),
+          "</text>\n"
+        ]
+      end
+
+    bottom = lay.top + lay.plot_h
+
+    col_labels =
+      for {c, j} <- Enum.with_index(columns) do
+        [
+          ~s(<text x="#{num(lay.left + j * cw + cw / 2)}" y="#{num(bottom + 16)}" text-anchor="middle">),
+          esc(c),
+          "</text>\n"
+        ]
+      end
+
+    axis =
+      [
+        ~s(<text x="#{num(lay.left + lay.plot_w / 2)}" y="#{num(bottom + 34)}" text-anchor="middle">),
+        esc(Keyword.get(opts, :x_label, "")),
+        "</text>\n",
+        ~s(<text x="12" y="#{num(lay.top - 8)}">),
+        esc(Keyword.get(opts, :y_label, "")),
+        "</text>\n"
+      ]
+
+    lx = lay.left + lay.plot_w + 30
+
+    legend_svg =
+      for {name, i} <- Enum.with_index(legend) do
+        fill = if name == "not run", do: "#eeeeee", else: color(i)
+        y = lay.top + 10 + i * 20
+
+        [
+          ~s(<rect x="#{num(lx)}" y="#{num(y - 10)}" width="14" height="14" fill="#{fill}" stroke="#999"/>),
+          ~s(<text x="#{num(lx + 20)}" y="#{num(y + 2)}">),
+          esc(name),
+          "</text>\n"
+        ]
+      end
+
+    document(lay, opts, [grid, row_labels, col_labels, axis, legend_svg])
+  end
+
   defp layout(opts, extra) do
     width = Keyword.get(opts, :width, 720)
     height = Keyword.get(opts, :height, 420)

@@ -49,6 +49,20 @@ defmodule TartarusTools.ChaosTest do
     assert r.acknowledged_of_lost_agents == 0
   end
 
+  test "a small run with host servers killed: their agents live on, none lost or duplicated" do
+    r =
+      TartarusTools.Chaos.run(
+        Keyword.merge(@small, kills: 0, server_kills: 3, seed: 4, census_ms: 200, replays: 0)
+      )
+
+    assert r.server_kills == 3 and r.kills == 0
+    assert r.duplicates == 0
+    assert r.lost == 0
+    assert r.transient_duplicates == 0
+    # No node was killed: every acknowledged message is in its agent.
+    assert r.acknowledged_missing == 0
+  end
+
   test "--durable is refused with a clear error on a platform without it" do
     probe = :"chaos_test_probe_#{System.unique_integer([:positive])}"
 

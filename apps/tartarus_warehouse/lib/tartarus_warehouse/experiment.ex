@@ -77,6 +77,7 @@ defmodule TartarusWarehouse.Experiment do
     ],
     scale: [
       type: {:custom, &TartarusWarehouse.Experiment.scale?/1},
+      expected: "a number from 0.0001 to 1000",
       default: nil,
       doc:
         "time scale: 0.01 runs a 2 s task as 20 ms (default: 0.1 for `scaling`, 0.01 for the others)"
@@ -92,14 +93,23 @@ defmodule TartarusWarehouse.Experiment do
     ],
     robots: [type: :pos_integer, default: 4, doc: "`robots`: up to this many robots"],
     jobs: [type: :pos_integer, default: 4, doc: "`robots`: jobs with variable durations"],
-    jitter: [type: :number, default: 0.3, doc: "`robots`: spread of each execution's duration"],
+    jitter: [
+      type: {:range, 0, 0.95},
+      default: 0.3,
+      doc: "`robots`: spread of each execution's duration (a factor in 1 ± jitter)"
+    ],
     equal_jobs: [type: :pos_integer, default: 40, doc: "`robots`: jobs with equal durations"],
     sizes: [
       type: {:list, :pos_integer},
       default: [5, 10, 20, 30, 45, 60],
       doc: "`scaling`: the tasks per job of its points"
     ],
-    scaling_jobs: [type: :pos_integer, default: 120, doc: "`scaling`: jobs per run"],
+    scaling_jobs: [
+      type: {:custom, &TartarusWarehouse.Experiment.jobs_spec?/1},
+      default: 120,
+      doc:
+        "`scaling`: jobs per run: a positive integer, or `{:per_size, a, b}` for a·n + b jobs at n tasks per job (the flag's `2n+20`)"
+    ],
     nodes: [type: :pos_integer, default: 100, doc: "`scaling`: network nodes"],
     scaling_robots: [type: :pos_integer, default: 60, doc: "`scaling`: robots among them"],
     phi_nodes: [
@@ -130,7 +140,7 @@ defmodule TartarusWarehouse.Experiment do
         "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
     service_ms: [
-      type: :number,
+      type: {:range, 0, 60_000},
       default: 2.2,
       doc:
         "`scaling`: the time (ms) the central server and the Job Distributor each take for every message they handle (see `TartarusWarehouse.Service`); 0: a BEAM process's microseconds"
@@ -145,9 +155,19 @@ defmodule TartarusWarehouse.Experiment do
   ]
 
   @doc false
+  # Jobs per run of `scaling`: a count, or {:per_size, a, b} (a·n + b at n tasks per job).
+  @spec jobs_spec?(term()) :: boolean()
+  def jobs_spec?(n) when is_integer(n), do: n > 0
+
+  def jobs_spec?({:per_size, a, b}) when is_integer(a) and is_integer(b),
+    do: a >= 0 and b >= 0 and a + b > 0
+
+  def jobs_spec?(_), do: false
+
+  @doc false
   # The time scale: a positive number, or nil for the experiment's default.
   @spec scale?(term()) :: boolean()
-  def scale?(x), do: is_nil(x) or (is_number(x) and x > 0)
+  def scale?(x), do: is_nil(x) or (is_number(x) and x >= 1.0e-4 and x <= 1000)
 
   @doc """
   The registry: every experiment's name and module, in the order `mix tartarus.warehouse`

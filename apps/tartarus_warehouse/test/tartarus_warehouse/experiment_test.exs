@@ -205,4 +205,21 @@ defmodule TartarusWarehouse.ExperimentTest do
             "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + phi_nodes + 1 (81), got: 5"} =
              Experiment.run(nodes: 5)
   end
+
+  test "numbers outside their ranges are refused before anything runs, naming the flag and the range" do
+    for {key, value, range} <-
+          [
+            jitter: {1.0e308, "from 0 to 0.95"},
+            jitter: {-5, "from 0 to 0.95"},
+            service_ms: {-3, "from 0 to 60000"},
+            scale: {1.0e-300, "from 0.0001 to 1000"}
+          ]
+          |> Enum.map(fn {k, {v, r}} -> {k, v, r} end) do
+      assert {:error, message} = TartarusWarehouse.Experiment.validate([{key, value}])
+      assert message =~ "for key :#{key}: expected a number #{range}"
+    end
+
+    assert {:error, message} = TartarusWarehouse.Floor.run(jobs: [], jitter: 2)
+    assert message =~ "jitter"
+  end
 end

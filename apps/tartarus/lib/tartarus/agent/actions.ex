@@ -42,6 +42,13 @@ defmodule Tartarus.Agent.Actions do
     {:stop, {:shutdown, {:init_failed, reason}}, data}
   end
 
+  defp journaled(:ok, _data), do: :ok
+
+  defp journaled(error, data) do
+    Ledger.forget_resident(data.host, self())
+    error
+  end
+
   defp action?({:stay, _}), do: true
   defp action?({kind, _, _}) when kind in [:move, :clone, :return, :stop], do: true
   defp action?(_), do: false
@@ -49,13 +56,13 @@ defmodule Tartarus.Agent.Actions do
   defp init_done(action, data) do
     env = data.env
 
-    case Ledger.register_resident(data.host, env, self()) do
-      :ok ->
-        Arrival.snapshot(put_state(data, action_state(action)))
-        emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
-        created(data, {:ok, env.id})
-        act(action, data)
-
+    with :ok <- Ledger.register_resident(data.host, env, self()),
+         # Not created unless journaled (a full disk: {:error, {:journal, :enospc}}).
+         :ok <- journaled(Arrival.snapshot(put_state(data, action_state(action))), data) do
+      emit(data, %{type: :created, agent: env.id, module: env.module}, created: 1)
+      created(data, {:ok, env.id})
+      act(action, data)
+    else
       {:error, reason} ->
         created(data, {:error, reason})
         {:stop, {:shutdown, {:create_failed, reason}}, data}
@@ -184,10 +191,24 @@ defmodule Tartarus.Agent.Actions do
   # the host option :durable makes durable before it is acknowledged (nil otherwise).
   def run(data, cb, fun, ack \\ nil) do
     case Callbacks.run(data, cb, fun) do
-      {:ok, action, data} ->
-        data = checkpoint(data, action, Process.delete(:"$tartarus_checkpoint") == true or ack)
-        with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
-        act(action, data)
+      {:ok, action, new} ->
+        want = Process.delete(:"$tartarus_checkpoint") == true or ack
+
+        case checkpoint(new, action, want, data.env) do
+          {:ok, new} ->
+            with {pid, ref} <- ack, do: send(pid, {ref, :delivered})
+            act(action, new)
+
+          # A durable message whose state could not be journaled (a full disk): refused to
+          # its sender, and the agent goes on from the state before it.
+          {{:error, reason}, _new} when ack != nil ->
+            {pid, ref} = ack
+            send(pid, {ref, {:failed, reason}})
+            running(data)
+
+          {_error, new} ->
+            act(action, new)
+        end
 
       {:error, reason, data} ->
         Process.delete(:"$tartarus_checkpoint")
@@ -197,14 +218,18 @@ defmodule Tartarus.Agent.Actions do
 
   # The state the callback returned, made the agent's snapshot (Tartarus.Agent.checkpoint/0,
   # or a message under the host option :durable). A malformed action changes nothing.
-  defp checkpoint(data, action, want)
+  # {:ok | {:error, _}, data}. A durable message that changed nothing (a read) writes
+  # nothing: the snapshot holds that state already (so reads are served on a full disk).
+  defp checkpoint(data, action, want, before)
        when want not in [nil, false] and is_tuple(action) and tuple_size(action) in [2, 3] do
     data = put_state(data, action_state(action))
-    Arrival.snapshot(data)
-    data
+
+    if is_tuple(want) and data.env == before,
+      do: {:ok, data},
+      else: {Arrival.snapshot(data), data}
   end
 
-  defp checkpoint(data, _action, _want), do: data
+  defp checkpoint(data, _action, _want, _before), do: {:ok, data}
 
   defp act({:stay, s}, data), do: running(put_state(data, s))
 

@@ -4,10 +4,11 @@ defmodule Tartarus.Agent.Callbacks do
   # run/3 for each callback).
   #
   # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
-  # this process arms Tartarus.Clock.start_timer(ms, host_pid, {:"$tartarus_overrun", self()}) and
+  # this process arms Tartarus.Clock.start_timer(ms, warden, {:"$tartarus_overrun", self()}) and
   # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
   # handle_message/3 answers, or nil); after it, it erases the entry and cancels the timer.
-  # The host server is the watchdog: when the timer message arrives it reads this process's
+  # The host's warden (Tartarus.Host.Warden, which outlives the host's server) is the
+  # watchdog: when the timer message arrives it reads this process's
   # dictionary and, if the same tref is still there (the callback has not returned; a forged
   # message cannot name it), stops the process with exit reason {:callback_timeout,
   # callback, ms} (:kill if it traps exits), then removes the agent (no restart: the same
@@ -56,7 +57,7 @@ defmodule Tartarus.Agent.Callbacks do
 
       ms ->
         {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
-        tref = Clock.start_timer(ms, host.pid, {:"$tartarus_overrun", self()})
+        tref = Clock.start_timer(ms, host.warden, {:"$tartarus_overrun", self()})
         dog = {tref, name, ms, from}
         Process.put(@watchdog, dog)
         dog

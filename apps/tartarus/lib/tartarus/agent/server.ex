@@ -6,7 +6,8 @@ defmodule Tartarus.Agent.Server do
   #     return, within their budgets: Tartarus.Agent.Callbacks);
   #   * :handing_off: the source side of a move or clone (Tartarus.Migration.Source) waits
   #     for the destination; what else arrives is kept in data.held (messages for the agent,
-  #     calls, anything) and, if the hand-off fails, handled afterwards in its order; if the
+  #     calls, anything; bounded in count and bytes, the overflow refused to its senders:
+  #     hold/2) and, if the hand-off fails, handled afterwards in its order; if the
   #     move commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and
   #     the rest is left to its senders' retries. The deadline is a state timeout;
   #   * :paused: the in-doubt copy at a destination (Tartarus.Migration.Arrival); it runs
@@ -85,8 +86,17 @@ defmodule Tartarus.Agent.Server do
     )
   end
 
-  defp heap_limit(:infinity), do: []
-  defp heap_limit(words), do: [max_heap_size: %{size: words, kill: true, error_logger: false}]
+  # The mailbox lives off the heap: what others send an agent faster than it takes it does
+  # not count against its :max_heap_size (a flood of messages cannot get it killed and
+  # restarted from its snapshot); it takes each and, while it hands off, refuses what is
+  # beyond its bound (hold/2).
+  defp heap_limit(:infinity), do: [message_queue_data: :off_heap]
+
+  defp heap_limit(words),
+    do: [
+      message_queue_data: :off_heap,
+      max_heap_size: %{size: words, kill: true, error_logger: false}
+    ]
 
   defp loop_opts(%{opts: %{hibernate_after: :infinity}}), do: []
   defp loop_opts(%{opts: %{hibernate_after: ms}}), do: [hibernate_after: ms]
@@ -127,6 +137,8 @@ defmodule Tartarus.Agent.Server do
       pending: [],
       handoff: nil,
       held: [],
+      # What data.held holds: {count, bytes} (bounded, see hold/2).
+      held_size: {0, 0},
       timer: nil
     }
 
@@ -192,11 +204,14 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:internal, {:arrival, ctx}, :running, data), do: Actions.arrival(data, ctx)
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
-  # mark in the host's ledger tells the host's signal from a forged message.
-  def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, %{host: %{pid: pid}} = data) do
-    if :ets.member(data.host.ledger, {:kill, self()}),
-      do: {:stop, :shutdown, data},
-      else: Actions.info(msg, data)
+  # mark in the host's ledger tells the host's signal from a forged message. The host's
+  # server may have been restarted since this process started: the current one counts.
+  def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, data)
+      when pid == data.host.pid or node(pid) == node() do
+    if (pid == data.host.pid or pid == Tartarus.Host.server(data.host)) and
+         :ets.member(data.host.ledger, {:kill, self()}),
+       do: {:stop, :shutdown, data},
+       else: Actions.info(msg, data)
   end
 
   # A commit (with its hand-over) that came after this process stopped waiting for it (its
@@ -229,7 +244,7 @@ defmodule Tartarus.Agent.Server do
 
   def handle_event(:info, msg, :handing_off, data) do
     case Source.event(data, msg) do
-      nil -> {:keep_state, %{data | held: [{:info, msg} | data.held]}}
+      nil -> hold(data, {:info, msg})
       event -> handoff(data, event)
     end
   end
@@ -238,8 +253,7 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:internal, {:pending, m}, :handing_off, data),
     do: {:keep_state, %{data | pending: data.pending ++ [m]}}
 
-  def handle_event(type, content, :handing_off, data),
-    do: {:keep_state, %{data | held: [{type, content} | data.held]}}
+  def handle_event(type, content, :handing_off, data), do: hold(data, {type, content})
 
   # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
@@ -263,9 +277,16 @@ defmodule Tartarus.Agent.Server do
   # Whatever ends this process with a return value (it moved on, stopped, returned,
   # crashed in a callback): the processes it started with Tartarus.Agent.spawn_link/1 end
   # too. (Killed, it has no say: its host ends them, see Tartarus.Host.Server.)
+  #
+  # A crash's reason is also left in the host's ledger ({:exit_reason, pid}): a server that
+  # adopts this process only after it ended (a local create, a server restarted meanwhile)
+  # sees :noproc, and reads the reason there.
   @impl true
-  def terminate(_reason, _state, data) do
+  def terminate(reason, _state, data) do
     if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+
+    unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
+      do: :ets.insert(data.host.ledger, {{:exit_reason, self()}, reason})
   end
 
   # -- helpers ---------------------------------------------------------------------------
@@ -288,9 +309,50 @@ defmodule Tartarus.Agent.Server do
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
         data = StateTimer.cancel(data)
         held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
-        result = Actions.handoff_done(outcome, by, %{data | pending: [], held: []})
+
+        result =
+          Actions.handoff_done(outcome, by, %{data | pending: [], held: [], held_size: {0, 0}})
+
         replay(result, pending(data.pending) ++ held)
     end
+  end
+
+  # What a handing-off agent keeps for later is bounded: at most the host option :max_held
+  # events and :max_held_bytes bytes (external size: binaries count whole, wherever they
+  # live). Beyond that, a message for the agent is refused to its sender (post and request
+  # return {:error, {:overloaded, id}}), a call answered the same, anything else dropped
+  # and counted: the agent is never killed for what others send it.
+  defp hold(data, event) do
+    {n, bytes} = data.held_size
+    size = held_bytes(event)
+    opts = data.host.opts
+
+    if n < Map.get(opts, :max_held, 1_000) and
+         bytes + size <= Map.get(opts, :max_held_bytes, 8_388_608) do
+      {:keep_state, %{data | held: [event | data.held], held_size: {n + 1, bytes + size}}}
+    else
+      overflow(data, event)
+    end
+  end
+
+  defp held_bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
+  defp held_bytes({_type, content}), do: :erlang.external_size(content)
+
+  defp overflow(data, {:info, {:"$tartarus_msg", {pid, ref}, _kind, _msg}}) when is_pid(pid) do
+    send(pid, {ref, {:failed, {:overloaded, data.env.id}}})
+    Ledger.count(data.host, :dropped)
+    :keep_state_and_data
+  end
+
+  defp overflow(data, {{:call, from}, _request}) do
+    Tartarus.Events.reply(from, {:error, {:overloaded, data.env.id}})
+    Ledger.count(data.host, :dropped)
+    :keep_state_and_data
+  end
+
+  defp overflow(data, _event) do
+    Ledger.count(data.host, :dropped)
+    :keep_state_and_data
   end
 
   defp replay({:next_state, state, data, actions}, events),

@@ -6,6 +6,7 @@ defmodule Tartarus.Host.Agents do
   # pointers of an agent that ended). Runs in the host's server, on the server's state.
   # Restart and shutdown semantics: see docs/architecture.md, "A node's process tree".
 
+  require Logger
   require Tartarus.{Clock, Events}
   alias Tartarus.{Clock, Events, Ledger}
 
@@ -60,27 +61,24 @@ defmodule Tartarus.Host.Agents do
 
   def not_created(state, entry, reason) do
     case :ets.take(state.host.ledger, {:creating, entry.key}) do
-      [{_, from}] ->
-        GenServer.reply(
-          from,
-          case reason do
-            {:callback_timeout, :init, _} -> {:error, reason}
-            _ -> {:error, {:init_failed, reason}}
-          end
-        )
-
-      [] ->
-        :ok
+      [{_, from}] -> GenServer.reply(from, creation_failed(reason))
+      [] -> :ok
     end
   end
 
+  defp creation_failed({:callback_timeout, :init, _} = reason), do: {:error, reason}
+  defp creation_failed(reason), do: {:error, {:init_failed, reason}}
+
   @doc false
   # Creates agent `env` on host `host` (this node's, from Tartarus.Host.local/1) without
-  # calling its server: the caller starts the agent's process, the server adopts it (one
-  # message it handles when it can: it monitors the agent from then on, restarts it after a
-  # crash, kills it when the host stops) and the agent answers the caller once its init/1
-  # returned, or the server does when the agent went down first (not_created/3). An agent
-  # that dies before the server adopts it is seen as :noproc by the server's monitor.
+  # calling its server: the caller starts the agent's process, records it under
+  # {:proc, pid} in the host's ledger and asks the server to adopt it (one message it
+  # handles when it can: it monitors the agent from then on, restarts it after a crash,
+  # kills it when the host stops; a server that started meanwhile adopted it from the
+  # record). The agent answers the caller once its init/1 returned; if it went down first,
+  # whoever takes the {:creating, key} entry first (the server, or this caller, which
+  # watches the agent, not the server: a server that dies meanwhile changes nothing) answers
+  # the failure.
   @spec create_local(map(), Tartarus.Envelope.t(), term(), timeout()) ::
           {:ok, binary()} | {:error, term()}
   def create_local(host, env, args, timeout) do
@@ -88,38 +86,39 @@ defmodule Tartarus.Host.Agents do
       {:error, :host_stopping}
     else
       key = make_ref()
-      # The host's server may stop meanwhile (it would answer nobody then).
-      tag = Process.monitor(host.pid)
+      tag = make_ref()
       :ets.insert(host.ledger, {{:creating, key}, {self(), tag}})
       pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
-      send(host.pid, {:"$tartarus_adopt", pid, %{id: env.id, key: key, owner: env.owner}})
-
-      Clock.receive do
-        {^tag, reply} ->
-          Process.demonitor(tag, [:flush])
-          reply
-
-        {:DOWN, ^tag, :process, _, _} ->
-          reply_or(tag, {:error, {:unknown_host, host.ref}})
-      after
-        timeout ->
-          # Unanswered: whoever settles it later finds no entry.
-          Process.demonitor(tag, [:flush])
-
-          case :ets.take(host.ledger, {:creating, key}) do
-            [_] -> {:error, {:timeout, host.ref}}
-            [] -> receive(do: ({^tag, reply} -> reply))
-          end
-      end
+      mref = Process.monitor(pid)
+      entry = %{id: env.id, key: key, restarts: 0, owner: env.owner, create: true}
+      :ets.insert(host.ledger, {{:proc, pid}, entry})
+      send(Tartarus.Host.server(host), {:"$tartarus_adopt", pid, entry})
+      created(host, key, tag, mref, timeout)
     end
   end
 
-  # The reply `tag` if it is in the mailbox already, else `default`.
-  defp reply_or(tag, default) do
-    receive do
-      {^tag, reply} -> reply
+  defp created(host, key, tag, mref, timeout) do
+    Clock.receive do
+      {^tag, reply} ->
+        Process.demonitor(mref, [:flush])
+        reply
+
+      {:DOWN, ^mref, :process, _, reason} ->
+        # Down before it answered (its answer would have come first): unless the server
+        # answers, this caller does.
+        case :ets.take(host.ledger, {:creating, key}) do
+          [_] -> creation_failed(reason)
+          [] -> receive(do: ({^tag, reply} -> reply))
+        end
     after
-      0 -> default
+      timeout ->
+        # Unanswered: whoever settles it later finds no entry.
+        Process.demonitor(mref, [:flush])
+
+        case :ets.take(host.ledger, {:creating, key}) do
+          [_] -> {:error, {:timeout, host.ref}}
+          [] -> receive(do: ({^tag, reply} -> reply))
+        end
     end
   end
 
@@ -130,9 +129,9 @@ defmodule Tartarus.Host.Agents do
   # This server starts its agents itself, monitored from their first instant (see
   # Tartarus.Agent.Server.start/3): no supervisor call on the path of a hop or a create.
   # Restarts are this server's (agent_down/5); when it stops, its terminate/2 kills them all
-  # (as a supervisor with shutdown: :brutal_kill would). The one case it cannot cover is its
-  # own death by an untrappable :kill: its agents then lose their ledger (owned by this
-  # process) and end at their next step that reads it.
+  # (as a supervisor with shutdown: :brutal_kill would). If it dies instead (a crash, or an
+  # untrappable :kill), its agents live on (their tables are the warden's) and the server
+  # started in its place adopts them (adopt_all/1).
   #
   # The envelope goes to the new process as an argument. The host keeps the snapshot a
   # restart starts from under {:snapshot, key} (the agent writes it once resident; for a
@@ -152,14 +151,39 @@ defmodule Tartarus.Host.Agents do
     else
       {pid, mref} = Tartarus.Agent.Server.start(state.host, key, env, mode)
       entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
-
-      {:ok, pid,
-       %{
-         state
-         | monitors: Map.put(state.monitors, mref, entry),
-           pids: Map.put(state.pids, pid, mref)
-       }}
+      :ets.insert(state.host.ledger, {{:proc, pid}, entry})
+      {:ok, pid, watched(state, pid, mref, entry)}
     end
+  end
+
+  @doc false
+  # Monitors agent process `pid` (described by `entry`) from now on, recorded under
+  # {:proc, pid} in the ledger for a server that starts after this one.
+  def watch(state, pid, entry) do
+    :ets.insert(state.host.ledger, {{:proc, pid}, entry})
+    watched(state, pid, Process.monitor(pid), entry)
+  end
+
+  defp watched(state, pid, mref, entry) do
+    %{
+      state
+      | monitors: Map.put(state.monitors, mref, entry),
+        pids: Map.put(state.pids, pid, mref)
+    }
+  end
+
+  @doc false
+  # A server that starts beside a host's warden (the first, or one started after the last
+  # died) monitors every agent process the host recorded: the live ones are its agents from
+  # now on, the ones that died meanwhile are seen going down (:noproc) and handled as any
+  # other (restarted from their snapshot after a crash). Counts the live ones in :adopted.
+  def adopt_all(state) do
+    procs = :ets.match_object(state.host.ledger, {{:proc, :_}, :_})
+
+    Enum.reduce(procs, state, fn {{:proc, pid}, entry}, state ->
+      state = watched(state, pid, Process.monitor(pid), entry)
+      if Process.alive?(pid), do: %{state | adopted: state.adopted + 1}, else: state
+    end)
   end
 
   def agent_down(state, entry, reason, resident?, killed?) do
@@ -272,8 +296,13 @@ defmodule Tartarus.Host.Agents do
   # Restores checkpointed agents and in-doubt copies (persistence): {reply, state}. Run once
   # by the host's server, called by Tartarus.start_host/2 after the host's supervisors are up.
   def restore(state) do
-    {agents, in_doubt} = state.restore
-    state = %{state | restore: {[], []}}
+    {agents, in_doubt} = Tartarus.Host.Warden.take_restore(elem(state.host.ref, 0))
+    # An agent whose code this node cannot run (not installed, not kept in the journal) is
+    # not started, and keeps its records: a later start with its module installed restores
+    # it (starting it would crash it until it was removed, and forgotten for good).
+    {agents, unrunnable} = Enum.split_with(agents, &runnable?/1)
+    {in_doubt, unrunnable_copies} = Enum.split_with(in_doubt, &runnable?(elem(&1, 1)))
+    not_started(state.host, unrunnable ++ Enum.map(unrunnable_copies, &elem(&1, 1)))
 
     {state, pids} =
       Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
@@ -306,5 +335,18 @@ defmodule Tartarus.Host.Agents do
       end)
 
     {{:ok, length(agents), length(in_doubt)}, state}
+  end
+
+  defp runnable?(env),
+    do: match?({:ok, _}, Tartarus.CodeCache.manifest(Tartarus.Envelope.modules(env)))
+
+  defp not_started(_host, []), do: :ok
+
+  defp not_started(host, envs) do
+    Logger.error(
+      "host #{inspect(host.ref)}: #{length(envs)} journaled agents not restored, their code " <>
+        "is missing (#{inspect(Enum.uniq(Enum.map(envs, & &1.module)), limit: 8)}); their " <>
+        "records are kept for a start with it installed"
+    )
   end
 end

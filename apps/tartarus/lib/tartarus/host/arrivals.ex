@@ -33,6 +33,8 @@ defmodule Tartarus.Host.Arrivals do
 
     {verdict, state} =
       with :ok <- trusted(state, p),
+           # No copy this host could not journal (a full disk): refused, the source keeps it.
+           :ok <- Tartarus.Host.Persistence.healthy(state.host),
            :ok <- heap_fits(state, env),
            :ok <- capacity(state),
            :ok <- prepare(state, env, p.manifest, p.code),

@@ -54,7 +54,8 @@ defmodule Tartarus.Host.OnNode do
     :counts,
     :hops,
     :forwarding_pointers,
-    :plugins
+    :plugins,
+    :journal
   ]
 
   @doc false
@@ -73,6 +74,7 @@ defmodule Tartarus.Host.OnNode do
   defp status_of(h, :hops), do: hop_summary(Ledger.hop_times(h))
   defp status_of(h, :forwarding_pointers), do: length(Ledger.forwarding_pointers(h))
   defp status_of(h, :plugins), do: Tartarus.Plugin.list(elem(h.ref, 0))
+  defp status_of(h, :journal), do: Tartarus.Host.Persistence.status(h)
 
   @doc false
   def hop_times(host), do: with({:ok, h} <- Host.local(host), do: Ledger.hop_times(h))

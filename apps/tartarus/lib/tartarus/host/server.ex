@@ -1,9 +1,11 @@
 defmodule Tartarus.Host.Server do
   @moduledoc false
-  # The server of one host. It owns the host's two ETS tables (ledger and store), admits
-  # arriving agents (phase 1–2 of the hand-off, DESIGN §6), answers decision queries for
-  # migrations that left from here, and watches its agents to restart crashed ones from
-  # their arrival snapshot.
+  # The server of one host. It admits arriving agents (phase 1–2 of the hand-off, DESIGN §6),
+  # answers decision queries for migrations that left from here, and watches its agents to
+  # restart crashed ones from their arrival snapshot. The host's tables, journal and the
+  # watchdog of callback budgets are its warden's (Tartarus.Host.Warden), which outlives it:
+  # a server that dies, even by :kill, is restarted and adopts the host's live agents (each
+  # recorded under {:proc, pid} in the ledger), so none is orphaned, lost or duplicated.
   #
   # The hand-off protocol (messages, decision rule, guarantees) is specified and decided in
   # Tartarus.Migration.Protocol; this server runs its destination side (admission) and
@@ -11,8 +13,9 @@ defmodule Tartarus.Host.Server do
   #
   # No agent's code runs in this server or blocks it (see Agent.Server's top comment): a
   # create is answered once the agent's init/1 returned (by the agent) or it went down (by
-  # this server); a kill is answered when the agent is down; this server is the watchdog of
-  # its agents' callback budgets (:"$tartarus_overrun" timers).
+  # this server); a kill is answered when the agent is down; the watchdog of the agents'
+  # callback budgets is the host's warden, which stops an overrunning agent and writes
+  # {:overran, pid} for this server to read when the agent is down.
   #
   # Nothing any node sends crashes it: unexpected calls are answered
   # {:error, {:bad_message, _}}, unexpected casts and messages are dropped and counted in
@@ -37,56 +40,29 @@ defmodule Tartarus.Host.Server do
     # priority cannot starve the agents: it drains its queue and waits.
     Process.flag(:priority, :high)
 
-    ledger =
-      :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
-
-    store =
-      :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
-
-    # Acknowledgements of arrived copies, by source host, until the next batch leaves.
-    acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
-
-    :ets.insert(ledger, [{:neighbours, []}, {:population, 0, 0}])
-    :ets.insert(store, Enum.to_list(opts[:store] || %{}))
-    {journal, {agents, in_doubt, decided}} = Tartarus.Host.Persistence.open(name, opts[:data_dir])
-    # Migrations an earlier run of this host committed: answers for destinations in doubt.
-    :ets.insert(ledger, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
-
-    host = %{
-      ref: {name, node()},
-      pid: self(),
-      ledger: ledger,
-      store: store,
-      acks: acks,
-      counters: Tartarus.Events.new_counters(),
-      hops: Ledger.new_hop_ring(),
-      # Whether a flush of acknowledgements is armed (see Tartarus.Migration.Arrival).
-      acks_armed: :atomics.new(1, []),
-      # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
-      incarnation: :crypto.strong_rand_bytes(8),
-      journal: journal,
-      opts: Map.new(opts)
-    }
+    # The host's tables, journal and watchdog are its warden's (Tartarus.Host.Warden): they
+    # outlive this server. A server that starts again beside them runs the same host.
+    host = Map.put(Tartarus.Host.Warden.host(name), :pid, self())
+    :ets.delete(host.ledger, :stopping)
 
     schedule_sweep(opts[:forward_ttl])
 
     # Local callers read the host's tables without a call (see Tartarus.Host.local/1).
     {_, _} = Registry.update_value(Tartarus.HostRegistry, {:host, name}, fn _ -> host end)
 
-    {:ok,
-     %{
-       host: host,
-       monitors: %{},
-       # The same agents by pid (to kill them all when this server stops).
-       pids: %{},
-       # Agents being killed: pid => {escalation timer, callers to answer}.
-       killing: %{},
-       # Agents stopped by the watchdog: pid => {:callback_timeout, callback, ms}.
-       overran: %{},
-       admission: opts[:admission],
-       dest: Protocol.destination(),
-       restore: {agents, in_doubt}
-     }}
+    state = %{
+      host: host,
+      monitors: %{},
+      # The same agents by pid (to kill them all when this server stops).
+      pids: %{},
+      # Agents being killed: pid => {escalation timer, callers to answer}.
+      killing: %{},
+      admission: opts[:admission],
+      dest: Protocol.destination(),
+      adopted: 0
+    }
+
+    {:ok, Agents.adopt_all(state)}
   end
 
   @impl true
@@ -166,12 +142,16 @@ defmodule Tartarus.Host.Server do
 
   defp call(:parked, _from, state), do: {:reply, Parked.count(state), state}
 
-  # Restores checkpointed agents and in-doubt copies (persistence); called once by
-  # Tartarus.start_host/2 after the host's supervisors are up.
+  # Restores checkpointed agents and in-doubt copies (persistence); called by
+  # Tartarus.start_host/2 after the host's supervisors are up (and by the keeper after a
+  # restart: the journal's records are handed out once, see Tartarus.Host.Warden).
   defp call(:restore, _from, state) do
     {reply, state} = Agents.restore(state)
     {:reply, reply, state}
   end
+
+  # How many live agents this server adopted when it started (Agents.adopt_all/1).
+  defp call(:adopted, _from, state), do: {:reply, state.adopted, state}
 
   defp call(:paused, _from, state), do: {:reply, Arrivals.paused(state), state}
 
@@ -265,21 +245,6 @@ defmodule Tartarus.Host.Server do
   def handle_info({:"$tartarus_decision", mig, copy, d}, state),
     do: {:noreply, Parked.answer(state, mig, copy, d)}
 
-  # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
-  # callback it is still in counts (Agent.Callbacks.overrun/2 reads it from the agent).
-  def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, state) when is_pid(pid) do
-    case Tartarus.Agent.Callbacks.overrun(pid, tref) do
-      {reason, trap?, from} ->
-        # An agent that traps exits would take any other signal as a message.
-        Process.exit(pid, if(trap?, do: :kill, else: reason))
-        Tartarus.Agent.Callbacks.overran(from, reason)
-        {:noreply, %{state | overran: Map.put(state.overran, pid, reason)}}
-
-      nil ->
-        {:noreply, state}
-    end
-  end
-
   # A killed agent still up after its grace: killed for good.
   def handle_info({:timeout, tref, {:"$tartarus_kill", pid}}, state) do
     case state.killing do
@@ -291,34 +256,14 @@ defmodule Tartarus.Host.Server do
   end
 
   # Only a monitor this server made counts: a forged :DOWN changes nothing.
-  #
-  # An agent that moved on (its process ends with {:shutdown, {:migrated, _, _}} after its
-  # commit) left nothing to clean but its snapshot: it wrote its pointer over its hand-off
-  # record, left the resident tables and its arriving entry itself.
-  def handle_info({:DOWN, mref, :process, pid, {:shutdown, {:migrated, _, _}}}, state)
-      when is_map_key(state.monitors, mref) and not is_map_key(state.killing, pid) and
-             not is_map_key(state.overran, pid) do
-    {entry, monitors} = Map.pop(state.monitors, mref)
-    :ets.delete(state.host.ledger, {:snapshot, entry.key})
-    {:noreply, %{state | monitors: monitors, pids: Map.delete(state.pids, pid)}}
-  end
-
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
-    state = %{state | pids: Map.delete(state.pids, pid)}
-    {kill, killing} = Map.pop(state.killing, pid)
-    {overrun, overran} = Map.pop(state.overran, pid)
-    reason = overrun || reason
-    state = %{state | monitors: monitors, killing: killing, overran: overran}
-    resident? = Ledger.forget_resident(state.host, pid)
-    Tartarus.Agent.end_children(state.host, pid)
-    # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
-    Ledger.drop_handoffs(state.host, entry.id, pid)
-    :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
-    Agents.not_created(state, entry, reason)
-    if kill, do: Agents.killed(state, pid, entry, kill)
-    {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
+    :ets.delete(state.host.ledger, {:proc, pid})
+    # Stopped by the watchdog (Tartarus.Host.Warden): that is its reason.
+    overrun = :ets.take(state.host.ledger, {:overran, pid})
+    state = %{state | monitors: monitors, pids: Map.delete(state.pids, pid)}
+    down(state, entry, pid, overrun, reason)
   end
 
   # An agent a local creator started (Agents.create_local/4): monitored from now on, like the ones
@@ -326,21 +271,22 @@ defmodule Tartarus.Host.Server do
   # live process at most and changes nothing when that process ends: its :DOWN finds no
   # resident record, hand-off or arriving entry of its pid, and no creator under an
   # unguessable key.
+  #
+  # The creator recorded the process under {:proc, pid} before it asked: a server that
+  # started meanwhile adopted it from there already (Agents.adopt_all/1).
   def handle_info({:"$tartarus_adopt", pid, %{id: id, key: key, owner: owner}}, state)
       when is_pid(pid) and node(pid) == node() and is_binary(id) and is_reference(key) do
-    if not is_map_key(state.pids, pid) do
-      mref = Process.monitor(pid)
-      entry = %{id: id, key: key, restarts: 0, owner: owner, create: true}
+    cond do
+      not is_map_key(state.pids, pid) ->
+        entry = %{id: id, key: key, restarts: 0, owner: owner, create: true}
+        {:noreply, Agents.watch(state, pid, entry)}
 
-      {:noreply,
-       %{
-         state
-         | monitors: Map.put(state.monitors, mref, entry),
-           pids: Map.put(state.pids, pid, mref)
-       }}
-    else
-      Ledger.count(state.host, :dropped)
-      {:noreply, state}
+      :ets.member(state.host.ledger, {:proc, pid}) ->
+        {:noreply, state}
+
+      true ->
+        Ledger.count(state.host, :dropped)
+        {:noreply, state}
     end
   end
 
@@ -356,15 +302,53 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
-  # The journal's writer died: this host cannot keep its promises without it.
-  def handle_info({:EXIT, pid, reason}, %{host: %{journal: %{io: pid}}} = state),
-    do: {:stop, {:journal, reason}, state}
-
   def handle_info({:EXIT, _pid, _reason}, state), do: {:noreply, state}
 
   def handle_info(_other, state) do
     Ledger.count(state.host, :dropped)
     {:noreply, state}
+  end
+
+  # An agent that moved on (its process ends with {:shutdown, {:migrated, _, _}} after its
+  # commit) left nothing to clean but its snapshot: it wrote its pointer over its hand-off
+  # record, left the resident tables and its arriving entry itself.
+  defp down(state, entry, pid, [], {:shutdown, {:migrated, _, _}})
+       when not is_map_key(state.killing, pid) do
+    :ets.delete(state.host.ledger, {:snapshot, entry.key})
+    {:noreply, state}
+  end
+
+  defp down(state, entry, pid, overrun, reason) do
+    reason =
+      case overrun do
+        [{_, why}] -> why
+        [] -> exit_reason(state, pid, reason)
+      end
+
+    {kill, killing} = Map.pop(state.killing, pid)
+    state = %{state | killing: killing}
+    resident? = Ledger.forget_resident(state.host, pid)
+    Tartarus.Agent.end_children(state.host, pid)
+    # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
+    Ledger.drop_handoffs(state.host, entry.id, pid)
+    :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
+    Agents.not_created(state, entry, reason)
+    if kill, do: Agents.killed(state, pid, entry, kill)
+    {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
+  end
+
+  # A crash's reason as the agent left it (Agent.Server.terminate/3): the one the :DOWN
+  # gives is :noproc when the process ended before this server monitored it.
+  defp exit_reason(_state, _pid, reason)
+       when reason in [:normal, :shutdown] or
+              (is_tuple(reason) and elem(reason, 0) == :shutdown),
+       do: reason
+
+  defp exit_reason(state, pid, reason) do
+    case :ets.take(state.host.ledger, {:exit_reason, pid}) do
+      [{_, why}] -> why
+      [] -> reason
+    end
   end
 
   @impl true
@@ -373,16 +357,21 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
+  # Stopping a host (its supervisor stops this server with :shutdown) kills its agents
+  # outright: they have no terminate work, and an agent that traps exits must not hold up
+  # stop_host (see start_agent/5); its warden then kills any left and closes the journal.
+  # A server that crashes leaves them alive: the server started in its place adopts them.
   @impl true
-  def terminate(_reason, state) do
-    # Stopping a host kills its agents outright: they have no terminate work, and an agent
-    # that traps exits must not hold up stop_host (see start_agent/5).
+  def terminate(reason, state)
+      when reason in [:normal, :shutdown] or
+             (is_tuple(reason) and elem(reason, 0) == :shutdown) do
     :ets.insert(state.host.ledger, {:stopping, true})
-    Enum.each(state.pids, fn {pid, _} -> Process.exit(pid, :kill) end)
-    Tartarus.Host.Persistence.close(state.host.journal)
+    Tartarus.Host.Warden.kill_all(state.host.ledger)
   catch
-    :exit, _ -> :ok
+    _, _ -> :ok
   end
+
+  def terminate(_crash, _state), do: :ok
 
   defp schedule_sweep(:infinity), do: :ok
   defp schedule_sweep(ttl), do: Clock.send_after(self(), :sweep, max(div(ttl, 2), 10))

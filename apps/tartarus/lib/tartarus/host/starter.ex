@@ -6,6 +6,7 @@ defmodule Tartarus.Host.Starter do
   # `Tartarus.Options.Platform.host/1` before the tree is built, so a bad option starts
   # nothing.
 
+  require Tartarus.Clock
   alias Tartarus.Host
 
   @doc false
@@ -13,34 +14,56 @@ defmodule Tartarus.Host.Starter do
   def start(name, opts) do
     with :ok <- check_name(name),
          {:ok, opts} <- Tartarus.Options.Platform.host(opts) do
-      case DynamicSupervisor.start_child(Tartarus.Application.hosts(), %{
-             id: name,
-             start: {Tartarus.Host.Supervisor, :start_link, [{name, opts}]},
-             type: :supervisor,
-             restart: :temporary
-           }) do
-        {:ok, _} ->
-          host = Host.address(name)
+      start_tree(name, opts, 1)
+    end
+  end
 
-          with :ok <- attach_all(host, opts[:plugins]),
-               :ok <- connect_all(host, opts[:neighbours]),
-               {:ok, _agents, _in_doubt} <- Host.call(host, :restore, 60_000) do
-            {:ok, host}
-          else
-            error ->
-              Host.OnNode.stop_host(host)
-              error
-          end
+  # The warden of a host whose supervisor was killed may still be ending (it kills the
+  # host's agents and closes the journal): waited for, once, then the host starts.
+  defp start_tree(name, opts, tries) do
+    case DynamicSupervisor.start_child(Tartarus.Application.hosts(), %{
+           id: name,
+           start: {Tartarus.Host.Supervisor, :start_link, [{name, opts}]},
+           type: :supervisor,
+           restart: :temporary
+         }) do
+      {:ok, _} ->
+        host = Host.address(name)
 
-        {:error, {:already_started, _}} ->
-          {:error, {:already_started, Host.address(name)}}
+        with :ok <- attach_all(host, opts[:plugins]),
+             :ok <- connect_all(host, opts[:neighbours]),
+             {:ok, _agents, _in_doubt} <- Host.call(host, :restore, 60_000) do
+          {:ok, host}
+        else
+          error ->
+            Host.OnNode.stop_host(host)
+            error
+        end
 
-        {:error, {:shutdown, {:failed_to_start_child, _, {:already_started, _}}}} ->
-          {:error, {:already_started, Host.address(name)}}
+      {:error, {:already_started, _}} ->
+        {:error, {:already_started, Host.address(name)}}
 
-        {:error, reason} ->
-          {:error, reason}
-      end
+      {:error, {:shutdown, {:failed_to_start_child, :warden, {:already_started, old}}}}
+      when tries > 0 ->
+        ref = Process.monitor(old)
+
+        Tartarus.Clock.receive do
+          {:DOWN, ^ref, :process, _, _} -> start_tree(name, opts, tries - 1)
+        after
+          5_000 ->
+            Process.demonitor(ref, [:flush])
+            {:error, {:already_started, Host.address(name)}}
+        end
+
+      {:error, {:shutdown, {:failed_to_start_child, _, {:already_started, _}}}} ->
+        {:error, {:already_started, Host.address(name)}}
+
+      # Its data directory cannot be made, read or written: one error naming it.
+      {:error, {:shutdown, {:failed_to_start_child, :warden, {:journal, _, _} = why}}} ->
+        {:error, why}
+
+      {:error, reason} ->
+        {:error, reason}
     end
   end
 

@@ -95,7 +95,12 @@ defmodule Tartarus.Migration.Arrival do
   # its stash go (the senders waiting on stashed messages time out).
   @impl Executor
   def park(data, c) do
-    :ok = GenServer.call(data.host.pid, {:park, c.mig, c.copy, data.env, c.src, c.kind})
+    :ok =
+      GenServer.call(
+        Tartarus.Host.server(data.host),
+        {:park, c.mig, c.copy, data.env, c.src, c.kind}
+      )
+
     {:stop, {:shutdown, :parked}, data}
   end
 
@@ -201,7 +206,7 @@ defmodule Tartarus.Migration.Arrival do
         # The first arrival after a flush arms the next (one atomic flag: every arrival of the
         # node's agents touches it, a table key would be a hot spot).
         if :atomics.compare_exchange(host.acks_armed, 1, 0, 1) == :ok,
-          do: Clock.send_after(host.pid, :"$tartarus_flush_acks", @ack_every)
+          do: Clock.send_after(Tartarus.Host.server(host), :"$tartarus_flush_acks", @ack_every)
 
         Ledger.record_hop(host, hop_us)
 
@@ -227,11 +232,11 @@ defmodule Tartarus.Migration.Arrival do
 
   @doc false
   # The agent is resident here as `data.env`: that is its arrival snapshot, for restarts
-  # after a crash and (with persistence) after the host's restart.
-  @spec snapshot(map()) :: :ok
+  # after a crash and (with persistence) after the host's restart. :ok, or the journal's
+  # error when it could not be written (the ledger's snapshot is taken all the same).
+  @spec snapshot(map()) :: :ok | {:error, {:journal, term()}}
   def snapshot(data) do
     :ets.insert(data.host.ledger, {{:snapshot, data.key}, data.env})
     Tartarus.Host.Persistence.checkpoint(data.host, data.env)
-    :ok
   end
 end

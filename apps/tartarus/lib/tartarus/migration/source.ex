@@ -30,7 +30,10 @@ defmodule Tartarus.Migration.Source do
   def attempt(data, kind, dest_spec, by) do
     env = data.env
 
+    # A host whose journal cannot be written (a full disk) starts no hand-off: it could not
+    # make its decision durable.
     with :ok <- movable(env, kind),
+         :ok <- Tartarus.Host.Persistence.healthy(data.host),
          {:ok, dest, data} <- resolve(data, dest_spec),
          :ok <- linked(data, dest),
          :ok <- Envelope.portable?(%{state: env.state, payload: env.payload.data}),
@@ -116,7 +119,19 @@ defmodule Tartarus.Migration.Source do
     out = Tartarus.Fault.point(:outgoing, outgoing(data.env, kind))
 
     prepare =
-      seal(Messages.prepare(self(), mig, host.ref, host.pid, kind, out, manifest, []), host)
+      seal(
+        Messages.prepare(
+          self(),
+          mig,
+          host.ref,
+          Tartarus.Host.server(host),
+          kind,
+          out,
+          manifest,
+          []
+        ),
+        host
+      )
 
     # Before `prepare` leaves: the migration is undecided for whoever asks.
     Ledger.begin_handoff(host, data.env.id, mig)

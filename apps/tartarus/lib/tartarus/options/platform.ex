@@ -80,6 +80,22 @@ defmodule Tartarus.Options.Platform do
           "from its snapshot, up to `:max_restarts`); an arriving agent whose envelope " <>
           "alone would take half of it is refused. `:infinity` leaves agents unbounded"
     ],
+    max_held: [
+      type: :pos_integer,
+      default: 1_000,
+      doc:
+        "messages, calls and other events an agent keeps while it hands off (waits for its " <>
+          "destination); beyond that, posts and requests to it return " <>
+          "`{:error, {:overloaded, id}}`, calls are answered so, anything else is dropped " <>
+          "and counted (`:dropped`)"
+    ],
+    max_held_bytes: [
+      type: :pos_integer,
+      default: 8_388_608,
+      doc:
+        "bytes (external size: binaries count whole) of what an agent keeps while it hands " <>
+          "off; the overflow is refused as for `:max_held`"
+    ],
     security: [
       type:
         {:keyword,

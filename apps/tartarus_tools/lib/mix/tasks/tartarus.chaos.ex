@@ -5,7 +5,8 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   duplicated or lost.
 
       mix tartarus.chaos --nodes 8 --agents 500 --migrations 10000 --kills 20 \\
-                         --partitions 20 [--persist] [--durable] --seed 1 \\
+                         --partitions 20 [--server-kills 0] [--persist] [--durable] \\
+                         --seed 1 \\
                          [--census-ms 1000] [--replays 200] [--json] [--out FILE]
 
   Agents count the messages they take; the workers move them, let them move themselves,
@@ -14,6 +15,10 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   `TartarusTools.Chaos`). `--census-ms 0` turns the census off. A rogue node (no host)
   replays `--replays` captured sealed `prepare` messages to the hosts that received them,
   spread over the run (`0` for none).
+
+  `--server-kills N` adds N kills (`Process.exit(pid, :kill)`) of a node's host server to
+  the faults: the node and its agents stay up while the host's supervisor starts a new
+  server, which adopts them; an agent lost to it counts as lost.
 
   `--durable` starts every host with `durable: true` (acknowledged messages journaled
   before the sender gets `:ok`); a platform without that host option is refused with an
@@ -24,6 +29,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   lost_on_dead_hosts, migrations_done, agent_moves, posts, post_failures, acknowledged,
   acknowledged_missing, acknowledged_missing_after_kill, acknowledged_of_lost_agents,
   census_rounds, transient_duplicates, census_unanswered, replays, kills, partitions,
+  server_kills,
   persist, host_opts, seed, still_in_doubt, wall_ms`, the verdict line as `verdict` and
   `ok` (true when it says OK), and `provenance` (`TartarusTools.Provenance`). Without
   `--json` the keys are printed one a line, then the verdict line (`verdict/1`):
@@ -38,6 +44,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
     migrations: :integer,
     kills: :integer,
     partitions: :integer,
+    server_kills: :integer,
     persist: :boolean,
     durable: :boolean,
     census_ms: :integer,
@@ -51,7 +58,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
   def run(argv) do
     opts = TartarusTools.CLI.parse!(argv, @switches, "tartarus.chaos")
     TartarusTools.CLI.positive!(opts, [:nodes, :agents, :migrations], "tartarus.chaos")
-    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :census_ms, :replays], "tartarus.chaos")
+    TartarusTools.CLI.non_negative!(opts, [:kills, :partitions, :server_kills, :census_ms, :replays], "tartarus.chaos")
 
     if opts[:nodes] && opts[:nodes] < 2,
       do: Mix.raise("mix tartarus.chaos: --nodes must be at least 2, got: #{opts[:nodes]}")
@@ -76,6 +83,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
         migrations: total,
         kills: opts[:kills] || 20,
         partitions: opts[:partitions] || 20,
+        server_kills: opts[:server_kills] || 0,
         persist: opts[:persist] || false,
         seed: opts[:seed] || 1,
         census_ms: opts[:census_ms] || 1_000,

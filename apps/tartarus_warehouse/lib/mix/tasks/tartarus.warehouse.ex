@@ -9,7 +9,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
                              [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
-                             [--sizes 5,10,20,30,45,60] [--scaling-jobs 120] [--nodes 100]
+                             [--sizes 5,10,20,30,45,60] [--scaling-jobs 120|n+20] [--nodes 100]
                              [--scaling-robots 60] [--phi-nodes 20] [--seeds 3] [--drop 10]
                              [--designs central,agents,agents_continue,guided,guided_continue]
                              [--latency-ms 0] [--service-ms 2.2] [--big-robots 1000]
@@ -104,6 +104,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       |> Keyword.update!(:scale, &(&1 |> Keyword.put(:type, :number) |> Keyword.delete(:default)))
       |> Keyword.update!(:sizes, &Keyword.put(&1, :type, :string))
       |> Keyword.update!(:designs, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:scaling_jobs, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
     opts = argv |> TartarusTools.CLI.options!(schema, @task) |> lists!()
@@ -134,9 +135,24 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     end
   end
 
-  # --sizes and --designs: comma-separated lists (a default is already a list).
+  # --sizes and --designs: comma-separated lists (a default is already a list); --scaling-jobs:
+  # a count or a·n + b ("2n+20", "n+20", "120").
   defp lists!(opts) do
     opts
+    |> Keyword.update!(:scaling_jobs, fn
+      n when is_integer(n) ->
+        n
+
+      text ->
+        compact = String.replace(text, " ", "")
+
+        case {Integer.parse(compact), Regex.run(~r/^(\d*)n(?:\+(\d+))?$/, compact)} do
+          {{n, ""}, _} when n > 0 -> n
+          {_, [_, a]} -> per_size(a, "")
+          {_, [_, a, b]} -> per_size(a, b)
+          _ -> bad_jobs!(text)
+        end
+    end)
     |> Keyword.update!(:sizes, fn
       list when is_list(list) ->
         list
@@ -176,6 +192,18 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
         end)
     end)
   end
+
+  defp per_size(a, b),
+    do:
+      {:per_size, if(a == "", do: 1, else: String.to_integer(a)),
+       if(b == "", do: 0, else: String.to_integer(b))}
+
+  defp bad_jobs!(text),
+    do:
+      TartarusTools.CLI.error!(
+        @task,
+        "--scaling-jobs: expected a positive count (120) or a count per size (n+20, 2n+20), got: #{inspect(text)}"
+      )
 
   # The experiment's own lines (its module, from the registry), then the common ones.
   defp text(s, dir) do

@@ -60,7 +60,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   @impl Experiment
   def runs({n, seed}, state) do
     p = state.p
-    jobs = Jobs.soft_jobs(p.scaling_jobs, n, 2000)
+    jobs = Jobs.soft_jobs(jobs_for(n, p), n, 2000)
 
     big =
       if p.big_robots > 0 and n == List.last(p.sizes) and seed == state.seed do
@@ -118,6 +118,19 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       }
     end
   end
+
+  @doc """
+  The jobs a point of `n` tasks per job runs: `scaling_jobs` when it is a count, a·n + b
+  when it is `{:per_size, a, b}`.
+
+      iex> TartarusWarehouse.Experiment.Scaling.jobs_for(30, %{scaling_jobs: {:per_size, 1, 20}})
+      50
+      iex> TartarusWarehouse.Experiment.Scaling.jobs_for(30, %{scaling_jobs: 120})
+      120
+  """
+  @spec jobs_for(pos_integer(), map()) :: pos_integer()
+  def jobs_for(n, %{scaling_jobs: {:per_size, a, b}}), do: a * n + b
+  def jobs_for(_n, %{scaling_jobs: jobs}), do: jobs
 
   @doc """
   The steady-state reading of one floor's run (`TartarusWarehouse.Floor.run/1`'s result,
@@ -187,7 +200,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
   @spec predict(pos_integer(), map()) :: float()
   def predict(n, p) do
     t = 2000 * p.scale
-    jobs = p.scaling_jobs
+    jobs = jobs_for(n, p)
     drop = if jobs > 2 * p.drop, do: p.drop, else: 0
     in_flight = fn slot -> min(slot, jobs) - max(1, slot - n + 1) + 1 end
     slot_ms = fn slot -> max(t, @central_messages * in_flight.(slot) * p.service_ms) end
@@ -269,7 +282,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       file: "avg_task_time",
       title: "Average time per task against tasks per job (Fig. 4.4)",
       subtitle:
-        "#{p.scaling_robots} robots, #{p.scaling_jobs} jobs a point (jobs #{p.drop + 1}-#{p.scaling_jobs - p.drop} counted), tasks of #{fmt(2000 * p.scale)} ms, S = #{fmt(p.service_ms)} ms a message; medians of seeds #{seeds_text(state)}",
+        "#{p.scaling_robots} robots, #{jobs_text(p.scaling_jobs)} jobs a point (the first and last #{p.drop} not counted), L = #{p.latency_ms} ms a link, tasks of #{fmt(2000 * p.scale)} ms, S = #{fmt(p.service_ms)} ms a message; medians of seeds #{seeds_text(state)}",
       series: keys,
       labels: Map.new(kinds, &{:"avg_task_ms_#{name(&1)}", @labels[&1]}),
       references: predicted,
@@ -314,6 +327,9 @@ defmodule TartarusWarehouse.Experiment.Scaling do
 
     [fig | service]
   end
+
+  defp jobs_text({:per_size, a, b}), do: "#{if a == 1, do: "", else: a}n + #{b}"
+  defp jobs_text(jobs), do: to_string(jobs)
 
   defp seeds_text(state), do: Enum.map_join(0..(state.p.seeds - 1), ", ", &(state.seed + &1))
 
@@ -413,11 +429,92 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       nodes: p.nodes,
       robots: p.scaling_robots,
       phi_nodes: p.phi_nodes,
-      jobs_per_run: p.scaling_jobs,
+      jobs_per_run: jobs_text(p.scaling_jobs),
+      hops_per_task: hops_per_task(runs, p),
+      thesis: Map.new(kinds -- [:central], &{"#{name(&1)}", criteria(central, curves[&1])}),
       drop: p.drop,
       seeds: Enum.map(0..(p.seeds - 1), &(state.seed + &1))
     })
     |> Map.merge(base, fn _k, mine, _base -> mine end)
+  end
+
+  # Per agents' design and size: the median over the seeds of the migrations a task executed
+  # cost (the search for the robot and the way back to it after a return).
+  defp hops_per_task(runs, p) do
+    for kind <- [:agents, :agents_continue, :guided, :guided_continue],
+        kind in p.designs,
+        into: %{} do
+      {"#{name(kind)}",
+       Map.new(p.sizes, fn n ->
+         vs =
+           for r <- runs,
+               r.kind == kind,
+               elem(r.point, 0) == n,
+               done = Enum.count(r.history, &(not &1.skipped)),
+               done > 0,
+               do: r.migrations / done
+
+         {to_string(n), if(vs == [], do: nil, else: Float.round(Stats.median(vs), 2))}
+       end)}
+    end
+  end
+
+  @doc """
+  The thesis's four statements on Fig. 4.4 (§4.7.2), judged on the medians of the central
+  curve and one agents' curve (each keyed by tasks per job as strings), as registered in
+  docs/warehouse.md ("Fig. 4.4 in virtual time"): the sizes below 30 are `small`, 30 the
+  knee, the largest size `last`.
+
+    * `a` - below about 30 the central server is at most a little better: at every small
+      size the agents take at most 1.10 × the central time per task;
+    * `b` - beyond, the central server degrades rapidly: its time per task at the largest
+      size is at least 1.25 × its time at 30;
+    * `c` - the agents' time per task grows gradually: at the largest size at most 1.25 ×
+      its time at 30;
+    * `d` - the curves cross: the agents are slower than (or level with) the central
+      server at the smallest size and faster at the largest.
+
+  Each is `%{pass: boolean, ...}` with the figures it was judged on; nil when a size it
+  needs is missing.
+
+      iex> c = %{"5" => 2000.0, "30" => 2000.0, "60" => 2600.0}
+      iex> a = %{"5" => 2100.0, "30" => 2150.0, "60" => 2300.0}
+      iex> r = TartarusWarehouse.Experiment.Scaling.criteria(c, a)
+      iex> {r.a.pass, r.b.pass, r.c.pass, r.d.pass}
+      {true, true, true, true}
+  """
+  @spec criteria(map(), map() | nil) :: map() | nil
+  def criteria(_central, nil), do: nil
+
+  def criteria(central, agents) do
+    sizes = central |> Map.keys() |> Enum.map(&String.to_integer/1) |> Enum.sort()
+    at = fn curve, n -> curve[to_string(n)] end
+
+    if sizes == [] or 30 not in sizes or Enum.any?(sizes, &(at.(agents, &1) == nil)) do
+      nil
+    else
+      {first, last} = {List.first(sizes), List.last(sizes)}
+      small = Enum.filter(sizes, &(&1 < 30))
+      ratio = fn x, y -> if y && y > 0, do: Float.round(x / y, 3) end
+      small_ratios = Map.new(small, &{to_string(&1), ratio.(at.(agents, &1), at.(central, &1))})
+      b = ratio.(at.(central, last), at.(central, 30))
+      c = ratio.(at.(agents, last), at.(agents, 30))
+
+      %{
+        a: %{
+          pass: Enum.all?(small_ratios, fn {_, r} -> r <= 1.10 end),
+          agents_over_central: small_ratios
+        },
+        b: %{pass: b >= 1.25, central_last_over_30: b},
+        c: %{pass: c <= 1.25, agents_last_over_30: c},
+        d: %{
+          pass:
+            at.(agents, first) >= at.(central, first) and at.(agents, last) < at.(central, last),
+          first: %{central: at.(central, first), agents: at.(agents, first)},
+          last: %{central: at.(central, last), agents: at.(agents, last)}
+        }
+      }
+    end
   end
 
   @doc """
@@ -483,8 +580,17 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       curves ++
         [
           "central knee (hinge fit): #{TartarusTools.CLI.show(s.central_fit && s.central_fit.knee)}, predicted #{TartarusTools.CLI.show(s.predicted_knee)}; rise at the largest size #{TartarusTools.CLI.show(s.central_rise)}",
-          "utilisation: #{TartarusTools.CLI.show(s.utilisation)}"
-        ],
+          "utilisation: #{TartarusTools.CLI.show(s.utilisation)}",
+          "hops per task: #{TartarusTools.CLI.show(s.hops_per_task)}"
+        ] ++
+        for {design, %{} = c} <- s.thesis do
+          "thesis's statements (#{design}): " <>
+            Enum.map_join(
+              [:a, :b, :c, :d],
+              ", ",
+              &"(#{&1}) #{if c[&1].pass, do: "pass", else: "fail"}"
+            )
+        end,
       "\n"
     )
   end

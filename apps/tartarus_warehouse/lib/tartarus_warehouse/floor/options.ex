@@ -34,10 +34,14 @@ defmodule TartarusWarehouse.Floor.Options do
       default: :agents,
       doc: "task agents, or the central server"
     ],
-    scale: [type: :number, default: 0.01, doc: "time scale of task durations"],
-    paces: [type: {:list, :number}, default: [], doc: "pace of robot i (default 1.0)"],
+    scale: [type: {:range, 1.0e-4, 1000}, default: 0.01, doc: "time scale of task durations"],
+    paces: [
+      type: {:list, {:range, 0.01, 100}},
+      default: [],
+      doc: "pace of robot i (default 1.0)"
+    ],
     jitter: [
-      type: :number,
+      type: {:range, 0, 0.95},
       default: 0.0,
       doc: "per-execution duration spread (0: equal durations)"
     ],
@@ -72,7 +76,7 @@ defmodule TartarusWarehouse.Floor.Options do
         "one-way delay of every link (see `Tartarus.connect/3`: a hand-off pays three, a message between neighbours one each way; the central server's messages and the agents' migrations pay it alike)"
     ],
     service_ms: [
-      type: :number,
+      type: {:range, 0, 60_000},
       default: 0,
       doc:
         "the time (ms, a number) that a process serving every robot takes for each message it handles: the central server (`design: :central`: a robot's started and finished, each command it sends, each job submitted) and the Job Distributor (each request or note of a task agent, each job submitted); each is one FIFO server, so messages queue behind it when they come faster than it serves (see `TartarusWarehouse.Service`)"
