@@ -16,19 +16,32 @@ defmodule TartarusUmbrella.MixProject do
   # `MIX_ENV=prod mix release`: the deployable node (apps/tartarus_node), configured at boot
   # from a file (config/runtime.exs, rel/env.sh.eex; see docs/devices.md). With
   # TARTARUS_RELEASE_ERTS=false the release carries no ERTS and runs on any machine with a
-  # matching Erlang/OTP (e.g. Debian's on a Pi); TARTARUS_RELEASE_LATS=false leaves LATS (the
-  # HM-10 BLE receiver) out.
+  # matching Erlang/OTP (e.g. Debian's on a Pi); TARTARUS_RELEASE_LATS=false leaves LATS's
+  # device side (the HM-10 BLE receiver, the database agent, the queries) out;
+  # TARTARUS_RELEASE_DASHBOARD=true brings the dashboard in, with the tooling app it lives in
+  # (benchmarks, chaos, SVG: the lab, which scripts/check-layers keeps out of the default).
   defp release do
-    lats =
-      if System.get_env("TARTARUS_RELEASE_LATS") == "false",
-        do: [],
-        else: [tartarus_lats: :permanent]
-
     [
-      applications: [tartarus_node: :permanent] ++ lats,
+      applications: release_apps(),
       include_erts: System.get_env("TARTARUS_RELEASE_ERTS") != "false",
       include_executables_for: [:unix]
     ]
+  end
+
+  @doc false
+  # The applications of the release (scripts/check-layers checks their closure).
+  def release_apps do
+    lats =
+      if System.get_env("TARTARUS_RELEASE_LATS") == "false",
+        do: [],
+        else: [tartarus_lats_device: :permanent]
+
+    dashboard =
+      if System.get_env("TARTARUS_RELEASE_DASHBOARD") == "true",
+        do: [tartarus_tools: :permanent],
+        else: []
+
+    [tartarus_node: :permanent] ++ lats ++ dashboard
   end
 
   # `mix test` runs every app's unit tests, then the top-level multi-node tests in test/
@@ -62,7 +75,12 @@ defmodule TartarusUmbrella.MixProject do
         Keyword.take(opts, [:seed, :trace])
     )
 
-    Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs"))
+    # A test file that does not compile fails the run (it would otherwise leave its tests out).
+    case Kernel.ParallelCompiler.require(Path.wildcard("test/**/*_test.exs")) do
+      {:ok, _, _} -> :ok
+      {:error, _, _} -> Mix.raise("top-level tests failed: a test file does not compile")
+    end
+
     %{failures: failures} = ExUnit.run()
     if failures > 0, do: Mix.raise("top-level tests failed")
   end

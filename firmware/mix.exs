@@ -1,6 +1,8 @@
 defmodule TartarusFirmware.MixProject do
   # The Nerves firmware of a Tartarus node on a Raspberry Pi (0, 3 or 4): the platform and
-  # the LATS application by path, real devices through Circuits.UART and Circuits.GPIO.
+  # LATS's device side by path (nothing of the lab: no emulator, benchmarks, chaos, SVG or
+  # dashboard; scripts/check-layers checks it), real devices through Circuits.UART and
+  # Circuits.GPIO.
   #
   #     export MIX_TARGET=rpi4 TARTARUS_WIFI_SSID=... TARTARUS_WIFI_PSK=...
   #     mix deps.get && mix firmware && mix burn        # or: mix upload tartarus-XXXX.local
@@ -42,9 +44,9 @@ defmodule TartarusFirmware.MixProject do
       {:ring_logger, "~> 0.11.0"},
       {:toolshed, "~> 0.4.0"},
 
-      # The platform and the applications, from this repository
+      # The platform and the device code it runs, from this repository
       {:tartarus, path: "../apps/tartarus"},
-      {:tartarus_lats, path: "../apps/tartarus_lats"},
+      {:tartarus_lats_device, path: "../apps/tartarus_lats_device"},
 
       # Devices
       {:circuits_uart, "~> 1.5"},

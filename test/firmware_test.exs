@@ -146,6 +146,55 @@ defmodule TartarusFirmwareTest do
              host |> Tartarus.plugins() |> Keyword.fetch(:beacon)
   end
 
+  defmodule Service do
+    @moduledoc false
+    # A service as the firmware starts one: start_link(opts ++ [host: host]).
+    def start_link(opts) do
+      Agent.start_link(fn -> send(opts[:to], {:service_started, opts[:host], self()}) end)
+    end
+  end
+
+  @tag :tmp_dir
+  test "the node starts its services and links its neighbours as soon as they answer (issue 41)",
+       %{
+         tmp_dir: dir
+       } do
+    neighbour = {:"fw41_nb_#{System.unique_integer([:positive])}", node()}
+    Application.put_env(:tartarus_firmware, :data, dir)
+    Application.put_env(:tartarus_firmware, :plugins, [])
+    Application.put_env(:tartarus_firmware, :neighbours, [neighbour])
+    me = self()
+    Application.put_env(:tartarus_firmware, :services, [{__MODULE__.Service, to: me}])
+    # (Compiled at run time, in setup_all: named through a variable.)
+    fw_node = Module.concat(TartarusFirmware, Node)
+    fw = TartarusFirmware
+    {:ok, pid} = fw_node.start_link([])
+
+    try do
+      # The services start with the host (LATS's Device on a Pi), given the host.
+      host = fw.host()
+      assert_receive {:service_started, {^host, _}, service}, 10_000
+      Process.put(:service, service)
+
+      # The neighbour is not up yet: the link waits for it.
+      assert fw_node.missing_neighbours() == [neighbour]
+      {:ok, _} = Tartarus.start_host(elem(neighbour, 0))
+      eventually(fn -> fw_node.missing_neighbours() == [] end, 10_000)
+      assert neighbour in Tartarus.neighbours(fw.host())
+    after
+      GenServer.stop(pid)
+      # The services stop with the node.
+      if service = Process.get(:service),
+        do: eventually(fn -> not Process.alive?(service) end, 5_000)
+
+      Tartarus.stop_host(fw.host())
+      Tartarus.stop_host(elem(neighbour, 0))
+
+      for key <- [:data, :plugins, :neighbours, :services],
+          do: Application.delete_env(:tartarus_firmware, key)
+    end
+  end
+
   test "GPIO over Circuits.GPIO: the simulated pins' contract on the Pi's pins" do
     host = :"fw_gpio_#{System.unique_integer([:positive])}"
 

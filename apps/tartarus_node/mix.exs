@@ -3,7 +3,8 @@ defmodule TartarusNode.MixProject do
 
   # The deployable node: what `mix release` boots on a Linux device or server. It reads the
   # node's configuration file (config/runtime.exs, `TartarusNode.Config`) and starts one
-  # Tartarus host with its plugins, persistence, trust list and dashboard (`TartarusNode.Boot`).
+  # Tartarus host with its plugins, persistence, trust list and, when the release carries
+  # one, the dashboard (`TartarusNode.Boot`).
   def project do
     [
       app: :tartarus_node,
@@ -14,11 +15,14 @@ defmodule TartarusNode.MixProject do
       lockfile: "../../mix.lock",
       elixir: "~> 1.14",
       start_permanent: Mix.env() == :prod,
-      deps: [{:tartarus, in_umbrella: true}, {:tartarus_tools, in_umbrella: true}]
+      # The platform alone: the dashboard (the tooling app's) and LATS's device side are
+      # found at run time when the release carries them (Tartarus.Provides).
+      deps: [{:tartarus, in_umbrella: true}]
     ]
   end
 
   def application do
-    [extra_applications: [:logger], mod: {TartarusNode.Application, []}]
+    # runtime_tools: :observer, :dbg and recon attach to a running node.
+    [extra_applications: [:logger, :runtime_tools], mod: {TartarusNode.Application, []}]
   end
 end

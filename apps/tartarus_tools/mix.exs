@@ -22,7 +22,12 @@ defmodule TartarusTools.MixProject do
   def application do
     [
       extra_applications: [:logger, :tools, :inets],
-      env: [tartarus_demo: [TartarusTools.Demo.Platform]]
+      # tartarus_dashboard: the dashboard a node's `dashboard:` setting starts
+      # (Tartarus.Provides; TartarusNode.Boot).
+      env: [
+        tartarus_demo: [TartarusTools.Demo.Platform],
+        tartarus_dashboard: TartarusTools.Dashboard
+      ]
     ]
   end
 end

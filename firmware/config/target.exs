@@ -55,9 +55,12 @@ config :vintage_net,
       {"eth0", %{type: VintageNetEthernet, ipv4: %{method: :dhcp}}}
     ] ++ wifi
 
-# mDNS: the Pi answers to <hostname>.local and advertises ssh and epmd.
+# mDNS: the Pi answers to <hostname>.local and, until it has certificates, tartarus.local
+# too is worth trying (every Pi of this firmware answers to it: with one fresh Pi on the
+# network, `ssh tartarus.local` reaches it and tells its node name; see docs/devices.md).
+# It advertises ssh and epmd.
 config :mdns_lite,
-  hosts: [:hostname],
+  hosts: [:hostname, "tartarus"],
   ttl: 120,
   services: [
     %{protocol: "ssh", transport: "tcp", port: 22},
@@ -68,13 +71,33 @@ config :mdns_lite,
 # The node: distribution over TLS (rel/vm.args.eex names the option file this writes),
 # certificates and trusted issuers read from /data (see docs/devices.md), the host's durable
 # agents under /data too, and the devices of this Pi.
+#
+# The UART on GPIO 14/15 is ttyS0 (the mini UART) under the Pi 4's Nerves system, ttyAMA0
+# under the Pi 0's and 3's. Neighbours: the host names and nodes of the other Pis this one
+# links to at boot, from TARTARUS_NEIGHBOURS at build time ("pi2=tartarus@tartarus-3c4d.local,...").
+uart = if Mix.target() == :rpi4, do: "ttyS0", else: "ttyAMA0"
+
+neighbours =
+  for item <- String.split(System.get_env("TARTARUS_NEIGHBOURS", ""), ",", trim: true) do
+    case String.split(item, "=", parts: 2) do
+      [host, node] ->
+        {String.to_atom(String.trim(host)), String.to_atom(String.trim(node))}
+
+      _ ->
+        Mix.raise("TARTARUS_NEIGHBOURS: expected host=node items, got: #{item}")
+    end
+  end
+
 config :tartarus_firmware,
   distribution: true,
   node_basename: "tartarus",
   data: "/data/tartarus",
+  neighbours: neighbours,
+  # LATS on this Pi: its database agent, driven every second (Where am I? answers here).
+  services: [{TartarusLats.Device, []}],
   plugins: [
-    # An HM-10 on the Pi's UART (GPIO 14/15): a LATS node's BLE receiver.
-    beacon: {TartarusFirmware.HM10, device: "ttyAMA0", speed: 9600},
+    # An HM-10 on the Pi's UART: a LATS node's BLE receiver.
+    beacon: {TartarusFirmware.HM10, device: uart, speed: 9600},
     # A status LED and a push button.
     io: {TartarusFirmware.GPIO, pins: [led: {17, :output}, button: {27, :input}]}
   ]

@@ -22,23 +22,34 @@ defmodule Tartarus.NetnsBed do
   @doc """
   Builds the release once per test run (`MIX_ENV=prod mix release --overwrite`) and returns
   `{root, seconds}` (seconds of this call; 0 when already built by this run).
+
+  `variant` `:default` is the release as shipped (no lab application); `:dashboard` is the
+  one built with `TARTARUS_RELEASE_DASHBOARD=true` (the tooling app too, into
+  `_build/prod/rel/tartarus_dashboard`): the bed's nodes run it, since test (d)'s agent is
+  the chaos harness's (`TartarusTools.Chaos.Counter`), which a node restarted from its data
+  directory must find on its code path.
   """
-  def build_release! do
-    case :persistent_term.get({__MODULE__, :release}, nil) do
+  def build_release!(variant \\ :default) do
+    case :persistent_term.get({__MODULE__, :release, variant}, nil) do
       nil ->
         t0 = System.monotonic_time(:millisecond)
+        rel = if variant == :dashboard, do: @rel <> "_dashboard", else: @rel
+        # A release built before with other applications keeps their directories under
+        # lib/ (--overwrite replaces, it does not remove): start from none.
+        File.rm_rf!(Path.expand(rel))
+        dashboard = if variant == :dashboard, do: "true", else: "false"
 
         {out, status} =
-          System.cmd("mix", ["release", "--overwrite", "--quiet"],
-            env: [{"MIX_ENV", "prod"}],
+          System.cmd("mix", ["release", "--overwrite", "--quiet", "--path", rel],
+            env: [{"MIX_ENV", "prod"}, {"TARTARUS_RELEASE_DASHBOARD", dashboard}],
             stderr_to_stdout: true
           )
 
         if status != 0, do: raise("MIX_ENV=prod mix release failed:\n#{out}")
-        root = Path.expand(@rel)
+        root = Path.expand(rel)
         secs = (System.monotonic_time(:millisecond) - t0) / 1000
-        IO.puts("\n[netns] MIX_ENV=prod mix release: #{Float.round(secs, 1)} s")
-        :persistent_term.put({__MODULE__, :release}, root)
+        IO.puts("\n[netns] MIX_ENV=prod mix release (#{variant}): #{Float.round(secs, 1)} s")
+        :persistent_term.put({__MODULE__, :release, variant}, root)
         {root, secs}
 
       root ->
@@ -78,7 +89,7 @@ defmodule Tartarus.NetnsBed do
   them); starts the control node. Returns the bed.
   """
   def create!(bed) do
-    {root, _} = build_release!()
+    {root, _} = build_release!(:dashboard)
     File.mkdir_p!(bed.dir)
     ip!(["link", "add", bed.bridge, "type", "bridge"])
     ip!(["link", "set", bed.bridge, "up"])

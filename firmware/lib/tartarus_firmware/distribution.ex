@@ -9,8 +9,9 @@ defmodule TartarusFirmware.Distribution do
   docs/devices.md):
 
     * `node.pem` and `node.key` - this node's certificate and key (the files
-      `mix tartarus.gen.certs --nodes tartarus --hosts tartarus-1a2b.local` writes as
-      `tartarus.pem` and `tartarus.key`, renamed);
+      `mix tartarus.gen.certs --nodes tartarus@tartarus-1a2b.local --hosts tartarus-1a2b.local`
+      writes as `tartarus@tartarus-1a2b.local.pem` and `.key`, renamed; `node_name/0`, in
+      an ssh shell on the Pi, tells the name to issue it for);
     * `ca.pem` - the cluster's CA, which every peer's certificate must chain to.
 
   From them it writes `<data>/ssl_dist.conf` (the option file `vm.args` names), starts

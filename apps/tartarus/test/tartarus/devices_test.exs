@@ -7,6 +7,9 @@ defmodule Tartarus.DevicesTest do
   alias Tartarus.Plugin.{GPIO, Serial}
 
   doctest Tartarus.Plugin.GPIO.Sim
+  doctest Tartarus.Plugin.GPIO.Nil
+  doctest Tartarus.Plugin.GPIO
+  doctest Tartarus.Plugin.Shorthand
   doctest Tartarus.Plugin.Serial.Lines
   doctest Tartarus.Plugin, import: true
 
@@ -50,7 +53,9 @@ defmodule Tartarus.DevicesTest do
         Tartarus.attach_plugin(
           h,
           :io,
-          {GPIO, pins: [led: {17, :output}, relay: {22, :output, 1}, bump: {27, :input}]}
+          {GPIO,
+           pins: [led: {17, :output}, relay: {22, :output, 1}, bump: {27, :input}],
+           backend: GPIO.Sim}
         )
 
       %{h: h}
@@ -106,6 +111,38 @@ defmodule Tartarus.DevicesTest do
     end
   end
 
+  describe "GPIO without a backend (circuits_gpio's convention)" do
+    test "no backend named: the nil backend, which refuses the pins instead of simulating them" do
+      h = host!()
+      assert Application.get_env(:tartarus, :gpio_backend) == nil
+
+      assert Tartarus.attach_plugin(h, :io, {GPIO, pins: [led: {17, :output}]}) ==
+               {:error, {:gpio_open_failed, :led, 17, :no_gpio_backend}}
+
+      assert {:error,
+              "Tartarus.Plugin.GPIO: no GPIO backend on this node for pins led (line 17)" <> _} =
+               GPIO.check(pins: [led: {17, :output}])
+
+      assert {:error, "Tartarus.Plugin.GPIO: no GPIO backend" <> _} =
+               Tartarus.Plugin.Shorthand.parse(:io, {GPIO, pins: [led: {17, :output}]})
+               |> then(fn {:error, "io: " <> line} -> {:error, line} end)
+    end
+
+    test "the application environment names the node's backend" do
+      Application.put_env(:tartarus, :gpio_backend, GPIO.Sim)
+
+      try do
+        assert GPIO.check(pins: [led: {17, :output}]) == :ok
+        h = host!()
+        assert :ok = Tartarus.attach_plugin(h, :io, {GPIO, pins: [led: {17, :output}]})
+        assert Tartarus.write_plugin(h, :io, {:pin, :led, 1}) == :ok
+        assert Tartarus.read_plugin(h, :io, {:pin, :led}) == {:ok, 1}
+      after
+        Application.delete_env(:tartarus, :gpio_backend)
+      end
+    end
+  end
+
   describe "capabilities" do
     test "described by the plugins and the attach option; queried per host" do
       h = host!()
@@ -114,7 +151,7 @@ defmodule Tartarus.DevicesTest do
         Tartarus.attach_plugin(
           h,
           :arm,
-          {GPIO, pins: [grip: {17, :output}], capabilities: [:claws]}
+          {GPIO, pins: [grip: {17, :output}], backend: GPIO.Sim, capabilities: [:claws]}
         )
 
       :ok =
@@ -152,14 +189,14 @@ defmodule Tartarus.DevicesTest do
         Tartarus.attach_plugin(
           rudolph,
           :pusher,
-          {GPIO, pins: [push: {5, :output}], capabilities: [:pusher, :drive]}
+          {GPIO, pins: [push: {5, :output}], backend: GPIO.Sim, capabilities: [:pusher, :drive]}
         )
 
       :ok =
         Tartarus.attach_plugin(
           claus,
           :claws,
-          {GPIO, pins: [grip: {6, :output}], capabilities: [:claws, :drive]}
+          {GPIO, pins: [grip: {6, :output}], backend: GPIO.Sim, capabilities: [:claws, :drive]}
         )
 
       route = for h <- [santa, rudolph, claus], do: {h, node()}

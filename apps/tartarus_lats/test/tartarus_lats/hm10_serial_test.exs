@@ -219,21 +219,25 @@ defmodule TartarusLats.HM10SerialTest do
     assert record.region == :near
   end
 
-  test "mix tartarus.node --ble names no application: the umbrella's configuration does" do
-    assert Application.get_env(:tartarus_tools, :ble_plugin) == {HM10.Receiver, :plugin}
+  test "mix tartarus.node --ble names no application: LATS's environment provides the receiver" do
+    # Found from the applications' environments (LATS's mix.exs), the same way by the task
+    # and by a release's configuration check (Tartarus.Plugin.Shorthand).
+    assert Tartarus.Plugin.Shorthand.ble_receiver() == {:ok, {HM10.Receiver, :plugin}}
 
-    assert [serial: {Tartarus.Plugin.Serial, device: "/dev/ttyS1", speed: 115_200}] =
+    assert [beacon: {Tartarus.Plugin.Serial, opts}] =
+             Mix.Tasks.Tartarus.Node.plugins!(ble: "/dev/ttyUSB0", speed: 115_200)
+
+    assert opts[:decoder] == HM10.Receiver and opts[:device] == "/dev/ttyUSB0"
+    assert opts[:speed] == 115_200
+
+    assert [serial: {Tartarus.Plugin.Serial, [speed: 115_200, device: "/dev/ttyS1"]}] =
              Mix.Tasks.Tartarus.Node.plugins!(serial: "/dev/ttyS1", speed: 115_200)
 
-    Application.delete_env(:tartarus_tools, :ble_plugin)
-
-    try do
-      assert_raise Mix.Error, ~r/--ble needs a BLE receiver: configure :tartarus_tools/, fn ->
-        Mix.Tasks.Tartarus.Node.plugins!(ble: "/dev/ttyUSB0")
-      end
-    after
-      Application.put_env(:tartarus_tools, :ble_plugin, {HM10.Receiver, :plugin})
-    end
+    assert_raise Mix.Error,
+                 ~r/--ble: beacon: \{:ble, \.\.\.\} needs a BLE receiver, and no application/,
+                 fn ->
+                   Mix.Tasks.Tartarus.Node.plugins!(ble: "/dev/ttyUSB0", ble_receiver: :none)
+                 end
   end
 
   defmodule Listener.Far do

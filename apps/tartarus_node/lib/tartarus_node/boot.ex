@@ -3,10 +3,15 @@ defmodule TartarusNode.Boot do
   The configured node's host: started with the configuration's plugins, persistence and
   trust list (`TartarusNode.Config.host_options/1`), its neighbours linked as soon as they
   answer (a device may boot before its neighbours: each missing link is tried again every
-  2 s), and the dashboard when `dashboard:` is set.
+  2 s), the dashboard when `dashboard:` is set, and the configured `services:`
+  (`module.start_link(opts ++ [host: host])`, each under `TartarusNode.Supervisor`).
 
   It logs one line when the host runs (`tartarus: host {h1, :"tartarus@198.18.0.1"}
-  running; plugins: ...`).
+  running; plugins: ...`). A host that cannot start (its data directory cannot be made, a
+  plugin's device refuses to open) stops the node with one line on standard error and
+  status 1, not a crash report and an `erl_crash.dump`:
+
+      tartarus: cannot start host pi1: {:gpio_open_failed, :led, 17, :no_gpio_backend}
   """
   use GenServer
   require Logger
@@ -28,22 +33,60 @@ defmodule TartarusNode.Boot do
 
   @impl true
   def init(config) do
-    if config.data_dir, do: File.mkdir_p!(config.data_dir)
+    with :ok <- make_data_dir(config.data_dir),
+         {:ok, host} <- start_host(config) do
+      Logger.notice(
+        "tartarus: host #{inspect(host)} running; plugins: " <>
+          Enum.map_join(config.plugins, ", ", fn {n, {m, _}} -> "#{n} (#{inspect(m)})" end)
+      )
 
-    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
-      {:ok, host} ->
-        Logger.notice(
-          "tartarus: host #{inspect(host)} running; plugins: " <>
-            Enum.map_join(config.plugins, ", ", fn {n, {m, _}} -> "#{n} (#{inspect(m)})" end)
-        )
+      dash = if config.dashboard, do: start_dashboard(config.dashboard)
+      send(self(), :link)
 
-        dash = if config.dashboard, do: start_dashboard(config.dashboard)
-        send(self(), :link)
-        {:ok, %{host: host, missing: config.neighbours, dashboard: dash}}
-
-      {:error, reason} ->
-        {:stop, {:host_not_started, reason}}
+      {:ok, %{host: host, missing: config.neighbours, dashboard: dash},
+       {:continue, {:services, Map.get(config, :services, [])}}}
+    else
+      {:error, why} -> fail("tartarus: cannot start host #{config.host}: #{why}")
     end
+  end
+
+  defp make_data_dir(nil), do: :ok
+
+  defp make_data_dir(dir) do
+    case File.mkdir_p(dir) do
+      :ok -> :ok
+      {:error, reason} -> {:error, "data_dir: cannot make #{dir} (#{:file.format_error(reason)})"}
+    end
+  end
+
+  defp start_host(config) do
+    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
+      {:ok, host} -> {:ok, host}
+      {:error, reason} when is_binary(reason) -> {:error, reason}
+      {:error, reason} -> {:error, inspect(reason)}
+    end
+  end
+
+  # The node was started to run this host and cannot: one line, status 1 (the release's
+  # unit does not restart a node that exits 1 in a loop).
+  defp fail(line) do
+    IO.puts(:stderr, line)
+    System.halt(1)
+  end
+
+  # After init: the supervisor starting this process is free again to start the services.
+  @impl true
+  def handle_continue({:services, services}, s) do
+    for {module, opts} <- services do
+      spec = %{id: {:service, module}, start: {module, :start_link, [opts ++ [host: s.host]]}}
+
+      case Supervisor.start_child(TartarusNode.Supervisor, spec) do
+        {:ok, _} -> :ok
+        {:error, reason} -> fail("tartarus: cannot start service #{inspect(module)}: #{inspect(reason)}")
+      end
+    end
+
+    {:noreply, s}
   end
 
   @impl true
@@ -58,9 +101,11 @@ defmodule TartarusNode.Boot do
   end
 
   defp start_dashboard(opts) do
-    case TartarusTools.Dashboard.start(opts) do
+    {:ok, module} = TartarusNode.Config.dashboard_module()
+
+    case module.start(opts) do
       {:ok, dash} ->
-        Logger.notice(TartarusTools.Dashboard.banner(dash))
+        Logger.notice(module.banner(dash))
         dash
 
       {:error, reason} ->

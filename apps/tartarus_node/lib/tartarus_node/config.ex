@@ -23,7 +23,8 @@ defmodule TartarusNode.Config do
         durable: false,
         trusted: "/etc/tartarus/trusted",     # issuers' .pub keys: admit only agents they signed
         keys: "/etc/tartarus/keys",           # this host's issuer key pair (issuer.key, issuer.pub)
-        dashboard: [port: 4000, bind: "0.0.0.0", hosts: ["pi.local"]]
+        dashboard: [port: 4000, bind: "0.0.0.0", hosts: ["pi.local"]],
+        services: [{TartarusLats.Device, node: :hall}]
       ]
 
   Only `node` is required (and `cookie` or `tls`). `tls:` takes `dir:` and/or `cert:`,
@@ -32,14 +33,22 @@ defmodule TartarusNode.Config do
   {module, opts}` or the shorthands `{:sensor, opts}` (`Tartarus.Plugin.SimSensor`, a
   sine-like signal unless `signal:` is given), `{:serial, device}` / `{:serial, device, opts}`
   (`Tartarus.Plugin.Serial`) and `{:ble, device}` / `{:ble, device, opts}` (the BLE receiver
-  configured as `:tartarus_tools, :ble_plugin`: LATS's HM-10 in this umbrella).
+  an application of the release provides: LATS's HM-10 in this umbrella), all parsed by
+  `Tartarus.Plugin.Shorthand.parse/3`, as `mix tartarus.node` parses its flags. A serial or
+  BLE device that does not exist is refused (`hotplug: true` in its options waits for it
+  instead), and so is a GPIO plugin with no GPIO backend (`Tartarus.Plugin.GPIO.check/1`).
+
+  `services:` are processes started once the host runs, each `{module, opts}`: the node
+  calls `module.start_link(opts ++ [host: host])` under its supervisor (LATS's
+  `TartarusLats.Device` drives the node's database agent every second, so query agents find
+  what it saw). A module that is not in the release is refused at the check.
 
   Everything wrong with the file is one line, `error_line/2`:
 
       tartarus: bad configuration /etc/tartarus/node.exs: cookie: required without tls:
 
   `read/1` and `check/1` are pure (but for reading files and checking they exist);
-  `shell_main/0` is what the release's `env.sh` runs before the VM boots.
+  `TartarusNode.EnvSh.main/0` is what the release's `env.sh` runs before the VM boots.
   """
 
   @typedoc "A checked configuration."
@@ -48,7 +57,7 @@ defmodule TartarusNode.Config do
           distribution: :name | :sname,
           host: atom(),
           cookie: String.t(),
-          tls: nil | %{cert: Path.t(), key: Path.t(), ca: Path.t()},
+          tls: nil | %{cert: Path.t(), key: Path.t(), ca: Path.t(), operator: String.t()},
           net_ticktime: pos_integer(),
           dist_port: nil | pos_integer(),
           neighbours: [{atom(), atom()}],
@@ -57,7 +66,8 @@ defmodule TartarusNode.Config do
           durable: boolean(),
           trusted: nil | Path.t(),
           keys: nil | Path.t(),
-          dashboard: nil | keyword()
+          dashboard: nil | keyword(),
+          services: [{module(), keyword()}]
         }
 
   @keys [
@@ -73,7 +83,8 @@ defmodule TartarusNode.Config do
     :durable,
     :trusted,
     :keys,
-    :dashboard
+    :dashboard,
+    :services
   ]
 
   @default_path "/etc/tartarus/node.exs"
@@ -84,16 +95,17 @@ defmodule TartarusNode.Config do
 
   @doc """
   Reads and checks the file at `path`. `{:error, line}` is `error_line/2`'s one line.
+  `opts` are `check/2`'s.
 
       iex> {:error, line} = TartarusNode.Config.read("/nonexistent/node.exs")
       iex> line
       "tartarus: bad configuration /nonexistent/node.exs: cannot read it (no such file)"
   """
-  @spec read(Path.t()) :: {:ok, t()} | {:error, String.t()}
-  def read(path) do
+  @spec read(Path.t(), keyword()) :: {:ok, t()} | {:error, String.t()}
+  def read(path, opts \\ []) do
     with {:ok, text} <- read_text(path),
          {:ok, term} <- eval(text, path),
-         {:ok, config} <- check(term) do
+         {:ok, config} <- check(term, opts) do
       {:ok, config}
     else
       {:error, what} -> {:error, error_line(path, what)}
@@ -133,18 +145,23 @@ defmodule TartarusNode.Config do
   @doc """
   Checks a configuration term (the file's value) and fills in the defaults.
 
+  Option `devices:` (`:present`, the default, or `:any`): whether a serial or BLE device
+  must exist (see `Tartarus.Plugin.Shorthand`); every release command but those that start
+  the node (`rpc`, `remote`, `stop`, `pid`, `eval`) reads the file with `:any`, so an
+  unplugged adapter does not lock the operator out.
+
       iex> {:ok, c} = TartarusNode.Config.check(node: "tartarus@198.18.0.1", cookie: "c")
       iex> {c.node, c.distribution, c.host, c.net_ticktime}
       {"tartarus@198.18.0.1", :name, :tartarus, 60}
       iex> TartarusNode.Config.check(node: "tartarus@198.18.0.1")
       {:error, "cookie: required without tls:"}
       iex> TartarusNode.Config.check(node: "n@h", cookie: "c", colour: :red)
-      {:error, "unknown key colour: (known: node, host, cookie, tls, net_ticktime, dist_port, neighbours, plugins, data_dir, durable, trusted, keys, dashboard)"}
+      {:error, "unknown key colour: (known: node, host, cookie, tls, net_ticktime, dist_port, neighbours, plugins, data_dir, durable, trusted, keys, dashboard, services)"}
       iex> TartarusNode.Config.check(%{node: "x"})
       {:error, "expected a keyword list, got: %{node: \\"x\\"}"}
   """
-  @spec check(term()) :: {:ok, t()} | {:error, String.t()}
-  def check(term) do
+  @spec check(term(), keyword()) :: {:ok, t()} | {:error, String.t()}
+  def check(term, opts \\ []) do
     with :ok <- keyword(term),
          :ok <- known(term),
          {:ok, node, dist} <- node_name(term[:node]),
@@ -154,12 +171,14 @@ defmodule TartarusNode.Config do
          {:ok, tick} <- pos_int(:net_ticktime, term[:net_ticktime], 60),
          {:ok, port} <- port(term[:dist_port]),
          {:ok, neighbours} <- neighbours(term[:neighbours] || []),
-         {:ok, plugins} <- plugins(term[:plugins] || []),
+         {:ok, plugins} <- plugins(term[:plugins] || [], Keyword.get(opts, :devices, :present)),
          {:ok, data_dir} <- path_opt(:data_dir, term[:data_dir]),
+         :ok <- data_dir_usable(data_dir),
          {:ok, durable} <- durable(term[:durable], data_dir),
          {:ok, trusted} <- dir_opt(:trusted, term[:trusted]),
          {:ok, keys} <- dir_opt(:keys, term[:keys]),
-         {:ok, dashboard} <- dashboard(term[:dashboard]) do
+         {:ok, dashboard} <- dashboard(term[:dashboard]),
+         {:ok, services} <- services(term[:services] || []) do
       {:ok,
        %{
          node: node,
@@ -175,7 +194,8 @@ defmodule TartarusNode.Config do
          durable: durable,
          trusted: trusted,
          keys: keys,
-         dashboard: dashboard
+         dashboard: dashboard,
+         services: services
        }}
     end
   end
@@ -228,16 +248,27 @@ defmodule TartarusNode.Config do
   defp tls(opts, node) when is_list(opts) do
     dir = opts[:dir]
 
-    with :ok <- only(:tls, opts, [:dir, :cert, :key, :ca]),
+    with :ok <- only(:tls, opts, [:dir, :cert, :key, :ca, :operator]),
          {:ok, cert} <- tls_file(:cert, opts[:cert], dir, "#{node}.pem"),
          {:ok, key} <- tls_file(:key, opts[:key], dir, "#{node}.key"),
-         {:ok, ca} <- tls_file(:ca, opts[:ca], dir, "ca.pem") do
-      {:ok, %{cert: cert, key: key, ca: ca}}
+         {:ok, ca} <- tls_file(:ca, opts[:ca], dir, "ca.pem"),
+         {:ok, operator} <- operator(opts[:operator]) do
+      {:ok, %{cert: cert, key: key, ca: ca, operator: operator}}
     end
   end
 
   defp tls(other, _),
     do: {:error, "tls: expected [dir: path] or [cert:, key:, ca:], got: #{inspect(other)}"}
+
+  defp operator(nil), do: {:ok, "operator"}
+
+  defp operator(name) when is_binary(name) or (is_atom(name) and name not in [true, false]) do
+    if String.match?(to_string(name), ~r/^[A-Za-z0-9_-]+$/),
+      do: {:ok, to_string(name)},
+      else: {:error, "tls: operator: a certificate's name (letters, digits, _ and -), got: #{inspect(name)}"}
+  end
+
+  defp operator(other), do: {:error, "tls: operator: expected a name, got: #{inspect(other)}"}
 
   defp tls_file(key, nil, nil, _),
     do: {:error, "tls: #{key}: required (or dir: holding the certificates)"}
@@ -297,10 +328,10 @@ defmodule TartarusNode.Config do
   defp to_atom(x) when is_atom(x), do: x
   defp to_atom(x), do: String.to_atom(x)
 
-  defp plugins(list) when is_list(list) do
+  defp plugins(list, devices) when is_list(list) do
     Enum.reduce_while(list, {:ok, []}, fn
       {name, spec}, {:ok, acc} when is_atom(name) ->
-        case plugin(name, spec) do
+        case plugin(name, spec, devices) do
           {:ok, s} -> {:cont, {:ok, acc ++ [{name, s}]}}
           {:error, _} = e -> {:halt, e}
         end
@@ -310,50 +341,16 @@ defmodule TartarusNode.Config do
     end)
   end
 
-  defp plugins(other), do: {:error, "plugins: expected a keyword list, got: #{inspect(other)}"}
+  defp plugins(other, _), do: {:error, "plugins: expected a keyword list, got: #{inspect(other)}"}
 
-  defp plugin(name, {:sensor, opts}) when is_list(opts) do
-    case Keyword.get(opts, :signal, Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5))) do
-      [_ | _] = signal ->
-        {:ok, {Tartarus.Plugin.SimSensor, [unit: "°C"] |> Keyword.merge(opts) |> Keyword.put(:signal, signal)}}
-
-      other ->
-        {:error, "plugins: #{name}: signal: expected a non-empty list, got: #{inspect(other)}"}
+  # One function for every shorthand, shared with `mix tartarus.node`; here a device that is
+  # not there is refused unless the spec says hotplug: true.
+  defp plugin(name, spec, devices) do
+    case Tartarus.Plugin.Shorthand.parse(name, spec, devices: devices) do
+      {:ok, spec} -> {:ok, spec}
+      {:error, line} -> {:error, "plugins: " <> line}
     end
   end
-
-  defp plugin(name, {:serial, device}), do: plugin(name, {:serial, device, []})
-
-  defp plugin(_name, {:serial, device, opts}) when is_binary(device) and is_list(opts),
-    do: {:ok, {Tartarus.Plugin.Serial, Keyword.merge([speed: 9600], opts) ++ [device: device]}}
-
-  defp plugin(name, {:ble, device}), do: plugin(name, {:ble, device, []})
-
-  defp plugin(name, {:ble, device, opts}) when is_binary(device) and is_list(opts) do
-    with {m, f} when is_atom(m) and is_atom(f) <- Application.get_env(:tartarus_tools, :ble_plugin),
-         true <- Code.ensure_loaded?(m) and function_exported?(m, f, 2),
-         {module, plugin_opts} = spec when is_atom(module) and is_list(plugin_opts) <-
-           apply(m, f, [device, Keyword.merge([speed: 9600], opts)]) do
-      {:ok, spec}
-    else
-      _ ->
-        {:error,
-         "plugins: #{name}: {:ble, ...} needs a BLE receiver (:tartarus_tools, :ble_plugin; " <>
-           "this release has #{inspect(Application.get_env(:tartarus_tools, :ble_plugin))}, " <>
-           "build it with LATS: TARTARUS_RELEASE_LATS=true)"}
-    end
-  end
-
-  defp plugin(name, {module, opts}) when is_atom(module) and is_list(opts) do
-    if Code.ensure_loaded?(module) and function_exported?(module, :init, 1),
-      do: {:ok, {module, opts}},
-      else: {:error, "plugins: #{name}: #{inspect(module)} is not a plugin module in this release"}
-  end
-
-  defp plugin(name, other),
-    do:
-      {:error,
-       "plugins: #{name}: expected {module, opts}, {:sensor, opts}, {:serial, device} or {:ble, device}, got: #{inspect(other)}"}
 
   defp path_opt(_key, nil), do: {:ok, nil}
   defp path_opt(_key, p) when is_binary(p) and p != "", do: {:ok, Path.expand(p)}
@@ -367,16 +364,82 @@ defmodule TartarusNode.Config do
     end
   end
 
+  # The data directory must be a directory the node can write, or one it can make: the
+  # nearest existing ancestor is then a directory it can write.
+  defp data_dir_usable(nil), do: :ok
+
+  defp data_dir_usable(dir) do
+    {existing, _} =
+      Enum.reduce_while(Stream.iterate(dir, &Path.dirname/1), {dir, nil}, fn p, _ ->
+        if File.exists?(p) or p == "/", do: {:halt, {p, p}}, else: {:cont, {p, p}}
+      end)
+
+    what = if existing == dir, do: dir, else: "#{existing} (to make #{dir} in)"
+
+    case File.stat(existing) do
+      {:ok, %File.Stat{type: :directory, access: access}} when access in [:write, :read_write] ->
+        :ok
+
+      {:ok, %File.Stat{type: :directory}} ->
+        {:error, "data_dir: cannot write #{what} (permission denied)"}
+
+      {:ok, %File.Stat{}} ->
+        {:error, "data_dir: #{existing} is not a directory"}
+
+      {:error, reason} ->
+        {:error, "data_dir: cannot use #{what} (#{:file.format_error(reason)})"}
+    end
+  end
+
   defp durable(nil, _), do: {:ok, false}
   defp durable(false, _), do: {:ok, false}
   defp durable(true, nil), do: {:error, "durable: true needs data_dir:"}
   defp durable(true, _), do: {:ok, true}
   defp durable(other, _), do: {:error, "durable: expected true or false, got: #{inspect(other)}"}
 
+  @doc """
+  The dashboard this node's applications provide (`tartarus_dashboard:` in an application's
+  environment, see `Tartarus.Provides`: the tooling app's `TartarusTools.Dashboard`), or the
+  one line saying there is none: a release is built without it unless
+  `TARTARUS_RELEASE_DASHBOARD=true`.
+  """
+  @spec dashboard_module() :: {:ok, module()} | {:error, String.t()}
+  def dashboard_module do
+    case Tartarus.Provides.find(:tartarus_dashboard) do
+      [{_app, module} | _] when is_atom(module) ->
+        if Code.ensure_loaded?(module) and function_exported?(module, :start, 1),
+          do: {:ok, module},
+          else: {:error, "dashboard: #{inspect(module)} is not in this node's code"}
+
+      _ ->
+        {:error,
+         "dashboard: this node has no dashboard (a release carries it only when built with " <>
+           "TARTARUS_RELEASE_DASHBOARD=true, which brings the tooling app)"}
+    end
+  end
+
+  defp services(list) when is_list(list) do
+    Enum.reduce_while(list, {:ok, []}, fn
+      {module, opts}, {:ok, acc} when is_atom(module) and is_list(opts) ->
+        if Code.ensure_loaded?(module) and function_exported?(module, :start_link, 1),
+          do: {:cont, {:ok, acc ++ [{module, opts}]}},
+          else:
+            {:halt,
+             {:error, "services: #{inspect(module)} is not in this node's code (or has no start_link/1)"}}
+
+      other, _ ->
+        {:halt, {:error, "services: expected {module, opts} items, got: #{inspect(other)}"}}
+    end)
+  end
+
+  defp services(other),
+    do: {:error, "services: expected a list of {module, opts}, got: #{inspect(other)}"}
+
   defp dashboard(nil), do: {:ok, nil}
 
   defp dashboard(opts) when is_list(opts) do
     with :ok <- only(:dashboard, opts, [:port, :bind, :hosts, :token_file]),
+         {:ok, _module} <- dashboard_module(),
          true <- is_integer(opts[:port]) and opts[:port] in 0..65_535,
          {:ok, bind} <- :inet.parse_address(~c"#{opts[:bind] || "127.0.0.1"}") do
       {:ok,
@@ -418,16 +481,18 @@ defmodule TartarusNode.Config do
 
   @doc """
   The `erl` flags the node boots with (besides its name and cookie): the tick time, the
-  listening port, and TLS distribution with `optfile` as `-ssl_dist_optfile`.
+  listening port, and TLS distribution with `optfile` as `-ssl_dist_optfile`. With role
+  `:client` (the release's `rpc`, `remote`, `stop`, `pid`: a VM that only dials the node)
+  the listening port is left out, since the node holds it.
 
       iex> {:ok, c} = TartarusNode.Config.check(node: "a@198.18.0.1", cookie: "x", net_ticktime: 8, dist_port: 9100)
       iex> TartarusNode.Config.erl_flags(c, "/tmp/ssl_dist.conf")
       ["-connect_all", "false", "-kernel", "net_ticktime", "8", "-kernel", "inet_dist_listen_min", "9100", "-kernel", "inet_dist_listen_max", "9100"]
   """
-  @spec erl_flags(t(), Path.t()) :: [String.t()]
-  def erl_flags(c, optfile) do
+  @spec erl_flags(t(), Path.t(), :node | :client) :: [String.t()]
+  def erl_flags(c, optfile, role \\ :node) do
     ["-connect_all", "false", "-kernel", "net_ticktime", "#{c.net_ticktime}"] ++
-      if(c.dist_port,
+      if(c.dist_port && role == :node,
         do: ["-kernel", "inet_dist_listen_min", "#{c.dist_port}"] ++
               ["-kernel", "inet_dist_listen_max", "#{c.dist_port}"],
         else: []
@@ -460,44 +525,25 @@ defmodule TartarusNode.Config do
       iex> TartarusNode.Config.shell(c, "/tmp/o.conf")
       "RELEASE_DISTRIBUTION=name\\nRELEASE_NODE='a@198.18.0.1'\\nRELEASE_COOKIE='it'\\\\''s'\\nTARTARUS_ERL_FLAGS='-connect_all false -kernel net_ticktime 60'\\n"
   """
-  @spec shell(t(), Path.t()) :: String.t()
-  def shell(c, optfile) do
-    [
-      {"RELEASE_DISTRIBUTION", Atom.to_string(c.distribution)},
-      {"RELEASE_NODE", quote_sh(c.node)},
-      {"RELEASE_COOKIE", quote_sh(c.cookie)},
-      {"TARTARUS_ERL_FLAGS", quote_sh(Enum.join(erl_flags(c, optfile), " "))}
-    ]
-    |> Enum.map_join(fn {k, v} -> "#{k}=#{v}\n" end)
+  @spec shell(t(), Path.t(), :node | :client) :: String.t()
+  def shell(c, optfile, role \\ :node) do
+    shell_assignments(
+      RELEASE_DISTRIBUTION: Atom.to_string(c.distribution),
+      RELEASE_NODE: c.node,
+      RELEASE_COOKIE: c.cookie,
+      TARTARUS_ERL_FLAGS: Enum.join(erl_flags(c, optfile, role), " ")
+    )
+  end
+
+  @doc false
+  # `NAME='value'` lines, quoted for sh (the distribution's name is left bare).
+  @spec shell_assignments(keyword(String.t())) :: String.t()
+  def shell_assignments(pairs) do
+    Enum.map_join(pairs, fn
+      {:RELEASE_DISTRIBUTION, v} -> "RELEASE_DISTRIBUTION=#{v}\n"
+      {k, v} -> "#{k}=#{quote_sh(v)}\n"
+    end)
   end
 
   defp quote_sh(s), do: "'" <> String.replace(s, "'", "'\\''") <> "'"
-
-  @doc """
-  What the release's `env.sh` runs (in a VM of its own, before the node's): reads `path/0`,
-  writes the TLS option file into `TARTARUS_TMP` (when `tls:` is set) and prints `shell/2`;
-  or prints the one error line on stderr and halts with status 1.
-  """
-  @spec shell_main() :: no_return()
-  def shell_main do
-    path = path()
-
-    case read(path) do
-      {:ok, c} ->
-        optfile = Path.join(System.get_env("TARTARUS_TMP") || System.tmp_dir!(), "ssl_dist.conf")
-
-        if c.tls do
-          File.mkdir_p!(Path.dirname(optfile))
-          text = :io_lib.format(~c"~tp.~n", [optfile_terms(c)])
-          File.write!(optfile, ["%% ssl_dist options for #{c.node}; written at boot.\n", text])
-        end
-
-        IO.write(shell(c, optfile))
-        System.halt(0)
-
-      {:error, line} ->
-        IO.puts(:stderr, line)
-        System.halt(1)
-    end
-  end
 end

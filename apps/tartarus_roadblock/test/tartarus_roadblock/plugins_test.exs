@@ -44,7 +44,9 @@ defmodule TartarusRoadblock.PluginsTest do
   defp simulated(arena) do
     [
       {"SimSensor", {Tartarus.Plugin.SimSensor, signal: [1.0, 2.0]}, [nil, :value, :peek]},
-      {"GPIO", {Tartarus.Plugin.GPIO, pins: [grip: {17, :output}, closed: {27, :input}]},
+      {"GPIO",
+       {Tartarus.Plugin.GPIO,
+        pins: [grip: {17, :output}, closed: {27, :input}], backend: Tartarus.Plugin.GPIO.Sim},
        [nil, :all, {:pin, :grip}]},
       {"RobotPlugin (Santa)", {RobotPlugin, arena: arena, robot: :santa},
        [nil, :all, :ultrasonic, :colour, :light, :line, :bumped, :holding, :puck_in_gripper]},

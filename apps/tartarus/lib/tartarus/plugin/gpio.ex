@@ -9,19 +9,26 @@ defmodule Tartarus.Plugin.GPIO do
     ],
     backend: [
       type: :atom,
-      default: Tartarus.Plugin.GPIO.Sim,
-      doc: "a `Tartarus.Plugin.GPIO.Backend` (the firmware's wraps `Circuits.GPIO`)"
+      doc:
+        "a `Tartarus.Plugin.GPIO.Backend` (the firmware's wraps `Circuits.GPIO`; `Tartarus.Plugin.GPIO.Sim` simulates); default: `config :tartarus, :gpio_backend`, else `Tartarus.Plugin.GPIO.Nil`, which has no pins"
     ]
   ]
   @moduledoc """
   GPIO pins as a `Tartarus.Plugin`: named inputs (buttons, bump switches, end stops) and
-  outputs (LEDs, relays, a claw's servo enable), simulated here and real in the firmware
-  with the same contract, because only the backend (`Tartarus.Plugin.GPIO.Backend`)
+  outputs (LEDs, relays, a claw's servo enable), real in the firmware and simulated where
+  asked, with the same contract, because only the backend (`Tartarus.Plugin.GPIO.Backend`)
   differs.
 
       Tartarus.attach_plugin(:claus, :claws,
         {Tartarus.Plugin.GPIO, pins: [grip: {17, :output}, closed: {27, :input}],
-         capabilities: [:claws]})
+         backend: Tartarus.Plugin.GPIO.Sim, capabilities: [:claws]})
+
+  The backend is chosen explicitly, as `Circuits.GPIO` chooses its own: the `backend:`
+  option, else the application environment (`config :tartarus, :gpio_backend, module`),
+  else `Tartarus.Plugin.GPIO.Nil`, which answers `{:error, :no_gpio_backend}`: a node
+  without GPIO hardware refuses the plugin (`init/1` fails with `{:gpio_open_failed, pin,
+  line, :no_gpio_backend}`; `check/1` says it in one line before any pin is touched) rather
+  than simulate pins it was told are real.
 
   Reads: `{:pin, name}` (`0` or `1`), `:all` or `nil` (`%{name => level}`). Writes:
   `{:pin, name, level}` sets an output (`{:error, {:not_an_output, name}}` for an input).
@@ -53,10 +60,43 @@ defmodule Tartarus.Plugin.GPIO do
   @impl true
   def init(opts) do
     with {:ok, o} <- Tartarus.Options.validate(opts, @schema, "Tartarus.Plugin.GPIO"),
-         :ok <- backend?(o[:backend]) do
-      open_all(o[:pins], o[:backend])
+         backend = backend(o),
+         :ok <- backend?(backend) do
+      open_all(o[:pins], backend)
     end
   end
+
+  @doc """
+  Checks `opts` without opening any pin (what a node's configuration check calls, see
+  `Tartarus.Plugin.Shorthand`): the options, and that the backend is a real one, in one
+  line otherwise.
+
+      iex> Tartarus.Plugin.GPIO.check(pins: [led: {17, :output}], backend: Tartarus.Plugin.GPIO.Nil)
+      {:error, "Tartarus.Plugin.GPIO: no GPIO backend on this node for pins led (line 17) (Tartarus.Plugin.GPIO.Nil answers {:error, :no_gpio_backend}): name one with backend: (the firmware's wraps Circuits.GPIO; Tartarus.Plugin.GPIO.Sim simulates pins)"}
+      iex> Tartarus.Plugin.GPIO.check(pins: [led: {17, :output}], backend: Tartarus.Plugin.GPIO.Sim)
+      :ok
+  """
+  @spec check(keyword()) :: :ok | {:error, String.t()}
+  def check(opts) do
+    with {:ok, o} <- Tartarus.Options.validate(opts, @schema, "Tartarus.Plugin.GPIO"),
+         backend = backend(o),
+         :ok <- backend?(backend) do
+      if backend == Tartarus.Plugin.GPIO.Nil do
+        pins =
+          Enum.map_join(o[:pins], ", ", fn {name, spec} -> "#{name} (line #{elem(spec, 0)})" end)
+
+        {:error,
+         "Tartarus.Plugin.GPIO: no GPIO backend on this node for pins #{pins} " <>
+           "(Tartarus.Plugin.GPIO.Nil answers {:error, :no_gpio_backend}): name one with " <>
+           "backend: (the firmware's wraps Circuits.GPIO; Tartarus.Plugin.GPIO.Sim simulates pins)"}
+      else
+        :ok
+      end
+    end
+  end
+
+  defp backend(o),
+    do: o[:backend] || Application.get_env(:tartarus, :gpio_backend, Tartarus.Plugin.GPIO.Nil)
 
   defp backend?(module) do
     callbacks = Tartarus.Plugin.GPIO.Backend.behaviour_info(:callbacks)

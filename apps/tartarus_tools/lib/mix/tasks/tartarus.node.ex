@@ -65,10 +65,11 @@ defmodule Mix.Tasks.Tartarus.Node do
   through an Erlang port, reopened when the device comes back) with its line decoder.
 
   `--ble PATH` attaches a BLE receiver on that tty as plugin `:beacon`. Which receiver is
-  an application's choice, so this task names none: it calls the function configured as
-  `config :tartarus_tools, :ble_plugin, {module, function}` with the path and
-  `[speed: baud]`, which returns the plugin spec. The umbrella's `config/config.exs` sets
-  LATS's HM-10 receiver, so in this repository
+  an application's choice, so this task names none: the application that brings one says
+  so in its environment (`tartarus_ble_plugin: {module, function}`, as LATS's `mix.exs`
+  does; see `Tartarus.Plugin.Shorthand`, which parses these flags as a node's
+  configuration file's `{:ble, path}`, `{:serial, path}` and `{:sensor, opts}`), so in
+  this repository
 
       ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n1 --host h1 --ble /dev/ttyUSB0
 
@@ -161,20 +162,26 @@ defmodule Mix.Tasks.Tartarus.Node do
   # The plugins the flags ask for, as `{name, spec}`; raises Mix.Error naming the flag.
   @spec plugins!(keyword()) :: [{atom(), {module(), keyword()}}]
   def plugins!(opts) do
-    sensor =
-      for s <- List.wrap(opts[:sensor]) do
-        {String.to_atom(s),
-         {Tartarus.Plugin.SimSensor,
-          signal: Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)), unit: "°C"}}
-      end
+    sensor = for s <- List.wrap(opts[:sensor]), do: {String.to_atom(s), {:sensor, unit: "°C"}}
 
     serial =
       for path <- List.wrap(opts[:serial]),
-          do: {:serial, {Tartarus.Plugin.Serial, device: path, speed: opts[:speed] || 9600}}
+          do: {:serial, {:serial, path, speed: opts[:speed] || 9600}}
 
-    ble = for path <- List.wrap(opts[:ble]), do: {:beacon, ble_plugin!(path, opts[:speed])}
-    sensor ++ serial ++ ble
+    ble = for path <- List.wrap(opts[:ble]), do: {:beacon, {:ble, path, speed: opts[:speed] || 9600}}
+
+    # The shorthands of a node's configuration file, parsed by the same function
+    # (Tartarus.Plugin.Shorthand); a missing device is a warning here (device_warnings/1).
+    for {name, spec} <- sensor ++ serial ++ ble do
+      case Tartarus.Plugin.Shorthand.parse(name, spec, Keyword.take(opts, [:ble_receiver])) do
+        {:ok, spec} -> {name, spec}
+        {:error, line} -> Mix.raise("mix tartarus.node: --#{flag(spec)}: #{line}")
+      end
+    end
   end
+
+  defp flag({kind, _, _}), do: kind
+  defp flag({:sensor, _}), do: :sensor
 
   @doc false
   # One line naming the plugins the host was started with.
@@ -253,21 +260,6 @@ defmodule Mix.Tasks.Tartarus.Node do
                 ~s(ELIXIR_ERL_OPTIONS="#{flags}" mix tartarus.node #{Enum.join(argv, " ")})
             )
         end
-    end
-  end
-
-  defp ble_plugin!(path, speed) do
-    with {m, f} when is_atom(m) and is_atom(f) <-
-           Application.get_env(:tartarus_tools, :ble_plugin),
-         true <- Code.ensure_loaded?(m) and function_exported?(m, f, 2),
-         {module, plugin_opts} = spec when is_atom(module) and is_list(plugin_opts) <-
-           apply(m, f, [path, [speed: speed || 9600]]) do
-      spec
-    else
-      _ ->
-        Mix.raise(
-          "mix tartarus.node: --ble needs a BLE receiver: configure :tartarus_tools, :ble_plugin as {module, function} (function(path, [speed: baud]) returns a plugin spec), got: #{inspect(Application.get_env(:tartarus_tools, :ble_plugin))}"
-        )
     end
   end
 

@@ -213,7 +213,7 @@ defmodule TartarusLats.Tracker do
     value = if rssi == :missing, do: t.missing_rssi, else: rssi
     raw = Enum.take([value | state.raw], t.median)
     heard = Enum.take([if(rssi == :missing, do: nil, else: rssi) | state.heard], t.window)
-    {avg, filter} = RSSIFilter.push(state.filter, TartarusTools.Stats.median(raw))
+    {avg, filter} = RSSIFilter.push(state.filter, median(raw))
     candidate = Region.classify(avg, t.calibration, state.region, t.hysteresis_db)
     state = %{state | filter: filter, raw: raw, heard: heard}
 
@@ -315,7 +315,7 @@ defmodule TartarusLats.Tracker do
       %{^tag => %{heard: heard}} ->
         case Enum.reject(heard, &is_nil/1) do
           [] -> nil
-          values -> TartarusTools.Stats.mean(values)
+          values -> Enum.sum(values) / length(values)
         end
 
       _ ->
@@ -390,4 +390,11 @@ defmodule TartarusLats.Tracker do
   end
 
   defp store(t, tag, state), do: Map.put(t.tags, tag, state)
+
+  # The nearest-rank median (as `TartarusTools.Stats.median/1`, which a device does not
+  # carry): the lower middle sample of an even count.
+  defp median(xs) do
+    sorted = Enum.sort(xs)
+    Enum.at(sorted, max(0, ceil(length(sorted) / 2) - 1))
+  end
 end
