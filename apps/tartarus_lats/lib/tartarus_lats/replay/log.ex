@@ -79,10 +79,16 @@ defmodule TartarusLats.Replay.Log do
   def read!(path), do: path |> File.read!() |> parse()
 
   @doc """
-  Parses one line: `{:ok, reading}`, `:skip` (blank, comment, header) or `{:error, why}`.
+  Parses one line: `{:ok, reading}`, `:skip` (blank, comment, header) or `{:error, why}`;
+  it never raises on content (a number longer than 32 characters or larger than 1.0e12 is
+  an error of its line).
 
       iex> TartarusLats.Replay.Log.parse_line("10,r1,aa,-300", 4)
       {:error, "rssi out of range (-127..0): -300"}
+      iex> TartarusLats.Replay.Log.parse_line(String.duplicate("9", 400) <> ",r1,aa,-70", 5)
+      {:error, "time is longer than 32 characters"}
+      iex> TartarusLats.Replay.Log.parse_line("1.0e300,r1,aa,-70", 6)
+      {:error, "time is out of range (at most 1.0e12 in size): 1.0e300"}
       iex> TartarusLats.Replay.Log.parse_line("# a comment", 1)
       :skip
   """
@@ -136,19 +142,31 @@ defmodule TartarusLats.Replay.Log do
     with {:ok, x} <- number(x, "x"), {:ok, y} <- number(y, "y"), do: {:ok, {x, y}}
   end
 
+  # A number of at most @max_digits characters and at most @max_abs in size (a time in
+  # seconds, a coordinate in metres, an RSSI): anything longer or larger is a bad line, not
+  # a raise (`Float.parse/1` raises on a value beyond a double's range).
+  @max_digits 32
+  @max_abs 1.0e12
+
   # An RSSI is kept as the receiver wrote it: an integer when it is one.
   defp rssi(s) do
-    case Integer.parse(s) do
+    case byte_size(s) <= @max_digits and Integer.parse(s) do
       {i, ""} -> {:ok, i}
       _ -> number(s, "rssi")
     end
   end
 
+  defp number(s, what) when byte_size(s) > @max_digits,
+    do: {:error, "#{what} is longer than #{@max_digits} characters"}
+
   defp number(s, what) do
     case Float.parse(s) do
-      {x, ""} -> {:ok, x}
+      {x, ""} when abs(x) <= @max_abs -> {:ok, x}
+      {_x, ""} -> {:error, "#{what} is out of range (at most 1.0e12 in size): #{s}"}
       _ -> {:error, "#{what} is not a number: #{inspect(s)}"}
     end
+  rescue
+    ArgumentError -> {:error, "#{what} is out of range: #{String.slice(s, 0, 16)}..."}
   end
 
   @doc """
