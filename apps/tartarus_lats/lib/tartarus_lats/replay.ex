@@ -69,6 +69,10 @@ defmodule TartarusLats.Replay do
 
     known = Map.new(devices, fn {id, d} -> {id, d.name} end)
     {t0, seconds} = Log.per_second(log)
+    # A stretch of more than @max_gap s with no reading is shortened to @max_gap s (nothing
+    # happens in it: walking it second by second only costs time and memory).
+    {remap, gaps} = gaps(Map.keys(seconds))
+    seconds = Map.new(seconds, fn {s, v} -> {Map.fetch!(remap, s), v} end)
     tag = tag(beacon)
 
     unknown = log.readings |> Enum.reject(&Map.has_key?(known, &1.receiver)) |> length()
@@ -96,7 +100,8 @@ defmodule TartarusLats.Replay do
     building = TartarusLats.Replay.Devices.building(devices)
     last = if seconds == %{}, do: 0, else: seconds |> Map.keys() |> Enum.max()
 
-    positions = Log.positions(log, t0, beacon)
+    positions =
+      log |> Log.positions(t0, beacon) |> Map.new(fn {s, p} -> {Map.fetch!(remap, s), p} end)
 
     %{
       name: name,
@@ -111,8 +116,42 @@ defmodule TartarusLats.Replay do
       truth: Judge.truth(building, positions, last),
       lines: log.lines,
       bad: log.bad,
-      unknown_receivers: unknown
+      unknown_receivers: unknown,
+      gaps: gaps
     }
+  end
+
+  # The longest stretch of seconds without a reading that a replay walks.
+  @max_gap 60
+
+  @doc """
+  Shortens the silent stretches of a log: given the seconds that have readings, a map from
+  each to its second in the replay (a stretch of more than #{@max_gap} s with no reading
+  becomes #{@max_gap} s), and the stretches shortened as `{second, seconds_left_out}` (in
+  the replay's seconds).
+
+      iex> {remap, gaps} = TartarusLats.Replay.gaps([1, 2, 3, 10_000_003, 10_000_004])
+      iex> {remap[10_000_003], gaps}
+      {64, [{3, 9999939}]}
+  """
+  @spec gaps([pos_integer()]) ::
+          {%{pos_integer() => pos_integer()}, [{pos_integer(), pos_integer()}]}
+  def gaps(seconds) do
+    {remap, gaps, _prev, _shift} =
+      seconds
+      |> Enum.sort()
+      |> Enum.reduce({%{}, [], nil, 0}, fn s, {remap, gaps, prev, shift} ->
+        {gaps, shift} =
+          if prev != nil and s - prev > @max_gap + 1,
+            do:
+              {[{prev - shift, s - prev - 1 - @max_gap} | gaps],
+               shift + (s - prev - 1 - @max_gap)},
+            else: {gaps, shift}
+
+        {Map.put(remap, s, s - shift), gaps, s, shift}
+      end)
+
+    {remap, Enum.reverse(gaps)}
   end
 
   @schema [
@@ -373,6 +412,7 @@ defmodule TartarusLats.Replay do
         calibration: if(cal, do: cal.kind, else: :none),
         log_lines: c.lines,
         log_bad_lines: length(c.bad),
+        log_gaps_shortened: length(c.gaps),
         unknown_receiver_readings: c.unknown_receivers,
         cloud_connections_lats_per_query:
           Enum.sum(Enum.map(queries, & &1.result.per_query_contacts))

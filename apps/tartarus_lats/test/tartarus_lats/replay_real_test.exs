@@ -89,4 +89,36 @@ defmodule TartarusLats.ReplayRealTest do
     assert Enum.map(p.seconds, & &1.lats) == Enum.map(v.seconds, & &1.lats)
     assert Enum.map(p.queries, & &1.result.answer) == Enum.map(v.queries, & &1.result.answer)
   end
+
+  # A log with ten million silent seconds in it and a line whose time has 400 digits: the
+  # line is counted, the silence shortened to a minute (not walked second by second), and
+  # the report is written without fingerprints.
+  @tag timeout: 120_000
+  @tag :tmp_dir
+  test "a gap of 10^7 s is shortened, a 400-digit time is a bad line, no --fingerprints is no crash",
+       %{opts: opts, tmp_dir: dir} do
+    lines = File.read!(@log) |> String.split("\n", trim: true)
+
+    later =
+      for l <- lines, not String.starts_with?(l, ["#", "time"]) do
+        [t | rest] = String.split(l, ",")
+        Enum.join([to_string(elem(Float.parse(t), 0) + 1.0e7) | rest], ",")
+      end
+
+    path = Path.join(dir, "gap.csv")
+
+    File.write!(
+      path,
+      Enum.join(lines ++ later ++ [String.duplicate("9", 400) <> ",r1,aa,-70"], "\n")
+    )
+
+    c = case!(path)
+    assert length(c.bad) == 1
+    assert [{_second, left_out}] = c.gaps
+    assert left_out > 9_999_000 and c.last < 200
+
+    r = Replay.run(c, Keyword.put(opts, :queries, 1))
+    assert r.summary.log_gaps_shortened == 1 and r.summary.log_bad_lines == 1
+    assert [_ | _] = TartarusLats.Replay.Report.write!(dir, c, [r])
+  end
 end

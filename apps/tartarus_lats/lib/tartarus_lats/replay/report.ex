@@ -21,6 +21,12 @@ defmodule TartarusLats.Replay.Report do
 
   @designs [:lats, :strongest, :knn]
 
+  # Fingerprinting runs only with --fingerprints: without them the legend says so.
+  defp knn_legend(%{knn: %{} = knn}),
+    do: "fingerprinting #{pct(knn[:exact])} / #{pct(knn[:adjacent])}"
+
+  defp knn_legend(_summary), do: "fingerprinting not run (no --fingerprints)"
+
   @doc "Writes a track's files into `dir`; returns their paths."
   @spec write!(Path.t(), map(), [map()]) :: [Path.t()]
   def write!(dir, c, results) do
@@ -34,7 +40,7 @@ defmodule TartarusLats.Replay.Report do
         ~w(second x y truth lats strongest knn),
         for r <- first.seconds do
           {x, y} = Map.get(c.positions, r.second, {nil, nil})
-          [r.second, x, y, r.truth, r.lats, r.strongest, r.knn]
+          [r.second, x, y, r.truth, r.lats, r.strongest, Map.get(r, :knn)]
         end
       )
 
@@ -150,7 +156,7 @@ defmodule TartarusLats.Replay.Report do
     s = result.summary
 
     legend =
-      "LATS exact #{pct(s.lats.exact)} / adjacent #{pct(s.lats.adjacent)}; strongest #{pct(s.strongest.exact)} / #{pct(s.strongest.adjacent)}; fingerprinting #{pct(s.knn[:exact])} / #{pct(s.knn[:adjacent])}"
+      "LATS exact #{pct(s.lats.exact)} / adjacent #{pct(s.lats.adjacent)}; strongest #{pct(s.strongest.exact)} / #{pct(s.strongest.adjacent)}; #{knn_legend(s)}"
 
     [
       ~s(<?xml version="1.0" encoding="UTF-8"?>\n),
