@@ -121,9 +121,12 @@ defmodule TartarusTools.Bench.Churn do
     parts =
       for host <- hosts do
         {:ok, pid} = Tartarus.Host.whereis(host)
-        :erlang.garbage_collect(pid)
-        tables = Enum.filter(:ets.all(), &(:ets.info(&1, :owner) == pid))
-        {:memory, proc} = Process.info(pid, :memory)
+        # The host's tables belong to its warden (they outlive a server that crashes).
+        {name, _node} = host
+        owners = Enum.reject([pid, GenServer.whereis(Tartarus.Host.via(:warden, name))], &is_nil/1)
+        Enum.each(owners, &:erlang.garbage_collect/1)
+        tables = Enum.filter(:ets.all(), &(:ets.info(&1, :owner) in owners))
+        proc = owners |> Enum.map(&elem(Process.info(&1, :memory), 1)) |> Enum.sum()
         {Enum.sum(Enum.map(tables, &(:ets.info(&1, :memory) * words))), proc, entries(tables)}
       end
 
