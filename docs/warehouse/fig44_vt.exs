@@ -108,7 +108,9 @@ SVG.write!(
     title: "Time per task against tasks per job (Fig. 4.4), virtual time",
     subtitle:
       "60 robots, 100 nodes, n + 20 jobs (10 + 10 not counted), 2 s tasks, L = 10 ms a link, S = 5 ms a message; medians of #{n_judged} seeds",
-    note: "Bars: quartiles over the seeds (nearest rank). Guided agents: seeds 2101-2103.",
+    note:
+      "Bars: quartiles over the seeds (nearest rank)." <>
+        if(length(chart) > 2, do: " Guided agents: seeds 2101-2103.", else: ""),
     x_label: "tasks per job",
     y_label: "time per task",
     y_unit: "ms",
