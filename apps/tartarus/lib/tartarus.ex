@@ -250,7 +250,11 @@ defmodule Tartarus do
   Sends `message` to an agent and waits for its reply (the agent answers with
   `Tartarus.Agent.reply/2`). Returns `{:ok, reply}` or `{:error, :timeout | :not_found}`, or
   `{:error, {:callback_timeout, :handle_message, ms}}` if the agent's `handle_message/3`
-  overran its host's callback budget (the agent is then removed, see `Tartarus.Agent`).
+  overran its host's callback budget (the agent is then removed, see `Tartarus.Agent`), or,
+  as soon as it happens, `{:error, {:agent_crashed, reason}}` when the agent's process
+  crashed after it took the request without answering (its host restarts it from its
+  snapshot; the request is not handled again) and `{:error, {:agent_ended, reason}}` when
+  it ended otherwise without answering (it stopped).
   """
   @spec request(agent_ref(), term(), timeout()) :: {:ok, term()} | {:error, term()}
   def request(agent, message, timeout \\ 5_000),

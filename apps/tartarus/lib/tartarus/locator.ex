@@ -223,9 +223,14 @@ defmodule Tartarus.Locator do
     send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
 
     Clock.receive do
-      {^tag, :delivered} ->
+      {^tag, :delivered} when kind == :post ->
         Process.demonitor(mref, [:flush])
-        if kind == :post, do: :ok, else: await_reply(tag, deadline)
+        :ok
+
+      {^tag, :delivered} ->
+        # A request: the agent is still watched, so that one that ends without answering
+        # (its callback crashed, it stopped) is an error at once, not a time-out.
+        await_reply(tag, mref, deadline)
 
       {^tag, {:failed, reason}} ->
         # Handling it crashed the agent (host option :durable): not taken.
@@ -252,12 +257,43 @@ defmodule Tartarus.Locator do
     end
   end
 
-  defp await_reply(tag, deadline) do
+  defp await_reply(tag, mref, deadline) do
+    Clock.receive do
+      {^tag, {:reply, value}} ->
+        Process.demonitor(mref, [:flush])
+        {:ok, value}
+
+      {^tag, {:error, {:callback_timeout, _, _}} = error} ->
+        Process.demonitor(mref, [:flush])
+        error
+
+      {:DOWN, ^mref, :process, _, {:shutdown, {:migrated, next, _}}} when is_pid(next) ->
+        # It moved on with the request taken: the answer comes from its next process.
+        await_reply(tag, Process.monitor(next), deadline)
+
+      {:DOWN, ^mref, :process, _, reason} ->
+        ended_without_reply(tag, reason, deadline)
+    after
+      remaining(deadline) ->
+        Process.demonitor(mref, [:flush])
+        {:error, :timeout}
+    end
+  end
+
+  # The agent's process ended after it took the request, without moving on. An answer it
+  # sent comes before its end (one sender, one order); a host that killed it for overrunning
+  # its callback budget says so itself, so a kill waits a moment for that word.
+  defp ended_without_reply(tag, reason, deadline) do
+    grace = if reason == :killed, do: min(remaining(deadline), 200), else: 0
+
     Clock.receive do
       {^tag, {:reply, value}} -> {:ok, value}
-      {^tag, {:error, {:callback_timeout, _, _}} = error} -> error
+      {^tag, {:error, _} = error} -> error
     after
-      remaining(deadline) -> {:error, :timeout}
+      grace ->
+        if crash?(reason),
+          do: {:error, {:agent_crashed, reason}},
+          else: {:error, {:agent_ended, reason}}
     end
   end
 

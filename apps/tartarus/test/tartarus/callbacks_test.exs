@@ -5,6 +5,21 @@ defmodule Tartarus.CallbacksTest do
   # arrives while an agent is provably still stuck), never on how long something took.
   use Tartarus.HostCase, async: false
 
+  defmodule Picky do
+    @moduledoc false
+    # Answers :ping; has no clause for anything else (its handler crashes).
+    use Tartarus.Agent
+
+    @impl true
+    def init(s), do: {:stay, s}
+
+    @impl true
+    def handle_message(:ping, from, s) do
+      Tartarus.Agent.reply(from, :pong)
+      {:stay, s}
+    end
+  end
+
   defmodule Stuck do
     @moduledoc false
     # An agent that gets stuck where its arguments say: in init/1 (`wedge: :init`), in
@@ -264,6 +279,21 @@ defmodule Tartarus.CallbacksTest do
       assert_receive {:info, ^pid, {:EXIT, ^hpid, :shutdown}}
       assert {:ok, %{pid: ^pid}} = Tartarus.agent_info(id)
     end
+  end
+
+  test "a request whose handler crashes is answered with the crash at once, not a time-out" do
+    h = host!()
+    {:ok, id} = Tartarus.create_agent(h, Picky, :kept)
+    t0 = System.monotonic_time(:millisecond)
+    # Picky has a clause for :ping only: its handle_message/3 raises on anything else.
+    assert {:error, {:agent_crashed, reason}} =
+             Tartarus.request({id, h}, {:no, :such, :clause}, 60_000)
+
+    assert inspect(reason) =~ ~r/FunctionClauseError|function_clause/
+    # Well before the minute it was given (the crash, not a time-out, answered).
+    assert System.monotonic_time(:millisecond) - t0 < 30_000
+    # The host restarted it from its snapshot: it answers the next request.
+    assert {:ok, :pong} = Tartarus.request({id, h}, :ping, 5_000)
   end
 
   test "callback_timeout is a host option: a positive integer or :infinity" do
