@@ -118,6 +118,23 @@ defmodule Tartarus.OverlayPeerTest do
     assert Tartarus.whereis(id) == {:ok, h1}
   end
 
+  test "a neighbour's short name is resolved in an agent reference and in agents/1 and status/2",
+       %{a: a, b: b} do
+    {:ok, h1} = :erpc.call(a, Tartarus, :start_host, [:n1])
+    {:ok, h2} = :erpc.call(b, Tartarus, :start_host, [:n2])
+    :ok = Tartarus.connect(h1, h2)
+    echo = Tartarus.Examples.Echo
+    {:ok, id} = :erpc.call(b, Tartarus, :create_mobile_agent, [:n2, echo, :kept])
+
+    # On a's node, as a user types it: n2 is a neighbour of a's host, on another node.
+    assert [%{id: ^id}] = :erpc.call(a, Tartarus, :agents, [:n2])
+    assert %{resident: 1} = :erpc.call(a, Tartarus, :status, [:n2, [:resident]])
+    assert :erpc.call(a, Tartarus, :move, [{id, :n2}, :n1]) == :ok
+    assert :erpc.call(a, Tartarus, :whereis, [{id, :n2}]) == {:ok, h1}
+    # A name that is neither local nor a neighbour is still unknown.
+    assert :erpc.call(a, Tartarus, :agents, [:n9]) == {:error, {:unknown_host, {:n9, a}}}
+  end
+
   # The walk carries the nodes it asked back up: a search for an unknown id asks each node of
   # a 4x4 grid once (before, siblings did not learn what the other had asked: 131 calls
   # from a corner). Counted with call_count tracing of the search on every node.

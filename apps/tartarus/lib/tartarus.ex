@@ -305,10 +305,14 @@ defmodule Tartarus do
   def payload(agent), do: Locator.control(agent, {:payload, :get})
 
   @doc """
-  The agents resident on a host, as maps with `:id`, `:name`, `:module`, `:pid`.
+  The agents resident on a host, as maps with `:id`, `:name`, `:module`, `:pid`. A host's
+  short name means this node's host of that name, else the neighbour of that name of this
+  node's hosts (as a destination does; two such neighbours answer
+  `{:error, {:ambiguous_host, name, candidates}}`).
   """
   @spec agents(host_ref()) :: [map()] | {:error, term()}
-  def agents(host), do: OnNode.run(host, :agents, [])
+  def agents(host),
+    do: with({:ok, host} <- Locator.resolve_host(host), do: OnNode.run(host, :agents, []))
 
   @doc """
   Every agent resident on this node's hosts, as `agents/1` gives them plus `:host` (its
@@ -329,7 +333,8 @@ defmodule Tartarus do
   `:moved_to`, the original file kept aside).
   """
   @spec status(host_ref()) :: map() | {:error, term()}
-  def status(host), do: OnNode.run(host, :status, [])
+  def status(host),
+    do: with({:ok, host} <- Locator.resolve_host(host), do: OnNode.run(host, :status, []))
 
   @doc """
   Part of a host's status: only the keys asked for (of `:host`, `:resident`, `:visits`,
@@ -344,7 +349,7 @@ defmodule Tartarus do
   @spec status(host_ref(), [atom()]) :: map() | {:error, term()}
   def status(host, keys) when is_list(keys) do
     case keys -- OnNode.status_keys() do
-      [] -> OnNode.run(host, :status, [keys])
+      [] -> with {:ok, host} <- Locator.resolve_host(host), do: OnNode.run(host, :status, [keys])
       unknown -> {:error, {:unknown_status_keys, unknown}}
     end
   end

@@ -337,9 +337,7 @@ defmodule Tartarus.Locator do
   end
 
   defp normalize({agent, host}) do
-    if Host.address?(host),
-      do: {:ok, {agent, Host.address(host)}},
-      else: {:error, {:unknown_host, host}}
+    with {:ok, host} <- resolve_host(host), do: {:ok, {agent, host}}
   end
 
   defp normalize(id) when is_binary(id) do
@@ -350,6 +348,32 @@ defmodule Tartarus.Locator do
   end
 
   defp normalize(other), do: {:error, {:bad_agent_ref, other}}
+
+  @doc false
+  # The full address a host reference means here: a full address as it is; a short name,
+  # this node's host of that name, else the neighbour of that name of this node's hosts
+  # (`Tartarus.Host.resolve/2`: two such neighbours are ambiguous), else a host of this node
+  # (which the caller finds missing).
+  @spec resolve_host(term()) :: {:ok, Host.t()} | {:error, term()}
+  def resolve_host(host) do
+    cond do
+      not Host.address?(host) ->
+        {:error, {:unknown_host, host}}
+
+      match?({_, _}, host) or match?({:ok, _}, Host.local(Host.address(host))) ->
+        {:ok, Host.address(host)}
+
+      true ->
+        neighbours =
+          for h <- Host.Starter.hosts(),
+              {:ok, info} <- [Host.local(h)],
+              n <- Ledger.neighbours(info),
+              uniq: true,
+              do: n
+
+        Host.resolve(host, neighbours)
+    end
+  end
 
   # -- an agent known by its id alone ----------------------------------------------------
   # Where to start looking for agent `id`: a host of this node where it runs, arrives or left
