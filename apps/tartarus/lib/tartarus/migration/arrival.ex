@@ -196,9 +196,6 @@ defmodule Tartarus.Migration.Arrival do
         :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
         Tartarus.Host.Persistence.resolved(host, c.mig, c.copy)
 
-        with {pid, _tag} when is_pid(pid) <- notify,
-             do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
-
         # Running: the source host may forget its record of the commit (acknowledged
         # lazily: this host sends its acknowledgements in batches, see Host.Server).
         :ets.insert(host.acks, {c.src, {c.mig, env.id, c.copy}})
@@ -222,6 +219,11 @@ defmodule Tartarus.Migration.Arrival do
           },
           arrivals: 1
         )
+
+        # The mover is answered last, so that what it reads next (the host's status, its
+        # counts and hop statistics) already has this arrival.
+        with {pid, _tag} when is_pid(pid) <- notify,
+             do: GenServer.reply(notify, if(c.kind == :move, do: :ok, else: {:ok, env.id}))
 
         {:started, data, pending}
 
