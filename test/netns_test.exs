@@ -1,4 +1,5 @@
 Code.require_file("support/netns_bed.exs", __DIR__)
+Code.require_file("support/release_session.exs", __DIR__)
 
 defmodule Tartarus.NetnsTest do
   # The deployable release on a network of Linux namespaces (tag :netns; root only, see
@@ -9,6 +10,7 @@ defmodule Tartarus.NetnsTest do
   use ExUnit.Case, async: false
 
   alias Tartarus.NetnsBed, as: Bed
+  import Tartarus.ReleaseSession
 
   @moduletag :netns
   @moduletag :peer
@@ -17,6 +19,8 @@ defmodule Tartarus.NetnsTest do
   @nodes 6
   @impostor 9
   @plain 10
+  # The node booted from rel/node.exs.example (test (f)).
+  @example 7
   @ticktime 4
 
   # Each test compiles its own agent module, so that no test's module is already shipped.
@@ -153,7 +157,7 @@ defmodule Tartarus.NetnsTest do
   """
 
   setup_all do
-    bed = Bed.plan(@nodes, [@impostor, @plain])
+    bed = Bed.plan(@nodes, [@impostor, @plain, @example])
 
     on_exit(fn ->
       Bed.destroy(bed)
@@ -412,6 +416,175 @@ defmodule Tartarus.NetnsTest do
     # The hand-off in doubt was committed by its source: the agent runs at node 2, once.
     assert [{^x, ^h2}] = Enum.filter(census_result.residents, &(elem(&1, 0) == x))
     assert Enum.all?(counts, fn {_, c} -> c == 1 end)
+  end
+
+  test "(f) the documented configuration on the bed: BLE on a tty and Where am I; GPIO without hardware refused; the operator over TLS (remote, rpc, pid, stop); refused shells say why",
+       %{bed: bed} do
+    i = @example
+    name = "tartarus@#{Bed.ip(i)}"
+    n1 = Bed.node_name(1)
+    ndir = Path.join(bed.dir, "n#{i}")
+    # The node's own certificate directory (the bed's CA; the test swaps the operator's
+    # certificate there): ca.pem, its certificate and the operator's.
+    certs = Path.join(ndir, "certs")
+    File.mkdir_p!(certs)
+
+    for f <- ["ca.pem", "#{name}.pem", "#{name}.key", "operator.pem", "operator.key"],
+        do: File.cp!(Path.join(bed.certs, f), Path.join(certs, f))
+
+    tty = Path.join(ndir, "hm10")
+    socat = socat!(tty)
+
+    try do
+      paths = example_paths(name, certs, "operator", {:h1, Atom.to_string(n1)}, tty, ndir)
+
+      # GPIO pins on a node with no GPIO hardware backend: the boot stops in one line.
+      gpio =
+        from_example!(
+          ndir,
+          paths ++
+            [
+              {"#{inspect(tty)}}\n", "#{inspect(tty)}},\n"},
+              {"# io: {Tartarus.Plugin.GPIO", "io: {Tartarus.Plugin.GPIO"},
+              {", backend: MyBackend}", "}"}
+            ],
+          "gpio.exs"
+        )
+
+      {out, 1} = Bed.release_cmd(bed, i, gpio, ["start"])
+      assert [line] = String.split(out, "\n", trim: true)
+
+      assert line =~
+               "tartarus: bad configuration #{gpio}: plugins: io: Tartarus.Plugin.GPIO: no GPIO backend on this node for pins led (line 17)"
+
+      # The example adapted in paths and names only boots, BLE on the socat tty.
+      path = from_example!(ndir, paths)
+      Bed.launch(bed, i, path, ndir, "start")
+      Bed.await_up!(bed, i)
+      {out, nil} = Bed.output(bed, i)
+
+      assert out =~
+               "running; plugins: temp (Tartarus.Plugin.SimSensor), beacon (Tartarus.Plugin.Serial)"
+
+      # The HM-10 hears the tag; LATS on the node (the example's services:) answers Where am I.
+      tag = TartarusLats.Beacon.tag_id(beacon())
+
+      for _ <- 1..6 do
+        hear(socat)
+        Process.sleep(700)
+      end
+
+      assert eventually(fn ->
+               hear(socat)
+               {out, 0} = Bed.release_cmd(bed, i, path, ["rpc", where_am_i(:pi1, tag)])
+               out =~ "{:in_zone, :pi1}"
+             end)
+
+      # pid: the node's VM, in its namespace.
+      {pid, 0} = Bed.release_cmd(bed, i, path, ["pid"])
+      assert String.trim(pid) in Bed.ns_pids(bed, i)
+      assert File.read!("/proc/#{String.trim(pid)}/cmdline") =~ "beam"
+
+      # The operator's shell through a pty, in the node's namespace: it evaluates on the node
+      # and moves an agent to node 1, across the bed's network.
+      remote =
+        pty!(
+          Bed.in_ns(bed, i, Path.join(bed.root, "bin/tartarus remote")),
+          Bed.release_env(path, ndir)
+        )
+
+      await_pty(remote, "iex(#{name})1>")
+
+      Port.command(
+        remote,
+        ~S|{:ok, [m]} = Tartarus.compile_string("defmodule Tt41Op do use Tartarus.Agent; def init(s), do: {:stay, s} end"); {:ok, id} = Tartarus.create_mobile_agent(:pi1, m, :x); IO.puts("moved: #{inspect(Tartarus.move({id, :pi1}, {:h1, :"| <>
+          "#{n1}" <> ~S|"}))} from #{node()}")| <> "\n"
+      )
+
+      await_pty(remote, "moved: :ok from #{name}")
+      quit_pty(remote)
+
+      moved =
+        Bed.ctl!(bed, """
+        n1 = #{inspect(n1)}
+        {:erpc.call(n1, :code, :is_loaded, [Tt41Op]),
+         Enum.count(:erpc.call(n1, Tartarus, :agents, [{:h1, n1}]), &(&1.module == Tt41Op))}
+        """)
+
+      assert moved == {{:file, ~c"tartarus:shipped"}, 1}
+
+      assert {"on #{name}\n", 0} ==
+               Bed.release_cmd(bed, i, path, ["rpc", ~S|IO.puts("on #{node()}")|])
+
+      # An operator certificate from another CA: one line, before any connection.
+      other = Path.join(ndir, "other")
+      {:ok, _} = Tartarus.Security.Certs.generate(other, nodes: ["operator"], hosts: [Bed.ip(i)])
+      op = Path.join(certs, "operator.pem")
+      File.rename!(op, op <> ".keep")
+      File.cp!(Path.join(other, "operator.pem"), op)
+      {out, 1} = Bed.release_cmd(bed, i, path, ["rpc", "1"])
+      assert [line] = String.split(out, "\n", trim: true)
+
+      assert line =~
+               "tartarus: rpc: refused before connecting: #{op} was not issued by this node's CA"
+
+      File.rename!(op <> ".keep", op)
+
+      # A workstation's iex --remsh (in the control namespace) with the documented flags:
+      # its own certificate, -proto_dist tartarus_tls from the release's tartarus ebin.
+      ws = Bed.ip(Bed.ctl_index())
+      ebin = Path.wildcard(Path.join(bed.root, "lib/tartarus-*/ebin")) |> hd()
+
+      remsh = fn me, optfile ->
+        Bed.in_ns(
+          bed,
+          Bed.ctl_index(),
+          "iex --name #{me} --cookie tartarus --erl '-proto_dist tartarus_tls -ssl_dist_optfile #{optfile} -pa #{ebin} -connect_all false' --remsh #{name}"
+        )
+      end
+
+      shell = pty!(remsh.("me@#{ws}", Path.join(bed.certs, "me@#{ws}.ssl_dist.conf")), [])
+      await_pty(shell, "iex(#{name})1>")
+      Port.command(shell, "Tartarus.read_plugin(:pi1, :temp, :value) |> elem(0)\n")
+      await_pty(shell, ":ok")
+      quit_pty(shell)
+
+      # Refused shells say why, on the shell's side, in one line: a certificate of another CA
+      # (trusting the node's), and a name its certificate does not name.
+      {:ok, _} =
+        Tartarus.Security.Certs.generate(Path.join(other, "ws"), nodes: ["me@#{ws}"], hosts: [ws])
+
+      File.cp!(Path.join(bed.certs, "ca.pem"), Path.join([other, "ws", "ca.pem"]))
+      foreign = Path.join([other, "ws", "me@#{ws}.ssl_dist.conf"])
+      own = Path.join(bed.certs, "me@#{ws}.ssl_dist.conf")
+
+      for {me, optfile, cause} <- [
+            {"me@#{ws}", foreign,
+             "this node's certificate #{Path.join([other, "ws", "me@#{ws}.pem"])} was not issued by the node's CA (TLS alert unknown_ca from the node)"},
+            {"you@#{ws}", own,
+             "the node admits only the names this node's certificate #{Path.join(bed.certs, "me@#{ws}.pem")} names (me@#{ws}), and this node runs as you@#{ws}"}
+          ] do
+        {out, _} = pty_exit(pty!(remsh.(me, optfile), []))
+        assert out =~ "Could not contact remote node #{name}, reason: :nodedown"
+
+        assert [line] =
+                 out
+                 |> String.split(~r/\r?\n/)
+                 |> Enum.filter(&(&1 =~ "tartarus_tls:"))
+                 |> Enum.uniq()
+
+        assert line == "tartarus_tls: no connection from #{me} to #{name}: #{cause}"
+      end
+
+      assert {_, 0} = Bed.release_cmd(bed, i, path, ["stop"])
+
+      assert eventually(fn -> match?({_, 0}, Bed.output(bed, i)) end),
+             "the node did not stop: #{inspect(Bed.output(bed, i))}"
+    after
+      stop_ptys()
+      stop_port(socat)
+      Bed.kill_node(bed, i)
+    end
   end
 
   @tag :long

@@ -1,10 +1,13 @@
 Code.require_file("support/netns_bed.exs", __DIR__)
+Code.require_file("support/release_session.exs", __DIR__)
 
 defmodule Tartarus.ReleaseTest do
   # The release (`MIX_ENV=prod mix release`, built once per run by Tartarus.NetnsBed) boots
   # from its configuration file alone, and a bad file stops the boot with one line and
   # status 1 (no root needed; the namespace bed, test/netns_test.exs, runs it on a network).
   use ExUnit.Case, async: false
+
+  import Tartarus.ReleaseSession
 
   @moduletag :release
   @moduletag :tmp_dir
@@ -116,28 +119,6 @@ defmodule Tartarus.ReleaseTest do
     end
   end
 
-  # The documented configuration (rel/node.exs.example) adapted in paths and names only: the
-  # node's name and its neighbour's on this machine, the certificates' directory, the HM-10's
-  # tty (a socat pseudo-terminal), the data directory, the dashboard on a free port of the
-  # loopback.
-  defp from_example(dir, name, certs, tty, operator) do
-    text =
-      File.read!("rel/node.exs.example")
-      |> String.replace(~s("tartarus@pi1.local"), inspect(name))
-      |> String.replace(~s("tartarus@pi2.local"), ~s("tt41absent@127.0.0.1"))
-      |> String.replace(
-        ~s(tls: [dir: "/etc/tartarus/certs"]),
-        "tls: [dir: #{inspect(certs)}, operator: #{inspect(operator)}]"
-      )
-      |> String.replace(~s("/dev/serial0"), inspect(tty))
-      |> String.replace(~s("/var/lib/tartarus/host"), inspect(Path.join(dir, "data")))
-      |> String.replace(~s(port: 4000, bind: "0.0.0.0"), ~s(port: 0, bind: "127.0.0.1"))
-
-    path = Path.join(dir, "node.exs")
-    File.write!(path, text)
-    path
-  end
-
   defp env(path, dir), do: [{"TARTARUS_CONFIG", path}, {"RELEASE_TMP", Path.join(dir, "tmp")}]
 
   defp cmd(bin, args, path, dir),
@@ -157,7 +138,15 @@ defmodule Tartarus.ReleaseTest do
     # socat's address syntax takes no commas in the path (the tmp_dir has them).
     tty = Path.join(System.tmp_dir!(), "tt41-hm10-#{u}")
     socat = socat!(tty)
-    path = from_example(dir, name, certs, tty, operator)
+    # The documented configuration adapted in paths and names only: the node's name and its
+    # neighbour's on this machine, the certificates' directory, the HM-10's tty, the data
+    # directory.
+    path =
+      from_example!(
+        dir,
+        example_paths(name, certs, operator, {:pi2, "tt41absent@127.0.0.1"}, tty, dir)
+      )
+
     node = start!(bin, path, dir)
 
     try do
@@ -167,16 +156,8 @@ defmodule Tartarus.ReleaseTest do
                "running; plugins: temp (Tartarus.Plugin.SimSensor), beacon (Tartarus.Plugin.Serial)"
 
       # The HM-10 answers a scan; the operator's rpc (TLS, its own certificate) reads it.
-      beacon = %TartarusLats.Beacon{
-        uuid: "74278bdab64445208f0c720eaf059935",
-        major: 1234,
-        minor: 1111,
-        tx_power: -59,
-        rssi: -61
-      }
-
-      Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
-      tag = TartarusLats.Beacon.tag_id(beacon)
+      hear(socat)
+      tag = TartarusLats.Beacon.tag_id(beacon())
 
       # (Counts: the node's database agent takes each second's readings itself.)
       read = ~s|IO.inspect(Tartarus.read_plugin(:pi1, :beacon, :counts))|
@@ -192,18 +173,13 @@ defmodule Tartarus.ReleaseTest do
       # LATS on the node (the example's services:): the tag keeps being heard, and a
       # Where am I released on the node answers the node's zone.
       for _ <- 1..6 do
-        Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
+        hear(socat)
         Process.sleep(700)
       end
 
-      where_am_i =
-        "{:ok, id} = Tartarus.create_mobile_agent(:pi1, TartarusLats.Query.WhereAmI, " <>
-          "%{tag: #{inspect(tag)}, label: nil, report: false, cloud: :per_node, repair: false}, owner: self()); " <>
-          "receive do {:tartarus_result, ^id, r} -> IO.inspect(r.answer) after 10_000 -> IO.puts(:none) end"
-
       assert eventually(fn ->
-               Port.command(socat, TartarusLats.HM10.encode_scan([beacon]))
-               {out, 0} = cmd(bin, ["rpc", where_am_i], path, dir)
+               hear(socat)
+               {out, 0} = cmd(bin, ["rpc", where_am_i(:pi1, tag)], path, dir)
                out =~ "{:in_zone, :pi1}"
              end)
 
@@ -288,111 +264,10 @@ defmodule Tartarus.ReleaseTest do
     ])
   end
 
-  defp socat!(link) do
-    exe =
-      System.find_executable("socat") ||
-        flunk("socat is not installed (scripts/test installs it)")
-
-    port =
-      Port.open({:spawn_executable, exe}, [
-        :binary,
-        :exit_status,
-        args: ["pty,raw,echo=0,link=#{link}", "STDIO"]
-      ])
-
-    assert eventually(fn -> File.exists?(link) end)
-    port
-  end
-
-  # A terminal session (`script` gives the command a pty, as a person's terminal would).
-  # Each is ended, with what it runs, after the test (`stop_ptys/0`), whatever happened.
-  defp pty!(command, env) do
-    port =
-      Port.open({:spawn_executable, System.find_executable("script")}, [
-        :binary,
-        :exit_status,
-        :stderr_to_stdout,
-        args: ["-qfc", command, "/dev/null"],
-        env: for({k, v} <- env, do: {~c"#{k}", ~c"#{v}"})
-      ])
-
-    {:os_pid, pid} = Port.info(port, :os_pid)
-    Process.put(:ptys, [pid | Process.get(:ptys, [])])
-    port
-  end
-
-  defp stop_ptys do
-    for pid <- Process.get(:ptys, []), do: kill_tree(pid)
-    :ok
-  end
-
-  # The process and its descendants (script -> sh -> the VM), by their pids.
-  defp kill_tree(pid) do
-    {children, _} = System.cmd("pgrep", ["-P", "#{pid}"], stderr_to_stdout: true)
-    for child <- String.split(children, "\n", trim: true), do: kill_tree(child)
-    System.cmd("kill", ["-9", "#{pid}"], stderr_to_stdout: true)
-  end
-
-  defp await_pty(port, pattern, acc \\ "") do
-    receive do
-      {^port, {:data, data}} ->
-        acc = acc <> data
-        if acc =~ pattern, do: acc, else: await_pty(port, pattern, acc)
-
-      {^port, {:exit_status, s}} ->
-        flunk("the session exited with #{s}:\n#{acc}")
-    after
-      120_000 -> flunk("no #{inspect(pattern)} in the session:\n#{acc}")
-    end
-  end
-
-  # Ctrl-G q: the shell's own VM quits (the node goes on).
-  defp quit_pty(port) do
-    Port.command(port, "\a")
-    Process.sleep(300)
-    Port.command(port, "q\n")
-
-    receive do
-      {^port, {:exit_status, _}} -> :ok
-    after
-      30_000 -> stop_port(port)
-    end
-  end
-
-  defp stop_port(port) do
-    case Port.info(port, :os_pid) do
-      {:os_pid, pid} -> System.cmd("kill", ["-9", "#{pid}"], stderr_to_stdout: true)
-      nil -> :ok
-    end
-
-    :ok
-  end
-
-  defp eventually(fun, tries \\ 60) do
-    cond do
-      fun.() -> true
-      tries == 0 -> false
-      true -> Process.sleep(500) && eventually(fun, tries - 1)
-    end
-  end
-
   defp rpc(bin, path) do
     System.cmd(bin, ["rpc", "IO.inspect(Tartarus.read_plugin(:pi1, :temp, :value))"],
       env: [{"TARTARUS_CONFIG", path}, {"RELEASE_TMP", Path.join(Path.dirname(path), "tmp")}],
       stderr_to_stdout: true
     )
-  end
-
-  defp await_output(port, pattern, acc, timeout) do
-    receive do
-      {^port, {:data, data}} ->
-        acc = acc <> data
-        if acc =~ pattern, do: acc, else: await_output(port, pattern, acc, timeout)
-
-      {^port, {:exit_status, s}} ->
-        flunk("the release exited with #{s}:\n#{acc}")
-    after
-      timeout -> flunk("the release did not start:\n#{acc}")
-    end
   end
 end

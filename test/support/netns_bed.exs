@@ -57,6 +57,9 @@ defmodule Tartarus.NetnsBed do
     end
   end
 
+  @doc "The index of the control node's namespace (`ip/1`, `ns/2`): where the workstation runs."
+  def ctl_index, do: @ctl
+
   @doc "The address of node `i`."
   def ip(i), do: "#{@subnet}.#{i}"
 
@@ -95,9 +98,11 @@ defmodule Tartarus.NetnsBed do
     ip!(["link", "set", bed.bridge, "up"])
     Enum.each(bed.all, &add_namespace!(bed, &1))
 
+    # `operator` (no host: operator@<each address>) is the operator's certificate for the
+    # release's remote, rpc, stop and pid (TartarusNode.Operator).
     names =
       Enum.map(bed.all, &"#{if &1 == @ctl, do: "ctl", else: "tartarus"}@#{ip(&1)}") ++
-        ["me@#{ip(@ctl)}"]
+        ["me@#{ip(@ctl)}", "operator"]
 
     hosts = Enum.map(bed.all, &ip/1)
     {:ok, _} = Tartarus.Security.Certs.generate(bed.certs, nodes: names, hosts: hosts)
@@ -187,17 +192,41 @@ defmodule Tartarus.NetnsBed do
 
   @doc "Runs `bin/tartarus <command>` in node `i`'s namespace with the configuration at `path`."
   def launch(bed, i, path, ndir, command) do
-    env = [
-      {~c"TARTARUS_CONFIG", ~c"#{path}"},
-      {~c"RELEASE_TMP", ~c"#{Path.join(ndir, "tmp")}"},
-      # The machine's may say 127.0.0.1; a node's epmd must answer on its address.
-      {~c"ERL_EPMD_ADDRESS", false}
-    ]
-
+    env = for {k, v} <- release_env(path, ndir), do: {~c"#{k}", v && ~c"#{v}"}
     keeper = spawn(fn -> keep_port(bed, i, command, env) end)
     :ets.insert(bed.ports, {i, keeper})
     keeper
   end
+
+  @doc """
+  The environment of `bin/tartarus` for the configuration at `path` (`RELEASE_TMP` in
+  `ndir`; `nil` unsets).
+  """
+  def release_env(path, ndir) do
+    [
+      {"TARTARUS_CONFIG", path},
+      {"RELEASE_TMP", Path.join(ndir, "tmp")},
+      # The machine's may say 127.0.0.1; a node's epmd must answer on its address.
+      {"ERL_EPMD_ADDRESS", nil}
+    ]
+  end
+
+  @doc """
+  Runs `bin/tartarus <args>` to its end in node `i`'s namespace, as an operator on that
+  machine would, with the configuration at `path` (see `release_env/2`): `{output, status}`.
+  """
+  def release_cmd(bed, i, path, args) do
+    System.cmd("ip", ["netns", "exec", ns(bed, i), Path.join(bed.root, "bin/tartarus") | args],
+      env: release_env(path, Path.dirname(path)),
+      stderr_to_stdout: true
+    )
+  end
+
+  @doc "The shell command line that runs `command` (a command line) in node `i`'s namespace."
+  def in_ns(bed, i, command), do: "ip netns exec #{ns(bed, i)} #{command}"
+
+  @doc "The OS pids of the processes in node `i`'s namespace."
+  def ns_pids(bed, i), do: pids(ns(bed, i))
 
   defp keep_port(bed, i, command, env) do
     port =
@@ -270,7 +299,7 @@ defmodule Tartarus.NetnsBed do
 
   @doc "SIGKILLs node `i`'s VM (every process in its namespace but epmd)."
   def kill_node(bed, i) do
-    for pid <- pids(ns(bed, i)),
+    for pid <- ns_pids(bed, i),
         {:ok, cmd} <- [File.read("/proc/#{pid}/cmdline")],
         not String.contains?(cmd, "epmd") do
       System.cmd("kill", ["-9", pid], stderr_to_stdout: true)

@@ -372,9 +372,11 @@ defmodule :tartarus_tls_dist do
               )
 
             :erlang.link(dist_ctrl)
-            :dist_util.handshake_we_started(hs)
+            handshake(hs, node, my_node, opts)
 
           other ->
+            explain(node, my_node, other, opts)
+
             :dist_util.shutdown(
               __MODULE__,
               __ENV__.line,
@@ -388,6 +390,166 @@ defmodule :tartarus_tls_dist do
         :dist_util.shutdown(__MODULE__, __ENV__.line, node, reason)
     end
   end
+
+  # The distribution handshake; an exit that is a refusal (not a lost connection) is explained
+  # first. (`dist_util` exits the process with its reason; the catch frame stays for the
+  # connection's life, one frame.)
+  defp handshake(hs, node, my_node, opts) do
+    :dist_util.handshake_we_started(hs)
+  catch
+    :exit, reason ->
+      # The TLS connection's end (linked) would end this process before the line is out.
+      :erlang.process_flag(:trap_exit, true)
+      explain(node, my_node, reason, opts)
+      :erlang.exit(reason)
+  end
+
+  defp explain(node, my_node, reason, opts) do
+    case refusal(node, my_node, reason, opts) do
+      :none -> :ok
+      line -> :logger.error(~c"~ts", [line])
+    end
+  end
+
+  @doc """
+  Why `node` refused this node (`my_node`) while it dialled, as one line (a charlist), from the
+  reason the dial failed with and the client options it dialled with (`client_options/1`);
+  `:none` when the reason is no refusal (a lost or refused TCP connection, a timeout).
+
+  On the dialing side OTP's `inet_tls_dist` leaves only `:nodedown` (an `iex --remsh` says
+  `Could not contact remote node ..., reason: :nodedown`) or a TLS notice without the file or
+  the name at stake; the dial of `-proto_dist tartarus_tls` logs this line as an error, so a
+  refused shell says why:
+
+    * a TLS alert the node sent: it refused this node's certificate (`unknown_ca`: not issued
+      by its CA; `certificate_expired`; others by name), naming the certificate file;
+    * a TLS alert raised here: the node's certificate failed this side's check (not from the
+      CA file this side trusts, expired, not naming the node's host or name);
+    * `not_allowed` in the distribution handshake: the node admits only the names this node's
+      certificate names (see `cert_names/1`), and they are listed, or else its
+      `net_kernel:allow/1` list left this name out;
+    * the cookie check: the node closed the connection at it (another cookie), or answered
+      with another cookie.
+
+      iex> :tartarus_tls_dist.refusal(:"n@h", :"me@h", {:recv_challenge_ack_failed, {:error, :closed}}, [])
+      ~c"tartarus_tls: no connection from me@h to n@h: the node closed the connection at the cookie check: it has another cookie than this node's"
+      iex> :tartarus_tls_dist.refusal(:"n@h", :"me@h", {:recv_status_failed, {:error, :closed}}, [])
+      :none
+  """
+  @spec refusal(node(), node(), term(), list()) :: charlist() | :none
+  def refusal(node, my_node, reason, opts) do
+    case cause(reason, my_node, opts) do
+      :none ->
+        :none
+
+      why ->
+        :lists.flatten(
+          :io_lib.format(~c"tartarus_tls: no connection from ~ts to ~ts: ~ts", [
+            my_node,
+            node,
+            why
+          ])
+        )
+    end
+  end
+
+  defp cause({:ssl_connect_failed, _ip, _port, error}, my_node, opts),
+    do: cause(error, my_node, opts)
+
+  defp cause({:error, {:tls_alert, {alert, description}}}, _my_node, opts) do
+    text = :unicode.characters_to_list(:io_lib.format(~c"~ts", [description]))
+
+    if :string.find(text, ~c"received SERVER ALERT") != :nomatch,
+      do: their_alert(alert, :proplists.get_value(:certfile, opts, ~c"?")),
+      else: our_alert(alert, text, :proplists.get_value(:cacertfile, opts, ~c"?"))
+  end
+
+  defp cause({:recv_status_failed, :not_allowed}, my_node, opts) do
+    file = :proplists.get_value(:certfile, opts, ~c"?")
+
+    case named_by(file) do
+      {:ok, names} ->
+        if :lists.member(:erlang.atom_to_list(my_node), names),
+          do: ~c"the node's allowed list (net_kernel:allow/1) leaves this name out",
+          else:
+            :io_lib.format(
+              ~c"the node admits only the names this node's certificate ~ts names (~ts), and this node runs as ~ts",
+              [file, names_text(names), my_node]
+            )
+
+      :error ->
+        :io_lib.format(~c"the node does not admit this name (certificate ~ts unreadable here)", [
+          file
+        ])
+    end
+  end
+
+  defp cause({:recv_challenge_ack_failed, {:error, :closed}}, _my_node, _opts),
+    do:
+      ~c"the node closed the connection at the cookie check: it has another cookie than this node's"
+
+  defp cause({:recv_challenge_ack_failed, :bad_cookie}, _my_node, _opts),
+    do: ~c"the node answered the cookie check with another cookie than this node's"
+
+  defp cause(_reason, _my_node, _opts), do: :none
+
+  defp their_alert(:unknown_ca, file),
+    do:
+      :io_lib.format(
+        ~c"this node's certificate ~ts was not issued by the node's CA (TLS alert unknown_ca from the node)",
+        [file]
+      )
+
+  defp their_alert(:certificate_expired, file),
+    do: :io_lib.format(~c"this node's certificate ~ts has expired, by the node's clock", [file])
+
+  defp their_alert(alert, file),
+    do:
+      :io_lib.format(
+        ~c"the node refused this node's certificate ~ts (TLS alert ~p from the node)",
+        [file, alert]
+      )
+
+  defp our_alert(alert, text, ca) do
+    cond do
+      :string.find(text, ~c"node_not_named") != :nomatch ->
+        ~c"the node's certificate does not name the node dialled (an impostor, or a certificate issued for another name)"
+
+      :string.find(text, ~c"hostname_check_failed") != :nomatch ->
+        ~c"the node's certificate does not name the host dialled"
+
+      alert == :unknown_ca ->
+        :io_lib.format(
+          ~c"the node's certificate was not issued by the CA this node trusts (~ts)",
+          [ca]
+        )
+
+      alert == :certificate_expired ->
+        ~c"the node's certificate has expired, by this node's clock"
+
+      true ->
+        :io_lib.format(~c"the node's certificate failed this node's check (TLS alert ~p)", [alert])
+    end
+  end
+
+  defp named_by(file) do
+    case :file.read_file(file) do
+      {:ok, pem} ->
+        case :public_key.pem_decode(pem) do
+          [{:Certificate, der, _} | _] ->
+            {:ok, cert_names(:public_key.pkix_decode_cert(der, :otp))}
+
+          _ ->
+            :error
+        end
+
+      _ ->
+        :error
+    end
+  end
+
+  defp names_text([]), do: ~c"none"
+  defp names_text(names), do: :lists.join(~c", ", names)
 
   # As OTP 25's `inet_tls_dist:split_node/3`.
   defp split_node(node, long_or_short) do

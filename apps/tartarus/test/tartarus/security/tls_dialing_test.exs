@@ -8,6 +8,8 @@ defmodule Tartarus.Security.TLSDialingTest do
 
   alias Tartarus.Security.Certs
 
+  doctest :tartarus_tls_dist
+
   setup_all do
     ca = Certs.generate_ca(days: 1)
     %{cert: der} = Certs.issue(ca, "b", hosts: ["pi1"], days: 1)
@@ -128,6 +130,75 @@ defmodule Tartarus.Security.TLSDialingTest do
       )
 
       assert {:error, {:verify_fun_not_wrappable, _}} = :tartarus_tls_dist.client_options(:b@pi1)
+    end
+  end
+
+  describe "refusal/4: why the node dialled refused, in one line" do
+    @tag :tmp_dir
+    test "the names the certificate names, when the node does not admit this name", %{
+      tmp_dir: dir
+    } do
+      {:ok, _} = Certs.generate(dir, nodes: ["me"], hosts: ["pi1", "10.0.0.9"])
+      opts = [certfile: ~c"#{dir}/me.pem", cacertfile: ~c"#{dir}/ca.pem"]
+      why = &:tartarus_tls_dist.refusal(:n@pi1, &1, {:recv_status_failed, :not_allowed}, opts)
+
+      assert List.to_string(why.(:you@pi1)) ==
+               "tartarus_tls: no connection from you@pi1 to n@pi1: the node admits only the names this node's certificate #{dir}/me.pem names (me@pi1, me@10.0.0.9), and this node runs as you@pi1"
+
+      # A name the certificate does name: then only the node's allowed list can refuse it.
+      assert List.to_string(why.(:me@pi1)) =~
+               "the node's allowed list (net_kernel:allow/1) leaves this name out"
+    end
+
+    test "TLS alerts: the node's (it refused our certificate) and ours (we refused its)" do
+      opts = [certfile: ~c"/c/me.pem", cacertfile: ~c"/c/ca.pem"]
+
+      alert = fn kind, text ->
+        {:ssl_connect_failed, {10, 0, 0, 1}, 4370, {:error, {:tls_alert, {kind, text}}}}
+      end
+
+      why = &List.to_string(:tartarus_tls_dist.refusal(:n@pi1, :me@pi1, &1, opts))
+
+      assert why.(
+               alert.(
+                 :unknown_ca,
+                 ~c"TLS client: In state cipher received SERVER ALERT: Fatal - Unknown CA"
+               )
+             ) =~
+               "me@pi1 to n@pi1: this node's certificate /c/me.pem was not issued by the node's CA (TLS alert unknown_ca from the node)"
+
+      assert why.(
+               alert.(
+                 :certificate_expired,
+                 ~c"received SERVER ALERT: Fatal - Certificate Expired"
+               )
+             ) =~
+               "this node's certificate /c/me.pem has expired, by the node's clock"
+
+      assert why.(alert.(:unknown_ca, ~c"TLS client: generated CLIENT ALERT: Fatal - Unknown CA")) =~
+               "the node's certificate was not issued by the CA this node trusts (/c/ca.pem)"
+
+      assert why.(
+               alert.(
+                 :bad_certificate,
+                 ~c"generated CLIENT ALERT: Fatal - Bad Certificate\n {bad_cert,{node_not_named,n@pi1}}"
+               )
+             ) =~
+               "the node's certificate does not name the node dialled"
+
+      assert why.({:recv_challenge_ack_failed, {:error, :closed}}) =~ "another cookie"
+    end
+
+    test "what is no refusal says nothing (the node is down, unreachable, the link lost)" do
+      for reason <- [
+            {:ssl_connect_failed, {10, 0, 0, 1}, 4370, {:error, :econnrefused}},
+            {:ssl_connect_failed, {10, 0, 0, 1}, 4370, {:error, :timeout}},
+            {:recv_status_failed, {:error, :closed}},
+            :connection_closed,
+            :net_tick_timeout
+          ] do
+        assert :tartarus_tls_dist.refusal(:n@pi1, :me@pi1, reason, []) == :none
+      end
     end
   end
 end
