@@ -569,7 +569,8 @@ defmodule Tartarus.NetnsTest do
 
         assert [line] =
                  out
-                 |> String.split(~r/\r?\n/)
+                 |> String.split(~r/\R/)
+                 |> Enum.map(&String.trim/1)
                  |> Enum.filter(&(&1 =~ "tartarus_tls:"))
                  |> Enum.uniq()
 

@@ -192,7 +192,7 @@ defmodule Tartarus.NetnsBed do
 
   @doc "Runs `bin/tartarus <command>` in node `i`'s namespace with the configuration at `path`."
   def launch(bed, i, path, ndir, command) do
-    env = for {k, v} <- release_env(path, ndir), do: {~c"#{k}", v && ~c"#{v}"}
+    env = for {k, v} <- release_env(path, ndir), do: {~c"#{k}", if(v, do: ~c"#{v}", else: false)}
     keeper = spawn(fn -> keep_port(bed, i, command, env) end)
     :ets.insert(bed.ports, {i, keeper})
     keeper
