@@ -37,7 +37,7 @@ defmodule TartarusWarehouse.Central do
   def init(args) do
     {:stay,
      Map.merge(args, %{
-       d: Distributor.new(args.world),
+       d: Distributor.new(args.world, max_pending: Map.get(args, :max_pending, :infinity)),
        # robot name => state (as the server believes it)
        states: Map.new(args.robots, fn {name, _agent} -> {name, :free} end),
        busy: MapSet.new(),
