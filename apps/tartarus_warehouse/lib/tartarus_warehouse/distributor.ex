@@ -467,7 +467,10 @@ defmodule TartarusWarehouse.Distributor do
   # that resource, or nil.
   defp job_using(d, resources) do
     Enum.find_value(d.queue ++ Map.values(d.out), fn a ->
-      case if(Map.has_key?(a, :persistent), do: [], else: Enum.filter(a.resources, &(&1 in resources))) do
+      case if(Map.has_key?(a, :persistent),
+             do: [],
+             else: Enum.filter(a.resources, &(&1 in resources))
+           ) do
         [r | _] -> {a.job, r}
         [] -> nil
       end
@@ -515,7 +518,14 @@ defmodule TartarusWarehouse.Distributor do
         do: {Map.put(d.inserted, name, false), d.deleted},
         else: {d.inserted, MapSet.put(d.deleted, name)}
 
-    d = %{d | queue: queue, inserted: inserted, inserts: Map.delete(d.inserts, name), deleted: deleted}
+    d = %{
+      d
+      | queue: queue,
+        inserted: inserted,
+        inserts: Map.delete(d.inserts, name),
+        deleted: deleted
+    }
+
     {d, change} = change(d, {:delete, name})
     {:ok, d, [change]}
   end

@@ -133,9 +133,12 @@ defmodule TartarusWarehouse.DistributorAgent do
     # submission (its answer lost with the host) as the first one was.
     hash = :erlang.phash2(spec)
 
+    # An answer that changes nothing is given at once, with no checkpoint (an answer lost
+    # with the host is asked again): a burst refused for a full queue costs no journal.
     cond do
       Map.get(s.specs, id) == hash ->
-        later(s, [{:reply, from, :ok}])
+        Tartarus.Agent.reply(from, :ok)
+        {:stay, s}
 
       true ->
         case Distributor.submit(s.d, spec) do
@@ -143,7 +146,8 @@ defmodule TartarusWarehouse.DistributorAgent do
             later(%{s | d: d, specs: Map.put(s.specs, id, hash)}, [{:reply, from, :ok} | actions])
 
           {:error, message} ->
-            later(s, [{:reply, from, {:error, message}}])
+            Tartarus.Agent.reply(from, {:error, message})
+            {:stay, s}
         end
     end
   end

@@ -27,6 +27,10 @@ defmodule TartarusWarehouse.Floor.Changes do
       {:ok, {:error, :queue_full}} ->
         {:error, :queue_full}
 
+      # the distributor's refusal, as it says it
+      {:ok, {:error, message}} when is_binary(message) ->
+        {:error, message}
+
       {:error, _} when tries > 0 ->
         Clock.sleep(10)
         submit(dref, job, tries - 1)
