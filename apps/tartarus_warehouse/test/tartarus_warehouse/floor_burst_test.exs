@@ -29,7 +29,12 @@ defmodule TartarusWarehouse.FloorBurstTest do
       {:ok, f} =
         Floor.start(Keyword.merge([robots: 3, resources: [:rack, :aisle, :packing]], opts))
 
-      submits = Task.async_stream(1..n, &{&1, Floor.submit(f, job(&1))}, max_concurrency: n)
+      submits =
+        Task.async_stream(1..n, &{&1, Floor.submit(f, job(&1))},
+          max_concurrency: n,
+          timeout: :infinity
+        )
+
       during = Task.async(fn -> during.(f) end)
       answers = Map.new(submits, fn {:ok, answer} -> answer end)
       Task.await(during, :infinity)
@@ -78,8 +83,7 @@ defmodule TartarusWarehouse.FloorBurstTest do
   end
 
   test "run/1's jobs beyond the bound wait in the floor and all run" do
-    {:ok, r} =
-      Floor.run(robots: 3, jobs: Enum.map(1..60, &job/1), max_pending: 5, scale: 0.005)
+    {:ok, r} = Floor.run(robots: 3, jobs: Enum.map(1..60, &job/1), max_pending: 5, scale: 0.005)
 
     assert r.timed_out == [] and map_size(r.completed) == 60 and r.failed == nil
   end
