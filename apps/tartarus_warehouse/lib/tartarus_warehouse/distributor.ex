@@ -144,7 +144,9 @@ defmodule TartarusWarehouse.Distributor do
           inserts: %{String.t() => %{after: String.t(), resources: [Job.resource()]}},
           names: MapSet.t(String.t()),
           deleted: MapSet.t(String.t()),
-          max_pending: pos_integer() | :infinity
+          max_pending_tasks: pos_integer() | :infinity,
+          pending_tasks: non_neg_integer(),
+          sizes: %{term() => pos_integer()}
         }
 
   defstruct world: nil,
@@ -164,48 +166,55 @@ defmodule TartarusWarehouse.Distributor do
             changes: [],
             continue: false,
             runs: MapSet.new(),
-            max_pending: :infinity
+            max_pending_tasks: :infinity,
+            # the tasks of the jobs accepted and not completed, and each such job's tasks
+            pending_tasks: 0,
+            sizes: %{}
 
   @doc """
   A distributor for `world` (see `TartarusWarehouse.Job.world/2`). With `continue: true`
-  an agent is given runs of blocks (see "Agents that continue" above); `max_pending` (a
-  positive integer, default `:infinity`) bounds the jobs accepted and not yet completed
-  (see `submit/2`).
+  an agent is given runs of blocks (see "Agents that continue" above); `max_pending_tasks` (a
+  positive integer, default `:infinity`) bounds the tasks of the jobs accepted and not yet
+  completed (see `submit/2`).
   """
   @spec new(Job.world(), keyword()) :: t()
   def new(world, opts \\ []),
     do: %__MODULE__{
       world: world,
       continue: Keyword.get(opts, :continue, false),
-      max_pending: Keyword.get(opts, :max_pending, :infinity)
+      max_pending_tasks: Keyword.get(opts, :max_pending_tasks, :infinity)
     }
 
   @doc """
   A job arrives (asynchronously, at any time). Returns `{:ok, distributor, actions}`, or
-  `{:error, :queue_full}` when `max_pending` jobs are accepted and not yet completed (the
-  submitter may try again once one completes), or `{:error, message}` for a malformed spec
-  (see `TartarusWarehouse.Job.plan/2`), a job id already in use, or a job that needs a
+  `{:error, :queue_full}` when its tasks would take those of the jobs accepted and not yet
+  completed beyond `max_pending_tasks` (the submitter may try again once one completes), or
+  `{:error, message}` for a malformed spec (see `TartarusWarehouse.Job.plan/2`), a job id
+  already in use, a job of more tasks than `max_pending_tasks`, or a job that needs a
   resource an inserted task holds (an inserted task's agent holds its resources until the
   task is deleted: see `insert/3`); the distributor is then unchanged.
 
       iex> alias TartarusWarehouse.Distributor, as: D
-      iex> d = D.new(TartarusWarehouse.Job.world([:a], 1), max_pending: 1)
+      iex> d = D.new(TartarusWarehouse.Job.world([:a], 1), max_pending_tasks: 1)
       iex> {:ok, d, _} = D.submit(d, %{id: 1, tasks: [%{name: "T1", resources: [:a]}]})
       iex> D.submit(d, %{id: 2, tasks: [%{name: "T1", resources: [:a]}]})
       {:error, :queue_full}
   """
   @spec submit(t(), map()) :: {:ok, t(), [action()]} | {:error, :queue_full | String.t()}
   def submit(%__MODULE__{} = d, spec) do
-    with :ok <- room(d),
+    with :ok <- room(d, 1),
          {:ok, plan} <- Job.plan(spec, d.world),
          :ok <- new_id(d, plan.id),
          tasks = for(seq <- plan.sequences, b <- seq, t <- b.tasks, do: t),
+         :ok <- room(d, length(tasks), plan.id),
          :ok <- clear_of_inserts(d, plan.id, tasks) do
       assignments = assignments(plan)
 
       d = %{
         d
         | queue: d.queue ++ assignments,
+          pending_tasks: d.pending_tasks + length(tasks),
+          sizes: Map.put(d.sizes, plan.id, length(tasks)),
           names: Enum.reduce(tasks, d.names, &MapSet.put(&2, &1.name)),
           jobs:
             Map.put(
@@ -220,8 +229,23 @@ defmodule TartarusWarehouse.Distributor do
     end
   end
 
-  defp room(%{max_pending: max, jobs: jobs}) when map_size(jobs) >= max, do: {:error, :queue_full}
-  defp room(_d), do: :ok
+  # Room for `n` more tasks; a job larger than the bound itself never fits.
+  defp room(d, n, id \\ nil) do
+    cond do
+      d.max_pending_tasks == :infinity ->
+        :ok
+
+      n > d.max_pending_tasks ->
+        {:error,
+         "job #{inspect(id)} has #{n} tasks, more than the distributor holds at once (max_pending_tasks: #{d.max_pending_tasks})"}
+
+      d.pending_tasks + n > d.max_pending_tasks ->
+        {:error, :queue_full}
+
+      true ->
+        :ok
+    end
+  end
 
   defp new_id(d, id) do
     if Map.has_key?(d.jobs, id) or MapSet.member?(d.completed, id),
@@ -261,7 +285,11 @@ defmodule TartarusWarehouse.Distributor do
     end)
   end
 
-  @doc "The plan's blocks as assignments, in order (sequence by sequence)."
+  @doc """
+  The plan's blocks as assignments, in order (sequence by sequence). A sequence's first
+  block `needs` every resource of the sequence (the free robot it books must reach them
+  all); the later blocks need nothing more than the robot already booked.
+  """
   @spec assignments(Job.plan()) :: [assignment()]
   def assignments(plan) do
     for {blocks, s} <- Enum.with_index(plan.sequences),
@@ -274,7 +302,10 @@ defmodule TartarusWarehouse.Distributor do
         index: i,
         tasks: b.tasks,
         resources: b.resources,
-        needs: needs,
+        # what a free robot must reach: only a first block looks for one (the later ones
+        # go to the robot it booked), so only it carries them (a list a block would make a
+        # job's memory grow with the square of its blocks)
+        needs: if(i == 0, do: needs, else: []),
         look_for: if(i == 0, do: :free, else: {plan.id, s, i}),
         next: if(i == last, do: :free, else: {plan.id, s, i + 1})
       }
@@ -354,8 +385,13 @@ defmodule TartarusWarehouse.Distributor do
 
     if left == 0,
       do:
-        {%{d | jobs: Map.delete(d.jobs, a.job), completed: MapSet.put(d.completed, a.job)},
-         [{:job_done, a.job}]},
+        {%{
+           d
+           | jobs: Map.delete(d.jobs, a.job),
+             completed: MapSet.put(d.completed, a.job),
+             pending_tasks: d.pending_tasks - Map.get(d.sizes, a.job, 0),
+             sizes: Map.delete(d.sizes, a.job)
+         }, [{:job_done, a.job}]},
       else: {%{d | jobs: Map.put(d.jobs, a.job, left)}, []}
   end
 
@@ -583,43 +619,54 @@ defmodule TartarusWarehouse.Distributor do
   # One pass over the queue (see the moduledoc). `returning` is the agent that just
   # reported, with the resources it held: it takes the first released assignment it covers.
   defp issue(d, returning) do
-    {queue, d, actions, _blocked, _returning} =
-      Enum.reduce(d.queue, {[], d, [], MapSet.new(), returning}, fn a,
-                                                                    {queue, d, actions, blocked,
-                                                                     ret} ->
-        rs = MapSet.new(a.resources)
+    {queue, d, actions} =
+      pass(d.queue, [], d, [], MapSet.new(), returning, MapSet.size(d.world.resources))
 
-        free? =
-          Enum.all?(a.resources, &(not Map.has_key?(d.held, &1))) and
-            MapSet.disjoint?(rs, blocked) and
-            (a.index > 0 or d.starting == nil)
+    take_runs(%{d | queue: queue}, Enum.reverse(actions))
+  end
 
-        if free? do
-          {ref, d, action, ret} =
-            case ret do
-              {r, covers} ->
-                if MapSet.subset?(rs, covers),
-                  do: {r, d, :reissue, nil},
-                  else: {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, ret}
+  # Once every resource of the world is wanted by a block left waiting, no later block can
+  # go: the rest of the queue stays as it is (a pass costs the blocks before that point,
+  # not the whole queue).
+  defp pass([], kept, d, actions, _blocked, _ret, _all), do: {Enum.reverse(kept), d, actions}
 
-              nil ->
-                {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, nil}
-            end
+  defp pass(rest, kept, d, actions, blocked, ret, all) do
+    if MapSet.size(blocked) >= all,
+      do: {Enum.reverse(kept, rest), d, actions},
+      else: step(rest, kept, d, actions, blocked, ret, all)
+  end
 
-          d = %{
-            d
-            | out: Map.put(d.out, ref, a),
-              held: Enum.reduce(a.resources, d.held, &Map.put(&2, &1, ref)),
-              starting: if(a.index == 0, do: ref, else: d.starting)
-          }
+  defp step([a | rest], kept, d, actions, blocked, ret, all) do
+    rs = MapSet.new(a.resources)
 
-          {queue, d, [{action, ref, a} | actions], blocked, ret}
-        else
-          {[a | queue], d, actions, MapSet.union(blocked, rs), ret}
+    free? =
+      Enum.all?(a.resources, &(not Map.has_key?(d.held, &1))) and
+        MapSet.disjoint?(rs, blocked) and
+        (a.index > 0 or d.starting == nil)
+
+    if free? do
+      {ref, d, action, ret} =
+        case ret do
+          {r, covers} ->
+            if MapSet.subset?(rs, covers),
+              do: {r, d, :reissue, nil},
+              else: {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, ret}
+
+          nil ->
+            {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, nil}
         end
-      end)
 
-    take_runs(%{d | queue: Enum.reverse(queue)}, Enum.reverse(actions))
+      d = %{
+        d
+        | out: Map.put(d.out, ref, a),
+          held: Enum.reduce(a.resources, d.held, &Map.put(&2, &1, ref)),
+          starting: if(a.index == 0, do: ref, else: d.starting)
+      }
+
+      pass(rest, kept, d, [{action, ref, a} | actions], blocked, ret, all)
+    else
+      pass(rest, [a | kept], d, actions, MapSet.union(blocked, rs), ret, all)
+    end
   end
 
   # continue: each agent released or re-issued takes the run of the same block of the

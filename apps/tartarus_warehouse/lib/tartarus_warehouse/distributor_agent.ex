@@ -6,8 +6,9 @@ defmodule TartarusWarehouse.DistributorAgent do
   assignment, and tells its owner `{:warehouse_job_done, job_id, time_us}` when a job
   completes.
 
-  Requests it answers: `{:submit, job_spec}` (`:ok`, `{:error, :queue_full}` when
-  `max_pending` jobs are accepted and not yet completed, or `{:error, message}`; jobs
+  Requests it answers: `{:submit, job_spec}` (`:ok`, `{:error, :queue_full}` when the job
+  would take the tasks of the jobs accepted and not yet completed beyond
+  `max_pending_tasks`, or `{:error, message}`; jobs
   arrive at any time; the same job submitted again is `:ok` and changes nothing),
   `{:insert, after_task, task_spec}` and `{:delete, task}` (on-the-fly programming: it
   releases a `TartarusWarehouse.SequenceAgent`), `{:started, ref}`, `{:done, ref, key}`,
@@ -58,7 +59,7 @@ defmodule TartarusWarehouse.DistributorAgent do
           d:
             Distributor.new(args.world,
               continue: Map.get(args, :continue, false),
-              max_pending: Map.get(args, :max_pending, :infinity)
+              max_pending_tasks: Map.get(args, :max_pending_tasks, :infinity)
             ),
           svc: Service.new(Map.get(args, :service_ms, 0)),
           released: 0,

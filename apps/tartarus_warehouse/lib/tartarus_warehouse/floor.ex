@@ -114,8 +114,9 @@ defmodule TartarusWarehouse.Floor do
   @doc """
   Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok` (the
   job is accepted: it runs, and is not lost), `{:error, :queue_full}` when the distributor
-  already holds `max_pending` jobs accepted and not completed (backpressure: submit it
-  again once a job completed), or `{:error, message}` for a malformed job (checked by
+  would hold more than `max_pending_tasks` tasks of jobs accepted and not completed
+  (backpressure: submit it again once a job completed), or `{:error, message}` for a
+  malformed job (checked by
   `TartarusWarehouse.Job.plan/2`: the message names the field, what was expected and what
   arrived), an id already submitted, a job that needs a resource an inserted task holds,
   or a floor that failed (see `status/1`); nothing changes then.
@@ -150,7 +151,7 @@ defmodule TartarusWarehouse.Floor do
   completed), `pending`, `robots` (name => the robot's state, see
   `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`, `backlog` (jobs of
   `run/1` or `start/1` waiting in the floor for room at the distributor: see the option
-  `max_pending`), `failed` (nil, or why
+  `max_pending_tasks`), `failed` (nil, or why
   the floor failed: its distributor crashed and lost its jobs, or was removed; the floor
   then takes no more jobs or changes, and `stop/1` still reports what ran) and `errors`
   (oldest first: requests the floor or the distributor could not handle, each answered
@@ -237,7 +238,7 @@ defmodule TartarusWarehouse.Floor do
   end
 
   # The jobs of run/1 and start/1 (planned before the floor started) wait in the floor's
-  # backlog, in order, while the distributor is full (`max_pending`), and go on as jobs
+  # backlog, in order, while the distributor is full (`max_pending_tasks`), and go on as jobs
   # complete. Any other refusal is the distributor's, and fails the floor.
   defp submit_all(st, jobs), do: feed(%{st | backlog: st.backlog ++ jobs})
 

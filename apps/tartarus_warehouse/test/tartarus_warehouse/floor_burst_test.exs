@@ -1,7 +1,8 @@
 defmodule TartarusWarehouse.FloorBurstTest do
-  # Bursts of submissions (issue 44, item 5): the distributor holds at most `max_pending`
-  # jobs accepted and not completed; a job beyond is answered {:error, :queue_full} at
-  # once, and every job answered :ok completes, with the distributor's failover or without.
+  # Bursts of submissions (issue 44, item 5): the distributor holds at most
+  # `max_pending_tasks` tasks of jobs accepted and not completed; a job beyond is answered
+  # {:error, :queue_full} at once, and every job answered :ok completes, with the
+  # distributor's failover or without.
   # Before: 8,000 jobs submitted at once to 3 robots got the distributor killed by its
   # 64 MiB heap limit after it accepted 5,741; the accepted jobs were lost and every later
   # submission refused.
@@ -58,17 +59,23 @@ defmodule TartarusWarehouse.FloorBurstTest do
     {accepted, refused}
   end
 
-  test "200 jobs at once on a bound of 20: the rest refused with :queue_full, every accepted job completes" do
-    {answers, awaited, r, st} = burst(200, max_pending: 20, scale: 0.005)
+  test "200 jobs at once on a bound of 60 tasks: the rest refused with :queue_full, every accepted job completes" do
+    {answers, awaited, r, st} = burst(200, max_pending_tasks: 60, scale: 0.005)
     {accepted, refused} = census(answers, awaited, r, st)
     # in virtual time no job completes while the burst is handled: exactly the bound
     assert length(accepted) == 20 and length(refused) == 180
 
     # room again once jobs completed
-    {:ok, f} = Floor.start(robots: 2, resources: [:rack, :aisle, :packing], max_pending: 1)
+    {:ok, f} = Floor.start(robots: 2, resources: [:rack, :aisle, :packing], max_pending_tasks: 3)
     assert :ok = Floor.submit(f, job(1))
     assert {:error, :queue_full} = Floor.submit(f, job(2))
     assert :ok = Floor.await(f, 30_000)
+
+    # a job that would never fit
+    assert {:error,
+            "job 3 has 4 tasks, more than the distributor holds at once (max_pending_tasks: 3)"} =
+             Floor.submit(f, %{job(3) | tasks: [%{name: "x", resources: [:rack]} | job(3).tasks]})
+
     assert :ok = Floor.submit(f, job(2))
     assert :ok = Floor.await(f, 30_000)
     {:ok, _} = Floor.stop(f)
@@ -76,24 +83,29 @@ defmodule TartarusWarehouse.FloorBurstTest do
 
   test "a burst with the distributor's host killed during it (failover): every accepted job completes" do
     kill = fn f -> assert :ok = Floor.change(f, {:kill_distributor, 20}) end
-    {answers, awaited, r, st} = burst(200, [max_pending: 20, scale: 0.005, failover: true], kill)
+
+    {answers, awaited, r, st} =
+      burst(200, [max_pending_tasks: 60, scale: 0.005, failover: true], kill)
+
     {accepted, _refused} = census(answers, awaited, r, st)
     assert length(accepted) >= 20
     assert [_] = r.killed_at_us
   end
 
   test "run/1's jobs beyond the bound wait in the floor and all run" do
-    {:ok, r} = Floor.run(robots: 3, jobs: Enum.map(1..60, &job/1), max_pending: 5, scale: 0.005)
+    {:ok, r} =
+      Floor.run(robots: 3, jobs: Enum.map(1..60, &job/1), max_pending_tasks: 15, scale: 0.005)
 
     assert r.timed_out == [] and map_size(r.completed) == 60 and r.failed == nil
   end
 
-  # About 10 s of wall time in virtual time (a minute at most on a loaded machine).
+  # About 30 s of wall time (3,333 jobs run, in virtual time): a longer test.
+  @tag :long
   @tag timeout: 600_000
   test "8,000 three-task jobs at once on 3 robots: each completed or refused at submission, none accepted and lost" do
     {answers, awaited, r, st} = burst(8_000, scale: 0.005)
     {accepted, refused} = census(answers, awaited, r, st)
-    # the default bound, max_pending 1,000
-    assert length(accepted) == 1_000 and length(refused) == 7_000
+    # the default bound, max_pending_tasks 10,000: 3,333 jobs of 3 tasks
+    assert length(accepted) == 3_333 and length(refused) == 4_667
   end
 end

@@ -163,7 +163,7 @@ defmodule TartarusWarehouse.Floor.Build do
               guide: if(opts[:guide], do: robot_span(robots)),
               service_ms: opts[:service_ms],
               continue: opts[:continue],
-              max_pending: opts[:max_pending]
+              max_pending_tasks: opts[:max_pending_tasks]
             },
             # told `{:tartarus_removed, id, reason}` if it is removed
             owner: owner
@@ -190,7 +190,7 @@ defmodule TartarusWarehouse.Floor.Build do
                 owner: owner,
                 robots: agents,
                 service_ms: opts[:service_ms],
-                max_pending: opts[:max_pending]
+                max_pending_tasks: opts[:max_pending_tasks]
               },
               owner: owner
             )

@@ -104,11 +104,11 @@ defmodule TartarusWarehouse.Floor.Options do
       doc:
         "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
     ],
-    max_pending: [
+    max_pending_tasks: [
       type: :pos_integer,
-      default: 1_000,
+      default: 10_000,
       doc:
-        "the most jobs the distributor (or the central server) holds accepted and not yet completed: a job submitted beyond is answered `{:error, :queue_full}` at once (backpressure: submit it again once a job completed); `run/1` and `start/1`'s own `jobs` wait in the floor for room instead. The distributor's memory grows with it (about 1.5 KB a three-task job, see docs/warehouse.md) and its heap is bounded (the host's `:max_heap_size`, 64 MiB by default)"
+        "the most tasks of jobs accepted and not yet completed that the distributor (or the central server) holds: a job that would take it beyond is answered `{:error, :queue_full}` at once (backpressure: submit it again once a job completed), a job of more tasks than that is refused; `run/1` and `start/1`'s own `jobs` wait in the floor for room instead. The distributor's memory is bounded by it (about 0.5 KB a task, see docs/warehouse.md), well under its heap limit (the host's `:max_heap_size`, 64 MiB by default)"
     ],
     seed: [type: :integer, default: 1, doc: "seed"],
     status: [
