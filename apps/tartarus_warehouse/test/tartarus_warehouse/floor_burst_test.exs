@@ -11,15 +11,18 @@ defmodule TartarusWarehouse.FloorBurstTest do
   alias Tartarus.Clock
   alias TartarusWarehouse.Floor
 
-  defp job(id),
-    do: %{
-      id: id,
-      tasks: [
-        %{name: "pick", resources: [:rack]},
-        %{name: "carry", resources: [:aisle], after: ["pick"]},
-        %{name: "pack", resources: [:packing], after: ["carry"]}
-      ]
-    }
+  # A three-task job: pick, carry, pack, one after the other, each on its own resource.
+  defp job(id) do
+    tasks =
+      for {name, resource, after_tasks} <- [
+            {"pick", :rack, []},
+            {"carry", :aisle, ["pick"]},
+            {"pack", :packing, ["carry"]}
+          ],
+          do: %{name: name, resources: [resource], after: after_tasks}
+
+    %{id: id, tasks: tasks}
+  end
 
   # `n` jobs submitted at once (one process each) to a floor started with `opts`, in
   # virtual time (`Tartarus.Clock.Virtual`: no time passes while the submissions are
