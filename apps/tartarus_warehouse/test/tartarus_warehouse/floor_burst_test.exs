@@ -100,6 +100,10 @@ defmodule TartarusWarehouse.FloorBurstTest do
       Floor.run(robots: 3, jobs: Enum.map(1..60, &job/1), max_pending_tasks: 15, scale: 0.005)
 
     assert r.timed_out == [] and map_size(r.completed) == 60 and r.failed == nil
+
+    assert {:error,
+            "invalid options given to TartarusWarehouse.Floor for key :jobs: job 1 has more tasks than max_pending_tasks (2): the distributor would never take it"} =
+             Floor.run(robots: 3, jobs: [job(1)], max_pending_tasks: 2)
   end
 
   # About 30 s of wall time (3,333 jobs run, in virtual time): a longer test.
