@@ -37,7 +37,10 @@ defmodule TartarusWarehouse.Central do
   def init(args) do
     {:stay,
      Map.merge(args, %{
-       d: Distributor.new(args.world),
+       d:
+         Distributor.new(args.world,
+           max_pending_tasks: Map.get(args, :max_pending_tasks, :infinity)
+         ),
        # robot name => state (as the server believes it)
        states: Map.new(args.robots, fn {name, _agent} -> {name, :free} end),
        busy: MapSet.new(),

@@ -139,8 +139,14 @@ defmodule TartarusWarehouse.Distributor do
           jobs: %{term() => non_neg_integer()},
           starting: ref() | nil,
           next_ref: pos_integer(),
-          completed: [term()],
-          inserted: %{String.t() => boolean()}
+          completed: MapSet.t(term()),
+          inserted: %{String.t() => boolean()},
+          inserts: %{String.t() => %{after: String.t(), resources: [Job.resource()]}},
+          names: MapSet.t(String.t()),
+          deleted: MapSet.t(String.t()),
+          max_pending_tasks: pos_integer() | :infinity,
+          pending_tasks: non_neg_integer(),
+          sizes: %{term() => pos_integer()}
         }
 
   defstruct world: nil,
@@ -150,34 +156,66 @@ defmodule TartarusWarehouse.Distributor do
             jobs: %{},
             starting: nil,
             next_ref: 1,
-            completed: [],
+            completed: MapSet.new(),
             inserted: %{},
+            # the insertions in effect (not deleted): name => what it follows, its resources
+            inserts: %{},
+            # every task name of the jobs submitted so far, and those deleted
+            names: MapSet.new(),
+            deleted: MapSet.new(),
             changes: [],
             continue: false,
-            runs: MapSet.new()
+            runs: MapSet.new(),
+            max_pending_tasks: :infinity,
+            # the tasks of the jobs accepted and not completed, and each such job's tasks
+            pending_tasks: 0,
+            sizes: %{}
 
   @doc """
   A distributor for `world` (see `TartarusWarehouse.Job.world/2`). With `continue: true`
-  an agent is given runs of blocks (see "Agents that continue" above).
+  an agent is given runs of blocks (see "Agents that continue" above); `max_pending_tasks` (a
+  positive integer, default `:infinity`) bounds the tasks of the jobs accepted and not yet
+  completed (see `submit/2`).
   """
   @spec new(Job.world(), keyword()) :: t()
   def new(world, opts \\ []),
-    do: %__MODULE__{world: world, continue: Keyword.get(opts, :continue, false)}
+    do: %__MODULE__{
+      world: world,
+      continue: Keyword.get(opts, :continue, false),
+      max_pending_tasks: Keyword.get(opts, :max_pending_tasks, :infinity)
+    }
 
   @doc """
   A job arrives (asynchronously, at any time). Returns `{:ok, distributor, actions}`, or
-  `{:error, message}` for a malformed spec (see `TartarusWarehouse.Job.plan/2`) or a job
-  id already in use; the distributor is then unchanged.
+  `{:error, :queue_full}` when its tasks would take those of the jobs accepted and not yet
+  completed beyond `max_pending_tasks` (the submitter may try again once one completes), or
+  `{:error, message}` for a malformed spec (see `TartarusWarehouse.Job.plan/2`), a job id
+  already in use, a job of more tasks than `max_pending_tasks`, or a job that needs a
+  resource an inserted task holds (an inserted task's agent holds its resources until the
+  task is deleted: see `insert/3`); the distributor is then unchanged.
+
+      iex> alias TartarusWarehouse.Distributor, as: D
+      iex> d = D.new(TartarusWarehouse.Job.world([:a], 1), max_pending_tasks: 1)
+      iex> {:ok, d, _} = D.submit(d, %{id: 1, tasks: [%{name: "T1", resources: [:a]}]})
+      iex> D.submit(d, %{id: 2, tasks: [%{name: "T1", resources: [:a]}]})
+      {:error, :queue_full}
   """
-  @spec submit(t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
+  @spec submit(t(), map()) :: {:ok, t(), [action()]} | {:error, :queue_full | String.t()}
   def submit(%__MODULE__{} = d, spec) do
-    with {:ok, plan} <- Job.plan(spec, d.world),
-         :ok <- new_id(d, plan.id) do
+    with :ok <- room(d, 1),
+         {:ok, plan} <- Job.plan(spec, d.world),
+         :ok <- new_id(d, plan.id),
+         tasks = for(seq <- plan.sequences, b <- seq, t <- b.tasks, do: t),
+         :ok <- room(d, length(tasks), plan.id),
+         :ok <- clear_of_inserts(d, plan.id, tasks) do
       assignments = assignments(plan)
 
       d = %{
         d
         | queue: d.queue ++ assignments,
+          pending_tasks: d.pending_tasks + length(tasks),
+          sizes: Map.put(d.sizes, plan.id, length(tasks)),
+          names: Enum.reduce(tasks, d.names, &MapSet.put(&2, &1.name)),
           jobs:
             Map.put(
               d.jobs,
@@ -191,13 +229,67 @@ defmodule TartarusWarehouse.Distributor do
     end
   end
 
+  # Room for `n` more tasks; a job larger than the bound itself never fits.
+  defp room(d, n, id \\ nil) do
+    cond do
+      d.max_pending_tasks == :infinity ->
+        :ok
+
+      n > d.max_pending_tasks ->
+        {:error,
+         "job #{inspect(id)} has #{n} tasks, more than the distributor holds at once (max_pending_tasks: #{d.max_pending_tasks})"}
+
+      d.pending_tasks + n > d.max_pending_tasks ->
+        {:error, :queue_full}
+
+      true ->
+        :ok
+    end
+  end
+
   defp new_id(d, id) do
-    if Map.has_key?(d.jobs, id) or id in d.completed,
+    if Map.has_key?(d.jobs, id) or MapSet.member?(d.completed, id),
       do: {:error, "job id #{inspect(id)} is already in use"},
       else: :ok
   end
 
-  @doc "The plan's blocks as assignments, in order (sequence by sequence)."
+  # A job's task that needs a resource an insertion in effect holds would wait until the
+  # insertion is deleted; one named like an inserted task would be deleted with it.
+  defp clear_of_inserts(d, id, tasks) do
+    Enum.find_value(tasks, :ok, fn t ->
+      cond do
+        Map.has_key?(d.inserts, t.name) ->
+          {:error,
+           "job #{inspect(id)}: task #{inspect(t.name)} has the name of an inserted task (delete it first)"}
+
+        holder = inserted_holder(d, t.resources) ->
+          {name, r} = holder
+
+          {:error,
+           "job #{inspect(id)}: task #{inspect(t.name)} needs #{inspect(r)}, which inserted task #{inspect(name)} holds until it is deleted"}
+
+        true ->
+          nil
+      end
+    end)
+  end
+
+  # The insertion in effect (other than `except`) that holds one of `resources`, and that
+  # resource, or nil.
+  defp inserted_holder(d, resources, except \\ nil) do
+    Enum.find_value(d.inserts, fn {name, i} ->
+      case if(name != except, do: Enum.filter(resources, &(&1 in i.resources)), else: []) do
+        [r | _] -> {name, r}
+        [] -> nil
+      end
+    end)
+  end
+
+  @doc """
+  The plan's blocks as assignments, in order (sequence by sequence). A sequence's first
+  block `needs` every resource of the sequence (the free robot it books must reach them
+  all); the later blocks need nothing more than the robot already booked.
+  """
   @spec assignments(Job.plan()) :: [assignment()]
   def assignments(plan) do
     for {blocks, s} <- Enum.with_index(plan.sequences),
@@ -210,7 +302,10 @@ defmodule TartarusWarehouse.Distributor do
         index: i,
         tasks: b.tasks,
         resources: b.resources,
-        needs: needs,
+        # what a free robot must reach: only a first block looks for one (the later ones
+        # go to the robot it booked), so only it carries them (a list a block would make a
+        # job's memory grow with the square of its blocks)
+        needs: if(i == 0, do: needs, else: []),
         look_for: if(i == 0, do: :free, else: {plan.id, s, i}),
         next: if(i == last, do: :free, else: {plan.id, s, i + 1})
       }
@@ -290,8 +385,13 @@ defmodule TartarusWarehouse.Distributor do
 
     if left == 0,
       do:
-        {%{d | jobs: Map.delete(d.jobs, a.job), completed: [a.job | d.completed]},
-         [{:job_done, a.job}]},
+        {%{
+           d
+           | jobs: Map.delete(d.jobs, a.job),
+             completed: MapSet.put(d.completed, a.job),
+             pending_tasks: d.pending_tasks - Map.get(d.sizes, a.job, 0),
+             sizes: Map.delete(d.sizes, a.job)
+         }, [{:job_done, a.job}]},
       else: {%{d | jobs: Map.put(d.jobs, a.job, left)}, []}
   end
 
@@ -299,69 +399,170 @@ defmodule TartarusWarehouse.Distributor do
   Inserts task `spec` (a task spec, see `TartarusWarehouse.Job`) after the task named
   `after_task` in every robot's sequence from now on. Returns `{:ok, distributor,
   actions}` (a `{:sequence, [..., {n, {:insert, after_task, name}}]}` and, once its resources are
-  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}` for a
-  malformed change (`TartarusWarehouse.Job.change/2`) or a task already inserted; the
-  distributor is then unchanged.
+  free, the `{:release, ref, assignment}` of its agent) or `{:error, message}`, the
+  distributor unchanged, for a change that is malformed (`TartarusWarehouse.Job.change/2`)
+  or cannot apply:
+
+    * `after_task` is no task of a job submitted so far and no inserted task (robots would
+      never meet it, and the new task's agent would hold its resources for nothing);
+    * an inserted task already follows `after_task` (a robot waits for one task there:
+      delete it first);
+    * the task's name is already inserted, or is a job's task;
+    * it needs a resource another inserted task holds, or one a job not yet completed
+      needs: an inserted task's agent holds its resources until the task is deleted, so
+      the robots that reach `after_task` would wait for an agent that never comes, or the
+      job for a resource that is never free (jobs submitted later that need it are
+      refused, see `submit/2`).
 
       iex> alias TartarusWarehouse.Distributor, as: D
       iex> d = D.new(TartarusWarehouse.Job.world([:a, :detour], 1))
-      iex> {:ok, d, [{:release, 1, a}, {:sequence, [{1, change}]}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
+      iex> {:ok, d, _} = D.submit(d, %{id: 1, tasks: [%{name: "T2", resources: [:a]}]})
+      iex> {:ok, d, [{:release, 2, a}, {:sequence, [{1, change}]}]} = D.insert(d, "T2", %{name: "T2A", resources: [:detour]})
       iex> {a.look_for, a.next, change}
       {{:inserted, "T2A"}, :resume, {:insert, "T2", "T2A"}}
-      iex> {d, [{:reissue, 1, _}]} = D.done(d, 1)
+      iex> D.insert(d, "T9", %{name: "T9A", resources: [:detour]})
+      {:error, ~s(change {:insert, "T9", _}: no job submitted so far has a task "T9", and no inserted task is named so: there is nothing to insert after)}
+      iex> {d, [{:reissue, 2, _}]} = D.done(d, 2)
       iex> {:ok, d, [{:sequence, [{1, _}, {2, {:delete, "T2A"}}]}]} = D.delete(d, "T2A")
-      iex> D.done(d, 1)
+      iex> D.done(d, 2)
       ...> |> elem(1)
-      [{:retire, 1}]
+      [{:retire, 2}]
   """
   @spec insert(t(), String.t(), map()) :: {:ok, t(), [action()]} | {:error, String.t()}
   def insert(%__MODULE__{} = d, after_task, spec) do
     with {:ok, {:insert, after_task, task}} <-
            Job.change({:insert, after_task, spec}, d.world),
-         name = task.name,
-         :ok <-
-           if(Map.get(d.inserted, name),
-             do: {:error, "task #{inspect(name)} is already inserted"},
-             else: :ok
-           ) do
+         :ok <- insertable(d, after_task, task) do
+      name = task.name
+      resources = task.resources |> Enum.uniq() |> Enum.sort()
+
       a = %{
         job: {:otfp, name},
         seq: 0,
         index: 1,
         tasks: [task],
-        resources: task.resources |> Enum.uniq() |> Enum.sort(),
+        resources: resources,
         needs: [],
         look_for: {:inserted, name},
         next: :resume,
         persistent: true
       }
 
-      d = %{d | queue: d.queue ++ [a], inserted: Map.put(d.inserted, name, true)}
+      d = %{
+        d
+        | queue: d.queue ++ [a],
+          inserted: Map.put(d.inserted, name, true),
+          inserts: Map.put(d.inserts, name, %{after: after_task, resources: resources})
+      }
+
       {d, actions} = issue(d, nil)
       {d, change} = change(d, {:insert, after_task, name})
       {:ok, d, actions ++ [change]}
     end
   end
 
+  # Whether an insertion can apply (see insert/3); its message else.
+  defp insertable(d, after_task, task) do
+    name = task.name
+    follower = Enum.find_value(d.inserts, fn {n, i} -> if i.after == after_task, do: n end)
+
+    refusal =
+      cond do
+        not MapSet.member?(d.names, after_task) and not Map.has_key?(d.inserts, after_task) ->
+          "no job submitted so far has a task #{inspect(after_task)}, and no inserted task is named so: there is nothing to insert after"
+
+        Map.get(d.inserted, name) ->
+          "task #{inspect(name)} is already inserted"
+
+        MapSet.member?(d.names, name) ->
+          "a job already has a task named #{inspect(name)}: an inserted task needs a name of its own"
+
+        follower != nil ->
+          "inserted task #{inspect(follower)} already follows #{inspect(after_task)} (delete it first)"
+
+        holder = inserted_holder(d, task.resources, name) ->
+          {other, r} = holder
+
+          "task #{inspect(name)} needs #{inspect(r)}, which inserted task #{inspect(other)} holds until it is deleted"
+
+        user = job_using(d, task.resources) ->
+          {job, r} = user
+
+          "task #{inspect(name)} needs #{inspect(r)}, which job #{inspect(job)} (not completed) needs: an inserted task holds its resources until it is deleted, and the job would wait for them"
+
+        true ->
+          nil
+      end
+
+    if refusal,
+      do: {:error, "change {:insert, #{inspect(after_task)}, _}: " <> refusal},
+      else: :ok
+  end
+
+  # A job not yet completed (its blocks waiting or out) that needs one of `resources`, and
+  # that resource, or nil.
+  defp job_using(d, resources) do
+    Enum.find_value(d.queue ++ Map.values(d.out), fn a ->
+      case if(Map.has_key?(a, :persistent),
+             do: [],
+             else: Enum.filter(a.resources, &(&1 in resources))
+           ) do
+        [r | _] -> {a.job, r}
+        [] -> nil
+      end
+    end)
+  end
+
   @doc """
   Deletes task `name`: an inserted task's agent retires (at once if it was not yet
   released), and robots skip the task from now on. Returns `{:ok, distributor, actions}`,
   or `{:error, message}` when `name` is not a task's name (see
-  `TartarusWarehouse.Job.change/2`).
+  `TartarusWarehouse.Job.change/2`), names no task of a job submitted so far and no
+  inserted task, or names a task already deleted; the distributor is then unchanged.
   """
   @spec delete(t(), String.t()) :: {:ok, t(), [action()]} | {:error, String.t()}
   def delete(%__MODULE__{} = d, name) do
     with {:ok, {:delete, name}} <- Job.change({:delete, name}, d.world),
+         :ok <- deletable(d, name),
          do: do_delete(d, name)
+  end
+
+  defp deletable(d, name) do
+    refusal =
+      cond do
+        Map.has_key?(d.inserts, name) ->
+          nil
+
+        MapSet.member?(d.deleted, name) or Map.has_key?(d.inserted, name) ->
+          "task #{inspect(name)} is already deleted"
+
+        not MapSet.member?(d.names, name) ->
+          "no job submitted so far has a task #{inspect(name)}, and no inserted task is named so: there is nothing to delete"
+
+        true ->
+          nil
+      end
+
+    if refusal, do: {:error, "change {:delete, #{inspect(name)}}: " <> refusal}, else: :ok
   end
 
   defp do_delete(d, name) do
     queue = Enum.reject(d.queue, &(Map.get(&1, :persistent) && inserted_name(&1) == name))
 
-    inserted =
-      if Map.has_key?(d.inserted, name), do: Map.put(d.inserted, name, false), else: d.inserted
+    {inserted, deleted} =
+      if Map.has_key?(d.inserts, name),
+        do: {Map.put(d.inserted, name, false), d.deleted},
+        else: {d.inserted, MapSet.put(d.deleted, name)}
 
-    {d, change} = change(%{d | queue: queue, inserted: inserted}, {:delete, name})
+    d = %{
+      d
+      | queue: queue,
+        inserted: inserted,
+        inserts: Map.delete(d.inserts, name),
+        deleted: deleted
+    }
+
+    {d, change} = change(d, {:delete, name})
     {:ok, d, [change]}
   end
 
@@ -418,43 +619,54 @@ defmodule TartarusWarehouse.Distributor do
   # One pass over the queue (see the moduledoc). `returning` is the agent that just
   # reported, with the resources it held: it takes the first released assignment it covers.
   defp issue(d, returning) do
-    {queue, d, actions, _blocked, _returning} =
-      Enum.reduce(d.queue, {[], d, [], MapSet.new(), returning}, fn a,
-                                                                    {queue, d, actions, blocked,
-                                                                     ret} ->
-        rs = MapSet.new(a.resources)
+    {queue, d, actions} =
+      pass(d.queue, [], d, [], MapSet.new(), returning, MapSet.size(d.world.resources))
 
-        free? =
-          Enum.all?(a.resources, &(not Map.has_key?(d.held, &1))) and
-            MapSet.disjoint?(rs, blocked) and
-            (a.index > 0 or d.starting == nil)
+    take_runs(%{d | queue: queue}, Enum.reverse(actions))
+  end
 
-        if free? do
-          {ref, d, action, ret} =
-            case ret do
-              {r, covers} ->
-                if MapSet.subset?(rs, covers),
-                  do: {r, d, :reissue, nil},
-                  else: {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, ret}
+  # Once every resource of the world is wanted by a block left waiting, no later block can
+  # go: the rest of the queue stays as it is (a pass costs the blocks before that point,
+  # not the whole queue).
+  defp pass([], kept, d, actions, _blocked, _ret, _all), do: {Enum.reverse(kept), d, actions}
 
-              nil ->
-                {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, nil}
-            end
+  defp pass(rest, kept, d, actions, blocked, ret, all) do
+    if MapSet.size(blocked) >= all,
+      do: {Enum.reverse(kept, rest), d, actions},
+      else: step(rest, kept, d, actions, blocked, ret, all)
+  end
 
-          d = %{
-            d
-            | out: Map.put(d.out, ref, a),
-              held: Enum.reduce(a.resources, d.held, &Map.put(&2, &1, ref)),
-              starting: if(a.index == 0, do: ref, else: d.starting)
-          }
+  defp step([a | rest], kept, d, actions, blocked, ret, all) do
+    rs = MapSet.new(a.resources)
 
-          {queue, d, [{action, ref, a} | actions], blocked, ret}
-        else
-          {[a | queue], d, actions, MapSet.union(blocked, rs), ret}
+    free? =
+      Enum.all?(a.resources, &(not Map.has_key?(d.held, &1))) and
+        MapSet.disjoint?(rs, blocked) and
+        (a.index > 0 or d.starting == nil)
+
+    if free? do
+      {ref, d, action, ret} =
+        case ret do
+          {r, covers} ->
+            if MapSet.subset?(rs, covers),
+              do: {r, d, :reissue, nil},
+              else: {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, ret}
+
+          nil ->
+            {d.next_ref, %{d | next_ref: d.next_ref + 1}, :release, nil}
         end
-      end)
 
-    take_runs(%{d | queue: Enum.reverse(queue)}, Enum.reverse(actions))
+      d = %{
+        d
+        | out: Map.put(d.out, ref, a),
+          held: Enum.reduce(a.resources, d.held, &Map.put(&2, &1, ref)),
+          starting: if(a.index == 0, do: ref, else: d.starting)
+      }
+
+      pass(rest, kept, d, [{action, ref, a} | actions], blocked, ret, all)
+    else
+      pass(rest, [a | kept], d, actions, MapSet.union(blocked, rs), ret, all)
+    end
   end
 
   # continue: each agent released or re-issued takes the run of the same block of the

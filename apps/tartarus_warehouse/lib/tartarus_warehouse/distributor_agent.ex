@@ -6,8 +6,10 @@ defmodule TartarusWarehouse.DistributorAgent do
   assignment, and tells its owner `{:warehouse_job_done, job_id, time_us}` when a job
   completes.
 
-  Requests it answers: `{:submit, job_spec}` (`:ok` or `{:error, message}`; jobs arrive
-  at any time; the same job submitted again is `:ok` and changes nothing),
+  Requests it answers: `{:submit, job_spec}` (`:ok`, `{:error, :queue_full}` when the job
+  would take the tasks of the jobs accepted and not yet completed beyond
+  `max_pending_tasks`, or `{:error, message}`; jobs
+  arrive at any time; the same job submitted again is `:ok` and changes nothing),
   `{:insert, after_task, task_spec}` and `{:delete, task}` (on-the-fly programming: it
   releases a `TartarusWarehouse.SequenceAgent`), `{:started, ref}`, `{:done, ref, key}`,
   `{:still, ref}` and `{:valid, ref, nonce}` from task agents, `{:progress, ref, key}`
@@ -54,7 +56,11 @@ defmodule TartarusWarehouse.DistributorAgent do
       Map.merge(
         %{validate: false, continue: false},
         Map.merge(args, %{
-          d: Distributor.new(args.world, continue: Map.get(args, :continue, false)),
+          d:
+            Distributor.new(args.world,
+              continue: Map.get(args, :continue, false),
+              max_pending_tasks: Map.get(args, :max_pending_tasks, :infinity)
+            ),
           svc: Service.new(Map.get(args, :service_ms, 0)),
           released: 0,
           reissued: 0,
@@ -124,18 +130,25 @@ defmodule TartarusWarehouse.DistributorAgent do
 
   defp handle({:submit, spec}, from, s) do
     id = Map.get(spec, :id)
+    # A hash of each spec accepted (not the spec: 1 word a job), to answer a repeated
+    # submission (its answer lost with the host) as the first one was.
+    hash = :erlang.phash2(spec)
 
+    # An answer that changes nothing is given at once, with no checkpoint (an answer lost
+    # with the host is asked again): a burst refused for a full queue costs no journal.
     cond do
-      Map.get(s.specs, id) == spec ->
-        later(s, [{:reply, from, :ok}])
+      Map.get(s.specs, id) == hash ->
+        Tartarus.Agent.reply(from, :ok)
+        {:stay, s}
 
       true ->
         case Distributor.submit(s.d, spec) do
           {:ok, d, actions} ->
-            later(%{s | d: d, specs: Map.put(s.specs, id, spec)}, [{:reply, from, :ok} | actions])
+            later(%{s | d: d, specs: Map.put(s.specs, id, hash)}, [{:reply, from, :ok} | actions])
 
           {:error, message} ->
-            later(s, [{:reply, from, {:error, message}}])
+            Tartarus.Agent.reply(from, {:error, message})
+            {:stay, s}
         end
     end
   end
@@ -178,8 +191,13 @@ defmodule TartarusWarehouse.DistributorAgent do
           end
 
         s = if match?({:reissue, _}, answer), do: %{s | reissued: s.reissued + 1}, else: s
-        s = %{s | d: d, last: Map.put(s.last, ref, {key, answer})}
-        s = if answer == :retire, do: %{s | nonces: Map.delete(s.nonces, ref)}, else: s
+        # A retired agent's repeated report is answered :retire without its entry (below):
+        # only agents still out keep one.
+        s =
+          if answer == :retire,
+            do: %{s | d: d, last: Map.delete(s.last, ref), nonces: Map.delete(s.nonces, ref)},
+            else: %{s | d: d, last: Map.put(s.last, ref, {key, answer})}
+
         later(s, [{:reply, from, answer} | others])
 
       # A report repeated (its answer was lost with the host): the same answer.

@@ -112,12 +112,16 @@ defmodule TartarusWarehouse.Floor do
   end
 
   @doc """
-  Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok`, or
-  `{:error, message}` for a malformed job (checked by `TartarusWarehouse.Job.plan/2`: the
-  message names the field, what was expected and what arrived), an id already submitted,
+  Submits a job (a job spec, see `TartarusWarehouse.Job`) to a started floor: `:ok` (the
+  job is accepted: it runs, and is not lost), `{:error, :queue_full}` when the distributor
+  would hold more than `max_pending_tasks` tasks of jobs accepted and not completed
+  (backpressure: submit it again once a job completed), or `{:error, message}` for a
+  malformed job (checked by
+  `TartarusWarehouse.Job.plan/2`: the message names the field, what was expected and what
+  arrived), an id already submitted, a job that needs a resource an inserted task holds,
   or a floor that failed (see `status/1`); nothing changes then.
   """
-  @spec submit(pid(), map()) :: :ok | {:error, String.t()}
+  @spec submit(pid(), map()) :: :ok | {:error, :queue_full | String.t()}
   def submit(floor, job), do: GenServer.call(floor, {:submit, job}, 60_000)
 
   @doc """
@@ -145,7 +149,9 @@ defmodule TartarusWarehouse.Floor do
   @doc """
   What a started floor is doing: `jobs` (ids, in submission order), `done` (ids
   completed), `pending`, `robots` (name => the robot's state, see
-  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`, `failed` (nil, or why
+  `TartarusWarehouse.Robot`), `hosts` (name => host), `elapsed_ms`, `backlog` (jobs of
+  `run/1` or `start/1` waiting in the floor for room at the distributor: see the option
+  `max_pending_tasks`), `failed` (nil, or why
   the floor failed: its distributor crashed and lost its jobs, or was removed; the floor
   then takes no more jobs or changes, and `stop/1` still reports what ran) and `errors`
   (oldest first: requests the floor or the distributor could not handle, each answered
@@ -201,7 +207,8 @@ defmodule TartarusWarehouse.Floor do
           failed: nil,
           errors: [],
           events: run.events,
-          arriving: 0
+          arriving: 0,
+          backlog: []
         }
 
         {:ok, st |> arrive(opts[:jobs], opts[:arrivals_ms]) |> schedule_events()}
@@ -230,16 +237,20 @@ defmodule TartarusWarehouse.Floor do
     if later == [], do: fire(st, 0), else: %{st | arriving: length(later)}
   end
 
-  # The jobs of run/1 and start/1 were planned before the floor started: a refusal here is
-  # the distributor's, and fails the floor.
-  defp submit_all(st, jobs) do
-    Enum.reduce(jobs, st, fn job, st ->
-      case do_submit(job, st) do
-        {:ok, st} -> st
-        {{:error, message}, st} -> fail(st, message)
-      end
-    end)
+  # The jobs of run/1 and start/1 (planned before the floor started) wait in the floor's
+  # backlog, in order, while the distributor is full (`max_pending_tasks`), and go on as jobs
+  # complete. Any other refusal is the distributor's, and fails the floor.
+  defp submit_all(st, jobs), do: feed(%{st | backlog: st.backlog ++ jobs})
+
+  defp feed(%{failed: nil, backlog: [job | rest]} = st) do
+    case do_submit(job, %{st | backlog: rest}) do
+      {:ok, st} -> feed(st)
+      {{:error, :queue_full}, st} -> %{st | backlog: [job | st.backlog]}
+      {{:error, message}, st} -> fail(st, message)
+    end
   end
+
+  defp feed(st), do: st
 
   # `{{:ms, t}, event}`: t ms after `t0` (taken before the first job was submitted).
   defp schedule_events(st) do
@@ -345,6 +356,7 @@ defmodule TartarusWarehouse.Floor do
        robots: robots,
        hosts: st.ctx.robot_hosts,
        elapsed_ms: div(Clock.system_time(:microsecond) - st.t0, 1000),
+       backlog: length(st.backlog),
        failed: st.failed,
        errors: Enum.reverse(st.errors)
      }, st}
@@ -367,7 +379,8 @@ defmodule TartarusWarehouse.Floor do
   end
 
   defp stop_call(_from, st) do
-    result = Build.collect(st.ctx, st.jobs, st.done, st.t0)
+    # Jobs still in the backlog never reached the distributor: not completed.
+    result = Build.collect(st.ctx, st.jobs ++ Enum.map(st.backlog, & &1.id), st.done, st.t0)
     changes = Enum.reverse(st.changes)
 
     result =
@@ -389,7 +402,7 @@ defmodule TartarusWarehouse.Floor do
 
   @impl GenServer
   def handle_info({:warehouse_job_done, id, at}, st) do
-    st = %{st | done: Map.put(st.done, id, at)}
+    st = feed(%{st | done: Map.put(st.done, id, at)})
     Panel.publish(st.ctx.status, &:ets.update_element(&1, :jobs, {3, map_size(st.done)}))
     st = fire(st, map_size(st.done))
 
@@ -471,7 +484,10 @@ defmodule TartarusWarehouse.Floor do
   end
 
   # Every job submitted so far completed, and none still to arrive.
-  defp all_done?(st), do: st.arriving == 0 and Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
+  defp all_done?(st),
+    do:
+      st.arriving == 0 and st.backlog == [] and map_size(st.done) >= length(st.jobs) and
+        Enum.all?(st.jobs, &Map.has_key?(st.done, &1))
 
   defp fail(%{failed: nil} = st, reason) do
     Enum.each(st.waiters, fn {_, from} ->

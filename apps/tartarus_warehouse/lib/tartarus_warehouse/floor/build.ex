@@ -162,7 +162,8 @@ defmodule TartarusWarehouse.Floor.Build do
               validate: opts[:failover],
               guide: if(opts[:guide], do: robot_span(robots)),
               service_ms: opts[:service_ms],
-              continue: opts[:continue]
+              continue: opts[:continue],
+              max_pending_tasks: opts[:max_pending_tasks]
             },
             # told `{:tartarus_removed, id, reason}` if it is removed
             owner: owner
@@ -184,7 +185,13 @@ defmodule TartarusWarehouse.Floor.Build do
             Tartarus.create_static_agent(
               jd,
               TartarusWarehouse.Central,
-              %{world: world, owner: owner, robots: agents, service_ms: opts[:service_ms]},
+              %{
+                world: world,
+                owner: owner,
+                robots: agents,
+                service_ms: opts[:service_ms],
+                max_pending_tasks: opts[:max_pending_tasks]
+              },
               owner: owner
             )
 

@@ -12,15 +12,24 @@ defmodule TartarusWarehouse.Floor.Changes do
   alias TartarusWarehouse.Job
 
   @doc """
-  Submits a job to the distributor `dref` (a job already planned): `:ok` or
+  Submits a job to the distributor `dref` (a job already planned): `:ok`,
+  `{:error, :queue_full}` (its bound of jobs accepted and not completed is reached) or
   `{:error, message}`. Asked again while the distributor is unreachable (its host
   restarting), for 30 s.
   """
-  @spec submit({term(), term()}, map(), non_neg_integer()) :: :ok | {:error, String.t()}
+  @spec submit({term(), term()}, map(), non_neg_integer()) ::
+          :ok | {:error, :queue_full | String.t()}
   def submit(dref, job, tries \\ 3000) do
     case Tartarus.request(dref, {:submit, job}, 5_000) do
       {:ok, :ok} ->
         :ok
+
+      {:ok, {:error, :queue_full}} ->
+        {:error, :queue_full}
+
+      # the distributor's refusal, as it says it
+      {:ok, {:error, message}} when is_binary(message) ->
+        {:error, message}
 
       {:error, _} when tries > 0 ->
         Clock.sleep(10)

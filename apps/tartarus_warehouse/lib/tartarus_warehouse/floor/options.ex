@@ -104,6 +104,12 @@ defmodule TartarusWarehouse.Floor.Options do
       doc:
         "the distributor survives the loss of its host: its host journals (a fresh directory), task agents validate before running (see `TartarusWarehouse.DistributorAgent`); the event `{:kill_distributor, down_ms}` kills its host and starts it again"
     ],
+    max_pending_tasks: [
+      type: :pos_integer,
+      default: 10_000,
+      doc:
+        "the most tasks of jobs accepted and not yet completed that the distributor (or the central server) holds: a job that would take it beyond is answered `{:error, :queue_full}` at once (backpressure: submit it again once a job completed), a job of more tasks than that is refused; `run/1` and `start/1`'s own `jobs` wait in the floor for room instead. The distributor's memory is bounded by it (about 0.5 KB a task, see docs/warehouse.md), well under its heap limit (the host's `:max_heap_size`, 64 MiB by default)"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"],
     status: [
       type: :any,
@@ -148,7 +154,7 @@ defmodule TartarusWarehouse.Floor.Options do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1"),
          :ok <- check_standby(opts, "run/1"),
          world = world(opts),
-         :ok <- plan_all(opts[:jobs], world),
+         :ok <- plan_all(opts[:jobs], world, opts[:max_pending_tasks]),
          events = events(opts),
          :ok <- check_events(events, world, opts[:robots]) do
       {:ok, opts, world, events}
@@ -169,7 +175,7 @@ defmodule TartarusWarehouse.Floor.Options do
            Tartarus.Options.validate(opts, start_schema(), "TartarusWarehouse.Floor.start/1"),
          :ok <- check_standby(opts, "start/1"),
          world = world(opts),
-         :ok <- plan_all(opts[:jobs], world) do
+         :ok <- plan_all(opts[:jobs], world, opts[:max_pending_tasks]) do
       {:ok, opts, world}
     end
   end
@@ -251,11 +257,22 @@ defmodule TartarusWarehouse.Floor.Options do
     %{world | robots: Map.new(world.robots, fn {i, r} -> {"r#{i}", r} end)}
   end
 
-  defp plan_all(jobs, world) do
+  # Every job planned, and none larger than the distributor's bound (it would never fit:
+  # the floor's backlog would wait for it for ever).
+  defp plan_all(jobs, world, max_tasks) do
     Enum.find_value(jobs, :ok, fn spec ->
-      case Job.plan(spec, world) do
-        {:ok, _} -> nil
-        {:error, m} -> {:error, m}
+      with {:ok, plan} <- Job.plan(spec, world),
+           tasks =
+             for(seq <- plan.sequences, b <- seq, reduce: 0, do: (n -> n + length(b.tasks))),
+           true <- tasks <= max_tasks do
+        nil
+      else
+        {:error, m} ->
+          {:error, m}
+
+        false ->
+          {:error,
+           "invalid options given to TartarusWarehouse.Floor for key :jobs: job #{inspect(spec.id)} has more tasks than max_pending_tasks (#{max_tasks}): the distributor would never take it"}
       end
     end)
   end
