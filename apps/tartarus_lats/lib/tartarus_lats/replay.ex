@@ -48,9 +48,11 @@ defmodule TartarusLats.Replay do
   @doc """
   Reads a log (a path, or a parsed `TartarusLats.Replay.Log`) for the receivers of
   `devices` and returns the case a run replays: `%{name, building, beacon, tag, feed,
-  raw, last, truth, t0, lines, bad, unknown_receivers}` where `feed` is `%{second => %{node
-  => %{tag => rssi}}}` (raw, what the receivers logged), `raw` the beacon's `%{second =>
-  %{node => rssi}}`. Options: `:beacon` (default: the beacon with most readings), `:name`.
+  raw, last, truth, t0, lines, readings, bad, unterminated, unknown_receivers}` where
+  `feed` is `%{second => %{node => %{tag => rssi}}}` (raw, what the receivers logged), `raw`
+  the beacon's `%{second => %{node => rssi}}`, `unknown_receivers` `%{receiver => readings}`
+  of the receivers the devices file does not name (never fed). `check/2` says whether it
+  can be judged. Options: `:beacon` (default: the beacon with most readings), `:name`.
   """
   @spec prepare(Path.t() | Log.t(), TartarusLats.Replay.Devices.t(), keyword()) :: map()
   def prepare(log, devices, opts \\ []) do
@@ -75,7 +77,10 @@ defmodule TartarusLats.Replay do
     seconds = Map.new(seconds, fn {s, v} -> {Map.fetch!(remap, s), v} end)
     tag = tag(beacon)
 
-    unknown = log.readings |> Enum.reject(&Map.has_key?(known, &1.receiver)) |> length()
+    unknown =
+      log.readings
+      |> Enum.reject(&Map.has_key?(known, &1.receiver))
+      |> Enum.frequencies_by(& &1.receiver)
 
     feed =
       Map.new(seconds, fn {s, by_rx} ->
@@ -115,10 +120,48 @@ defmodule TartarusLats.Replay do
       t0: t0,
       truth: Judge.truth(building, positions, last),
       lines: log.lines,
+      readings: length(log.readings),
       bad: log.bad,
+      unterminated: log.unterminated,
       unknown_receivers: unknown,
       gaps: gaps
     }
+  end
+
+  @doc """
+  Whether a case (`prepare/3`) can be judged with `warmup` seconds left unjudged at its
+  start: `:ok`, or `{:error, why}` in one line naming the track, when the log has no valid
+  reading, no reading from a receiver of the devices file, no true position of the beacon,
+  or no second after the warm-up. A run of such a case would judge nothing, and nothing is
+  not a pass.
+
+      iex> c = %{name: "t", readings: 0, lines: 2, bad: [{1, "x"}, {2, "y"}], feed: %{}}
+      iex> TartarusLats.Replay.check(c, 5)
+      {:error, "t: no valid reading (2 lines, 2 bad)"}
+  """
+  @spec check(map(), non_neg_integer()) :: :ok | {:error, String.t()}
+  def check(c, warmup) do
+    cond do
+      c.readings == 0 ->
+        {:error, "#{c.name}: no valid reading (#{c.lines} lines, #{length(c.bad)} bad)"}
+
+      Enum.all?(c.feed, fn {_s, by_node} -> by_node == %{} end) ->
+        {:error,
+         "#{c.name}: no reading from a receiver of the devices file (unknown receivers: " <>
+           "#{c.unknown_receivers |> Map.keys() |> Enum.sort() |> Enum.join(", ")})"}
+
+      c.positions == %{} ->
+        {:error,
+         "#{c.name}: no true position of beacon #{c.beacon} (no x, y columns): nothing to judge against"}
+
+      not Enum.any?(Map.keys(c.truth), &(&1 > warmup)) ->
+        {:error,
+         "#{c.name}: no second to judge: the track has #{c.last} s with a true position up to second " <>
+           "#{c.truth |> Map.keys() |> Enum.max(fn -> 0 end)}, the warm-up is #{warmup} s"}
+
+      true ->
+        :ok
+    end
   end
 
   # The longest stretch of seconds without a reading that a replay walks.
@@ -413,20 +456,20 @@ defmodule TartarusLats.Replay do
         log_lines: c.lines,
         log_bad_lines: length(c.bad),
         log_gaps_shortened: length(c.gaps),
-        unknown_receiver_readings: c.unknown_receivers,
+        unknown_receiver_readings: c.unknown_receivers |> Map.values() |> Enum.sum(),
+        unknown_receivers: c.unknown_receivers,
+        log_unterminated_line: c.unterminated,
         cloud_connections_lats_per_query:
           Enum.sum(Enum.map(queries, & &1.result.per_query_contacts))
       })
 
     rows =
       for s <- 1..c.last//1,
-          do: %{
-            second: s,
-            truth: c.truth[s],
-            lats: lats[s],
-            strongest: designs.strongest[s],
-            knn: designs[:knn][s]
-          }
+          do:
+            Map.merge(
+              %{second: s, truth: c.truth[s]},
+              Map.new(designs, fn {d, dec} -> {d, dec[s]} end)
+            )
 
     %{summary: summary, seconds: rows, queries: queries}
   end

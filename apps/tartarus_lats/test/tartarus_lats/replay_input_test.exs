@@ -77,7 +77,7 @@ defmodule TartarusLats.ReplayInputTest do
 
     test "readings are grouped per receiver and second (mean, rounded), positions per second" do
       log =
-        Log.parse("10.2,r1,aa,-70,1,1\n10.9,r1,aa,-75,2,2\n11.5,r1,aa,-80,3,3\n12.1,r2,bb,-60")
+        Log.parse("10.2,r1,aa,-70,1,1\n10.9,r1,aa,-75,2,2\n11.5,r1,aa,-80,3,3\n12.1,r2,bb,-60\n")
 
       {t0, per} = Log.per_second(log)
       assert t0 == 10.0

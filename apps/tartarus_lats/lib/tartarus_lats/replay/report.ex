@@ -32,15 +32,17 @@ defmodule TartarusLats.Replay.Report do
   def write!(dir, c, results) do
     File.mkdir_p!(dir)
     first = hd(results)
+    # The designs judged in this run (no fingerprinting without reference points: no column).
+    designs = Enum.filter(@designs, &Map.has_key?(first.summary, &1))
 
     seconds =
       Report.write_csv!(
         dir,
         "#{c.name}_seconds.csv",
-        ~w(second x y truth lats strongest knn),
+        ~w(second x y truth) ++ Enum.map(designs, &Atom.to_string/1),
         for r <- first.seconds do
           {x, y} = Map.get(c.positions, r.second, {nil, nil})
-          [r.second, x, y, r.truth, r.lats, r.strongest, Map.get(r, :knn)]
+          [r.second, x, y, r.truth] ++ Enum.map(designs, &Map.get(r, &1))
         end
       )
 
@@ -48,10 +50,12 @@ defmodule TartarusLats.Replay.Report do
       Report.write_csv!(
         dir,
         "#{c.name}_queries.csv",
-        ~w(seed type second start truth lats_answer lats_judged strongest_answer strongest_judged knn_answer knn_judged lats_hops lats_cloud_contacts),
+        ~w(seed type second start truth) ++
+          Enum.flat_map(designs, &["#{&1}_answer", "#{&1}_judged"]) ++
+          ~w(lats_hops lats_cloud_contacts),
         for r <- results, q <- r.queries do
           [r.summary.seed, q.type, q.time, q.start, Enum.join(q.truth, " ")] ++
-            Enum.flat_map(@designs, fn d ->
+            Enum.flat_map(designs, fn d ->
               case q.judged[d] do
                 nil -> [nil, nil]
                 j -> [show(j.answer), Map.get(j, :correct, Map.get(j, :edit_distance))]
