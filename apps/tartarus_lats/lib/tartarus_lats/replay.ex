@@ -223,7 +223,8 @@ defmodule TartarusLats.Replay do
         dwell: 2,
         claim_dwell: 1,
         release_on_take: true,
-        exit_alone: true
+        exit_alone: true,
+        one_holder: true
       ],
       doc:
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
@@ -282,11 +283,10 @@ defmodule TartarusLats.Replay do
     rng = :rand.seed_s(:exsss, {opts[:seed], 28, 5})
 
     try do
-      {_dep, decisions, answers, _rng, _held} =
-        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, nil}, fn s,
-                                                               {dep, dec, answers, rng, prev} ->
+      {_dep, decisions, answers, _rng, holders} =
+        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, %{}}, fn s, {dep, dec, answers, rng, hs} ->
           dep = Deployment.step(dep)
-          {holder, held} = holder(dep, c.tag, prev)
+          {holder, held} = holder(dep, c.tag, hs[s - 1])
           dec = Map.put(dec, s, holder)
 
           {answers, rng} =
@@ -294,14 +294,16 @@ defmodule TartarusLats.Replay do
               do: ask(dep, c.tag, s, answers, rng, opts[:repair]),
               else: {answers, rng}
 
-          {dep, dec, answers, rng, held}
+          {dep, dec, answers, rng, Map.put(hs, s, held)}
         end)
         |> then(fn {dep, d, a, r, h} ->
           Deployment.stop(dep)
           {dep, d, a, r, h}
         end)
 
-      judge(c, decisions, Enum.reverse(answers), opts)
+      c
+      |> judge(decisions, Enum.reverse(answers), opts)
+      |> update_in([:summary], &Map.merge(&1, holder_counts(c.building, holders)))
     rescue
       e ->
         Deployment.stop(dep)
@@ -348,6 +350,60 @@ defmodule TartarusLats.Replay do
       end
 
     {h, held}
+  end
+
+  @doc """
+  What the zone decision's holders did over a run, from the nodes that held the tag after
+  each second (`%{second => [node]}`): `holders_at_once` (the most nodes that held it after
+  one second), `seconds_with_two_holders`, `changes` (the holder changed, seconds held by
+  nobody skipped), `non_neighbour_jumps` (of those, from a node to one that is not its
+  neighbour) and `non_neighbour_jumps_without_release` (such a jump with no second held by
+  nobody in between: what the one-holder protocol rules out).
+
+      iex> b = TartarusLats.Building.custom(positions: %{a: {0, 0, 0}, b: {5, 0, 0}, c: {10, 0, 0}}, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
+      iex> TartarusLats.Replay.holder_counts(b, %{1 => [:a], 2 => [:a, :c], 3 => [:c], 4 => [], 5 => [:a]})
+      %{holders_at_once: 2, seconds_with_two_holders: 1, changes: 2, non_neighbour_jumps: 2, non_neighbour_jumps_without_release: 1}
+  """
+  @spec holder_counts(Building.t(), %{pos_integer() => [atom()]}) :: map()
+  def holder_counts(building, holders) do
+    seconds = holders |> Enum.sort() |> Enum.map(&elem(&1, 1))
+
+    # The holder of each second (of two, the one that did not hold before), with a marker
+    # for the seconds held by nobody.
+    {seq, _} =
+      Enum.map_reduce(seconds, [], fn held, prev ->
+        h =
+          case held do
+            [] -> :nobody
+            [one] -> one
+            many -> Enum.find(many, &(&1 not in prev)) || hd(many)
+          end
+
+        {h, held}
+      end)
+
+    runs = Enum.dedup(seq)
+
+    direct =
+      for [a, b] <- Enum.chunk_every(runs, 2, 1, :discard),
+          a != :nobody and b != :nobody,
+          do: {a, b, :direct}
+
+    released =
+      for [a, :nobody, b] <- Enum.chunk_every(runs, 3, 1, :discard),
+          a != :nobody and b != :nobody and a != b,
+          do: {a, b, :released}
+
+    not_neighbours =
+      for {a, b, _} = j <- direct ++ released, b not in Building.neighbours(building, a), do: j
+
+    %{
+      holders_at_once: seconds |> Enum.map(&length/1) |> Enum.max(fn -> 0 end),
+      seconds_with_two_holders: Enum.count(seconds, &(length(&1) > 1)),
+      changes: length(direct) + length(released),
+      non_neighbour_jumps: length(not_neighbours),
+      non_neighbour_jumps_without_release: Enum.count(not_neighbours, &(elem(&1, 2) == :direct))
+    }
   end
 
   defp ask(dep, tag, s, answers, rng, repair) do

@@ -236,6 +236,14 @@ defmodule Mix.Tasks.Tartarus.Lats do
               )
             end
 
+            h = t.holders
+
+            Mix.shell().info(
+              "#{name} holders: at most #{h.holders_at_once} at once (#{h.seconds_with_two_holders} s with two or more), " <>
+                "#{h.non_neighbour_jumps} of #{h.changes} holder changes to a non-neighbour " <>
+                "(#{h.non_neighbour_jumps_without_release} without a release between)"
+            )
+
             for line <- TartarusLats.Replay.Experiment.input_lines(t),
                 do: Mix.shell().info("#{name} input: #{line}")
           end

@@ -203,6 +203,14 @@ defmodule TartarusLats.Replay.Experiment do
         {c.name,
          Map.merge(per, %{
            seconds: c.last,
+           holders:
+             Map.take(hd(rs).summary, [
+               :holders_at_once,
+               :seconds_with_two_holders,
+               :changes,
+               :non_neighbour_jumps,
+               :non_neighbour_jumps_without_release
+             ]),
            log_lines: c.lines,
            log_bad_lines: length(c.bad),
            bad_lines: for({no, why} <- Enum.take(c.bad, @bad_listed), do: %{line: no, why: why}),
