@@ -230,6 +230,18 @@ defmodule TartarusLats.Replay do
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
     ],
     k: [type: :pos_integer, default: 3, doc: "neighbours of the kNN baseline"],
+    thesis: [
+      type: :boolean,
+      default: true,
+      doc:
+        "also run the thesis's own rule (no zone decision: each node's tracker alone, far or near against beyond, drives the motion-vector handshake) as an arm of its own (`:thesis`)"
+    ],
+    thesis_tracker: [
+      type: :keyword_list,
+      default: [window: 6, median: 1, confirm: 2, hysteresis_db: 0.0],
+      doc:
+        "the thesis arm's trackers: the moving average of six (Fig. 3.6), no median, no hysteresis, a change kept once it held two samples (a spike back within a second is not stored)"
+    ],
     warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"],
     repair: [
       type: :boolean,
@@ -256,13 +268,27 @@ defmodule TartarusLats.Replay do
   @spec run(map(), keyword()) :: map()
   def run(c, opts \\ []) do
     opts = Tartarus.Options.validate!(opts, @schema, "TartarusLats.Replay.run/2")
+    {decisions, answers, holders} = drive(c, opts, [window: opts[:window]], opts[:zone], :lats)
+
+    thesis =
+      if opts[:thesis],
+        do: [thesis: drive(c, opts, opts[:thesis_tracker], :tracker, :thesis)],
+        else: []
+
+    c
+    |> judge(decisions, answers, thesis, opts)
+    |> update_in([:summary], &Map.merge(&1, holder_counts(c.building, holders)))
+  end
+
+  # One arm's run: a deployment of the case's nodes (the trackers' options `tracker`, the
+  # zone decision's `zone`, or `:tracker` for the thesis's own rule) fed second by second;
+  # after every second the decision (who holds the tag) is read back, and at the query
+  # instants the query agents are released. Returns the decisions, the answers and the
+  # nodes that held the tag after every second.
+  defp drive(c, opts, tracker, zone, arm) do
     cal = opts[:calibration]
-    window = opts[:window]
-
     corrections = Map.new(Building.nodes(c.building), &{&1, Calibration.correction(cal, &1)})
-
     thresholds = Calibration.thresholds(cal, near_m: opts[:near_m], far_m: opts[:far_m])
-
     world = World.new(building: c.building, walkers: 0, scripts: [])
 
     dep =
@@ -271,8 +297,8 @@ defmodule TartarusLats.Replay do
         feed: c.feed,
         calibration: thresholds,
         corrections: corrections,
-        tracker: [window: window],
-        zone: opts[:zone],
+        tracker: tracker,
+        zone: zone,
         centralized: false,
         mode: opts[:mode],
         group: opts[:group],
@@ -286,7 +312,7 @@ defmodule TartarusLats.Replay do
       {_dep, decisions, answers, _rng, holders} =
         Enum.reduce(1..c.last//1, {dep, %{}, [], rng, %{}}, fn s, {dep, dec, answers, rng, hs} ->
           dep = Deployment.step(dep)
-          {holder, held} = holder(dep, c.tag, hs[s - 1])
+          {holder, held} = holder(arm, dep, c.tag, s, hs)
           dec = Map.put(dec, s, holder)
 
           {answers, rng} =
@@ -296,18 +322,10 @@ defmodule TartarusLats.Replay do
 
           {dep, dec, answers, rng, Map.put(hs, s, held)}
         end)
-        |> then(fn {dep, d, a, r, h} ->
-          Deployment.stop(dep)
-          {dep, d, a, r, h}
-        end)
 
-      c
-      |> judge(decisions, Enum.reverse(answers), opts)
-      |> update_in([:summary], &Map.merge(&1, holder_counts(c.building, holders)))
-    rescue
-      e ->
-        Deployment.stop(dep)
-        reraise e, __STACKTRACE__
+      {decisions, Enum.reverse(answers), holders}
+    after
+      Deployment.stop(dep)
     end
   end
 
@@ -334,22 +352,43 @@ defmodule TartarusLats.Replay do
     Enum.sort(picked)
   end
 
-  # Which node holds the tag after this second: the one node whose zone decision holds it;
-  # when two do (a completed take, for a second), the one that did not hold it before.
-  defp holder(dep, tag, prev) do
+  # Which node holds the tag after second `s`, and every node that does. LATS: the one
+  # node whose zone decision holds it (when two do, without the one-holder protocol, the
+  # one that did not hold it before). The thesis's rule: of the nodes whose tracker hears
+  # the tag far or near, the one whose zone it entered last (its presence indicator is the
+  # newest), ties by the stronger filtered RSSI, then the name.
+  defp holder(arm, dep, tag, s, hs) do
     held =
       for n <- Deployment.live_nodes(dep),
           tag in (Tartarus.store_get(dep.hosts[n], {:lats, :held}) || []),
           do: n
 
+    prev = hs[s - 1] || []
+
     h =
-      case held do
-        [] -> nil
-        [one] -> one
-        many -> Enum.find(many, &(&1 not in (prev || []))) || hd(many)
+      case {arm, held} do
+        {_, []} ->
+          nil
+
+        {_, [one]} ->
+          one
+
+        {:lats, many} ->
+          Enum.find(many, &(&1 not in prev)) || hd(many)
+
+        {:thesis, many} ->
+          Enum.min_by(many, fn n ->
+            filtered = Tartarus.store_get(dep.hosts[n], {:lats, :filtered}) || %{}
+            {-entered(n, s, hs), -(filtered[tag] || -200), n}
+          end)
       end
 
     {h, held}
+  end
+
+  # The first second of node n's current run of holding the tag (it holds it at s).
+  defp entered(n, s, hs) do
+    if n in (hs[s - 1] || []), do: entered(n, s - 1, hs), else: s
   end
 
   @doc """
@@ -426,7 +465,7 @@ defmodule TartarusLats.Replay do
     {Enum.reverse(new, answers), rng}
   end
 
-  defp judge(c, lats, answers, opts) do
+  defp judge(c, lats, answers, arms, opts) do
     window = opts[:window]
     cal = opts[:calibration]
 
@@ -452,8 +491,20 @@ defmodule TartarusLats.Replay do
             )
         }
 
+    # The thesis's own rule, an arm of its own: its decisions, and its query agents' answers
+    # at the same instants from the same start nodes.
+    thesis = Map.new(arms, fn {arm, {dec, _answers, _held}} -> {arm, dec} end)
+
+    own =
+      for {arm, {_dec, arm_answers, _held}} <- arms,
+          a <- arm_answers,
+          into: %{},
+          do: {{arm, a.time, a.type}, a.result}
+
     designs =
-      Map.merge(%{lats: lats, strongest: Judge.strongest(calibrated, c.last, window)}, knn)
+      %{lats: lats, strongest: Judge.strongest(calibrated, c.last, window)}
+      |> Map.merge(knn)
+      |> Map.merge(thesis)
 
     judged = (opts[:warmup] + 1)..c.last//1
     stays = Judge.stays(c.truth)
@@ -466,8 +517,8 @@ defmodule TartarusLats.Replay do
           Map.new(designs, fn {d, dec} ->
             answer =
               case {d, q.type} do
-                {:lats, :where_is} -> q.result.answer
-                {:lats, :trace} -> q.result.answer
+                {:lats, _} -> q.result.answer
+                {:thesis, type} -> own[{:thesis, q.time, type}].answer
                 {_, :where_is} -> if(dec[q.time], do: {:in_zone, dec[q.time]}, else: :not_found)
                 {_, :trace} -> Judge.zones_until(dec, q.time)
               end
@@ -483,6 +534,8 @@ defmodule TartarusLats.Replay do
     central = c.feed |> Map.values() |> Enum.map(&map_size/1) |> Enum.sum()
     contacts = Enum.sum(Enum.map(queries, & &1.result.per_node_contacts))
 
+    thesis_contacts = Enum.sum(for {{:thesis, _, _}, r} <- own, do: r.per_node_contacts)
+
     summary =
       Map.new(designs, fn {d, dec} ->
         r = Judge.rates(c.building, dec, c.truth, judged)
@@ -497,7 +550,12 @@ defmodule TartarusLats.Replay do
            trace_edit_mean: TartarusTools.Stats.mean(tr),
            trace_edit_median: TartarusTools.Stats.median(tr),
            trace_exact: Enum.count(tr, &(&1 == 0)),
-           cloud_connections: if(d == :lats, do: contacts, else: central)
+           cloud_connections:
+             case d do
+               :lats -> contacts
+               :thesis -> thesis_contacts
+               _ -> central
+             end
          })}
       end)
       |> Map.merge(%{

@@ -119,7 +119,7 @@ defmodule TartarusLats.ReplayDoorTest do
     assert out =~ "pass (pre-registered criterion): "
     refute inspect(summary) =~ "knn"
     seconds = File.read!(Path.join(files, "plain_seconds.csv"))
-    assert seconds |> String.split("\n") |> hd() == "second,x,y,truth,lats,strongest"
+    assert seconds |> String.split("\n") |> hd() == "second,x,y,truth,lats,thesis,strongest"
     queries = File.read!(Path.join(files, "plain_queries.csv"))
     refute queries =~ "knn"
   end

@@ -87,7 +87,11 @@ defmodule TartarusLats.DatabaseAgent do
   A map with `:node` (required), `:neighbours` (`%{node => host}`),
   `:cloud` (host or nil), `:centralized` (boolean), `:data_dir` (path or
   nil), `:tracker` (options of `TartarusLats.Tracker.new/1`), `:zone`
-  (options of `TartarusLats.Zone.new/1`; the tracker's calibration is passed on), `:timeout`
+  (options of `TartarusLats.Zone.new/1`; the tracker's calibration is passed on; or
+  `:tracker`: no zone decision, the thesis's own rule: the tracker's own
+  `:entered_zone` / `:left_zone` events, far or near against beyond on its moving average,
+  drive the motion vectors, and every tag the tracker hears far or near counts as held),
+  `:timeout`
   (handshake timeout in seconds, default 15).
   """
   use Tartarus.Agent
@@ -104,8 +108,15 @@ defmodule TartarusLats.DatabaseAgent do
   @impl true
   def init(args) when is_map(args) do
     node = Map.fetch!(args, :node)
+    # `zone: :tracker`: the thesis's own rule, no zone decision (see the moduledoc).
+    {rule, zone_opts} =
+      case Map.get(args, :zone, []) do
+        :tracker -> {:tracker, []}
+        opts -> {:zone, opts}
+      end
 
     s = %{
+      rule: rule,
       node: node,
       neighbours: Map.get(args, :neighbours, %{}),
       cloud: Map.get(args, :cloud),
@@ -114,7 +125,7 @@ defmodule TartarusLats.DatabaseAgent do
       zone:
         Zone.new(
           Keyword.take(Map.get(args, :tracker, []), [:calibration]) ++
-            Map.get(args, :zone, []) ++
+            zone_opts ++
             [node: node, neighbours: Map.keys(Map.get(args, :neighbours, %{}))]
         ),
       mv: MotionVectors.new(node, timeout: Map.get(args, :timeout, 15)),
@@ -168,15 +179,16 @@ defmodule TartarusLats.DatabaseAgent do
     # (TartarusLats.Zone): the tracker's own zone events are not used.
     records = for {:record, r} <- events, do: r
     s = %{s | tracker: tracker, clock: t} |> append_log(records)
-    report = Zone.report(s.zone, tracker)
+    sense(s, t, events, records, from)
+  end
 
-    out =
-      if report == %{},
-        do: [],
-        else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
+  def handle_message({:deliver, t, j}, from, %{rule: :tracker} = s) do
+    {ready, later} = Enum.split_with(s.inbox, fn {stamp, _} -> stamp < {t, j} end)
 
-    s = send_all(pending(s, records, []), from, {t, 0}, out)
-    {:stay, s}
+    {s, out, changed} =
+      apply_events(%{s | inbox: later}, t, Enum.sort(Enum.map(ready, &elem(&1, 1))))
+
+    {:stay, send_all(pending(s, [], changed), from, {t, j}, out)}
   end
 
   def handle_message({:deliver, t, j}, from, s) do
@@ -226,6 +238,34 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
+
+  # The sense phase's end: with the zone decision, this node's report to its neighbours;
+  # with the thesis's own rule (`zone: :tracker`), the tracker's own zone events go to the
+  # motion vectors and the tags it hears far or near are held.
+  defp sense(%{rule: :tracker} = s, t, events, records, from) do
+    zone_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
+
+    A.store_put(
+      {:lats, :held},
+      Enum.sort(
+        for tag <- Tracker.tags(s.tracker), Tracker.region(s.tracker, tag) != :beyond, do: tag
+      )
+    )
+
+    {s, out, changed} = apply_events(s, t, zone_events)
+    {:stay, send_all(pending(s, records, changed), from, {t, 0}, out)}
+  end
+
+  defp sense(s, t, _events, records, from) do
+    report = Zone.report(s.zone, s.tracker)
+
+    out =
+      if report == %{},
+        do: [],
+        else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
+
+    {:stay, send_all(pending(s, records, []), from, {t, 0}, out)}
+  end
 
   defp zone_msg?(msg), do: is_tuple(msg) and tuple_size(msg) > 1 and elem(msg, 0) == :zone
 

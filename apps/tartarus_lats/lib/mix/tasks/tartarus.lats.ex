@@ -39,10 +39,13 @@ defmodule Mix.Tasks.Tartarus.Lats do
   `TartarusLats.Query.Trace`, `:repair`) unless `--no-repair` is given. Writes into `--out DIR` (default
   `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
   `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
-  box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent
+  box plots, `summary.json` and `summary.md` (per track and design, `lats`, `thesis` (the
+  thesis's own rule without the zone decision, an arm on a deployment of its own),
+  `strongest` and `knn`: exact and adjacent
   rates, zone changes against the true ones, Where is X correct, Trace edit distance,
-  cloud connections; `pass`: the pre-registered criterion). With `--json` the summary is
-  the last line.
+  cloud connections; `pass`: the pre-registered criterion; per track `holders`: the most
+  nodes that held the tag at once and the holder's jumps to non-neighbours). With `--json`
+  the summary is the last line.
 
   `--dashboard PORT` serves the web dashboard (127.0.0.1) while the run goes, with a LATS
   panel (where each tag bearer is heard, the query agents out; `TartarusLats.DashboardPanel`);
@@ -228,7 +231,7 @@ defmodule Mix.Tasks.Tartarus.Lats do
           TartarusTools.CLI.report(summary, json: true)
         else
           for {name, t} <- Enum.sort(summary.tracks) do
-            for d <- [:lats, :strongest, :knn], x = t[d] do
+            for d <- [:lats, :thesis, :strongest, :knn], x = t[d] do
               Mix.shell().info(
                 "#{name} #{d}: exact #{show(x.exact)}, adjacent #{show(x.adjacent)}, " <>
                   "changes #{x.changes} (true #{x.true_changes}), Where is X #{x.where_is_correct}/#{x.where_is}, " <>

@@ -12,7 +12,7 @@ defmodule TartarusLats.Replay.Experiment do
 
   # The designs judged, in the order of the outputs (the fingerprinting baseline only with
   # reference points).
-  @designs [:lats, :strongest, :knn]
+  @designs [:lats, :thesis, :strongest, :knn]
 
   # Bad lines listed (line number and why) per track in the summary.
   @bad_listed 100
