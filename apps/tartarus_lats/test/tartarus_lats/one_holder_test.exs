@@ -310,6 +310,12 @@ defmodule TartarusLats.OneHolderTest do
     assert Enum.any?(old, &(length(&1.holders) > 1))
   end
 
+  test "the pure Sim, which delivers no protocol messages, refuses one_holder" do
+    assert_raise ArgumentError, ~r/one-holder protocol/, fn ->
+      TartarusLats.Sim.new(zone: [one_holder: true])
+    end
+  end
+
   test "a hand-over between neighbours happens in one second: the holder gives, the taker holds" do
     graph = %{a: [:b], b: [:a]}
     zone = [min_heard: 1, claim_dwell: 1, dwell: 2, calibration: @cal]
