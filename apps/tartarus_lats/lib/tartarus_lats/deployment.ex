@@ -391,10 +391,13 @@ defmodule TartarusLats.Deployment do
     }
   end
 
-  # At most 10 deliveries a second; what is left waits for the next second's first. The
-  # first always runs: the database agents decide their zones in it.
+  # At most @deliveries deliveries a second; what is left waits for the next second's
+  # first. The first always runs: the database agents decide their zones in it. The
+  # one-holder protocol's floods (`TartarusLats.Zone`, `:one_holder`) need as many as the
+  # building's diameter in hops, and a second's claims are arbitrated after its last.
+  @deliveries 100
   defp deliver(dep, _t, 0, j) when j > 1, do: dep
-  defp deliver(dep, _t, _sent, j) when j > 10, do: dep
+  defp deliver(dep, _t, _sent, j) when j > @deliveries, do: dep
 
   defp deliver(dep, t, _sent, j) do
     {dep, sent} = phase(dep, {:deliver, t, j})

@@ -48,9 +48,11 @@ defmodule TartarusLats.Replay do
   @doc """
   Reads a log (a path, or a parsed `TartarusLats.Replay.Log`) for the receivers of
   `devices` and returns the case a run replays: `%{name, building, beacon, tag, feed,
-  raw, last, truth, t0, lines, bad, unknown_receivers}` where `feed` is `%{second => %{node
-  => %{tag => rssi}}}` (raw, what the receivers logged), `raw` the beacon's `%{second =>
-  %{node => rssi}}`. Options: `:beacon` (default: the beacon with most readings), `:name`.
+  raw, last, truth, t0, lines, readings, bad, unterminated, unknown_receivers}` where
+  `feed` is `%{second => %{node => %{tag => rssi}}}` (raw, what the receivers logged), `raw`
+  the beacon's `%{second => %{node => rssi}}`, `unknown_receivers` `%{receiver => readings}`
+  of the receivers the devices file does not name (never fed). `check/2` says whether it
+  can be judged. Options: `:beacon` (default: the beacon with most readings), `:name`.
   """
   @spec prepare(Path.t() | Log.t(), TartarusLats.Replay.Devices.t(), keyword()) :: map()
   def prepare(log, devices, opts \\ []) do
@@ -75,7 +77,10 @@ defmodule TartarusLats.Replay do
     seconds = Map.new(seconds, fn {s, v} -> {Map.fetch!(remap, s), v} end)
     tag = tag(beacon)
 
-    unknown = log.readings |> Enum.reject(&Map.has_key?(known, &1.receiver)) |> length()
+    unknown =
+      log.readings
+      |> Enum.reject(&Map.has_key?(known, &1.receiver))
+      |> Enum.frequencies_by(& &1.receiver)
 
     feed =
       Map.new(seconds, fn {s, by_rx} ->
@@ -115,10 +120,48 @@ defmodule TartarusLats.Replay do
       t0: t0,
       truth: Judge.truth(building, positions, last),
       lines: log.lines,
+      readings: length(log.readings),
       bad: log.bad,
+      unterminated: log.unterminated,
       unknown_receivers: unknown,
       gaps: gaps
     }
+  end
+
+  @doc """
+  Whether a case (`prepare/3`) can be judged with `warmup` seconds left unjudged at its
+  start: `:ok`, or `{:error, why}` in one line naming the track, when the log has no valid
+  reading, no reading from a receiver of the devices file, no true position of the beacon,
+  or no second after the warm-up. A run of such a case would judge nothing, and nothing is
+  not a pass.
+
+      iex> c = %{name: "t", readings: 0, lines: 2, bad: [{1, "x"}, {2, "y"}], feed: %{}}
+      iex> TartarusLats.Replay.check(c, 5)
+      {:error, "t: no valid reading (2 lines, 2 bad)"}
+  """
+  @spec check(map(), non_neg_integer()) :: :ok | {:error, String.t()}
+  def check(c, warmup) do
+    cond do
+      c.readings == 0 ->
+        {:error, "#{c.name}: no valid reading (#{c.lines} lines, #{length(c.bad)} bad)"}
+
+      Enum.all?(c.feed, fn {_s, by_node} -> by_node == %{} end) ->
+        {:error,
+         "#{c.name}: no reading from a receiver of the devices file (unknown receivers: " <>
+           "#{c.unknown_receivers |> Map.keys() |> Enum.sort() |> Enum.join(", ")})"}
+
+      c.positions == %{} ->
+        {:error,
+         "#{c.name}: no true position of beacon #{c.beacon} (no x, y columns): nothing to judge against"}
+
+      not Enum.any?(Map.keys(c.truth), &(&1 > warmup)) ->
+        {:error,
+         "#{c.name}: no second to judge: the track has #{c.last} s with a true position up to second " <>
+           "#{c.truth |> Map.keys() |> Enum.max(fn -> 0 end)}, the warm-up is #{warmup} s"}
+
+      true ->
+        :ok
+    end
   end
 
   # The longest stretch of seconds without a reading that a replay walks.
@@ -180,12 +223,25 @@ defmodule TartarusLats.Replay do
         dwell: 2,
         claim_dwell: 1,
         release_on_take: true,
-        exit_alone: true
+        exit_alone: true,
+        one_holder: true
       ],
       doc:
         "options of the nodes' `TartarusLats.Zone` (the defaults here were chosen on the tetam tracks, see docs/lats.md)"
     ],
     k: [type: :pos_integer, default: 3, doc: "neighbours of the kNN baseline"],
+    thesis: [
+      type: :boolean,
+      default: true,
+      doc:
+        "also run the thesis's own rule (no zone decision: each node's tracker alone, far or near against beyond, drives the motion-vector handshake) as an arm of its own (`:thesis`)"
+    ],
+    thesis_tracker: [
+      type: :keyword_list,
+      default: [window: 6, median: 1, confirm: 2, hysteresis_db: 0.0],
+      doc:
+        "the thesis arm's trackers: the moving average of six (Fig. 3.6), no median, no hysteresis, a change kept once it held two samples (a spike back within a second is not stored)"
+    ],
     warmup: [type: :pos_integer, default: 5, doc: "seconds not judged at the start"],
     repair: [
       type: :boolean,
@@ -212,13 +268,27 @@ defmodule TartarusLats.Replay do
   @spec run(map(), keyword()) :: map()
   def run(c, opts \\ []) do
     opts = Tartarus.Options.validate!(opts, @schema, "TartarusLats.Replay.run/2")
+    {decisions, answers, holders} = drive(c, opts, [window: opts[:window]], opts[:zone], :lats)
+
+    thesis =
+      if opts[:thesis],
+        do: [thesis: drive(c, opts, opts[:thesis_tracker], :tracker, :thesis)],
+        else: []
+
+    c
+    |> judge(decisions, answers, thesis, opts)
+    |> update_in([:summary], &Map.merge(&1, holder_counts(c.building, holders)))
+  end
+
+  # One arm's run: a deployment of the case's nodes (the trackers' options `tracker`, the
+  # zone decision's `zone`, or `:tracker` for the thesis's own rule) fed second by second;
+  # after every second the decision (who holds the tag) is read back, and at the query
+  # instants the query agents are released. Returns the decisions, the answers and the
+  # nodes that held the tag after every second.
+  defp drive(c, opts, tracker, zone, arm) do
     cal = opts[:calibration]
-    window = opts[:window]
-
     corrections = Map.new(Building.nodes(c.building), &{&1, Calibration.correction(cal, &1)})
-
     thresholds = Calibration.thresholds(cal, near_m: opts[:near_m], far_m: opts[:far_m])
-
     world = World.new(building: c.building, walkers: 0, scripts: [])
 
     dep =
@@ -227,8 +297,8 @@ defmodule TartarusLats.Replay do
         feed: c.feed,
         calibration: thresholds,
         corrections: corrections,
-        tracker: [window: window],
-        zone: opts[:zone],
+        tracker: tracker,
+        zone: zone,
         centralized: false,
         mode: opts[:mode],
         group: opts[:group],
@@ -239,11 +309,10 @@ defmodule TartarusLats.Replay do
     rng = :rand.seed_s(:exsss, {opts[:seed], 28, 5})
 
     try do
-      {_dep, decisions, answers, _rng, _held} =
-        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, nil}, fn s,
-                                                               {dep, dec, answers, rng, prev} ->
+      {_dep, decisions, answers, _rng, holders} =
+        Enum.reduce(1..c.last//1, {dep, %{}, [], rng, %{}}, fn s, {dep, dec, answers, rng, hs} ->
           dep = Deployment.step(dep)
-          {holder, held} = holder(dep, c.tag, prev)
+          {holder, held} = holder(arm, dep, c.tag, s, hs)
           dec = Map.put(dec, s, holder)
 
           {answers, rng} =
@@ -251,18 +320,12 @@ defmodule TartarusLats.Replay do
               do: ask(dep, c.tag, s, answers, rng, opts[:repair]),
               else: {answers, rng}
 
-          {dep, dec, answers, rng, held}
-        end)
-        |> then(fn {dep, d, a, r, h} ->
-          Deployment.stop(dep)
-          {dep, d, a, r, h}
+          {dep, dec, answers, rng, Map.put(hs, s, held)}
         end)
 
-      judge(c, decisions, Enum.reverse(answers), opts)
-    rescue
-      e ->
-        Deployment.stop(dep)
-        reraise e, __STACKTRACE__
+      {decisions, Enum.reverse(answers), holders}
+    after
+      Deployment.stop(dep)
     end
   end
 
@@ -289,22 +352,97 @@ defmodule TartarusLats.Replay do
     Enum.sort(picked)
   end
 
-  # Which node holds the tag after this second: the one node whose zone decision holds it;
-  # when two do (a completed take, for a second), the one that did not hold it before.
-  defp holder(dep, tag, prev) do
+  # Which node holds the tag after second `s`, and every node that does. LATS: the one
+  # node whose zone decision holds it (when two do, without the one-holder protocol, the
+  # one that did not hold it before). The thesis's rule: of the nodes whose tracker hears
+  # the tag far or near, the one whose zone it entered last (its presence indicator is the
+  # newest), ties by the stronger filtered RSSI, then the name.
+  defp holder(arm, dep, tag, s, hs) do
     held =
       for n <- Deployment.live_nodes(dep),
           tag in (Tartarus.store_get(dep.hosts[n], {:lats, :held}) || []),
           do: n
 
+    prev = hs[s - 1] || []
+
     h =
-      case held do
-        [] -> nil
-        [one] -> one
-        many -> Enum.find(many, &(&1 not in (prev || []))) || hd(many)
+      case {arm, held} do
+        {_, []} ->
+          nil
+
+        {_, [one]} ->
+          one
+
+        {:lats, many} ->
+          Enum.find(many, &(&1 not in prev)) || hd(many)
+
+        {:thesis, many} ->
+          Enum.min_by(many, fn n ->
+            filtered = Tartarus.store_get(dep.hosts[n], {:lats, :filtered}) || %{}
+            {-entered(n, s, hs), -(filtered[tag] || -200), n}
+          end)
       end
 
     {h, held}
+  end
+
+  # The first second of node n's current run of holding the tag (it holds it at s).
+  defp entered(n, s, hs) do
+    if n in (hs[s - 1] || []), do: entered(n, s - 1, hs), else: s
+  end
+
+  @doc """
+  What the zone decision's holders did over a run, from the nodes that held the tag after
+  each second (`%{second => [node]}`): `holders_at_once` (the most nodes that held it after
+  one second), `seconds_with_two_holders`, `changes` (the holder changed, seconds held by
+  nobody skipped), `non_neighbour_jumps` (of those, from a node to one that is not its
+  neighbour) and `non_neighbour_jumps_without_release` (such a jump with no second held by
+  nobody in between: what the one-holder protocol rules out).
+
+      iex> b = TartarusLats.Building.custom(positions: %{a: {0, 0, 0}, b: {5, 0, 0}, c: {10, 0, 0}}, adjacency: %{a: [:b], b: [:c]}, entrances: [:a])
+      iex> TartarusLats.Replay.holder_counts(b, %{1 => [:a], 2 => [:a, :c], 3 => [:c], 4 => [], 5 => [:a]})
+      %{holders_at_once: 2, seconds_with_two_holders: 1, changes: 2, non_neighbour_jumps: 2, non_neighbour_jumps_without_release: 1}
+  """
+  @spec holder_counts(Building.t(), %{pos_integer() => [atom()]}) :: map()
+  def holder_counts(building, holders) do
+    seconds = holders |> Enum.sort() |> Enum.map(&elem(&1, 1))
+
+    # The holder of each second (of two, the one that did not hold before), with a marker
+    # for the seconds held by nobody.
+    {seq, _} =
+      Enum.map_reduce(seconds, [], fn held, prev ->
+        h =
+          case held do
+            [] -> :nobody
+            [one] -> one
+            many -> Enum.find(many, &(&1 not in prev)) || hd(many)
+          end
+
+        {h, held}
+      end)
+
+    runs = Enum.dedup(seq)
+
+    direct =
+      for [a, b] <- Enum.chunk_every(runs, 2, 1, :discard),
+          a != :nobody and b != :nobody,
+          do: {a, b, :direct}
+
+    released =
+      for [a, :nobody, b] <- Enum.chunk_every(runs, 3, 1, :discard),
+          a != :nobody and b != :nobody and a != b,
+          do: {a, b, :released}
+
+    not_neighbours =
+      for {a, b, _} = j <- direct ++ released, b not in Building.neighbours(building, a), do: j
+
+    %{
+      holders_at_once: seconds |> Enum.map(&length/1) |> Enum.max(fn -> 0 end),
+      seconds_with_two_holders: Enum.count(seconds, &(length(&1) > 1)),
+      changes: length(direct) + length(released),
+      non_neighbour_jumps: length(not_neighbours),
+      non_neighbour_jumps_without_release: Enum.count(not_neighbours, &(elem(&1, 2) == :direct))
+    }
   end
 
   defp ask(dep, tag, s, answers, rng, repair) do
@@ -327,7 +465,7 @@ defmodule TartarusLats.Replay do
     {Enum.reverse(new, answers), rng}
   end
 
-  defp judge(c, lats, answers, opts) do
+  defp judge(c, lats, answers, arms, opts) do
     window = opts[:window]
     cal = opts[:calibration]
 
@@ -353,8 +491,20 @@ defmodule TartarusLats.Replay do
             )
         }
 
+    # The thesis's own rule, an arm of its own: its decisions, and its query agents' answers
+    # at the same instants from the same start nodes.
+    thesis = Map.new(arms, fn {arm, {dec, _answers, _held}} -> {arm, dec} end)
+
+    own =
+      for {arm, {_dec, arm_answers, _held}} <- arms,
+          a <- arm_answers,
+          into: %{},
+          do: {{arm, a.time, a.type}, a.result}
+
     designs =
-      Map.merge(%{lats: lats, strongest: Judge.strongest(calibrated, c.last, window)}, knn)
+      %{lats: lats, strongest: Judge.strongest(calibrated, c.last, window)}
+      |> Map.merge(knn)
+      |> Map.merge(thesis)
 
     judged = (opts[:warmup] + 1)..c.last//1
     stays = Judge.stays(c.truth)
@@ -367,8 +517,8 @@ defmodule TartarusLats.Replay do
           Map.new(designs, fn {d, dec} ->
             answer =
               case {d, q.type} do
-                {:lats, :where_is} -> q.result.answer
-                {:lats, :trace} -> q.result.answer
+                {:lats, _} -> q.result.answer
+                {:thesis, type} -> own[{:thesis, q.time, type}].answer
                 {_, :where_is} -> if(dec[q.time], do: {:in_zone, dec[q.time]}, else: :not_found)
                 {_, :trace} -> Judge.zones_until(dec, q.time)
               end
@@ -384,6 +534,8 @@ defmodule TartarusLats.Replay do
     central = c.feed |> Map.values() |> Enum.map(&map_size/1) |> Enum.sum()
     contacts = Enum.sum(Enum.map(queries, & &1.result.per_node_contacts))
 
+    thesis_contacts = Enum.sum(for {{:thesis, _, _}, r} <- own, do: r.per_node_contacts)
+
     summary =
       Map.new(designs, fn {d, dec} ->
         r = Judge.rates(c.building, dec, c.truth, judged)
@@ -398,7 +550,12 @@ defmodule TartarusLats.Replay do
            trace_edit_mean: TartarusTools.Stats.mean(tr),
            trace_edit_median: TartarusTools.Stats.median(tr),
            trace_exact: Enum.count(tr, &(&1 == 0)),
-           cloud_connections: if(d == :lats, do: contacts, else: central)
+           cloud_connections:
+             case d do
+               :lats -> contacts
+               :thesis -> thesis_contacts
+               _ -> central
+             end
          })}
       end)
       |> Map.merge(%{
@@ -413,20 +570,20 @@ defmodule TartarusLats.Replay do
         log_lines: c.lines,
         log_bad_lines: length(c.bad),
         log_gaps_shortened: length(c.gaps),
-        unknown_receiver_readings: c.unknown_receivers,
+        unknown_receiver_readings: c.unknown_receivers |> Map.values() |> Enum.sum(),
+        unknown_receivers: c.unknown_receivers,
+        log_unterminated_line: c.unterminated,
         cloud_connections_lats_per_query:
           Enum.sum(Enum.map(queries, & &1.result.per_query_contacts))
       })
 
     rows =
       for s <- 1..c.last//1,
-          do: %{
-            second: s,
-            truth: c.truth[s],
-            lats: lats[s],
-            strongest: designs.strongest[s],
-            knn: designs[:knn][s]
-          }
+          do:
+            Map.merge(
+              %{second: s, truth: c.truth[s]},
+              Map.new(designs, fn {d, dec} -> {d, dec[s]} end)
+            )
 
     %{summary: summary, seconds: rows, queries: queries}
   end

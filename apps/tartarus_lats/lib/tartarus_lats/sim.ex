@@ -57,11 +57,22 @@ defmodule TartarusLats.Sim do
   `TartarusLats.World`, default `TartarusLats.World.new/0`), `:tracker`
   (options for `TartarusLats.Tracker.new/1`; the default calibration uses
   the world's radio exponent and the bearers' Tx power), `:zone` (options
-  for `TartarusLats.Zone.new/1`), `:timeout`
-  (handshake timeout, seconds, default 15).
+  for `TartarusLats.Zone.new/1`; not `one_holder: true`, whose messages this
+  value does not deliver: `TartarusLats.Zone.Net` and `TartarusLats.Deployment` do),
+  `:timeout` (handshake timeout, seconds, default 15).
+
+      iex> TartarusLats.Sim.new(zone: [one_holder: true])
+      ** (ArgumentError) TartarusLats.Sim does not run the one-holder protocol (zone option one_holder: true); use TartarusLats.Deployment or TartarusLats.Zone.Net
   """
   @spec new(keyword()) :: t()
   def new(opts \\ []) do
+    if Keyword.get(Keyword.get(opts, :zone, []), :one_holder),
+      do:
+        raise(
+          ArgumentError,
+          "TartarusLats.Sim does not run the one-holder protocol (zone option one_holder: true); use TartarusLats.Deployment or TartarusLats.Zone.Net"
+        )
+
     world = Keyword.get_lazy(opts, :world, &World.new/0)
     seed = Keyword.get(opts, :seed, 0)
     cal = Region.calibrate(tx_power: -59, exponent: world.radio.exponent)

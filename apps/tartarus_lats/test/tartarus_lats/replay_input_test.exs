@@ -8,6 +8,37 @@ defmodule TartarusLats.ReplayInputTest do
   doctest TartarusLats.Replay.Calibration
   doctest TartarusLats.Replay.Judge
   doctest TartarusLats.Replay
+  doctest TartarusLats.Replay.Splits
+
+  test "out of sample: six splits of four tracks, each judged on the two it was not chosen on" do
+    fig = fn held, exact ->
+      %{pass: %{a: held > 0, b: held > 1}, lats: %{exact: exact, adjacent: 1.0}}
+    end
+
+    names = ["s1", "s2", "s3", "r"]
+    # Configuration 0 is best on s1 and s2, configuration 1 on the others.
+    results = [
+      {[c: 0],
+       Map.new(names, &{&1, if(&1 in ["s1", "s2"], do: fig.(2, 0.9), else: fig.(0, 0.1))})},
+      {[c: 1],
+       Map.new(names, &{&1, if(&1 in ["s1", "s2"], do: fig.(0, 0.1), else: fig.(2, 0.9))})}
+    ]
+
+    splits = TartarusLats.Replay.Splits.splits(results, names)
+    assert length(splits) == 6
+
+    for s <- splits do
+      assert MapSet.disjoint?(MapSet.new(s.tuning), MapSet.new(s.judged))
+      assert Enum.sort(s.tuning ++ s.judged) == Enum.sort(names)
+      assert Map.keys(s.out_of_sample) |> Enum.sort() == Enum.sort(s.judged)
+    end
+
+    # Chosen on s1 and s2: configuration 0, judged on r and s3 where it is the worse one.
+    assert %{config: [c: 0], out_of_sample: %{"r" => %{lats: %{exact: 0.1}}}} =
+             Enum.find(splits, &(&1.tuning == ["s1", "s2"]))
+
+    assert length(TartarusLats.Replay.Splits.grid()) == 18
+  end
 
   alias TartarusLats.{Building, Tracker}
   alias TartarusLats.Replay.{Calibration, Devices, Judge, Log}
@@ -77,7 +108,7 @@ defmodule TartarusLats.ReplayInputTest do
 
     test "readings are grouped per receiver and second (mean, rounded), positions per second" do
       log =
-        Log.parse("10.2,r1,aa,-70,1,1\n10.9,r1,aa,-75,2,2\n11.5,r1,aa,-80,3,3\n12.1,r2,bb,-60")
+        Log.parse("10.2,r1,aa,-70,1,1\n10.9,r1,aa,-75,2,2\n11.5,r1,aa,-80,3,3\n12.1,r2,bb,-60\n")
 
       {t0, per} = Log.per_second(log)
       assert t0 == 10.0

@@ -79,6 +79,28 @@ defmodule TartarusLats.ReplayRealTest do
              Enum.map(Replay.run(case!(), opts).seconds, & &1.lats)
   end
 
+  # The thesis's own rule (issue 42): no zone decision, each node's tracker alone (far or
+  # near against beyond on the moving average of six) drives the motion-vector handshake;
+  # a deployment of its own, judged the same way at the same query instants.
+  @tag timeout: 120_000
+  test "the thesis's own rule runs as an arm of its own, judged like LATS", %{opts: opts} do
+    c = case!()
+    r = Replay.run(c, opts)
+    assert %{thesis: t, lats: l} = r.summary
+    assert t.seconds == l.seconds and t.where_is == l.where_is and t.traces == l.traces
+    assert Enum.all?(r.seconds, &Map.has_key?(&1, :thesis))
+    # Overlapping far regions: the thesis's decision moves between receivers far more often
+    # than the zone decision's (measured on this fixture: 6 changes against 1, 1 true).
+    assert t.changes > l.changes + 2
+    # Its query agents walk its own motion vectors: their answers are their own.
+    answers =
+      for q <- r.queries, q.type == :where_is, do: {q.judged.lats.answer, q.judged.thesis.answer}
+
+    assert Enum.any?(answers, fn {a, b} -> a != b end)
+    # Without it, no thesis arm.
+    refute Map.has_key?(Replay.run(c, opts ++ [thesis: false, queries: 1]).summary, :thesis)
+  end
+
   @tag :peer
   @tag timeout: 180_000
   test "on :peer BEAM nodes the nodes decide as on virtual hosts", %{opts: opts} do

@@ -42,8 +42,14 @@ defmodule TartarusLats.DatabaseAgent do
        `:left_zone` decisions to the motion vectors; in every one, apply the
        handshake messages sent in earlier phases, in a fixed order (sorted),
        and post the answers;
-    3. `{:tick, t}` - handshake timeouts (counted in world seconds, never
-       wall time) and publishing.
+    3. `{:tick, t}` - the one-holder protocol's claims of the second arbitrated
+       (`TartarusLats.Zone.close/2`, with the zone option `:one_holder`), handshake
+       timeouts (counted in world seconds, never wall time) and publishing.
+
+  With `:one_holder`, the zone protocol's messages (asks, gives, flooded ledger entries
+  and claim intents: `TartarusLats.Zone.take_out/1`) travel with the handshake messages to
+  the neighbours' database agents and are applied (`TartarusLats.Zone.deliver/3`) before
+  them in every delivery.
 
   The agent posts its handshake messages (and its upload) with
   `Tartarus.cast/3`, so two database agents never wait for each other, and
@@ -81,7 +87,11 @@ defmodule TartarusLats.DatabaseAgent do
   A map with `:node` (required), `:neighbours` (`%{node => host}`),
   `:cloud` (host or nil), `:centralized` (boolean), `:data_dir` (path or
   nil), `:tracker` (options of `TartarusLats.Tracker.new/1`), `:zone`
-  (options of `TartarusLats.Zone.new/1`; the tracker's calibration is passed on), `:timeout`
+  (options of `TartarusLats.Zone.new/1`; the tracker's calibration is passed on; or
+  `:tracker`: no zone decision, the thesis's own rule: the tracker's own
+  `:entered_zone` / `:left_zone` events, far or near against beyond on its moving average,
+  drive the motion vectors, and every tag the tracker hears far or near counts as held),
+  `:timeout`
   (handshake timeout in seconds, default 15).
   """
   use Tartarus.Agent
@@ -98,8 +108,15 @@ defmodule TartarusLats.DatabaseAgent do
   @impl true
   def init(args) when is_map(args) do
     node = Map.fetch!(args, :node)
+    # `zone: :tracker`: the thesis's own rule, no zone decision (see the moduledoc).
+    {rule, zone_opts} =
+      case Map.get(args, :zone, []) do
+        :tracker -> {:tracker, []}
+        opts -> {:zone, opts}
+      end
 
     s = %{
+      rule: rule,
       node: node,
       neighbours: Map.get(args, :neighbours, %{}),
       cloud: Map.get(args, :cloud),
@@ -107,7 +124,9 @@ defmodule TartarusLats.DatabaseAgent do
       tracker: Tracker.new(Map.get(args, :tracker, [])),
       zone:
         Zone.new(
-          Keyword.take(Map.get(args, :tracker, []), [:calibration]) ++ Map.get(args, :zone, [])
+          Keyword.take(Map.get(args, :tracker, []), [:calibration]) ++
+            zone_opts ++
+            [node: node, neighbours: Map.keys(Map.get(args, :neighbours, %{}))]
         ),
       mv: MotionVectors.new(node, timeout: Map.get(args, :timeout, 15)),
       log: [],
@@ -160,15 +179,16 @@ defmodule TartarusLats.DatabaseAgent do
     # (TartarusLats.Zone): the tracker's own zone events are not used.
     records = for {:record, r} <- events, do: r
     s = %{s | tracker: tracker, clock: t} |> append_log(records)
-    report = Zone.report(s.zone, tracker)
+    sense(s, t, events, records, from)
+  end
 
-    out =
-      if report == %{},
-        do: [],
-        else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
+  def handle_message({:deliver, t, j}, from, %{rule: :tracker} = s) do
+    {ready, later} = Enum.split_with(s.inbox, fn {stamp, _} -> stamp < {t, j} end)
 
-    s = send_all(pending(s, records, []), from, {t, 0}, out)
-    {:stay, s}
+    {s, out, changed} =
+      apply_events(%{s | inbox: later}, t, Enum.sort(Enum.map(ready, &elem(&1, 1))))
+
+    {:stay, send_all(pending(s, [], changed), from, {t, j}, out)}
   end
 
   def handle_message({:deliver, t, j}, from, s) do
@@ -177,27 +197,39 @@ defmodule TartarusLats.DatabaseAgent do
     {reports, inbox} =
       ready |> Enum.map(&elem(&1, 1)) |> Enum.split_with(&match?({:rss, _, _}, &1))
 
+    {protocol, inbox} = Enum.split_with(inbox, &zone_msg?/1)
     s = %{s | inbox: later}
 
-    # The first delivery of a second decides the zone on the reports of that second.
-    {zone_events, s} =
+    # The first delivery of a second decides the zone on the reports of that second; every
+    # delivery applies the one-holder protocol's messages (TartarusLats.Zone.deliver/3).
+    {decided, s} =
       if j == 1 do
         heard = Map.new(reports, fn {:rss, node, report} -> {node, report} end)
         {events, zone} = Zone.decide(s.zone, t, s.tracker, heard)
-        A.store_put({:lats, :held}, Zone.held(zone))
         {events, %{s | zone: zone}}
       else
         {[], s}
       end
 
-    {s, out, changed} = apply_events(s, t, zone_events ++ Enum.sort(inbox))
-    {:stay, send_all(pending(s, [], changed), from, {t, j}, out)}
+    {delivered, zone} =
+      if protocol == [], do: {[], s.zone}, else: Zone.deliver(s.zone, t, protocol)
+
+    {zone_out, zone} = Zone.take_out(zone)
+    if j == 1 or protocol != [], do: A.store_put({:lats, :held}, Zone.held(zone))
+    s = %{s | zone: zone}
+
+    {s, out, changed} = apply_events(s, t, decided ++ delivered ++ Enum.sort(inbox))
+    {:stay, send_all(pending(s, [], changed), from, {t, j}, zone_msgs(s, zone_out) ++ out)}
   end
 
   def handle_message({:tick, t}, from, s) do
-    {s, [], changed} = apply_events(%{s | clock: t}, t, [:tick])
+    # The one-holder protocol's claims of this second are arbitrated once all its messages
+    # are in (TartarusLats.Zone.close/2).
+    {claimed, zone} = Zone.close(s.zone, t)
+    if claimed != [], do: A.store_put({:lats, :held}, Zone.held(zone))
+    {s, out, changed} = apply_events(%{s | clock: t, zone: zone}, t, claimed ++ [:tick])
     A.store_put({:lats, :clock}, t)
-    {:stay, send_all(pending(s, [], changed), from, {t, :tick}, [])}
+    {:stay, send_all(pending(s, [], changed), from, {t, :tick}, out)}
   end
 
   def handle_message(:state, from, s) do
@@ -206,6 +238,40 @@ defmodule TartarusLats.DatabaseAgent do
   end
 
   def handle_message(_other, _from, s), do: {:stay, s}
+
+  # The sense phase's end: with the zone decision, this node's report to its neighbours;
+  # with the thesis's own rule (`zone: :tracker`), the tracker's own zone events go to the
+  # motion vectors and the tags it hears far or near are held.
+  defp sense(%{rule: :tracker} = s, t, events, records, from) do
+    zone_events = for {kind, _, _} = e <- events, kind in [:entered_zone, :left_zone], do: e
+
+    A.store_put(
+      {:lats, :held},
+      Enum.sort(
+        for tag <- Tracker.tags(s.tracker), Tracker.region(s.tracker, tag) != :beyond, do: tag
+      )
+    )
+
+    {s, out, changed} = apply_events(s, t, zone_events)
+    {:stay, send_all(pending(s, records, changed), from, {t, 0}, out)}
+  end
+
+  defp sense(s, t, _events, records, from) do
+    report = Zone.report(s.zone, s.tracker)
+
+    out =
+      if report == %{},
+        do: [],
+        else: for({_n, host} <- Enum.sort(s.neighbours), do: {host, {:rss, s.node, report}})
+
+    {:stay, send_all(pending(s, records, []), from, {t, 0}, out)}
+  end
+
+  defp zone_msg?(msg), do: is_tuple(msg) and tuple_size(msg) > 1 and elem(msg, 0) == :zone
+
+  # The one-holder protocol's messages, to the neighbours' hosts.
+  defp zone_msgs(s, msgs),
+    do: for({node, msg} <- msgs, h = s.neighbours[node], do: {h, msg})
 
   # Answers the `{:sync, n}` requests whose count has been reached.
   defp release(s) do

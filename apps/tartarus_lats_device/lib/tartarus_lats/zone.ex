@@ -53,6 +53,48 @@ defmodule TartarusLats.Zone do
   that the holder sees and the taker does not (each node sees its own neighbours) left
   the tag with nobody for seconds while receivers still heard it.
 
+  ## One holder per tag (`:one_holder`)
+
+  Each node sees its neighbours only, so without more a node that is not a neighbour of
+  the holder (a receiver across the room that hears the tag loudly for a while) claims it
+  as if nobody held it, and the tag has two holders. With `:one_holder` (on in the
+  real-data replay, `TartarusLats.Replay`) the rules above only *propose*; the protocol
+  decides, and guarantees **at most one holder per tag at the end of every second**:
+
+    * every node keeps a **ledger** per tag, `{epoch, :free | {:held, node}}`; every
+      change is flooded to the whole building through the neighbours (a node passes on
+      an entry newer than its own), within the second it is made (the deployment delivers
+      messages in rounds until none is left), so at the start of every second all nodes
+      hold the same ledger;
+    * **hand-over** (a take): the taker does not take; it **asks** the holder (a
+      neighbour, by definition of a take), which at the next delivery **gives** the tag to
+      the strongest asker (ties: the earlier take, then the name), lets it go, and floods
+      the new holder; the taker holds it from the delivery after. Both ends happen in the
+      same second, dated from the take's first second. The holder never lets a tag go on
+      its own reading of a neighbour's margin (as `:release_on_take`);
+    * **release**: only when out of range (the exit rule: RSSI under the exit threshold
+      for `:exit_dwell` seconds, with `:exit_alone` also at every neighbour): the tag went
+      unheard there. The release is flooded (the tag is free). A holder that has gone (a
+      neighbour the ledger says holds a tag, whose report does not say so: a live holder
+      always reports what it holds) is released by its neighbours for it;
+    * **claim** (a fresh one): only when the ledger says the tag is free. The claimant
+      floods an **intent** (its RSSI, the claim's first second and the ledger's epoch); when
+      the second's messages are all delivered, every node arbitrates the same intents on the
+      same ledger (`close/2`): the strongest RSSI wins (ties: the earlier claim, then the
+      name) and that node holds the tag. An intent made on an older ledger than a node's
+      own is answered with the ledger entry (a node restarted with an empty ledger learns
+      it so) and counts for nothing;
+    * so a claim by a node that is not a neighbour of the holder is **refused by the
+      ledger**, never taken: the node waits until the holder releases the tag (it went
+      unheard there), then claims it afresh against any other claimant of that second.
+
+  The holder changes only by a give to a neighbour or by a release followed, a second or
+  more later, by a fresh claim. What it assumes: the messages of a second reach every
+  live node within that second (a connected graph of live nodes; the deployment's
+  deliveries run until no message is left, at most 100 rounds); a building split in two
+  by dead nodes can have a holder in each part. `TartarusLats.Zone.Net` runs the protocol
+  as a pure value (its property test: `one_holder_test.exs`).
+
   A neighbour that does not report a tag counts as the floor (`:missing_rssi`). The margin
   is the hysteresis: a tag standing still, even on the boundary between two zones, stays
   in the zone that holds it unless the other node is `:margin_db` stronger for `:dwell`
@@ -98,6 +140,13 @@ defmodule TartarusLats.Zone do
             release_on_take: false,
             far_dbm: -73.0,
             missing_rssi: -100,
+            one_holder: false,
+            node: nil,
+            neighbours: [],
+            ledger: %{},
+            intents: %{},
+            seen: MapSet.new(),
+            out: [],
             tags: %{}
 
   @typedoc "A node's zone decisions: per tag, whether it is in this zone and what is pending."
@@ -114,6 +163,13 @@ defmodule TartarusLats.Zone do
           release_on_take: boolean(),
           far_dbm: number(),
           missing_rssi: number(),
+          one_holder: boolean(),
+          node: term(),
+          neighbours: [term()],
+          ledger: %{Beacon.tag_id() => {non_neg_integer(), :free | {:held, term()}}},
+          intents: %{Beacon.tag_id() => [map()]},
+          seen: MapSet.t(),
+          out: [{term(), message()}],
           tags: %{
             Beacon.tag_id() => %{
               mine: boolean(),
@@ -135,6 +191,16 @@ defmodule TartarusLats.Zone do
   neighbour's `report/2`.
   """
   @type reports :: %{term() => %{Beacon.tag_id() => report()}}
+
+  @typedoc """
+  A message of the one-holder protocol (`:one_holder`), sent to one neighbour: an ask to
+  the holder, its give, a flooded ledger entry or claim intent (see "One holder per tag").
+  """
+  @type message ::
+          {:zone, :ask, Beacon.tag_id(), term(), number(), number()}
+          | {:zone, :give, Beacon.tag_id(), term(), number()}
+          | {:zone, :ledger, Beacon.tag_id(), non_neg_integer(), :free | {:held, term()}}
+          | {:zone, :intent, Beacon.tag_id(), map()}
 
   @typedoc "What the motion vectors are told."
   @type event ::
@@ -199,7 +265,15 @@ defmodule TartarusLats.Zone do
       doc:
         "a held tag is handed over only once the neighbour has taken it (reports holding it), not on the holder's own reading of the margin: a hand-over that one side sees and the other does not leaves the tag with its holder instead of with nobody"
     ],
-    missing_rssi: [type: :number, default: -100, doc: "dBm of a tag a neighbour does not report"]
+    missing_rssi: [type: :number, default: -100, doc: "dBm of a tag a neighbour does not report"],
+    one_holder: [
+      type: :boolean,
+      default: false,
+      doc:
+        "the one-holder protocol (see the moduledoc): at most one node holds a tag at the end of every second; needs `:node` and `:neighbours`, and the messages of `take_out/1` delivered (`deliver/3`) and `close/2` after them"
+    ],
+    node: [type: :any, doc: "this node's name (`:one_holder`)"],
+    neighbours: [type: {:list, :any}, default: [], doc: "this node's neighbours (`:one_holder`)"]
   ]
 
   @doc """
@@ -238,7 +312,10 @@ defmodule TartarusLats.Zone do
       exit_alone: opts[:exit_alone],
       release_on_take: opts[:release_on_take],
       far_dbm: cal.far_dbm,
-      missing_rssi: opts[:missing_rssi]
+      missing_rssi: opts[:missing_rssi],
+      one_holder: opts[:one_holder],
+      node: opts[:node],
+      neighbours: Enum.sort(opts[:neighbours])
     }
   end
 
@@ -249,12 +326,13 @@ defmodule TartarusLats.Zone do
   """
   @spec decide(t(), number(), Tracker.t(), reports()) :: {[event()], t()}
   def decide(%__MODULE__{} = z, t, %Tracker{} = tracker, reports) when is_map(reports) do
+    z = if z.one_holder, do: proxy_releases(%{z | seen: MapSet.new()}, reports), else: z
     held = for {tag, %{mine: true}} <- z.tags, do: tag
     tags = Enum.sort(Enum.uniq(Tracker.tags(tracker) ++ held))
 
-    {events, states} =
-      Enum.reduce(tags, {[], z.tags}, fn tag, {events, states} ->
-        state = Map.get(states, tag, %{mine: false, pending: nil})
+    {events, z} =
+      Enum.reduce(tags, {[], z}, fn tag, {events, z} ->
+        state = Map.get(z.tags, tag, %{mine: false, pending: nil})
         own = Tracker.heard_average(tracker, tag) || z.missing_rssi
 
         heard =
@@ -265,11 +343,212 @@ defmodule TartarusLats.Zone do
             true -> :heard
           end
 
-        {event, state} = step(z, t, tag, state, heard, own, n(z, reports, tag))
-        {if(event, do: [event | events], else: events), store(states, tag, state)}
+        n = n(z, reports, tag)
+        {event, new} = step(z, t, tag, state, heard, own, n)
+
+        {event, new, z} =
+          if z.one_holder, do: protocol(z, tag, state, new, event, own, n), else: {event, new, z}
+
+        {if(event, do: [event | events], else: events), %{z | tags: store(z.tags, tag, new)}}
       end)
 
-    {Enum.reverse(events), %{z | tags: states}}
+    {Enum.reverse(events), z}
+  end
+
+  # -- one holder per tag (`:one_holder`) -----------------------------------------------
+
+  # What the rule of a second decided, put through the protocol: a claim becomes an intent
+  # (flooded, arbitrated at `close/2`) when the ledger says the tag is free, and nothing
+  # when it says another node holds it (the claimant is no neighbour of the holder: it
+  # waits for the release); a take becomes an ask to the holder (who gives at the next
+  # delivery); a release out of range is flooded as a ledger entry. A held tag is never let
+  # go on this node's reading of a neighbour's margin: only given, or released.
+  defp protocol(z, tag, old, new, {:entered_zone, tag, since}, own, n) do
+    back = %{new | mine: false, pending: old_pending(old, since)}
+
+    cond do
+      n.holder_node != nil ->
+        {nil, back, send_to(z, n.holder_node, {:zone, :ask, tag, z.node, own, since})}
+
+      free?(z, tag) ->
+        intent = %{node: z.node, rssi: own, since: since, epoch: epoch(z, tag)}
+        z = %{z | intents: Map.update(z.intents, tag, [intent], &[intent | &1])}
+        {nil, back, flood(z, {:zone, :intent, tag, intent})}
+
+      true ->
+        {nil, %{new | mine: false, pending: nil}, z}
+    end
+  end
+
+  defp protocol(z, tag, _old, new, {:left_zone, tag, _since} = event, _own, _n) do
+    {event, new, set_ledger(z, tag, {epoch(z, tag) + 1, :free}, true)}
+  end
+
+  defp protocol(z, _tag, _old, new, nil, _own, _n), do: {nil, new, z}
+
+  # A claim or take asked for goes on as pending, so that it is asked again next second if
+  # its condition still holds (and it was not granted).
+  defp old_pending(%{pending: {why, since, count}}, _since) when why in [:take, :claim],
+    do: {why, since, count}
+
+  defp old_pending(_old, since), do: {:take, since, 1}
+
+  defp free?(z, tag), do: match?({_, :free}, Map.get(z.ledger, tag, {0, :free}))
+  defp epoch(z, tag), do: z.ledger |> Map.get(tag, {0, :free}) |> elem(0)
+
+  # A neighbour the ledger says holds a tag, whose report does not say it holds it, is
+  # gone (a live holder always reports what it holds): its neighbours release the tag for it.
+  defp proxy_releases(z, reports) do
+    Enum.reduce(Enum.sort(z.ledger), z, fn
+      {tag, {e, {:held, h}}}, z when h != z.node ->
+        if h in z.neighbours and not match?(%{^tag => {_, true, _}}, Map.get(reports, h, %{})) and
+             not match?(%{^tag => {_, true}}, Map.get(reports, h, %{})),
+           do: set_ledger(z, tag, {e + 1, :free}, true),
+           else: z
+
+      _, z ->
+        z
+    end)
+  end
+
+  defp set_ledger(z, tag, entry, flood?) do
+    z = %{z | ledger: Map.put(z.ledger, tag, entry)}
+    if flood?, do: flood(z, {:zone, :ledger, tag, elem(entry, 0), elem(entry, 1)}), else: z
+  end
+
+  defp send_to(z, node, msg), do: %{z | out: [{node, msg} | z.out]}
+  defp flood(z, msg), do: Enum.reduce(z.neighbours, z, &send_to(&2, &1, msg))
+
+  @doc """
+  The protocol messages this node has to send (`:one_holder`), as `[{neighbour,
+  message}]` in the order made, and the state without them. Empty without `:one_holder`.
+  """
+  @spec take_out(t()) :: {[{term(), message()}], t()}
+  def take_out(%__MODULE__{out: out} = z), do: {Enum.reverse(out), %{z | out: []}}
+
+  @doc """
+  Applies the protocol messages that reached this node in one delivery of second `t`
+  (`:one_holder`): asks (the holder gives the tag to the strongest asker, ties by the
+  earlier take then the name, and lets it go), gives (this node holds the tag), ledger
+  entries (a newer one is kept and passed on) and claim intents (kept for `close/2`,
+  passed on once; an intent made on an older ledger than this node's is answered with the
+  ledger entry). Returns the zone events and the new state; messages to send are in
+  `take_out/1`.
+  """
+  @spec deliver(t(), number(), [message()]) :: {[event()], t()}
+  def deliver(%__MODULE__{} = z, _t, msgs) do
+    {asks, rest} = Enum.split_with(msgs, &match?({:zone, :ask, _, _, _, _}, &1))
+    {events, z} = Enum.reduce(Enum.sort(rest), {[], z}, &receive_one/2)
+
+    {more, z} =
+      asks
+      |> Enum.group_by(&elem(&1, 2))
+      |> Enum.sort()
+      |> Enum.reduce({[], z}, fn {tag, tag_asks}, {events, z} ->
+        if holds?(z, tag) do
+          {:zone, :ask, _, to, _rssi, since} =
+            Enum.min_by(tag_asks, fn {:zone, :ask, _, from, rssi, since} ->
+              {-rssi, since, from}
+            end)
+
+          z = %{z | tags: Map.delete(z.tags, tag)}
+          z = send_to(z, to, {:zone, :give, tag, z.node, since})
+          z = set_ledger(z, tag, {epoch(z, tag) + 1, {:held, to}}, true)
+          {[{:left_zone, tag, since} | events], z}
+        else
+          {events, z}
+        end
+      end)
+
+    {Enum.reverse(events) ++ Enum.reverse(more), z}
+  end
+
+  defp receive_one({:zone, :give, tag, _from, since}, {events, z}) do
+    {[{:entered_zone, tag, since} | events],
+     %{z | tags: Map.put(z.tags, tag, %{mine: true, pending: nil})}}
+  end
+
+  defp receive_one({:zone, :ledger, tag, e, state}, {events, z}) do
+    if e > epoch(z, tag), do: {events, set_ledger(z, tag, {e, state}, true)}, else: {events, z}
+  end
+
+  defp receive_one({:zone, :intent, tag, intent}, {events, z}) do
+    key = {tag, intent.node}
+
+    cond do
+      MapSet.member?(z.seen, key) or intent.node == z.node ->
+        {events, z}
+
+      true ->
+        z = %{
+          z
+          | seen: MapSet.put(z.seen, key),
+            intents: Map.update(z.intents, tag, [intent], &[intent | &1])
+        }
+
+        z = flood(z, {:zone, :intent, tag, intent})
+        # The claimant's ledger is older than this node's: tell it (and whoever else) the news.
+        z =
+          if intent.epoch < epoch(z, tag),
+            do: flood(z, {:zone, :ledger, tag, epoch(z, tag), elem(z.ledger[tag], 1)}),
+            else: z
+
+        {events, z}
+    end
+  end
+
+  defp receive_one(_other, acc), do: acc
+
+  @doc """
+  Ends second `t` (`:one_holder`), once every message of the second is delivered: the claim
+  intents of the second are arbitrated, the same way on every node (they all saw the same
+  intents and hold the same ledger): when the ledger says the tag is free, the intent with
+  the strongest RSSI (ties: the earlier claim, then the node's name) wins and that node
+  holds the tag; intents made on an older ledger count for nothing. Returns this node's
+  zone events and the new state.
+  """
+  @spec close(t(), number()) :: {[event()], t()}
+  def close(%__MODULE__{} = z, _t) do
+    {events, z} =
+      z.intents
+      |> Enum.sort()
+      |> Enum.reduce({[], z}, fn {tag, intents}, {events, z} ->
+        e = epoch(z, tag)
+        valid = Enum.filter(intents, &(&1.epoch == e))
+
+        case free?(z, tag) and valid != [] do
+          true ->
+            w = Enum.min_by(valid, &{-&1.rssi, &1.since, &1.node})
+            z = set_ledger(z, tag, {e + 1, {:held, w.node}}, false)
+
+            if w.node == z.node,
+              do:
+                {[{:entered_zone, tag, w.since} | events],
+                 %{z | tags: Map.put(z.tags, tag, %{mine: true, pending: nil})}},
+              else: {events, %{z | tags: lost(z.tags, tag)}}
+
+          false ->
+            {events, %{z | tags: lost(z.tags, tag)}}
+        end
+      end)
+
+    {Enum.reverse(events), %{z | intents: %{}}}
+  end
+
+  defp lost(tags, tag) do
+    case tags do
+      %{^tag => %{mine: false}} -> Map.delete(tags, tag)
+      _ -> tags
+    end
+  end
+
+  @doc "Who this node's ledger says holds `tag` (`:one_holder`): a node, or nil (free)."
+  @spec ledger_holder(t(), Beacon.tag_id()) :: term() | nil
+  def ledger_holder(%__MODULE__{ledger: ledger}, tag) do
+    case ledger do
+      %{^tag => {_, {:held, h}}} -> h
+      _ -> nil
+    end
   end
 
   @doc """
@@ -361,13 +640,13 @@ defmodule TartarusLats.Zone do
   # claim_db has it: let go at once.
   defp step(z, t, tag, %{mine: true} = state, _heard, own, n) do
     cond do
-      n.holder != nil and n.holder >= own + z.claim_db ->
+      n.holder != nil and n.holder >= own + z.claim_db and not z.one_holder ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
-      n.evident >= own + z.fast_db and not z.release_on_take ->
+      n.evident >= own + z.fast_db and not (z.release_on_take or z.one_holder) ->
         hold(state, t, {:handed, 1}, {:left_zone, tag}, false)
 
-      n.evident >= own + z.margin_db and not z.release_on_take ->
+      n.evident >= own + z.margin_db and not (z.release_on_take or z.one_holder) ->
         hold(state, t, {:handed, z.dwell}, {:left_zone, tag}, false)
 
       own < z.exit_dbm and not (z.exit_alone and n.best >= z.exit_dbm) ->
@@ -428,18 +707,29 @@ defmodule TartarusLats.Zone do
       evident: z.missing_rssi,
       ahead: z.missing_rssi,
       holder: nil,
+      holder_node: nil,
       holder_heard: false,
       taker: nil
     }
 
-    Enum.reduce(reports, init, fn {_n, values}, acc ->
+    reports
+    |> Enum.sort()
+    |> Enum.reduce(init, fn {node, values}, acc ->
       case values do
-        %{^tag => {v, held}} when is_number(v) -> count(acc, v, held, true)
-        %{^tag => {v, held, heard}} when is_number(v) -> count(acc, v, held, heard == true)
-        _ -> acc
+        %{^tag => {v, held}} when is_number(v) ->
+          count(acc, v, held, true) |> holder_node(node, held)
+
+        %{^tag => {v, held, heard}} when is_number(v) ->
+          count(acc, v, held, heard == true) |> holder_node(node, held)
+
+        _ ->
+          acc
       end
     end)
   end
+
+  defp holder_node(%{holder_node: nil} = acc, node, true), do: %{acc | holder_node: node}
+  defp holder_node(acc, _node, _held), do: acc
 
   defp count(acc, v, held, heard) do
     acc = %{acc | best: max(acc.best, v)}

@@ -26,17 +26,26 @@ defmodule Mix.Tasks.Tartarus.Lats do
   as they are). `--devices` gives the receivers' positions (tetam `.dev` or CSV `receiver,
   x, y, z[, name]`); one LATS node per receiver, neighbours by the Delaunay graph (or
   `--floor-plan FILE`). `--calibration` is a file written by `mix tartarus.lats.calibrate`;
-  `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline. Each
+  `--fingerprints DIR` (reference recordings) enables the fingerprinting baseline (without
+  it the baseline is absent from every output). A track that cannot be judged (no valid
+  reading, none from a receiver of the devices file, no true position, nothing after the
+  5 s warm-up) ends the task with one line saying why and a non-zero exit; bad lines (with
+  their numbers and why), a last line without a newline (not read: it may be cut short) and
+  readings of receivers the devices file does not name are printed per track and listed in
+  `summary.json` (`bad_lines`, `log_unterminated_line`, `unknown_receivers`). Each
   track runs with seeds `--seed` .. `--seed + --seeds - 1` (the seed draws the query
   instants and start nodes) through `TartarusEmu.Sweep`. The Where is X and Trace agents bridge
   a broken chain of motion vectors (`TartarusLats.Query.WhereIs`,
   `TartarusLats.Query.Trace`, `:repair`) unless `--no-repair` is given. Writes into `--out DIR` (default
   `results/lats-replay-<time>`): per track `<track>_seconds.csv`, `<track>_queries.csv`,
   `<track>.svg` (`TartarusLats.Replay.Report`), `floor_plan.txt`, the sweep's `runs.csv`,
-  box plots, `summary.json` and `summary.md` (per track and design: exact and adjacent
+  box plots, `summary.json` and `summary.md` (per track and design, `lats`, `thesis` (the
+  thesis's own rule without the zone decision, an arm on a deployment of its own),
+  `strongest` and `knn`: exact and adjacent
   rates, zone changes against the true ones, Where is X correct, Trace edit distance,
-  cloud connections; `pass`: the pre-registered criterion). With `--json` the summary is
-  the last line.
+  cloud connections; `pass`: the pre-registered criterion; per track `holders`: the most
+  nodes that held the tag at once and the holder's jumps to non-neighbours). With `--json`
+  the summary is the last line.
 
   `--dashboard PORT` serves the web dashboard (127.0.0.1) while the run goes, with a LATS
   panel (where each tag bearer is heard, the query agents out; `TartarusLats.DashboardPanel`);
@@ -221,12 +230,25 @@ defmodule Mix.Tasks.Tartarus.Lats do
         if json? do
           TartarusTools.CLI.report(summary, json: true)
         else
-          for {name, t} <- Enum.sort(summary.tracks), d <- [:lats, :strongest, :knn], x = t[d] do
+          for {name, t} <- Enum.sort(summary.tracks) do
+            for d <- [:lats, :thesis, :strongest, :knn], x = t[d] do
+              Mix.shell().info(
+                "#{name} #{d}: exact #{show(x.exact)}, adjacent #{show(x.adjacent)}, " <>
+                  "changes #{x.changes} (true #{x.true_changes}), Where is X #{x.where_is_correct}/#{x.where_is}, " <>
+                  "Trace edit #{show(x.trace_edit_mean)}, cloud #{x.cloud_connections_per_run}"
+              )
+            end
+
+            h = t.holders
+
             Mix.shell().info(
-              "#{name} #{d}: exact #{show(x.exact)}, adjacent #{show(x.adjacent)}, " <>
-                "changes #{x.changes} (true #{x.true_changes}), Where is X #{x.where_is_correct}/#{x.where_is}, " <>
-                "Trace edit #{show(x.trace_edit_mean)}, cloud #{x.cloud_connections_per_run}"
+              "#{name} holders: at most #{h.holders_at_once} at once (#{h.seconds_with_two_holders} s with two or more), " <>
+                "#{h.non_neighbour_jumps} of #{h.changes} holder changes to a non-neighbour " <>
+                "(#{h.non_neighbour_jumps_without_release} without a release between)"
             )
+
+            for line <- TartarusLats.Replay.Experiment.input_lines(t),
+                do: Mix.shell().info("#{name} input: #{line}")
           end
 
           Mix.shell().info("pass (pre-registered criterion): #{summary.pass}\nwritten to #{dir}")

@@ -24,12 +24,18 @@ defmodule TartarusLats.Replay.Log do
   A malformed line (too few fields, a time or RSSI that is not a number, an RSSI out of
   range, an empty receiver or beacon, an `x` without `y` or a position that is not a number)
   is skipped and counted with its line number and why: `parse/1` never raises on content.
+  Every line ends with a newline: a text whose last line has none (a file cut short, say
+  in the middle of an RSSI: `-7` for `-74`) does not read that line; it is counted as a bad
+  line and named in `unterminated`.
 
-      iex> log = TartarusLats.Replay.Log.parse("1.5,r1,aa,-70,1.0,2.0\\nbad line\\n2.0,r2,aa,-71")
+      iex> log = TartarusLats.Replay.Log.parse("1.5,r1,aa,-70,1.0,2.0\\nbad line\\n2.0,r2,aa,-71\\n")
       iex> Enum.map(log.readings, &{&1.time, &1.receiver, &1.rssi, &1.pos})
       [{1.5, "r1", -70, {1.0, 2.0}}, {2.0, "r2", -71, nil}]
       iex> log.bad
       [{2, "expected time, receiver, beacon, rssi[, x, y], got 1 field"}]
+      iex> log = TartarusLats.Replay.Log.parse("1.5,r1,aa,-70\\n2.0,r2,aa,-7")
+      iex> {length(log.readings), log.bad, log.unterminated}
+      {1, [{2, "last line has no newline (cut short?): not read"}], 2}
   """
 
   @typedoc "One reading."
@@ -42,18 +48,49 @@ defmodule TartarusLats.Replay.Log do
           line: pos_integer()
         }
 
-  @typedoc "A parsed log: readings sorted by time (then line), and the malformed lines."
+  @typedoc """
+  A parsed log: readings sorted by time (then line), the malformed lines, the lines that
+  were not blank, comments or a header, and the number of a last line left unread because
+  the text did not end with a newline (nil: it did).
+  """
   @type t :: %{
           readings: [reading()],
           bad: [{pos_integer(), String.t()}],
-          lines: non_neg_integer()
+          lines: non_neg_integer(),
+          unterminated: pos_integer() | nil
         }
 
   @doc """
   Parses a log's text (or a list of lines). Never raises on content; see the moduledoc.
   """
   @spec parse(binary() | [binary()]) :: t()
-  def parse(text) when is_binary(text), do: text |> String.split(["\r\n", "\n"]) |> parse()
+  def parse(text) when is_binary(text) do
+    lines = String.split(text, ["\r\n", "\n"])
+    # The text of a file that does not end with a newline: its last line may have been cut
+    # short (a copy or a write interrupted in the middle of a number), so it is not read.
+    {lines, cut} =
+      case List.last(lines) do
+        "" -> {lines, nil}
+        last -> {List.replace_at(lines, -1, ""), {length(lines), last}}
+      end
+
+    log = parse(lines)
+
+    case cut do
+      nil ->
+        log
+
+      {no, last} ->
+        if parse_line(last, no) == :skip,
+          do: log,
+          else: %{
+            log
+            | bad: log.bad ++ [{no, "last line has no newline (cut short?): not read"}],
+              lines: log.lines + 1,
+              unterminated: no
+          }
+    end
+  end
 
   def parse(lines) when is_list(lines) do
     {readings, bad, n} =
@@ -70,7 +107,8 @@ defmodule TartarusLats.Replay.Log do
     %{
       readings: Enum.sort_by(readings, &{&1.time, &1.line}),
       bad: Enum.reverse(bad),
-      lines: n
+      lines: n,
+      unterminated: nil
     }
   end
 
@@ -177,7 +215,7 @@ defmodule TartarusLats.Replay.Log do
   sample a second). Also returns the start time (`t0`, the first reading's time rounded
   down).
 
-      iex> log = TartarusLats.Replay.Log.parse("100.2,r1,aa,-70\\n100.7,r1,aa,-74\\n101.1,r2,aa,-80")
+      iex> log = TartarusLats.Replay.Log.parse("100.2,r1,aa,-70\\n100.7,r1,aa,-74\\n101.1,r2,aa,-80\\n")
       iex> TartarusLats.Replay.Log.per_second(log)
       {100.0, %{1 => %{"r1" => %{"aa" => -72}}, 2 => %{"r2" => %{"aa" => -80}}}}
   """

@@ -3,14 +3,14 @@ defmodule TartarusLats.Replay.Report do
   The files of a real-data replay (`mix tartarus.lats --replay-log`): per track
 
     * `<track>_seconds.csv` - every second: true position, true zone, and the decisions of
-      LATS, the strongest-receiver baseline and the fingerprinting baseline;
+      LATS, the thesis's own rule (an arm, `TartarusLats.Replay`), the strongest-receiver baseline and the fingerprinting baseline;
     * `<track>_queries.csv` - every query (all seeds): seed, type, second, start node, the
       truth, and per design the answer and its judgement (Where is X correct; Trace edit
       distance);
     * `<track>.svg` - the floor plan (receivers, their Delaunay neighbours, the true track)
       with LATS's decision of every second drawn as a line from the true position to the
       deciding receiver (green: the true zone, orange: a neighbour of it, red: neither),
-      and under it the zones over time: truth, LATS, strongest receiver, fingerprinting.
+      and under it the zones over time: truth, LATS, the thesis's rule, strongest receiver, fingerprinting.
 
   Plain functions of a run's result (`TartarusLats.Replay.run/2`) and its case
   (`TartarusLats.Replay.prepare/3`).
@@ -19,7 +19,7 @@ defmodule TartarusLats.Replay.Report do
   alias TartarusLats.Building
   alias TartarusTools.Report
 
-  @designs [:lats, :strongest, :knn]
+  @designs [:lats, :thesis, :strongest, :knn]
 
   # Fingerprinting runs only with --fingerprints: without them the legend says so.
   defp knn_legend(%{knn: %{} = knn}),
@@ -27,20 +27,27 @@ defmodule TartarusLats.Replay.Report do
 
   defp knn_legend(_summary), do: "fingerprinting not run (no --fingerprints)"
 
+  defp thesis_legend(%{thesis: %{} = t}),
+    do: "thesis's rule #{pct(t[:exact])} / #{pct(t[:adjacent])}; "
+
+  defp thesis_legend(_summary), do: ""
+
   @doc "Writes a track's files into `dir`; returns their paths."
   @spec write!(Path.t(), map(), [map()]) :: [Path.t()]
   def write!(dir, c, results) do
     File.mkdir_p!(dir)
     first = hd(results)
+    # The designs judged in this run (no fingerprinting without reference points: no column).
+    designs = Enum.filter(@designs, &Map.has_key?(first.summary, &1))
 
     seconds =
       Report.write_csv!(
         dir,
         "#{c.name}_seconds.csv",
-        ~w(second x y truth lats strongest knn),
+        ~w(second x y truth) ++ Enum.map(designs, &Atom.to_string/1),
         for r <- first.seconds do
           {x, y} = Map.get(c.positions, r.second, {nil, nil})
-          [r.second, x, y, r.truth, r.lats, r.strongest, Map.get(r, :knn)]
+          [r.second, x, y, r.truth] ++ Enum.map(designs, &Map.get(r, &1))
         end
       )
 
@@ -48,10 +55,12 @@ defmodule TartarusLats.Replay.Report do
       Report.write_csv!(
         dir,
         "#{c.name}_queries.csv",
-        ~w(seed type second start truth lats_answer lats_judged strongest_answer strongest_judged knn_answer knn_judged lats_hops lats_cloud_contacts),
+        ~w(seed type second start truth) ++
+          Enum.flat_map(designs, &["#{&1}_answer", "#{&1}_judged"]) ++
+          ~w(lats_hops lats_cloud_contacts),
         for r <- results, q <- r.queries do
           [r.summary.seed, q.type, q.time, q.start, Enum.join(q.truth, " ")] ++
-            Enum.flat_map(@designs, fn d ->
+            Enum.flat_map(designs, fn d ->
               case q.judged[d] do
                 nil -> [nil, nil]
                 j -> [show(j.answer), Map.get(j, :correct, Map.get(j, :edit_distance))]
@@ -143,6 +152,7 @@ defmodule TartarusLats.Replay.Report do
           {d, dy, colour, size} <- [
             {:truth, 0, "#bbb", 6},
             {:lats, -3, "#4e79a7", 3},
+            {:thesis, -5, "#59a14f", 1.5},
             {:strongest, 3, "#f28e2b", 2},
             {:knn, 5, "#b07aa1", 1.5}
           ],
@@ -156,7 +166,7 @@ defmodule TartarusLats.Replay.Report do
     s = result.summary
 
     legend =
-      "LATS exact #{pct(s.lats.exact)} / adjacent #{pct(s.lats.adjacent)}; strongest #{pct(s.strongest.exact)} / #{pct(s.strongest.adjacent)}; #{knn_legend(s)}"
+      "LATS exact #{pct(s.lats.exact)} / adjacent #{pct(s.lats.adjacent)}; #{thesis_legend(s)}strongest #{pct(s.strongest.exact)} / #{pct(s.strongest.adjacent)}; #{knn_legend(s)}"
 
     [
       ~s(<?xml version="1.0" encoding="UTF-8"?>\n),
@@ -172,7 +182,7 @@ defmodule TartarusLats.Replay.Report do
       text(
         margin,
         t_top,
-        "zones over time (s): grey truth, blue LATS, orange strongest receiver, purple fingerprinting",
+        "zones over time (s): grey truth, blue LATS, green the thesis's rule, orange strongest receiver, purple fingerprinting",
         11
       ),
       rows,
