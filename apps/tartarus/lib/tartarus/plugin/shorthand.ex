@@ -61,21 +61,48 @@ defmodule Tartarus.Plugin.Shorthand do
   """
   @spec parse(atom(), term(), keyword()) :: {:ok, spec()} | {:error, String.t()}
   def parse(name, spec, opts \\ []) do
-    case do_parse(name, spec, opts) do
-      {:ok, _} = ok -> ok
+    with :ok <- keyword_options(spec),
+         {:ok, _} = ok <- do_parse(name, spec, opts) do
+      ok
+    else
       {:error, what} -> {:error, "#{name}: #{what}"}
     end
   end
 
+  # Every form's options are a keyword list (Keyword's functions raise on any other list).
+  defp keyword_options(spec) do
+    options =
+      case spec do
+        {kind, _device, o} when kind in [:serial, :ble] -> o
+        {module, o} when is_atom(module) and module not in [:serial, :ble] -> o
+        _ -> []
+      end
+
+    if not is_list(options) or Keyword.keyword?(options),
+      do: :ok,
+      else: {:error, "options: expected a keyword list, got: #{inspect(options, limit: 8)}"}
+  end
+
   defp do_parse(_name, {:sensor, opts}, _) when is_list(opts) do
-    case Keyword.get(opts, :signal, Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5))) do
-      [_ | _] = signal ->
+    signal = Keyword.get(opts, :signal, Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)))
+
+    cond do
+      not (is_list(signal) and signal != [] and Enum.all?(signal, &is_number/1)) ->
+        {:error,
+         "signal: expected a non-empty list of numbers, got: #{inspect(signal, limit: 8)}"}
+
+      not is_binary(Keyword.get(opts, :unit, "")) ->
+        {:error, "unit: expected a string, got: #{inspect(opts[:unit], limit: 8)}"}
+
+      not (is_nil(opts[:interval_ms]) or
+               (is_integer(opts[:interval_ms]) and opts[:interval_ms] > 0)) ->
+        {:error,
+         "interval_ms: expected a positive integer, got: #{inspect(opts[:interval_ms], limit: 8)}"}
+
+      true ->
         {:ok,
          {Tartarus.Plugin.SimSensor,
           [unit: "°C"] |> Keyword.merge(opts) |> Keyword.put(:signal, signal)}}
-
-      other ->
-        {:error, "signal: expected a non-empty list, got: #{inspect(other)}"}
     end
   end
 
