@@ -158,6 +158,8 @@ defmodule TartarusNode.ConfigTest do
       {"[#{ok}, plugins: [t: {:serial, \"/dev/null\", [1]}]]", "plugins: t: options: expected"},
       {"[#{ok}, plugins: [t: {:sensor, signal: [1, :a]}]]", "signal: expected a non-empty list of numbers"},
       {"[#{ok}, plugins: [t: {:sensor, unit: 5}]]", "plugins: t: unit: expected a string"},
+      {"[#{ok}, plugins: [t: {:serial, \"/dev/null\", speed: \"fast\"}]]",
+       "plugins: t: invalid options given to Tartarus.Plugin.Serial for key :speed"},
       {"[#{ok}, plugins: [t: {:sensor, []}, t: {:sensor, []}]]", "plugins: t: given twice"},
       {"[#{ok}, dashboard: [port: 4000, bind: {999, 0, 0, 0}]]", "dashboard: bind: expected an IP address"},
       {"[#{ok}, dashboard: [port: 4000, bind: :any]]", "dashboard: bind: expected an IP address"},
@@ -302,12 +304,12 @@ defmodule TartarusNode.ConfigTest do
 
     body = Enum.map_join(1..n, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
     line = refused(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\n#{body}\n]]")
-    assert line =~ "more than the 1048576 (1 MiB) a node's file may have"
+    assert line =~ "more than the 262144 (256 KiB) a node's file may have"
 
-    # Under the bound the file is read whole: 20,000 neighbours (about 560 KB).
-    body = Enum.map_join(1..20_000, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
+    # Under the bound the file is read whole: 5,000 neighbours (about 140 KB).
+    body = Enum.map_join(1..5_000, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
     path = write(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\n#{body}\n]]")
     assert {:ok, c} = Config.read(path)
-    assert length(c.neighbours) == 20_000
+    assert length(c.neighbours) == 5_000
   end
 end

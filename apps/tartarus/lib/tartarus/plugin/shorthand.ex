@@ -12,6 +12,12 @@ defmodule Tartarus.Plugin.Shorthand do
       unless `speed:`), read as text lines;
     * `{:ble, device}` / `{:ble, device, opts}`: the BLE receiver of this node (below).
 
+  Options are keyword lists in every form, a sensor's `signal:` a non-empty list of numbers
+  (`unit:` a string, `interval_ms:` a positive integer), and whatever the form, the plugin
+  module's `check/1`, when it defines one, checks the options it would start with (the
+  serial line's `Tartarus.Plugin.Serial.check/1`: speed, decoder, transport): a bad value is
+  refused here, not when the node boots.
+
   ## The BLE receiver
 
   The platform names no application, so an application that brings a BLE receiver says so
@@ -62,7 +68,8 @@ defmodule Tartarus.Plugin.Shorthand do
   @spec parse(atom(), term(), keyword()) :: {:ok, spec()} | {:error, String.t()}
   def parse(name, spec, opts \\ []) do
     with :ok <- keyword_options(spec),
-         {:ok, _} = ok <- do_parse(name, spec, opts) do
+         {:ok, {module, plugin_opts}} = ok <- do_parse(name, spec, opts),
+         :ok <- module_check(module, plugin_opts) do
       ok
     else
       {:error, what} -> {:error, "#{name}: #{what}"}
@@ -133,26 +140,28 @@ defmodule Tartarus.Plugin.Shorthand do
 
   defp do_parse(_name, {module, plugin_opts}, _opts)
        when is_atom(module) and is_list(plugin_opts) do
-    cond do
-      not (Code.ensure_loaded?(module) and function_exported?(module, :init, 1)) ->
-        {:error, "#{inspect(module)} is not a plugin module in this node's code"}
-
-      function_exported?(module, :check, 1) ->
-        case module.check(plugin_opts) do
-          :ok -> {:ok, {module, plugin_opts}}
-          {:error, reason} when is_binary(reason) -> {:error, reason}
-          {:error, reason} -> {:error, inspect(reason)}
-        end
-
-      true ->
-        {:ok, {module, plugin_opts}}
-    end
+    if Code.ensure_loaded?(module) and function_exported?(module, :init, 1),
+      do: {:ok, {module, plugin_opts}},
+      else: {:error, "#{inspect(module)} is not a plugin module in this node's code"}
   end
 
   defp do_parse(_name, other, _opts),
     do:
       {:error,
        "expected {module, opts}, {:sensor, opts}, {:serial, device} or {:ble, device}, got: #{inspect(other)}"}
+
+  # A plugin module that defines check/1 checks its options there, without a device.
+  defp module_check(module, plugin_opts) do
+    if Code.ensure_loaded?(module) and function_exported?(module, :check, 1) do
+      case module.check(plugin_opts) do
+        :ok -> :ok
+        {:error, reason} when is_binary(reason) -> {:error, reason}
+        other -> {:error, inspect(other, limit: 8)}
+      end
+    else
+      :ok
+    end
+  end
 
   defp device_present(device, dev_opts, opts) do
     {hotplug, dev_opts} = Keyword.pop(dev_opts, :hotplug, false)
