@@ -177,7 +177,8 @@ defmodule TartarusNode.ConfigTest do
       {"exit(:bye)", "evaluating it exited with :bye"},
       {"spawn_link(fn -> exit(:linked) end)\nProcess.sleep(5_000)\n[#{ok}]",
        "evaluating it stopped with :linked"},
-      {"raise \"two\\nlines\"", "evaluating it raised RuntimeError: two lines"}
+      {"raise \"two\\nlines\"", "evaluating it raised RuntimeError: two lines"},
+      {"Process.exit(self(), :kill)", "evaluating it stopped with :killed"}
     ]
 
     for {text, expected} <- cases do
@@ -304,7 +305,11 @@ defmodule TartarusNode.ConfigTest do
 
     body = Enum.map_join(1..n, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
     line = refused(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\n#{body}\n]]")
-    assert line =~ "more than the 262144 (256 KiB) a node's file may have"
+    assert line =~ "it has more than 262144 bytes (256 KiB), the most a node's file may have"
+
+    # Whatever the path is: no more than the bound is read.
+    assert {:error, zero} = Config.read("/dev/zero")
+    assert zero =~ "it has more than 262144 bytes"
 
     # Under the bound the file is read whole: 5,000 neighbours (about 140 KB).
     body = Enum.map_join(1..5_000, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)

@@ -152,35 +152,49 @@ defmodule TartarusNode.Config do
     "tartarus: bad configuration #{path}: " <> what
   end
 
+  # At most @max_bytes + 1 bytes are read, whatever the path is (a device, a pipe).
   defp read_text(path) do
-    with {:ok, %File.Stat{size: size}} when size > @max_bytes <- File.stat(path) do
-      {:error,
-       "it has #{size} bytes, more than the #{@max_bytes} (256 KiB) a node's file may have " <>
-         "(it is evaluated as Elixir code, in time that grows faster than its size)"}
-    else
-      _ ->
-        case File.read(path) do
-          {:ok, text} -> {:ok, text}
-          {:error, :enoent} -> {:error, "cannot read it (no such file)"}
-          {:error, reason} -> {:error, "cannot read it (#{:file.format_error(reason)})"}
-        end
+    case File.open(path, [:read, :binary]) do
+      {:ok, io} ->
+        text = IO.binread(io, @max_bytes + 1)
+        File.close(io)
+        text(text)
+
+      {:error, :enoent} ->
+        {:error, "cannot read it (no such file)"}
+
+      {:error, reason} ->
+        {:error, "cannot read it (#{:file.format_error(reason)})"}
     end
   end
+
+  defp text(:eof), do: {:ok, ""}
+
+  defp text(text) when is_binary(text) and byte_size(text) > @max_bytes,
+    do:
+      {:error,
+       "it has more than #{@max_bytes} bytes (256 KiB), the most a node's file may have " <>
+         "(it is evaluated as Elixir code, in time that grows faster than its size)"}
+
+  defp text(text) when is_binary(text), do: {:ok, text}
+  defp text({:error, reason}), do: {:error, "cannot read it (#{inspect(reason)})"}
 
   # In a process of its own: a linked process the file starts and that dies, or an exit, is
   # its end, not the caller's; what it prints goes to standard error.
   defp eval(text, path) do
+    tag = make_ref()
+
     {pid, ref} =
       spawn_monitor(fn ->
         Process.group_leader(self(), Process.whereis(:standard_error) || Process.group_leader())
-        exit({__MODULE__, eval_here(text, path)})
+        exit({tag, eval_here(text, path)})
       end)
 
     timer = Tartarus.Clock.send_after(self(), {__MODULE__, :eval_timeout, ref}, @eval_ms)
 
     result =
       receive do
-        {:DOWN, ^ref, :process, ^pid, {__MODULE__, result}} ->
+        {:DOWN, ^ref, :process, ^pid, {^tag, result}} ->
           result
 
         {:DOWN, ^ref, :process, ^pid, reason} ->
