@@ -452,17 +452,7 @@ defmodule TartarusNode.Config do
 
   defp tls_file(key, nil, dir, name), do: tls_file(key, Path.join(dir, name), nil, nil)
 
-  defp tls_file(key, file, _, _) do
-    case path_opt(:"tls: #{key}", file) do
-      {:ok, path} ->
-        if File.regular?(path),
-          do: {:ok, path},
-          else: {:error, "tls: #{key}: no such file #{file}"}
-
-      error ->
-        error
-    end
-  end
+  defp tls_file(key, file, _, _), do: existing(:"tls: #{key}", file, :file)
 
   defp only(what, opts, allowed) do
     cond do
@@ -582,11 +572,24 @@ defmodule TartarusNode.Config do
 
   defp path_opt(key, other), do: {:error, "#{key}: expected a path, got: #{show(other)}"}
 
-  defp dir_opt(key, value) do
+  defp dir_opt(key, value), do: existing(key, value, :dir)
+
+  # An optional path that must name an existing directory or regular file.
+  defp existing(key, value, kind) do
     case path_opt(key, value) do
-      {:ok, nil} -> {:ok, nil}
-      {:ok, p} -> if File.dir?(p), do: {:ok, p}, else: {:error, "#{key}: no such directory #{p}"}
-      error -> error
+      {:ok, nil} ->
+        {:ok, nil}
+
+      {:ok, p} ->
+        cond do
+          kind == :dir and File.dir?(p) -> {:ok, p}
+          kind == :file and File.regular?(p) -> {:ok, p}
+          kind == :dir -> {:error, "#{key}: no such directory #{p}"}
+          true -> {:error, "#{key}: no such file #{p}"}
+        end
+
+      error ->
+        error
     end
   end
 
@@ -748,20 +751,7 @@ defmodule TartarusNode.Config do
   defp dashboard_hosts(other),
     do: {:error, "dashboard: hosts: expected a list of host names (strings), got: #{show(other)}"}
 
-  defp token_file(file) do
-    case path_opt(:"dashboard: token_file", file) do
-      {:ok, nil} ->
-        {:ok, nil}
-
-      {:ok, p} ->
-        if File.regular?(p),
-          do: {:ok, p},
-          else: {:error, "dashboard: token_file: no such file #{p}"}
-
-      error ->
-        error
-    end
-  end
+  defp token_file(file), do: existing(:"dashboard: token_file", file, :file)
 
   @doc """
   The options `Tartarus.start_host/2` gets: plugins, persistence and security (neighbours
