@@ -58,6 +58,9 @@ defmodule Tartarus.ReleaseTest do
        "net_ticktime: expected an integer in 1..3600"},
       {"name.exs", "[node: \"t4rel@127.0.0.1 --eval System.halt(7)\", cookie: \"c\"]",
        "node: expected name@host"},
+      {"datadir.exs",
+       "[node: \"t@127.0.0.1\", cookie: \"c\", data_dir: #{inspect(Path.join(dir, String.duplicate("d", 300)))}]",
+       "(file name too long)"},
       {"big.exs", big_file(200_000), "it has more than 262144 bytes (256 KiB)"}
     ]
 
