@@ -47,7 +47,24 @@ defmodule Tartarus.ReleaseTest do
        "[node: \"t@127.0.0.1\", cookie: \"c\", plugins: [tty: {:serial, \"/dev/nonexistent-41\"}]]",
        "plugins: tty: no such device /dev/nonexistent-41"},
       {"data.exs", "[node: \"t@127.0.0.1\", cookie: \"c\", data_dir: \"/dev/null/data\"]",
-       "data_dir: /dev/null is not a directory"}
+       "data_dir: /dev/null is not a directory"},
+      # Issue 44: these raised (a stack trace at boot), booted a node whose ticker crashed in
+      # a loop, or ran what a node name held (status 7).
+      {"tlsdir.exs", "[node: \"t@127.0.0.1\", tls: [dir: 123]]", "tls: dir: expected a path"},
+      {"sensor.exs", "[node: \"t@127.0.0.1\", cookie: \"c\", plugins: [temp: {:sensor, [1, 2]}]]",
+       "plugins: temp: options: expected a keyword list"},
+      {"throw.exs", "throw(:config)", "evaluating it threw :config"},
+      {"exit.exs", "exit(:bye)", "evaluating it exited with :bye"},
+      {"keys.exs", "[node: \"t@127.0.0.1\", cookie: \"c\", keys: #{inspect(dir)}]",
+       "keys: cannot access key file #{dir}/issuer.key"},
+      {"tick.exs", "[node: \"t@127.0.0.1\", cookie: \"c\", net_ticktime: 10 ** 40]",
+       "net_ticktime: expected an integer in 1..3600"},
+      {"name.exs", "[node: \"t4rel@127.0.0.1 --eval System.halt(7)\", cookie: \"c\"]",
+       "node: expected name@host"},
+      {"datadir.exs",
+       "[node: \"t@127.0.0.1\", cookie: \"c\", data_dir: #{inspect(Path.join(dir, String.duplicate("d", 300)))}]",
+       "(file name too long)"},
+      {"big.exs", big_file(200_000), "it has more than 262144 bytes (256 KiB)"}
     ]
 
     for {file, text, expected} <- cases do
@@ -66,19 +83,28 @@ defmodule Tartarus.ReleaseTest do
     tmp_dir: dir
   } do
     path = Path.join(dir, "node.exs")
-    # A plugin module without a check/1 passes the configuration check and fails at start.
+    # A plugin module without a check/1 passes the configuration check and fails at start
+    # (the serial plugin's options are checked by Tartarus.Plugin.Serial.check/1 now).
     File.write!(path, """
     [node: "tt41bad#{System.unique_integer([:positive])}@127.0.0.1", cookie: "c", host: "pi1",
-     plugins: [tty: {Tartarus.Plugin.Serial, speed: 9600}]]
+     plugins: [temp: {Tartarus.Plugin.SimSensor, []}]]
     """)
 
     {out, status} =
       System.cmd(bin, ["start"], env: env(path, dir), stderr_to_stdout: true, cd: dir)
 
     assert status == 1, out
-    assert out =~ "tartarus: cannot start host pi1: required option :device not given"
+    assert out =~ "tartarus: cannot start host pi1: "
+    assert out =~ "signal"
     refute out =~ "crash"
     assert Path.wildcard(Path.join(dir, "erl_crash.dump")) == []
+  end
+
+  defp big_file(n) do
+    neighbours =
+      Enum.map_join(1..n, ",\n", fn i -> "  h#{i}: \"t@10.0.#{div(i, 256)}.#{rem(i, 256)}\"" end)
+
+    "[node: \"t@127.0.0.1\", cookie: \"c\", neighbours: [\n#{neighbours}\n]]"
   end
 
   defp line_tail(line, path),

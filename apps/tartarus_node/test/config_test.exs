@@ -49,7 +49,8 @@ defmodule TartarusNode.ConfigTest do
     assert ["-proto_dist", "tartarus_tls", "-ssl_dist_optfile", "/x/ssl_dist.conf"] =
              Enum.take(flags, -4)
 
-    assert Config.host_options(c)[:data_dir] == Path.join(dir, "data")
+    assert {:ok, host_opts} = Config.host_options(c)
+    assert host_opts[:data_dir] == Path.join(dir, "data")
     assert [server: server, client: _] = Config.optfile_terms(c)
     assert server[:fail_if_no_peer_cert]
   end
@@ -133,5 +134,187 @@ defmodule TartarusNode.ConfigTest do
   test "short names when the host part has no dot and is no address" do
     assert {:ok, %{distribution: :sname}} = Config.check(node: "a@pi", cookie: "c")
     assert {:ok, %{distribution: :name}} = Config.check(node: "a@pi.local", cookie: "c")
+  end
+
+  # Issue 44: every failure one line, never a raise, at the check or at boot.
+  defp refused(dir, text) do
+    path = write(dir, text)
+    assert {:error, line} = Config.read(path)
+    assert line =~ "tartarus: bad configuration #{path}: "
+    refute line =~ "\n"
+    line
+  end
+
+  test "values of the wrong type are one line, not a raise (six files raised before)", %{
+    tmp_dir: dir
+  } do
+    ok = ~s(node: "a@b.c", cookie: "c")
+
+    cases = [
+      {"[#{ok}, tls: [dir: 123]]", "tls: dir: expected a path, got: 123"},
+      {"[#{ok}, tls: [1, 2]]", "tls: expected a keyword list"},
+      {"[#{ok}, plugins: [temp: {:sensor, [1, 2]}]]",
+       "plugins: temp: options: expected a keyword list, got: [1, 2]"},
+      {"[#{ok}, plugins: [t: {:serial, \"/dev/null\", [1]}]]", "plugins: t: options: expected"},
+      {"[#{ok}, plugins: [t: {:sensor, signal: [1, :a]}]]", "signal: expected a non-empty list of numbers"},
+      {"[#{ok}, plugins: [t: {:sensor, unit: 5}]]", "plugins: t: unit: expected a string"},
+      {"[#{ok}, plugins: [t: {:serial, \"/dev/null\", speed: \"fast\"}]]",
+       "plugins: t: invalid options given to Tartarus.Plugin.Serial for key :speed"},
+      {"[#{ok}, plugins: [t: {:sensor, []}, t: {:sensor, []}]]", "plugins: t: given twice"},
+      {"[#{ok}, dashboard: [port: 4000, bind: {999, 0, 0, 0}]]", "dashboard: bind: expected an IP address"},
+      {"[#{ok}, dashboard: [port: 4000, bind: :any]]", "dashboard: bind: expected an IP address"},
+      {"[#{ok}, dashboard: [port: 4000, bind: <<255>>]]", "dashboard: bind: expected an IP address"},
+      {"[#{ok}, dashboard: [port: 4000, hosts: \"pi.local\"]]", "dashboard: hosts: expected a list"},
+      {"[#{ok}, dashboard: [port: 4000, token_file: 7]]", "dashboard: token_file: expected a path"},
+      {"[#{ok}, host: String.duplicate(\"h\", 300)]", "host: expected a name"},
+      {"[#{ok}, host: \"a b\"]", "host: expected a name"},
+      {"[#{ok}, data_dir: \"a\\0b\"]", "data_dir: expected a path"},
+      {"[#{ok}, services: [{Enum, [1]}]]", "services: Enum: expected a keyword list"},
+      {"[node: \"a@b.c\", node: \"c@d.e\", cookie: \"c\"]", "node: given twice"},
+      {"[node: \"a@b.c\", cookie: \"two words\"]", "cookie: expected 1 to 255 printable ASCII"},
+      {"[node: \"a@b.c\", cookie: String.duplicate(\"c\", 256)]", "cookie: expected 1 to 255"},
+      {"throw(:config)", "evaluating it threw :config"},
+      {"exit(:bye)", "evaluating it exited with :bye"},
+      {"spawn_link(fn -> exit(:linked) end)\nProcess.sleep(5_000)\n[#{ok}]",
+       "evaluating it stopped with :linked"},
+      {"raise \"two\\nlines\"", "evaluating it raised RuntimeError: two lines"},
+      {"Process.exit(self(), :kill)", "evaluating it stopped with :killed"}
+    ]
+
+    for {text, expected} <- cases do
+      line = refused(dir, text)
+      assert line =~ expected, "#{text}: #{line}"
+    end
+  end
+
+  test "a dashboard address may be a tuple, as the dashboard's own option is", %{tmp_dir: dir} do
+    path = write(dir, ~s([node: "a@b.c", cookie: "c", dashboard: [port: 0, bind: {0, 0, 0, 0}]]))
+    assert {:ok, c} = Config.read(path)
+    assert c.dashboard[:bind] == {0, 0, 0, 0}
+  end
+
+  test "a plugin whose own check raises is one line naming it", %{tmp_dir: dir} do
+    text = "[node: \"a@b.c\", cookie: \"c\", plugins: [p: {#{inspect(__MODULE__.Raising)}, []}]]"
+    assert refused(dir, text) =~ "plugins: p: checking it raised RuntimeError: no check today"
+  end
+
+  defmodule Raising do
+    @moduledoc false
+    def init(_), do: {:ok, nil}
+    def check(_), do: raise("no check today")
+  end
+
+  test "numbers have ranges: net_ticktime, ports, intervals", %{tmp_dir: dir} do
+    ok = ~s(node: "a@b.c", cookie: "c")
+
+    for {text, expected} <- [
+          {"[#{ok}, net_ticktime: 10 ** 40]", "net_ticktime: expected an integer in 1..3600"},
+          {"[#{ok}, net_ticktime: 0]", "net_ticktime: expected an integer in 1..3600"},
+          {"[#{ok}, net_ticktime: 3601]", "net_ticktime: expected an integer in 1..3600"},
+          {"[#{ok}, net_ticktime: 1.5]", "net_ticktime: expected an integer in 1..3600"},
+          {"[#{ok}, dist_port: 0]", "dist_port: expected an integer in 1..65535"},
+          {"[#{ok}, dist_port: 70_000]", "dist_port: expected an integer in 1..65535"},
+          {"[#{ok}, dashboard: [port: -1]]", "dashboard: port: expected a port number"},
+          {"[#{ok}, dashboard: [port: 65_536]]", "dashboard: port: expected a port number"},
+          {"[#{ok}, plugins: [t: {:sensor, interval_ms: 0}]]", "interval_ms: expected a positive"}
+        ] do
+      assert refused(dir, text) =~ expected, text
+    end
+
+    assert {:ok, %{net_ticktime: 3600}} = Config.check(node: "a@b.c", cookie: "c", net_ticktime: 3600)
+  end
+
+  test "node names are names before they reach the VM's command line", %{tmp_dir: dir} do
+    for name <- [
+          "t4rel@127.0.0.1 --eval System.halt(7)",
+          "t4rel@127.0.0.1;reboot",
+          "t4rel@$(reboot)",
+          "t4 rel@127.0.0.1",
+          "t@h@i",
+          "t@-eval",
+          "t@" <> String.duplicate("h", 260)
+        ] do
+      assert refused(dir, "[node: #{inspect(name)}, cookie: \"c\"]") =~ "node: expected name@host"
+
+      assert refused(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [h2: #{inspect(name)}]]") =~
+               "neighbours: h2: expected name@host"
+    end
+
+    assert refused(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\"a b\": \"n@h\"]]") =~
+             "neighbours: a b: expected a name"
+
+    assert {:ok, %{distribution: :name}} = Config.check(node: "n@::1", cookie: "c")
+    assert {:ok, %{distribution: :name}} = Config.check(node: "n_1-x@10.0.0.1", cookie: "c")
+  end
+
+  test "keys: and trusted: must load, and data_dir: must take a file, as boot will need", %{
+    tmp_dir: dir
+  } do
+    empty = Path.join(dir, "empty")
+    File.mkdir_p!(empty)
+    ok = ~s(node: "a@b.c", cookie: "c")
+
+    assert refused(dir, "[#{ok}, keys: #{inspect(empty)}]") =~
+             "keys: cannot access key file #{empty}/issuer.key"
+
+    bad_trust = Path.join(dir, "trusted")
+    File.mkdir_p!(bad_trust)
+    File.write!(Path.join(bad_trust, "x.pub"), "short")
+    assert refused(dir, "[#{ok}, trusted: #{inspect(bad_trust)}]") =~ "trusted: invalid key file"
+
+    long = Path.join(dir, String.duplicate("d", 300))
+
+    assert refused(dir, "[#{ok}, data_dir: #{inspect(long)}]") =~
+             "data_dir: cannot make #{long} (file name too long)"
+
+    keys = Path.join(dir, "keys")
+    :ok = Tartarus.Security.Keys.save(Tartarus.Security.Keys.generate(), keys)
+    path = write(dir, "[#{ok}, keys: #{inspect(keys)}, data_dir: #{inspect(Path.join(dir, "d"))}]")
+    assert {:ok, c} = Config.read(path)
+    assert File.dir?(Path.join(dir, "d")) and File.ls!(Path.join(dir, "d")) == []
+    assert {:ok, opts} = Config.host_options(c)
+    assert opts[:security][:keys].public
+
+    # Gone between the check and the boot: one line there too, not a raise.
+    File.rm!(Path.join(keys, "issuer.key"))
+    assert {:error, "keys: cannot access key file " <> _} = Config.host_options(c)
+  end
+
+  test "what evaluating the file prints goes to standard error, not to env.sh's assignments", %{
+    tmp_dir: dir
+  } do
+    path = write(dir, ~s{IO.puts("RELEASE_NODE=evil")\n[node: "a@b.c", cookie: "c"]})
+
+    err =
+      ExUnit.CaptureIO.capture_io(:stderr, fn ->
+        assert ExUnit.CaptureIO.capture_io(fn -> assert {:ok, _} = Config.read(path) end) == ""
+      end)
+
+    assert err =~ "RELEASE_NODE=evil"
+  end
+
+  test "200,000 neighbours are checked in linear time; a file that big is refused by its size",
+       %{tmp_dir: dir} do
+    n = 200_000
+    nodes = for i <- 0..255, do: "tartarus@10.0.0.#{i}"
+    nodes = List.to_tuple(nodes)
+    neighbours = for i <- 1..n, do: {:"h44_#{i}", elem(nodes, rem(i, 256))}
+    assert {:ok, c} = Config.check(node: "a@b.c", cookie: "c", neighbours: neighbours)
+    assert length(c.neighbours) == n
+    assert hd(c.neighbours) == {:h44_1, :"tartarus@10.0.0.1"}
+
+    body = Enum.map_join(1..n, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
+    line = refused(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\n#{body}\n]]")
+    assert line =~ "it has more than 262144 bytes (256 KiB), the most a node's file may have"
+
+    # Whatever the path is: no more than the bound is read.
+    assert {:error, zero} = Config.read("/dev/zero")
+    assert zero =~ "it has more than 262144 bytes"
+
+    # Under the bound the file is read whole: 5,000 neighbours (about 140 KB).
+    body = Enum.map_join(1..5_000, ",\n", fn i -> "  h44_#{i}: \"#{elem(nodes, rem(i, 256))}\"" end)
+    path = write(dir, "[node: \"a@b.c\", cookie: \"c\", neighbours: [\n#{body}\n]]")
+    assert {:ok, c} = Config.read(path)
+    assert length(c.neighbours) == 5_000
   end
 end

@@ -11,6 +11,7 @@ defmodule Tartarus.DevicesTest do
   doctest Tartarus.Plugin.GPIO
   doctest Tartarus.Plugin.Shorthand
   doctest Tartarus.Plugin.Serial.Lines
+  doctest Tartarus.Plugin.Serial, only: [check: 1]
   doctest Tartarus.Plugin, import: true
 
   defmodule Forager do

@@ -33,6 +33,14 @@ defmodule TartarusNode.Boot do
 
   @impl true
   def init(config) do
+    boot(config)
+  rescue
+    e -> fail("tartarus: cannot start host #{config.host}: #{Exception.message(e)}")
+  catch
+    kind, reason -> fail("tartarus: cannot start host #{config.host}: #{kind} #{inspect(reason)}")
+  end
+
+  defp boot(config) do
     with :ok <- make_data_dir(config.data_dir),
          {:ok, host} <- start_host(config) do
       Logger.notice(
@@ -60,8 +68,10 @@ defmodule TartarusNode.Boot do
   end
 
   defp start_host(config) do
-    case Tartarus.start_host(config.host, TartarusNode.Config.host_options(config)) do
-      {:ok, host} -> {:ok, host}
+    with {:ok, opts} <- TartarusNode.Config.host_options(config),
+         {:ok, host} <- Tartarus.start_host(config.host, opts) do
+      {:ok, host}
+    else
       {:error, reason} when is_binary(reason) -> {:error, reason}
       {:error, reason} -> {:error, inspect(reason)}
     end
@@ -70,7 +80,7 @@ defmodule TartarusNode.Boot do
   # The node was started to run this host and cannot: one line, status 1 (the release's
   # unit does not restart a node that exits 1 in a loop).
   defp fail(line) do
-    IO.puts(:stderr, line)
+    IO.puts(:stderr, String.replace(line, ~r/\s*[\r\n]\s*/, " "))
     System.halt(1)
   end
 
@@ -101,13 +111,11 @@ defmodule TartarusNode.Boot do
   end
 
   defp start_dashboard(opts) do
-    {:ok, module} = TartarusNode.Config.dashboard_module()
-
-    case module.start(opts) do
-      {:ok, dash} ->
-        Logger.notice(module.banner(dash))
-        dash
-
+    with {:ok, module} <- TartarusNode.Config.dashboard_module(),
+         {:ok, dash} <- module.start(opts) do
+      Logger.notice(module.banner(dash))
+      dash
+    else
       {:error, reason} ->
         Logger.error("tartarus: cannot start the dashboard: #{inspect(reason)}")
         nil

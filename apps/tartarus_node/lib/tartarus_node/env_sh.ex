@@ -61,5 +61,7 @@ defmodule TartarusNode.EnvSh do
     end
 
     {:ok, Config.shell(c, optfile)}
+  rescue
+    e in File.Error -> {:error, "tartarus: cannot write the TLS option file: #{Exception.message(e)}"}
   end
 end

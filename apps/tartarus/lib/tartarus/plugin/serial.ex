@@ -96,11 +96,31 @@ defmodule Tartarus.Plugin.Serial do
   def backoff?({a, b}) when is_integer(a) and is_integer(b), do: a > 0 and a <= b
   def backoff?(_), do: false
 
-  @impl true
-  def init(opts) do
+  @doc """
+  Checks `opts` as `init/1` does, without opening the device (what a node's configuration
+  check calls through `Tartarus.Plugin.Shorthand`): `:ok` or `{:error, line}`.
+
+      iex> Tartarus.Plugin.Serial.check(device: "/dev/ttyUSB0", speed: 115_200)
+      :ok
+      iex> Tartarus.Plugin.Serial.check(device: "/dev/ttyUSB0", speed: "fast")
+      {:error, "invalid options given to Tartarus.Plugin.Serial for key :speed: expected a positive integer, got: \\"fast\\""}
+  """
+  @spec check(keyword()) :: :ok | {:error, String.t()}
+  def check(opts) do
+    with {:ok, _} <- validated(opts), do: :ok
+  end
+
+  defp validated(opts) do
     with {:ok, o} <- Tartarus.Options.validate(opts, @schema, "Tartarus.Plugin.Serial"),
          :ok <- implements(o[:decoder], Tartarus.Plugin.Serial.Decoder, :decoder),
-         :ok <- implements(o[:transport], Tartarus.Plugin.Serial.Transport, :transport),
+         :ok <- implements(o[:transport], Tartarus.Plugin.Serial.Transport, :transport) do
+      {:ok, o}
+    end
+  end
+
+  @impl true
+  def init(opts) do
+    with {:ok, o} <- validated(opts),
          {:ok, decoder_state} <- o[:decoder].init(o[:decoder_opts]) do
       send(self(), {__MODULE__, :connect})
 

@@ -12,6 +12,12 @@ defmodule Tartarus.Plugin.Shorthand do
       unless `speed:`), read as text lines;
     * `{:ble, device}` / `{:ble, device, opts}`: the BLE receiver of this node (below).
 
+  Options are keyword lists in every form, a sensor's `signal:` a non-empty list of numbers
+  (`unit:` a string, `interval_ms:` a positive integer), and whatever the form, the plugin
+  module's `check/1`, when it defines one, checks the options it would start with (the
+  serial line's `Tartarus.Plugin.Serial.check/1`: speed, decoder, transport): a bad value is
+  refused here, not when the node boots.
+
   ## The BLE receiver
 
   The platform names no application, so an application that brings a BLE receiver says so
@@ -61,21 +67,49 @@ defmodule Tartarus.Plugin.Shorthand do
   """
   @spec parse(atom(), term(), keyword()) :: {:ok, spec()} | {:error, String.t()}
   def parse(name, spec, opts \\ []) do
-    case do_parse(name, spec, opts) do
-      {:ok, _} = ok -> ok
+    with :ok <- keyword_options(spec),
+         {:ok, {module, plugin_opts}} = ok <- do_parse(name, spec, opts),
+         :ok <- module_check(module, plugin_opts) do
+      ok
+    else
       {:error, what} -> {:error, "#{name}: #{what}"}
     end
   end
 
+  # Every form's options are a keyword list (Keyword's functions raise on any other list).
+  defp keyword_options(spec) do
+    options =
+      case spec do
+        {kind, _device, o} when kind in [:serial, :ble] -> o
+        {module, o} when is_atom(module) and module not in [:serial, :ble] -> o
+        _ -> []
+      end
+
+    if not is_list(options) or Keyword.keyword?(options),
+      do: :ok,
+      else: {:error, "options: expected a keyword list, got: #{inspect(options, limit: 8)}"}
+  end
+
   defp do_parse(_name, {:sensor, opts}, _) when is_list(opts) do
-    case Keyword.get(opts, :signal, Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5))) do
-      [_ | _] = signal ->
+    signal = Keyword.get(opts, :signal, Enum.map(0..59, &(20 + :math.sin(&1 / 10) * 5)))
+
+    cond do
+      not (is_list(signal) and signal != [] and Enum.all?(signal, &is_number/1)) ->
+        {:error,
+         "signal: expected a non-empty list of numbers, got: #{inspect(signal, limit: 8)}"}
+
+      not is_binary(Keyword.get(opts, :unit, "")) ->
+        {:error, "unit: expected a string, got: #{inspect(opts[:unit], limit: 8)}"}
+
+      not (is_nil(opts[:interval_ms]) or
+               (is_integer(opts[:interval_ms]) and opts[:interval_ms] > 0)) ->
+        {:error,
+         "interval_ms: expected a positive integer, got: #{inspect(opts[:interval_ms], limit: 8)}"}
+
+      true ->
         {:ok,
          {Tartarus.Plugin.SimSensor,
           [unit: "°C"] |> Keyword.merge(opts) |> Keyword.put(:signal, signal)}}
-
-      other ->
-        {:error, "signal: expected a non-empty list, got: #{inspect(other)}"}
     end
   end
 
@@ -106,26 +140,28 @@ defmodule Tartarus.Plugin.Shorthand do
 
   defp do_parse(_name, {module, plugin_opts}, _opts)
        when is_atom(module) and is_list(plugin_opts) do
-    cond do
-      not (Code.ensure_loaded?(module) and function_exported?(module, :init, 1)) ->
-        {:error, "#{inspect(module)} is not a plugin module in this node's code"}
-
-      function_exported?(module, :check, 1) ->
-        case module.check(plugin_opts) do
-          :ok -> {:ok, {module, plugin_opts}}
-          {:error, reason} when is_binary(reason) -> {:error, reason}
-          {:error, reason} -> {:error, inspect(reason)}
-        end
-
-      true ->
-        {:ok, {module, plugin_opts}}
-    end
+    if Code.ensure_loaded?(module) and function_exported?(module, :init, 1),
+      do: {:ok, {module, plugin_opts}},
+      else: {:error, "#{inspect(module)} is not a plugin module in this node's code"}
   end
 
   defp do_parse(_name, other, _opts),
     do:
       {:error,
        "expected {module, opts}, {:sensor, opts}, {:serial, device} or {:ble, device}, got: #{inspect(other)}"}
+
+  # A plugin module that defines check/1 checks its options there, without a device.
+  defp module_check(module, plugin_opts) do
+    if Code.ensure_loaded?(module) and function_exported?(module, :check, 1) do
+      case module.check(plugin_opts) do
+        :ok -> :ok
+        {:error, reason} when is_binary(reason) -> {:error, reason}
+        other -> {:error, inspect(other, limit: 8)}
+      end
+    else
+      :ok
+    end
+  end
 
   defp device_present(device, dev_opts, opts) do
     {hotplug, dev_opts} = Keyword.pop(dev_opts, :hotplug, false)
