@@ -27,6 +27,10 @@ defmodule Tartarus.Ledger do
   #   :population                 {_, resident, visits}      counters
   #   {:count, name}              {_, n}
   #   {:hop, slot}                {_, hop_us}                ring of recent hop times
+  #   {:seen, mig}                {_, what, seq}             admission's memory of a prepare
+  #                                                          (Migration.Protocol.destination/1)
+  #   {:seen_order, seq}          {_, mig}                   its age, oldest forgotten first
+  #   :seen_range                 {_, first, next}           the seqs remembered: first..next-1
 
   @slots 1024
 
@@ -47,6 +51,46 @@ defmodule Tartarus.Ledger do
       [{_, props}] -> props
       [] -> nil
     end
+  end
+
+  # Admission's memory (Tartarus.Migration.Protocol.destination/1 with `ledger:`): off the
+  # host server's heap (10,000 remembered prepares are about 2.7 MB, which made every
+  # collection of that heap a long one), and it outlives a restart of the server.
+  def seen_fetch(ledger, mig) do
+    case :ets.lookup(ledger, {:seen, mig}) do
+      [{_, what, _seq}] -> {:ok, what}
+      [] -> :error
+    end
+  end
+
+  # Remembers `what` for `mig`; past `max` migrations the oldest is forgotten.
+  def seen_put(ledger, mig, what, max) do
+    case :ets.lookup(ledger, {:seen, mig}) do
+      [{key, _, seq}] ->
+        :ets.insert(ledger, {key, what, seq})
+
+      [] ->
+        {first, next} =
+          case :ets.lookup(ledger, :seen_range) do
+            [{_, first, next}] -> {first, next}
+            [] -> {0, 0}
+          end
+
+        :ets.insert(ledger, [{{:seen, mig}, what, next}, {{:seen_order, next}, mig}])
+        first = if next + 1 - first > max, do: seen_forget(ledger, first), else: first
+        :ets.insert(ledger, {:seen_range, first, next + 1})
+    end
+
+    :ok
+  end
+
+  defp seen_forget(ledger, seq) do
+    case :ets.take(ledger, {:seen_order, seq}) do
+      [{_, mig}] -> :ets.delete(ledger, {:seen, mig})
+      [] -> :ok
+    end
+
+    seq + 1
   end
 
   def register_resident(host, env, pid) do

@@ -114,7 +114,10 @@ defmodule Tartarus.Clock.Virtual do
   @doc """
   What the advancer did so far: `:fired` timers, `:virtual_ms` since the install, `:wall_ms`
   since the install, `:pending` timers, `:idle_checks`, `:false_idles` (idle readings that
-  the `:strict` check refuted; 0 without it). Nil in real mode.
+  the `:strict` check refuted; 0 without it), `:dirty_overlaps` (readings that saw a heap
+  collected on a dirty CPU scheduler while another process was runnable: the two then run
+  side by side and the run may not replay exactly; 0 is the witness that it does). Nil in
+  real mode.
   """
   @spec stats() :: map() | nil
   def stats do
@@ -154,6 +157,7 @@ defmodule Tartarus.Clock.Virtual do
        checks: 0,
        strict: Keyword.get(opts, :strict, false),
        false_idles: 0,
+       dirty_overlaps: 0,
        calib: calibrate()
      }}
   end
@@ -167,7 +171,8 @@ defmodule Tartarus.Clock.Virtual do
        wall_ms: System.monotonic_time(:millisecond) - s.wall0,
        pending: :ets.info(s.tab, :size),
        idle_checks: s.checks,
-       false_idles: s.false_idles
+       false_idles: s.false_idles,
+       dirty_overlaps: s.dirty_overlaps
      }, s}
   end
 
@@ -206,6 +211,7 @@ defmodule Tartarus.Clock.Virtual do
 
     cond do
       not idle?(s.calib) ->
+        s = if dirty_overlap?(), do: %{s | dirty_overlaps: s.dirty_overlaps + 1}, else: s
         :erlang.yield()
         advance(s, n - 1)
 
@@ -252,6 +258,15 @@ defmodule Tartarus.Clock.Virtual do
     Enum.any?(Process.list(), fn p ->
       p != me and Process.info(p, :status) not in [nil, {:status, :waiting}]
     end)
+  end
+
+  # A process's heap collected on a dirty CPU scheduler while another process waits to run on
+  # the normal one: the two run side by side, so the order of what they do next is the
+  # machine's. Seen from the clock's own readings (it runs, so one normal task is itself):
+  # active tasks per run queue are the normal queues, then the dirty CPU and IO queues.
+  defp dirty_overlap? do
+    [_dirty_io, dirty_cpu | normal] = Enum.reverse(:erlang.statistics(:active_tasks_all))
+    dirty_cpu > 0 and Enum.sum(normal) > 1
   end
 
   defp alive?(pid) when is_pid(pid) and node(pid) == node(), do: Process.alive?(pid)

@@ -28,7 +28,13 @@ defmodule Tartarus.Host.Server do
   alias Tartarus.Migration.{Messages, Protocol}
 
   def start_link({name, opts}) do
-    GenServer.start_link(__MODULE__, {name, opts}, name: Tartarus.Host.via(:host, name))
+    # Every arrival's prepare (an agent's whole envelope) queues here: off the heap, a burst
+    # of arrivals neither grows the heap nor makes its collection long (ERTS collects a heap
+    # over about 1 MB, queued messages included, on a dirty scheduler).
+    GenServer.start_link(__MODULE__, {name, opts},
+      name: Tartarus.Host.via(:host, name),
+      spawn_opt: [message_queue_data: :off_heap]
+    )
   end
 
   @impl true
@@ -58,7 +64,7 @@ defmodule Tartarus.Host.Server do
       # Agents being killed: pid => {escalation timer, callers to answer}.
       killing: %{},
       admission: opts[:admission],
-      dest: Protocol.destination(),
+      dest: Protocol.destination(ledger: host.ledger),
       adopted: 0
     }
 

@@ -191,12 +191,21 @@ defmodule Tartarus.Migration.Protocol do
   # -- destination host: admission ----------------------------------------------------
 
   @doc """
-  The admission state of a destination host. Option `:seen_max`: how many migrations it
-  remembers (default 10_000).
+  The admission state of a destination host. Options: `:seen_max`, how many migrations it
+  remembers (default 10_000); `:ledger`, a host's ledger table to remember them in (a host
+  server's way: off its heap, where 10,000 would make every collection a long one, and
+  kept across a restart of the server; `Tartarus.Ledger`). Without it the memory is a map
+  in the state (this module's tests and the model).
   """
   @spec destination(keyword()) :: map()
-  def destination(opts \\ []),
-    do: %{seen: %{}, order: :queue.new(), seen_max: Keyword.get(opts, :seen_max, 10_000)}
+  def destination(opts \\ []) do
+    seen_max = Keyword.get(opts, :seen_max, 10_000)
+
+    case Keyword.get(opts, :ledger) do
+      nil -> %{seen: %{}, order: :queue.new(), seen_max: seen_max}
+      ledger -> %{seen: {:ledger, ledger}, seen_max: seen_max}
+    end
+  end
 
   @doc """
   One step of admission. Events: `{:prepare, fields}` (a well-formed prepare,
@@ -223,7 +232,7 @@ defmodule Tartarus.Migration.Protocol do
   """
   @spec destination_step(map(), term()) :: {map(), [action()]}
   def destination_step(d, {:prepare, p}) do
-    case Map.fetch(d.seen, p.mig) do
+    case seen(d, p.mig) do
       # A duplicate (or a replay) of a prepare this host made a copy for: is it still paused?
       {:ok, {:copy, copy, pid}} -> {d, [{:probe, p, copy, pid}]}
       :error -> {d, [{:check, p}]}
@@ -264,6 +273,14 @@ defmodule Tartarus.Migration.Protocol do
 
   # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
   # makes a copy with a new token, which no decision names); memory only spares the work.
+  defp seen(%{seen: {:ledger, ledger}}, mig), do: Tartarus.Ledger.seen_fetch(ledger, mig)
+  defp seen(%{seen: seen}, mig), do: Map.fetch(seen, mig)
+
+  defp remember(%{seen: {:ledger, ledger}} = d, mig, what) do
+    :ok = Tartarus.Ledger.seen_put(ledger, mig, what, d.seen_max)
+    d
+  end
+
   defp remember(d, mig, what) do
     if Map.has_key?(d.seen, mig) do
       %{d | seen: Map.put(d.seen, mig, what)}
