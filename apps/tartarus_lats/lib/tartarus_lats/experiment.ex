@@ -74,7 +74,7 @@ defmodule TartarusLats.Experiment do
         "when queries are released: at random world seconds, whatever the target is doing (default), or only when the target is settled"
     ],
     noise_db: [
-      type: :number,
+      type: {:range, 0, 40},
       default: 4.0,
       doc: "standard deviation of the radio's Gaussian noise (dB)"
     ],
