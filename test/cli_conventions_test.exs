@@ -64,6 +64,17 @@ defmodule TartarusCLIConventionsTest do
     assert Enum.sort(tasks) == Enum.sort(for {task, _, _, _} <- @cases, do: task)
   end
 
+  test "the README's task table lists every task" do
+    rows =
+      for [task] <-
+            Regex.scan(~r/^\| `mix (tartarus\.[\w.]+)` \|/m, File.read!("README.md"),
+              capture: :all_but_first
+            ),
+          do: task
+
+    assert Enum.sort(rows) == Enum.sort(for {task, _, _, _} <- @cases, do: task)
+  end
+
   test "a flag with no value: one line naming it, what is missing" do
     for {task, flag, missing, _bad} <- @cases do
       assert_one_line(error(task, missing), task, flag, "missing value for #{flag}")
