@@ -64,6 +64,17 @@ defmodule TartarusCLIConventionsTest do
     assert Enum.sort(tasks) == Enum.sort(for {task, _, _, _} <- @cases, do: task)
   end
 
+  test "the README's task table lists every task" do
+    rows =
+      for [task] <-
+            Regex.scan(~r/^\| `mix (tartarus\.[\w.]+)` \|/m, File.read!("README.md"),
+              capture: :all_but_first
+            ),
+          do: task
+
+    assert Enum.sort(rows) == Enum.sort(for {task, _, _, _} <- @cases, do: task)
+  end
+
   test "a flag with no value: one line naming it, what is missing" do
     for {task, flag, missing, _bad} <- @cases do
       assert_one_line(error(task, missing), task, flag, "missing value for #{flag}")
@@ -80,6 +91,105 @@ defmodule TartarusCLIConventionsTest do
   test "an unknown flag: one line naming it" do
     for {task, _, _, _} <- @cases do
       assert_one_line(error(task, ~w(--bogus 1)), task, "--bogus", "unknown flag")
+    end
+  end
+
+  # {task, argv before --out, what --out names: a directory or a file}
+  @outs [
+    {"tartarus.arena", [], :dir},
+    {"tartarus.bench", ~w(migration), :file},
+    {"tartarus.chaos", [], :file},
+    {"tartarus.dashboard.bench", [], :file},
+    {"tartarus.demo", [], :dir},
+    {"tartarus.emu", [], :dir},
+    {"tartarus.evolve", [], :dir},
+    {"tartarus.gen.certs", ~w(--nodes a), :dir},
+    {"tartarus.lats", [], :dir},
+    {"tartarus.lats.calibrate", ~w(--fingerprints x --devices y), :file},
+    {"tartarus.pfa", [], :dir},
+    {"tartarus.roadblock", ~w(--auto), :dir},
+    {"tartarus.select", [], :dir},
+    {"tartarus.warehouse", [], :dir}
+  ]
+
+  # (Issue 45) An --out that cannot be written is refused before anything runs: no stack
+  # trace after a whole run.
+  test "an --out that cannot be written: one line naming it, before the run" do
+    File.mkdir_p!(@tmp)
+    file = Path.join(@tmp, "a_file_#{System.unique_integer([:positive])}")
+    File.write!(file, "")
+    on_exit(fn -> File.rm(file) end)
+
+    for {task, argv, kind} <- @outs do
+      # Under a regular file, nothing can be created.
+      under = Path.join(file, "results")
+      message = error(task, argv ++ ["--out", under])
+
+      assert_one_line(
+        message,
+        task,
+        "--out #{under}",
+        "cannot be created: #{file} is not a directory"
+      )
+
+      # A directory where a file is wanted, a file where a directory is.
+      {path, what} =
+        if kind == :dir,
+          do: {file, "exists and is not a directory"},
+          else: {@tmp, "is a directory"}
+
+      assert_one_line(error(task, argv ++ ["--out=#{path}"]), task, "--out #{path}", what)
+    end
+
+    # Every task that takes --out is covered (tartarus.node has none).
+    assert Enum.sort(for {task, _, _} <- @outs, do: task) ==
+             Enum.sort(for {task, _, _, _} <- @cases, task != "tartarus.node", do: task)
+  end
+
+  test "an --out that can be written is taken and nothing is left behind by the check" do
+    File.mkdir_p!(@tmp)
+    before = File.ls!(@tmp)
+
+    assert TartarusTools.CLI.out!(["--out", Path.join(@tmp, "new/sub")], :dir, "tartarus.x") ==
+             :ok
+
+    assert TartarusTools.CLI.out!(["--out", Path.join(@tmp, "f.json")], :file, "tartarus.x") ==
+             :ok
+
+    assert TartarusTools.CLI.out!(["--out", @tmp], :dir, "tartarus.x") == :ok
+    assert File.ls!(@tmp) == before
+  end
+
+  # (Issue 45) {task, argv, flag, the range named}: a value that cannot lead to a result is
+  # refused before the run, naming the valid range.
+  @ranges [
+    {"tartarus.select", ~w(--experiment danger --share 2), "--share",
+     "a number from 0 to 1, got: 2.0"},
+    {"tartarus.select", ~w(--eta 1.5), "--eta", "a number between 0 and 1, got: 1.5"},
+    {"tartarus.warehouse", ~w(--scale -1), "--scale", "a number from 0.0001 to 1000, got: -1.0"},
+    {"tartarus.lats", ~w(--noise-db -3), "--noise-db", "a number from 0 to 40, got: -3.0"},
+    {"tartarus.evolve", ~w(--sigma-max 0), "--sigma-max", "a number from 0.001 to 100, got: 0.0"},
+    {"tartarus.pfa", ~w(--stuck-after 0), "--stuck-after", "a number from 0.1 to 3600, got: 0.0"},
+    {"tartarus.pfa", ~w(--lost-penalty -1), "--lost-penalty",
+     "a number from 0 to 3600, got: -1.0"}
+  ]
+
+  test "a value outside its range: one line naming the flag and the range, before the run" do
+    for {task, argv, flag, range} <- @ranges do
+      assert_one_line(
+        error(task, argv),
+        task,
+        flag,
+        "invalid value for #{flag}: expected #{range}"
+      )
+    end
+  end
+
+  test "the usage line brackets a flag that has a default" do
+    for task <- ["tartarus.warehouse", "tartarus.select", "tartarus.evolve"] do
+      doc = Mix.Task.moduledoc(Mix.Task.get!(task))
+      [usage] = Regex.run(~r/^\s+mix #{task} .*$/m, doc)
+      assert usage =~ "mix #{task} [--experiment ", usage
     end
   end
 
@@ -113,6 +223,25 @@ defmodule TartarusCLIConventionsTest do
     assert out =~ "** (Mix) mix tartarus.chaos: --nodes must be at least 2, got: 1\n"
     refute out =~ "(elixir "
     refute out =~ "stacktrace"
+  end
+
+  test "from the shell: a share out of range and an unwritable --out end in one line, exit 1" do
+    file = Path.join(System.tmp_dir!(), "tartarus_cli_out_#{System.unique_integer([:positive])}")
+    File.write!(file, "")
+    on_exit(fn -> File.rm(file) end)
+
+    for {argv, line} <- [
+          {~w(tartarus.select --experiment danger --share 2),
+           "** (Mix) mix tartarus.select: invalid value for --share: expected a number from 0 to 1, got: 2.0\n"},
+          {~w(tartarus.select --experiment danger --out #{file}/x),
+           "** (Mix) mix tartarus.select: --out #{file}/x: cannot be created: #{file} is not a directory\n"}
+        ] do
+      {out, status} = shell(argv)
+      assert status == 1, out
+      assert out =~ line
+      refute out =~ "(elixir "
+      refute out =~ "select: experiment"
+    end
   end
 
   test "--only refuses an unknown section and lists them" do

@@ -135,9 +135,57 @@ defmodule Tartarus.OverlayPeerTest do
     assert :erpc.call(a, Tartarus, :agents, [:n9]) == {:error, {:unknown_host, {:n9, a}}}
   end
 
+  @tag :fleet
+  test "the fleet is listed from any node: each node's hosts, their agents and neighbours",
+       %{a: a, b: b} do
+    {:ok, h1} = :erpc.call(a, Tartarus, :start_host, [:f1])
+    {:ok, h2} = :erpc.call(b, Tartarus, :start_host, [:f2])
+    {:ok, h3} = :erpc.call(b, Tartarus, :start_host, [:f3])
+    :ok = Tartarus.connect(h1, h2)
+    :ok = Tartarus.connect(h2, h3)
+    echo = Tartarus.Examples.Echo
+    for _ <- 1..2, do: {:ok, _} = :erpc.call(b, Tartarus, :create_mobile_agent, [:f3, echo, nil])
+    {:ok, _} = :erpc.call(a, Tartarus, :create_mobile_agent, [:f1, echo, nil])
+
+    expected = [
+      %{node: a, agents: 1, hosts: [%{host: h1, agents: 1, neighbours: [h2]}]},
+      %{
+        node: b,
+        agents: 2,
+        hosts: [
+          %{host: h2, agents: 0, neighbours: Enum.sort([h1, h3])},
+          %{host: h3, agents: 2, neighbours: [h2]}
+        ]
+      }
+    ]
+
+    sorted = fn fleet ->
+      for n <- fleet,
+          do: %{n | hosts: for(h <- n.hosts, do: %{h | neighbours: Enum.sort(h.neighbours)})}
+    end
+
+    # From either node (through the overlay), and from a node without hosts (this one: it
+    # asks the nodes it is connected to, and is listed with none).
+    assert sorted.(:erpc.call(a, Tartarus, :fleet, [])) == expected
+    assert sorted.(:erpc.call(b, Tartarus, :fleet, [])) == expected
+    me = %{node: node(), agents: 0, hosts: []}
+    assert sorted.(Tartarus.fleet()) == Enum.sort_by([me | expected], & &1.node)
+
+    # A neighbour's node that is gone is listed as not reached.
+    {:ok, [{pc, c}]} = TartarusTools.Peer.start_many("overlay_c", 1)
+    on_exit(fn -> TartarusTools.Peer.stop(pc) end)
+    {:ok, h4} = :erpc.call(c, Tartarus, :start_host, [:f4])
+    :ok = Tartarus.connect(h1, h4)
+    assert Enum.map(:erpc.call(a, Tartarus, :fleet, []), & &1.node) == Enum.sort([a, b, c])
+    TartarusTools.Peer.stop(pc)
+
+    assert %{node: ^c, hosts: [], error: :not_reached} =
+             Enum.find(:erpc.call(a, Tartarus, :fleet, []), &(&1.node == c))
+  end
+
   # The walk carries the nodes it asked back up: a search for an unknown id asks each node of
   # a 4x4 grid once (before, siblings did not learn what the other had asked: 131 calls
-  # from a corner). Counted with call_count tracing of the search on every node.
+  # from a corner). Counted with call_count tracing of the walk on every node.
   @tag timeout: 180_000
   test "a search for an unknown id asks each node of a 4x4 grid at most once" do
     {:ok, peers} = TartarusTools.Peer.start_many("grid", 16)
@@ -159,7 +207,7 @@ defmodule Tartarus.OverlayPeerTest do
     # (Loaded first: a pattern matches only the functions of loaded modules.)
     for n <- nodes do
       {:module, _} = :erpc.call(n, :code, :ensure_loaded, [Tartarus.Locator])
-      pattern = {Tartarus.Locator, :search, :_}
+      pattern = {Tartarus.Locator, :_, :_}
       assert :erpc.call(n, :erlang, :trace_pattern, [pattern, true, [:call_count]]) > 0
     end
 
@@ -167,10 +215,12 @@ defmodule Tartarus.OverlayPeerTest do
 
     counts =
       for n <- nodes do
-        for arity <- [3, 4], reduce: 0 do
+        for fun <- [{:search, 3}, {:walk, 4}], reduce: 0 do
           acc ->
+            {name, arity} = fun
+
             case :erpc.call(n, :erlang, :trace_info, [
-                   {Tartarus.Locator, :search, arity},
+                   {Tartarus.Locator, name, arity},
                    :call_count
                  ]) do
               {:call_count, c} when is_integer(c) -> acc + c
@@ -179,7 +229,7 @@ defmodule Tartarus.OverlayPeerTest do
         end
       end
 
-    # The corner calls search/3 and search/4 itself; every other node is asked once.
+    # The corner calls search/3 and walk/4 itself; every other node is asked once (walk/4).
     assert Enum.sum(counts) <= 17
     assert Enum.all?(tl(counts), &(&1 <= 1))
 

@@ -105,9 +105,34 @@ defmodule Tartarus do
   @spec stop_host(host_ref()) :: :ok | {:error, {:unknown_host, term()}}
   def stop_host(host), do: OnNode.run(host, :stop_host, [])
 
-  @doc "The hosts running on this node."
+  @doc "The hosts running on this node. For the hosts of every node, see `fleet/1`."
   @spec hosts() :: [host()]
   def hosts, do: Host.Starter.hosts()
+
+  @doc """
+  The fleet as this node sees it: every node reachable through the overlay, with its hosts
+  and their agents, sorted by node. Each node is
+  `%{node: node, agents: count, hosts: [%{host: address, agents: count, neighbours: [address]}]}`
+  (`agents`: resident agents). A node named as a neighbour that did not answer within
+  `timeout` ms (down, cut off, too slow) is listed as
+  `%{node: node, agents: 0, hosts: [], error: :not_reached}`.
+
+  It is read as an agent known by its id alone is searched for: this node's hosts'
+  neighbours' nodes are asked, and they ask theirs, each node once, at most 32 overlay hops
+  away, in one time budget; no node connects to a node it has no link with. A node without
+  hosts (a shell attached to the fleet) asks the nodes it is connected to, and is listed
+  with no hosts.
+
+      iex> {:ok, a} = Tartarus.start_host(:doc_fleet_a)
+      iex> {:ok, _} = Tartarus.create_mobile_agent(a, Tartarus.Examples.Echo, nil)
+      iex> [me] = Enum.filter(Tartarus.fleet(), &(&1.node == node()))
+      iex> Enum.find(me.hosts, &(&1.host == a))
+      %{host: {:doc_fleet_a, node()}, agents: 1, neighbours: []}
+      iex> Tartarus.stop_host(a)
+      :ok
+  """
+  @spec fleet(timeout()) :: [map()]
+  def fleet(timeout \\ 5_000), do: Locator.fleet(timeout)
 
   @doc """
   Links hosts `a` and `b` (symmetric). Link properties:

@@ -74,6 +74,10 @@ defmodule TartarusRoadblockTest do
     assert s.santa_stopped_s > 0 and s.santa_arrival_s < s.seconds
     # the block is off the path, not in Claus's claws
     assert abs(s.block_final.y - 0.8) > 0.15
+    # the paths name the block once ("block", not "block block")
+    paths = File.read!(Path.join(dir, "trajectories.svg"))
+    refute paths =~ "block block"
+    assert paths =~ ~r/<text[^>]*>block<\/text>/
 
     assert [
              %{robot: "santa"},
@@ -94,6 +98,23 @@ defmodule TartarusRoadblockTest do
     assert csv =~ "chooses claus"
     assert csv =~ "arrives at B"
     assert File.read!(Path.join(dir, "trajectories.svg")) =~ "<svg"
+  end
+
+  @tag :tmp_dir
+  test "mix tartarus.roadblock cut short by --steps says what did not happen, no blanks", %{
+    tmp_dir: dir
+  } do
+    Mix.shell(Mix.Shell.Process)
+    on_exit(fn -> Mix.shell(Mix.Shell.IO) end)
+    Mix.Tasks.Tartarus.Roadblock.run(~w(--auto --steps 10 --out #{dir}))
+    assert_received {:mix_shell, :info, ["roadblock: seed 1, virtual hosts..."]}
+    assert_received {:mix_shell, :info, [text]}
+
+    assert text =~
+             "no robot chosen: the run ended at 0.5 s of arena time (10 steps of 0.05 s), before the rescue"
+
+    assert text =~ "Santa did not arrive (stopped 0.0 s); rescue agent 0 hops over 0 hosts"
+    refute text =~ ~r/ at  s|by  \(|false at/
   end
 
   test "the same seed gives the same run; another seed puts the block elsewhere" do

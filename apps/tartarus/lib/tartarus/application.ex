@@ -39,6 +39,9 @@ defmodule Tartarus.Application do
     Tartarus.Events.setup()
     Tartarus.AgentTable.setup()
     Tartarus.CodeCache.setup()
+    # An agent's crash is logged once, by its host (Tartarus.Host.Agents).
+    filter = {&Tartarus.Host.Agents.drop_agent_report/2, nil}
+    _ = :logger.add_primary_filter(:tartarus_agent_crash_reports, filter)
 
     services = [
       registry(keys: :duplicate, name: Tartarus.Events.Registry),

@@ -20,6 +20,12 @@ defmodule Tartarus.CallbacksTest do
     end
   end
 
+  defmodule LogSpy do
+    @moduledoc false
+    # A :logger handler: sends every event that passed the primary filters to its `config`.
+    def log(event, %{config: pid}), do: send(pid, {:logged, event})
+  end
+
   defmodule Stuck do
     @moduledoc false
     # An agent that gets stuck where its arguments say: in init/1 (`wedge: :init`), in
@@ -299,6 +305,41 @@ defmodule Tartarus.CallbacksTest do
                (Process.sleep(20) && false)
            end)
   end
+
+  test "an agent's crash is logged once, by its host, naming the agent's id and module" do
+    h = host!()
+    {:ok, id} = Tartarus.create_agent(h, Picky, :kept)
+    :ok = :logger.add_handler(:crash_spy, LogSpy, %{config: self()})
+    on_exit(fn -> :logger.remove_handler(:crash_spy) end)
+
+    assert {:error, {:agent_crashed, _}} = Tartarus.request({id, h}, :unknown_msg, 60_000)
+    # Once it answers again, the host has handled its crash (logged, then restarted it).
+    assert Enum.any?(1..100, fn _ ->
+             Tartarus.request({id, h}, :ping, 5_000) == {:ok, :pong} or
+               (Process.sleep(20) && false)
+           end)
+
+    :ok = :logger.remove_handler(:crash_spy)
+    events = collect_logged([])
+    assert [line] = events |> Enum.map(&text(&1.msg)) |> Enum.filter(&(&1 =~ id))
+    assert line =~ "(Tartarus.CallbacksTest.Picky) crashed on host #{inspect({h, node()})}"
+    assert line =~ "FunctionClauseError"
+    assert line =~ "restarted from its arrival snapshot (1 of"
+    # gen_statem's own report of the crash does not get past the primary filters.
+    refute Enum.any?(events, &match?(%{msg: {:report, %{label: {:gen_statem, _}}}}, &1))
+  end
+
+  defp collect_logged(acc) do
+    receive do
+      {:logged, event} -> collect_logged([event | acc])
+    after
+      0 -> Enum.reverse(acc)
+    end
+  end
+
+  defp text({:string, s}), do: IO.chardata_to_string(s)
+  defp text({:report, report}), do: inspect(report)
+  defp text({format, args}), do: IO.chardata_to_string(:io_lib.format(format, args))
 
   test "callback_timeout is a host option: a positive integer or :infinity" do
     assert {:error, message} = Tartarus.start_host(unique_name(), callback_timeout: 0)

@@ -173,7 +173,7 @@ defmodule TartarusArena.Render do
           stroke: "#333",
           class: if(p.tall, do: "puck obstacle", else: "puck"),
           data: %{id: label_text(id)},
-          title: "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}",
+          title: puck_name(id, p),
           label: labels[id]
         }
       end
@@ -194,12 +194,20 @@ defmodule TartarusArena.Render do
 
     Map.new(Enum.reverse(clusters), fn
       [{id, p}] ->
-        {id, "#{if p.tall, do: "block", else: "puck"} #{label_text(id)}"}
+        {id, puck_name(id, p)}
 
       [{id, _} | _] = ms ->
         ids = Enum.map(ms, &label_text(elem(&1, 0)))
         {id, "#{length(ms)} pucks #{hd(ids)}-#{List.last(ids)}"}
     end)
+  end
+
+  # "puck p3", "block b1"; a puck whose id says what it is already, as the roadblock's
+  # `:block`, is named once ("block", not "block block").
+  defp puck_name(id, p) do
+    kind = if p.tall, do: "block", else: "puck"
+    text = label_text(id)
+    if text == kind, do: kind, else: "#{kind} #{text}"
   end
 
   defp cluster([], _pucks, acc), do: Enum.sort_by(acc, &inspect(elem(&1, 0)))

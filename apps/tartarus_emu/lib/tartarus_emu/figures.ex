@@ -4,18 +4,18 @@ defmodule TartarusEmu.Figures do
 
     * `topology/2` - the nodes and links of a `TartarusEmu.Topology` (a grid, a ring, a
       line, a random geometric graph, a floor-plan file);
-    * `walk/3` - an agent's walk over it, hop by hop: an arrow per hop, light to dark in
-      time order, a start marker where the agent was created and an end marker where it
-      stopped.
+    * `walk/3` - an agent's walk over it: an arrow per pair of nodes and direction, as thick
+      as the agent's hops over it are many, light to dark by time, a start marker where the
+      agent was created and an end marker where it stopped.
 
   Nodes stand at the topology's positions (the first two coordinates); a topology without
   a position for every node is laid out on a circle. Floor plans (files and custom
   topologies) are in metres and get a scale bar; generated topologies are in plot units
   (a grid's spacing is 1) and say so in the footnote. Every node is
   `<circle class="node" data-id="h1" data-x=".." data-y="..">`, every link
-  `<polyline class="link" data-a="h1" data-b="h2">` and every hop
-  `<polyline class="hop" data-step="3" data-from="h1" data-to="h2">`, so a test can read
-  the drawing back against the topology and the path.
+  `<polyline class="link" data-a="h1" data-b="h2">` and every arrow of hops
+  `<polyline class="hop" data-from="h1" data-to="h2" data-count="2" data-steps="3 8">`, so a
+  test can read the drawing back against the topology and the path.
 
   `mix tartarus.emu` writes both for its run (`topology.svg`, `walk.svg`, the path in
   `walk_path.csv`) when the topology has at most #{2_000} nodes.
@@ -81,9 +81,13 @@ defmodule TartarusEmu.Figures do
   @doc """
   An SVG of a walk over `topo`: `path` is `[{step, node}]` in time order, its first entry
   the node the agent started on (step 0) and each next one the node a move reached at that
-  step. A hop is drawn as an arrow from the previous node, light to dark in time order;
-  moves that failed leave no hop. The start is a green disc, the end a red square.
-  Options as `topology/2` (the default title is "Walk: ...").
+  step; moves that failed leave no hop. Hops between the same two nodes in the same
+  direction are one arrow, as thick as they are many (1.5 px for one, 7 px for the most
+  travelled pair) and labelled with their count when more than one, coloured by the last
+  hop over it, light (early) to dark (late): a walk of 100 hops over 3 hosts draws at most
+  6 arrows, not 100 on top of each other. The start is a green disc, the end a red square.
+  Each arrow is `<polyline class="hop" data-from="h1" data-to="h2" data-count="3"
+  data-steps="2 7 9">`. Options as `topology/2` (the default title is "Walk: ...").
   """
   @spec walk(Topology.t(), [{non_neg_integer(), term()}], keyword()) :: binary()
   def walk(%Topology{} = topo, [{_, start} | _] = path, opts \\ []) do
@@ -91,23 +95,47 @@ defmodule TartarusEmu.Figures do
     hops = Enum.zip(path, tl(path))
     count = length(hops)
 
-    arrows =
+    # {from, to} => [{hop index, step}], in the order of their first hop.
+    pairs =
       hops
       |> Enum.with_index()
-      |> Enum.map(fn {{{_, a}, {step, b}}, i} ->
-        {p, q} = offset_segment(pos[a], pos[b])
-        shade = if count > 1, do: i / (count - 1), else: 1.0
+      |> Enum.group_by(fn {{{_, a}, {_, b}}, _} -> {a, b} end, fn {{_, {step, _}}, i} ->
+        {i, step}
+      end)
+      |> Enum.sort_by(fn {_, [{i, _} | _]} -> i end)
 
-        %{
+    most = pairs |> Enum.map(fn {_, hs} -> length(hs) end) |> Enum.max(fn -> 1 end)
+
+    arrows =
+      Enum.flat_map(pairs, fn {{a, b}, hs} ->
+        {p, q} = offset_segment(pos[a], pos[b])
+        {last, _} = List.last(hs)
+        n = length(hs)
+        shade = if count > 1, do: last / (count - 1), else: 1.0
+        width = if most > 1, do: 1.5 + 5.5 * (n - 1) / (most - 1), else: 1.5
+        steps = Enum.map_join(hs, " ", &elem(&1, 1))
+
+        arrow = %{
           shape: :line,
           points: [p, q],
-          width_px: 2,
+          width_px: width,
           arrow: true,
           stroke: ramp(shade),
           class: "hop",
-          data: %{step: step, from: a, to: b},
-          title: "hop #{i + 1} at step #{step}: #{a} -> #{b}"
+          data: %{from: a, to: b, count: n, steps: steps},
+          title: "#{a} -> #{b}: #{hop_words(n)} (steps #{steps})"
         }
+
+        # The count stands beside the arrow's middle, on its right (away from the return).
+        {{px, py}, {qx, qy}} = {p, q}
+        {mx, my} = {(px + qx) / 2 + (qy - py) * 0.12, (py + qy) / 2 - (qx - px) * 0.12}
+
+        label =
+          if n > 1,
+            do: [%{shape: :text, x: mx, y: my, text: "#{n}", size: 10, class: "hop-count"}],
+            else: []
+
+        [arrow | label]
       end)
 
     {_, stop} = List.last(path)
@@ -134,14 +162,15 @@ defmodule TartarusEmu.Figures do
           Keyword.get(
             opts,
             :note,
-            "arrows: hops in time order, light (first) to dark (last); " <>
+            "arrows: hops per pair and direction (width, number), " <>
+              "light to dark by the last one's time; " <>
               units_note(topo, pos, opts)
           ),
         legend: [
           {"start (#{start})", "#2ca02c", :start},
           {"end (#{stop})", "#d62728", :end},
-          {"first hop", ramp(0.0), :line},
-          {"last hop", ramp(1.0), :line}
+          {"early", ramp(0.0), :line},
+          {"late", ramp(1.0), :line}
         ]
       ] ++ plan_opts(topo, opts)
     )
@@ -211,6 +240,9 @@ defmodule TartarusEmu.Figures do
   defp plot_units(:ring), do: "the ring's radius is 1"
   defp plot_units(:random_geometric), do: "nodes drawn in the unit square"
   defp plot_units(_), do: "no scale"
+
+  defp hop_words(1), do: "1 hop"
+  defp hop_words(n), do: "#{n} hops"
 
   # The segment a -> b, shortened at both ends and moved a little to its right, so that a
   # hop back along the same link is drawn beside the hop out, and arrowheads stop short of

@@ -44,10 +44,12 @@ defmodule TartarusEmu.Walk do
   ## Summary keys
 
   `hosts, agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
-  failed_moves, messages, bytes, energy_mj, energy_params, wall_ms, coverage,
+  failed_moves, messages, bytes, energy_mj, energy_params, wall_ms, steps_ms, coverage,
   covered_at_step, memory_mb, processes, lost_reports, network_ms, agents_ms`; `wall_ms` is
-  the time of the steps (setup excluded) and `migrations_per_s` is over it; `network_ms` and
-  `agents_ms` are the setup times of the network and of the agents.
+  the run's real time from the first step's start to the last step's end (setup excluded,
+  the pauses of `:step_ms` between steps included), `steps_ms` the time inside the steps
+  alone, over which `migrations_per_s` is counted; `network_ms` and `agents_ms` are the
+  setup times of the network and of the agents.
   """
 
   @behaviour TartarusEmu.Scenario
@@ -197,6 +199,8 @@ defmodule TartarusEmu.Walk do
          covered_at: nil,
          lost: 0,
          wall_us: 0,
+         first_us: nil,
+         last_us: nil,
          migrations: 0,
          failed: 0,
          topology_name: topology_name(opts),
@@ -326,7 +330,8 @@ defmodule TartarusEmu.Walk do
     reached = Network.broadcast(s.net, {:emu_step, k})
     deadline = Clock.monotonic_time(:millisecond) + s.step_timeout
     {moved, failed, visited, trail} = await(k, reached, {0, 0, s.visited, s.trail}, deadline)
-    wall_us = Clock.machine_time(:microsecond) - t0
+    t1 = Clock.machine_time(:microsecond)
+    wall_us = t1 - t0
     lost = reached - moved - failed
     ^k = Log.tick(s.log) - 1
     totals = Log.totals(s.log, k)
@@ -349,6 +354,8 @@ defmodule TartarusEmu.Walk do
         series: series,
         lost: s.lost + lost,
         wall_us: s.wall_us + wall_us,
+        first_us: s.first_us || t0,
+        last_us: t1,
         migrations: s.migrations + moved,
         failed: s.failed + failed,
         covered_at: s.covered_at || if(coverage == 1.0, do: k),
@@ -427,7 +434,9 @@ defmodule TartarusEmu.Walk do
       Energy.total(c.links, params) +
         Energy.cost(%{messages: posted, bytes: Map.get(c.totals, :message_bytes, 0)}, params)
 
-    wall_ms = div(s.wall_us, 1000)
+    # The run's real time, pauses between steps (--step-ms) included; the steps' own time is
+    # what the rate is over.
+    wall_ms = if s.first_us, do: div(s.last_us - s.first_us, 1000), else: 0
     migrations = Map.get(c.totals, :departures, 0)
 
     %{
@@ -447,6 +456,7 @@ defmodule TartarusEmu.Walk do
       energy_mj: Float.round(energy * 1.0, 3),
       energy_params: %{per_message_mj: params.per_message, per_byte_mj: params.per_byte},
       wall_ms: wall_ms,
+      steps_ms: div(s.wall_us, 1000),
       network_ms: s.network_ms,
       agents_ms: s.agents_ms,
       coverage: MapSet.size(s.visited) / Topology.size(s.topo),

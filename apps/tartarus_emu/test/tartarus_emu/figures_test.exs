@@ -95,12 +95,21 @@ defmodule TartarusEmu.FiguresTest do
     {:ok, topo} = Walk.topology(%{topology: "ring", hosts: 10})
     edges = MapSet.new(topo.edges, fn {a, b} -> Enum.sort([to_string(a), to_string(b)]) end)
 
+    arrows = elements(svg, "polyline", "hop")
+
     hops =
-      for h <- elements(svg, "polyline", "hop"),
-          do: {String.to_integer(h["step"]), h["from"], h["to"]}
+      Enum.sort(
+        for h <- arrows,
+            k <- String.split(h["steps"]),
+            do: {String.to_integer(k), h["from"], h["to"]}
+      )
 
     assert hops ==
              for({{_, a}, {k, b}} <- Enum.zip(path, tl(path)), do: {k, a, b})
+
+    # one arrow per pair and direction, counting its hops
+    assert length(arrows) == length(Enum.uniq_by(arrows, &{&1["from"], &1["to"]}))
+    for h <- arrows, do: assert(String.to_integer(h["count"]) == length(String.split(h["steps"])))
 
     # no failures on a static ring: a hop at every step; every hop along a link
     assert length(hops) == s.steps
@@ -116,6 +125,43 @@ defmodule TartarusEmu.FiguresTest do
     assert svg =~ "Walk of agent 1: #{length(hops)} hops in #{s.steps} steps"
     assert svg =~ "ring, 10 hosts, 3 agents, random, p 0, seed 3"
     assert File.exists?(Path.join(dir, "topology.svg"))
+  end
+
+  test "a long walk over 3 hosts: an arrow per pair and direction, as thick as its hops are many" do
+    topo = Topology.line(3)
+    # 100 hops back and forth along h1 - h2 - h3.
+    nodes = Stream.cycle([:h1, :h2, :h3, :h2]) |> Enum.take(101)
+    path = Enum.with_index(nodes, fn n, k -> {k, n} end)
+    svg = Figures.walk(topo, path)
+    arrows = elements(svg, "polyline", "hop")
+
+    counts = Map.new(arrows, &{{&1["from"], &1["to"]}, String.to_integer(&1["count"])})
+
+    assert counts == %{
+             {"h1", "h2"} => 25,
+             {"h2", "h3"} => 25,
+             {"h3", "h2"} => 25,
+             {"h2", "h1"} => 25
+           }
+
+    # equal counts, equal widths (the widest); a pair walked less is thinner
+    widths = Enum.map(arrows, &float(&1["stroke-width"]))
+    assert Enum.uniq(widths) == [7.0]
+
+    uneven = Figures.walk(topo, Enum.with_index([:h1, :h2, :h1, :h2, :h3], fn n, k -> {k, n} end))
+    by_pair = Map.new(elements(uneven, "polyline", "hop"), &{{&1["from"], &1["to"]}, &1})
+
+    assert by_pair[{"h1", "h2"}]["count"] == "2" and
+             float(by_pair[{"h1", "h2"}]["stroke-width"]) == 7.0
+
+    assert by_pair[{"h2", "h3"}]["count"] == "1" and
+             float(by_pair[{"h2", "h3"}]["stroke-width"]) == 1.5
+
+    # the count of a pair walked more than once is written beside its arrow
+    assert Regex.scan(~r/<text[^>]*class="hop-count"[^>]*>(\d+)</, uneven, capture: :all_but_first) ==
+             [["2"]]
+
+    assert svg =~ "arrows: hops per pair and direction (width, number)"
   end
 
   test "coverage.svg shows coverage.csv's numbers, on an axis from 0 to 1, with the run's parameters" do

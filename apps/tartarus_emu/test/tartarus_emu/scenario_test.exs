@@ -63,6 +63,14 @@ defmodule TartarusEmu.ScenarioTest do
     assert {_, 1.0} = List.last(Series.points(series, :coverage))
   end
 
+  test "wall_ms is the run's real time, the pauses of step_ms included; steps_ms the steps' own" do
+    %{summary: s} = walk(seed: 3, steps: 4, step_ms: 150)
+    # Three pauses of 150 ms lie between the first step's start and the last step's end.
+    assert s.wall_ms >= 3 * 150
+    assert s.steps_ms <= s.wall_ms - 3 * 150
+    assert s.run_ms >= s.wall_ms
+  end
+
   test "writes CSVs, valid SVG plots, summary.md and summary.json; energy is per message and byte" do
     dir = tmp()
     %{summary: s, files: files} = walk(seed: 7, out: dir, keep_events: true)

@@ -94,7 +94,7 @@ defmodule TartarusImmune.Experiment do
       doc:
         "hosts that start with the initial iPkts (`per_node` of each solution), chosen at random; the others start empty (default: every host)"
     ],
-    share: [type: :number, default: 0.9, doc: "convergence: the leader's least share"],
+    share: [type: {:range, 0, 1}, default: 0.9, doc: "convergence: the leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps the leader must hold"],
     stop: [type: :boolean, default: true, doc: "stop once converged"],
     dynamic: [

@@ -40,19 +40,43 @@ defmodule TartarusImmune.Params do
   """
 
   @schema [
-    mu: [type: :number, default: 0.5, doc: "μ: affinity threshold factor (Eq. 6.7)"],
-    sg_max: [type: :number, default: 100, doc: "Sg_max: danger strength at the source"],
+    mu: [type: {:range, 0, 1}, default: 0.5, doc: "μ: affinity threshold factor (Eq. 6.7)"],
+    sg_max: [
+      type: {:range, 1.0e-3, 1.0e6},
+      default: 100,
+      doc: "Sg_max: danger strength at the source"
+    ],
     l_span: [type: :pos_integer, default: 2, doc: "l_span: danger signal span in hops"],
-    rho: [type: :number, default: 2, doc: "ρ: mutation decay with affinity (Eq. 6.14)"],
-    alpha: [type: :number, default: 0.4, doc: "α: stimulation scale (Eq. 6.8)"],
-    delta: [type: :number, default: 0.2, doc: "δ: suppression scale (Eq. 6.9)"],
-    gamma: [type: :number, default: 1, doc: "γ (Table 6.1's σ): penalty factor (Eq. 6.9)"],
-    nu: [type: :number, default: 0.6, doc: "ν: variance of the mutation Gaussian (Eq. 6.15)"],
+    rho: [type: {:range, 0, 100}, default: 2, doc: "ρ: mutation decay with affinity (Eq. 6.14)"],
+    alpha: [type: {:range, 0, 100}, default: 0.4, doc: "α: stimulation scale (Eq. 6.8)"],
+    delta: [type: {:range, 0, 100}, default: 0.2, doc: "δ: suppression scale (Eq. 6.9)"],
+    gamma: [
+      type: {:range, 0, 100},
+      default: 1,
+      doc: "γ (Table 6.1's σ): penalty factor (Eq. 6.9)"
+    ],
+    nu: [
+      type: {:range, 0, 100},
+      default: 0.6,
+      doc: "ν: variance of the mutation Gaussian (Eq. 6.15)"
+    ],
     gamma_max: [type: :pos_integer, default: 1000, doc: "Γ_max: hops to apoptosis (Eq. 6.16)"],
-    tau_min: [type: :number, default: 5, doc: "τ_min: cost of a clone, death below (6.13, 6.17)"],
-    tau_max: [type: :number, default: 20, doc: "τ_max: largest activation (Eq. 6.11)"],
+    tau_min: [
+      type: {:range, 1.0e-3, 1.0e6},
+      default: 5,
+      doc: "τ_min: cost of a clone, death below (6.13, 6.17)"
+    ],
+    tau_max: [
+      type: {:range, 1.0e-3, 1.0e6},
+      default: 20,
+      doc: "τ_max: largest activation (Eq. 6.11)"
+    ],
     q_max: [type: :non_neg_integer, default: 5, doc: "Q_max (Table 6.1's v): queue size"],
-    tau_init: [type: :number, default: 10, doc: "activation of a new (not cloned) iPkt"],
+    tau_init: [
+      type: {:range, 0, 1.0e6},
+      default: 10,
+      doc: "activation of a new (not cloned) iPkt"
+    ],
     clone_tau: [
       type: {:or, [{:in, [:tau_min]}, :number]},
       default: :tau_min,

@@ -71,7 +71,7 @@ defmodule TartarusImmune.Select do
         "data set of sharing/danger/otfp/influx/barrage/fig6_8 (default p2; otfp p1; fig6_8 p4)"
     ],
     steps: [type: :pos_integer, default: 600, doc: "step limit per run"],
-    share: [type: :number, default: 0.9, doc: "convergence: leader's least share"],
+    share: [type: {:range, 0, 1}, default: 0.9, doc: "convergence: leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps held"],
     eta: [type: :probability, default: 0.5, doc: "influx rate"],
     beta: [type: :pos_integer, doc: "barrage size (default 5; fig6_8 10)"],
@@ -82,8 +82,12 @@ defmodule TartarusImmune.Select do
         "a sorting solution's cost: comparisons + moves (`ops`), or, as a labelled sensitivity run, comparisons alone (`TartarusImmune.Sorting.Comparisons`; the arms' names say so)"
     ],
     period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
-    ps: [type: {:list, :number}, default: [0.0, 0.1, 0.3, 0.5, 0.7, 1.0], doc: "dynamic sweep"],
-    etas: [type: {:list, :number}, default: [0.1, 0.3, 0.5, 0.7, 0.9], doc: "influx sweep"],
+    ps: [
+      type: {:list, :probability},
+      default: [0.0, 0.1, 0.3, 0.5, 0.7, 1.0],
+      doc: "dynamic sweep"
+    ],
+    etas: [type: {:list, :probability}, default: [0.1, 0.3, 0.5, 0.7, 0.9], doc: "influx sweep"],
     betas: [type: {:list, :pos_integer}, default: [1, 2, 5, 10, 20], doc: "barrage sweep"],
     add_at: [
       type: {:list, :pos_integer},

@@ -74,7 +74,7 @@ defmodule TartarusLats.Experiment do
         "when queries are released: at random world seconds, whatever the target is doing (default), or only when the target is settled"
     ],
     noise_db: [
-      type: :number,
+      type: {:range, 0, 40},
       default: 4.0,
       doc: "standard deviation of the radio's Gaussian noise (dB)"
     ],
@@ -191,8 +191,7 @@ defmodule TartarusLats.Experiment do
   @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusLats.Experiment.run/1"),
-         :ok <- check_nodes(opts[:nodes]),
-         :ok <- check_noise(opts[:noise_db]) do
+         :ok <- check_nodes(opts[:nodes]) do
       {:ok, opts}
     end
   end
@@ -203,13 +202,6 @@ defmodule TartarusLats.Experiment do
     do:
       {:error,
        "invalid options given to TartarusLats.Experiment.run/1 for key :nodes: expected an integer >= 10, got: #{n}"}
-
-  defp check_noise(db) when db >= 0, do: :ok
-
-  defp check_noise(db),
-    do:
-      {:error,
-       "invalid options given to TartarusLats.Experiment.run/1 for key :noise_db: expected a non-negative number, got: #{db}"}
 
   # -- the scenario ------------------------------------------------------------------
 

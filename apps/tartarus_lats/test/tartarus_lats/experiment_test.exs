@@ -79,7 +79,7 @@ defmodule TartarusLats.ExperimentTest do
     assert {:error, msg} = TartarusLats.Experiment.run(minutes: 0)
     assert msg =~ "for key :minutes: expected a positive integer, got: 0"
     assert {:error, msg} = TartarusLats.Experiment.run(noise_db: -1)
-    assert msg =~ "for key :noise_db: expected a non-negative number, got: -1"
+    assert msg =~ "for key :noise_db: expected a number from 0 to 40, got: -1"
     assert {:error, msg} = TartarusLats.Experiment.run(release: :sometimes)
     assert msg =~ "for key :release: expected"
   end

@@ -230,6 +230,13 @@ defmodule TartarusLats.HM10SerialTest do
     assert opts[:decoder] == HM10.Receiver and opts[:device] == "/dev/ttyUSB0"
     assert opts[:speed] == 115_200
 
+    # The line the task prints names what it attached, and its help names the same.
+    line = Mix.Tasks.Tartarus.Node.plugins_line(beacon: {Tartarus.Plugin.Serial, opts})
+    assert line == "plugins: beacon (Tartarus.Plugin.Serial, decoder TartarusLats.HM10.Receiver)"
+    help = Mix.Task.moduledoc(Mix.Tasks.Tartarus.Node) |> String.replace(~r/\s+/, " ")
+    assert help =~ "`#{line}`"
+    refute help =~ "HM10Plugin"
+
     assert [serial: {Tartarus.Plugin.Serial, [speed: 115_200, device: "/dev/ttyS1"]}] =
              Mix.Tasks.Tartarus.Node.plugins!(serial: "/dev/ttyS1", speed: 115_200)
 

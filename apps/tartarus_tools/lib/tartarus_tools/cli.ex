@@ -13,7 +13,10 @@ defmodule TartarusTools.CLI do
 
   A task writes `use TartarusTools.CLI` instead of `use Mix.Task`: it is then a Mix task
   that answers `--help` (or `-h`) anywhere in its arguments by printing its `@moduledoc`,
-  without running.
+  without running, and that checks its `--out` before anything runs (`check_out/2`): a
+  directory by default, a file with `use TartarusTools.CLI, out: :file`, not at all with
+  `out: false`. An `--out` that cannot be written is refused in one line, so a long run
+  does not end in a stack trace when it writes its results.
 
   A task whose options are a `Tartarus.Options` schema parses them with `options!/3`: the
   flags come from the schema's keys (`state_bytes` is `--state-bytes`), the defaults from
@@ -38,9 +41,12 @@ defmodule TartarusTools.CLI do
   """
 
   @doc false
-  defmacro __using__(_opts) do
+  defmacro __using__(opts) do
+    out = Keyword.get(opts, :out, :dir)
+
     quote do
       use Mix.Task
+      @tartarus_cli_out unquote(out)
       @before_compile TartarusTools.CLI
     end
   end
@@ -52,12 +58,95 @@ defmodule TartarusTools.CLI do
 
       @impl Mix.Task
       def run(argv) do
-        TartarusTools.Provenance.record_command(Mix.Task.task_name(__MODULE__), argv)
+        task = Mix.Task.task_name(__MODULE__)
+        TartarusTools.Provenance.record_command(task, argv)
 
-        if TartarusTools.CLI.help?(argv),
-          do: TartarusTools.CLI.help(__MODULE__),
-          else: super(argv)
+        if TartarusTools.CLI.help?(argv) do
+          TartarusTools.CLI.help(__MODULE__)
+        else
+          TartarusTools.CLI.out!(argv, @tartarus_cli_out, task)
+          super(argv)
+        end
       end
+    end
+  end
+
+  @doc """
+  Refuses, in one line naming `--out`, an `--out PATH` in `argv` that cannot be written as
+  `kind` (`:dir` or `:file`; `false`: no check). See `check_out/2`. An `--out` without a
+  value is left to the task's parser.
+  """
+  @spec out!([String.t()], :dir | :file | false, String.t()) :: :ok
+  def out!(_argv, false, _task), do: :ok
+
+  def out!(argv, kind, task) do
+    with path when is_binary(path) <- out_arg(argv),
+         {:error, why} <- check_out(path, kind) do
+      Mix.raise("mix #{task}: --out #{path}: #{why}")
+    else
+      _ -> :ok
+    end
+  end
+
+  defp out_arg(["--out", value | _]), do: if(String.starts_with?(value, "--"), do: nil, else: value)
+  defp out_arg(["--out=" <> value | _]), do: value
+  defp out_arg([_ | rest]), do: out_arg(rest)
+  defp out_arg([]), do: nil
+
+  @doc """
+  Whether a task can write its output at `path`, checked before its run and without
+  creating anything: as a directory (`:dir`), `path` is a writable directory, or does not
+  exist and its nearest existing ancestor is a writable directory (the task creates the
+  rest); as a file (`:file`), `path` is not a directory and its directory is writable (or
+  can be made so). Writability is tried, not read from permission bits: a file is created
+  in the directory and removed again.
+
+      iex> TartarusTools.CLI.check_out(System.tmp_dir!(), :dir)
+      :ok
+      iex> TartarusTools.CLI.check_out(System.tmp_dir!(), :file)
+      {:error, "is a directory, expected a file"}
+  """
+  @spec check_out(Path.t(), :dir | :file) :: :ok | {:error, String.t()}
+  def check_out(path, kind) do
+    full = Path.expand(path)
+
+    case {File.stat(full), kind} do
+      {{:ok, %{type: :directory}}, :dir} -> probe(full)
+      {{:ok, %{type: :directory}}, :file} -> {:error, "is a directory, expected a file"}
+      {{:ok, _}, :dir} -> {:error, "exists and is not a directory"}
+      {{:ok, _}, :file} -> probe(Path.dirname(full))
+      {{:error, reason}, _} when reason in [:enoent, :enotdir] -> creatable(Path.dirname(full))
+      {{:error, reason}, _} -> {:error, "cannot be read (#{:file.format_error(reason)})"}
+    end
+  end
+
+  # A directory to be created: the nearest existing ancestor must be a writable directory.
+  defp creatable(dir) do
+    case File.stat(dir) do
+      {:ok, %{type: :directory}} ->
+        probe(dir)
+
+      {:ok, _} ->
+        {:error, "cannot be created: #{dir} is not a directory"}
+
+      {:error, reason} when reason in [:enoent, :enotdir] ->
+        if Path.dirname(dir) == dir, do: {:error, "cannot be created"}, else: creatable(Path.dirname(dir))
+
+      {:error, reason} ->
+        {:error, "cannot be created: #{dir}: #{:file.format_error(reason)}"}
+    end
+  end
+
+  defp probe(dir) do
+    file = Path.join(dir, ".tartarus-out-check-#{System.unique_integer([:positive])}")
+
+    case File.write(file, "") do
+      :ok ->
+        File.rm(file)
+        :ok
+
+      {:error, reason} ->
+        {:error, "cannot write in #{dir} (#{:file.format_error(reason)})"}
     end
   end
 

@@ -22,6 +22,9 @@ defmodule TartarusTools.Report do
   All writers create the directory if needed and return the paths written.
   """
 
+  # The longest nested value summary.md shows in a table cell.
+  @long_cell 100
+
   alias TartarusTools.JSON
 
   @typedoc "One row of an \"ours vs thesis\" table; `:note` is optional."
@@ -145,7 +148,11 @@ defmodule TartarusTools.Report do
 
   @doc """
   Renders the Markdown of `summary.md` (see `write_summary!/3`). Keys are sorted; nested
-  values are shown as compact JSON; `|` in cells is escaped; `:markdown` is appended.
+  values are shown as compact JSON while that stays short (#{@long_cell} characters); a
+  longer one (a sweep's aggregates, an arm per key) gets a section of its own after the
+  table, named in its row: a map or list of records (maps of short values) as one table
+  with a column per field, any other map as a key-value table with its long values in
+  sections below it. `|` in cells is escaped; `:markdown` is appended.
 
   ## Examples
 
@@ -159,11 +166,7 @@ defmodule TartarusTools.Report do
     title = Keyword.get(opts, :title, "Summary")
     comparisons = Keyword.get(opts, :comparisons, [])
 
-    rows =
-      summary
-      |> Enum.map(fn {k, v} -> {to_string(k), v} end)
-      |> Enum.sort()
-      |> Enum.map(fn {k, v} -> ["| ", cell(k), " | ", cell(v), " |\n"] end)
+    {rows, sections} = key_table(summary, "", 2)
 
     compare =
       case comparisons do
@@ -193,8 +196,95 @@ defmodule TartarusTools.Report do
         md -> ["\n", md]
       end
 
-    IO.iodata_to_binary(["# ", title, "\n\n| key | value |\n|---|---|\n", rows, compare, more])
+    IO.iodata_to_binary([
+      "# ",
+      title,
+      "\n\n| key | value |\n|---|---|\n",
+      rows,
+      compare,
+      sections,
+      more
+    ])
   end
+
+  # The rows of a key-value table of `map` (keys sorted), and the sections of its values too
+  # long for a cell (`path` names them: "sweep", "sweep.aggregates").
+  defp key_table(map, path, level) do
+    entries = map |> Enum.map(fn {k, v} -> {to_string(k), v} end) |> Enum.sort()
+
+    rows =
+      Enum.map(entries, fn {k, v} ->
+        shown = if long?(v), do: "see #{name(path, k)} below", else: v
+        ["| ", cell(k), " | ", cell(shown), " |\n"]
+      end)
+
+    sections = for {k, v} <- entries, long?(v), do: section(name(path, k), v, level)
+    {rows, sections}
+  end
+
+  defp name("", key), do: key
+  defp name(path, key), do: path <> "." <> key
+
+  defp section(title, value, level) do
+    heading = ["\n", String.duplicate("#", min(level, 4)), " ", title, "\n"]
+
+    case records(value) do
+      {:ok, labels?, columns, rows} ->
+        head = if labels?, do: ["key" | columns], else: columns
+
+        lines =
+          for {label, record} <- rows do
+            cells = for c <- columns, do: cell(Map.get(record, c))
+            cells = if labels?, do: [cell(label) | cells], else: cells
+            ["| ", Enum.intersperse(cells, " | "), " |\n"]
+          end
+
+        [
+          heading,
+          "\n| ",
+          Enum.intersperse(Enum.map(head, &cell/1), " | "),
+          " |\n|",
+          String.duplicate("---|", length(head)),
+          "\n",
+          lines
+        ]
+
+      :error ->
+        map = if is_list(value), do: value |> Enum.with_index() |> Map.new(fn {v, i} -> {i, v} end), else: value
+        {rows, sections} = key_table(map, title, level + 1)
+        # A map of long values only (a sweep's arms) is its sections alone.
+        table = if length(sections) < map_size(map), do: ["\n| key | value |\n|---|---|\n", rows], else: []
+        [heading, table, sections]
+    end
+  end
+
+  # A map or list whose values are all maps (not structs) of short scalars and lists:
+  # records, shown as one table. Columns are the fields' names as strings, in the order they first appear.
+  defp records(value) do
+    items =
+      cond do
+        is_map(value) -> value |> Enum.map(fn {k, v} -> {to_string(k), v} end) |> Enum.sort()
+        is_list(value) -> Enum.map(value, &{nil, &1})
+      end
+
+    record? = fn v ->
+      plain_map?(v) and map_size(v) > 0 and
+        not Enum.any?(v, fn {_, x} -> plain_map?(x) or long?(x) end)
+    end
+
+    if items != [] and Enum.all?(items, fn {_, v} -> record?.(v) end) do
+      rows = for {label, v} <- items, do: {label, Map.new(v, fn {k, x} -> {to_string(k), x} end)}
+      columns = rows |> Enum.flat_map(fn {_, r} -> r |> Map.keys() |> Enum.sort() end) |> Enum.uniq()
+      {:ok, is_map(value), columns, rows}
+    else
+      :error
+    end
+  end
+
+  defp plain_map?(v), do: is_map(v) and not is_struct(v)
+
+  defp long?(v) when is_list(v), do: String.length(cell(v)) > @long_cell
+  defp long?(v), do: plain_map?(v) and String.length(cell(v)) > @long_cell
 
   @doc """
   The "Provenance" section of `summary.md`: one row per key of `provenance` (see

@@ -463,14 +463,16 @@ defmodule TartarusTools.SVG do
 
   @doc """
   A box plot: one box per group of samples (median, quartiles, whiskers at 1.5 IQR, outliers
-  as circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and sample count.
+  as open circles; see `TartarusTools.Stats.box/1`). Each group is labelled with its name and
+  sample count.
 
   The median line is the conventional median (`TartarusTools.Stats.median_mid/1`: of an
   even count the mean of the two middle samples, so [11, 13] is drawn at 12), the
   `median_mid` of a sweep's aggregates; the quartiles are nearest rank, actual samples
-  (`Stats.box/2`). A footnote says so (`:note` replaces it), and a group of at most
-  `:points_max` samples (default 20) also shows every sample as a dot beside its box, so a
-  reader sees the data the box summarises.
+  (`Stats.box/2`). A group of at most `:points_max` samples (default 20) also shows every
+  sample as a dot beside its box, so a reader sees the data the box summarises. A footnote
+  says all this, naming open circles and dots only when some are drawn (`:note` replaces
+  it).
 
   ## Examples
 
@@ -498,13 +500,7 @@ defmodule TartarusTools.SVG do
     y_ticks = ticks(all ++ bounds(opts, :y_min, :y_max), opts, :y_integer)
     points_max = Keyword.get(opts, :points_max, 20)
 
-    opts =
-      Keyword.put_new(
-        opts,
-        :note,
-        "box: median (of an even n, the mean of the two middle samples), " <>
-          "nearest-rank quartiles; whiskers 1.5 IQR; circles outliers"
-      )
+    opts = Keyword.put_new_lazy(opts, :note, fn -> box_note(groups, points_max) end)
     sy = scale(y_ticks, layout.top + layout.plot_h, layout.top)
     n = length(groups)
     band = if n > 0, do: layout.plot_w / n, else: layout.plot_w
@@ -559,6 +555,25 @@ defmodule TartarusTools.SVG do
     document(layout, opts, body)
   end
 
+  # The footnote says what is drawn: open circles only when some group has samples beyond
+  # its whiskers, dots only when some group is small enough to show its samples.
+  defp box_note(groups, points_max) do
+    stats = for {_, %{} = s, _} <- groups, do: s
+    outliers? = Enum.any?(stats, &(&1.outliers != []))
+    {dotted, undotted} = Enum.split_with(stats, &(&1.n <= points_max))
+
+    dots =
+      cond do
+        dotted == [] -> ""
+        undotted == [] -> "; dots beside a box: each of its samples"
+        true -> "; dots beside a box of at most #{points_max} samples: each of them"
+      end
+
+    "box: median (of an even n, the mean of the two middle samples), nearest-rank " <>
+      "quartiles; whiskers to the farthest samples within 1.5 IQR" <>
+      if(outliers?, do: "; open circles: samples beyond the whiskers", else: "") <> dots
+  end
+
   defp box(s, name, x, w, cx, sy, color) do
     tip = [
       esc(name),
@@ -589,7 +604,7 @@ defmodule TartarusTools.SVG do
       "</g>\n",
       Enum.map(s.outliers, fn o ->
         [
-          ~s(<circle cx="#{num(cx)}" cy="#{num(sy.(o))}" r="3" fill="none" stroke="#{color}">),
+          ~s(<circle class="outlier" cx="#{num(cx)}" cy="#{num(sy.(o))}" r="3" fill="none" stroke="#{color}">),
           "<title>",
           fmt(o),
           "</title></circle>\n"

@@ -101,6 +101,34 @@ defmodule TartarusEmu.ReportTest do
       refute File.read!(md) =~ "Provenance"
     end
 
+    test "a long nested value gets a section of its own, not one table cell" do
+      description = %{n: 10, median: 12, q1: 9, q3: 15, mean: 12.4, sd: 3.1}
+
+      sweep = %{
+        name: "danger",
+        runs: 20,
+        aggregates: %{"signals" => %{steps: description, events: description}},
+        tests: [
+          %{a: "signals", alternative: :less, b: "no_signals", metric: :steps, p_value: 0.027},
+          %{a: "signals", alternative: :less, b: "no_sharing", metric: :steps, p_value: 0.001}
+        ]
+      }
+
+      md = Report.summary_markdown(%{seed: 1, sweep: sweep, short: [1, 2]})
+      # The key table: short values in their cells, the sweep pointed to.
+      assert md =~ "| seed | 1 |\n| short | [1,2] |\n| sweep | see sweep below |\n"
+      refute md =~ ~s("aggregates")
+      # The sweep: its short keys, then a table per arm (a metric a row), then the tests.
+      assert md =~ "\n## sweep\n\n| key | value |\n|---|---|\n"
+      assert md =~ "| aggregates | see sweep.aggregates below |\n| name | danger |\n| runs | 20 |\n| tests | see sweep.tests below |\n"
+      assert md =~ "\n### sweep.aggregates\n\n#### sweep.aggregates.signals\n\n| key | mean | median | n | q1 | q3 | sd |\n"
+      assert md =~ "| events | 12.4 | 12 | 10 | 9 | 15 | 3.1 |\n| steps | 12.4 | 12 | 10 | 9 | 15 | 3.1 |\n"
+      assert md =~ "\n### sweep.tests\n\n| a | alternative | b | metric | p_value |\n|---|---|---|---|---|\n"
+      assert md =~ "| signals | less | no_signals | steps | 0.027 |\n| signals | less | no_sharing | steps | 0.001 |\n"
+      # No line of it is longer than its longest section row needs.
+      assert md |> String.split("\n") |> Enum.map(&String.length/1) |> Enum.max() < 120
+    end
+
     test "bad comparisons and clashing keys are refused", %{dir: dir} do
       assert_raise ArgumentError,
                    ~r/expected comparisons %\{metric:, ours:, thesis:\}, got: %\{metric: "x"\}/,

@@ -130,6 +130,32 @@ defmodule TartarusEmu.SVGTest do
       assert svg =~ "<circle"
     end
 
+    test "the footnote names what is drawn: dots for small groups, open circles for outliers" do
+      note = fn svg ->
+        [_, text] = Regex.run(~r/<text class="note"[^>]*>([^<]*)</, svg)
+        text
+      end
+
+      # Five samples, none beyond the whiskers: every sample a dot, no outlier named.
+      small = SVG.box_plot([{"a", [3, 4, 5, 6, 7]}])
+      refute small =~ ~s(class="outlier")
+      assert length(Regex.scan(~r/class="sample"/, small)) == 5
+      assert note.(small) =~ "dots beside a box: each of its samples"
+      refute note.(small) =~ ~r/outlier|circles/
+
+      # One sample far out: an open circle, and the note says what it is.
+      far = SVG.box_plot([{"a", [3, 4, 5, 6, 7, 100]}])
+      assert length(Regex.scan(~r/class="outlier"/, far)) == 1
+      assert note.(far) =~ "open circles: samples beyond the whiskers"
+
+      # 30 samples: no dots, and the note does not promise them.
+      many = SVG.box_plot([{"a", Enum.to_list(1..30)}])
+      refute many =~ ~s(class="sample")
+      refute note.(many) =~ "dots"
+      mixed = SVG.box_plot([{"a", Enum.to_list(1..30)}, {"b", [1, 2]}])
+      assert note.(mixed) =~ "dots beside a box of at most 20 samples: each of them"
+    end
+
     test "edge cases" do
       assert "no data" in texts(SVG.box_plot([]))
       assert "no data" in texts(SVG.box_plot([{"a", []}]))

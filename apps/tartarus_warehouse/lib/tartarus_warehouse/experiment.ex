@@ -76,7 +76,7 @@ defmodule TartarusWarehouse.Experiment do
         "serve the web dashboard on this port (127.0.0.1) while the experiment runs, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the graph of the floor running now and the warehouse panel (`TartarusWarehouse.Panel`)"
     ],
     scale: [
-      type: {:custom, &TartarusWarehouse.Experiment.scale?/1},
+      type: {:or, [{:in, [nil]}, {:range, 1.0e-4, 1000}]},
       expected: "a number from 0.0001 to 1000",
       default: nil,
       doc:
@@ -163,11 +163,6 @@ defmodule TartarusWarehouse.Experiment do
     do: a >= 0 and b >= 0 and a + b > 0
 
   def jobs_spec?(_), do: false
-
-  @doc false
-  # The time scale: a positive number, or nil for the experiment's default.
-  @spec scale?(term()) :: boolean()
-  def scale?(x), do: is_nil(x) or (is_number(x) and x >= 1.0e-4 and x <= 1000)
 
   @doc """
   The registry: every experiment's name and module, in the order `mix tartarus.warehouse`

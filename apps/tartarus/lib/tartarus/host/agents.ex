@@ -227,6 +227,15 @@ defmodule Tartarus.Host.Agents do
 
       entry.restarts < host.opts.max_restarts ->
         n = entry.restarts + 1
+        env = snapshot.()
+
+        log_crash(
+          host,
+          entry,
+          env.module,
+          reason,
+          "restarted from its arrival snapshot (#{n} of #{host.opts.max_restarts})"
+        )
 
         Events.emit(
           host,
@@ -234,7 +243,7 @@ defmodule Tartarus.Host.Agents do
           crashes: 1
         )
 
-        case start_agent(state, snapshot.(), {:restart, n}, n) do
+        case start_agent(state, env, {:restart, n}, n) do
           {:ok, _pid, state} ->
             state
 
@@ -244,6 +253,14 @@ defmodule Tartarus.Host.Agents do
         end
 
       true ->
+        module =
+          case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
+            [{_, env}] -> env.module
+            [] -> nil
+          end
+
+        log_crash(host, entry, module, reason, "removed: #{entry.restarts} restarts already")
+
         Events.emit(
           host,
           %{
@@ -260,6 +277,38 @@ defmodule Tartarus.Host.Agents do
         removed(state, entry, {:too_many_restarts, reason})
     end
   end
+
+  # The one log line of an agent's crash (the host's :crash event is counted, not logged):
+  # an operator in iex whose request crashed an agent sees which agent, of which module, on
+  # which host, and why. gen_statem's own report of the same crash is dropped by
+  # drop_agent_report/2 (Elixir 1.14's Logger happens not to print it; later ones may).
+  defp log_crash(host, entry, module, reason, what) do
+    Logger.error(
+      "agent #{entry.id} (#{inspect(module)}) crashed on host #{inspect(host.ref)}, #{what}: " <>
+        describe_crash(reason),
+      host: elem(host.ref, 0)
+    )
+  end
+
+  @doc false
+  # A primary logger filter (installed by Tartarus.Application): drops the report
+  # gen_statem logs when an agent's process terminates abnormally, since the host logs that
+  # crash itself (log_crash/5). A primary filter runs in the process that logs, here the
+  # agent's own, so the agent is recognised by its initial call.
+  @spec drop_agent_report(:logger.log_event(), term()) :: :logger.filter_return()
+  def drop_agent_report(%{msg: {:report, %{label: {:gen_statem, :terminate}}}}, _arg) do
+    if Process.get(:"$initial_call") == {Tartarus.Agent.Server, :init, 1},
+      do: :stop,
+      else: :ignore
+  end
+
+  def drop_agent_report(_event, _arg), do: :ignore
+
+  defp describe_crash({kind, reason, stack})
+       when kind in [:error, :exit, :throw] and is_list(stack),
+       do: Exception.format(kind, reason, stack)
+
+  defp describe_crash(reason), do: inspect(reason, limit: 20, printable_limit: 200)
 
   # A resident agent killed or removed here: the hosts it visited drop their pointers to it
   # (Tartarus.Ledger.gone/2), as when it stops on its own. Not if it had moved on from here

@@ -15,7 +15,7 @@ defmodule Mix.Tasks.Tartarus.Dashboard.Bench do
   line printed is the same JSON. The page is a real headless Chromium when `chromium` is
   installed (see `docs/dashboard.md`).
   """
-  use TartarusTools.CLI
+  use TartarusTools.CLI, out: :file
 
   @impl true
   def run(argv) do

@@ -28,7 +28,8 @@ defmodule Mix.Tasks.Tartarus.Emu do
 
   With `--json` the last line printed is one JSON object with the summary keys: `hosts,
   agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
-  failed_moves, messages, bytes, energy_mj, wall_ms, coverage, ...` (see `TartarusEmu.Walk`).
+  failed_moves, messages, bytes, energy_mj, wall_ms, steps_ms, coverage, ...` (see
+  `TartarusEmu.Walk`: `wall_ms` is the run's real time, pauses of `--step-ms` included).
 
   `--dashboard PORT` serves the web dashboard (`TartarusTools.Dashboard`, on 127.0.0.1)
   while the walk runs and prints its address and action token; `--step-ms MS` pauses
@@ -110,7 +111,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
       Mix.shell().info(
         "#{summary.hosts} hosts, #{summary.agents} agents, #{summary.steps} steps (#{summary.mode}): " <>
           "#{summary.migrations} migrations in #{summary.wall_ms} ms " <>
-          "(#{summary.migrations_per_s}/s), coverage #{Float.round(summary.coverage * 1.0, 3)}, " <>
+          "(#{summary.migrations_per_s}/s over the #{summary.steps_ms} ms inside the steps), coverage #{Float.round(summary.coverage * 1.0, 3)}, " <>
           "#{summary.energy_mj} mJ; results in #{run_opts[:out]}"
       )
     end

@@ -4,7 +4,7 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve --experiment s1|s2|s3|monolithic|robots3|sharing [--seeds 10]
+      mix tartarus.evolve [--experiment sharing|s1|s2|s3|monolithic|robots3] [--seeds 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--loop while_in_region|once] [--max-inner 10]

@@ -6,7 +6,7 @@ defmodule Mix.Tasks.Tartarus.Select do
   sorting algorithms) are drawn by danger signals to the hosts where sequences wait to be
   sorted; the best algorithm for each class of sequences takes over the network.
 
-      mix tartarus.select --experiment table6_2|sharing|danger|fig6_8|otfp|nodes50|dynamic|influx|barrage|iot
+      mix tartarus.select [--experiment table6_2|sharing|danger|fig6_8|otfp|nodes50|dynamic|influx|barrage|iot]
                           [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
                           [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
                           [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]

@@ -130,7 +130,7 @@ defmodule TartarusImmune.Evolution.Embodied do
       doc:
         "an evaluation's fitness: the objective per step (default) or, as Eqs. 7.1-7.3 print it, summed over the evaluation period"
     ],
-    dt: [type: :number, default: 0.1, doc: "seconds per step"],
+    dt: [type: {:range, 1.0e-3, 10}, default: 0.1, doc: "seconds per step"],
     pucks: [type: :non_neg_integer, default: 10, doc: "pucks (S2, S3)"],
     test_episodes: [type: :non_neg_integer, default: 10, doc: "test episodes after training"],
     es: [

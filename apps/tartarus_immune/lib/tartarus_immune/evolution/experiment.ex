@@ -100,7 +100,7 @@ defmodule TartarusImmune.Evolution.Experiment do
       doc: "`s1`-`s3`, `--loop while_in_region`: evaluation periods per iteration at most"
     ],
     sigma_max: [
-      type: :number,
+      type: {:range, 1.0e-3, 100},
       default: 4.0,
       doc:
         "`s1`-`s3`, `monolithic`: the (1+1)-online strategy's sigma ceiling (Bredeche et al. 2009: 4)"

@@ -79,13 +79,13 @@ defmodule TartarusImmune.PathFollowing.Experiment do
         "a re-injected PFA: :tried (enters at tau_max, so it runs once) or :activation (tau_init, as a new one)"
     ],
     stuck_after: [
-      type: :number,
+      type: {:range, 0.1, 3600},
       default: 6.0,
       doc:
         "seconds without 5 cm of progress after which the experimenter nudges a robot 10 cm on (Run.laps/3's :stuck_after)"
     ],
     lost_penalty: [
-      type: :number,
+      type: {:range, 0, 3600},
       default: 5.0,
       doc: "seconds charged each time a robot is put back on the line or nudged on"
     ],

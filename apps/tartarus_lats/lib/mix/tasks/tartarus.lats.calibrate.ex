@@ -16,7 +16,7 @@ defmodule Mix.Tasks.Tartarus.Lats.Calibrate do
   the model and, per receiver, the correction and the RMS residual before and after; with
   `--json` that as one JSON object (with provenance) on the last line.
   """
-  use TartarusTools.CLI
+  use TartarusTools.CLI, out: :file
 
   alias TartarusLats.Replay.{Calibration, Devices}
 

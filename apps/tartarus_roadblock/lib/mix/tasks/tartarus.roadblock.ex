@@ -108,14 +108,36 @@ defmodule Mix.Tasks.Tartarus.Roadblock do
   end
 
   defp report({:ok, %{summary: s, out: dir}}, json?) do
-    TartarusTools.CLI.report(s, [json: json?], fn s ->
-      """
-      rescued #{s.rescued} by #{s.chosen_robot} (candidates: #{Enum.map_join(s.candidates, ", ", &"#{&1.robot} #{inspect(&1.capabilities)}")})
-      Santa arrived #{s.santa_arrived} at #{s.santa_arrival_s} s (stopped #{s.santa_stopped_s} s); rescue agent #{s.agent_hops} hops over #{s.hosts_visited} hosts
-      written to #{dir}\
-      """
-    end)
+    TartarusTools.CLI.report(s, [json: json?], fn s -> text(s) <> "\nwritten to #{dir}" end)
   end
 
   defp report({:error, message}, _json?), do: TartarusTools.CLI.error!(@task, message)
+
+  @doc false
+  # The run's outcome for a person: what happened, and what did not (a run cut short by
+  # --steps has no robot chosen and no arrival, and says so rather than printing blanks).
+  @spec text(map()) :: String.t()
+  def text(s) do
+    rescue_line =
+      if s.chosen_robot do
+        candidates = Enum.map_join(s.candidates, ", ", &"#{&1.robot} #{inspect(&1.capabilities)}")
+
+        "rescued #{s.rescued} by #{s.chosen_robot} (candidates: #{candidates})"
+      else
+        "no robot chosen: the run ended at #{show(s.seconds)} s of arena time " <>
+          "(#{s.steps} steps of 0.05 s), before the rescue; raise --steps (default 2400)"
+      end
+
+    santa =
+      if s.santa_arrived,
+        do: "Santa arrived at #{show(s.santa_arrival_s)} s",
+        else: "Santa did not arrive"
+
+    """
+    #{rescue_line}
+    #{santa} (stopped #{show(s.santa_stopped_s)} s); rescue agent #{s.agent_hops} hops over #{s.hosts_visited} hosts\
+    """
+  end
+
+  defp show(x), do: TartarusTools.CLI.show(x)
 end

@@ -64,7 +64,7 @@ defmodule Mix.Tasks.Tartarus.Bench do
   With `--json` the last line printed is one JSON object; `--out FILE` also writes it to a
   file.
   """
-  use TartarusTools.CLI
+  use TartarusTools.CLI, out: :file
 
   @switches [
     mode: :string,

@@ -36,7 +36,7 @@ defmodule Mix.Tasks.Tartarus.Chaos do
 
       3 lost (3 on killed nodes), 0 duplicated, 0 transient duplicates, 0 acknowledged messages missing: OK
   """
-  use TartarusTools.CLI
+  use TartarusTools.CLI, out: :file
 
   @switches [
     nodes: :integer,

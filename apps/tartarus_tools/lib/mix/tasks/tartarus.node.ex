@@ -73,13 +73,16 @@ defmodule Mix.Tasks.Tartarus.Node do
 
       ELIXIR_ERL_OPTIONS="-connect_all false" mix tartarus.node --name n1 --host h1 --ble /dev/ttyUSB0
 
-  gives the host an HM-10 that a LATS database agent reads (`Tartarus.read_plugin(:h1,
-  :beacon, :counts)` shows what arrived). See `docs/devices.md`.
+  gives the host an HM-10 that a LATS database agent reads: the serial plugin,
+  `Tartarus.Plugin.Serial`, with LATS's decoder of the receiver's answers
+  (`TartarusLats.HM10.Receiver`, which also polls it); `Tartarus.read_plugin(:h1, :beacon,
+  :counts)` shows what arrived. See `docs/devices.md`.
 
   A device path that does not exist is reported at once (`warning: --ble /dev/ttyUSB0: no
   such file`); the plugin is still attached and opens the device when it appears. At start
-  the task lists the plugins it attached (`plugins: beacon (TartarusLats.HM10Plugin)` or
-  `plugins: none`).
+  the task lists the plugins it attached, with a serial plugin's decoder
+  (`plugins: beacon (Tartarus.Plugin.Serial, decoder TartarusLats.HM10.Receiver)` in this
+  repository, or `plugins: none`).
 
   ## TLS
 
@@ -107,7 +110,7 @@ defmodule Mix.Tasks.Tartarus.Node do
   `-connect_all false` keeps nodes from forming a full mesh (they connect only to the nodes
   their hosts talk to); it must be given to the VM at boot, hence `ELIXIR_ERL_OPTIONS`.
   """
-  use TartarusTools.CLI
+  use TartarusTools.CLI, out: false
 
   @impl true
   def run(argv) do
@@ -190,7 +193,10 @@ defmodule Mix.Tasks.Tartarus.Node do
 
   def plugins_line(plugins) do
     "plugins: " <>
-      Enum.map_join(plugins, ", ", fn {name, {module, _}} -> "#{name} (#{inspect(module)})" end)
+      Enum.map_join(plugins, ", ", fn {name, {module, opts}} ->
+        decoder = if opts[:decoder], do: ", decoder #{inspect(opts[:decoder])}", else: ""
+        "#{name} (#{inspect(module)}#{decoder})"
+      end)
   end
 
   @doc false

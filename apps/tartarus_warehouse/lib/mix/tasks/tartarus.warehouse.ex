@@ -6,7 +6,7 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   registry, `TartarusWarehouse.Experiment.experiments/0`, one module each): task agents carry each task's program and are the
   tokens of its resources; robots line up into a clock-less pipeline.
 
-      mix tartarus.warehouse --experiment robots|scaling|otfp|removal|mixed|failover
+      mix tartarus.warehouse [--experiment robots|scaling|otfp|removal|mixed|failover]
                              [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
                              [--sizes 5,10,20,30,45,60] [--scaling-jobs 120|n+20] [--nodes 100]
