@@ -88,7 +88,11 @@ defmodule TartarusEmu.Sweep do
     * `:concurrency` - runs at a time (default: the schedulers online); 1 for runs that
       share something global (a dashboard, peer nodes, fixed host names).
 
-  A run record is `%{arm:, opts:, seed:, summary:, data:, ms:}`.
+  A run record is `%{arm:, opts:, seed:, summary:, data:, ms:}`, plus in virtual time
+  `clock: %{virtual_ms:, fired:, dirty_overlaps:}` (`Tartarus.Clock.Virtual.stats/0`); the
+  summary's `sweep` then carries `replay: %{dirty_overlaps:, runs_with_overlaps:}`: 0 is the
+  witness that no heap was collected on a dirty scheduler while another process could run,
+  the one way known to make a run in virtual time differ when rerun with its seed.
 
   Each run goes in a process of its own, which ends with the run: what must outlive a run
   (a named ETS table used as a memo, a dashboard) is created by the caller before
@@ -171,14 +175,18 @@ defmodule TartarusEmu.Sweep do
 
       summary =
         spec.summary.(partial)
-        |> Map.put(:sweep, %{
-          name: spec.name,
-          seeds: spec.seeds,
-          arms: Enum.map(spec.arms, & &1.name),
-          runs: length(runs),
-          aggregates: aggregates,
-          tests: tests
-        })
+        |> Map.put(
+          :sweep,
+          %{
+            name: spec.name,
+            seeds: spec.seeds,
+            arms: Enum.map(spec.arms, & &1.name),
+            runs: length(runs),
+            aggregates: aggregates,
+            tests: tests
+          }
+          |> Map.merge(replay(runs))
+        )
 
       result = Map.merge(partial, %{summary: summary, out: nil, files: []})
 
@@ -316,7 +324,9 @@ defmodule TartarusEmu.Sweep do
     plan
     |> Task.async_stream(
       fn {arm, seed} ->
-        Tartarus.Clock.Virtual.within(o.time, seed, fn -> run_one(spec.run, arm, seed) end)
+        Tartarus.Clock.Virtual.within(o.time, seed, fn ->
+          spec.run |> run_one(arm, seed) |> with_clock()
+        end)
       end,
       max_concurrency: concurrency,
       ordered: false,
@@ -369,6 +379,31 @@ defmodule TartarusEmu.Sweep do
 
     ms = Clock.machine_time(:millisecond) - t0
     %{arm: arm.name, opts: arm.opts, seed: seed, summary: summary, data: data, ms: ms}
+  end
+
+  # In virtual time, what the clock did (since its install): the run's record gets `clock:`.
+  defp with_clock(run) do
+    case Tartarus.Clock.Virtual.stats() do
+      nil -> run
+      st -> Map.put(run, :clock, Map.take(st, [:virtual_ms, :fired, :dirty_overlaps]))
+    end
+  end
+
+  # Whether the runs in virtual time can be replayed exactly: readings of the clock that saw
+  # a heap collected on a dirty scheduler beside a runnable process (Virtual.stats/0).
+  defp replay(runs) do
+    case for(%{clock: c} <- runs, do: c.dirty_overlaps) do
+      [] ->
+        %{}
+
+      overlaps ->
+        %{
+          replay: %{
+            dirty_overlaps: Enum.sum(overlaps),
+            runs_with_overlaps: Enum.count(overlaps, &(&1 > 0))
+          }
+        }
+    end
   end
 
   defp order_as(runs, plan) do

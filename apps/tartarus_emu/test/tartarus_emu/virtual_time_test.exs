@@ -110,4 +110,31 @@ defmodule TartarusEmu.VirtualTimeTest do
     # The burning really ran: 6 steps of about 1 s on two cores.
     assert wall_busy >= 2_500
   end
+
+  test "a sweep in virtual time says what the clock did per run and whether it can replay" do
+    spec = %{
+      name: "vwalks",
+      arms: [{"two", [agents: 2]}],
+      seeds: 1..2,
+      scenario: TartarusEmu.Walk,
+      base: [topology: "ring", hosts: 6, steps: 20, latency_ms: 5],
+      metrics: [migrations: :migrations]
+    }
+
+    {:ok, r} = TartarusEmu.Sweep.run(spec, out: false, quiet: true, time: :virtual)
+
+    for run <- r.runs do
+      assert %{virtual_ms: v, fired: f, dirty_overlaps: d} = run.clock
+      assert v > 0 and f > 0 and is_integer(d)
+    end
+
+    assert %{dirty_overlaps: total, runs_with_overlaps: n} = r.summary.sweep.replay
+    assert total == Enum.sum(Enum.map(r.runs, & &1.clock.dirty_overlaps))
+    assert n in 0..2
+
+    # In real time there is no clock to report.
+    {:ok, real} = TartarusEmu.Sweep.run(spec, out: false, quiet: true)
+    refute Enum.any?(real.runs, &Map.has_key?(&1, :clock))
+    refute Map.has_key?(real.summary.sweep, :replay)
+  end
 end
