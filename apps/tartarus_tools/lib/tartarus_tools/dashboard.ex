@@ -80,6 +80,17 @@ defmodule TartarusTools.Dashboard do
       type: :pos_integer,
       default: 16,
       doc: "connections served at once from one client address (beyond: 503 and the close)"
+    ],
+    search_rate: [
+      type: :pos_integer,
+      default: 2,
+      doc:
+        "overlay searches per second one client address may start (`GET /api/agents/ID` of an agent not on the hosts shown; beyond: 429)"
+    ],
+    search_miss_ms: [
+      type: :pos_integer,
+      default: 5_000,
+      doc: "ms an id that an overlay search did not find is answered 404 without a new search"
     ]
   ]
 
@@ -141,10 +152,18 @@ defmodule TartarusTools.Dashboard do
   the connection (after discarding at most 2 s or 1 MiB of what the client still sends,
   so that it reads the answer); nothing of a refused body is kept. A connection waits at
   most `:idle_timeout` for a request line and a request takes at most `:request_timeout`
-  from its line to its body's last byte (408, then the close). At most `:max_clients`
-  connections are served at once, at most `:max_per_client` from one address (503 and the
-  close, nothing read). A request line or header line is at most 8 KiB (414, 431), a
-  request has at most 100 header lines.
+  from its line to its body's last byte (408, then the close). At most `:max_per_client`
+  connections are served at once from one address and at most `:max_clients` in all,
+  shared fairly between addresses (a connection from an address holding fewer takes a slot
+  of the address holding the most); beyond, 503 and the close, nothing read. A request
+  line or header line is at most 8 KiB (414, 431), a request has at most 100 header lines,
+  a `Content-Length` is digits alone, a request target's percent-encoding must decode to
+  UTF-8 (400); chunked trailers are read and ignored.
+
+  `GET /api/agents/ID` of an agent not on the hosts shown searches the overlay
+  (`Tartarus.whereis/1`); reads need no token, so a miss is remembered for
+  `:search_miss_ms` and one client address starts at most `:search_rate` searches a second
+  (429 beyond).
   """
 
   use GenServer
@@ -315,6 +334,8 @@ defmodule TartarusTools.Dashboard do
       panels: opts[:panels],
       fleet: fleet,
       max_body: opts[:max_body],
+      search_rate: opts[:search_rate],
+      search_miss_ms: opts[:search_miss_ms],
       cache: :ets.new(:tartarus_dashboard_cache, [:public, :set, read_concurrency: true])
     }
 

@@ -46,7 +46,7 @@ defmodule TartarusTools.Dashboard.Api do
   defp route("GET", ["api", "links"], req, ctx), do: with_query(req, &links(&1, ctx))
   defp route("GET", ["api", "summary"], _req, ctx), do: json(200, summary(ctx))
   defp route("GET", ["api", "agents"], req, ctx), do: with_query(req, &agents(&1, ctx))
-  defp route("GET", ["api", "agents", id], _req, ctx), do: agent_detail(id, ctx)
+  defp route("GET", ["api", "agents", id], req, ctx), do: agent_detail(id, req, ctx)
   defp route("GET", ["api", "events"], req, ctx), do: with_query(req, &events(&1, ctx))
   defp route("GET", ["api", "catalog"], _req, ctx), do: json(200, %{catalog: catalog(ctx)})
   defp route("GET", ["api", "panels"], _req, ctx), do: json(200, %{panels: panels(ctx)})
@@ -310,8 +310,8 @@ defmodule TartarusTools.Dashboard.Api do
     }
   end
 
-  defp agent_detail(id, ctx) do
-    with {:ok, ref} <- agent_ref(id, ctx) do
+  defp agent_detail(id, req, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx), :ok <- search_budget(ref, req, ctx) do
       case Tartarus.agent_info(ref) do
         {:ok, info} ->
           names = names(ctx)
@@ -319,9 +319,51 @@ defmodule TartarusTools.Dashboard.Api do
           json(200, Map.put(view, :id, id))
 
         {:error, reason} ->
+          if is_binary(ref) and reason == :not_found, do: missed(id, ctx)
           error(404, "unknown_agent", "agent #{id}: #{describe(reason)}")
       end
     end
+  end
+
+  # -- what a read may cost the overlay --------------------------------------------------
+
+  # An agent not on the hosts shown is searched for through the overlay (Tartarus.whereis:
+  # one walk that asks each reachable node once, within 2 s). Reads need no token, so what
+  # they may cost the fleet is bounded per client address: an id that a search did not
+  # find is answered 404 without a new search for ctx.search_miss_ms, and an address
+  # starts at most ctx.search_rate searches per second (beyond: 429). Both are kept in
+  # the cache table, old entries swept when new ones are written.
+  defp search_budget(id, req, ctx) when is_binary(id) do
+    now = Clock.machine_time(:millisecond)
+    second = div(now, 1_000)
+
+    case :ets.lookup(ctx.cache, {:missed, id}) do
+      [{_, until}] when now < until ->
+        error(404, "unknown_agent", "agent #{id}: #{describe(:not_found)} (a search less than #{ctx.search_miss_ms} ms ago did not find it)")
+
+      _ ->
+        key = {:searches, Map.get(req, :peer), second}
+
+        case :ets.update_counter(ctx.cache, key, 1, {key, 0}) do
+          1 ->
+            :ets.select_delete(ctx.cache, [{{{:searches, :_, :"$1"}, :_}, [{:<, :"$1", second}], [true]}])
+            :ok
+
+          n when n <= ctx.search_rate ->
+            :ok
+
+          _ ->
+            error(429, "too_many_searches", "agent #{id} is not on the hosts shown here, and this address has started #{ctx.search_rate} searches of the overlay in this second (at most #{ctx.search_rate} a second): try again in a second")
+        end
+    end
+  end
+
+  defp search_budget(_id_on_a_known_host, _req, _ctx), do: :ok
+
+  defp missed(id, ctx) do
+    now = Clock.machine_time(:millisecond)
+    :ets.select_delete(ctx.cache, [{{{:missed, :_}, :"$1"}, [{:<, :"$1", now}], [true]}])
+    :ets.insert(ctx.cache, {{:missed, id}, now + ctx.search_miss_ms})
   end
 
   defp info_value(k, v, names) when k in [:host, :home, :source],

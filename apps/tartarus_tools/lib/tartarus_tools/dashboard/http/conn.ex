@@ -50,14 +50,14 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp serve(sock, conf) do
-    case :inet.sockname(sock) do
-      {:ok, {ip, _}} ->
-        names =
-          MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip), address(conf.bind) | conf.hosts])
-        next(sock, Map.merge(conf, %{names: names, answered: 0}))
+    with {:ok, {ip, _}} <- :inet.sockname(sock),
+         {:ok, {peer, _}} <- :inet.peername(sock) do
+      names =
+        MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip), address(conf.bind) | conf.hosts])
 
-      {:error, _} ->
-        :gen_tcp.close(sock)
+      next(sock, Map.merge(conf, %{names: names, answered: 0, peer: peer}))
+    else
+      {:error, _} -> :gen_tcp.close(sock)
     end
   end
 
@@ -112,7 +112,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
          :ok <- declared_size(framing, c),
          :ok <- continue(sock, req, framing),
          {:ok, body} <- read_body(sock, framing, c.max_body, deadline) do
-      respond(sock, c, %{req | body: body})
+      respond(sock, c, Map.merge(req, %{body: body, peer: c.peer}))
     else
       {:answer, {status, type, body}} -> send_answer(sock, req, status, type, body, framing)
       {:error, status, code, message} -> refuse(sock, status, code, message, framing)
@@ -165,6 +165,10 @@ defmodule TartarusTools.Dashboard.Http.Conn do
                version: version
              }}
 
+          {:error, :encoding} ->
+            {:error, 400, "bad_request",
+             "the request target's percent-encoding is malformed or does not decode to UTF-8"}
+
           :error ->
             {:error, 400, "bad_request", "the request target is not a path"}
         end
@@ -173,17 +177,30 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   defp count(headers, name), do: Enum.count(headers, fn {k, _} -> k == name end)
 
-  defp path_of({:abs_path, uri}), do: {:ok, split_uri(uri)}
-  defp path_of({:absoluteURI, _scheme, _host, _port, uri}), do: {:ok, split_uri(uri)}
+  defp path_of({:abs_path, uri}), do: split_uri(uri)
+  defp path_of({:absoluteURI, _scheme, _host, _port, uri}), do: split_uri(uri)
   defp path_of(_asterisk_or_other), do: :error
 
+  # The path and the query, percent-decoded: {:ok, {path, query}}, or {:error, :encoding}
+  # when a "%" is not followed by two hexadecimal digits or what it decodes to is not UTF-8
+  # (the API's answers quote paths and parameters as JSON strings).
   defp split_uri(uri) do
-    case String.split(uri, "?", parts: 2) do
-      [p, q] -> {URI.decode(p), URI.decode_query(q)}
-      [p] -> {URI.decode(p), %{}}
+    {p, q} =
+      case String.split(uri, "?", parts: 2) do
+        [p, q] -> {p, q}
+        [p] -> {p, ""}
+      end
+
+    if Regex.match?(~r/%(?![0-9A-Fa-f]{2})/, uri) do
+      {:error, :encoding}
+    else
+      path = URI.decode(p)
+      query = URI.decode_query(q)
+
+      if String.valid?(path) and Enum.all?(query, fn {k, v} -> String.valid?(k) and String.valid?(v) end),
+        do: {:ok, {path, query}},
+        else: {:error, :encoding}
     end
-  rescue
-    _ -> {uri, %{}}
   end
 
   # -- the Host and the Origin -------------------------------------------------------------
@@ -245,10 +262,18 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         {:ok, :none}
 
       {nil, length} ->
-        case Integer.parse(String.trim(length)) do
-          {0, ""} -> {:ok, :none}
-          {n, ""} when n > 0 -> {:ok, {:length, n}}
-          _ -> {:error, 400, "bad_request", "Content-Length #{inspect(length)} is not a length"}
+        # Digits only (RFC 9110's 1*DIGIT): no sign, no spaces inside, no list.
+        digits = String.trim(length)
+
+        cond do
+          not Regex.match?(~r/\A[0-9]+\z/, digits) ->
+            {:error, 400, "bad_request", "Content-Length #{inspect(length)} is not a length (digits only)"}
+
+          String.to_integer(digits) == 0 ->
+            {:ok, :none}
+
+          true ->
+            {:ok, {:length, String.to_integer(digits)}}
         end
 
       {coding, nil} ->
@@ -306,7 +331,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   # Chunked: a size line (hex, maybe ";extensions"), that many bytes and CRLF, ... until a
-  # size of 0, then trailer lines up to an empty one. Read line by line (packet: :line,
+  # size of 0, then trailer lines up to an empty one (read and ignored, at most
+  # @max_headers of them). Read line by line (packet: :line,
   # bounded by packet_size) and chunk by chunk (an exact length), never beyond what
   # the limit allows.
   defp chunks(sock, max, deadline, acc, total) do
@@ -333,13 +359,18 @@ defmodule TartarusTools.Dashboard.Http.Conn do
     end
   end
 
-  defp line(sock, deadline) do
+  # A line longer than the socket's buffer (about 1,460 bytes) comes in pieces, each
+  # without the line end: they are joined up to @line_max bytes.
+  defp line(sock, deadline, acc \\ "") do
     case :gen_tcp.recv(sock, 0, left(deadline)) do
-      {:ok, line} ->
-        # A line longer than the socket's buffer comes in pieces: a piece has no line end.
-        if String.ends_with?(line, "\n"),
-          do: {:ok, line},
-          else: {:error, 400, "bad_request", "a chunk line is longer than #{@line_max} bytes"}
+      {:ok, piece} ->
+        line = acc <> piece
+
+        cond do
+          String.ends_with?(line, "\n") -> {:ok, line}
+          byte_size(line) < @line_max -> line(sock, deadline, line)
+          true -> {:error, 400, "bad_request", "a chunk or trailer line is longer than #{@line_max} bytes"}
+        end
 
       {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
       {:error, _} -> :closed
@@ -367,7 +398,12 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   # -- answers -----------------------------------------------------------------------------
 
   defp respond(sock, c, req) do
-    case call_api(req, c.ctx) do
+    # While the API answers, this connection's slot is not given to another address.
+    send(c.server, {:busy, self(), true})
+    answer = call_api(req, c.ctx)
+    send(c.server, {:busy, self(), false})
+
+    case answer do
       :stream -> stream(sock, c.ctx)
       {status, type, body} -> send_answer(sock, req, status, type, body, :read)
     end
@@ -461,6 +497,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
     413 => "Content Too Large",
     414 => "URI Too Long",
     422 => "Unprocessable Content",
+    429 => "Too Many Requests",
     431 => "Request Header Fields Too Large",
     500 => "Internal Server Error",
     501 => "Not Implemented",
