@@ -166,6 +166,12 @@ defmodule Tartarus.ReleaseTest do
       assert out =~
                "running; plugins: temp (Tartarus.Plugin.SimSensor), beacon (Tartarus.Plugin.Serial)"
 
+      # The example's dashboard (the release carries apps/tartarus_dashboard) serves the node.
+      out = await_output(node, ~r{dashboard: http://127\.0\.0\.1:\d+/ .*token}, out, 60_000)
+      [url] = Regex.run(~r{http://127\.0\.0\.1:\d+/}, out)
+      assert {:ok, 200, info} = TartarusDashboard.http_get(url <> "api/info", 10_000)
+      assert Tartarus.JSON.decode!(info)["node"] == name
+
       # The HM-10 answers a scan; the operator's rpc (TLS, its own certificate) reads it.
       beacon = %TartarusLats.Beacon{
         uuid: "74278bdab64445208f0c720eaf059935",
@@ -383,16 +389,20 @@ defmodule Tartarus.ReleaseTest do
     )
   end
 
+  # What the port wrote, up to the first time `pattern` is in it (`acc`: what it wrote before).
   defp await_output(port, pattern, acc, timeout) do
-    receive do
-      {^port, {:data, data}} ->
-        acc = acc <> data
-        if acc =~ pattern, do: acc, else: await_output(port, pattern, acc, timeout)
+    if acc =~ pattern do
+      acc
+    else
+      receive do
+        {^port, {:data, data}} ->
+          await_output(port, pattern, acc <> data, timeout)
 
-      {^port, {:exit_status, s}} ->
-        flunk("the release exited with #{s}:\n#{acc}")
-    after
-      timeout -> flunk("the release did not start:\n#{acc}")
+        {^port, {:exit_status, s}} ->
+          flunk("the release exited with #{s}:\n#{acc}")
+      after
+        timeout -> flunk("the release did not start:\n#{acc}")
+      end
     end
   end
 end

@@ -22,7 +22,7 @@ defmodule TartarusTools.Report do
   All writers create the directory if needed and return the paths written.
   """
 
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @typedoc "One row of an \"ours vs thesis\" table; `:note` is optional."
   @type comparison :: %{metric: term, ours: term, thesis: term}
@@ -90,7 +90,7 @@ defmodule TartarusTools.Report do
   @doc """
   Writes `summary.json` and `summary.md` into `dir`; returns `[json_path, md_path]`.
 
-  `summary` is a map of JSON-encodable values (see `TartarusTools.JSON`). Options:
+  `summary` is a map of JSON-encodable values (see `Tartarus.JSON`). Options:
 
     * `:title` - heading of `summary.md` (default `"Summary"`);
     * `:comparisons` - rows `%{metric:, ours:, thesis:}` (optional `:note`) shown in an

@@ -30,7 +30,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
   agents, steps, mode, strategy, topology, seed, p, migrations, migrations_per_s,
   failed_moves, messages, bytes, energy_mj, wall_ms, coverage, ...` (see `TartarusEmu.Walk`).
 
-  `--dashboard PORT` serves the web dashboard (`TartarusTools.Dashboard`, on 127.0.0.1)
+  `--dashboard PORT` serves the web dashboard (`TartarusDashboard`, on 127.0.0.1)
   while the walk runs and prints its address and action token; `--step-ms MS` pauses
   after each step so that a person can watch (see `docs/dashboard.md`).
 

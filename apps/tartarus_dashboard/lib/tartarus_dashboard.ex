@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard do
+defmodule TartarusDashboard do
   @schema [
     port: [type: :non_neg_integer, default: 0, doc: "TCP port (0: any free port)"],
     bind: [
@@ -18,12 +18,12 @@ defmodule TartarusTools.Dashboard do
     ],
     emulation: [
       type: :any,
-      doc: "`{module, arg}`: a `TartarusTools.Dashboard.Emulation` (hosts, links, link actions)"
+      doc: "`{module, arg}`: a `TartarusDashboard.Emulation` (hosts, links, link actions)"
     ],
     panels: [
       type: :any,
       default: [],
-      doc: "`[{module, arg}]`: `TartarusTools.Dashboard.Panel`s shown below the graph"
+      doc: "`[{module, arg}]`: `TartarusDashboard.Panel`s shown below the graph"
     ],
     batch_ms: [
       type: :pos_integer,
@@ -62,15 +62,18 @@ defmodule TartarusTools.Dashboard do
     health: [
       type: :boolean,
       default: true,
-      doc: "sample this node's health (`TartarusTools.Dashboard.Health`) for the page's charts"
+      doc: "sample this node's health (`TartarusDashboard.Health`) for the page's charts"
     ],
     fleet: [
       type: :boolean,
       default: true,
-      doc:
-        "without an emulation, show every node the overlay reaches (`TartarusTools.Dashboard.Fleet`)"
+      doc: "without an emulation, show every node the overlay reaches (`TartarusDashboard.Fleet`)"
     ],
-    fleet_ttl: [type: :pos_integer, default: 8, doc: "overlay hops the fleet's gather goes at most"],
+    fleet_ttl: [
+      type: :pos_integer,
+      default: 8,
+      doc: "overlay hops the fleet's gather goes at most"
+    ],
     fleet_ms: [
       type: :pos_integer,
       default: 2_000,
@@ -100,9 +103,9 @@ defmodule TartarusTools.Dashboard do
   `:gen_tcp` (no dependency outside OTP). `docs/dashboard.md` is the user guide and documents the JSON
   HTTP API the page uses (programs in any language can drive a node through it).
 
-      {:ok, dash} = TartarusTools.Dashboard.start_link(port: 4040)
-      TartarusTools.Dashboard.url(dash)     # "http://127.0.0.1:4040/"
-      TartarusTools.Dashboard.token(dash)   # what actions need (Authorization: Bearer ...)
+      {:ok, dash} = TartarusDashboard.start_link(port: 4040)
+      TartarusDashboard.url(dash)     # "http://127.0.0.1:4040/"
+      TartarusDashboard.token(dash)   # what actions need (Authorization: Bearer ...)
 
   `mix tartarus.node --dashboard PORT`, `mix tartarus.emu --dashboard PORT` and the
   scenarios' mix tasks (through `TartarusEmu.Scenario`'s `:dashboard` option) start one.
@@ -121,7 +124,7 @@ defmodule TartarusTools.Dashboard do
 
   ## Live updates, and never slowing the platform
 
-  One process (`TartarusTools.Dashboard.Feed`) subscribes to `Tartarus.Events` with a budget:
+  One process (`TartarusDashboard.Feed`) subscribes to `Tartarus.Events` with a budget:
   the platform sends it at most `:max_batch` events per `:batch_ms` and skips the rest
   without a message; the counts per type come from the platform's own count of every event
   (`Tartarus.Events.type_totals/0`), so they are exact. Per event received it does a few map
@@ -139,7 +142,7 @@ defmodule TartarusTools.Dashboard do
   (a wrong one). Request bodies are JSON, at most `:max_body` bytes; decoded JSON never
   creates atoms (hosts, agents and modules are looked up among those that exist).
 
-  The HTTP layer (`TartarusTools.Dashboard.Http`) checks before it reads any body:
+  The HTTP layer (`TartarusDashboard.Http`) checks before it reads any body:
 
     * the `Host` header, and the `Origin` header when sent, must name this dashboard:
       `localhost`, `127.0.0.1`, `[::1]`, the address the client connected to, or one of
@@ -168,7 +171,7 @@ defmodule TartarusTools.Dashboard do
 
   use GenServer
 
-  alias TartarusTools.Dashboard.{Api, Feed, Fleet, Health, Http}
+  alias TartarusDashboard.{Api, Feed, Fleet, Health, Http}
 
   @typedoc "A running dashboard (its process)."
   @type t :: GenServer.server()
@@ -212,7 +215,7 @@ defmodule TartarusTools.Dashboard do
 
   @doc """
   From now on, `stop/1` keeps a dashboard's page (see `stop/1`) rather than stopping it: what
-  `--dashboard-keep` does (`TartarusTools.CLI.parse!/4`).
+  `--dashboard-keep` does (the mix tasks' command-line parser calls it).
   """
   @spec keep_pages() :: :ok
   def keep_pages, do: :persistent_term.put({__MODULE__, :keep_pages}, true)
@@ -281,7 +284,7 @@ defmodule TartarusTools.Dashboard do
   end
 
   defp validate(opts) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusTools.Dashboard"),
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusDashboard"),
          {:ok, token} <- token_of(opts) do
       {:ok, Keyword.put(opts, :token, token)}
     end
@@ -294,7 +297,7 @@ defmodule TartarusTools.Dashboard do
 
       opts[:token] != nil ->
         {:error,
-         "invalid options given to TartarusTools.Dashboard for key [:token]: " <>
+         "invalid options given to TartarusDashboard for key [:token]: " <>
            "expected a string of at least 8 bytes, got: #{inspect(opts[:token])}"}
 
       opts[:token_file] != nil ->

@@ -1,13 +1,11 @@
-defmodule TartarusTools.Dashboard.HttpTest do
+defmodule TartarusDashboard.HttpTest do
   # The dashboard's door, over raw sockets: the token, the Host and the Origin are checked
   # before any body is read; bodies are read with the limit whatever the framing; slow and
   # idle connections are closed; connections per client and in all are bounded.
   use ExUnit.Case, async: false
 
   import Tartarus.TestSupport
-
-  alias TartarusTools.Dashboard
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @token "test-token-0123456789"
 
@@ -19,19 +17,23 @@ defmodule TartarusTools.Dashboard.HttpTest do
   end
 
   defp start(opts) do
-    {:ok, dash} = Dashboard.start_link([token: @token, max_body: 1_024] ++ opts)
+    {:ok, dash} = TartarusDashboard.start_link([token: @token, max_body: 1_024] ++ opts)
     dash
   end
 
   # From 127.0.0.1, or another loopback address (a client of its own for the server).
   defp connect(dash, from \\ {127, 0, 0, 1}) do
     {:ok, sock} =
-      :gen_tcp.connect(~c"127.0.0.1", Dashboard.port(dash), [:binary, active: false, ip: from])
+      :gen_tcp.connect(~c"127.0.0.1", TartarusDashboard.port(dash), [
+        :binary,
+        active: false,
+        ip: from
+      ])
 
     sock
   end
 
-  defp host(dash), do: "127.0.0.1:#{Dashboard.port(dash)}"
+  defp host(dash), do: "127.0.0.1:#{TartarusDashboard.port(dash)}"
 
   # One answer: {status, headers (lower-case names), body}; reads exactly its length.
   defp answer(sock) do
@@ -124,7 +126,12 @@ defmodule TartarusTools.Dashboard.HttpTest do
         )
 
       mb = chunk(:binary.copy("x", 1_048_576))
-      sent = Enum.reduce_while(1..100, 0, fn _, n -> if :gen_tcp.send(sock, mb) == :ok, do: {:cont, n + 1}, else: {:halt, n} end)
+
+      sent =
+        Enum.reduce_while(1..100, 0, fn _, n ->
+          if :gen_tcp.send(sock, mb) == :ok, do: {:cont, n + 1}, else: {:halt, n}
+        end)
+
       _ = :gen_tcp.send(sock, "0\r\n\r\n")
 
       answer =
@@ -134,6 +141,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
         end
 
       send(sampler, {:stop, self()})
+
       peak =
         receive do
           {:peak, p} -> p
@@ -251,7 +259,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
       # answer; the server goes on serving. A chunk line over 8 KiB gets a 400.
       for request <- [
             "GET /#{String.duplicate("a", 10_000)} HTTP/1.1\r\nHost: #{h}\r\n\r\n",
-            "GET / HTTP/1.1\r\nHost: #{h}\r\nX-Big: #{String.duplicate("a", 10_000)}\r\n\r\n",
+            "GET / HTTP/1.1\r\nHost: #{h}\r\nX-Big: #{String.duplicate("a", 10_000)}\r\n\r\n"
           ] do
         sock = connect(dash)
         :ok = :gen_tcp.send(sock, request)
@@ -278,7 +286,10 @@ defmodule TartarusTools.Dashboard.HttpTest do
       dash = start([])
       sock = connect(dash)
       many = for i <- 1..101, do: "X-H#{i}: 1\r\n"
-      :ok = :gen_tcp.send(sock, ["GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n", many, "\r\n"])
+
+      :ok =
+        :gen_tcp.send(sock, ["GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n", many, "\r\n"])
+
       assert {431, _, %{"error" => "too_many_headers"}} = answer(sock)
       assert closed?(sock)
     end
@@ -295,7 +306,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
 
     test "a foreign Host (DNS rebinding) or Origin is refused; this dashboard's names are served" do
       dash = start(hosts: ["Dash.Example"])
-      port = Dashboard.port(dash)
+      port = TartarusDashboard.port(dash)
 
       assert {403, %{"error" => "bad_host", "message" => m}} =
                get_with(dash, "Host: evil.example:#{port}\r\n")
@@ -306,7 +317,10 @@ defmodule TartarusTools.Dashboard.HttpTest do
       assert {400, %{"error" => "bad_request"}} = get_with(dash, "")
 
       assert {403, %{"error" => "bad_origin"}} =
-               get_with(dash, "Host: 127.0.0.1:#{port}\r\nOrigin: http://evil.example:#{port}\r\n")
+               get_with(
+                 dash,
+                 "Host: 127.0.0.1:#{port}\r\nOrigin: http://evil.example:#{port}\r\n"
+               )
 
       assert {403, %{"error" => "bad_origin"}} =
                get_with(dash, "Host: 127.0.0.1:#{port}\r\nOrigin: null\r\n")
@@ -424,7 +438,13 @@ defmodule TartarusTools.Dashboard.HttpTest do
     test "a malformed or non-UTF-8 percent-encoding gets 400; a good one is decoded" do
       dash = start([])
 
-      for target <- ["/%ff%fe", "/api/agents/%zz", "/api/%", "/api/info?x=%e2%28", "/api/info?a%=1"] do
+      for target <- [
+            "/%ff%fe",
+            "/api/agents/%zz",
+            "/api/%",
+            "/api/info?x=%e2%28",
+            "/api/info?a%=1"
+          ] do
         sock = connect(dash)
         :ok = :gen_tcp.send(sock, "GET #{target} HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
         assert {400, _, %{"error" => "bad_request", "message" => m}} = answer(sock), target
@@ -432,7 +452,10 @@ defmodule TartarusTools.Dashboard.HttpTest do
       end
 
       sock = connect(dash)
-      :ok = :gen_tcp.send(sock, "GET /api/%69nfo?x=%C3%A9 HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+
+      :ok =
+        :gen_tcp.send(sock, "GET /api/%69nfo?x=%C3%A9 HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+
       assert {200, _, %{"node" => _}} = answer(sock)
     end
 
@@ -562,7 +585,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
     end
   end
 
-  defp connections(dash), do: TartarusTools.Dashboard.Http.connections(:sys.get_state(dash).http)
+  defp connections(dash), do: TartarusDashboard.Http.connections(:sys.get_state(dash).http)
 
   defp await_connections(dash, n) do
     eventually(fn -> connections(dash).total == n end)

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Http do
+defmodule TartarusDashboard.Http do
   @moduledoc false
   # The dashboard's HTTP/1.1 server, on :gen_tcp alone (OTP's :inets httpd reads a whole
   # body before its callback runs, and ignores its length limit for chunked bodies).
@@ -13,15 +13,15 @@ defmodule TartarusTools.Dashboard.Http do
   # address keeps at least its share (max_clients / addresses, rounded down). A
   # connection refused all the same gets a 503 and is closed at once, before anything of
   # its request is read. An admitted connection gets its own process (linked, counted
-  # until it ends), TartarusTools.Dashboard.Http.Conn, which reads requests with limits
+  # until it ends), TartarusDashboard.Http.Conn, which reads requests with limits
   # and time bounds, checks the Host, the Origin and the token before any body, and
-  # answers through TartarusTools.Dashboard.Api; it says here when it enters and leaves an
+  # answers through TartarusDashboard.Api; it says here when it enters and leaves an
   # API call ({:busy, pid, boolean}), so that a slot is never taken from a request being
   # answered.
 
   use GenServer
 
-  alias TartarusTools.Dashboard.Http.Conn
+  alias TartarusDashboard.Http.Conn
 
   # A request line or a header line longer than this is refused (414, 431).
   @line_max Conn.line_max()
@@ -86,7 +86,14 @@ defmodule TartarusTools.Dashboard.Http do
         conf = Map.put(conf, :server, self())
 
         {:ok,
-         %{listen: listen, acceptor: acceptor, conf: conf, conns: %{}, per_client: %{}, busy: MapSet.new()}}
+         %{
+           listen: listen,
+           acceptor: acceptor,
+           conf: conf,
+           conns: %{},
+           per_client: %{},
+           busy: MapSet.new()
+         }}
 
       {:error, :eaddrinuse} ->
         {:stop, "dashboard: port #{conf.port} is in use"}

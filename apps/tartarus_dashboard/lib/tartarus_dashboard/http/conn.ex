@@ -1,6 +1,6 @@
-defmodule TartarusTools.Dashboard.Http.Conn do
+defmodule TartarusDashboard.Http.Conn do
   @moduledoc false
-  # One HTTP/1.1 connection of the dashboard (started by TartarusTools.Dashboard.Http), in
+  # One HTTP/1.1 connection of the dashboard (started by TartarusDashboard.Http), in
   # its own process. Per request, in this order:
   #
   #   1. the request line, within :idle_timeout of the connection's start or of the last
@@ -15,18 +15,18 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   #   5. what needs no body: an action needs the token (401, 403);
   #   6. a declared length above :max_body is refused (413);
   #   7. the body, read with the limit whatever the framing (413 as soon as a chunk goes
-  #      over), then TartarusTools.Dashboard.Api answers.
+  #      over), then TartarusDashboard.Api answers.
   #
   # An answer before the body was read is sent with "Connection: close"; the connection
   # then shuts its side, discards what the client still sends (at most @linger_bytes or
   # @linger_ms, so that the client reads the answer rather than a reset) and closes.
   # Nothing of a refused body is kept: memory per connection is bounded by :max_body.
 
-  alias TartarusTools.Dashboard.{Api, Feed}
+  alias TartarusDashboard.{Api, Feed}
   alias Tartarus.Clock
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
-  alias TartarusTools.JSON
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
+  alias Tartarus.JSON
 
   # The longest request, header or chunk line (the listening socket's packet_size).
   @line_max 8_192
@@ -53,7 +53,13 @@ defmodule TartarusTools.Dashboard.Http.Conn do
     with {:ok, {ip, _}} <- :inet.sockname(sock),
          {:ok, {peer, _}} <- :inet.peername(sock) do
       names =
-        MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip), address(conf.bind) | conf.hosts])
+        MapSet.new([
+          "localhost",
+          "127.0.0.1",
+          "[::1]",
+          address(ip),
+          address(conf.bind) | conf.hosts
+        ])
 
       next(sock, Map.merge(conf, %{names: names, answered: 0, peer: peer}))
     else
@@ -80,7 +86,13 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         refuse(sock, 400, "bad_request", "the request line is not HTTP/1.1", :unread)
 
       {:error, :timeout} when c.answered == 0 ->
-        refuse(sock, 408, "request_timeout", "no request line within #{c.idle_timeout} ms", :unread)
+        refuse(
+          sock,
+          408,
+          "request_timeout",
+          "no request line within #{c.idle_timeout} ms",
+          :unread
+        )
 
       {:error, _timeout_closed_or_line_too_long} ->
         :gen_tcp.close(sock)
@@ -143,7 +155,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp build(method, target, version, headers) do
-    dups = for name <- ~w(host content-length transfer-encoding), count(headers, name) > 1, do: name
+    dups =
+      for name <- ~w(host content-length transfer-encoding), count(headers, name) > 1, do: name
 
     cond do
       version not in [{1, 0}, {1, 1}] ->
@@ -197,9 +210,10 @@ defmodule TartarusTools.Dashboard.Http.Conn do
       path = URI.decode(p)
       query = URI.decode_query(q)
 
-      if String.valid?(path) and Enum.all?(query, fn {k, v} -> String.valid?(k) and String.valid?(v) end),
-        do: {:ok, {path, query}},
-        else: {:error, :encoding}
+      if String.valid?(path) and
+           Enum.all?(query, fn {k, v} -> String.valid?(k) and String.valid?(v) end),
+         do: {:ok, {path, query}},
+         else: {:error, :encoding}
     end
   end
 
@@ -267,7 +281,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
         cond do
           not Regex.match?(~r/\A[0-9]+\z/, digits) ->
-            {:error, 400, "bad_request", "Content-Length #{inspect(length)} is not a length (digits only)"}
+            {:error, 400, "bad_request",
+             "Content-Length #{inspect(length)} is not a length (digits only)"}
 
           String.to_integer(digits) == 0 ->
             {:ok, :none}
@@ -284,7 +299,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
              "Transfer-Encoding #{inspect(coding)} is not served (only chunked)"}
 
       {_, _} ->
-        {:error, 400, "bad_request", "a request cannot have both Transfer-Encoding and Content-Length"}
+        {:error, 400, "bad_request",
+         "a request cannot have both Transfer-Encoding and Content-Length"}
     end
   end
 
@@ -296,7 +312,9 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp declared_size({:length, n}, c) when n > c.max_body,
-    do: {:error, 413, "body_too_large", "the request body has #{n} bytes; at most #{c.max_body} are accepted"}
+    do:
+      {:error, 413, "body_too_large",
+       "the request body has #{n} bytes; at most #{c.max_body} are accepted"}
 
   defp declared_size(_framing, _c), do: :ok
 
@@ -324,9 +342,14 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   defp body_recv(sock, n, deadline) do
     case :gen_tcp.recv(sock, n, left(deadline)) do
-      {:ok, data} -> {:ok, data}
-      {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
-      {:error, _} -> :closed
+      {:ok, data} ->
+        {:ok, data}
+
+      {:error, :timeout} ->
+        {:error, 408, "request_timeout", "the request's body did not arrive in time"}
+
+      {:error, _} ->
+        :closed
     end
   end
 
@@ -342,18 +365,25 @@ defmodule TartarusTools.Dashboard.Http.Conn do
          {:ok, size} <- chunk_size(line) do
       cond do
         size == 0 ->
-          with :ok <- trailers(sock, deadline, 0), do: {:ok, IO.iodata_to_binary(Enum.reverse(acc))}
+          with :ok <- trailers(sock, deadline, 0),
+               do: {:ok, IO.iodata_to_binary(Enum.reverse(acc))}
 
         total + size > max ->
-          {:error, 413, "body_too_large", "the request body is over #{max} bytes; at most #{max} are accepted"}
+          {:error, 413, "body_too_large",
+           "the request body is over #{max} bytes; at most #{max} are accepted"}
 
         true ->
           :ok = :inet.setopts(sock, packet: :raw)
 
           case body_recv(sock, size + 2, deadline) do
-            {:ok, <<data::binary-size(size), "\r\n">>} -> chunks(sock, max, deadline, [data | acc], total + size)
-            {:ok, _} -> {:error, 400, "bad_request", "a chunk does not end with CRLF"}
-            other -> other
+            {:ok, <<data::binary-size(size), "\r\n">>} ->
+              chunks(sock, max, deadline, [data | acc], total + size)
+
+            {:ok, _} ->
+              {:error, 400, "bad_request", "a chunk does not end with CRLF"}
+
+            other ->
+              other
           end
       end
     end
@@ -367,13 +397,22 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         line = acc <> piece
 
         cond do
-          String.ends_with?(line, "\n") -> {:ok, line}
-          byte_size(line) < @line_max -> line(sock, deadline, line)
-          true -> {:error, 400, "bad_request", "a chunk or trailer line is longer than #{@line_max} bytes"}
+          String.ends_with?(line, "\n") ->
+            {:ok, line}
+
+          byte_size(line) < @line_max ->
+            line(sock, deadline, line)
+
+          true ->
+            {:error, 400, "bad_request",
+             "a chunk or trailer line is longer than #{@line_max} bytes"}
         end
 
-      {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
-      {:error, _} -> :closed
+      {:error, :timeout} ->
+        {:error, 408, "request_timeout", "the request's body did not arrive in time"}
+
+      {:error, _} ->
+        :closed
     end
   end
 
