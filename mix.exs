@@ -17,9 +17,12 @@ defmodule TartarusUmbrella.MixProject do
   # from a file (config/runtime.exs, rel/env.sh.eex; see docs/devices.md). With
   # TARTARUS_RELEASE_ERTS=false the release carries no ERTS and runs on any machine with a
   # matching Erlang/OTP (e.g. Debian's on a Pi); TARTARUS_RELEASE_LATS=false leaves LATS's
-  # device side (the HM-10 BLE receiver, the database agent, the queries) out;
-  # TARTARUS_RELEASE_DASHBOARD=true brings the dashboard in, with the tooling app it lives in
-  # (benchmarks, chaos, SVG: the lab, which scripts/check-layers keeps out of the default).
+  # device side (the HM-10 BLE receiver, the database agent, the queries) out, and
+  # TARTARUS_RELEASE_DASHBOARD=false the web dashboard (apps/tartarus_dashboard, on the
+  # platform alone; it serves only when the node's file says `dashboard:`).
+  # TARTARUS_RELEASE_TOOLS=true adds the tooling app (benchmarks, chaos, SVG: the lab) for
+  # the namespace bed alone, whose test (d) runs the chaos harness's agent on release nodes;
+  # scripts/check-layers keeps the lab out of the default build.
   defp release do
     [
       applications: release_apps(),
@@ -37,11 +40,16 @@ defmodule TartarusUmbrella.MixProject do
         else: [tartarus_lats_device: :permanent]
 
     dashboard =
-      if System.get_env("TARTARUS_RELEASE_DASHBOARD") == "true",
+      if System.get_env("TARTARUS_RELEASE_DASHBOARD") == "false",
+        do: [],
+        else: [tartarus_dashboard: :permanent]
+
+    tools =
+      if System.get_env("TARTARUS_RELEASE_TOOLS") == "true",
         do: [tartarus_tools: :permanent],
         else: []
 
-    [tartarus_node: :permanent] ++ lats ++ dashboard
+    [tartarus_node: :permanent] ++ lats ++ dashboard ++ tools
   end
 
   # `mix test` runs every app's unit tests, then the top-level multi-node tests in test/
@@ -53,7 +61,14 @@ defmodule TartarusUmbrella.MixProject do
   defp top_level_tests(args) do
     Mix.Task.run("compile", [])
 
-    for app <- [:tartarus, :tartarus_tools, :tartarus_emu, :tartarus_lats, :tartarus_warehouse] do
+    for app <- [
+          :tartarus,
+          :tartarus_dashboard,
+          :tartarus_tools,
+          :tartarus_emu,
+          :tartarus_lats,
+          :tartarus_warehouse
+        ] do
       {:ok, _} = Application.ensure_all_started(app)
     end
 

@@ -264,8 +264,8 @@ defmodule TartarusCLIConventionsTest do
     # From a shell (see shell/1); stdout alone: the JSON is its last line.
     {stdout, 0} = System.cmd("mix", ["tartarus.emu" | argv], env: [{"MIX_ENV", "test"}])
     json = stdout |> String.split("\n", trim: true) |> List.last()
-    summary = TartarusTools.JSON.decode!(json)
-    from_file = out |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+    summary = Tartarus.JSON.decode!(json)
+    from_file = out |> Path.join("summary.json") |> File.read!() |> Tartarus.JSON.decode!()
 
     for p <- [summary["provenance"], from_file["provenance"]] do
       assert Enum.sort(Map.keys(p)) == ~w(argv date elixir git_commit git_dirty machine otp)

@@ -9,8 +9,8 @@ defmodule Tartarus.DashboardFleetBrowserTest do
 
   import Tartarus.TestSupport
 
-  alias TartarusTools.Dashboard.Browser
-  alias TartarusTools.JSON
+  alias TartarusTools.Browser
+  alias Tartarus.JSON
 
   @moduletag :peer
   @moduletag :browser
@@ -57,8 +57,8 @@ defmodule Tartarus.DashboardFleetBrowserTest do
     {:ok, courier} =
       :erpc.call(c, Tartarus, :create_mobile_agent, [h3, echo, nil, [name: "courier"]])
 
-    {:ok, dash} = :erpc.call(a, TartarusTools.Dashboard, :start, [[token: @token]])
-    url = TartarusTools.Dashboard.url(dash)
+    {:ok, dash} = :erpc.call(a, TartarusDashboard, :start, [[token: @token]])
+    url = TartarusDashboard.url(dash)
     {:ok, br} = Browser.start(width: 1400, height: 1100)
     on_exit(fn -> Browser.stop(br) end)
     :ok = Browser.open(br, url)
@@ -120,7 +120,7 @@ defmodule Tartarus.DashboardFleetBrowserTest do
 
     refute nc in :erpc.call(a, Node, :list, [])
 
-    {:ok, 200, body} = TartarusTools.Dashboard.http_get(ctx.url <> "api/fleet")
+    {:ok, 200, body} = TartarusDashboard.http_get(ctx.url <> "api/fleet")
     fleet = JSON.decode!(body)
 
     assert Enum.find(fleet["nodes"], &(&1["node"] == "#{nc}"))["path"] == [

@@ -7,13 +7,13 @@ defmodule TartarusEmu.DashboardPeerTest do
   import Tartarus.TestSupport
 
   alias TartarusEmu.{Network, Topology}
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @moduletag :peer
   @moduletag timeout: 300_000
 
   defp get(url, path) do
-    {:ok, 200, body} = TartarusTools.Dashboard.http_get(url <> path)
+    {:ok, 200, body} = TartarusDashboard.http_get(url <> path)
     JSON.decode!(body)
   end
 
@@ -22,7 +22,7 @@ defmodule TartarusEmu.DashboardPeerTest do
 
     try do
       {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
-      url = TartarusTools.Dashboard.url(dash)
+      url = TartarusDashboard.url(dash)
 
       %{"hosts" => hosts} = get(url, "api/hosts")
       assert Enum.map(hosts, & &1["id"]) == ~w(h1 h2 h3)
@@ -42,7 +42,7 @@ defmodule TartarusEmu.DashboardPeerTest do
       assert [%{"host" => "h2", "from" => "h1"}] = eventually(arrived, 10_000)
 
       assert %{"agents" => [%{"id" => ^id, "host" => "h2"}]} = get(url, "api/agents?host=h2")
-      TartarusTools.Dashboard.stop(dash)
+      TartarusDashboard.stop(dash)
     after
       Network.stop(net)
     end

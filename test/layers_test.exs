@@ -13,10 +13,12 @@ defmodule Tartarus.LayersTest do
     )
   end
 
-  test "the release and the firmware carry no lab; a release with the tooling app is refused" do
+  test "the release and the firmware carry no lab (the dashboard is no lab); a release with the tooling app is refused" do
     {out, status} = check([])
     assert status == 0, out
     assert out =~ "the release (" and out =~ "tartarus_lats_device, tartarus_node)"
+    # The dashboard is a device app (on the platform alone): in the release, not an offence.
+    assert out =~ "tartarus, tartarus_dashboard, tartarus_lats_device"
     refute out =~ "tartarus_emu"
 
     {out, status} = check(["--release-apps", "tartarus_node,tartarus_lats"])

@@ -181,6 +181,12 @@ defmodule Tartarus.ReleaseTest do
       assert out =~
                "running; plugins: temp (Tartarus.Plugin.SimSensor), beacon (Tartarus.Plugin.Serial)"
 
+      # The example's dashboard (the release carries apps/tartarus_dashboard) serves the node.
+      out = await_output(node, ~r{dashboard: http://127\.0\.0\.1:\d+/ .*token}, out, 60_000)
+      [url] = Regex.run(~r{http://127\.0\.0\.1:\d+/}, out)
+      assert {:ok, 200, info} = TartarusDashboard.http_get(url <> "api/info", 10_000)
+      assert Tartarus.JSON.decode!(info)["node"] == name
+
       # The HM-10 answers a scan; the operator's rpc (TLS, its own certificate) reads it.
       hear(socat)
       tag = TartarusLats.Beacon.tag_id(beacon())

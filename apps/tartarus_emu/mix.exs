@@ -12,7 +12,11 @@ defmodule TartarusEmu.MixProject do
       elixir: "~> 1.14",
       elixirc_paths: elixirc_paths(Mix.env()),
       start_permanent: Mix.env() == :prod,
-      deps: [{:tartarus, in_umbrella: true}, {:tartarus_tools, in_umbrella: true}]
+      deps: [
+        {:tartarus, in_umbrella: true},
+        {:tartarus_dashboard, in_umbrella: true},
+        {:tartarus_tools, in_umbrella: true}
+      ]
     ]
   end
 

@@ -14,6 +14,7 @@ defmodule TartarusLats.MixProject do
       start_permanent: Mix.env() == :prod,
       deps: [
         {:tartarus, in_umbrella: true},
+        {:tartarus_dashboard, in_umbrella: true},
         {:tartarus_lats_device, in_umbrella: true},
         {:tartarus_tools, in_umbrella: true},
         {:tartarus_emu, in_umbrella: true}

@@ -15,7 +15,7 @@ defmodule TartarusNode.MixProject do
       lockfile: "../../mix.lock",
       elixir: "~> 1.14",
       start_permanent: Mix.env() == :prod,
-      # The platform alone: the dashboard (the tooling app's) and LATS's device side are
+      # The platform alone: the dashboard (its own app) and LATS's device side are
       # found at run time when the release carries them (Tartarus.Provides).
       deps: [{:tartarus, in_umbrella: true}]
     ]

@@ -13,6 +13,7 @@ defmodule TartarusRoadblock.MixProject do
       start_permanent: Mix.env() == :prod,
       deps: [
         {:tartarus, in_umbrella: true},
+        {:tartarus_dashboard, in_umbrella: true},
         {:tartarus_tools, in_umbrella: true},
         {:tartarus_emu, in_umbrella: true},
         {:tartarus_arena, in_umbrella: true}

@@ -2,9 +2,10 @@ defmodule TartarusTools.MixProject do
   use Mix.Project
 
   # Experiment tooling beside the platform: benchmarks, the chaos harness, the demo, peer
-  # nodes for tests and emulation, CLI helpers, JSON, CSV/summary reports and SVG plots, and
-  # the mix tasks that drive them. A node (a Pi's firmware) needs none of it: it depends on
-  # the `tartarus` app alone.
+  # nodes for tests and emulation, CLI helpers, a headless browser for the dashboard's page
+  # tests, CSV/summary reports and SVG plots, and the mix tasks that drive them (the
+  # dashboard itself is apps/tartarus_dashboard, which `mix tartarus.node --dashboard`
+  # starts). A node (a Pi's firmware, the release) needs none of it.
   def project do
     [
       app: :tartarus_tools,
@@ -15,19 +16,14 @@ defmodule TartarusTools.MixProject do
       lockfile: "../../mix.lock",
       elixir: "~> 1.14",
       start_permanent: Mix.env() == :prod,
-      deps: [{:tartarus, in_umbrella: true}]
+      deps: [{:tartarus, in_umbrella: true}, {:tartarus_dashboard, in_umbrella: true}]
     ]
   end
 
   def application do
     [
       extra_applications: [:logger, :tools, :inets],
-      # tartarus_dashboard: the dashboard a node's `dashboard:` setting starts
-      # (Tartarus.Provides; TartarusNode.Boot).
-      env: [
-        tartarus_demo: [TartarusTools.Demo.Platform],
-        tartarus_dashboard: TartarusTools.Dashboard
-      ]
+      env: [tartarus_demo: [TartarusTools.Demo.Platform]]
     ]
   end
 end

@@ -16,7 +16,8 @@
 # and where each agents' curve crosses the central one, as JSON.
 [dir] = System.argv()
 
-alias TartarusTools.{JSON, Stats, SVG}
+alias Tartarus.JSON
+alias TartarusTools.{Stats, SVG}
 alias TartarusWarehouse.Experiment.Scaling
 
 read = fn name ->

@@ -17,7 +17,8 @@
 # output directory) for each run of the queue: judged-S, map-L<L>-k<k>-S<S>-<seed>, guided-S.
 [dir] = System.argv()
 
-alias TartarusTools.{JSON, Stats, SVG}
+alias Tartarus.JSON
+alias TartarusTools.{Stats, SVG}
 alias TartarusWarehouse.Experiment.Scaling
 
 sizes = [5, 10, 20, 30, 40, 50, 60]

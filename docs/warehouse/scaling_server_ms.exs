@@ -24,7 +24,7 @@ end
 
 runs = fn s ->
   for seed <- 1..3 do
-    dir |> Path.join("s#{s}-r#{seed}/summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+    dir |> Path.join("s#{s}-r#{seed}/summary.json") |> File.read!() |> Tartarus.JSON.decode!()
   end
 end
 

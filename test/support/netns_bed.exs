@@ -23,9 +23,9 @@ defmodule Tartarus.NetnsBed do
   Builds the release once per test run (`MIX_ENV=prod mix release --overwrite`) and returns
   `{root, seconds}` (seconds of this call; 0 when already built by this run).
 
-  `variant` `:default` is the release as shipped (no lab application); `:dashboard` is the
-  one built with `TARTARUS_RELEASE_DASHBOARD=true` (the tooling app too, into
-  `_build/prod/rel/tartarus_dashboard`): the bed's nodes run it, since test (d)'s agent is
+  `variant` `:default` is the release as shipped (the dashboard, no lab application);
+  `:tools` is the one built with `TARTARUS_RELEASE_TOOLS=true` (the tooling app too, into
+  `_build/prod/rel/tartarus_tools`): the bed's nodes run it, since test (d)'s agent is
   the chaos harness's (`TartarusTools.Chaos.Counter`), which a node restarted from its data
   directory must find on its code path.
   """
@@ -33,15 +33,15 @@ defmodule Tartarus.NetnsBed do
     case :persistent_term.get({__MODULE__, :release, variant}, nil) do
       nil ->
         t0 = System.monotonic_time(:millisecond)
-        rel = if variant == :dashboard, do: @rel <> "_dashboard", else: @rel
+        rel = if variant == :tools, do: @rel <> "_tools", else: @rel
         # A release built before with other applications keeps their directories under
         # lib/ (--overwrite replaces, it does not remove): start from none.
         File.rm_rf!(Path.expand(rel))
-        dashboard = if variant == :dashboard, do: "true", else: "false"
+        tools = if variant == :tools, do: "true", else: "false"
 
         {out, status} =
           System.cmd("mix", ["release", "--overwrite", "--quiet", "--path", rel],
-            env: [{"MIX_ENV", "prod"}, {"TARTARUS_RELEASE_DASHBOARD", dashboard}],
+            env: [{"MIX_ENV", "prod"}, {"TARTARUS_RELEASE_TOOLS", tools}],
             stderr_to_stdout: true
           )
 
@@ -92,7 +92,7 @@ defmodule Tartarus.NetnsBed do
   them); starts the control node. Returns the bed.
   """
   def create!(bed) do
-    {root, _} = build_release!(:dashboard)
+    {root, _} = build_release!(:tools)
     File.mkdir_p!(bed.dir)
     ip!(["link", "add", bed.bridge, "type", "bridge"])
     ip!(["link", "set", bed.bridge, "up"])

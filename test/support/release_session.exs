@@ -182,15 +182,18 @@ defmodule Tartarus.ReleaseSession do
 
   @doc "Waits (up to `timeout` ms) until the release on `port` printed `pattern`; returns its output."
   def await_output(port, pattern, acc, timeout) do
-    receive do
-      {^port, {:data, data}} ->
-        acc = acc <> data
-        if acc =~ pattern, do: acc, else: await_output(port, pattern, acc, timeout)
+    if acc =~ pattern do
+      acc
+    else
+      receive do
+        {^port, {:data, data}} ->
+          await_output(port, pattern, acc <> data, timeout)
 
-      {^port, {:exit_status, s}} ->
-        flunk("the release exited with #{s}:\n#{acc}")
-    after
-      timeout -> flunk("the release did not start:\n#{acc}")
+        {^port, {:exit_status, s}} ->
+          flunk("the release exited with #{s}:\n#{acc}")
+      after
+        timeout -> flunk("the release did not start:\n#{acc}")
+      end
     end
   end
 end

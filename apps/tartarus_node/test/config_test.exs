@@ -119,8 +119,8 @@ defmodule TartarusNode.ConfigTest do
     assert opts[:decoder] == TartarusLats.HM10.Receiver and opts[:device] == "/dev/null"
   end
 
-  test "the dashboard is the one an application provides (the tooling app's here)" do
-    assert Config.dashboard_module() == {:ok, TartarusTools.Dashboard}
+  test "the dashboard is the one an application provides (the dashboard app here)" do
+    assert Config.dashboard_module() == {:ok, TartarusDashboard}
     assert {:ok, c} = Config.check(node: "a@b.c", cookie: "c", dashboard: [port: 0])
     assert c.dashboard[:port] == 0
   end

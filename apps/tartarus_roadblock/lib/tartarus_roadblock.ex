@@ -59,7 +59,7 @@ defmodule TartarusRoadblock do
     dashboard: [
       type: :any,
       doc:
-        "serve the web dashboard on this port (127.0.0.1) while the run goes, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`), with the roadblock panel (`TartarusRoadblock.Panel`: the snapshot, and a button that releases the rescue agent)"
+        "serve the web dashboard on this port (127.0.0.1) while the run goes, or dashboard options (`port:`, `token:`, ... of `TartarusDashboard`), with the roadblock panel (`TartarusRoadblock.Panel`: the snapshot, and a button that releases the rescue agent)"
     ]
   ]
 

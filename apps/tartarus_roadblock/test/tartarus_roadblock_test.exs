@@ -48,7 +48,7 @@ defmodule TartarusRoadblockTest do
     {:ok, {{_, 200, _}, _, body}} =
       :httpc.request(:post, req, [timeout: 30_000], body_format: :binary)
 
-    assert %{"ok" => true, "result" => agent} = TartarusTools.JSON.decode!(body)
+    assert %{"ok" => true, "result" => agent} = Tartarus.JSON.decode!(body)
     assert is_binary(agent)
 
     {:ok, %{summary: s}} = TartarusRoadblock.await()
@@ -161,9 +161,9 @@ defmodule TartarusRoadblockTest do
   end
 
   defp first_panel(url) do
-    case TartarusTools.Dashboard.http_get(url, 5_000) do
+    case TartarusDashboard.http_get(url, 5_000) do
       {:ok, 200, body} ->
-        body |> TartarusTools.JSON.decode!() |> Map.get("panels") |> List.first()
+        body |> Tartarus.JSON.decode!() |> Map.get("panels") |> List.first()
 
       _ ->
         nil

@@ -306,17 +306,7 @@ defmodule Tartarus.Clock do
         tag = Macro.var(:clock_tag, __MODULE__)
         t = Macro.var(:clock_timeout, __MODULE__)
 
-        wrapped =
-          Enum.map(List.wrap(clauses), fn {:->, meta, [args, body]} ->
-            {:->, meta,
-             [
-               args,
-               quote do
-                 Tartarus.Clock.__done__(unquote(timer), unquote(tag))
-                 unquote(body)
-               end
-             ]}
-          end)
+        wrapped = __wrap__(clauses, Tartarus.Clock, timer, tag)
 
         timeout_clause =
           quote do
@@ -341,6 +331,17 @@ defmodule Tartarus.Clock do
           end
         end
     end
+  end
+
+  @doc false
+  # For the receive macros (this module's, Tartarus.MachineClock's), at compile time: each
+  # of the caller's clauses first calls `module.__done__(timer, tag)` (the timer goes),
+  # then runs its body.
+  def __wrap__(clauses, module, timer, tag) do
+    Enum.map(List.wrap(clauses), fn {:->, meta, [args, body]} ->
+      done = quote do: unquote(module).__done__(unquote(timer), unquote(tag))
+      {:->, meta, [args, {:__block__, [], [done, body]}]}
+    end)
   end
 
   @doc false

@@ -6,7 +6,7 @@ defmodule Tartarus.Provides do
     * `tartarus_ble_plugin: {module, function}`: the BLE receiver of `{:ble, device}`
       plugins (`Tartarus.Plugin.Shorthand`; LATS's device app provides the HM-10's);
     * `tartarus_dashboard: module`: the web dashboard a node's `dashboard:` setting starts
-      (`module.start/1`, `module.banner/1`; the tooling app provides it).
+      (`module.start/1`, `module.banner/1`; the dashboard app provides it).
 
   `find/1` reads the environments of the applications on the code path, loaded or not
   (from their `.app` files: nothing is loaded or started), so the answer is the same in a

@@ -101,7 +101,7 @@ defmodule Tartarus.TestSupport.Tags do
   # platform app does not depend on it and has no browser test: where the driver is not
   # loaded there is nothing to exclude.
   defp available?(:browser) do
-    browser = TartarusTools.Dashboard.Browser
+    browser = TartarusTools.Browser
     not Code.ensure_loaded?(browser) or apply(browser, :executable, []) != nil
   end
 

@@ -20,7 +20,7 @@ defmodule TartarusArena.ExperimentTest do
     assert length(File.read!(Path.join(dir, "subpaths.csv")) |> String.split("\n", trim: true)) ==
              1 + 8 * 9
 
-    {:ok, json} = TartarusTools.JSON.decode(File.read!(Path.join(dir, "summary.json")))
+    {:ok, json} = Tartarus.JSON.decode(File.read!(Path.join(dir, "summary.json")))
     assert json["exhaustive_best"]["sp_a"] == s.exhaustive_best.sp_a
 
     # a PFA is an arm of the sweep: a row of runs.csv each, in the PFAs' order

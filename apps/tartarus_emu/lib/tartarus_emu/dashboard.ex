@@ -1,13 +1,13 @@
 defmodule TartarusEmu.Dashboard do
   @moduledoc """
-  The emulator's side of the web dashboard (`TartarusTools.Dashboard`): an emulated
+  The emulator's side of the web dashboard (`TartarusDashboard`): an emulated
   network's hosts (on whichever BEAM node each lives), its topology's links and whether
   each is live, and the link actions carried out with `TartarusEmu.Network`
   (`break_link/3`, `heal_link/3`, `isolate/2`, `rejoin/2`).
 
       {:ok, net} = TartarusEmu.Network.start(TartarusEmu.Topology.grid(3, 3))
       {:ok, dash} = TartarusEmu.Dashboard.start_link(net, port: 4040)
-      IO.puts(TartarusTools.Dashboard.banner(dash))
+      IO.puts(TartarusDashboard.banner(dash))
 
   A host's id on the page and in the JSON API is its topology node's name as a string;
   positions of the topology (if it has them) place the hosts on the page.
@@ -18,7 +18,7 @@ defmodule TartarusEmu.Dashboard do
   link actions are refused with `{:error, :no_network}`).
   """
 
-  @behaviour TartarusTools.Dashboard.Emulation
+  @behaviour TartarusDashboard.Emulation
 
   alias TartarusEmu.Network
 
@@ -27,13 +27,13 @@ defmodule TartarusEmu.Dashboard do
 
   @doc """
   Starts a dashboard (linked to the caller) showing `net` (a `t:source/0`): the options of
-  `TartarusTools.Dashboard`, with `:emulation` set to this module and `net`.
+  `TartarusDashboard`, with `:emulation` set to this module and `net`.
   """
   @spec start_link(source(), keyword()) :: GenServer.on_start()
   def start_link(net, opts \\ [])
 
   def start_link(net, opts) when is_struct(net, Network) or is_function(net, 0) do
-    TartarusTools.Dashboard.start_link(Keyword.put(opts, :emulation, {__MODULE__, net}))
+    TartarusDashboard.start_link(Keyword.put(opts, :emulation, {__MODULE__, net}))
   end
 
   @doc """
@@ -44,7 +44,7 @@ defmodule TartarusEmu.Dashboard do
   def start(net, opts \\ [])
 
   def start(net, opts) when is_struct(net, Network) or is_function(net, 0) do
-    TartarusTools.Dashboard.start(Keyword.put(opts, :emulation, {__MODULE__, net}))
+    TartarusDashboard.start(Keyword.put(opts, :emulation, {__MODULE__, net}))
   end
 
   @doc """
@@ -59,7 +59,7 @@ defmodule TartarusEmu.Dashboard do
 
     case start(net, Keyword.put_new(opts, :panels, panels)) do
       {:ok, dash} ->
-        IO.puts(device, TartarusTools.Dashboard.banner(dash))
+        IO.puts(device, TartarusDashboard.banner(dash))
         {:ok, dash}
 
       {:error, reason} when is_binary(reason) ->

@@ -24,10 +24,10 @@ defmodule TartarusEmu.DashboardBench do
 
   alias TartarusEmu.{Network, Topology}
   alias Tartarus.Clock
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
-  alias TartarusTools.Dashboard
-  alias TartarusTools.Dashboard.{Browser, Health}
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
+  alias TartarusDashboard.Health
+  alias TartarusTools.Browser
 
   @schema [
     hosts: [type: :pos_integer, default: 8, doc: "hosts in the throughput ring"],
@@ -39,8 +39,7 @@ defmodule TartarusEmu.DashboardBench do
     health: [
       type: :boolean,
       default: true,
-      doc:
-        "the dashboard samples the node's health (`TartarusTools.Dashboard.Health`) while it runs"
+      doc: "the dashboard samples the node's health (`TartarusDashboard.Health`) while it runs"
     ],
     agents: [type: :pos_integer, default: 16, doc: "agents moving concurrently"],
     moves: [type: :pos_integer, default: 500, doc: "moves per agent per run"],
@@ -199,7 +198,7 @@ defmodule TartarusEmu.DashboardBench do
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net, health: opts[:health])
     {agents, us} = drive(agents, hosts, opts[:moves])
     costs = sampled_costs(opts)
-    Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
     {agents, rate(opts, us) |> Map.put(:sample_costs_us, costs)}
   end
 
@@ -209,7 +208,7 @@ defmodule TartarusEmu.DashboardBench do
 
     {agents, us, seen} =
       if browser do
-        :ok = Browser.open(browser, Dashboard.url(dash))
+        :ok = Browser.open(browser, TartarusDashboard.url(dash))
         :ok = Browser.wait(browser, "document.body.dataset.ready === '1'", 15_000)
 
         :ok =
@@ -222,7 +221,7 @@ defmodule TartarusEmu.DashboardBench do
         :ok = Browser.open(browser, "about:blank")
         {agents, us, %{page_events: hd(r1) - r0, page_batches: List.last(r1)}}
       else
-        sock = sse_connect(Dashboard.port(dash))
+        sock = sse_connect(TartarusDashboard.port(dash))
         reader = spawn_link(fn -> sse_drain(sock, 0) end)
         {agents, us} = drive(agents, hosts, opts[:moves])
         Clock.machine_sleep(600)
@@ -236,10 +235,10 @@ defmodule TartarusEmu.DashboardBench do
         {agents, us, %{page_stream_bytes: bytes}}
       end
 
-    {:ok, body} = get(Dashboard.url(dash) <> "api/summary")
-    feed = TartarusTools.JSON.decode!(body)["feed"]
+    {:ok, body} = get(TartarusDashboard.url(dash) <> "api/summary")
+    feed = Tartarus.JSON.decode!(body)["feed"]
     costs = sampled_costs(opts)
-    Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
 
     {agents,
      rate(opts, us)
@@ -379,7 +378,11 @@ defmodule TartarusEmu.DashboardBench do
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
     t2 = Clock.machine_time(:millisecond)
 
-    send(from, {:ready, %{url: Dashboard.url(dash), network_ms: t1 - t0, agents_ms: t2 - t1}})
+    send(
+      from,
+      {:ready, %{url: TartarusDashboard.url(dash), network_ms: t1 - t0, agents_ms: t2 - t1}}
+    )
+
     walk(net, topo, Enum.take(agents, 100))
   end
 
@@ -465,7 +468,7 @@ defmodule TartarusEmu.DashboardBench do
   end
 
   defp get(url) do
-    case Dashboard.http_get(url, 120_000) do
+    case TartarusDashboard.http_get(url, 120_000) do
       {:ok, 200, body} -> {:ok, body}
       other -> {:error, other}
     end

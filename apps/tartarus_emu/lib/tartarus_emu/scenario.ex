@@ -124,7 +124,7 @@ defmodule TartarusEmu.Scenario do
 
   @doc """
   Panels the web dashboard shows for this scenario (optional; see
-  `TartarusTools.Dashboard.Panel`), given the state after setup.
+  `TartarusDashboard.Panel`), given the state after setup.
   """
   @callback panels(state()) :: [{module(), term()}]
 
@@ -221,7 +221,7 @@ defmodule TartarusEmu.Scenario do
         {dir, files} = write(module, state, runner[:out], summary, series)
         {:ok, %{summary: summary, series: series, out: dir, files: files}}
       after
-        if dash, do: TartarusTools.Dashboard.stop(dash)
+        if dash, do: TartarusDashboard.stop(dash)
         teardown(module, state)
       end
     end

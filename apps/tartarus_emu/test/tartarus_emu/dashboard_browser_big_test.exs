@@ -6,7 +6,7 @@ defmodule TartarusEmu.DashboardBrowserBigTest do
 
   import TartarusEmu.EmuCase
   alias TartarusEmu.{Network, Topology}
-  alias TartarusTools.Dashboard.Browser
+  alias TartarusTools.Browser
 
   @moduletag :browser
   @moduletag timeout: 180_000
@@ -20,10 +20,10 @@ defmodule TartarusEmu.DashboardBrowserBigTest do
 
     :ok = Network.isolate(net, :h7)
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
-    url = TartarusTools.Dashboard.url(dash)
+    url = TartarusDashboard.url(dash)
 
-    {:ok, 200, body} = TartarusTools.Dashboard.http_get(url <> "api/summary")
-    summary = TartarusTools.JSON.decode!(body)
+    {:ok, 200, body} = TartarusDashboard.http_get(url <> "api/summary")
+    summary = Tartarus.JSON.decode!(body)
     assert summary["hosts"] == 500 and summary["hosts_down"] == 1
     assert length(summary["buckets"]) == 100
     assert Enum.sum(Enum.map(summary["buckets"], & &1["hosts"])) == 500

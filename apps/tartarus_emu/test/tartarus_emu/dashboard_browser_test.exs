@@ -1,13 +1,13 @@
 defmodule TartarusEmu.DashboardBrowserTest do
   # The dashboard in a real headless Chromium (Debian's `chromium`, driven over the DevTools
-  # protocol by TartarusTools.Dashboard.Browser) against an emulated network of 4 hosts:
+  # protocol by TartarusTools.Browser) against an emulated network of 4 hosts:
   # asserts on what the browser rendered. Excluded with `--exclude browser`; skipped with a
   # note when no Chromium is installed (scripts/test installs it and insists on it).
   use ExUnit.Case, async: false
 
   import TartarusEmu.EmuCase
   alias TartarusEmu.{Network, Topology}
-  alias TartarusTools.Dashboard.Browser
+  alias TartarusTools.Browser
 
   @moduletag :browser
   @moduletag timeout: 120_000
@@ -25,7 +25,7 @@ defmodule TartarusEmu.DashboardBrowserTest do
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net, token: @token, batch_ms: 100)
     {:ok, b} = Browser.start(width: 1400, height: 1000)
     on_exit(fn -> Browser.stop(b) end)
-    :ok = Browser.open(b, TartarusTools.Dashboard.url(dash))
+    :ok = Browser.open(b, TartarusDashboard.url(dash))
     :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 15_000)
     %{net: net, b: b, a1: a1, a2: a2, h: h}
   end
@@ -179,7 +179,7 @@ defmodule TartarusEmu.DashboardBrowserTest do
 
     net = start_network!(topo)
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net)
-    :ok = Browser.open(b, TartarusTools.Dashboard.url(dash))
+    :ok = Browser.open(b, TartarusDashboard.url(dash))
     :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 60_000)
 
     assert eval!(

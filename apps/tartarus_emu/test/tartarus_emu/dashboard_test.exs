@@ -7,18 +7,18 @@ defmodule TartarusEmu.DashboardTest do
   import TartarusEmu.EmuCase
   import Tartarus.TestSupport
   alias TartarusEmu.{Network, Topology}
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @token "emu-test-token"
 
   setup do
     net = start_network!(Topology.grid(2, 3))
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net, token: @token)
-    %{net: net, url: TartarusTools.Dashboard.url(dash)}
+    %{net: net, url: TartarusDashboard.url(dash)}
   end
 
   defp get(url, path) do
-    {:ok, status, body} = TartarusTools.Dashboard.http_get(url <> String.trim_leading(path, "/"))
+    {:ok, status, body} = TartarusDashboard.http_get(url <> String.trim_leading(path, "/"))
     {status, JSON.decode!(body)}
   end
 
@@ -77,7 +77,7 @@ defmodule TartarusEmu.DashboardTest do
     slot = :ets.new(:dash_slot, [:public])
     current = fn -> with [{:net, n}] <- :ets.lookup(slot, :net), do: n, else: (_ -> nil) end
     {:ok, dash} = TartarusEmu.Dashboard.start_link(current, token: @token)
-    url = TartarusTools.Dashboard.url(dash)
+    url = TartarusDashboard.url(dash)
 
     # None yet: no hosts, no links, and link actions refused.
     assert {200, %{"hosts" => [], "total" => 0}} = get(url, "/api/hosts")
@@ -89,7 +89,7 @@ defmodule TartarusEmu.DashboardTest do
     eventually(fn -> match?({200, %{"total" => 6}}, get(url, "/api/hosts")) end)
     assert {200, %{"ok" => true}} = post(url, "/api/links/break", ~s({"a":"h1","b":"h2"}))
     refute Network.live?(net, :h1, :h2)
-    TartarusTools.Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
   end
 
   test "events name hosts by their topology names", %{url: url, net: net} do
@@ -125,7 +125,7 @@ defmodule TartarusEmu.DashboardTest do
     {_, printed} = StringIO.contents(dev)
     assert [_, url] = Regex.run(~r{dashboard: (http://127\.0\.0\.1:\d+/)}, printed)
     # Stopped with the run.
-    assert {:error, _} = TartarusTools.Dashboard.http_get(url <> "api/info", 2_000)
+    assert {:error, _} = TartarusDashboard.http_get(url <> "api/info", 2_000)
   end
 
   defmodule Tiny do
@@ -182,10 +182,10 @@ defmodule TartarusEmu.DashboardTest do
     {:ok, net} = Network.start(Topology.grid(2, 2))
     {:ok, id} = Tartarus.create_mobile_agent(Network.host(net, :h1), Tartarus.Examples.Echo, nil)
     {:ok, dash} = TartarusEmu.Dashboard.start_link(net, token: @token)
-    url = TartarusTools.Dashboard.url(dash)
+    url = TartarusDashboard.url(dash)
     eventually(fn -> match?({200, %{"points" => [_ | _]}}, get(url, "/api/health")) end)
 
-    :ok = TartarusTools.Dashboard.keep(dash)
+    :ok = TartarusDashboard.keep(dash)
     Network.stop(net)
 
     {200, %{"hosts" => hosts}} = get(url, "/api/hosts")
@@ -198,6 +198,6 @@ defmodule TartarusEmu.DashboardTest do
     # The charts are the run's: they do not move on after it.
     Process.sleep(1_500)
     assert {200, %{"points" => ^kept}} = get(url, "/api/health")
-    TartarusTools.Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
   end
 end

@@ -87,7 +87,7 @@ defmodule TartarusEmu.ScenarioTest do
       assert elem(doc, 1) == :svg
     end
 
-    json = dir |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+    json = dir |> Path.join("summary.json") |> File.read!() |> Tartarus.JSON.decode!()
 
     for k <- ~w(hosts agents steps mode migrations migrations_per_s messages bytes wall_ms
                 coverage energy_mj seed topology),

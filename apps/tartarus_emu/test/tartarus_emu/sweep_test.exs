@@ -2,7 +2,8 @@ defmodule TartarusEmu.SweepTest do
   use ExUnit.Case, async: true
 
   alias TartarusEmu.{Sweep, Walk}
-  alias TartarusTools.{JSON, Report}
+  alias Tartarus.JSON
+  alias TartarusTools.Report
 
   doctest Sweep
 

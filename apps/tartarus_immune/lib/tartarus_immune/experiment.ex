@@ -64,7 +64,7 @@ defmodule TartarusImmune.Experiment do
   alias TartarusEmu.{Network, Topology}
   alias TartarusImmune.{Cache, Convergence, IPkt, Params}
   alias TartarusImmune.Experiment.HeldOut
-  alias TartarusTools.Dashboard.Panel
+  alias TartarusDashboard.Panel
   alias TartarusTools.Series
 
   @schema [

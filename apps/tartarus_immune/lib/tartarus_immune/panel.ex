@@ -1,6 +1,6 @@
 defmodule TartarusImmune.Panel do
   @moduledoc """
-  Immune selection on the web dashboard (`TartarusTools.Dashboard.Panel`): the run going
+  Immune selection on the web dashboard (`TartarusDashboard.Panel`): the run going
   now (an experiment of `mix tartarus.select` makes one run per arm, data set and seed,
   each on its own network), its round, the live iPkts per solution, whether and when it
   converged, and for each host (the first #{64}) its pending problems and the iPkts in its
@@ -13,9 +13,9 @@ defmodule TartarusImmune.Panel do
   agents, which only answer (the run does not depend on the page).
   """
 
-  @behaviour TartarusTools.Dashboard.Panel
+  @behaviour TartarusDashboard.Panel
 
-  import TartarusTools.Dashboard.Panel, only: [lookup: 2]
+  import TartarusDashboard.Panel, only: [lookup: 2]
 
   @rows_max 64
 
@@ -26,7 +26,7 @@ defmodule TartarusImmune.Panel do
   @doc "Forgets the run that ended (its network is going); nothing without a table."
   @spec clear(:ets.tid() | nil) :: :ok
   def clear(table) do
-    TartarusTools.Dashboard.Panel.publish(table, fn t ->
+    TartarusDashboard.Panel.publish(table, fn t ->
       :ets.delete(t, :run)
       :ets.delete(t, :round)
     end)

@@ -160,7 +160,7 @@ defmodule TartarusImmune.Select do
   end
 
   defp stop_dashboard({dash, table}) do
-    TartarusTools.Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
     :ets.delete(table)
   end
 

@@ -240,7 +240,7 @@ defmodule TartarusImmune.PathFollowingTest do
 
       # the files show the mean curve, not every trial's (lap_times.csv has those), and
       # our figures beside the thesis's; the returned summary keeps everything
-      json = dir |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+      json = dir |> Path.join("summary.json") |> File.read!() |> Tartarus.JSON.decode!()
       refute Map.has_key?(json, "lap_times")
       assert json["lap_times_mean"]["path1"] == s.lap_times["mean"]["path1"]
 

@@ -80,8 +80,8 @@ defmodule TartarusImmune.SelectTest do
     panel =
       eventually(
         fn ->
-          with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url, 5_000),
-               [%{"rows" => [_, _, _, _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
+          with {:ok, 200, body} <- TartarusDashboard.http_get(url, 5_000),
+               [%{"rows" => [_, _, _, _]} = p] <- Tartarus.JSON.decode!(body)["panels"],
                do: p,
                else: (_ -> nil)
         end,
@@ -102,7 +102,7 @@ defmodule TartarusImmune.SelectTest do
     assert with_dash.summary.convergence_steps == without.summary.convergence_steps
     assert with_dash.summary.winners == without.summary.winners
     # the dashboard went with the experiment
-    assert {:error, _} = TartarusTools.Dashboard.http_get(url, 2_000)
+    assert {:error, _} = TartarusDashboard.http_get(url, 2_000)
   end
 
   # About 1.5 minutes (tag :long: TARTARUS_TESTS=quick leaves it out). The issue's target;

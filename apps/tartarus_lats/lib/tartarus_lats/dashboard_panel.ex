@@ -1,6 +1,6 @@
 defmodule TartarusLats.DashboardPanel do
   @moduledoc """
-  LATS on the web dashboard (`TartarusTools.Dashboard.Panel`): where each tag bearer is, as
+  LATS on the web dashboard (`TartarusDashboard.Panel`): where each tag bearer is, as
   the building's receivers hear it now (the node whose receiver heard the tag loudest in
   its last scan), and the query agents out in the building (where each is now and how many
   hops it made; the page's event list, filtered by an agent's id, shows its path).
@@ -10,7 +10,7 @@ defmodule TartarusLats.DashboardPanel do
   receiver and `Tartarus.agents/1` on each host.
   """
 
-  @behaviour TartarusTools.Dashboard.Panel
+  @behaviour TartarusDashboard.Panel
 
   alias TartarusEmu.Network
 

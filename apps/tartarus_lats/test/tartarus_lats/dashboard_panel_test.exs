@@ -27,14 +27,12 @@ defmodule TartarusLats.DashboardPanelTest do
       {:ok, dash} =
         TartarusEmu.Dashboard.start_link(state.dep.net, panels: [{DashboardPanel, arg}])
 
-      {:ok, 200, body} =
-        TartarusTools.Dashboard.http_get(TartarusTools.Dashboard.url(dash) <> "api/panels")
+      {:ok, 200, body} = TartarusDashboard.http_get(TartarusDashboard.url(dash) <> "api/panels")
 
-      assert %{"panels" => [%{"name" => "lats", "rows" => rows}]} =
-               TartarusTools.JSON.decode!(body)
+      assert %{"panels" => [%{"name" => "lats", "rows" => rows}]} = Tartarus.JSON.decode!(body)
 
       assert Enum.any?(rows, &(hd(&1) == "bearer"))
-      TartarusTools.Dashboard.stop(dash)
+      TartarusDashboard.stop(dash)
     after
       Experiment.teardown(state)
     end

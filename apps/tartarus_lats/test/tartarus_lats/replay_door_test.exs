@@ -63,7 +63,7 @@ defmodule TartarusLats.ReplayDoorTest do
     )
 
     lines = collect([])
-    summary = out |> Path.join("summary.json") |> File.read!() |> TartarusTools.JSON.decode!()
+    summary = out |> Path.join("summary.json") |> File.read!() |> Tartarus.JSON.decode!()
     {Enum.join(lines, "\n"), summary, out}
   end
 

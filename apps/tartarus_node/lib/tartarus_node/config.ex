@@ -646,9 +646,9 @@ defmodule TartarusNode.Config do
 
   @doc """
   The dashboard this node's applications provide (`tartarus_dashboard:` in an application's
-  environment, see `Tartarus.Provides`: the tooling app's `TartarusTools.Dashboard`), or the
-  one line saying there is none: a release is built without it unless
-  `TARTARUS_RELEASE_DASHBOARD=true`.
+  environment, see `Tartarus.Provides`: the dashboard app's `TartarusDashboard`), or the
+  one line saying there is none: a release built with `TARTARUS_RELEASE_DASHBOARD=false`
+  is without it.
   """
   @spec dashboard_module() :: {:ok, module()} | {:error, String.t()}
   def dashboard_module do
@@ -660,8 +660,8 @@ defmodule TartarusNode.Config do
 
       _ ->
         {:error,
-         "dashboard: this node has no dashboard (a release carries it only when built with " <>
-           "TARTARUS_RELEASE_DASHBOARD=true, which brings the tooling app)"}
+         "dashboard: this node has no dashboard (this release was built with " <>
+           "TARTARUS_RELEASE_DASHBOARD=false: build it without that to have one)"}
     end
   end
 

@@ -1,6 +1,6 @@
 defmodule TartarusRoadblock.Panel do
   @moduledoc """
-  The roadblock rescue on the web dashboard (`TartarusTools.Dashboard.Panel`): where Santa
+  The roadblock rescue on the web dashboard (`TartarusDashboard.Panel`): where Santa
   and the rescue stand, the latest events, the monitoring node's webcam snapshot once the
   administrator has it, and, while the run waits for the administrator, a button that
   releases the rescue agent (what `TartarusRoadblock.release_rescue/1` does from iex).
@@ -11,7 +11,7 @@ defmodule TartarusRoadblock.Panel do
   table, so the page never waits for the scenario's loop.
   """
 
-  @behaviour TartarusTools.Dashboard.Panel
+  @behaviour TartarusDashboard.Panel
 
   @impl true
   @doc "Its name in URLs: `roadblock`."

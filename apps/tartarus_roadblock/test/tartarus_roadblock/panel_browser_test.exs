@@ -1,11 +1,11 @@
 defmodule TartarusRoadblock.PanelBrowserTest do
-  # The administrator in a real headless Chromium (TartarusTools.Dashboard.Browser): the
+  # The administrator in a real headless Chromium (TartarusTools.Browser): the
   # roadblock panel shows the webcam snapshot as a picture the browser decoded and, while
   # the run waits, a button; a click on it (after the token is set on the page) releases
   # the rescue agent, and the run ends with the block rescued. Then a screenshot.
   use ExUnit.Case, async: false
 
-  alias TartarusTools.Dashboard.Browser
+  alias TartarusTools.Browser
 
   @moduletag :browser
   @moduletag timeout: 180_000

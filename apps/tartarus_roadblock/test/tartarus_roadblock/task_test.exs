@@ -10,7 +10,7 @@ defmodule Mix.Tasks.Tartarus.RoadblockTest do
         Mix.Tasks.Tartarus.Roadblock.run(~w(--auto --seed 1 --json --out #{dir}))
       end)
 
-    s = out |> String.split("\n", trim: true) |> List.last() |> TartarusTools.JSON.decode!()
+    s = out |> String.split("\n", trim: true) |> List.last() |> Tartarus.JSON.decode!()
 
     for key <- ~w(rescued chosen_robot santa_arrived agent_hops seconds),
         do: assert(Map.has_key?(s, key), key)

@@ -264,7 +264,7 @@ defmodule TartarusTools.CLI do
   Parses `argv` with `switches` (strict); any unknown flag or stray argument raises
   `Mix.Error` naming the task. Returns the options, or `{options, arguments}` with
   `args: true`. A task with a `--dashboard` switch also takes `--dashboard-keep`, which
-  keeps its page after the run (`TartarusTools.Dashboard.keep_pages/0`).
+  keeps its page after the run (`TartarusDashboard.keep_pages/0`).
   """
   @spec parse!([String.t()], keyword(), String.t(), keyword()) ::
           keyword() | {keyword(), [String.t()]}
@@ -276,7 +276,7 @@ defmodule TartarusTools.CLI do
 
     parsed =
       if keep? do
-        if parsed[:dashboard_keep], do: TartarusTools.Dashboard.keep_pages()
+        if parsed[:dashboard_keep], do: TartarusDashboard.keep_pages()
         Keyword.delete(parsed, :dashboard_keep)
       else
         parsed
@@ -407,8 +407,8 @@ defmodule TartarusTools.CLI do
     json =
       if (opts[:json] || opts[:out_file]) && Keyword.get(opts, :provenance, true) &&
            not Map.has_key?(result, :provenance) && not Map.has_key?(result, "provenance"),
-         do: TartarusTools.JSON.encode!(Map.put(result, :provenance, TartarusTools.Provenance.collect())),
-         else: TartarusTools.JSON.encode!(result)
+         do: Tartarus.JSON.encode!(Map.put(result, :provenance, TartarusTools.Provenance.collect())),
+         else: Tartarus.JSON.encode!(result)
 
     if opts[:out_file], do: File.write!(opts[:out_file], json <> "\n")
 

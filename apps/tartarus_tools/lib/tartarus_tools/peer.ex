@@ -18,7 +18,7 @@ defmodule TartarusTools.Peer do
       TartarusTools.Peer.stop(peer)
   """
 
-  require TartarusTools.MachineClock
+  require Tartarus.MachineClock
 
   @typedoc "A peer's controlling process."
   @type peer :: pid()
@@ -148,7 +148,7 @@ defmodule TartarusTools.Peer do
     Node.monitor(node, true)
     {_, 0} = System.cmd("kill", ["-9", List.to_string(os_pid)])
 
-    TartarusTools.MachineClock.receive do
+    Tartarus.MachineClock.receive do
       {:nodedown, ^node} -> :ok
     after
       10_000 -> :ok

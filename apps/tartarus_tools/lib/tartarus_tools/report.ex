@@ -25,7 +25,7 @@ defmodule TartarusTools.Report do
   # The longest nested value summary.md shows in a table cell.
   @long_cell 100
 
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @typedoc "One row of an \"ours vs thesis\" table; `:note` is optional."
   @type comparison :: %{metric: term, ours: term, thesis: term}
@@ -93,7 +93,7 @@ defmodule TartarusTools.Report do
   @doc """
   Writes `summary.json` and `summary.md` into `dir`; returns `[json_path, md_path]`.
 
-  `summary` is a map of JSON-encodable values (see `TartarusTools.JSON`). Options:
+  `summary` is a map of JSON-encodable values (see `Tartarus.JSON`). Options:
 
     * `:title` - heading of `summary.md` (default `"Summary"`);
     * `:comparisons` - rows `%{metric:, ours:, thesis:}` (optional `:note`) shown in an

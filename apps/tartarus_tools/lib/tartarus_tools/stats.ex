@@ -183,7 +183,7 @@ defmodule TartarusTools.Stats do
   def percentile([], _q), do: nil
 
   def percentile(xs, q) when is_list(xs) and is_number(q) and q >= 0 and q <= 1,
-    do: sorted_percentile(Enum.sort(xs), q)
+    do: Tartarus.Percentile.of(xs, q)
 
   @doc """
   Several quantiles at once (one sort), in the order of `qs`; `nil`s for an empty list.
@@ -502,8 +502,5 @@ defmodule TartarusTools.Stats do
     %{knee: knee * 1.0, a: a, b: b, sse: sse}
   end
 
-  defp sorted_percentile(sorted, q) do
-    n = length(sorted)
-    Enum.at(sorted, min(n - 1, max(0, ceil(q * n) - 1)))
-  end
+  defp sorted_percentile(sorted, q), do: Tartarus.Percentile.sorted(sorted, q)
 end

@@ -29,7 +29,7 @@ defmodule TartarusTools.BenchTest do
     assert %{total_hops: 20, agents: 4, hops: 5, latency_hops: 10, mode: :virtual} = r
     assert r.samples == 10
     assert_in_delta r.ratio_latency, r.us_per_hop / r.floor_us_per_hop, 0.01
-    json = TartarusTools.JSON.encode!(r)
+    json = Tartarus.JSON.encode!(r)
     assert json =~ ~s("floor_us_per_hop":)
     assert json =~ ~s("ratio_throughput":)
   end

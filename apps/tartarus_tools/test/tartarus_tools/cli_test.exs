@@ -72,9 +72,9 @@ defmodule Tartarus.CLITest do
     try do
       TartarusTools.CLI.report(%{b: 2, a: "x"}, json: true, out_file: path)
       assert_received {:mix_shell, :info, [json]}
-      assert {:ok, %{"a" => "x", "b" => 2}} = TartarusTools.JSON.decode(json)
+      assert {:ok, %{"a" => "x", "b" => 2}} = Tartarus.JSON.decode(json)
       assert File.read!(path) == json <> "\n"
-      assert %{"provenance" => %{"argv" => _, "git_commit" => _}} = TartarusTools.JSON.decode!(json)
+      assert %{"provenance" => %{"argv" => _, "git_commit" => _}} = Tartarus.JSON.decode!(json)
 
       TartarusTools.CLI.report(%{b: %{"10" => 0.30000000000000004, "2" => nil}, a: "x"}, [])
       assert_received {:mix_shell, :info, ["  a: x"]}

@@ -63,7 +63,7 @@ defmodule TartarusTools.MixTasksTest do
       Mix.Tasks.Tartarus.Gen.Certs.run(["--out", dir, "--nodes", "a", "--json"])
       assert_received {:mix_shell, :info, [json]}
       refute_received {:mix_shell, :info, _}
-      s = TartarusTools.JSON.decode!(json)
+      s = Tartarus.JSON.decode!(json)
       assert s["ca"] == Path.join(Path.expand(dir), "ca.pem") and s["ca_created"] == true
       assert s["nodes"]["a"] == Enum.map(~w(a.pem a.key a.ssl_dist.conf), &Path.join(Path.expand(dir), &1))
       assert Enum.all?(s["nodes"]["a"], &File.exists?/1)

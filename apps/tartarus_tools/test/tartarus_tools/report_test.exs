@@ -63,7 +63,7 @@ defmodule TartarusEmu.ReportTest do
         )
 
       assert Path.basename(json) == "summary.json"
-      decoded = TartarusTools.JSON.decode!(File.read!(json))
+      decoded = Tartarus.JSON.decode!(File.read!(json))
       assert decoded["seed"] == 7
       assert decoded["params"] == %{"p" => 0.1}
 
@@ -82,7 +82,7 @@ defmodule TartarusEmu.ReportTest do
 
     test "without comparisons the JSON is the summary and its provenance", %{dir: dir} do
       [json, md] = Report.write_summary!(dir, %{"a" => [1, 2]})
-      decoded = TartarusTools.JSON.decode!(File.read!(json))
+      decoded = Tartarus.JSON.decode!(File.read!(json))
       assert Map.delete(decoded, "provenance") == %{"a" => [1, 2]}
 
       assert Enum.sort(Map.keys(decoded["provenance"])) ==
@@ -97,7 +97,7 @@ defmodule TartarusEmu.ReportTest do
       assert text =~ "| elixir | #{System.version()} |"
 
       [json, md] = Report.write_summary!(dir, %{"a" => 1}, provenance: false)
-      assert TartarusTools.JSON.decode!(File.read!(json)) == %{"a" => 1}
+      assert Tartarus.JSON.decode!(File.read!(json)) == %{"a" => 1}
       refute File.read!(md) =~ "Provenance"
     end
 

@@ -73,7 +73,7 @@ defmodule TartarusWarehouse.Experiment do
     dashboard: [
       type: :any,
       doc:
-        "serve the web dashboard on this port (127.0.0.1) while the experiment runs, or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the graph of the floor running now and the warehouse panel (`TartarusWarehouse.Panel`)"
+        "serve the web dashboard on this port (127.0.0.1) while the experiment runs, or dashboard options (`port:`, `token:`, ... of `TartarusDashboard`): the graph of the floor running now and the warehouse panel (`TartarusWarehouse.Panel`)"
     ],
     scale: [
       type: {:or, [{:in, [nil]}, {:range, 1.0e-4, 1000}]},

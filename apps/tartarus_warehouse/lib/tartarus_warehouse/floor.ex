@@ -32,7 +32,7 @@ defmodule TartarusWarehouse.Floor do
   use GenServer
 
   alias Tartarus.Clock
-  alias TartarusTools.Dashboard.Panel
+  alias TartarusDashboard.Panel
   alias TartarusWarehouse.{Checker, Job}
   alias TartarusWarehouse.Floor.{Build, Changes, Options}
 
@@ -461,7 +461,7 @@ defmodule TartarusWarehouse.Floor do
   defp shut_down(st) do
     if st.dash do
       try do
-        TartarusTools.Dashboard.stop(st.dash)
+        TartarusDashboard.stop(st.dash)
       catch
         :exit, _ -> :ok
       end

@@ -1,6 +1,6 @@
 defmodule TartarusWarehouse.Panel do
   @moduledoc """
-  The warehouse on the web dashboard (`TartarusTools.Dashboard.Panel`): the floor running
+  The warehouse on the web dashboard (`TartarusDashboard.Panel`): the floor running
   now (an experiment starts one per point and per design), its jobs done, and for each
   robot its state (thesis §4.3), the tasks it runs, the job and the task agent it serves,
   the tasks it ran so far; and the mutual-exclusion violations (Eq. 4.1) in what the
@@ -13,9 +13,9 @@ defmodule TartarusWarehouse.Panel do
   plugins, so the page never waits for the experiment.
   """
 
-  @behaviour TartarusTools.Dashboard.Panel
+  @behaviour TartarusDashboard.Panel
 
-  import TartarusTools.Dashboard.Panel, only: [lookup: 2]
+  import TartarusDashboard.Panel, only: [lookup: 2]
 
   alias TartarusWarehouse.Checker
 

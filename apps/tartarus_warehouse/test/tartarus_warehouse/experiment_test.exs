@@ -36,8 +36,8 @@ defmodule TartarusWarehouse.ExperimentTest do
     panel =
       eventually(
         fn ->
-          with {:ok, 200, body} <- TartarusTools.Dashboard.http_get(url <> "api/panels", 5_000),
-               [%{"rows" => [_, _ | _]} = p] <- TartarusTools.JSON.decode!(body)["panels"],
+          with {:ok, 200, body} <- TartarusDashboard.http_get(url <> "api/panels", 5_000),
+               [%{"rows" => [_, _ | _]} = p] <- Tartarus.JSON.decode!(body)["panels"],
                do: p,
                else: (_ -> nil)
         end,
@@ -50,8 +50,8 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert Enum.map(panel["rows"], &hd/1) == ["r1", "r2"]
     assert Enum.all?(panel["rows"], &(length(&1) == 6))
 
-    {:ok, 200, hosts} = TartarusTools.Dashboard.http_get(url <> "api/hosts", 5_000)
-    ids = Enum.map(TartarusTools.JSON.decode!(hosts)["hosts"], & &1["id"])
+    {:ok, 200, hosts} = TartarusDashboard.http_get(url <> "api/hosts", 5_000)
+    ids = Enum.map(Tartarus.JSON.decode!(hosts)["hosts"], & &1["id"])
     assert "jd" in ids and "r2" in ids
 
     assert_receive :run_done, 60_000

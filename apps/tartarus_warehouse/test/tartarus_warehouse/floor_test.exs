@@ -412,14 +412,14 @@ defmodule TartarusWarehouse.FloorTest do
       Floor.start(robots: 2, resources: [:a], dashboard: [port: port, token: "floor-test-token"])
 
     url = "http://127.0.0.1:#{port}/api/panels"
-    {:ok, 200, body} = TartarusTools.Dashboard.http_get(url, 5_000)
+    {:ok, 200, body} = TartarusDashboard.http_get(url, 5_000)
 
     assert [%{"name" => "warehouse", "rows" => [["r1" | _], ["r2" | _]]} = panel] =
-             TartarusTools.JSON.decode!(body)["panels"]
+             Tartarus.JSON.decode!(body)["panels"]
 
     assert panel["text"] =~ "on 2 robots: 0 of 0 jobs done"
     {:ok, _} = Floor.stop(f)
-    assert {:error, _} = TartarusTools.Dashboard.http_get(url, 2_000)
+    assert {:error, _} = TartarusDashboard.http_get(url, 2_000)
     eventually(fn -> length(Tartarus.hosts()) == hosts_before end)
   end
 

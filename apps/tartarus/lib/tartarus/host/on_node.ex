@@ -145,15 +145,10 @@ defmodule Tartarus.Host.OnNode do
 
     %{
       count: n,
-      median_us: percentile(sorted, 0.5),
-      p99_us: percentile(sorted, 0.99),
+      median_us: Tartarus.Percentile.sorted(sorted, 0.5),
+      p99_us: Tartarus.Percentile.sorted(sorted, 0.99),
       mean_us: Enum.sum(sorted) / n,
       max_us: List.last(sorted)
     }
   end
-
-  # Nearest rank, as the tooling's statistics module takes it (the
-  # platform does not depend on the tooling, and hop_stats/1 needs only this).
-  defp percentile(sorted, q),
-    do: Enum.at(sorted, min(length(sorted) - 1, max(0, ceil(q * length(sorted)) - 1)))
 end

@@ -43,7 +43,7 @@ defmodule Mix.Tasks.Tartarus.Dashboard.Bench do
     case TartarusEmu.DashboardBench.run(opts) do
       {:ok, result} ->
         result = Map.put_new(result, :provenance, TartarusTools.Provenance.collect())
-        json = TartarusTools.JSON.encode!(result, pretty: true)
+        json = Tartarus.JSON.encode!(result, pretty: true)
         File.mkdir_p!(Path.dirname(out))
         File.write!(out, json <> "\n")
         unless json?, do: Mix.shell().info("written to #{out}")

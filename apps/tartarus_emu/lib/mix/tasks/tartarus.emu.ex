@@ -31,7 +31,7 @@ defmodule Mix.Tasks.Tartarus.Emu do
   failed_moves, messages, bytes, energy_mj, wall_ms, steps_ms, coverage, ...` (see
   `TartarusEmu.Walk`: `wall_ms` is the run's real time, pauses of `--step-ms` included).
 
-  `--dashboard PORT` serves the web dashboard (`TartarusTools.Dashboard`, on 127.0.0.1)
+  `--dashboard PORT` serves the web dashboard (`TartarusDashboard`, on 127.0.0.1)
   while the walk runs and prints its address and action token; `--step-ms MS` pauses
   after each step so that a person can watch (see `docs/dashboard.md`).
 

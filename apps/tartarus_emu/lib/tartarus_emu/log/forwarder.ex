@@ -11,8 +11,8 @@ defmodule TartarusEmu.Log.Forwarder do
 
   alias TartarusEmu.Log.Counts
   alias Tartarus.Clock
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
 
   # Called on the forwarder's node (by :erpc). Returns its pid once it is subscribed.
   def start(log, hosts, keep_events?, flush_ms) do

@@ -11,8 +11,8 @@ defmodule TartarusEmu.Network.Keeper do
   # start their peers at once (bounded concurrency) while the caller waits.
   use GenServer
 
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
 
   @spec start(pid()) :: {:ok, pid(), :ets.tid()}
   def start(owner) do

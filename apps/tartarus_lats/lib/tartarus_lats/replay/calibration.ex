@@ -182,7 +182,7 @@ defmodule TartarusLats.Replay.Calibration do
       receivers: Map.new(cal.receivers, fn {n, r} -> {Atom.to_string(n), r} end)
     }
 
-    File.write!(path, TartarusTools.JSON.encode!(json) <> "\n")
+    File.write!(path, Tartarus.JSON.encode!(json) <> "\n")
   end
 
   @doc "Reads a calibration written by `write!/2`. Raises `ArgumentError` on a malformed file."
@@ -190,7 +190,7 @@ defmodule TartarusLats.Replay.Calibration do
   def read!(path) do
     with {:ok, %{"model" => %{"tx_power" => a, "exponent" => n}, "receivers" => rs} = j}
          when is_number(a) and is_number(n) and is_map(rs) <-
-           TartarusTools.JSON.decode(File.read!(path)) do
+           Tartarus.JSON.decode(File.read!(path)) do
       %{
         model: %{tx_power: a * 1.0, exponent: n * 1.0},
         kind: if(j["kind"] == "slope", do: :slope, else: :offset),

@@ -61,7 +61,7 @@ defmodule TartarusLats.Replay.Devices do
   end
 
   defp tetam!(dict) do
-    case TartarusTools.JSON.decode(dict) do
+    case Tartarus.JSON.decode(dict) do
       {:ok, map} when is_map(map) and map_size(map) > 0 ->
         Map.new(map, fn
           {id, [[x, y, z] | rest]} when is_number(x) and is_number(y) and is_number(z) ->

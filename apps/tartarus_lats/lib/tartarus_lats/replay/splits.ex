@@ -122,7 +122,7 @@ defmodule TartarusLats.Replay.Splits do
       splits: Enum.map(splits, &Map.update!(&1, :config, fn c -> Map.new(c) end))
     }
 
-    File.write!(out, TartarusTools.JSON.encode!(json))
+    File.write!(out, Tartarus.JSON.encode!(json))
     :ok
   end
 end

@@ -26,7 +26,7 @@ defmodule Mix.Tasks.Tartarus.Node do
     speed: [type: :pos_integer, default: 9600, doc: "baud of `--ble` and `--serial`"],
     dashboard: [
       type: :non_neg_integer,
-      doc: "serve the web dashboard (`TartarusTools.Dashboard`) on this port"
+      doc: "serve the web dashboard (`TartarusDashboard`) on this port"
     ],
     dashboard_bind: [
       type: :string,
@@ -288,9 +288,9 @@ defmodule Mix.Tasks.Tartarus.Node do
       [port: opts[:dashboard], bind: bind, hosts: hosts] ++
         if(opts[:dashboard_token_file], do: [token_file: opts[:dashboard_token_file]], else: [])
 
-    case TartarusTools.Dashboard.start(dash_opts) do
+    case TartarusDashboard.start(dash_opts) do
       {:ok, dash} ->
-        Mix.shell().info(TartarusTools.Dashboard.banner(dash))
+        Mix.shell().info(TartarusDashboard.banner(dash))
 
       {:error, reason} ->
         Mix.raise("mix tartarus.node: cannot start the dashboard: #{inspect(reason)}")

@@ -18,7 +18,7 @@ defmodule TartarusWarehouse.Floor.Build do
 
   alias Tartarus.Clock
   alias TartarusEmu.{Network, Topology}
-  alias TartarusTools.Dashboard.Panel
+  alias TartarusDashboard.Panel
   alias TartarusWarehouse.{Job, Robot}
 
   @typedoc "A started floor (see `start/3`)."

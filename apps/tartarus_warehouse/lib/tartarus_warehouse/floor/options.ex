@@ -125,7 +125,7 @@ defmodule TartarusWarehouse.Floor.Options do
       type: :any,
       default: nil,
       doc:
-        "serve the web dashboard on this port (127.0.0.1), or dashboard options (`port:`, `token:`, ... of `TartarusTools.Dashboard`): the floor's hosts and the warehouse panel (`TartarusWarehouse.Panel`); nil: none"
+        "serve the web dashboard on this port (127.0.0.1), or dashboard options (`port:`, `token:`, ... of `TartarusDashboard`): the floor's hosts and the warehouse panel (`TartarusWarehouse.Panel`); nil: none"
     ]
   ]
 

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Panel do
+defmodule TartarusDashboard.Panel do
   @moduledoc """
   A panel an application adds to the dashboard: a titled table, and buttons that act.
   The dashboard is given `panels: [{module, arg}]`; the page shows each panel's table below
@@ -13,7 +13,7 @@ defmodule TartarusTools.Dashboard.Panel do
   where its agents are writes, for instance:
 
       defmodule MyApp.Panel do
-        @behaviour TartarusTools.Dashboard.Panel
+        @behaviour TartarusDashboard.Panel
         def name(_), do: "bearers"
         def render(net) do
           %{title: "Tag bearers", columns: ["tag", "host"], rows: MyApp.bearers(net), actions: []}
@@ -48,11 +48,11 @@ defmodule TartarusTools.Dashboard.Panel do
   A panel's picture as the page shows it: a `data:` URL, or nil (no picture, or a type
   the page does not show).
 
-      iex> TartarusTools.Dashboard.Panel.data_url(%{type: "image/png", data: <<1, 2, 3>>})
+      iex> TartarusDashboard.Panel.data_url(%{type: "image/png", data: <<1, 2, 3>>})
       "data:image/png;base64,AQID"
-      iex> TartarusTools.Dashboard.Panel.data_url(%{type: "text/html", data: "<b>"})
+      iex> TartarusDashboard.Panel.data_url(%{type: "text/html", data: "<b>"})
       nil
-      iex> TartarusTools.Dashboard.Panel.data_url(nil)
+      iex> TartarusDashboard.Panel.data_url(nil)
       nil
   """
   @spec data_url(image() | nil) :: String.t() | nil
@@ -68,10 +68,10 @@ defmodule TartarusTools.Dashboard.Panel do
 
       iex> t = :ets.new(:panel_doc, [:public])
       iex> :ets.insert(t, {:run, 1})
-      iex> TartarusTools.Dashboard.Panel.lookup(t, :run)
+      iex> TartarusDashboard.Panel.lookup(t, :run)
       [{:run, 1}]
       iex> :ets.delete(t)
-      iex> TartarusTools.Dashboard.Panel.lookup(t, :run)
+      iex> TartarusDashboard.Panel.lookup(t, :run)
       :gone
   """
   @spec lookup(:ets.tid() | atom(), term()) :: [tuple()] | :gone
@@ -87,11 +87,11 @@ defmodule TartarusTools.Dashboard.Panel do
   depends on the page.
 
       iex> t = :ets.new(:panel_doc, [:public])
-      iex> TartarusTools.Dashboard.Panel.publish(t, &:ets.insert(&1, {:round, 3}))
+      iex> TartarusDashboard.Panel.publish(t, &:ets.insert(&1, {:round, 3}))
       :ok
-      iex> TartarusTools.Dashboard.Panel.lookup(t, :round)
+      iex> TartarusDashboard.Panel.lookup(t, :round)
       [{:round, 3}]
-      iex> TartarusTools.Dashboard.Panel.publish(nil, &:ets.insert(&1, {:round, 4}))
+      iex> TartarusDashboard.Panel.publish(nil, &:ets.insert(&1, {:round, 4}))
       :ok
   """
   @spec publish(:ets.tid() | atom() | nil, (:ets.tid() | atom() -> term())) :: :ok

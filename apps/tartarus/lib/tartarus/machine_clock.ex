@@ -1,4 +1,4 @@
-defmodule TartarusTools.MachineClock do
+defmodule Tartarus.MachineClock do
   @moduledoc """
   `receive` whose `after` clause waits on the machine's time, in either mode of
   `Tartarus.Clock`: for a wait on the apparatus rather than on the design (an HTTP
@@ -7,9 +7,9 @@ defmodule TartarusTools.MachineClock do
   virtual clock neither waits for it nor jumps past it. A wait the design makes (for agents,
   a protocol's timeout) is `Tartarus.Clock.receive/1`.
 
-      require TartarusTools.MachineClock
+      require Tartarus.MachineClock
 
-      TartarusTools.MachineClock.receive do
+      Tartarus.MachineClock.receive do
         {:nodedown, ^node} -> :ok
       after
         10_000 -> :timeout
@@ -34,17 +34,7 @@ defmodule TartarusTools.MachineClock do
         timer = Macro.var(:machine_timer, __MODULE__)
         tag = Macro.var(:machine_tag, __MODULE__)
 
-        wrapped =
-          Enum.map(List.wrap(clauses), fn {:->, meta, [args, body]} ->
-            {:->, meta,
-             [
-               args,
-               quote do
-                 TartarusTools.MachineClock.__done__(unquote(timer), unquote(tag))
-                 unquote(body)
-               end
-             ]}
-          end)
+        wrapped = Tartarus.Clock.__wrap__(clauses, Tartarus.MachineClock, timer, tag)
 
         # First, so that a catch-all clause of the caller never takes the timeout's message.
         timeout_clause =
@@ -53,7 +43,7 @@ defmodule TartarusTools.MachineClock do
           end
 
         quote do
-          {unquote(timer), unquote(tag)} = TartarusTools.MachineClock.__after__(unquote(timeout))
+          {unquote(timer), unquote(tag)} = Tartarus.MachineClock.__after__(unquote(timeout))
 
           receive do
             unquote(timeout_clause ++ wrapped)
@@ -61,7 +51,7 @@ defmodule TartarusTools.MachineClock do
         end
 
       _ ->
-        raise ArgumentError, "TartarusTools.MachineClock.receive: expected one `after` clause"
+        raise ArgumentError, "Tartarus.MachineClock.receive: expected one `after` clause"
     end
   end
 

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard do
+defmodule TartarusDashboard do
   @schema [
     port: [type: :non_neg_integer, default: 0, doc: "TCP port (0: any free port)"],
     bind: [
@@ -18,12 +18,12 @@ defmodule TartarusTools.Dashboard do
     ],
     emulation: [
       type: :any,
-      doc: "`{module, arg}`: a `TartarusTools.Dashboard.Emulation` (hosts, links, link actions)"
+      doc: "`{module, arg}`: a `TartarusDashboard.Emulation` (hosts, links, link actions)"
     ],
     panels: [
       type: :any,
       default: [],
-      doc: "`[{module, arg}]`: `TartarusTools.Dashboard.Panel`s shown below the graph"
+      doc: "`[{module, arg}]`: `TartarusDashboard.Panel`s shown below the graph"
     ],
     batch_ms: [
       type: :pos_integer,
@@ -62,15 +62,18 @@ defmodule TartarusTools.Dashboard do
     health: [
       type: :boolean,
       default: true,
-      doc: "sample this node's health (`TartarusTools.Dashboard.Health`) for the page's charts"
+      doc: "sample this node's health (`TartarusDashboard.Health`) for the page's charts"
     ],
     fleet: [
       type: :boolean,
       default: true,
-      doc:
-        "without an emulation, show every node the overlay reaches (`TartarusTools.Dashboard.Fleet`)"
+      doc: "without an emulation, show every node the overlay reaches (`TartarusDashboard.Fleet`)"
     ],
-    fleet_ttl: [type: :pos_integer, default: 8, doc: "overlay hops the fleet's gather goes at most"],
+    fleet_ttl: [
+      type: :pos_integer,
+      default: 8,
+      doc: "overlay hops the fleet's gather goes at most"
+    ],
     fleet_ms: [
       type: :pos_integer,
       default: 2_000,
@@ -80,6 +83,17 @@ defmodule TartarusTools.Dashboard do
       type: :pos_integer,
       default: 16,
       doc: "connections served at once from one client address (beyond: 503 and the close)"
+    ],
+    search_rate: [
+      type: :pos_integer,
+      default: 2,
+      doc:
+        "overlay searches per second one client address may start (`GET /api/agents/ID` of an agent not on the hosts shown; beyond: 429)"
+    ],
+    search_miss_ms: [
+      type: :pos_integer,
+      default: 5_000,
+      doc: "ms an id that an overlay search did not find is answered 404 without a new search"
     ]
   ]
 
@@ -89,9 +103,9 @@ defmodule TartarusTools.Dashboard do
   `:gen_tcp` (no dependency outside OTP). `docs/dashboard.md` is the user guide and documents the JSON
   HTTP API the page uses (programs in any language can drive a node through it).
 
-      {:ok, dash} = TartarusTools.Dashboard.start_link(port: 4040)
-      TartarusTools.Dashboard.url(dash)     # "http://127.0.0.1:4040/"
-      TartarusTools.Dashboard.token(dash)   # what actions need (Authorization: Bearer ...)
+      {:ok, dash} = TartarusDashboard.start_link(port: 4040)
+      TartarusDashboard.url(dash)     # "http://127.0.0.1:4040/"
+      TartarusDashboard.token(dash)   # what actions need (Authorization: Bearer ...)
 
   `mix tartarus.node --dashboard PORT`, `mix tartarus.emu --dashboard PORT` and the
   scenarios' mix tasks (through `TartarusEmu.Scenario`'s `:dashboard` option) start one.
@@ -110,7 +124,7 @@ defmodule TartarusTools.Dashboard do
 
   ## Live updates, and never slowing the platform
 
-  One process (`TartarusTools.Dashboard.Feed`) subscribes to `Tartarus.Events` with a budget:
+  One process (`TartarusDashboard.Feed`) subscribes to `Tartarus.Events` with a budget:
   the platform sends it at most `:max_batch` events per `:batch_ms` and skips the rest
   without a message; the counts per type come from the platform's own count of every event
   (`Tartarus.Events.type_totals/0`), so they are exact. Per event received it does a few map
@@ -128,7 +142,7 @@ defmodule TartarusTools.Dashboard do
   (a wrong one). Request bodies are JSON, at most `:max_body` bytes; decoded JSON never
   creates atoms (hosts, agents and modules are looked up among those that exist).
 
-  The HTTP layer (`TartarusTools.Dashboard.Http`) checks before it reads any body:
+  The HTTP layer (`TartarusDashboard.Http`) checks before it reads any body:
 
     * the `Host` header, and the `Origin` header when sent, must name this dashboard:
       `localhost`, `127.0.0.1`, `[::1]`, the address the client connected to, or one of
@@ -141,15 +155,23 @@ defmodule TartarusTools.Dashboard do
   the connection (after discarding at most 2 s or 1 MiB of what the client still sends,
   so that it reads the answer); nothing of a refused body is kept. A connection waits at
   most `:idle_timeout` for a request line and a request takes at most `:request_timeout`
-  from its line to its body's last byte (408, then the close). At most `:max_clients`
-  connections are served at once, at most `:max_per_client` from one address (503 and the
-  close, nothing read). A request line or header line is at most 8 KiB (414, 431), a
-  request has at most 100 header lines.
+  from its line to its body's last byte (408, then the close). At most `:max_per_client`
+  connections are served at once from one address and at most `:max_clients` in all,
+  shared fairly between addresses (a connection from an address holding fewer takes a slot
+  of the address holding the most); beyond, 503 and the close, nothing read. A request
+  line or header line is at most 8 KiB (414, 431), a request has at most 100 header lines,
+  a `Content-Length` is digits alone, a request target's percent-encoding must decode to
+  UTF-8 (400); chunked trailers are read and ignored.
+
+  `GET /api/agents/ID` of an agent not on the hosts shown searches the overlay
+  (`Tartarus.whereis/1`); reads need no token, so a miss is remembered for
+  `:search_miss_ms` and one client address starts at most `:search_rate` searches a second
+  (429 beyond).
   """
 
   use GenServer
 
-  alias TartarusTools.Dashboard.{Api, Feed, Fleet, Health, Http}
+  alias TartarusDashboard.{Api, Feed, Fleet, Health, Http}
 
   @typedoc "A running dashboard (its process)."
   @type t :: GenServer.server()
@@ -193,7 +215,7 @@ defmodule TartarusTools.Dashboard do
 
   @doc """
   From now on, `stop/1` keeps a dashboard's page (see `stop/1`) rather than stopping it: what
-  `--dashboard-keep` does (`TartarusTools.CLI.parse!/4`).
+  `--dashboard-keep` does (the mix tasks' command-line parser calls it).
   """
   @spec keep_pages() :: :ok
   def keep_pages, do: :persistent_term.put({__MODULE__, :keep_pages}, true)
@@ -262,7 +284,7 @@ defmodule TartarusTools.Dashboard do
   end
 
   defp validate(opts) do
-    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusTools.Dashboard"),
+    with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusDashboard"),
          {:ok, token} <- token_of(opts) do
       {:ok, Keyword.put(opts, :token, token)}
     end
@@ -275,7 +297,7 @@ defmodule TartarusTools.Dashboard do
 
       opts[:token] != nil ->
         {:error,
-         "invalid options given to TartarusTools.Dashboard for key [:token]: " <>
+         "invalid options given to TartarusDashboard for key [:token]: " <>
            "expected a string of at least 8 bytes, got: #{inspect(opts[:token])}"}
 
       opts[:token_file] != nil ->
@@ -315,6 +337,8 @@ defmodule TartarusTools.Dashboard do
       panels: opts[:panels],
       fleet: fleet,
       max_body: opts[:max_body],
+      search_rate: opts[:search_rate],
+      search_miss_ms: opts[:search_miss_ms],
       cache: :ets.new(:tartarus_dashboard_cache, [:public, :set, read_concurrency: true])
     }
 

@@ -1,9 +1,9 @@
 defmodule Tartarus.JSONTest do
   use ExUnit.Case, async: true
 
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
-  doctest TartarusTools.JSON
+  doctest Tartarus.JSON
 
   describe "encode!/2" do
     test "scalars" do

@@ -1,13 +1,11 @@
-defmodule TartarusTools.Dashboard.HttpTest do
+defmodule TartarusDashboard.HttpTest do
   # The dashboard's door, over raw sockets: the token, the Host and the Origin are checked
   # before any body is read; bodies are read with the limit whatever the framing; slow and
   # idle connections are closed; connections per client and in all are bounded.
   use ExUnit.Case, async: false
 
   import Tartarus.TestSupport
-
-  alias TartarusTools.Dashboard
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @token "test-token-0123456789"
 
@@ -19,18 +17,23 @@ defmodule TartarusTools.Dashboard.HttpTest do
   end
 
   defp start(opts) do
-    {:ok, dash} = Dashboard.start_link([token: @token, max_body: 1_024] ++ opts)
+    {:ok, dash} = TartarusDashboard.start_link([token: @token, max_body: 1_024] ++ opts)
     dash
   end
 
-  defp connect(dash) do
+  # From 127.0.0.1, or another loopback address (a client of its own for the server).
+  defp connect(dash, from \\ {127, 0, 0, 1}) do
     {:ok, sock} =
-      :gen_tcp.connect(~c"127.0.0.1", Dashboard.port(dash), [:binary, active: false])
+      :gen_tcp.connect(~c"127.0.0.1", TartarusDashboard.port(dash), [
+        :binary,
+        active: false,
+        ip: from
+      ])
 
     sock
   end
 
-  defp host(dash), do: "127.0.0.1:#{Dashboard.port(dash)}"
+  defp host(dash), do: "127.0.0.1:#{TartarusDashboard.port(dash)}"
 
   # One answer: {status, headers (lower-case names), body}; reads exactly its length.
   defp answer(sock) do
@@ -123,7 +126,12 @@ defmodule TartarusTools.Dashboard.HttpTest do
         )
 
       mb = chunk(:binary.copy("x", 1_048_576))
-      sent = Enum.reduce_while(1..100, 0, fn _, n -> if :gen_tcp.send(sock, mb) == :ok, do: {:cont, n + 1}, else: {:halt, n} end)
+
+      sent =
+        Enum.reduce_while(1..100, 0, fn _, n ->
+          if :gen_tcp.send(sock, mb) == :ok, do: {:cont, n + 1}, else: {:halt, n}
+        end)
+
       _ = :gen_tcp.send(sock, "0\r\n\r\n")
 
       answer =
@@ -133,6 +141,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
         end
 
       send(sampler, {:stop, self()})
+
       peak =
         receive do
           {:peak, p} -> p
@@ -250,7 +259,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
       # answer; the server goes on serving. A chunk line over 8 KiB gets a 400.
       for request <- [
             "GET /#{String.duplicate("a", 10_000)} HTTP/1.1\r\nHost: #{h}\r\n\r\n",
-            "GET / HTTP/1.1\r\nHost: #{h}\r\nX-Big: #{String.duplicate("a", 10_000)}\r\n\r\n",
+            "GET / HTTP/1.1\r\nHost: #{h}\r\nX-Big: #{String.duplicate("a", 10_000)}\r\n\r\n"
           ] do
         sock = connect(dash)
         :ok = :gen_tcp.send(sock, request)
@@ -266,7 +275,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
         )
 
       assert {400, _, %{"message" => m}} = answer(sock)
-      assert m =~ "chunk line is longer"
+      assert m =~ "line is longer than 8192 bytes"
 
       sock = connect(dash)
       :ok = :gen_tcp.send(sock, "GET /api/info HTTP/1.1\r\nHost: #{h}\r\n\r\n")
@@ -277,7 +286,10 @@ defmodule TartarusTools.Dashboard.HttpTest do
       dash = start([])
       sock = connect(dash)
       many = for i <- 1..101, do: "X-H#{i}: 1\r\n"
-      :ok = :gen_tcp.send(sock, ["GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n", many, "\r\n"])
+
+      :ok =
+        :gen_tcp.send(sock, ["GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n", many, "\r\n"])
+
       assert {431, _, %{"error" => "too_many_headers"}} = answer(sock)
       assert closed?(sock)
     end
@@ -294,7 +306,7 @@ defmodule TartarusTools.Dashboard.HttpTest do
 
     test "a foreign Host (DNS rebinding) or Origin is refused; this dashboard's names are served" do
       dash = start(hosts: ["Dash.Example"])
-      port = Dashboard.port(dash)
+      port = TartarusDashboard.port(dash)
 
       assert {403, %{"error" => "bad_host", "message" => m}} =
                get_with(dash, "Host: evil.example:#{port}\r\n")
@@ -305,7 +317,10 @@ defmodule TartarusTools.Dashboard.HttpTest do
       assert {400, %{"error" => "bad_request"}} = get_with(dash, "")
 
       assert {403, %{"error" => "bad_origin"}} =
-               get_with(dash, "Host: 127.0.0.1:#{port}\r\nOrigin: http://evil.example:#{port}\r\n")
+               get_with(
+                 dash,
+                 "Host: 127.0.0.1:#{port}\r\nOrigin: http://evil.example:#{port}\r\n"
+               )
 
       assert {403, %{"error" => "bad_origin"}} =
                get_with(dash, "Host: 127.0.0.1:#{port}\r\nOrigin: null\r\n")
@@ -419,9 +434,160 @@ defmodule TartarusTools.Dashboard.HttpTest do
     end
   end
 
+  describe "bad input, round four (issue 44)" do
+    test "a malformed or non-UTF-8 percent-encoding gets 400; a good one is decoded" do
+      dash = start([])
+
+      for target <- [
+            "/%ff%fe",
+            "/api/agents/%zz",
+            "/api/%",
+            "/api/info?x=%e2%28",
+            "/api/info?a%=1"
+          ] do
+        sock = connect(dash)
+        :ok = :gen_tcp.send(sock, "GET #{target} HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+        assert {400, _, %{"error" => "bad_request", "message" => m}} = answer(sock), target
+        assert m =~ "percent-encoding"
+      end
+
+      sock = connect(dash)
+
+      :ok =
+        :gen_tcp.send(sock, "GET /api/%69nfo?x=%C3%A9 HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+
+      assert {200, _, %{"node" => _}} = answer(sock)
+    end
+
+    test "a Content-Length that is not digits alone gets 400 before the body is read" do
+      dash = start([])
+
+      for length <- ["+5", "-0", "5 5", "0x5", "5e0", "5,5"] do
+        sock = connect(dash)
+
+        :ok =
+          :gen_tcp.send(
+            sock,
+            "POST /api/agents HTTP/1.1\r\nHost: #{host(dash)}\r\nX-Tartarus-Token: #{@token}\r\nContent-Length: #{length}\r\n\r\n{}xyz"
+          )
+
+        assert {400, _, %{"error" => "bad_request", "message" => m}} = answer(sock), length
+        assert m =~ "Content-Length", length
+      end
+    end
+
+    test "chunked trailers are read and ignored, long lines and lines in pieces too", c do
+      dash = start([])
+      sock = connect(dash)
+      json = ~s({"host":"#{c.host}","module":"Tartarus.Examples.Echo"})
+
+      # Each part in a segment of its own; a trailer line longer than the socket's buffer.
+      for part <- [
+            "POST /api/agents HTTP/1.1\r\nHost: #{host(dash)}\r\nX-Tartarus-Token: #{@token}\r\n",
+            "Transfer-Encoding: chunked\r\nTrailer: X-Digest, X-Note\r\n\r\n",
+            chunk(json),
+            "0\r\n",
+            "X-Digest: #{String.duplicate("a", 3_000)}",
+            "\r\nX-Note: ",
+            "yes\r\n",
+            "\r\n"
+          ] do
+        :ok = :gen_tcp.send(sock, part)
+        Process.sleep(20)
+      end
+
+      assert {201, h, %{"ok" => true, "host" => host}} = answer(sock)
+      assert host == c.host and h["connection"] == nil
+      :ok = :gen_tcp.send(sock, "GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+      assert {200, _, %{"node" => _}} = answer(sock)
+    end
+  end
+
+  describe "connection slots shared between client addresses (issue 44)" do
+    test "when other addresses' slow connections hold every slot, a new address is still served" do
+      dash = start(max_clients: 6, max_per_client: 3)
+
+      held =
+        for a <- [2, 3], _ <- 1..3 do
+          sock = connect(dash, {127, 0, 0, a})
+          :ok = :gen_tcp.send(sock, "GET /api/info HT")
+          sock
+        end
+
+      await_connections(dash, 6)
+
+      sock = connect(dash, {127, 0, 0, 4})
+      :ok = :gen_tcp.send(sock, "GET /api/info HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+      assert {200, _, %{"node" => _}} = answer(sock)
+
+      # One slow connection of an address holding the most gave its slot up.
+      %{total: 6, per_client: per} = connections(dash)
+      assert per[{127, 0, 0, 4}] == 1
+      assert Enum.sort(Map.values(per)) == [1, 2, 3]
+      assert Enum.count(held, &(:gen_tcp.recv(&1, 0, 200) == {:error, :closed})) == 1
+
+      # An address holding its share does not take another's slot: 503.
+      extra = connect(dash, {127, 0, 0, 2})
+      assert {503, _, %{"error" => "too_many_connections"}} = answer(extra)
+      assert %{total: 6} = connections(dash)
+    end
+  end
+
+  describe "what a read may cost the overlay (issue 44)" do
+    setup do
+      {:module, _} = Code.ensure_loaded(Tartarus.Locator)
+      search = {Tartarus.Locator, :search, 3}
+      :erlang.trace_pattern(search, true, [:call_count])
+      on_exit(fn -> :erlang.trace_pattern(search, false, [:call_count]) end)
+      %{searches: fn -> elem(:erlang.trace_info(search, :call_count), 1) end}
+    end
+
+    defp get_agent(sock, dash, id) do
+      :ok = :gen_tcp.send(sock, "GET /api/agents/#{id} HTTP/1.1\r\nHost: #{host(dash)}\r\n\r\n")
+      answer(sock)
+    end
+
+    test "an unknown id is searched for once, then answered from the miss for a while", c do
+      # (search_miss_ms: 5 s by default.)
+      dash = start([])
+      sock = connect(dash)
+
+      for _ <- 1..20 do
+        assert {404, _, %{"error" => "unknown_agent"}} = get_agent(sock, dash, "0123456789abcdef")
+      end
+
+      assert c.searches.() == 1
+    end
+
+    test "an address starts at most search_rate searches a second (429 beyond); others are not held back",
+         c do
+      # (search_rate: 2 by default.)
+      dash = start([])
+      sock = connect(dash)
+      second = fn -> div(Tartarus.Clock.machine_time(:millisecond), 1_000) end
+      first = second.()
+
+      statuses =
+        for _ <- 1..20 do
+          id = Base.encode16(:crypto.strong_rand_bytes(8), case: :lower)
+          {status, _, %{"error" => code}} = get_agent(sock, dash, id)
+          {status, code}
+        end
+
+      seconds = second.() - first + 1
+      assert {429, "too_many_searches"} in statuses
+      assert Enum.all?(statuses, &(&1 in [{404, "unknown_agent"}, {429, "too_many_searches"}]))
+      assert c.searches.() <= 2 * seconds
+      assert Enum.count(statuses, &(&1 == {404, "unknown_agent"})) == c.searches.()
+
+      other = connect(dash, {127, 0, 0, 2})
+      assert {404, _, %{"error" => "unknown_agent"}} = get_agent(other, dash, "00000000000000aa")
+    end
+  end
+
+  defp connections(dash), do: TartarusDashboard.Http.connections(:sys.get_state(dash).http)
+
   defp await_connections(dash, n) do
-    eventually(fn ->
-      TartarusTools.Dashboard.Http.connections(:sys.get_state(dash).http).total == n
-    end)
+    eventually(fn -> connections(dash).total == n end)
   end
 end

@@ -1,20 +1,27 @@
-defmodule TartarusTools.Dashboard.Http do
+defmodule TartarusDashboard.Http do
   @moduledoc false
   # The dashboard's HTTP/1.1 server, on :gen_tcp alone (OTP's :inets httpd reads a whole
   # body before its callback runs, and ignores its length limit for chunked bodies).
   #
   # This process owns the listening socket and admits connections: an acceptor process
   # (linked) accepts each one and asks here whether it may be served. At most
-  # :max_clients connections at once, and at most :max_per_client from one address; a
-  # connection beyond either gets a 503 and is closed at once, before anything of its
-  # request is read. An admitted connection gets its own process (linked, counted until it
-  # ends), TartarusTools.Dashboard.Http.Conn, which reads requests with limits and time
-  # bounds, checks the Host, the Origin and the token before any body, and answers through
-  # TartarusTools.Dashboard.Api.
+  # :max_per_client connections from one address, and at most :max_clients at once,
+  # shared fairly between addresses: when all are taken, a connection from an address
+  # that holds at least two fewer than the address holding the most takes a slot of that
+  # address (one of its connections that is not in an API call is closed without an
+  # answer). So many addresses' slow connections cannot keep another address out: each
+  # address keeps at least its share (max_clients / addresses, rounded down). A
+  # connection refused all the same gets a 503 and is closed at once, before anything of
+  # its request is read. An admitted connection gets its own process (linked, counted
+  # until it ends), TartarusDashboard.Http.Conn, which reads requests with limits
+  # and time bounds, checks the Host, the Origin and the token before any body, and
+  # answers through TartarusDashboard.Api; it says here when it enters and leaves an
+  # API call ({:busy, pid, boolean}), so that a slot is never taken from a request being
+  # answered.
 
   use GenServer
 
-  alias TartarusTools.Dashboard.Http.Conn
+  alias TartarusDashboard.Http.Conn
 
   # A request line or a header line longer than this is refused (414, 431).
   @line_max Conn.line_max()
@@ -76,7 +83,17 @@ defmodule TartarusTools.Dashboard.Http do
         conf = Map.put(conf, :port, port)
         server = self()
         acceptor = spawn_link(fn -> accept(server, listen) end)
-        {:ok, %{listen: listen, acceptor: acceptor, conf: conf, conns: %{}, per_client: %{}}}
+        conf = Map.put(conf, :server, self())
+
+        {:ok,
+         %{
+           listen: listen,
+           acceptor: acceptor,
+           conf: conf,
+           conns: %{},
+           per_client: %{},
+           busy: MapSet.new()
+         }}
 
       {:error, :eaddrinuse} ->
         {:stop, "dashboard: port #{conf.port} is in use"}
@@ -97,33 +114,49 @@ defmodule TartarusTools.Dashboard.Http do
     here = Map.get(s.per_client, ip, 0)
 
     cond do
-      map_size(s.conns) >= s.conf.max_clients ->
-        {:reply,
-         {:full,
-          "the dashboard serves at most #{s.conf.max_clients} connections at once; try again later"},
-         s}
-
       here >= s.conf.max_per_client ->
         {:reply,
          {:full,
           "the dashboard serves at most #{s.conf.max_per_client} connections at once from one address (#{:inet.ntoa(ip)}); close one and try again"},
          s}
 
-      true ->
-        pid = spawn_link(Conn, :start, [s.conf])
+      map_size(s.conns) < s.conf.max_clients ->
+        admitted(s, ip)
 
-        {:reply, {:ok, pid},
-         %{s | conns: Map.put(s.conns, pid, ip), per_client: Map.put(s.per_client, ip, here + 1)}}
+      victim = victim(s, here) ->
+        Process.exit(victim, :kill)
+        admitted(forget(s, victim), ip)
+
+      true ->
+        {:reply,
+         {:full,
+          "the dashboard serves at most #{s.conf.max_clients} connections at once, shared between client addresses; try again later"},
+         s}
     end
   end
 
-  @impl true
-  def handle_info({:EXIT, pid, reason}, %{acceptor: pid} = s), do: {:stop, reason, s}
+  defp admitted(s, ip) do
+    pid = spawn_link(Conn, :start, [s.conf])
+    per_client = Map.update(s.per_client, ip, 1, &(&1 + 1))
+    {:reply, {:ok, pid}, %{s | conns: Map.put(s.conns, pid, ip), per_client: per_client}}
+  end
 
-  def handle_info({:EXIT, pid, _reason}, s) do
+  # A connection to close for one from an address holding `here`: of the address holding
+  # the most (if that is more than here + 1), one that is not in an API call; else nil.
+  defp victim(s, here) do
+    {top, n} = Enum.max_by(s.per_client, fn {_ip, n} -> n end)
+
+    if n > here + 1 do
+      Enum.find_value(s.conns, fn {pid, ip} ->
+        if ip == top and not MapSet.member?(s.busy, pid), do: pid
+      end)
+    end
+  end
+
+  defp forget(s, pid) do
     case Map.pop(s.conns, pid) do
       {nil, _} ->
-        {:noreply, s}
+        s
 
       {ip, conns} ->
         per_client =
@@ -132,9 +165,19 @@ defmodule TartarusTools.Dashboard.Http do
             n -> Map.put(s.per_client, ip, n - 1)
           end
 
-        {:noreply, %{s | conns: conns, per_client: per_client}}
+        %{s | conns: conns, per_client: per_client, busy: MapSet.delete(s.busy, pid)}
     end
   end
+
+  @impl true
+  def handle_info({:EXIT, pid, reason}, %{acceptor: pid} = s), do: {:stop, reason, s}
+
+  def handle_info({:EXIT, pid, _reason}, s), do: {:noreply, forget(s, pid)}
+
+  def handle_info({:busy, pid, true}, %{conns: conns} = s) when is_map_key(conns, pid),
+    do: {:noreply, %{s | busy: MapSet.put(s.busy, pid)}}
+
+  def handle_info({:busy, pid, false}, s), do: {:noreply, %{s | busy: MapSet.delete(s.busy, pid)}}
 
   def handle_info(_other, s), do: {:noreply, s}
 

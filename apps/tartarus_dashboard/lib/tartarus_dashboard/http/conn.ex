@@ -1,6 +1,6 @@
-defmodule TartarusTools.Dashboard.Http.Conn do
+defmodule TartarusDashboard.Http.Conn do
   @moduledoc false
-  # One HTTP/1.1 connection of the dashboard (started by TartarusTools.Dashboard.Http), in
+  # One HTTP/1.1 connection of the dashboard (started by TartarusDashboard.Http), in
   # its own process. Per request, in this order:
   #
   #   1. the request line, within :idle_timeout of the connection's start or of the last
@@ -15,18 +15,18 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   #   5. what needs no body: an action needs the token (401, 403);
   #   6. a declared length above :max_body is refused (413);
   #   7. the body, read with the limit whatever the framing (413 as soon as a chunk goes
-  #      over), then TartarusTools.Dashboard.Api answers.
+  #      over), then TartarusDashboard.Api answers.
   #
   # An answer before the body was read is sent with "Connection: close"; the connection
   # then shuts its side, discards what the client still sends (at most @linger_bytes or
   # @linger_ms, so that the client reads the answer rather than a reset) and closes.
   # Nothing of a refused body is kept: memory per connection is bounded by :max_body.
 
-  alias TartarusTools.Dashboard.{Api, Feed}
+  alias TartarusDashboard.{Api, Feed}
   alias Tartarus.Clock
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
-  alias TartarusTools.JSON
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
+  alias Tartarus.JSON
 
   # The longest request, header or chunk line (the listening socket's packet_size).
   @line_max 8_192
@@ -50,14 +50,20 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp serve(sock, conf) do
-    case :inet.sockname(sock) do
-      {:ok, {ip, _}} ->
-        names =
-          MapSet.new(["localhost", "127.0.0.1", "[::1]", address(ip), address(conf.bind) | conf.hosts])
-        next(sock, Map.merge(conf, %{names: names, answered: 0}))
+    with {:ok, {ip, _}} <- :inet.sockname(sock),
+         {:ok, {peer, _}} <- :inet.peername(sock) do
+      names =
+        MapSet.new([
+          "localhost",
+          "127.0.0.1",
+          "[::1]",
+          address(ip),
+          address(conf.bind) | conf.hosts
+        ])
 
-      {:error, _} ->
-        :gen_tcp.close(sock)
+      next(sock, Map.merge(conf, %{names: names, answered: 0, peer: peer}))
+    else
+      {:error, _} -> :gen_tcp.close(sock)
     end
   end
 
@@ -80,7 +86,13 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         refuse(sock, 400, "bad_request", "the request line is not HTTP/1.1", :unread)
 
       {:error, :timeout} when c.answered == 0 ->
-        refuse(sock, 408, "request_timeout", "no request line within #{c.idle_timeout} ms", :unread)
+        refuse(
+          sock,
+          408,
+          "request_timeout",
+          "no request line within #{c.idle_timeout} ms",
+          :unread
+        )
 
       {:error, _timeout_closed_or_line_too_long} ->
         :gen_tcp.close(sock)
@@ -112,7 +124,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
          :ok <- declared_size(framing, c),
          :ok <- continue(sock, req, framing),
          {:ok, body} <- read_body(sock, framing, c.max_body, deadline) do
-      respond(sock, c, %{req | body: body})
+      respond(sock, c, Map.merge(req, %{body: body, peer: c.peer}))
     else
       {:answer, {status, type, body}} -> send_answer(sock, req, status, type, body, framing)
       {:error, status, code, message} -> refuse(sock, status, code, message, framing)
@@ -143,7 +155,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp build(method, target, version, headers) do
-    dups = for name <- ~w(host content-length transfer-encoding), count(headers, name) > 1, do: name
+    dups =
+      for name <- ~w(host content-length transfer-encoding), count(headers, name) > 1, do: name
 
     cond do
       version not in [{1, 0}, {1, 1}] ->
@@ -165,6 +178,10 @@ defmodule TartarusTools.Dashboard.Http.Conn do
                version: version
              }}
 
+          {:error, :encoding} ->
+            {:error, 400, "bad_request",
+             "the request target's percent-encoding is malformed or does not decode to UTF-8"}
+
           :error ->
             {:error, 400, "bad_request", "the request target is not a path"}
         end
@@ -173,17 +190,31 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   defp count(headers, name), do: Enum.count(headers, fn {k, _} -> k == name end)
 
-  defp path_of({:abs_path, uri}), do: {:ok, split_uri(uri)}
-  defp path_of({:absoluteURI, _scheme, _host, _port, uri}), do: {:ok, split_uri(uri)}
+  defp path_of({:abs_path, uri}), do: split_uri(uri)
+  defp path_of({:absoluteURI, _scheme, _host, _port, uri}), do: split_uri(uri)
   defp path_of(_asterisk_or_other), do: :error
 
+  # The path and the query, percent-decoded: {:ok, {path, query}}, or {:error, :encoding}
+  # when a "%" is not followed by two hexadecimal digits or what it decodes to is not UTF-8
+  # (the API's answers quote paths and parameters as JSON strings).
   defp split_uri(uri) do
-    case String.split(uri, "?", parts: 2) do
-      [p, q] -> {URI.decode(p), URI.decode_query(q)}
-      [p] -> {URI.decode(p), %{}}
+    {p, q} =
+      case String.split(uri, "?", parts: 2) do
+        [p, q] -> {p, q}
+        [p] -> {p, ""}
+      end
+
+    if Regex.match?(~r/%(?![0-9A-Fa-f]{2})/, uri) do
+      {:error, :encoding}
+    else
+      path = URI.decode(p)
+      query = URI.decode_query(q)
+
+      if String.valid?(path) and
+           Enum.all?(query, fn {k, v} -> String.valid?(k) and String.valid?(v) end),
+         do: {:ok, {path, query}},
+         else: {:error, :encoding}
     end
-  rescue
-    _ -> {uri, %{}}
   end
 
   # -- the Host and the Origin -------------------------------------------------------------
@@ -245,10 +276,19 @@ defmodule TartarusTools.Dashboard.Http.Conn do
         {:ok, :none}
 
       {nil, length} ->
-        case Integer.parse(String.trim(length)) do
-          {0, ""} -> {:ok, :none}
-          {n, ""} when n > 0 -> {:ok, {:length, n}}
-          _ -> {:error, 400, "bad_request", "Content-Length #{inspect(length)} is not a length"}
+        # Digits only (RFC 9110's 1*DIGIT): no sign, no spaces inside, no list.
+        digits = String.trim(length)
+
+        cond do
+          not Regex.match?(~r/\A[0-9]+\z/, digits) ->
+            {:error, 400, "bad_request",
+             "Content-Length #{inspect(length)} is not a length (digits only)"}
+
+          String.to_integer(digits) == 0 ->
+            {:ok, :none}
+
+          true ->
+            {:ok, {:length, String.to_integer(digits)}}
         end
 
       {coding, nil} ->
@@ -259,7 +299,8 @@ defmodule TartarusTools.Dashboard.Http.Conn do
              "Transfer-Encoding #{inspect(coding)} is not served (only chunked)"}
 
       {_, _} ->
-        {:error, 400, "bad_request", "a request cannot have both Transfer-Encoding and Content-Length"}
+        {:error, 400, "bad_request",
+         "a request cannot have both Transfer-Encoding and Content-Length"}
     end
   end
 
@@ -271,7 +312,9 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   end
 
   defp declared_size({:length, n}, c) when n > c.max_body,
-    do: {:error, 413, "body_too_large", "the request body has #{n} bytes; at most #{c.max_body} are accepted"}
+    do:
+      {:error, 413, "body_too_large",
+       "the request body has #{n} bytes; at most #{c.max_body} are accepted"}
 
   defp declared_size(_framing, _c), do: :ok
 
@@ -299,14 +342,20 @@ defmodule TartarusTools.Dashboard.Http.Conn do
 
   defp body_recv(sock, n, deadline) do
     case :gen_tcp.recv(sock, n, left(deadline)) do
-      {:ok, data} -> {:ok, data}
-      {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
-      {:error, _} -> :closed
+      {:ok, data} ->
+        {:ok, data}
+
+      {:error, :timeout} ->
+        {:error, 408, "request_timeout", "the request's body did not arrive in time"}
+
+      {:error, _} ->
+        :closed
     end
   end
 
   # Chunked: a size line (hex, maybe ";extensions"), that many bytes and CRLF, ... until a
-  # size of 0, then trailer lines up to an empty one. Read line by line (packet: :line,
+  # size of 0, then trailer lines up to an empty one (read and ignored, at most
+  # @max_headers of them). Read line by line (packet: :line,
   # bounded by packet_size) and chunk by chunk (an exact length), never beyond what
   # the limit allows.
   defp chunks(sock, max, deadline, acc, total) do
@@ -316,33 +365,54 @@ defmodule TartarusTools.Dashboard.Http.Conn do
          {:ok, size} <- chunk_size(line) do
       cond do
         size == 0 ->
-          with :ok <- trailers(sock, deadline, 0), do: {:ok, IO.iodata_to_binary(Enum.reverse(acc))}
+          with :ok <- trailers(sock, deadline, 0),
+               do: {:ok, IO.iodata_to_binary(Enum.reverse(acc))}
 
         total + size > max ->
-          {:error, 413, "body_too_large", "the request body is over #{max} bytes; at most #{max} are accepted"}
+          {:error, 413, "body_too_large",
+           "the request body is over #{max} bytes; at most #{max} are accepted"}
 
         true ->
           :ok = :inet.setopts(sock, packet: :raw)
 
           case body_recv(sock, size + 2, deadline) do
-            {:ok, <<data::binary-size(size), "\r\n">>} -> chunks(sock, max, deadline, [data | acc], total + size)
-            {:ok, _} -> {:error, 400, "bad_request", "a chunk does not end with CRLF"}
-            other -> other
+            {:ok, <<data::binary-size(size), "\r\n">>} ->
+              chunks(sock, max, deadline, [data | acc], total + size)
+
+            {:ok, _} ->
+              {:error, 400, "bad_request", "a chunk does not end with CRLF"}
+
+            other ->
+              other
           end
       end
     end
   end
 
-  defp line(sock, deadline) do
+  # A line longer than the socket's buffer (about 1,460 bytes) comes in pieces, each
+  # without the line end: they are joined up to @line_max bytes.
+  defp line(sock, deadline, acc \\ "") do
     case :gen_tcp.recv(sock, 0, left(deadline)) do
-      {:ok, line} ->
-        # A line longer than the socket's buffer comes in pieces: a piece has no line end.
-        if String.ends_with?(line, "\n"),
-          do: {:ok, line},
-          else: {:error, 400, "bad_request", "a chunk line is longer than #{@line_max} bytes"}
+      {:ok, piece} ->
+        line = acc <> piece
 
-      {:error, :timeout} -> {:error, 408, "request_timeout", "the request's body did not arrive in time"}
-      {:error, _} -> :closed
+        cond do
+          String.ends_with?(line, "\n") ->
+            {:ok, line}
+
+          byte_size(line) < @line_max ->
+            line(sock, deadline, line)
+
+          true ->
+            {:error, 400, "bad_request",
+             "a chunk or trailer line is longer than #{@line_max} bytes"}
+        end
+
+      {:error, :timeout} ->
+        {:error, 408, "request_timeout", "the request's body did not arrive in time"}
+
+      {:error, _} ->
+        :closed
     end
   end
 
@@ -367,7 +437,12 @@ defmodule TartarusTools.Dashboard.Http.Conn do
   # -- answers -----------------------------------------------------------------------------
 
   defp respond(sock, c, req) do
-    case call_api(req, c.ctx) do
+    # While the API answers, this connection's slot is not given to another address.
+    send(c.server, {:busy, self(), true})
+    answer = call_api(req, c.ctx)
+    send(c.server, {:busy, self(), false})
+
+    case answer do
       :stream -> stream(sock, c.ctx)
       {status, type, body} -> send_answer(sock, req, status, type, body, :read)
     end
@@ -461,6 +536,7 @@ defmodule TartarusTools.Dashboard.Http.Conn do
     413 => "Content Too Large",
     414 => "URI Too Long",
     422 => "Unprocessable Content",
+    429 => "Too Many Requests",
     431 => "Request Header Fields Too Large",
     500 => "Internal Server Error",
     501 => "Not Implemented",

@@ -1,16 +1,17 @@
-defmodule TartarusTools.JSON do
+defmodule Tartarus.JSON do
   @moduledoc """
   A small, dependency-free JSON encoder and decoder (RFC 8259).
 
-  hex.pm is out of reach on our build machines, so the umbrella carries its own JSON. It is
-  used for `summary.json` files, benchmark output and anything else machine-readable; it is
-  not tuned for megabytes per second, but it is strict and deterministic.
+  hex.pm is out of reach on our build machines, so the umbrella carries its own JSON, in the
+  platform: the dashboard's API speaks it, and the lab writes `summary.json` files,
+  benchmark output and anything else machine-readable with it. It is not tuned for
+  megabytes per second, but it is strict and deterministic.
 
   ## Example
 
-      iex> json = TartarusTools.JSON.encode!(%{name: "h1", hops: 3, tags: [:fast, nil]})
+      iex> json = Tartarus.JSON.encode!(%{name: "h1", hops: 3, tags: [:fast, nil]})
       ~s({"hops":3,"name":"h1","tags":["fast",null]})
-      iex> TartarusTools.JSON.decode(json)
+      iex> Tartarus.JSON.decode(json)
       {:ok, %{"hops" => 3, "name" => "h1", "tags" => ["fast", nil]}}
 
   ## Encoding
@@ -46,12 +47,12 @@ defmodule TartarusTools.JSON do
   a fraction or an exponent become floats, others integers (of any size). `\\uXXXX` escapes
   are supported, including surrogate pairs; a lone surrogate is an error. A number too large
   for a float (such as `1e400`) is reported as an error at its position.
-  `decode!/1` raises `TartarusTools.JSON.DecodeError` instead.
+  `decode!/1` raises `Tartarus.JSON.DecodeError` instead.
   """
 
   defmodule DecodeError do
     @moduledoc """
-    Raised by `TartarusTools.JSON.decode!/1` for invalid JSON.
+    Raised by `Tartarus.JSON.decode!/1` for invalid JSON.
 
     `position` is the 0-based byte offset of the problem.
     """
@@ -97,17 +98,17 @@ defmodule TartarusTools.JSON do
 
   ## Examples
 
-      iex> TartarusTools.JSON.encode!(%{"b" => 1, :a => [1.5, true, nil]})
+      iex> Tartarus.JSON.encode!(%{"b" => 1, :a => [1.5, true, nil]})
       ~s({"a":[1.5,true,null],"b":1})
 
-      iex> TartarusTools.JSON.encode!("tab\\there \\"quoted\\" é")
+      iex> Tartarus.JSON.encode!("tab\\there \\"quoted\\" é")
       ~s("tab\\\\there \\\\"quoted\\\\" é")
 
-      iex> TartarusTools.JSON.encode!(%{a: [1, 2], b: %{}}, pretty: true)
+      iex> Tartarus.JSON.encode!(%{a: [1, 2], b: %{}}, pretty: true)
       ~s({\\n  "a": [\\n    1,\\n    2\\n  ],\\n  "b": {}\\n})
 
-      iex> TartarusTools.JSON.encode!({:a, 1})
-      ** (ArgumentError) TartarusTools.JSON.encode!/2 cannot encode {:a, 1}: expected a map, list, binary, number, boolean, nil or atom
+      iex> Tartarus.JSON.encode!({:a, 1})
+      ** (ArgumentError) Tartarus.JSON.encode!/2 cannot encode {:a, 1}: expected a map, list, binary, number, boolean, nil or atom
   """
   @spec encode!(encodable, encode_opts) :: String.t()
   def encode!(term, opts \\ []) do
@@ -119,7 +120,7 @@ defmodule TartarusTools.JSON do
 
   ## Examples
 
-      iex> TartarusTools.JSON.encode_to_iodata!([1, "x"]) |> IO.iodata_to_binary()
+      iex> Tartarus.JSON.encode_to_iodata!([1, "x"]) |> IO.iodata_to_binary()
       ~s([1,"x"])
   """
   @spec encode_to_iodata!(encodable, encode_opts) :: iodata
@@ -138,7 +139,7 @@ defmodule TartarusTools.JSON do
 
   defp enc(atom, _) when atom in [:nan, :infinity, :neg_infinity] do
     raise ArgumentError,
-          "TartarusTools.JSON.encode!/2 cannot encode #{inspect(atom)}: " <>
+          "Tartarus.JSON.encode!/2 cannot encode #{inspect(atom)}: " <>
             "expected a finite number, JSON has no NaN or infinity"
   end
 
@@ -153,7 +154,7 @@ defmodule TartarusTools.JSON do
 
   defp enc(%module{} = struct, _) do
     raise ArgumentError,
-          "TartarusTools.JSON.encode!/2 cannot encode struct #{inspect(struct)}: " <>
+          "Tartarus.JSON.encode!/2 cannot encode struct #{inspect(struct)}: " <>
             "expected a plain map; convert #{inspect(module)} to a map first"
   end
 
@@ -179,7 +180,7 @@ defmodule TartarusTools.JSON do
   defp enc(list, indent) when is_list(list) do
     if not proper_list?(list) do
       raise ArgumentError,
-            "TartarusTools.JSON.encode!/2 cannot encode improper list #{inspect(list)}: " <>
+            "Tartarus.JSON.encode!/2 cannot encode improper list #{inspect(list)}: " <>
               "expected a proper list"
     end
 
@@ -188,7 +189,7 @@ defmodule TartarusTools.JSON do
 
   defp enc(other, _) do
     raise ArgumentError,
-          "TartarusTools.JSON.encode!/2 cannot encode #{inspect(other)}: " <>
+          "Tartarus.JSON.encode!/2 cannot encode #{inspect(other)}: " <>
             "expected a map, list, binary, number, boolean, nil or atom"
   end
 
@@ -222,7 +223,7 @@ defmodule TartarusTools.JSON do
 
   defp key(k) do
     raise ArgumentError,
-          "TartarusTools.JSON.encode!/2 cannot encode map key #{inspect(k)}: " <>
+          "Tartarus.JSON.encode!/2 cannot encode map key #{inspect(k)}: " <>
             "expected an atom or a string"
   end
 
@@ -230,7 +231,7 @@ defmodule TartarusTools.JSON do
   # as "a") are refused. One pass (this runs for every map encoded).
   defp check_duplicate_keys([{a, _}, {a, _} | _], map) do
     raise ArgumentError,
-          "TartarusTools.JSON.encode!/2 cannot encode map #{inspect(map)}: " <>
+          "Tartarus.JSON.encode!/2 cannot encode map #{inspect(map)}: " <>
             "expected unique keys, got two keys that both encode as #{inspect(a)}"
   end
 
@@ -240,7 +241,7 @@ defmodule TartarusTools.JSON do
   defp string(bin) do
     if not String.valid?(bin) do
       raise ArgumentError,
-            "TartarusTools.JSON.encode!/2 cannot encode binary #{inspect(bin)}: " <>
+            "Tartarus.JSON.encode!/2 cannot encode binary #{inspect(bin)}: " <>
               "expected valid UTF-8"
     end
 
@@ -283,13 +284,13 @@ defmodule TartarusTools.JSON do
 
   ## Examples
 
-      iex> TartarusTools.JSON.decode(~s({"a": [1, 2.5, "\\\\u00e9\\\\ud83d\\\\ude00"], "b": null}))
+      iex> Tartarus.JSON.decode(~s({"a": [1, 2.5, "\\\\u00e9\\\\ud83d\\\\ude00"], "b": null}))
       {:ok, %{"a" => [1, 2.5, "é😀"], "b" => nil}}
 
-      iex> TartarusTools.JSON.decode("[1, 2,]")
+      iex> Tartarus.JSON.decode("[1, 2,]")
       {:error, {:invalid_json, 6}}
 
-      iex> TartarusTools.JSON.decode("")
+      iex> Tartarus.JSON.decode("")
       {:error, {:invalid_json, 0}}
   """
   @spec decode(binary) :: {:ok, decoded} | {:error, {:invalid_json, non_neg_integer}}
@@ -309,15 +310,15 @@ defmodule TartarusTools.JSON do
   end
 
   @doc """
-  Like `decode/1` but returns the term or raises `TartarusTools.JSON.DecodeError`.
+  Like `decode/1` but returns the term or raises `Tartarus.JSON.DecodeError`.
 
   ## Examples
 
-      iex> TartarusTools.JSON.decode!("[true, false]")
+      iex> Tartarus.JSON.decode!("[true, false]")
       [true, false]
 
-      iex> TartarusTools.JSON.decode!(~s({"a" 1}))
-      ** (TartarusTools.JSON.DecodeError) invalid JSON at byte 5: found "1"
+      iex> Tartarus.JSON.decode!(~s({"a" 1}))
+      ** (Tartarus.JSON.DecodeError) invalid JSON at byte 5: found "1"
   """
   @spec decode!(binary) :: decoded
   def decode!(binary) when is_binary(binary) do

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Api do
+defmodule TartarusDashboard.Api do
   @moduledoc false
   # The JSON HTTP API (documented in docs/dashboard.md): a request map in
   # (%{method, path, query, headers, body}), {status, content_type, body} or :stream out;
@@ -6,15 +6,15 @@ defmodule TartarusTools.Dashboard.Api do
   # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
   # hosts, agents, modules and panels are looked up among those that exist.
 
-  alias TartarusTools.Dashboard.{Feed, Fleet, Health, Page, Panel}
+  alias TartarusDashboard.{Feed, Fleet, Health, Page, Panel}
   alias Tartarus.Clock
-  alias TartarusTools.JSON
+  alias Tartarus.JSON
 
   @cache_ms 1_000
   @id ~r/\A[0-9a-f]{16}\z/
 
   # What needs only the request line and the headers, checked before the body is read
-  # (TartarusTools.Dashboard.Http.Conn): an action (a POST on a known endpoint) needs the
+  # (TartarusDashboard.Http.Conn): an action (a POST on a known endpoint) needs the
   # token. :ok, or the answer. (The body's size limit is the HTTP layer's.)
   def admit(%{method: "POST"} = req, ctx) do
     segs = String.split(req.path, "/", trim: true)
@@ -46,7 +46,7 @@ defmodule TartarusTools.Dashboard.Api do
   defp route("GET", ["api", "links"], req, ctx), do: with_query(req, &links(&1, ctx))
   defp route("GET", ["api", "summary"], _req, ctx), do: json(200, summary(ctx))
   defp route("GET", ["api", "agents"], req, ctx), do: with_query(req, &agents(&1, ctx))
-  defp route("GET", ["api", "agents", id], _req, ctx), do: agent_detail(id, ctx)
+  defp route("GET", ["api", "agents", id], req, ctx), do: agent_detail(id, req, ctx)
   defp route("GET", ["api", "events"], req, ctx), do: with_query(req, &events(&1, ctx))
   defp route("GET", ["api", "catalog"], _req, ctx), do: json(200, %{catalog: catalog(ctx)})
   defp route("GET", ["api", "panels"], _req, ctx), do: json(200, %{panels: panels(ctx)})
@@ -77,8 +77,9 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp not_found(req), do: error(404, "not_found", "no such endpoint: #{req.method} #{req.path}")
 
-  defp routable("GET", ["api", x]) when x in ~w(info hosts links summary agents events catalog panels stream fleet health rates),
-    do: {:ok, x}
+  defp routable("GET", ["api", x])
+       when x in ~w(info hosts links summary agents events catalog panels stream fleet health rates),
+       do: {:ok, x}
 
   defp routable("GET", ["api", x, _]) when x in ~w(hosts agents), do: {:ok, x}
   defp routable("GET", []), do: {:ok, :page}
@@ -191,7 +192,18 @@ defmodule TartarusTools.Dashboard.Api do
     ctx
     |> summary_views()
     |> Map.merge(%{
-      totals: Map.take(Tartarus.Events.totals(), [:created, :arrivals, :departures, :refused, :bytes, :messages, :move_failed, :kills, :crashes]),
+      totals:
+        Map.take(Tartarus.Events.totals(), [
+          :created,
+          :arrivals,
+          :departures,
+          :refused,
+          :bytes,
+          :messages,
+          :move_failed,
+          :kills,
+          :crashes
+        ]),
       hop: stats.hop,
       feed: Map.take(stats, [:seq, :dropped, :clients]),
       counts: stats.counts
@@ -281,7 +293,11 @@ defmodule TartarusTools.Dashboard.Api do
 
       %{host: {_, n}} = h when n == node() ->
         if h.up,
-          do: here |> Map.get(h.host, []) |> Enum.sort_by(& &1.name) |> Enum.map(&agent_view(&1, h.id, n)),
+          do:
+            here
+            |> Map.get(h.host, [])
+            |> Enum.sort_by(& &1.name)
+            |> Enum.map(&agent_view(&1, h.id, n)),
           else: []
 
       h ->
@@ -294,10 +310,10 @@ defmodule TartarusTools.Dashboard.Api do
     do: Enum.map(h.agents, &agent_view(&1, h.id, node))
 
   defp local_agents(h) do
-      case h.up && Tartarus.agents(h.host) do
-        list when is_list(list) -> Enum.map(list, &agent_view(&1, h.id, elem(h.host, 1)))
-        _ -> []
-      end
+    case h.up && Tartarus.agents(h.host) do
+      list when is_list(list) -> Enum.map(list, &agent_view(&1, h.id, elem(h.host, 1)))
+      _ -> []
+    end
   end
 
   defp agent_view(a, host_id, node) do
@@ -310,8 +326,8 @@ defmodule TartarusTools.Dashboard.Api do
     }
   end
 
-  defp agent_detail(id, ctx) do
-    with {:ok, ref} <- agent_ref(id, ctx) do
+  defp agent_detail(id, req, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx), :ok <- search_budget(ref, req, ctx) do
       case Tartarus.agent_info(ref) do
         {:ok, info} ->
           names = names(ctx)
@@ -319,9 +335,62 @@ defmodule TartarusTools.Dashboard.Api do
           json(200, Map.put(view, :id, id))
 
         {:error, reason} ->
+          if is_binary(ref) and reason == :not_found, do: missed(id, ctx)
           error(404, "unknown_agent", "agent #{id}: #{describe(reason)}")
       end
     end
+  end
+
+  # -- what a read may cost the overlay --------------------------------------------------
+
+  # An agent not on the hosts shown is searched for through the overlay (Tartarus.whereis:
+  # one walk that asks each reachable node once, within 2 s). Reads need no token, so what
+  # they may cost the fleet is bounded per client address: an id that a search did not
+  # find is answered 404 without a new search for ctx.search_miss_ms, and an address
+  # starts at most ctx.search_rate searches per second (beyond: 429). Both are kept in
+  # the cache table, old entries swept when new ones are written.
+  defp search_budget(id, req, ctx) when is_binary(id) do
+    now = Clock.machine_time(:millisecond)
+    second = div(now, 1_000)
+
+    case :ets.lookup(ctx.cache, {:missed, id}) do
+      [{_, until}] when now < until ->
+        error(
+          404,
+          "unknown_agent",
+          "agent #{id}: #{describe(:not_found)} (a search less than #{ctx.search_miss_ms} ms ago did not find it)"
+        )
+
+      _ ->
+        key = {:searches, Map.get(req, :peer), second}
+
+        case :ets.update_counter(ctx.cache, key, 1, {key, 0}) do
+          1 ->
+            :ets.select_delete(ctx.cache, [
+              {{{:searches, :_, :"$1"}, :_}, [{:<, :"$1", second}], [true]}
+            ])
+
+            :ok
+
+          n when n <= ctx.search_rate ->
+            :ok
+
+          _ ->
+            error(
+              429,
+              "too_many_searches",
+              "agent #{id} is not on the hosts shown here, and this address has started #{ctx.search_rate} searches of the overlay in this second (at most #{ctx.search_rate} a second): try again in a second"
+            )
+        end
+    end
+  end
+
+  defp search_budget(_id_on_a_known_host, _req, _ctx), do: :ok
+
+  defp missed(id, ctx) do
+    now = Clock.machine_time(:millisecond)
+    :ets.select_delete(ctx.cache, [{{{:missed, :_}, :"$1"}, [{:<, :"$1", now}], [true]}])
+    :ets.insert(ctx.cache, {{:missed, id}, now + ctx.search_miss_ms})
   end
 
   defp info_value(k, v, names) when k in [:host, :home, :source],
@@ -349,7 +418,14 @@ defmodule TartarusTools.Dashboard.Api do
           t -> Enum.find(event_types(), &(Atom.to_string(&1) == t)) || :__none__
         end
 
-      f = %{since: since, limit: limit, type: type, host: blank(q["host"]), agent: blank(q["agent"])}
+      f = %{
+        since: since,
+        limit: limit,
+        type: type,
+        host: blank(q["host"]),
+        agent: blank(q["agent"])
+      }
+
       json(200, Feed.events(ctx.feed, f))
     end
   end
@@ -412,7 +488,12 @@ defmodule TartarusTools.Dashboard.Api do
     nodes =
       Enum.map(snaps, fn
         %{error: e} = snap ->
-          %{node: to_string(snap.node), reachable: false, error: e, path: Enum.map(snap.path, &to_string/1)}
+          %{
+            node: to_string(snap.node),
+            reachable: false,
+            error: e,
+            path: Enum.map(snap.path, &to_string/1)
+          }
 
         snap ->
           mine = Map.get(per_node, to_string(snap.node), %{hosts: [], residents: 0, plugins: 0})
@@ -469,8 +550,7 @@ defmodule TartarusTools.Dashboard.Api do
         host ->
           name = host |> String.split("@") |> hd()
 
-          points =
-            for p <- series, row = p.hosts[name], do: Map.put(row, :t, p.t)
+          points = for p <- series, row = p.hosts[name], do: Map.put(row, :t, p.t)
 
           json(200, %{node: node, host: host, points: points})
       end
@@ -502,8 +582,11 @@ defmodule TartarusTools.Dashboard.Api do
 
       :none ->
         case Fleet.forward(path, {:health, points}) do
-          {:ok, series} -> {:ok, series}
-          {:error, why} -> error(502, "node_unreachable", "cannot read #{List.last(path)}: #{why}")
+          {:ok, series} ->
+            {:ok, series}
+
+          {:error, why} ->
+            error(502, "node_unreachable", "cannot read #{List.last(path)}: #{why}")
         end
     end
   end
@@ -714,8 +797,11 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp required(p, key) do
     case Map.fetch(p, key) do
-      {:ok, v} -> {:ok, v}
-      :error -> reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field"})
+      {:ok, v} ->
+        {:ok, v}
+
+      :error ->
+        reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field"})
     end
   end
 
@@ -725,11 +811,14 @@ defmodule TartarusTools.Dashboard.Api do
         find_host(id, ctx)
 
       nil ->
-        reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field (a host id)"})
+        reply_error(
+          {:error, 400, "missing_param", "the body needs a #{inspect(key)} field (a host id)"}
+        )
 
       other ->
         reply_error(
-          {:error, 400, "bad_param", "#{inspect(key)} must be a host id (a string), got: #{JSON.encode!(other)}"}
+          {:error, 400, "bad_param",
+           "#{inspect(key)} must be a host id (a string), got: #{JSON.encode!(other)}"}
         )
     end
   end
@@ -753,7 +842,10 @@ defmodule TartarusTools.Dashboard.Api do
         end
 
       _ ->
-        reply_error({:error, 400, "missing_param", "the body needs a \"module\" field (from GET /api/catalog)"})
+        reply_error(
+          {:error, 400, "missing_param",
+           "the body needs a \"module\" field (from GET /api/catalog)"}
+        )
     end
   end
 
@@ -784,7 +876,11 @@ defmodule TartarusTools.Dashboard.Api do
       (place = Feed.place(ctx.feed, id)) && Map.has_key?(index(ctx), place) ->
         {:ok, {id, Map.fetch!(index(ctx), place).host}}
 
-      a = Enum.find(cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end), &(&1.id == id)) ->
+      a =
+          Enum.find(
+            cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end),
+            &(&1.id == id)
+          ) ->
         {:ok, {id, Map.fetch!(index(ctx), a.host).host}}
 
       ctx.fleet != nil ->
@@ -814,15 +910,27 @@ defmodule TartarusTools.Dashboard.Api do
             {:ok, n}
 
           _ ->
-            reply_error({:error, 400, "bad_param", "#{key} must be an integer in #{min}..#{max}, got: #{inspect(s)}"})
+            reply_error(
+              {:error, 400, "bad_param",
+               "#{key} must be an integer in #{min}..#{max}, got: #{inspect(s)}"}
+            )
         end
     end
   end
 
   defp choice(q, key, values) do
     case q[key] do
-      nil -> {:ok, hd(values)}
-      v -> if v in values, do: {:ok, v}, else: reply_error({:error, 400, "bad_param", "#{key} must be one of #{Enum.join(values, ", ")}, got: #{inspect(v)}"})
+      nil ->
+        {:ok, hd(values)}
+
+      v ->
+        if v in values,
+          do: {:ok, v},
+          else:
+            reply_error(
+              {:error, 400, "bad_param",
+               "#{key} must be one of #{Enum.join(values, ", ")}, got: #{inspect(v)}"}
+            )
     end
   end
 
@@ -854,14 +962,14 @@ defmodule TartarusTools.Dashboard.Api do
 
   defp topology_now(ctx) do
     case ctx.emulation do
-        {m, a} ->
-          hosts = m.hosts(a)
-          Feed.watch_nodes(ctx.feed, Enum.map(hosts, &elem(&1.host, 1)))
-          %{hosts: hosts, links: m.links(a)}
+      {m, a} ->
+        hosts = m.hosts(a)
+        Feed.watch_nodes(ctx.feed, Enum.map(hosts, &elem(&1.host, 1)))
+        %{hosts: hosts, links: m.links(a)}
 
-        nil ->
-          fleet_topology(ctx)
-      end
+      nil ->
+        fleet_topology(ctx)
+    end
   end
 
   # This node's hosts and, through the fleet's gather, those of every node the overlay
@@ -989,7 +1097,12 @@ defmodule TartarusTools.Dashboard.Api do
   defp remote_view(%{remote: r} = h) do
     h
     |> base_view("host")
-    |> Map.merge(Map.take(r, ~w(residents arrivals departures refused bytes messages move_failed hop_median_us hop_p99_us)a))
+    |> Map.merge(
+      Map.take(
+        r,
+        ~w(residents arrivals departures refused bytes messages move_failed hop_median_us hop_p99_us)a
+      )
+    )
     |> Map.merge(%{age_ms: now_ms() - h.seen_at, plugins: Enum.map(r.plugins, &plugin_view/1)})
   end
 
@@ -1062,7 +1175,8 @@ defmodule TartarusTools.Dashboard.Api do
   defp error(status, code, message),
     do: {status, "application/json", JSON.encode!(%{error: code, message: message})}
 
-  defp failed(what, reason), do: error(422, "action_failed", "#{what} failed: #{describe(reason)}")
+  defp failed(what, reason),
+    do: error(422, "action_failed", "#{what} failed: #{describe(reason)}")
 
   @doc false
   def describe(:not_found), do: "no such agent (it may have stopped)"
@@ -1072,6 +1186,7 @@ defmodule TartarusTools.Dashboard.Api do
   def describe({:ambiguous_host, name, hosts}),
     do:
       "#{name} names several hosts (#{Enum.map_join(hosts, ", ", fn {n, node} -> "#{n}@#{node}" end)}): give one as name@node"
+
   def describe({:refused, r}), do: "the destination refused it (#{describe(r)})"
   def describe(:timeout), do: "no answer in time"
 

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Emulation do
+defmodule TartarusDashboard.Emulation do
   @moduledoc """
   What an emulator gives the dashboard: the hosts and links it emulates (on any BEAM node,
   up or down) and the link actions. The emulator (`apps/tartarus_emu`) implements it over

@@ -1,21 +1,19 @@
-defmodule TartarusTools.Dashboard.ApiTest do
+defmodule TartarusDashboard.ApiTest do
   # The dashboard's JSON HTTP API over real HTTP (:httpc against the dashboard's server), on a
   # node with a few hosts of its own (no emulation): status codes, content types, what the
   # answers hold, bad input, the token, and the live stream.
   use ExUnit.Case, async: false
 
   import Tartarus.TestSupport
+  alias Tartarus.JSON
 
-  alias TartarusTools.Dashboard
-  alias TartarusTools.JSON
-
-  doctest TartarusTools.Dashboard.Panel
+  doctest TartarusDashboard.Panel
 
   @token "test-token-0123456789"
 
   defmodule CounterPanel do
     # A panel over an Elixir Agent holding a count: shows it, and "bump" adds params["by"].
-    @behaviour TartarusTools.Dashboard.Panel
+    @behaviour TartarusDashboard.Panel
     def name(_), do: "counter"
 
     def render(agent) do
@@ -42,7 +40,7 @@ defmodule TartarusTools.Dashboard.ApiTest do
     {:ok, id} = Tartarus.create_mobile_agent(a, Tartarus.Examples.Echo, nil)
 
     {:ok, dash} =
-      Dashboard.start_link(token: @token, max_body: 1_024, batch_ms: 50, max_batch: 50)
+      TartarusDashboard.start_link(token: @token, max_body: 1_024, batch_ms: 50, max_batch: 50)
 
     on_exit(fn ->
       Tartarus.stop_host(a)
@@ -51,7 +49,7 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
     %{
       dash: dash,
-      url: Dashboard.url(dash),
+      url: TartarusDashboard.url(dash),
       a: to_string(a),
       b: to_string(b),
       ha: ha,
@@ -237,7 +235,7 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
   test "the live stream sends batches of events as server-sent events", c do
     {:ok, sock} =
-      :gen_tcp.connect(~c"127.0.0.1", Dashboard.port(c.dash), [:binary, active: false])
+      :gen_tcp.connect(~c"127.0.0.1", TartarusDashboard.port(c.dash), [:binary, active: false])
 
     :ok = :gen_tcp.send(sock, "GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
     {:ok, head} = :gen_tcp.recv(sock, 0, 5_000)
@@ -260,8 +258,11 @@ defmodule TartarusTools.Dashboard.ApiTest do
   end
 
   test "a batch holds at most max_batch events; the rest are counted as dropped" do
-    {:ok, dash} = Dashboard.start_link(max_batch: 3, batch_ms: 200)
-    {:ok, sock} = :gen_tcp.connect(~c"127.0.0.1", Dashboard.port(dash), [:binary, active: false])
+    {:ok, dash} = TartarusDashboard.start_link(max_batch: 3, batch_ms: 200)
+
+    {:ok, sock} =
+      :gen_tcp.connect(~c"127.0.0.1", TartarusDashboard.port(dash), [:binary, active: false])
+
     :ok = :gen_tcp.send(sock, "GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
     {:ok, _} = :gen_tcp.recv(sock, 0, 5_000)
     # The stream is joined once the head is out; now make 12 events.
@@ -284,18 +285,28 @@ defmodule TartarusTools.Dashboard.ApiTest do
   defmodule PicturePanel do
     @moduledoc false
     # A panel with a picture (and one with a type the page does not show).
-    @behaviour TartarusTools.Dashboard.Panel
+    @behaviour TartarusDashboard.Panel
     def name(type), do: "pic-" <> String.replace(type, ~r/[^a-z]/, "")
 
     def render(type),
-      do: %{title: "A picture", columns: [], rows: [], image: %{type: type, data: <<137, 80, 78, 71>>, alt: "four bytes"}}
+      do: %{
+        title: "A picture",
+        columns: [],
+        rows: [],
+        image: %{type: type, data: <<137, 80, 78, 71>>, alt: "four bytes"}
+      }
 
     def act(_, action, _), do: {:error, {:unknown_action, action}}
   end
 
   test "a panel's picture is served inline as a data URL; a type the page does not show is dropped" do
-    {:ok, dash} = Dashboard.start_link(token: @token, panels: [{PicturePanel, "image/png"}, {PicturePanel, "text/html"}])
-    {200, _, %{"panels" => [png, html]}} = get(Dashboard.url(dash), "/api/panels")
+    {:ok, dash} =
+      TartarusDashboard.start_link(
+        token: @token,
+        panels: [{PicturePanel, "image/png"}, {PicturePanel, "text/html"}]
+      )
+
+    {200, _, %{"panels" => [png, html]}} = get(TartarusDashboard.url(dash), "/api/panels")
     assert png["image"] == "data:image/png;base64," <> Base.encode64(<<137, 80, 78, 71>>)
     assert png["image_alt"] == "four bytes"
     assert html["image"] == nil
@@ -303,15 +314,18 @@ defmodule TartarusTools.Dashboard.ApiTest do
 
   test "an application's panel is shown and acts, with the token" do
     {:ok, counter} = Agent.start_link(fn -> 0 end)
-    {:ok, dash} = Dashboard.start_link(token: @token, panels: [{CounterPanel, counter}])
-    url = Dashboard.url(dash)
+    {:ok, dash} = TartarusDashboard.start_link(token: @token, panels: [{CounterPanel, counter}])
+    url = TartarusDashboard.url(dash)
 
     {200, _, %{"panels" => [panel]}} = get(url, "/api/panels")
     assert %{"name" => "counter", "title" => "A counter", "rows" => [["clicks", 0]]} = panel
     assert [%{"action" => "bump", "params" => %{"by" => 1}}] = panel["actions"]
 
     assert {401, _, _} = post(url, "/api/panels/counter/bump", ~s({"by":2}), nil)
-    assert {200, _, %{"ok" => true, "result" => 2}} = post(url, "/api/panels/counter/bump", ~s({"by":2}))
+
+    assert {200, _, %{"ok" => true, "result" => 2}} =
+             post(url, "/api/panels/counter/bump", ~s({"by":2}))
+
     assert Agent.get(counter, & &1) == 2
     assert {422, _, %{"message" => m}} = post(url, "/api/panels/counter/explode", "{}")
     assert m =~ "explode failed"
@@ -322,11 +336,11 @@ defmodule TartarusTools.Dashboard.ApiTest do
     path = Path.join(System.tmp_dir!(), "dash_token_#{System.unique_integer([:positive])}")
     File.write!(path, "from-a-file-123\nignored\n")
     on_exit(fn -> File.rm(path) end)
-    {:ok, dash} = Dashboard.start_link(token_file: path)
-    assert Dashboard.token(dash) == "from-a-file-123"
-    assert {:error, msg} = Dashboard.start_link(token: "short")
+    {:ok, dash} = TartarusDashboard.start_link(token_file: path)
+    assert TartarusDashboard.token(dash) == "from-a-file-123"
+    assert {:error, msg} = TartarusDashboard.start_link(token: "short")
     assert msg =~ "[:token]"
-    assert {:error, msg} = Dashboard.start_link(token_file: path <> ".missing")
+    assert {:error, msg} = TartarusDashboard.start_link(token_file: path <> ".missing")
     assert msg =~ "token file"
   end
 

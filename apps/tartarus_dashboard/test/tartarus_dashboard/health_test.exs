@@ -1,16 +1,14 @@
-defmodule TartarusTools.Dashboard.HealthTest do
+defmodule TartarusDashboard.HealthTest do
   # The health sampler (a bounded ring of samples, each bounded in what it reads), the
   # per-second event counts and the fleet, health and rates endpoints on a node of its own.
   use ExUnit.Case, async: false
 
   import Tartarus.TestSupport
-
-  alias TartarusTools.Dashboard
-  alias TartarusTools.Dashboard.{Feed, Health}
-  alias TartarusTools.JSON
+  alias TartarusDashboard.{Feed, Health}
+  alias Tartarus.JSON
 
   defp get(url, path) do
-    {:ok, status, body} = Dashboard.http_get(url <> path)
+    {:ok, status, body} = TartarusDashboard.http_get(url <> path)
     {status, JSON.decode!(body)}
   end
 
@@ -93,8 +91,8 @@ defmodule TartarusTools.Dashboard.HealthTest do
     # A sampler started now: its first sample (taken at once) has the new host.
     Health.stop()
     on_exit(&Health.stop/0)
-    {:ok, dash} = Dashboard.start_link(token: "health-test-token")
-    url = Dashboard.url(dash)
+    {:ok, dash} = TartarusDashboard.start_link(token: "health-test-token")
+    url = TartarusDashboard.url(dash)
 
     {200, fleet} = get(url, "api/fleet")
     me = Enum.find(fleet["nodes"], &(&1["node"] == to_string(node())))
@@ -113,6 +111,6 @@ defmodule TartarusTools.Dashboard.HealthTest do
     {200, %{"t" => [_ | _], "counts" => %{}}} = get(url, "api/rates?seconds=5")
     assert {404, %{"error" => "unknown_node"}} = get(url, "api/health?node=nowhere@nohost")
     assert {400, %{"error" => "bad_param"}} = get(url, "api/rates?seconds=0")
-    Dashboard.stop(dash)
+    TartarusDashboard.stop(dash)
   end
 end

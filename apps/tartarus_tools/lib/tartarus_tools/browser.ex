@@ -1,14 +1,14 @@
-defmodule TartarusTools.Dashboard.Browser do
+defmodule TartarusTools.Browser do
   @moduledoc """
   A real headless Chromium driven over the DevTools protocol (a small WebSocket client on
   `:gen_tcp`, no dependency): the dashboard's browser tests and its benchmark open the page
   with it, read what the browser rendered, click, and take screenshots.
 
-      {:ok, b} = TartarusTools.Dashboard.Browser.start()
-      :ok = TartarusTools.Dashboard.Browser.open(b, "http://127.0.0.1:4040/")
-      {:ok, 2} = TartarusTools.Dashboard.Browser.eval(b, "document.querySelectorAll('[data-host]').length")
-      :ok = TartarusTools.Dashboard.Browser.screenshot(b, "page.png")
-      :ok = TartarusTools.Dashboard.Browser.stop(b)
+      {:ok, b} = TartarusTools.Browser.start()
+      :ok = TartarusTools.Browser.open(b, "http://127.0.0.1:4040/")
+      {:ok, 2} = TartarusTools.Browser.eval(b, "document.querySelectorAll('[data-host]').length")
+      :ok = TartarusTools.Browser.screenshot(b, "page.png")
+      :ok = TartarusTools.Browser.stop(b)
 
   Chromium runs in its own process group (started with `setsid`) with a throw-away
   profile directory; `stop/1` kills the whole group and removes the directory, and so does
@@ -20,8 +20,8 @@ defmodule TartarusTools.Dashboard.Browser do
   use GenServer
 
   alias Tartarus.Clock
-  alias TartarusTools.MachineClock
-  require TartarusTools.MachineClock
+  alias Tartarus.MachineClock
+  require Tartarus.MachineClock
 
   @typedoc "A running browser."
   @type t :: pid()
@@ -212,7 +212,7 @@ defmodule TartarusTools.Dashboard.Browser do
     list_url = ~c"http://#{host}:#{port}/json/list"
 
     with {:ok, {{_, 200, _}, _, body}} <- :httpc.request(:get, {list_url, []}, [timeout: 5_000], []),
-         {:ok, targets} <- TartarusTools.JSON.decode(IO.iodata_to_binary(body)),
+         {:ok, targets} <- Tartarus.JSON.decode(IO.iodata_to_binary(body)),
          %{"webSocketDebuggerUrl" => ws} <-
            Enum.find(targets, &(&1["type"] == "page")) || {:error, :no_page} do
       ws_connect(ws)
@@ -257,7 +257,7 @@ defmodule TartarusTools.Dashboard.Browser do
   @impl true
   def handle_call({:command, method, params}, _from, s) do
     id = s.next
-    frame = TartarusTools.JSON.encode!(%{id: id, method: method, params: params})
+    frame = Tartarus.JSON.encode!(%{id: id, method: method, params: params})
     s = %{s | next: id + 1}
 
     with :ok <- :gen_tcp.send(s.sock, encode_frame(frame)),
@@ -276,7 +276,7 @@ defmodule TartarusTools.Dashboard.Browser do
   defp await(sock, buf, id) do
     case read_message(sock, buf, "") do
       {:ok, text, buf} ->
-        case TartarusTools.JSON.decode(text) do
+        case Tartarus.JSON.decode(text) do
           {:ok, %{"id" => ^id} = m} -> {:ok, m, buf}
           _ -> await(sock, buf, id)
         end

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Feed do
+defmodule TartarusDashboard.Feed do
   @moduledoc false
   # The dashboard's one subscriber to Tartarus.Events, with a budget: the platform sends it
   # at most max_batch events per batch_ms (the first of each window) and skips the others
@@ -145,9 +145,9 @@ defmodule TartarusTools.Dashboard.Feed do
         _ ->
           %{
             count: length(sorted),
-            p50_us: TartarusTools.Stats.percentile(sorted, 0.5),
-            p90_us: TartarusTools.Stats.percentile(sorted, 0.9),
-            p99_us: TartarusTools.Stats.percentile(sorted, 0.99),
+            p50_us: Tartarus.Percentile.sorted(sorted, 0.5),
+            p90_us: Tartarus.Percentile.sorted(sorted, 0.9),
+            p99_us: Tartarus.Percentile.sorted(sorted, 0.99),
             max_us: List.last(sorted)
           }
       end
@@ -209,7 +209,7 @@ defmodule TartarusTools.Dashboard.Feed do
 
     if s.batch_n > 0 and map_size(s.clients) > 0 do
       data =
-        TartarusTools.JSON.encode!(%{
+        Tartarus.JSON.encode!(%{
           seq: s.seq,
           dropped: s.batch_dropped,
           seen: s.batch_seen,
@@ -230,7 +230,14 @@ defmodule TartarusTools.Dashboard.Feed do
       end)
     end
 
-    {:noreply, %{roll(s, Clock.machine_system_time(:second)) | batch: %{}, batch_n: 0, batch_dropped: 0, batch_seen: 0}}
+    {:noreply,
+     %{
+       roll(s, Clock.machine_system_time(:second))
+       | batch: %{},
+         batch_n: 0,
+         batch_dropped: 0,
+         batch_seen: 0
+     }}
   end
 
   def handle_info({:join, pid}, s) when is_pid(pid) do
@@ -259,6 +266,7 @@ defmodule TartarusTools.Dashboard.Feed do
         %{type: :arrival, hop_us: us} when is_integer(us) -> hop(us, s)
         _ -> s
       end
+
     raw = {seq, e}
 
     {recent, n} =
@@ -280,7 +288,12 @@ defmodule TartarusTools.Dashboard.Feed do
       # (A hash of the sequence number stands in for a random draw: as uniform here, and
       # without a random state to read and write per event.)
       (j = :erlang.phash2(seq, seen)) < s.max_batch ->
-        %{s | batch: Map.put(s.batch, j, raw), batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
+        %{
+          s
+          | batch: Map.put(s.batch, j, raw),
+            batch_dropped: s.batch_dropped + 1,
+            dropped: s.dropped + 1
+        }
 
       true ->
         %{s | batch_dropped: s.batch_dropped + 1, dropped: s.dropped + 1}
@@ -292,8 +305,7 @@ defmodule TartarusTools.Dashboard.Feed do
   defp count_local(s) do
     now = Tartarus.Events.type_totals()
 
-    delta =
-      for {t, n} <- now, (d = n - Map.get(s.types, t, 0)) > 0, into: %{}, do: {t, d}
+    delta = for {t, n} <- now, (d = n - Map.get(s.types, t, 0)) > 0, into: %{}, do: {t, d}
 
     skipped = max(Enum.sum(Map.values(delta)) - s.received, 0)
 

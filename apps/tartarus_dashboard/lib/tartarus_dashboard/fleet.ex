@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Fleet do
+defmodule TartarusDashboard.Fleet do
   @moduledoc """
   What the dashboard knows of the other nodes: every node reachable through the overlay,
   read by asking through the neighbours, as the overlay relays an agent search
@@ -13,7 +13,7 @@ defmodule TartarusTools.Dashboard.Fleet do
   `%{name, node, residents, arrivals, departures, refused, bytes, messages, move_failed,
   hop_median_us, hop_p99_us, neighbours: [{name, node}], plugins: [plugin]}`, a plugin
   `%{name, kind, capabilities, last, last_at}` (its last reading, `Tartarus.Plugin`), an agent
-  `%{id, name, module, host}`, and `health` that node's latest `TartarusTools.Dashboard.Health`
+  `%{id, name, module, host}`, and `health` that node's latest `TartarusDashboard.Health`
   sample. `path` is the chain of nodes the question went through (the dashboard's node first),
   along which `forward/3` later asks that node for more (its health series).
 
@@ -64,7 +64,7 @@ defmodule TartarusTools.Dashboard.Fleet do
       hosts: Enum.flat_map(shown, &host/1),
       agents_total: length(agents),
       agents: Enum.take(agents, @max_agents),
-      health: TartarusTools.Dashboard.Health.latest()
+      health: TartarusDashboard.Health.latest()
     }
   end
 
@@ -121,7 +121,8 @@ defmodule TartarusTools.Dashboard.Fleet do
           {snaps, vis} = :erpc.call(n, __MODULE__, :collect, [ttl - 1, vis, path], @call_ms * ttl)
           {acc ++ snaps, Enum.uniq(vis)}
         catch
-          kind, reason -> {acc ++ [%{node: n, path: path ++ [n], error: describe(kind, reason)}], vis}
+          kind, reason ->
+            {acc ++ [%{node: n, path: path ++ [n], error: describe(kind, reason)}], vis}
         end
       end)
     end
@@ -160,7 +161,7 @@ defmodule TartarusTools.Dashboard.Fleet do
   end
 
   defp answer({:health, points}) when is_integer(points) and points > 0,
-    do: {:ok, TartarusTools.Dashboard.Health.series(points)}
+    do: {:ok, TartarusDashboard.Health.series(points)}
 
   defp answer(other), do: {:error, "unknown request #{inspect(other)}"}
 
@@ -205,7 +206,8 @@ defmodule TartarusTools.Dashboard.Fleet do
   end
 
   @impl true
-  def handle_call(:get, from, %{last: nil} = s), do: {:noreply, start_gather(%{s | waiting: [from | s.waiting]})}
+  def handle_call(:get, from, %{last: nil} = s),
+    do: {:noreply, start_gather(%{s | waiting: [from | s.waiting]})}
 
   def handle_call(:get, from, s) do
     age = Clock.machine_system_time(:millisecond) - s.last.at
@@ -232,12 +234,18 @@ defmodule TartarusTools.Dashboard.Fleet do
   def handle_info({:DOWN, ref, _, _, reason}, %{task: ref} = s) do
     result =
       case reason do
-        {:gathered, result} -> result
-        other -> s.last || %{snapshots: [], at: Clock.machine_system_time(:millisecond), error: inspect(other)}
+        {:gathered, result} ->
+          result
+
+        other ->
+          s.last ||
+            %{snapshots: [], at: Clock.machine_system_time(:millisecond), error: inspect(other)}
       end
 
     Enum.each(s.waiting, &GenServer.reply(&1, result))
-    {:noreply, %{s | task: nil, waiting: [], last: if(s.frozen and s.last, do: s.last, else: result)}}
+
+    {:noreply,
+     %{s | task: nil, waiting: [], last: if(s.frozen and s.last, do: s.last, else: result)}}
   end
 
   def handle_info(_other, s), do: {:noreply, s}

@@ -1,4 +1,4 @@
-defmodule TartarusTools.Dashboard.Health do
+defmodule TartarusDashboard.Health do
   @moduledoc """
   The BEAM's health on this node, sampled over time for the dashboard: one process per node
   (registered as `#{inspect(__MODULE__)}`) takes a sample every `:every_ms` (1 s) and keeps
@@ -157,7 +157,7 @@ defmodule TartarusTools.Dashboard.Health do
     {hosts, offset} = host_slice(all, s.host_offset, s.max_hosts)
     {host_rows, hops, host_totals} = host_rows(hosts, boxes, s.host_totals)
     sorted = Enum.sort(hops)
-    pct = fn q -> TartarusTools.Stats.percentile(sorted, q) end
+    pct = fn q -> Tartarus.Percentile.sorted(sorted, q) end
 
     sample = %{
       t: Clock.machine_system_time(:millisecond),
@@ -225,7 +225,7 @@ defmodule TartarusTools.Dashboard.Health do
     boxes =
       for {id, pid, host, name} <- list,
           {:message_queue_len, len} <- [Process.info(pid, :message_queue_len)],
-          do: %{id: id, name: TartarusTools.Dashboard.Feed.term(name), host: to_string(host), len: len}
+          do: %{id: id, name: TartarusDashboard.Feed.term(name), host: to_string(host), len: len}
 
     {boxes, next}
   end
@@ -234,7 +234,11 @@ defmodule TartarusTools.Dashboard.Health do
     if :ets.whereis(Tartarus.AgentTable) == :undefined do
       :"$end_of_table"
     else
-      :ets.select(Tartarus.AgentTable, [{{:"$1", :"$2", :"$3", :"$4", :_}, [], [{{:"$1", :"$2", :"$3", :"$4"}}]}], max)
+      :ets.select(
+        Tartarus.AgentTable,
+        [{{:"$1", :"$2", :"$3", :"$4", :_}, [], [{{:"$1", :"$2", :"$3", :"$4"}}]}],
+        max
+      )
     end
   end
 
@@ -277,8 +281,8 @@ defmodule TartarusTools.Dashboard.Health do
             arrivals: c.arrivals - a0,
             refused: c.refused - r0,
             mailbox_max: by_host |> Map.get(id, [0]) |> Enum.max(),
-            hop_p50_us: TartarusTools.Stats.percentile(sorted, 0.5),
-            hop_p99_us: TartarusTools.Stats.percentile(sorted, 0.99)
+            hop_p50_us: Tartarus.Percentile.sorted(sorted, 0.5),
+            hop_p99_us: Tartarus.Percentile.sorted(sorted, 0.99)
           }
 
           {Map.put(rows, id, row), times ++ hops, Map.put(totals, id, {c.arrivals, c.refused})}
