@@ -155,7 +155,7 @@ defmodule TartarusWarehouse.Experiment do
       type: :non_neg_integer,
       default: 0,
       doc:
-        "`scaling`, `concurrent`, `manet`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
+        "`scaling`, `removal`, `mixed`, `concurrent`, `manet`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
     service_ms: [
       type: {:range, 0, 60_000},

@@ -22,7 +22,13 @@ defmodule TartarusWarehouse.Experiment.Mixed do
 
   @impl Experiment
   def runs(seed, state) do
-    opts = [robots: 4, jobs: Jobs.mixed_jobs(6, 2000), jitter: state.p.jitter]
+    opts = [
+      robots: 4,
+      jobs: Jobs.mixed_jobs(6, 2000),
+      jitter: state.p.jitter,
+      latency_ms: state.p.latency_ms
+    ]
+
     [{:variable, Experiment.floor(state, seed) ++ opts, %{run_seed: seed}}]
   end
 

@@ -28,6 +28,7 @@ defmodule TartarusWarehouse.Experiment.Removal do
       standby: [4],
       jobs: Jobs.thesis_jobs(10, 2000),
       jitter: state.p.jitter,
+      latency_ms: state.p.latency_ms,
       events: [{2, {:retire, 2}}, {6, {:join, 4}}]
     ]
 
