@@ -28,6 +28,10 @@ defmodule TartarusWarehouse.Experiment do
       completed (Fig. 4.13);
     * `:mixed` - 6 jobs on 4 robots: jobs 1 and 6 purely sequential, jobs 2-5 two
       independent sequences each (Fig. 4.11);
+    * `:concurrent` - §4.5.5: m jobs of n independent tasks on n and 2n robots: the
+      makespan against m·t, the most tasks at once (`TartarusWarehouse.Experiment.Concurrent`);
+    * `:manet` - §4.3: jobs on a floor whose robots and Σ nodes leave the network and
+      rejoin it while the jobs run (`TartarusWarehouse.Experiment.Manet`);
     * `:failover` - beyond the thesis: 10 warehouse jobs on 3 robots while the
       distributor's host is killed twice (100 ms and 50 ms down) and started again on its
       journal, for three seeds (seed, seed + 1, seed + 2): jobs lost, jobs duplicated (a
@@ -47,7 +51,18 @@ defmodule TartarusWarehouse.Experiment do
 
   alias TartarusTools.{Report, Series}
   alias TartarusWarehouse.{Checker, Floor}
-  alias TartarusWarehouse.Experiment.{Failover, Mixed, Otfp, Output, Removal, Robots, Scaling}
+
+  alias TartarusWarehouse.Experiment.{
+    Concurrent,
+    Failover,
+    Manet,
+    Mixed,
+    Otfp,
+    Output,
+    Removal,
+    Robots,
+    Scaling
+  }
 
   @experiments [
     robots: Robots,
@@ -55,7 +70,9 @@ defmodule TartarusWarehouse.Experiment do
     otfp: Otfp,
     removal: Removal,
     mixed: Mixed,
-    failover: Failover
+    failover: Failover,
+    concurrent: Concurrent,
+    manet: Manet
   ]
 
   @schema [
@@ -120,7 +137,8 @@ defmodule TartarusWarehouse.Experiment do
     seeds: [
       type: :pos_integer,
       default: 3,
-      doc: "`scaling`: seeds per point (seed, seed + 1, ...); medians over them"
+      doc:
+        "`scaling`, `removal`, `mixed`, `concurrent`, `manet`: seeds per point (seed, seed + 1, ...); medians over them"
     ],
     drop: [
       type: :non_neg_integer,
@@ -137,13 +155,13 @@ defmodule TartarusWarehouse.Experiment do
       type: :non_neg_integer,
       default: 0,
       doc:
-        "`scaling`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
+        "`scaling`, `removal`, `mixed`, `concurrent`, `manet`: one-way delay of every link, paid alike by the central server's messages and the agents' hand-offs (see `TartarusWarehouse.Floor`)"
     ],
     service_ms: [
       type: {:range, 0, 60_000},
       default: 2.2,
       doc:
-        "`scaling`: the time (ms) the central server and the Job Distributor each take for every message they handle (see `TartarusWarehouse.Service`); 0: a BEAM process's microseconds"
+        "`scaling`, `concurrent`: the time (ms) the central server and the Job Distributor each take for every message they handle (see `TartarusWarehouse.Service`); 0: a BEAM process's microseconds"
     ],
     big_robots: [
       type: :non_neg_integer,
@@ -151,6 +169,20 @@ defmodule TartarusWarehouse.Experiment do
       doc:
         "`scaling`: also one run on this many robots (e.g. 1000; 0: none): 20 jobs of 5 soft tasks in 20 independent pipelines, agents guided by signal fields"
     ],
+    conc_tasks: [
+      type: {:list, :pos_integer},
+      default: [2, 4],
+      doc: "`concurrent`: the independent tasks per job n of its arms (each on n and 2n robots)"
+    ],
+    conc_jobs: [type: :pos_integer, default: 5, doc: "`concurrent`: jobs per floor (m)"],
+    churn: [
+      type: {:list, :probability},
+      default: [0.0, 0.1],
+      doc:
+        "`manet`: the arms' probability that a node (robot or Σ) up leaves the network in a tick (a quarter of a task)"
+    ],
+    manet_robots: [type: :pos_integer, default: 4, doc: "`manet`: robots (and as many Σ nodes)"],
+    manet_jobs: [type: :pos_integer, default: 8, doc: "`manet`: jobs per floor"],
     timeout_ms: [type: :pos_integer, default: 300_000, doc: "a run gives up after this long"]
   ]
 
@@ -169,7 +201,7 @@ defmodule TartarusWarehouse.Experiment do
   lists them.
 
       iex> Keyword.keys(TartarusWarehouse.Experiment.experiments())
-      [:robots, :scaling, :otfp, :removal, :mixed, :failover]
+      [:robots, :scaling, :otfp, :removal, :mixed, :failover, :concurrent, :manet]
   """
   @spec experiments() :: [{atom(), module()}]
   def experiments, do: @experiments
@@ -194,7 +226,7 @@ defmodule TartarusWarehouse.Experiment do
       iex> {opts[:sizes], opts[:nodes], opts[:scale]}
       {[5, 10, 20, 30, 45, 60], 100, 0.1}
       iex> TartarusWarehouse.Experiment.validate(experiment: :nope)
-      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed, :failover], got: :nope"}
+      {:error, "invalid options given to TartarusWarehouse.Experiment.run/1 for key :experiment: expected one of [:robots, :scaling, :otfp, :removal, :mixed, :failover, :concurrent, :manet], got: :nope"}
   """
   @spec validate(keyword()) :: {:ok, keyword()} | {:error, String.t()}
   def validate(opts) do

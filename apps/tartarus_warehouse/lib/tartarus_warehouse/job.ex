@@ -119,6 +119,8 @@ defmodule TartarusWarehouse.Job do
           | {:retire, pos_integer()}
           | {:join, pos_integer()}
           | {:kill_distributor, non_neg_integer()}
+          | {:disconnect, String.t()}
+          | {:reconnect, String.t()}
 
   @doc """
   Validates a change to a running floor (`TartarusWarehouse.Floor.change/2`, the `events`
@@ -130,7 +132,10 @@ defmodule TartarusWarehouse.Job do
     * `{:insert, after_task, task_spec}` - add a task after the task named `after_task`;
     * `{:delete, task}` - delete a task;
     * `{:retire, i}`, `{:join, i}` - robot `i` (a positive integer) leaves, joins;
-    * `{:kill_distributor, down_ms}` - kill the distributor's host for `down_ms` ms.
+    * `{:kill_distributor, down_ms}` - kill the distributor's host for `down_ms` ms;
+    * `{:disconnect, node}`, `{:reconnect, node}` - a node of the network (a robot `"r<i>"`
+      or a secondary node `"s<i>"`, a string) leaves it (every link of it down) or rejoins
+      it (§4.3: the network is a MANET).
 
   Whether robot `i` exists, and whether it may leave, is for the floor to say.
 
@@ -180,10 +185,18 @@ defmodule TartarusWarehouse.Job do
          "change {:kill_distributor, _}: expected the ms the host stays down (a non-negative integer), got: #{inspect(ms, limit: 5)}"}
   end
 
+  def change({what, node}, _world) when what in [:disconnect, :reconnect] do
+    if is_binary(node) and node != "jd",
+      do: {:ok, {what, node}},
+      else:
+        {:error,
+         "change {#{inspect(what)}, _}: expected a robot's or a secondary node's name (a string such as \"r2\" or \"s1\"; the distributor's node leaves only by {:kill_distributor, ms}), got: #{inspect(node, limit: 5)}"}
+  end
+
   def change(other, _world),
     do:
       {:error,
-       "expected a change: {:insert, after_task, task_spec}, {:delete, task}, {:retire, robot}, {:join, robot} or {:kill_distributor, down_ms}, got: #{inspect(other, limit: 5)}"}
+       "expected a change: {:insert, after_task, task_spec}, {:delete, task}, {:retire, robot}, {:join, robot}, {:kill_distributor, down_ms}, {:disconnect, node} or {:reconnect, node}, got: #{inspect(other, limit: 5)}"}
 
   defp change_name(what, expected, name) do
     if name?(name),

@@ -196,6 +196,111 @@ defmodule TartarusWarehouse.ExperimentTest do
     assert s.jobs_lost_without_persistence > 0
   end
 
+  test "mixed (Fig. 4.11) on two seeds in virtual time: the sweep's seeds, each job's span and span over its tasks' times, the census" do
+    {:ok, %{summary: s}} =
+      Experiment.run(
+        experiment: :mixed,
+        seed: 31,
+        seeds: 2,
+        time: :virtual,
+        out: false,
+        quiet: true
+      )
+
+    assert s.sweep.arms == ["mixed"] and s.sweep.seeds == [31, 32] and s.seeds == [31, 32]
+    assert s.jobs == 12 and s.completed_jobs == 12 and s.mutex_violations == 0
+
+    for seed <- ["31", "32"] do
+      assert Map.keys(s.job_span_ms[seed]) == ~w(1 2 3 4 5 6)
+      # jobs 1 and 6 are one sequence: one robot, never faster than their tasks in a row
+      assert length(s.robots_per_job[seed]["1"]) == 1 and s.span_over_serial[seed]["1"] >= 1.0
+      assert Enum.all?(s.jobs_with_concurrent_sequences[seed], &(&1 in 2..5))
+
+      # a mixed job whose two sequences overlapped took less than its tasks in a row
+      for j <- s.jobs_with_concurrent_sequences[seed],
+          do: assert(s.span_over_serial[seed][to_string(j)] < 1.0)
+
+      assert Enum.all?(Map.values(s.utilisation[seed]), &(&1 >= 0 and &1 <= 1))
+    end
+  end
+
+  test "removal (Fig. 4.13) in virtual time: r2 begins no job after its retirement, each robot's utilisation before, between and after" do
+    {:ok, %{summary: s}} =
+      Experiment.run(
+        experiment: :removal,
+        seed: 31,
+        seeds: 1,
+        time: :virtual,
+        out: false,
+        quiet: true
+      )
+
+    assert s.jobs == 10 and s.completed_jobs == 10 and s.mutex_violations == 0
+    assert s.r2_jobs_after_retire == %{"31" => []}
+    phase = s.phase_ms["31"]
+
+    assert phase.retire_at <= phase.left and phase.left <= phase.end and
+             phase.join_at <= phase.end
+
+    # r4 (standby) ran nothing before it joined; r2 nothing after it left
+    assert s.utilisation_before["31"]["r4"] == 0.0
+    assert s.utilisation_after["31"]["r2"] == 0.0
+    assert s.jobs_per_robot["31"]["r4"] != []
+  end
+
+  test "concurrent (§4.5.5) in virtual time: n independent tasks run at once, on n and 2n robots; the makespan against m·t" do
+    {:ok, %{summary: s}} =
+      Experiment.run(
+        experiment: :concurrent,
+        conc_tasks: [3],
+        conc_jobs: 3,
+        seeds: 1,
+        seed: 31,
+        time: :virtual,
+        scale: 1,
+        out: false,
+        quiet: true
+      )
+
+    assert s.sweep.arms == ["n=3 k=3", "n=3 k=6"]
+    assert s.jobs == 6 and s.completed_jobs == 6 and s.mutex_violations == 0
+
+    for arm <- ["n=3 k=3", "n=3 k=6"] do
+      a = s.concurrency[arm]
+      # three tokens: never more than three tasks at once, even on six robots
+      assert a.peak == 3 and a.violations == 0
+      # m·t is a floor: m = 3 jobs of tasks of 2,000 ms
+      assert a.by_seed["31"].mt_ms == 6000.0 and a.over_mt >= 1.0
+    end
+  end
+
+  test "manet (§4.3) in virtual time: robots and Σ nodes leave and rejoin while jobs run; agents cross Σ nodes; every job done or reported" do
+    {:ok, %{summary: s}} =
+      Experiment.run(
+        experiment: :manet,
+        churn: [0.0, 0.3],
+        manet_robots: 3,
+        manet_jobs: 4,
+        seeds: 1,
+        seed: 31,
+        time: :virtual,
+        scale: 1,
+        latency_ms: 10,
+        out: false,
+        quiet: true
+      )
+
+    assert s.sweep.arms == ["p=0.0", "p=0.3"]
+    assert s.mutex_violations == 0
+    static = s.manet["p=0.0"]
+    churned = s.manet["p=0.3"]
+    assert static.disconnections_applied == 0 and static.done == 4
+    assert churned.disconnections_applied > 0
+    assert churned.done + churned.not_done_reported == churned.jobs
+    # robots are not linked to each other: the agents cross Σ nodes
+    assert static.by_seed["31"].arrivals_at_sigma > 0
+  end
+
   test "options are checked with the platform's wording" do
     assert {:error,
             "invalid options given to TartarusWarehouse.Experiment.run/1 for key :robots: expected a positive integer, got: 0"} =

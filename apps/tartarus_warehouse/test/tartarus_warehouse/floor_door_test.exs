@@ -313,4 +313,48 @@ defmodule TartarusWarehouse.FloorDoorTest do
     assert {:stay, ^broken} = DistributorAgent.handle_message({:submit, job(1)}, nil, broken)
     assert_received {:warehouse_distributor_error, "the distributor could not handle" <> _}
   end
+
+  test "robots and Σ nodes leave the network and rejoin it while jobs run (§4.3): checked at the door, every job completes, no violation" do
+    # Before: no change took a node off the network; {:disconnect, _} was "expected a change".
+    assert {:error, message} = Job.change({:disconnect, "jd"}, Job.world(@resources, 2))
+    assert message =~ "the distributor's node leaves only by {:kill_distributor, ms}"
+    assert {:error, _} = Job.change({:reconnect, :r1}, Job.world(@resources, 2))
+
+    assert {:error, message} =
+             Floor.run(
+               robots: 2,
+               secondary: 2,
+               jobs: [job(1)],
+               events: [{0, {:disconnect, "s9"}}]
+             )
+
+    assert message =~ ~s(no robot or secondary node "s9")
+
+    # Robots linked only through Σ nodes and jd; r1, s1 and s2 leave at once, r1 comes back
+    # 50 ms later, s1 and s2 after 100 ms. (On time, not on jobs completed: an agent on r1
+    # cut off from the distributor holds its token until it can report, so the jobs behind
+    # it wait for r1 to come back.)
+    {:ok, r} =
+      Floor.run(
+        robots: 3,
+        secondary: 3,
+        robot_mesh: false,
+        resources: @resources,
+        scale: 0.005,
+        jobs: Enum.map(1..4, &job/1),
+        events: [
+          {0, {:disconnect, "r1"}},
+          {0, {:disconnect, "s1"}},
+          {0, {:disconnect, "s2"}},
+          {{:ms, 50}, {:reconnect, "r1"}},
+          {{:ms, 100}, {:reconnect, "s1"}},
+          {{:ms, 100}, {:reconnect, "s2"}}
+        ]
+      )
+
+    assert r.timed_out == [] and r.mutex_violations == 0
+    assert Enum.count(r.applied_events, &match?(%{event: {:disconnect, _}}, &1)) == 3
+    assert r.refused_events == []
+    assert r.arrivals_by_node |> Map.keys() |> Enum.any?(&String.starts_with?(&1, "s"))
+  end
 end

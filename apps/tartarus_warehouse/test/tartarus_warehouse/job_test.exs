@@ -7,6 +7,10 @@ defmodule TartarusWarehouse.JobTest do
   doctest TartarusWarehouse.Experiment
   doctest TartarusWarehouse.Experiment.Jobs
   doctest TartarusWarehouse.Experiment.Scaling
+  doctest TartarusWarehouse.Experiment.Kind
+  doctest TartarusWarehouse.Experiment.Manet
+  doctest TartarusWarehouse.Floor.Options
+  doctest TartarusWarehouse.Floor.Build
 
   alias TartarusWarehouse.Job
 

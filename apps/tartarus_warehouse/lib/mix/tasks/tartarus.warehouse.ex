@@ -6,14 +6,16 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
   registry, `TartarusWarehouse.Experiment.experiments/0`, one module each): task agents carry each task's program and are the
   tokens of its resources; robots line up into a clock-less pipeline.
 
-      mix tartarus.warehouse [--experiment robots|scaling|otfp|removal|mixed|failover]
+      mix tartarus.warehouse [--experiment robots|scaling|otfp|removal|mixed|failover|concurrent|manet]
                              [--seed 1] [--out DIR] [--json] [--scale 0.01] [--mode virtual|peer]
                              [--robots 4] [--jobs 4] [--jitter 0.3] [--equal-jobs 40]
                              [--sizes 5,10,20,30,45,60] [--scaling-jobs 120|n+20] [--nodes 100]
                              [--scaling-robots 60] [--phi-nodes 20] [--seeds 3] [--drop 10]
                              [--designs central,agents,agents_continue,guided,guided_continue]
                              [--latency-ms 0] [--service-ms 2.2] [--big-robots 1000]
-                             [--timeout-ms 300000] [--dashboard PORT]
+                             [--conc-tasks 2,4] [--conc-jobs 5] [--churn 0,0.1]
+                             [--manet-robots 4] [--manet-jobs 8]
+                             [--time real|virtual] [--timeout-ms 300000] [--dashboard PORT]
 
   `--scale` is the time scale: a task of the thesis's ideal 2 s runs as `2000 * scale` ms
   (default 0.01: 20 ms). `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT
@@ -47,10 +49,20 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
     * `otfp`: a task added, deleted and added again while 6 jobs run on 3 robots
       (`gantt_otfp.svg`, Fig. 4.12), then 16 jobs of 10 soft tasks while tasks are added
       and deleted (`otfp.svg`: tasks of each job, `otfp_ms.svg`: its ms per task, Fig. 4.5);
-    * `removal`: 8 jobs on 3 robots; r2 leaves once 2 jobs completed (battery low: it
-      finishes its job first), a fourth robot joins once 4 completed (`gantt_removal.svg`,
-      Fig. 4.13);
-    * `mixed`: jobs of sequential and independent sequences (`gantt_mixed.svg`, Fig. 4.11);
+    * `removal`: 10 jobs on 3 robots; r2 leaves once 2 jobs completed (battery low: it
+      finishes its job first), a fourth robot joins once 6 completed
+      (`gantt_removal_seed_S.svg`, Fig. 4.13), on `--seeds` seeds; each robot's utilisation
+      before r2 left, between, and after r4 joined;
+    * `mixed`: jobs of sequential and independent sequences (`gantt_mixed_seed_S.svg`, Fig.
+      4.11), on `--seeds` seeds; each job's span and its span over its tasks' times;
+    * `concurrent` (§4.5.5): `--conc-jobs` m jobs of n independent tasks (n of
+      `--conc-tasks`) of equal time t on n and 2n robots, on `--seeds` seeds: the makespan
+      over m·t, the most tasks at once (`gantt_concurrent_n<n>_k<k>.svg`);
+    * `manet` (§4.3): `--manet-jobs` jobs on `--manet-robots` robots linked only through
+      as many Σ nodes and `jd`, while robots and Σ nodes leave the network and rejoin it
+      (each node up leaves with probability p of `--churn` a tick of a quarter task, rejoins
+      with 1/2 a tick), on `--seeds` seeds: violations, jobs done and not done
+      (`gantt_manet.svg`);
     * `failover`: the distributor's host killed twice during 10 jobs and started again on
       its journal, for seeds S, S+1, S+2; once more without persistence, for contrast.
 
@@ -103,6 +115,8 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
       # Typed as flags: --scale 0.1, --sizes 5,10,60, --designs central,guided
       |> Keyword.update!(:scale, &(&1 |> Keyword.put(:type, :number) |> Keyword.delete(:default)))
       |> Keyword.update!(:sizes, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:conc_tasks, &Keyword.put(&1, :type, :string))
+      |> Keyword.update!(:churn, &Keyword.put(&1, :type, :string))
       |> Keyword.update!(:designs, &Keyword.put(&1, :type, :string))
       |> Keyword.update!(:scaling_jobs, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
@@ -153,24 +167,9 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
           _ -> bad_jobs!(text)
         end
     end)
-    |> Keyword.update!(:sizes, fn
-      list when is_list(list) ->
-        list
-
-      text ->
-        Enum.map(String.split(text, ",", trim: true), fn x ->
-          case Integer.parse(String.trim(x)) do
-            {n, ""} when n > 0 ->
-              n
-
-            _ ->
-              TartarusTools.CLI.error!(
-                @task,
-                "--sizes: expected positive integers separated by commas, got: #{inspect(text)}"
-              )
-          end
-        end)
-    end)
+    |> Keyword.update!(:sizes, &numbers!(&1, "--sizes", "positive integers", :pos))
+    |> Keyword.update!(:conc_tasks, &numbers!(&1, "--conc-tasks", "positive integers", :pos))
+    |> Keyword.update!(:churn, &numbers!(&1, "--churn", "probabilities (0 to 1)", :prob))
     |> Keyword.update!(:designs, fn
       list when is_list(list) ->
         list
@@ -190,6 +189,28 @@ defmodule Mix.Tasks.Tartarus.Warehouse do
               d
           end
         end)
+    end)
+  end
+
+  # A comma-separated list of numbers (a default is already a list): positive integers
+  # (`:pos`) or probabilities (`:prob`).
+  defp numbers!(list, _flag, _what, _kind) when is_list(list), do: list
+
+  defp numbers!(text, flag, what, kind) do
+    Enum.map(String.split(text, ",", trim: true), fn x ->
+      case {kind, Integer.parse(String.trim(x)), Float.parse(String.trim(x))} do
+        {:pos, {n, ""}, _} when n > 0 ->
+          n
+
+        {:prob, _, {p, ""}} when p >= 0 and p <= 1 ->
+          p
+
+        _ ->
+          TartarusTools.CLI.error!(
+            @task,
+            "#{flag}: expected #{what} separated by commas, got: #{inspect(text)}"
+          )
+      end
     end)
   end
 

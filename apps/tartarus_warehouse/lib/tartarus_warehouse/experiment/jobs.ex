@@ -70,6 +70,22 @@ defmodule TartarusWarehouse.Experiment.Jobs do
   end
 
   @doc """
+  `m` jobs of `n` independent tasks each (§4.5.5): no task after another, task `i`
+  needing its own resource `{:psi, i}`, each of ideal duration `ms`; so each task is a
+  sequence of its own, and task `i` of every job shares `{:psi, i}` (one agent, one token).
+
+      iex> [j | _] = TartarusWarehouse.Experiment.Jobs.independent_jobs(2, 3, 2000)
+      iex> Enum.map(j.tasks, &{&1.name, &1.resources, &1.after})
+      [{"T1", [psi: 1], []}, {"T2", [psi: 2], []}, {"T3", [psi: 3], []}]
+  """
+  @spec independent_jobs(pos_integer(), pos_integer(), number()) :: [map()]
+  def independent_jobs(m, n, ms) do
+    for j <- 1..m do
+      %{id: j, tasks: Enum.flat_map(1..n, &chain([{"T#{&1}", [{:psi, &1}]}], ms))}
+    end
+  end
+
+  @doc """
   A task program written at run time (`TartarusWarehouse.Program.Detour`, compiled on
   first use): it ships with its agent as code.
   """

@@ -5,6 +5,8 @@ defmodule TartarusWarehouse.Experiment.Kind do
   defaults), and the helpers the experiments share.
   """
 
+  import Kernel, except: [floor: 1]
+
   alias TartarusTools.Series
 
   @typedoc """
@@ -139,4 +141,87 @@ defmodule TartarusWarehouse.Experiment.Kind do
   """
   @spec scaled(number(), map()) :: integer()
   def scaled(ms, p), do: round(ms * p.scale / 0.01)
+
+  @doc """
+  The seeds of an experiment run on `--seeds` seeds: seed, seed + 1, ...
+
+      iex> TartarusWarehouse.Experiment.Kind.seeds(%{seed: 7, seeds: 3})
+      [7, 8, 9]
+  """
+  @spec seeds(map()) :: [integer()]
+  def seeds(p), do: Enum.to_list(p.seed..(p.seed + p.seeds - 1))
+
+  @doc """
+  The sweep of an experiment whose points are its seeds (`seeds/1`): one arm named
+  `name`, the points as the sweep's seeds, each run's point its seed.
+  """
+  @spec seed_sweep(String.t(), state()) :: map()
+  def seed_sweep(name, state),
+    do: %{arms: [{name, nil}], seeds: state.points, point: fn nil, seed -> seed end}
+
+  @doc """
+  The floor options of `floor/1` on the seed `seed` (a point that is a seed).
+  """
+  @spec floor(state(), integer()) :: keyword()
+  def floor(state, seed), do: floor(%{state | seed: seed})
+
+  @doc """
+  Each job's span, ms: its first task's start to its last task's stop (tasks skipped
+  left out), keyed by job id.
+
+      iex> h = [%{job: 1, start_us: 0, stop_us: 2_000, skipped: false},
+      ...>      %{job: 1, start_us: 1_000, stop_us: 5_000, skipped: false}]
+      iex> TartarusWarehouse.Experiment.Kind.job_spans(h)
+      %{1 => 5.0}
+  """
+  @spec job_spans([map()]) :: %{term() => float()}
+  def job_spans(history) do
+    history
+    |> Enum.reject(& &1.skipped)
+    |> Enum.group_by(& &1.job)
+    |> Map.new(fn {job, es} ->
+      {a, b} = span(es)
+      {job, Float.round((b - a) / 1000, 3)}
+    end)
+  end
+
+  @doc """
+  Each robot's utilisation in the window `{from_us, to_us}`: the fraction of it during
+  which the robot ran a task (executions clipped to the window), keyed by robot; nil for
+  an empty window.
+
+      iex> h = [%{robot: "r1", start_us: 0, stop_us: 50}, %{robot: "r2", start_us: 80, stop_us: 200}]
+      iex> TartarusWarehouse.Experiment.Kind.utilisation(h, ["r1", "r2", "r3"], {0, 100})
+      %{"r1" => 0.5, "r2" => 0.2, "r3" => 0.0}
+  """
+  @spec utilisation([map()], [String.t()], {integer(), integer()}) :: %{
+          String.t() => float() | nil
+        }
+  def utilisation(history, robots, {from, to}) do
+    Map.new(robots, fn robot ->
+      busy =
+        for %{robot: ^robot} = e <- history,
+            do: max(min(e.stop_us, to) - max(e.start_us, from), 0)
+
+      {robot, if(to > from, do: Float.round(Enum.sum(busy) / (to - from), 3))}
+    end)
+  end
+
+  @doc """
+  The most executions running at one instant.
+
+      iex> h = [%{start_us: 0, stop_us: 10}, %{start_us: 5, stop_us: 20}, %{start_us: 10, stop_us: 30}]
+      iex> TartarusWarehouse.Experiment.Kind.peak_concurrency(h)
+      2
+  """
+  @spec peak_concurrency([map()]) :: non_neg_integer()
+  def peak_concurrency(history) do
+    history
+    |> Enum.flat_map(&[{&1.start_us, 1}, {&1.stop_us, -1}])
+    # at one instant a stop comes before a start
+    |> Enum.sort()
+    |> Enum.map_reduce(0, fn {_, d}, n -> {n + d, n + d} end)
+    |> elem(0)
+    |> Enum.max(fn -> 0 end)
+  end
 end

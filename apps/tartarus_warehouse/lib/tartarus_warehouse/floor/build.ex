@@ -26,7 +26,9 @@ defmodule TartarusWarehouse.Floor.Build do
 
   @doc """
   The floor's topology for `robots` robots, `secondary` relay nodes (Σ) and `phi`
-  shared-resource nodes (Φ).
+  shared-resource nodes (Φ); with `robot_mesh` false no robot is linked to another, so
+  robots meet only through Σ nodes (Σ node i on robots i and i + 1: with as many Σ nodes
+  as robots, a ring) and `jd`.
 
       iex> t = TartarusWarehouse.Floor.Build.topology(3, 2)
       iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
@@ -34,14 +36,17 @@ defmodule TartarusWarehouse.Floor.Build do
       iex> t = TartarusWarehouse.Floor.Build.topology(60, 19, 20)
       iex> {length(t.nodes), TartarusEmu.Topology.connected?(t)}
       {100, true}
+      iex> t = TartarusWarehouse.Floor.Build.topology(4, 4, 0, false)
+      iex> Enum.filter(t.edges, &match?({"r" <> _, "r" <> _}, &1))
+      []
   """
   @spec topology(pos_integer(), non_neg_integer(), non_neg_integer()) :: Topology.t()
-  def topology(robots, secondary, phi \\ 0) do
+  def topology(robots, secondary, phi \\ 0, robot_mesh \\ true) do
     rs = Enum.map(1..robots, &"r#{&1}")
     ss = if secondary > 0, do: Enum.map(1..secondary, &"s#{&1}"), else: []
     fs = if phi > 0, do: Enum.map(1..phi, &"f#{&1}"), else: []
 
-    robot_edges = robot_edges(robots)
+    robot_edges = if robot_mesh, do: robot_edges(robots), else: []
     jd_edges = for i <- 1..min(robots, 16), do: {"jd", "r#{i}"}
 
     s_edges =
@@ -121,7 +126,7 @@ defmodule TartarusWarehouse.Floor.Build do
     node_opts = if data_dir, do: %{"jd" => [data_dir: data_dir]}, else: %{}
 
     {:ok, net} =
-      Network.start(topology(robots, opts[:secondary], opts[:phi]),
+      Network.start(topology(robots, opts[:secondary], opts[:phi], opts[:robot_mesh]),
         mode: opts[:mode],
         setup: setup,
         node_opts: node_opts,
@@ -242,7 +247,7 @@ defmodule TartarusWarehouse.Floor.Build do
   the jobs submitted (`ids`) and their completions (`completed`: id => µs), `timed_out`
   (not completed), `t0_us`, `makespan_ms` (from `t0` to the last completion), `robots`
   (names, in order), the network's totals from its event log (`migrations`, `bytes`,
-  `messages`), and `service_log`: what the distributor or the central server served
+  `messages`), the agents' arrivals per topology node (`arrivals_by_node`), and `service_log`: what the distributor or the central server served
   (`{arrived, started, done}`, monotonic µs; `mono_offset_us` is monotonic minus system
   time, to put them on the histories' clock; see `TartarusWarehouse.Service`).
   """
@@ -274,12 +279,22 @@ defmodule TartarusWarehouse.Floor.Build do
         Map.keys(ctx.robot_hosts)
         |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
       migrations: Map.get(totals, :departures, 0),
+      arrivals_by_node: arrivals_by_node(ctx),
       bytes: Map.get(totals, :bytes, 0),
       messages: Map.get(totals, :messages, 0),
       service_log: service_log,
       # monotonic µs minus system µs: the service log's times on the histories' clock
       mono_offset_us: Clock.monotonic_time(:microsecond) - Clock.system_time(:microsecond)
     }
+  end
+
+  # Agents' arrivals per topology node (which nodes the agents crossed).
+  defp arrivals_by_node(ctx) do
+    for {host, counters} <- TartarusEmu.Log.counts(ctx.log).hosts,
+        n = Map.get(counters, :arrivals, 0),
+        n > 0,
+        into: %{},
+        do: {Network.topo_node(ctx.net, host) || inspect(host), n}
   end
 
   @doc "Stops the floor: its panel entry, event log, network and journal directory."

@@ -44,7 +44,9 @@ defmodule TartarusWarehouse.Floor.Changes do
   Applies a change to a started floor (`ctx`, see `TartarusWarehouse.Floor.Build.start/3`):
   `{:insert, after_task, task}`, `{:delete, task}`, `{:retire, i}`, `{:join, i}` or
   `{:kill_distributor, down_ms}` (the distributor's host dies with everything on it and
-  starts again `down_ms` later, on its journal if the floor has one). Every change is
+  starts again `down_ms` later, on its journal if the floor has one), `{:disconnect,
+  node}` or `{:reconnect, node}` (a robot or Σ node leaves the network or rejoins it:
+  `TartarusEmu.Network.isolate/2`, `rejoin/2`). Every change is
   checked first (`TartarusWarehouse.Job.change/2`: the one door for changes), so a
   malformed one never reaches the distributor or a robot. `:ok`, or `{:error, reason}`
   when refused: nothing changed.
@@ -73,6 +75,8 @@ defmodule TartarusWarehouse.Floor.Changes do
         {:insert, after_task, task} -> Tartarus.request(dref, {:insert, after_task, task}, 30_000)
         {:delete, task} -> Tartarus.request(dref, {:delete, task}, 30_000)
         {:kill_distributor, down_ms} -> kill_distributor(net, down_ms)
+        {:disconnect, node} -> leave(ctx, node, &Network.isolate/2)
+        {:reconnect, node} -> leave(ctx, node, &Network.rejoin/2)
       end
 
     case result do
@@ -135,6 +139,14 @@ defmodule TartarusWarehouse.Floor.Changes do
            {:error, "robot #{name} could not be read (#{inspect(reason)}): nothing retired"}}
       end
     end)
+  end
+
+  # A robot or a Σ node leaves the network (every link of it down; what runs on it goes on)
+  # or rejoins it (§4.3's MANET).
+  defp leave(ctx, node, fun) do
+    if node in Map.keys(ctx.net.hosts) and node != "jd",
+      do: fun.(ctx.net, node),
+      else: {:error, "no robot or secondary node #{inspect(node)} on this floor"}
   end
 
   # The distributor's host dies with everything on it, and starts again `down_ms` later

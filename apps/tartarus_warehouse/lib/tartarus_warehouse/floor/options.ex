@@ -13,6 +13,12 @@ defmodule TartarusWarehouse.Floor.Options do
   @schema [
     robots: [type: :pos_integer, default: 4, doc: "robots"],
     secondary: [type: :non_neg_integer, default: 0, doc: "secondary (relay) nodes"],
+    robot_mesh: [
+      type: :boolean,
+      default: true,
+      doc:
+        "robots linked to each other (see `TartarusWarehouse.Floor.Build.topology/4`); false: robots meet only through the secondary nodes (Σ) and the distributor's node, so agents cross Σ nodes (the MANET floor of `mix tartarus.warehouse --experiment manet`)"
+    ],
     resources: [
       type: {:list, :any},
       default: [],
@@ -60,7 +66,7 @@ defmodule TartarusWarehouse.Floor.Options do
       type: {:list, :any},
       default: [],
       doc:
-        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves; refused when no robot in service would be left, or none reaching a resource it reaches), `{:join, i}` (a standby robot joins), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming); checked before the floor starts (`TartarusWarehouse.Job.change/2`)"
+        "`{n, event}`: once n jobs completed (0: right after the jobs are submitted), or `{{:ms, t}, event}`: t ms after the submission; `{:retire, i}` (robot i finishes its job and leaves; refused when no robot in service would be left, or none reaching a resource it reaches), `{:join, i}` (a standby robot joins), `{:disconnect, node}`, `{:reconnect, node}` (a robot `\"r<i>\"` or a secondary node `\"s<i>\"` leaves the network, every link of it down, or rejoins it: §4.3's MANET), `{:insert, after_task, task_spec}`, `{:delete, task}` (on-the-fly programming); checked before the floor starts (`TartarusWarehouse.Job.change/2`)"
     ],
     standby: [
       type: {:list, :pos_integer},
@@ -156,7 +162,7 @@ defmodule TartarusWarehouse.Floor.Options do
          world = world(opts),
          :ok <- plan_all(opts[:jobs], world, opts[:max_pending_tasks]),
          events = events(opts),
-         :ok <- check_events(events, world, opts[:robots]) do
+         :ok <- check_events(events, world, opts) do
       {:ok, opts, world, events}
     end
   end
@@ -200,7 +206,7 @@ defmodule TartarusWarehouse.Floor.Options do
 
   # `run/1`'s events (and `retire`), checked before anything starts: when each fires, and
   # what it is (`TartarusWarehouse.Job.change/2`), with robots of this floor.
-  defp check_events(events, world, robots) do
+  defp check_events(events, world, opts) do
     Enum.find_value(events, :ok, fn
       {:retire_option, other} ->
         {:error,
@@ -209,7 +215,7 @@ defmodule TartarusWarehouse.Floor.Options do
       {n, event} when (is_integer(n) and n >= 0) or (is_tuple(n) and tuple_size(n) == 2) ->
         with :ok <- check_when(n),
              {:ok, event} <- Job.change(event, world),
-             :ok <- check_robot(event, robots) do
+             :ok <- check_node(event, opts) do
           nil
         end
 
@@ -227,10 +233,33 @@ defmodule TartarusWarehouse.Floor.Options do
       {:error,
        "invalid options given to TartarusWarehouse.Floor.run/1 for key :events: expected when an event fires to be n (jobs completed) or {:ms, t}, got: #{inspect(other)}"}
 
-  defp check_robot({what, i}, robots) when what in [:retire, :join] and i > robots,
-    do: {:error, "no robot #{inspect(i)} (the floor has robots 1..#{robots})"}
+  defp check_node({what, i}, opts) when what in [:retire, :join] do
+    if i > opts[:robots],
+      do: {:error, "no robot #{inspect(i)} (the floor has robots 1..#{opts[:robots]})"},
+      else: :ok
+  end
 
-  defp check_robot(_event, _robots), do: :ok
+  defp check_node({what, node}, opts) when what in [:disconnect, :reconnect] do
+    if node in leaving_nodes(opts[:robots], opts[:secondary]),
+      do: :ok,
+      else:
+        {:error,
+         "change {#{inspect(what)}, _}: no robot or secondary node #{inspect(node)} (the floor has r1..r#{opts[:robots]}#{if opts[:secondary] > 0, do: " and s1..s#{opts[:secondary]}", else: ""})"}
+  end
+
+  defp check_node(_event, _opts), do: :ok
+
+  @doc """
+  The nodes of a floor of `robots` robots and `secondary` Σ nodes that may leave the
+  network and rejoin it (`{:disconnect, node}`, `{:reconnect, node}`): the robots and
+  the Σ nodes (the distributor's node leaves only by `{:kill_distributor, ms}`).
+
+      iex> TartarusWarehouse.Floor.Options.leaving_nodes(2, 1)
+      ["r1", "r2", "s1"]
+  """
+  @spec leaving_nodes(pos_integer(), non_neg_integer()) :: [String.t()]
+  def leaving_nodes(robots, secondary),
+    do: Enum.map(1..robots, &"r#{&1}") ++ Enum.map(1..secondary//1, &"s#{&1}")
 
   defp world(opts) do
     resources =
