@@ -53,7 +53,7 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # Admission's memory (Tartarus.Migration.Protocol.destination/1 with `ledger:`): off the
+  # Admission's memory (Tartarus.Migration.Protocol.destination/1's `store:`): off the
   # host server's heap (10,000 remembered prepares are about 2.7 MB, which made every
   # collection of that heap a long one), and it outlives a restart of the server.
   def seen_fetch(ledger, mig) do

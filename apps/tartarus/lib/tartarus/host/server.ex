@@ -64,7 +64,7 @@ defmodule Tartarus.Host.Server do
       # Agents being killed: pid => {escalation timer, callers to answer}.
       killing: %{},
       admission: opts[:admission],
-      dest: Protocol.destination(ledger: host.ledger),
+      dest: Protocol.destination(store: {Ledger, host.ledger}),
       adopted: 0
     }
 

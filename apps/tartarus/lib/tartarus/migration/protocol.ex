@@ -192,18 +192,20 @@ defmodule Tartarus.Migration.Protocol do
 
   @doc """
   The admission state of a destination host. Options: `:seen_max`, how many migrations it
-  remembers (default 10_000); `:ledger`, a host's ledger table to remember them in (a host
-  server's way: off its heap, where 10,000 would make every collection a long one, and
-  kept across a restart of the server; `Tartarus.Ledger`). Without it the memory is a map
-  in the state (this module's tests and the model).
+  remembers (default 10_000); `:store`, `{module, table}` to remember them in, `module`
+  giving `seen_fetch(table, mig)` (`{:ok, what}` or `:error`) and
+  `seen_put(table, mig, what, seen_max)` (a host server's: `{Tartarus.Ledger, ledger}`, off
+  its heap, where 10,000 would make every collection a long one, and kept across a restart
+  of the server). Without it the memory is a map in the state (this module's tests and the
+  model).
   """
   @spec destination(keyword()) :: map()
   def destination(opts \\ []) do
     seen_max = Keyword.get(opts, :seen_max, 10_000)
 
-    case Keyword.get(opts, :ledger) do
+    case Keyword.get(opts, :store) do
       nil -> %{seen: %{}, order: :queue.new(), seen_max: seen_max}
-      ledger -> %{seen: {:ledger, ledger}, seen_max: seen_max}
+      {module, table} when is_atom(module) -> %{seen: {module, table}, seen_max: seen_max}
     end
   end
 
@@ -273,11 +275,11 @@ defmodule Tartarus.Migration.Protocol do
 
   # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
   # makes a copy with a new token, which no decision names); memory only spares the work.
-  defp seen(%{seen: {:ledger, ledger}}, mig), do: Tartarus.Ledger.seen_fetch(ledger, mig)
+  defp seen(%{seen: {module, table}}, mig), do: module.seen_fetch(table, mig)
   defp seen(%{seen: seen}, mig), do: Map.fetch(seen, mig)
 
-  defp remember(%{seen: {:ledger, ledger}} = d, mig, what) do
-    :ok = Tartarus.Ledger.seen_put(ledger, mig, what, d.seen_max)
+  defp remember(%{seen: {module, table}} = d, mig, what) do
+    :ok = module.seen_put(table, mig, what, d.seen_max)
     d
   end
 

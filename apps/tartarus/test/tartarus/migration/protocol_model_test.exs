@@ -125,6 +125,26 @@ defmodule Tartarus.Migration.ProtocolModelTest do
                :aborted
     end
 
+    test "admission's memory in a host's ledger: the same answers as the map, the oldest forgotten, off the heap" do
+      ledger = :ets.new(:ledger, [:set, :public])
+      stored = Protocol.destination(store: {Tartarus.Ledger, ledger}, seen_max: 2)
+      ps = for i <- 1..3, do: %{mig: {"src", i}, s_pid: :s}
+      d = Enum.reduce(Enum.zip(ps, [:c1, :c2, :c3]), stored, fn {p, c}, d -> admit(d, p, c) end)
+
+      # The state carries no memory: it is the table's; three admitted, two remembered.
+      assert d == stored
+      [p1, p2, p3] = ps
+      assert {_, [{:check, ^p1}]} = Protocol.destination_step(d, {:prepare, p1})
+      assert {_, [{:probe, ^p2, :c2, _}]} = Protocol.destination_step(d, {:prepare, p2})
+      assert {_, [{:probe, ^p3, :c3, _}]} = Protocol.destination_step(d, {:prepare, p3})
+      # Two migrations' entries and their order, and the range: nothing of the forgotten one.
+      assert :ets.info(ledger, :size) == 5
+
+      # A server that starts again over the same table remembers the same.
+      again = Protocol.destination(store: {Tartarus.Ledger, ledger}, seen_max: 2)
+      assert {_, [{:probe, ^p3, :c3, _}]} = Protocol.destination_step(again, {:prepare, p3})
+    end
+
     test "a clone's commit is journaled and answered after its source restarts" do
       s = Persistence.apply_record({:decision, {"src", 1}, "clone-id", :c1}, Persistence.empty())
       assert {[], [], [{{"src", 1}, :c1}]} = Persistence.restored(s)
