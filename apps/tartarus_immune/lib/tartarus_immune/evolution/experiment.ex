@@ -51,6 +51,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   @experiments %{
     s1: Trials,
     s2: Trials,
+    s2_fixed: Trials,
     s3: Trials,
     monolithic: Trials,
     robots3: Robots3,
@@ -59,7 +60,7 @@ defmodule TartarusImmune.Evolution.Experiment do
 
   @schema [
     experiment: [
-      type: {:in, [:s1, :s2, :s3, :monolithic, :robots3, :sharing]},
+      type: {:in, [:s1, :s2, :s2_fixed, :s3, :monolithic, :robots3, :robots3_dynamic, :sharing]},
       default: :sharing,
       doc: "which experiment"
     ],
@@ -107,9 +108,9 @@ defmodule TartarusImmune.Evolution.Experiment do
     ],
     matched: [
       type: :boolean,
-      default: false,
+      default: true,
       doc:
-        "`s1`, `s2`: add the arm `<scenario>_monolithic_matched`, the baseline trained for as many scored steps as the immune robot drove on the same seed"
+        "`s1`, `s2`: add the arm `<scenario>_monolithic_matched`, the baseline trained for as many scored steps as the immune robot drove on the same seed (the default since 2026-12-06; `--no-matched` leaves it out)"
     ],
     puck_reward: [
       type: {:in, [:product, :sum]},
