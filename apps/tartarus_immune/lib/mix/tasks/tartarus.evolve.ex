@@ -94,7 +94,15 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   agent, against no sharing, on the same seeds (`TartarusImmune.Evolution.Collective`).
   Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
   `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
-  each per scheme.
+  `publications_per_robot`, `reached_per_publication` (robots a broadcast reached),
+  `packet_stays_per_robot` (publications at which the packet agent had no link),
+  `links_up`, `link_flaps`, each per arm, and `p_values` (exact one-sided Mann-Whitney U
+  on test success: each sharing arm above `none`, static above dynamic).
+
+  `robots3_dynamic` (issue 46): the same three robots, with two more arms,
+  `broadcast_dynamic` and `ipkt_dynamic`, on the mesh whose links come and go: every 3 s
+  (30 world steps) each link breaks, or heals, with probability `--p` (0.1); the figure
+  `robots3_dynamic.svg`.
 
   `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
   `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
@@ -149,15 +157,18 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   defp order("b-cast"), do: 0
   defp order("iPkt-" <> x), do: String.to_integer(x)
 
-  defp text(%{experiment: "robots3"} = s, dir) do
+  defp text(%{experiment: "robots3" <> _} = s, dir) do
     rows =
-      for scheme <- ["none", "broadcast", "ipkt"] do
-        "  #{String.pad_trailing(scheme, 10)} test_success #{s.test_success[scheme]}  antibodies #{s.antibodies[scheme]}  shared chosen #{s.external_selections[scheme]}  communications per robot #{s.communications_per_robot[scheme]}"
+      for arm <- ["none", "broadcast", "ipkt", "broadcast_dynamic", "ipkt_dynamic"],
+          Map.has_key?(s.test_success, arm) do
+        "  #{String.pad_trailing(arm, 18)} test_success #{s.test_success[arm]}  antibodies #{s.antibodies[arm]}  shared chosen #{s.external_selections[arm]}  communications per robot #{s.communications_per_robot[arm]}  links up #{s.links_up[arm]}"
       end
 
+    tests = for {t, pv} <- Enum.sort(s.p_values), do: "  test success #{t}: p = #{pv}"
+
     Enum.join(
-      ["evolve: robots3, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
-        rows ++ ["  written to #{dir}"],
+      ["evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
+        rows ++ tests ++ ["  written to #{dir}"],
       "\n"
     )
   end

@@ -7,7 +7,9 @@ defmodule TartarusImmune.Evolution.Experiment do
   | experiment | module | arms |
   |---|---|---|
   | `s1`, `s2`, `s3`, `monolithic` | `TartarusImmune.Evolution.Experiment.Trials` | `<scenario>_<design>` |
+  | `s2_fixed` | `TartarusImmune.Evolution.Experiment.Trials` | `s2_<design>`, `s2_<design>_fixed` |
   | `robots3` | `TartarusImmune.Evolution.Experiment.Robots3` | `none`, `broadcast`, `ipkt` |
+  | `robots3_dynamic` | `TartarusImmune.Evolution.Experiment.Robots3` | also `broadcast_dynamic`, `ipkt_dynamic` |
   | `sharing` | `TartarusImmune.Evolution.Experiment.SharingSizes` | `<n>: <scheme>` |
 
 
@@ -55,6 +57,7 @@ defmodule TartarusImmune.Evolution.Experiment do
     s3: Trials,
     monolithic: Trials,
     robots3: Robots3,
+    robots3_dynamic: Robots3,
     sharing: SharingSizes
   }
 
@@ -66,7 +69,12 @@ defmodule TartarusImmune.Evolution.Experiment do
     ],
     sizes: [type: {:list, :pos_integer}, default: [20, 40, 80], doc: "`sharing`: network sizes"],
     trials: [type: :pos_integer, default: 10, doc: "runs per point (seeds seed, seed + 1, ...)"],
-    p: [type: :probability, default: 0.1, doc: "`sharing`: per-iteration link flap probability"],
+    p: [
+      type: :probability,
+      default: 0.1,
+      doc:
+        "`sharing`: per-iteration link flap probability; `robots3_dynamic`: the same per tick of 3 s"
+    ],
     max_iterations: [
       type: :pos_integer,
       default: 3000,

@@ -2,6 +2,8 @@ defmodule TartarusImmune.Evolution.ExperimentTest do
   use ExUnit.Case, async: true
 
   alias TartarusImmune.Evolution.Experiment
+
+  doctest TartarusImmune.Evolution.Experiment.Robots3
   alias TartarusTools.Stats
 
   test "s1: both designs on the same seeds, compared by an exact Mann-Whitney U test" do
@@ -68,5 +70,28 @@ defmodule TartarusImmune.Evolution.ExperimentTest do
     assert is_boolean(f.puck_obstacle_by_behaviour_fixed)
     assert fixed.trials_puck_obstacle_by_behaviour in 0..1
     assert Enum.any?(files, &String.ends_with?(&1, "s2_fixed.svg"))
+  end
+
+  @tag :tmp_dir
+  test "robots3_dynamic: static and dynamic arms on the same seeds, with the tests and the figure",
+       %{tmp_dir: dir} do
+    {:ok, %{summary: s, files: files}} =
+      Experiment.run(
+        experiment: :robots3_dynamic,
+        trials: 1,
+        seed: 3,
+        out: dir,
+        quiet: true,
+        p: 0.3
+      )
+
+    assert Enum.sort(Map.keys(s.test_success)) ==
+             ~w(broadcast broadcast_dynamic ipkt ipkt_dynamic none)
+
+    assert s.links_up["broadcast"] == 1.0 and s.links_up["broadcast_dynamic"] < 1.0
+    assert s.reached_per_publication["broadcast"] == 2.0
+    assert s.reached_per_publication["broadcast_dynamic"] < 2.0
+    assert Map.has_key?(s.p_values, "broadcast_dynamic > none")
+    assert Enum.any?(files, &String.ends_with?(&1, "robots3_dynamic.svg"))
   end
 end
