@@ -4,12 +4,13 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve [--experiment sharing|s1|s2|s3|monolithic|robots3] [--seeds 10]
+      mix tartarus.evolve [--experiment sharing|s1|s2|s2_fixed|s3|monolithic|robots3|robots3_dynamic]
+                          [--seeds 10]
                           [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--loop while_in_region|once] [--max-inner 10]
                           [--min-period 1] [--puck-reward sum|product]
-                          [--score total|per_step] [--sigma-max 4.0] [--matched]
+                          [--score total|per_step] [--sigma-max 4.0] [--no-matched]
                           [--seed 1] [--out DIR] [--json]
 
   `s1`, `s2`, `s3` (§7.3.1): one robot on the arena (2 m x 2 m, the light in the middle,
@@ -33,9 +34,22 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   the light on, `robots3`): `sum` (default), `b_puck + v_trans` as printed; `product`,
   `b_puck * v_trans`, moving with a puck in the gripper (see
   `TartarusImmune.Evolution.Objective`). `--sigma-max` is the (1+1)-online strategy's
-  sigma ceiling (4.0, Bredeche et al.'s). `--matched` (`s1`, `s2`) adds the arm
-  `<scenario>_monolithic_matched`: the baseline trained for as many scored steps as the
-  immune robot drove on the same seed.
+  sigma ceiling (4.0, Bredeche et al.'s). `s1` and `s2` have the arm
+  `<scenario>_monolithic_matched` (since 2026-12-06 by default; `--no-matched` leaves it
+  out): the baseline trained for as many scored steps as the immune robot drove on the
+  same seed; the summary's `comparison` says which, `matched_objective_p_value` is the
+  step-matched test.
+
+  `s2_fixed` (issue 46): S2 with the fixed evaluation period t' (`--period`, 30 steps) as
+  a labelled arm beside the region-ended one: arms `s2_immune` (a period ends when the
+  epitope leaves the antibody's region), `s2_immune_fixed` (every period runs its t'
+  steps; the region is checked between periods, in training and test), each with its
+  step-matched baseline (`s2_monolithic_matched`, `s2_monolithic_matched_fixed`), and the
+  thesis's baseline `s2_monolithic`. Beside the probes above, per arm the behaviour probe
+  (`trials_puck_obstacle_by_behaviour`: trials whose antibody run while a puck is held and
+  an obstacle is nearer than 20 cm is not the one run with a puck and no such obstacle)
+  and `done_means.fixed_period` (docs/evolution.md, pre-registration of 2026-12-06); the
+  figure `s2_fixed.svg`.
   Success criteria: see `TartarusImmune.Evolution.Embodied`. Output: `runs.csv` (scenario,
   design, trial, antibodies, switches, final fitness, test success), for the first trial
   the evolution-selection curve (`curve_<scenario>_<design>.svg`: fitness per iteration, one
@@ -80,7 +94,15 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   agent, against no sharing, on the same seeds (`TartarusImmune.Evolution.Collective`).
   Output: `runs.csv` (one row per robot and run); summary `test_success`, `antibodies`,
   `external_selections` (shared antibodies a robot chose), `communications_per_robot`,
-  each per scheme.
+  `publications_per_robot`, `reached_per_publication` (robots a broadcast reached),
+  `packet_stays_per_robot` (publications at which the packet agent had no link),
+  `links_up`, `link_flaps`, each per arm, and `p_values` (exact one-sided Mann-Whitney U
+  on test success: each sharing arm above `none`, static above dynamic).
+
+  `robots3_dynamic` (issue 46): the same three robots, with two more arms,
+  `broadcast_dynamic` and `ipkt_dynamic`, on the mesh whose links come and go: every 3 s
+  (30 world steps) each link breaks, or heals, with probability `--p` (0.1); the figure
+  `robots3_dynamic.svg`.
 
   `--seeds N` (or its old name `--trials N`) is the number of repetitions, on seeds
   `--seed`, `--seed` + 1, ...: the name `mix tartarus.select` uses for the same thing.
@@ -135,15 +157,18 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   defp order("b-cast"), do: 0
   defp order("iPkt-" <> x), do: String.to_integer(x)
 
-  defp text(%{experiment: "robots3"} = s, dir) do
+  defp text(%{experiment: "robots3" <> _} = s, dir) do
     rows =
-      for scheme <- ["none", "broadcast", "ipkt"] do
-        "  #{String.pad_trailing(scheme, 10)} test_success #{s.test_success[scheme]}  antibodies #{s.antibodies[scheme]}  shared chosen #{s.external_selections[scheme]}  communications per robot #{s.communications_per_robot[scheme]}"
+      for arm <- ["none", "broadcast", "ipkt", "broadcast_dynamic", "ipkt_dynamic"],
+          Map.has_key?(s.test_success, arm) do
+        "  #{String.pad_trailing(arm, 18)} test_success #{s.test_success[arm]}  antibodies #{s.antibodies[arm]}  shared chosen #{s.external_selections[arm]}  communications per robot #{s.communications_per_robot[arm]}  links up #{s.links_up[arm]}"
       end
 
+    tests = for {t, pv} <- Enum.sort(s.p_values), do: "  test success #{t}: p = #{pv}"
+
     Enum.join(
-      ["evolve: robots3, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
-        rows ++ ["  written to #{dir}"],
+      ["evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}"] ++
+        rows ++ tests ++ ["  written to #{dir}"],
       "\n"
     )
   end

@@ -2,7 +2,12 @@ defmodule TartarusImmune.Evolution.Collective do
   @moduledoc """
   Several robots learning S3 in one arena and sharing antibodies (thesis §7.4.2, "three
   real robots ... allowed to share their respective IReps"), each robot a host of an
-  emulated network (`TartarusEmu.Network`, a full mesh).
+  emulated network (`TartarusEmu.Network`, a full mesh). With `dynamic: p` above 0 the
+  mesh's links come and go: every `flap_every` world steps (30, one full evaluation
+  period of 3 s) each link breaks, or if broken heals, with probability `p`
+  (`TartarusEmu.Dynamics`, as the sharing experiment's links flap), so a broadcast reaches
+  only the robots linked at that moment and the packet agent stays where it is when its
+  host has no link.
 
   Every robot runs Algorithm 5 on its own (`TartarusImmune.Evolution.Embodied`'s loop: an
   evaluation period ends when its epitope leaves the antibody's active region, after at
@@ -28,7 +33,7 @@ defmodule TartarusImmune.Evolution.Collective do
 
   alias Tartarus.Clock
   alias TartarusArena.World
-  alias TartarusEmu.{Log, Network, Topology}
+  alias TartarusEmu.{Dynamics, Log, Network, Topology}
 
   alias TartarusImmune.Evolution.{
     AbPkt,
@@ -75,6 +80,16 @@ defmodule TartarusImmune.Evolution.Collective do
         "the reading of Eq. 7.2's f_puck: `b_puck * v_trans` or, as printed, `b_puck + v_trans` (`Objective`)"
     ],
     test_episodes: [type: :non_neg_integer, default: 5, doc: "test episodes per robot"],
+    dynamic: [
+      type: :probability,
+      default: 0.0,
+      doc: "per tick, the probability that a link breaks (or heals); 0: a static full mesh"
+    ],
+    flap_every: [
+      type: :pos_integer,
+      default: 30,
+      doc: "world steps (0.1 s) per tick of the links"
+    ],
     seed: [type: :integer, default: 1, doc: "seed"]
   ]
 
@@ -88,8 +103,11 @@ defmodule TartarusImmune.Evolution.Collective do
   #{Tartarus.Options.docs(@schema)}
 
   Returns `{:ok, result}` with `test_success` (mean over robots), `per_robot` (antibodies,
-  external selections, test success), `communications` (the platform's counters: broadcast
-  messages sent and received, hand-offs) and `light_switches`.
+  external selections, test success, `publications`, `reached`: robots a publication
+  reached by broadcast, `stays`: publications at which the packet agent found no link),
+  `communications` (the platform's counters: broadcast messages sent and received,
+  hand-offs), `light_switches`, `dynamic`, `link_ticks`, `link_flaps` (links broken or
+  healed) and `links_up` (the mean share of links up over the ticks; 1.0 when static).
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -146,10 +164,20 @@ defmodule TartarusImmune.Evolution.Collective do
               es: o.es
             )
 
-          {n, %{rep: rep, done: 0, cur: nil, external: 0}}
+          {n, %{rep: rep, done: 0, cur: nil, external: 0, publications: 0, reached: 0, stays: 0}}
         end)
 
-      st = %{world: world, rng: rng, robots: robots}
+      links = %{
+        net: net,
+        dyn: Dynamics.new(MapSet.to_list(topo.edges)),
+        rng: Dynamics.rng(c.seed),
+        steps: 0,
+        ticks: 0,
+        flaps: 0,
+        up: 0.0
+      }
+
+      st = %{world: world, rng: rng, robots: robots, links: links}
       st = loop(c, o, st, keepers, pkt, switches, names)
       totals = Log.settled_totals(log)
       Log.stop(log)
@@ -163,7 +191,10 @@ defmodule TartarusImmune.Evolution.Collective do
              robot: n,
              antibodies: map_size(r.rep.antibodies),
              external_selections: r.external,
-             test_success: success
+             test_success: success,
+             publications: r.publications,
+             reached: r.reached,
+             stays: r.stays
            }, rng}
         end)
 
@@ -173,6 +204,11 @@ defmodule TartarusImmune.Evolution.Collective do
         test_success: Float.round(Enum.sum(Enum.map(per, & &1.test_success)) / length(per), 3),
         per_robot: per,
         light_switches: Tuple.to_list(switches),
+        dynamic: c.dynamic,
+        link_ticks: st.links.ticks,
+        link_flaps: st.links.flaps,
+        links_up:
+          if(st.links.ticks > 0, do: Float.round(st.links.up / st.links.ticks, 3), else: 1.0),
         communications:
           Map.new(
             [:broadcast_messages, :broadcasts_received, :departures, :arrivals],
@@ -246,9 +282,39 @@ defmodule TartarusImmune.Evolution.Collective do
         end)
 
       world = World.step(st.world, commands, o.dt)
-      st = %{st | world: world}
+      st = %{st | world: world, links: flap(c, st.links)}
       st = Enum.reduce(names, st, fn n, st -> advance(c, o, st, n, keepers, pkt) end)
       loop(c, o, st, keepers, pkt, switches, names)
+    end
+  end
+
+  # The links come and go (`dynamic` above 0): a tick every `flap_every` world steps, between
+  # two steps (no publication in flight).
+  defp flap(%{dynamic: p}, links) when p == 0, do: links
+
+  defp flap(c, links) do
+    links = %{links | steps: links.steps + 1}
+
+    if rem(links.steps, c.flap_every) == 0 do
+      {events, dyn, rng} = Dynamics.step(links.dyn, c.dynamic, links.rng)
+
+      Enum.each(events, fn
+        {:down, {a, b}} -> :ok = Network.break_link(links.net, a, b)
+        {:up, {a, b}} -> :ok = Network.heal_link(links.net, a, b)
+      end)
+
+      up = 1 - length(Dynamics.down(dyn)) / max(length(dyn.elements), 1)
+
+      %{
+        links
+        | dyn: dyn,
+          rng: rng,
+          ticks: links.ticks + 1,
+          flaps: links.flaps + length(events),
+          up: links.up + up
+      }
+    else
+      links
     end
   end
 
@@ -299,8 +365,10 @@ defmodule TartarusImmune.Evolution.Collective do
             rep = Repertoire.put_es(r.rep, cur.key, ES.tell(ab.es, {cur.kind, cur.w}, fitness))
             rep = Repertoire.report(rep, cur.key, fitness)
             r = %{r | rep: rep, cur: nil, done: r.done + 1}
-            if rem(r.done, c.share_every) == 0, do: publish(c, r, keepers, n, pkt)
-            r
+
+            if rem(r.done, c.share_every) == 0,
+              do: published(r, publish(c, r, keepers, n, pkt)),
+              else: r
           else
             %{r | cur: %{cur | samples: samples, inputs: ep}}
           end
@@ -309,7 +377,16 @@ defmodule TartarusImmune.Evolution.Collective do
     end
   end
 
-  defp publish(%{scheme: :none}, _r, _keepers, _n, _pkt), do: :ok
+  defp published(r, {reached, stays}),
+    do: %{
+      r
+      | publications: r.publications + 1,
+        reached: r.reached + reached,
+        stays: r.stays + stays
+    }
+
+  # publishes; returns {robots reached by broadcast, 1 if the packet agent found no link}
+  defp publish(%{scheme: :none}, _r, _keepers, _n, _pkt), do: {0, 0}
 
   defp publish(c, r, keepers, n, pkt) do
     keeper = keepers[n]
@@ -331,13 +408,14 @@ defmodule TartarusImmune.Evolution.Collective do
       {:ok, :ok} = Tartarus.request(pkt, :visit, 10_000)
 
       Clock.receive do
-        {tag, ^pkt} when tag in [:ipkt_moved, :ipkt_stayed] -> :ok
+        {:ipkt_moved, ^pkt} -> {0, 0}
+        {:ipkt_stayed, ^pkt} -> {0, 1}
       after
         10_000 -> raise "the antibody packet neither moved nor stayed within 10 s"
       end
+    else
+      {sent, 0}
     end
-
-    :ok
   end
 
   defp received(keepers),

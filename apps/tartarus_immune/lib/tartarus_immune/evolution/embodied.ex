@@ -118,6 +118,12 @@ defmodule TartarusImmune.Evolution.Embodied do
       default: 10,
       doc: "steps an evaluation runs before leaving the active region can end it"
     ],
+    evaluation: [
+      type: {:in, [:region, :fixed]},
+      default: :region,
+      doc:
+        "`:region`: an evaluation period ends when the epitope leaves the antibody's active region (after `min_period` steps); `:fixed`: every period runs its `period` steps (the thesis's \"evaluation period of t' timesteps\"), the region is checked only between periods (training and test)"
+    ],
     puck_reward: [
       type: {:in, [:product, :sum]},
       default: :product,
@@ -514,7 +520,7 @@ defmodule TartarusImmune.Evolution.Embodied do
     samples = [sample | samples]
 
     done =
-      length(samples) >= o.min_period and
+      o.evaluation == :region and length(samples) >= o.min_period and
         Repertoire.affinity(World.normalize(next), paratope) > o.epsilon
 
     if n <= 1 or done,
@@ -558,6 +564,8 @@ defmodule TartarusImmune.Evolution.Embodied do
   end
 
   @episode_steps 300
+  # the behaviour probe's obstacle: nearer than 20 cm (of the ultrasonic's 200)
+  @near 0.1
 
   defp episode(o, rep, rng, light, _k) do
     {world, rng} = arena(o, rng, light)
@@ -601,7 +609,9 @@ defmodule TartarusImmune.Evolution.Embodied do
       objective_product: Float.round(acc.product / max(acc.n, 1), 4),
       puck_steps: acc.puck,
       puck_ab_steps: acc.puck_ab,
-      longest_puck_run: max(acc.best_run, acc.run)
+      longest_puck_run: max(acc.best_run, acc.run),
+      puck_near_by_antibody: acc.near,
+      puck_far_by_antibody: acc.far
     }
 
     {detail, rng}
@@ -617,7 +627,18 @@ defmodule TartarusImmune.Evolution.Embodied do
   # with the colour sensor on yellow (`puck`) and of those the steps run by a puck antibody
   # (`puck_ab`), and runs of steps with a puck seen while moving forwards.
   defp drive(o, rep, world, left, bumps, near) do
-    acc = %{n: 0, sum: 0.0, product: 0.0, puck: 0, puck_ab: 0, run: 0, best_run: 0}
+    acc = %{
+      n: 0,
+      sum: 0.0,
+      product: 0.0,
+      puck: 0,
+      puck_ab: 0,
+      run: 0,
+      best_run: 0,
+      near: %{},
+      far: %{}
+    }
+
     drive(o, rep, world, left, bumps, near, nil, 0, acc)
   end
 
@@ -633,12 +654,18 @@ defmodule TartarusImmune.Evolution.Embodied do
         is_function(rep, 1) ->
           {rep, k, ep, world}
 
+        # `evaluation: :fixed`: the region is checked between periods only, and the
+        # antibody runs on while the epitope is in it (as in training)
+        o.evaluation == :fixed and cur != nil and k >= o.period and
+            Repertoire.affinity(ep, cur.paratope) <= o.epsilon ->
+          {cur, 0, ep, world}
+
         cur == nil or k >= o.period ->
           # (the reading that chose is not the one the controller then acts on)
           {r, world} = World.sense(world, :robot)
           {frozen(rep, ep), 0, World.normalize(r), world}
 
-        o.test_switch == :region and k >= o.min_period and
+        o.evaluation == :region and o.test_switch == :region and k >= o.min_period and
             Repertoire.affinity(ep, cur.paratope) > o.epsilon ->
           {frozen(rep, ep), 0, ep, world}
 
@@ -655,6 +682,8 @@ defmodule TartarusImmune.Evolution.Embodied do
               acc.puck_ab + if(is_map(cur) and puck_antibody?(cur.paratope), do: 1, else: 0)
         },
         else: acc
+
+    acc = if puck_antibody?(ep) and is_map(cur), do: chosen(acc, ep, cur.id), else: acc
 
     [l, rr] =
       if is_function(cur, 1), do: cur.(ep), else: NeuralNet.forward(@shape, cur.es.champion, ep)
@@ -674,6 +703,13 @@ defmodule TartarusImmune.Evolution.Embodied do
       k + 1,
       acc
     )
+  end
+
+  # the behaviour probe: which antibody runs while a puck is held, with an obstacle
+  # nearer than 20 cm (`near`) or not (`far`)
+  defp chosen(acc, ep, id) do
+    side = if Enum.at(ep, 2) < @near, do: :near, else: :far
+    Map.update!(acc, side, &Map.update(&1, id, 1, fn n -> n + 1 end))
   end
 
   defp account(o, acc, sample) do
@@ -783,7 +819,14 @@ defmodule TartarusImmune.Evolution.Embodied do
     * behaviours: `wall_free_episodes` (no refused move), `light_episodes` (within 0.4 m
       of the light), `puck_kept_episodes` (20 steps in a row with a puck seen while moving
       forwards), out of `episodes`; `fails_a_behaviour` (one of the three in fewer than
-      half of the episodes).
+      half of the episodes);
+    * the puck-with-obstacle antibody **by behaviour** (issue 46): over the test steps
+      whose controller was applied with a puck held (colour sensor on yellow),
+      `puck_near_steps` with an obstacle nearer than 20 cm (ultrasonic below 0.1) and
+      `puck_far_steps` without; `puck_near_antibody` and `puck_far_antibody`, the
+      antibody that ran most of each (ties: the lower id); `holds_puck_obstacle_by_behaviour`
+      when there are near steps and their antibody is not the far steps' one;
+      `puck_near_antibody_share`, the share of the near steps it ran.
   """
   @spec probes(Repertoire.t(), [map()], [map()], map()) :: map()
   def probes(rep, curve, episodes, _o) do
@@ -810,7 +853,19 @@ defmodule TartarusImmune.Evolution.Embodied do
       puck_kept_episodes: count.(&(&1.longest_puck_run >= @kept_run))
     }
 
+    near = on |> Enum.map(&Map.get(&1, :puck_near_by_antibody, %{})) |> sum_counts()
+    far = on |> Enum.map(&Map.get(&1, :puck_far_by_antibody, %{})) |> sum_counts()
+    near_ab = mode(near)
+    far_ab = mode(far)
+    near_steps = near |> Map.values() |> Enum.sum()
+
     Map.merge(behaviours, %{
+      puck_near_steps: near_steps,
+      puck_far_steps: far |> Map.values() |> Enum.sum(),
+      puck_near_antibody: near_ab,
+      puck_far_antibody: far_ab,
+      puck_near_antibody_share: if(near_ab, do: near[near_ab] / near_steps),
+      holds_puck_obstacle_by_behaviour: near_ab != nil and near_ab != far_ab,
       trace: trace(rep, curve),
       episodes: length(on),
       fails_a_behaviour: on != [] and Enum.any?(Map.values(behaviours), &(&1 < half)),
@@ -830,6 +885,12 @@ defmodule TartarusImmune.Evolution.Embodied do
       puck_champion_improved: gain != nil and gain > 0
     })
   end
+
+  defp sum_counts(maps), do: Enum.reduce(maps, %{}, &Map.merge(&2, &1, fn _, a, b -> a + b end))
+
+  # the antibody counted most (the lower id on a tie), nil for none
+  defp mode(counts) when counts == %{}, do: nil
+  defp mode(counts), do: counts |> Enum.min_by(fn {id, n} -> {-n, id} end) |> elem(0)
 
   defp frozen(rep, ep) do
     case Repertoire.candidates(rep, ep) do

@@ -7,7 +7,9 @@ defmodule TartarusImmune.Evolution.Experiment do
   | experiment | module | arms |
   |---|---|---|
   | `s1`, `s2`, `s3`, `monolithic` | `TartarusImmune.Evolution.Experiment.Trials` | `<scenario>_<design>` |
+  | `s2_fixed` | `TartarusImmune.Evolution.Experiment.Trials` | `s2_<design>`, `s2_<design>_fixed` |
   | `robots3` | `TartarusImmune.Evolution.Experiment.Robots3` | `none`, `broadcast`, `ipkt` |
+  | `robots3_dynamic` | `TartarusImmune.Evolution.Experiment.Robots3` | also `broadcast_dynamic`, `ipkt_dynamic` |
   | `sharing` | `TartarusImmune.Evolution.Experiment.SharingSizes` | `<n>: <scheme>` |
 
 
@@ -51,21 +53,28 @@ defmodule TartarusImmune.Evolution.Experiment do
   @experiments %{
     s1: Trials,
     s2: Trials,
+    s2_fixed: Trials,
     s3: Trials,
     monolithic: Trials,
     robots3: Robots3,
+    robots3_dynamic: Robots3,
     sharing: SharingSizes
   }
 
   @schema [
     experiment: [
-      type: {:in, [:s1, :s2, :s3, :monolithic, :robots3, :sharing]},
+      type: {:in, [:s1, :s2, :s2_fixed, :s3, :monolithic, :robots3, :robots3_dynamic, :sharing]},
       default: :sharing,
       doc: "which experiment"
     ],
     sizes: [type: {:list, :pos_integer}, default: [20, 40, 80], doc: "`sharing`: network sizes"],
     trials: [type: :pos_integer, default: 10, doc: "runs per point (seeds seed, seed + 1, ...)"],
-    p: [type: :probability, default: 0.1, doc: "`sharing`: per-iteration link flap probability"],
+    p: [
+      type: :probability,
+      default: 0.1,
+      doc:
+        "`sharing`: per-iteration link flap probability; `robots3_dynamic`: the same per tick of 3 s"
+    ],
     max_iterations: [
       type: :pos_integer,
       default: 3000,
@@ -107,9 +116,9 @@ defmodule TartarusImmune.Evolution.Experiment do
     ],
     matched: [
       type: :boolean,
-      default: false,
+      default: true,
       doc:
-        "`s1`, `s2`: add the arm `<scenario>_monolithic_matched`, the baseline trained for as many scored steps as the immune robot drove on the same seed"
+        "`s1`, `s2`: add the arm `<scenario>_monolithic_matched`, the baseline trained for as many scored steps as the immune robot drove on the same seed (the default since 2026-12-06; `--no-matched` leaves it out)"
     ],
     puck_reward: [
       type: {:in, [:product, :sum]},

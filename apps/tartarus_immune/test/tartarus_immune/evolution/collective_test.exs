@@ -27,4 +27,27 @@ defmodule TartarusImmune.Evolution.CollectiveTest do
     assert Enum.all?(r.per_robot, &(&1.external_selections == 0))
     assert Enum.sum(Map.values(r.communications)) == 0
   end
+
+  test "a dynamic network: links come and go, broadcasts reach only the robots linked then" do
+    {:ok, r} = Collective.run([scheme: :broadcast, dynamic: 0.5, flap_every: 5] ++ @opts)
+    assert r.link_ticks > 0 and r.link_flaps > 0 and r.links_up < 1.0
+    pubs = r.per_robot |> Enum.map(& &1.publications) |> Enum.sum()
+    reached = r.per_robot |> Enum.map(& &1.reached) |> Enum.sum()
+    assert pubs == 18
+    # fewer than both other robots each time, and the platform counted what was reached
+    assert reached < 18 * 2
+    assert r.communications.broadcast_messages == reached
+    assert r.communications.broadcasts_received == reached
+    # the static mesh as before: no tick
+    {:ok, s} = Collective.run([scheme: :broadcast] ++ @opts)
+    assert s.link_ticks == 0 and s.links_up == 1.0
+  end
+
+  test "a dynamic network: the packet agent stays where it is when its host has no link" do
+    {:ok, a} = Collective.run([scheme: :ipkt, dynamic: 0.5, flap_every: 5] ++ @opts)
+    stays = a.per_robot |> Enum.map(& &1.stays) |> Enum.sum()
+    assert stays > 0 and a.communications.departures == 18 - stays
+    {:ok, b} = Collective.run([scheme: :ipkt, dynamic: 0.5, flap_every: 5] ++ @opts)
+    assert a.per_robot == b.per_robot and a.link_flaps == b.link_flaps
+  end
 end

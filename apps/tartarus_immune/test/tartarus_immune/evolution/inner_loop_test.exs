@@ -143,6 +143,64 @@ defmodule TartarusImmune.Evolution.InnerLoopTest do
     assert p2.wall_free_episodes == 0 and p2.fails_a_behaviour and p2.puck_use == nil
   end
 
+  test "evaluation: :fixed runs every period its t' steps and checks the region only between periods" do
+    region = run(@printed)
+    fixed = run(@printed ++ [evaluation: :fixed])
+    # stopped at once on leaving, some periods are short; with t' fixed none is
+    assert Enum.any?(region.curve, &(&1.steps < 30))
+    assert Enum.all?(fixed.curve, &(&1.steps == 30))
+    assert fixed.training_steps == 30 * fixed.evaluations
+    # the region still decides whether the iteration goes on: some iterations have one
+    # period, some more
+    sizes = fixed.curve |> Enum.frequencies_by(& &1.iteration) |> Map.values()
+    assert Enum.any?(sizes, &(&1 == 1)) and Enum.any?(sizes, &(&1 > 1))
+  end
+
+  test "the behaviour probe: the antibody run with a puck held and an obstacle nearer than 20 cm, against the one run without" do
+    rep = %Repertoire{epsilon: 0.4, shape: [4, 5, 2], antibodies: %{}}
+
+    ep = fn near, far ->
+      %{
+        light_on: true,
+        bumps: 0,
+        reached_light: true,
+        longest_puck_run: 0,
+        puck_steps: 0,
+        puck_ab_steps: 0,
+        objective: 1.0,
+        objective_product: 0.5,
+        puck_near_by_antibody: near,
+        puck_far_by_antibody: far
+      }
+    end
+
+    # near steps: Ab4 4 + 3 = 7 of 10, far steps: Ab3 mostly
+    p =
+      Embodied.probes(
+        rep,
+        [],
+        [ep.(%{4 => 4, 3 => 2}, %{3 => 20}), ep.(%{4 => 3, 3 => 1}, %{4 => 5})],
+        %{}
+      )
+
+    assert {p.puck_near_steps, p.puck_far_steps} == {10, 25}
+    assert {p.puck_near_antibody, p.puck_far_antibody} == {4, 3}
+    assert p.holds_puck_obstacle_by_behaviour and p.puck_near_antibody_share == 0.7
+    # the same antibody in both: no puck-with-obstacle antibody by behaviour
+    same = Embodied.probes(rep, [], [ep.(%{3 => 2}, %{3 => 9})], %{})
+    refute same.holds_puck_obstacle_by_behaviour
+    # no puck held near an obstacle: none either
+    none = Embodied.probes(rep, [], [ep.(%{}, %{3 => 9})], %{})
+    refute none.holds_puck_obstacle_by_behaviour
+    assert none.puck_near_antibody == nil and none.puck_near_antibody_share == nil
+  end
+
+  test "the behaviour probe counts the test's puck steps by whether an obstacle is nearer than 20 cm" do
+    r = run(@printed ++ [test_episodes: 4])
+    p = r.probes
+    assert p.puck_near_steps + p.puck_far_steps == p.puck_steps
+  end
+
   test "step_budget: training goes on until the scored steps reach the budget" do
     r = run(design: :monolithic, step_budget: 301, test_episodes: 0)
     # monolithic periods are 30 steps: 11 of them reach 301

@@ -25,22 +25,51 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
   @spec spec(map()) :: map()
   def spec(p) do
     exp = p.experiment
-    scenarios = if exp == :monolithic, do: [:s1, :s2, :s3], else: [exp]
+    sc = scenario(exp)
+    scenarios = if exp == :monolithic, do: [:s1, :s2, :s3], else: [sc]
     designs = if exp == :monolithic, do: [:monolithic], else: [:immune, :monolithic]
-    arms = for sc <- scenarios, d <- designs, do: {"#{sc}_#{d}", %{scenario: sc, design: d}}
 
     arms =
-      if p[:matched] and exp in [:s1, :s2],
+      for sc <- scenarios,
+          d <- designs,
+          do: {"#{sc}_#{d}", %{scenario: sc, design: d, evaluation: :region}}
+
+    arms =
+      if matched?(p),
         do:
           arms ++
-            [{"#{exp}_monolithic_matched", %{scenario: exp, design: :monolithic, matched: true}}],
+            [
+              {"#{sc}_monolithic_matched",
+               %{scenario: sc, design: :monolithic, matched: true, evaluation: :region}}
+            ],
         else: arms
 
+    # `s2_fixed` (issue 46): the fixed evaluation period t' as a labelled arm, with its
+    # own step-matched baseline
+    arms =
+      if exp == :s2_fixed,
+        do:
+          arms ++
+            [
+              {"s2_immune_fixed", %{scenario: :s2, design: :immune, evaluation: :fixed}},
+              {"s2_monolithic_matched_fixed",
+               %{scenario: :s2, design: :monolithic, matched: true, evaluation: :fixed}}
+            ],
+        else: arms
+
+    exact = [method: :exact]
+
     matched_tests =
-      if p[:matched] and exp in [:s1, :s2],
+      if matched?(p),
+        do: [{"#{sc}_immune", :greater, "#{sc}_monolithic_matched", :test_objective, exact}],
+        else: []
+
+    fixed_tests =
+      if exp == :s2_fixed,
         do: [
-          {"#{exp}_immune", :greater, "#{exp}_monolithic_matched", :test_objective,
-           [method: :exact]}
+          {"s2_immune_fixed", :greater, "s2_monolithic_matched_fixed", :test_objective, exact},
+          {"s2_immune_fixed", :greater, "s2_immune", :test_objective, exact},
+          {"s2_immune_fixed", :greater, "s2_monolithic", :test_objective, exact}
         ],
         else: []
 
@@ -48,8 +77,8 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       if exp == :monolithic,
         do: [],
         else: [
-          {"#{exp}_immune", :greater, "#{exp}_monolithic", :test_success, [method: :exact]},
-          {"#{exp}_immune", :greater, "#{exp}_monolithic", :test_objective, [method: :exact]}
+          {"#{sc}_immune", :greater, "#{sc}_monolithic", :test_success, exact},
+          {"#{sc}_immune", :greater, "#{sc}_monolithic", :test_objective, exact}
         ]
 
     %{
@@ -64,7 +93,7 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
         antibodies: :antibodies,
         switches: :switches
       ],
-      tests: tests ++ matched_tests,
+      tests: tests ++ matched_tests ++ fixed_tests,
       csv:
         {~w(scenario design trial antibodies switches final_fitness test_success),
          fn run ->
@@ -87,20 +116,34 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
 
   defp run_one(%{scenario: sc, design: d} = arm, seed, p) do
     trial = seed - p.seed
+    ev = [evaluation: arm.evaluation]
 
     # the step-matched baseline: as many scored steps as the immune robot drove (its
     # training is run again; the same seed gives the same run)
     budget =
       if arm[:matched] do
-        {:ok, imm} = Embodied.run(common(sc, :immune, seed, p) ++ [test_episodes: 0])
+        {:ok, imm} = Embodied.run(common(sc, :immune, seed, p) ++ ev ++ [test_episodes: 0])
         [step_budget: imm.training_steps]
       else
         []
       end
 
-    {:ok, r} = Embodied.run(common(sc, d, seed, p) ++ [trace: trial == 0] ++ budget)
-    Map.merge(r, %{trial: trial, seed: seed, matched: arm[:matched] == true})
+    {:ok, r} = Embodied.run(common(sc, d, seed, p) ++ ev ++ [trace: trial == 0] ++ budget)
+
+    Map.merge(r, %{
+      trial: trial,
+      seed: seed,
+      matched: arm[:matched] == true,
+      evaluation: arm.evaluation
+    })
   end
+
+  # the scenario an experiment runs (`s2_fixed` is S2's)
+  defp scenario(:s2_fixed), do: :s2
+  defp scenario(exp), do: exp
+
+  # whether the step-matched baseline is an arm (the default for S1 and S2)
+  defp matched?(p), do: p.experiment == :s2_fixed or (p[:matched] and p.experiment in [:s1, :s2])
 
   defp common(sc, d, seed, p) do
     [
@@ -118,9 +161,12 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
     ]
   end
 
-  # a run's design, `monolithic_matched` for the step-matched baseline
-  defp name(%{matched: true}), do: "monolithic_matched"
-  defp name(r), do: to_string(r.design)
+  # a run's design, `monolithic_matched` for the step-matched baseline, `_fixed` with the
+  # fixed evaluation period
+  defp name(r) do
+    base = if r.matched, do: "monolithic_matched", else: to_string(r.design)
+    if r.evaluation == :fixed, do: base <> "_fixed", else: base
+  end
 
   @doc "Points of the series: the trials."
   @spec points(map()) :: pos_integer()
@@ -192,19 +238,53 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
         [file, traj]
       end
 
-    List.flatten(curves)
+    List.flatten(curves) ++ figure(dir, runs, p)
   end
+
+  @fixed_arms ~w(immune monolithic_matched immune_fixed monolithic_matched_fixed monolithic)
+
+  # `s2_fixed`: Eq. 7.2 per step in the test, per arm (docs/evolution/s2_fixed.svg)
+  defp figure(dir, runs, %{experiment: :s2_fixed} = p) do
+    groups =
+      for d <- @fixed_arms do
+        rs = Enum.filter(runs, &(name(&1) == d))
+        steps = rs |> Enum.map(& &1.training_steps) |> Stats.mean()
+        label = "#{d} (#{if steps, do: round(steps), else: 0} steps)"
+        {label, Enum.map(rs, &(&1.probes.test_objective || 0.0))}
+      end
+
+    file = Path.join(dir, "s2_fixed.svg")
+
+    File.write!(
+      file,
+      SVG.box_plot(groups,
+        title:
+          "S2: region-ended against fixed evaluation periods (t' = #{p.period} steps), seeds #{p.seed}-#{p.seed + p.trials - 1}",
+        y_label: "Eq. 7.2 per step in the test (printed f_puck)"
+      )
+    )
+
+    [file]
+  end
+
+  defp figure(_dir, _runs, _p), do: []
 
   @doc "The summary: per arm, and the test of immune against monolithic."
   @spec summary([map()], map()) :: map()
   def summary(runs, p) do
-    exp = p.experiment
+    exp = scenario(p.experiment)
     arm = fn sc, d -> Enum.filter(runs, &(&1.scenario == sc and name(&1) == "#{d}")) end
     key = fn sc, d -> "#{sc}_#{d}" end
 
     arms =
       for sc <- [:s1, :s2, :s3],
-          d <- [:immune, :monolithic, :monolithic_matched],
+          d <- [
+            :immune,
+            :monolithic,
+            :monolithic_matched,
+            :immune_fixed,
+            :monolithic_matched_fixed
+          ],
           (runs = arm.(sc, d)) != [],
           into: %{} do
         s3 =
@@ -254,8 +334,9 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
         )
 
     %{
-      experiment: to_string(exp),
+      experiment: to_string(p.experiment),
       trials: p.trials,
+      comparison: if(matched, do: "step_matched", else: "iterations"),
       matched_objective_p_value: obj_matched && Float.round(obj_matched.p_value, 6),
       seeds: [p.seed, p.seed + p.trials - 1],
       loop: to_string(p.loop),
@@ -263,7 +344,11 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       sigma_max: p.sigma_max,
       objective_mann_whitney_u: obj && obj.u,
       objective_p_value: obj && Float.round(obj.p_value, 6),
-      done_means: done_means(main, mono, obj, arms),
+      done_means:
+        Map.merge(
+          done_means(main, mono, obj, arms),
+          if(p.experiment == :s2_fixed, do: %{fixed_period: fixed_period(arms)}, else: %{})
+        ),
       arms: arms,
       antibodies: main && main.antibodies,
       test_success:
@@ -305,6 +390,12 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       puck_antibody_evaluations_by_trial: Enum.map(pr, & &1.puck_antibody_evaluations),
       trials_with_puck_antibody: Enum.count(pr, &(&1.puck_antibodies > 0)),
       trials_with_puck_and_obstacle: Enum.count(pr, & &1.holds_puck_and_obstacle),
+      trials_puck_obstacle_by_behaviour: Enum.count(pr, & &1.holds_puck_obstacle_by_behaviour),
+      share_puck_obstacle_by_behaviour:
+        share.(Enum.count(pr, & &1.holds_puck_obstacle_by_behaviour)),
+      trials_with_puck_near_steps: Enum.count(pr, &(&1.puck_near_steps > 0)),
+      puck_near_steps: mean2(Enum.map(pr, & &1.puck_near_steps)),
+      puck_near_antibody_share: mean2(Enum.flat_map(pr, &List.wrap(&1.puck_near_antibody_share))),
       share_with_puck_and_obstacle: share.(Enum.count(pr, & &1.holds_puck_and_obstacle)),
       puck_steps: steps,
       puck_ab_steps: ab_steps,
@@ -336,6 +427,32 @@ defmodule TartarusImmune.Evolution.Experiment.Trials do
       wall_free_episodes: mean2(Enum.map(pr, & &1.wall_free_episodes)),
       light_episodes: mean2(Enum.map(pr, & &1.light_episodes)),
       puck_kept_episodes: mean2(Enum.map(pr, & &1.puck_kept_episodes))
+    }
+  end
+
+  # the criteria of the pre-registration of 2026-12-06 (issue 46, item 6): the fixed
+  # evaluation period against its step-matched baseline, the stall, the behaviour probe
+  defp fixed_period(arms) do
+    fixed = arms["s2_immune_fixed"]
+    region = arms["s2_immune"]
+
+    learning =
+      Stats.mann_whitney(
+        fixed.test_objective_by_trial,
+        arms["s2_monolithic_matched_fixed"].test_objective_by_trial,
+        method: :exact
+      )
+
+    stall = fn a -> a.wall_champions_stalled / max(a.wall_champions, 1) end
+
+    %{
+      learning_p_value: Float.round(learning.p_value, 6),
+      learning: learning.p_value < 0.05,
+      wall_champions_stalled_share_fixed: Float.round(stall.(fixed), 3),
+      wall_champions_stalled_share_region: Float.round(stall.(region), 3),
+      stall_lower: stall.(fixed) < stall.(region),
+      puck_obstacle_by_behaviour_fixed: fixed.share_puck_obstacle_by_behaviour >= 0.8,
+      puck_obstacle_by_behaviour_region: region.share_puck_obstacle_by_behaviour >= 0.8
     }
   end
 
