@@ -353,17 +353,9 @@ defmodule Tartarus.Agent do
   """
   @spec spawn_link((() -> any())) :: pid()
   def spawn_link(fun) when is_function(fun, 0) do
-    ledger = host_info().ledger
+    host = host_info()
     pid = Kernel.spawn_link(fun)
-    key = {:children, self()}
-
-    kids =
-      case :ets.lookup(ledger, key) do
-        [{_, kids}] -> Enum.filter(kids, &Process.alive?/1)
-        [] -> []
-      end
-
-    :ets.insert(ledger, {key, [pid | kids]})
+    Tartarus.Ledger.add_child(host, self(), pid)
     Process.put(:"$tartarus_children", true)
     pid
   end
@@ -372,11 +364,8 @@ defmodule Tartarus.Agent do
   # Kills the processes agent process `agent` started with spawn_link/1 (by the agent as it
   # ends, or by its host when it was killed).
   @spec end_children(map(), pid()) :: :ok
-  def end_children(%{ledger: ledger}, agent) do
-    case :ets.take(ledger, {:children, agent}) do
-      [{_, kids}] -> Enum.each(kids, &Process.exit(&1, :kill))
-      [] -> :ok
-    end
+  def end_children(host, agent) do
+    Enum.each(Tartarus.Ledger.take_children(host, agent), &Process.exit(&1, :kill))
   end
 
   @doc "Answers a request (see `c:handle_message/3`). Works from any host."

@@ -2,8 +2,8 @@ defmodule Tartarus.Events do
   @moduledoc """
   Counters and a subscription API for everything that happens on the hosts of this node.
 
-  Every host counts its own events in its ledger (cheap `:ets.update_counter/4` calls) and
-  this module keeps node-wide totals in a `:counters` array. Processes that want the events
+  Every host counts its own events in its own `:counters` array (`host_counts/1`) and this
+  module keeps node-wide totals in another. Processes that want the events
   themselves subscribe; a node without subscribers pays only the counters.
 
   ## Events

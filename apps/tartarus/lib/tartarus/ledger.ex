@@ -1,42 +1,110 @@
 defmodule Tartarus.Ledger do
-  @moduledoc false
-  # Reads and writes of a host's ledger table. The host server owns the table; agents write
-  # their own residence and departure records (public table), so the hot path of a migration
-  # does not go through the host server.
-  #
-  # Keys:
-  #   :neighbours                 [host]
-  #   {:link, host}               %{latency_ms:, loss:}
-  #   {:agent, pid}               {_, id, name, module}      a resident agent
-  #   {:fwd, id}                  {_, :handoff, mig, source_pid}
-  #                               an undecided hand-off (move or clone) of agent id, resident
-  #                               here; one record, written before `prepare` leaves. A
-  #                               committed move replaces it with the forwarding pointer in
-  #                               one write (the pointer is the move's decision); an abort
-  #                               deletes it; a committed clone writes its decision first.
-  #   {:fwd, id | name}           {_, dest_host, at_us, {mig, copy} | :acked | :name, notify}
-  #                               (an id's pointer names its migration until the copy
-  #                               acknowledges; a name's pointer never stands for a decision)
-  #   {:parked, {mig, copy}}      {_, env, src, kind}        a parked in-doubt copy (destination)
-  #   :parked                     n                          how many
-  #   {:arriving, id}             {_, pid}                   a paused copy (destination)
-  #   {:decision, mig}            {_, {:committed, copy}}    a clone's commit, until the clone's
-  #                                                          ack (and, after a restart with
-  #                                                          persistence, every journaled commit)
-  #   {:count, name}              {_, n}                     e.g. :dropped (unexpected messages)
-  #   :population                 {_, resident, visits}      counters
-  #   {:count, name}              {_, n}
-  #   {:hop, slot}                {_, hop_us}                ring of recent hop times
-  #   {:seen, mig}                {_, what, seq}             admission's memory of a prepare
-  #                                                          (Migration.Protocol.destination/1)
-  #   {:seen_order, seq}          {_, mig}                   its age, oldest forgotten first
-  #   :seen_range                 {_, first, next}           the seqs remembered: first..next-1
+  @moduledoc """
+  A host's ledger: the one ETS table (`:set`, public) where a host keeps what its processes
+  must share without asking its server. This module is its only reader and writer: every
+  other module (the host's server and warden, agents, the migration engine, the tools) goes
+  through the functions below, never `:ets` on the table, and never builds a key
+  (`apps/tartarus/test/tartarus/ledger_owner_test.exs` checks the sources). Internal: not part of the
+  platform's documented API (`Tartarus`, `Tartarus.Agent`), and its records may change.
+
+  The table is made by `new/1` for the host's warden (`Tartarus.Host.Warden`), which owns it:
+  it outlives a crash of the host's server. The functions take the host's map (from
+  `Tartarus.Host.local/1`, or an agent's `data.host`), except the admission memory's, which
+  take the table (`Tartarus.Migration.Protocol.destination/1` holds it).
+
+  ## Key kinds
+
+  Each key kind, its record, who writes it (with which function) and who reads it.
+
+  | key | record | written by | read by |
+  |---|---|---|---|
+  | `:neighbours` | `[host]` | `new/1`, `add_link/3`, `remove_link/2` (Host.Server: connect, disconnect) | `neighbours/1` (transport, signals, broadcasts, locator, status) |
+  | `{:link, host}` | `%{latency_ms:, loss:}` | `add_link/3`, `remove_link/2` | `link/2` (Tartarus.Transport) |
+  | `:population` | `resident, visits` | `new/1`, `register_resident/3`, `forget_resident/2` | `counter/2` (`:resident`, `:visits`) |
+  | `{:agent, pid}` | `id, name, module`: a resident agent | `register_resident/3`, `forget_resident/2` (agent process; host server for a dead one) | `residents/1`, `locate/2` |
+  | `{:fwd, id}` | `:handoff, mig, source_pid`: an undecided hand-off (move or clone) of resident agent `id`, written before `prepare` leaves | `begin_handoff/3`; goes with `end_handoff/3` (abort), `put_pointer/7` (a move's commit: one write), `abort_pending/3`, `drop_handoffs/3` | `decision/4`, `abort_pending/3`, `departed?/2`, `handoffs/1` |
+  | `{:fwd, id \\| name}` | `dest_host, at_us, {mig, copy} \\| :acked \\| :name, notify`: a forwarding pointer (an id's names its migration until the copy acknowledges; a name's never stands for a decision) | `put_pointer/7`, `acknowledge/4` (marks `:acked`); goes with `register_resident/3`, `forget_pointers/3`, `sweep_pointers/2` | `decision/4`, `locate/2`, `pointers/1`, `forwarding_pointers/1`, `abort_pending/3`, `departed?/2` |
+  | `{:decision, mig}` | `{:committed, copy}`: a clone's commit until the clone acknowledges (and, after a restart with persistence, every journaled commit) | `decide/3`, `new/1`; goes with `acknowledge/4` | `decision/4`, `decisions/1` |
+  | `{:arriving, id}` | `pid`: a paused copy here (destination) | `put_arriving/3` (Host.Arrivals, Host.Parked, Host.Agents.restore); goes with `drop_arriving/3` (the copy once resident; the host server when it is down) | `arriving?/2`, `arriving?/3`, `locate/2` |
+  | `{:parked, {mig, copy}}` | `env, src, kind`: a parked in-doubt copy (destination) | `park/6`; goes with `unpark/3` | `parked/1`, `fetch_parked/3` |
+  | `:parked` | `n`: how many | `park/6`, `unpark/3` | `counter/2` (`:parked`) |
+  | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages) | `count/2` | `counted/2` |
+  | `{:seen, mig}` | `what, seq`: admission's memory of a prepare | `seen_put/4` | `seen_fetch/2` |
+  | `{:seen_order, seq}` | `mig`: its age, oldest forgotten first | `seen_put/4` | `seen_put/4` |
+  | `:seen_range` | `first, next`: the seqs remembered, `first..next-1` | `seen_put/4` | `seen_put/4` |
+  | `{:proc, pid}` | `entry` (`%{id:, key:, restarts:, owner:, create:}`): an agent process the host watches | `put_proc/3` (Host.Agents); goes with `drop_proc/2` (Host.Server on its `:DOWN`) | `procs/1` (a server that starts adopts them; the warden kills them), `proc?/2` |
+  | `{:snapshot, key}` | `env`: the envelope agent process `key` starts and restarts from | `put_snapshot/3` (the agent once resident; Host.Agents for a restart or restore); goes with `drop_snapshot/2` | `fetch_snapshot/2` |
+  | `{:creating, key}` | `from`: the creator of agent process `key`, until answered | `put_creator/3`; goes with `take_creator/2` (the agent, its creator or the host server: whoever answers) | `take_creator/2` |
+  | `{:kill, pid}` | `true`: the host is killing `pid` (tells its exit signal from a forged one) | `mark_kill/2`; goes with `clear_kill/2` | `kill_marked?/2` (the agent) |
+  | `{:exit_reason, pid}` | `reason`: an agent's crash reason, for a server that adopts it after it ended | `put_exit_reason/3` (the agent) | `take_exit_reason/2` (Host.Server) |
+  | `{:overran, pid}` | `reason`: the watchdog stopped `pid` | `put_overrun/3` (Host.Warden) | `take_overrun/2` (Host.Server) |
+  | `{:handling, id}` | `{pid, ref}`: the message a `:durable` agent is handling | `put_handling/3`; goes with `drop_handling/2` | `take_handling/2` (the restarted agent) |
+  | `{:children, pid}` | `[pid]`: processes agent process `pid` started with `Tartarus.Agent.spawn_link/1` | `add_child/3` | `take_children/2` (the agent as it ends; the host when it was killed) |
+  | `{:code_saved, module, md5}` | `true`: the module's code is in the journal (this run) | `code_saved/3` (Host.Persistence) | `code_saved?/3` |
+  | `:stopping` | `true`: the host is stopping (no restarts, no creates) | `mark_stopping/1` (Host.Server, Host.Warden, Host.Supervisor); goes with `clear_stopping/1` | `stopping?/1` |
+
+  Not in the table: the ring of recent hop times is an atomics array beside it (`host.hops`,
+  `new_hop_ring/0`, `record_hop/2`, `hop_times/1`, `reset_hops/1`): two atomic operations a
+  hop, no table write.
+
+  ## Who writes on the path of a hop
+
+  The hot path of a migration does not go through the host's server: the agent writes its
+  own hand-off record, pointer and residence (`begin_handoff/3`, `put_pointer/7`,
+  `register_resident/3`, `forget_resident/2`); the destination's server writes admission's
+  memory and the arriving copy (`seen_put/4`, `put_arriving/3`); the source's server answers
+  queries and acknowledgements from the table (`decision/4`, `acknowledge/4`).
+  """
+
+  @typedoc "A host's map (`Tartarus.Host.local/1`): the ledger is its `:ledger`."
+  @type host :: map()
 
   @slots 1024
 
-  # A host that stops takes its table with it; a message already on its way to the host
-  # (a signal the overlay relays, say) then finds no table: a stopped host has no
-  # neighbours, and its reader carries on.
+  # -- the table -------------------------------------------------------------------------
+
+  @doc """
+  Makes a host's ledger (owned by the calling process, the host's warden): no neighbours, no
+  residents, and the commits `decided` (`{mig, copy}`) an earlier run of the host journaled,
+  as answers for destinations in doubt.
+  """
+  @spec new([{term(), term()}]) :: :ets.tid()
+  def new(decided) do
+    l =
+      :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
+
+    :ets.insert(l, [{:neighbours, []}, {:population, 0, 0}])
+    :ets.insert(l, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
+    l
+  end
+
+  @doc """
+  True if `table` is `host`'s ledger (for a tool that walks every table a host owns, such as
+  the churn benchmark: it reads the ledger through `census/1`).
+  """
+  @spec table?(host(), term()) :: boolean()
+  def table?(%{ledger: l}, table), do: l == table
+
+  @doc """
+  How many records of each key kind the ledger holds (the key's tag: `:fwd`, `:agent`,
+  `:neighbours`...). One scan of the table: for tools, not for a hot path.
+  """
+  @spec census(host()) :: %{atom() => non_neg_integer()}
+  def census(%{ledger: l}) do
+    :ets.foldl(fn entry, acc -> Map.update(acc, kind(elem(entry, 0)), 1, &(&1 + 1)) end, %{}, l)
+  end
+
+  defp kind(key) when is_tuple(key), do: elem(key, 0)
+  defp kind(key), do: key
+
+  # -- the overlay -----------------------------------------------------------------------
+
+  @doc """
+  The host's neighbours. A host that stops takes its table with it; a message already on its
+  way to the host (a signal the overlay relays, say) then finds no table: a stopped host has
+  no neighbours, and its reader carries on.
+  """
+  @spec neighbours(host()) :: [term()]
   def neighbours(%{ledger: l}) do
     case :ets.lookup(l, :neighbours) do
       [{_, ns}] -> ns
@@ -46,6 +114,8 @@ defmodule Tartarus.Ledger do
     ArgumentError -> []
   end
 
+  @doc "The properties of the host's link to `dest` (nil if none)."
+  @spec link(host(), term()) :: map() | nil
   def link(%{ledger: l}, dest) do
     case :ets.lookup(l, {:link, dest}) do
       [{_, props}] -> props
@@ -53,9 +123,29 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # Admission's memory (Tartarus.Migration.Protocol.destination/1's `store:`): off the
-  # host server's heap (10,000 remembered prepares are about 2.7 MB, which made every
-  # collection of that heap a long one), and it outlives a restart of the server.
+  @doc "A link to `other` with `props` (kept once among the neighbours, last if new)."
+  @spec add_link(host(), term(), map()) :: true
+  def add_link(%{ledger: l} = host, other, props) do
+    ns = neighbours(host)
+    :ets.insert(l, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+  end
+
+  @doc "No link to `other` any more."
+  @spec remove_link(host(), term()) :: true
+  def remove_link(%{ledger: l} = host, other) do
+    :ets.insert(l, {:neighbours, List.delete(neighbours(host), other)})
+    :ets.delete(l, {:link, other})
+  end
+
+  # -- admission's memory ----------------------------------------------------------------
+
+  @doc """
+  What admission remembers of the prepare of `mig` (`Tartarus.Migration.Protocol.destination/1`'s
+  `store:`): kept off the host server's heap (10,000 remembered prepares are about
+  2.7 MB, which made every collection of that heap a long one), and it outlives a restart of
+  the server. Takes the table, not the host.
+  """
+  @spec seen_fetch(:ets.tid(), term()) :: {:ok, term()} | :error
   def seen_fetch(ledger, mig) do
     case :ets.lookup(ledger, {:seen, mig}) do
       [{_, what, _seq}] -> {:ok, what}
@@ -63,7 +153,8 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # Remembers `what` for `mig`; past `max` migrations the oldest is forgotten.
+  @doc "Remembers `what` for `mig`; past `max` migrations the oldest is forgotten."
+  @spec seen_put(:ets.tid(), term(), term(), pos_integer()) :: :ok
   def seen_put(ledger, mig, what, max) do
     case :ets.lookup(ledger, {:seen, mig}) do
       [{key, _, seq}] ->
@@ -93,6 +184,14 @@ defmodule Tartarus.Ledger do
     seq + 1
   end
 
+  # -- residents -------------------------------------------------------------------------
+
+  @doc """
+  Agent `env` runs here as process `pid` (written by that process): in the node's agent
+  table and the ledger, counted as a resident and a visit, and the forwarding pointers of an
+  earlier visit (under its id and name) go. `{:error, _}` if the agent table refuses it.
+  """
+  @spec register_resident(host(), map(), pid()) :: :ok | {:error, term()}
   def register_resident(host, env, pid) do
     {name, _node} = host.ref
 
@@ -109,6 +208,8 @@ defmodule Tartarus.Ledger do
     end
   end
 
+  @doc "Process `pid` is no longer resident here. True if it was."
+  @spec forget_resident(host(), pid()) :: boolean()
   def forget_resident(host, pid) do
     case :ets.take(host.ledger, {:agent, pid}) do
       [{_, id, name, module}] ->
@@ -121,37 +222,89 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # Before `prepare` leaves: the migration is undecided (Protocol.answer/3 says :unknown).
-  # Keyed by the agent's id: a kill or crash of the agent finds it, and a source process runs
-  # one hand-off at a time.
+  @doc "The resident agents, as `{id, name, module, pid}` (a scan of the table)."
+  @spec residents(host()) :: [{binary(), term(), module(), pid()}]
+  def residents(%{ledger: l}) do
+    :ets.select(l, [
+      {{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$2", :"$3", :"$4", :"$1"}}]}
+    ])
+  end
+
+  @doc """
+  A count kept in the ledger: `:resident` (agents resident now), `:visits` (arrivals and
+  creations so far), `:parked` (parked copies). One record, one update a hop.
+  """
+  @spec counter(host(), :resident | :visits | :parked) :: non_neg_integer()
+  def counter(%{ledger: l}, :resident), do: :ets.lookup_element(l, :population, 2)
+  def counter(%{ledger: l}, :visits), do: :ets.lookup_element(l, :population, 3)
+
+  def counter(%{ledger: l}, :parked) do
+    case :ets.lookup(l, :parked) do
+      [{_, n}] -> n
+      [] -> 0
+    end
+  end
+
+  @doc "Counts one `name` (e.g. `:dropped`: an unexpected message a host process dropped)."
+  @spec count(host(), atom()) :: integer()
+  def count(%{ledger: l}, name),
+    do: :ets.update_counter(l, {:count, name}, 1, {{:count, name}, 0})
+
+  @doc "How many `name` were counted (`count/2`)."
+  @spec counted(host(), atom()) :: non_neg_integer()
+  def counted(%{ledger: l}, name) do
+    case :ets.lookup(l, {:count, name}) do
+      [{_, n}] -> n
+      [] -> 0
+    end
+  end
+
+  # -- hand-offs, pointers and decisions (source) -----------------------------------------
+
+  @doc """
+  Before `prepare` leaves: the migration `mig` of agent `id` is undecided (`decision/4` says
+  `:unknown`), its source process the caller. Keyed by the agent's id: a kill or crash of the
+  agent finds it, and a source process runs one hand-off at a time.
+  """
+  @spec begin_handoff(host(), binary(), term()) :: true
   def begin_handoff(host, id, mig),
     do: :ets.insert(host.ledger, {{:fwd, id}, :handoff, mig, self()})
 
-  # An abort: the hand-off record goes with no commit written.
+  @doc "An abort (by the source process): the hand-off record goes with no commit written."
+  @spec end_handoff(host(), binary(), term()) :: true
   def end_handoff(host, id, mig),
     do: :ets.delete_object(host.ledger, {{:fwd, id}, :handoff, mig, self()})
 
-  # A clone's commit (before its hand-off record goes). Returns false if one was already
-  # written (never: one writer).
+  @doc """
+  A clone's commit (before its hand-off record goes). Returns false if one was already
+  written (never: one writer).
+  """
+  @spec decide(host(), term(), {:committed, term()}) :: boolean()
   def decide(host, mig, decision), do: :ets.insert_new(host.ledger, {{:decision, mig}, decision})
 
-  # The agent committed the move `mig` (copy `copy`) to `dest`: its forwarding pointer, which
-  # names the commit for a destination that asks (see decision/4), replaces the hand-off
-  # record in one write (then the agent stops being resident: forget_resident/2). `notify`
-  # (a GenServer from, or nil) is who waits for the move to finish: a destination that
-  # learns of the commit by asking (the commit message was lost) answers it.
+  @doc """
+  The agent committed the move `mig` (copy `copy`) to `dest`: its forwarding pointer, which
+  names the commit for a destination that asks (see `decision/4`), replaces the hand-off
+  record in one write (then the agent stops being resident: `forget_resident/2`). `notify`
+  (a GenServer from, or nil) is who waits for the move to finish: a destination that learns
+  of the commit by asking (the commit message was lost) answers it.
+  """
+  @spec put_pointer(host(), binary(), term(), term(), term(), term(), term()) :: term()
   def put_pointer(host, id, name, dest, mig, copy, notify) do
     now = Tartarus.Clock.system_time(:microsecond)
     :ets.insert(host.ledger, {{:fwd, id}, dest, now, {mig, copy}, notify})
     if name, do: :ets.insert(host.ledger, {{:fwd, name}, dest, now, :name, nil})
   end
 
-  # The agent `env` ended on this host (returned or stopped): the forwarding pointers it left
-  # on the hosts it visited lead nowhere now. Each of those hosts is told once (through its
-  # node's Tartarus.Host.Directory, without opening connections: a host on a node no longer
-  # connected keeps its pointer), and drops them (forget_pointers/3). Only the hosts its
-  # `visits` still remembers (the `max_visits` last) are told. Nothing else but `forward_ttl`
-  # reclaims the pointer of an agent that ended elsewhere.
+  @doc """
+  The agent `env` ended on this host (returned or stopped): the forwarding pointers it left
+  on the hosts it visited lead nowhere now. Each of those hosts is told once (through its
+  node's Tartarus.Host.Directory, without opening connections: a host on a node no longer
+  connected keeps its pointer), and drops them (`forget_pointers/3`). Only the hosts its
+  `visits` still remembers (the `max_visits` last) are told. Nothing else but `forward_ttl`
+  reclaims the pointer of an agent that ended elsewhere.
+  """
+  @spec gone(host(), map()) :: :ok
   def gone(host, env) do
     for {{name, node} = h, _} <- env.visits, h != host.ref do
       :erlang.send(
@@ -164,22 +317,28 @@ defmodule Tartarus.Ledger do
     :ok
   end
 
-  # Drops the forwarding pointers of agent `id` (and of its name) after it ended elsewhere.
-  # An agent that ended ran as its last committed copy, so no paused copy can still ask
-  # about a pointer's migration: a copy that does (a replay) is told aborted, which is
-  # right. An agent resident here has no pointer here.
+  @doc """
+  Drops the forwarding pointers of agent `id` (and of its name) after it ended elsewhere.
+  An agent that ended ran as its last committed copy, so no paused copy can still ask about a
+  pointer's migration: a copy that does (a replay) is told aborted, which is right. An agent
+  resident here has no pointer here.
+  """
+  @spec forget_pointers(host(), binary(), term()) :: :ok
   def forget_pointers(host, id, name) do
     :ets.delete(host.ledger, {:fwd, id})
     if name, do: :ets.delete(host.ledger, {:fwd, name})
     :ok
   end
 
-  # The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this
-  # (source) host: Tartarus.Migration.Protocol.answer/3 over what the ledger holds, read in
-  # the protocol's order (hand-off record first).
-  # `id` is the agent that left (for a clone, the clone's parent: `query_id/2`). One read
-  # decides a move (its hand-off record, then its pointer, under one key); a clone's commit
-  # is written before its hand-off record goes, so it is read second.
+  @doc """
+  The answer to a paused copy `copy` of migration `mig` of agent `id` that asks this (source)
+  host: `Tartarus.Migration.Protocol.answer/3` over what the ledger holds, read in the
+  protocol's order (hand-off record first). `id` is the agent that left (for a clone, the
+  clone's parent: `query_id/2`). One read decides a move (its hand-off record, then its
+  pointer, under one key); a clone's commit is written before its hand-off record goes, so
+  it is read second.
+  """
+  @spec decision(host(), term(), binary(), term()) :: term()
   def decision(host, mig, id, copy) do
     {handoff?, pointer} =
       case :ets.lookup(host.ledger, {:fwd, id}) do
@@ -201,9 +360,12 @@ defmodule Tartarus.Ledger do
     )
   end
 
-  # The committed copy `copy` of `mig` (agent `id`) runs: its commit record is no longer
-  # needed. A clone's decision goes; a move's pointer stays for forwarding, marked :acked
-  # (sweepable).
+  @doc """
+  The committed copy `copy` of `mig` (agent `id`) runs: its commit record is no longer
+  needed. A clone's decision goes; a move's pointer stays for forwarding, marked `:acked`
+  (sweepable).
+  """
+  @spec acknowledge(host(), term(), binary(), term()) :: :ok
   def acknowledge(host, mig, id, copy) do
     l = host.ledger
 
@@ -216,16 +378,15 @@ defmodule Tartarus.Ledger do
     :ok
   end
 
-  def count(%{ledger: l}, name),
-    do: :ets.update_counter(l, {:count, name}, 1, {{:count, name}, 0})
+  @doc """
+  After the agent `id` died or was killed: its undecided hand-offs are aborted (their records
+  go; the process that could have committed them is dead). True if the agent is still ours to
+  restart, false if it had committed a move (it lives on at the destination).
 
-  # After the agent `id` (process `pid`) died or was killed: its undecided hand-offs are
-  # aborted (their records go; the process that could have committed them is dead). True if
-  # the agent is still ours to restart, false if it had committed a move (it lives on at
-  # the destination).
-  #
-  # A resident agent has no pointer here (its arrival deleted it), so a pointer under its id
-  # means it committed a move; a hand-off record means an undecided one (or a clone's).
+  A resident agent has no pointer here (its arrival deleted it), so a pointer under its id
+  means it committed a move; a hand-off record means an undecided one (or a clone's).
+  """
+  @spec abort_pending(host(), binary(), pid() | nil) :: boolean()
   def abort_pending(host, id, _pid) do
     case :ets.lookup(host.ledger, {:fwd, id}) do
       [{_, :handoff, _mig, _p} = record] ->
@@ -240,24 +401,280 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # The hand-off record of agent `id`'s source process `pid`, which is gone.
+  @doc "Drops the hand-off record of agent `id` by source process `pid`, which is gone."
+  @spec drop_handoffs(host(), binary(), pid()) :: true
   def drop_handoffs(host, id, pid),
     do: :ets.match_delete(host.ledger, {{:fwd, id}, :handoff, :_, pid})
 
-  # The agent id a paused copy asks its source host about: the agent that left (a clone's
-  # parent for a clone).
+  @doc "True if agent `id` is leaving or left this host (a hand-off record or a pointer)."
+  @spec departed?(host(), binary()) :: boolean()
+  def departed?(host, id), do: :ets.member(host.ledger, {:fwd, id})
+
+  @doc """
+  The agent id a paused copy asks its source host about: the agent that left (a clone's
+  parent for a clone).
+  """
+  @spec query_id(map(), :move | :clone) :: binary()
   def query_id(%{clone_of: parent}, :clone) when parent != nil, do: parent
   def query_id(env, _kind), do: env.id
 
-  # The ring of recent hop times is an atomics array (slot 1: the sequence; slots 2..: the
-  # times plus one, 0 for an empty slot): two atomic operations a hop, no table write.
+  @doc """
+  Drops forwarding pointers written before `cutoff_us` (system time) that no longer stand for
+  a decision (acknowledged, or a name's): never one a paused copy may still need.
+  """
+  @spec sweep_pointers(host(), integer()) :: non_neg_integer()
+  def sweep_pointers(%{ledger: l}, cutoff_us) do
+    :ets.select_delete(l, [
+      {{{:fwd, :_}, :_, :"$1", :"$2", :_}, [{:<, :"$1", cutoff_us}, {:is_atom, :"$2"}], [true]}
+    ])
+  end
+
+  @doc """
+  The forwarding pointers, as `{id or name, dest, state}`: `state` is `{mig, copy}` (a move
+  whose copy has not acknowledged yet), `:acked` or `:name`. A scan: for status and tests.
+  """
+  @spec pointers(host()) :: [{term(), term(), {term(), term()} | :acked | :name}]
+  def pointers(%{ledger: l}),
+    do: :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :"$3", :_}, [], [{{:"$1", :"$2", :"$3"}}]}])
+
+  @doc "The forwarding pointers of agent ids (not names), as `{id, dest}`."
+  @spec forwarding_pointers(host()) :: [{binary(), term()}]
+  def forwarding_pointers(host) do
+    for {key, dest, _} <- pointers(host), is_binary(key) and byte_size(key) == 16, do: {key, dest}
+  end
+
+  @doc "The migrations with a hand-off record here (undecided). A scan."
+  @spec handoffs(host()) :: [term()]
+  def handoffs(%{ledger: l}),
+    do: for([mig] <- :ets.match(l, {{:fwd, :_}, :handoff, :"$1", :_}), do: mig)
+
+  @doc "The migrations with a commit record here (`decide/3`, until acknowledged). A scan."
+  @spec decisions(host()) :: [term()]
+  def decisions(%{ledger: l}), do: for([mig] <- :ets.match(l, {{:decision, :"$1"}, :_}), do: mig)
+
+  # -- arriving and parked copies (destination) -------------------------------------------
+
+  @doc "A paused copy `pid` of agent `id` is here (findable: messages to it wait)."
+  @spec put_arriving(host(), binary(), pid()) :: true
+  def put_arriving(host, id, pid), do: :ets.insert(host.ledger, {{:arriving, id}, pid})
+
+  @doc "Copy `pid` of agent `id` is no longer arriving (it runs, or it is down)."
+  @spec drop_arriving(host(), binary(), pid()) :: true
+  def drop_arriving(host, id, pid), do: :ets.delete_object(host.ledger, {{:arriving, id}, pid})
+
+  @doc "True if a copy of agent `id` is arriving here."
+  @spec arriving?(host(), binary()) :: boolean()
+  def arriving?(host, id), do: :ets.member(host.ledger, {:arriving, id})
+
+  @doc "True if `pid` is the copy of agent `id` arriving here."
+  @spec arriving?(host(), binary(), pid()) :: boolean()
+  def arriving?(host, id, pid),
+    do: :ets.lookup(host.ledger, {:arriving, id}) == [{{:arriving, id}, pid}]
+
+  @doc """
+  Keeps the record of the parked copy of migration `{mig, copy}` (and counts it). False if
+  it was kept already.
+  """
+  @spec park(host(), term(), term(), map(), term(), atom()) :: boolean()
+  def park(host, mig, copy, env, src, kind) do
+    if :ets.insert_new(host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
+      :ets.update_counter(host.ledger, :parked, 1, {:parked, 0})
+      true
+    else
+      false
+    end
+  end
+
+  @doc "The record of the parked copy of `{mig, copy}`: `{:ok, {env, src, kind}}` or `:error`."
+  @spec fetch_parked(host(), term(), term()) :: {:ok, {map(), term(), atom()}} | :error
+  def fetch_parked(host, mig, copy) do
+    case :ets.lookup(host.ledger, {:parked, {mig, copy}}) do
+      [{_, env, src, kind}] -> {:ok, {env, src, kind}}
+      [] -> :error
+    end
+  end
+
+  @doc "The parked copies, as `{mig, copy, env, src, kind}`. A scan."
+  @spec parked(host()) :: [{term(), term(), map(), term(), atom()}]
+  def parked(host) do
+    for {{:parked, {mig, copy}}, env, src, kind} <-
+          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}]),
+        do: {mig, copy, env, src, kind}
+  end
+
+  @doc "The parked copy of `{mig, copy}` is revived or dropped: its record goes."
+  @spec unpark(host(), term(), term()) :: integer()
+  def unpark(host, mig, copy) do
+    :ets.delete(host.ledger, {:parked, {mig, copy}})
+    :ets.update_counter(host.ledger, :parked, -1, {:parked, 0})
+  end
+
+  # -- agent processes (the host's server and its agents) ----------------------------------
+
+  @doc """
+  Agent process `pid`, described by `entry`, is the host's: a server that starts after this
+  one adopts it (`procs/1`), a stopping host kills it.
+  """
+  @spec put_proc(host(), pid(), map()) :: true
+  def put_proc(host, pid, entry), do: :ets.insert(host.ledger, {{:proc, pid}, entry})
+
+  @doc "Agent process `pid` is down: no longer the host's."
+  @spec drop_proc(host(), pid()) :: true
+  def drop_proc(host, pid), do: :ets.delete(host.ledger, {:proc, pid})
+
+  @doc "True if agent process `pid` is the host's."
+  @spec proc?(host(), pid()) :: boolean()
+  def proc?(host, pid), do: :ets.member(host.ledger, {:proc, pid})
+
+  @doc "The host's agent processes, as `{pid, entry}`. A scan."
+  @spec procs(host()) :: [{pid(), map()}]
+  def procs(host),
+    do: :ets.select(host.ledger, [{{{:proc, :"$1"}, :"$2"}, [], [{{:"$1", :"$2"}}]}])
+
+  @doc "The envelope agent process `key` starts (and restarts) from."
+  @spec put_snapshot(host(), reference(), map()) :: true
+  def put_snapshot(host, key, env), do: :ets.insert(host.ledger, {{:snapshot, key}, env})
+
+  @doc """
+  The snapshot of agent process `key`: `{:ok, env}` or `:error`. Read only when needed:
+  copying it on every departure would fill the reader's heap with every passing agent's state.
+  """
+  @spec fetch_snapshot(host(), reference()) :: {:ok, map()} | :error
+  def fetch_snapshot(host, key) do
+    case :ets.lookup(host.ledger, {:snapshot, key}) do
+      [{_, env}] -> {:ok, env}
+      [] -> :error
+    end
+  end
+
+  @doc "The snapshot of agent process `key` goes."
+  @spec drop_snapshot(host(), reference()) :: true
+  def drop_snapshot(host, key), do: :ets.delete(host.ledger, {:snapshot, key})
+
+  @doc "`from` waits for agent process `key`'s creation (answered once, by `take_creator/2`'s taker)."
+  @spec put_creator(host(), reference(), term()) :: true
+  def put_creator(host, key, from), do: :ets.insert(host.ledger, {{:creating, key}, from})
+
+  @doc """
+  Takes the creator waiting for agent process `key`: `{:ok, from}` for the one taker that
+  answers it, `:error` if it was answered (or never waited).
+  """
+  @spec take_creator(host(), reference()) :: {:ok, term()} | :error
+  def take_creator(host, key) do
+    case :ets.take(host.ledger, {:creating, key}) do
+      [{_, from}] -> {:ok, from}
+      [] -> :error
+    end
+  end
+
+  @doc "The host kills agent process `pid` (its exit signal is real)."
+  @spec mark_kill(host(), pid()) :: true
+  def mark_kill(host, pid), do: :ets.insert(host.ledger, {{:kill, pid}, true})
+
+  @doc "The killed agent process `pid` is down."
+  @spec clear_kill(host(), pid()) :: true
+  def clear_kill(host, pid), do: :ets.delete(host.ledger, {:kill, pid})
+
+  @doc "True if the host is killing agent process `pid`."
+  @spec kill_marked?(host(), pid()) :: boolean()
+  def kill_marked?(host, pid), do: :ets.member(host.ledger, {:kill, pid})
+
+  @doc "Agent process `pid` crashed with `reason` (for a server that adopts it only after)."
+  @spec put_exit_reason(host(), pid(), term()) :: true
+  def put_exit_reason(host, pid, reason),
+    do: :ets.insert(host.ledger, {{:exit_reason, pid}, reason})
+
+  @doc "Takes the crash reason agent process `pid` left: `{:ok, reason}` or `:error`."
+  @spec take_exit_reason(host(), pid()) :: {:ok, term()} | :error
+  def take_exit_reason(host, pid), do: take(host, {:exit_reason, pid})
+
+  @doc "The watchdog stopped agent process `pid` for `reason`."
+  @spec put_overrun(host(), pid(), term()) :: true
+  def put_overrun(host, pid, reason), do: :ets.insert(host.ledger, {{:overran, pid}, reason})
+
+  @doc "Takes the watchdog's reason for agent process `pid`: `{:ok, reason}` or `:error`."
+  @spec take_overrun(host(), pid()) :: {:ok, term()} | :error
+  def take_overrun(host, pid), do: take(host, {:overran, pid})
+
+  @doc "A `:durable` agent `id` is handling the message from `from` (`{pid, ref}`)."
+  @spec put_handling(host(), binary(), {pid(), reference()}) :: true
+  def put_handling(host, id, from), do: :ets.insert(host.ledger, {{:handling, id}, from})
+
+  @doc "Agent `id` handled its message."
+  @spec drop_handling(host(), binary()) :: true
+  def drop_handling(host, id), do: :ets.delete(host.ledger, {:handling, id})
+
+  @doc "Takes the message agent `id` was handling when it crashed: `{:ok, from}` or `:error`."
+  @spec take_handling(host(), binary()) :: {:ok, {pid(), reference()}} | :error
+  def take_handling(host, id), do: take(host, {:handling, id})
+
+  @doc "Agent process `agent` started `child` (kept with its other live children)."
+  @spec add_child(host(), pid(), pid()) :: true
+  def add_child(host, agent, child) do
+    kids =
+      case :ets.lookup(host.ledger, {:children, agent}) do
+        [{_, kids}] -> Enum.filter(kids, &Process.alive?/1)
+        [] -> []
+      end
+
+    :ets.insert(host.ledger, {{:children, agent}, [child | kids]})
+  end
+
+  @doc "Takes the processes agent process `agent` started (`[]` if none)."
+  @spec take_children(host(), pid()) :: [pid()]
+  def take_children(host, agent) do
+    case take(host, {:children, agent}) do
+      {:ok, kids} -> kids
+      :error -> []
+    end
+  end
+
+  @doc "True if `module` (its code `md5`) was saved in the host's journal in this run."
+  @spec code_saved?(host(), module(), binary()) :: boolean()
+  def code_saved?(host, module, md5), do: :ets.member(host.ledger, {:code_saved, module, md5})
+
+  @doc "`module` (its code `md5`) is saved in the host's journal."
+  @spec code_saved(host(), module(), binary()) :: true
+  def code_saved(host, module, md5),
+    do: :ets.insert(host.ledger, {{:code_saved, module, md5}, true})
+
+  @doc "The host is stopping: its agents' deaths are not crashes, and creates are refused."
+  @spec mark_stopping(host()) :: true
+  def mark_stopping(host), do: :ets.insert(host.ledger, {:stopping, true})
+
+  @doc "The host runs again (a restarted server or keeper)."
+  @spec clear_stopping(host()) :: true
+  def clear_stopping(host), do: :ets.delete(host.ledger, :stopping)
+
+  @doc "True if the host is stopping."
+  @spec stopping?(host()) :: boolean()
+  def stopping?(host), do: :ets.member(host.ledger, :stopping)
+
+  defp take(host, key) do
+    case :ets.take(host.ledger, key) do
+      [{_, value}] -> {:ok, value}
+      [] -> :error
+    end
+  end
+
+  # -- hop times (beside the table) ------------------------------------------------------
+
+  @doc """
+  A ring of recent hop times: an atomics array (slot 1: the sequence; slots 2..: the times
+  plus one, 0 for an empty slot): two atomic operations a hop, no table write.
+  """
+  @spec new_hop_ring() :: :atomics.atomics_ref()
   def new_hop_ring, do: :atomics.new(@slots + 1, [])
 
+  @doc "Records one hop of `hop_us` microseconds (the last #{@slots} are kept)."
+  @spec record_hop(host(), non_neg_integer()) :: :ok
   def record_hop(%{hops: ring}, hop_us) do
     seq = :atomics.add_get(ring, 1, 1)
     :atomics.put(ring, 2 + rem(seq, @slots), hop_us + 1)
   end
 
+  @doc "The recent hop times (microseconds), in no order."
+  @spec hop_times(host()) :: [non_neg_integer()]
   def hop_times(%{hops: ring}) do
     # Only the slots written so far: a host that saw 5 hops costs 5 reads, not @slots.
     case :atomics.get(ring, 1) do
@@ -272,43 +689,21 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  # Empties the ring (benchmarks measure a phase at a time).
+  @doc "Empties the ring (benchmarks measure a phase at a time)."
+  @spec reset_hops(host()) :: :ok
   def reset_hops(%{hops: ring}) do
     for i <- 1..(@slots + 1), do: :atomics.put(ring, i, 0)
     :ok
   end
 
-  # Resident agents and visits so far: one record, one update a hop.
-  def counter(%{ledger: l}, :resident), do: :ets.lookup_element(l, :population, 2)
-  def counter(%{ledger: l}, :visits), do: :ets.lookup_element(l, :population, 3)
+  # -- where an agent is -----------------------------------------------------------------
 
-  def counter(%{ledger: l}, key) do
-    case :ets.lookup(l, key) do
-      [{_, n}] -> n
-      [] -> 0
-    end
-  end
-
-  def residents(%{ledger: l}) do
-    :ets.select(l, [
-      {{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$2", :"$3", :"$4", :"$1"}}]}
-    ])
-  end
-
-  # Drops forwarding pointers written before `cutoff_us` (system time) that no longer
-  # stand for a decision (acknowledged, or a name's): never one a paused copy may still need.
-  def sweep_pointers(%{ledger: l}, cutoff_us) do
-    :ets.select_delete(l, [
-      {{{:fwd, :_}, :_, :"$1", :"$2", :_}, [{:<, :"$1", cutoff_us}, {:is_atom, :"$2"}], [true]}
-    ])
-  end
-
-  def forwarding_pointers(%{ledger: l}) do
-    :ets.select(l, [{{{:fwd, :"$1"}, :"$2", :_, :_, :_}, [], [{{:"$1", :"$2"}}]}])
-    |> Enum.filter(fn {key, _} -> is_binary(key) and byte_size(key) == 16 end)
-  end
-
-  # Where is `agent` (an id or a name) as far as this host knows.
+  @doc """
+  Where is `agent` (an id or a name) as far as this host knows: `{:here, pid, id}`,
+  `{:arriving, pid}`, `{:moved, dest}` or `:not_found`.
+  """
+  @spec locate(host(), term()) ::
+          {:here, pid(), term()} | {:arriving, pid()} | {:moved, term()} | :not_found
   def locate(host, agent) do
     {name, _} = host.ref
 

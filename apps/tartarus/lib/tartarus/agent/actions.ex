@@ -71,9 +71,9 @@ defmodule Tartarus.Agent.Actions do
 
   # The creator of this agent, if no one answered it yet (Tartarus.Agent.Server, top).
   defp created(data, reply) do
-    case :ets.take(data.host.ledger, {:creating, data.key}) do
-      [{_, from}] -> GenServer.reply(from, reply)
-      [] -> :ok
+    case Ledger.take_creator(data.host, data.key) do
+      {:ok, from} -> GenServer.reply(from, reply)
+      :error -> :ok
     end
   end
 
@@ -117,13 +117,12 @@ defmodule Tartarus.Agent.Actions do
     if durable do
       # Unacknowledged until handled: if handling it crashes the agent, the restarted agent
       # tells the sender (and does not take it again) instead of taking it for good.
-      key = {:handling, data.env.id}
-      :ets.insert(data.host.ledger, {key, {pid, ref}})
+      Ledger.put_handling(data.host, data.env.id, {pid, ref})
       result = run(data, {:handle_message, from}, handle, {pid, ref})
 
       case result do
         {:stop, {kind, _, _}, _} when kind in [:error, :exit, :throw] -> :crashed
-        _ -> :ets.delete(data.host.ledger, key)
+        _ -> Ledger.drop_handling(data.host, data.env.id)
       end
 
       result
@@ -136,12 +135,12 @@ defmodule Tartarus.Agent.Actions do
   # After a crash: the message whose handling crashed the agent (host option :durable) is
   # answered with an error and not taken again.
   def crashed_on(data) do
-    case :ets.take(data.host.ledger, {:handling, data.env.id}) do
-      [{_, {pid, ref} = from}] ->
+    case Ledger.take_handling(data.host, data.env.id) do
+      {:ok, {pid, ref} = from} ->
         send(pid, {ref, {:failed, :agent_crashed}})
         %{data | inbox: elem(Inbox.take(data.inbox, from), 1)}
 
-      [] ->
+      :error ->
         data
     end
   end

@@ -209,7 +209,7 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:info, {:EXIT, pid, :shutdown} = msg, :running, data)
       when pid == data.host.pid or node(pid) == node() do
     if (pid == data.host.pid or pid == Tartarus.Host.server(data.host)) and
-         :ets.member(data.host.ledger, {:kill, self()}),
+         Ledger.kill_marked?(data.host, self()),
        do: {:stop, :shutdown, data},
        else: Actions.info(msg, data)
   end
@@ -286,7 +286,7 @@ defmodule Tartarus.Agent.Server do
     if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
 
     unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
-      do: :ets.insert(data.host.ledger, {{:exit_reason, self()}, reason})
+      do: Ledger.put_exit_reason(data.host, self(), reason)
   end
 
   # -- helpers ---------------------------------------------------------------------------

@@ -23,7 +23,7 @@ defmodule Tartarus.Host.Agents do
         %{state | killing: %{state.killing | pid => {tref, [from | callers]}}}
 
       _ ->
-        :ets.insert(state.host.ledger, {{:kill, pid}, true})
+        Ledger.mark_kill(state.host, pid)
         Process.exit(pid, :shutdown)
 
         grace =
@@ -43,14 +43,14 @@ defmodule Tartarus.Host.Agents do
   # destination and the kill follows it there.
   def killed(state, pid, entry, {tref, callers}) do
     Clock.cancel_timer(tref)
-    :ets.delete(state.host.ledger, {:kill, pid})
+    Ledger.clear_kill(state.host, pid)
 
     reply =
-      if Tartarus.Ledger.abort_pending(state.host, entry.id, pid) do
+      if Ledger.abort_pending(state.host, entry.id, pid) do
         Tartarus.Host.Persistence.forget(state.host, entry.id)
         {:killed, entry.id}
       else
-        Tartarus.Ledger.locate(state.host, entry.id)
+        Ledger.locate(state.host, entry.id)
       end
 
     Enum.each(callers, &GenServer.reply(&1, reply))
@@ -60,9 +60,9 @@ defmodule Tartarus.Host.Agents do
   def not_created(_state, %{create: false}, _reason), do: :ok
 
   def not_created(state, entry, reason) do
-    case :ets.take(state.host.ledger, {:creating, entry.key}) do
-      [{_, from}] -> GenServer.reply(from, creation_failed(reason))
-      [] -> :ok
+    case Ledger.take_creator(state.host, entry.key) do
+      {:ok, from} -> GenServer.reply(from, creation_failed(reason))
+      :error -> :ok
     end
   end
 
@@ -82,16 +82,16 @@ defmodule Tartarus.Host.Agents do
   @spec create_local(map(), Tartarus.Envelope.t(), term(), timeout()) ::
           {:ok, binary()} | {:error, term()}
   def create_local(host, env, args, timeout) do
-    if :ets.member(host.ledger, :stopping) do
+    if Ledger.stopping?(host) do
       {:error, :host_stopping}
     else
       key = make_ref()
       tag = make_ref()
-      :ets.insert(host.ledger, {{:creating, key}, {self(), tag}})
+      Ledger.put_creator(host, key, {self(), tag})
       pid = Tartarus.Agent.Server.spawn_agent(host, key, env, {:create, args})
       mref = Process.monitor(pid)
       entry = %{id: env.id, key: key, restarts: 0, owner: env.owner, create: true}
-      :ets.insert(host.ledger, {{:proc, pid}, entry})
+      Ledger.put_proc(host, pid, entry)
       send(Tartarus.Host.server(host), {:"$tartarus_adopt", pid, entry})
       created(host, key, tag, mref, timeout)
     end
@@ -106,18 +106,18 @@ defmodule Tartarus.Host.Agents do
       {:DOWN, ^mref, :process, _, reason} ->
         # Down before it answered (its answer would have come first): unless the server
         # answers, this caller does.
-        case :ets.take(host.ledger, {:creating, key}) do
-          [_] -> creation_failed(reason)
-          [] -> receive(do: ({^tag, reply} -> reply))
+        case Ledger.take_creator(host, key) do
+          {:ok, _} -> creation_failed(reason)
+          :error -> receive(do: ({^tag, reply} -> reply))
         end
     after
       timeout ->
         # Unanswered: whoever settles it later finds no entry.
         Process.demonitor(mref, [:flush])
 
-        case :ets.take(host.ledger, {:creating, key}) do
-          [_] -> {:error, {:timeout, host.ref}}
-          [] -> receive(do: ({^tag, reply} -> reply))
+        case Ledger.take_creator(host, key) do
+          {:ok, _} -> {:error, {:timeout, host.ref}}
+          :error -> receive(do: ({^tag, reply} -> reply))
         end
     end
   end
@@ -140,18 +140,18 @@ defmodule Tartarus.Host.Agents do
     key = make_ref()
 
     if match?({:restart, _}, mode) or mode == :restore,
-      do: :ets.insert(state.host.ledger, {{:snapshot, key}, env})
+      do: Ledger.put_snapshot(state.host, key, env)
 
-    if creator, do: :ets.insert(state.host.ledger, {{:creating, key}, creator})
+    if creator, do: Ledger.put_creator(state.host, key, creator)
 
-    if :ets.member(state.host.ledger, :stopping) do
-      :ets.delete(state.host.ledger, {:snapshot, key})
-      :ets.delete(state.host.ledger, {:creating, key})
+    if Ledger.stopping?(state.host) do
+      Ledger.drop_snapshot(state.host, key)
+      Ledger.take_creator(state.host, key)
       {:error, :host_stopping, state}
     else
       {pid, mref} = Tartarus.Agent.Server.start(state.host, key, env, mode)
       entry = %{id: env.id, key: key, restarts: restarts, owner: env.owner, create: !!creator}
-      :ets.insert(state.host.ledger, {{:proc, pid}, entry})
+      Ledger.put_proc(state.host, pid, entry)
       {:ok, pid, watched(state, pid, mref, entry)}
     end
   end
@@ -160,7 +160,7 @@ defmodule Tartarus.Host.Agents do
   # Monitors agent process `pid` (described by `entry`) from now on, recorded under
   # {:proc, pid} in the ledger for a server that starts after this one.
   def watch(state, pid, entry) do
-    :ets.insert(state.host.ledger, {{:proc, pid}, entry})
+    Ledger.put_proc(state.host, pid, entry)
     watched(state, pid, Process.monitor(pid), entry)
   end
 
@@ -178,9 +178,7 @@ defmodule Tartarus.Host.Agents do
   # now on, the ones that died meanwhile are seen going down (:noproc) and handled as any
   # other (restarted from their snapshot after a crash). Counts the live ones in :adopted.
   def adopt_all(state) do
-    procs = :ets.match_object(state.host.ledger, {{:proc, :_}, :_})
-
-    Enum.reduce(procs, state, fn {{:proc, pid}, entry}, state ->
+    Enum.reduce(Ledger.procs(state.host), state, fn {pid, entry}, state ->
       state = watched(state, pid, Process.monitor(pid), entry)
       if Process.alive?(pid), do: %{state | adopted: state.adopted + 1}, else: state
     end)
@@ -190,9 +188,13 @@ defmodule Tartarus.Host.Agents do
     host = state.host
     # Read the snapshot only to restart from it: copying it here on every departure would
     # fill this process's heap with every passing agent's state.
-    snapshot = fn -> :ets.lookup_element(host.ledger, {:snapshot, entry.key}, 2) end
+    snapshot = fn ->
+      {:ok, env} = Ledger.fetch_snapshot(host, entry.key)
+      env
+    end
+
     state = after_down(state, entry, reason, resident?, killed?, snapshot)
-    :ets.delete(host.ledger, {:snapshot, entry.key})
+    Ledger.drop_snapshot(host, entry.key)
     state
   end
 
@@ -208,7 +210,7 @@ defmodule Tartarus.Host.Agents do
       normal_exit?(reason) ->
         state
 
-      :ets.member(host.ledger, :stopping) ->
+      Ledger.stopping?(host) ->
         # The host is stopping (see Tartarus.Host.Keeper): its agents are killed with it.
         state
 
@@ -221,7 +223,7 @@ defmodule Tartarus.Host.Agents do
         ended(host, entry)
         removed(state, entry, reason)
 
-      not Tartarus.Ledger.abort_pending(host, entry.id, nil) ->
+      not Ledger.abort_pending(host, entry.id, nil) ->
         # It crashed after committing a migration: it lives on at the destination.
         state
 
@@ -254,9 +256,9 @@ defmodule Tartarus.Host.Agents do
 
       true ->
         module =
-          case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
-            [{_, env}] -> env.module
-            [] -> nil
+          case Ledger.fetch_snapshot(host, entry.key) do
+            {:ok, env} -> env.module
+            :error -> nil
           end
 
         log_crash(host, entry, module, reason, "removed: #{entry.restarts} restarts already")
@@ -314,11 +316,8 @@ defmodule Tartarus.Host.Agents do
   # (Tartarus.Ledger.gone/2), as when it stops on its own. Not if it had moved on from here
   # (a pointer here names its newer place): it lives there.
   defp ended(host, entry) do
-    unless :ets.member(host.ledger, {:fwd, entry.id}) do
-      case :ets.lookup(host.ledger, {:snapshot, entry.key}) do
-        [{_, env}] -> Ledger.gone(host, env)
-        [] -> :ok
-      end
+    unless Ledger.departed?(host, entry.id) do
+      with {:ok, env} <- Ledger.fetch_snapshot(host, entry.key), do: Ledger.gone(host, env)
     end
 
     :ok
@@ -375,7 +374,7 @@ defmodule Tartarus.Host.Agents do
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
         case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
-            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            Ledger.put_arriving(state.host, env.id, pid)
             %{state | dest: Tartarus.Migration.Protocol.restore_seen(state.dest, mig, copy, pid)}
 
           {:error, _reason, state} ->

@@ -50,8 +50,7 @@ defmodule Tartarus.Host.Arrivals do
 
   @impl Executor
   def probe(state, p, _copy, pid) do
-    {:ets.lookup(state.host.ledger, {:arriving, p.env.id}) == [{{:arriving, p.env.id}, pid}],
-     state}
+    {Ledger.arriving?(state.host, p.env.id, pid), state}
   end
 
   @impl Executor
@@ -61,7 +60,7 @@ defmodule Tartarus.Host.Arrivals do
     case Agents.start_agent(state, env, {:paused, p.mig, copy, p.src, p.kind, p.s_pid}) do
       {:ok, pid, state} ->
         # Findable (messages to it wait until it starts).
-        :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+        Ledger.put_arriving(state.host, env.id, pid)
         {{:ok, pid}, state}
 
       {:error, reason, state} ->

@@ -131,7 +131,7 @@ defmodule Tartarus.Host.OnNode do
   # True if an agent with this id is arriving at a host of this node.
   def arriving?(host, id) do
     case Host.local(host) do
-      {:ok, h} -> :ets.member(h.ledger, {:arriving, id})
+      {:ok, h} -> Ledger.arriving?(h, id)
       _ -> false
     end
   end

@@ -16,11 +16,9 @@ defmodule Tartarus.Host.Parked do
   # The record of copy `pid` of migration `{mig, copy}`: only the copy itself, found as its
   # agent's arriving process here, may hand it over.
   def park(state, {mig, copy}, env, src, kind, pid) do
-    if :ets.lookup(state.host.ledger, {:arriving, env.id}) == [{{:arriving, env.id}, pid}] do
-      if :ets.insert_new(state.host.ledger, {{:parked, {mig, copy}}, env, src, kind}) do
-        :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
-        if count(state) == 1, do: schedule()
-      end
+    if Ledger.arriving?(state.host, env.id, pid) do
+      if Ledger.park(state.host, mig, copy, env, src, kind) and count(state) == 1,
+        do: schedule()
 
       :ok
     else
@@ -36,8 +34,7 @@ defmodule Tartarus.Host.Parked do
   def ask(state) do
     host = state.host
 
-    for {{:parked, {mig, copy}}, env, src, kind} <-
-          :ets.select(host.ledger, [{{{:parked, :_}, :_, :_, :_}, [], [:"$_"]}]),
+    for {mig, copy, env, src, kind} <- Ledger.parked(host),
         {:ok, pid} <- [Tartarus.Host.whereis(src)] do
       send(pid, Messages.decision_query(mig, Ledger.query_id(env, kind), copy, self()))
     end
@@ -49,46 +46,40 @@ defmodule Tartarus.Host.Parked do
   @doc false
   # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
   def answer(state, mig, copy, d) do
-    case :ets.lookup(state.host.ledger, {:parked, {mig, copy}}) do
-      [{key, env, src, kind}] ->
-        unpark(state, key, mig, copy, env, src, kind, d)
+    case Ledger.fetch_parked(state.host, mig, copy) do
+      {:ok, {env, src, kind}} ->
+        unpark(state, mig, copy, env, src, kind, d)
 
-      [] ->
+      :error ->
         Ledger.count(state.host, :dropped)
         state
     end
   end
 
-  defp unparked(state, key) do
-    :ets.delete(state.host.ledger, key)
-    :ets.update_counter(state.host.ledger, :parked, -1, {:parked, 0})
-  end
-
   defp schedule, do: Tartarus.Clock.send_after(self(), :"$tartarus_ask_parked", @ask_every)
 
-  defp unpark(state, key, mig, copy, env, src, kind, d) do
+  defp unpark(state, mig, copy, env, src, kind, d) do
     case Protocol.parked(d) do
       :keep ->
         state
 
       :drop ->
-        unparked(state, key)
+        Ledger.unpark(state.host, mig, copy)
         Tartarus.Host.Persistence.resolved(state.host, mig, copy)
         state
 
       :revive ->
-        unparked(state, key)
+        Ledger.unpark(state.host, mig, copy)
 
         case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
-            :ets.insert(state.host.ledger, {{:arriving, env.id}, pid})
+            Ledger.put_arriving(state.host, env.id, pid)
             send(pid, Messages.decision(mig, copy, d))
             state
 
           {:error, _reason, state} ->
             # Kept for the next answer.
-            :ets.insert(state.host.ledger, {key, env, src, kind})
-            :ets.update_counter(state.host.ledger, :parked, 1, {:parked, 0})
+            Ledger.park(state.host, mig, copy, env, src, kind)
             state
         end
     end

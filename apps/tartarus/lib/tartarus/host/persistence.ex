@@ -187,14 +187,14 @@ defmodule Tartarus.Host.Persistence do
     end)
   end
 
-  defp save_module(%{journal: j, ledger: ledger}, mod) do
+  defp save_module(%{journal: j} = host, mod) do
     with false <- on_code_path?(mod),
          {:ok, md5} <- Tartarus.CodeCache.md5(mod),
-         false <- :ets.member(ledger, {:code_saved, mod, md5}),
+         false <- Tartarus.Ledger.code_saved?(host, mod, md5),
          {:ok, bin} <- Tartarus.CodeCache.fetch_binary(mod, md5),
          :ok <- write_code(j, md5, bin),
          :ok <- append(j, {:code, mod, md5}) do
-      :ets.insert(ledger, {{:code_saved, mod, md5}, true})
+      Tartarus.Ledger.code_saved(host, mod, md5)
       :ok
     else
       true -> :ok

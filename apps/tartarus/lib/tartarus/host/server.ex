@@ -49,7 +49,7 @@ defmodule Tartarus.Host.Server do
     # The host's tables, journal and watchdog are its warden's (Tartarus.Host.Warden): they
     # outlive this server. A server that starts again beside them runs the same host.
     host = Map.put(Tartarus.Host.Warden.host(name), :pid, self())
-    :ets.delete(host.ledger, :stopping)
+    Ledger.clear_stopping(host)
 
     schedule_sweep(opts[:forward_ttl])
 
@@ -100,13 +100,12 @@ defmodule Tartarus.Host.Server do
   # (Tartarus.Security.TrustList.trust_node/2). A link asked for from another node must name
   # a host that exists; the neighbour set holds at most :max_neighbours links.
   defp call({:connect, other, props}, from, state) do
-    ledger = state.host.ledger
-    [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
+    ns = Ledger.neighbours(state.host)
 
     with :ok <- overlay_caller(state, from),
          :ok <- link_target(other, from),
          :ok <- neighbour_room(state, ns, other) do
-      :ets.insert(ledger, [{:neighbours, Enum.uniq(ns ++ [other])}, {{:link, other}, props}])
+      Ledger.add_link(state.host, other, props)
       {:reply, :ok, state}
     else
       error -> {:reply, error, state}
@@ -116,10 +115,7 @@ defmodule Tartarus.Host.Server do
   defp call({:disconnect, other}, from, state) do
     case overlay_caller(state, from) do
       :ok ->
-        ledger = state.host.ledger
-        [{:neighbours, ns}] = :ets.lookup(ledger, :neighbours)
-        :ets.insert(ledger, {:neighbours, List.delete(ns, other)})
-        :ets.delete(ledger, {:link, other})
+        Ledger.remove_link(state.host, other)
         {:reply, :ok, state}
 
       error ->
@@ -265,9 +261,9 @@ defmodule Tartarus.Host.Server do
   def handle_info({:DOWN, mref, :process, pid, reason}, state)
       when is_map_key(state.monitors, mref) do
     {entry, monitors} = Map.pop(state.monitors, mref)
-    :ets.delete(state.host.ledger, {:proc, pid})
+    Ledger.drop_proc(state.host, pid)
     # Stopped by the watchdog (Tartarus.Host.Warden): that is its reason.
-    overrun = :ets.take(state.host.ledger, {:overran, pid})
+    overrun = Ledger.take_overrun(state.host, pid)
     state = %{state | monitors: monitors, pids: Map.delete(state.pids, pid)}
     down(state, entry, pid, overrun, reason)
   end
@@ -287,7 +283,7 @@ defmodule Tartarus.Host.Server do
         entry = %{id: id, key: key, restarts: 0, owner: owner, create: true}
         {:noreply, Agents.watch(state, pid, entry)}
 
-      :ets.member(state.host.ledger, {:proc, pid}) ->
+      Ledger.proc?(state.host, pid) ->
         {:noreply, state}
 
       true ->
@@ -318,17 +314,17 @@ defmodule Tartarus.Host.Server do
   # An agent that moved on (its process ends with {:shutdown, {:migrated, _, _}} after its
   # commit) left nothing to clean but its snapshot: it wrote its pointer over its hand-off
   # record, left the resident tables and its arriving entry itself.
-  defp down(state, entry, pid, [], {:shutdown, {:migrated, _, _}})
+  defp down(state, entry, pid, :error, {:shutdown, {:migrated, _, _}})
        when not is_map_key(state.killing, pid) do
-    :ets.delete(state.host.ledger, {:snapshot, entry.key})
+    Ledger.drop_snapshot(state.host, entry.key)
     {:noreply, state}
   end
 
   defp down(state, entry, pid, overrun, reason) do
     reason =
       case overrun do
-        [{_, why}] -> why
-        [] -> exit_reason(state, pid, reason)
+        {:ok, why} -> why
+        :error -> exit_reason(state, pid, reason)
       end
 
     {kill, killing} = Map.pop(state.killing, pid)
@@ -337,7 +333,7 @@ defmodule Tartarus.Host.Server do
     Tartarus.Agent.end_children(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, entry.id, pid)
-    :ets.delete_object(state.host.ledger, {{:arriving, entry.id}, pid})
+    Ledger.drop_arriving(state.host, entry.id, pid)
     Agents.not_created(state, entry, reason)
     if kill, do: Agents.killed(state, pid, entry, kill)
     {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
@@ -351,9 +347,9 @@ defmodule Tartarus.Host.Server do
        do: reason
 
   defp exit_reason(state, pid, reason) do
-    case :ets.take(state.host.ledger, {:exit_reason, pid}) do
-      [{_, why}] -> why
-      [] -> reason
+    case Ledger.take_exit_reason(state.host, pid) do
+      {:ok, why} -> why
+      :error -> reason
     end
   end
 
@@ -371,8 +367,8 @@ defmodule Tartarus.Host.Server do
   def terminate(reason, state)
       when reason in [:normal, :shutdown] or
              (is_tuple(reason) and elem(reason, 0) == :shutdown) do
-    :ets.insert(state.host.ledger, {:stopping, true})
-    Tartarus.Host.Warden.kill_all(state.host.ledger)
+    Ledger.mark_stopping(state.host)
+    Tartarus.Host.Warden.kill_all(state.host)
   catch
     _, _ -> :ok
   end

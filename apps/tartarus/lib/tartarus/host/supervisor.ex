@@ -93,7 +93,7 @@ defmodule Tartarus.Host.Keeper do
       _restart ->
         # The mark its predecessor left when it stopped (terminate/2): the host runs again.
         with {:ok, info} <- Tartarus.Host.local(state.host),
-             do: :ets.delete(info.ledger, :stopping)
+             do: Tartarus.Ledger.clear_stopping(info)
 
         {:ok, state, {:continue, :recover}}
     end
@@ -128,7 +128,7 @@ defmodule Tartarus.Host.Keeper do
   @impl true
   def terminate(_reason, %{host: host}) do
     case Tartarus.Host.local(host) do
-      {:ok, info} -> :ets.insert(info.ledger, {:stopping, true})
+      {:ok, info} -> Tartarus.Ledger.mark_stopping(info)
       _ -> :ok
     end
   end

@@ -62,24 +62,19 @@ defmodule Tartarus.Host.Warden do
   end
 
   defp new_state(name, opts, journal, agents, in_doubt, decided) do
-    ledger =
-      :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
-
     store =
       :ets.new(:tartarus_store, [:set, :public, read_concurrency: true, write_concurrency: true])
 
     # Acknowledgements of arrived copies, by source host, until the next batch leaves.
     acks = :ets.new(:tartarus_acks, [:duplicate_bag, :public, write_concurrency: true])
 
-    :ets.insert(ledger, [{:neighbours, []}, {:population, 0, 0}])
     :ets.insert(store, Enum.to_list(opts[:store] || %{}))
-    # Migrations an earlier run of this host committed: answers for destinations in doubt.
-    :ets.insert(ledger, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
 
     host = %{
       ref: {name, node()},
       warden: self(),
-      ledger: ledger,
+      # Migrations an earlier run of this host committed: answers for destinations in doubt.
+      ledger: Tartarus.Ledger.new(decided),
       store: store,
       acks: acks,
       counters: Tartarus.Events.new_counters(),
@@ -151,7 +146,7 @@ defmodule Tartarus.Host.Warden do
       {reason, trap?, from} ->
         # Read by the server when the agent is down (the exit reason of one that traps
         # exits is :kill: any other signal would reach its code as a message).
-        :ets.insert(s.host.ledger, {{:overran, pid}, reason})
+        Tartarus.Ledger.put_overrun(s.host, pid, reason)
         Process.exit(pid, if(trap?, do: :kill, else: reason))
         Tartarus.Agent.Callbacks.overran(from, reason)
 
@@ -178,9 +173,8 @@ defmodule Tartarus.Host.Warden do
   # and the host's residents leave the node's agent table.
   @impl true
   def terminate(_reason, s) do
-    ledger = s.host.ledger
-    :ets.insert(ledger, {:stopping, true})
-    kill_all(ledger)
+    Tartarus.Ledger.mark_stopping(s.host)
+    kill_all(s.host)
     unregister_all(s.host)
     Tartarus.Host.Persistence.close(s.host.journal)
   catch
@@ -188,26 +182,20 @@ defmodule Tartarus.Host.Warden do
   end
 
   @doc false
-  # Kills every agent process recorded in `ledger` (exit signal :kill: an agent that traps
-  # exits must not hold up a stopping host).
-  @spec kill_all(:ets.tid()) :: :ok
-  def kill_all(ledger) do
-    for [pid] <- :ets.match(ledger, {{:proc, :"$1"}, :_}), do: Process.exit(pid, :kill)
+  # Kills every agent process recorded in `host`'s ledger (exit signal :kill: an agent that
+  # traps exits must not hold up a stopping host).
+  @spec kill_all(map()) :: :ok
+  def kill_all(host) do
+    for {pid, _entry} <- Tartarus.Ledger.procs(host), do: Process.exit(pid, :kill)
     :ok
   end
 
   # The node's agent table forgets this host's residents (their processes are being killed:
   # nobody will see them go down).
-  defp unregister_all(%{ledger: ledger, ref: {name, _}}) do
-    for {pid, id, agent_name, module} <- residents(ledger),
+  defp unregister_all(%{ref: {name, _}} = host) do
+    for {id, agent_name, module, pid} <- Tartarus.Ledger.residents(host),
         do: Tartarus.AgentTable.unregister(id, pid, name, agent_name, module)
 
     :ok
-  end
-
-  defp residents(ledger) do
-    :ets.select(ledger, [
-      {{{:agent, :"$1"}, :"$2", :"$3", :"$4"}, [], [{{:"$1", :"$2", :"$3", :"$4"}}]}
-    ])
   end
 end

@@ -193,7 +193,7 @@ defmodule Tartarus.Migration.Arrival do
     case Ledger.register_resident(host, env, self()) do
       :ok ->
         snapshot(data)
-        :ets.delete_object(host.ledger, {{:arriving, env.id}, self()})
+        Ledger.drop_arriving(host, env.id, self())
         Tartarus.Host.Persistence.resolved(host, c.mig, c.copy)
 
         # Running: the source host may forget its record of the commit (acknowledged
@@ -238,7 +238,7 @@ defmodule Tartarus.Migration.Arrival do
   # error when it could not be written (the ledger's snapshot is taken all the same).
   @spec snapshot(map()) :: :ok | {:error, {:journal, term()}}
   def snapshot(data) do
-    :ets.insert(data.host.ledger, {{:snapshot, data.key}, data.env})
+    Ledger.put_snapshot(data.host, data.key, data.env)
     Tartarus.Host.Persistence.checkpoint(data.host, data.env)
   end
 end

@@ -6,21 +6,23 @@ defmodule Tartarus.Migration.BoundedRecordsTest do
 
   alias Tartarus.Examples.Echo
 
-  defp ledger(host) do
+  alias Tartarus.Ledger
+
+  defp local(host) do
     {:ok, h} = Tartarus.Host.local(host)
     h
   end
 
-  defp decisions(host), do: :ets.match(ledger(host).ledger, {{:decision, :"$1"}, :_})
-  defp handoffs(host), do: :ets.match(ledger(host).ledger, {{:fwd, :_}, :handoff, :"$1", :_})
+  defp decisions(host), do: Ledger.decisions(local(host))
+  defp handoffs(host), do: Ledger.handoffs(local(host))
 
   defp unacked_pointers(host),
-    do: :ets.select(ledger(host).ledger, [{{{:fwd, :_}, :_, :_, {:_, :_}, :_}, [], [true]}])
+    do: for({_, _, {_mig, _copy}} = p <- Ledger.pointers(local(host)), do: p)
 
   # Acknowledgements leave in batches: until both hosts' outboxes are empty and each server
   # has handled what the other sent before (a call to each, in turn, after the flush).
   defp settle(hosts) do
-    assert eventually(fn -> Enum.all?(hosts, &(:ets.info(ledger(&1).acks, :size) == 0)) end)
+    assert eventually(fn -> Enum.all?(hosts, &(:ets.info(local(&1).acks, :size) == 0)) end)
     for _ <- 1..2, h <- hosts, do: Tartarus.Host.call(h, :paused)
   end
 

@@ -8,7 +8,7 @@ defmodule Tartarus.Migration.GonePointersTest do
 
   defp pointers(host) do
     {:ok, info} = Tartarus.Host.local(host)
-    :ets.select(info.ledger, [{{{:fwd, :"$1"}, :_, :_, :_, :_}, [], [:"$1"]}])
+    for {key, _dest, _state} <- Tartarus.Ledger.pointers(info), do: key
   end
 
   test "an agent that stops leaves no forwarding pointer on the hosts it visited" do

@@ -125,9 +125,9 @@ defmodule Tartarus.Migration.ProtocolModelTest do
                :aborted
     end
 
-    test "admission's memory in a host's ledger: the same answers as the map, the oldest forgotten, off the heap" do
-      ledger = :ets.new(:ledger, [:set, :public])
-      stored = Protocol.destination(store: {Tartarus.Ledger, ledger}, seen_max: 2)
+    test "admission's memory in a store table: the same answers as the map, the oldest forgotten, off the heap" do
+      table = :ets.new(:store, [:set, :public])
+      stored = Protocol.destination(store: {Tartarus.Ledger, table}, seen_max: 2)
       ps = for i <- 1..3, do: %{mig: {"src", i}, s_pid: :s}
       d = Enum.reduce(Enum.zip(ps, [:c1, :c2, :c3]), stored, fn {p, c}, d -> admit(d, p, c) end)
 
@@ -138,10 +138,10 @@ defmodule Tartarus.Migration.ProtocolModelTest do
       assert {_, [{:probe, ^p2, :c2, _}]} = Protocol.destination_step(d, {:prepare, p2})
       assert {_, [{:probe, ^p3, :c3, _}]} = Protocol.destination_step(d, {:prepare, p3})
       # Two migrations' entries and their order, and the range: nothing of the forgotten one.
-      assert :ets.info(ledger, :size) == 5
+      assert :ets.info(table, :size) == 5
 
       # A server that starts again over the same table remembers the same.
-      again = Protocol.destination(store: {Tartarus.Ledger, ledger}, seen_max: 2)
+      again = Protocol.destination(store: {Tartarus.Ledger, table}, seen_max: 2)
       assert {_, [{:probe, ^p3, :c3, _}]} = Protocol.destination_step(again, {:prepare, p3})
     end
 

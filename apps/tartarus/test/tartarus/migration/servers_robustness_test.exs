@@ -4,13 +4,13 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
   # nothing; paused copies count against admission.
   use Tartarus.HostCase, async: false
 
-  alias Tartarus.{CodeCache, Envelope}
+  alias Tartarus.{CodeCache, Envelope, Ledger}
   alias Tartarus.Examples.Echo
   alias Tartarus.Migration.{Messages, Protocol}
 
   defp dropped(host) do
     {:ok, h} = Tartarus.Host.local(host)
-    Tartarus.Ledger.counter(h, {:count, :dropped})
+    Ledger.counted(h, :dropped)
   end
 
   defp agent_pid(host, id) do
@@ -95,7 +95,7 @@ defmodule Tartarus.Migration.ParkingTest do
   # goes, the host keeps its record and revives or drops it only on the source's answer.
   use Tartarus.HostCase, async: false
 
-  alias Tartarus.{CodeCache, Envelope}
+  alias Tartarus.{CodeCache, Envelope, Ledger}
   alias Tartarus.Examples.Echo
   alias Tartarus.Migration.{Messages, Protocol}
 
@@ -122,7 +122,7 @@ defmodule Tartarus.Migration.ParkingTest do
   # the source). With `keep_handoff: true` the source stays undecided afterwards (its record
   # stays).
   defp park(ha, pid, mig, id, opts \\ []) do
-    :ets.insert(ha.ledger, {{:fwd, id}, :handoff, mig, self()})
+    Ledger.begin_handoff(ha, id, mig)
     ref = Process.monitor(pid)
 
     # Its next state timeout (the destination's migration_timeout) is its last unanswered
@@ -132,7 +132,7 @@ defmodule Tartarus.Migration.ParkingTest do
     end)
 
     assert_receive {:DOWN, ^ref, :process, ^pid, {:shutdown, :parked}}, 5_000
-    unless opts[:keep_handoff], do: :ets.delete(ha.ledger, {:fwd, id})
+    unless opts[:keep_handoff], do: Ledger.end_handoff(ha, id, mig)
   end
 
   test "a parked copy is revived on a committed answer and runs once" do
@@ -148,8 +148,8 @@ defmodule Tartarus.Migration.ParkingTest do
     # Committed to this copy: revived, it starts. Written in the protocol's order (the
     # decision before the hand-off record goes): the query above may still be answered
     # meanwhile, and between the two steps in the other order it would read "aborted".
-    :ets.insert(ha.ledger, {{:decision, mig}, {:committed, copy}})
-    :ets.delete(ha.ledger, {:fwd, id})
+    Ledger.decide(ha, mig, {:committed, copy})
+    Ledger.end_handoff(ha, id, mig)
     send(server, :"$tartarus_ask_parked")
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 2_000)
     assert Tartarus.Host.call(b, :parked) == 0

@@ -121,13 +121,14 @@ defmodule TartarusTools.Bench.Churn do
     parts =
       for host <- hosts do
         {:ok, pid} = Tartarus.Host.whereis(host)
+        {:ok, info} = Tartarus.Host.local(host)
         # The host's tables belong to its warden (they outlive a server that crashes).
         {name, _node} = host
         owners = Enum.reject([pid, GenServer.whereis(Tartarus.Host.via(:warden, name))], &is_nil/1)
         Enum.each(owners, &:erlang.garbage_collect/1)
         tables = Enum.filter(:ets.all(), &(:ets.info(&1, :owner) in owners))
         proc = owners |> Enum.map(&elem(Process.info(&1, :memory), 1)) |> Enum.sum()
-        {Enum.sum(Enum.map(tables, &(:ets.info(&1, :memory) * words))), proc, entries(tables)}
+        {Enum.sum(Enum.map(tables, &(:ets.info(&1, :memory) * words))), proc, entries(info, tables)}
       end
 
     tables = Enum.sum(Enum.map(parts, &elem(&1, 0)))
@@ -146,8 +147,14 @@ defmodule TartarusTools.Bench.Churn do
     }
   end
 
-  defp entries(tables) do
-    Enum.reduce(tables, %{}, fn t, acc ->
+  # Records by key kind: the ledger's through Tartarus.Ledger.census/1, the host's other
+  # tables (its store, its acknowledgements) by the first element of their keys.
+  defp entries(info, tables) do
+    ledger = for {kind, n} <- Tartarus.Ledger.census(info), into: %{}, do: {inspect(kind), n}
+
+    tables
+    |> Enum.reject(&Tartarus.Ledger.table?(info, &1))
+    |> Enum.reduce(ledger, fn t, acc ->
       :ets.foldl(fn entry, acc -> Map.update(acc, kind(elem(entry, 0)), 1, &(&1 + 1)) end, acc, t)
     end)
   end
