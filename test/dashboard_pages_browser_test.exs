@@ -54,7 +54,24 @@ defmodule Tartarus.DashboardPagesBrowserTest do
     v
   end
 
-  defp wait!(b, js, ms \\ 60_000), do: assert(:ok = Browser.wait(b, js, ms))
+  # On a time-out, what the page says (the notice, the reply box, the address).
+  defp wait!(b, js, ms \\ 60_000) do
+    case Browser.wait(b, js, ms) do
+      :ok ->
+        :ok
+
+      other ->
+        flunk(
+          "#{inspect(other)} waiting for #{js}; the page: " <>
+            inspect(
+              eval!(
+                b,
+                "[location.hash, document.getElementById('notice').textContent, (document.getElementById('page-reply') || {}).textContent]"
+              )
+            )
+        )
+    end
+  end
 
   defp open!(b, url) do
     :ok = Browser.open(b, url)
@@ -128,19 +145,25 @@ defmodule Tartarus.DashboardPagesBrowserTest do
     # Text that is not a literal is refused, never run.
     eval!(
       b,
-      ~s|document.getElementById('page-term').value = 'System.halt()'; document.querySelector('#page button[data-action="request"]').click(); true|
+      ~s|document.getElementById('page-term').value = 'exit(:normal)'; document.querySelector('#page button[data-action="request"]').click(); true|
     )
 
-    wait!(b, "document.getElementById('notice').textContent.includes('not a literal')")
+    wait!(b, "document.getElementById('page-reply').textContent.includes('not a literal')")
+    assert text(b, "#page-reply") =~ "request refused: not a literal term: exit(:normal) (a call"
     assert a in Node.list()
 
     # alpha tells beta {:ping, 2}: a message from one agent to another.
     eval!(
       b,
-      ~s|document.getElementById('page-term').value = '{:tell, "#{beta}", {:ping, 2}}'; document.querySelector('#page button[data-action="post"]').click(); true|
+      ~s|document.getElementById('page-reply').textContent = ''; document.getElementById('page-term').value = '{:tell, "#{beta}", {:ping, 2}}'; document.querySelector('#page button[data-action="post"]').click(); true|
     )
 
-    wait!(b, "document.getElementById('page-reply').textContent.startsWith('posted')")
+    wait!(
+      b,
+      "document.getElementById('page-reply').textContent.startsWith('posted') || document.getElementById('page-reply').textContent.includes('post refused')"
+    )
+
+    assert text(b, "#page-reply") =~ "posted {:tell", text(b, "#notice")
 
     eventually(fn ->
       {:ok, 200, body} =
@@ -213,8 +236,16 @@ defmodule Tartarus.DashboardPagesBrowserTest do
       ~s|document.getElementById('procs').dataset.node === '#{a}' && document.getElementById('proc-note').textContent.includes('by mailbox')|
     )
 
-    eval!(b, ~s|location.hash = '#/processes/#{nb}'; true|)
-    wait!(b, ~s|document.getElementById('procs').dataset.node === '#{nb}'|)
+    eval!(
+      b,
+      ~s|document.getElementById('proc-sort').value = 'memory'; location.hash = '#/processes/#{nb}'; true|
+    )
+
+    wait!(
+      b,
+      ~s|document.getElementById('procs').dataset.node === '#{nb}' && document.getElementById('proc-note').textContent.includes('by memory')|
+    )
+
     assert :ok = Browser.screenshot(b, Path.join(@shots, "processes.png"))
 
     # At 1,400 px the agents table does not scroll sideways (its node column is seen).

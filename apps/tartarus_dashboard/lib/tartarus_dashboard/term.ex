@@ -35,6 +35,10 @@ defmodule TartarusDashboard.Term do
           {:not_literal, what, why} -> {:error, "not a literal term: #{what} (#{why})"}
         end
 
+      {:error, {_meta, "unsafe atom does not exist: ", name}} ->
+        {:error,
+         "no atom #{name} exists on this node (none is made from input): not a term it knows"}
+
       {:error, {_meta, message, token}} ->
         {:error, "not an Elixir term: #{message_text(message)}#{token}"}
     end

@@ -256,8 +256,10 @@ defmodule TartarusDashboard.ApiTest do
     end
 
     # No atom is made from the text.
-    assert {400, _, %{"error" => "bad_term"}} =
+    assert {400, _, %{"error" => "bad_term", "message" => m}} =
              post(c.url, "/api/agents/#{c.id}/post", ~s({"term":"{:no_such_atom_q7x2, 1}"}))
+
+    assert m =~ "no atom no_such_atom_q7x2 exists on this node"
 
     assert_raise ArgumentError, fn -> String.to_existing_atom("no_such_atom_q7x2") end
 

@@ -110,7 +110,8 @@ defmodule TartarusEmu.DashboardBrowserTest do
       "document.getElementById('token').value = '#{@token}'; document.getElementById('token-set').click(); true"
     )
 
-    assert eval!(b, "document.getElementById('mode').textContent") == "token set"
+    # The token is checked as it is entered.
+    :ok = Browser.wait(b, "document.getElementById('mode').textContent === 'token ok'", 15_000)
 
     # Break h1-h2 from h1's detail panel.
     eval!(b, "document.querySelector('#hosts tr[data-host=\"h1\"]').click(); true")
