@@ -671,7 +671,7 @@ defmodule TartarusDashboard.Api do
   defp frozen?(ctx), do: :ets.member(ctx.cache, :frozen)
 
   # What a kept page serves as it was when its run ended.
-  @kept [:topology, :views, :agents, :index, :summary, :fleet_views]
+  @kept [:topology, :views, :agents, :index, :summary, :fleet_views, :emulation_snapshots]
 
   @doc false
   # Keeps what the page shows as it is now (a run that ended): the hosts, links, views,
@@ -686,6 +686,7 @@ defmodule TartarusDashboard.Api do
     _ = cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end)
     _ = summary_views(ctx)
     _ = fleet_views(ctx)
+    if ctx.fleet == nil, do: emulation_snapshots(ctx)
     :ets.insert(ctx.cache, {:panels, :kept, panels_now(ctx)})
     nodes = topology(ctx).hosts |> Enum.map(&elem(&1.host, 1)) |> Enum.uniq()
 
