@@ -23,7 +23,7 @@ defmodule Tartarus.Events do
   | `:stopped`     | `:agent`, `:reason`                          | `:stopped`        |
   | `:crash`       | `:agent`, `:reason`, `:restarts`             | `:crashes`        |
   | `:removed`     | `:agent`, `:reason` (restart limit reached)  | `:removed`        |
-  | `:message`     | `:agent`, `:bytes`                           | `:messages`, `:message_bytes` |
+  | `:message`     | `:agent`, `:bytes`, `:kind` (`:post`, `:request`, `:cast`), `:sender` (the sending process), `:message` (the message when at most 256 bytes, else nil) | `:messages`, `:message_bytes` |
   | `:refused`     | `:agent`, `:from`, `:reason`                 | `:refused`        |
   | `:dropped`     | `:service`, `:kind`                          | `:dropped`        |
   | `:broadcast`   | `:to`, `:messages`, `:bytes` (see `Tartarus.Broadcast`) | `:broadcasts`, `:broadcast_messages`, `:broadcast_bytes` |

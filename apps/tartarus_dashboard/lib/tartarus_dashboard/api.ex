@@ -6,7 +6,7 @@ defmodule TartarusDashboard.Api do
   # Reads need nothing; every POST needs the token. Nothing here makes an atom from input:
   # hosts, agents, modules and panels are looked up among those that exist.
 
-  alias TartarusDashboard.{Feed, Fleet, Health, Page, Panel}
+  alias TartarusDashboard.{Feed, Fleet, Health, Page, Panel, Processes, Term}
   alias Tartarus.Clock
   alias Tartarus.JSON
 
@@ -53,6 +53,7 @@ defmodule TartarusDashboard.Api do
   defp route("GET", ["api", "fleet"], _req, ctx), do: json(200, fleet(ctx))
   defp route("GET", ["api", "health"], req, ctx), do: with_query(req, &health(&1, ctx))
   defp route("GET", ["api", "rates"], req, ctx), do: with_query(req, &rates(&1, ctx))
+  defp route("GET", ["api", "processes"], req, ctx), do: with_query(req, &processes(&1, ctx))
 
   defp route("POST", ["api" | rest] = segs, req, ctx) do
     if known_post?(segs) do
@@ -78,7 +79,7 @@ defmodule TartarusDashboard.Api do
   defp not_found(req), do: error(404, "not_found", "no such endpoint: #{req.method} #{req.path}")
 
   defp routable("GET", ["api", x])
-       when x in ~w(info hosts links summary agents events catalog panels stream fleet health rates),
+       when x in ~w(info hosts links summary agents events catalog panels stream fleet health rates processes),
        do: {:ok, x}
 
   defp routable("GET", ["api", x, _]) when x in ~w(hosts agents), do: {:ok, x}
@@ -87,7 +88,11 @@ defmodule TartarusDashboard.Api do
   defp routable(_, _), do: :error
 
   defp known_post?(["api", "agents"]), do: true
-  defp known_post?(["api", "agents", _, a]) when a in ~w(move clone kill post), do: true
+  defp known_post?(["api", "token"]), do: true
+
+  defp known_post?(["api", "agents", _, a]) when a in ~w(move clone kill post request),
+    do: true
+
   defp known_post?(["api", "links", a]) when a in ~w(break heal), do: true
   defp known_post?(["api", "hosts", _, a]) when a in ~w(isolate rejoin), do: true
   defp known_post?(["api", "panels", _, _]), do: true
@@ -109,11 +114,14 @@ defmodule TartarusDashboard.Api do
       "GET /api/fleet",
       "GET /api/health?node=NODE&host=ID&points=300",
       "GET /api/rates?seconds=120",
+      "GET /api/processes?node=NODE&sort=memory|reductions|mailbox&limit=20",
+      "POST /api/token (answers 200 when the token is right)",
       "POST /api/agents {host, module, args?, static?}",
       "POST /api/agents/ID/move {to}",
       "POST /api/agents/ID/clone {to}",
       "POST /api/agents/ID/kill",
-      "POST /api/agents/ID/post {message}",
+      "POST /api/agents/ID/post {message} or {term}",
+      "POST /api/agents/ID/request {term, timeout_ms?}",
       "POST /api/links/break {a, b}",
       "POST /api/links/heal {a, b}",
       "POST /api/hosts/ID/isolate",
@@ -131,7 +139,7 @@ defmodule TartarusDashboard.Api do
       hosts: length(topology(ctx).hosts),
       catalog: catalog(ctx),
       panels: Enum.map(ctx.panels, fn {m, a} -> m.name(a) end),
-      fleet: ctx.fleet != nil,
+      fleet: ctx.fleet != nil or length(shown_nodes(ctx)) > 1,
       kept: frozen?(ctx),
       token_required_for: "POST",
       max_body: ctx.max_body
@@ -479,7 +487,7 @@ defmodule TartarusDashboard.Api do
   defp fleet(ctx) do
     {snaps, at} =
       case ctx.fleet do
-        nil -> {[%{node: node(), path: [node()], health: Health.latest()}], now_ms()}
+        nil -> {emulation_snapshots(ctx), now_ms()}
         f -> with(%{snapshots: s, at: at} <- Fleet.get(f), do: {s, at})
       end
 
@@ -513,6 +521,32 @@ defmodule TartarusDashboard.Api do
     %{nodes: nodes, gathered_at: at, age_ms: now_ms() - at, kept: frozen?(ctx)}
   end
 
+  # The BEAM nodes of the hosts shown (this node first): in an emulation over peer nodes,
+  # this node (the controller) and every peer.
+  defp shown_nodes(ctx) do
+    hosts = topology(ctx).hosts
+    Enum.uniq([node() | Enum.map(hosts, &elem(&1.host, 1))])
+  end
+
+  # Without a fleet gather (an emulation), each node of the hosts shown gives its latest
+  # health sample, all asked at once (the controller is connected to its peers), cached
+  # as the views are.
+  defp emulation_snapshots(ctx) do
+    cached(ctx, :emulation_snapshots, fn ->
+      others = shown_nodes(ctx) -- [node()]
+      answers = :erpc.multicall(others, Health, :latest, [], 5_000)
+
+      [%{node: node(), path: [node()], health: Health.latest()}] ++
+        Enum.zip_with(others, answers, fn
+          n, {:ok, health} ->
+            %{node: n, path: [node(), n], health: health}
+
+          n, {kind, reason} ->
+            %{node: n, path: [node(), n], error: Fleet.describe_error(kind, reason)}
+        end)
+    end)
+  end
+
   # Per node: its hosts' ids, residents and plugins, from the views (cached as they are).
   defp fleet_views(ctx) do
     cached(ctx, :fleet_views, fn ->
@@ -539,16 +573,30 @@ defmodule TartarusDashboard.Api do
          {:ok, series} <- health_series(path, points, ctx) do
       node = List.last(path) |> to_string()
 
+      # The sampler names a host by its name on its node; the page by its id (an
+      # emulation's topology name, `h7`, for the host `emu00009E-h7`).
+      ids = for h <- topology(ctx).hosts, into: %{}, do: {host_key(h.host), h.id}
+      id_of = fn name -> Map.get(ids, {name, node}, name) end
+
       case blank(q["host"]) do
         nil ->
           json(200, %{
             node: node,
             points: Enum.map(series, &health_view/1),
-            hosts: series |> Enum.flat_map(&Map.keys(&1.hosts)) |> Enum.uniq() |> Enum.sort()
+            hosts:
+              series
+              |> Enum.flat_map(&Map.keys(&1.hosts))
+              |> Enum.uniq()
+              |> Enum.map(id_of)
+              |> Enum.sort()
           })
 
         host ->
-          name = host |> String.split("@") |> hd()
+          name =
+            case Map.fetch(index(ctx), host) do
+              {:ok, h} -> h.host |> host_key() |> elem(0)
+              :error -> host |> String.split("@") |> hd()
+            end
 
           points = for p <- series, row = p.hosts[name], do: Map.put(row, :t, p.t)
 
@@ -557,11 +605,27 @@ defmodule TartarusDashboard.Api do
     end
   end
 
+  defp host_key({name, node}), do: {to_string(name), to_string(node)}
+
+  defp processes(q, ctx) do
+    with {:ok, limit} <- int(q, "limit", 20, 1, 500),
+         {:ok, sort} <- choice(q, "sort", Processes.sorts() |> Enum.sort_by(&(&1 != "memory"))),
+         {:ok, path} <- health_path(q["node"], ctx) do
+      case Fleet.forward(path, {:processes, sort, limit}) do
+        {:ok, answer} ->
+          json(200, answer)
+
+        {:error, why} ->
+          error(502, "node_unreachable", "cannot read #{List.last(path)}: #{why}")
+      end
+    end
+  end
+
   defp health_path(nil, _ctx), do: {:ok, [node()]}
   defp health_path("", _ctx), do: {:ok, [node()]}
 
   defp health_path(name, ctx) do
-    snaps = if ctx.fleet, do: Fleet.get(ctx.fleet).snapshots, else: []
+    snaps = if ctx.fleet, do: Fleet.get(ctx.fleet).snapshots, else: emulation_snapshots(ctx)
 
     cond do
       name == to_string(node()) ->
@@ -607,7 +671,7 @@ defmodule TartarusDashboard.Api do
   defp frozen?(ctx), do: :ets.member(ctx.cache, :frozen)
 
   # What a kept page serves as it was when its run ended.
-  @kept [:topology, :views, :agents, :index, :summary, :fleet_views]
+  @kept [:topology, :views, :agents, :index, :summary, :fleet_views, :emulation_snapshots]
 
   @doc false
   # Keeps what the page shows as it is now (a run that ended): the hosts, links, views,
@@ -622,6 +686,7 @@ defmodule TartarusDashboard.Api do
     _ = cached(ctx, :agents, fn -> collect_agents(topology(ctx).hosts) end)
     _ = summary_views(ctx)
     _ = fleet_views(ctx)
+    if ctx.fleet == nil, do: emulation_snapshots(ctx)
     :ets.insert(ctx.cache, {:panels, :kept, panels_now(ctx)})
     nodes = topology(ctx).hosts |> Enum.map(&elem(&1.host, 1)) |> Enum.uniq()
 
@@ -645,7 +710,7 @@ defmodule TartarusDashboard.Api do
     :ok
   end
 
-  defp fleet_path(%{fleet: nil}, _n), do: nil
+  defp fleet_path(%{fleet: nil}, n), do: [node(), n]
 
   defp fleet_path(ctx, n) do
     case Enum.find(Fleet.get(ctx.fleet).snapshots, &(&1.node == n)) do
@@ -690,6 +755,10 @@ defmodule TartarusDashboard.Api do
     end
   end
 
+  # The token was checked before the body was read (admit/2): the page asks when a token is
+  # entered, rather than finding out at the first action.
+  defp action(["token"], _p, _ctx), do: json(200, %{ok: true})
+
   defp action(["agents", id, "kill"], _p, ctx) do
     with {:ok, ref} <- agent_ref(id, ctx) do
       case Tartarus.kill(ref) do
@@ -701,10 +770,26 @@ defmodule TartarusDashboard.Api do
 
   defp action(["agents", id, "post"], p, ctx) do
     with {:ok, ref} <- agent_ref(id, ctx),
-         {:ok, msg} <- required(p, "message") do
+         {:ok, msg} <- message_param(p) do
       case Tartarus.post(ref, msg) do
-        :ok -> json(200, %{ok: true, id: id})
+        :ok -> json(200, %{ok: true, id: id, message: inspect(msg)})
         {:error, reason} -> failed("post", reason)
+      end
+    end
+  end
+
+  # A request: the agent's reply, as Elixir text (inspect) and, when it is plain data, as
+  # JSON-able data.
+  defp action(["agents", id, "request"], p, ctx) do
+    with {:ok, ref} <- agent_ref(id, ctx),
+         {:ok, msg} <- message_param(p),
+         {:ok, timeout} <- timeout_param(p) do
+      case Tartarus.request(ref, msg, timeout) do
+        {:ok, reply} ->
+          json(200, %{ok: true, id: id, message: inspect(msg), reply: inspect(reply, limit: 50)})
+
+        {:error, reason} ->
+          failed("request", reason)
       end
     end
   end
@@ -795,13 +880,41 @@ defmodule TartarusDashboard.Api do
     end
   end
 
-  defp required(p, key) do
-    case Map.fetch(p, key) do
+  # A message: `term`, an Elixir literal read as data (TartarusDashboard.Term), or
+  # `message`, any JSON value as it decodes.
+  defp message_param(%{"term" => text}) when is_binary(text) do
+    case Term.parse(text) do
+      {:ok, term} -> {:ok, term}
+      {:error, why} -> reply_error({:error, 400, "bad_term", why})
+    end
+  end
+
+  defp message_param(%{"term" => _}),
+    do: reply_error({:error, 400, "bad_param", "\"term\" must be a string (Elixir text)"})
+
+  defp message_param(p) do
+    case Map.fetch(p, "message") do
       {:ok, v} ->
         {:ok, v}
 
       :error ->
-        reply_error({:error, 400, "missing_param", "the body needs a #{inspect(key)} field"})
+        reply_error(
+          {:error, 400, "missing_param",
+           "the body needs a \"term\" (Elixir text) or a \"message\" (JSON) field"}
+        )
+    end
+  end
+
+  defp timeout_param(p) do
+    case Map.get(p, "timeout_ms", 5_000) do
+      ms when is_integer(ms) and ms > 0 and ms <= 60_000 ->
+        {:ok, ms}
+
+      other ->
+        reply_error(
+          {:error, 400, "bad_param",
+           "timeout_ms must be an integer in 1..60000, got: #{JSON.encode!(other)}"}
+        )
     end
   end
 

@@ -113,6 +113,10 @@ defmodule TartarusDashboard.Feed do
        counts: %{},
        watched: MapSet.new([node()]),
        names: %{},
+       # Agents' processes of this node (pid => id), read again at most once a second when a
+       # message's sender is not in it.
+       pids: %{},
+       pids_at: nil,
        # This node's events per type as last read, and how many of them arrived since.
        types: Tartarus.Events.type_totals(),
        received: 0
@@ -128,7 +132,8 @@ defmodule TartarusDashboard.Feed do
       |> Enum.filter(fn e ->
         e.seq > f.since and (f.type == nil or e.type == f.type) and
           (f.host == nil or e[:host] == f.host or e[:to] == f.host or e[:from] == f.host) and
-          (f.agent == nil or e[:agent] == f.agent or e[:clone] == f.agent)
+          (f.agent == nil or e[:agent] == f.agent or e[:clone] == f.agent or
+             e[:sender] == f.agent)
       end)
 
     {:reply, %{seq: s.seq, dropped: s.dropped, events: Enum.take(list, -f.limit)}, s}
@@ -260,6 +265,7 @@ defmodule TartarusDashboard.Feed do
     s = %{s | seq: seq}
     s = if relayed, do: add_counts(s, %{t => 1}), else: s
     s = track(t, e, h, s)
+    {e, s} = sender(e, s)
 
     s =
       case e do
@@ -350,6 +356,31 @@ defmodule TartarusDashboard.Feed do
 
   defp track(_, _, _, s), do: s
 
+  # A message's sender: the id of the agent whose process sent it (an agent of this node), or
+  # nil (a shell, the dashboard, another node's process).
+  defp sender(%{type: :message, sender: pid} = e, s) when is_pid(pid) do
+    {id, s} = agent_of(pid, s)
+    {Map.put(e, :sender, id), s}
+  end
+
+  defp sender(e, s), do: {e, s}
+
+  defp agent_of(pid, s) do
+    now = Clock.machine_time(:millisecond)
+
+    cond do
+      Map.has_key?(s.pids, pid) ->
+        {s.pids[pid], s}
+
+      node(pid) != node() or (s.pids_at != nil and now - s.pids_at < 1_000) ->
+        {nil, s}
+
+      true ->
+        pids = Map.new(Tartarus.agents(), &{&1.pid, &1.id})
+        {Map.get(pids, pid), %{s | pids: pids, pids_at: now}}
+    end
+  end
+
   defp hop(us, s) do
     if s.hops_n >= @hop_samples,
       do: %{s | hops: :queue.in(us, :queue.drop(s.hops))},
@@ -385,7 +416,9 @@ defmodule TartarusDashboard.Feed do
     :service,
     :kind,
     :name,
-    :messages
+    :messages,
+    :sender,
+    :message
   ]
 
   # An event as JSON-able data: hosts become host ids (their names), terms become text.

@@ -135,6 +135,10 @@ defmodule TartarusDashboard.Fleet do
   defp next_nodes(%{hosts: hosts}),
     do: Enum.uniq(for h <- hosts, {_, n} <- h.neighbours, n != node(), do: n)
 
+  @doc false
+  # Why a node did not answer, in words (an :erpc failure's class and reason).
+  def describe_error(kind, reason), do: describe(kind, reason)
+
   defp describe(:error, {:erpc, :noconnection}), do: "no connection"
   defp describe(:error, {:erpc, :timeout}), do: "no answer in time"
   defp describe(:error, {:exception, :undef, _}), do: "the node has no dashboard code"
@@ -142,10 +146,12 @@ defmodule TartarusDashboard.Fleet do
 
   @doc """
   Asks the last node of `path` (a snapshot's `path`) along the path, each node asking the next:
-  `{:health, points}` answers that node's last `points` health samples. Returns
+  `{:health, points}` answers that node's last `points` health samples, `{:processes, sort,
+  limit}` its top processes (`TartarusDashboard.Processes.top/2`). Returns
   `{:ok, answer}` or `{:error, reason}`.
   """
-  @spec forward([node()], {:health, pos_integer()}) :: {:ok, term()} | {:error, String.t()}
+  @spec forward([node()], {:health, pos_integer()} | {:processes, String.t(), pos_integer()}) ::
+          {:ok, term()} | {:error, String.t()}
   def forward(path, request) do
     case Enum.drop_while(path, &(&1 == node())) do
       [] ->
@@ -162,6 +168,9 @@ defmodule TartarusDashboard.Fleet do
 
   defp answer({:health, points}) when is_integer(points) and points > 0,
     do: {:ok, TartarusDashboard.Health.series(points)}
+
+  defp answer({:processes, sort, limit}),
+    do: {:ok, TartarusDashboard.Processes.top(sort, limit)}
 
   defp answer(other), do: {:error, "unknown request #{inspect(other)}"}
 

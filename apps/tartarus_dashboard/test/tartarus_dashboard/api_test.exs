@@ -8,6 +8,8 @@ defmodule TartarusDashboard.ApiTest do
   alias Tartarus.JSON
 
   doctest TartarusDashboard.Panel
+  doctest TartarusDashboard.Term
+  doctest TartarusDashboard.Processes
 
   @token "test-token-0123456789"
 
@@ -231,6 +233,82 @@ defmodule TartarusDashboard.ApiTest do
     {200, _, events} = get(c.url, "/api/events?type=arrival&agent=#{c.id}")
     assert [%{"type" => "arrival", "host" => ^b, "from" => from}] = events["events"]
     assert from == c.a
+  end
+
+  test "an Elixir term is read as data, never run: a request's reply, a post between agents", c do
+    assert {200, _, %{"reply" => "{:pong, 1}", "message" => "{:ping, 1}"}} =
+             post(c.url, "/api/agents/#{c.id}/request", ~s({"term":"{:ping, 1}"}))
+
+    # Text that is not a literal is refused with what it was; nothing runs.
+    for {text, why} <- [
+          {"System.halt()", "a call"},
+          {"x", "a variable"},
+          {~S|{:ok, File.rm!("/tmp/x")}|, "a call"},
+          {~S|"a" <> "b"|, "a call"},
+          {"~w(a b)", "a call"},
+          {"@doc", "a module attribute"}
+        ] do
+      assert {400, _, %{"error" => "bad_term", "message" => m}} =
+               post(c.url, "/api/agents/#{c.id}/request", JSON.encode!(%{term: text}))
+
+      assert m =~ "not a literal term", text
+      assert m =~ why, text
+    end
+
+    # No atom is made from the text.
+    assert {400, _, %{"error" => "bad_term", "message" => m}} =
+             post(c.url, "/api/agents/#{c.id}/post", ~s({"term":"{:no_such_atom_q7x2, 1}"}))
+
+    assert m =~ "no atom no_such_atom_q7x2 exists on this node"
+
+    assert_raise ArgumentError, fn -> String.to_existing_atom("no_such_atom_q7x2") end
+
+    # An agent tells another: the message event names its sender (the first agent).
+    {:ok, other} = Tartarus.create_mobile_agent(c.ha, Tartarus.Examples.Echo, nil, name: "o")
+    term = ~s({:tell, "#{other}", {:ping, 2}})
+
+    assert {200, _, %{"ok" => true}} =
+             post(c.url, "/api/agents/#{c.id}/post", JSON.encode!(%{term: term}))
+
+    eventually(fn ->
+      {200, _, %{"events" => events}} = get(c.url, "/api/events?type=message&agent=#{other}")
+
+      Enum.any?(
+        events,
+        &(&1["sender"] == c.id and &1["message"] == "{:ping, 2}" and &1["kind"] == "post")
+      )
+    end)
+
+    # The sender's filter finds it too (an agent's sent messages are on its page).
+    {200, _, %{"events" => sent}} = get(c.url, "/api/events?type=message&agent=#{c.id}")
+    assert Enum.any?(sent, &(&1["sender"] == c.id and &1["agent"] == other))
+    assert {:ok, {:ping, 2}} = Tartarus.request({other, c.ha}, :state)
+  end
+
+  test "the token is checked when entered: POST /api/token", c do
+    assert {200, _, %{"ok" => true}} = post(c.url, "/api/token", "")
+    assert {403, _, %{"error" => "bad_token"}} = post(c.url, "/api/token", "", "wrong-token")
+    assert {401, _, %{"error" => "token_required"}} = post(c.url, "/api/token", "", nil)
+  end
+
+  test "GET /api/processes: this node's top processes, its agents named", c do
+    {200, _, r} = get(c.url, "/api/processes?sort=memory&limit=5")
+    assert r["node"] == to_string(node()) and r["sort"] == "memory"
+    assert length(r["processes"]) == 5
+    mem = Enum.map(r["processes"], & &1["memory"])
+    assert mem == Enum.sort(mem, :desc)
+
+    # An agent with a long mailbox heads the list by mailbox, named by its id and module.
+    {:ok, pid, _} = Tartarus.AgentTable.lookup(c.id)
+    :erlang.suspend_process(pid)
+    for i <- 1..500, do: send(pid, {:junk, i})
+    {200, _, r} = get(c.url, "/api/processes?sort=mailbox&limit=3")
+    :erlang.resume_process(pid)
+    assert [%{"kind" => "agent", "name" => name, "mailbox" => n} | _] = r["processes"]
+    assert name =~ c.id and name =~ "Tartarus.Examples.Echo" and n >= 500
+
+    assert {400, _, %{"error" => "bad_param"}} = get(c.url, "/api/processes?sort=age")
+    assert {404, _, %{"error" => "unknown_node"}} = get(c.url, "/api/processes?node=nope@nowhere")
   end
 
   test "the live stream sends batches of events as server-sent events", c do

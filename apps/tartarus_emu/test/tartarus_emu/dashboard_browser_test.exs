@@ -27,7 +27,7 @@ defmodule TartarusEmu.DashboardBrowserTest do
     on_exit(fn -> Browser.stop(b) end)
     :ok = Browser.open(b, TartarusDashboard.url(dash))
     :ok = Browser.wait(b, "document.body.dataset.ready === '1'", 15_000)
-    %{net: net, b: b, a1: a1, a2: a2, h: h}
+    %{net: net, b: b, a1: a1, a2: a2, h: h, dash: dash}
   end
 
   defp eval!(b, js) do
@@ -110,7 +110,8 @@ defmodule TartarusEmu.DashboardBrowserTest do
       "document.getElementById('token').value = '#{@token}'; document.getElementById('token-set').click(); true"
     )
 
-    assert eval!(b, "document.getElementById('mode').textContent") == "token set"
+    # The token is checked as it is entered.
+    :ok = Browser.wait(b, "document.getElementById('mode').textContent === 'token ok'", 15_000)
 
     # Break h1-h2 from h1's detail panel.
     eval!(b, "document.querySelector('#hosts tr[data-host=\"h1\"]').click(); true")
@@ -197,5 +198,66 @@ defmodule TartarusEmu.DashboardBrowserTest do
     end
 
     assert x.("f2") < x.("g1")
+  end
+
+  test "display: an agent's detail follows it, charts label their axes, equal series both show, one kept badge",
+       c do
+    %{b: b, a1: a1, dash: dash} = c
+
+    # The detail of an agent says where it is now, not where it was when clicked.
+    eval!(b, "document.querySelector('#agents tr[data-agent=\"#{a1}\"]').click(); true")
+    :ok = Browser.wait(b, "document.getElementById('detail-host')?.textContent === 'h1'", 15_000)
+    :ok = Tartarus.move({a1, c.h.(:h1)}, c.h.(:h2))
+    :ok = Browser.wait(b, "document.getElementById('detail-host').textContent === 'h2'", 15_000)
+
+    # Events per second: the value axis labelled at 0, half and the top, the time axis at
+    # three places, outside the plot; arrivals and departures (equal here) both visible:
+    # the later one dashed and thinner.
+    eval!(b, ~s|document.querySelector('#tabs button[data-tab="events"]').click(); true|)
+
+    :ok =
+      Browser.wait(
+        b,
+        ~s|document.querySelector('#rates polyline[data-series="arrival"]') && document.querySelector('#rates polyline[data-series="departure"]')|,
+        15_000
+      )
+
+    assert eval!(b, "[...document.querySelectorAll('#rates .plot .y')].length") == 3
+
+    assert eval!(
+             b,
+             "[...document.querySelectorAll('#rates .plot .x span')].map(s => s.textContent).pop()"
+           ) == "now"
+
+    assert eval!(b, "document.querySelectorAll('#rates svg text').length") == 0
+
+    [arr, dep] =
+      for s <- ~w(arrival departure),
+          do:
+            eval!(
+              b,
+              ~s|(p => [p.getAttribute('stroke-width'), p.getAttribute('stroke-dasharray')])(document.querySelector('#rates polyline[data-series="#{s}"]'))|
+            )
+
+    assert [w_arr, nil] = arr
+    assert [w_dep, dash_dep] = dep
+    assert dash_dep != nil and String.to_float(w_dep) < String.to_float(w_arr)
+
+    # The labels do not overlap the plot: they are left of its lines.
+    assert eval!(
+             b,
+             "(() => { const y = document.querySelector('#rates .plot .y').getBoundingClientRect(), p = document.querySelector('#rates svg').getBoundingClientRect(); return y.right <= p.left; })()"
+           )
+
+    # A kept page: one badge says so.
+    :ok = TartarusDashboard.keep(dash)
+    :ok = Browser.wait(b, "!document.getElementById('kept').hidden", 15_000)
+
+    assert eval!(
+             b,
+             "[...document.querySelectorAll('header .badge')].filter(e => !e.hidden && /run over/.test(e.textContent)).length"
+           ) == 1
+
+    assert eval!(b, "document.getElementById('stream').hidden")
   end
 end

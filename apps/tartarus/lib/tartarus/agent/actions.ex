@@ -95,6 +95,9 @@ defmodule Tartarus.Agent.Actions do
     end
   end
 
+  # A :message event carries the message itself up to this many bytes (external size).
+  @message_shown 256
+
   @doc false
   # A message already taken (handed over by the agent's previous process, or by a late commit).
   #
@@ -106,7 +109,19 @@ defmodule Tartarus.Agent.Actions do
     unless durable, do: send(pid, {ref, :delivered})
     bytes = :erlang.external_size(msg)
 
-    emit(data, %{type: :message, agent: data.env.id, bytes: bytes},
+    # The sender's process (a watcher such as the dashboard names the agent it is) and, when
+    # small, the message itself: a reference to a term already sized, copied only to
+    # subscribers.
+    event = %{
+      type: :message,
+      agent: data.env.id,
+      bytes: bytes,
+      kind: kind,
+      sender: pid,
+      message: if(bytes <= @message_shown, do: msg)
+    }
+
+    emit(data, event,
       messages: 1,
       message_bytes: bytes
     )
