@@ -33,7 +33,7 @@ defmodule Tartarus.ReleaseSession do
   @doc """
   The example's replacements for a node of name `name` whose certificates are in `certs`
   (operator certificate `operator`), neighbour `{host, node}`, HM-10 on `tty`, data under
-  `dir`.
+  `dir`, the dashboard on a free port of the loopback.
   """
   def example_paths(name, certs, operator, {nhost, nnode}, tty, dir) do
     [
@@ -42,7 +42,9 @@ defmodule Tartarus.ReleaseSession do
       {~s(tls: [dir: "/etc/tartarus/certs"]),
        "tls: [dir: #{inspect(certs)}, operator: #{inspect(operator)}]"},
       {~s("/dev/serial0"), inspect(tty)},
-      {~s("/var/lib/tartarus/host"), inspect(Path.join(dir, "data"))}
+      {~s("/var/lib/tartarus/host"), inspect(Path.join(dir, "data"))},
+      # The dashboard on a free port of the loopback (4000 may be taken on a test machine).
+      {~s(port: 4000, bind: "0.0.0.0"), ~s(port: 0, bind: "127.0.0.1")}
     ]
   end
 
