@@ -793,7 +793,9 @@ defmodule TartarusImmune.Select do
           |> Enum.group_by(&elem(&1, 0), &elem(&1, 1))
           |> Enum.sort()
 
-        SVG.mean_series(name, by_step)
+        # error bars every 10 rounds only: a bar per round would bury the curves
+        m = SVG.mean_series(name, by_step)
+        %{m | intervals: Enum.filter(m.intervals, fn {x, _, _} -> rem(x, 10) == 0 end)}
       end)
 
     n = length(runs)
@@ -816,16 +818,38 @@ defmodule TartarusImmune.Select do
         subtitle:
           "#{marks}; #{o[:nodes] || default_nodes(exp)} hosts, mean of #{n} seeds " <>
             "(#{o.seed}-#{o.seed + o.seeds - 1})",
-        note: SVG.ci_note([n], "seeds", "lines"),
+        note: SVG.ci_note([n], "seeds", "lines") <> ", every 10 rounds",
         x_label: "round",
         y_label: "live iPkts",
         markers: false
       )
 
-    [SVG.write!(Path.join(dir, "#{exp}.svg"), svg)]
+    [SVG.write!(Path.join(dir, "#{exp}.svg"), svg) | suppression_figure(exp, dir, runs)]
   end
 
   defp figure(_exp, _dir, _runs, _o), do: []
+
+  # the secondary response's two times side by side (runs where the losers were not
+  # halved within the phase are counted in the labels, not drawn)
+  defp suppression_figure(:secondary, dir, runs) do
+    groups =
+      for {label, i} <- [{"first barrage", 0}, {"its copy", 1}] do
+        ts = Enum.map(runs, &Enum.at(&1.summary.secondary.suppression, i))
+        halved = Enum.reject(ts, &is_nil/1)
+        {"#{label} (not halved: #{length(ts) - length(halved)})", halved}
+      end
+
+    svg =
+      SVG.box_plot(groups,
+        title: "Fig. 6.3a's secondary response: rounds until the losers are halved",
+        subtitle: "P1, the losers: all but the leader at the copy; #{length(runs)} runs",
+        y_label: "rounds"
+      )
+
+    [SVG.write!(Path.join(dir, "secondary_suppression.svg"), svg)]
+  end
+
+  defp suppression_figure(_exp, _dir, _runs), do: []
 
   defp conv_note(%{convergence_step: nil}), do: " (not converged)"
   defp conv_note(%{convergence_step: k, winner: w}), do: " (converged at #{k}: #{w})"

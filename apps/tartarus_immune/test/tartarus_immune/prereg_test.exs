@@ -67,6 +67,7 @@ defmodule TartarusImmune.PreregTest do
 
     assert File.exists?(Path.join(dir, "secondary.svg"))
     assert File.exists?(Path.join(dir, "suppression_first.svg"))
+    assert File.read!(Path.join(dir, "secondary_suppression.svg")) =~ "its copy (not halved: "
   end
 
   test "the copy of a barrage: the same hosts get the same instances again" do
