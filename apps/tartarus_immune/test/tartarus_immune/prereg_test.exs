@@ -47,6 +47,9 @@ defmodule TartarusImmune.PreregTest do
         nodes: 4,
         steps: 30,
         repeat_at: 16,
+        # not seed 1: its P1 pool's costs, once memoized, make select_test's dashboard run
+        # finish before its first look at the panel
+        seed: 11,
         seeds: 2,
         quiet: true,
         out: dir
