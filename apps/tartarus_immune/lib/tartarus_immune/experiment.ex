@@ -587,8 +587,18 @@ defmodule TartarusImmune.Experiment do
       dynamic: st.o.dynamic,
       link_toggles: st.toggles,
       initial_population: names.(st.initial_pop),
+      # per barrage (epoch order) a digest of its hosts and instances: a copy (`repeat:`)
+      # has the digest of the barrage it copies
+      barrage_digests: barrage_digests(st),
       reach: reach_summary(st)
     }
+  end
+
+  defp barrage_digests(st) do
+    index = st.hosts |> Enum.with_index() |> Map.new()
+
+    for {_epoch, fired} <- Enum.sort(st.fired),
+        do: :erlang.phash2(Enum.map(fired, fn {h, refs} -> {index[h], refs} end))
   end
 
   # `reach:` the waiting times (rounds) of the distressed hosts that were served, and the
