@@ -85,6 +85,24 @@ defmodule TartarusImmune.Experiment do
     eta: [type: :probability, default: 0.5, doc: "influx rate: fraction of hosts per barrage"],
     beta: [type: :pos_integer, default: 5, doc: "barrage size: instances per host per barrage"],
     period: [type: :pos_integer, default: 10, doc: "steps between barrages"],
+    barrages: [
+      type: :any,
+      default: nil,
+      doc:
+        "the rounds of the barrages, a list (default nil: round 1 and every `period` rounds); a signal is followed for `period` rounds after its barrage"
+    ],
+    repeat: [
+      type: {:list, :any},
+      default: [],
+      doc:
+        "copies of earlier barrages `[{round, epoch}]`: at `round`, the hosts of barrage `epoch` get its instances again (Fig. 6.3a's secondary response)"
+    ],
+    reach: [
+      type: :boolean,
+      default: false,
+      doc:
+        "measure, for each distressed host of each barrage, the rounds until an iPkt that recognizes one of its pending problems is resident (`TartarusImmune.Node.served?/3`)"
+    ],
     train: [type: :pos_integer, default: 200, doc: "training pool size"],
     test: [type: :pos_integer, default: 50, doc: "held-out test instances"],
     per_node: [type: :pos_integer, default: 1, doc: "initial iPkts per solution per host"],
@@ -188,12 +206,17 @@ defmodule TartarusImmune.Experiment do
         expired: 0,
         events_at: %{},
         first_step: nil,
-        last_step: 0
+        last_step: 0,
+        fired: %{},
+        last_barrage: 0,
+        waiting: %{},
+        reach: [],
+        initial_pop: %{}
       }
 
       {homes, st} = initial_hosts(st, o.seed_hosts)
       st = Enum.reduce(sols, st, fn sol, st -> seed_ipkts(st, sol, o.per_node, homes) end)
-      {:ok, st}
+      {:ok, %{st | initial_pop: st.pop}}
     end
   end
 
@@ -261,7 +284,13 @@ defmodule TartarusImmune.Experiment do
 
   @impl true
   def step(st, k) do
-    st = if k == 1 or rem(k - 1, st.o.period) == 0, do: barrage(st), else: st
+    st = if barrage?(st.o, k), do: barrage(st, k), else: st
+
+    st =
+      case List.keyfind(st.o.repeat, k, 0) do
+        {^k, epoch} -> refire(st, k, epoch)
+        nil -> st
+      end
 
     st =
       Enum.reduce(st.o.add, st, fn
@@ -278,6 +307,7 @@ defmodule TartarusImmune.Experiment do
     st = interact(st, k)
     st = churn(st)
     st = migrate(st)
+    st = reached(st, k)
     pop = Map.new(st.pop, fn {s, n} -> {st.domain.solution_name(s), n} end)
 
     series =
@@ -307,7 +337,10 @@ defmodule TartarusImmune.Experiment do
   @impl true
   def done?(st, _k), do: st.o.stop and st.conv.converged != nil
 
-  defp barrage(st) do
+  defp barrage?(%{barrages: nil, period: period}, k), do: k == 1 or rem(k - 1, period) == 0
+  defp barrage?(%{barrages: ks}, k), do: k in ks
+
+  defp barrage(st, k) do
     n = length(st.hosts)
     want = min(n, max(1, ceil(st.o.eta * n)))
 
@@ -320,15 +353,55 @@ defmodule TartarusImmune.Experiment do
     chosen = order |> Enum.sort() |> Enum.take(want) |> Enum.map(&elem(&1, 1))
     st = %{st | rng: rng, epoch: st.epoch + 1}
 
-    st =
-      Enum.reduce(chosen, st, fn host, st ->
+    {fired, st} =
+      Enum.map_reduce(chosen, st, fn host, st ->
         {refs, st} = Enum.map_reduce(1..st.o.beta, st, fn _, st -> pick(st) end)
-        {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, refs, st.epoch})
-        st
+        {{host, refs}, st}
       end)
 
+    fire(st, k, fired)
+  end
+
+  # Fig. 6.3a's secondary response: barrage `epoch`'s instances again, at the same hosts
+  defp refire(st, k, epoch), do: fire(%{st | epoch: st.epoch + 1}, k, Map.fetch!(st.fired, epoch))
+
+  defp fire(st, k, fired) do
+    for {host, refs} <- fired,
+        do: {:ok, :ok} = Tartarus.request({"immune", host}, {:problems, refs, st.epoch})
+
     settle(st)
-    st
+    st = %{st | fired: Map.put(st.fired, st.epoch, fired), last_barrage: k}
+    if st.o.reach, do: await_reach(st, k, Enum.map(fired, &elem(&1, 0))), else: st
+  end
+
+  # `reach:` a distressed host waits from its barrage (round b) until an iPkt that recognizes
+  # one of its pending problems is resident: 0 if one is there when the barrage comes,
+  # else the number of migration phases (the one of round b is the first). A host hit again
+  # before it was served is censored (`{:censored, rounds}`), as is one at the run's end.
+  defp await_reach(st, k, hosts) do
+    st =
+      Enum.reduce(hosts, st, fn h, st ->
+        case Map.pop(st.waiting, h) do
+          {nil, _} -> st
+          {b, w} -> %{st | waiting: w, reach: [{:censored, k - b} | st.reach]}
+        end
+      end)
+
+    st = %{st | waiting: Enum.reduce(hosts, st.waiting, &Map.put(&2, &1, k))}
+    check_reach(st, fn b -> k - b end)
+  end
+
+  defp reached(%{o: %{reach: false}} = st, _k), do: st
+  defp reached(st, k), do: check_reach(st, fn b -> k - b + 1 end)
+
+  defp check_reach(st, time) do
+    Enum.reduce(st.waiting, st, fn {h, b}, st ->
+      {:ok, served?} = Tartarus.request({"immune", h}, :served)
+
+      if served?,
+        do: %{st | waiting: Map.delete(st.waiting, h), reach: [time.(b) | st.reach]},
+        else: st
+    end)
   end
 
   defp settle(st) do
@@ -406,8 +479,9 @@ defmodule TartarusImmune.Experiment do
   defp migrate(st) do
     alive = st.pop |> Map.values() |> Enum.sum()
     # how far into its barrage period the step is (Eq. 6.5's lifetimes, `signal_life:`)
-    age = rem(st.last_step, st.o.period) / st.o.period
-    Network.broadcast(st.net, {:go, diffuse(st), age})
+    # (this round is st.last_step + 1)
+    age = (st.last_step - st.last_barrage + 1) / st.o.period
+    Network.broadcast(st.net, {:go, diffuse(st, age), age})
 
     Enum.reduce(1..alive//1, st, fn _, st ->
       case receive_event(st.run, [:arrived, :stayed, :expired]) do
@@ -429,23 +503,29 @@ defmodule TartarusImmune.Experiment do
   # The name's tag of the danger field the iPkts follow this round: the barrage's epoch, or
   # with a per-round signal (`Node.per_round?/1`) a fresh `{epoch, round}`, diffused now by
   # every host that calls for help (`Node.danger_call/3`), after this round's interactions.
-  defp diffuse(st) do
-    if st.o.danger and TartarusImmune.Node.per_round?(st.p) do
-      tag = {st.epoch, st.last_step + 1}
-
-      st.hosts
-      |> Task.async_stream(
-        fn host -> {:ok, _} = Tartarus.request({"immune", host}, {:diffuse, tag}, 120_000) end,
-        timeout: :infinity,
-        max_concurrency: System.schedulers_online() * 2
-      )
-      |> Stream.run()
-
-      settle(st)
-      tag
-    else
-      st.epoch
+  defp diffuse(st, age) do
+    cond do
+      st.o.danger and TartarusImmune.Node.per_round?(st.p) -> diffuse_round(st)
+      # a barrage's signal is followed for its period (only a schedule of barrages further
+      # apart than `period` outlives it): then no field is named
+      age >= 1 -> {:quiet, st.epoch}
+      true -> st.epoch
     end
+  end
+
+  defp diffuse_round(st) do
+    tag = {st.epoch, st.last_step + 1}
+
+    st.hosts
+    |> Task.async_stream(
+      fn host -> {:ok, _} = Tartarus.request({"immune", host}, {:diffuse, tag}, 120_000) end,
+      timeout: :infinity,
+      max_concurrency: System.schedulers_online() * 2
+    )
+    |> Stream.run()
+
+    settle(st)
+    tag
   end
 
   # births come only in the interaction phase, the rest only in the migration phase
@@ -505,8 +585,30 @@ defmodule TartarusImmune.Experiment do
       deaths: st.died,
       expired: st.expired,
       dynamic: st.o.dynamic,
-      link_toggles: st.toggles
+      link_toggles: st.toggles,
+      initial_population: names.(st.initial_pop),
+      # per barrage (epoch order) a digest of its hosts and instances: a copy (`repeat:`)
+      # has the digest of the barrage it copies
+      barrage_digests: barrage_digests(st),
+      reach: reach_summary(st)
     }
+  end
+
+  defp barrage_digests(st) do
+    index = st.hosts |> Enum.with_index() |> Map.new()
+
+    for {_epoch, fired} <- Enum.sort(st.fired),
+        do: :erlang.phash2(Enum.map(fired, fn {h, refs} -> {index[h], refs} end))
+  end
+
+  # `reach:` the waiting times (rounds) of the distressed hosts that were served, and the
+  # censored ones (hit again, or still waiting at the end: the rounds they had waited)
+  defp reach_summary(%{o: %{reach: false}}), do: nil
+
+  defp reach_summary(st) do
+    open = for {_h, b} <- st.waiting, do: {:censored, st.last_step - b + 1}
+    {cens, times} = Enum.split_with(st.reach ++ open, &match?({:censored, _}, &1))
+    %{times: Enum.reverse(times), censored: Enum.map(cens, &elem(&1, 1))}
   end
 
   defp live_ipkts(st) do

@@ -25,7 +25,9 @@ defmodule TartarusImmune.Node do
       (`danger_call/3`) and if so emits `{:danger, tag}` carrying the feature vectors of its
       pending problems;
     * `:queue` (a request) - the queue's entries;
-    * `:pending` (a request) - how many problems are pending.
+    * `:pending` (a request) - how many problems are pending;
+    * `:served` (a request) - whether a resident iPkt recognizes one of the pending
+      problems (`served?/3`).
 
   ## Deferred measurement (a robot)
 
@@ -276,10 +278,32 @@ defmodule TartarusImmune.Node do
     {:stay, s}
   end
 
+  def handle_message(:served, from, s) do
+    fys = s.queue |> Map.values() |> Enum.map(& &1.fv)
+    Tartarus.Agent.reply(from, served?(Enum.map(s.problems, & &1.fv), fys, s.p))
+    {:stay, s}
+  end
+
   def handle_message(_other, _from, s), do: {:stay, s}
 
   @doc false
   def handle_info(_msg, s), do: {:stay, s}
+
+  @doc """
+  Whether a host is served: some resident iPkt (F_y in `fys`) recognizes (Eq. 6.7) some
+  pending problem (F_x in `fxs`). Pure.
+
+      iex> p = %{mu: 0.5}
+      iex> TartarusImmune.Node.served?([[0, 0, 0, 0]], [[1, 1, 1, 1], [0, 0, 0, 1]], p)
+      true
+      iex> TartarusImmune.Node.served?([[0, 0, 0, 0]], [[1, 1, 1, 1]], p)
+      false
+      iex> TartarusImmune.Node.served?([], [[0, 0, 0, 0]], p)
+      false
+  """
+  @spec served?([[float()]], [[float()]], map()) :: boolean()
+  def served?(fxs, fys, p),
+    do: Enum.any?(fxs, fn fx -> Enum.any?(fys, &Maths.recognizes?(fx, &1, p)) end)
 
   @doc """
   The decisions of one interaction (Algorithm 4, lines 9-21) for a problem of feature

@@ -15,6 +15,9 @@ defmodule TartarusImmune.Select do
   | `influx` | `set` for η in `etas` | Fig. 6.7a |
   | `barrage` | `set` for β in `betas` | Fig. 6.7b |
   | `iot` | the temperature series on `nodes` hosts (default 50) | Fig. 6.10 |
+  | `fig6_4b` | pre-registered (`TartarusImmune.Select.Fig64b`): `otfp` on P4 over several seeds; the mean learning curve, final shares, verdict | Fig. 6.4b |
+  | `secondary` | pre-registered (`TartarusImmune.Select.Secondary`): P1, one barrage, then its copy at `repeat_at` once settled; time to suppression of the losers, first against copy | Fig. 6.3a |
+  | `lspan` | pre-registered (`TartarusImmune.Select.Lspan`): `fig6_8`'s configuration with l_span 2, 3, 4 and no signals; the reach time of distressed hosts measured | Fig. 6.8 |
 
   Every run uses `TartarusImmune.Convergence` (leader share ≥ `share` for `hold` steps),
   in rounds (a step is one round: every host one iteration of Algorithm 4, every iPkt one
@@ -41,7 +44,7 @@ defmodule TartarusImmune.Select do
   alias Tartarus.Clock
   alias TartarusEmu.{Scenario, Sweep}
   alias TartarusImmune.{Experiment, Sorting}
-  alias TartarusImmune.Select.Fig68
+  alias TartarusImmune.Select.{Fig64b, Fig68, Lspan, Secondary}
   alias TartarusTools.{Report, Series, Stats, SVG}
 
   @experiments [
@@ -54,7 +57,10 @@ defmodule TartarusImmune.Select do
     :dynamic,
     :influx,
     :barrage,
-    :iot
+    :iot,
+    :fig6_4b,
+    :secondary,
+    :lspan
   ]
 
   @schema [
@@ -70,7 +76,10 @@ defmodule TartarusImmune.Select do
       doc:
         "data set of sharing/danger/otfp/influx/barrage/fig6_8 (default p2; otfp p1; fig6_8 p4)"
     ],
-    steps: [type: :pos_integer, default: 600, doc: "step limit per run"],
+    steps: [
+      type: :pos_integer,
+      doc: "step limit per run (default 600; fig6_4b 300, secondary 120)"
+    ],
     share: [type: {:range, 0, 1}, default: 0.9, doc: "convergence: leader's least share"],
     hold: [type: :pos_integer, default: 30, doc: "convergence: steps held"],
     eta: [type: :probability, default: 0.5, doc: "influx rate"],
@@ -92,7 +101,12 @@ defmodule TartarusImmune.Select do
     add_at: [
       type: {:list, :pos_integer},
       default: [40, 80, 120, 160],
-      doc: "otfp: steps of the additions"
+      doc: "otfp, fig6_4b: steps of the additions"
+    ],
+    repeat_at: [
+      type: :pos_integer,
+      default: 61,
+      doc: "secondary: the round of the copy of the first barrage"
     ],
     out: [
       type: :any,
@@ -184,29 +198,30 @@ defmodule TartarusImmune.Select do
       title: "Immune selection: #{exp}",
       subtitle:
         "#{exp}, #{o[:nodes] || default_nodes(exp)} hosts (#{o.topology}), " <>
-          "#{o.steps} steps at most",
+          "#{steps_limit(exp, o)} steps at most",
       arms: arms,
       seeds: seeds(o),
       run: &run_one(&1, &2, exp, o, panel, concurrency),
-      metrics: [
-        {:steps, &steps/1, title(exp, :steps, o)},
-        {:events, &events/1, title(exp, :events, o)},
-        test_accuracy: :test_accuracy,
-        migrations: :migrations
-      ],
+      metrics:
+        [
+          {:steps, &steps/1, title(exp, :steps, o)},
+          {:events, &events/1, title(exp, :events, o)},
+          test_accuracy: :test_accuracy,
+          migrations: :migrations
+        ] ++ metrics(exp, o),
       tests: tests(exp, o),
       csv: {@csv_header, &csv_rows/1},
       concurrency: concurrency,
       summary: fn r ->
         exp
         |> summarize(runs(r), o)
-        |> Map.merge(fig68(exp, r, o))
+        |> Map.merge(prereg(exp, r, o))
         |> Map.merge(%{
           experiment: to_string(exp),
           wall_ms: Clock.machine_time(:millisecond) - t0
         })
       end,
-      write: fn dir, r -> write_populations(dir, runs(r), o) end
+      write: fn dir, r -> write_populations(dir, runs(r), o) ++ figure(exp, dir, runs(r), o) end
     }
 
     {:ok, r} = Sweep.run(spec, out: out, quiet: o.quiet)
@@ -219,7 +234,7 @@ defmodule TartarusImmune.Select do
     base = [
       set: set,
       seed: seed,
-      steps: o.steps,
+      steps: steps_limit(exp, o),
       nodes: extra[:nodes] || o[:nodes] || default_nodes(exp),
       topology: o.topology,
       mode: o.mode,
@@ -238,8 +253,46 @@ defmodule TartarusImmune.Select do
     ]
 
     {:ok, r} = Scenario.run(Experiment, Keyword.merge(base, Keyword.delete(extra, :nodes)))
-    {r.summary, r.series}
+    {measure(exp, r, o), r.series}
   end
+
+  # the pre-registered experiments' per-run measures, in the run's summary
+  defp measure(:secondary, r, o),
+    do:
+      Map.put(
+        r.summary,
+        :secondary,
+        Secondary.measure(r.series, r.summary.initial_population, {1, o.repeat_at})
+      )
+
+  defp measure(:lspan, r, o),
+    do: Map.put(r.summary, :reach_mean, Lspan.reach_mean(r.summary.reach, o.period))
+
+  defp measure(_exp, r, _o), do: r.summary
+
+  defp metrics(:secondary, _o),
+    do: [
+      {:suppression_first, &suppression(&1, 0),
+       "Fig. 6.3a: rounds until the losers are halved, first barrage (not halved: none)"},
+      {:suppression_second, &suppression(&1, 1),
+       "Fig. 6.3a: rounds until the losers are halved, its copy (not halved: none)"}
+    ]
+
+  defp metrics(:lspan, o),
+    do: [
+      {:reach_mean, & &1.reach_mean,
+       "Fig. 6.8 by l_span: mean rounds until a distressed host has an iPkt that recognizes its problems (censored: #{o.period}), per run"}
+    ]
+
+  defp metrics(_exp, _o), do: []
+
+  defp suppression(s, i), do: Enum.at(s.secondary.suppression, i)
+
+  defp steps_limit(exp, o), do: o[:steps] || default_steps(exp)
+
+  defp default_steps(:fig6_4b), do: Fig64b.config()[:steps]
+  defp default_steps(:secondary), do: Secondary.config()[:steps]
+  defp default_steps(_), do: 600
 
   # the sweep's runs as this module's records
   defp runs(sweep),
@@ -263,12 +316,16 @@ defmodule TartarusImmune.Select do
     do:
       "Fig. 6.8 (pre-registered): log-server events (migrations + executions), #{fig_setting(o)}"
 
+  defp title(:lspan, :steps, o),
+    do:
+      "Fig. 6.8 by l_span: convergence rounds per run, #{fig_setting(o)} (not converged: #{steps_limit(:lspan, o)})"
+
   defp title(_, :steps, _o), do: "convergence step per run (not converged: the step limit)"
   defp title(_, :events, _o), do: "convergence in log-server events per run"
 
   defp fig_setting(o),
     do:
-      "#{o[:set] || :p4}, #{o[:nodes] || 50} hosts, β #{beta(:fig6_8, o)}, not converged: #{o.steps}"
+      "#{o[:set] || :p4}, #{o[:nodes] || 50} hosts, β #{beta(:fig6_8, o)}, not converged: #{steps_limit(:fig6_8, o)}"
 
   # an arm's name in the sweep: "<arm> <set>", labelled when the cost is not the default
   defp arm_name(arm, set, %{cost: :comparisons}), do: "#{arm} #{set} (comparisons)"
@@ -294,15 +351,30 @@ defmodule TartarusImmune.Select do
     ]
   end
 
+  defp tests(:lspan, o) do
+    set = o[:set] || :p4
+    [l2, l3, l4, nd] = Enum.map(Lspan.arms(), &arm_name(elem(&1, 0), set, o))
+
+    [
+      {l4, :less, l2, :reach_mean},
+      {l3, :less, l2, :reach_mean},
+      {l2, :less, nd, :reach_mean},
+      {l4, :less, l2, :steps},
+      {l2, :less, nd, :steps}
+    ]
+  end
+
   defp tests(_, _), do: []
 
-  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic, :fig6_8], do: 50
+  defp default_nodes(e) when e in [:nodes50, :iot, :dynamic, :fig6_8, :lspan], do: 50
   defp default_nodes(_), do: 10
 
-  defp default_set(:fig6_8), do: :p4
+  defp default_set(e) when e in [:fig6_8, :lspan, :fig6_4b], do: :p4
+  defp default_set(:secondary), do: :p1
   defp default_set(_), do: :p2
 
-  defp beta(exp, o), do: o[:beta] || if(exp == :fig6_8, do: Fig68.config()[:beta], else: 5)
+  defp beta(exp, o),
+    do: o[:beta] || if(exp in [:fig6_8, :lspan], do: Fig68.config()[:beta], else: 5)
 
   defp seeds(o), do: Enum.map(0..(o.seeds - 1), &(o.seed + &1))
 
@@ -336,13 +408,25 @@ defmodule TartarusImmune.Select do
     for seed <- seeds(o), {arm, x} <- Fig68.arms(), do: {arm, set, seed, x ++ fixed}
   end
 
-  defp plan(:otfp, o) do
-    set = o[:set] || :p1
+  defp plan(exp, o) when exp in [:otfp, :fig6_4b] do
+    set = o[:set] || if(exp == :otfp, do: :p1, else: :p4)
     alias Sorting.{Heap, Insertion, Merge, Quick, Selection, Shell}
     adds = Enum.zip(o.add_at, [Quick, Insertion, Merge, Heap])
+    x = [solutions: [Shell, Selection], add: adds, stop: false]
+    for seed <- seeds(o), do: {to_string(exp), set, seed, x}
+  end
 
-    for seed <- seeds(o),
-        do: {"otfp", set, seed, [solutions: [Shell, Selection], add: adds, stop: false]}
+  defp plan(:secondary, o) do
+    set = o[:set] || :p1
+    x = [barrages: [1], repeat: [{o.repeat_at, 1}], stop: false]
+    for seed <- seeds(o), do: {"secondary", set, seed, x}
+  end
+
+  defp plan(:lspan, o) do
+    set = o[:set] || :p4
+    c = Fig68.config()
+    fixed = [seed_hosts: c[:seed_hosts], per_node: c[:per_node], reach: true]
+    for seed <- seeds(o), {arm, x} <- Lspan.arms(), do: {arm, set, seed, x ++ fixed}
   end
 
   defp plan(:nodes50, o),
@@ -458,7 +542,7 @@ defmodule TartarusImmune.Select do
     })
   end
 
-  defp summarize(:otfp, runs, _o) do
+  defp summarize(exp, runs, _o) when exp in [:otfp, :fig6_4b] do
     common(runs)
     |> Map.merge(%{
       final_population: Enum.map(runs, & &1.summary.population),
@@ -481,7 +565,7 @@ defmodule TartarusImmune.Select do
   # The pre-registered experiment's own keys: how the run differs from the pre-registration
   # (nothing, for the measured run), per arm the rounds and events described, the guard and
   # the verdict (`TartarusImmune.Select.Fig68`).
-  defp fig68(:fig6_8, r, o) do
+  defp prereg(:fig6_8, r, o) do
     set = o[:set] || :p4
     [d, nd, ns] = Enum.map(~w(danger no_danger no_sharing), &arm_name(&1, set, o))
     agg = r.aggregates
@@ -502,8 +586,9 @@ defmodule TartarusImmune.Select do
 
     effective =
       Map.merge(
-        Map.new(Keyword.take(Map.to_list(o), [:topology, :eta, :period, :steps, :share, :hold])),
+        Map.new(Keyword.take(Map.to_list(o), [:topology, :eta, :period, :share, :hold])),
         %{
+          steps: steps_limit(:fig6_8, o),
           set: set,
           nodes: o[:nodes] || 50,
           beta: beta(:fig6_8, o),
@@ -548,7 +633,101 @@ defmodule TartarusImmune.Select do
     }
   end
 
-  defp fig68(_exp, _r, _o), do: %{}
+  defp prereg(:fig6_4b, r, o) do
+    v = Fig64b.verdict(Enum.map(r.runs, & &1.summary.population))
+    %{preregistered: Map.merge(v, %{date: "2026-12-06", deviations: deviations(:fig6_4b, o)})}
+  end
+
+  defp prereg(:secondary, r, o) do
+    v = Secondary.verdict(Enum.map(r.runs, & &1.summary.secondary))
+    %{preregistered: Map.merge(v, %{date: "2026-12-06", deviations: deviations(:secondary, o)})}
+  end
+
+  defp prereg(:lspan, r, o) do
+    set = o[:set] || :p4
+    [l2, l3, l4, nd] = names = Enum.map(Lspan.arms(), &arm_name(elem(&1, 0), set, o))
+
+    p = fn a, b, m ->
+      Enum.find_value(r.tests, fn t -> if {t.a, t.b, t.metric} == {a, b, m}, do: t.p_value end)
+    end
+
+    keyed = Enum.zip(Enum.map(Lspan.arms(), &elem(&1, 0)), names)
+
+    reach =
+      Map.new(keyed, fn {k, a} ->
+        {k, for(run <- r.runs, run.arm == a, do: run.summary.reach_mean)}
+      end)
+
+    pooled =
+      Map.new(keyed, fn {k, a} ->
+        rs = for run <- r.runs, run.arm == a, do: run.summary.reach
+        ts = Enum.flat_map(rs, & &1.times)
+        cs = Enum.flat_map(rs, & &1.censored)
+
+        {k,
+         %{
+           served: Stats.describe(ts),
+           censored: length(cs),
+           at_barrage: Enum.count(ts, &(&1 == 0)),
+           hosts: length(ts) + length(cs)
+         }}
+      end)
+
+    v = Lspan.verdict(reach, p.(l4, l2, :reach_mean), p.(l2, nd, :reach_mean))
+
+    %{
+      preregistered:
+        Map.merge(v, %{
+          date: "2026-12-06",
+          deviations: deviations(:lspan, o),
+          p_reach_4_less_2: p.(l4, l2, :reach_mean),
+          p_reach_3_less_2: p.(l3, l2, :reach_mean),
+          p_reach_2_less_none: p.(l2, nd, :reach_mean),
+          p_rounds_4_less_2: p.(l4, l2, :steps),
+          p_rounds_2_less_none: p.(l2, nd, :steps),
+          reach_pooled: pooled,
+          rounds: Map.new(keyed, fn {k, a} -> {k, r.aggregates[a].steps} end)
+        })
+    }
+  end
+
+  defp prereg(_exp, _r, _o), do: %{}
+
+  # How a pre-registered run differs from its pre-registration: the options given that
+  # change the configuration, and the seeds.
+  defp deviations(exp, o) do
+    {module, keys} =
+      case exp do
+        :fig6_4b -> {Fig64b, [:set, :nodes, :topology, :eta, :beta, :period, :steps, :add_at]}
+        :secondary -> {Secondary, [:set, :nodes, :topology, :eta, :beta, :period, :steps]}
+        :lspan -> {Lspan, [:set, :nodes, :topology, :eta, :beta, :period, :steps]}
+      end
+
+    eff = %{
+      set: o[:set] || default_set(exp),
+      nodes: o[:nodes] || default_nodes(exp),
+      topology: o.topology,
+      eta: o.eta,
+      beta: beta(exp, o),
+      period: o.period,
+      steps: steps_limit(exp, o),
+      add_at: o.add_at
+    }
+
+    reference =
+      case exp do
+        :lspan -> Map.new(Fig68.config())
+        _ -> Map.new(module.config())
+      end
+
+    changed = for k <- keys, Map.has_key?(reference, k), reference[k] != eff[k], do: k
+
+    changed =
+      if exp == :secondary and o.repeat_at != 61, do: changed ++ [:repeat_at], else: changed
+
+    changed = if o.cost != :ops, do: changed ++ [:cost], else: changed
+    if seeds(o) == Enum.to_list(module.seeds()), do: changed, else: changed ++ [:seeds]
+  end
 
   # -- files ----------------------------------------------------------------------------
 
@@ -594,6 +773,83 @@ defmodule TartarusImmune.Select do
     end
     |> List.flatten()
   end
+
+  # Figs. 6.4b and 6.3a as the thesis draws them, population curves: here the mean over
+  # the seeds of the live iPkts per solution per round, with 95 % intervals
+  defp figure(exp, dir, runs, o) when exp in [:fig6_4b, :secondary] do
+    names =
+      runs
+      |> Enum.flat_map(&Series.names(&1.series))
+      |> Enum.map(&to_string/1)
+      |> Enum.uniq()
+      |> Enum.reject(&(&1 == "total"))
+      |> Enum.sort()
+
+    chart =
+      Enum.map(names, fn name ->
+        by_step =
+          runs
+          |> Enum.flat_map(&Series.points(&1.series, name))
+          |> Enum.group_by(&elem(&1, 0), &elem(&1, 1))
+          |> Enum.sort()
+
+        # error bars every 10 rounds only: a bar per round would bury the curves
+        m = SVG.mean_series(name, by_step)
+        %{m | intervals: Enum.filter(m.intervals, fn {x, _, _} -> rem(x, 10) == 0 end)}
+      end)
+
+    n = length(runs)
+
+    {title, marks} =
+      case exp do
+        :fig6_4b ->
+          {"Fig. 6.4b (pre-registered): live iPkts per solution, #{o[:set] || :p4}, " <>
+             "additions at #{Enum.join(o.add_at, ", ")}",
+           "Shell and Selection at the start; Quick, Insertion, Merge, Heap added"}
+
+        :secondary ->
+          {"Fig. 6.3a's secondary response (pre-registered): live iPkts per solution, " <>
+             "#{o[:set] || :p1}", "one barrage at round 1, its copy at round #{o.repeat_at}"}
+      end
+
+    svg =
+      SVG.line_chart(chart,
+        title: title,
+        subtitle:
+          "#{marks}; #{o[:nodes] || default_nodes(exp)} hosts, mean of #{n} seeds " <>
+            "(#{o.seed}-#{o.seed + o.seeds - 1})",
+        note: SVG.ci_note([n], "seeds", "lines") <> ", every 10 rounds",
+        x_label: "round",
+        y_label: "live iPkts",
+        markers: false
+      )
+
+    [SVG.write!(Path.join(dir, "#{exp}.svg"), svg) | suppression_figure(exp, dir, runs)]
+  end
+
+  defp figure(_exp, _dir, _runs, _o), do: []
+
+  # the secondary response's two times side by side (runs where the losers were not
+  # halved within the phase are counted in the labels, not drawn)
+  defp suppression_figure(:secondary, dir, runs) do
+    groups =
+      for {label, i} <- [{"first barrage", 0}, {"its copy", 1}] do
+        ts = Enum.map(runs, &Enum.at(&1.summary.secondary.suppression, i))
+        halved = Enum.reject(ts, &is_nil/1)
+        {"#{label} (not halved: #{length(ts) - length(halved)})", halved}
+      end
+
+    svg =
+      SVG.box_plot(groups,
+        title: "Fig. 6.3a's secondary response: rounds until the losers are halved",
+        subtitle: "P1, the losers: all but the leader at the copy; #{length(runs)} runs",
+        y_label: "rounds"
+      )
+
+    [SVG.write!(Path.join(dir, "secondary_suppression.svg"), svg)]
+  end
+
+  defp suppression_figure(_exp, _dir, _runs), do: []
 
   defp conv_note(%{convergence_step: nil}), do: " (not converged)"
   defp conv_note(%{convergence_step: k, winner: w}), do: " (converged at #{k}: #{w})"

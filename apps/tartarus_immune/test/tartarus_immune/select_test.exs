@@ -65,7 +65,18 @@ defmodule TartarusImmune.SelectTest do
     {:ok, l} = :gen_tcp.listen(0, [])
     {:ok, port} = :inet.port(l)
     :gen_tcp.close(l)
-    opts = [experiment: :sharing, set: :p1, nodes: 4, steps: 200, quiet: true, out: false]
+    # hold: 200, so the run goes all 200 rounds: with its costs memoized by earlier tests
+    # it could otherwise end before the first look at the panel
+    opts = [
+      experiment: :sharing,
+      set: :p1,
+      nodes: 4,
+      steps: 200,
+      hold: 200,
+      quiet: true,
+      out: false
+    ]
+
     me = self()
 
     run =

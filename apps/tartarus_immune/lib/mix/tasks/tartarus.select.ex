@@ -6,11 +6,12 @@ defmodule Mix.Tasks.Tartarus.Select do
   sorting algorithms) are drawn by danger signals to the hosts where sequences wait to be
   sorted; the best algorithm for each class of sequences takes over the network.
 
-      mix tartarus.select [--experiment table6_2|sharing|danger|fig6_8|otfp|nodes50|dynamic|influx|barrage|iot]
+      mix tartarus.select [--experiment table6_2|sharing|danger|fig6_8|otfp|nodes50|dynamic|influx|barrage|iot|fig6_4b|secondary|lspan]
                           [--seed 1] [--seeds 1] [--nodes 10] [--topology grid|ring|line]
                           [--mode virtual|peer] [--group 1] [--set p1|p2|p3|p4|temp]
                           [--steps 600] [--share 0.9] [--hold 30] [--eta 0.5] [--beta 5]
-                          [--period 10] [--cost ops|comparisons] [--out DIR] [--json]
+                          [--period 10] [--cost ops|comparisons] [--repeat-at 61]
+                          [--out DIR] [--json]
                           [--dashboard PORT]
 
   `--dashboard PORT` serves the web dashboard on 127.0.0.1:PORT while the runs go (the
@@ -40,6 +41,21 @@ defmodule Mix.Tasks.Tartarus.Select do
       (Fig. 6.7b);
     * `iot`: sequences of slowly varying temperature readings on 50 hosts (Fig. 6.10).
 
+  Pre-registered on 2026-12-06 (docs/immune.md; each summary adds `preregistered`: the
+  deviations from the registration, the measures and the verdict):
+
+    * `fig6_4b`: `otfp` on P4 (Fig. 6.4b), 300 rounds; run it with `--seed 2001 --seeds
+      20`; the mean learning curve (`fig6_4b.svg`) and whether Quick and Shell both hold a
+      quarter of the iPkts at the end (`TartarusImmune.Select.Fig64b`);
+    * `secondary`: Fig. 6.3a's secondary response: P1, one barrage at round 1 and its copy
+      (same instances, same hosts) at `--repeat-at` (61), 120 rounds; the rounds until the
+      losers are halved after each (`TartarusImmune.Select.Secondary`; `secondary.svg`,
+      `secondary_suppression.svg`); run it with `--seed 3001 --seeds 30`;
+    * `lspan`: `fig6_8`'s configuration with danger signals of span 2, 3 and 4 and without;
+      every distressed host's reach time (rounds until an iPkt that recognizes its problems
+      is there) measured (`TartarusImmune.Select.Lspan`; `reach_mean.svg`); run it with
+      `--seed 4001 --seeds 20`, and with `--eta 0.1` for the second configuration.
+
   `--cost comparisons` is a labelled sensitivity option (the arms' names say
   "(comparisons)"): a sorting solution's cost is its key comparisons alone instead of
   comparisons + moves (`TartarusImmune.Sorting.Comparisons`).
@@ -66,7 +82,8 @@ defmodule Mix.Tasks.Tartarus.Select do
   all add `sweep` (`TartarusEmu.Sweep`: per-arm aggregates of `steps, events,
   test_accuracy, migrations` and, for `sharing` and `danger`, one-sided Mann-Whitney tests
   of fewer convergence steps with sharing / with danger signals).
-  With `--json` the last line printed is the summary as one JSON object.
+  With `--json` the last line printed is the summary as one JSON object (the progress
+  lines go to standard error as without it).
   """
   use TartarusTools.CLI
 
@@ -86,7 +103,8 @@ defmodule Mix.Tasks.Tartarus.Select do
 
     opts = TartarusTools.CLI.options!(argv, schema, @task)
     {exp, json?} = {opts[:experiment], opts[:json]}
-    sel_opts = opts |> Keyword.drop([:json]) |> Keyword.put(:quiet, json?)
+    # progress goes to standard error, so it stays with --json (the JSON is on stdout)
+    sel_opts = Keyword.drop(opts, [:json])
 
     case Select.validate(sel_opts) do
       {:ok, _} -> :ok
