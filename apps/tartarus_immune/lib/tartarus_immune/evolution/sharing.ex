@@ -168,6 +168,7 @@ defmodule TartarusImmune.Evolution.Sharing do
 
       dyn = Dynamics.new(MapSet.to_list(topo.edges))
       rng = Dynamics.rng(o.seed)
+
       state = %{
         net: net,
         learners: learners,

@@ -260,8 +260,7 @@ defmodule TartarusImmune.Evolution.Experiment.Density do
                converged_at:
                  per_scheme.(&mean2(for r <- &1, r.converged_at != nil, do: r.converged_at)),
                converged_runs: per_scheme.(&Enum.count(&1, fn r -> r.converged end)),
-               ratio:
-                 Map.new(tl(schemes(n)), &{label(&1), ratio(runs, n, d, &1)}),
+               ratio: Map.new(tl(schemes(n)), &{label(&1), ratio(runs, n, d, &1)}),
                p_bcast_fewer: p_value(b, i),
                p_ipkt_fewer: p_value(i, b)
              }}
