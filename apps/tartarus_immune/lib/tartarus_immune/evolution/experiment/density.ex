@@ -25,9 +25,8 @@ defmodule TartarusImmune.Evolution.Experiment.Density do
   same way, not judged.
   """
 
-  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1, label: 1]
+  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1, label: 1, run_scheme: 5]
 
-  alias TartarusImmune.Evolution.Sharing
   alias TartarusTools.{Series, Stats, SVG}
 
   @doc """
@@ -91,23 +90,8 @@ defmodule TartarusImmune.Evolution.Experiment.Density do
     }
   end
 
-  defp run_one({n, d, scheme}, seed, p) do
-    {kind, x} = if is_atom(scheme), do: {scheme, 1}, else: scheme
-
-    {:ok, r} =
-      Sharing.run(
-        nodes: n,
-        degree: d,
-        scheme: kind,
-        ipkts: x,
-        p: p.p,
-        max_iterations: p.max_iterations,
-        mode: p.mode,
-        seed: seed
-      )
-
-    r |> Map.delete(:solved) |> Map.merge(%{label: label(scheme), trial: seed - p.seed})
-  end
+  defp run_one({n, d, scheme}, seed, p),
+    do: n |> run_scheme(scheme, seed, p, degree: d) |> Map.delete(:solved)
 
   defp points_of(p),
     do: for(n <- p.sizes, d <- p.degrees, scheme <- schemes(n), do: {n, d, scheme})
