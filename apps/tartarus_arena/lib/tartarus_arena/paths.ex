@@ -100,10 +100,26 @@ defmodule TartarusArena.Paths do
   @spec types() :: [type()]
   def types, do: [:sp_a, :sp_b, :sp_c, :sp_d]
 
-  @doc "Path 1 or 2 (see the moduledoc); `seed` fixes the features' jitter."
-  @spec path(1 | 2, term()) :: t()
-  def path(1, seed) do
-    build(1, seed, {0.9, 0.3, 0.0}, 2,
+  @doc """
+  Path 1 or 2 (see the moduledoc); `seed` fixes the features' jitter. Option
+  `corner_radius` (m, default 0: sharp polygon tips): every corner of the line (a turn of
+  more than 30 degrees at one vertex: the right angles of sp-b, the 100-degree turns of
+  sp-d) is rounded into an arc of that radius tangent to both legs, as tape laid by hand
+  is; the arcs of sp-a are already round. The sub-paths keep their types, features and
+  ends.
+
+      iex> sharp = TartarusArena.Paths.path(1, 7)
+      iex> round = TartarusArena.Paths.path(1, 7, corner_radius: 0.05)
+      iex> Float.round(sharp.length - round.length, 3)
+      0.086
+      iex> Enum.map(round.subpaths, & &1.type) == Enum.map(sharp.subpaths, & &1.type)
+      true
+  """
+  @spec path(1 | 2, term(), keyword()) :: t()
+  def path(id, seed, opts \\ [])
+
+  def path(1, seed, opts) do
+    build(1, seed, {0.9, 0.3, 0.0}, 2, Keyword.get(opts, :corner_radius, 0),
       sp_c: [straight: 1.5],
       sp_a: [arc: {0.3, 90}, straight: 0.3, arc: {0.3, 90}],
       sp_b: [
@@ -121,8 +137,8 @@ defmodule TartarusArena.Paths do
     )
   end
 
-  def path(2, seed) do
-    build(2, seed, {0.9, 1.6, 0.0}, 1,
+  def path(2, seed, opts) do
+    build(2, seed, {0.9, 1.6, 0.0}, 1, Keyword.get(opts, :corner_radius, 0),
       sp_c: [straight: 1.5],
       sp_a: [arc: {0.3, 90}, straight: 0.5, arc: {0.3, 90}],
       sp_d: [
@@ -151,7 +167,7 @@ defmodule TartarusArena.Paths do
     )
   end
 
-  defp build(id, seed, {x0, y0, h0} = start, flag_colour, parts) do
+  defp build(id, seed, {x0, y0, h0} = start, flag_colour, corner_radius, parts) do
     rng = Tartarus.Random.new({:paths, seed, id})
 
     {pts, subs, _pose, _rng, _i} =
@@ -172,7 +188,7 @@ defmodule TartarusArena.Paths do
     [last | rest] = pts
     gap = G.dist(elem(last, 0), elem(last, 1), x0, y0)
     if gap > 1.0e-3, do: raise("path #{id} does not close (gap #{gap} m)")
-    points = Enum.reverse(rest)
+    {points, at} = round_corners(Enum.reverse(rest), corner_radius)
     segs = segments(points)
     n = tuple_size(segs)
     length = elem(segs, n - 1) |> then(fn {_, _, _, _, s0, len} -> s0 + len end)
@@ -182,9 +198,9 @@ defmodule TartarusArena.Paths do
       |> Enum.reverse()
       |> Enum.map_reduce(0.0, fn sp, from ->
         to =
-          if sp.npts - 1 >= n,
+          if sp.npts - 1 >= tuple_size(at),
             do: length,
-            else: elem(elem(segs, sp.npts - 1), 4)
+            else: elem(elem(segs, elem(at, sp.npts - 1)), 4)
 
         {%{index: sp.index, type: sp.type, from: from, to: to, features: sp.features}, to}
       end)
@@ -198,6 +214,55 @@ defmodule TartarusArena.Paths do
       start: {x0, y0, h0},
       flag_colour: flag_colour
     }
+  end
+
+  # Rounds every corner (a turn of more than 30 degrees at a vertex) of the closed polygon
+  # into an arc of radius r tangent to both legs; returns the points and, for each old
+  # index, the new index of that point (a corner's: its arc's first point).
+  defp round_corners(points, r) when r == 0,
+    do: {points, List.to_tuple(Enum.to_list(0..(length(points) - 1)))}
+
+  defp round_corners(points, r) do
+    pts = List.to_tuple(points)
+    n = tuple_size(pts)
+
+    {new, at, _k} =
+      Enum.reduce(0..(n - 1), {[], [], 0}, fn i, {acc, at, k} ->
+        prev = elem(pts, Integer.mod(i - 1, n))
+        here = elem(pts, i)
+        next = elem(pts, Integer.mod(i + 1, n))
+        arc = fillet(prev, here, next, r)
+        {Enum.reverse(arc, acc), [k | at], k + length(arc)}
+      end)
+
+    {Enum.reverse(new), at |> Enum.reverse() |> List.to_tuple()}
+  end
+
+  # the arc replacing vertex `here` (or [here] when the turn there is 30 degrees or less)
+  defp fillet({ax, ay}, {hx, hy} = here, {bx, by}, r) do
+    h_in = :math.atan2(hy - ay, hx - ax)
+    turn = G.wrap_angle(:math.atan2(by - hy, bx - hx) - h_in)
+
+    if abs(turn) <= :math.pi() / 6 do
+      [here]
+    else
+      t = r * :math.tan(abs(turn) / 2)
+
+      if t > G.dist(ax, ay, hx, hy) / 2 or t > G.dist(hx, hy, bx, by) / 2,
+        do:
+          raise(ArgumentError, "corner radius #{r} m does not fit the corner at #{inspect(here)}")
+
+      sign = if turn > 0, do: 1, else: -1
+      {sx, sy} = {hx - t * :math.cos(h_in), hy - t * :math.sin(h_in)}
+      cx = sx - sign * r * :math.sin(h_in)
+      cy = sy + sign * r * :math.cos(h_in)
+      steps = max(2, ceil(r * abs(turn) / 0.01))
+
+      for k <- 0..steps do
+        th = h_in + turn * k / steps
+        {cx + sign * r * :math.sin(th), cy - sign * r * :math.cos(th)}
+      end
+    end
   end
 
   defp turtle({:straight, len}, {[{x, y} | _] = pts, {_, _, h}}) do

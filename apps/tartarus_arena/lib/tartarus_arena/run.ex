@@ -75,8 +75,9 @@ defmodule TartarusArena.Run do
   Runs `pfa` over sub-path `index` of `path`, from the sub-path's start on the line
   (or from `:pose`), alone in a fresh arena with the path painted. Options: `:seed`
   (default 0), `:dt` (default 0.02 s), `:max_time` (default 4 x the sub-path's length at
-  top speed, s), `:pose`, `:noise` (as `TartarusArena.World.new/1`), `:robot` (robot
-  options). Returns the measure (see the moduledoc) with the sub-path's feature vector.
+  top speed, s), `:pose`, `:noise` (as `TartarusArena.World.new/1`), `:world` (more
+  options of `TartarusArena.World.new/1`, e.g. `line_footprint: 0.015`), `:robot` (robot
+  options, e.g. `accel: 0.5`). Returns the measure (see the moduledoc) with the sub-path's feature vector.
   """
   @spec subpath(module(), Paths.t(), non_neg_integer(), keyword()) :: subpath_result()
   def subpath(pfa, path, index, opts \\ []) do
@@ -89,8 +90,10 @@ defmodule TartarusArena.Run do
 
     world =
       World.new(
-        seed: {Keyword.get(opts, :seed, 0), path.id, index},
-        noise: Keyword.get(opts, :noise, %{})
+        [
+          seed: {Keyword.get(opts, :seed, 0), path.id, index},
+          noise: Keyword.get(opts, :noise, %{})
+        ] ++ Keyword.get(opts, :world, [])
       )
       |> Paths.add_to(path)
       |> World.add_robot(:r, Keyword.merge(robot_opts, x: x, y: y, theta: th))

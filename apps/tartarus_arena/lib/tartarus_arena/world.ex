@@ -27,6 +27,11 @@ defmodule TartarusArena.World do
   5.6 cm wheels). Each step each wheel's actual speed is the command times `max_speed`
   times `1 + N(0, noise.wheel)` (default 0.03), drawn from the world's stream.
 
+  With `accel` (m/s², default none) a wheel's actual speed follows that target at most
+  `accel * dt` per step (inertia: a robot cannot stop, start or reverse a wheel at once);
+  it starts at rest and `place/3` leaves it at rest. Without it the speed is the target at
+  once (the default: a kinematic robot).
+
   The pose is integrated with the midpoint rule: `v = (vl + vr) / 2`,
   `omega = (vr - vl) / axle`, `x += v dt cos(theta + omega dt / 2)` (same for y),
   `theta += omega dt`. A step longer than half a radius of travel is cut into sub-steps.
@@ -79,7 +84,11 @@ defmodule TartarusArena.World do
     * `line` - `{left, right}`, 0..100 reflected light of two downward sensors 6 cm ahead
       of the axle and 2.5 cm either side of the centre line: 60 on the floor, 12 on black
       tape (2 cm wide), blended over the sensor's 8 mm spot, noise N(0, 1). They straddle
-      a line: both read white when the robot is centred;
+      a line: both read white when the robot is centred. With the world's
+      `line_footprint` (a radius, m; default none) each sensor sees a disc of that radius
+      instead, and reads the black fraction of 32 points spread evenly over the disc
+      (a sunflower pattern), so a black corner or tip inside the disc counts as it covers
+      it;
     * `bumped` - whether the robot's last move was refused; `holding` - the id of the puck
       in its claws or nil; `puck_in_gripper` - whether a puck is in the gripper zone.
 
@@ -125,7 +134,8 @@ defmodule TartarusArena.World do
             markers: [],
             rng: nil,
             time: 0.0,
-            noise: %{}
+            noise: %{},
+            line_footprint: nil
 
   @default_noise %{wheel: 0.03, ultrasonic: 1.0, light: 1.0, line: 1.0, colour: 0.01}
 
@@ -150,7 +160,13 @@ defmodule TartarusArena.World do
       default: [],
       doc: "extra wall segments `{{x1, y1}, {x2, y2}}`"
     ],
-    light: [type: :keyword, default: [], doc: "`[x:, y:, on:]` (default the centre, off)"]
+    light: [type: :keyword, default: [], doc: "`[x:, y:, on:]` (default the centre, off)"],
+    line_footprint: [
+      type: {:or, [{:in, [nil]}, @pos_number]},
+      default: nil,
+      expected: "nil or a positive number",
+      doc: "radius (m) of the line sensors' disc footprint; nil: the 8 mm spot"
+    ]
   ]
 
   @robot_schema [
@@ -174,6 +190,12 @@ defmodule TartarusArena.World do
       type: {:in, [:none, :pusher, :claws]},
       default: :none,
       doc: "`:none`, `:pusher` or `:claws`"
+    ],
+    accel: [
+      type: {:or, [{:in, [nil]}, @pos_number]},
+      default: nil,
+      expected: "nil or a positive number",
+      doc: "a wheel's acceleration limit (m/s²); nil: none (kinematic)"
     ]
   ]
 
@@ -267,6 +289,7 @@ defmodule TartarusArena.World do
       walls: border ++ extra,
       rng: :rand.seed_s(Tartarus.Random.new({:arena, Keyword.get(opts, :seed, 0)})),
       noise: noise,
+      line_footprint: Keyword.get(opts, :line_footprint),
       light: %{
         x: Keyword.get(light, :x, w / 2) * 1.0,
         y: Keyword.get(light, :y, h / 2) * 1.0,
@@ -297,7 +320,9 @@ defmodule TartarusArena.World do
       cmd: {0.0, 0.0},
       held: nil,
       bumped: false,
-      odometer: 0.0
+      odometer: 0.0,
+      accel: Keyword.get(opts, :accel),
+      vel: {0.0, 0.0}
     }
 
     if Enum.any?(w.walls, &(G.dist_segment(r.x, r.y, &1) < r.radius)) or
@@ -445,7 +470,12 @@ defmodule TartarusArena.World do
   @doc "Moves a robot to a pose (no collision check: for setting up trials)."
   @spec place(t(), id(), pose()) :: t()
   def place(%__MODULE__{} = w, id, {x, y, th}),
-    do: update_robot(w, id, &%{&1 | x: x * 1.0, y: y * 1.0, theta: th * 1.0, bumped: false})
+    do:
+      update_robot(
+        w,
+        id,
+        &%{&1 | x: x * 1.0, y: y * 1.0, theta: th * 1.0, bumped: false, vel: {0.0, 0.0}}
+      )
 
   @doc """
   A robot's commanded motion: forward speed `v` (m/s) and turn rate `omega` (rad/s) of its
@@ -523,8 +553,16 @@ defmodule TartarusArena.World do
     {nl, rng} = :rand.normal_s(w.rng)
     {nr, rng} = :rand.normal_s(rng)
     w = %{w | rng: rng}
-    vl = cl * r.max_speed * (1 + w.noise.wheel * nl)
-    vr = cr * r.max_speed * (1 + w.noise.wheel * nr)
+
+    {vl, vr} =
+      wheel_speeds(
+        r,
+        cl * r.max_speed * (1 + w.noise.wheel * nl),
+        cr * r.max_speed * (1 + w.noise.wheel * nr),
+        dt
+      )
+
+    w = if r.accel, do: update_robot(w, r.id, &%{&1 | vel: {vl, vr}}), else: w
     v = (vl + vr) / 2
     om = (vr - vl) / r.axle
     n = max(1, ceil(abs(v * dt) / (r.radius / 2)))
@@ -556,6 +594,15 @@ defmodule TartarusArena.World do
       end)
 
     update_robot(w, r.id, &%{&1 | bumped: bumped})
+  end
+
+  # the wheels' actual speeds: the targets, or (with an acceleration limit) the last
+  # speeds moved towards them by at most accel * dt
+  defp wheel_speeds(%{accel: nil}, tl, tr, _dt), do: {tl, tr}
+
+  defp wheel_speeds(%{accel: a, vel: {pl, pr}}, tl, tr, dt) do
+    dv = a * dt
+    {pl + max(-dv, min(dv, tl - pl)), pr + max(-dv, min(dv, tr - pr))}
   end
 
   # Tries to move robot r to (nx, ny, nth) (with its cupped pucks if `cup`); returns the
@@ -952,8 +999,39 @@ defmodule TartarusArena.World do
   defp line_raw(w, r, side) do
     {px, py} = line_sensor_point(r, side)
     floor = floor_reflect(w, px, py)
-    c = line_coverage(w, px, py)
+
+    c =
+      if w.line_footprint,
+        do: footprint_coverage(w, px, py, w.line_footprint),
+        else: line_coverage(w, px, py)
+
     floor * (1 - c) + @black_reflect * c
+  end
+
+  # 32 points spread evenly over a disc of radius 1 (Vogel's sunflower: equal areas)
+  @sunflower (for k <- 0..31 do
+                rho = :math.sqrt((k + 0.5) / 32)
+                a = k * :math.pi() * (3 - :math.sqrt(5))
+                {rho * :math.cos(a), rho * :math.sin(a)}
+              end)
+
+  @doc false
+  # The black fraction of a disc footprint of radius `rad` at (px, py), 0..1: the share
+  # of the sunflower's points on a line (within half its width of a segment).
+  def footprint_coverage(w, px, py, rad) do
+    on =
+      Enum.count(@sunflower, fn {u, v} ->
+        x = px + rad * u
+        y = py + rad * v
+
+        w.line_index
+        |> Map.get({cell(x), cell(y)}, [])
+        |> Enum.any?(fn {ax, ay, bx, by, width} ->
+          G.dist_segment(x, y, {ax, ay, bx, by}) <= width / 2
+        end)
+      end)
+
+    on / 32
   end
 
   @doc """

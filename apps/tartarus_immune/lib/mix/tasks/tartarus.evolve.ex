@@ -4,9 +4,9 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   Runs the embodied-evolution experiments of thesis ch. 7 (see
   `TartarusImmune.Evolution.Experiment`).
 
-      mix tartarus.evolve [--experiment sharing|s1|s2|s2_fixed|s3|monolithic|robots3|robots3_dynamic]
-                          [--seeds 10]
-                          [--sizes 20,40,80] [--p 0.1] [--max-iterations 3000]
+      mix tartarus.evolve [--experiment sharing|density|s1|s2|s2_fixed|s3|monolithic|robots3|robots3_dynamic]
+                          [--seeds 10] [--sizes 20,40,80] [--degrees 1,2,3,5,8,12,16]
+                          [--p 0.1] [--max-iterations 3000]
                           [--mode virtual|peer] [--recovery 0] [--period 30]
                           [--loop while_in_region|once] [--max-inner 10]
                           [--min-period 1] [--puck-reward sum|product]
@@ -89,6 +89,20 @@ defmodule Mix.Tasks.Tartarus.Evolve do
   setup_ms, run_ms`, and `sweep` (`TartarusEmu.Sweep`: per-arm aggregates, box plots, and
   for `s1`-`s3` the test of immune against monolithic). With `--json` the last line printed is the summary as one JSON object.
 
+  `density` (thesis ch. 8: iPkts for dense networks, broadcast for sparse ones): the
+  `sharing` experiment at each size of `--sizes` (give one or two: `--sizes 40`) and each
+  number of link stubs per node of `--degrees` (potential neighbours at most; Fig. 7.6
+  has 5), broadcast against iPkts in Fig. 7.6's three numbers, `--seeds` runs each
+  (`TartarusImmune.Evolution.Experiment.Density`). Output: `runs.csv` (nodes, degree,
+  scheme, trial, potential and live mean degree, gamma_avg, omega, first_solved_at,
+  converged_at, iterations), `density_ratio.svg` (gamma_avg of iPkts over broadcast
+  against the live mean degree), `density_gamma.svg`, box plots per arm. Summary:
+  `density` (size -> `by_degree` (degree -> live degree, gamma_avg, omega,
+  converged_at and ratio per scheme, `p_bcast_fewer`, `p_ipkt_fewer`: one-sided
+  Mann-Whitney of the n/10 iPkts' gamma_avg against broadcast's), `crossover` per iPkt
+  count (the live degree where the ratio crosses 1, or null), `claim_reproduced`),
+  `claim_reproduced` per size.
+
   `robots3` (§7.4.2): three robots learn S3 in one arena, each a host of an emulated
   network, sharing their best antibodies every 5 iterations by broadcast or by one packet
   agent, against no sharing, on the same seeds (`TartarusImmune.Evolution.Collective`).
@@ -119,6 +133,10 @@ defmodule Mix.Tasks.Tartarus.Evolve do
       Experiment.schema()
       |> Keyword.drop([:quiet])
       |> Keyword.update!(:sizes, &Keyword.merge(&1, type: :string, default: "20,40,80"))
+      |> Keyword.update!(
+        :degrees,
+        &Keyword.merge(&1, type: :string, default: "1,2,3,5,8,12,16")
+      )
       |> Keyword.update!(:out, &Keyword.put(&1, :type, :string))
       |> Keyword.put(:json, type: :boolean, default: false, doc: "print the summary as JSON")
 
@@ -128,7 +146,11 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     exp_opts =
       opts
       |> Keyword.drop([:json])
-      |> Keyword.merge(sizes: parse_sizes!(opts[:sizes]), quiet: json?)
+      |> Keyword.merge(
+        sizes: parse_list!(opts[:sizes], "--sizes", 2),
+        degrees: parse_list!(opts[:degrees], "--degrees", 1),
+        quiet: json?
+      )
 
     exp_opts = if opts[:out], do: exp_opts, else: Keyword.delete(exp_opts, :out)
     Mix.Task.run("app.start")
@@ -142,14 +164,14 @@ defmodule Mix.Tasks.Tartarus.Evolve do
     end
   end
 
-  defp parse_sizes!(text) do
-    sizes = text |> String.split(",", trim: true) |> Enum.map(&Integer.parse(String.trim(&1)))
+  defp parse_list!(text, flag, least) do
+    xs = text |> String.split(",", trim: true) |> Enum.map(&Integer.parse(String.trim(&1)))
 
-    if sizes != [] and Enum.all?(sizes, &match?({n, ""} when n >= 2, &1)),
-      do: Enum.map(sizes, &elem(&1, 0)),
+    if xs != [] and Enum.all?(xs, &match?({n, ""} when n >= least, &1)),
+      do: Enum.map(xs, &elem(&1, 0)),
       else:
         Mix.raise(
-          "mix #{@task}: invalid value for --sizes: expected comma-separated integers of at least 2, got: #{inspect(text)}"
+          "mix #{@task}: invalid value for #{flag}: expected comma-separated integers of at least #{least}, got: #{inspect(text)}"
         )
   end
 
@@ -197,6 +219,35 @@ defmodule Mix.Tasks.Tartarus.Evolve do
         "evolve: #{s.experiment}, #{s.trials} trials, f_puck #{s.puck_reward}, min period #{s.min_period}, score #{s.score}"
       ] ++
         rows ++ test ++ ["  written to #{dir}"],
+      "\n"
+    )
+  end
+
+  defp text(%{experiment: "density"} = s, dir) do
+    rows =
+      for {n, size} <- Enum.sort_by(s.density, &String.to_integer(elem(&1, 0))) do
+        per_degree =
+          for {d, b} <- Enum.sort_by(size.by_degree, &String.to_integer(elem(&1, 0))) do
+            ratios =
+              b.ratio
+              |> Enum.sort_by(&order(elem(&1, 0)))
+              |> Enum.map_join(", ", fn {l, r} -> "#{l} #{TartarusTools.CLI.show(r)}" end)
+
+            "    stubs #{String.pad_leading(d, 2)} (live #{TartarusTools.CLI.show(b.live_degree)})  gamma_avg b-cast #{TartarusTools.CLI.show(b.gamma_avg["b-cast"])}  iPkt/b-cast #{ratios}  p(b-cast fewer) #{b.p_bcast_fewer}  p(iPkt fewer) #{b.p_ipkt_fewer}"
+          end
+
+        Enum.join(
+          [
+            "  #{n} nodes (judged: #{size.judged}); crossover (live degree) #{TartarusTools.CLI.show(size.crossover)}; claim reproduced: #{size.claim_reproduced}"
+            | per_degree
+          ],
+          "\n"
+        )
+      end
+
+    Enum.join(
+      ["evolve: density, #{s.trials} trials per point, seeds #{s.seeds}"] ++
+        rows ++ ["  written to #{dir}"],
       "\n"
     )
   end

@@ -11,6 +11,7 @@ defmodule TartarusImmune.Evolution.Experiment do
   | `robots3` | `TartarusImmune.Evolution.Experiment.Robots3` | `none`, `broadcast`, `ipkt` |
   | `robots3_dynamic` | `TartarusImmune.Evolution.Experiment.Robots3` | also `broadcast_dynamic`, `ipkt_dynamic` |
   | `sharing` | `TartarusImmune.Evolution.Experiment.SharingSizes` | `<n>: <scheme>` |
+  | `density` | `TartarusImmune.Evolution.Experiment.Density` | `n<n> d<degree>: <scheme>` |
 
 
   `s1`, `s2`, `s3` (§7.3.1, Figs. 7.3-7.5): `trials` runs of one robot learning the
@@ -33,6 +34,10 @@ defmodule TartarusImmune.Evolution.Experiment do
   the baseline) and how `gamma_avg` and `Omega`
   are measured. A step of the scenario is one (size, scheme) point.
 
+  `density` (ch. 8's dense-versus-sparse claim): the sharing experiment at each size of
+  `sizes` and each number of link stubs per node of `degrees`, broadcast against Fig.
+  7.6's three iPkt counts; see `TartarusImmune.Evolution.Experiment.Density`.
+
   `robots3` (§7.4.2): three robots learning S3 in one arena, sharing antibodies by
   broadcast, by a packet agent, or not at all (`TartarusImmune.Evolution.Collective`), on
   the same seeds; a step is one trial.
@@ -47,7 +52,7 @@ defmodule TartarusImmune.Evolution.Experiment do
 
   alias Tartarus.Clock
   alias TartarusEmu.{Scenario, Sweep}
-  alias TartarusImmune.Evolution.Experiment.{Robots3, SharingSizes, Trials}
+  alias TartarusImmune.Evolution.Experiment.{Density, Robots3, SharingSizes, Trials}
   alias TartarusTools.Report
 
   @experiments %{
@@ -58,27 +63,39 @@ defmodule TartarusImmune.Evolution.Experiment do
     monolithic: Trials,
     robots3: Robots3,
     robots3_dynamic: Robots3,
-    sharing: SharingSizes
+    sharing: SharingSizes,
+    density: Density
   }
 
   @schema [
     experiment: [
-      type: {:in, [:s1, :s2, :s2_fixed, :s3, :monolithic, :robots3, :robots3_dynamic, :sharing]},
+      type:
+        {:in,
+         [:s1, :s2, :s2_fixed, :s3, :monolithic, :robots3, :robots3_dynamic, :sharing, :density]},
       default: :sharing,
       doc: "which experiment"
     ],
-    sizes: [type: {:list, :pos_integer}, default: [20, 40, 80], doc: "`sharing`: network sizes"],
+    sizes: [
+      type: {:list, :pos_integer},
+      default: [20, 40, 80],
+      doc: "`sharing`, `density`: network sizes"
+    ],
+    degrees: [
+      type: {:list, :pos_integer},
+      default: [1, 2, 3, 5, 8, 12, 16],
+      doc: "`density`: link stubs per node (potential neighbours at most), one point each"
+    ],
     trials: [type: :pos_integer, default: 10, doc: "runs per point (seeds seed, seed + 1, ...)"],
     p: [
       type: :probability,
       default: 0.1,
       doc:
-        "`sharing`: per-iteration link flap probability; `robots3_dynamic`: the same per tick of 3 s"
+        "`sharing`, `density`: per-iteration link flap probability; `robots3_dynamic`: the same per tick of 3 s"
     ],
     max_iterations: [
       type: :pos_integer,
       default: 3000,
-      doc: "`sharing`: a run gives up after this"
+      doc: "`sharing`, `density`: a run gives up after this"
     ],
     mode: [type: {:in, [:virtual, :peer]}, default: :virtual, doc: "where hosts run"],
     recovery: [

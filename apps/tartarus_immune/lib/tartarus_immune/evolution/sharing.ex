@@ -15,11 +15,14 @@ defmodule TartarusImmune.Evolution.Sharing do
 
   ## The network
 
-  `nodes` nodes, each with up to 5 potential neighbours (a random pairing of 5 link
-  "stubs" per node; `topology/2`). Each link flaps as a two-state Markov chain
-  (`TartarusEmu.Dynamics`, probability `p` per iteration both ways): half the links are
-  down at any time, so a node has between 0 (isolated) and 5 neighbours and they change
-  at random, as in the thesis.
+  `nodes` nodes, each with up to `degree` (5) potential neighbours (a random pairing of
+  `degree` link "stubs" per node; `topology/3`). Each link flaps as a two-state Markov
+  chain (`TartarusEmu.Dynamics`, probability `p` per iteration both ways): every link
+  starts up and half are down in the long run, so a node has between 0 (isolated) and 5
+  neighbours and they change at random, as in the thesis. `degree` is the density knob of
+  the `density` experiment (`TartarusImmune.Evolution.Experiment.Density`); the result
+  reports the potential graph's mean degree (`potential_degree`) and the mean number of
+  live neighbours per node over the run's iterations (`mean_degree`).
 
   ## What is measured
 
@@ -52,6 +55,11 @@ defmodule TartarusImmune.Evolution.Sharing do
       doc: "how controllers are shared"
     ],
     ipkts: [type: :pos_integer, default: 1, doc: "iPkts (scheme `:ipkt`)"],
+    degree: [
+      type: :pos_integer,
+      default: 5,
+      doc: "link stubs per node: potential neighbours at most (5, the thesis's)"
+    ],
     p: [
       type: :probability,
       default: 0.1,
@@ -72,20 +80,24 @@ defmodule TartarusImmune.Evolution.Sharing do
   def schema, do: @schema
 
   @doc """
-  The potential-neighbour graph: nodes `"n1".."nN"`, each with at most 5 neighbours (5
-  stubs per node, shuffled with `seed` and paired; self-pairs and repeats dropped).
+  The potential-neighbour graph: nodes `"n1".."nN"`, each with at most `degree` (5)
+  neighbours (`degree` stubs per node, shuffled with `seed` and paired; self-pairs and
+  repeats dropped).
 
       iex> t = TartarusImmune.Evolution.Sharing.topology(40, 1)
       iex> Enum.all?(t.nodes, &(length(TartarusEmu.Topology.neighbours(t, &1)) <= 5))
       true
-      iex> t == TartarusImmune.Evolution.Sharing.topology(40, 1)
+      iex> t == TartarusImmune.Evolution.Sharing.topology(40, 1, 5)
+      true
+      iex> t = TartarusImmune.Evolution.Sharing.topology(40, 1, 12)
+      iex> Enum.all?(t.nodes, &(length(TartarusEmu.Topology.neighbours(t, &1)) <= 12))
       true
   """
-  @spec topology(pos_integer(), integer()) :: Topology.t()
-  def topology(n, seed) do
+  @spec topology(pos_integer(), integer(), pos_integer()) :: Topology.t()
+  def topology(n, seed, degree \\ 5) do
     names = for i <- 1..n, do: "n#{i}"
     rng = :rand.seed_s(:exsss, {seed, 7, 5})
-    stubs = for name <- names, _ <- 1..5, do: name
+    stubs = for name <- names, _ <- 1..degree, do: name
 
     {shuffled, _} =
       stubs
@@ -110,9 +122,9 @@ defmodule TartarusImmune.Evolution.Sharing do
 
   #{Tartarus.Options.docs(@schema)}
 
-  Returns `{:ok, result}` with `nodes, scheme, ipkts, iterations, first_solved_at,
-  converged_at, converged, omega, gamma_avg, communications` (a map of the counters
-  summed) and `solved` (`[{iteration, solved_nodes}]`), or `{:error, message}`.
+  Returns `{:ok, result}` with `nodes, scheme, ipkts, degree, potential_degree,
+  mean_degree, iterations, first_solved_at, converged_at, converged, omega, gamma_avg,
+  communications` (a map of the counters summed) and `solved` (`[{iteration, solved_nodes}]`), or `{:error, message}`.
   """
   @spec run(keyword()) :: {:ok, map()} | {:error, String.t()}
   def run(opts) do
@@ -122,7 +134,7 @@ defmodule TartarusImmune.Evolution.Sharing do
   end
 
   defp do_run(o) do
-    topo = topology(o.nodes, o.seed)
+    topo = topology(o.nodes, o.seed, o.degree)
     {:ok, net} = Network.start(topo, mode: o.mode)
 
     try do
@@ -156,7 +168,18 @@ defmodule TartarusImmune.Evolution.Sharing do
 
       dyn = Dynamics.new(MapSet.to_list(topo.edges))
       rng = Dynamics.rng(o.seed)
-      state = %{net: net, learners: learners, ipkts: ipkts, dyn: dyn, rng: rng, shared: 0}
+
+      state = %{
+        net: net,
+        learners: learners,
+        ipkts: ipkts,
+        dyn: dyn,
+        rng: rng,
+        shared: 0,
+        edges: MapSet.size(topo.edges),
+        live: 0
+      }
+
       result = loop(o, state, 1, nil, [])
       totals = Log.settled_totals(log)
       Log.stop(log)
@@ -170,6 +193,8 @@ defmodule TartarusImmune.Evolution.Sharing do
         nodes: o.nodes,
         scheme: o.scheme,
         ipkts: if(o.scheme == :ipkt, do: o.ipkts, else: 0),
+        degree: o.degree,
+        potential_degree: Float.round(2 * MapSet.size(topo.edges) / o.nodes, 2),
         communications: comm,
         gamma_avg: Float.round(Enum.sum(Map.values(comm)) / o.nodes, 2)
       })
@@ -186,7 +211,9 @@ defmodule TartarusImmune.Evolution.Sharing do
       {:up, {a, b}} -> Network.heal_link(s.net, a, b)
     end)
 
-    s = %{s | dyn: dyn, rng: rng}
+    # live links this iteration, for the mean degree over the run
+    live = s.live + s.edges - length(Dynamics.down(dyn))
+    s = %{s | dyn: dyn, rng: rng, live: live}
     _ = ask_all(s.learners, :iterate)
     s = share(o.scheme, s)
     solved = s.learners |> ask_all(:status) |> Enum.count(& &1.solved)
@@ -195,15 +222,17 @@ defmodule TartarusImmune.Evolution.Sharing do
 
     cond do
       solved >= o.converge * o.nodes ->
-        finish(first, t, series, t)
+        Map.put(finish(first, t, series, t), :mean_degree, mean_degree(s, o, t))
 
       t >= o.max_iterations ->
-        finish(first, nil, series, t)
+        Map.put(finish(first, nil, series, t), :mean_degree, mean_degree(s, o, t))
 
       true ->
         loop(o, s, t + 1, first, series)
     end
   end
+
+  defp mean_degree(s, o, t), do: Float.round(2 * s.live / (o.nodes * t), 2)
 
   defp finish(first, t90, series, t) do
     %{

@@ -25,6 +25,32 @@ defmodule TartarusImmune.Evolution.Experiment.Shared do
   def label(:broadcast), do: "b-cast"
   def label({:ipkt, x}), do: "iPkt-#{x}"
 
+  @doc """
+  One run of the sharing experiment (`TartarusImmune.Evolution.Sharing.run/1`) of `n`
+  nodes with `scheme` on `seed`, under the experiment's options `p` (`p`,
+  `max_iterations`, `mode`, `seed`) and `extra` options of the run; the result gets the
+  scheme's `label` and the `trial` (`seed - p.seed`).
+  """
+  @spec run_scheme(pos_integer(), term(), integer(), map(), keyword()) :: map()
+  def run_scheme(n, scheme, seed, p, extra \\ []) do
+    {kind, x} = if is_atom(scheme), do: {scheme, 1}, else: scheme
+
+    {:ok, r} =
+      TartarusImmune.Evolution.Sharing.run(
+        [
+          nodes: n,
+          scheme: kind,
+          ipkts: x,
+          p: p.p,
+          max_iterations: p.max_iterations,
+          mode: p.mode,
+          seed: seed
+        ] ++ extra
+      )
+
+    Map.merge(r, %{label: label(scheme), trial: seed - p.seed})
+  end
+
   @doc false
   # the mean to 2 decimals, nil for none (the experiments' summaries)
   @spec mean2([number()]) :: float() | nil

@@ -8,9 +8,9 @@ defmodule TartarusImmune.Evolution.Experiment.SharingSizes do
   point. Run it with `TartarusImmune.Evolution.Experiment.run/1`.
   """
 
-  import TartarusImmune.Evolution.Experiment.Shared, only: [mean2: 1, schemes: 1, label: 1]
+  import TartarusImmune.Evolution.Experiment.Shared,
+    only: [mean2: 1, schemes: 1, label: 1, run_scheme: 4]
 
-  alias TartarusImmune.Evolution.Sharing
   alias TartarusTools.{Series, Stats, SVG}
 
   @doc "The sweep (arms, seeds, run, metrics, rows of `runs.csv`) for options `p`."
@@ -45,22 +45,8 @@ defmodule TartarusImmune.Evolution.Experiment.SharingSizes do
     }
   end
 
-  defp run_one({n, scheme}, seed, p) do
-    {kind, x} = if is_atom(scheme), do: {scheme, 1}, else: scheme
-
-    {:ok, r} =
-      Sharing.run(
-        nodes: n,
-        scheme: kind,
-        ipkts: x,
-        p: p.p,
-        max_iterations: p.max_iterations,
-        mode: p.mode,
-        seed: seed
-      )
-
-    Map.merge(r, %{label: label(scheme), trial: seed - p.seed, wall_ms: nil})
-  end
+  defp run_one({n, scheme}, seed, p),
+    do: n |> run_scheme(scheme, seed, p) |> Map.put(:wall_ms, nil)
 
   defp points_of(p), do: for(n <- p.sizes, scheme <- schemes(n), do: {n, scheme})
 
