@@ -137,7 +137,7 @@ defmodule TartarusArena.SensitivityTest do
     )
 
     assert_received {:mix_shell, :info, [json]}
-    {:ok, s} = TartarusTools.JSON.decode(json)
+    {:ok, s} = Tartarus.JSON.decode(json)
     assert s["experiment"] == "sensitivity" and s["pfas"] == ["A4"]
     assert s["conditions"]["all"]["best"]["sp_b"] == "A4"
     assert s["provenance"]["argv"] != nil

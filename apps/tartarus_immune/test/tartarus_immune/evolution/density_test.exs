@@ -87,7 +87,7 @@ defmodule TartarusImmune.Evolution.DensityTest do
       )
 
       assert_received {:mix_shell, :info, [json]}
-      {:ok, s} = TartarusTools.JSON.decode(json)
+      {:ok, s} = Tartarus.JSON.decode(json)
       assert s["experiment"] == "density" and s["degrees"] == [2]
       assert is_boolean(s["claim_reproduced"]["8"])
       assert s["provenance"]["argv"] != nil
