@@ -9,9 +9,7 @@ defmodule TartarusWarehouse.Service do
 
   The owning agent keeps the service in its state: `admit/4` when a message arrives (it
   returns the wake-up to arm, if any), `due/2` when that wake-up comes (the messages now
-  done, to handle in order). Messages that arrive at the same instant are served in an
-  order of their contents (`:erlang.phash2/1`), not of their delivery, so a run in virtual
-  time replays. Every message served is logged as `{arrived_us, started_us,
+  done, to handle in order). Every message served is logged as `{arrived_us, started_us,
   done_us}` (µs of `Tartarus.Clock.monotonic_time/1`: in virtual time, the declared service
   time, not the machine's); `stats/3` and `timeline/4` read the log: the busy fraction
   (utilisation) and the queue length (messages waiting or in service) over time.
@@ -26,15 +24,6 @@ defmodule TartarusWarehouse.Service do
       iex> {s, [:b], nil} = Service.due(s, 5_000)
       iex> Service.stats(s.log, 1_000, 5_000)
       %{busy: 1.0, messages: 2, mean_wait_ms: 0.75, max_queue: 2}
-
-  Two messages at one instant take the same slots in either order of delivery:
-
-      iex> alias TartarusWarehouse.Service
-      iex> serve = fn items -> Enum.reduce(items, Service.new(2.0), &elem(Service.admit(&2, &1, 0, false), 0)) |> Service.due(9_000) |> elem(1) end
-      iex> serve.([:x, :y]) == serve.([:y, :x])
-      true
-      iex> serve.([:x, :y]) |> Enum.sort()
-      [:x, :y]
   """
 
   alias Tartarus.Clock
@@ -94,41 +83,9 @@ defmodule TartarusWarehouse.Service do
     # (monotonic time may be negative: nothing served yet is nil, not 0)
     start = if s.free_at, do: max(now_us, s.free_at), else: now_us
     done = start + s.service_us
-    queue = ties(:queue.in({item, {now_us, start, done}}, s.queue), now_us)
-    s = %{s | free_at: done, queue: queue}
+    s = %{s | free_at: done, queue: :queue.in({item, {now_us, start, done}}, s.queue)}
 
     if s.armed, do: {s, nil}, else: {%{s | armed: true}, {:wake_at_ms, ceil_ms(done)}}
-  end
-
-  # Messages that arrive at the same instant are served in an order of their contents, not
-  # in the order the VM delivered them: in virtual time such ties are common (latencies are
-  # whole ms), and the order in which two processes' messages reach a third at one instant
-  # is the machine's (a heap collected on a dirty scheduler can swap them), so a run would
-  # not replay. The slots (times) stay; only which message takes which slot changes, among
-  # the queue's last messages, those that arrived now (none is handled yet: a message is
-  # handled at its slot's end, after this instant).
-  defp ties(queue, now_us) do
-    {tied, rest} = tied_tail(:queue.reverse(queue), now_us, [])
-
-    case tied do
-      [_] ->
-        queue
-
-      _ ->
-        items = tied |> Enum.map(&elem(&1, 0)) |> Enum.sort_by(&:erlang.phash2/1)
-        slots = Enum.map(tied, &elem(&1, 1))
-        Enum.reduce(Enum.zip(items, slots), :queue.reverse(rest), &:queue.in/2)
-    end
-  end
-
-  defp tied_tail(rev, now_us, acc) do
-    case :queue.out(rev) do
-      {{:value, {_, {^now_us, _, _}} = entry}, more} ->
-        tied_tail(more, now_us, [entry | acc])
-
-      _ ->
-        {acc, rev}
-    end
   end
 
   @doc """
