@@ -1,3 +1,5 @@
+Code.require_file("support/peer_line.exs", __DIR__)
+
 defmodule Tartarus.DashboardFleetBrowserTest do
   # The fleet seen from one node, in a real headless Chromium: three peer nodes, one host
   # each, linked in a line h1 (node a) - h2 (node b) - h3 (node c), so that c is reached from
@@ -19,19 +21,7 @@ defmodule Tartarus.DashboardFleetBrowserTest do
   @shots Path.expand("../_build/dashboard", __DIR__)
 
   setup do
-    {:ok, peers} = TartarusTools.Peer.start_many("fleet", 3)
-    [a, b, c] = nodes = peers |> Enum.map(&elem(&1, 1)) |> Enum.sort()
-
-    on_exit(fn ->
-      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
-      for n <- nodes, do: refute(n in Node.list())
-    end)
-
-    {:ok, h1} = :erpc.call(a, Tartarus, :start_host, [:h1])
-    {:ok, h2} = :erpc.call(b, Tartarus, :start_host, [:h2])
-    {:ok, h3} = :erpc.call(c, Tartarus, :start_host, [:h3])
-    :ok = Tartarus.connect(h1, h2)
-    :ok = Tartarus.connect(h2, h3)
+    %{nodes: [a, b, c], hosts: [h1, h2, h3]} = Tartarus.PeerLine.start!("fleet")
 
     sensor = Tartarus.Plugin.SimSensor
 

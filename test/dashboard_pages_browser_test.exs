@@ -1,3 +1,5 @@
+Code.require_file("support/peer_line.exs", __DIR__)
+
 defmodule Tartarus.DashboardPagesBrowserTest do
   # The dashboard's addresses and pages in a real headless Chromium, over three peer nodes
   # (hosts h1 on a, h2 on b, h3 on c, linked in a line; the dashboard on a): an agent's
@@ -20,19 +22,7 @@ defmodule Tartarus.DashboardPagesBrowserTest do
   @shots Path.expand("../_build/dashboard", __DIR__)
 
   setup do
-    {:ok, peers} = TartarusTools.Peer.start_many("pages", 3)
-    [a, b, c] = nodes = peers |> Enum.map(&elem(&1, 1)) |> Enum.sort()
-
-    on_exit(fn ->
-      Enum.each(peers, fn {pid, _} -> TartarusTools.Peer.stop(pid) end)
-      for n <- nodes, do: refute(n in Node.list())
-    end)
-
-    {:ok, h1} = :erpc.call(a, Tartarus, :start_host, [:h1])
-    {:ok, h2} = :erpc.call(b, Tartarus, :start_host, [:h2])
-    {:ok, h3} = :erpc.call(c, Tartarus, :start_host, [:h3])
-    :ok = Tartarus.connect(h1, h2)
-    :ok = Tartarus.connect(h2, h3)
+    %{nodes: [a, b, c], hosts: [h1, _h2, h3]} = Tartarus.PeerLine.start!("pages")
 
     echo = Tartarus.Examples.Echo
     {:ok, alpha} = :erpc.call(a, Tartarus, :create_mobile_agent, [h1, echo, nil, [name: "alpha"]])
