@@ -80,6 +80,9 @@ defmodule Tartarus.AgentTable do
   def unregister(id, pid, host_name, name, module),
     do: :ets.delete_object(@table, {id, pid, host_name, name, module})
 
+  # Removes `id`'s entry if it names `pid`.
+  def unregister_pid(id, pid), do: :ets.match_delete(@table, {id, pid, :_, :_, :_})
+
   # {:ok, pid, host_name} for a live agent of this node.
   def lookup(id) do
     case :ets.lookup(@table, id) do
@@ -88,6 +91,15 @@ defmodule Tartarus.AgentTable do
 
       [] ->
         :error
+    end
+  end
+
+  # {:ok, pid, host_name} for agent `id`'s entry, its process alive or not: a dead one's entry
+  # stays while its host decides on a restart (Tartarus.Ledger.take_resident/2).
+  def entry(id) do
+    case :ets.lookup(@table, id) do
+      [{^id, pid, host_name, _name, _module}] -> {:ok, pid, host_name}
+      [] -> :error
     end
   end
 

@@ -20,8 +20,8 @@ defmodule Tartarus.Ledger do
   |---|---|---|---|
   | `:neighbours` | `[host]` | `new/1`, `add_link/3`, `remove_link/2` (Host.Server: connect, disconnect) | `neighbours/1` (transport, signals, broadcasts, locator, status) |
   | `{:link, host}` | `%{latency_ms:, loss:}` | `add_link/3`, `remove_link/2` | `link/2` (Tartarus.Transport) |
-  | `:population` | `resident, visits` | `new/1`, `register_resident/3`, `forget_resident/2` | `counter/2` (`:resident`, `:visits`) |
-  | `{:agent, pid}` | `id, name, module`: a resident agent | `register_resident/3`, `forget_resident/2` (agent process; host server for a dead one) | `residents/1`, `locate/2` |
+  | `:population` | `resident, visits` | `new/1`, `register_resident/3`, `forget_resident/2`, `take_resident/2` | `counter/2` (`:resident`, `:visits`) |
+  | `{:agent, pid}` | `id, name, module`: a resident agent | `register_resident/3`, `forget_resident/2` (agent process), `take_resident/2` (host server, for a dead one) | `residents/1`, `locate/2` |
   | `{:fwd, id}` | `:handoff, mig, source_pid`: an undecided hand-off (move or clone) of resident agent `id`, written before `prepare` leaves | `begin_handoff/3`; goes with `end_handoff/3` (abort), `put_pointer/7` (a move's commit: one write), `abort_pending/3`, `drop_handoffs/3` | `decision/4`, `abort_pending/3`, `departed?/2`, `handoffs/1` |
   | `{:fwd, id \\| name}` | `dest_host, at_us, {mig, copy} \\| :acked \\| :name, notify`: a forwarding pointer (an id's names its migration until the copy acknowledges; a name's never stands for a decision) | `put_pointer/7`, `acknowledge/4` (marks `:acked`); goes with `register_resident/3`, `forget_pointers/3`, `sweep_pointers/2` | `decision/4`, `locate/2`, `pointers/1`, `forwarding_pointers/1`, `abort_pending/3`, `departed?/2` |
   | `{:decision, mig}` | `{:committed, copy}`: a clone's commit until the clone acknowledges (and, after a restart with persistence, every journaled commit) | `decide/3`, `new/1`; goes with `acknowledge/4` | `decision/4`, `decisions/1` |
@@ -211,14 +211,56 @@ defmodule Tartarus.Ledger do
   @doc "Process `pid` is no longer resident here. True if it was."
   @spec forget_resident(host(), pid()) :: boolean()
   def forget_resident(host, pid) do
-    case :ets.take(host.ledger, {:agent, pid}) do
-      [{_, id, name, module}] ->
+    case take_resident(host, pid) do
+      {id, name, module} ->
         Tartarus.AgentTable.unregister(id, pid, elem(host.ref, 0), name, module)
-        :ets.update_counter(host.ledger, :population, {2, -1})
         true
 
-      [] ->
+      nil ->
         false
+    end
+  end
+
+  @doc """
+  The host's server handles the end of resident process `pid` (its `:DOWN`): `pid` is no
+  longer resident here, but the node's agent table keeps its entry, so that `locate/2` finds
+  the agent in transition (`{:arriving, pid}`) while the server decides. A restart replaces
+  the entry with the new process's; any other outcome removes it (`unregister_ended/3`).
+  Returns `{id, name, module}`, or nil if `pid` was not resident.
+  """
+  @spec take_resident(host(), pid()) :: {binary(), term(), module()} | nil
+  def take_resident(host, pid) do
+    case :ets.take(host.ledger, {:agent, pid}) do
+      [{_, id, name, module}] ->
+        :ets.update_counter(host.ledger, :population, {2, -1})
+        {id, name, module}
+
+      [] ->
+        nil
+    end
+  end
+
+  @doc "The node's agent table forgets ended process `pid` (see `take_resident/2`)."
+  @spec unregister_ended(host(), pid(), {binary(), term(), module()}) :: true
+  def unregister_ended(host, pid, {id, name, module}),
+    do: Tartarus.AgentTable.unregister(id, pid, elem(host.ref, 0), name, module)
+
+  @doc """
+  The node's agent table forgets agent `id`'s entry at this host if its process is dead: a
+  restarted process that ended before it registered leaves no entry of its crashed
+  predecessor behind (see `take_resident/2`).
+  """
+  @spec unregister_dead(host(), binary()) :: :ok
+  def unregister_dead(host, id) do
+    {name, _} = host.ref
+
+    case Tartarus.AgentTable.entry(id) do
+      {:ok, pid, ^name} when node(pid) == node() ->
+        unless Process.alive?(pid), do: Tartarus.AgentTable.unregister_pid(id, pid)
+        :ok
+
+      _ ->
+        :ok
     end
   end
 
@@ -700,7 +742,9 @@ defmodule Tartarus.Ledger do
 
   @doc """
   Where is `agent` (an id or a name) as far as this host knows: `{:here, pid, id}`,
-  `{:arriving, pid}`, `{:moved, dest}` or `:not_found`.
+  `{:arriving, pid}`, `{:moved, dest}` or `:not_found`. `{:arriving, pid}` also stands for a
+  resident whose process `pid` ended while this host's server decides whether to restart it
+  (`take_resident/2`): a caller tries again, as for an arriving copy.
   """
   @spec locate(host(), term()) ::
           {:here, pid(), term()} | {:arriving, pid()} | {:moved, term()} | :not_found
@@ -713,6 +757,17 @@ defmodule Tartarus.Ledger do
     end
   end
 
+  # A resident whose process ended and whose host has not yet restarted or removed it (see
+  # take_resident/2): in transition, like an arriving copy; a reader tries again.
+  defp ending(host, agent) do
+    {name, _} = host.ref
+
+    case Tartarus.AgentTable.entry(agent) do
+      {:ok, pid, ^name} -> [{{:arriving, agent}, pid}]
+      _ -> []
+    end
+  end
+
   # Not resident here: arriving, or gone on (a forwarding pointer). An arriving agent
   # registers before it drops its `arriving` entry (and the forwarding pointer of its
   # previous visit), and a departing one writes its pointer before it leaves the table: a
@@ -721,7 +776,8 @@ defmodule Tartarus.Ledger do
   # reader's looks: then the pointer it left is there now.)
   defp locate_elsewhere(host, agent, again \\ true) do
     with [] <- :ets.lookup(host.ledger, {:arriving, agent}),
-         [] <- pointer(host, agent) do
+         [] <- pointer(host, agent),
+         [] <- ending(host, agent) do
       if again, do: just_arrived(host, agent), else: locate_by_name(host, agent)
     else
       [{_, pid}] -> {:arriving, pid}

@@ -308,6 +308,43 @@ defmodule Tartarus.AgentTest do
       assert_receive {:probe_arrived, ^id, %{restarts: 1}, _}
     end
 
+    test "a message sent while the host decides on a crashed agent's restart reaches the restarted agent" do
+      # Between the crash and the restarted process's registration the agent is in neither
+      # the node's agent table (as a live process) nor the ledger's residents: it once
+      # answered {:error, :not_found} in that window (seen by the junk property test).
+      h = host!()
+      id = agent!(h, %{}, owner: self())
+      {:ok, server} = Tartarus.Host.Directory.whereis(addr(h))
+      {:ok, old, _} = Tartarus.AgentTable.lookup(id)
+      # The host's server cannot handle the crash until resumed.
+      :ok = :sys.suspend(server)
+
+      try do
+        mref = Process.monitor(old)
+        :ok = Tartarus.post({id, h}, :crash)
+        assert_receive {:DOWN, ^mref, :process, ^old, _}
+        asker = Task.async(fn -> Tartarus.request({id, h}, :state, 5_000) end)
+        assert Task.yield(asker, 100) == nil
+        :ok = :sys.resume(server)
+        assert {:ok, _} = Task.await(asker)
+      after
+        :sys.resume(server)
+      end
+
+      assert_receive {:probe_arrived, ^id, %{restarts: 1}, _}
+      {:ok, new, _} = Tartarus.AgentTable.lookup(id)
+      assert new != old
+    end
+
+    test "an agent removed after its last crash is not found, with no entry left behind" do
+      h = host!(max_restarts: 0)
+      id = agent!(h, %{}, owner: self())
+      :ok = Tartarus.post({id, h}, :crash)
+      assert_receive {:tartarus_removed, ^id, {:too_many_restarts, _}}
+      assert Tartarus.AgentTable.entry(id) == :error
+      assert Tartarus.request({id, h}, :state, 1_000) == {:error, :not_found}
+    end
+
     test "a killed agent is not restarted" do
       [a, b] = line!(2)
       id = agent!(a, %{}, owner: self())

@@ -193,9 +193,14 @@ defmodule Tartarus.Host.Agents do
       env
     end
 
-    state = after_down(state, entry, reason, resident?, killed?, snapshot)
+    {state, restarted?} =
+      case after_down(state, entry, reason, resident?, killed?, snapshot) do
+        {:restarted, state} -> {state, true}
+        state -> {state, false}
+      end
+
     Ledger.drop_snapshot(host, entry.key)
-    state
+    {state, restarted?}
   end
 
   defp after_down(state, entry, reason, resident?, killed?, snapshot) do
@@ -247,7 +252,7 @@ defmodule Tartarus.Host.Agents do
 
         case start_agent(state, env, {:restart, n}, n) do
           {:ok, _pid, state} ->
-            state
+            {:restarted, state}
 
           {:error, why, state} ->
             ended(host, entry)

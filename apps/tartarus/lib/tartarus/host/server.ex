@@ -329,14 +329,31 @@ defmodule Tartarus.Host.Server do
 
     {kill, killing} = Map.pop(state.killing, pid)
     state = %{state | killing: killing}
-    resident? = Ledger.forget_resident(state.host, pid)
+    # Its entry in the node's agent table stays while this server decides (a reader finds the
+    # agent in transition, not gone: Ledger.take_resident/2): a restarted process replaces it,
+    # any other end removes it, a kill's before the killer hears of it.
+    resident = Ledger.take_resident(state.host, pid)
     Tartarus.Agent.end_children(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, entry.id, pid)
     Ledger.drop_arriving(state.host, entry.id, pid)
     Agents.not_created(state, entry, reason)
-    if kill, do: Agents.killed(state, pid, entry, kill)
-    {:noreply, Agents.agent_down(state, entry, reason, resident?, kill != nil)}
+
+    if kill do
+      if resident, do: Ledger.unregister_ended(state.host, pid, resident)
+      Agents.killed(state, pid, entry, kill)
+    end
+
+    {state, restarted?} = Agents.agent_down(state, entry, reason, resident != nil, kill != nil)
+
+    cond do
+      resident && !restarted? -> Ledger.unregister_ended(state.host, pid, resident)
+      # A restarted process that ended before it registered: its predecessor's entry goes.
+      resident == nil and entry.restarts > 0 -> Ledger.unregister_dead(state.host, entry.id)
+      true -> :ok
+    end
+
+    {:noreply, state}
   end
 
   # A crash's reason as the agent left it (Agent.Server.terminate/3): the one the :DOWN
