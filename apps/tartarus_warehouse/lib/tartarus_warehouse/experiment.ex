@@ -357,7 +357,7 @@ defmodule TartarusWarehouse.Experiment do
 
     runs =
       for {kind, opts, extra} <- module.runs(point, state) do
-        state.panel
+        state
         |> floor!(opts)
         |> Map.merge(%{kind: kind, point: point, specs: opts[:jobs]})
         |> Map.merge(extra)
@@ -400,8 +400,8 @@ defmodule TartarusWarehouse.Experiment do
   @impl TartarusEmu.Scenario
   def series(state), do: state.series
 
-  defp floor!(panel, opts) do
-    {:ok, r} = Floor.run(Keyword.put(opts, :status, panel))
+  defp floor!(state, opts) do
+    {:ok, r} = run_floor(state, opts)
     c = Checker.completion(r.history, opts[:jobs])
 
     Map.merge(r, %{
@@ -410,6 +410,21 @@ defmodule TartarusWarehouse.Experiment do
       occupancy: Checker.occupancy(r.history, r.t0_us, 20)
     })
   end
+
+  # In virtual time each floor runs alone in a fresh VM, under a clock of its own seeded
+  # with the floor's seed (TartarusEmu.FreshVM: a floor that shares a VM with earlier ones
+  # does not replay exactly); the web dashboard then shows the points, not each floor's
+  # robots. In real time, here, publishing to the dashboard's panel.
+  defp run_floor(%{p: %{time: :virtual}}, opts) do
+    seed = Keyword.get(opts, :seed, 1)
+
+    TartarusEmu.FreshVM.run(
+      fn -> Tartarus.Clock.Virtual.within(:virtual, seed, fn -> Floor.run(opts) end) end,
+      apps: [:tartarus_warehouse]
+    )
+  end
+
+  defp run_floor(state, opts), do: Floor.run(Keyword.put(opts, :status, state.panel))
 
   @impl TartarusEmu.Scenario
   def charts(state), do: module(state.p.experiment).charts(state)
