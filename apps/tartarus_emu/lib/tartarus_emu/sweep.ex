@@ -14,6 +14,13 @@ defmodule TartarusEmu.Sweep do
       doc:
         "each run's clock: `:real`, or `:virtual` (each run in `Tartarus.Clock.Virtual` " <>
           "seeded with its seed, one run at a time: the VM has one clock)"
+    ],
+    fresh_vm: [
+      type: :boolean,
+      default: true,
+      doc:
+        "in virtual time, each run in a fresh VM of its own (`TartarusEmu.FreshVM`) when " <>
+          "its function can be loaded there; a run record says where it ran (`vm: :fresh | :this`)"
     ]
   ]
 
@@ -88,7 +95,8 @@ defmodule TartarusEmu.Sweep do
     * `:concurrency` - runs at a time (default: the schedulers online); 1 for runs that
       share something global (a dashboard, peer nodes, fixed host names).
 
-  A run record is `%{arm:, opts:, seed:, summary:, data:, ms:}`, plus in virtual time
+  A run record is `%{arm:, opts:, seed:, summary:, data:, ms:, vm:}` (`vm`: `:fresh` for a run
+  in a fresh VM of its own, `:this` otherwise; see the option `:fresh_vm`), plus in virtual time
   `clock: %{virtual_ms:, fired:, dirty_overlaps:}` (`Tartarus.Clock.Virtual.stats/0`); the
   summary's `sweep` then carries `replay: %{dirty_overlaps:, runs_with_overlaps:}`: 0 is the
   witness that no heap was collected on a dirty scheduler while another process could run,
@@ -323,11 +331,7 @@ defmodule TartarusEmu.Sweep do
 
     plan
     |> Task.async_stream(
-      fn {arm, seed} ->
-        Tartarus.Clock.Virtual.within(o.time, seed, fn ->
-          spec.run |> run_one(arm, seed) |> with_clock()
-        end)
-      end,
+      fn {arm, seed} -> run_alone(spec.run, arm, seed, o) end,
       max_concurrency: concurrency,
       ordered: false,
       timeout: :infinity
@@ -351,6 +355,35 @@ defmodule TartarusEmu.Sweep do
       run
     end)
     |> order_as(plan)
+  end
+
+  # A run in virtual time goes in a fresh VM of its own when its function can be loaded
+  # there (TartarusEmu.FreshVM: a run that shares a VM with earlier ones does not always
+  # replay exactly); otherwise (a function of a script or a test file), here.
+  defp run_alone(fun, arm, seed, o) do
+    time = o.time
+
+    one = fn ->
+      Tartarus.Clock.Virtual.within(time, seed, fn ->
+        fun |> run_one(arm, seed) |> with_clock()
+      end)
+    end
+
+    if time == :virtual and o.fresh_vm and TartarusEmu.FreshVM.portable?({fun, arm}) do
+      one |> TartarusEmu.FreshVM.run(apps: apps(fun)) |> Map.put(:vm, :fresh)
+    else
+      one.() |> Map.put(:vm, :this)
+    end
+  end
+
+  # The run function's application (and so its dependencies) and the emulator's.
+  defp apps(fun) do
+    {:module, m} = Function.info(fun, :module)
+
+    case Application.get_application(m) do
+      nil -> [:tartarus_emu]
+      app -> Enum.uniq([app, :tartarus_emu])
+    end
   end
 
   defp tty?(device) do

@@ -126,7 +126,28 @@ defmodule TartarusEmu.VirtualTimeTest do
     for run <- r.runs do
       assert %{virtual_ms: v, fired: f, dirty_overlaps: d} = run.clock
       assert v > 0 and f > 0 and is_integer(d)
+      # Each run in a fresh VM of its own (TartarusEmu.FreshVM): the scenario is on disk.
+      assert run.vm == :fresh
     end
+
+    # The same runs in this VM (as a sweep of a function defined in a test file runs) make
+    # the same moves.
+    {:ok, here} =
+      TartarusEmu.Sweep.run(spec, out: false, quiet: true, time: :virtual, fresh_vm: false)
+
+    assert Enum.map(here.runs, & &1.vm) == [:this, :this]
+
+    assert Enum.map(here.runs, & &1.summary.migrations) ==
+             Enum.map(r.runs, & &1.summary.migrations)
+
+    # (Their virtual time need not be: whatever else in this test VM arms timers has them
+    # fire in it too; 40,350 and 350 ms against 300 and 300 when this was written.)
+
+    local =
+      Map.merge(Map.delete(spec, :scenario), %{run: fn _arm, seed -> %{migrations: seed} end})
+
+    {:ok, l} = TartarusEmu.Sweep.run(local, out: false, quiet: true, time: :virtual)
+    assert Enum.map(l.runs, &{&1.vm, &1.summary.migrations}) == [this: 1, this: 2]
 
     assert %{dirty_overlaps: total, runs_with_overlaps: n} = r.summary.sweep.replay
     assert total == Enum.sum(Enum.map(r.runs, & &1.clock.dirty_overlaps))
