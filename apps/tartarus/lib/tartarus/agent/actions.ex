@@ -22,7 +22,8 @@ defmodule Tartarus.Agent.Actions do
     env = data.env
 
     case Callbacks.run(data, :init, fn -> env.module.init(args) end) do
-      {:ok, action, data} ->
+      # (init_done/2 makes the state it returns the snapshot: a checkpoint asked is one.)
+      {:ok, action, data, _checkpoint?} ->
         if action?(action),
           do: init_done(action, data),
           # Not an action: the create fails (the agent never runs).
@@ -183,7 +184,7 @@ defmodule Tartarus.Agent.Actions do
   def call(:info, from, data), do: running(data, [{:reply, from, info(data)}])
 
   def call({:payload, op}, from, data) do
-    {result, data} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
+    {result, data, _checkpoint?} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
     running(data, [{:reply, from, result}])
   end
 
@@ -205,8 +206,8 @@ defmodule Tartarus.Agent.Actions do
   # the host option :durable makes durable before it is acknowledged (nil otherwise).
   def run(data, cb, fun, ack \\ nil) do
     case Callbacks.run(data, cb, fun) do
-      {:ok, action, new} ->
-        want = Process.delete(:"$tartarus_checkpoint") == true or ack
+      {:ok, action, new, checkpoint?} ->
+        want = checkpoint? or ack
 
         case checkpoint(new, action, want, data.env) do
           {:ok, new} ->
@@ -225,7 +226,6 @@ defmodule Tartarus.Agent.Actions do
         end
 
       {:error, reason, data} ->
-        Process.delete(:"$tartarus_checkpoint")
         {:stop, reason, data}
     end
   end

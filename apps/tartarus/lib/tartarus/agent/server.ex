@@ -5,11 +5,14 @@ defmodule Tartarus.Agent.Server do
   #   * :running: the agent's callbacks run (Tartarus.Agent.Actions carries out what they
   #     return, within their budgets: Tartarus.Agent.Callbacks);
   #   * :handing_off: the source side of a move or clone (Tartarus.Migration.Source) waits
-  #     for the destination; what else arrives is kept in data.held (messages for the agent,
-  #     calls, anything; bounded in count and bytes, the overflow refused to its senders:
-  #     hold/2) and, if the hand-off fails, handled afterwards in its order; if the
-  #     move commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and
-  #     the rest is left to its senders' retries. The deadline is a state timeout;
+  #     for the destination; the agent's messages that arrive meanwhile are kept in
+  #     data.held, every other event (calls, casts, other messages) is postponed (gen_statem
+  #     keeps it and takes it again in the next state); together bounded in count and bytes
+  #     by the stash bound of the hop (Tartarus.Migration.Arrival.stash_bound/1), the
+  #     overflow refused to its senders (keep/2). If the hand-off fails, the held messages
+  #     are handled afterwards in their order, then the postponed events; if the move
+  #     commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and the
+  #     rest is left to its senders' retries. The deadline is a state timeout;
   #   * :paused: the in-doubt copy at a destination (Tartarus.Migration.Arrival); it runs
   #     nothing until it learns its migration's decision (state timeout: ask the source);
   #   * :awaiting_commit: a paused copy that learnt its move committed by asking while the
@@ -54,7 +57,6 @@ defmodule Tartarus.Agent.Server do
   alias Tartarus.Ledger
   alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
-  @host :"$tartarus_host"
   @timeout :"$tartarus_state_timeout"
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
@@ -126,8 +128,6 @@ defmodule Tartarus.Agent.Server do
 
   @impl true
   def init({host, key, env, mode}) do
-    Process.put(@host, host)
-
     data = %{
       host: host,
       env: env,
@@ -136,9 +136,13 @@ defmodule Tartarus.Agent.Server do
       inbox: Inbox.new(),
       pending: [],
       handoff: nil,
+      # The agent's messages kept while it hands off, newest first, and what they and the
+      # events postponed meanwhile take: {count, bytes} each (bounded together, keep/2).
       held: [],
-      # What data.held holds: {count, bytes} (bounded, see hold/2).
       held_size: {0, 0},
+      postponed: {0, 0},
+      # True once the agent's code started a process with Tartarus.Agent.spawn_link/1.
+      children: false,
       timer: nil
     }
 
@@ -239,12 +243,12 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:cast, _msg, :running, data), do: Actions.dropped(data)
 
   # -- :handing_off --------------------------------------------------------------------
-  # Tartarus.Migration.Source reads the destination's answers; everything else waits in
-  # data.held (see the top of this module).
+  # Tartarus.Migration.Source reads the destination's answers; the agent's messages wait in
+  # data.held, everything else is postponed (see the top of this module).
 
   def handle_event(:info, msg, :handing_off, data) do
     case Source.event(data, msg) do
-      nil -> hold(data, {:info, msg})
+      nil -> keep(data, {:info, msg})
       event -> handoff(data, event)
     end
   end
@@ -253,7 +257,7 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:internal, {:pending, m}, :handing_off, data),
     do: {:keep_state, %{data | pending: data.pending ++ [m]}}
 
-  def handle_event(type, content, :handing_off, data), do: hold(data, {type, content})
+  def handle_event(type, content, :handing_off, data), do: keep(data, {type, content})
 
   # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
@@ -283,7 +287,7 @@ defmodule Tartarus.Agent.Server do
   # sees :noproc, and reads the reason there.
   @impl true
   def terminate(reason, _state, data) do
-    if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+    if data.children, do: Tartarus.Agent.end_children(data.host, self())
 
     unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
       do: Ledger.put_exit_reason(data.host, self(), reason)
@@ -308,35 +312,47 @@ defmodule Tartarus.Agent.Server do
       {outcome, by, data} ->
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
         data = StateTimer.cancel(data)
-        held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
-
-        result =
-          Actions.handoff_done(outcome, by, %{data | pending: [], held: [], held_size: {0, 0}})
-
-        replay(result, pending(data.pending) ++ held)
+        held = for m <- Enum.reverse(data.held), do: {:next_event, :info, m}
+        left = %{data | pending: [], held: [], held_size: {0, 0}, postponed: {0, 0}}
+        result = Actions.handoff_done(outcome, by, left)
+        replay(result, pending(data.pending) ++ held, data.postponed)
     end
   end
 
-  # What a handing-off agent keeps for later is bounded: at most the host option :max_held
-  # events and :max_held_bytes bytes (external size: binaries count whole, wherever they
-  # live). Beyond that, a message for the agent is refused to its sender (post and request
-  # return {:error, {:overloaded, id}}), a call answered the same, anything else dropped
-  # and counted: the agent is never killed for what others send it.
-  defp hold(data, event) do
-    {n, bytes} = data.held_size
-    size = held_bytes(event)
-    opts = data.host.opts
+  # What a handing-off agent keeps for later is bounded, by the hop's stash bound
+  # (Tartarus.Migration.Arrival.stash_bound/1: the host options :max_held and
+  # :max_held_bytes): at most that many events, its messages held and the rest postponed,
+  # of at most that many bytes (external size: binaries count whole, wherever they live).
+  # Beyond that, a message for the agent is refused to its sender (post and request return
+  # {:error, {:overloaded, id}}), a call answered the same, anything else dropped and
+  # counted: the agent is never killed for what others send it.
+  defp keep(data, event) do
+    {held_n, held_bytes} = data.held_size
+    {post_n, post_bytes} = data.postponed
+    size = kept_bytes(event)
+    {max_n, max_bytes} = Arrival.stash_bound(data.host)
 
-    if n < Map.get(opts, :max_held, 1_000) and
-         bytes + size <= Map.get(opts, :max_held_bytes, 8_388_608) do
-      {:keep_state, %{data | held: [event | data.held], held_size: {n + 1, bytes + size}}}
-    else
-      overflow(data, event)
+    cond do
+      held_n + post_n >= max_n or held_bytes + post_bytes + size > max_bytes ->
+        overflow(data, event)
+
+      agent_message?(event) ->
+        {:info, m} = event
+        {:keep_state, %{data | held: [m | data.held], held_size: {held_n + 1, held_bytes + size}}}
+
+      true ->
+        {:keep_state, %{data | postponed: {post_n + 1, post_bytes + size}}, [:postpone]}
     end
   end
 
-  defp held_bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
-  defp held_bytes({_type, content}), do: :erlang.external_size(content)
+  defp agent_message?({:info, {:"$tartarus_msg", {pid, _}, kind, _}})
+       when is_pid(pid) and kind in [:post, :request],
+       do: true
+
+  defp agent_message?(_event), do: false
+
+  defp kept_bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
+  defp kept_bytes({_type, content}), do: :erlang.external_size(content)
 
   defp overflow(data, {:info, {:"$tartarus_msg", {pid, ref}, _kind, _msg}}) when is_pid(pid) do
     send(pid, {ref, {:failed, {:overloaded, data.env.id}}})
@@ -355,10 +371,17 @@ defmodule Tartarus.Agent.Server do
     :keep_state_and_data
   end
 
-  defp replay({:next_state, state, data, actions}, events),
+  # The events kept while handing off, after its outcome: the held messages first (inserted
+  # events), then the postponed ones (gen_statem takes them again when the state changes).
+  # An agent that hands off again at once (its handle_move_failed/4 moved it) stays in
+  # :handing_off: the postponed events stay postponed and still count against its bound.
+  defp replay({:next_state, :handing_off, data, actions}, events, postponed),
+    do: {:next_state, :handing_off, %{data | postponed: postponed}, actions ++ events}
+
+  defp replay({:next_state, state, data, actions}, events, _postponed),
     do: {:next_state, state, data, actions ++ events}
 
-  defp replay(stop, _events), do: stop
+  defp replay(stop, _events, _postponed), do: stop
 
   # One event of the paused copy.
   defp paused(data, event) do
