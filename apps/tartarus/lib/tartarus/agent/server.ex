@@ -200,12 +200,17 @@ defmodule Tartarus.Agent.Server do
 
   def handle_event(:info, {:"$tartarus_msg", {pid, _}, kind, _} = m, :running, data)
       when is_pid(pid) and kind in [:post, :request],
-      do: Actions.message(m, data)
+      do: transition(Actions.message(m, data))
 
   # A message handed over (by the agent's previous process or a late commit): already taken.
-  def handle_event(:internal, {:pending, m}, :running, data), do: Actions.handle(m, data)
-  def handle_event(:internal, {:init, args}, :running, data), do: Actions.init(data, args)
-  def handle_event(:internal, {:arrival, ctx}, :running, data), do: Actions.arrival(data, ctx)
+  def handle_event(:internal, {:pending, m}, :running, data),
+    do: transition(Actions.handle(m, data))
+
+  def handle_event(:internal, {:init, args}, :running, data),
+    do: transition(Actions.init(data, args))
+
+  def handle_event(:internal, {:arrival, ctx}, :running, data),
+    do: transition(Actions.arrival(data, ctx))
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
   # mark in the host's ledger tells the host's signal from a forged message. The host's
@@ -215,7 +220,7 @@ defmodule Tartarus.Agent.Server do
     if (pid == data.host.pid or pid == Tartarus.Host.server(data.host)) and
          Ledger.kill_marked?(data.host, self()),
        do: {:stop, :shutdown, data},
-       else: Actions.info(msg, data)
+       else: transition(Actions.info(msg, data))
   end
 
   # A commit (with its hand-over) that came after this process stopped waiting for it (its
@@ -230,17 +235,21 @@ defmodule Tartarus.Agent.Server do
   # answers delivered twice: not for the agent's code.
   def handle_event(:info, msg, :running, data)
       when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
-      do: Actions.dropped(data)
+      do: transition(Actions.dropped(data))
 
   def handle_event(:info, msg, :running, data) do
-    if Messages.protocol_message?(msg), do: :keep_state_and_data, else: Actions.info(msg, data)
+    if Messages.protocol_message?(msg),
+      do: :keep_state_and_data,
+      else: transition(Actions.info(msg, data))
   end
 
   def handle_event({:call, from}, _op, _state, data) when not Tartarus.Events.is_from(from),
     do: Actions.dropped(data) |> keep_state()
 
-  def handle_event({:call, from}, op, :running, data), do: Actions.call(op, from, data)
-  def handle_event(:cast, _msg, :running, data), do: Actions.dropped(data)
+  def handle_event({:call, from}, op, :running, data),
+    do: transition(Actions.call(op, from, data))
+
+  def handle_event(:cast, _msg, :running, data), do: transition(Actions.dropped(data))
 
   # -- :handing_off --------------------------------------------------------------------
   # Tartarus.Migration.Source reads the destination's answers; the agent's messages wait in
@@ -375,13 +384,27 @@ defmodule Tartarus.Agent.Server do
   # events), then the postponed ones (gen_statem takes them again when the state changes).
   # An agent that hands off again at once (its handle_move_failed/4 moved it) stays in
   # :handing_off: the postponed events stay postponed and still count against its bound.
-  defp replay({:next_state, :handing_off, data, actions}, events, postponed),
-    do: {:next_state, :handing_off, %{data | postponed: postponed}, actions ++ events}
+  defp replay({:hand_off, data}, events, postponed),
+    do: then_events(transition({:hand_off, %{data | postponed: postponed}}), events)
 
-  defp replay({:next_state, state, data, actions}, events, _postponed),
+  defp replay(outcome, events, _postponed), do: then_events(transition(outcome), events)
+
+  defp then_events({:next_state, state, data, actions}, events),
     do: {:next_state, state, data, actions ++ events}
 
-  defp replay(stop, _events, _postponed), do: stop
+  defp then_events(stop, _events), do: stop
+
+  # The one place where what the agent's code led to (an outcome of Tartarus.Agent.Actions)
+  # becomes a state of this machine: runs on in :running, waits for a destination in
+  # :handing_off (its deadline armed), or stops.
+  defp transition({:run, data, actions}), do: {:next_state, :running, data, actions}
+
+  defp transition({:hand_off, data}) do
+    ms = data.host.opts.migration_timeout
+    {:next_state, :handing_off, StateTimer.arm(data, :handing_off, ms), []}
+  end
+
+  defp transition({:stop, _reason, _data} = stop), do: stop
 
   # One event of the paused copy.
   defp paused(data, event) do
@@ -405,7 +428,7 @@ defmodule Tartarus.Agent.Server do
   # The copy is the agent: the messages that reached it while it moved are handled first
   # (an agent that moves on at every arrival would otherwise carry them for ever), then its
   # handle_arrival/2; if one of them makes it leave, the rest travel on with it.
-  defp started({:started, data, []}), do: Actions.arrival(data)
+  defp started({:started, data, []}), do: transition(Actions.arrival(data))
 
   defp started({:started, data, pending}) do
     {:next_state, :running, data, pending(pending) ++ [{:next_event, :internal, {:arrival, nil}}]}
@@ -415,5 +438,6 @@ defmodule Tartarus.Agent.Server do
 
   defp pending(msgs), do: Enum.map(msgs, &{:next_event, :internal, {:pending, &1}})
 
-  defp keep_state({:next_state, _state, data, actions}), do: {:keep_state, data, actions}
+  # Junk in a state it does not leave (Actions.dropped/1 only counts it).
+  defp keep_state({:run, data, actions}), do: {:keep_state, data, actions}
 end
