@@ -117,7 +117,7 @@ defmodule Tartarus.AgentProcessTest do
     # initial call, OTP's keys) and the logger filter that reads OTP's initial call in the
     # agent's own process (Host.Agents.drop_agent_report/2).
     @allowed [
-      ~S|Process.put(:"$ancestors", [self()])|,
+      ~S|Process.put(:"$ancestors", [host.warden])|,
       ~S|Process.put(:"$initial_call", {__MODULE__, :init, 1})|,
       ~S|Process.get(:"$initial_call") == {Tartarus.Agent.Server, :init, 1}|
     ]
@@ -244,18 +244,19 @@ defmodule Tartarus.AgentProcessTest do
   end
 
   describe "started without proc_lib (the deviation, pinned)" do
-    test ":sys reads and suspends an agent, which is its own parent" do
+    test ":sys reads and suspends an agent, whose parent is its host's warden" do
       h = host!()
       {:ok, id} = Tartarus.create_agent(h, Blocker, %{test: self()})
       pid = pid_of(id)
+      warden = host_map(h).warden
 
       assert {:running, %{env: %{id: ^id}}} = :sys.get_state(pid)
 
-      assert {:status, ^pid, {:module, :gen_statem}, [pdict, :running, ^pid, _debug, _misc]} =
+      assert {:status, ^pid, {:module, :gen_statem}, [pdict, :running, ^warden, _debug, _]} =
                :sys.get_status(pid)
 
       assert pdict[:"$initial_call"] == {Tartarus.Agent.Server, :init, 1}
-      assert pdict[:"$ancestors"] == [pid]
+      assert pdict[:"$ancestors"] == [warden]
       assert :proc_lib.translate_initial_call(pid) == {Tartarus.Agent.Server, :init, 1}
 
       # Suspended, it takes no message; resumed, it takes them.
@@ -264,6 +265,16 @@ defmodule Tartarus.AgentProcessTest do
       assert Task.yield(request, 200) == nil
       :ok = :sys.resume(pid)
       assert {:ok, 0} = Task.await(request)
+    end
+
+    test "a stray exit message naming the agent itself does not stop it" do
+      h = host!()
+      {:ok, id} = Tartarus.create_agent(h, Blocker, %{test: self()})
+      pid = pid_of(id)
+      send(pid, {:EXIT, pid, :stray})
+      # Taken in order: once it answers a later request, the stray message was handled.
+      assert {:ok, 0} = Tartarus.request(id, :count)
+      assert {:ok, %{pid: ^pid}} = Tartarus.agent_info(id)
     end
 
     test "a crash is logged once, by its host: nothing from the agent's own process" do

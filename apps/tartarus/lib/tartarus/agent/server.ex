@@ -106,12 +106,17 @@ defmodule Tartarus.Agent.Server do
   # -- start ---------------------------------------------------------------------
 
   @doc false
-  # The new process's entry point (start/4): becomes a gen_statem. Spawned plainly (not by
-  # proc_lib, whose start-up bookkeeping costs more than the rest of an arrival), it names
-  # itself as its own parent: gen_statem stops on any {:EXIT, parent, _} message, and anyone
-  # can send one; this process stops on its host's signals by the rules of :running.
+  # The new process's entry point (start/4): becomes a gen_statem. Spawned plainly, not by
+  # proc_lib (the deviation agent_process_test.exs pins: :sys works on it, its crash is
+  # logged once, by its host, with no crash report of proc_lib's, and its host's stop or
+  # kill ends it), it names its parent itself: its host's warden (Tartarus.Host.Warden), the
+  # process that ends it when the host stops (with :kill: it never sends an agent an exit
+  # message). gen_statem stops on any message {:EXIT, parent, _}, whoever sent it: the
+  # parent must be a process nobody names in such a message by accident. It was the agent
+  # itself once, and a stray {:EXIT, agent, reason} stopped the agent with that reason. This
+  # process stops on its host's server's signals by the rules of :running.
   def enter(host, key, env, mode) do
-    Process.put(:"$ancestors", [self()])
+    Process.put(:"$ancestors", [host.warden])
     Process.put(:"$initial_call", {__MODULE__, :init, 1})
 
     case init({host, key, env, mode}) do
