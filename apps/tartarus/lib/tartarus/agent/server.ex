@@ -9,7 +9,7 @@ defmodule Tartarus.Agent.Server do
   #     data.held, every other event (calls, casts, other messages) is postponed (gen_statem
   #     keeps it and takes it again in the next state); together bounded in count and bytes
   #     by the stash bound of the hop (Tartarus.Migration.Arrival.stash_bound/1), the
-  #     overflow refused to its senders (keep/2). If the hand-off fails, the held messages
+  #     overflow refused to its senders (Tartarus.Agent.Held). If the hand-off fails, the held messages
   #     are handled afterwards in their order, then the postponed events; if the move
   #     commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and the
   #     rest is left to its senders' retries. The deadline is a state timeout;
@@ -44,16 +44,13 @@ defmodule Tartarus.Agent.Server do
   # stop_host.
   #
   # State timeouts are timers of Tartarus.Clock (so that a network in virtual time times its
-  # hand-offs in that time), not gen_statem's own, with gen_statem's semantics: data.timer
-  # is {timer, state} for the one armed (state_timeout/3), or nil. Arming one replaces the
-  # other; leaving the state it was armed in cancels it (every way out of :handing_off,
-  # :paused and :awaiting_commit does: cancel_state_timeout/1); and its message counts only
-  # while both are still the same (a stale one, e.g. fired as it was cancelled, is ignored
-  # in any state). Per hand-off that is what gen_statem did: one timer armed, one cancelled.
+  # hand-offs in that time) with gen_statem's semantics (Tartarus.Agent.StateTimer): data.timer
+  # is {timer, state} for the one armed, or nil; every way out of :handing_off, :paused and
+  # :awaiting_commit cancels it, and a stale one's message is ignored in any state.
   @behaviour :gen_statem
   require Tartarus.Events
 
-  alias Tartarus.Agent.{Actions, StateTimer}
+  alias Tartarus.Agent.{Actions, Held, StateTimer}
   alias Tartarus.Ledger
   alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
@@ -134,6 +131,10 @@ defmodule Tartarus.Agent.Server do
   @impl true
   def init({host, key, env, mode}) do
     data = %{
+      # What it keeps while it hands off (Tartarus.Agent.Held).
+      held: [],
+      held_size: {0, 0},
+      postponed: {0, 0},
       host: host,
       env: env,
       key: key,
@@ -141,11 +142,6 @@ defmodule Tartarus.Agent.Server do
       inbox: Inbox.new(),
       pending: [],
       handoff: nil,
-      # The agent's messages kept while it hands off, newest first, and what they and the
-      # events postponed meanwhile take: {count, bytes} each (bounded together, keep/2).
-      held: [],
-      held_size: {0, 0},
-      postponed: {0, 0},
       # True once the agent's code started a process with Tartarus.Agent.spawn_link/1.
       children: false,
       timer: nil
@@ -325,64 +321,20 @@ defmodule Tartarus.Agent.Server do
 
       {outcome, by, data} ->
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
-        data = StateTimer.cancel(data)
-        held = for m <- Enum.reverse(data.held), do: {:next_event, :info, m}
-        left = %{data | pending: [], held: [], held_size: {0, 0}, postponed: {0, 0}}
-        result = Actions.handoff_done(outcome, by, left)
-        replay(result, pending(data.pending) ++ held, data.postponed)
+        {held, postponed, left} = Held.release(StateTimer.cancel(data))
+        result = Actions.handoff_done(outcome, by, %{left | pending: []})
+        held = for m <- held, do: {:next_event, :info, m}
+        replay(result, pending(data.pending) ++ held, postponed)
     end
   end
 
-  # What a handing-off agent keeps for later is bounded, by the hop's stash bound
-  # (Tartarus.Migration.Arrival.stash_bound/1: the host options :max_held and
-  # :max_held_bytes): at most that many events, its messages held and the rest postponed,
-  # of at most that many bytes (external size: binaries count whole, wherever they live).
-  # Beyond that, a message for the agent is refused to its sender (post and request return
-  # {:error, {:overloaded, id}}), a call answered the same, anything else dropped and
-  # counted: the agent is never killed for what others send it.
+  # An event of a handing-off agent that is not its hand-off's (Tartarus.Agent.Held).
   defp keep(data, event) do
-    {held_n, held_bytes} = data.held_size
-    {post_n, post_bytes} = data.postponed
-    size = kept_bytes(event)
-    {max_n, max_bytes} = Arrival.stash_bound(data.host)
-
-    cond do
-      held_n + post_n >= max_n or held_bytes + post_bytes + size > max_bytes ->
-        overflow(data, event)
-
-      agent_message?(event) ->
-        {:info, m} = event
-        {:keep_state, %{data | held: [m | data.held], held_size: {held_n + 1, held_bytes + size}}}
-
-      true ->
-        {:keep_state, %{data | postponed: {post_n + 1, post_bytes + size}}, [:postpone]}
+    case Held.keep(data, event) do
+      {:held, data} -> {:keep_state, data}
+      {:postponed, data} -> {:keep_state, data, [:postpone]}
+      :refused -> :keep_state_and_data
     end
-  end
-
-  defp agent_message?({:info, {:"$tartarus_msg", {pid, _}, kind, _}})
-       when is_pid(pid) and kind in [:post, :request],
-       do: true
-
-  defp agent_message?(_event), do: false
-
-  defp kept_bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
-  defp kept_bytes({_type, content}), do: :erlang.external_size(content)
-
-  defp overflow(data, {:info, {:"$tartarus_msg", {pid, ref}, _kind, _msg}}) when is_pid(pid) do
-    send(pid, {ref, {:failed, {:overloaded, data.env.id}}})
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
-  end
-
-  defp overflow(data, {{:call, from}, _request}) do
-    Tartarus.Events.reply(from, {:error, {:overloaded, data.env.id}})
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
-  end
-
-  defp overflow(data, _event) do
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
   end
 
   # The events kept while handing off, after its outcome: the held messages first (inserted
