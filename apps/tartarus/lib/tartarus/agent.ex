@@ -203,8 +203,15 @@ defmodule Tartarus.Agent do
 
   # -- inside callbacks ----------------------------------------------------------
 
-  @ctx :"$tartarus_envelope"
-  @host :"$tartarus_host"
+  # The calling agent's context: the one process-dictionary key of an agent's process, set
+  # only while one of its callbacks runs (run_callback/4) and read by the functions below,
+  # which its code calls with no argument naming the agent. It holds
+  # {host, envelope, checkpoint?, children?}: the host's map, the envelope the functions
+  # read and change (payload, random stream), whether checkpoint/0 was called, whether
+  # spawn_link/1 started a process. Nothing else of the platform keeps a key in an agent's
+  # dictionary: its state machine's data holds the rest, the host's watchdog reads the
+  # ledger (Tartarus.Agent.Callbacks).
+  @ctx :"$tartarus_agent"
 
   @doc "The id of the calling agent."
   @spec id() :: String.t()
@@ -338,8 +345,7 @@ defmodule Tartarus.Agent do
   """
   @spec checkpoint() :: :ok
   def checkpoint do
-    _ = envelope()
-    Process.put(:"$tartarus_checkpoint", true)
+    Process.put(@ctx, put_elem(context(), 2, true))
     :ok
   end
 
@@ -353,10 +359,10 @@ defmodule Tartarus.Agent do
   """
   @spec spawn_link((() -> any())) :: pid()
   def spawn_link(fun) when is_function(fun, 0) do
-    host = host_info()
+    {host, _env, _checkpoint?, _children?} = ctx = context()
     pid = Kernel.spawn_link(fun)
     Tartarus.Ledger.add_child(host, self(), pid)
-    Process.put(:"$tartarus_children", true)
+    Process.put(@ctx, put_elem(ctx, 3, true))
     pid
   end
 
@@ -492,18 +498,55 @@ defmodule Tartarus.Agent do
     put_envelope(%{env | payload: %{env.payload | data: fun.(env.payload.data)}})
   end
 
-  defp envelope do
+  @doc false
+  # Runs `fun` as agent code of the calling agent process (Tartarus.Agent.Callbacks): with
+  # its context (see @ctx above) from `host`, `env` and `children?` (true once it started a
+  # process with spawn_link/1) for the functions above. Returns
+  # {fun's result, the envelope as fun left it, checkpoint?, children?}. If fun raises,
+  # exits or throws, the context stays: call abandon_callback/0.
+  @spec run_callback(map(), Envelope.t(), boolean(), (() -> result)) ::
+          {result, Envelope.t(), boolean(), boolean()}
+        when result: term()
+  def run_callback(host, env, children?, fun) do
+    Process.put(@ctx, {host, env, false, children?})
+    result = fun.()
+    {_host, env, checkpoint?, children?} = Process.delete(@ctx)
+    {result, env, checkpoint?, children?}
+  end
+
+  @doc false
+  # After a callback that crashed (run_callback/4): removes its context. True if it had
+  # started a process with spawn_link/1 (its process must still end them).
+  @spec abandon_callback() :: boolean()
+  def abandon_callback do
+    case Process.delete(@ctx) do
+      {_host, _env, _checkpoint?, children?} -> children?
+      _ -> false
+    end
+  end
+
+  @doc false
+  # The calling agent's host map while one of its callbacks runs, else nil (a process that
+  # is no agent's, or an agent's between callbacks): Tartarus.Locator's sender.
+  @spec calling_host() :: map() | nil
+  def calling_host do
+    case Process.get(@ctx) do
+      {host, _env, _checkpoint?, _children?} -> host
+      _ -> nil
+    end
+  end
+
+  defp context do
     Process.get(@ctx) ||
       raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
   end
 
-  defp host_info do
-    Process.get(@host) ||
-      raise ArgumentError, "Tartarus.Agent functions must be called from an agent's callbacks"
-  end
+  defp envelope, do: elem(context(), 1)
+
+  defp host_info, do: elem(context(), 0)
 
   defp put_envelope(%Envelope{} = env) do
-    Process.put(@ctx, env)
+    Process.put(@ctx, put_elem(context(), 1, env))
     :ok
   end
 end

@@ -68,8 +68,9 @@ defmodule Tartarus.Envelope do
   @spec new_id() :: String.t()
   def new_id do
     # 64 bits from the system's strong random source (in virtual time a seeded stream:
-    # Tartarus.Clock.unique_bytes/1), as from :crypto.strong_rand_bytes(8) per id, but drawn 64 ids at a time into the calling process's dictionary (one crypto
-    # call per 64 ids: creations and clones are this much cheaper).
+    # Tartarus.Clock.unique_bytes/1), as from :crypto.strong_rand_bytes(8) per id, but drawn
+    # 64 ids at a time into the calling process's dictionary (one crypto call per 64 ids:
+    # creations are this much cheaper).
     <<bits::binary-size(8), rest::binary>> =
       case Process.get(:"$tartarus_id_pool") do
         <<_::binary-size(8), _::binary>> = pool -> pool
@@ -79,6 +80,18 @@ defmodule Tartarus.Envelope do
     Process.put(:"$tartarus_id_pool", rest)
     Base.encode16(bits, case: :lower)
   end
+
+  @doc """
+  A new globally unique agent id, as `new_id/0` but drawn alone, leaving nothing in the
+  calling process's dictionary: for an agent's own process (a clone's id), which keeps no
+  process-dictionary key outside its callbacks.
+
+      iex> id = Tartarus.Envelope.new_id(:unpooled)
+      iex> byte_size(id)
+      16
+  """
+  @spec new_id(:unpooled) :: String.t()
+  def new_id(:unpooled), do: Base.encode16(Tartarus.Clock.unique_bytes(8), case: :lower)
 
   @doc """
   The name of an agent created without one: its module and its whole id.

@@ -37,6 +37,7 @@ defmodule Tartarus.Ledger do
   | `{:creating, key}` | `from`: the creator of agent process `key`, until answered | `put_creator/3`; goes with `take_creator/2` (the agent, its creator or the host server: whoever answers) | `take_creator/2` |
   | `{:kill, pid}` | `true`: the host is killing `pid` (tells its exit signal from a forged one) | `mark_kill/2`; goes with `clear_kill/2` | `kill_marked?/2` (the agent) |
   | `{:exit_reason, pid}` | `reason`: an agent's crash reason, for a server that adopts it after it ended | `put_exit_reason/3` (the agent) | `take_exit_reason/2` (Host.Server) |
+  | `{:watchdog, pid}` | `{tref, callback, ms, from}`: agent process `pid` is in a callback under its budget (timer `tref`) | `arm_watchdog/3`; goes with `disarm_watchdog/2` (the agent after the callback; Host.Warden when it overran; Host.Server when the process ended inside one) | `watchdog/2` (Host.Warden, through `Tartarus.Agent.Callbacks.overrun/3`) |
   | `{:overran, pid}` | `reason`: the watchdog stopped `pid` | `put_overrun/3` (Host.Warden) | `take_overrun/2` (Host.Server) |
   | `{:handling, id}` | `{pid, ref}`: the message a `:durable` agent is handling | `put_handling/3`; goes with `drop_handling/2` | `take_handling/2` (the restarted agent) |
   | `{:children, pid}` | `[pid]`: processes agent process `pid` started with `Tartarus.Agent.spawn_link/1` | `add_child/3` | `take_children/2` (the agent as it ends; the host when it was killed) |
@@ -629,6 +630,30 @@ defmodule Tartarus.Ledger do
   @doc "Takes the crash reason agent process `pid` left: `{:ok, reason}` or `:error`."
   @spec take_exit_reason(host(), pid()) :: {:ok, term()} | :error
   def take_exit_reason(host, pid), do: take(host, {:exit_reason, pid})
+
+  @doc """
+  Agent process `pid` runs a callback under the watchdog: `dog` is `{tref, callback, ms,
+  from}` (its budget's timer, the callback, the budget, the requester or nil). Written by
+  the agent before the callback, replacing any entry before it (`Tartarus.Agent.Callbacks`).
+  """
+  @spec arm_watchdog(host(), pid(), {reference(), atom(), pos_integer(), term()}) :: true
+  def arm_watchdog(host, pid, dog), do: :ets.insert(host.ledger, {{:watchdog, pid}, dog})
+
+  @doc "Agent process `pid` is out of its callback (or ended): its watchdog entry goes."
+  @spec disarm_watchdog(host(), pid()) :: true
+  def disarm_watchdog(host, pid), do: :ets.delete(host.ledger, {:watchdog, pid})
+
+  @doc """
+  The watchdog entry of agent process `pid` (`arm_watchdog/3`), or nil if it is in no
+  callback under a budget: what the host's watchdog reads when a budget's timer fires.
+  """
+  @spec watchdog(host(), pid()) :: {reference(), atom(), pos_integer(), term()} | nil
+  def watchdog(host, pid) do
+    case :ets.lookup(host.ledger, {:watchdog, pid}) do
+      [{_, dog}] -> dog
+      [] -> nil
+    end
+  end
 
   @doc "The watchdog stopped agent process `pid` for `reason`."
   @spec put_overrun(host(), pid(), term()) :: true

@@ -170,7 +170,7 @@ defmodule Tartarus.Locator do
   # that emulates nothing pays one :persistent_term read per message.
   @spec sender() :: map() | nil
   def sender do
-    if Tartarus.Transport.installed() != nil, do: Process.get(:"$tartarus_host")
+    if Tartarus.Transport.installed() != nil, do: Tartarus.Agent.calling_host()
   end
 
   defp deliver(agent, km, tag, deadline, n, crashed, from \\ nil)

@@ -2,12 +2,15 @@ defmodule Tartarus.Agent.Actions do
   @moduledoc false
   # What a running agent does: it runs a callback (Tartarus.Agent.Callbacks, within its
   # budget) and carries out the action the callback returned. A move or a clone starts the
-  # source side of a hand-off (Tartarus.Migration.Source) and puts the agent's state machine
-  # in :handing_off (Tartarus.Agent.Server); the outcome comes back to handoff_done/3.
+  # source side of a hand-off (Tartarus.Migration.Source), after which the agent's state
+  # machine waits in :handing_off (Tartarus.Agent.Server); the outcome comes back to
+  # handoff_done/3.
   #
-  # Every function here returns a :gen_statem result with the next state named
-  # ({:next_state, :running | :handing_off, data, actions} or {:stop, reason, data}), so the
-  # same code serves a callback run while running and one run when a hand-off failed.
+  # Every function here returns an outcome, never a state: {:run, data, actions} (the agent
+  # runs on; `actions` are gen_statem actions, replies), {:hand_off, data} (a hand-off
+  # started: the source waits for its destination) or {:stop, reason, data}. The agent's
+  # state machine (Tartarus.Agent.Server, transition/1) alone turns outcomes into states, so
+  # the same code serves a callback run while running and one run when a hand-off failed.
 
   require Tartarus.Events
   alias Tartarus.{Events, Ledger}
@@ -22,7 +25,8 @@ defmodule Tartarus.Agent.Actions do
     env = data.env
 
     case Callbacks.run(data, :init, fn -> env.module.init(args) end) do
-      {:ok, action, data} ->
+      # (init_done/2 makes the state it returns the snapshot: a checkpoint asked is one.)
+      {:ok, action, data, _checkpoint?} ->
         if action?(action),
           do: init_done(action, data),
           # Not an action: the create fails (the agent never runs).
@@ -183,7 +187,7 @@ defmodule Tartarus.Agent.Actions do
   def call(:info, from, data), do: running(data, [{:reply, from, info(data)}])
 
   def call({:payload, op}, from, data) do
-    {result, data} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
+    {result, data, _checkpoint?} = Callbacks.raw(data, fn -> Callbacks.payload_op(op) end)
     running(data, [{:reply, from, result}])
   end
 
@@ -205,8 +209,8 @@ defmodule Tartarus.Agent.Actions do
   # the host option :durable makes durable before it is acknowledged (nil otherwise).
   def run(data, cb, fun, ack \\ nil) do
     case Callbacks.run(data, cb, fun) do
-      {:ok, action, new} ->
-        want = Process.delete(:"$tartarus_checkpoint") == true or ack
+      {:ok, action, new, checkpoint?} ->
+        want = checkpoint? or ack
 
         case checkpoint(new, action, want, data.env) do
           {:ok, new} ->
@@ -225,7 +229,6 @@ defmodule Tartarus.Agent.Actions do
         end
 
       {:error, reason, data} ->
-        Process.delete(:"$tartarus_checkpoint")
         {:stop, reason, data}
     end
   end
@@ -276,8 +279,7 @@ defmodule Tartarus.Agent.Actions do
   defp hand_off(data, kind, dest, by) do
     case Source.attempt(data, kind, dest, {kind, dest, by}) do
       {:wait, data} ->
-        ms = data.host.opts.migration_timeout
-        {:next_state, :handing_off, Tartarus.Agent.StateTimer.arm(data, :handing_off, ms)}
+        {:hand_off, data}
 
       {:failed, reason, data} ->
         handoff_done({:failed, reason}, {kind, dest, by}, data)
@@ -325,7 +327,7 @@ defmodule Tartarus.Agent.Actions do
 
   # -- helpers -------------------------------------------------------------------------
 
-  defp running(data, actions \\ []), do: {:next_state, :running, data, actions}
+  defp running(data, actions \\ []), do: {:run, data, actions}
 
   @doc false
   # What Tartarus.Agent.Callbacks' handle_arrival/2 and handle_move_failed/4 get.

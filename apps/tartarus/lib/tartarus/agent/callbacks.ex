@@ -5,33 +5,38 @@ defmodule Tartarus.Agent.Callbacks do
   #
   # Each callback has a budget, the host option :callback_timeout (ms). Before a callback
   # this process arms Tartarus.Clock.start_timer(ms, warden, {:"$tartarus_overrun", self()}) and
-  # records {tref, callback, ms, from} under @watchdog in its dictionary (from: the request
-  # handle_message/3 answers, or nil); after it, it erases the entry and cancels the timer.
-  # The host's warden (Tartarus.Host.Warden, which outlives the host's server) is the
-  # watchdog: when the timer message arrives it reads this process's
-  # dictionary and, if the same tref is still there (the callback has not returned; a forged
-  # message cannot name it), stops the process with exit reason {:callback_timeout,
-  # callback, ms} (:kill if it traps exits), then removes the agent (no restart: the same
-  # callback would hang again). A callback that returns after its timer fired (cancel_timer
-  # answers false) stops this process with the same reason, its result ignored. Either way
-  # a waiting requester gets {ref, {:error, {:callback_timeout, :handle_message, ms}}}
-  # (Tartarus.request/3 returns the error). The host hears only of overruns: the cost per
-  # callback is one timer armed and cancelled (about 1.6 µs).
+  # records {tref, callback, ms, from} in its host's ledger (Tartarus.Ledger.arm_watchdog/3;
+  # from: the request handle_message/3 answers, or nil); after it, it removes the entry and
+  # cancels the timer. The host's warden (Tartarus.Host.Warden, which outlives the host's
+  # server) is the watchdog: when the timer message arrives it reads the entry (overrun/3,
+  # one ledger lookup: nothing of the agent's process is copied) and, if the same tref is
+  # still there (the callback has not returned; a forged message cannot name it), stops the
+  # process with exit reason {:callback_timeout, callback, ms} (:kill if it traps exits),
+  # then removes the agent (no restart: the same callback would hang again). A callback that
+  # returns after its timer fired (cancel_timer answers false) stops this process with the
+  # same reason, its result ignored. Either way a waiting requester gets
+  # {ref, {:error, {:callback_timeout, :handle_message, ms}}} (Tartarus.request/3 returns the
+  # error). The host hears only of overruns: the cost per callback is one timer armed and
+  # cancelled and one ledger entry written and removed (about 2 µs).
+  #
+  # An entry left by a process killed inside a callback goes with its host server's handling
+  # of its end (Tartarus.Host.Server), or with the warden's when it overran.
   #
   # The budget is the design's time (Tartarus.Clock): in virtual time a callback that waits
   # (a receive, Tartarus.Clock.sleep/1) overruns when its budget of virtual time has passed;
   # one that computes costs no time and never overruns (a callback that never returns holds
   # virtual time still, see Tartarus.Clock.Virtual).
+  #
+  # The agent's code reads its context (Tartarus.Agent.id/0 and friends) from the one
+  # process-dictionary key Tartarus.Agent keeps while a callback runs (raw/2).
 
-  alias Tartarus.Clock
-
-  @ctx :"$tartarus_envelope"
-  @watchdog :"$tartarus_watchdog"
+  alias Tartarus.{Clock, Ledger}
 
   @doc false
-  # Runs callback `cb` with the agent's envelope in the process dictionary (so the functions
-  # of Tartarus.Agent can read and change payload), catching crashes so they become exits
-  # with a readable reason, within the host's callback budget (see the top of this module).
+  # Runs callback `cb` with the agent's context (so the functions of Tartarus.Agent can read
+  # and change payload), catching crashes so they become exits with a readable reason,
+  # within the host's callback budget (see the top of this module).
+  # {:ok, result, data, checkpoint?} | {:error, reason, data}.
   def run(data, cb, fun) do
     dog = arm(data.host, cb)
 
@@ -42,11 +47,18 @@ defmodule Tartarus.Agent.Callbacks do
         kind, reason -> {:error, {kind, reason, __STACKTRACE__}}
       end
 
-    case {disarm(dog), outcome} do
-      {:ok, {:ok, {result, data}}} -> {:ok, result, data}
-      {:ok, {:error, reason}} -> {:error, reason, data}
-      {overrun, _} -> {:error, overrun, data}
+    case {disarm(data.host, dog), outcome} do
+      {:ok, {:ok, {result, data, checkpoint?}}} -> {:ok, result, data, checkpoint?}
+      {:ok, {:error, reason}} -> {:error, reason, abandoned(data)}
+      {overrun, {:ok, {_result, data, _}}} -> {:error, overrun, data}
+      {overrun, _} -> {:error, overrun, abandoned(data)}
     end
+  end
+
+  # A callback that crashed: its context goes; the processes it started still end with
+  # this one (Tartarus.Agent.Server's terminate/3).
+  defp abandoned(data) do
+    if Tartarus.Agent.abandon_callback(), do: %{data | children: true}, else: data
   end
 
   # `cb` is the callback's name, or {:handle_message, from} for a message.
@@ -59,15 +71,15 @@ defmodule Tartarus.Agent.Callbacks do
         {name, from} = with name when is_atom(name) <- cb, do: {name, nil}
         tref = Clock.start_timer(ms, host.warden, {:"$tartarus_overrun", self()})
         dog = {tref, name, ms, from}
-        Process.put(@watchdog, dog)
+        Ledger.arm_watchdog(host, self(), dog)
         dog
     end
   end
 
-  defp disarm(nil), do: :ok
+  defp disarm(_host, nil), do: :ok
 
-  defp disarm({tref, cb, ms, from}) do
-    Process.delete(@watchdog)
+  defp disarm(host, {tref, cb, ms, from}) do
+    Ledger.disarm_watchdog(host, self())
 
     if Clock.cancel_timer(tref) do
       :ok
@@ -84,29 +96,28 @@ defmodule Tartarus.Agent.Callbacks do
   def overran(_from, _reason), do: :ok
 
   @doc false
-  # For the host's watchdog: {exit reason, traps exits?, requester} if `pid` is still in the
-  # callback it armed the timer `tref` for, else nil.
-  def overrun(pid, tref) when node(pid) == node() do
-    case Process.info(pid, [:dictionary, :trap_exit]) do
-      [dictionary: dict, trap_exit: trap?] ->
-        case List.keyfind(dict, @watchdog, 0) do
-          {_, {^tref, cb, ms, from}} -> {{:callback_timeout, cb, ms}, trap?, from}
-          _ -> nil
-        end
-
-      nil ->
-        nil
+  # For the host's watchdog: {exit reason, traps exits?, requester} if agent process `pid`
+  # of `host` is still in the callback it armed the timer `tref` for, else nil. Reads the
+  # ledger's entry and the process's trap_exit flag, not its dictionary.
+  def overrun(host, pid, tref) when node(pid) == node() do
+    with {^tref, cb, ms, from} <- Ledger.watchdog(host, pid),
+         {:trap_exit, trap?} <- Process.info(pid, :trap_exit) do
+      {{:callback_timeout, cb, ms}, trap?, from}
+    else
+      _ -> nil
     end
   end
 
-  def overrun(_pid, _tref), do: nil
+  def overrun(_host, _pid, _tref), do: nil
 
   @doc false
-  # `fun` with the agent's envelope in the process dictionary (no budget, no catching).
+  # `fun` with the agent's context (no budget, no catching): {result, data, checkpoint?}
+  # (checkpoint?: the agent's code called Tartarus.Agent.checkpoint/0).
   def raw(data, fun) do
-    Process.put(@ctx, data.env)
-    result = fun.()
-    {result, %{data | env: Process.get(@ctx)}}
+    {result, env, checkpoint?, children?} =
+      Tartarus.Agent.run_callback(data.host, data.env, data.children, fun)
+
+    {result, %{data | env: env, children: children?}, checkpoint?}
   end
 
   @doc false

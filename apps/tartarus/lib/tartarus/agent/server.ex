@@ -5,11 +5,14 @@ defmodule Tartarus.Agent.Server do
   #   * :running: the agent's callbacks run (Tartarus.Agent.Actions carries out what they
   #     return, within their budgets: Tartarus.Agent.Callbacks);
   #   * :handing_off: the source side of a move or clone (Tartarus.Migration.Source) waits
-  #     for the destination; what else arrives is kept in data.held (messages for the agent,
-  #     calls, anything; bounded in count and bytes, the overflow refused to its senders:
-  #     hold/2) and, if the hand-off fails, handled afterwards in its order; if the
-  #     move commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and
-  #     the rest is left to its senders' retries. The deadline is a state timeout;
+  #     for the destination; the agent's messages that arrive meanwhile are kept in
+  #     data.held, every other event (calls, casts, other messages) is postponed (gen_statem
+  #     keeps it and takes it again in the next state); together bounded in count and bytes
+  #     by the stash bound of the hop (Tartarus.Migration.Arrival.stash_bound/1), the
+  #     overflow refused to its senders (Tartarus.Agent.Held). If the hand-off fails, the held messages
+  #     are handled afterwards in their order, then the postponed events; if the move
+  #     commits, the agent's messages go with the commit (Tartarus.Migration.Inbox) and the
+  #     rest is left to its senders' retries. The deadline is a state timeout;
   #   * :paused: the in-doubt copy at a destination (Tartarus.Migration.Arrival); it runs
   #     nothing until it learns its migration's decision (state timeout: ask the source);
   #   * :awaiting_commit: a paused copy that learnt its move committed by asking while the
@@ -41,20 +44,16 @@ defmodule Tartarus.Agent.Server do
   # stop_host.
   #
   # State timeouts are timers of Tartarus.Clock (so that a network in virtual time times its
-  # hand-offs in that time), not gen_statem's own, with gen_statem's semantics: data.timer
-  # is {timer, state} for the one armed (state_timeout/3), or nil. Arming one replaces the
-  # other; leaving the state it was armed in cancels it (every way out of :handing_off,
-  # :paused and :awaiting_commit does: cancel_state_timeout/1); and its message counts only
-  # while both are still the same (a stale one, e.g. fired as it was cancelled, is ignored
-  # in any state). Per hand-off that is what gen_statem did: one timer armed, one cancelled.
+  # hand-offs in that time) with gen_statem's semantics (Tartarus.Agent.StateTimer): data.timer
+  # is {timer, state} for the one armed, or nil; every way out of :handing_off, :paused and
+  # :awaiting_commit cancels it, and a stale one's message is ignored in any state.
   @behaviour :gen_statem
   require Tartarus.Events
 
-  alias Tartarus.Agent.{Actions, StateTimer}
+  alias Tartarus.Agent.{Actions, Held, StateTimer}
   alias Tartarus.Ledger
   alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
 
-  @host :"$tartarus_host"
   @timeout :"$tartarus_state_timeout"
 
   # With the host option :hibernate_after, idle agents hibernate (their heap shrinks to what
@@ -104,12 +103,17 @@ defmodule Tartarus.Agent.Server do
   # -- start ---------------------------------------------------------------------
 
   @doc false
-  # The new process's entry point (start/4): becomes a gen_statem. Spawned plainly (not by
-  # proc_lib, whose start-up bookkeeping costs more than the rest of an arrival), it names
-  # itself as its own parent: gen_statem stops on any {:EXIT, parent, _} message, and anyone
-  # can send one; this process stops on its host's signals by the rules of :running.
+  # The new process's entry point (start/4): becomes a gen_statem. Spawned plainly, not by
+  # proc_lib (the deviation agent_process_test.exs pins: :sys works on it, its crash is
+  # logged once, by its host, with no crash report of proc_lib's, and its host's stop or
+  # kill ends it), it names its parent itself: its host's warden (Tartarus.Host.Warden), the
+  # process that ends it when the host stops (with :kill: it never sends an agent an exit
+  # message). gen_statem stops on any message {:EXIT, parent, _}, whoever sent it: the
+  # parent must be a process nobody names in such a message by accident. It was the agent
+  # itself once, and a stray {:EXIT, agent, reason} stopped the agent with that reason. This
+  # process stops on its host's server's signals by the rules of :running.
   def enter(host, key, env, mode) do
-    Process.put(:"$ancestors", [self()])
+    Process.put(:"$ancestors", [host.warden])
     Process.put(:"$initial_call", {__MODULE__, :init, 1})
 
     case init({host, key, env, mode}) do
@@ -126,9 +130,11 @@ defmodule Tartarus.Agent.Server do
 
   @impl true
   def init({host, key, env, mode}) do
-    Process.put(@host, host)
-
     data = %{
+      # What it keeps while it hands off (Tartarus.Agent.Held).
+      held: [],
+      held_size: {0, 0},
+      postponed: {0, 0},
       host: host,
       env: env,
       key: key,
@@ -136,9 +142,8 @@ defmodule Tartarus.Agent.Server do
       inbox: Inbox.new(),
       pending: [],
       handoff: nil,
-      held: [],
-      # What data.held holds: {count, bytes} (bounded, see hold/2).
-      held_size: {0, 0},
+      # True once the agent's code started a process with Tartarus.Agent.spawn_link/1.
+      children: false,
       timer: nil
     }
 
@@ -196,12 +201,17 @@ defmodule Tartarus.Agent.Server do
 
   def handle_event(:info, {:"$tartarus_msg", {pid, _}, kind, _} = m, :running, data)
       when is_pid(pid) and kind in [:post, :request],
-      do: Actions.message(m, data)
+      do: transition(Actions.message(m, data))
 
   # A message handed over (by the agent's previous process or a late commit): already taken.
-  def handle_event(:internal, {:pending, m}, :running, data), do: Actions.handle(m, data)
-  def handle_event(:internal, {:init, args}, :running, data), do: Actions.init(data, args)
-  def handle_event(:internal, {:arrival, ctx}, :running, data), do: Actions.arrival(data, ctx)
+  def handle_event(:internal, {:pending, m}, :running, data),
+    do: transition(Actions.handle(m, data))
+
+  def handle_event(:internal, {:init, args}, :running, data),
+    do: transition(Actions.init(data, args))
+
+  def handle_event(:internal, {:arrival, ctx}, :running, data),
+    do: transition(Actions.arrival(data, ctx))
 
   # Its host kills it (see the top of this module): an agent that traps exits stops too. The
   # mark in the host's ledger tells the host's signal from a forged message. The host's
@@ -211,7 +221,7 @@ defmodule Tartarus.Agent.Server do
     if (pid == data.host.pid or pid == Tartarus.Host.server(data.host)) and
          Ledger.kill_marked?(data.host, self()),
        do: {:stop, :shutdown, data},
-       else: Actions.info(msg, data)
+       else: transition(Actions.info(msg, data))
   end
 
   # A commit (with its hand-over) that came after this process stopped waiting for it (its
@@ -226,25 +236,29 @@ defmodule Tartarus.Agent.Server do
   # answers delivered twice: not for the agent's code.
   def handle_event(:info, msg, :running, data)
       when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
-      do: Actions.dropped(data)
+      do: transition(Actions.dropped(data))
 
   def handle_event(:info, msg, :running, data) do
-    if Messages.protocol_message?(msg), do: :keep_state_and_data, else: Actions.info(msg, data)
+    if Messages.protocol_message?(msg),
+      do: :keep_state_and_data,
+      else: transition(Actions.info(msg, data))
   end
 
   def handle_event({:call, from}, _op, _state, data) when not Tartarus.Events.is_from(from),
     do: Actions.dropped(data) |> keep_state()
 
-  def handle_event({:call, from}, op, :running, data), do: Actions.call(op, from, data)
-  def handle_event(:cast, _msg, :running, data), do: Actions.dropped(data)
+  def handle_event({:call, from}, op, :running, data),
+    do: transition(Actions.call(op, from, data))
+
+  def handle_event(:cast, _msg, :running, data), do: transition(Actions.dropped(data))
 
   # -- :handing_off --------------------------------------------------------------------
-  # Tartarus.Migration.Source reads the destination's answers; everything else waits in
-  # data.held (see the top of this module).
+  # Tartarus.Migration.Source reads the destination's answers; the agent's messages wait in
+  # data.held, everything else is postponed (see the top of this module).
 
   def handle_event(:info, msg, :handing_off, data) do
     case Source.event(data, msg) do
-      nil -> hold(data, {:info, msg})
+      nil -> keep(data, {:info, msg})
       event -> handoff(data, event)
     end
   end
@@ -253,7 +267,7 @@ defmodule Tartarus.Agent.Server do
   def handle_event(:internal, {:pending, m}, :handing_off, data),
     do: {:keep_state, %{data | pending: data.pending ++ [m]}}
 
-  def handle_event(type, content, :handing_off, data), do: hold(data, {type, content})
+  def handle_event(type, content, :handing_off, data), do: keep(data, {type, content})
 
   # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
@@ -283,7 +297,7 @@ defmodule Tartarus.Agent.Server do
   # sees :noproc, and reads the reason there.
   @impl true
   def terminate(reason, _state, data) do
-    if Process.get(:"$tartarus_children"), do: Tartarus.Agent.end_children(data.host, self())
+    if data.children, do: Tartarus.Agent.end_children(data.host, self())
 
     unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
       do: Ledger.put_exit_reason(data.host, self(), reason)
@@ -307,58 +321,47 @@ defmodule Tartarus.Agent.Server do
 
       {outcome, by, data} ->
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
-        data = StateTimer.cancel(data)
-        held = for {type, content} <- Enum.reverse(data.held), do: {:next_event, type, content}
-
-        result =
-          Actions.handoff_done(outcome, by, %{data | pending: [], held: [], held_size: {0, 0}})
-
-        replay(result, pending(data.pending) ++ held)
+        {held, postponed, left} = Held.release(StateTimer.cancel(data))
+        result = Actions.handoff_done(outcome, by, %{left | pending: []})
+        held = for m <- held, do: {:next_event, :info, m}
+        replay(result, pending(data.pending) ++ held, postponed)
     end
   end
 
-  # What a handing-off agent keeps for later is bounded: at most the host option :max_held
-  # events and :max_held_bytes bytes (external size: binaries count whole, wherever they
-  # live). Beyond that, a message for the agent is refused to its sender (post and request
-  # return {:error, {:overloaded, id}}), a call answered the same, anything else dropped
-  # and counted: the agent is never killed for what others send it.
-  defp hold(data, event) do
-    {n, bytes} = data.held_size
-    size = held_bytes(event)
-    opts = data.host.opts
-
-    if n < Map.get(opts, :max_held, 1_000) and
-         bytes + size <= Map.get(opts, :max_held_bytes, 8_388_608) do
-      {:keep_state, %{data | held: [event | data.held], held_size: {n + 1, bytes + size}}}
-    else
-      overflow(data, event)
+  # An event of a handing-off agent that is not its hand-off's (Tartarus.Agent.Held).
+  defp keep(data, event) do
+    case Held.keep(data, event) do
+      {:held, data} -> {:keep_state, data}
+      {:postponed, data} -> {:keep_state, data, [:postpone]}
+      :refused -> :keep_state_and_data
     end
   end
 
-  defp held_bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
-  defp held_bytes({_type, content}), do: :erlang.external_size(content)
+  # The events kept while handing off, after its outcome: the held messages first (inserted
+  # events), then the postponed ones (gen_statem takes them again when the state changes).
+  # An agent that hands off again at once (its handle_move_failed/4 moved it) stays in
+  # :handing_off: the postponed events stay postponed and still count against its bound.
+  defp replay({:hand_off, data}, events, postponed),
+    do: then_events(transition({:hand_off, %{data | postponed: postponed}}), events)
 
-  defp overflow(data, {:info, {:"$tartarus_msg", {pid, ref}, _kind, _msg}}) when is_pid(pid) do
-    send(pid, {ref, {:failed, {:overloaded, data.env.id}}})
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
-  end
+  defp replay(outcome, events, _postponed), do: then_events(transition(outcome), events)
 
-  defp overflow(data, {{:call, from}, _request}) do
-    Tartarus.Events.reply(from, {:error, {:overloaded, data.env.id}})
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
-  end
-
-  defp overflow(data, _event) do
-    Ledger.count(data.host, :dropped)
-    :keep_state_and_data
-  end
-
-  defp replay({:next_state, state, data, actions}, events),
+  defp then_events({:next_state, state, data, actions}, events),
     do: {:next_state, state, data, actions ++ events}
 
-  defp replay(stop, _events), do: stop
+  defp then_events(stop, _events), do: stop
+
+  # The one place where what the agent's code led to (an outcome of Tartarus.Agent.Actions)
+  # becomes a state of this machine: runs on in :running, waits for a destination in
+  # :handing_off (its deadline armed), or stops.
+  defp transition({:run, data, actions}), do: {:next_state, :running, data, actions}
+
+  defp transition({:hand_off, data}) do
+    ms = data.host.opts.migration_timeout
+    {:next_state, :handing_off, StateTimer.arm(data, :handing_off, ms), []}
+  end
+
+  defp transition({:stop, _reason, _data} = stop), do: stop
 
   # One event of the paused copy.
   defp paused(data, event) do
@@ -382,7 +385,7 @@ defmodule Tartarus.Agent.Server do
   # The copy is the agent: the messages that reached it while it moved are handled first
   # (an agent that moves on at every arrival would otherwise carry them for ever), then its
   # handle_arrival/2; if one of them makes it leave, the rest travel on with it.
-  defp started({:started, data, []}), do: Actions.arrival(data)
+  defp started({:started, data, []}), do: transition(Actions.arrival(data))
 
   defp started({:started, data, pending}) do
     {:next_state, :running, data, pending(pending) ++ [{:next_event, :internal, {:arrival, nil}}]}
@@ -392,5 +395,6 @@ defmodule Tartarus.Agent.Server do
 
   defp pending(msgs), do: Enum.map(msgs, &{:next_event, :internal, {:pending, &1}})
 
-  defp keep_state({:next_state, _state, data, actions}), do: {:keep_state, data, actions}
+  # Junk in a state it does not leave (Actions.dropped/1 only counts it).
+  defp keep_state({:run, data, actions}), do: {:keep_state, data, actions}
 end

@@ -334,6 +334,8 @@ defmodule Tartarus.Host.Server do
     # any other end removes it, a kill's before the killer hears of it.
     resident = Ledger.take_resident(state.host, pid)
     Tartarus.Agent.end_children(state.host, pid)
+    # Killed inside a callback, it left its watchdog entry (Tartarus.Agent.Callbacks).
+    unless match?({:shutdown, _}, reason), do: Ledger.disarm_watchdog(state.host, pid)
     # Its undecided hand-offs, if it was a source: aborted (it cannot commit them now).
     Ledger.drop_handoffs(state.host, entry.id, pid)
     Ledger.drop_arriving(state.host, entry.id, pid)

@@ -139,11 +139,13 @@ defmodule Tartarus.Host.Warden do
   end
 
   # The watchdog: an agent's callback budget ran out. Only a timer the agent armed for the
-  # callback it is still in counts (Agent.Callbacks.overrun/2 reads it from the agent).
+  # callback it is still in counts (Agent.Callbacks.overrun/3 reads the agent's entry in the
+  # ledger).
   @impl true
   def handle_info({:timeout, tref, {:"$tartarus_overrun", pid}}, s) when is_pid(pid) do
-    case Tartarus.Agent.Callbacks.overrun(pid, tref) do
+    case Tartarus.Agent.Callbacks.overrun(s.host, pid, tref) do
       {reason, trap?, from} ->
+        Tartarus.Ledger.disarm_watchdog(s.host, pid)
         # Read by the server when the agent is down (the exit reason of one that traps
         # exits is :kill: any other signal would reach its code as a message).
         Tartarus.Ledger.put_overrun(s.host, pid, reason)

@@ -26,11 +26,21 @@ defmodule Tartarus.Migration.Arrival do
   # Its first state timeout (:commit) is the host's :migration_timeout.
   @spec paused(map(), term(), term(), term(), :move | :clone, pid() | nil) :: map()
   def paused(host, mig, copy, src, kind, src_pid) do
-    c =
-      Protocol.copy(mig, copy, src, kind, stash_max: Map.get(host.opts, :paused_stash_max, 1_000))
-
+    {stash_max, _bytes} = stash_bound(host)
+    c = Protocol.copy(mig, copy, src, kind, stash_max: stash_max)
     %{c: c, stash: [], src_pid: src_pid, handover: :none, notify: nil, await: nil}
   end
+
+  @doc false
+  # The one bound on what either end of a hop keeps for later, {count, bytes}: the host
+  # options :max_held and :max_held_bytes. The paused copy stashes at most `count` messages
+  # (the protocol's `stash_max`, Protocol.copy/5); the source, while it hands off, keeps at
+  # most `count` events (the messages it hands over with its commit and the other events it
+  # postpones) and `bytes` bytes of them (Tartarus.Agent.Server). So a commit's hand-over
+  # carries no more than a copy may stash.
+  @spec stash_bound(map()) :: {pos_integer(), pos_integer()}
+  def stash_bound(host),
+    do: {Map.get(host.opts, :max_held, 1_000), Map.get(host.opts, :max_held_bytes, 8_388_608)}
 
   @doc false
   # One event of the paused copy ({:info, msg} or :timeout, its state timeout):

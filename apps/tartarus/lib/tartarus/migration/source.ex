@@ -251,8 +251,7 @@ defmodule Tartarus.Migration.Source do
   # while it handed off (data.held), then still in its mailbox (drained without waiting).
   @impl true
   def handover(%{data: data} = x) do
-    held = for {:info, {:"$tartarus_msg", _, _, _} = m} <- Enum.reverse(data.held), do: m
-    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, held ++ drain([]))
+    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, Enum.reverse(data.held, drain([])))
     {{msgs, inbox}, %{x | data: %{data | inbox: inbox, pending: []}}}
   end
 
@@ -340,7 +339,8 @@ defmodule Tartarus.Migration.Source do
   defp outgoing(env, :move), do: %{env | departed_at: Clock.system_time(:microsecond)}
 
   defp outgoing(env, :clone) do
-    id = Envelope.new_id()
+    # (Not the pooled new_id/0: an agent's process keeps no dictionary key.)
+    id = Envelope.new_id(:unpooled)
 
     %{
       env

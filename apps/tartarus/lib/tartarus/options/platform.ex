@@ -85,9 +85,11 @@ defmodule Tartarus.Options.Platform do
       default: 1_000,
       doc:
         "messages, calls and other events an agent keeps while it hands off (waits for its " <>
-          "destination); beyond that, posts and requests to it return " <>
-          "`{:error, {:overloaded, id}}`, calls are answered so, anything else is dropped " <>
-          "and counted (`:dropped`)"
+          "destination; its messages held, the rest postponed); beyond that, posts and " <>
+          "requests to it return `{:error, {:overloaded, id}}`, calls are answered so, " <>
+          "anything else is dropped and counted (`:dropped`). Also the messages a paused " <>
+          "copy at this host stashes while its migration is in doubt (their senders are told " <>
+          "to send again beyond that): the hop's one stash bound"
     ],
     max_held_bytes: [
       type: :pos_integer,

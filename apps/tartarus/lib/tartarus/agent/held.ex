@@ -1,0 +1,83 @@
+defmodule Tartarus.Agent.Held do
+  @moduledoc false
+  # What an agent keeps for later while it hands off (Tartarus.Agent.Server, :handing_off):
+  # its messages (post, request) in data.held, newest first, which a committed move hands
+  # over with its commit (Tartarus.Migration.Source.handover/1) and a failed one handles
+  # afterwards in their order; every other event (calls, casts, other messages) is
+  # postponed: gen_statem keeps it and takes it again once the state changes. data.held_size
+  # and data.postponed count each, {count, bytes}.
+  #
+  # Together they are bounded by the hop's stash bound (Tartarus.Migration.Arrival
+  # .stash_bound/1: the host options :max_held and :max_held_bytes, the first also the
+  # paused copy's stash_max): at most that many events of at most that many bytes (external
+  # size: binaries count whole, wherever they live). Beyond that, a message for the agent
+  # is refused to its sender (post and request return {:error, {:overloaded, id}}), a call
+  # answered the same, anything else dropped and counted: the agent is never killed for
+  # what others send it. This module decides and does the refusing; the server turns the
+  # rest into its state machine's terms.
+
+  alias Tartarus.Ledger
+  alias Tartarus.Migration.Arrival
+
+  @doc false
+  # The fields of an agent's data for this module, empty.
+  @spec empty() :: map()
+  def empty, do: %{held: [], held_size: {0, 0}, postponed: {0, 0}}
+
+  @doc false
+  # Event `event` ({type, content}) of a handing-off agent: {:held, data} (an agent's
+  # message, kept in data.held), {:postponed, data} (anything else, to postpone) or
+  # :refused (over the bound: refused or dropped, counted).
+  @spec keep(map(), {term(), term()}) :: {:held, map()} | {:postponed, map()} | :refused
+  def keep(data, event) do
+    {held_n, held_bytes} = data.held_size
+    {post_n, post_bytes} = data.postponed
+    size = bytes(event)
+    {max_n, max_bytes} = Arrival.stash_bound(data.host)
+
+    cond do
+      held_n + post_n >= max_n or held_bytes + post_bytes + size > max_bytes ->
+        refuse(data, event)
+
+      agent_message?(event) ->
+        {:info, m} = event
+        {:held, %{data | held: [m | data.held], held_size: {held_n + 1, held_bytes + size}}}
+
+      true ->
+        {:postponed, %{data | postponed: {post_n + 1, post_bytes + size}}}
+    end
+  end
+
+  @doc false
+  # When the hand-off ends: {the held messages, oldest first, the postponed count, data
+  # emptied}. (An agent that hands off again at once keeps counting its postponed events,
+  # which stay postponed: Tartarus.Agent.Server.)
+  @spec release(map()) :: {list(), {non_neg_integer(), non_neg_integer()}, map()}
+  def release(data), do: {Enum.reverse(data.held), data.postponed, Map.merge(data, empty())}
+
+  defp agent_message?({:info, {:"$tartarus_msg", {pid, _}, kind, _}})
+       when is_pid(pid) and kind in [:post, :request],
+       do: true
+
+  defp agent_message?(_event), do: false
+
+  defp bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
+  defp bytes({_type, content}), do: :erlang.external_size(content)
+
+  defp refuse(data, {:info, {:"$tartarus_msg", {pid, ref}, _kind, _msg}}) when is_pid(pid) do
+    send(pid, {ref, {:failed, {:overloaded, data.env.id}}})
+    dropped(data)
+  end
+
+  defp refuse(data, {{:call, from}, _request}) do
+    Tartarus.Events.reply(from, {:error, {:overloaded, data.env.id}})
+    dropped(data)
+  end
+
+  defp refuse(data, _event), do: dropped(data)
+
+  defp dropped(data) do
+    Ledger.count(data.host, :dropped)
+    :refused
+  end
+end
