@@ -91,8 +91,10 @@ defmodule Tartarus.MigrationReplayPeerTest do
 
     # Admitted (its seal holds and nothing remembers it): a paused copy is made, which asks
     # the source; the source committed another copy of that migration: aborted.
-    assert_receive {:fault_paused, :admitting, ^server, _env}, 5_000
-    send(server, {:fault_continue, server})
+    # Admitted by a process of its own (Tartarus.Host.Arrivals), not the server.
+    assert_receive {:fault_paused, :admitting, admitting, _env}, 5_000
+    assert node(admitting) == b and admitting != server
+    send(admitting, {:fault_continue, admitting})
     eventually(fn -> paused(hb) == 0 end, 10_000)
     assert copies(id, [ha, hb, hc]) == 1
     assert {:ok, :s0} = Tartarus.request({id, hc}, :state)

@@ -16,8 +16,8 @@ defmodule Tartarus.Fault do
     * `:outgoing` - the source's envelope just before `prepare` is sent (value: the envelope);
     * `:prepared` - the source got `prepared`, before it decides (value: the new pid);
     * `:committing` - the source decided to commit, before `commit` is sent (value: the new pid);
-    * `:admitting` - the destination host's server is about to create the paused copy (value: the envelope);
-    * `:prepare_received` - a destination host's server received a `prepare`, before any check
+    * `:admitting` - the process admitting a prepare at the destination (`Tartarus.Host.Arrivals`) passed every check and is about to become the paused copy (value: the envelope);
+    * `:prepare_received` - the process admitting a `prepare` at the destination started, before any check
       (value: the whole message, as sent: e.g. to capture a sealed prepare and replay it).
 
   Link emulation (latency and loss) is not a fault point: see `Tartarus.Transport`.

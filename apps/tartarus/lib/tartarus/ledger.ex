@@ -28,10 +28,11 @@ defmodule Tartarus.Ledger do
   | `{:arriving, id}` | `pid`: a paused copy here (destination) | `put_arriving/3` (Host.Arrivals, Host.Parked, Host.Agents.restore); goes with `drop_arriving/3` (the copy once resident; the host server when it is down) | `arriving?/2`, `arriving?/3`, `locate/2` |
   | `{:parked, {mig, copy}}` | `env, src, kind`: a parked in-doubt copy (destination) | `park/6`; goes with `unpark/3` | `parked/1`, `fetch_parked/3` |
   | `:parked` | `n`: how many | `park/6`, `unpark/3` | `counter/2` (`:parked`) |
-  | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages) | `count/2` | `counted/2` |
-  | `{:seen, mig}` | `what, seq`: admission's memory of a prepare | `seen_put/4` | `seen_fetch/2` |
+  | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages); `:procs` (the host's agent processes), `:admitting` (admissions under way), `:buckets` | `count/2`; `put_proc/3`, `drop_proc/2`; `reserve_admission/1`, `release_admission/1`; `swap_bucket/4` | `counted/2`, `reserve_admission/1` |
+  | `{:seen, mig}` | `what, seq`: admission's memory of a prepare (`:pending, nil` while one admission of it runs) | `seen_claim/2`, `seen_put/4`; goes with `seen_release/2` | `seen_fetch/2`, `seen_claim/2` |
   | `{:seen_order, seq}` | `mig`: its age, oldest forgotten first | `seen_put/4` | `seen_put/4` |
-  | `:seen_range` | `first, next`: the seqs remembered, `first..next-1` | `seen_put/4` | `seen_put/4` |
+  | `:seen_next` | `seq`: the last sequence number taken | `seen_put/4` | `seen_put/4` |
+  | `{:bucket, source_bin}` | `{scaled_tokens, at_ms}`: a source's admission rate bucket (the source as `term_to_binary`) (`Tartarus.Security.Admission`) | `swap_bucket/4` (Host.Arrivals) | `bucket/2`, `buckets/1` |
   | `{:proc, pid}` | `entry` (`%{id:, key:, restarts:, owner:, create:}`): an agent process the host watches | `put_proc/3` (Host.Agents); goes with `drop_proc/2` (Host.Server on its `:DOWN`) | `procs/1` (a server that starts adopts them; the warden kills them), `proc?/2` |
   | `{:snapshot, key}` | `env`: the envelope agent process `key` starts and restarts from | `put_snapshot/3` (the agent once resident; Host.Agents for a restart or restore); goes with `drop_snapshot/2` | `fetch_snapshot/2` |
   | `{:creating, key}` | `from`: the creator of agent process `key`, until answered | `put_creator/3`; goes with `take_creator/2` (the agent, its creator or the host server: whoever answers) | `take_creator/2` |
@@ -52,8 +53,10 @@ defmodule Tartarus.Ledger do
 
   The hot path of a migration does not go through the host's server: the agent writes its
   own hand-off record, pointer and residence (`begin_handoff/3`, `put_pointer/7`,
-  `register_resident/3`, `forget_resident/2`); the destination's server writes admission's
-  memory and the arriving copy (`seen_put/4`, `put_arriving/3`); the source's server answers
+  `register_resident/3`, `forget_resident/2`); the process spawned for each prepare at the
+  destination (the copy-to-be) writes admission's memory, counters and buckets and the
+  arriving copy (`seen_claim/2`, `seen_put/4`, `reserve_admission/1`, `swap_bucket/4`,
+  `put_arriving/3`, `put_proc/3`); the source's server answers
   queries and acknowledgements from the table (`decision/4`, `acknowledge/4`).
   """
 
@@ -144,7 +147,8 @@ defmodule Tartarus.Ledger do
   What admission remembers of the prepare of `mig` (`Tartarus.Migration.Protocol.destination/1`'s
   `store:`): kept off the host server's heap (10,000 remembered prepares are about
   2.7 MB, which made every collection of that heap a long one), and it outlives a restart of
-  the server. Takes the table, not the host.
+  the server. Takes the table, not the host. `:pending` while an admission of it runs
+  (`seen_claim/2`).
   """
   @spec seen_fetch(:ets.tid(), term()) :: {:ok, term()} | :error
   def seen_fetch(ledger, mig) do
@@ -154,23 +158,56 @@ defmodule Tartarus.Ledger do
     end
   end
 
-  @doc "Remembers `what` for `mig`; past `max` migrations the oldest is forgotten."
+  @doc "True while the host's ledger exists (its warden is up)."
+  @spec exists?(host()) :: boolean()
+  def exists?(%{ledger: l}), do: :ets.info(l) != :undefined
+
+  @doc "The table admission's memory takes (`Tartarus.Migration.Protocol.destination/1`)."
+  @spec admission_memory(host()) :: :ets.tid()
+  def admission_memory(%{ledger: l}), do: l
+
+  @doc """
+  Claims the admission of `mig` for the caller (one process per prepare admits it, see
+  `Tartarus.Host.Arrivals`), in one atomic insert: `:error` (nothing remembered: claimed,
+  until `seen_put/4` or `seen_release/2`), `:busy` (another admission of `mig` runs) or
+  `{:ok, what}` (remembered).
+  """
+  @spec seen_claim(:ets.tid(), term()) :: {:ok, term()} | :error | :busy
+  def seen_claim(ledger, mig) do
+    if :ets.insert_new(ledger, {{:seen, mig}, :pending, nil}) do
+      :error
+    else
+      case seen_fetch(ledger, mig) do
+        {:ok, :pending} -> :busy
+        {:ok, what} -> {:ok, what}
+        # Forgotten in between: claim again.
+        :error -> seen_claim(ledger, mig)
+      end
+    end
+  end
+
+  @doc "Ends a claim of `mig` that made no copy (`seen_claim/2`): nothing is remembered."
+  @spec seen_release(:ets.tid(), term()) :: :ok
+  def seen_release(ledger, mig) do
+    :ets.delete_object(ledger, {{:seen, mig}, :pending, nil})
+    :ok
+  end
+
+  @doc """
+  Remembers `what` for `mig`; past `max` migrations the oldest is forgotten. Safe from
+  concurrent admissions: each new migration takes its own sequence number, and the one that
+  takes `n` forgets the one of `n - max`.
+  """
   @spec seen_put(:ets.tid(), term(), term(), pos_integer()) :: :ok
   def seen_put(ledger, mig, what, max) do
     case :ets.lookup(ledger, {:seen, mig}) do
-      [{key, _, seq}] ->
+      [{key, _, seq}] when is_integer(seq) ->
         :ets.insert(ledger, {key, what, seq})
 
-      [] ->
-        {first, next} =
-          case :ets.lookup(ledger, :seen_range) do
-            [{_, first, next}] -> {first, next}
-            [] -> {0, 0}
-          end
-
-        :ets.insert(ledger, [{{:seen, mig}, what, next}, {{:seen_order, next}, mig}])
-        first = if next + 1 - first > max, do: seen_forget(ledger, first), else: first
-        :ets.insert(ledger, {:seen_range, first, next + 1})
+      _new_or_claimed ->
+        seq = :ets.update_counter(ledger, :seen_next, 1, {:seen_next, -1})
+        :ets.insert(ledger, [{{:seen, mig}, what, seq}, {{:seen_order, seq}, mig}])
+        if seq >= max, do: seen_forget(ledger, seq - max)
     end
 
     :ok
@@ -178,11 +215,76 @@ defmodule Tartarus.Ledger do
 
   defp seen_forget(ledger, seq) do
     case :ets.take(ledger, {:seen_order, seq}) do
-      [{_, mig}] -> :ets.delete(ledger, {:seen, mig})
+      [{_, mig}] -> :ets.match_delete(ledger, {{:seen, mig}, :_, seq})
       [] -> :ok
     end
+  end
 
-    seq + 1
+  # -- admission's counters and rate buckets (any process of the host admits) ---------------
+
+  @doc """
+  Reserves room for one arriving agent (`Tartarus.Host.Arrivals`, before it creates the
+  copy) and returns how many agent processes the host holds besides it: its watched
+  processes (`put_proc/3`) plus the reservations made before this one. Concurrent
+  admissions each see a different count, so no two take the same last place. Ends with
+  `put_proc/3` then `release_admission/1` (a copy), or `release_admission/1` alone.
+  """
+  @spec reserve_admission(host()) :: non_neg_integer()
+  def reserve_admission(%{ledger: l} = host) do
+    before = :ets.update_counter(l, {:count, :admitting}, 1, {{:count, :admitting}, 0}) - 1
+    counted(host, :procs) + before
+  end
+
+  @doc "Ends a reservation of `reserve_admission/1`."
+  @spec release_admission(host()) :: integer()
+  def release_admission(%{ledger: l}),
+    do: :ets.update_counter(l, {:count, :admitting}, -1, {{:count, :admitting}, 0})
+
+  @doc "Source `source`'s admission bucket (`Tartarus.Security.Admission`), if it has one."
+  @spec bucket(host(), term()) :: {:ok, term()} | :error
+  def bucket(%{ledger: l}, source) do
+    case :ets.lookup(l, bucket_key(source)) do
+      [{_, b}] -> {:ok, b}
+      [] -> :error
+    end
+  end
+
+  @doc """
+  Replaces source `source`'s bucket `old` (nil: none) by `new` (nil: none), only if it is
+  still `old` (a compare-and-swap: concurrent admissions of one source take distinct
+  tokens). True if it was replaced.
+  """
+  @spec swap_bucket(host(), term(), term(), term()) :: boolean()
+  def swap_bucket(_host, _source, nil, nil), do: true
+
+  def swap_bucket(%{ledger: l}, source, nil, new) do
+    inserted = :ets.insert_new(l, {bucket_key(source), new})
+    if inserted, do: :ets.update_counter(l, {:count, :buckets}, 1, {{:count, :buckets}, 0})
+    inserted
+  end
+
+  def swap_bucket(%{ledger: l}, source, old, nil) do
+    deleted = :ets.select_delete(l, [{{bucket_key(source), :"$1"}, is(old), [true]}]) == 1
+    if deleted, do: :ets.update_counter(l, {:count, :buckets}, -1, {{:count, :buckets}, 0})
+    deleted
+  end
+
+  def swap_bucket(%{ledger: l}, source, old, new) do
+    key = bucket_key(source)
+    :ets.select_replace(l, [{{key, :"$1"}, is(old), [{{{key}, {:const, new}}}]}]) == 1
+  end
+
+  # The source as a binary in the key: a match pattern that names the whole key (one
+  # lookup, not a scan of the table) whatever term the source is.
+  defp bucket_key(source), do: {:bucket, :erlang.term_to_binary(source)}
+  defp is(value), do: [{:"=:=", :"$1", {:const, value}}]
+
+  @doc "Every source's admission bucket, as a map (a scan)."
+  @spec buckets(host()) :: map()
+  def buckets(%{ledger: l}) do
+    for [bin, b] <- :ets.match(l, {{:bucket, :"$1"}, :"$2"}),
+        into: %{},
+        do: {:erlang.binary_to_term(bin), b}
   end
 
   # -- residents -------------------------------------------------------------------------
@@ -559,11 +661,23 @@ defmodule Tartarus.Ledger do
   one adopts it (`procs/1`), a stopping host kills it.
   """
   @spec put_proc(host(), pid(), map()) :: true
-  def put_proc(host, pid, entry), do: :ets.insert(host.ledger, {{:proc, pid}, entry})
+  def put_proc(%{ledger: l}, pid, entry) do
+    # Counted once per process (`counted(host, :procs)`: admission's count of agents).
+    if :ets.insert_new(l, {{:proc, pid}, entry}),
+      do: :ets.update_counter(l, {:count, :procs}, 1, {{:count, :procs}, 0}),
+      else: :ets.insert(l, {{:proc, pid}, entry})
+
+    true
+  end
 
   @doc "Agent process `pid` is down: no longer the host's."
   @spec drop_proc(host(), pid()) :: true
-  def drop_proc(host, pid), do: :ets.delete(host.ledger, {:proc, pid})
+  def drop_proc(%{ledger: l}, pid) do
+    if :ets.take(l, {:proc, pid}) != [],
+      do: :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+
+    true
+  end
 
   @doc "True if agent process `pid` is the host's."
   @spec proc?(host(), pid()) :: boolean()

@@ -1,5 +1,6 @@
 defmodule Tartarus.HeldBoundTest do
-  # An agent mid-hand-off (its destination's server suspended, so the prepare waits) holds
+  # An agent mid-hand-off (its destination's admission held at `:admitting`, so the prepare
+  # waits) holds
   # a bounded amount of what it is sent: at most :max_held events and :max_held_bytes bytes,
   # binaries included; the overflow is refused to its senders ({:error, {:overloaded, id}})
   # instead of the agent being killed. Before, 64 KiB binaries piled up without bound (they
@@ -29,17 +30,17 @@ defmodule Tartarus.HeldBoundTest do
     end
   end
 
-  # Starts a move of agent `id` from `a` to `b` whose destination server is suspended (the
-  # move waits); returns the move's task and a function that resumes the destination.
+  # Starts a move of agent `id` from `a` to `b` whose admission at `b` is held before it
+  # creates the copy (the move waits); returns the move's task and a function that lets the
+  # admission go on.
   defp stalled_move(id, a, b) do
-    {:ok, dest} = Tartarus.Host.whereis(addr(b))
-    :ok = :sys.suspend(dest)
-    resumed = fn -> :sys.resume(dest) end
-    on_exit(fn -> if Process.alive?(dest), do: :sys.resume(dest) end)
+    :ok = Tartarus.Fault.install(:admitting, {:once, {:pause, self()}})
+    on_exit(fn -> Tartarus.Fault.clear(:admitting) end)
     task = Task.async(fn -> Tartarus.move({id, addr(a)}, b) end)
     [%{pid: pid}] = Tartarus.agents(a)
+    assert_receive {:fault_paused, :admitting, admitting, _env}, 10_000
     {:ok, _} = wait_for(fn -> match?({:handing_off, _}, :sys.get_state(pid)) end)
-    {task, resumed, pid}
+    {task, fn -> Tartarus.Fault.continue(admitting) end, pid}
   end
 
   test "64 KiB binaries sent to a handing-off agent: held bytes bounded, the rest refused" do

@@ -10,11 +10,10 @@ defmodule Tartarus.LedgerOwnerTest do
   @owner "apps/tartarus/lib/tartarus/ledger.ex"
 
   # The only places outside the owner that hold the table: the warden builds the host's map
-  # with it, and admission's memory (Migration.Protocol) is given it.
+  # with it, and admission's memory (Migration.Protocol) is given it
+  # (Ledger.admission_memory/1).
   @allowed [
     {"apps/tartarus/lib/tartarus/host/warden.ex", "ledger: Tartarus.Ledger.new(decided)"},
-    {"apps/tartarus/lib/tartarus/host/server.ex",
-     "Protocol.destination(store: {Ledger, host.ledger})"},
     {"apps/tartarus/lib/tartarus/migration/protocol.ex", ":ledger"},
     # A zone's own ledger of tags (a map in its state), not a host's.
     {"apps/tartarus_lats_device/lib/tartarus_lats/zone.ex", ""}

@@ -451,10 +451,17 @@ defmodule TartarusTools.Chaos do
   # -- the rogue node ----------------------------------------------------------------
 
   @doc false
-  # The `:prepare_received` hook on every node: a copy of the message, and who received it
-  # (the host's server), goes to the harness; the message itself goes on unchanged.
+  # The `:prepare_received` hook on every node: a copy of the message, and the host that
+  # received it (its server, which takes a replay: the process that admitted the original
+  # is gone or the copy), goes to the harness; the message itself goes on unchanged.
   def capture(msg, collector) do
-    send(collector, {:captured, self(), msg})
+    server =
+      case Tartarus.Host.whereis({:h, node()}) do
+        {:ok, pid} -> pid
+        _ -> self()
+      end
+
+    send(collector, {:captured, server, msg})
     msg
   end
 

@@ -85,6 +85,17 @@ defmodule Tartarus.Agent.Server do
     )
   end
 
+  @doc false
+  # The calling process becomes the agent (the paused copy its own admission made,
+  # Tartarus.Host.Arrivals): the same process flags as start/4's, at normal priority (the
+  # admission ran at high), then enter/4. Never returns.
+  @spec become(map(), reference(), Tartarus.Envelope.t(), term()) :: no_return()
+  def become(host, key, env, mode) do
+    Process.flag(:priority, :normal)
+    for {flag, value} <- heap_limit(host.opts.max_heap_size), do: Process.flag(flag, value)
+    enter(host, key, env, mode)
+  end
+
   # The mailbox lives off the heap: what others send an agent faster than it takes it does
   # not count against its :max_heap_size (a flood of messages cannot get it killed and
   # restarted from its snapshot); it takes each and, while it hands off, refuses what is

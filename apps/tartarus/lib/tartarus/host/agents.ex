@@ -375,12 +375,19 @@ defmodule Tartarus.Host.Agents do
       end
     end
 
+    # Admission's memory of them: in the ledger (Tartarus.Host.Arrivals reads it there).
+    dest =
+      Tartarus.Migration.Protocol.destination(
+        store: {Ledger, Ledger.admission_memory(state.host)}
+      )
+
     state =
       Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
         case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
           {:ok, pid, state} ->
             Ledger.put_arriving(state.host, env.id, pid)
-            %{state | dest: Tartarus.Migration.Protocol.restore_seen(state.dest, mig, copy, pid)}
+            Tartarus.Migration.Protocol.restore_seen(dest, mig, copy, pid)
+            state
 
           {:error, _reason, state} ->
             state

@@ -1,15 +1,16 @@
 defmodule Tartarus.Host.Server do
   @moduledoc false
-  # The server of one host. It admits arriving agents (phase 1–2 of the hand-off, DESIGN §6),
-  # answers decision queries for migrations that left from here, and watches its agents to
+  # The server of one host. It adopts arriving agents (phase 1–2 of the hand-off, DESIGN §6:
+  # admitted by a process of their own, Tartarus.Host.Arrivals, not here), answers decision
+  # queries for migrations that left from here, and watches its agents to
   # restart crashed ones from their arrival snapshot. The host's tables, journal and the
   # watchdog of callback budgets are its warden's (Tartarus.Host.Warden), which outlives it:
   # a server that dies, even by :kill, is restarted and adopts the host's live agents (each
   # recorded under {:proc, pid} in the ledger), so none is orphaned, lost or duplicated.
   #
   # The hand-off protocol (messages, decision rule, guarantees) is specified and decided in
-  # Tartarus.Migration.Protocol; this server runs its destination side (admission) and
-  # answers decision queries as the source host, carrying out the protocol's actions.
+  # Tartarus.Migration.Protocol; this server answers decision queries as the source host,
+  # carrying out the protocol's actions.
   #
   # No agent's code runs in this server or blocks it (see Agent.Server's top comment): a
   # create is answered once the agent's init/1 returned (by the agent) or it went down (by
@@ -25,12 +26,12 @@ defmodule Tartarus.Host.Server do
 
   alias Tartarus.{Clock, Ledger}
   alias Tartarus.Host.{Agents, Arrivals, Parked}
-  alias Tartarus.Migration.{Messages, Protocol}
+  alias Tartarus.Migration.Messages
 
   def start_link({name, opts}) do
-    # Every arrival's prepare (an agent's whole envelope) queues here: off the heap, a burst
-    # of arrivals neither grows the heap nor makes its collection long (ERTS collects a heap
-    # over about 1 MB, queued messages included, on a dirty scheduler).
+    # A replayed prepare (an agent's whole envelope) may queue here: off the heap, a burst
+    # neither grows the heap nor makes its collection long (ERTS collects a heap over about
+    # 1 MB, queued messages included, on a dirty scheduler).
     GenServer.start_link(__MODULE__, {name, opts},
       name: Tartarus.Host.via(:host, name),
       spawn_opt: [message_queue_data: :off_heap]
@@ -40,9 +41,9 @@ defmodule Tartarus.Host.Server do
   @impl true
   def init({name, opts}) do
     Process.flag(:trap_exit, true)
-    # Every arrival passes through this one process (admission, spawning the paused copy):
-    # at normal priority it gets one turn among all runnable agents and its queue grows to
-    # hundreds of prepares under load. Its work per message is short and bounded, so high
+    # Every arrival is adopted by this one process (one message, after its copy answered
+    # `prepared`), and every agent's end is seen here: at normal priority it gets one turn
+    # among all runnable agents and its queue grows to hundreds of messages under load. Its work per message is short and bounded, so high
     # priority cannot starve the agents: it drains its queue and waits.
     Process.flag(:priority, :high)
 
@@ -63,8 +64,6 @@ defmodule Tartarus.Host.Server do
       pids: %{},
       # Agents being killed: pid => {escalation timer, callers to answer}.
       killing: %{},
-      admission: opts[:admission],
-      dest: Protocol.destination(store: {Ledger, host.ledger}),
       adopted: 0
     }
 
@@ -191,20 +190,11 @@ defmodule Tartarus.Host.Server do
   end
 
   @impl true
-  def handle_info({:"$tartarus_prepare", s_pid, mig, src, _, _, env, _, _} = msg, state) do
-    msg = Tartarus.Fault.point(:prepare_received, msg)
-
-    case Tartarus.Wire.check_prepare(
-           msg,
-           Tartarus.Security.Admission.max_message_bytes(state.admission)
-         ) do
-      :ok ->
-        {:prepare, p} = Messages.classify(msg)
-        {:noreply, Arrivals.admission(state, {:prepare, p})}
-
-      {:error, reason} ->
-        {:noreply, Arrivals.refuse(state, s_pid, mig, env, src, reason)}
-    end
+  # A prepare sent to this server (a replay, or a source of an older build): admitted by a
+  # process of its own, as every prepare is (Tartarus.Host.Arrivals).
+  def handle_info({:"$tartarus_prepare", _, _, _, _, _, _, _, _} = msg, state) do
+    Arrivals.admit_spawn(state.host, msg)
+    {:noreply, state}
   end
 
   def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
@@ -276,11 +266,20 @@ defmodule Tartarus.Host.Server do
   #
   # The creator recorded the process under {:proc, pid} before it asked: a server that
   # started meanwhile adopted it from there already (Agents.adopt_all/1).
-  def handle_info({:"$tartarus_adopt", pid, %{id: id, key: key, owner: owner}}, state)
+  #
+  # A paused copy (Tartarus.Host.Arrivals) is adopted the same way, with `create: false`.
+  def handle_info({:"$tartarus_adopt", pid, %{id: id, key: key, owner: owner} = e}, state)
       when is_pid(pid) and node(pid) == node() and is_binary(id) and is_reference(key) do
     cond do
       not is_map_key(state.pids, pid) ->
-        entry = %{id: id, key: key, restarts: 0, owner: owner, create: true}
+        entry = %{
+          id: id,
+          key: key,
+          restarts: 0,
+          owner: owner,
+          create: Map.get(e, :create) != false
+        }
+
         {:noreply, Agents.watch(state, pid, entry)}
 
       Ledger.proc?(state.host, pid) ->

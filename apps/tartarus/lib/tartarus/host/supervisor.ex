@@ -5,7 +5,7 @@ defmodule Tartarus.Host.Supervisor do
   #   Host.Supervisor        :rest_for_one, at most @max_restarts restarts in @max_seconds s
   #   ├── Host.Warden        owns the ledger and store tables, the journal and the callback
   #   │                      watchdog: what must outlive the server (Tartarus.Host.Warden)
-  #   ├── Host.Server        admits arrivals; starts, monitors, restarts and (when the host
+  #   ├── Host.Server        adopts arrivals; starts, monitors, restarts and (when the host
   #   │                      stops) kills the host's agents
   #   ├── Overlay.Host       the host's signals, relays, broadcasts (Tartarus.Overlay)
   #   ├── plugins            DynamicSupervisor of the host's plugins

@@ -4,8 +4,8 @@ defmodule Tartarus.Migration.Protocol do
   (their validators are `Tartarus.Wire`'s) and the three parties' state machines written as
   `(state, event) -> {state, actions}`. The processes that run it
   (`Tartarus.Migration.Source` through `Tartarus.Migration.Executor` for the source,
-  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Arrivals` and
-  `Tartarus.Host.Server` for admission and decision queries) only turn messages into events
+  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Arrivals` for admission,
+  `Tartarus.Host.Server` for decision queries) only turn messages into events
   and carry out the actions (send, journal, create a paused copy, reply, emit). The model-checked property
   `Tartarus.Migration.ProtocolModelTest` drives these same functions over a network that
   drops, duplicates, delays, reorders and replays messages, with crashes and partitions.
@@ -14,8 +14,10 @@ defmodule Tartarus.Migration.Protocol do
 
     * **S**, the source: the agent's own process, for one attempt (`source/4`,
       `source_step/2`). It writes the decision.
-    * **H**, the destination host's server: admits or refuses (`destination/1`,
-      `destination_step/2`), creates a paused copy **A** and answers `prepared`.
+    * **H**, the destination's admission: a process spawned on the destination's node for
+      each prepare (`Tartarus.Host.Arrivals`), not the host's server; it admits or refuses
+      (`destination/1`, `destination_step/2`) and, admitted, becomes the paused copy **A**
+      and answers `prepared` (the host's server adopts it, asynchronously).
     * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
       nothing until it learns the decision.
     * **Hs**, the source host's server: answers decision queries (`answer/4`).
@@ -23,6 +25,8 @@ defmodule Tartarus.Migration.Protocol do
   ## Messages
 
       S  -> H   {:"$tartarus_prepare", s_pid, mig, src, src_pid, kind, env, manifest, code}
+                                                        the argument of H's process, spawned
+                                                        on the destination's node
       H  -> S   {:"$tartarus_need", mig, [module]}        modules H lacks; S resends with code
       H  -> S   {:"$tartarus_prepared", mig, copy, a_pid} A exists, paused, journaled
       H  -> S   {:"$tartarus_refused", mig, reason}       nothing was created
@@ -193,11 +197,14 @@ defmodule Tartarus.Migration.Protocol do
   @doc """
   The admission state of a destination host. Options: `:seen_max`, how many migrations it
   remembers (default 10_000); `:store`, `{module, table}` to remember them in, `module`
-  giving `seen_fetch(table, mig)` (`{:ok, what}` or `:error`) and
-  `seen_put(table, mig, what, seen_max)` (a host server's: `{Tartarus.Ledger, ledger}`, off
-  its heap, where 10,000 would make every collection a long one, and kept across a restart
-  of the server). Without it the memory is a map in the state (this module's tests and the
-  model).
+  giving `seen_claim(table, mig)` (`{:ok, what}`; `:error`, and `mig` is
+  claimed by this admission until `seen_put(table, mig, what, seen_max)` or
+  `seen_release(table, mig)`; or `:busy`, another admission of `mig` runs: the prepare is
+  dropped, that one answers). A host's is `{Tartarus.Ledger, ledger}`: off any process's
+  heap, shared by the processes that admit prepares concurrently (one per prepare,
+  `Tartarus.Host.Arrivals`), so one migration is never admitted twice at once, and kept
+  across a restart of the host's server. Without it the memory is a map in the state (this
+  module's tests and the model, which admit one prepare at a time).
   """
   @spec destination(keyword()) :: map()
   def destination(opts \\ []) do
@@ -238,6 +245,8 @@ defmodule Tartarus.Migration.Protocol do
       # A duplicate (or a replay) of a prepare this host made a copy for: is it still paused?
       {:ok, {:copy, copy, pid}} -> {d, [{:probe, p, copy, pid}]}
       :error -> {d, [{:check, p}]}
+      # Another admission of this migration is under way: it answers.
+      :busy -> {d, []}
     end
   end
 
@@ -251,19 +260,20 @@ defmodule Tartarus.Migration.Protocol do
   def destination_step(d, {:checked, p, :ok, copy}), do: {d, [{:create, p, copy}]}
 
   def destination_step(d, {:checked, p, {:need, mods}, _copy}),
-    do: {d, [{:send, p.s_pid, Messages.need(p.mig, mods)}]}
+    do: {release(d, p.mig), [{:send, p.s_pid, Messages.need(p.mig, mods)}]}
 
   # A refusal is not remembered: a forged prepare naming a real migration must not make the
   # real one refused. (Nothing was created; checking again costs only the check.)
   def destination_step(d, {:checked, p, {:error, reason}, _copy}),
-    do: {d, [{:refuse, p, reason}]}
+    do: {release(d, p.mig), [{:refuse, p, reason}]}
 
   def destination_step(d, {:created, p, copy, pid}) do
     {remember(d, p.mig, {:copy, copy, pid}),
      [{:journal_in_doubt, p, copy}, {:send, p.s_pid, Messages.prepared(p.mig, copy, pid)}]}
   end
 
-  def destination_step(d, {:create_failed, p, reason}), do: {d, [{:refuse, p, reason}]}
+  def destination_step(d, {:create_failed, p, reason}),
+    do: {release(d, p.mig), [{:refuse, p, reason}]}
 
   def destination_step(d, _event), do: {d, []}
 
@@ -275,8 +285,16 @@ defmodule Tartarus.Migration.Protocol do
 
   # Bounded: the oldest migration is forgotten first. Forgetting is safe (a replay then
   # makes a copy with a new token, which no decision names); memory only spares the work.
-  defp seen(%{seen: {module, table}}, mig), do: module.seen_fetch(table, mig)
+  defp seen(%{seen: {module, table}}, mig), do: module.seen_claim(table, mig)
   defp seen(%{seen: seen}, mig), do: Map.fetch(seen, mig)
+
+  # A claim that made no copy ends (a map claims nothing).
+  defp release(%{seen: {module, table}} = d, mig) do
+    :ok = module.seen_release(table, mig)
+    d
+  end
+
+  defp release(d, _mig), do: d
 
   defp remember(%{seen: {module, table}} = d, mig, what) do
     :ok = module.seen_put(table, mig, what, d.seen_max)

@@ -136,7 +136,9 @@ defmodule Tartarus.Migration.Source do
     # Before `prepare` leaves: the migration is undecided for whoever asks.
     Ledger.begin_handoff(host, data.env.id, mig)
     mref = watch(dest_pid)
-    send(dest_pid, prepare)
+    # To a process spawned for it at the destination, not to the host's server (admission
+    # does not queue behind one process per host, Tartarus.Host.Arrivals).
+    Tartarus.Host.Arrivals.send_prepare(dest, dest_pid, prepare)
 
     x = %{
       dest: dest,
@@ -267,7 +269,7 @@ defmodule Tartarus.Migration.Source do
 
   @impl true
   def resend(x, code) do
-    Kernel.send(x.dest_pid, Messages.with_code(x.prepare, code))
+    Tartarus.Host.Arrivals.send_prepare(x.dest, x.dest_pid, Messages.with_code(x.prepare, code))
     %{x | code_bytes: max(:erlang.external_size(code), 1)}
   end
 

@@ -88,6 +88,79 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
     assert [:prepared, :prepared, {:refused, _}] = replies
     assert Tartarus.Host.call(b, :paused) == 2
   end
+
+  # Admission runs in one process per prepare (Tartarus.Host.Arrivals), all at once: what
+  # they share is updated atomically in the host's ledger. Every admission that passed its
+  # checks is held at `:admitting` (before it creates its copy) until all were sent, so
+  # they overlap; then they go on.
+  defp prepares_at_once(host, migs_envs) do
+    {:ok, manifest} = CodeCache.manifest([Echo])
+    :ok = Tartarus.Fault.install(:admitting, {:pause, self()})
+
+    try do
+      for {mig, env} <- migs_envs do
+        prepare =
+          Messages.prepare(self(), mig, {:nowhere, node()}, self(), :move, env, manifest, [])
+
+        Tartarus.Host.Arrivals.send_prepare(host, self(), prepare)
+      end
+
+      held = paused([])
+      Tartarus.Fault.clear(:admitting)
+      Enum.each(held, &Tartarus.Fault.continue/1)
+      {length(held), collect([])}
+    after
+      Tartarus.Fault.clear(:admitting)
+    end
+  end
+
+  defp paused(acc) do
+    receive do
+      {:fault_paused, :admitting, pid, _env} -> paused([pid | acc])
+    after
+      500 -> acc
+    end
+  end
+
+  defp collect(acc) do
+    receive do
+      {:"$tartarus_prepared", mig, copy, pid} -> collect([{:prepared, mig, copy, pid} | acc])
+      {:"$tartarus_refused", mig, reason} -> collect([{:refused, mig, reason} | acc])
+    after
+      1_000 -> acc
+    end
+  end
+
+  defp envelope(n), do: %Envelope{id: Envelope.new_id(), module: Echo, rng: Envelope.seed_rng(n)}
+
+  test "concurrent prepares never take the same last place: max_resident_agents holds" do
+    b = host!(admission: [max_resident_agents: 5])
+    migs = for n <- 1..40, do: {{"incarnat", make_ref()}, envelope(n)}
+    {held, replies} = prepares_at_once(b, migs)
+
+    # Five places reserved while all forty were being admitted; the others refused.
+    assert held == 5
+    assert length(replies) == 40
+    assert Enum.count(replies, &match?({:prepared, _, _, _}, &1)) == 5
+    assert Enum.count(replies, &match?({:refused, _, {:too_many_agents, 5}}, &1)) == 35
+    assert Tartarus.Host.call(b, :paused) == 5
+    # The host's server adopted the copies (asynchronously).
+    {:ok, server} = Tartarus.Host.whereis(b)
+    eventually(fn -> GenServer.call(server, :monitored) == 5 end)
+  end
+
+  test "concurrent copies of one prepare make one paused copy" do
+    b = host!()
+    mig = {"incarnat", make_ref()}
+    {held, replies} = prepares_at_once(b, List.duplicate({mig, envelope(1)}, 20))
+
+    # The first claims it; the others meet its claim (dropped: it answers) or, once it
+    # made its copy, that copy (the same answer again).
+    assert held == 1
+    assert [{:prepared, ^mig, copy, pid} | _] = replies
+    assert Enum.all?(replies, &(&1 == {:prepared, mig, copy, pid}))
+    assert Tartarus.Host.call(b, :paused) == 1
+  end
 end
 
 defmodule Tartarus.Migration.ParkingTest do
