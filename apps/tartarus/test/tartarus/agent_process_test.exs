@@ -74,14 +74,16 @@ defmodule Tartarus.AgentProcessTest do
   # A move of agent `id` from `a` to `b` whose destination's server is suspended (the move
   # waits in :handing_off); returns the move's task, a function that resumes the
   # destination and the agent's process.
+  # A move from a to b whose prepare waits at the destination (the admitting process paused
+  # at the fault point :prepare_received) until the returned function releases it.
   defp stalled_move(id, a, b) do
-    {:ok, dest} = Tartarus.Host.whereis(addr(b))
-    :ok = :sys.suspend(dest)
-    on_exit(fn -> if Process.alive?(dest), do: :sys.resume(dest) end)
+    Tartarus.Fault.install(:prepare_received, {:once, {:pause, self()}})
+    on_exit(fn -> Tartarus.Fault.clear(:prepare_received) end)
     pid = pid_of(id)
     task = Task.async(fn -> Tartarus.move({id, addr(a)}, b) end)
+    assert_receive {:fault_paused, :prepare_received, admitting, _}, 5_000
     {:ok, _} = wait_for(fn -> match?({:handing_off, _}, :sys.get_state(pid)) end)
-    {task, fn -> :sys.resume(dest) end, pid}
+    {task, fn -> Tartarus.Fault.continue(admitting) end, pid}
   end
 
   describe "process dictionary" do

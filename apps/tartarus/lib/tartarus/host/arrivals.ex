@@ -58,7 +58,7 @@ defmodule Tartarus.Host.Arrivals do
   def admit(dest, {:"$tartarus_prepare", _, _, _, _, _, _, _, _} = msg) do
     with {:ok, host} <- Tartarus.Host.local(dest) do
       case admission(host, msg) do
-        %{copy: {key, env, mode}} -> Tartarus.Agent.Server.become(host, key, env, mode)
+        %{copy: {key, env, mode}} -> host.become.(host, key, env, mode)
         %{reserved: true} -> Ledger.release_admission(host)
         _ -> :ok
       end

@@ -83,6 +83,10 @@ defmodule Tartarus.Host.Warden do
       acks_armed: :atomics.new(1, []),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
       incarnation: :crypto.strong_rand_bytes(8),
+      # What an admitting process (Tartarus.Host.Arrivals.admit/2) runs to become the paused
+      # copy: given here, so that admission, which the migration's source calls, does not
+      # depend on the agent process's module, which depends on the source.
+      become: &Tartarus.Agent.Server.become/4,
       journal: journal,
       opts: Map.new(opts)
     }
