@@ -213,3 +213,10 @@ defmodule Tartarus.Test.CutLinks do
   @impl true
   def message_delay(_from, _to), do: 0
 end
+
+defmodule Tartarus.Test.LogSpy do
+  @moduledoc false
+  # A :logger handler for tests: sends every event that passed the primary filters to the
+  # pid in its `config` (`:logger.add_handler(id, Tartarus.Test.LogSpy, %{config: self()})`).
+  def log(event, %{config: pid}), do: send(pid, {:logged, event})
+end

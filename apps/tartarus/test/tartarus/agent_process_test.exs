@@ -47,12 +47,6 @@ defmodule Tartarus.AgentProcessTest do
     end
   end
 
-  defmodule LogSpy do
-    @moduledoc false
-    # A :logger handler: sends every event that passed the primary filters to its `config`.
-    def log(event, %{config: pid}), do: send(pid, {:logged, event})
-  end
-
   @doc false
   # The keys of a process dictionary that the platform would own ("$tartarus..." atoms).
   def platform_keys(dict) do
@@ -283,7 +277,7 @@ defmodule Tartarus.AgentProcessTest do
       h = host!()
       {:ok, id} = Tartarus.create_agent(h, Blocker, %{test: self()})
       pid = pid_of(id)
-      :ok = :logger.add_handler(:agent_process_spy, LogSpy, %{config: self()})
+      :ok = :logger.add_handler(:agent_process_spy, Tartarus.Test.LogSpy, %{config: self()})
       on_exit(fn -> :logger.remove_handler(:agent_process_spy) end)
 
       assert {:error, {:agent_crashed, _}} = Tartarus.request(id, :crash, 60_000)

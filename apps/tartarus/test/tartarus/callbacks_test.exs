@@ -20,12 +20,6 @@ defmodule Tartarus.CallbacksTest do
     end
   end
 
-  defmodule LogSpy do
-    @moduledoc false
-    # A :logger handler: sends every event that passed the primary filters to its `config`.
-    def log(event, %{config: pid}), do: send(pid, {:logged, event})
-  end
-
   defmodule Stuck do
     @moduledoc false
     # An agent that gets stuck where its arguments say: in init/1 (`wedge: :init`), in
@@ -309,7 +303,7 @@ defmodule Tartarus.CallbacksTest do
   test "an agent's crash is logged once, by its host, naming the agent's id and module" do
     h = host!()
     {:ok, id} = Tartarus.create_agent(h, Picky, :kept)
-    :ok = :logger.add_handler(:crash_spy, LogSpy, %{config: self()})
+    :ok = :logger.add_handler(:crash_spy, Tartarus.Test.LogSpy, %{config: self()})
     on_exit(fn -> :logger.remove_handler(:crash_spy) end)
 
     assert {:error, {:agent_crashed, _}} = Tartarus.request({id, h}, :unknown_msg, 60_000)

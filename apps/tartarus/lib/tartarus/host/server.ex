@@ -348,7 +348,8 @@ defmodule Tartarus.Host.Server do
     {state, restarted?} = Agents.agent_down(state, entry, reason, resident != nil, kill != nil)
 
     cond do
-      resident && !restarted? -> Ledger.unregister_ended(state.host, pid, resident)
+      # (A kill's entry went above.)
+      resident && !restarted? && !kill -> Ledger.unregister_ended(state.host, pid, resident)
       # A restarted process that ended before it registered: its predecessor's entry goes.
       resident == nil and entry.restarts > 0 -> Ledger.unregister_dead(state.host, entry.id)
       true -> :ok
