@@ -134,4 +134,40 @@ defmodule Tartarus.PlatformPeerTest do
     assert {:ok, %{host: ^hc}} = Tartarus.request({id, ha}, :info)
     refute c in :erpc.call(a, Node, :list, [])
   end
+
+  # A hop is three distribution messages between the two nodes: prepare, prepared, commit.
+  # (The prepare once went as a distributed spawn_request, which the destination's node
+  # answers with a spawn reply whatever the request's reply option: four a hop.) Counted as
+  # packets on A's connection to B while one agent bounces between them; acknowledgements
+  # are batched, so a few more packets may cross in all.
+  test "a hop between two nodes is three distribution messages", %{a: a, b: b, ha: ha, hb: hb} do
+    mod = :erpc.call(a, TartarusTools.Bench, :bouncer, [])
+    blob = :binary.copy("x", 1024)
+    # The first hops ship the code and connect the nodes.
+    :erpc.call(a, TartarusTools.Bench, :run_batch, [mod, ha, hb, [20], blob], 60_000)
+    {^b, port} = :erpc.call(a, :erlang, :system_info, [:dist_ctrl]) |> List.keyfind(b, 0)
+
+    packets = fn ->
+      {:ok, s} = :erpc.call(a, :inet, :getstat, [port, [:send_cnt, :recv_cnt]])
+      s[:send_cnt] + s[:recv_cnt]
+    end
+
+    hops = 400
+    before = packets.()
+    :erpc.call(a, TartarusTools.Bench, :run_batch, [mod, ha, hb, [hops], blob], 60_000)
+    n = packets.() - before
+    assert n >= 3 * hops and n <= 3 * hops + 20, "#{n} packets for #{hops} hops"
+
+    # The door that admits arrivals drops what it does not expect.
+    dropped = fn ->
+      Map.get(:erpc.call(b, Tartarus.Events, :dropped, []), :tartarus_arrivals, 0)
+    end
+
+    send({:tartarus_arrivals, b}, {:junk, 1})
+    send({:tartarus_arrivals, b}, {:"$tartarus_arrive", {:nowhere, b}, :not_a_prepare})
+    assert {:error, :unexpected_call} = GenServer.call({:tartarus_arrivals, b}, :hello)
+    Process.sleep(200)
+    assert dropped.() == 2
+    assert is_pid(:erpc.call(b, Process, :whereis, [:tartarus_arrivals]))
+  end
 end

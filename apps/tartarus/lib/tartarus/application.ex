@@ -10,7 +10,9 @@ defmodule Tartarus.Application do
   #   │   ├── Tartarus.Events.Registry    subscriptions (name hidden, see below)
   #   │   ├── Tartarus.AgentTable         (its ETS table belongs to the application process)
   #   │   ├── Tartarus.CodeCache          (its ETS table belongs to the application process)
-  #   │   └── Tartarus.Host.Directory     (its table is a cache of remote host pids)
+  #   │   ├── Tartarus.Host.Directory     (its table is a cache of remote host pids)
+  #   │   ├── Tartarus.Overlay            the overlay's door (:tartarus_overlay)
+  #   │   └── Tartarus.Host.ArrivalDoor   arriving agents' door (:tartarus_arrivals)
   #   └── host tree (unnamed)             :rest_for_one
   #       ├── Tartarus.HostRegistry       every host's and agent supervisor's name
   #       └── hosts (DynamicSupervisor)   one Tartarus.Host.Supervisor per host
@@ -48,7 +50,8 @@ defmodule Tartarus.Application do
       Tartarus.AgentTable,
       Tartarus.CodeCache,
       Tartarus.Host.Directory,
-      Tartarus.Overlay
+      Tartarus.Overlay,
+      Tartarus.Host.ArrivalDoor
     ]
 
     host_tree = [

@@ -5,10 +5,11 @@ defmodule Tartarus.Host.Arrivals do
   # actions: check the prepare's trust, size, code, capacity and the host's admission policy,
   # create the paused copy, journal it, answer `prepared`, `need` or `refused`).
   #
-  # It runs in a process of its own for each prepare, not in the host's server: the source
-  # spawns it on the destination's node with the prepare as its argument (admit/2; one
-  # distribution message, as a send to the server was), and a prepare sent to the server (a
-  # replay, a test) is handed to one the same way (admit_spawn/2). Admitted, that process
+  # It runs in a process of its own for each prepare, not in the host's server: spawned with
+  # the prepare as its argument (admit/2) by the source when the host is on its node, else
+  # by the node's door (Tartarus.Host.ArrivalDoor), which the source sends the prepare to
+  # (one distribution message, as a send to the server was); a prepare sent to the server
+  # (a replay, a test) is handed to one the same way (admit_spawn/2). Admitted, that process
   # becomes the paused copy itself (Agent.Server.become/4) and answers `prepared`; the
   # server hears of it by an asynchronous {:"$tartarus_adopt", ...} and monitors it from
   # then on, as it does a locally created agent. So arrivals do not queue behind one process
@@ -35,20 +36,31 @@ defmodule Tartarus.Host.Arrivals do
   @spawn_opts [priority: :high]
 
   @doc false
-  # Sends `prepare` to host `dest` (its server is `dest_pid`): spawns its admission on the
-  # host's node, the prepare as the argument (no spawn reply: the answer is the admission's).
+  # Sends `prepare` to host `dest` (its server is `dest_pid`): its admission is spawned on
+  # the host's node, the prepare as the argument. On this node directly; on another, by the
+  # node's door (Tartarus.Host.ArrivalDoor, one distribution message: a spawn_request over
+  # distribution would add a fourth, its spawn reply).
   @spec send_prepare(term(), pid(), tuple()) :: :ok
   def send_prepare(dest, dest_pid, prepare) do
-    opts = [{:reply, :no} | @spawn_opts]
-    _ = :erlang.spawn_request(node(dest_pid), __MODULE__, :admit, [dest, prepare], opts)
-    :ok
+    node = node(dest_pid)
+
+    if node == node() do
+      _ = admit_spawn(dest, prepare)
+      :ok
+    else
+      Kernel.send({:tartarus_arrivals, node}, {:"$tartarus_arrive", dest, prepare})
+      :ok
+    end
   end
 
   @doc false
-  # A prepare the host's server received: admitted by a process of its own, as any.
-  @spec admit_spawn(map(), tuple()) :: pid()
-  def admit_spawn(host, prepare),
-    do: :erlang.spawn_opt(__MODULE__, :admit, [host.ref, prepare], @spawn_opts)
+  # Spawns the admission of `prepare` for host `dest` (an address or a host's map) of this
+  # node: the source's, the node's door's or the host server's (a replay) way in.
+  @spec admit_spawn(term(), tuple()) :: pid()
+  def admit_spawn(%{ref: ref}, prepare), do: admit_spawn(ref, prepare)
+
+  def admit_spawn(dest, prepare),
+    do: :erlang.spawn_opt(__MODULE__, :admit, [dest, prepare], @spawn_opts)
 
   @doc false
   # The admission of one prepare at host `dest` of this node (the process's entry point):
