@@ -15,7 +15,8 @@ defmodule Tartarus.Migration.Protocol do
     * **S**, the source: the agent's own process, for one attempt (`source/4`,
       `source_step/2`). It writes the decision.
     * **H**, the destination's admission: a process spawned on the destination's node for
-      each prepare (`Tartarus.Host.Arrivals`), not the host's server; it admits or refuses
+      each prepare (`Tartarus.Host.Arrivals`; by the node's door, `Tartarus.Host.ArrivalDoor`,
+      for a source on another node), not the host's server; it admits or refuses
       (`destination/1`, `destination_step/2`) and, admitted, becomes the paused copy **A**
       and answers `prepared` (the host's server adopts it, asynchronously).
     * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
