@@ -162,7 +162,7 @@ defmodule Tartarus.Locator do
     # The tag grows with every message this node sends: the agent takes a sender's messages
     # in the order of their tags, each once (see take?/1 in Tartarus.Agent.Server).
     tag = System.unique_integer([:monotonic, :positive])
-    deliver(agent, {kind, msg}, tag, deadline, @max_chase, false, from)
+    deliver(agent, {kind, msg, false}, tag, deadline, @max_chase, false, from)
   end
 
   @doc false
@@ -218,9 +218,13 @@ defmodule Tartarus.Locator do
     do:
       reason not in [:noproc, :normal, :shutdown, :killed] and not match?({:shutdown, _}, reason)
 
-  defp follow(pid, {kind, msg} = km, ref, tag, deadline, n) do
+  # `km` is {kind, msg, sent}: `sent` says whether a copy of the message went out before this
+  # one (to a process that moved on with it, or ended): that copy may be with the agent
+  # already, so a refusal of this one is no failure.
+  defp follow(pid, {kind, msg, sent}, ref, tag, deadline, n) do
     mref = Process.monitor(pid)
     send(pid, {:"$tartarus_msg", {self(), tag}, kind, msg})
+    km = {kind, msg, true}
 
     Clock.receive do
       {^tag, :delivered} when kind == :post ->
@@ -232,8 +236,18 @@ defmodule Tartarus.Locator do
         # (its callback crashed, it stopped) is an error at once, not a time-out.
         await_reply(tag, mref, deadline)
 
+      {^tag, {:failed, {:overloaded, _}}} when sent ->
+        # Refused by an agent that holds too much while it hands off, but an earlier copy
+        # may be among what it holds (handed over, then taken and acknowledged): the
+        # refusal says nothing of that copy. Sent again a little later, until the deadline
+        # (then the outcome is unknown: a time-out, never a failure that was delivered).
+        Process.demonitor(mref, [:flush])
+        Clock.sleep(min(10, remaining(deadline)))
+        follow(pid, km, ref, tag, deadline, n)
+
       {^tag, {:failed, reason}} ->
-        # Handling it crashed the agent (host option :durable): not taken.
+        # Not taken: handling it crashed the agent (host option :durable), or the agent
+        # refused it (over its bound while it hands off) and no copy went out before.
         Process.demonitor(mref, [:flush])
         {:error, reason}
 

@@ -96,4 +96,36 @@ defmodule Tartarus.HeldBoundTest do
     [where] = Enum.filter([a, b], &(Tartarus.agents(&1) != []))
     assert {:ok, %{count: ^ok}} = Tartarus.request({id, addr(where)}, :state)
   end
+
+  # A sender follows the agent and sends its message again to the agent's next process
+  # (Tartarus.Locator): a copy of a message already handed over and taken. Such copies
+  # reached a handing-off agent by the hundred (every waiting sender, at every hop) and
+  # filled its bound, so new messages were refused (the busy benchmark with --cast: 1,805
+  # of 10,000 refused) and their senders told a failure. Now a copy of a taken message is
+  # dropped, unanswered and uncounted.
+  test "copies of messages taken already do not count against the bound" do
+    a = host!(migration_timeout: 3_000, max_held: 2)
+    b = host!()
+    :ok = Tartarus.connect(a, b)
+    id = agent!(a, %{count: 0})
+    [%{pid: first}] = Tartarus.agents(a)
+
+    # Taken by the agent (as a sender's first copy is).
+    send(first, {:"$tartarus_msg", {self(), 7}, :post, :inc})
+    assert_receive {7, :delivered}, 5_000
+
+    {task, resume, pid} = stalled_move(id, a, b)
+    assert pid == first
+    # Five copies of it while the agent hands off: dropped, none answered.
+    for _ <- 1..5, do: send(pid, {:"$tartarus_msg", {self(), 7}, :post, :inc})
+    # Two new messages still fit in the bound of two.
+    :ok = flood(id, a, 2, fn _ -> :inc end)
+    refute_receive {7, _}, 300
+
+    resume.()
+    Task.await(task, 10_000)
+    assert results(2) == [:ok, :ok]
+    refute_received {7, _}
+    assert {:ok, %{count: 3}} = Tartarus.request({id, addr(b)}, :state)
+  end
 end

@@ -5,7 +5,13 @@ defmodule Tartarus.RobustServicesTest do
 
   alias Tartarus.Examples.Echo
 
-  @services [Tartarus.AgentTable, Tartarus.CodeCache, Tartarus.Host.Directory, :tartarus_overlay]
+  @services [
+    Tartarus.AgentTable,
+    Tartarus.CodeCache,
+    Tartarus.Host.Directory,
+    :tartarus_overlay,
+    :tartarus_arrivals
+  ]
 
   # The registered processes of the tartarus application (in an umbrella test run, other
   # apps' processes are registered too).

@@ -17,7 +17,7 @@ defmodule Tartarus.Agent.Held do
   # rest into its state machine's terms.
 
   alias Tartarus.Ledger
-  alias Tartarus.Migration.Arrival
+  alias Tartarus.Migration.{Arrival, Inbox}
 
   @doc false
   # The fields of an agent's data for this module, empty.
@@ -26,9 +26,11 @@ defmodule Tartarus.Agent.Held do
 
   @doc false
   # Event `event` ({type, content}) of a handing-off agent: {:held, data} (an agent's
-  # message, kept in data.held), {:postponed, data} (anything else, to postpone) or
-  # :refused (over the bound: refused or dropped, counted).
-  @spec keep(map(), {term(), term()}) :: {:held, map()} | {:postponed, map()} | :refused
+  # message, kept in data.held), {:postponed, data} (anything else, to postpone), :taken (a
+  # copy of a message the agent took already: dropped, not counted) or :refused (over the
+  # bound: refused or dropped, counted).
+  @spec keep(map(), {term(), term()}) ::
+          {:held, map()} | {:postponed, map()} | :taken | :refused
   def keep(data, event) do
     {held_n, held_bytes} = data.held_size
     {post_n, post_bytes} = data.postponed
@@ -36,6 +38,11 @@ defmodule Tartarus.Agent.Held do
     {max_n, max_bytes} = Arrival.stash_bound(data.host)
 
     cond do
+      # A copy sent again of a message taken already (its sender followed the agent here
+      # after the hand-over that carried it): nothing to keep, nothing to count.
+      taken?(data, event) ->
+        :taken
+
       held_n + post_n >= max_n or held_bytes + post_bytes + size > max_bytes ->
         refuse(data, event)
 
@@ -60,6 +67,11 @@ defmodule Tartarus.Agent.Held do
        do: true
 
   defp agent_message?(_event), do: false
+
+  defp taken?(data, {:info, {:"$tartarus_msg", {pid, _} = from, _kind, _}}) when is_pid(pid),
+    do: Inbox.taken?(data.inbox, from)
+
+  defp taken?(_data, _event), do: false
 
   defp bytes({:info, {:"$tartarus_msg", _from, _kind, msg}}), do: :erlang.external_size(msg)
   defp bytes({_type, content}), do: :erlang.external_size(content)

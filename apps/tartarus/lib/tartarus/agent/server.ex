@@ -344,6 +344,7 @@ defmodule Tartarus.Agent.Server do
     case Held.keep(data, event) do
       {:held, data} -> {:keep_state, data}
       {:postponed, data} -> {:keep_state, data, [:postpone]}
+      :taken -> :keep_state_and_data
       :refused -> :keep_state_and_data
     end
   end

@@ -58,16 +58,29 @@ defmodule Tartarus.Migration.Inbox do
   """
   @spec take(t(), {pid(), term()}, integer()) :: {boolean(), t()}
   def take(%{seen: seen} = inbox, {pid, tag}, now \\ Tartarus.Clock.system_time(:millisecond)) do
+    if taken?(inbox, {pid, tag}) do
+      {false, inbox}
+    else
+      n = inbox.n + 1
+      {true, trim(%{inbox | seen: Map.put(seen, pid, {n, tag, now}), n: n}, now, %{})}
+    end
+  end
+
+  @doc """
+  Whether a message from `{pid, tag}` was taken already (`take/3` would not take it):
+  a copy its sender sent again.
+
+      iex> alias Tartarus.Migration.Inbox
+      iex> {true, i} = Inbox.take(Inbox.new(), {self(), 5})
+      iex> {Inbox.taken?(i, {self(), 5}), Inbox.taken?(i, {self(), 4}), Inbox.taken?(i, {self(), 6})}
+      {true, true, false}
+  """
+  @spec taken?(t(), {pid(), term()}) :: boolean()
+  def taken?(%{seen: seen}, {pid, tag}) do
     case Map.fetch(seen, pid) do
-      {:ok, entry} when elem(entry, 1) == tag ->
-        {false, inbox}
-
-      {:ok, entry} when is_integer(elem(entry, 1)) and is_integer(tag) and tag < elem(entry, 1) ->
-        {false, inbox}
-
-      _ ->
-        n = inbox.n + 1
-        {true, trim(%{inbox | seen: Map.put(seen, pid, {n, tag, now}), n: n}, now, %{})}
+      {:ok, entry} when elem(entry, 1) == tag -> true
+      {:ok, entry} when is_integer(elem(entry, 1)) and is_integer(tag) -> tag < elem(entry, 1)
+      _ -> false
     end
   end
 
