@@ -9,7 +9,7 @@ defmodule Tartarus.Migration.Arrival do
   # :awaiting_commit) calls step/2 for every message and timeout while paused; on
   # {:started, data, pending} it handles the handed-over messages, then handle_arrival/2.
 
-  @behaviour Tartarus.Migration.Executor
+  @behaviour Tartarus.Migration.Executor.Copy
 
   require Tartarus.Events
   alias Tartarus.{Clock, Events, Ledger}
@@ -89,13 +89,13 @@ defmodule Tartarus.Migration.Arrival do
   # -- the executor's effects (the paused copy's backend) -----------------------------------
   # The context: the agent process's state.
 
-  @impl Executor
+  @impl Executor.Copy
   def copy_state(data, c), do: %{data | paused: %{data.paused | c: c}}
 
-  @impl Executor
+  @impl Executor.Copy
   def start(data, _c, notify), do: start(data, notify)
 
-  @impl Executor
+  @impl Executor.Copy
   def abort(data, c) do
     Tartarus.Host.Persistence.resolved(data.host, c.mig, c.copy)
     {:stop, {:shutdown, :aborted}, data}
@@ -103,7 +103,7 @@ defmodule Tartarus.Migration.Arrival do
 
   # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
   # its stash go (the senders waiting on stashed messages time out).
-  @impl Executor
+  @impl Executor.Copy
   def park(data, c) do
     :ok =
       GenServer.call(
@@ -116,7 +116,7 @@ defmodule Tartarus.Migration.Arrival do
 
   # The source host's server, found by address each time (the source may have restarted
   # since it sent `prepare`; the directory drops pids of hosts that went down).
-  @impl Executor
+  @impl Executor.Copy
   def ask(data, src, mig, copy) do
     id = Ledger.query_id(data.env, data.paused.c.kind)
 
@@ -127,17 +127,17 @@ defmodule Tartarus.Migration.Arrival do
   end
 
   # The paused copy's state timeout (:commit), re-armed (Tartarus.Agent.Server's timer).
-  @impl Executor
+  @impl Executor.Copy
   def timer(data, ms), do: Tartarus.Agent.StateTimer.arm(data, :paused, ms)
 
   # Kept and handled once the agent starts (senders wait for delivery, so each sender's
   # order is kept).
-  @impl Executor
+  @impl Executor.Copy
   def stash(data, msg), do: %{data | paused: %{data.paused | stash: [msg | data.paused.stash]}}
 
   # Over the bound: dropped and counted; a sender of a message is told to send it again
   # later (Tartarus.Locator backs off and does), so it queues at its sender, not here.
-  @impl Executor
+  @impl Executor.Copy
   def drop(data, msg) do
     with {:"$tartarus_msg", {pid, tag}, _, _} when is_pid(pid) <- msg,
          do: send(pid, {tag, :retry})

@@ -32,7 +32,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   # notify} | :acked (one key: a committed move's pointer replaces the record in one write);
   # `decisions` holds clones' commits and, after a restart, the journal's.
 
-  @behaviour Tartarus.Migration.Executor
+  @behaviour Tartarus.Migration.Executor.Source
+  @behaviour Tartarus.Migration.Executor.Destination
+  @behaviour Tartarus.Migration.Executor.Copy
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
@@ -353,13 +355,11 @@ defmodule Tartarus.Migration.ProtocolModel do
             {proc.env, w}
           end
 
-        s = Executor.source_state(mig, kind, server(w, dest), nil, proc.env.id, env.id)
+        s = Protocol.source(mig, kind, server(w, dest), nil, proc.env.id, env.id)
         prepare = Messages.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
-        # As Tartarus.Ledger.begin_handoff/3, before `prepare` leaves.
-        w = put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, pid})
         w = note(w, {:start, pid, proc.env.id, kind, h, dest, mig})
-        send_msg(w, h, server(w, dest), prepare)
+        source_event(w, pid, :begin)
     end
   end
 
@@ -422,11 +422,26 @@ defmodule Tartarus.Migration.ProtocolModel do
     end
   end
 
+  # As Tartarus.Ledger.begin_handoff/3.
   @impl true
-  def settled(ctx, _event), do: ctx
+  def begin_handoff(ctx, mig) do
+    effect(ctx, fn w, h, proc -> put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, ctx.pid}) end)
+  end
+
+  # The model's sources see their destinations go down by its own event (down/1).
+  @impl true
+  def watch(ctx), do: effect(ctx, fn w, _h, _proc -> w end)
 
   @impl true
-  def decision_put_new(ctx, mig, copy) do
+  def send_prepare(ctx) do
+    effect(ctx, fn w, h, proc -> send_msg(w, h, server(w, proc.src.dest), proc.src.prepare) end)
+  end
+
+  @impl true
+  def settle(ctx, _event), do: ctx
+
+  @impl true
+  def decide(ctx, mig, copy) do
     ctx =
       effect(ctx, fn w, h, proc ->
         if Map.has_key?(w.hosts[h].decisions, mig) do
@@ -441,8 +456,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def journal(%{dest: _} = ctx, rec), do: dest_effect(ctx, &journal(&1, &2, rec))
+  def journal_in_doubt(ctx, rec), do: dest_effect(ctx, &journal(&1, &2, rec))
 
+  @impl true
   def journal(ctx, {:decision, mig, _id, copy} = rec) do
     effect(ctx, fn w, h, proc ->
       w = if w.persist, do: decided(w, proc, mig, copy), else: w
@@ -466,7 +482,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def handoff_end(ctx, mig) do
+  def end_handoff(ctx, mig) do
     effect(ctx, fn w, h, proc ->
       id = proc.env.id
 
@@ -485,11 +501,13 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def handover(ctx), do: {{[], Inbox.new()}, effect(ctx, fn w, _h, _proc -> w end)}
+  def hand_over(ctx, to, {:"$tartarus_commit", mig, copy, notify, nil}),
+    do: send(ctx, to, Messages.commit(mig, copy, notify, {[], Inbox.new()}))
 
   @impl true
-  def send(%{dest: _} = ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
+  def answer(ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
 
+  @impl true
   def send(ctx, to, msg) do
     effect(ctx, fn w, h, proc ->
       w =

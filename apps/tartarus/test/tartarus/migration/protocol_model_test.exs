@@ -105,7 +105,7 @@ defmodule Tartarus.Migration.ProtocolModelTest do
     end
 
     test "a prepare replayed after the agent moved on: refused, or its copy told aborted" do
-      p = %{mig: {"src", 1}, s_pid: :s}
+      p = %{mig: {"src", 1}, s_pid: :s, env: %{}, src: :src, kind: :move}
       d = admit(Protocol.destination(), p, :c1)
       # The source commits c1; the copy runs and the agent moves on (the pointer stays).
       ledger = %{handoff?: false, decision: nil, pointer: {p.mig, :c1, nil}}
@@ -128,7 +128,7 @@ defmodule Tartarus.Migration.ProtocolModelTest do
     test "admission's memory in a store table: the same answers as the map, the oldest forgotten, off the heap" do
       table = :ets.new(:store, [:set, :public])
       stored = Protocol.destination(store: {Tartarus.Ledger, table}, seen_max: 2)
-      ps = for i <- 1..3, do: %{mig: {"src", i}, s_pid: :s}
+      ps = for i <- 1..3, do: %{mig: {"src", i}, s_pid: :s, env: %{}, src: :src, kind: :move}
       d = Enum.reduce(Enum.zip(ps, [:c1, :c2, :c3]), stored, fn {p, c}, d -> admit(d, p, c) end)
 
       # The state carries no memory: it is the table's; three admitted, two remembered.
