@@ -1,13 +1,13 @@
 defmodule Tartarus.Host.Parked do
   @moduledoc false
-  # A host's parked copies (Tartarus.Migration.Protocol.copy_step/2, parked/1): a paused copy
+  # A host's parked copies (Tartarus.Migration.CopyProtocol.step/2, parked/1): a paused copy
   # that waited too long for its decision hands its record to its host and stops; the host
   # keeps the record (in its ledger and journal), asks the source at a low rate and revives
   # or drops the copy only on an answer. Runs in the host's server, on the server's state.
 
   alias Tartarus.Ledger
   alias Tartarus.Host.Agents
-  alias Tartarus.Migration.{Messages, Protocol}
+  alias Tartarus.Migration.{CopyProtocol, Messages}
 
   # How often a host asks the sources of its parked copies.
   @ask_every 30_000
@@ -59,7 +59,7 @@ defmodule Tartarus.Host.Parked do
   defp schedule, do: Tartarus.Clock.send_after(self(), :"$tartarus_ask_parked", @ask_every)
 
   defp unpark(state, mig, copy, env, src, kind, d) do
-    case Protocol.parked(d) do
+    case CopyProtocol.parked(d) do
       :keep ->
         state
 

@@ -136,7 +136,7 @@ defmodule Tartarus.Host.Server do
 
   defp call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
 
-  # A paused copy that waited too long parks (Protocol.copy_step/2): only the copy itself,
+  # A paused copy that waited too long parks (Tartarus.Migration.CopyProtocol.step/2): only the copy itself,
   # found as its agent's arriving process here, may hand over its record.
   defp call({:park, mig, copy, env, src, kind}, {pid, _}, state),
     do: {:reply, Parked.park(state, {mig, copy}, env, src, kind, pid), state}

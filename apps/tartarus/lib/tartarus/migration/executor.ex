@@ -10,7 +10,7 @@ defmodule Tartarus.Migration.Executor do
   Three roles, one behaviour each, every callback required (the compiler checks a backend):
   `Tartarus.Migration.Executor.Source` (the source, `source_event/4`),
   `Tartarus.Migration.Executor.Destination` (the destination host's admission,
-  `destination_event/4`) and `Tartarus.Migration.Executor.Copy` (the paused copy,
+  `destination_event/4`) and `Tartarus.Migration.Executor.Copy` (the paused copy, `Tartarus.Migration.CopyProtocol`,
   `copy_event/4`). The live backends are `Tartarus.Migration.Source`,
   `Tartarus.Host.Arrivals` and `Tartarus.Migration.Arrival`; the model check
   (`apps/tartarus/test/tartarus/migration/protocol_model.exs`) is the other backend of all
@@ -21,14 +21,15 @@ defmodule Tartarus.Migration.Executor do
   `{:decided, boolean}`, `{:fetch_code, mods}` -> `{:code, result}`; destination
   `{:check, p}` -> `{:checked, p, verdict, copy}`, `{:probe, p, copy, pid}` ->
   `{:probed, p, copy, pid, boolean}`, `{:create, p, copy}` -> `{:created, p, copy, pid}` or
-  `{:create_failed, p, reason}`. A source's `{:done, outcome}` and a copy's `{:start,
-  notify}`, `:abort` and `:park` end the loop.
+  `{:create_failed, p, reason}`; copy `:register` -> `{:registered, result}`. A source's
+  `{:done, outcome}` and a copy's `:started`, `{:await, pid}`, `{:stop, reason}`, `:abort`
+  and `:park` end the loop.
 
   A backend effect may `throw({:halt, ctx})` (the model's crash of the source's host): the
   effects after it do not happen and `source_event/4` returns `{:halted, ctx}`.
   """
 
-  alias Tartarus.Migration.Protocol
+  alias Tartarus.Migration.{CopyProtocol, Protocol}
 
   @typedoc "The backend's context, threaded through every effect."
   @type ctx :: term()
@@ -88,7 +89,7 @@ defmodule Tartarus.Migration.Executor do
   end
 
   defmodule Copy do
-    @moduledoc "The paused copy's effects (`Tartarus.Migration.Protocol.copy_step/2`'s actions)."
+    @moduledoc "The paused copy's effects (`Tartarus.Migration.CopyProtocol.step/2`'s actions)."
     alias Tartarus.Migration.Protocol
     @type ctx :: term()
 
@@ -102,11 +103,33 @@ defmodule Tartarus.Migration.Executor do
     @callback stash(ctx, term()) :: ctx
     @doc "Drop a message (over the bound)."
     @callback drop(ctx, term()) :: ctx
-    @doc "Become the agent; ends the loop with its result."
-    @callback start(ctx, map(), term()) :: term()
-    @doc "Stop: aborted; ends the loop with its result."
+    @doc "Its own state as the agent's: the hand-over and the stash taken, the hop counted."
+    @callback become(ctx, term()) :: ctx
+    @doc "Resident here."
+    @callback register(ctx) :: {:ok | {:error, term()}, ctx}
+    @doc "The snapshot a crash restarts from."
+    @callback put_snapshot(ctx) :: ctx
+    @doc "The journal's record of the agent."
+    @callback checkpoint(ctx) :: ctx
+    @doc "No longer findable as arriving."
+    @callback drop_arriving(ctx) :: ctx
+    @doc "The journal's in-doubt record ends."
+    @callback resolve(ctx, Protocol.mig(), Protocol.copy_token()) :: ctx
+    @doc "The acknowledgement to the source host."
+    @callback ack(ctx, term(), Protocol.mig(), Protocol.copy_token()) :: ctx
+    @doc "The arrival's event and hop time."
+    @callback arrived(ctx) :: ctx
+    @doc "The answer to whoever waits for the move."
+    @callback reply(ctx, term(), :move | :clone) :: ctx
+    @doc "Ends the loop: it runs as the agent."
+    @callback started(ctx, map()) :: term()
+    @doc "Ends the loop: it waits for its source's commit."
+    @callback await(ctx, pid() | term()) :: term()
+    @doc "Ends the loop: it stops with `reason`."
+    @callback stop(ctx, term()) :: term()
+    @doc "Ends the loop: aborted."
     @callback abort(ctx, map()) :: term()
-    @doc "Hand the record to the host and stop; ends the loop with its result."
+    @doc "Ends the loop: the record goes to the host, the process stops."
     @callback park(ctx, map()) :: term()
   end
 
@@ -220,25 +243,55 @@ defmodule Tartarus.Migration.Executor do
   # -- the paused copy -------------------------------------------------------------------
 
   @doc """
-  Feeds `event` to the paused copy's state `c` (`Protocol.copy_step/2`) and carries out its
-  actions. Returns `{:paused, ctx}` (it waits on) or `{:done, result}` (what the backend's
-  `start/3`, `abort/2` or `park/2` returned).
+  Feeds `event` to the paused copy's state `c` (`CopyProtocol.step/2`) and carries out its
+  actions; what `:register` found is the next event. Returns `{:paused, ctx}` (it waits on),
+  `{:done, result}` (what the backend's `started/2`, `await/2`, `stop/2`, `abort/2` or
+  `park/2` returned) or `{:halted, ctx}`.
   """
-  @spec copy_event(map(), term(), ctx, module()) :: {:paused, ctx} | {:done, term()}
+  @spec copy_event(map(), term(), ctx, module()) ::
+          {:paused, ctx} | {:done, term()} | {:halted, ctx}
   def copy_event(c, event, ctx, b) do
-    {c, actions} = Protocol.copy_step(c, event)
-    copy(actions, c, b.copy_state(ctx, c), b)
+    copy_loop(c, [event], ctx, b)
+  catch
+    {:halt, ctx} -> {:halted, ctx}
   end
 
-  defp copy([], _c, ctx, _b), do: {:paused, ctx}
-  defp copy([{:start, notify} | _], c, ctx, b), do: {:done, b.start(ctx, c, notify)}
-  defp copy([:abort | _], c, ctx, b), do: {:done, b.abort(ctx, c)}
-  defp copy([:park | _], c, ctx, b), do: {:done, b.park(ctx, c)}
+  defp copy_loop(_c, [], ctx, _b), do: {:paused, ctx}
 
-  defp copy([{:ask, src, mig, copy} | rest], c, ctx, b),
-    do: copy(rest, c, b.ask(ctx, src, mig, copy), b)
+  defp copy_loop(c, [event | events], ctx, b) do
+    {c, actions} = CopyProtocol.step(c, event)
 
-  defp copy([{:timer, ms} | rest], c, ctx, b), do: copy(rest, c, b.timer(ctx, ms), b)
-  defp copy([{:stash, msg} | rest], c, ctx, b), do: copy(rest, c, b.stash(ctx, msg), b)
-  defp copy([{:drop, msg} | rest], c, ctx, b), do: copy(rest, c, b.drop(ctx, msg), b)
+    case copy(actions, c, b.copy_state(ctx, c), b, events) do
+      {:next, ctx, events} -> copy_loop(c, events, ctx, b)
+      done -> done
+    end
+  end
+
+  defp copy([], _c, ctx, _b, events), do: {:next, ctx, events}
+  defp copy([:started | _], c, ctx, b, _), do: {:done, b.started(ctx, c)}
+  defp copy([{:await, pid} | _], _c, ctx, b, _), do: {:done, b.await(ctx, pid)}
+  defp copy([{:stop, reason} | _], _c, ctx, b, _), do: {:done, b.stop(ctx, reason)}
+  defp copy([:abort | _], c, ctx, b, _), do: {:done, b.abort(ctx, c)}
+  defp copy([:park | _], c, ctx, b, _), do: {:done, b.park(ctx, c)}
+
+  defp copy([:register | rest], c, ctx, b, events) do
+    {result, ctx} = b.register(ctx)
+    copy(rest, c, ctx, b, events ++ [{:registered, result}])
+  end
+
+  defp copy([action | rest], c, ctx, b, events),
+    do: copy(rest, c, copy_effect(action, ctx, b), b, events)
+
+  defp copy_effect({:ask, src, mig, copy}, ctx, b), do: b.ask(ctx, src, mig, copy)
+  defp copy_effect({:timer, ms}, ctx, b), do: b.timer(ctx, ms)
+  defp copy_effect({:stash, msg}, ctx, b), do: b.stash(ctx, msg)
+  defp copy_effect({:drop, msg}, ctx, b), do: b.drop(ctx, msg)
+  defp copy_effect({:become, handover}, ctx, b), do: b.become(ctx, handover)
+  defp copy_effect(:put_snapshot, ctx, b), do: b.put_snapshot(ctx)
+  defp copy_effect(:checkpoint, ctx, b), do: b.checkpoint(ctx)
+  defp copy_effect(:drop_arriving, ctx, b), do: b.drop_arriving(ctx)
+  defp copy_effect({:resolve, mig, copy}, ctx, b), do: b.resolve(ctx, mig, copy)
+  defp copy_effect({:ack, src, mig, copy}, ctx, b), do: b.ack(ctx, src, mig, copy)
+  defp copy_effect(:arrived, ctx, b), do: b.arrived(ctx)
+  defp copy_effect({:reply, notify, kind}, ctx, b), do: b.reply(ctx, notify, kind)
 end

@@ -38,7 +38,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
-  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
 
   # Chance of a crash of the source's host at each effect of the executor (fault phase).
   @crash_point 0.03
@@ -138,8 +138,8 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
       {pid, w} = fresh(w, :pid)
-      c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
-      w = put_in(w.procs[pid], %{role: :copy, host: h, env: env, c: c})
+      c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+      w = put_in(w.procs[pid], new_copy(h, env, c))
       restored_seen(w, h, mig, copy, pid)
     end)
   end
@@ -157,6 +157,8 @@ defmodule Tartarus.Migration.ProtocolModel do
       put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
     end
   end
+
+  defp new_copy(h, env, c), do: %{role: :copy, host: h, env: env, c: c, stash: []}
 
   defp fresh(w, tag), do: {{tag, w.n}, %{w | n: w.n + 1}}
 
@@ -305,11 +307,11 @@ defmodule Tartarus.Migration.ProtocolModel do
     proc = w.procs[pid]
 
     case {proc.role, Messages.classify(msg)} do
-      {:copy, {:commit, _, _, _} = e} ->
-        copy_event(w, pid, e)
-
-      {:copy, {:decision, _, _, _} = e} ->
-        copy_event(w, pid, e)
+      {:copy, _} ->
+        case CopyProtocol.event(proc.c, msg) do
+          nil -> w
+          e -> copy_event(w, pid, e)
+        end
 
       {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
         source_event(w, pid, e)
@@ -573,11 +575,11 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def create(%{w: w} = ctx, p, copy) do
     {pid, w} = fresh(w, :pid)
-    c = Protocol.copy(p.mig, copy, p.src, p.kind, park_after: w.park_after)
+    c = CopyProtocol.new(p.mig, copy, p.src, p.kind, park_after: w.park_after, src_pid: p.s_pid)
 
     ctx =
       dest_effect(%{ctx | w: w}, fn w, h ->
-        put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
+        put_in(count(w, :copy_created).procs[pid], new_copy(h, p.env, c))
       end)
 
     {{:ok, pid}, ctx}
@@ -655,11 +657,25 @@ defmodule Tartarus.Migration.ProtocolModel do
   # -- paused copies -----------------------------------------------------------------
 
   # The platform's executor carries out the paused copy's actions (this module is its
-  # backend: the context is %{w: world, copy: pid}; start, abort and park return the world).
+  # backend: the context is %{w: world, copy: pid}; the actions that end it return the
+  # world). Each effect may first crash the copy's host (fault phase only).
   defp copy_event(w, pid, event) do
     case Executor.copy_event(w.procs[pid].c, event, %{w: w, copy: pid}, __MODULE__) do
       {:paused, %{w: w}} -> w
       {:done, w} -> w
+      {:halted, %{w: w}} -> w
+    end
+  end
+
+  defp copy_effect(%{w: w, copy: pid} = ctx, fun) do
+    %{host: h} = w.procs[pid]
+    {x, w} = uniform(w)
+
+    if w.faulting and x < @crash_point do
+      w = note(w, {:crash_point, h, pid})
+      throw({:halt, %{ctx | w: crash_host(w, h)}})
+    else
+      %{ctx | w: fun.(w, h, w.procs[pid])}
     end
   end
 
@@ -667,8 +683,19 @@ defmodule Tartarus.Migration.ProtocolModel do
   def copy_state(%{w: w, copy: pid} = ctx, c), do: %{ctx | w: put_in(w.procs[pid].c, c)}
 
   @impl true
-  def start(%{w: w, copy: pid}, _c, _notify) do
-    %{host: h, env: env, c: c} = w.procs[pid]
+  def become(ctx, handover) do
+    copy_effect(ctx, fn w, _h, proc ->
+      {pending, inbox} = Inbox.arrive(Inbox.new(), handover, Enum.reverse(proc.stash))
+      put_in(w.procs[ctx.copy], Map.merge(proc, %{stash: [], inbox: inbox, pending: pending}))
+    end)
+  end
+
+  # The copy runs from here on (as Tartarus.Ledger.register_resident/3: the old pointer of
+  # its id goes), unless the agent is resident here already.
+  @impl true
+  def register(%{copy: pid} = ctx) do
+    %{w: w} = ctx = copy_effect(ctx, fn w, _h, _proc -> w end)
+    %{host: h, env: env, c: c} = proc = w.procs[pid]
 
     if w.check_decisions and Map.get(w.decisions, c.mig) != {:committed, c.copy},
       do: violation(w, {:copy_started_without_its_decision, c.mig, c.copy, w.decisions[c.mig]})
@@ -676,21 +703,52 @@ defmodule Tartarus.Migration.ProtocolModel do
     w = note(w, {:copy_starts, pid, env.id, h, c.mig})
 
     if Map.has_key?(w.hosts[h].residents, env.id) do
-      # The agent is already resident here (register fails): this copy stops.
-      %{w | procs: Map.delete(w.procs, pid)}
+      {{:error, :already_resident}, %{ctx | w: w}}
     else
-      w = journal(w, h, {:resolved, c.mig, c.copy})
-      w = journal(w, h, {:agent, env.id, env})
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
-      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
-
-      # Running: acknowledge to the source host.
-      if alive_host?(w, c.src),
-        do: send_msg(w, h, server(w, c.src), Messages.acks([{c.mig, env.id, c.copy}])),
-        else: w
+      {:ok, %{ctx | w: put_in(w.procs[pid], Map.merge(proc, %{role: :agent, src: nil}))}}
     end
   end
+
+  # The model's hosts restart from their journals only.
+  @impl true
+  def put_snapshot(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  @impl true
+  def checkpoint(ctx),
+    do: copy_effect(ctx, fn w, h, proc -> journal(w, h, {:agent, proc.env.id, proc.env}) end)
+
+  @impl true
+  def drop_arriving(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  @impl true
+  def resolve(ctx, mig, copy),
+    do: copy_effect(ctx, fn w, h, _proc -> journal(w, h, {:resolved, mig, copy}) end)
+
+  # (Live, acknowledgements leave in batches; here each is a message of its own.)
+  @impl true
+  def ack(ctx, src, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      if alive_host?(w, src),
+        do: send_msg(w, h, server(w, src), Messages.acks([{mig, proc.env.id, copy}])),
+        else: w
+    end)
+  end
+
+  @impl true
+  def arrived(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+  @impl true
+  def reply(ctx, _notify, _kind), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  @impl true
+  def started(%{w: w}, _c), do: w
+
+  @impl true
+  def await(%{w: w}, _pid), do: count(w, :await)
+
+  @impl true
+  def stop(%{w: w, copy: pid}, _reason), do: %{w | procs: Map.delete(w.procs, pid)}
 
   @impl true
   def abort(%{w: w, copy: pid}, _c) do
@@ -701,11 +759,11 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def ask(%{w: w, copy: pid} = ctx, src, mig, copy) do
-    proc = w.procs[pid]
-    query = Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
-    w = if alive_host?(w, src), do: send_msg(w, proc.host, server(w, src), query), else: w
-    %{ctx | w: w}
+  def ask(%{copy: pid} = ctx, src, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      query = Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
+      if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
+    end)
   end
 
   # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
@@ -716,12 +774,14 @@ defmodule Tartarus.Migration.ProtocolModel do
     %{w | procs: Map.delete(w.procs, pid)}
   end
 
-  # Timers are the model's own events (fire_timer/1); stashes are not modelled here (the
-  # inbox model checks the messages).
+  # Timers are the model's own events (fire_timer/1).
   @impl true
   def timer(ctx, _ms), do: ctx
+
   @impl true
-  def stash(ctx, _msg), do: ctx
+  def stash(%{w: w, copy: pid} = ctx, msg),
+    do: %{ctx | w: update_in(w.procs[pid].stash, &[msg | &1])}
+
   @impl true
   def drop(ctx, _msg), do: ctx
 
@@ -743,19 +803,19 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:ok, {env, src, kind}} ->
         w = update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy}))
 
-        case Protocol.parked(d) do
+        case CopyProtocol.parked(d) do
           :keep ->
             put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind})
 
           :drop ->
-            c = Protocol.copy(mig, copy, src, kind)
+            c = CopyProtocol.new(mig, copy, src, kind)
             w = check_abort(count(w, :parked_dropped), c)
             journal(w, h, {:resolved, mig, copy})
 
           :revive ->
             {pid, w} = fresh(w, :pid)
-            c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
-            w = put_in(count(w, :revived).procs[pid], %{role: :copy, host: h, env: env, c: c})
+            c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+            w = put_in(count(w, :revived).procs[pid], new_copy(h, env, c))
             copy_event(w, pid, {:decision, mig, copy, d})
         end
     end
@@ -776,7 +836,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     case pid && (match?({:parked, _}, pid) || w.procs[pid]) do
       nil -> w
       true -> ask_parked(w, elem(pid, 1))
-      %{role: :copy} -> copy_event(note(w, {:timer, pid}), pid, :timeout)
+      %{role: :copy, c: c} -> copy_event(note(w, {:timer, pid}), pid, CopyProtocol.timeout(c))
       %{role: :agent} -> source_event(note(w, {:timeout, pid}), pid, :timeout)
     end
   end
@@ -867,8 +927,8 @@ defmodule Tartarus.Migration.ProtocolModel do
       w =
         Enum.reduce(Enum.sort(waiting), w, fn pid, w ->
           case w.procs[pid] do
-            %{role: :copy} ->
-              copy_event(note(w, {:timer, pid}), pid, :timeout) |> check()
+            %{role: :copy, c: c} ->
+              copy_event(note(w, {:timer, pid}), pid, CopyProtocol.timeout(c)) |> check()
 
             %{role: :agent, src: %{}} ->
               source_event(note(w, {:timeout, pid}), pid, :timeout) |> check()

@@ -63,6 +63,7 @@ defmodule Tartarus.Migration.ProtocolModelTest do
   # walk options; the trace of each is in the fix's commit message).
   doctest Tartarus.Migration.Protocol
   doctest Tartarus.Migration.Messages
+  doctest Tartarus.Migration.CopyProtocol
 
   describe "regressions found by the explorer" do
     # A duplicated (or replayed) `prepare` made a second paused copy; the source committed

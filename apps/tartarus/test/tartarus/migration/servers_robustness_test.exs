@@ -164,7 +164,7 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
 end
 
 defmodule Tartarus.Migration.ParkingTest do
-  # A paused copy whose source does not answer parks (Protocol.copy_step/2): its process
+  # A paused copy whose source does not answer parks (Tartarus.Migration.CopyProtocol.step/2): its process
   # goes, the host keeps its record and revives or drops it only on the source's answer.
   use Tartarus.HostCase, async: false
 
