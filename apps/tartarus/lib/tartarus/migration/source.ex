@@ -17,7 +17,7 @@ defmodule Tartarus.Migration.Source do
 
   require Tartarus.Events
   alias Tartarus.{Clock, CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.{Executor, Messages, Protocol}
 
   # -- before the hand-off: where to, may it go, with what code ---------------------
 
@@ -267,10 +267,9 @@ defmodule Tartarus.Migration.Source do
   # reached it: kept while it handed off (data.held), then still in its mailbox (drained
   # without waiting).
   @impl true
-  def hand_over(%{data: data} = x, pid, {:"$tartarus_commit", mig, copy, notify, nil}) do
-    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, Enum.reverse(data.held, drain([])))
-    x = %{x | data: %{data | inbox: inbox, pending: []}}
-    send(x, pid, Messages.commit(mig, copy, notify, {msgs, inbox}))
+  def hand_over(x, pid, {:"$tartarus_commit", mig, copy, notify, nil}) do
+    {handover, data} = Tartarus.Agent.Held.hand_over(x.data, drain([]))
+    send(%{x | data: data}, pid, Messages.commit(mig, copy, notify, handover))
   end
 
   @impl true

@@ -38,6 +38,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
+  alias Tartarus.Agent.Held
   alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
 
   # Chance of a crash of the source's host at each effect of the executor (fault phase).
@@ -94,6 +95,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       archive: {0, %{}},
       partitions: MapSet.new(),
       decisions: %{},
+      msgs: %{},
       known: MapSet.new(),
       exposed: MapSet.new()
     }
@@ -107,7 +109,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       {pid, w} = fresh(w, :pid)
       w = journal(w, h, {:agent, id, env})
       w = put_in(w.hosts[h].residents[id], pid)
-      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+      w = put_in(w.procs[pid], agent_proc(h, env))
       %{w | known: MapSet.put(w.known, id)}
     end)
   end
@@ -154,11 +156,18 @@ defmodule Tartarus.Migration.ProtocolModel do
     else
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
-      put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+      put_in(w.procs[pid], agent_proc(h, env))
     end
   end
 
-  defp new_copy(h, env, c), do: %{role: :copy, host: h, env: env, c: c, stash: []}
+  defp new_copy(h, env, c),
+    do: %{role: :copy, host: h, env: env, c: c, stash: [], postponed: [], data: agent_data(env)}
+
+  defp agent_proc(h, env), do: %{role: :agent, host: h, env: env, src: nil, data: agent_data(env)}
+
+  # The agent process's fields that Tartarus.Agent.Held and the hand-over read and write.
+  defp agent_data(env),
+    do: Map.merge(Held.empty(), %{host: %{opts: %{}}, env: env, inbox: Inbox.new(), pending: []})
 
   defp fresh(w, tag), do: {{tag, w.n}, %{w | n: w.n + 1}}
 
@@ -189,7 +198,9 @@ defmodule Tartarus.Migration.ProtocolModel do
       x < 0.73 -> crash(w)
       x < 0.80 -> restart(w)
       x < 0.84 -> partition(w)
-      x < 0.90 -> heal(w)
+      x < 0.88 -> heal(w)
+      x < 0.92 -> post(w)
+      x < 0.94 -> retry(w)
       true -> down(w)
     end
   end
@@ -313,6 +324,17 @@ defmodule Tartarus.Migration.ProtocolModel do
           e -> copy_event(w, pid, e)
         end
 
+      # A commit that came after the copy stopped waiting for it (Tartarus.Agent.Server):
+      # what it took meanwhile is not taken twice.
+      {:agent, {:commit, _, _, _}} when proc.src == nil ->
+        with {_, _, _, _, {msgs, _}} when is_list(msgs) <- msg do
+          {msgs, inbox} = Inbox.take_new(proc.data.inbox, msgs)
+          w = put_in(w.procs[pid].data.inbox, inbox)
+          Enum.reduce(msgs, w, &handled(&2, &1))
+        else
+          _ -> w
+        end
+
       {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
         source_event(w, pid, e)
 
@@ -376,8 +398,11 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:done, {:committed, _, _}, %{kind: :move}, %{w: w}} ->
         %{w | procs: Map.delete(w.procs, pid)}
 
+      # It runs on here: what it held is handled now, in its order (Tartarus.Agent.Server).
       {:done, _outcome, _s, %{w: w}} ->
-        put_in(w.procs[pid].src, nil)
+        {held, _postponed, data} = Held.release(w.procs[pid].data)
+        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data})
+        Enum.reduce(held, w, &agent_receive(&2, pid, &1))
 
       # The source's host crashed in the middle (the process is gone with it).
       {:halted, %{w: w}} ->
@@ -502,9 +527,13 @@ defmodule Tartarus.Migration.ProtocolModel do
     end)
   end
 
+  # The live hand-over (Tartarus.Agent.Held.hand_over/2) of what the agent held and took.
   @impl true
-  def hand_over(ctx, to, {:"$tartarus_commit", mig, copy, notify, nil}),
-    do: send(ctx, to, Messages.commit(mig, copy, notify, {[], Inbox.new()}))
+  def hand_over(%{w: w, pid: pid} = ctx, to, {:"$tartarus_commit", mig, copy, notify, nil}) do
+    {handover, data} = Held.hand_over(w.procs[pid].data, [])
+    ctx = %{ctx | w: put_in(w.procs[pid].data, data)}
+    send(ctx, to, Messages.commit(mig, copy, notify, handover))
+  end
 
   @impl true
   def answer(ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
@@ -685,8 +714,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def become(ctx, handover) do
     copy_effect(ctx, fn w, _h, proc ->
-      {pending, inbox} = Inbox.arrive(Inbox.new(), handover, Enum.reverse(proc.stash))
-      put_in(w.procs[ctx.copy], Map.merge(proc, %{stash: [], inbox: inbox, pending: pending}))
+      {pending, inbox} = Inbox.arrive(proc.data.inbox, handover, Enum.reverse(proc.stash))
+      data = %{proc.data | inbox: inbox}
+      put_in(w.procs[ctx.copy], Map.merge(proc, %{stash: [], data: data, pending: pending}))
     end)
   end
 
@@ -741,8 +771,14 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def reply(ctx, _notify, _kind), do: copy_effect(ctx, fn w, _h, _proc -> w end)
 
+  # The handed-over messages first, then what was postponed while it awaited the commit.
   @impl true
-  def started(%{w: w}, _c), do: w
+  def started(%{w: w, copy: pid}, _c) do
+    %{pending: pending, postponed: postponed} = w.procs[pid]
+    w = update_in(w.procs[pid], &Map.drop(&1, [:pending, :postponed, :stash]))
+    w = Enum.reduce(pending, w, &handled(&2, &1))
+    Enum.reduce(postponed, w, &agent_receive(&2, pid, &1))
+  end
 
   @impl true
   def await(%{w: w}, _pid), do: count(w, :await)
@@ -819,6 +855,79 @@ defmodule Tartarus.Migration.ProtocolModel do
             copy_event(w, pid, {:decision, mig, copy, d})
         end
     end
+  end
+
+  # -- the agents' messages ---------------------------------------------------------------
+  # A sender posts a message to one of an agent's processes (each message from a sender of
+  # its own, one tag) and, while it is not handled, sends it again, with its tag, to the
+  # agent's process wherever it is once the process it sent it to is gone (as
+  # Tartarus.Locator does). Each message must be handled once, unless a crash took its agent.
+
+  defp post(w) do
+    {pid, w} = pick(w, Enum.sort(for {pid, p} <- w.procs, alive_host?(w, p.host), do: pid))
+
+    if pid do
+      {n, w} = fresh(w, :msg)
+      m = {:"$tartarus_msg", {:c.pid(0, 1000 + elem(n, 1), 0), 1}, :post, n}
+      w = put_in(w.msgs[n], %{agent: w.procs[pid].env.id, to: pid, handled: 0, m: m})
+      agent_receive(note(w, {:post, pid, n}), pid, m)
+    else
+      w
+    end
+  end
+
+  # A message reaches an agent's process, as its state machine takes it.
+  defp agent_receive(w, pid, {_, _, _, n} = m) do
+    w = put_in(w.msgs[n].to, pid)
+
+    case w.procs[pid] do
+      nil ->
+        w
+
+      %{role: :agent, src: nil, data: data} ->
+        {new?, inbox} = Inbox.take_msg(data.inbox, m)
+        w = put_in(w.procs[pid].data.inbox, inbox)
+        if new?, do: handled(w, m), else: w
+
+      %{role: :agent, data: data} ->
+        case Held.keep(data, {:info, m}) do
+          {:held, data} -> put_in(w.procs[pid].data, data)
+          :refused -> w
+        end
+
+      %{role: :copy, c: c} ->
+        case CopyProtocol.event(c, m) do
+          nil -> update_in(w.procs[pid].postponed, &(&1 ++ [m]))
+          event -> copy_event(w, pid, event)
+        end
+    end
+  end
+
+  defp handled(w, {_, _, _, n}) do
+    w = update_in(w.msgs[n].handled, &(&1 + 1))
+    %{agent: id, handled: k} = w.msgs[n]
+
+    if k > 1 and not MapSet.member?(w.exposed, id),
+      do: violation(w, {:message_handled_twice, n, id}),
+      else: w
+  end
+
+  # Senders whose message's process is gone send it again where the agent now is.
+  defp retry(w) do
+    Enum.reduce(retries(w), w, fn {n, pid}, w -> agent_receive(w, pid, w.msgs[n].m) end)
+  end
+
+  defp retries(w) do
+    where =
+      for {pid, p} <- w.procs, alive_host?(w, p.host), reduce: %{} do
+        acc -> Map.update(acc, p.env.id, pid, &if(p.role == :agent, do: pid, else: &1))
+      end
+
+    for {n, %{handled: 0, to: to, agent: id}} <- Enum.sort(w.msgs),
+        not Map.has_key?(w.procs, to),
+        pid = where[id],
+        pid != nil,
+        do: {n, pid}
   end
 
   # -- timers, failures --------------------------------------------------------------
@@ -920,8 +1029,9 @@ defmodule Tartarus.Migration.ProtocolModel do
       for {pid, p} <- w.procs, p.role == :copy or (p.role == :agent and p.src != nil), do: pid
 
     parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
+    w = retry(w)
 
-    if waiting == [] and parked == [] do
+    if waiting == [] and parked == [] and retries(w) == [] do
       w
     else
       w =
@@ -970,6 +1080,13 @@ defmodule Tartarus.Migration.ProtocolModel do
       excused = not w.persist and MapSet.member?(w.exposed, id)
       if n != 1 and not excused, do: violation(w, {:not_running_exactly_once, id, n})
     end
+
+    # (A message to a clone's copy that never committed has no agent to reach.)
+    for {n, %{agent: id, handled: k}} <- w.msgs,
+        k != 1,
+        MapSet.member?(w.known, id),
+        not MapSet.member?(w.exposed, id),
+        do: violation(w, {:message_not_handled_once, n, id, k})
 
     :ok
   end
