@@ -7,14 +7,17 @@ defmodule Tartarus.Migration.Executor do
   from inside an action. The executor decides nothing: which effects happen, in which order,
   is the protocol's alone.
 
-  Three roles, one behaviour each, every callback required (the compiler checks a backend):
+  Four roles, one behaviour each, every callback required (the compiler checks a backend):
   `Tartarus.Migration.Executor.Source` (the source, `source_event/4`),
   `Tartarus.Migration.Executor.Destination` (the destination host's admission,
   `destination_event/4`) and `Tartarus.Migration.Executor.Copy` (the paused copy, `Tartarus.Migration.CopyProtocol`,
-  `copy_event/4`). The live backends are `Tartarus.Migration.Source`,
-  `Tartarus.Host.Arrivals` and `Tartarus.Migration.Arrival`; the model check
+  `copy_event/4`), and `Tartarus.Migration.Executor.Host` (a host's own part,
+  `Tartarus.Migration.HostProtocol`: answers, acknowledgements, parked copies,
+  `host_event/3`). The live backends are `Tartarus.Migration.Source`,
+  `Tartarus.Host.Arrivals`, `Tartarus.Migration.Arrival` and `Tartarus.Host.Parked`; the
+  model check
   (`apps/tartarus/test/tartarus/migration/protocol_model.exs`) is the other backend of all
-  three, and may crash a host between any two effects of any role: the order is what the
+  four, and may crash a host between any two effects of any role: the order is what the
   model explores, not a copy of it.
 
   Actions with a result, and the event it comes back as: source `{:decide, mig, copy}` ->
@@ -29,7 +32,7 @@ defmodule Tartarus.Migration.Executor do
   effects after it do not happen and `source_event/4` returns `{:halted, ctx}`.
   """
 
-  alias Tartarus.Migration.{CopyProtocol, Protocol}
+  alias Tartarus.Migration.{CopyProtocol, HostProtocol, Protocol}
 
   @typedoc "The backend's context, threaded through every effect."
   @type ctx :: term()
@@ -131,6 +134,43 @@ defmodule Tartarus.Migration.Executor do
     @callback abort(ctx, map()) :: term()
     @doc "Ends the loop: the record goes to the host, the process stops."
     @callback park(ctx, map()) :: term()
+  end
+
+  defmodule Host do
+    @moduledoc "A host's own effects (`Tartarus.Migration.HostProtocol.step/1`'s actions)."
+    @type ctx :: term()
+
+    @doc "The ledger's view of `mig` for `Tartarus.Migration.Protocol.answer/3`."
+    @callback read(ctx, term(), binary(), term()) :: {map(), ctx}
+    @doc "A message."
+    @callback tell(ctx, term(), term()) :: ctx
+    @doc "The commit is no longer needed."
+    @callback acknowledge(ctx, term(), binary(), term()) :: ctx
+    @doc "A journal record."
+    @callback record(ctx, tuple()) :: ctx
+    @doc "A parked copy's record, if the caller is that copy: `:first`, `:more`, `:not_here`."
+    @callback park(ctx, term(), term(), map(), term(), atom(), term()) ::
+                {:first | :more | :not_here, ctx}
+    @doc "The answer to a call."
+    @callback reply_call(ctx, term(), term()) :: ctx
+    @doc "The timer that asks for the parked copies."
+    @callback arm_ask(ctx) :: ctx
+    @doc "The parked records, `{mig, copy, env, src, kind}`."
+    @callback read_parked(ctx) :: {list(), ctx}
+    @doc "A decision query to a source host, `{mig, id, copy}`."
+    @callback ask(ctx, term(), tuple()) :: ctx
+    @doc "A parked record."
+    @callback fetch_parked(ctx, term(), term()) :: {{:ok, tuple()} | :error, ctx}
+    @doc "Counted as dropped."
+    @callback dropped(ctx) :: ctx
+    @doc "The parked record goes."
+    @callback unpark(ctx, term(), term()) :: ctx
+    @doc "A paused copy again, from a parked record."
+    @callback revive(ctx, term(), term(), map(), term(), atom()) :: {{:ok, term()} | :error, ctx}
+    @doc "The agent's arriving process."
+    @callback arriving(ctx, binary(), term()) :: ctx
+    @doc "The parked record again."
+    @callback repark(ctx, term(), term(), map(), term(), atom()) :: ctx
   end
 
   # -- the source --------------------------------------------------------------------------
@@ -294,4 +334,63 @@ defmodule Tartarus.Migration.Executor do
   defp copy_effect({:ack, src, mig, copy}, ctx, b), do: b.ack(ctx, src, mig, copy)
   defp copy_effect(:arrived, ctx, b), do: b.arrived(ctx)
   defp copy_effect({:reply, notify, kind}, ctx, b), do: b.reply(ctx, notify, kind)
+
+  # -- a host's own part ----------------------------------------------------------------
+
+  @doc """
+  Carries out a host's actions for `event` (`HostProtocol.step/1`); what a read, park,
+  fetch or revive found is the next event. Returns `ctx`.
+  """
+  @spec host_event(term(), ctx, module()) :: ctx
+  def host_event(event, ctx, b), do: host_loop([event], ctx, b)
+
+  defp host_loop([], ctx, _b), do: ctx
+
+  defp host_loop([event | events], ctx, b) do
+    {ctx, events} = host(HostProtocol.step(event), ctx, b, events)
+    host_loop(events, ctx, b)
+  end
+
+  defp host([], ctx, _b, events), do: {ctx, events}
+
+  defp host([{:read, mig, id, copy, to} | rest], ctx, b, events) do
+    {view, ctx} = b.read(ctx, mig, id, copy)
+    host(rest, ctx, b, events ++ [{:read, mig, copy, to, view}])
+  end
+
+  defp host([{:park, mig, copy, env, src, kind, from} | rest], ctx, b, events) do
+    {how, ctx} = b.park(ctx, mig, copy, env, src, kind, from)
+    host(rest, ctx, b, events ++ [{:parked, from, how}])
+  end
+
+  defp host([:read_parked | rest], ctx, b, events) do
+    {records, ctx} = b.read_parked(ctx)
+    host(rest, ctx, b, events ++ [{:asking, records}])
+  end
+
+  defp host([{:fetch_parked, mig, copy, d} | rest], ctx, b, events) do
+    {found, ctx} = b.fetch_parked(ctx, mig, copy)
+    host(rest, ctx, b, events ++ [{:fetched, mig, copy, d, found}])
+  end
+
+  defp host([{:revive, mig, copy, d, env, src, kind} | rest], ctx, b, events) do
+    {result, ctx} = b.revive(ctx, mig, copy, env, src, kind)
+    host(rest, ctx, b, events ++ [{:revived, mig, copy, d, result, env, src, kind}])
+  end
+
+  defp host([action | rest], ctx, b, events),
+    do: host(rest, host_effect(action, ctx, b), b, events)
+
+  defp host_effect({:send, to, msg}, ctx, b), do: b.tell(ctx, to, msg)
+  defp host_effect({:acknowledge, mig, id, copy}, ctx, b), do: b.acknowledge(ctx, mig, id, copy)
+  defp host_effect({:journal, record}, ctx, b), do: b.record(ctx, record)
+  defp host_effect({:reply, from, answer}, ctx, b), do: b.reply_call(ctx, from, answer)
+  defp host_effect(:arm_ask, ctx, b), do: b.arm_ask(ctx)
+  defp host_effect({:ask, src, query}, ctx, b), do: b.ask(ctx, src, query)
+  defp host_effect(:dropped, ctx, b), do: b.dropped(ctx)
+  defp host_effect({:unpark, mig, copy}, ctx, b), do: b.unpark(ctx, mig, copy)
+  defp host_effect({:arriving, id, pid}, ctx, b), do: b.arriving(ctx, id, pid)
+
+  defp host_effect({:repark, mig, copy, env, src, kind}, ctx, b),
+    do: b.repark(ctx, mig, copy, env, src, kind)
 end

@@ -35,6 +35,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @behaviour Tartarus.Migration.Executor.Source
   @behaviour Tartarus.Migration.Executor.Destination
   @behaviour Tartarus.Migration.Executor.Copy
+  @behaviour Tartarus.Migration.Executor.Host
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
@@ -301,13 +302,13 @@ defmodule Tartarus.Migration.ProtocolModel do
         admission(w, h, {:prepare, p})
 
       {:query, mig, id, copy, a_pid} ->
-        answer_query(w, h, mig, id, copy, a_pid)
+        host_event(w, h, {:query, mig, id, copy, a_pid})
 
       {:acks, list} ->
-        Enum.reduce(list, w, fn {mig, id, copy}, w -> acknowledge(w, h, mig, id, copy) end)
+        host_event(w, h, {:acks, list})
 
       {:decision, mig, copy, d} ->
-        parked_answer(w, h, mig, copy, d)
+        host_event(w, h, {:decision, mig, copy, d})
 
       _ ->
         w
@@ -415,13 +416,19 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp effect(%{w: w, pid: pid} = ctx, fun) do
     %{host: h} = w.procs[pid]
+    crash_point(ctx, h, :source, &fun.(&1, h, &1.procs[pid]))
+  end
+
+  # A crash point before an effect of `role` at host `h` (fault phase only): the host
+  # crashes and the effects after it do not happen (Executor: {:halt, ctx}); else `fun`.
+  defp crash_point(%{w: w} = ctx, h, role, fun) do
     {x, w} = uniform(w)
 
     if w.faulting and x < @crash_point do
-      w = note(w, {:crash_point, h, pid})
+      w = note(count(w, {:crash_point, role}), {:crash_point, h, role})
       throw({:halt, %{ctx | w: crash_host(w, h)}})
     else
-      %{ctx | w: fun.(w, h, w.procs[pid])}
+      %{ctx | w: fun.(w)}
     end
   end
 
@@ -578,16 +585,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     {:halt, %{w: w}} -> w
   end
 
-  defp dest_effect(%{w: w, dest: h} = ctx, fun) do
-    {x, w} = uniform(w)
-
-    if w.faulting and x < @crash_point do
-      w = note(w, {:crash_point, h, :admission})
-      throw({:halt, %{ctx | w: crash_host(w, h)}})
-    else
-      %{ctx | w: fun.(w, h)}
-    end
-  end
+  defp dest_effect(%{dest: h} = ctx, fun), do: crash_point(ctx, h, :destination, &fun.(&1, h))
 
   @impl true
   def check(%{w: w} = ctx, p) do
@@ -620,35 +618,57 @@ defmodule Tartarus.Migration.ProtocolModel do
     %{ctx | w: w}
   end
 
-  # -- decision queries (source host) ---------------------------------------------------
+  # -- a host's own part: answers, acknowledgements, parked copies -----------------------
 
-  defp answer_query(w, h, mig, id, copy, a_pid) do
+  # The platform's executor carries out the host's actions (this module is its backend: the
+  # context is %{w: world, host: h}). Each effect may first crash the host (fault phase).
+  defp host_event(w, h, event) do
+    %{w: w} = Executor.host_event(event, %{w: w, host: h, fetched: nil}, __MODULE__)
+    w
+  catch
+    {:halt, %{w: w}} -> w
+  end
+
+  defp host_effect(%{host: h} = ctx, fun), do: crash_point(ctx, h, :host, &fun.(&1, h))
+
+  # What Tartarus.Ledger.decision_view/3 reads, from the model's ledger.
+  @impl true
+  def read(%{w: w, host: h} = ctx, mig, id, _copy) do
     host = w.hosts[h]
 
-    a =
-      Protocol.answer(
-        %{
-          handoff?: match?({:handoff, ^mig, _}, Map.get(host.fwd, id)),
-          decision: Map.get(host.decisions, mig),
-          pointer: with({_, _, _} = p <- Map.get(host.fwd, id), do: p)
-        },
-        mig,
-        copy
-      )
+    view = %{
+      handoff?: match?({:handoff, ^mig, _}, Map.get(host.fwd, id)),
+      decision: Map.get(host.decisions, mig),
+      pointer: with({_, _, _} = p <- Map.get(host.fwd, id), do: p)
+    }
 
-    w =
-      w
-      |> check_answer(h, mig, copy, a)
-      |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+    {view, ctx}
+  end
 
-    send_msg(w, h, a_pid, Messages.decision(mig, copy, a))
+  @impl true
+  def tell(ctx, to, msg) do
+    host_effect(ctx, fn w, h ->
+      w =
+        case msg do
+          {:"$tartarus_decision", mig, copy, a} ->
+            w
+            |> check_answer(h, mig, copy, a)
+            |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+
+          _ ->
+            w
+        end
+
+      send_msg(w, h, to, msg)
+    end)
   end
 
   # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
-  defp acknowledge(w, h, mig, id, copy) do
-    w = count(w, :ack)
+  @impl true
+  def acknowledge(ctx, mig, id, copy) do
+    host_effect(ctx, fn w, h ->
+      w = count(w, :ack)
 
-    w =
       case Map.get(w.hosts[h].fwd, id) do
         {^mig, ^copy, _} ->
           put_in(w.hosts[h].fwd[id], :acked)
@@ -658,8 +678,96 @@ defmodule Tartarus.Migration.ProtocolModel do
             do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
             else: w
       end
+    end)
+  end
 
-    journal(w, h, {:acked, mig})
+  # A parked copy dropped: its migration must not have been committed to it.
+  @impl true
+  def record(ctx, {:resolved, mig, copy} = rec) do
+    {_mig, _copy, src} = ctx.fetched
+
+    host_effect(ctx, fn w, h ->
+      w = check_abort(count(w, :parked_dropped), %{mig: mig, copy: copy, src: src})
+      journal(w, h, rec)
+    end)
+  end
+
+  def record(ctx, rec), do: host_effect(ctx, &journal(&1, &2, rec))
+
+  # Only the copy itself, arriving here, hands over its record.
+  @impl true
+  def park(ctx, mig, copy, env, src, kind, {pid, _}) do
+    %{w: w, host: h} = ctx = host_effect(ctx, fn w, _h -> w end)
+
+    cond do
+      not match?(%{role: :copy, host: ^h}, w.procs[pid]) ->
+        {:not_here, ctx}
+
+      true ->
+        how = if w.hosts[h].parked == %{}, do: :first, else: :more
+        w = put_in(count(w, :parked).hosts[h].parked[{mig, copy}], {env, src, kind})
+        {how, %{ctx | w: w}}
+    end
+  end
+
+  # The copy's call returns (park/2 below); the timer is the model's (fire_timer/1).
+  @impl true
+  def reply_call(ctx, _from, _answer), do: ctx
+  @impl true
+  def arm_ask(ctx), do: ctx
+
+  @impl true
+  def read_parked(%{w: w, host: h} = ctx) do
+    records =
+      for {{mig, copy}, {env, src, kind}} <- Enum.sort(w.hosts[h].parked),
+          do: {mig, copy, env, src, kind}
+
+    {records, ctx}
+  end
+
+  @impl true
+  def ask(ctx, src, {mig, id, copy}) do
+    host_effect(ctx, fn w, h ->
+      query = Messages.decision_query(mig, id, copy, server(w, h))
+      if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
+    end)
+  end
+
+  @impl true
+  def fetch_parked(%{w: w, host: h} = ctx, mig, copy) do
+    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
+      {:ok, {_env, src, _kind}} = found -> {found, %{ctx | fetched: {mig, copy, src}}}
+      :error -> {:error, ctx}
+    end
+  end
+
+  @impl true
+  def dropped(ctx), do: ctx
+
+  @impl true
+  def unpark(ctx, mig, copy),
+    do:
+      host_effect(ctx, fn w, h -> update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy})) end)
+
+  @impl true
+  def revive(%{w: w} = ctx, mig, copy, env, src, kind) do
+    {pid, w} = fresh(w, :pid)
+    c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+
+    ctx =
+      host_effect(%{ctx | w: w}, fn w, h ->
+        put_in(count(w, :revived).procs[pid], new_copy(h, env, c))
+      end)
+
+    {{:ok, pid}, ctx}
+  end
+
+  @impl true
+  def arriving(ctx, _id, _pid), do: ctx
+
+  @impl true
+  def repark(ctx, mig, copy, env, src, kind) do
+    host_effect(ctx, fn w, h -> put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind}) end)
   end
 
   # A committed answer must name the committed copy. (An aborted answer is checked when a
@@ -698,14 +806,7 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp copy_effect(%{w: w, copy: pid} = ctx, fun) do
     %{host: h} = w.procs[pid]
-    {x, w} = uniform(w)
-
-    if w.faulting and x < @crash_point do
-      w = note(w, {:crash_point, h, pid})
-      throw({:halt, %{ctx | w: crash_host(w, h)}})
-    else
-      %{ctx | w: fun.(w, h, w.procs[pid])}
-    end
+    crash_point(ctx, h, :copy, &fun.(&1, h, &1.procs[pid]))
   end
 
   @impl true
@@ -802,11 +903,12 @@ defmodule Tartarus.Migration.ProtocolModel do
     end)
   end
 
-  # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
+  # Parked: the host keeps the record (the journal's in-doubt record stays; the copy calls
+  # its host's server, which runs the host's part), the process goes.
   @impl true
-  def park(%{w: w, copy: pid}, _c) do
-    %{host: h, env: env, c: c} = w.procs[pid]
-    w = put_in(count(w, :parked).hosts[h].parked[{c.mig, c.copy}], {env, c.src, c.kind})
+  def park(%{w: w, copy: pid}, c) do
+    %{host: h, env: env} = w.procs[pid]
+    w = host_event(w, h, {:park, c.mig, c.copy, env, c.src, c.kind, {pid, :park}})
     %{w | procs: Map.delete(w.procs, pid)}
   end
 
@@ -821,41 +923,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def drop(ctx, _msg), do: ctx
 
-  # The host asks the sources of its parked copies.
-  defp ask_parked(w, h) do
-    Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
-                                                                                      w ->
-      {env, src, kind} = w.hosts[h].parked[{mig, copy}]
-      query = Messages.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
-      if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
-    end)
-  end
-
-  defp parked_answer(w, h, mig, copy, d) do
-    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
-      :error ->
-        w
-
-      {:ok, {env, src, kind}} ->
-        w = update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy}))
-
-        case CopyProtocol.parked(d) do
-          :keep ->
-            put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind})
-
-          :drop ->
-            c = CopyProtocol.new(mig, copy, src, kind)
-            w = check_abort(count(w, :parked_dropped), c)
-            journal(w, h, {:resolved, mig, copy})
-
-          :revive ->
-            {pid, w} = fresh(w, :pid)
-            c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
-            w = put_in(count(w, :revived).procs[pid], new_copy(h, env, c))
-            copy_event(w, pid, {:decision, mig, copy, d})
-        end
-    end
-  end
+  # The host asks the sources of its parked copies (its timer).
+  defp ask_parked(w, h), do: host_event(note(w, {:ask_parked, h}), h, :ask_parked)
 
   # -- the agents' messages ---------------------------------------------------------------
   # A sender posts a message to one of an agent's processes (each message from a sender of
