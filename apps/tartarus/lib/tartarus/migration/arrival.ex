@@ -99,12 +99,6 @@ defmodule Tartarus.Migration.Arrival do
   @impl Executor.Copy
   def copy_state(data, c), do: %{data | paused: %{data.paused | c: c}}
 
-  @impl Executor.Copy
-  def abort(data, c) do
-    Tartarus.Host.Persistence.resolved(data.host, c.mig, c.copy)
-    {:stop, {:shutdown, :aborted}, data}
-  end
-
   # Unanswered too long: the host keeps the record (and asks on its behalf); this process and
   # its stash go (the senders waiting on stashed messages time out).
   @impl Executor.Copy

@@ -53,7 +53,8 @@ defmodule Tartarus.Migration.CopyProtocol do
   (its timer), `{:decision, mig, copy, d}`, `{:message, msg}` (anything else sent to it),
   `{:handover, handover}` (while it awaits the source's commit: the commit's, or nil once
   the source ended or its timer fired), `{:registered, result}`. Actions: those of the
-  moduledoc, and `:abort` (stop; the migration was aborted), `{:ask, src, mig, copy}`,
+  moduledoc (an aborted migration's copy: `{:resolve, mig, copy}`, then stops),
+  `{:ask, src, mig, copy}`,
   `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`, `{:await, src_pid}` (wait for the
   source's commit), `:park` (hand the record to the host, which keeps asking, `parked/1`,
   and stop), `{:stop, reason}`.
@@ -82,10 +83,17 @@ defmodule Tartarus.Migration.CopyProtocol do
 
   def step(%{mig: mig, copy: copy, phase: :paused} = c, {:decision, mig, copy, d}) do
     case d do
-      {:committed, notify} -> committed(c, notify)
-      :committed -> committed(c, nil)
-      :aborted -> {c, [:abort]}
-      _unknown -> {c, []}
+      {:committed, notify} ->
+        committed(c, notify)
+
+      :committed ->
+        committed(c, nil)
+
+      :aborted ->
+        {%{c | phase: :stopped}, [{:resolve, mig, copy}, {:stop, {:shutdown, :aborted}}]}
+
+      _unknown ->
+        {c, []}
     end
   end
 

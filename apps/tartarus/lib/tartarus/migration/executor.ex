@@ -10,26 +10,26 @@ defmodule Tartarus.Migration.Executor do
   Four roles, one behaviour each, every callback required (the compiler checks a backend):
   `Tartarus.Migration.Executor.Source` (the source, `source_event/4`),
   `Tartarus.Migration.Executor.Destination` (the destination host's admission,
-  `destination_event/4`) and `Tartarus.Migration.Executor.Copy` (the paused copy, `Tartarus.Migration.CopyProtocol`,
-  `copy_event/4`), and `Tartarus.Migration.Executor.Host` (a host's own part,
-  `Tartarus.Migration.HostProtocol`: answers, acknowledgements, parked copies,
-  `host_event/3`). The live backends are `Tartarus.Migration.Source`,
+  `destination_event/4`), `Tartarus.Migration.Executor.Copy` (the paused copy,
+  `Tartarus.Migration.CopyProtocol`, `copy_event/4`) and `Tartarus.Migration.Executor.Host`
+  (a host's own part, `Tartarus.Migration.HostProtocol`: answers, acknowledgements, parked
+  copies, `host_event/3`). The live backends are `Tartarus.Migration.Source`,
   `Tartarus.Host.Arrivals`, `Tartarus.Migration.Arrival` and `Tartarus.Host.Parked`; the
-  model check
-  (`apps/tartarus/test/tartarus/migration/protocol_model.exs`) is the other backend of all
-  four, and may crash a host between any two effects of any role: the order is what the
-  model explores, not a copy of it.
+  model check (`apps/tartarus/test/tartarus/migration/protocol_model.exs`) is the other
+  backend of all four, and may crash a host between any two effects of any role: the order
+  is what the model explores, not a copy of it.
 
   Actions with a result, and the event it comes back as: source `{:decide, mig, copy}` ->
   `{:decided, boolean}`, `{:fetch_code, mods}` -> `{:code, result}`; destination
   `{:check, p}` -> `{:checked, p, verdict, copy}`, `{:probe, p, copy, pid}` ->
   `{:probed, p, copy, pid, boolean}`, `{:create, p, copy}` -> `{:created, p, copy, pid}` or
   `{:create_failed, p, reason}`; copy `:register` -> `{:registered, result}`. A source's
-  `{:done, outcome}` and a copy's `:started`, `{:await, pid}`, `{:stop, reason}`, `:abort`
-  and `:park` end the loop.
+  `{:done, outcome}` and a copy's `:started`, `{:await, pid}`, `{:stop, reason}` and `:park`
+  end the loop.
 
-  A backend effect may `throw({:halt, ctx})` (the model's crash of the source's host): the
-  effects after it do not happen and `source_event/4` returns `{:halted, ctx}`.
+  A backend effect may `throw({:halt, ctx})` (the model's crash of a host): the effects
+  after it do not happen and `source_event/4` and `copy_event/4` return `{:halted, ctx}`
+  (`destination_event/4` and `host_event/3` let it through to the caller).
   """
 
   alias Tartarus.Migration.{CopyProtocol, HostProtocol, Protocol}
@@ -130,8 +130,6 @@ defmodule Tartarus.Migration.Executor do
     @callback await(ctx, pid() | term()) :: term()
     @doc "Ends the loop: it stops with `reason`."
     @callback stop(ctx, term()) :: term()
-    @doc "Ends the loop: aborted."
-    @callback abort(ctx, map()) :: term()
     @doc "Ends the loop: the record goes to the host, the process stops."
     @callback park(ctx, map()) :: term()
   end
@@ -285,8 +283,8 @@ defmodule Tartarus.Migration.Executor do
   @doc """
   Feeds `event` to the paused copy's state `c` (`CopyProtocol.step/2`) and carries out its
   actions; what `:register` found is the next event. Returns `{:paused, ctx}` (it waits on),
-  `{:done, result}` (what the backend's `started/2`, `await/2`, `stop/2`, `abort/2` or
-  `park/2` returned) or `{:halted, ctx}`.
+  `{:done, result}` (what the backend's `started/2`, `await/2`, `stop/2` or `park/2`
+  returned) or `{:halted, ctx}`.
   """
   @spec copy_event(map(), term(), ctx, module()) ::
           {:paused, ctx} | {:done, term()} | {:halted, ctx}
@@ -311,7 +309,6 @@ defmodule Tartarus.Migration.Executor do
   defp copy([:started | _], c, ctx, b, _), do: {:done, b.started(ctx, c)}
   defp copy([{:await, pid} | _], _c, ctx, b, _), do: {:done, b.await(ctx, pid)}
   defp copy([{:stop, reason} | _], _c, ctx, b, _), do: {:done, b.stop(ctx, reason)}
-  defp copy([:abort | _], c, ctx, b, _), do: {:done, b.abort(ctx, c)}
   defp copy([:park | _], c, ctx, b, _), do: {:done, b.park(ctx, c)}
 
   defp copy([:register | rest], c, ctx, b, events) do

@@ -2,25 +2,26 @@ defmodule Tartarus.Migration.Protocol do
   @moduledoc """
   The hand-off protocol of a migration (move or clone), as pure functions: its messages
   (their validators are `Tartarus.Wire`'s) and the three parties' state machines written as
-  `(state, event) -> {state, actions}`. The processes that run it
-  (`Tartarus.Migration.Source` through `Tartarus.Migration.Executor` for the source,
-  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Arrivals` for admission,
-  `Tartarus.Host.Server` for decision queries) only turn messages into events
-  and carry out the actions (send, journal, create a paused copy, reply, emit). The model-checked property
+  `(state, event) -> {state, actions}`, one action per effect. The processes that run it
+  (`Tartarus.Migration.Source` for the source, `Tartarus.Host.Arrivals` for admission,
+  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Parked` in the host's
+  server) only turn messages into events; `Tartarus.Migration.Executor` carries out the
+  actions through them. The model-checked property
   `Tartarus.Migration.ProtocolModelTest` drives these same functions over a network that
   drops, duplicates, delays, reorders and replays messages, with crashes and partitions.
 
   ## Parties
 
-    * **S**, the source: the agent's own process, for one attempt (`source/4`,
+    * **S**, the source: the agent's own process, for one attempt (`source/6`,
       `source_step/2`). It writes the decision.
     * **H**, the destination's admission: a process spawned on the destination's node for
       each prepare (`Tartarus.Host.Arrivals`), not the host's server; it admits or refuses
       (`destination/1`, `destination_step/2`) and, admitted, becomes the paused copy **A**
       and answers `prepared` (the host's server adopts it, asynchronously).
-    * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
-      nothing until it learns the decision.
-    * **Hs**, the source host's server: answers decision queries (`answer/4`).
+    * **A**, the paused (in-doubt) copy at the destination (`Tartarus.Migration.CopyProtocol`):
+      runs nothing until it learns the decision, then becomes the agent.
+    * **Hs**, the source host's server: answers decision queries (`answer/3`), takes
+      acknowledgements and keeps parked copies (`Tartarus.Migration.HostProtocol`).
 
   ## Messages
 
@@ -102,9 +103,9 @@ defmodule Tartarus.Migration.Protocol do
       is dropped only on an `:aborted` answer (or a host kill), started only on a committed
       one. After `park_after` queries it parks: its process (and stash) goes, its record
       stays with the host (and in the journal), which asks the source on its behalf at a
-      low rate and revives or drops it only on an answer (`parked/1`). A source that never
-      returns leaves a row — unreachable but recorded, counted by admission — never a
-      duplicate.
+      low rate and revives or drops it only on an answer (`CopyProtocol.parked/1`). A
+      source that never returns leaves a row — unreachable but recorded, counted by
+      admission — never a duplicate.
   """
 
   alias Tartarus.Migration.Messages

@@ -853,9 +853,15 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def drop_arriving(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
 
+  # A copy that does not run ends its record: it aborts, and its migration must not have
+  # been committed to it.
   @impl true
-  def resolve(ctx, mig, copy),
-    do: copy_effect(ctx, fn w, h, _proc -> journal(w, h, {:resolved, mig, copy}) end)
+  def resolve(ctx, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      w = if proc.role == :copy, do: w |> count(:copy_aborted) |> check_abort(proc.c), else: w
+      journal(w, h, {:resolved, mig, copy})
+    end)
+  end
 
   # (Live, acknowledgements leave in batches; here each is a message of its own.)
   @impl true
@@ -886,14 +892,6 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   @impl true
   def stop(%{w: w, copy: pid}, _reason), do: %{w | procs: Map.delete(w.procs, pid)}
-
-  @impl true
-  def abort(%{w: w, copy: pid}, _c) do
-    w = w |> count(:copy_aborted) |> check_abort(w.procs[pid].c)
-    %{c: c, host: h} = w.procs[pid]
-    w = journal(w, h, {:resolved, c.mig, c.copy})
-    %{w | procs: Map.delete(w.procs, pid)}
-  end
 
   @impl true
   def ask(%{copy: pid} = ctx, src, mig, copy) do
