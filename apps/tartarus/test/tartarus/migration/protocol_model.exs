@@ -19,18 +19,22 @@ defmodule Tartarus.Migration.ProtocolModel do
   #     crashed source may say aborted to it: the agent died with that source);
   # and after the faults stop (partitions healed, crashed hosts restarted, messages
   # delivered, timers fired): every agent runs exactly once, except, without persistence,
-  # agents a crash could take (they were on, or in doubt about, a host when it crashed).
-
+  # agents a crash could take (they were on, or in doubt about, a host when it crashed); and
+  # every message posted to an agent no crash took is handled exactly once.
   #
-  # The source side runs the platform's own executor (Tartarus.Migration.Executor) with this
-  # module as its in-memory backend: the effects are the live ones, in the live order, and
-  # during the fault phase the source's host may crash between any two of them (a crash
-  # point in every effect), so an order that a crash could break is found.
+  # Every role runs the platform's own executor (Tartarus.Migration.Executor) with this
+  # module as the in-memory backend of all four (source, admission, paused copy, a host's
+  # own part): the effects are the protocol's, in the protocol's order, and during the fault
+  # phase a host may crash before any of them (crash_point/4), so an order that a crash could
+  # break is found. The agents' messages go through the live Tartarus.Agent.Held (kept while
+  # handing off, released after a failed hand-off, handed over inside the commit) and
+  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit.
   #
-  # A host's ledger mirrors Tartarus.Ledger: `fwd` holds, under an agent's id, either its
-  # undecided hand-off record {:handoff, mig, pid} or its forwarding pointer {mig, copy,
-  # notify} | :acked (one key: a committed move's pointer replaces the record in one write);
-  # `decisions` holds clones' commits and, after a restart, the journal's.
+  # What the backend keeps in its own words is storage, not logic: a host's ledger is
+  # `fwd` (under an agent's id, its undecided hand-off record {:handoff, mig, pid} or its
+  # forwarding pointer {mig, copy, notify} | :acked: one key, as Tartarus.Ledger has it) and
+  # `decisions` (clones' commits and, after a restart, the journal's); its journal is
+  # Tartarus.Host.Persistence's fold.
 
   @behaviour Tartarus.Migration.Executor.Source
   @behaviour Tartarus.Migration.Executor.Destination
@@ -42,7 +46,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   alias Tartarus.Agent.Held
   alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
 
-  # Chance of a crash of the source's host at each effect of the executor (fault phase).
+  # Chance of a crash of the host at each effect of the executor (fault phase).
   @crash_point 0.03
 
   @hosts [:h1, :h2, :h3]
