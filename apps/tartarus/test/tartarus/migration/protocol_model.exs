@@ -630,7 +630,12 @@ defmodule Tartarus.Migration.ProtocolModel do
     %{w: w} = Executor.host_event(event, %{w: w, host: h, fetched: nil}, __MODULE__)
     w
   catch
-    {:halt, %{w: w}} -> w
+    # A parked record the host took from its table went with the crash: its agent too.
+    {:halt, %{w: w, fetched: {_mig, _copy, _src, id}}} ->
+      %{w | exposed: MapSet.put(w.exposed, id)}
+
+    {:halt, %{w: w}} ->
+      w
   end
 
   defp host_effect(%{host: h} = ctx, fun), do: crash_point(ctx, h, :host, &fun.(&1, h))
@@ -688,7 +693,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   # A parked copy dropped: its migration must not have been committed to it.
   @impl true
   def record(ctx, {:resolved, mig, copy} = rec) do
-    {_mig, _copy, src} = ctx.fetched
+    {_mig, _copy, src, _id} = ctx.fetched
 
     host_effect(ctx, fn w, h ->
       w = check_abort(count(w, :parked_dropped), %{mig: mig, copy: copy, src: src})
@@ -740,7 +745,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def fetch_parked(%{w: w, host: h} = ctx, mig, copy) do
     case Map.fetch(w.hosts[h].parked, {mig, copy}) do
-      {:ok, {_env, src, _kind}} = found -> {found, %{ctx | fetched: {mig, copy, src}}}
+      {:ok, {env, src, _kind}} = found -> {found, %{ctx | fetched: {mig, copy, src, env.id}}}
       :error -> {:error, ctx}
     end
   end
