@@ -484,7 +484,15 @@ defmodule Tartarus.Ledger do
   it is read second.
   """
   @spec decision(host(), term(), binary(), term()) :: term()
-  def decision(host, mig, id, copy) do
+  def decision(host, mig, id, copy),
+    do: Tartarus.Migration.Protocol.answer(decision_view(host, mig, id), mig, copy)
+
+  @doc """
+  What `decision/4` reads, in the protocol's order: `%{handoff?: boolean, decision: term,
+  pointer: {mig, copy, notify} | nil}` (`Tartarus.Migration.Protocol.answer/3`'s view).
+  """
+  @spec decision_view(host(), term(), binary()) :: map()
+  def decision_view(host, mig, id) do
     {handoff?, pointer} =
       case :ets.lookup(host.ledger, {:fwd, id}) do
         [{_, :handoff, ^mig, _pid}] -> {true, nil}
@@ -498,11 +506,7 @@ defmodule Tartarus.Ledger do
         [] -> nil
       end
 
-    Tartarus.Migration.Protocol.answer(
-      %{handoff?: handoff?, decision: decision, pointer: pointer},
-      mig,
-      copy
-    )
+    %{handoff?: handoff?, decision: decision, pointer: pointer}
   end
 
   @doc """

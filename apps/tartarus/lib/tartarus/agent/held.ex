@@ -62,6 +62,17 @@ defmodule Tartarus.Agent.Held do
   @spec release(map()) :: {list(), {non_neg_integer(), non_neg_integer()}, map()}
   def release(data), do: {Enum.reverse(data.held), data.postponed, Map.merge(data, empty())}
 
+  @doc false
+  # A committed move's hand-over (inside its commit, Tartarus.Migration.Source): the messages
+  # the agent took and had not handled (data.pending), then the new ones of what it held and
+  # of `mailbox` (what reached it since, drained), with the memory of what was taken
+  # (Tartarus.Migration.Inbox.handover/4). Returns {handover, data}.
+  @spec hand_over(map(), list()) :: {{list(), map()}, map()}
+  def hand_over(data, mailbox) do
+    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, Enum.reverse(data.held, mailbox))
+    {{msgs, inbox}, %{data | inbox: inbox, pending: []}}
+  end
+
   defp agent_message?({:info, {:"$tartarus_msg", {pid, _}, kind, _}})
        when is_pid(pid) and kind in [:post, :request],
        do: true

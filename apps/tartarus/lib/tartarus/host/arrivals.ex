@@ -27,7 +27,7 @@ defmodule Tartarus.Host.Arrivals do
   # policy they count against its max_resident_agents).
   @max_paused 10_000
 
-  @behaviour Tartarus.Migration.Executor
+  @behaviour Tartarus.Migration.Executor.Destination
 
   # An admission runs at high priority, as the host's server did when it admitted: among
   # thousands of runnable agents (a clone storm) a prepare is answered, refused when the
@@ -106,7 +106,7 @@ defmodule Tartarus.Host.Arrivals do
 
   # -- the executor's effects (the destination's backend) -----------------------------------
 
-  @impl Executor
+  @impl Executor.Destination
   def check(ctx, p) do
     env = p.env
 
@@ -127,7 +127,7 @@ defmodule Tartarus.Host.Arrivals do
     {verdict, copy_token(ctx.host), ctx}
   end
 
-  @impl Executor
+  @impl Executor.Destination
   def probe(ctx, p, _copy, pid) do
     {Ledger.arriving?(ctx.host, p.env.id, pid), ctx}
   end
@@ -135,7 +135,7 @@ defmodule Tartarus.Host.Arrivals do
   # The copy is this process (it becomes the agent once admission is done, admit/2):
   # recorded as the host's (which ends the reservation) and findable (messages to it wait
   # until it starts); the host's server hears of it.
-  @impl Executor
+  @impl Executor.Destination
   def create(ctx, p, copy) do
     host = ctx.host
     env = fault(:admitting, p.env, host)
@@ -164,19 +164,19 @@ defmodule Tartarus.Host.Arrivals do
   end
 
   # Durable before `prepared` leaves.
-  @impl Executor
-  def journal(ctx, {:in_doubt, mig, env, src, kind, copy}) do
+  @impl Executor.Destination
+  def journal_in_doubt(ctx, {:in_doubt, mig, env, src, kind, copy}) do
     Tartarus.Host.Persistence.in_doubt(ctx.host, mig, env, src, kind, copy)
     ctx
   end
 
-  @impl Executor
-  def send(ctx, pid, msg) do
+  @impl Executor.Destination
+  def answer(ctx, pid, msg) do
     if is_pid(pid), do: Kernel.send(pid, msg)
     ctx
   end
 
-  @impl Executor
+  @impl Executor.Destination
   def refuse(ctx, p, reason), do: refuse(ctx, p.s_pid, p.mig, p.env, p.src, reason)
 
   @doc false

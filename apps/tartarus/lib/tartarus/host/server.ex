@@ -26,7 +26,6 @@ defmodule Tartarus.Host.Server do
 
   alias Tartarus.{Clock, Ledger}
   alias Tartarus.Host.{Agents, Arrivals, Parked}
-  alias Tartarus.Migration.Messages
 
   def start_link({name, opts}) do
     # A replayed prepare (an agent's whole envelope) may queue here: off the heap, a burst
@@ -136,10 +135,11 @@ defmodule Tartarus.Host.Server do
 
   defp call(:monitored, _from, state), do: {:reply, map_size(state.monitors), state}
 
-  # A paused copy that waited too long parks (Protocol.copy_step/2): only the copy itself,
-  # found as its agent's arriving process here, may hand over its record.
-  defp call({:park, mig, copy, env, src, kind}, {pid, _}, state),
-    do: {:reply, Parked.park(state, {mig, copy}, env, src, kind, pid), state}
+  # A paused copy that waited too long parks (Tartarus.Migration.CopyProtocol.step/2): only
+  # the copy itself, found as its agent's arriving process here, may hand over its record
+  # (Tartarus.Migration.HostProtocol, carried out by Tartarus.Host.Parked).
+  defp call({:park, mig, copy, env, src, kind}, from, state),
+    do: {:noreply, Parked.event(state, {:park, mig, copy, env, src, kind, from})}
 
   defp call(:parked, _from, state), do: {:reply, Parked.count(state), state}
 
@@ -197,27 +197,24 @@ defmodule Tartarus.Host.Server do
     {:noreply, state}
   end
 
+  # Decision queries and acknowledgements: the host's own part of the protocol
+  # (Tartarus.Migration.HostProtocol, carried out by Tartarus.Host.Parked).
   def handle_info({:"$tartarus_decision?", mig, id, copy, a_pid} = msg, state) do
     if Tartarus.Wire.check_decision_query(msg) == :ok do
-      send(a_pid, Messages.decision(mig, copy, Ledger.decision(state.host, mig, id, copy)))
+      {:noreply, Parked.event(state, {:query, mig, id, copy, a_pid})}
     else
       Ledger.count(state.host, :dropped)
+      {:noreply, state}
     end
-
-    {:noreply, state}
   end
 
   def handle_info({:"$tartarus_acks", acks} = msg, state) do
     if Tartarus.Wire.check_acks(msg) == :ok do
-      for {mig, id, copy} <- acks do
-        Ledger.acknowledge(state.host, mig, id, copy)
-        Tartarus.Host.Persistence.acked(state.host, mig)
-      end
+      {:noreply, Parked.event(state, {:acks, acks})}
     else
       Ledger.count(state.host, :dropped)
+      {:noreply, state}
     end
-
-    {:noreply, state}
   end
 
   # A timer that only sends acknowledgements (lazily, batched): it decides nothing. The first
@@ -229,13 +226,12 @@ defmodule Tartarus.Host.Server do
 
   # Asks the sources of parked copies (a timer that only asks: it never decides anything).
   def handle_info(:"$tartarus_ask_parked", state) do
-    Parked.ask(state)
-    {:noreply, state}
+    {:noreply, Parked.event(state, :ask_parked)}
   end
 
   # A source's answer about a parked copy: revive it (it starts), drop it, or keep it.
   def handle_info({:"$tartarus_decision", mig, copy, d}, state),
-    do: {:noreply, Parked.answer(state, mig, copy, d)}
+    do: {:noreply, Parked.event(state, {:decision, mig, copy, d})}
 
   # A killed agent still up after its grace: killed for good.
   def handle_info({:timeout, tref, {:"$tartarus_kill", pid}}, state) do

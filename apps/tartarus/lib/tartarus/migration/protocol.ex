@@ -2,26 +2,27 @@ defmodule Tartarus.Migration.Protocol do
   @moduledoc """
   The hand-off protocol of a migration (move or clone), as pure functions: its messages
   (their validators are `Tartarus.Wire`'s) and the three parties' state machines written as
-  `(state, event) -> {state, actions}`. The processes that run it
-  (`Tartarus.Migration.Source` through `Tartarus.Migration.Executor` for the source,
-  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Arrivals` for admission,
-  `Tartarus.Host.Server` for decision queries) only turn messages into events
-  and carry out the actions (send, journal, create a paused copy, reply, emit). The model-checked property
+  `(state, event) -> {state, actions}`, one action per effect. The processes that run it
+  (`Tartarus.Migration.Source` for the source, `Tartarus.Host.Arrivals` for admission,
+  `Tartarus.Migration.Arrival` for the in-doubt copy, `Tartarus.Host.Parked` in the host's
+  server) only turn messages into events; `Tartarus.Migration.Executor` carries out the
+  actions through them. The model-checked property
   `Tartarus.Migration.ProtocolModelTest` drives these same functions over a network that
   drops, duplicates, delays, reorders and replays messages, with crashes and partitions.
 
   ## Parties
 
-    * **S**, the source: the agent's own process, for one attempt (`source/4`,
+    * **S**, the source: the agent's own process, for one attempt (`source/6`,
       `source_step/2`). It writes the decision.
     * **H**, the destination's admission: a process spawned on the destination's node for
       each prepare (`Tartarus.Host.Arrivals`; by the node's door, `Tartarus.Host.ArrivalDoor`,
       for a source on another node), not the host's server; it admits or refuses
       (`destination/1`, `destination_step/2`) and, admitted, becomes the paused copy **A**
       and answers `prepared` (the host's server adopts it, asynchronously).
-    * **A**, the paused (in-doubt) copy at the destination (`copy/5`, `copy_step/2`): runs
-      nothing until it learns the decision.
-    * **Hs**, the source host's server: answers decision queries (`answer/4`).
+    * **A**, the paused (in-doubt) copy at the destination (`Tartarus.Migration.CopyProtocol`):
+      runs nothing until it learns the decision, then becomes the agent.
+    * **Hs**, the source host's server: answers decision queries (`answer/3`), takes
+      acknowledgements and keeps parked copies (`Tartarus.Migration.HostProtocol`).
 
   ## Messages
 
@@ -103,9 +104,9 @@ defmodule Tartarus.Migration.Protocol do
       is dropped only on an `:aborted` answer (or a host kill), started only on a committed
       one. After `park_after` queries it parks: its process (and stash) goes, its record
       stays with the host (and in the journal), which asks the source on its behalf at a
-      low rate and revives or drops it only on an answer (`parked/1`). A source that never
-      returns leaves a row — unreachable but recorded, counted by admission — never a
-      duplicate.
+      low rate and revives or drops it only on an answer (`CopyProtocol.parked/1`). A
+      source that never returns leaves a row — unreachable but recorded, counted by
+      admission — never a duplicate.
   """
 
   alias Tartarus.Migration.Messages
@@ -121,40 +122,85 @@ defmodule Tartarus.Migration.Protocol do
 
   @doc """
   The source's state for one attempt: migration `mig` of kind `kind` to host pid `dest`,
-  `notify` the caller waiting for the outcome (or nil).
+  `notify` the caller waiting for the outcome (or nil), `agent` the agent's id and `out`
+  the id of what leaves (the agent's for a move, the clone's for a clone). It begins on
+  the event `:begin`.
   """
-  @spec source(mig(), :move | :clone, term(), term()) :: map()
-  def source(mig, kind, dest, notify),
-    do: %{mig: mig, kind: kind, dest: dest, notify: notify, phase: :preparing, code: :none}
+  @spec source(mig(), :move | :clone, term(), term(), binary(), binary()) :: map()
+  def source(mig, kind, dest, notify, agent, out) do
+    %{
+      mig: mig,
+      kind: kind,
+      dest: dest,
+      notify: notify,
+      agent: agent,
+      out: out,
+      phase: :idle,
+      code: :none
+    }
+  end
 
   @doc """
-  One step of the source. Its executor writes the hand-off record of `mig` before it sends
-  `prepare`. Events: `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
+  One step of the source: every effect is an action of its own, carried out in the order
+  given (`Tartarus.Migration.Executor`); an action with a result answers with an event.
+
+  Events: `:begin`, `{:prepared, mig, copy, pid}`, `{:need, mig, mods}`,
   `{:refused, mig, reason}`, `:timeout`, `{:down, reason}`, `{:decided, boolean}` (the
-  outcome of a `:decide` action), `{:code, {:ok, code} | {:error, reason}}` (the outcome of a
-  `:fetch_code` action). Actions: `{:decide, mig, {:committed, copy}}` (insert-if-absent;
-  answer with `:decided`), `{:fetch_code, mods}`, `{:resend, code}`,
-  `{:record_commit, kind, mig, copy}` (journal, and for a move the forwarding pointer),
-  `{:end_handoff, mig}` (remove the hand-off record), `{:send, pid, msg}`,
-  `{:done, {:committed, copy, pid} | {:failed, reason}}`.
+  result of `:decide`), `{:code, {:ok, code} | {:error, reason}}` (of `:fetch_code`).
+
+  Actions: `{:begin_handoff, mig}` (the hand-off record: undecided for whoever asks),
+  `:watch` (the destination), `:send_prepare`, `{:settle, {:prepared, pid} | :failed}`
+  (stop watching), `{:decide, mig, copy}` (a clone's commit, insert-if-absent: answers
+  `{:decided, boolean}`), `{:journal, record}`, `{:pointer_put, mig, copy, notify}` (a
+  move's forwarding pointer: it replaces the hand-off record and is the decision),
+  `:leave` (the resident tables), `{:committed, kind, mig, copy}` (the event of it),
+  `{:end_handoff, mig}` (the hand-off record goes), `{:hand_over, pid, commit}` (a move's
+  commit, sent with the messages the agent took and had not handled), `{:send, pid, msg}`,
+  `{:fetch_code, mods}`, `{:resend, code}`, `{:done, {:committed, copy, pid} | {:failed,
+  reason}}` (the last).
 
       iex> alias Tartarus.Migration.Protocol, as: P
-      iex> s = P.source(:m, :move, :h, nil)
-      iex> {s, acts} = P.source_step(s, {:prepared, :m, :c, :a})
+      iex> s = P.source(:m, :move, :h, nil, "a", "a")
+      iex> {s, acts} = P.source_step(s, :begin)
       iex> acts
-      [{:decide, :m, {:committed, :c}}]
-      iex> {_s, acts} = P.source_step(s, {:decided, true})
+      [{:begin_handoff, :m}, :watch, :send_prepare]
+      iex> {_s, acts} = P.source_step(s, {:prepared, :m, :c, :a})
       iex> acts
-      [{:record_commit, :move, :m, :c}, {:end_handoff, :m}, {:send, :a, {:"$tartarus_commit", :m, :c, nil, nil}}, {:done, {:committed, :c, :a}}]
+      [{:settle, {:prepared, :a}}, {:journal, {:decision, :m, "a", :c}}, {:journal, {:forget, "a"}}, {:pointer_put, :m, :c, nil}, :leave, {:committed, :move, :m, :c}, {:hand_over, :a, {:"$tartarus_commit", :m, :c, nil, nil}}, {:done, {:committed, :c, :a}}]
   """
   @spec source_step(map(), term()) :: {map(), [action()]}
+  def source_step(%{phase: :idle, mig: mig} = s, :begin),
+    do: {%{s | phase: :preparing}, [{:begin_handoff, mig}, :watch, :send_prepare]}
+
+  # A move: durable first (a restarted host must neither lose the commit nor restore the
+  # agent), then the pointer, which is the decision, then the agent leaves, then the commit
+  # leaves with what the agent held. Its hand-off record is gone with the pointer.
+  def source_step(%{phase: :preparing, mig: mig, kind: :move} = s, {:prepared, mig, copy, pid}) do
+    %{agent: id, notify: notify} = s
+
+    {%{s | phase: {:committed, copy, pid}},
+     [
+       {:settle, {:prepared, pid}},
+       {:journal, {:decision, mig, id, copy}},
+       {:journal, {:forget, id}},
+       {:pointer_put, mig, copy, notify},
+       :leave,
+       {:committed, :move, mig, copy},
+       {:hand_over, pid, Messages.commit(mig, copy, notify)},
+       {:done, {:committed, copy, pid}}
+     ]}
+  end
+
+  # A clone: its commit is written (insert-if-absent) while the hand-off record stands.
   def source_step(%{phase: :preparing, mig: mig} = s, {:prepared, mig, copy, pid}),
-    do: {%{s | phase: {:deciding, copy, pid}}, [{:decide, mig, {:committed, copy}}]}
+    do:
+      {%{s | phase: {:deciding, copy, pid}}, [{:settle, {:prepared, pid}}, {:decide, mig, copy}]}
 
   def source_step(%{phase: {:deciding, copy, pid}, mig: mig} = s, {:decided, true}) do
     {%{s | phase: {:committed, copy, pid}},
      [
-       {:record_commit, s.kind, mig, copy},
+       {:journal, {:decision, mig, s.out, copy}},
+       {:committed, s.kind, mig, copy},
        {:end_handoff, mig},
        {:send, pid, Messages.commit(mig, copy, s.notify)},
        {:done, {:committed, copy, pid}}
@@ -186,8 +232,10 @@ defmodule Tartarus.Migration.Protocol do
 
   # An abort writes nothing: the hand-off record goes, with no commit, before the agent goes
   # on at the source, so a copy that asks from then on learns it.
-  defp abort(s, reason),
-    do: {%{s | phase: :failed}, [{:end_handoff, s.mig}, {:done, {:failed, reason}}]}
+  defp abort(s, reason) do
+    {%{s | phase: :failed},
+     [{:settle, :failed}, {:end_handoff, s.mig}, {:done, {:failed, reason}}]}
+  end
 
   @doc "True once the source's attempt has ended."
   @spec source_done?(map()) :: boolean()
@@ -225,20 +273,21 @@ defmodule Tartarus.Migration.Protocol do
   outcome of a `:probe`). Actions: `{:check, fields}` (trust, size, code, capacity),
   `{:probe, fields, copy, pid}` (is that copy still paused?), `{:create, fields, copy}` (a
   paused copy; answer `:created`),
-  `{:journal_in_doubt, fields, copy}`, `{:send, pid, msg}`, `{:refuse, fields, reason}`.
+  `{:journal, {:in_doubt, mig, env, src, kind, copy}}`, `{:send, pid, msg}`,
+  `{:refuse, fields, reason}`.
 
       iex> alias Tartarus.Migration.Protocol, as: P
-      iex> p = %{mig: :m, s_pid: :s}
+      iex> p = %{mig: :m, s_pid: :s, env: :e, src: :x, kind: :move}
       iex> {d, [{:check, ^p}]} = P.destination_step(P.destination(), {:prepare, p})
       iex> {d, [{:create, ^p, :c}]} = P.destination_step(d, {:checked, p, :ok, :c})
       iex> {d, acts} = P.destination_step(d, {:created, p, :c, :a})
       iex> acts
-      [{:journal_in_doubt, %{mig: :m, s_pid: :s}, :c}, {:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
+      [{:journal, {:in_doubt, :m, :e, :x, :move, :c}}, {:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
       iex> {d, [{:probe, ^p, :c, :a}]} = P.destination_step(d, {:prepare, p})
       iex> P.destination_step(d, {:probed, p, :c, :a, true}) |> elem(1)
       [{:send, :s, {:"$tartarus_prepared", :m, :c, :a}}]
-      iex> P.destination_step(d, {:probed, p, :c, :a, false}) |> elem(1)
-      [{:refuse, %{mig: :m, s_pid: :s}, :duplicate}]
+      iex> P.destination_step(d, {:probed, p, :c, :a, false}) |> elem(1) |> hd() |> elem(2)
+      :duplicate
   """
   @spec destination_step(map(), term()) :: {map(), [action()]}
   def destination_step(d, {:prepare, p}) do
@@ -268,9 +317,13 @@ defmodule Tartarus.Migration.Protocol do
   def destination_step(d, {:checked, p, {:error, reason}, _copy}),
     do: {release(d, p.mig), [{:refuse, p, reason}]}
 
+  # The in-doubt copy is durable before `prepared` leaves.
   def destination_step(d, {:created, p, copy, pid}) do
     {remember(d, p.mig, {:copy, copy, pid}),
-     [{:journal_in_doubt, p, copy}, {:send, p.s_pid, Messages.prepared(p.mig, copy, pid)}]}
+     [
+       {:journal, {:in_doubt, p.mig, p.env, p.src, p.kind, copy}},
+       {:send, p.s_pid, Messages.prepared(p.mig, copy, pid)}
+     ]}
   end
 
   def destination_step(d, {:create_failed, p, reason}),
@@ -316,90 +369,6 @@ defmodule Tartarus.Migration.Protocol do
       end
     end
   end
-
-  # -- the in-doubt copy ------------------------------------------------------------
-
-  @doc """
-  The state of a paused copy `copy` of migration `mig` from source host `src`. Options:
-  `:stash_max` (messages kept while paused, default 1_000), `:ask_after` (first query, in
-  ms, default 1_000), `:max_ask_interval` (cap of the back-off, default 30_000),
-  `:park_after` (queries without a decisive answer before the copy parks, default 20:
-  about eight minutes).
-  """
-  @spec copy(mig(), copy_token(), term(), :move | :clone, keyword()) :: map()
-  def copy(mig, copy, src, kind, opts \\ []) do
-    %{
-      mig: mig,
-      copy: copy,
-      src: src,
-      kind: kind,
-      stashed: 0,
-      dropped: 0,
-      asks: 0,
-      stash_max: Keyword.get(opts, :stash_max, 1_000),
-      ask_after: Keyword.get(opts, :ask_after, 1_000),
-      max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000),
-      park_after: Keyword.get(opts, :park_after, 20)
-    }
-  end
-
-  @doc """
-  One step of a paused copy. Events: `{:commit, mig, copy, notify}`, `:timeout` (its timer),
-  `{:decision, mig, copy, d}`, `{:message, msg}` (anything else sent to it). Actions:
-  `{:start, notify}` (become the agent), `:abort` (stop; the migration was aborted),
-  `{:ask, src, mig, copy}`, `{:timer, ms}`, `{:stash, msg}`, `{:drop, msg}`, `:park` (hand
-  the record to the host, which keeps asking, `parked/1`, and stop: the copy's process and
-  stash go, its record stays, in the journal too).
-
-      iex> alias Tartarus.Migration.Protocol, as: P
-      iex> c = P.copy(:m, :c, :src, :move)
-      iex> P.copy_step(c, {:commit, :m, :other, nil}) |> elem(1)
-      []
-      iex> P.copy_step(c, {:commit, :m, :c, nil}) |> elem(1)
-      [{:start, nil}]
-  """
-  @spec copy_step(map(), term()) :: {map(), [action()]}
-  def copy_step(%{mig: mig, copy: copy} = c, {:commit, mig, copy, notify}),
-    do: {c, [{:start, notify}]}
-
-  def copy_step(%{asks: asks, park_after: n} = c, :timeout) when asks >= n, do: {c, [:park]}
-
-  def copy_step(c, :timeout) do
-    interval = min(c.ask_after * Integer.pow(2, min(c.asks, 16)), c.max_ask_interval)
-    {%{c | asks: c.asks + 1}, [{:ask, c.src, c.mig, c.copy}, {:timer, interval}]}
-  end
-
-  def copy_step(%{mig: mig, copy: copy} = c, {:decision, mig, copy, d}) do
-    case d do
-      {:committed, notify} -> {c, [{:start, notify}]}
-      :committed -> {c, [{:start, nil}]}
-      :aborted -> {c, [:abort]}
-      _unknown -> {c, []}
-    end
-  end
-
-  def copy_step(c, {:message, msg}) do
-    if c.stashed < c.stash_max,
-      do: {%{c | stashed: c.stashed + 1}, [{:stash, msg}]},
-      else: {%{c | dropped: c.dropped + 1}, [{:drop, msg}]}
-  end
-
-  def copy_step(c, _event), do: {c, []}
-
-  @doc """
-  What a host does with a parked copy's record on an answer from its source: `:revive` (a
-  paused copy again, which starts: committed), `:drop` (aborted), `:keep` (unknown: ask
-  again later). A parked record is never dropped or revived otherwise, so parking cannot
-  duplicate an agent; it only trades a waiting process for a row.
-
-      iex> Tartarus.Migration.Protocol.parked({:committed, nil})
-      :revive
-  """
-  @spec parked(term()) :: :revive | :drop | :keep
-  def parked(:committed), do: :revive
-  def parked({:committed, _}), do: :revive
-  def parked(:aborted), do: :drop
-  def parked(_), do: :keep
 
   # -- source host: decision queries -------------------------------------------------
 

@@ -13,11 +13,11 @@ defmodule Tartarus.Migration.Source do
   # Tartarus.Agent.Actions). `data` is the agent process's state (Tartarus.Agent.Server);
   # the hand-off's own state is data.handoff while it lasts.
 
-  @behaviour Tartarus.Migration.Executor
+  @behaviour Tartarus.Migration.Executor.Source
 
   require Tartarus.Events
   alias Tartarus.{Clock, CodeCache, Envelope, Events, Ledger, Strategy}
-  alias Tartarus.Migration.{Executor, Inbox, Messages}
+  alias Tartarus.Migration.{Executor, Messages, Protocol}
 
   # -- before the hand-off: where to, may it go, with what code ---------------------
 
@@ -133,17 +133,11 @@ defmodule Tartarus.Migration.Source do
         host
       )
 
-    # Before `prepare` leaves: the migration is undecided for whoever asks.
-    Ledger.begin_handoff(host, data.env.id, mig)
-    mref = watch(dest_pid)
-    # To a process spawned for it at the destination, not to the host's server (admission
-    # does not queue behind one process per host, Tartarus.Host.Arrivals).
-    Tartarus.Host.Arrivals.send_prepare(dest, dest_pid, prepare)
-
     x = %{
+      data: %{data | handoff: nil},
       dest: dest,
       dest_pid: dest_pid,
-      mref: mref,
+      mref: nil,
       manifest: manifest,
       prepare: prepare,
       out: out,
@@ -151,8 +145,10 @@ defmodule Tartarus.Migration.Source do
       by: by
     }
 
-    s = Executor.source_state(mig, kind, dest_pid, notify(by), data.env.id, out.id)
-    {:wait, %{data | handoff: {s, x}}}
+    s = Protocol.source(mig, kind, dest_pid, notify(by), data.env.id, out.id)
+    # The hand-off record (before `prepare` leaves), the watch, the prepare.
+    {:wait, s, x} = Executor.source_event(s, :begin, x, __MODULE__)
+    {:wait, %{x.data | handoff: {s, Map.delete(x, :data)}}}
   end
 
   # Who waits for the outcome: the caller of Tartarus.move/2 or clone/2 (answered by the
@@ -203,20 +199,38 @@ defmodule Tartarus.Migration.Source do
 
   # -- the executor's effects --------------------------------------------------------
 
+  # Before `prepare` leaves: the migration is undecided for whoever asks.
   @impl true
-  def settled(x, {:prepared, pid}) do
+  def begin_handoff(x, mig) do
+    Ledger.begin_handoff(x.data.host, x.data.env.id, mig)
+    x
+  end
+
+  @impl true
+  def watch(x), do: %{x | mref: watch_pid(x.dest_pid)}
+
+  # To a process spawned for it at the destination, not to the host's server (admission
+  # does not queue behind one process per host, Tartarus.Host.Arrivals).
+  @impl true
+  def send_prepare(x) do
+    Tartarus.Host.Arrivals.send_prepare(x.dest, x.dest_pid, x.prepare)
+    x
+  end
+
+  @impl true
+  def settle(x, {:prepared, pid}) do
     unwatch(x.mref)
     Tartarus.Fault.point(:prepared, pid)
     x
   end
 
-  def settled(x, :failed) do
+  def settle(x, :failed) do
     unwatch(x.mref)
     x
   end
 
   @impl true
-  def decision_put_new(x, mig, copy),
+  def decide(x, mig, copy),
     do: {Ledger.decide(x.data.host, mig, {:committed, copy}), x}
 
   @impl true
@@ -244,17 +258,18 @@ defmodule Tartarus.Migration.Source do
   end
 
   @impl true
-  def handoff_end(x, mig) do
+  def end_handoff(x, mig) do
     Ledger.end_handoff(x.data.host, x.data.env.id, mig)
     x
   end
 
-  # The messages this process took and had not handled, then those that reached it: kept
-  # while it handed off (data.held), then still in its mailbox (drained without waiting).
+  # The commit carries the messages this process took and had not handled, then those that
+  # reached it: kept while it handed off (data.held), then still in its mailbox (drained
+  # without waiting).
   @impl true
-  def handover(%{data: data} = x) do
-    {msgs, inbox} = Inbox.handover(data.inbox, data.pending, Enum.reverse(data.held, drain([])))
-    {{msgs, inbox}, %{x | data: %{data | inbox: inbox, pending: []}}}
+  def hand_over(x, pid, {:"$tartarus_commit", mig, copy, notify, nil}) do
+    {handover, data} = Tartarus.Agent.Held.hand_over(x.data, drain([]))
+    send(%{x | data: data}, pid, Messages.commit(mig, copy, notify, handover))
   end
 
   @impl true
@@ -319,9 +334,9 @@ defmodule Tartarus.Migration.Source do
   # A local destination host is monitored; for a remote one the node is (a node monitor
   # costs no messages on the wire, a remote process monitor two per hand-off). A host that
   # dies while its node lives is caught by the timeout.
-  defp watch(pid) when node(pid) == node(), do: Process.monitor(pid)
+  defp watch_pid(pid) when node(pid) == node(), do: Process.monitor(pid)
 
-  defp watch(pid) do
+  defp watch_pid(pid) do
     Node.monitor(node(pid), true)
     {:node, node(pid)}
   end

@@ -19,26 +19,34 @@ defmodule Tartarus.Migration.ProtocolModel do
   #     crashed source may say aborted to it: the agent died with that source);
   # and after the faults stop (partitions healed, crashed hosts restarted, messages
   # delivered, timers fired): every agent runs exactly once, except, without persistence,
-  # agents a crash could take (they were on, or in doubt about, a host when it crashed).
-
+  # agents a crash could take (they were on, or in doubt about, a host when it crashed); and
+  # every message posted to an agent no crash took is handled exactly once.
   #
-  # The source side runs the platform's own executor (Tartarus.Migration.Executor) with this
-  # module as its in-memory backend: the effects are the live ones, in the live order, and
-  # during the fault phase the source's host may crash between any two of them (a crash
-  # point in every effect), so an order that a crash could break is found.
+  # Every role runs the platform's own executor (Tartarus.Migration.Executor) with this
+  # module as the in-memory backend of all four (source, admission, paused copy, a host's
+  # own part): the effects are the protocol's, in the protocol's order, and during the fault
+  # phase a host may crash before any of them (crash_point/4), so an order that a crash could
+  # break is found. The agents' messages go through the live Tartarus.Agent.Held (kept while
+  # handing off, released after a failed hand-off, handed over inside the commit) and
+  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit.
   #
-  # A host's ledger mirrors Tartarus.Ledger: `fwd` holds, under an agent's id, either its
-  # undecided hand-off record {:handoff, mig, pid} or its forwarding pointer {mig, copy,
-  # notify} | :acked (one key: a committed move's pointer replaces the record in one write);
-  # `decisions` holds clones' commits and, after a restart, the journal's.
+  # What the backend keeps in its own words is storage, not logic: a host's ledger is
+  # `fwd` (under an agent's id, its undecided hand-off record {:handoff, mig, pid} or its
+  # forwarding pointer {mig, copy, notify} | :acked: one key, as Tartarus.Ledger has it) and
+  # `decisions` (clones' commits and, after a restart, the journal's); its journal is
+  # Tartarus.Host.Persistence's fold.
 
-  @behaviour Tartarus.Migration.Executor
+  @behaviour Tartarus.Migration.Executor.Source
+  @behaviour Tartarus.Migration.Executor.Destination
+  @behaviour Tartarus.Migration.Executor.Copy
+  @behaviour Tartarus.Migration.Executor.Host
 
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
-  alias Tartarus.Migration.{Executor, Inbox, Messages, Protocol}
+  alias Tartarus.Agent.Held
+  alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
 
-  # Chance of a crash of the source's host at each effect of the executor (fault phase).
+  # Chance of a crash of the host at each effect of the executor (fault phase).
   @crash_point 0.03
 
   @hosts [:h1, :h2, :h3]
@@ -92,6 +100,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       archive: {0, %{}},
       partitions: MapSet.new(),
       decisions: %{},
+      msgs: %{},
       known: MapSet.new(),
       exposed: MapSet.new()
     }
@@ -105,7 +114,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       {pid, w} = fresh(w, :pid)
       w = journal(w, h, {:agent, id, env})
       w = put_in(w.hosts[h].residents[id], pid)
-      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+      w = put_in(w.procs[pid], agent_proc(h, env))
       %{w | known: MapSet.put(w.known, id)}
     end)
   end
@@ -136,8 +145,8 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
       {pid, w} = fresh(w, :pid)
-      c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
-      w = put_in(w.procs[pid], %{role: :copy, host: h, env: env, c: c})
+      c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+      w = put_in(w.procs[pid], new_copy(h, env, c))
       restored_seen(w, h, mig, copy, pid)
     end)
   end
@@ -152,9 +161,18 @@ defmodule Tartarus.Migration.ProtocolModel do
     else
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
-      put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
+      put_in(w.procs[pid], agent_proc(h, env))
     end
   end
+
+  defp new_copy(h, env, c),
+    do: %{role: :copy, host: h, env: env, c: c, stash: [], postponed: [], data: agent_data(env)}
+
+  defp agent_proc(h, env), do: %{role: :agent, host: h, env: env, src: nil, data: agent_data(env)}
+
+  # The agent process's fields that Tartarus.Agent.Held and the hand-over read and write.
+  defp agent_data(env),
+    do: Map.merge(Held.empty(), %{host: %{opts: %{}}, env: env, inbox: Inbox.new(), pending: []})
 
   defp fresh(w, tag), do: {{tag, w.n}, %{w | n: w.n + 1}}
 
@@ -185,7 +203,9 @@ defmodule Tartarus.Migration.ProtocolModel do
       x < 0.73 -> crash(w)
       x < 0.80 -> restart(w)
       x < 0.84 -> partition(w)
-      x < 0.90 -> heal(w)
+      x < 0.88 -> heal(w)
+      x < 0.92 -> post(w)
+      x < 0.94 -> retry(w)
       true -> down(w)
     end
   end
@@ -286,13 +306,13 @@ defmodule Tartarus.Migration.ProtocolModel do
         admission(w, h, {:prepare, p})
 
       {:query, mig, id, copy, a_pid} ->
-        answer_query(w, h, mig, id, copy, a_pid)
+        host_event(w, h, {:query, mig, id, copy, a_pid})
 
       {:acks, list} ->
-        Enum.reduce(list, w, fn {mig, id, copy}, w -> acknowledge(w, h, mig, id, copy) end)
+        host_event(w, h, {:acks, list})
 
       {:decision, mig, copy, d} ->
-        parked_answer(w, h, mig, copy, d)
+        host_event(w, h, {:decision, mig, copy, d})
 
       _ ->
         w
@@ -303,11 +323,22 @@ defmodule Tartarus.Migration.ProtocolModel do
     proc = w.procs[pid]
 
     case {proc.role, Messages.classify(msg)} do
-      {:copy, {:commit, _, _, _} = e} ->
-        copy_event(w, pid, e)
+      {:copy, _} ->
+        case CopyProtocol.event(proc.c, msg) do
+          nil -> w
+          e -> copy_event(w, pid, e)
+        end
 
-      {:copy, {:decision, _, _, _} = e} ->
-        copy_event(w, pid, e)
+      # A commit that came after the copy stopped waiting for it (Tartarus.Agent.Server):
+      # what it took meanwhile is not taken twice.
+      {:agent, {:commit, _, _, _}} when proc.src == nil ->
+        with {_, _, _, _, {msgs, _}} when is_list(msgs) <- msg do
+          {msgs, inbox} = Inbox.take_new(proc.data.inbox, msgs)
+          w = put_in(w.procs[pid].data.inbox, inbox)
+          Enum.reduce(msgs, w, &handled(&2, &1))
+        else
+          _ -> w
+        end
 
       {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
         source_event(w, pid, e)
@@ -353,13 +384,11 @@ defmodule Tartarus.Migration.ProtocolModel do
             {proc.env, w}
           end
 
-        s = Executor.source_state(mig, kind, server(w, dest), nil, proc.env.id, env.id)
+        s = Protocol.source(mig, kind, server(w, dest), nil, proc.env.id, env.id)
         prepare = Messages.prepare(pid, mig, h, server(w, h), kind, env, [], [])
         w = put_in(w.procs[pid].src, %{s: s, prepare: prepare, out: env, dest: dest})
-        # As Tartarus.Ledger.begin_handoff/3, before `prepare` leaves.
-        w = put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, pid})
         w = note(w, {:start, pid, proc.env.id, kind, h, dest, mig})
-        send_msg(w, h, server(w, dest), prepare)
+        source_event(w, pid, :begin)
     end
   end
 
@@ -374,8 +403,11 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:done, {:committed, _, _}, %{kind: :move}, %{w: w}} ->
         %{w | procs: Map.delete(w.procs, pid)}
 
+      # It runs on here: what it held is handled now, in its order (Tartarus.Agent.Server).
       {:done, _outcome, _s, %{w: w}} ->
-        put_in(w.procs[pid].src, nil)
+        {held, _postponed, data} = Held.release(w.procs[pid].data)
+        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data})
+        Enum.reduce(held, w, &agent_receive(&2, pid, &1))
 
       # The source's host crashed in the middle (the process is gone with it).
       {:halted, %{w: w}} ->
@@ -388,13 +420,19 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp effect(%{w: w, pid: pid} = ctx, fun) do
     %{host: h} = w.procs[pid]
+    crash_point(ctx, h, :source, &fun.(&1, h, &1.procs[pid]))
+  end
+
+  # A crash point before an effect of `role` at host `h` (fault phase only): the host
+  # crashes and the effects after it do not happen (Executor: {:halt, ctx}); else `fun`.
+  defp crash_point(%{w: w} = ctx, h, role, fun) do
     {x, w} = uniform(w)
 
     if w.faulting and x < @crash_point do
-      w = note(w, {:crash_point, h, pid})
+      w = note(count(w, {:crash_point, role}), {:crash_point, h, role})
       throw({:halt, %{ctx | w: crash_host(w, h)}})
     else
-      %{ctx | w: fun.(w, h, w.procs[pid])}
+      %{ctx | w: fun.(w)}
     end
   end
 
@@ -422,11 +460,26 @@ defmodule Tartarus.Migration.ProtocolModel do
     end
   end
 
+  # As Tartarus.Ledger.begin_handoff/3.
   @impl true
-  def settled(ctx, _event), do: ctx
+  def begin_handoff(ctx, mig) do
+    effect(ctx, fn w, h, proc -> put_in(w.hosts[h].fwd[proc.env.id], {:handoff, mig, ctx.pid}) end)
+  end
+
+  # The model's sources see their destinations go down by its own event (down/1).
+  @impl true
+  def watch(ctx), do: effect(ctx, fn w, _h, _proc -> w end)
 
   @impl true
-  def decision_put_new(ctx, mig, copy) do
+  def send_prepare(ctx) do
+    effect(ctx, fn w, h, proc -> send_msg(w, h, server(w, proc.src.dest), proc.src.prepare) end)
+  end
+
+  @impl true
+  def settle(ctx, _event), do: ctx
+
+  @impl true
+  def decide(ctx, mig, copy) do
     ctx =
       effect(ctx, fn w, h, proc ->
         if Map.has_key?(w.hosts[h].decisions, mig) do
@@ -441,8 +494,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def journal(%{dest: _} = ctx, rec), do: dest_effect(ctx, &journal(&1, &2, rec))
+  def journal_in_doubt(ctx, rec), do: dest_effect(ctx, &journal(&1, &2, rec))
 
+  @impl true
   def journal(ctx, {:decision, mig, _id, copy} = rec) do
     effect(ctx, fn w, h, proc ->
       w = if w.persist, do: decided(w, proc, mig, copy), else: w
@@ -466,7 +520,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   @impl true
-  def handoff_end(ctx, mig) do
+  def end_handoff(ctx, mig) do
     effect(ctx, fn w, h, proc ->
       id = proc.env.id
 
@@ -484,12 +538,18 @@ defmodule Tartarus.Migration.ProtocolModel do
     end)
   end
 
+  # The live hand-over (Tartarus.Agent.Held.hand_over/2) of what the agent held and took.
   @impl true
-  def handover(ctx), do: {{[], Inbox.new()}, effect(ctx, fn w, _h, _proc -> w end)}
+  def hand_over(%{w: w, pid: pid} = ctx, to, {:"$tartarus_commit", mig, copy, notify, nil}) do
+    {handover, data} = Held.hand_over(w.procs[pid].data, [])
+    ctx = %{ctx | w: put_in(w.procs[pid].data, data)}
+    send(ctx, to, Messages.commit(mig, copy, notify, handover))
+  end
 
   @impl true
-  def send(%{dest: _} = ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
+  def answer(ctx, to, msg), do: dest_effect(ctx, &send_msg(&1, &2, to, msg))
 
+  @impl true
   def send(ctx, to, msg) do
     effect(ctx, fn w, h, proc ->
       w =
@@ -529,16 +589,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     {:halt, %{w: w}} -> w
   end
 
-  defp dest_effect(%{w: w, dest: h} = ctx, fun) do
-    {x, w} = uniform(w)
-
-    if w.faulting and x < @crash_point do
-      w = note(w, {:crash_point, h, :admission})
-      throw({:halt, %{ctx | w: crash_host(w, h)}})
-    else
-      %{ctx | w: fun.(w, h)}
-    end
-  end
+  defp dest_effect(%{dest: h} = ctx, fun), do: crash_point(ctx, h, :destination, &fun.(&1, h))
 
   @impl true
   def check(%{w: w} = ctx, p) do
@@ -555,11 +606,11 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def create(%{w: w} = ctx, p, copy) do
     {pid, w} = fresh(w, :pid)
-    c = Protocol.copy(p.mig, copy, p.src, p.kind, park_after: w.park_after)
+    c = CopyProtocol.new(p.mig, copy, p.src, p.kind, park_after: w.park_after, src_pid: p.s_pid)
 
     ctx =
       dest_effect(%{ctx | w: w}, fn w, h ->
-        put_in(count(w, :copy_created).procs[pid], %{role: :copy, host: h, env: p.env, c: c})
+        put_in(count(w, :copy_created).procs[pid], new_copy(h, p.env, c))
       end)
 
     {{:ok, pid}, ctx}
@@ -571,35 +622,62 @@ defmodule Tartarus.Migration.ProtocolModel do
     %{ctx | w: w}
   end
 
-  # -- decision queries (source host) ---------------------------------------------------
+  # -- a host's own part: answers, acknowledgements, parked copies -----------------------
 
-  defp answer_query(w, h, mig, id, copy, a_pid) do
+  # The platform's executor carries out the host's actions (this module is its backend: the
+  # context is %{w: world, host: h}). Each effect may first crash the host (fault phase).
+  defp host_event(w, h, event) do
+    %{w: w} = Executor.host_event(event, %{w: w, host: h, fetched: nil}, __MODULE__)
+    w
+  catch
+    # A parked record the host took from its table went with the crash: its agent too.
+    {:halt, %{w: w, fetched: {_mig, _copy, _src, id}}} ->
+      %{w | exposed: MapSet.put(w.exposed, id)}
+
+    {:halt, %{w: w}} ->
+      w
+  end
+
+  defp host_effect(%{host: h} = ctx, fun), do: crash_point(ctx, h, :host, &fun.(&1, h))
+
+  # What Tartarus.Ledger.decision_view/3 reads, from the model's ledger.
+  @impl true
+  def read(%{w: w, host: h} = ctx, mig, id, _copy) do
     host = w.hosts[h]
 
-    a =
-      Protocol.answer(
-        %{
-          handoff?: match?({:handoff, ^mig, _}, Map.get(host.fwd, id)),
-          decision: Map.get(host.decisions, mig),
-          pointer: with({_, _, _} = p <- Map.get(host.fwd, id), do: p)
-        },
-        mig,
-        copy
-      )
+    view = %{
+      handoff?: match?({:handoff, ^mig, _}, Map.get(host.fwd, id)),
+      decision: Map.get(host.decisions, mig),
+      pointer: with({_, _, _} = p <- Map.get(host.fwd, id), do: p)
+    }
 
-    w =
-      w
-      |> check_answer(h, mig, copy, a)
-      |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+    {view, ctx}
+  end
 
-    send_msg(w, h, a_pid, Messages.decision(mig, copy, a))
+  @impl true
+  def tell(ctx, to, msg) do
+    host_effect(ctx, fn w, h ->
+      w =
+        case msg do
+          {:"$tartarus_decision", mig, copy, a} ->
+            w
+            |> check_answer(h, mig, copy, a)
+            |> count({:answer, if(is_tuple(a), do: :committed, else: a)})
+
+          _ ->
+            w
+        end
+
+      send_msg(w, h, to, msg)
+    end)
   end
 
   # As Tartarus.Ledger.acknowledge/4: the commit of `mig` to `copy` is no longer needed.
-  defp acknowledge(w, h, mig, id, copy) do
-    w = count(w, :ack)
+  @impl true
+  def acknowledge(ctx, mig, id, copy) do
+    host_effect(ctx, fn w, h ->
+      w = count(w, :ack)
 
-    w =
       case Map.get(w.hosts[h].fwd, id) do
         {^mig, ^copy, _} ->
           put_in(w.hosts[h].fwd[id], :acked)
@@ -609,8 +687,96 @@ defmodule Tartarus.Migration.ProtocolModel do
             do: update_in(w.hosts[h].decisions, &Map.delete(&1, mig)),
             else: w
       end
+    end)
+  end
 
-    journal(w, h, {:acked, mig})
+  # A parked copy dropped: its migration must not have been committed to it.
+  @impl true
+  def record(ctx, {:resolved, mig, copy} = rec) do
+    {_mig, _copy, src, _id} = ctx.fetched
+
+    host_effect(ctx, fn w, h ->
+      w = check_abort(count(w, :parked_dropped), %{mig: mig, copy: copy, src: src})
+      journal(w, h, rec)
+    end)
+  end
+
+  def record(ctx, rec), do: host_effect(ctx, &journal(&1, &2, rec))
+
+  # Only the copy itself, arriving here, hands over its record.
+  @impl true
+  def park(ctx, mig, copy, env, src, kind, {pid, _}) do
+    %{w: w, host: h} = ctx = host_effect(ctx, fn w, _h -> w end)
+
+    cond do
+      not match?(%{role: :copy, host: ^h}, w.procs[pid]) ->
+        {:not_here, ctx}
+
+      true ->
+        how = if w.hosts[h].parked == %{}, do: :first, else: :more
+        w = put_in(count(w, :parked).hosts[h].parked[{mig, copy}], {env, src, kind})
+        {how, %{ctx | w: w}}
+    end
+  end
+
+  # The copy's call returns (park/2 below); the timer is the model's (fire_timer/1).
+  @impl true
+  def reply_call(ctx, _from, _answer), do: ctx
+  @impl true
+  def arm_ask(ctx), do: ctx
+
+  @impl true
+  def read_parked(%{w: w, host: h} = ctx) do
+    records =
+      for {{mig, copy}, {env, src, kind}} <- Enum.sort(w.hosts[h].parked),
+          do: {mig, copy, env, src, kind}
+
+    {records, ctx}
+  end
+
+  @impl true
+  def ask(ctx, src, {mig, id, copy}) do
+    host_effect(ctx, fn w, h ->
+      query = Messages.decision_query(mig, id, copy, server(w, h))
+      if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
+    end)
+  end
+
+  @impl true
+  def fetch_parked(%{w: w, host: h} = ctx, mig, copy) do
+    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
+      {:ok, {env, src, _kind}} = found -> {found, %{ctx | fetched: {mig, copy, src, env.id}}}
+      :error -> {:error, ctx}
+    end
+  end
+
+  @impl true
+  def dropped(ctx), do: ctx
+
+  @impl true
+  def unpark(ctx, mig, copy),
+    do:
+      host_effect(ctx, fn w, h -> update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy})) end)
+
+  @impl true
+  def revive(%{w: w} = ctx, mig, copy, env, src, kind) do
+    {pid, w} = fresh(w, :pid)
+    c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+
+    ctx =
+      host_effect(%{ctx | w: w}, fn w, h ->
+        put_in(count(w, :revived).procs[pid], new_copy(h, env, c))
+      end)
+
+    {{:ok, pid}, ctx}
+  end
+
+  @impl true
+  def arriving(ctx, _id, _pid), do: ctx
+
+  @impl true
+  def repark(ctx, mig, copy, env, src, kind) do
+    host_effect(ctx, fn w, h -> put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind}) end)
   end
 
   # A committed answer must name the committed copy. (An aborted answer is checked when a
@@ -637,20 +803,39 @@ defmodule Tartarus.Migration.ProtocolModel do
   # -- paused copies -----------------------------------------------------------------
 
   # The platform's executor carries out the paused copy's actions (this module is its
-  # backend: the context is %{w: world, copy: pid}; start, abort and park return the world).
+  # backend: the context is %{w: world, copy: pid}; the actions that end it return the
+  # world). Each effect may first crash the copy's host (fault phase only).
   defp copy_event(w, pid, event) do
     case Executor.copy_event(w.procs[pid].c, event, %{w: w, copy: pid}, __MODULE__) do
       {:paused, %{w: w}} -> w
       {:done, w} -> w
+      {:halted, %{w: w}} -> w
     end
+  end
+
+  defp copy_effect(%{w: w, copy: pid} = ctx, fun) do
+    %{host: h} = w.procs[pid]
+    crash_point(ctx, h, :copy, &fun.(&1, h, &1.procs[pid]))
   end
 
   @impl true
   def copy_state(%{w: w, copy: pid} = ctx, c), do: %{ctx | w: put_in(w.procs[pid].c, c)}
 
   @impl true
-  def start(%{w: w, copy: pid}, _c, _notify) do
-    %{host: h, env: env, c: c} = w.procs[pid]
+  def become(ctx, handover) do
+    copy_effect(ctx, fn w, _h, proc ->
+      {pending, inbox} = Inbox.arrive(proc.data.inbox, handover, Enum.reverse(proc.stash))
+      data = %{proc.data | inbox: inbox}
+      put_in(w.procs[ctx.copy], Map.merge(proc, %{stash: [], data: data, pending: pending}))
+    end)
+  end
+
+  # The copy runs from here on (as Tartarus.Ledger.register_resident/3: the old pointer of
+  # its id goes), unless the agent is resident here already.
+  @impl true
+  def register(%{copy: pid} = ctx) do
+    %{w: w} = ctx = copy_effect(ctx, fn w, _h, _proc -> w end)
+    %{host: h, env: env, c: c} = proc = w.procs[pid]
 
     if w.check_decisions and Map.get(w.decisions, c.mig) != {:committed, c.copy},
       do: violation(w, {:copy_started_without_its_decision, c.mig, c.copy, w.decisions[c.mig]})
@@ -658,89 +843,169 @@ defmodule Tartarus.Migration.ProtocolModel do
     w = note(w, {:copy_starts, pid, env.id, h, c.mig})
 
     if Map.has_key?(w.hosts[h].residents, env.id) do
-      # The agent is already resident here (register fails): this copy stops.
-      %{w | procs: Map.delete(w.procs, pid)}
+      {{:error, :already_resident}, %{ctx | w: w}}
     else
-      w = journal(w, h, {:resolved, c.mig, c.copy})
-      w = journal(w, h, {:agent, env.id, env})
       w = put_in(w.hosts[h].residents[env.id], pid)
       w = update_in(w.hosts[h].fwd, &Map.delete(&1, env.id))
-      w = put_in(w.procs[pid], %{role: :agent, host: h, env: env, src: nil})
-
-      # Running: acknowledge to the source host.
-      if alive_host?(w, c.src),
-        do: send_msg(w, h, server(w, c.src), Messages.acks([{c.mig, env.id, c.copy}])),
-        else: w
+      {:ok, %{ctx | w: put_in(w.procs[pid], Map.merge(proc, %{role: :agent, src: nil}))}}
     end
   end
 
+  # The model's hosts restart from their journals only.
   @impl true
-  def abort(%{w: w, copy: pid}, _c) do
-    w = w |> count(:copy_aborted) |> check_abort(w.procs[pid].c)
-    %{c: c, host: h} = w.procs[pid]
-    w = journal(w, h, {:resolved, c.mig, c.copy})
-    %{w | procs: Map.delete(w.procs, pid)}
+  def put_snapshot(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  @impl true
+  def checkpoint(ctx),
+    do: copy_effect(ctx, fn w, h, proc -> journal(w, h, {:agent, proc.env.id, proc.env}) end)
+
+  @impl true
+  def drop_arriving(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  # A copy that does not run ends its record: it aborts, and its migration must not have
+  # been committed to it.
+  @impl true
+  def resolve(ctx, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      w = if proc.role == :copy, do: w |> count(:copy_aborted) |> check_abort(proc.c), else: w
+      journal(w, h, {:resolved, mig, copy})
+    end)
+  end
+
+  # (Live, acknowledgements leave in batches; here each is a message of its own.)
+  @impl true
+  def ack(ctx, src, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      if alive_host?(w, src),
+        do: send_msg(w, h, server(w, src), Messages.acks([{mig, proc.env.id, copy}])),
+        else: w
+    end)
   end
 
   @impl true
-  def ask(%{w: w, copy: pid} = ctx, src, mig, copy) do
-    proc = w.procs[pid]
-    query = Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
-    w = if alive_host?(w, src), do: send_msg(w, proc.host, server(w, src), query), else: w
-    %{ctx | w: w}
+  def arrived(ctx), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+  @impl true
+  def reply(ctx, _notify, _kind), do: copy_effect(ctx, fn w, _h, _proc -> w end)
+
+  # The handed-over messages first, then what was postponed while it awaited the commit.
+  @impl true
+  def started(%{w: w, copy: pid}, _c) do
+    %{pending: pending, postponed: postponed} = w.procs[pid]
+    w = update_in(w.procs[pid], &Map.drop(&1, [:pending, :postponed, :stash]))
+    w = Enum.reduce(pending, w, &handled(&2, &1))
+    Enum.reduce(postponed, w, &agent_receive(&2, pid, &1))
   end
 
-  # Parked: the process goes, the host keeps the record (the journal's in-doubt record stays).
   @impl true
-  def park(%{w: w, copy: pid}, _c) do
-    %{host: h, env: env, c: c} = w.procs[pid]
-    w = put_in(count(w, :parked).hosts[h].parked[{c.mig, c.copy}], {env, c.src, c.kind})
-    %{w | procs: Map.delete(w.procs, pid)}
-  end
+  def await(%{w: w}, _pid), do: count(w, :await)
 
-  # Timers are the model's own events (fire_timer/1); stashes are not modelled here (the
-  # inbox model checks the messages).
   @impl true
-  def timer(ctx, _ms), do: ctx
-  @impl true
-  def stash(ctx, _msg), do: ctx
-  @impl true
-  def drop(ctx, _msg), do: ctx
+  def stop(%{w: w, copy: pid}, _reason), do: %{w | procs: Map.delete(w.procs, pid)}
 
-  # The host asks the sources of its parked copies.
-  defp ask_parked(w, h) do
-    Enum.reduce(Enum.sort(Map.keys(w.hosts[h].parked)), note(w, {:ask_parked, h}), fn {mig, copy},
-                                                                                      w ->
-      {env, src, kind} = w.hosts[h].parked[{mig, copy}]
-      query = Messages.decision_query(mig, Ledger.query_id(env, kind), copy, server(w, h))
+  @impl true
+  def ask(%{copy: pid} = ctx, src, mig, copy) do
+    copy_effect(ctx, fn w, h, proc ->
+      query = Messages.decision_query(mig, Ledger.query_id(proc.env, proc.c.kind), copy, pid)
       if alive_host?(w, src), do: send_msg(w, h, server(w, src), query), else: w
     end)
   end
 
-  defp parked_answer(w, h, mig, copy, d) do
-    case Map.fetch(w.hosts[h].parked, {mig, copy}) do
-      :error ->
+  # Parked: the host keeps the record (the journal's in-doubt record stays; the copy calls
+  # its host's server, which runs the host's part), the process goes.
+  @impl true
+  def park(%{w: w, copy: pid}, c) do
+    %{host: h, env: env} = w.procs[pid]
+    w = host_event(w, h, {:park, c.mig, c.copy, env, c.src, c.kind, {pid, :park}})
+    %{w | procs: Map.delete(w.procs, pid)}
+  end
+
+  # Timers are the model's own events (fire_timer/1).
+  @impl true
+  def timer(ctx, _ms), do: ctx
+
+  @impl true
+  def stash(%{w: w, copy: pid} = ctx, msg),
+    do: %{ctx | w: update_in(w.procs[pid].stash, &[msg | &1])}
+
+  @impl true
+  def drop(ctx, _msg), do: ctx
+
+  # The host asks the sources of its parked copies (its timer).
+  defp ask_parked(w, h), do: host_event(note(w, {:ask_parked, h}), h, :ask_parked)
+
+  # -- the agents' messages ---------------------------------------------------------------
+  # A sender posts a message to one of an agent's processes (each message from a sender of
+  # its own, one tag) and, while it is not handled, sends it again, with its tag, to the
+  # agent's process wherever it is once the process it sent it to is gone (as
+  # Tartarus.Locator does). Each message must be handled once, unless a crash took its agent.
+
+  defp post(w) do
+    {pid, w} = pick(w, Enum.sort(for {pid, p} <- w.procs, alive_host?(w, p.host), do: pid))
+
+    if pid do
+      {n, w} = fresh(w, :msg)
+      m = {:"$tartarus_msg", {:c.pid(0, 1000 + elem(n, 1), 0), 1}, :post, n}
+      w = put_in(w.msgs[n], %{agent: w.procs[pid].env.id, to: pid, handled: 0, m: m})
+      agent_receive(note(w, {:post, pid, n}), pid, m)
+    else
+      w
+    end
+  end
+
+  # A message reaches an agent's process, as its state machine takes it.
+  defp agent_receive(w, pid, {_, _, _, n} = m) do
+    w = put_in(w.msgs[n].to, pid)
+
+    case w.procs[pid] do
+      nil ->
         w
 
-      {:ok, {env, src, kind}} ->
-        w = update_in(w.hosts[h].parked, &Map.delete(&1, {mig, copy}))
+      %{role: :agent, src: nil, data: data} ->
+        {new?, inbox} = Inbox.take_msg(data.inbox, m)
+        w = put_in(w.procs[pid].data.inbox, inbox)
+        if new?, do: handled(w, m), else: w
 
-        case Protocol.parked(d) do
-          :keep ->
-            put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind})
+      %{role: :agent, data: data} ->
+        case Held.keep(data, {:info, m}) do
+          {:held, data} -> put_in(w.procs[pid].data, data)
+          # A copy of a message taken already (resent after a hand-over), or over the bound.
+          :taken -> w
+          :refused -> w
+        end
 
-          :drop ->
-            c = Protocol.copy(mig, copy, src, kind)
-            w = check_abort(count(w, :parked_dropped), c)
-            journal(w, h, {:resolved, mig, copy})
-
-          :revive ->
-            {pid, w} = fresh(w, :pid)
-            c = Protocol.copy(mig, copy, src, kind, park_after: w.park_after)
-            w = put_in(count(w, :revived).procs[pid], %{role: :copy, host: h, env: env, c: c})
-            copy_event(w, pid, {:decision, mig, copy, d})
+      %{role: :copy, c: c} ->
+        case CopyProtocol.event(c, m) do
+          nil -> update_in(w.procs[pid].postponed, &(&1 ++ [m]))
+          event -> copy_event(w, pid, event)
         end
     end
+  end
+
+  defp handled(w, {_, _, _, n}) do
+    w = update_in(w.msgs[n].handled, &(&1 + 1))
+    %{agent: id, handled: k} = w.msgs[n]
+
+    if k > 1 and not MapSet.member?(w.exposed, id),
+      do: violation(w, {:message_handled_twice, n, id}),
+      else: w
+  end
+
+  # Senders whose message's process is gone send it again where the agent now is.
+  defp retry(w) do
+    Enum.reduce(retries(w), w, fn {n, pid}, w -> agent_receive(w, pid, w.msgs[n].m) end)
+  end
+
+  defp retries(w) do
+    where =
+      for {pid, p} <- w.procs, alive_host?(w, p.host), reduce: %{} do
+        acc -> Map.update(acc, p.env.id, pid, &if(p.role == :agent, do: pid, else: &1))
+      end
+
+    for {n, %{handled: 0, to: to, agent: id}} <- Enum.sort(w.msgs),
+        not Map.has_key?(w.procs, to),
+        pid = where[id],
+        pid != nil,
+        do: {n, pid}
   end
 
   # -- timers, failures --------------------------------------------------------------
@@ -758,7 +1023,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     case pid && (match?({:parked, _}, pid) || w.procs[pid]) do
       nil -> w
       true -> ask_parked(w, elem(pid, 1))
-      %{role: :copy} -> copy_event(note(w, {:timer, pid}), pid, :timeout)
+      %{role: :copy, c: c} -> copy_event(note(w, {:timer, pid}), pid, CopyProtocol.timeout(c))
       %{role: :agent} -> source_event(note(w, {:timeout, pid}), pid, :timeout)
     end
   end
@@ -842,15 +1107,16 @@ defmodule Tartarus.Migration.ProtocolModel do
       for {pid, p} <- w.procs, p.role == :copy or (p.role == :agent and p.src != nil), do: pid
 
     parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
+    w = retry(w)
 
-    if waiting == [] and parked == [] do
+    if waiting == [] and parked == [] and retries(w) == [] do
       w
     else
       w =
         Enum.reduce(Enum.sort(waiting), w, fn pid, w ->
           case w.procs[pid] do
-            %{role: :copy} ->
-              copy_event(note(w, {:timer, pid}), pid, :timeout) |> check()
+            %{role: :copy, c: c} ->
+              copy_event(note(w, {:timer, pid}), pid, CopyProtocol.timeout(c)) |> check()
 
             %{role: :agent, src: %{}} ->
               source_event(note(w, {:timeout, pid}), pid, :timeout) |> check()
@@ -892,6 +1158,13 @@ defmodule Tartarus.Migration.ProtocolModel do
       excused = not w.persist and MapSet.member?(w.exposed, id)
       if n != 1 and not excused, do: violation(w, {:not_running_exactly_once, id, n})
     end
+
+    # (A message to a clone's copy that never committed has no agent to reach.)
+    for {n, %{agent: id, handled: k}} <- w.msgs,
+        k != 1,
+        MapSet.member?(w.known, id),
+        not MapSet.member?(w.exposed, id),
+        do: violation(w, {:message_not_handled_once, n, id, k})
 
     :ok
   end

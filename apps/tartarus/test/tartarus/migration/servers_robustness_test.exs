@@ -6,7 +6,7 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
 
   alias Tartarus.{CodeCache, Envelope, Ledger}
   alias Tartarus.Examples.Echo
-  alias Tartarus.Migration.{Messages, Protocol}
+  alias Tartarus.Migration.Messages
 
   defp dropped(host) do
     {:ok, h} = Tartarus.Host.local(host)
@@ -164,13 +164,14 @@ defmodule Tartarus.Migration.ServersRobustnessTest do
 end
 
 defmodule Tartarus.Migration.ParkingTest do
-  # A paused copy whose source does not answer parks (Protocol.copy_step/2): its process
-  # goes, the host keeps its record and revives or drops it only on the source's answer.
+  # A paused copy whose source does not answer parks (Tartarus.Migration.CopyProtocol.step/2):
+  # its process goes, the host keeps its record and revives or drops it only on the source's
+  # answer.
   use Tartarus.HostCase, async: false
 
   alias Tartarus.{CodeCache, Envelope, Ledger}
   alias Tartarus.Examples.Echo
-  alias Tartarus.Migration.{Messages, Protocol}
+  alias Tartarus.Migration.Messages
 
   # A prepare from `a` (its incarnation, no hand-off there) admitted by `b`: the paused copy.
   defp paused_copy(a, b) do

@@ -1,0 +1,88 @@
+defmodule Tartarus.Migration.HostProtocol do
+  @moduledoc """
+  A host's own part of the hand-off protocol (`Tartarus.Migration.Protocol` is the
+  specification), as a pure function `event -> actions`: as a source host it answers
+  decision queries and takes acknowledgements; as a destination host it keeps the records
+  of its parked copies, asks their sources and revives or drops them on an answer. What it
+  reads and writes is the host's ledger and journal, so it keeps no state of its own.
+  `Tartarus.Migration.Executor.host_event/3` carries the actions out
+  (`Tartarus.Host.Parked` live, in the host's server; the model check in memory).
+
+  Events: `{:query, mig, id, copy, to}`; `{:acks, [{mig, id, copy}]}`; `{:park, mig, copy,
+  env, src, kind, from}` (a paused copy, `from` its call, hands over its record);
+  `:ask_parked` (the host's timer); `{:decision, mig, copy, d}` (a source's answer about a
+  parked copy); and the results of actions: `{:read, mig, copy, to, view}`, `{:parked,
+  from, :first | :more | :not_here}`, `{:asking, records}`, `{:fetched, mig, copy, d,
+  {:ok, {env, src, kind}} | :error}`, `{:revived, mig, copy, d, {:ok, pid} | :error, env,
+  src, kind}`.
+
+  Actions: `{:read, mig, id, copy, to}` (the ledger's view for `Protocol.answer/3`: answers
+  `{:read, ...}`), `{:send, to, msg}`, `{:acknowledge, mig, id, copy}`, `{:journal, record}`,
+  `{:park, mig, copy, env, src, kind, from}` (the record, if `from` is the copy arriving
+  here: answers `{:parked, ...}`), `{:reply, from, answer}`, `:arm_ask` (the timer),
+  `:read_parked` (answers `{:asking, records}`), `{:ask, src, query}`, `{:fetch_parked, mig,
+  copy, d}` (answers `{:fetched, ...}`), `:dropped` (counted), `{:unpark, mig, copy}`,
+  `{:revive, mig, copy, d, env, src, kind}` (a paused copy again: answers `{:revived, ...}`),
+  `{:arriving, id, pid}`, `{:repark, mig, copy, env, src, kind}`.
+
+      iex> alias Tartarus.Migration.HostProtocol, as: H
+      iex> H.step({:read, :m, :c, :a, %{handoff?: false, decision: nil, pointer: {:m, :c, nil}}})
+      [{:send, :a, {:"$tartarus_decision", :m, :c, {:committed, nil}}}]
+      iex> H.step({:acks, [{:m, "id", :c}]})
+      [{:acknowledge, :m, "id", :c}, {:journal, {:acked, :m}}]
+  """
+
+  alias Tartarus.Migration.{CopyProtocol, Messages, Protocol}
+
+  @doc "The host's actions for `event` (see the moduledoc)."
+  @spec step(term()) :: [tuple() | atom()]
+  def step({:query, mig, id, copy, to}), do: [{:read, mig, id, copy, to}]
+
+  def step({:read, mig, copy, to, view}),
+    do: [{:send, to, Messages.decision(mig, copy, Protocol.answer(view, mig, copy))}]
+
+  # The commit of `mig` to `copy` is no longer needed (its copy runs).
+  def step({:acks, acks}),
+    do:
+      Enum.flat_map(acks, fn {mig, id, copy} ->
+        [{:acknowledge, mig, id, copy}, {:journal, {:acked, mig}}]
+      end)
+
+  def step({:park, mig, copy, env, src, kind, from}),
+    do: [{:park, mig, copy, env, src, kind, from}]
+
+  def step({:parked, from, :first}), do: [:arm_ask, {:reply, from, :ok}]
+  def step({:parked, from, :more}), do: [{:reply, from, :ok}]
+  def step({:parked, from, :not_here}), do: [{:reply, from, {:error, :not_paused_here}}]
+
+  # A timer that only asks: it never decides anything.
+  def step(:ask_parked), do: [:read_parked]
+  def step({:asking, []}), do: []
+
+  def step({:asking, records}) do
+    asks =
+      for {mig, copy, env, src, kind} <- records,
+          do: {:ask, src, {mig, Tartarus.Ledger.query_id(env, kind), copy}}
+
+    asks ++ [:arm_ask]
+  end
+
+  def step({:decision, mig, copy, d}), do: [{:fetch_parked, mig, copy, d}]
+  def step({:fetched, _mig, _copy, _d, :error}), do: [:dropped]
+
+  # Revived or dropped only on an answer that says so: parking never duplicates an agent.
+  def step({:fetched, mig, copy, d, {:ok, {env, src, kind}}}) do
+    case CopyProtocol.parked(d) do
+      :keep -> []
+      :drop -> [{:unpark, mig, copy}, {:journal, {:resolved, mig, copy}}]
+      :revive -> [{:unpark, mig, copy}, {:revive, mig, copy, d, env, src, kind}]
+    end
+  end
+
+  def step({:revived, mig, copy, d, {:ok, pid}, env, _src, _kind}),
+    do: [{:arriving, env.id, pid}, {:send, pid, Messages.decision(mig, copy, d)}]
+
+  # Kept for the next answer.
+  def step({:revived, mig, copy, _d, :error, env, src, kind}),
+    do: [{:repark, mig, copy, env, src, kind}]
+end
