@@ -20,6 +20,42 @@ defmodule Tartarus.HostPolicyTest do
     assert {:error, {:ttl_expired, 3}} = Tartarus.move({one, a}, b)
   end
 
+  # Admission runs beside the host's server, off its queue (Tartarus.Host.Arrivals), and
+  # counts the host's agents from the ledger. An agent that moves away is no longer counted
+  # once it left, however far behind its :DOWN the host's server is; and a server that
+  # takes an adoption late does not count again a copy that already left. (With a thousand
+  # agents moving, both made a host refuse arrivals {:too_many_agents, _} while it held half
+  # its limit: agents of the churn benchmark stopped moving.)
+  test "agents that left are not counted, however far behind the host's server is" do
+    a = host!(admission: [max_resident_agents: 3])
+    b = host!()
+    :ok = Tartarus.connect(a, b)
+    [one, two] = for _ <- 1..2, do: agent!(a)
+    three = agent!(b)
+
+    {:ok, server} = Tartarus.Host.whereis(a)
+    :ok = :sys.suspend(server)
+
+    try do
+      # Both leave while a's server takes nothing (their :DOWNs wait in its mailbox).
+      assert :ok = Tartarus.move({one, a}, b)
+      assert :ok = Tartarus.move({two, a}, b)
+      # Three arrive: a holds none of its three places.
+      for id <- [one, two, three], do: assert(:ok = Tartarus.move({id, b}, a))
+      # And leave again before a's server adopted them.
+      for id <- [one, two], do: assert(:ok = Tartarus.move({id, a}, b))
+    after
+      :ok = :sys.resume(server)
+    end
+
+    # The server caught up (adoptions, :DOWNs): a holds one agent, two places are free.
+    {:ok, _} = wait_for(fn -> length(Tartarus.agents(a)) == 1 end)
+    _ = :sys.get_state(server)
+    assert :ok = Tartarus.move({one, b}, a)
+    assert :ok = Tartarus.move({two, b}, a)
+    assert {:error, {:too_many_agents, 3}} = Tartarus.move({agent!(b), b}, a)
+  end
+
   test "bad admission options are refused with the option named" do
     assert Tartarus.start_host(unique_name(), admission: [max_hops: -1]) ==
              {:error,

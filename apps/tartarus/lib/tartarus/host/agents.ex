@@ -164,6 +164,13 @@ defmodule Tartarus.Host.Agents do
     watched(state, pid, Process.monitor(pid), entry)
   end
 
+  @doc false
+  # An agent process that recorded itself under {:proc, pid} (a local create, an admitted
+  # copy: Tartarus.Host.Arrivals) and told this server: monitored from now on, the ledger
+  # left as it is. (Writing the entry again here would count again a process that already
+  # left: this server may take the adoption long after, behind a thousand others.)
+  def adopt(state, pid, entry), do: watched(state, pid, Process.monitor(pid), entry)
+
   defp watched(state, pid, mref, entry) do
     %{
       state

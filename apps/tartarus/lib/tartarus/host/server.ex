@@ -276,7 +276,7 @@ defmodule Tartarus.Host.Server do
           create: Map.get(e, :create) != false
         }
 
-        {:noreply, Agents.watch(state, pid, entry)}
+        {:noreply, Agents.adopt(state, pid, entry)}
 
       Ledger.proc?(state.host, pid) ->
         {:noreply, state}

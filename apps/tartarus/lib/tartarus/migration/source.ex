@@ -253,7 +253,15 @@ defmodule Tartarus.Migration.Source do
 
   @impl true
   def leave(x) do
-    Ledger.forget_resident(x.data.host, self())
+    host = x.data.host
+    Ledger.forget_resident(host, self())
+    # No longer one of the host's agents, at once: admission counts the host's agent
+    # processes (Ledger.reserve_admission/1) and must not count this one until the host's
+    # server has taken its :DOWN (with a thousand agents moving, that server ran a thousand
+    # :DOWNs behind, and arrivals were refused {:too_many_agents, _} while the host held
+    # half its limit). Its snapshot goes too: nothing restarts it here now.
+    Ledger.drop_proc(host, self())
+    Ledger.drop_snapshot(host, x.data.key)
     x
   end
 
