@@ -33,7 +33,7 @@ defmodule Tartarus.Ledger do
   | `{:seen_order, seq}` | `mig`: its age, oldest forgotten first | `seen_put/4` | `seen_put/4` |
   | `:seen_next` | `seq`: the last sequence number taken | `seen_put/4` | `seen_put/4` |
   | `{:bucket, source_bin}` | `{scaled_tokens, at_ms}`: a source's admission rate bucket (the source as `term_to_binary`) (`Tartarus.Security.Admission`) | `swap_bucket/4` (Host.Arrivals) | `bucket/2`, `buckets/1` |
-  | `{:proc, pid}` | `entry` (`%{id:, key:, restarts:, owner:, create:}`): an agent process the host watches | `put_proc/3` (Host.Agents); goes with `drop_proc/2` (Host.Server on its `:DOWN`) | `procs/1` (a server that starts adopts them; the warden kills them), `proc?/2` |
+  | `{:proc, pid}` | `entry` (`%{id:, key:, restarts:, owner:, create:}`), or `{:uncounted, entry}` once the process ended by its own choice: an agent process the host watches | `put_proc/3` (Host.Agents); `uncount_proc/2` (the ending agent); goes with `drop_proc/2` (Host.Server on its `:DOWN`; the source as it leaves) | `procs/1` (a server that starts adopts them; the warden kills them), `proc?/2` |
   | `{:snapshot, key}` | `env`: the envelope agent process `key` starts and restarts from | `put_snapshot/3` (the agent once resident; Host.Agents for a restart or restore); goes with `drop_snapshot/2` | `fetch_snapshot/2` |
   | `{:creating, key}` | `from`: the creator of agent process `key`, until answered | `put_creator/3`; goes with `take_creator/2` (the agent, its creator or the host server: whoever answers) | `take_creator/2` |
   | `{:kill, pid}` | `true`: the host is killing `pid` (tells its exit signal from a forged one) | `mark_kill/2`; goes with `clear_kill/2` | `kill_marked?/2` (the agent) |
@@ -677,10 +677,33 @@ defmodule Tartarus.Ledger do
   @doc "Agent process `pid` is down: no longer the host's."
   @spec drop_proc(host(), pid()) :: true
   def drop_proc(%{ledger: l}, pid) do
-    if :ets.take(l, {:proc, pid}) != [],
-      do: :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+    case :ets.take(l, {:proc, pid}) do
+      [{_, {:uncounted, _}}] -> :ok
+      [_] -> :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+      [] -> :ok
+    end
 
     true
+  end
+
+  @doc """
+  Agent process `pid` ends by its own choice (it stopped, or returned its result): written
+  by that process as it ends, it no longer counts among the host's agents
+  (`counted(host, :procs)`, admission's count), while its record stays for the host's server
+  to handle its `:DOWN` (however far behind that server is). Counted off once, whichever of
+  this and `drop_proc/2` comes first.
+  """
+  @spec uncount_proc(host(), pid()) :: boolean()
+  def uncount_proc(%{ledger: l}, pid) do
+    key = {:proc, pid}
+    spec = [{{key, :"$1"}, [{:is_map, :"$1"}], [{{{key}, {{:uncounted, :"$1"}}}}]}]
+
+    if :ets.select_replace(l, spec) == 1 do
+      :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+      true
+    else
+      false
+    end
   end
 
   @doc "True if agent process `pid` is the host's."
@@ -689,8 +712,15 @@ defmodule Tartarus.Ledger do
 
   @doc "The host's agent processes, as `{pid, entry}`. A scan."
   @spec procs(host()) :: [{pid(), map()}]
-  def procs(host),
-    do: :ets.select(host.ledger, [{{{:proc, :"$1"}, :"$2"}, [], [{{:"$1", :"$2"}}]}])
+  def procs(host) do
+    for {pid, entry} <-
+          :ets.select(host.ledger, [{{{:proc, :"$1"}, :"$2"}, [], [{{:"$1", :"$2"}}]}]) do
+      case entry do
+        {:uncounted, entry} -> {pid, entry}
+        entry -> {pid, entry}
+      end
+    end
+  end
 
   @doc "The envelope agent process `key` starts (and restarts) from."
   @spec put_snapshot(host(), reference(), map()) :: true

@@ -56,6 +56,34 @@ defmodule Tartarus.HostPolicyTest do
     assert {:error, {:too_many_agents, 3}} = Tartarus.move({agent!(b), b}, a)
   end
 
+  # The same for agents that end by their own choice (stop, return): the churn benchmark's
+  # agents end after their hops, and with persistence the host's server fell a thousand
+  # :DOWNs behind within three batches; arrivals were refused while the host held nobody.
+  test "agents that ended are not counted, however far behind the host's server is" do
+    a = host!(admission: [max_resident_agents: 2])
+    b = host!()
+    :ok = Tartarus.connect(a, b)
+    [one, two] = for _ <- 1..2, do: agent!(a)
+    three = agent!(b)
+
+    {:ok, server} = Tartarus.Host.whereis(a)
+    :ok = :sys.suspend(server)
+
+    try do
+      assert {:ok, :ok} = Tartarus.request({one, a}, {:do, {:stop, :done}})
+      assert {:ok, :ok} = Tartarus.request({two, a}, {:do, {:return, :done}})
+
+      {:ok, _} =
+        wait_for(fn -> Enum.all?([one, two], &(Tartarus.whereis({&1, a}) != {:ok, a})) end)
+
+      assert :ok = Tartarus.move({three, b}, a)
+    after
+      :ok = :sys.resume(server)
+    end
+
+    assert {:ok, {^a, _}} = Tartarus.whereis({three, a})
+  end
+
   test "bad admission options are refused with the option named" do
     assert Tartarus.start_host(unique_name(), admission: [max_hops: -1]) ==
              {:error,

@@ -309,12 +309,19 @@ defmodule Tartarus.Agent.Server do
   @impl true
   def terminate(reason, _state, data) do
     if data.children, do: Tartarus.Agent.end_children(data.host, self())
+    # Ended by its own choice: no longer one of the host's agents for admission, whatever
+    # the host's server's backlog (a moving agent left already: Migration.Source.leave/1).
+    if stopped?(reason), do: Ledger.uncount_proc(data.host, self())
 
     unless reason in [:normal, :shutdown] or match?({:shutdown, _}, reason),
       do: Ledger.put_exit_reason(data.host, self(), reason)
   end
 
   # -- helpers ---------------------------------------------------------------------------
+
+  defp stopped?({:shutdown, {:migrated, _, _}}), do: false
+  defp stopped?({:shutdown, _}), do: true
+  defp stopped?(reason), do: reason in [:normal, :shutdown]
 
   # A state timeout that still counts (the handler above): its state's timeout event.
   defp timed_out(:handoff, :handing_off, data), do: handoff(data, :timeout)
