@@ -27,7 +27,15 @@ defmodule TartarusTools.Bench do
 
     def handle_arrival(ctx, s) do
       left = s.left - 1
+      s = Map.delete(s, :fails)
       if left <= 0, do: {:return, :done, %{s | left: 0}}, else: {:move, ctx.from, %{s | left: left}}
+    end
+
+    # A move that failed (a hand-off timed out on a loaded machine) is tried again, up to 10
+    # times in a row; then the agent gives up and says why (the run raises with it).
+    def handle_move_failed(dest, reason, _ctx, s) do
+      fails = Map.get(s, :fails, 0) + 1
+      if fails >= 10, do: {:return, {:failed, reason}, s}, else: {:move, dest, Map.put(s, :fails, fails)}
     end
   end
   """
@@ -292,6 +300,7 @@ defmodule TartarusTools.Bench do
     Enum.each(ids, fn id ->
       Tartarus.Clock.receive do
         {:tartarus_result, ^id, :done} -> :ok
+        {:tartarus_result, ^id, {:failed, reason}} -> raise "agent #{id}: 10 moves in a row failed, the last #{inspect(reason)}"
       after
         300_000 -> raise "agent #{id} did not finish its hops within 5 minutes"
       end

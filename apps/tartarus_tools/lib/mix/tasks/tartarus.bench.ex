@@ -40,7 +40,9 @@ defmodule Mix.Tasks.Tartarus.Bench do
   ending) and reports the memory of the hosts' tables after 10,000, 100,000 and 1,000,000
   migrations (and N): key `memory_bytes_at`, an object keyed by count; then again with
   persistence (`data_dir:`), adding the journal's size (`persist.journal_bytes_at`);
-  `--no-persist` skips that pass. See `TartarusTools.Bench.Churn`.
+  `--no-persist` skips that pass. `moves_failed` (and `persist.moves_failed`) counts moves
+  that failed and were tried again (an agent gives up after 10 in a row, and the run stops
+  saying why). See `TartarusTools.Bench.Churn`.
 
   `busy` has S senders (default 4) post N messages in all (default 50,000) to one agent
   hopping continuously between two peer nodes, and reports messages delivered exactly

@@ -38,7 +38,9 @@ defmodule TartarusTools.Bench.Churn do
     hops = Keyword.get(opts, :hops, 10)
     progress = Keyword.get(opts, :progress, fn _ -> :ok end)
     checkpoints = Enum.uniq(Enum.filter(@checkpoints, &(&1 < migrations)) ++ [migrations])
+    failed_before = Tartarus.Events.totals().move_failed
     plain = pass(false, checkpoints, agents, hops, progress)
+    failed_plain = Tartarus.Events.totals().move_failed - failed_before
 
     result = %{
       migrations: migrations,
@@ -48,10 +50,13 @@ defmodule TartarusTools.Bench.Churn do
       memory_bytes_at: plain.memory,
       tables_at: plain.tables,
       wall_ms: plain.wall_ms,
-      migrations_per_s: plain.rate
+      migrations_per_s: plain.rate,
+      # Moves that failed and were tried again (the benchmark's agent retries).
+      moves_failed: failed_plain
     }
 
     if Keyword.get(opts, :persist, true) do
+      failed_before = Tartarus.Events.totals().move_failed
       durable = pass(true, checkpoints, agents, hops, progress)
 
       Map.put(result, :persist, %{
@@ -59,7 +64,8 @@ defmodule TartarusTools.Bench.Churn do
         journal_bytes_at: durable.journal,
         tables_at: durable.tables,
         wall_ms: durable.wall_ms,
-        migrations_per_s: durable.rate
+        migrations_per_s: durable.rate,
+        moves_failed: Tartarus.Events.totals().move_failed - failed_before
       })
     else
       result
