@@ -307,13 +307,11 @@ defmodule Tartarus.Host.Server do
   end
 
   # An agent that moved on (its process ends with {:shutdown, {:migrated, _, _}} after its
-  # commit) left nothing to clean but its snapshot: it wrote its pointer over its hand-off
-  # record, left the resident tables and its arriving entry itself.
-  defp down(state, entry, pid, :error, {:shutdown, {:migrated, _, _}})
-       when not is_map_key(state.killing, pid) do
-    Ledger.drop_snapshot(state.host, entry.key)
-    {:noreply, state}
-  end
+  # commit) left nothing to clean: it wrote its pointer over its hand-off record, and left
+  # the resident tables, its process record and its snapshot itself (Source.leave/1).
+  defp down(state, _entry, pid, :error, {:shutdown, {:migrated, _, _}})
+       when not is_map_key(state.killing, pid),
+       do: {:noreply, state}
 
   defp down(state, entry, pid, overrun, reason) do
     reason =
