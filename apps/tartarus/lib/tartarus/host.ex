@@ -120,11 +120,13 @@ defmodule Tartarus.Host do
   # (Tartarus.Host.local/1): the server may have been restarted since the map was read (its
   # :pid is then a dead one, and stays the answer only if no server runs).
   @spec server(map()) :: pid()
-  def server(%{ref: {name, _}, pid: pid}) do
-    case Registry.lookup(Tartarus.HostRegistry, {:host, name}) do
-      [{current, _}] -> current
-      [] -> pid
-    end
+  def server(%{pid: pid} = host) do
+    # The ledger names the current server (Ledger.put_server/2): one small read, where the
+    # registry would copy the host's whole map out with the pid.
+    Tartarus.Ledger.server(host) || pid
+  rescue
+    # The host stopped (its ledger went with its warden).
+    ArgumentError -> pid
   end
 
   @doc false

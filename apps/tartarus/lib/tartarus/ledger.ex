@@ -20,7 +20,6 @@ defmodule Tartarus.Ledger do
   |---|---|---|---|
   | `:neighbours` | `[host]` | `new/1`, `add_link/3`, `remove_link/2` (Host.Server: connect, disconnect) | `neighbours/1` (transport, signals, broadcasts, locator, status) |
   | `{:link, host}` | `%{latency_ms:, loss:}` | `add_link/3`, `remove_link/2` | `link/2` (Tartarus.Transport) |
-  | `:population` | `resident, visits` | `new/1`, `register_resident/3`, `forget_resident/2`, `take_resident/2` | `counter/2` (`:resident`, `:visits`) |
   | `{:agent, pid}` | `id, name, module`: a resident agent | `register_resident/3`, `forget_resident/2` (agent process), `take_resident/2` (host server, for a dead one) | `residents/1`, `locate/2` |
   | `{:fwd, id}` | `:handoff, mig, source_pid`: an undecided hand-off (move or clone) of resident agent `id`, written before `prepare` leaves | `begin_handoff/3`; goes with `end_handoff/3` (abort), `put_pointer/7` (a move's commit: one write), `abort_pending/3`, `drop_handoffs/3` | `decision/4`, `abort_pending/3`, `departed?/2`, `handoffs/1` |
   | `{:fwd, id \\| name}` | `dest_host, at_us, {mig, copy} \\| :acked \\| :name, notify`: a forwarding pointer (an id's names its migration until the copy acknowledges; a name's never stands for a decision) | `put_pointer/7`, `acknowledge/4` (marks `:acked`); goes with `register_resident/3`, `forget_pointers/3`, `sweep_pointers/2` | `decision/4`, `locate/2`, `pointers/1`, `forwarding_pointers/1`, `abort_pending/3`, `departed?/2` |
@@ -28,7 +27,7 @@ defmodule Tartarus.Ledger do
   | `{:arriving, id}` | `pid`: a paused copy here (destination) | `put_arriving/3` (Host.Arrivals, Host.Parked, Host.Agents.restore); goes with `drop_arriving/3` (the copy once resident; the host server when it is down) | `arriving?/2`, `arriving?/3`, `locate/2` |
   | `{:parked, {mig, copy}}` | `env, src, kind`: a parked in-doubt copy (destination) | `park/6`; goes with `unpark/3` | `parked/1`, `fetch_parked/3` |
   | `:parked` | `n`: how many | `park/6`, `unpark/3` | `counter/2` (`:parked`) |
-  | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages); `:procs` (the host's agent processes), `:admitting` (admissions under way), `:buckets` | `count/2`; `put_proc/3`, `drop_proc/2`; `reserve_admission/1`, `release_admission/1`; `swap_bucket/4` | `counted/2`, `reserve_admission/1` |
+  | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages), `:buckets` | `count/2`; `swap_bucket/4` | `counted/2` |
   | `{:seen, mig}` | `what, seq`: admission's memory of a prepare (`:pending, nil` while one admission of it runs) | `seen_claim/2`, `seen_put/4`; goes with `seen_release/2` | `seen_fetch/2`, `seen_claim/2` |
   | `{:seen_order, seq}` | `mig`: its age, oldest forgotten first | `seen_put/4` | `seen_put/4` |
   | `:seen_next` | `seq`: the last sequence number taken | `seen_put/4` | `seen_put/4` |
@@ -43,11 +42,18 @@ defmodule Tartarus.Ledger do
   | `{:handling, id}` | `{pid, ref}`: the message a `:durable` agent is handling | `put_handling/3`; goes with `drop_handling/2` | `take_handling/2` (the restarted agent) |
   | `{:children, pid}` | `[pid]`: processes agent process `pid` started with `Tartarus.Agent.spawn_link/1` | `add_child/3` | `take_children/2` (the agent as it ends; the host when it was killed) |
   | `{:code_saved, module, md5}` | `true`: the module's code is in the journal (this run) | `code_saved/3` (Host.Persistence) | `code_saved?/3` |
+  | `:server` | `pid`: the host's current server (`Tartarus.Host.server/1` reads it on the path of a hop and a create, without copying the host's map out of the registry) | `put_server/2` (Host.Server, at its start) | `server/1` |
   | `:stopping` | `true`: the host is stopping (no restarts, no creates) | `mark_stopping/1` (Host.Server, Host.Warden, Host.Supervisor); goes with `clear_stopping/1` | `stopping?/1` |
 
   Not in the table: the ring of recent hop times is an atomics array beside it (`host.hops`,
   `new_hop_ring/0`, `record_hop/2`, `hop_times/1`, `reset_hops/1`): two atomic operations a
-  hop, no table write.
+  hop, no table write. And the host's tallies, updated by every create, hop and end, are an
+  atomics array too (`host.tally`, `new_tally/0`), with no lock and no hashing: residents and
+  visits (`register_resident/3`, `forget_resident/2`, `take_resident/2`; read by
+  `counter/2`), the host's agent processes (`put_proc/3`, `drop_proc/2`, `uncount_proc/2`;
+  `counted(host, :procs)`) and the admissions under way (`reserve_admission/1`,
+  `release_admission/1`; `counted(host, :admitting)`). They live as long as the table (both
+  the warden's).
 
   ## Who writes on the path of a hop
 
@@ -77,9 +83,32 @@ defmodule Tartarus.Ledger do
     l =
       :ets.new(:tartarus_ledger, [:set, :public, read_concurrency: true, write_concurrency: true])
 
-    :ets.insert(l, [{:neighbours, []}, {:population, 0, 0}])
+    :ets.insert(l, [{:neighbours, []}])
     :ets.insert(l, for({mig, copy} <- decided, do: {{:decision, mig}, {:committed, copy}}))
     l
+  end
+
+  # The tallies' slots (new_tally/0).
+  @resident 1
+  @visits 2
+  @procs 3
+  @admitting 4
+
+  @doc "Makes a host's tallies (see \"Not in the table\" above), all zero."
+  @spec new_tally() :: :atomics.atomics_ref()
+  def new_tally, do: :atomics.new(4, signed: true)
+
+  @doc "Records `pid` as the host's current server (written by the server as it starts)."
+  @spec put_server(host(), pid()) :: true
+  def put_server(%{ledger: l}, pid), do: :ets.insert(l, {:server, pid})
+
+  @doc "The host's current server (`put_server/2`), or nil if none started yet."
+  @spec server(host()) :: pid() | nil
+  def server(%{ledger: l}) do
+    case :ets.lookup(l, :server) do
+      [{_, pid}] -> pid
+      [] -> nil
+    end
   end
 
   @doc """
@@ -230,15 +259,14 @@ defmodule Tartarus.Ledger do
   `put_proc/3` then `release_admission/1` (a copy), or `release_admission/1` alone.
   """
   @spec reserve_admission(host()) :: non_neg_integer()
-  def reserve_admission(%{ledger: l} = host) do
-    before = :ets.update_counter(l, {:count, :admitting}, 1, {{:count, :admitting}, 0}) - 1
-    counted(host, :procs) + before
+  def reserve_admission(%{tally: t}) do
+    before = :atomics.add_get(t, @admitting, 1) - 1
+    :atomics.get(t, @procs) + before
   end
 
   @doc "Ends a reservation of `reserve_admission/1`."
   @spec release_admission(host()) :: integer()
-  def release_admission(%{ledger: l}),
-    do: :ets.update_counter(l, {:count, :admitting}, -1, {{:count, :admitting}, 0})
+  def release_admission(%{tally: t}), do: :atomics.sub_get(t, @admitting, 1)
 
   @doc "Source `source`'s admission bucket (`Tartarus.Security.Admission`), if it has one."
   @spec bucket(host(), term()) :: {:ok, term()} | :error
@@ -303,7 +331,8 @@ defmodule Tartarus.Ledger do
         :ets.insert(host.ledger, {{:agent, pid}, env.id, env.name, env.module})
         :ets.delete(host.ledger, {:fwd, env.id})
         if env.name, do: :ets.delete(host.ledger, {:fwd, env.name})
-        :ets.update_counter(host.ledger, :population, [{2, 1}, {3, 1}])
+        :atomics.add(host.tally, @resident, 1)
+        :atomics.add(host.tally, @visits, 1)
         :ok
 
       {:error, _} = error ->
@@ -335,7 +364,7 @@ defmodule Tartarus.Ledger do
   def take_resident(host, pid) do
     case :ets.take(host.ledger, {:agent, pid}) do
       [{_, id, name, module}] ->
-        :ets.update_counter(host.ledger, :population, {2, -1})
+        :atomics.sub(host.tally, @resident, 1)
         {id, name, module}
 
       [] ->
@@ -380,8 +409,8 @@ defmodule Tartarus.Ledger do
   creations so far), `:parked` (parked copies). One record, one update a hop.
   """
   @spec counter(host(), :resident | :visits | :parked) :: non_neg_integer()
-  def counter(%{ledger: l}, :resident), do: :ets.lookup_element(l, :population, 2)
-  def counter(%{ledger: l}, :visits), do: :ets.lookup_element(l, :population, 3)
+  def counter(%{tally: t}, :resident), do: :atomics.get(t, @resident)
+  def counter(%{tally: t}, :visits), do: :atomics.get(t, @visits)
 
   def counter(%{ledger: l}, :parked) do
     case :ets.lookup(l, :parked) do
@@ -397,6 +426,9 @@ defmodule Tartarus.Ledger do
 
   @doc "How many `name` were counted (`count/2`)."
   @spec counted(host(), atom()) :: non_neg_integer()
+  def counted(%{tally: t}, :procs), do: :atomics.get(t, @procs)
+  def counted(%{tally: t}, :admitting), do: :atomics.get(t, @admitting)
+
   def counted(%{ledger: l}, name) do
     case :ets.lookup(l, {:count, name}) do
       [{_, n}] -> n
@@ -665,10 +697,10 @@ defmodule Tartarus.Ledger do
   one adopts it (`procs/1`), a stopping host kills it.
   """
   @spec put_proc(host(), pid(), map()) :: true
-  def put_proc(%{ledger: l}, pid, entry) do
+  def put_proc(%{ledger: l, tally: t}, pid, entry) do
     # Counted once per process (`counted(host, :procs)`: admission's count of agents).
     if :ets.insert_new(l, {{:proc, pid}, entry}),
-      do: :ets.update_counter(l, {:count, :procs}, 1, {{:count, :procs}, 0}),
+      do: :atomics.add(t, @procs, 1),
       else: :ets.insert(l, {{:proc, pid}, entry})
 
     true
@@ -676,10 +708,10 @@ defmodule Tartarus.Ledger do
 
   @doc "Agent process `pid` is down: no longer the host's."
   @spec drop_proc(host(), pid()) :: true
-  def drop_proc(%{ledger: l}, pid) do
+  def drop_proc(%{ledger: l, tally: t}, pid) do
     case :ets.take(l, {:proc, pid}) do
       [{_, {:uncounted, _}}] -> :ok
-      [_] -> :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+      [_] -> :atomics.sub(t, @procs, 1)
       [] -> :ok
     end
 
@@ -694,12 +726,12 @@ defmodule Tartarus.Ledger do
   this and `drop_proc/2` comes first.
   """
   @spec uncount_proc(host(), pid()) :: boolean()
-  def uncount_proc(%{ledger: l}, pid) do
+  def uncount_proc(%{ledger: l, tally: t}, pid) do
     key = {:proc, pid}
     spec = [{{key, :"$1"}, [{:is_map, :"$1"}], [{{{key}, {{:uncounted, :"$1"}}}}]}]
 
     if :ets.select_replace(l, spec) == 1 do
-      :ets.update_counter(l, {:count, :procs}, -1, {{:count, :procs}, 0})
+      :atomics.sub(t, @procs, 1)
       true
     else
       false

@@ -50,6 +50,7 @@ defmodule Tartarus.Host.Server do
     # outlive this server. A server that starts again beside them runs the same host.
     host = Map.put(Tartarus.Host.Warden.host(name), :pid, self())
     Ledger.clear_stopping(host)
+    Ledger.put_server(host, self())
 
     schedule_sweep(opts[:forward_ttl])
 

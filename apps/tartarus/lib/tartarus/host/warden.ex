@@ -79,6 +79,8 @@ defmodule Tartarus.Host.Warden do
       acks: acks,
       counters: Tartarus.Events.new_counters(),
       hops: Tartarus.Ledger.new_hop_ring(),
+      # The host's tallies (residents, visits, agent processes, admissions under way).
+      tally: Tartarus.Ledger.new_tally(),
       # Whether a flush of acknowledgements is armed (see Tartarus.Migration.Arrival).
       acks_armed: :atomics.new(1, []),
       # Tells this run of the host from earlier ones (in migration ids), see Ledger.decision/3.
