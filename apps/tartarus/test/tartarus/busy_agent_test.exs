@@ -76,7 +76,7 @@ defmodule Tartarus.BusyAgentTest do
 
   # The journal as a restart would read it (without touching the file the host writes).
   defp replay(path) do
-    {:ok, s, %{ranges: []}} = Tartarus.Host.Persistence.read(path)
+    {:ok, s, %{ranges: []}} = Tartarus.Host.Persistence.JournalFile.read(path)
     s
   end
 end

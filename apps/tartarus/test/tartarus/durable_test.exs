@@ -28,7 +28,7 @@ defmodule Tartarus.DurableTest do
 
   defp journal_state(host, id) do
     {:ok, info} = Tartarus.Host.local(host)
-    {:ok, s, %{ranges: []}} = Tartarus.Host.Persistence.read(info.journal.path)
+    {:ok, s, %{ranges: []}} = Tartarus.Host.Persistence.JournalFile.read(info.journal.path)
     s.agents[id].state
   end
 

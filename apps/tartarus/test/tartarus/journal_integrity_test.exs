@@ -7,7 +7,7 @@ defmodule Tartarus.JournalIntegrityTest do
   # term byte or a record that is no envelope kept the host from starting.
   use Tartarus.HostCase, async: false
 
-  alias Tartarus.Host.Persistence
+  alias Tartarus.Host.Persistence.JournalFile
 
   @n 100
 
@@ -51,7 +51,7 @@ defmodule Tartarus.JournalIntegrityTest do
                     %{type: :journal_damaged, ranges: ^ranges, unreadable_bytes: ^bytes}}
 
     # The new journal reads whole: a restart now restores the same and reports nothing.
-    assert {:ok, _, %{ranges: []}} = Persistence.read(journal.path)
+    assert {:ok, _, %{ranges: []}} = JournalFile.read(journal.path)
     ranges
   end
 
@@ -121,7 +121,7 @@ defmodule Tartarus.JournalIntegrityTest do
   test "a well-framed record that is not an envelope: set aside, the others restored", ctx do
     bin = File.read!(ctx.path)
     {off, _} = Enum.at(frames(bin), 60)
-    bad = Persistence.frame({:agent, "not-an-envelope", :junk})
+    bad = JournalFile.frame({:agent, "not-an-envelope", :junk})
     damaged = binary_part(bin, 0, off) <> bad <> binary_part(bin, off, byte_size(bin) - off)
     {restored, journal} = restart(ctx, damaged)
     assert Enum.sort(restored) == Enum.sort(ctx.ids)
@@ -159,10 +159,10 @@ defmodule Tartarus.JournalIntegrityTest do
     File.mkdir_p!(dir)
     on_exit(fn -> File.rm_rf!(dir) end)
     path = Path.join(dir, "j")
-    good = Persistence.frame({:forget, "a"})
+    good = JournalFile.frame({:forget, "a"})
     damaged = good <> "junk" <> good
     File.write!(path, damaged)
-    assert {:error, {:damaged, %{ranges: [{_, 4}]}}} = Persistence.compact(path)
+    assert {:error, {:damaged, %{ranges: [{_, 4}]}}} = JournalFile.compact(path)
     assert File.read!(path) == damaged
   end
 end

@@ -159,6 +159,31 @@ defmodule Tartarus.ServerKillTest do
     assert :ets.match(Tartarus.AgentTable, {:_, :_, name, :_, :_}) == []
   end
 
+  # Known bug (issue 43's server restarts): the flush of a host's acknowledgements is a timer
+  # sent to its server, armed once (Arrival.ack/4 sets host.acks_armed, which the warden
+  # owns). A server killed before that timer fires takes it along and the flag stays set: the
+  # restarted server never flushes, no later arrival arms the timer again, and no source hears
+  # from this host again (its commits stay unacknowledged, its pointers never sweepable).
+  @tag :known_bug
+  test "an arrival's acknowledgement reaches its source when the destination's server is killed before it flushes" do
+    [a, b] = [host!(), host!()]
+    :ok = Tartarus.connect(a, b)
+    x = agent!(a, %{count: 0})
+    y = agent!(a, %{count: 0})
+
+    # The flush timer's message waits in b's suspended server, which is then killed with it.
+    {:ok, server} = Tartarus.Host.whereis(addr(b))
+    :ok = :sys.suspend(server)
+    :ok = Tartarus.move({x, addr(a)}, b)
+    assert :atomics.get(local!(b).acks_armed, 1) == 1
+    :ok = kill_server!(b)
+
+    # One more arrival after the restart.
+    :ok = Tartarus.move({y, addr(a)}, b)
+    acked = fn id -> {id, addr(b), :acked} in Tartarus.Ledger.pointers(local!(a)) end
+    assert eventually(fn -> acked.(x) and acked.(y) end, 5_000)
+  end
+
   defp local!(name) do
     {:ok, info} = Tartarus.Host.local(name)
     info
