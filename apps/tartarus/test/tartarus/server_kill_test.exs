@@ -159,12 +159,11 @@ defmodule Tartarus.ServerKillTest do
     assert :ets.match(Tartarus.AgentTable, {:_, :_, name, :_, :_}) == []
   end
 
-  # Known bug (issue 43's server restarts): the flush of a host's acknowledgements is a timer
-  # sent to its server, armed once (Arrival.ack/4 sets host.acks_armed, which the warden
-  # owns). A server killed before that timer fires takes it along and the flag stays set: the
-  # restarted server never flushes, no later arrival arms the timer again, and no source hears
-  # from this host again (its commits stay unacknowledged, its pointers never sweepable).
-  @tag :known_bug
+  # The flush of a host's acknowledgements is a timer sent to its server, armed once
+  # (Arrival.ack/4 sets host.acks_armed, which the warden owns). A server killed before that
+  # timer fires takes it along and the flag stays set: unless the restarted server flushes as
+  # it starts, no later arrival arms the timer again and no source hears from this host again
+  # (its commits stay unacknowledged, its pointers never sweepable). Failed before the fix.
   test "an arrival's acknowledgement reaches its source when the destination's server is killed before it flushes" do
     [a, b] = [host!(), host!()]
     :ok = Tartarus.connect(a, b)

@@ -67,7 +67,12 @@ defmodule Tartarus.Host.Server do
       adopted: 0
     }
 
-    {:ok, Agents.adopt_all(state)}
+    # Timers a server that died took along (they were sent to it): the flush of the host's
+    # acknowledgements (its armed flag, the warden's, would stay set and no arrival would
+    # arm it again) and the asks about parked copies (the count above zero, no later park
+    # would arm them again). Both only tell or ask: doing them now is always safe.
+    Arrivals.flush_acks(host)
+    {:ok, state |> Agents.adopt_all() |> Parked.event(:ask_parked)}
   end
 
   @impl true

@@ -246,12 +246,11 @@ defmodule Tartarus.Migration.ParkingTest do
     assert_receive {^tag, :delivered}, 2_000
   end
 
-  # Known bug (issue 43's server restarts): the host asks about its parked copies on a timer
-  # sent to its server, armed when the first copy parks (count 1). A server killed meanwhile
-  # takes the timer along; the records live on in the warden's ledger, but the restarted
-  # server never asks (and, the count above 0, no later park arms the timer again): the copy
-  # is never revived while the host lives.
-  @tag :known_bug
+  # The host asks about its parked copies on a timer sent to its server, armed when the first
+  # copy parks (count 1). A server killed meanwhile takes the timer along; the records live on
+  # in the warden's ledger, and unless the restarted server asks as it starts (the count
+  # above 0, no later park arms the timer again) the copy is never revived while the host
+  # lives. Failed before the fix.
   test "a parked copy is revived after its host's server is killed" do
     [a, b] = [host!(), host!(migration_timeout: 200)]
     {ha, server, mig, copy, pid, id} = paused_copy(a, b)
