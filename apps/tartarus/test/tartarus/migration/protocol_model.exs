@@ -44,7 +44,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
   alias Tartarus.Agent.Held
-  alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.{CopyProtocol, Executor, HostProtocol, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.Source
 
   # Chance of a crash of the host at each effect of the executor (fault phase).
   @crash_point 0.03
@@ -137,23 +138,26 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     w = put_in(w.hosts[h], host)
 
-    w =
-      Enum.reduce(agents, w, fn env, w ->
+    # What it starts, how and in which order: the live host's (Tartarus.Host.Agents.restore/1);
+    # the model runs any agent's code.
+    Enum.reduce(HostProtocol.restore(agents, in_doubt, fn _env -> true end), w, fn
+      {:not_started, []}, w ->
+        w
+
+      {:start, env}, w ->
         {pid, w} = fresh(w, :pid)
         start_resident(w, h, pid, env)
-      end)
 
-    Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
-      {pid, w} = fresh(w, :pid)
-      c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
-      w = put_in(w.procs[pid], new_copy(h, env, c))
-      restored_seen(w, h, mig, copy, pid)
+      :await_started, w ->
+        w
+
+      {:pause, mig, copy, env, src, kind}, w ->
+        {pid, w} = fresh(w, :pid)
+        c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+        w = put_in(w.procs[pid], new_copy(h, env, c))
+        update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
     end)
   end
-
-  # What the host's admission remembers of a restored copy (as Tartarus.Host.Server does).
-  defp restored_seen(w, h, mig, copy, pid),
-    do: update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
 
   defp start_resident(w, h, pid, env) do
     if Map.has_key?(w.hosts[h].residents, env.id) do
@@ -168,7 +172,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp new_copy(h, env, c),
     do: %{role: :copy, host: h, env: env, c: c, stash: [], postponed: [], data: agent_data(env)}
 
-  defp agent_proc(h, env), do: %{role: :agent, host: h, env: env, src: nil, data: agent_data(env)}
+  # `postponed`: what gen_statem keeps while the agent hands off (Held counts it).
+  defp agent_proc(h, env),
+    do: %{role: :agent, host: h, env: env, src: nil, postponed: [], data: agent_data(env)}
 
   # The agent process's fields that Tartarus.Agent.Held and the hand-over read and write.
   defp agent_data(env),
@@ -320,36 +326,51 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp receive_msg(w, pid, _h, msg) do
-    proc = w.procs[pid]
-
-    case {proc.role, Messages.classify(msg)} do
-      {:copy, _} ->
-        case CopyProtocol.event(proc.c, msg) do
+    case w.procs[pid] do
+      %{role: :copy, c: c} ->
+        case CopyProtocol.event(c, msg) do
           nil -> w
           e -> copy_event(w, pid, e)
         end
 
-      # A commit that came after the copy stopped waiting for it (Tartarus.Agent.Server):
-      # what it took meanwhile is not taken twice.
-      {:agent, {:commit, _, _, _}} when proc.src == nil ->
-        with {_, _, _, _, {msgs, _}} when is_list(msgs) <- msg do
-          {msgs, inbox} = Inbox.take_new(proc.data.inbox, msgs)
-          w = put_in(w.procs[pid].data.inbox, inbox)
-          Enum.reduce(msgs, w, &handled(&2, &1))
-        else
-          _ -> w
-        end
-
-      {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
-        source_event(w, pid, e)
-
-      {:agent, {tag, _, _} = e} when tag in [:refused, :need] and proc.src != nil ->
-        source_event(w, pid, e)
-
-      _ ->
-        w
+      %{role: :agent} ->
+        agent_info(w, pid, msg)
     end
   end
+
+  # A message reaches an agent's process, as Tartarus.Agent.Server takes it: running, by
+  # Tartarus.Migration.Inbox.running/2 (its messages taken once, a late commit's hand-over);
+  # handing off, by Tartarus.Migration.Source.route/2 (its hand-off's replies, or
+  # Tartarus.Agent.Held: kept, postponed, taken, refused). (The model's sources see their
+  # destinations go down by its own event, down/1: no monitor.)
+  defp agent_info(w, pid, msg) do
+    case w.procs[pid] do
+      nil ->
+        w
+
+      %{src: nil, data: data} ->
+        case Inbox.running(data.inbox, msg) do
+          {:handle, m, inbox} ->
+            handled(put_in(w.procs[pid].data.inbox, inbox), m)
+
+          {:pending, msgs, inbox} ->
+            Enum.reduce(msgs, put_in(w.procs[pid].data.inbox, inbox), &handled(&2, &1))
+
+          _taken_junk_protocol_or_other ->
+            w
+        end
+
+      %{src: src, data: data} ->
+        case Source.route(Map.put(data, :handoff, {src.s, %{mref: nil}}), {:info, msg}) do
+          {:step, event} -> source_event(w, pid, event)
+          {:held, data} -> put_in(w.procs[pid].data, data)
+          {:postponed, data} -> update_in(w.procs[pid], &postpone(&1, data, msg))
+          _taken_or_refused -> w
+        end
+    end
+  end
+
+  defp postpone(proc, data, msg), do: %{proc | data: data, postponed: proc.postponed ++ [msg]}
 
   # -- source --------------------------------------------------------------------------
 
@@ -403,11 +424,17 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:done, {:committed, _, _}, %{kind: :move}, %{w: w}} ->
         %{w | procs: Map.delete(w.procs, pid)}
 
-      # It runs on here: what it held is handled now, in its order (Tartarus.Agent.Server).
+      # It runs on here: it takes what it kept, in Tartarus.Agent.Held.release/1's order,
+      # then what gen_statem postponed (Tartarus.Agent.Server).
       {:done, _outcome, _s, %{w: w}} ->
-        {held, _postponed, data} = Held.release(w.procs[pid].data)
-        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data})
-        Enum.reduce(held, w, &agent_receive(&2, pid, &1))
+        %{data: data, postponed: postponed} = w.procs[pid]
+        {events, _count, data} = Held.release(data)
+        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data, postponed: []})
+
+        Enum.reduce(events ++ Enum.map(postponed, &{:info, &1}), w, fn
+          {:info, m}, w -> agent_info(w, pid, m)
+          {:internal, {:pending, m}}, w -> handled(w, m)
+        end)
 
       # The source's host crashed in the middle (the process is gone with it).
       {:halted, %{w: w}} ->
@@ -891,7 +918,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def started(%{w: w, copy: pid}, _c) do
     %{pending: pending, postponed: postponed} = w.procs[pid]
-    w = update_in(w.procs[pid], &Map.drop(&1, [:pending, :postponed, :stash]))
+    w = update_in(w.procs[pid], &Map.put(Map.drop(&1, [:pending, :stash]), :postponed, []))
     w = Enum.reduce(pending, w, &handled(&2, &1))
     Enum.reduce(postponed, w, &agent_receive(&2, pid, &1))
   end
@@ -960,18 +987,8 @@ defmodule Tartarus.Migration.ProtocolModel do
       nil ->
         w
 
-      %{role: :agent, src: nil, data: data} ->
-        {new?, inbox} = Inbox.take_msg(data.inbox, m)
-        w = put_in(w.procs[pid].data.inbox, inbox)
-        if new?, do: handled(w, m), else: w
-
-      %{role: :agent, data: data} ->
-        case Held.keep(data, {:info, m}) do
-          {:held, data} -> put_in(w.procs[pid].data, data)
-          # A copy of a message taken already (resent after a hand-over), or over the bound.
-          :taken -> w
-          :refused -> w
-        end
+      %{role: :agent} ->
+        agent_info(w, pid, m)
 
       %{role: :copy, c: c} ->
         case CopyProtocol.event(c, m) do
