@@ -154,7 +154,7 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:pause, mig, copy, env, src, kind}, w ->
         {pid, w} = fresh(w, :pid)
         c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
-        w = put_in(w.procs[pid], new_copy(h, env, c))
+        w = put_in(count(w, :restored_paused).procs[pid], new_copy(h, env, c))
         update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
     end)
   end
@@ -354,7 +354,8 @@ defmodule Tartarus.Migration.ProtocolModel do
             handled(put_in(w.procs[pid].data.inbox, inbox), m)
 
           {:pending, msgs, inbox} ->
-            Enum.reduce(msgs, put_in(w.procs[pid].data.inbox, inbox), &handled(&2, &1))
+            w = put_in(count(w, :late_commit).procs[pid].data.inbox, inbox)
+            Enum.reduce(msgs, w, &handled(&2, &1))
 
           _taken_junk_protocol_or_other ->
             w
@@ -362,10 +363,17 @@ defmodule Tartarus.Migration.ProtocolModel do
 
       %{src: src, data: data} ->
         case Source.route(Map.put(data, :handoff, {src.s, %{mref: nil}}), {:info, msg}) do
-          {:step, event} -> source_event(w, pid, event)
-          {:held, data} -> put_in(w.procs[pid].data, data)
-          {:postponed, data} -> update_in(w.procs[pid], &postpone(&1, data, msg))
-          _taken_or_refused -> w
+          {:step, event} ->
+            source_event(w, pid, event)
+
+          {:held, data} ->
+            put_in(w.procs[pid].data, data)
+
+          {:postponed, data} ->
+            update_in(count(w, :postponed).procs[pid], &postpone(&1, data, msg))
+
+          _taken_or_refused ->
+            w
         end
     end
   end
@@ -430,6 +438,7 @@ defmodule Tartarus.Migration.ProtocolModel do
         %{data: data, postponed: postponed} = w.procs[pid]
         {events, _count, data} = Held.release(data)
         w = update_in(w.procs[pid], &%{&1 | src: nil, data: data, postponed: []})
+        w = Enum.reduce(events, w, fn _, w -> count(w, :replayed) end)
 
         Enum.reduce(events ++ Enum.map(postponed, &{:info, &1}), w, fn
           {:info, m}, w -> agent_info(w, pid, m)
