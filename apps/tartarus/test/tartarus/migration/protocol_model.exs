@@ -248,6 +248,8 @@ defmodule Tartarus.Migration.ProtocolModel do
     end
   end
 
+  # (A sender's resends are not dropped: the link between two live processes is reliable, and
+  # a lost connection is a :DOWN, on which the sender resends.)
   defp net_fault(w, kind) do
     case w.net do
       [] ->
@@ -259,6 +261,7 @@ defmodule Tartarus.Migration.ProtocolModel do
         w = %{w | rng: rng}
 
         case kind do
+          :drop when elem(m, 2) == :sender -> w
           :drop -> note(%{w | net: List.delete_at(net, i - 1)}, {:drop, m})
           :dup -> note(%{w | net: [m | net]}, {:dup, m})
         end
@@ -288,6 +291,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp partitioned?(_w, :attacker, _to), do: false
+  defp partitioned?(_w, :sender, _to), do: false
 
   defp partitioned?(w, a, b),
     do: a != b and MapSet.member?(w.partitions, Enum.sort([a, b]))
@@ -327,14 +331,20 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   defp receive_msg(w, pid, _h, msg) do
     case w.procs[pid] do
-      %{role: :copy, c: c} ->
-        case CopyProtocol.event(c, msg) do
-          nil -> w
-          e -> copy_event(w, pid, e)
-        end
+      %{role: :copy} -> copy_info(w, pid, msg)
+      %{role: :agent} -> agent_info(w, pid, msg)
+    end
+  end
 
-      %{role: :agent} ->
-        agent_info(w, pid, msg)
+  # A message reaches a paused copy: its event (CopyProtocol.event/2), else, while it awaits
+  # its source's commit, postponed (as Tartarus.Migration.Arrival.awaited/2), else a stray.
+  defp copy_info(w, pid, msg) do
+    %{c: c} = w.procs[pid]
+
+    case CopyProtocol.event(c, msg) do
+      nil when c.phase == :awaiting -> update_in(w.procs[pid].postponed, &(&1 ++ [msg]))
+      nil -> w
+      event -> copy_event(w, pid, event)
     end
   end
 
@@ -357,7 +367,11 @@ defmodule Tartarus.Migration.ProtocolModel do
             w = put_in(count(w, :late_commit).procs[pid].data.inbox, inbox)
             Enum.reduce(msgs, w, &handled(&2, &1))
 
-          _taken_junk_protocol_or_other ->
+          # A copy sent again of a message it took already.
+          :taken ->
+            count(w, :taken_again)
+
+          _junk_protocol_or_other ->
             w
         end
 
@@ -929,7 +943,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     %{pending: pending, postponed: postponed} = w.procs[pid]
     w = update_in(w.procs[pid], &Map.put(Map.drop(&1, [:pending, :stash]), :postponed, []))
     w = Enum.reduce(pending, w, &handled(&2, &1))
-    Enum.reduce(postponed, w, &agent_receive(&2, pid, &1))
+    Enum.reduce(postponed, w, &agent_info(&2, pid, &1))
   end
 
   @impl true
@@ -974,6 +988,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   # its own, one tag) and, while it is not handled, sends it again, with its tag, to the
   # agent's process wherever it is once the process it sent it to is gone (as
   # Tartarus.Locator does). Each message must be handled once, unless a crash took its agent.
+  # A resend travels (it may arrive after the agent took the message from a hand-over, and
+  # be replayed): Tartarus.Migration.Inbox's memory must make it a no-op.
 
   defp post(w) do
     {pid, w} = pick(w, Enum.sort(for {pid, p} <- w.procs, alive_host?(w, p.host), do: pid))
@@ -999,11 +1015,8 @@ defmodule Tartarus.Migration.ProtocolModel do
       %{role: :agent} ->
         agent_info(w, pid, m)
 
-      %{role: :copy, c: c} ->
-        case CopyProtocol.event(c, m) do
-          nil -> update_in(w.procs[pid].postponed, &(&1 ++ [m]))
-          event -> copy_event(w, pid, event)
-        end
+      %{role: :copy} ->
+        copy_info(w, pid, m)
     end
   end
 
@@ -1018,7 +1031,9 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   # Senders whose message's process is gone send it again where the agent now is.
   defp retry(w) do
-    Enum.reduce(retries(w), w, fn {n, pid}, w -> agent_receive(w, pid, w.msgs[n].m) end)
+    Enum.reduce(retries(w), w, fn {n, pid}, w ->
+      send_msg(put_in(w.msgs[n].to, pid), :sender, pid, w.msgs[n].m)
+    end)
   end
 
   defp retries(w) do
@@ -1135,7 +1150,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
     w = retry(w)
 
-    if waiting == [] and parked == [] and retries(w) == [] do
+    if waiting == [] and parked == [] and retries(w) == [] and w.net == [] do
       w
     else
       w =

@@ -59,10 +59,11 @@ defmodule Tartarus.Migration.ProtocolModelTest do
     # are explored too; and the live decisions the model takes from the agent's process and
     # the host's restart: messages kept while handing off and taken again after a failed
     # hand-off (Held.release/1), other events postponed (Source.route/2), commits that came
-    # late (Inbox.running/2), in-doubt copies paused again at a restart
-    # (HostProtocol.restore/3).
+    # late and copies of messages taken already (Inbox.running/2), in-doubt copies paused
+    # again at a restart (HostProtocol.restore/3).
     assert stats.post >= 1_000 and stats.await >= 10 and stats.revived >= 10
     assert stats.replayed >= 100 and stats.postponed >= 100 and stats.late_commit >= 10
+    assert stats.taken_again >= 10
     assert stats.restored_paused >= 100
   end
 
