@@ -28,7 +28,14 @@ defmodule Tartarus.Migration.ProtocolModel do
   # phase a host may crash before any of them (crash_point/4), so an order that a crash could
   # break is found. The agents' messages go through the live Tartarus.Agent.Held (kept while
   # handing off, released after a failed hand-off, handed over inside the commit) and
-  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit.
+  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit. What
+  # Tartarus.Agent.Server decides, the model takes from the same pure functions: a running
+  # agent's take (Inbox.running/2: a message, a late commit's hand-over, junk), a handing-off
+  # agent's routing (Source.route/2: its hand-off's replies, else Held.keep/2), what it takes
+  # after a hand-off that did not move it, in order (Held.release/1); and a host that starts
+  # again from its journal starts what HostProtocol.restore/3 says, as
+  # Tartarus.Host.Agents.restore/1 does. The gen_statem around them (its postponed queue,
+  # inserted events) is the model's bookkeeping (`postponed`).
   #
   # What the backend keeps in its own words is storage, not logic: a host's ledger is
   # `fwd` (under an agent's id, its undecided hand-off record {:handoff, mig, pid} or its

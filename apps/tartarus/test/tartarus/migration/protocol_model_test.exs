@@ -44,7 +44,11 @@ defmodule Tartarus.Migration.ProtocolModelTest do
   # a move's decision after its commit leaves, a copy's acknowledgement or the end of its
   # in-doubt record before its journal record as the agent, or admission's `prepared` before
   # its in-doubt record, or dropping one message from a hand-over (Tartarus.Agent.Held), makes
-  # the first test fail (docs/architecture.md, "Who carries out the protocol's actions").
+  # the first test fail (docs/architecture.md, "Who carries out the protocol's actions"); so
+  # do, in the agent's and host's pure decisions, a handing-off agent dropping a message
+  # (Source.route/2), a late commit's or a copy's message taken twice (Inbox.running/2), a
+  # failed hand-off's replay dropping a held message (Held.release/1) and a restart
+  # forgetting an in-doubt copy (HostProtocol.restore/3).
   test "a host crashes between the effects of every role, hundreds of times" do
     stats =
       Enum.reduce(1..@walks, %{}, fn seed, acc ->
