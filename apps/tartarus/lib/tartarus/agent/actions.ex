@@ -90,20 +90,12 @@ defmodule Tartarus.Agent.Actions do
 
   # -- messages ------------------------------------------------------------------------
 
-  @doc false
-  # A message of Tartarus.post/request/cast, from the mailbox: taken once (Inbox), then handled.
-  def message({:"$tartarus_msg", from, _kind, _msg} = m, data) do
-    case Inbox.take(data.inbox, from) do
-      {true, inbox} -> handle(m, %{data | inbox: inbox})
-      {false, _} -> running(data)
-    end
-  end
-
   # A :message event carries the message itself up to this many bytes (external size).
   @message_shown 256
 
   @doc false
-  # A message already taken (handed over by the agent's previous process, or by a late commit).
+  # A message of Tartarus.post/request/cast, taken (once: Tartarus.Migration.Inbox.running/2,
+  # from the mailbox, or handed over by the agent's previous process or a late commit).
   #
   # Without the host option :durable a message is acknowledged as it is taken, before the
   # agent's code runs; with it, once handled and checkpointed (journaled when the host has a

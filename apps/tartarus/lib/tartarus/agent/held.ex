@@ -56,11 +56,20 @@ defmodule Tartarus.Agent.Held do
   end
 
   @doc false
-  # When the hand-off ends: {the held messages, oldest first, the postponed count, data
-  # emptied}. (An agent that hands off again at once keeps counting its postponed events,
-  # which stay postponed: Tartarus.Agent.Server.)
+  # When the hand-off ends: {the events the agent takes next, in this order, the postponed
+  # count, data emptied (data.pending too)}. The events ({type, content}, as gen_statem's)
+  # are the messages of a hand-over it had taken and not handled when it left again
+  # ({:internal, {:pending, m}}), then what it held, oldest first ({:info, m}); the postponed
+  # events come after them (gen_statem's). If the agent stays, that is what it handles, in
+  # that order; if it moved, they went with its commit (hand_over/2) and this is not used.
+  # (An agent that hands off again at once keeps counting its postponed events, which stay
+  # postponed: Tartarus.Agent.Server.)
   @spec release(map()) :: {list(), {non_neg_integer(), non_neg_integer()}, map()}
-  def release(data), do: {Enum.reverse(data.held), data.postponed, Map.merge(data, empty())}
+  def release(data) do
+    pending = for m <- data.pending, do: {:internal, {:pending, m}}
+    held = for m <- Enum.reverse(data.held), do: {:info, m}
+    {pending ++ held, data.postponed, %{Map.merge(data, empty()) | pending: []}}
+  end
 
   @doc false
   # A committed move's hand-over (inside its commit, Tartarus.Migration.Source): the messages

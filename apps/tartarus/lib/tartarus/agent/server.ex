@@ -52,7 +52,7 @@ defmodule Tartarus.Agent.Server do
 
   alias Tartarus.Agent.{Actions, Held, StateTimer}
   alias Tartarus.Ledger
-  alias Tartarus.Migration.{Arrival, Inbox, Messages, Source}
+  alias Tartarus.Migration.{Arrival, Inbox, Source}
 
   @timeout :"$tartarus_state_timeout"
 
@@ -210,10 +210,6 @@ defmodule Tartarus.Agent.Server do
 
   # -- :running ------------------------------------------------------------------------
 
-  def handle_event(:info, {:"$tartarus_msg", {pid, _}, kind, _} = m, :running, data)
-      when is_pid(pid) and kind in [:post, :request],
-      do: transition(Actions.message(m, data))
-
   # A message handed over (by the agent's previous process or a late commit): already taken.
   def handle_event(:internal, {:pending, m}, :running, data),
     do: transition(Actions.handle(m, data))
@@ -235,24 +231,16 @@ defmodule Tartarus.Agent.Server do
        else: transition(Actions.info(msg, data))
   end
 
-  # A commit (with its hand-over) that came after this process stopped waiting for it (its
-  # source was slow): what this process took meanwhile is not taken twice.
-  def handle_event(:info, {:"$tartarus_commit", _mig, _copy, _notify, {msgs, _}}, :running, data)
-      when is_list(msgs) do
-    {msgs, inbox} = Inbox.take_new(data.inbox, msgs)
-    {:keep_state, %{data | inbox: inbox}, pending(msgs)}
-  end
-
-  # Malformed messages for the agent, late replies of hand-offs it gave up on, commits or
-  # answers delivered twice: not for the agent's code.
-  def handle_event(:info, msg, :running, data)
-      when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg",
-      do: transition(Actions.dropped(data))
-
+  # The agent's messages (taken once), a commit that came after this process stopped
+  # waiting for it, junk, late protocol messages: Tartarus.Migration.Inbox.running/2 says which.
   def handle_event(:info, msg, :running, data) do
-    if Messages.protocol_message?(msg),
-      do: :keep_state_and_data,
-      else: transition(Actions.info(msg, data))
+    case Inbox.running(data.inbox, msg) do
+      {:handle, m, inbox} -> transition(Actions.handle(m, %{data | inbox: inbox}))
+      {:pending, msgs, inbox} -> {:keep_state, %{data | inbox: inbox}, pending(msgs)}
+      :junk -> transition(Actions.dropped(data))
+      :other -> transition(Actions.info(msg, data))
+      _taken_or_protocol -> :keep_state_and_data
+    end
   end
 
   def handle_event({:call, from}, _op, _state, data) when not Tartarus.Events.is_from(from),
@@ -267,18 +255,18 @@ defmodule Tartarus.Agent.Server do
   # Tartarus.Migration.Source reads the destination's answers; the agent's messages wait in
   # data.held, everything else is postponed (see the top of this module).
 
-  def handle_event(:info, msg, :handing_off, data) do
-    case Source.event(data, msg) do
-      nil -> keep(data, {:info, msg})
-      event -> handoff(data, event)
-    end
-  end
-
   # The rest of a hand-over being handled when the agent left again: still taken, not handled.
   def handle_event(:internal, {:pending, m}, :handing_off, data),
     do: {:keep_state, %{data | pending: data.pending ++ [m]}}
 
-  def handle_event(type, content, :handing_off, data), do: keep(data, {type, content})
+  def handle_event(type, content, :handing_off, data) do
+    case Source.route(data, {type, content}) do
+      {:step, event} -> handoff(data, event)
+      {:held, data} -> {:keep_state, data}
+      {:postponed, data} -> {:keep_state, data, [:postpone]}
+      _taken_or_refused -> :keep_state_and_data
+    end
+  end
 
   # -- :paused and :awaiting_commit ------------------------------------------------------------------
 
@@ -339,20 +327,9 @@ defmodule Tartarus.Agent.Server do
 
       {outcome, by, data} ->
         # :handing_off ends here (whatever comes next: another hand-off arms its own).
-        {held, postponed, left} = Held.release(StateTimer.cancel(data))
-        result = Actions.handoff_done(outcome, by, %{left | pending: []})
-        held = for m <- held, do: {:next_event, :info, m}
-        replay(result, pending(data.pending) ++ held, postponed)
-    end
-  end
-
-  # An event of a handing-off agent that is not its hand-off's (Tartarus.Agent.Held).
-  defp keep(data, event) do
-    case Held.keep(data, event) do
-      {:held, data} -> {:keep_state, data}
-      {:postponed, data} -> {:keep_state, data, [:postpone]}
-      :taken -> :keep_state_and_data
-      :refused -> :keep_state_and_data
+        {events, postponed, left} = Held.release(StateTimer.cancel(data))
+        result = Actions.handoff_done(outcome, by, left)
+        replay(result, for({type, e} <- events, do: {:next_event, type, e}), postponed)
     end
   end
 

@@ -9,6 +9,7 @@ defmodule Tartarus.Host.Agents do
   require Logger
   require Tartarus.{Clock, Events}
   alias Tartarus.{Clock, Events, Ledger}
+  alias Tartarus.Migration.Protocol
 
   # How long a killed agent that traps exits may take to stop when its callbacks are not
   # bounded (with a callback budget, that budget).
@@ -355,25 +356,37 @@ defmodule Tartarus.Host.Agents do
   @doc false
   # Restores checkpointed agents and in-doubt copies (persistence): {reply, state}. Run once
   # by the host's server, called by Tartarus.start_host/2 after the host's supervisors are up.
+  # What to start, how and in which order is Tartarus.Migration.HostProtocol.restore/3's.
   def restore(state) do
     {agents, in_doubt} = Tartarus.Host.Warden.take_restore(elem(state.host.ref, 0))
-    # An agent whose code this node cannot run (not installed, not kept in the journal) is
-    # not started, and keeps its records: a later start with its module installed restores
-    # it (starting it would crash it until it was removed, and forgotten for good).
-    {agents, unrunnable} = Enum.split_with(agents, &runnable?/1)
-    {in_doubt, unrunnable_copies} = Enum.split_with(in_doubt, &runnable?(elem(&1, 1)))
-    not_started(state.host, unrunnable ++ Enum.map(unrunnable_copies, &elem(&1, 1)))
+    actions = Tartarus.Migration.HostProtocol.restore(agents, in_doubt, &runnable?/1)
+    {state, _pids} = Enum.reduce(actions, {state, []}, &restore/2)
+    n = fn tag -> Enum.count(actions, &(is_tuple(&1) and elem(&1, 0) == tag)) end
+    {{:ok, n.(:start), n.(:pause)}, state}
+  end
 
-    {state, pids} =
-      Enum.reduce(agents, {state, []}, fn env, {state, pids} ->
-        case start_agent(state, env, :restore) do
-          {:ok, pid, state} -> {state, [pid | pids]}
-          {:error, _reason, state} -> {state, pids}
-        end
-      end)
+  defp restore({:not_started, []}, acc), do: acc
 
-    # Each restored agent registers itself as it starts: answer once they have (an agent
-    # that died first is waited for a bounded time; its :DOWN is handled afterwards).
+  defp restore({:not_started, envs}, {state, _} = acc) do
+    Logger.error(
+      "host #{inspect(state.host.ref)}: #{length(envs)} journaled agents not restored, their " <>
+        "code is missing (#{inspect(Enum.uniq(Enum.map(envs, & &1.module)), limit: 8)}); " <>
+        "their records are kept for a start with it installed"
+    )
+
+    acc
+  end
+
+  defp restore({:start, env}, {state, pids}) do
+    case start_agent(state, env, :restore) do
+      {:ok, pid, state} -> {state, [pid | pids]}
+      {:error, _reason, state} -> {state, pids}
+    end
+  end
+
+  # Each restored agent registers itself as it starts: answer once they have (an agent
+  # that died first is waited for a bounded time; its :DOWN is handled afterwards).
+  defp restore(:await_started, {state, pids}) do
     for pid <- pids do
       Clock.receive do
         {:"$tartarus_restored", ^pid} -> :ok
@@ -382,38 +395,21 @@ defmodule Tartarus.Host.Agents do
       end
     end
 
-    # Admission's memory of them: in the ledger (Tartarus.Host.Arrivals reads it there).
-    dest =
-      Tartarus.Migration.Protocol.destination(
-        store: {Ledger, Ledger.admission_memory(state.host)}
-      )
+    {state, []}
+  end
 
-    state =
-      Enum.reduce(in_doubt, state, fn {mig, env, src, kind, copy}, state ->
-        case start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
-          {:ok, pid, state} ->
-            Ledger.put_arriving(state.host, env.id, pid)
-            Tartarus.Migration.Protocol.restore_seen(dest, mig, copy, pid)
-            state
-
-          {:error, _reason, state} ->
-            state
-        end
-      end)
-
-    {{:ok, length(agents), length(in_doubt)}, state}
+  # Admission's memory of the copy: in the ledger (Tartarus.Host.Arrivals reads it there).
+  defp restore({:pause, mig, copy, env, src, kind}, {state, pids}) do
+    with {:ok, pid, state} <- start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+      Ledger.put_arriving(state.host, env.id, pid)
+      store = {Ledger, Ledger.admission_memory(state.host)}
+      Protocol.restore_seen(Protocol.destination(store: store), mig, copy, pid)
+      {state, pids}
+    else
+      {:error, _reason, state} -> {state, pids}
+    end
   end
 
   defp runnable?(env),
     do: match?({:ok, _}, Tartarus.CodeCache.manifest(Tartarus.Envelope.modules(env)))
-
-  defp not_started(_host, []), do: :ok
-
-  defp not_started(host, envs) do
-    Logger.error(
-      "host #{inspect(host.ref)}: #{length(envs)} journaled agents not restored, their code " <>
-        "is missing (#{inspect(Enum.uniq(Enum.map(envs, & &1.module)), limit: 8)}); their " <>
-        "records are kept for a start with it installed"
-    )
-  end
 end

@@ -85,4 +85,32 @@ defmodule Tartarus.Migration.HostProtocol do
   # Kept for the next answer.
   def step({:revived, mig, copy, _d, :error, env, src, kind}),
     do: [{:repark, mig, copy, env, src, kind}]
+
+  @doc """
+  What a host does, as it starts again, with what its journal restored
+  (`Tartarus.Host.Persistence.restored/1`: its agents and in-doubt copies; its decisions
+  are its ledger's from the start), in this order: `{:not_started, envs}`, the agents and
+  copies whose code this node cannot run (`runnable?` false: their records are kept for a
+  start with it installed); `{:start, env}` for each agent, started resident from its
+  checkpoint (it registers itself: an id resident already is not started twice);
+  `:await_started` (until they have registered, so the host comes back with them
+  findable); then `{:pause, mig, copy, env, src, kind}` for each in-doubt copy: paused
+  again with no source process to wait for (it asks its source), remembered by admission
+  (`Tartarus.Migration.Protocol.restore_seen/4`). `Tartarus.Host.Agents.restore/1` carries
+  it out, and the model check's hosts restart by it.
+
+      iex> alias Tartarus.Migration.HostProtocol, as: H
+      iex> H.restore([%{id: "a"}], [{:m, %{id: "b"}, :src, :move, :c}], fn _ -> true end)
+      [{:not_started, []}, {:start, %{id: "a"}}, :await_started, {:pause, :m, :c, %{id: "b"}, :src, :move}]
+  """
+  @spec restore([map()], [tuple()], (map() -> boolean())) :: [tuple() | atom()]
+  def restore(agents, in_doubt, runnable?) do
+    {agents, unrunnable} = Enum.split_with(agents, runnable?)
+    {in_doubt, unrunnable_copies} = Enum.split_with(in_doubt, &runnable?.(elem(&1, 1)))
+
+    [{:not_started, unrunnable ++ Enum.map(unrunnable_copies, &elem(&1, 1))}] ++
+      Enum.map(agents, &{:start, &1}) ++
+      [:await_started] ++
+      for {mig, env, src, kind, copy} <- in_doubt, do: {:pause, mig, copy, env, src, kind}
+  end
 end

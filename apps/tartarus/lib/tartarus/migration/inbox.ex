@@ -130,6 +130,49 @@ defmodule Tartarus.Migration.Inbox do
   def take_msg(inbox, _), do: {false, inbox}
 
   @doc """
+  What a running agent does with `msg`, a message from its mailbox (`Tartarus.Agent.Server`
+  in `:running`): `{:handle, m, inbox}`, a message of the agent's, new, to handle now;
+  `:taken`, a copy of one it took already (nothing to do); `{:pending, msgs, inbox}`, a
+  commit that came after the process stopped waiting for it, whose hand-over's new
+  messages are handled next, in order (what it took meanwhile is not taken twice); `:junk`,
+  a malformed message for the agent (counted as dropped); `:protocol`, a late or repeated
+  message of a hand-off (ignored); `:other`, anything else (the agent's code's).
+
+      iex> alias Tartarus.Migration.Inbox
+      iex> m = {:"$tartarus_msg", {self(), 1}, :post, :hi}
+      iex> {:handle, ^m, i} = Inbox.running(Inbox.new(), m)
+      iex> {Inbox.running(i, m), Inbox.running(i, {:"$tartarus_msg", :bad})}
+      {:taken, :junk}
+      iex> {:pending, [], _} = Inbox.running(i, {:"$tartarus_commit", :mig, :c, nil, {[m], i}})
+  """
+  @spec running(t(), term()) ::
+          {:handle, tuple(), t()}
+          | {:pending, [tuple()], t()}
+          | :taken
+          | :junk
+          | :protocol
+          | :other
+  def running(inbox, {:"$tartarus_msg", {pid, _} = from, kind, _} = m)
+      when is_pid(pid) and kind in [:post, :request] do
+    case take(inbox, from) do
+      {true, inbox} -> {:handle, m, inbox}
+      {false, _} -> :taken
+    end
+  end
+
+  def running(inbox, {:"$tartarus_commit", _mig, _copy, _notify, {msgs, _}})
+      when is_list(msgs) do
+    {msgs, inbox} = take_new(inbox, msgs)
+    {:pending, msgs, inbox}
+  end
+
+  def running(_inbox, msg) when is_tuple(msg) and elem(msg, 0) == :"$tartarus_msg", do: :junk
+
+  def running(_inbox, msg) do
+    if Tartarus.Migration.Messages.protocol_message?(msg), do: :protocol, else: :other
+  end
+
+  @doc """
   The hand-over a process that moves away sends its successor inside `commit`:
   `pending` (messages it took and had not handled) followed by the new ones of `mailbox`
   (what it drained from its mailbox), and its memory.

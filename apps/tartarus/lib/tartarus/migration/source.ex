@@ -172,6 +172,21 @@ defmodule Tartarus.Migration.Source do
   end
 
   @doc false
+  # An event ({type, content}) of a handing-off agent: {:step, event} (its hand-off's own:
+  # step/2), else what Tartarus.Agent.Held.keep/2 does with it (held, postponed, taken,
+  # refused). Tartarus.Agent.Server in :handing_off and the model check both route by it.
+  @spec route(map(), {term(), term()}) ::
+          {:step, term()} | {:held, map()} | {:postponed, map()} | :taken | :refused
+  def route(data, {:info, msg} = event) do
+    case event(data, msg) do
+      nil -> Tartarus.Agent.Held.keep(data, event)
+      e -> {:step, e}
+    end
+  end
+
+  def route(data, event), do: Tartarus.Agent.Held.keep(data, event)
+
+  @doc false
   # One event of the hand-off (event/2's, or :timeout at its deadline): {:wait, data} or
   # {outcome, by, data} (see the top of this module).
   @spec step(map(), term()) :: {:wait, map()} | {term(), term(), map()}

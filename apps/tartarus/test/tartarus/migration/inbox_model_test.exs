@@ -3,7 +3,7 @@ defmodule Tartarus.Migration.InboxModelTest do
   # agent that keeps moving (a chain of processes: running, handing off, paused, gone) and
   # senders that each post their messages one at a time, over a network that delays and
   # reorders. The agent's side is the platform's own code: Tartarus.Migration.Inbox decides
-  # what is taken (take_msg/2), what a process that moves away hands over (handover/3, as
+  # what a running process takes (running/2, as Tartarus.Agent.Server calls it), what a process that moves away hands over (handover/3, as
   # the executor's live backend calls it) and what its successor handles first (arrive/3,
   # as Tartarus.Agent.Server calls it). The senders do what Tartarus.Locator does: send with
   # one tag, and send again to the successor when the process they sent to ends having
@@ -15,6 +15,8 @@ defmodule Tartarus.Migration.InboxModelTest do
   use ExUnit.Case, async: true
 
   alias Tartarus.Migration.Inbox
+
+  doctest Tartarus.Migration.Inbox
 
   @walks 300
   @senders 3
@@ -216,9 +218,9 @@ defmodule Tartarus.Migration.InboxModelTest do
         [m | rest] = p.mailbox
         w = put_in(w.procs[c].mailbox, rest)
 
-        case Inbox.take_msg(p.inbox, m) do
-          {true, inbox} -> handle(put_in(w.procs[c].inbox, inbox), m)
-          {false, _} -> note(w, {:not_again, m})
+        case Inbox.running(p.inbox, m) do
+          {:handle, m, inbox} -> handle(put_in(w.procs[c].inbox, inbox), m)
+          :taken -> note(w, {:not_again, m})
         end
 
       true ->

@@ -28,7 +28,14 @@ defmodule Tartarus.Migration.ProtocolModel do
   # phase a host may crash before any of them (crash_point/4), so an order that a crash could
   # break is found. The agents' messages go through the live Tartarus.Agent.Held (kept while
   # handing off, released after a failed hand-off, handed over inside the commit) and
-  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit.
+  # Tartarus.Migration.Inbox, the copy's stash and its wait for the source's commit. What
+  # Tartarus.Agent.Server decides, the model takes from the same pure functions: a running
+  # agent's take (Inbox.running/2: a message, a late commit's hand-over, junk), a handing-off
+  # agent's routing (Source.route/2: its hand-off's replies, else Held.keep/2), what it takes
+  # after a hand-off that did not move it, in order (Held.release/1); and a host that starts
+  # again from its journal starts what HostProtocol.restore/3 says, as
+  # Tartarus.Host.Agents.restore/1 does. The gen_statem around them (its postponed queue,
+  # inserted events) is the model's bookkeeping (`postponed`).
   #
   # What the backend keeps in its own words is storage, not logic: a host's ledger is
   # `fwd` (under an agent's id, its undecided hand-off record {:handoff, mig, pid} or its
@@ -44,7 +51,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   alias Tartarus.Host.Persistence
   alias Tartarus.Ledger
   alias Tartarus.Agent.Held
-  alias Tartarus.Migration.{CopyProtocol, Executor, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.{CopyProtocol, Executor, HostProtocol, Inbox, Messages, Protocol}
+  alias Tartarus.Migration.Source
 
   # Chance of a crash of the host at each effect of the executor (fault phase).
   @crash_point 0.03
@@ -137,23 +145,26 @@ defmodule Tartarus.Migration.ProtocolModel do
 
     w = put_in(w.hosts[h], host)
 
-    w =
-      Enum.reduce(agents, w, fn env, w ->
+    # What it starts, how and in which order: the live host's (Tartarus.Host.Agents.restore/1);
+    # the model runs any agent's code.
+    Enum.reduce(HostProtocol.restore(agents, in_doubt, fn _env -> true end), w, fn
+      {:not_started, []}, w ->
+        w
+
+      {:start, env}, w ->
         {pid, w} = fresh(w, :pid)
         start_resident(w, h, pid, env)
-      end)
 
-    Enum.reduce(in_doubt, w, fn {mig, env, src, kind, copy}, w ->
-      {pid, w} = fresh(w, :pid)
-      c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
-      w = put_in(w.procs[pid], new_copy(h, env, c))
-      restored_seen(w, h, mig, copy, pid)
+      :await_started, w ->
+        w
+
+      {:pause, mig, copy, env, src, kind}, w ->
+        {pid, w} = fresh(w, :pid)
+        c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+        w = put_in(count(w, :restored_paused).procs[pid], new_copy(h, env, c))
+        update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
     end)
   end
-
-  # What the host's admission remembers of a restored copy (as Tartarus.Host.Server does).
-  defp restored_seen(w, h, mig, copy, pid),
-    do: update_in(w.hosts[h].dest, &Protocol.restore_seen(&1, mig, copy, pid))
 
   defp start_resident(w, h, pid, env) do
     if Map.has_key?(w.hosts[h].residents, env.id) do
@@ -168,7 +179,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   defp new_copy(h, env, c),
     do: %{role: :copy, host: h, env: env, c: c, stash: [], postponed: [], data: agent_data(env)}
 
-  defp agent_proc(h, env), do: %{role: :agent, host: h, env: env, src: nil, data: agent_data(env)}
+  # `postponed`: what gen_statem keeps while the agent hands off (Held counts it).
+  defp agent_proc(h, env),
+    do: %{role: :agent, host: h, env: env, src: nil, postponed: [], data: agent_data(env)}
 
   # The agent process's fields that Tartarus.Agent.Held and the hand-over read and write.
   defp agent_data(env),
@@ -242,6 +255,8 @@ defmodule Tartarus.Migration.ProtocolModel do
     end
   end
 
+  # (A sender's resends are not dropped: the link between two live processes is reliable, and
+  # a lost connection is a :DOWN, on which the sender resends.)
   defp net_fault(w, kind) do
     case w.net do
       [] ->
@@ -253,6 +268,7 @@ defmodule Tartarus.Migration.ProtocolModel do
         w = %{w | rng: rng}
 
         case kind do
+          :drop when elem(m, 2) == :sender -> w
           :drop -> note(%{w | net: List.delete_at(net, i - 1)}, {:drop, m})
           :dup -> note(%{w | net: [m | net]}, {:dup, m})
         end
@@ -282,6 +298,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp partitioned?(_w, :attacker, _to), do: false
+  defp partitioned?(_w, :sender, _to), do: false
 
   defp partitioned?(w, a, b),
     do: a != b and MapSet.member?(w.partitions, Enum.sort([a, b]))
@@ -320,36 +337,69 @@ defmodule Tartarus.Migration.ProtocolModel do
   end
 
   defp receive_msg(w, pid, _h, msg) do
-    proc = w.procs[pid]
-
-    case {proc.role, Messages.classify(msg)} do
-      {:copy, _} ->
-        case CopyProtocol.event(proc.c, msg) do
-          nil -> w
-          e -> copy_event(w, pid, e)
-        end
-
-      # A commit that came after the copy stopped waiting for it (Tartarus.Agent.Server):
-      # what it took meanwhile is not taken twice.
-      {:agent, {:commit, _, _, _}} when proc.src == nil ->
-        with {_, _, _, _, {msgs, _}} when is_list(msgs) <- msg do
-          {msgs, inbox} = Inbox.take_new(proc.data.inbox, msgs)
-          w = put_in(w.procs[pid].data.inbox, inbox)
-          Enum.reduce(msgs, w, &handled(&2, &1))
-        else
-          _ -> w
-        end
-
-      {:agent, {tag, _, _, _} = e} when tag == :prepared and proc.src != nil ->
-        source_event(w, pid, e)
-
-      {:agent, {tag, _, _} = e} when tag in [:refused, :need] and proc.src != nil ->
-        source_event(w, pid, e)
-
-      _ ->
-        w
+    case w.procs[pid] do
+      %{role: :copy} -> copy_info(w, pid, msg)
+      %{role: :agent} -> agent_info(w, pid, msg)
     end
   end
+
+  # A message reaches a paused copy: its event (CopyProtocol.event/2), else, while it awaits
+  # its source's commit, postponed (as Tartarus.Migration.Arrival.awaited/2), else a stray.
+  defp copy_info(w, pid, msg) do
+    %{c: c} = w.procs[pid]
+
+    case CopyProtocol.event(c, msg) do
+      nil when c.phase == :awaiting -> update_in(w.procs[pid].postponed, &(&1 ++ [msg]))
+      nil -> w
+      event -> copy_event(w, pid, event)
+    end
+  end
+
+  # A message reaches an agent's process, as Tartarus.Agent.Server takes it: running, by
+  # Tartarus.Migration.Inbox.running/2 (its messages taken once, a late commit's hand-over);
+  # handing off, by Tartarus.Migration.Source.route/2 (its hand-off's replies, or
+  # Tartarus.Agent.Held: kept, postponed, taken, refused). (The model's sources see their
+  # destinations go down by its own event, down/1: no monitor.)
+  defp agent_info(w, pid, msg) do
+    case w.procs[pid] do
+      nil ->
+        w
+
+      %{src: nil, data: data} ->
+        case Inbox.running(data.inbox, msg) do
+          {:handle, m, inbox} ->
+            handled(put_in(w.procs[pid].data.inbox, inbox), m)
+
+          {:pending, msgs, inbox} ->
+            w = put_in(count(w, :late_commit).procs[pid].data.inbox, inbox)
+            Enum.reduce(msgs, w, &handled(&2, &1))
+
+          # A copy sent again of a message it took already.
+          :taken ->
+            count(w, :taken_again)
+
+          _junk_protocol_or_other ->
+            w
+        end
+
+      %{src: src, data: data} ->
+        case Source.route(Map.put(data, :handoff, {src.s, %{mref: nil}}), {:info, msg}) do
+          {:step, event} ->
+            source_event(w, pid, event)
+
+          {:held, data} ->
+            put_in(w.procs[pid].data, data)
+
+          {:postponed, data} ->
+            update_in(count(w, :postponed).procs[pid], &postpone(&1, data, msg))
+
+          _taken_or_refused ->
+            w
+        end
+    end
+  end
+
+  defp postpone(proc, data, msg), do: %{proc | data: data, postponed: proc.postponed ++ [msg]}
 
   # -- source --------------------------------------------------------------------------
 
@@ -403,11 +453,18 @@ defmodule Tartarus.Migration.ProtocolModel do
       {:done, {:committed, _, _}, %{kind: :move}, %{w: w}} ->
         %{w | procs: Map.delete(w.procs, pid)}
 
-      # It runs on here: what it held is handled now, in its order (Tartarus.Agent.Server).
+      # It runs on here: it takes what it kept, in Tartarus.Agent.Held.release/1's order,
+      # then what gen_statem postponed (Tartarus.Agent.Server).
       {:done, _outcome, _s, %{w: w}} ->
-        {held, _postponed, data} = Held.release(w.procs[pid].data)
-        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data})
-        Enum.reduce(held, w, &agent_receive(&2, pid, &1))
+        %{data: data, postponed: postponed} = w.procs[pid]
+        {events, _count, data} = Held.release(data)
+        w = update_in(w.procs[pid], &%{&1 | src: nil, data: data, postponed: []})
+        w = Enum.reduce(events, w, fn _, w -> count(w, :replayed) end)
+
+        Enum.reduce(events ++ Enum.map(postponed, &{:info, &1}), w, fn
+          {:info, m}, w -> agent_info(w, pid, m)
+          {:internal, {:pending, m}}, w -> handled(w, m)
+        end)
 
       # The source's host crashed in the middle (the process is gone with it).
       {:halted, %{w: w}} ->
@@ -891,9 +948,9 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def started(%{w: w, copy: pid}, _c) do
     %{pending: pending, postponed: postponed} = w.procs[pid]
-    w = update_in(w.procs[pid], &Map.drop(&1, [:pending, :postponed, :stash]))
+    w = update_in(w.procs[pid], &Map.put(Map.drop(&1, [:pending, :stash]), :postponed, []))
     w = Enum.reduce(pending, w, &handled(&2, &1))
-    Enum.reduce(postponed, w, &agent_receive(&2, pid, &1))
+    Enum.reduce(postponed, w, &agent_info(&2, pid, &1))
   end
 
   @impl true
@@ -938,6 +995,8 @@ defmodule Tartarus.Migration.ProtocolModel do
   # its own, one tag) and, while it is not handled, sends it again, with its tag, to the
   # agent's process wherever it is once the process it sent it to is gone (as
   # Tartarus.Locator does). Each message must be handled once, unless a crash took its agent.
+  # A resend travels (it may arrive after the agent took the message from a hand-over, and
+  # be replayed): Tartarus.Migration.Inbox's memory must make it a no-op.
 
   defp post(w) do
     {pid, w} = pick(w, Enum.sort(for {pid, p} <- w.procs, alive_host?(w, p.host), do: pid))
@@ -960,24 +1019,11 @@ defmodule Tartarus.Migration.ProtocolModel do
       nil ->
         w
 
-      %{role: :agent, src: nil, data: data} ->
-        {new?, inbox} = Inbox.take_msg(data.inbox, m)
-        w = put_in(w.procs[pid].data.inbox, inbox)
-        if new?, do: handled(w, m), else: w
+      %{role: :agent} ->
+        agent_info(w, pid, m)
 
-      %{role: :agent, data: data} ->
-        case Held.keep(data, {:info, m}) do
-          {:held, data} -> put_in(w.procs[pid].data, data)
-          # A copy of a message taken already (resent after a hand-over), or over the bound.
-          :taken -> w
-          :refused -> w
-        end
-
-      %{role: :copy, c: c} ->
-        case CopyProtocol.event(c, m) do
-          nil -> update_in(w.procs[pid].postponed, &(&1 ++ [m]))
-          event -> copy_event(w, pid, event)
-        end
+      %{role: :copy} ->
+        copy_info(w, pid, m)
     end
   end
 
@@ -992,7 +1038,9 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   # Senders whose message's process is gone send it again where the agent now is.
   defp retry(w) do
-    Enum.reduce(retries(w), w, fn {n, pid}, w -> agent_receive(w, pid, w.msgs[n].m) end)
+    Enum.reduce(retries(w), w, fn {n, pid}, w ->
+      send_msg(put_in(w.msgs[n].to, pid), :sender, pid, w.msgs[n].m)
+    end)
   end
 
   defp retries(w) do
@@ -1109,7 +1157,7 @@ defmodule Tartarus.Migration.ProtocolModel do
     parked = for h <- @hosts, w.hosts[h].parked != %{}, do: h
     w = retry(w)
 
-    if waiting == [] and parked == [] and retries(w) == [] do
+    if waiting == [] and parked == [] and retries(w) == [] and w.net == [] do
       w
     else
       w =

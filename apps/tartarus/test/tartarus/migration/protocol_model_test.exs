@@ -44,7 +44,11 @@ defmodule Tartarus.Migration.ProtocolModelTest do
   # a move's decision after its commit leaves, a copy's acknowledgement or the end of its
   # in-doubt record before its journal record as the agent, or admission's `prepared` before
   # its in-doubt record, or dropping one message from a hand-over (Tartarus.Agent.Held), makes
-  # the first test fail (docs/architecture.md, "Who carries out the protocol's actions").
+  # the first test fail (docs/architecture.md, "Who carries out the protocol's actions"); so
+  # do, in the agent's and host's pure decisions, a handing-off agent dropping a message
+  # (Source.route/2), a late commit's or a copy's message taken twice (Inbox.running/2), a
+  # failed hand-off's replay dropping a held message (Held.release/1) and a restart
+  # forgetting an in-doubt copy (HostProtocol.restore/3).
   test "a host crashes between the effects of every role, hundreds of times" do
     stats =
       Enum.reduce(1..@walks, %{}, fn seed, acc ->
@@ -56,8 +60,15 @@ defmodule Tartarus.Migration.ProtocolModelTest do
         do: assert(Map.get(stats, {:crash_point, role}, 0) >= 100, "#{role}: #{inspect(stats)}")
 
     # The agents' messages, the copy awaiting its source's commit and parked copies revived
-    # are explored too.
+    # are explored too; and the live decisions the model takes from the agent's process and
+    # the host's restart: messages kept while handing off and taken again after a failed
+    # hand-off (Held.release/1), other events postponed (Source.route/2), commits that came
+    # late and copies of messages taken already (Inbox.running/2), in-doubt copies paused
+    # again at a restart (HostProtocol.restore/3).
     assert stats.post >= 1_000 and stats.await >= 10 and stats.revived >= 10
+    assert stats.replayed >= 100 and stats.postponed >= 100 and stats.late_commit >= 10
+    assert stats.taken_again >= 10
+    assert stats.restored_paused >= 100
   end
 
   @tag :heavy
