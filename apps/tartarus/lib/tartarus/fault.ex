@@ -17,6 +17,7 @@ defmodule Tartarus.Fault do
     * `:prepared` - the source got `prepared`, before it decides (value: the new pid);
     * `:committing` - the source decided to commit, before `commit` is sent (value: the new pid);
     * `:admitting` - the process admitting a prepare at the destination (`Tartarus.Host.Arrivals`) passed every check and is about to become the paused copy (value: the envelope);
+    * `:reviving` - a host's server is about to start a paused copy again from a parked record (`Tartarus.Host.Parked`; value: `{mig, copy}`);
     * `:prepare_received` - the process admitting a `prepare` at the destination started, before any check
       (value: the whole message, as sent: e.g. to capture a sealed prepare and replay it).
 

@@ -25,7 +25,7 @@ defmodule Tartarus.Ledger do
   | `{:fwd, id \\| name}` | `dest_host, at_us, {mig, copy} \\| :acked \\| :name, notify`: a forwarding pointer (an id's names its migration until the copy acknowledges; a name's never stands for a decision) | `put_pointer/7`, `acknowledge/4` (marks `:acked`); goes with `register_resident/3`, `forget_pointers/3`, `sweep_pointers/2` | `decision/4`, `locate/2`, `pointers/1`, `forwarding_pointers/1`, `abort_pending/3`, `departed?/2` |
   | `{:decision, mig}` | `{:committed, copy}`: a clone's commit until the clone acknowledges (and, after a restart with persistence, every journaled commit) | `decide/3`, `new/1`; goes with `acknowledge/4` | `decision/4`, `decisions/1` |
   | `{:arriving, id}` | `pid`: a paused copy here (destination) | `put_arriving/3` (Host.Arrivals, Host.Parked, Host.Agents.restore); goes with `drop_arriving/3` (the copy once resident; the host server when it is down) | `arriving?/2`, `arriving?/3`, `locate/2` |
-  | `{:parked, {mig, copy}}` | `env, src, kind`: a parked in-doubt copy (destination) | `park/6`; goes with `unpark/3` | `parked/1`, `fetch_parked/3` |
+  | `{:parked, {mig, copy}}` | `env, src, kind`: a parked in-doubt copy (destination) | `park/6`; goes with `unpark/3` (the host, dropping it; the copy revived from it, taking it) | `parked/1`, `fetch_parked/3` |
   | `:parked` | `n`: how many | `park/6`, `unpark/3` | `counter/2` (`:parked`) |
   | `{:count, name}` | `n`: e.g. `:dropped` (unexpected messages), `:buckets` | `count/2`; `swap_bucket/4` | `counted/2` |
   | `{:seen, mig}` | `what, seq`: admission's memory of a prepare (`:pending, nil` while one admission of it runs) | `seen_claim/2`, `seen_put/4`; goes with `seen_release/2` | `seen_fetch/2`, `seen_claim/2` |
@@ -683,11 +683,22 @@ defmodule Tartarus.Ledger do
         do: {mig, copy, env, src, kind}
   end
 
-  @doc "The parked copy of `{mig, copy}` is revived or dropped: its record goes."
-  @spec unpark(host(), term(), term()) :: integer()
+  @doc """
+  The parked copy of `{mig, copy}` is dropped (by the host) or revived (taken by the copy
+  revived from it, as it starts): its record goes. True if it was there.
+  """
+  @spec unpark(host(), term(), term()) :: boolean()
   def unpark(host, mig, copy) do
-    :ets.delete(host.ledger, {:parked, {mig, copy}})
-    :ets.update_counter(host.ledger, :parked, -1, {:parked, 0})
+    # Taken once: of two copies revived from one record only one finds it (and the count
+    # falls once).
+    case :ets.take(host.ledger, {:parked, {mig, copy}}) do
+      [_] ->
+        :ets.update_counter(host.ledger, :parked, -1, {:parked, 0})
+        true
+
+      [] ->
+        false
+    end
   end
 
   # -- agent processes (the host's server and its agents) ----------------------------------

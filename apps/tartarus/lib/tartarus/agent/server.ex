@@ -170,12 +170,13 @@ defmodule Tartarus.Agent.Server do
 
   # `src_pid`: the source agent's process when the prepare came from it (nil for a copy
   # revived from the journal): its commit carries the messages it held.
-  defp start(data, {:paused, mig, copy, src, kind, src_pid}) do
-    paused = Arrival.paused(data.host, mig, copy, src, kind, src_pid)
+  defp start(data, {:paused, mig, copy, src, kind, src_pid}),
+    do: start_paused(data, Arrival.paused(data.host, mig, copy, src, kind, src_pid))
 
-    data = StateTimer.arm(%{data | paused: paused}, :paused, data.host.opts.migration_timeout)
-    {:ok, :paused, data, []}
-  end
+  # Revived by its host from a parked record, which it takes itself before it acts on its
+  # decision (CopyProtocol.new/5's :claim).
+  defp start(data, {:revived, mig, copy, src, kind}),
+    do: start_paused(data, Arrival.paused(data.host, mig, copy, src, kind, nil, claim: true))
 
   # After a crash (n restarts so far) or, with n = 0, restored from a checkpoint when the
   # host started again on its data directory.
@@ -358,6 +359,11 @@ defmodule Tartarus.Agent.Server do
   end
 
   defp transition({:stop, _reason, _data} = stop), do: stop
+
+  defp start_paused(data, paused) do
+    data = StateTimer.arm(%{data | paused: paused}, :paused, data.host.opts.migration_timeout)
+    {:ok, :paused, data, []}
+  end
 
   # One event of the paused copy.
   defp paused(data, event) do

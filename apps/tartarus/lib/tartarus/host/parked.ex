@@ -105,7 +105,9 @@ defmodule Tartarus.Host.Parked do
 
   @impl true
   def revive(state, mig, copy, env, src, kind) do
-    case Agents.start_agent(state, env, {:paused, mig, copy, src, kind, nil}) do
+    {mig, copy} = Tartarus.Fault.point(:reviving, {mig, copy})
+
+    case Agents.start_agent(state, env, {:revived, mig, copy, src, kind}) do
       {:ok, pid, state} -> {{:ok, pid}, state}
       {:error, _reason, state} -> {:error, state}
     end
@@ -114,12 +116,6 @@ defmodule Tartarus.Host.Parked do
   @impl true
   def arriving(state, id, pid) do
     Ledger.put_arriving(state.host, id, pid)
-    state
-  end
-
-  @impl true
-  def repark(state, mig, copy, env, src, kind) do
-    Ledger.park(state.host, mig, copy, env, src, kind)
     state
   end
 end

@@ -24,10 +24,12 @@ defmodule Tartarus.Migration.Arrival do
   # source agent's process when the prepare came from it (nil for a copy revived from the
   # journal): its commit carries the messages it held.
   # Its first state timeout (:commit) is the host's :migration_timeout.
-  @spec paused(map(), term(), term(), term(), :move | :clone, pid() | nil) :: map()
-  def paused(host, mig, copy, src, kind, src_pid) do
+  # `opts`: CopyProtocol.new/5's (`claim: true` for a copy revived from a parked record).
+  @spec paused(map(), term(), term(), term(), :move | :clone, pid() | nil, keyword()) :: map()
+  def paused(host, mig, copy, src, kind, src_pid, opts \\ []) do
     {stash_max, _bytes} = stash_bound(host)
-    c = CopyProtocol.new(mig, copy, src, kind, stash_max: stash_max, src_pid: src_pid)
+    opts = [stash_max: stash_max, src_pid: src_pid] ++ opts
+    c = CopyProtocol.new(mig, copy, src, kind, opts)
     %{c: c, stash: [], pending: [], await: nil}
   end
 
@@ -175,6 +177,9 @@ defmodule Tartarus.Migration.Arrival do
 
   @impl Executor.Copy
   def register(data), do: {Ledger.register_resident(data.host, data.env, self()), data}
+
+  @impl Executor.Copy
+  def claim(data, mig, copy), do: {Ledger.unpark(data.host, mig, copy), data}
 
   @impl Executor.Copy
   def put_snapshot(data) do

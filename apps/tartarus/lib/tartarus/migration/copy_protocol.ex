@@ -26,7 +26,11 @@ defmodule Tartarus.Migration.CopyProtocol do
   `:park_after` (queries without a decisive answer before the copy parks, default 20:
   about eight minutes), `:src_pid` (the source agent's process when the prepare came from
   it: a move that learns its commit by asking waits for that process's commit, which
-  carries the messages it held).
+  carries the messages it held), `:claim` (true for a copy its host revived from a parked
+  record: before it acts on a decision or a commit it takes that record, `{:claim, mig,
+  copy}`, answered `{:claimed, taken?}`, and stops if another revived copy took it first;
+  so a host whose server dies anywhere between reviving and forgetting the record neither
+  loses the agent nor starts it twice).
   """
   @spec new(term(), term(), term(), :move | :clone, keyword()) :: map()
   def new(mig, copy, src, kind, opts \\ []) do
@@ -44,7 +48,9 @@ defmodule Tartarus.Migration.CopyProtocol do
       stash_max: Keyword.get(opts, :stash_max, 1_000),
       ask_after: Keyword.get(opts, :ask_after, 1_000),
       max_ask_interval: Keyword.get(opts, :max_ask_interval, 30_000),
-      park_after: Keyword.get(opts, :park_after, 20)
+      park_after: Keyword.get(opts, :park_after, 20),
+      claim: Keyword.get(opts, :claim, false),
+      claiming: nil
     }
   end
 
@@ -68,8 +74,35 @@ defmodule Tartarus.Migration.CopyProtocol do
       [{:become, nil}, :register]
       iex> C.step(c, {:registered, :ok}) |> elem(1)
       [:put_snapshot, :checkpoint, :drop_arriving, {:resolve, :m, :c}, {:ack, :src, :m, :c}, :arrived, {:reply, nil, :move}, :started]
+
+  A copy revived from a parked record takes that record first; the second of two revived
+  from one record finds it taken and stops:
+
+      iex> alias Tartarus.Migration.CopyProtocol, as: C
+      iex> {c, acts} = C.step(C.new(:m, :c, :src, :move, claim: true), {:decision, :m, :c, :committed})
+      iex> acts
+      [{:claim, :m, :c}]
+      iex> C.step(c, {:claimed, false}) |> elem(1)
+      [{:stop, {:shutdown, :revived_elsewhere}}]
+      iex> C.step(c, {:claimed, true}) |> elem(1)
+      [{:become, nil}, :register]
   """
   @spec step(map(), term()) :: {map(), [tuple() | atom()]}
+  # A revived copy takes its parked record before it acts on a decisive event.
+  def step(%{mig: mig, copy: copy, phase: :paused, claim: true} = c, event)
+      when elem(event, 0) in [:commit, :decision] and elem(event, 1) == mig and
+             elem(event, 2) == copy do
+    if decisive?(event),
+      do: {%{c | phase: :claiming, claiming: event}, [{:claim, mig, copy}]},
+      else: {c, []}
+  end
+
+  def step(%{phase: :claiming} = c, {:claimed, true}),
+    do: step(%{c | phase: :paused, claim: false, claiming: nil}, c.claiming)
+
+  def step(%{phase: :claiming} = c, {:claimed, false}),
+    do: {%{c | phase: :stopped, claiming: nil}, [{:stop, {:shutdown, :revived_elsewhere}}]}
+
   def step(%{mig: mig, copy: copy, phase: :paused} = c, {:commit, mig, copy, notify, handover}),
     do: start(c, notify, handover)
 
@@ -125,6 +158,11 @@ defmodule Tartarus.Migration.CopyProtocol do
     do: {%{c | phase: :stopped}, [{:stop, reason}]}
 
   def step(c, _event), do: {c, []}
+
+  defp decisive?({:commit, _, _, _, _}), do: true
+
+  defp decisive?({:decision, _, _, d}),
+    do: match?({:committed, _}, d) or d in [:committed, :aborted]
 
   # A move that learnt its commit by asking while its source's process may live waits for
   # that process's commit (it carries the messages the source held): taking newer messages

@@ -23,7 +23,7 @@ defmodule Tartarus.Migration.Executor do
   `{:decided, boolean}`, `{:fetch_code, mods}` -> `{:code, result}`; destination
   `{:check, p}` -> `{:checked, p, verdict, copy}`, `{:probe, p, copy, pid}` ->
   `{:probed, p, copy, pid, boolean}`, `{:create, p, copy}` -> `{:created, p, copy, pid}` or
-  `{:create_failed, p, reason}`; copy `:register` -> `{:registered, result}`. A source's
+  `{:create_failed, p, reason}`; copy `:register` -> `{:registered, result}`, `{:claim, mig, copy}` -> `{:claimed, taken?}`. A source's
   `{:done, outcome}` and a copy's `:started`, `{:await, pid}`, `{:stop, reason}` and `:park`
   end the loop.
 
@@ -110,6 +110,8 @@ defmodule Tartarus.Migration.Executor do
     @callback become(ctx, term()) :: ctx
     @doc "Resident here."
     @callback register(ctx) :: {:ok | {:error, term()}, ctx}
+    @doc "A revived copy takes its parked record: true if it was there."
+    @callback claim(ctx, Protocol.mig(), Protocol.copy_token()) :: {boolean(), ctx}
     @doc "The snapshot a crash restarts from."
     @callback put_snapshot(ctx) :: ctx
     @doc "The journal's record of the agent."
@@ -163,12 +165,10 @@ defmodule Tartarus.Migration.Executor do
     @callback dropped(ctx) :: ctx
     @doc "The parked record goes."
     @callback unpark(ctx, term(), term()) :: ctx
-    @doc "A paused copy again, from a parked record."
+    @doc "A paused copy again, from a parked record (which it takes itself as it starts)."
     @callback revive(ctx, term(), term(), map(), term(), atom()) :: {{:ok, term()} | :error, ctx}
     @doc "The agent's arriving process."
     @callback arriving(ctx, binary(), term()) :: ctx
-    @doc "The parked record again."
-    @callback repark(ctx, term(), term(), map(), term(), atom()) :: ctx
   end
 
   # -- the source --------------------------------------------------------------------------
@@ -311,6 +311,11 @@ defmodule Tartarus.Migration.Executor do
   defp copy([{:stop, reason} | _], _c, ctx, b, _), do: {:done, b.stop(ctx, reason)}
   defp copy([:park | _], c, ctx, b, _), do: {:done, b.park(ctx, c)}
 
+  defp copy([{:claim, mig, copy} | rest], c, ctx, b, events) do
+    {taken, ctx} = b.claim(ctx, mig, copy)
+    copy(rest, c, ctx, b, events ++ [{:claimed, taken}])
+  end
+
   defp copy([:register | rest], c, ctx, b, events) do
     {result, ctx} = b.register(ctx)
     copy(rest, c, ctx, b, events ++ [{:registered, result}])
@@ -387,7 +392,4 @@ defmodule Tartarus.Migration.Executor do
   defp host_effect(:dropped, ctx, b), do: b.dropped(ctx)
   defp host_effect({:unpark, mig, copy}, ctx, b), do: b.unpark(ctx, mig, copy)
   defp host_effect({:arriving, id, pid}, ctx, b), do: b.arriving(ctx, id, pid)
-
-  defp host_effect({:repark, mig, copy, env, src, kind}, ctx, b),
-    do: b.repark(ctx, mig, copy, env, src, kind)
 end

@@ -23,7 +23,13 @@ defmodule Tartarus.Migration.HostProtocol do
   `:read_parked` (answers `{:asking, records}`), `{:ask, src, query}`, `{:fetch_parked, mig,
   copy, d}` (answers `{:fetched, ...}`), `:dropped` (counted), `{:unpark, mig, copy}`,
   `{:revive, mig, copy, d, env, src, kind}` (a paused copy again: answers `{:revived, ...}`),
-  `{:arriving, id, pid}`, `{:repark, mig, copy, env, src, kind}`.
+  `{:arriving, id, pid}`.
+
+  A revived copy takes its parked record itself as it starts (`CopyProtocol.new/5`'s
+  `:claim`), so the host forgets nothing before the copy runs: a host server that dies
+  between reviving and the copy's start leaves the record to be asked about again (by the
+  server started in its place), and a second copy revived from it then finds it taken and
+  stops.
 
       iex> alias Tartarus.Migration.HostProtocol, as: H
       iex> H.step({:read, :m, :c, :a, %{handoff?: false, decision: nil, pointer: {:m, :c, nil}}})
@@ -75,16 +81,15 @@ defmodule Tartarus.Migration.HostProtocol do
     case CopyProtocol.parked(d) do
       :keep -> []
       :drop -> [{:unpark, mig, copy}, {:journal, {:resolved, mig, copy}}]
-      :revive -> [{:unpark, mig, copy}, {:revive, mig, copy, d, env, src, kind}]
+      :revive -> [{:revive, mig, copy, d, env, src, kind}]
     end
   end
 
   def step({:revived, mig, copy, d, {:ok, pid}, env, _src, _kind}),
     do: [{:arriving, env.id, pid}, {:send, pid, Messages.decision(mig, copy, d)}]
 
-  # Kept for the next answer.
-  def step({:revived, mig, copy, _d, :error, env, src, kind}),
-    do: [{:repark, mig, copy, env, src, kind}]
+  # Not revived (the host is stopping, or full): the record stays for the next answer.
+  def step({:revived, _mig, _copy, _d, :error, _env, _src, _kind}), do: []
 
   @doc """
   What a host does, as it starts again, with what its journal restored

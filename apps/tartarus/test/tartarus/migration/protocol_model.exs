@@ -818,7 +818,7 @@ defmodule Tartarus.Migration.ProtocolModel do
   @impl true
   def revive(%{w: w} = ctx, mig, copy, env, src, kind) do
     {pid, w} = fresh(w, :pid)
-    c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after)
+    c = CopyProtocol.new(mig, copy, src, kind, park_after: w.park_after, claim: true)
 
     ctx =
       host_effect(%{ctx | w: w}, fn w, h ->
@@ -830,11 +830,6 @@ defmodule Tartarus.Migration.ProtocolModel do
 
   @impl true
   def arriving(ctx, _id, _pid), do: ctx
-
-  @impl true
-  def repark(ctx, mig, copy, env, src, kind) do
-    host_effect(ctx, fn w, h -> put_in(w.hosts[h].parked[{mig, copy}], {env, src, kind}) end)
-  end
 
   # A committed answer must name the committed copy. (An aborted answer is checked when a
   # copy acts on it: a late answer to a copy that already runs changes nothing.)
@@ -885,6 +880,18 @@ defmodule Tartarus.Migration.ProtocolModel do
       data = %{proc.data | inbox: inbox}
       put_in(w.procs[ctx.copy], Map.merge(proc, %{stash: [], data: data, pending: pending}))
     end)
+  end
+
+  # A revived copy takes its host's parked record (as Tartarus.Ledger.unpark/3 does).
+  @impl true
+  def claim(%{copy: pid} = ctx, mig, copy) do
+    %{w: w} = ctx = copy_effect(ctx, fn w, _h, _proc -> w end)
+    %{host: h} = w.procs[pid]
+    parked = w.hosts[h].parked
+    taken = Map.has_key?(parked, {mig, copy})
+    w = put_in(w.hosts[h].parked, Map.delete(parked, {mig, copy}))
+    w = if taken, do: w, else: count(w, :claim_lost)
+    {taken, %{ctx | w: w}}
   end
 
   # The copy runs from here on (as Tartarus.Ledger.register_resident/3: the old pointer of

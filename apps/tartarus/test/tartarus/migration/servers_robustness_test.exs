@@ -266,6 +266,51 @@ defmodule Tartarus.Migration.ParkingTest do
     assert Tartarus.Host.call(b, :parked) == 0
   end
 
+  # Its server dies as it is about to revive the copy (a fault point stops it there): the
+  # record must outlive it. Failed before the revived copy took its record itself (the
+  # server forgot the record first, then started the copy: killed in between, the agent was
+  # gone while its host lived).
+  test "a parked copy is revived when its host's server dies while reviving it" do
+    [a, b] = [host!(), host!(migration_timeout: 200)]
+    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig, id, keep_handoff: true)
+    Ledger.decide(ha, mig, {:committed, copy})
+    Ledger.end_handoff(ha, id, mig)
+
+    Tartarus.Fault.install(:reviving, {:once, {:pause, self()}})
+    on_exit(fn -> Tartarus.Fault.clear(:reviving) end)
+    send(server, :"$tartarus_ask_parked")
+    assert_receive {:fault_paused, :reviving, ^server, {^mig, ^copy}}, 2_000
+    Process.exit(server, :kill)
+    restarted = fn -> match?({:ok, p} when p != server, Tartarus.Host.whereis(b)) end
+    assert eventually(restarted, 5_000)
+
+    assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 5_000)
+    assert eventually(fn -> Tartarus.Host.call(b, :parked) == 0 end, 2_000)
+    assert length(Enum.filter(Tartarus.agents(), &(&1.id == id))) == 1
+  end
+
+  # Two copies revived from one record (a server that died after starting the first, and
+  # the one started in its place, which asked again): the first to take the record runs, the
+  # other stops.
+  test "of two copies revived from one parked record one runs" do
+    [a, b] = [host!(), host!(migration_timeout: 200)]
+    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig, id, keep_handoff: true)
+    Ledger.decide(ha, mig, {:committed, copy})
+    Ledger.end_handoff(ha, id, mig)
+
+    # The server handles both answers before either copy takes the record.
+    :sys.suspend(server)
+    for _ <- 1..2, do: send(server, {:"$tartarus_decision", mig, copy, {:committed, nil}})
+    :sys.resume(server)
+
+    assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 5_000)
+    assert eventually(fn -> Tartarus.Host.call(b, :paused) == 0 end, 2_000)
+    assert Tartarus.Host.call(b, :parked) == 0
+    assert length(Enum.filter(Tartarus.agents(), &(&1.id == id))) == 1
+  end
+
   test "a parked copy is dropped on an aborted answer" do
     [a, b] = [host!(), host!(migration_timeout: 200)]
     {ha, server, mig, _copy, pid, id} = paused_copy(a, b)
