@@ -206,8 +206,8 @@ defmodule Tartarus.OverlayPeerTest do
 
     # (Loaded first: a pattern matches only the functions of loaded modules.)
     for n <- nodes do
-      {:module, _} = :erpc.call(n, :code, :ensure_loaded, [Tartarus.Locator])
-      pattern = {Tartarus.Locator, :_, :_}
+      {:module, _} = :erpc.call(n, :code, :ensure_loaded, [Tartarus.Locator.Walk])
+      pattern = {Tartarus.Locator.Walk, :_, :_}
       assert :erpc.call(n, :erlang, :trace_pattern, [pattern, true, [:call_count]]) > 0
     end
 
@@ -224,7 +224,7 @@ defmodule Tartarus.OverlayPeerTest do
             {name, arity} = fun
 
             case :erpc.call(n, :erlang, :trace_info, [
-                   {Tartarus.Locator, name, arity},
+                   {Tartarus.Locator.Walk, name, arity},
                    :call_count
                  ]) do
               {:call_count, c} when is_integer(c) -> acc + c

@@ -132,7 +132,7 @@ defmodule Tartarus do
       :ok
   """
   @spec fleet(timeout()) :: [map()]
-  def fleet(timeout \\ 5_000), do: Locator.fleet(timeout)
+  def fleet(timeout \\ 5_000), do: Tartarus.Locator.Walk.fleet(timeout)
 
   @doc """
   Links hosts `a` and `b` (symmetric). Link properties:
