@@ -44,6 +44,11 @@ defmodule TartarusTools.BenchTest do
     assert %{"300" => j} = r.persist.journal_bytes_at
     assert j > 0
     assert r.persist.memory_bytes_at["300"] >= j
+    # Measured once the agents' ends were handled: no agent process left on either host.
+    assert %{"300" => settle} = r.settle_ms_at
+    assert is_integer(settle) and is_integer(r.persist.settle_ms_at["300"])
+    refute Map.has_key?(r.tables_at["300"].entries, ":proc")
+    refute Map.has_key?(r.persist.tables_at["300"].entries, ":proc")
     # Every agent ended: none is resident any more.
     assert Tartarus.hosts() == []
   end

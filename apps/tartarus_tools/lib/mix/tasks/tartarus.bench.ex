@@ -38,7 +38,8 @@ defmodule Mix.Tasks.Tartarus.Bench do
   `churn` makes N migrations (default 1,000,000) between two hosts of this VM with default
   options (batches of K fresh agents, default 1000, each making H hops, default 10, then
   ending) and reports the memory of the hosts' tables after 10,000, 100,000 and 1,000,000
-  migrations (and N): key `memory_bytes_at`, an object keyed by count; then again with
+  migrations (and N), each once the batches' agents have ended and their ends were handled
+  (`settle_ms_at`: how long that took): key `memory_bytes_at`, an object keyed by count; then again with
   persistence (`data_dir:`), adding the journal's size (`persist.journal_bytes_at`);
   `--no-persist` skips that pass. `moves_failed` (and `persist.moves_failed`) counts moves
   that failed and were tried again (an agent gives up after 10 in a row, and the run stops

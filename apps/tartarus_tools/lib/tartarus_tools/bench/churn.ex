@@ -15,7 +15,13 @@ defmodule TartarusTools.Bench.Churn do
 
   reported as `memory_bytes_at` (bytes, keyed by migration count), with the breakdown in
   `tables_at` (per count: bytes per part and entries of the hosts' tables by kind of key,
-  the first element of a tuple key). Then (unless `persist: false`) the same with hosts
+  the first element of a tuple key). Each measure is taken once the batches have settled:
+  every agent of theirs ended and its end handled by its host's server (no agent process
+  recorded in either ledger, both servers' queues empty), so what it finds is what the
+  hosts keep, not the ends still under way; how long that took is `settle_ms_at` (with a
+  journal the ends queue behind the journal's writer, so this is how far the hosts lag
+  behind the agents), and a measure taken without settling within #{div(120_000, 1000)} s
+  says so (`settle_ms_at` is then `"timeout"`). Then (unless `persist: false`) the same with hosts
   that journal to a data directory (`data_dir:`), whose journal files' size is added as
   `persist.journal_bytes_at` and included in `persist.memory_bytes_at`.
 
@@ -49,6 +55,7 @@ defmodule TartarusTools.Bench.Churn do
       checkpoints: checkpoints,
       memory_bytes_at: plain.memory,
       tables_at: plain.tables,
+      settle_ms_at: plain.settle,
       wall_ms: plain.wall_ms,
       migrations_per_s: plain.rate,
       # Moves that failed and were tried again (the benchmark's agent retries).
@@ -63,6 +70,7 @@ defmodule TartarusTools.Bench.Churn do
         memory_bytes_at: durable.memory,
         journal_bytes_at: durable.journal,
         tables_at: durable.tables,
+        settle_ms_at: durable.settle,
         wall_ms: durable.wall_ms,
         migrations_per_s: durable.rate,
         moves_failed: Tartarus.Events.totals().move_failed - failed_before
@@ -89,7 +97,8 @@ defmodule TartarusTools.Bench.Churn do
         Enum.map_reduce(checkpoints, 0, fn target, done ->
           churn(module, a, b, target - done, agents, hops, blob)
           progress.(target)
-          {{target, measure([a, b], if(persist, do: dir))}, target}
+          settle_ms = settle([a, b])
+          {{target, Map.put(measure([a, b], if(persist, do: dir)), :settle_ms, settle_ms)}, target}
         end)
 
       wall_us = max(Tartarus.Clock.machine_time(:microsecond) - t0, 1)
@@ -97,7 +106,11 @@ defmodule TartarusTools.Bench.Churn do
       %{
         memory: Map.new(rows, fn {n, m} -> {Integer.to_string(n), m.total + m.journal} end),
         journal: Map.new(rows, fn {n, m} -> {Integer.to_string(n), m.journal} end),
-        tables: Map.new(rows, fn {n, m} -> {Integer.to_string(n), Map.delete(m, :total)} end),
+        tables:
+          Map.new(rows, fn {n, m} ->
+            {Integer.to_string(n), Map.drop(m, [:total, :settle_ms])}
+          end),
+        settle: Map.new(rows, fn {n, m} -> {Integer.to_string(n), m.settle_ms} end),
         wall_ms: div(wall_us, 1000),
         rate: round(List.last(checkpoints) * 1_000_000 / wall_us)
       }
@@ -117,6 +130,31 @@ defmodule TartarusTools.Bench.Churn do
     plan = List.duplicate(hops, div(batch, hops)) ++ if(rem(batch, hops) > 0, do: [rem(batch, hops)], else: [])
     TartarusTools.Bench.run_batch(module, a, b, plan, blob)
     churn(module, a, b, n - batch, agents, hops, blob)
+  end
+
+  @settle_max_ms 120_000
+
+  # Waits (machine time: the apparatus, not the design) until no agent process is recorded
+  # on either host and both servers' queues are empty: the ms it took, or "timeout".
+  defp settle(hosts) do
+    t0 = Tartarus.Clock.machine_time(:millisecond)
+    settle(hosts, t0, t0)
+  end
+
+  defp settle(hosts, t0, now) do
+    cond do
+      Enum.all?(hosts, &settled?/1) -> now - t0
+      now - t0 >= @settle_max_ms -> "timeout"
+      true -> Tartarus.Clock.machine_sleep(50) && settle(hosts, t0, Tartarus.Clock.machine_time(:millisecond))
+    end
+  end
+
+  defp settled?(host) do
+    {:ok, info} = Tartarus.Host.local(host)
+    {:ok, pid} = Tartarus.Host.whereis(host)
+
+    Tartarus.Ledger.procs(info) == [] and
+      Process.info(pid, :message_queue_len) == {:message_queue_len, 0}
   end
 
   @doc false
