@@ -33,20 +33,16 @@ defmodule Tartarus.HostPolicyTest do
     [one, two] = for _ <- 1..2, do: agent!(a)
     three = agent!(b)
 
-    {:ok, server} = Tartarus.Host.whereis(a)
-    :ok = :sys.suspend(server)
-
-    try do
-      # Both leave while a's server takes nothing (their :DOWNs wait in its mailbox).
-      assert :ok = Tartarus.move({one, a}, b)
-      assert :ok = Tartarus.move({two, a}, b)
-      # Three arrive: a holds none of its three places.
-      for id <- [one, two, three], do: assert(:ok = Tartarus.move({id, b}, a))
-      # And leave again before a's server adopted them.
-      for id <- [one, two], do: assert(:ok = Tartarus.move({id, a}, b))
-    after
-      :ok = :sys.resume(server)
-    end
+    server =
+      while_suspended(a, fn ->
+        # Both leave while a's server takes nothing (their :DOWNs wait in its mailbox).
+        assert :ok = Tartarus.move({one, a}, b)
+        assert :ok = Tartarus.move({two, a}, b)
+        # Three arrive: a holds none of its three places.
+        for id <- [one, two, three], do: assert(:ok = Tartarus.move({id, b}, a))
+        # And leave again before a's server adopted them.
+        for id <- [one, two], do: assert(:ok = Tartarus.move({id, a}, b))
+      end)
 
     # The server caught up (adoptions, :DOWNs): a holds one agent, two places are free.
     {:ok, _} = wait_for(fn -> length(Tartarus.agents(a)) == 1 end)
@@ -66,10 +62,7 @@ defmodule Tartarus.HostPolicyTest do
     [one, two] = for _ <- 1..2, do: agent!(a)
     three = agent!(b)
 
-    {:ok, server} = Tartarus.Host.whereis(a)
-    :ok = :sys.suspend(server)
-
-    try do
+    while_suspended(a, fn ->
       assert {:ok, :ok} = Tartarus.request({one, a}, {:do, {:stop, :done}})
       assert {:ok, :ok} = Tartarus.request({two, a}, {:do, {:return, :done}})
 
@@ -77,11 +70,23 @@ defmodule Tartarus.HostPolicyTest do
         wait_for(fn -> Enum.all?([one, two], &(Tartarus.whereis({&1, a}) != {:ok, a})) end)
 
       assert :ok = Tartarus.move({three, b}, a)
+    end)
+
+    assert {:ok, {^a, _}} = Tartarus.whereis({three, a})
+  end
+
+  # Runs `fun` while host's server takes nothing (its mailbox waits); returns the server.
+  defp while_suspended(host, fun) do
+    {:ok, server} = Tartarus.Host.whereis(host)
+    :ok = :sys.suspend(server)
+
+    try do
+      fun.()
     after
       :ok = :sys.resume(server)
     end
 
-    assert {:ok, {^a, _}} = Tartarus.whereis({three, a})
+    server
   end
 
   test "bad admission options are refused with the option named" do

@@ -209,6 +209,24 @@ defmodule Tartarus.Migration.ParkingTest do
     unless opts[:keep_handoff], do: Ledger.end_handoff(ha, id, mig)
   end
 
+  # A copy parked at a fresh host b, then committed at its source (in the protocol's order:
+  # the decision before the hand-off record goes), with no answer sent yet.
+  defp parked_and_committed do
+    [a, b] = [host!(), host!(migration_timeout: 200)]
+    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
+    park(ha, pid, mig, id, keep_handoff: true)
+    Ledger.decide(ha, mig, {:committed, copy})
+    Ledger.end_handoff(ha, id, mig)
+    {b, server, mig, copy, id}
+  end
+
+  # Kills host b's server and waits for the one started in its place.
+  defp kill_server(b, server) do
+    Process.exit(server, :kill)
+    restarted = fn -> match?({:ok, p} when p != server, Tartarus.Host.whereis(b)) end
+    assert eventually(restarted, 5_000)
+  end
+
   test "a parked copy is revived on a committed answer and runs once" do
     [a, b] = [host!(), host!(migration_timeout: 200)]
     {ha, server, mig, copy, pid, id} = paused_copy(a, b)
@@ -252,16 +270,10 @@ defmodule Tartarus.Migration.ParkingTest do
   # above 0, no later park arms the timer again) the copy is never revived while the host
   # lives. Failed before the fix.
   test "a parked copy is revived after its host's server is killed" do
-    [a, b] = [host!(), host!(migration_timeout: 200)]
-    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
-    park(ha, pid, mig, id, keep_handoff: true)
-    Ledger.decide(ha, mig, {:committed, copy})
-    Ledger.end_handoff(ha, id, mig)
+    {b, server, _mig, _copy, id} = parked_and_committed()
     assert Tartarus.Host.call(b, :parked) == 1
 
-    Process.exit(server, :kill)
-    restarted = fn -> match?({:ok, p} when p != server, Tartarus.Host.whereis(b)) end
-    assert eventually(restarted, 5_000)
+    kill_server(b, server)
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 5_000)
     assert Tartarus.Host.call(b, :parked) == 0
   end
@@ -271,19 +283,13 @@ defmodule Tartarus.Migration.ParkingTest do
   # server forgot the record first, then started the copy: killed in between, the agent was
   # gone while its host lived).
   test "a parked copy is revived when its host's server dies while reviving it" do
-    [a, b] = [host!(), host!(migration_timeout: 200)]
-    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
-    park(ha, pid, mig, id, keep_handoff: true)
-    Ledger.decide(ha, mig, {:committed, copy})
-    Ledger.end_handoff(ha, id, mig)
+    {b, server, mig, copy, id} = parked_and_committed()
 
     Tartarus.Fault.install(:reviving, {:once, {:pause, self()}})
     on_exit(fn -> Tartarus.Fault.clear(:reviving) end)
     send(server, :"$tartarus_ask_parked")
     assert_receive {:fault_paused, :reviving, ^server, {^mig, ^copy}}, 2_000
-    Process.exit(server, :kill)
-    restarted = fn -> match?({:ok, p} when p != server, Tartarus.Host.whereis(b)) end
-    assert eventually(restarted, 5_000)
+    kill_server(b, server)
 
     assert eventually(fn -> Enum.any?(Tartarus.agents(b), &(&1.id == id)) end, 5_000)
     assert eventually(fn -> Tartarus.Host.call(b, :parked) == 0 end, 2_000)
@@ -294,11 +300,7 @@ defmodule Tartarus.Migration.ParkingTest do
   # the one started in its place, which asked again): the first to take the record runs, the
   # other stops.
   test "of two copies revived from one parked record one runs" do
-    [a, b] = [host!(), host!(migration_timeout: 200)]
-    {ha, server, mig, copy, pid, id} = paused_copy(a, b)
-    park(ha, pid, mig, id, keep_handoff: true)
-    Ledger.decide(ha, mig, {:committed, copy})
-    Ledger.end_handoff(ha, id, mig)
+    {b, server, mig, copy, id} = parked_and_committed()
 
     # The server handles both answers before either copy takes the record.
     :sys.suspend(server)

@@ -143,9 +143,15 @@ defmodule TartarusTools.Bench.Churn do
 
   defp settle(hosts, t0, now) do
     cond do
-      Enum.all?(hosts, &settled?/1) -> now - t0
-      now - t0 >= @settle_max_ms -> "timeout"
-      true -> Tartarus.Clock.machine_sleep(50) && settle(hosts, t0, Tartarus.Clock.machine_time(:millisecond))
+      Enum.all?(hosts, &settled?/1) ->
+        now - t0
+
+      now - t0 >= @settle_max_ms ->
+        "timeout"
+
+      true ->
+        Tartarus.Clock.machine_sleep(50)
+        settle(hosts, t0, Tartarus.Clock.machine_time(:millisecond))
     end
   end
 
