@@ -150,7 +150,11 @@ defmodule TartarusEmu.Scenario do
     steps: [type: :pos_integer, default: 100, doc: "steps to run at most"],
     out: [type: :any, doc: "output directory, or `false` for none"],
     quiet: [type: :boolean, default: false, doc: "no progress line"],
-    progress_device: [type: :any, default: :standard_error, doc: "where progress goes"],
+    progress_device: [
+      type: :any,
+      default: :standard_error,
+      doc: "where progress goes (`false`: no progress line, even with `--progress`)"
+    ],
     dashboard: [
       type: :any,
       doc:
@@ -236,7 +240,12 @@ defmodule TartarusEmu.Scenario do
       panels = if function_exported?(module, :panels, 1), do: module.panels(state), else: []
 
       with {:error, _} = error <-
-             TartarusEmu.Dashboard.serve(net, spec, panels, runner[:progress_device]) do
+             TartarusEmu.Dashboard.serve(
+               net,
+               spec,
+               panels,
+               runner[:progress_device] || :standard_error
+             ) do
         teardown(module, state)
         error
       end

@@ -113,7 +113,9 @@ defmodule TartarusEmu.Sweep do
        whatever order the runs finish in;
     2. prints a line per finished run on standard error (`walk [3/20] long seed 2 (1.4 s)
        elapsed 0:04  ETA 0:23`: what, k of n, elapsed, ETA), unless `quiet: true` or the
-       device is standard error or output and not a terminal;
+       device is standard error or output and not a terminal; a run that asked for
+       progress (`TartarusTools.Progress.force/1`, a mix task's `--progress`) gets them
+       in every case;
     3. describes every metric per arm and runs the tests;
     4. writes into `:out` (default `TartarusTools.Report.default_out_dir(name)`; `false`
        for nothing): `runs.csv`, `<metric>.svg` box plots, the spec's `:write` files,
@@ -303,7 +305,9 @@ defmodule TartarusEmu.Sweep do
   defp runner(%{run: run}) when is_function(run, 2), do: run
 
   defp runner(%{scenario: module} = spec) do
-    base = Keyword.merge([quiet: true], Map.get(spec, :base, []))
+    # A run's own progress line stays off (the sweep draws a line per run), even when the
+    # run asked for progress (`TartarusTools.Progress.force/1`).
+    base = Keyword.merge([quiet: true, progress_device: false], Map.get(spec, :base, []))
 
     fn arm, seed ->
       {:ok, r} = TartarusEmu.Scenario.run(module, base ++ arm.opts ++ [seed: seed, out: false])
@@ -324,10 +328,13 @@ defmodule TartarusEmu.Sweep do
     concurrency = if o.time == :virtual, do: 1, else: Map.get(o, :concurrency) || spec.concurrency
 
     t0 = Clock.machine_time(:millisecond)
-    # The standard devices get the lines only when they are a terminal.
+    # The standard devices get the lines only when they are a terminal, unless the run
+    # asked for progress (a mix task's --progress: TartarusTools.Progress.force/1).
     quiet? =
-      o.quiet or
-        (o.progress_device in [:standard_error, :standard_io] and not tty?(o.progress_device))
+      not TartarusTools.Progress.forced?() and
+        (o.quiet or
+           (o.progress_device in [:standard_error, :standard_io] and
+              not tty?(o.progress_device)))
 
     plan
     |> Task.async_stream(

@@ -37,7 +37,10 @@ defmodule TartarusTools.CLI do
       with a verdict line (`mix tartarus.chaos`);
     * repetitions over seeds are `--seeds N` (seeds `--seed`, `--seed` + 1, ...);
     * long runs draw "what, k of n, elapsed, ETA" on standard error when it is a terminal
-      and `--json` is not given (`TartarusTools.Progress`, `TartarusEmu.Sweep`).
+      and `--json` is not given (`TartarusTools.Progress`, `TartarusEmu.Sweep`);
+      `--progress`, which every task takes, draws them in every case, also with `--json`
+      and into a log file (there a plain line at most every 10 s, and a sweep's line per
+      run): for runs of hours started with `nohup ... 2> log`.
   """
 
   @doc false
@@ -65,9 +68,27 @@ defmodule TartarusTools.CLI do
           TartarusTools.CLI.help(__MODULE__)
         else
           TartarusTools.CLI.out!(argv, @tartarus_cli_out, task)
-          super(argv)
+          super(TartarusTools.CLI.progress!(argv))
         end
       end
+    end
+  end
+
+  @doc """
+  Takes the flag every task has, `--progress`, out of `argv`: when it is there, asks for
+  progress lines in this VM (`TartarusTools.Progress.force/1`) and returns `argv` without
+  it; the task's own parser never sees it.
+
+      iex> TartarusTools.CLI.progress!(["--seed", "3"])
+      ["--seed", "3"]
+  """
+  @spec progress!([String.t()]) :: [String.t()]
+  def progress!(argv) do
+    if "--progress" in argv do
+      :ok = TartarusTools.Progress.force(true)
+      Enum.reject(argv, &(&1 == "--progress"))
+    else
+      argv
     end
   end
 
@@ -183,6 +204,10 @@ defmodule TartarusTools.CLI do
       if doc =~ "--dashboard",
         do: doc <> "\n`--dashboard-keep` keeps the page after the run: its last state and charts stay readable until you stop the task (Ctrl-C).\n",
         else: doc
+
+    doc =
+      doc <>
+        "\n`--progress` (every task) draws progress lines on standard error also with `--json` or into a file (there a line at most every 10 s).\n"
 
     Mix.shell().info("mix #{name}#{if short, do: " - " <> short, else: ""}\n\n" <> doc)
   end

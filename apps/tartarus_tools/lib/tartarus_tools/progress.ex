@@ -11,10 +11,19 @@ defmodule TartarusTools.Progress do
       TartarusTools.Progress.finish(progress)
 
   It prints nothing when `quiet: true` or when standard error is not a terminal (CI logs,
-  redirected output), unless `enabled: true` forces it. Redraws are throttled to one per
-  `:interval_ms` (default 200). `finish/1` draws the final line and a newline.
+  redirected output), unless `enabled: true` forces it, or the run was asked for progress
+  (`force/1`: a mix task's `--progress`, `TartarusTools.CLI`). Redraws are throttled to one
+  per `:interval_ms` (default 200). On a device that is not a terminal (a log file, a pipe)
+  a forced line is written as a plain line of its own, at most one every 10 s, so the log
+  of a long run holds a readable line every 10 s rather than thousands of redraws. `finish/1` draws the final line and a newline.
   `render/2` is the pure formatting function, for tests.
+
+  Nothing is printed while the VM runs in virtual time (`Tartarus.Clock.virtual?/0`): a
+  process waiting for its output to be written looks idle to the virtual clock, which would
+  move the time past it.
   """
+
+  @plain_interval_ms 10_000
 
   defstruct total: 0,
             done: 0,
@@ -23,7 +32,8 @@ defmodule TartarusTools.Progress do
             device: :standard_error,
             started_ms: 0,
             last_ms: nil,
-            interval_ms: 200
+            interval_ms: 200,
+            plain: false
 
   @type t :: %__MODULE__{
           total: non_neg_integer,
@@ -33,22 +43,30 @@ defmodule TartarusTools.Progress do
           device: IO.device(),
           started_ms: integer,
           last_ms: integer | nil,
-          interval_ms: non_neg_integer
+          interval_ms: non_neg_integer,
+          plain: boolean
         }
 
   @doc """
   A progress line for `total` units of work. Options: `:label`, `:quiet`, `:enabled`
-  (overrides the terminal check), `:device` (default `:standard_error`), `:interval_ms`.
+  (overrides the terminal check and `force/1`), `:device` (default `:standard_error`;
+  `false`: no line whatever `force/1` asked, for a run inside a sweep, which has its own
+  line per run), `:interval_ms`.
   """
   @spec new(non_neg_integer, keyword) :: t
   def new(total, opts \\ []) when is_integer(total) and total >= 0 do
     device = Keyword.get(opts, :device, :standard_error)
+    tty? = device != false and tty?(device)
 
     enabled =
       case Keyword.fetch(opts, :enabled) do
         {:ok, flag} -> flag == true
-        :error -> Keyword.get(opts, :quiet) != true and tty?(device)
+        :error when device == false -> false
+        :error -> forced?() or (Keyword.get(opts, :quiet) != true and tty?)
       end
+
+    interval_ms = Keyword.get(opts, :interval_ms, 200)
+    plain = enabled and not tty? and Keyword.get(opts, :enabled) != true
 
     %__MODULE__{
       total: total,
@@ -56,9 +74,28 @@ defmodule TartarusTools.Progress do
       enabled: enabled,
       device: device,
       started_ms: now_ms(),
-      interval_ms: Keyword.get(opts, :interval_ms, 200)
+      interval_ms: if(plain, do: max(interval_ms, @plain_interval_ms), else: interval_ms),
+      plain: plain
     }
   end
+
+  @doc """
+  Asks for progress lines in this VM (`true`) or leaves it to `new/2`'s rules again
+  (`false`): with `true`, every `new/2` without `:enabled` is enabled even when it is
+  `quiet:` or its device is not a terminal, and so are `TartarusEmu.Sweep`'s lines per
+  run. A mix task's `--progress` calls it (`TartarusTools.CLI`). Returns `:ok`.
+  """
+  @spec force(boolean) :: :ok
+  def force(true), do: :persistent_term.put({__MODULE__, :forced}, true)
+
+  def force(false) do
+    _ = :persistent_term.erase({__MODULE__, :forced})
+    :ok
+  end
+
+  @doc "Whether progress lines were asked for in this VM (`force/1`)."
+  @spec forced?() :: boolean
+  def forced?, do: :persistent_term.get({__MODULE__, :forced}, false)
 
   @doc "Records `n` more units done (default 1), redrawing the line if due."
   @spec advance(t, non_neg_integer) :: t
@@ -69,7 +106,7 @@ defmodule TartarusTools.Progress do
       now = now_ms()
 
       if p.last_ms == nil or now - p.last_ms >= p.interval_ms or p.done >= p.total do
-        IO.write(p.device, ["\r", render(p, now), "\e[K"])
+        write(p, now, false)
         %{p | last_ms: now}
       else
         p
@@ -86,14 +123,21 @@ defmodule TartarusTools.Progress do
   @spec draw(t) :: :ok
   def draw(%__MODULE__{enabled: false}), do: :ok
 
-  def draw(%__MODULE__{} = p), do: IO.write(p.device, ["\r", render(p, now_ms()), "\e[K"])
+  def draw(%__MODULE__{} = p), do: write(p, now_ms(), false)
 
   @doc "Draws the final line followed by a newline (if enabled). Returns `:ok`."
   @spec finish(t) :: :ok
   def finish(%__MODULE__{enabled: false}), do: :ok
 
-  def finish(%__MODULE__{} = p) do
-    IO.write(p.device, ["\r", render(p, now_ms()), "\e[K\n"])
+  def finish(%__MODULE__{} = p), do: write(p, now_ms(), true)
+
+  # A terminal's line is redrawn in place; a plain device gets a line of its own each time.
+  defp write(p, now, last?) do
+    cond do
+      Tartarus.Clock.virtual?() -> :ok
+      p.plain -> IO.write(p.device, [render(p, now), "\n"])
+      true -> IO.write(p.device, ["\r", render(p, now), "\e[K", if(last?, do: "\n", else: [])])
+    end
   end
 
   @doc """

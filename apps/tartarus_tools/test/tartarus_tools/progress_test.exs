@@ -39,3 +39,64 @@ defmodule TartarusEmu.ProgressTest do
     assert Progress.render(%Progress{total: 0, done: 0, started_ms: 0}, 5) =~ "100.0%  0/0"
   end
 end
+
+defmodule TartarusTools.ProgressForcedTest do
+  # `force/1` is the VM's: these run alone (the async tests above expect silence).
+  use ExUnit.Case, async: false
+
+  import ExUnit.CaptureIO
+
+  alias TartarusTools.Progress
+
+  setup do
+    on_exit(fn -> Progress.force(false) end)
+  end
+
+  test "--progress reaches every task: it is taken out of the arguments and forces the lines" do
+    refute Progress.forced?()
+
+    # The task's own parser never sees the flag: the error names the other one.
+    error =
+      assert_raise Mix.Error, fn ->
+        Mix.Tasks.Tartarus.Warehouse.run(["--progress", "--bogus"])
+      end
+
+    assert error.message =~ "--bogus"
+    refute error.message =~ "--progress"
+    assert Progress.forced?()
+  end
+
+  test "forced, a quiet run on a device that is not a terminal prints plain lines, throttled" do
+    Progress.force(true)
+
+    output =
+      capture_io(:stderr, fn ->
+        p = Progress.new(3, label: "long", quiet: true)
+        # The first advance prints, the next two fall within 10 s of it; finish prints.
+        p |> Progress.advance() |> Progress.advance() |> Progress.advance(0) |> Progress.finish()
+      end)
+
+    lines = String.split(output, "\n", trim: true)
+    assert [first, last] = lines
+    assert first =~ ~r/^long  33\.3%  1\/3 /
+    assert last =~ ~r/^long  66\.7%  2\/3 /
+    refute output =~ "\r"
+    refute output =~ "\e["
+  end
+
+  test "nothing is printed while the VM runs in virtual time" do
+    Progress.force(true)
+
+    output =
+      capture_io(:stderr, fn ->
+        Tartarus.Clock.Virtual.run([seed: 1], fn ->
+          Progress.new(2, label: "vt") |> Progress.advance(2) |> Progress.finish()
+        end)
+
+        Progress.new(1, label: "after") |> Progress.finish()
+      end)
+
+    refute output =~ "vt"
+    assert output =~ "after"
+  end
+end
