@@ -34,12 +34,27 @@ defmodule TartarusTools.Peer do
     else
       :ok = start_epmd()
       name = :"#{prefix}_#{System.unique_integer([:positive])}_#{:os.getpid()}"
+      start_node(name, 50)
+    end
+  end
 
-      case Node.start(name, :shortnames) do
-        {:ok, _} -> :ok
-        {:error, {:already_started, _}} -> :ok
-        {:error, reason} -> {:error, {:distribution_failed, reason}}
-      end
+  # `epmd -daemon` returns before the daemon it forks listens: a node started at once can
+  # find no epmd (seen when this was the machine's first distributed VM). Tried again every
+  # 100 ms, for up to 5 s.
+  defp start_node(name, tries) do
+    case Node.start(name, :shortnames) do
+      {:ok, _} ->
+        :ok
+
+      {:error, {:already_started, _}} ->
+        :ok
+
+      {:error, _} when tries > 1 ->
+        Tartarus.Clock.machine_sleep(100)
+        start_node(name, tries - 1)
+
+      {:error, reason} ->
+        {:error, {:distribution_failed, reason}}
     end
   end
 
