@@ -290,7 +290,8 @@ defmodule TartarusWarehouse.DistributorAgent do
       round: s.round,
       validate: s.validate,
       guide: Map.get(s, :guide),
-      continue: s.continue
+      continue: s.continue,
+      racks: Map.get(s, :racks, [])
     }
 
     {:ok, _} =

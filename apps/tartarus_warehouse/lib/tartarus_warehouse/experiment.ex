@@ -134,6 +134,12 @@ defmodule TartarusWarehouse.Experiment do
       default: 20,
       doc: "`scaling`: shared-resource (Φ) nodes among them (the rest but `jd` are Σ nodes)"
     ],
+    phi_agents: [
+      type: :boolean,
+      default: false,
+      doc:
+        "`scaling`: each Φ node runs a rack, the static agent that receives the task code from the task agents before their robot runs it (§4.7.1, `TartarusWarehouse.Rack`; the agents' designs only)"
+    ],
     seeds: [
       type: :pos_integer,
       default: 3,
@@ -242,6 +248,10 @@ defmodule TartarusWarehouse.Experiment do
         opts[:nodes] < need ->
           {:error,
            "invalid options given to TartarusWarehouse.Experiment.run/1 for key :nodes: expected at least scaling_robots + phi_nodes + 1 (#{need}), got: #{opts[:nodes]}"}
+
+        opts[:phi_agents] and opts[:phi_nodes] == 0 ->
+          {:error,
+           "invalid options given to TartarusWarehouse.Experiment.run/1 for key :phi_agents: the racks run on the Φ nodes, and phi_nodes is 0"}
 
         opts[:scale] == nil ->
           {:ok, Keyword.put(opts, :scale, if(opts[:experiment] == :scaling, do: 0.1, else: 0.01))}

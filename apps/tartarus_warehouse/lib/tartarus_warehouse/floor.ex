@@ -57,7 +57,8 @@ defmodule TartarusWarehouse.Floor do
   Returns `{:ok, result}`: what `stop/1` returns (`history`, every execution: see
   `TartarusWarehouse.Robot`; `jobs`, ids in submission order; `completed`, id =>
   completion time, µs; `t0_us`, the submission of the first job; `makespan_ms`; `robots`;
-  `migrations`, `bytes`, `messages` from `TartarusEmu.Log`; `timed_out`, the jobs not
+  `migrations`, `bytes`, `messages` from `TartarusEmu.Log`; `rack_codes`, the code each
+  rack received with `phi_agents` (`TartarusWarehouse.Rack`); `timed_out`, the jobs not
   done; `refused_events`, the events that were refused and changed nothing, with the
   reason; `applied_events`, each with the time it took effect, µs; `killed_at_us`;
   `failed`, nil or why the distributor failed: its jobs are then lost and `run/1` stops

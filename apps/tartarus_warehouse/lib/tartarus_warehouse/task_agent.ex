@@ -65,15 +65,14 @@ defmodule TartarusWarehouse.TaskAgent do
     case Agent.write(:robot, {:claim, a.look_for, a.needs, Agent.id()}) do
       :ok ->
         if valid?(s) do
-          :ok = Agent.subscribe(:robot)
-          run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
-          :ok = Agent.write(:robot, {:run, Agent.id(), run})
-          guide(s)
+          case hand_code(s) do
+            :ok ->
+              run(s)
 
-          if a.index == 0 and not Map.get(a, :continued, false) and
-               ask(s, {:started, s.ref}) == :unreachable,
-             do: {:stop, {:shutdown, :distributor_unreachable}, s},
-             else: {:stay, %{s | misses: 0}}
+            {:error, reason} ->
+              :ok = Agent.write(:robot, {:unclaim, Agent.id()})
+              {:stop, {:shutdown, {:rack, reason}}, s}
+          end
         else
           # A stale copy (created again after the distributor's restart): it runs nothing.
           :ok = Agent.write(:robot, {:unclaim, Agent.id()})
@@ -84,6 +83,41 @@ defmodule TartarusWarehouse.TaskAgent do
         roam(%{s | misses: s.misses + 1})
     end
   end
+
+  # The claimed robot runs the block.
+  defp run(%{a: a} = s) do
+    :ok = Agent.subscribe(:robot)
+    run = %{job: a.job, seq: a.seq, tasks: a.tasks, next: a.next}
+    :ok = Agent.write(:robot, {:run, Agent.id(), run})
+    guide(s)
+
+    if a.index == 0 and not Map.get(a, :continued, false) and
+         ask(s, {:started, s.ref}) == :unreachable,
+       do: {:stop, {:shutdown, :distributor_unreachable}, s},
+       else: {:stay, %{s | misses: 0}}
+  end
+
+  # With racks (`phi_agents`, §4.7.1): the code of each task goes to the rack of each of
+  # its resources (`TartarusWarehouse.Rack.rack_for/2`), one request a rack, answered
+  # before the robot runs anything. `:ok`, or `{:error, reason}` when a rack did not
+  # answer (`:unreachable`) or refused the code.
+  defp hand_code(%{racks: [_ | _] = racks} = s) do
+    s.a.tasks
+    |> Enum.flat_map(fn t ->
+      for r <- t.resources, do: {TartarusWarehouse.Rack.rack_for(r, racks), {t.name, t.program}}
+    end)
+    |> Enum.group_by(&elem(&1, 0), &elem(&1, 1))
+    |> Enum.sort()
+    |> Enum.reduce_while(:ok, fn {rack, tasks}, :ok ->
+      case request(rack, {:code, Agent.id(), Enum.uniq(tasks)}) do
+        :ok -> {:cont, :ok}
+        :unreachable -> {:halt, {:error, :unreachable}}
+        {:error, reason} -> {:halt, {:error, reason}}
+      end
+    end)
+  end
+
+  defp hand_code(_s), do: :ok
 
   @doc false
   @impl true
@@ -238,10 +272,14 @@ defmodule TartarusWarehouse.TaskAgent do
   # A request to the distributor, asked again while it is unreachable (its host may be
   # restarting; its answers are the same when asked twice), for at most 8 s; then
   # `:unreachable` (the distributor is gone: the agent stops, its token with it).
-  defp ask(s, message, deadline \\ nil) do
+  defp ask(s, message), do: request(s.distributor, message)
+
+  # A request to a static agent (the distributor, a rack), asked again while it is
+  # unreachable, for at most 8 s; then `:unreachable`.
+  defp request(to, message, deadline \\ nil) do
     deadline = deadline || Clock.monotonic_time(:millisecond) + 8_000
 
-    case Tartarus.request(s.distributor, message, 2_000) do
+    case Tartarus.request(to, message, 2_000) do
       {:ok, answer} ->
         answer
 
@@ -251,7 +289,7 @@ defmodule TartarusWarehouse.TaskAgent do
           :unreachable
         else
           Clock.sleep(10)
-          ask(s, message, deadline)
+          request(to, message, deadline)
         end
     end
   end

@@ -86,6 +86,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
          [
            robots: p.scaling_robots,
            phi: p.phi_nodes,
+           phi_agents: p.phi_agents,
            secondary: p.nodes - p.scaling_robots - p.phi_nodes - 1,
            jobs: jobs,
            scale: p.scale,
@@ -429,6 +430,7 @@ defmodule TartarusWarehouse.Experiment.Scaling do
       nodes: p.nodes,
       robots: p.scaling_robots,
       phi_nodes: p.phi_nodes,
+      phi_agents: p.phi_agents,
       jobs_per_run: jobs_text(p.scaling_jobs),
       hops_per_task: hops_per_task(runs, p),
       thesis: Map.new(kinds -- [:central], &{"#{name(&1)}", criteria(central, curves[&1])}),

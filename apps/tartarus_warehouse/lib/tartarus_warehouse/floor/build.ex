@@ -65,6 +65,21 @@ defmodule TartarusWarehouse.Floor.Build do
     )
   end
 
+  # With `phi_agents`, a rack (the static agent of §4.7.1) on each Φ node, f1 first, for
+  # the agents' design (the central server's racks hold their programs a priori): the
+  # addresses the task agents hand their code to; else none.
+  defp racks(net, opts) do
+    if opts[:phi_agents] and opts[:design] == :agents do
+      for i <- 1..opts[:phi] do
+        host = Network.host(net, "f#{i}")
+        {:ok, id} = Tartarus.create_static_agent(host, TartarusWarehouse.Rack, %{rack: "f#{i}"})
+        {id, host}
+      end
+    else
+      []
+    end
+  end
+
   # Robots: a full mesh up to 16, else a ring with chords 4 and 16 places on (modulo the
   # robots: a circulant graph, the same seen from every robot).
   defp robot_edges(robots) do
@@ -149,6 +164,7 @@ defmodule TartarusWarehouse.Floor.Build do
     {:ok, log} = TartarusEmu.Log.start(net)
     robot_hosts = for i <- 1..robots, into: %{}, do: {"r#{i}", Network.host(net, "r#{i}")}
     jd = Network.host(net, "jd")
+    racks = racks(net, opts)
 
     {:ok, dist} =
       case design do
@@ -168,7 +184,8 @@ defmodule TartarusWarehouse.Floor.Build do
               guide: if(opts[:guide], do: robot_span(robots)),
               service_ms: opts[:service_ms],
               continue: opts[:continue],
-              max_pending_tasks: opts[:max_pending_tasks]
+              max_pending_tasks: opts[:max_pending_tasks],
+              racks: racks
             },
             # told `{:tartarus_removed, id, reason}` if it is removed
             owner: owner
@@ -214,7 +231,8 @@ defmodule TartarusWarehouse.Floor.Build do
       guide: opts[:guide],
       failover: opts[:failover],
       data_dir: data_dir,
-      world: world
+      world: world,
+      racks: racks
     }
   end
 
@@ -247,7 +265,9 @@ defmodule TartarusWarehouse.Floor.Build do
   the jobs submitted (`ids`) and their completions (`completed`: id => µs), `timed_out`
   (not completed), `t0_us`, `makespan_ms` (from `t0` to the last completion), `robots`
   (names, in order), the network's totals from its event log (`migrations`, `bytes`,
-  `messages`), the agents' arrivals per topology node (`arrivals_by_node`), and `service_log`: what the distributor or the central server served
+  `messages`), the agents' arrivals per topology node (`arrivals_by_node`), the code each
+  rack received (`rack_codes`: rack => `[{agent, task, program}]`, in order; `%{}` without
+  `phi_agents`), and `service_log`: what the distributor or the central server served
   (`{arrived, started, done}`, monotonic µs; `mono_offset_us` is monotonic minus system
   time, to put them on the histories' clock; see `TartarusWarehouse.Service`).
   """
@@ -267,6 +287,12 @@ defmodule TartarusWarehouse.Floor.Build do
 
     last = completed |> Map.values() |> Enum.max(fn -> t0 end)
 
+    rack_codes =
+      for {rack, i} <- Enum.with_index(Map.get(ctx, :racks, []), 1),
+          {:ok, codes} = Tartarus.request(rack, :received, 30_000),
+          into: %{},
+          do: {"f#{i}", codes}
+
     %{
       design: ctx.design,
       history: history,
@@ -280,6 +306,7 @@ defmodule TartarusWarehouse.Floor.Build do
         |> Enum.sort_by(&String.to_integer(String.slice(&1, 1..-1//1))),
       migrations: Map.get(totals, :departures, 0),
       arrivals_by_node: arrivals_by_node(ctx),
+      rack_codes: rack_codes,
       bytes: Map.get(totals, :bytes, 0),
       messages: Map.get(totals, :messages, 0),
       service_log: service_log,

@@ -98,6 +98,12 @@ defmodule TartarusWarehouse.Floor.Options do
       default: 0,
       doc: "shared-resource (Φ) nodes in the network (§4.7.1), each on two robots"
     ],
+    phi_agents: [
+      type: :boolean,
+      default: false,
+      doc:
+        "each Φ node runs a static agent that receives the code of the tasks using its resources from the task agents before their robot runs them (§4.7.1; `TartarusWarehouse.Rack`); the agents' design only (the central server's robots and racks hold their programs a priori, §4.7.2); needs `phi` > 0"
+    ],
     guide: [
       type: :boolean,
       default: false,
@@ -159,6 +165,7 @@ defmodule TartarusWarehouse.Floor.Options do
   def check_run(opts) do
     with {:ok, opts} <- Tartarus.Options.validate(opts, @schema, "TartarusWarehouse.Floor.run/1"),
          :ok <- check_standby(opts, "run/1"),
+         :ok <- check_phi(opts, "run/1"),
          world = world(opts),
          :ok <- plan_all(opts[:jobs], world, opts[:max_pending_tasks]),
          events = events(opts),
@@ -180,6 +187,7 @@ defmodule TartarusWarehouse.Floor.Options do
     with {:ok, opts} <-
            Tartarus.Options.validate(opts, start_schema(), "TartarusWarehouse.Floor.start/1"),
          :ok <- check_standby(opts, "start/1"),
+         :ok <- check_phi(opts, "start/1"),
          world = world(opts),
          :ok <- plan_all(opts[:jobs], world, opts[:max_pending_tasks]) do
       {:ok, opts, world}
@@ -202,6 +210,15 @@ defmodule TartarusWarehouse.Floor.Options do
       true ->
         :ok
     end
+  end
+
+  # Racks need Φ nodes to run on.
+  defp check_phi(opts, fun) do
+    if opts[:phi_agents] and opts[:phi] == 0,
+      do:
+        {:error,
+         "invalid options given to TartarusWarehouse.Floor.#{fun} for key :phi_agents: the racks run on the Φ nodes, and the floor has none (give phi: n > 0)"},
+      else: :ok
   end
 
   # `run/1`'s events (and `retire`), checked before anything starts: when each fires, and
