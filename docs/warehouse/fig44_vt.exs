@@ -14,7 +14,8 @@
 #   mix run docs/warehouse/fig44_vt.exs DIR
 #
 # DIR holds `<name>.json` (a summary, `mix tartarus.warehouse ... --json`) and `<name>/` (its
-# output directory) for each run of the queue: judged-S, map-L<L>-k<k>-S<S>-<seed>, guided-S.
+# output directory) for each run of the queue: judged-S, map-L<L>-k<k>-S<S>-<seed>, guided-S,
+# and the racks' check: racks-S and base-S.
 [dir] = System.argv()
 
 alias Tartarus.JSON
@@ -203,6 +204,57 @@ end
 
 show = fn c -> Map.new(c, fn {n, st} -> {to_string(n), st} end) end
 
+# The racks of §4.7.1 (registered 2026-12-06, d317879): the judged command with
+# --phi-agents on seeds 2101-2110 (racks-S), and the paired baseline without them at the
+# same commit, agents only, on 2101-2103 (base-S): ms a task, racks minus none, per seed.
+racks = for s <- 2101..2110, summaries["racks-#{s}"], do: "racks-#{s}"
+racks_central = curve.(racks, "central")
+racks_agents = curve.(racks, "agents")
+
+paired =
+  for s <- 2101..2103,
+      r = summaries["racks-#{s}"],
+      b = summaries["base-#{s}"],
+      r != nil and b != nil,
+      into: %{} do
+    diff =
+      Map.new(sizes, fn n ->
+        k = to_string(n)
+        [rv] = r["avg_task_ms_by_seed"]["agents"][k]
+        [bv] = b["avg_task_ms_by_seed"]["agents"][k]
+        {k, Float.round(rv - bv, 3)}
+      end)
+
+    {"#{s}", diff}
+  end
+
+racks_report =
+  if racks == [],
+    do: nil,
+    else: %{
+      seeds: racks,
+      central: show.(racks_central),
+      agents: show.(racks_agents),
+      criteria: Scaling.criteria(medians.(racks_central), medians.(racks_agents)),
+      hops_per_task: med_of.(racks, "hops_per_task", "agents"),
+      census:
+        Map.new(
+          racks ++ Enum.filter(Enum.map(2101..2103, &"base-#{&1}"), &summaries[&1]),
+          fn name ->
+            s = summaries[name]
+
+            {name,
+             %{
+               violations: s["mutex_violations"],
+               deadlocks: s["deadlocks"],
+               jobs: s["jobs"],
+               completed: s["completed_jobs"]
+             }}
+          end
+        ),
+      paired_racks_minus_none_ms: paired
+    }
+
 IO.puts(
   JSON.encode!(%{
     seeds: judged,
@@ -228,6 +280,7 @@ IO.puts(
     },
     census: census,
     criteria: Scaling.criteria(medians.(central), medians.(agents)),
-    map: Map.new(map, fn {{row, n}, v} -> {"#{row} | #{n}", v} end)
+    map: Map.new(map, fn {{row, n}, v} -> {"#{row} | #{n}", v} end),
+    racks: racks_report
   })
 )
