@@ -156,7 +156,8 @@ SVG.write!(
     title: "When to decentralize: the faster design per setting and size",
     subtitle:
       "k robots, L ms a link, S ms a message served; in each cell the blind agents' median time per task over the central server's (3 seeds)",
-    note: "Grey: not run. L = 10, k = 60, S = 5 is the judged run's seeds 2101-2103.",
+    note:
+      "L = 10, k = 60, S = 5 is the judged run's seeds 2101-2103, the other cells seeds 2201-2203; grey: not run.",
     x_label: "tasks per job",
     y_label: "setting",
     width: 900,
