@@ -75,8 +75,9 @@ med_of = fn names, key, who ->
   end)
 end
 
-census =
-  for name <- judged, into: %{} do
+# Per run named: violations, deadlocks, jobs submitted and done.
+census_of = fn names ->
+  Map.new(names, fn name ->
     s = summaries[name]
 
     {name,
@@ -86,7 +87,10 @@ census =
        jobs: s["jobs"],
        completed: s["completed_jobs"]
      }}
-  end
+  end)
+end
+
+census = census_of.(judged)
 
 # The judged figure: medians with quartile bars.
 series = fn name, c ->
@@ -239,20 +243,7 @@ racks_report =
       criteria: Scaling.criteria(medians.(racks_central), medians.(racks_agents)),
       hops_per_task: med_of.(racks, "hops_per_task", "agents"),
       census:
-        Map.new(
-          racks ++ Enum.filter(Enum.map(2101..2103, &"base-#{&1}"), &summaries[&1]),
-          fn name ->
-            s = summaries[name]
-
-            {name,
-             %{
-               violations: s["mutex_violations"],
-               deadlocks: s["deadlocks"],
-               jobs: s["jobs"],
-               completed: s["completed_jobs"]
-             }}
-          end
-        ),
+        census_of.(racks ++ Enum.filter(Enum.map(2101..2103, &"base-#{&1}"), &summaries[&1])),
       paired_racks_minus_none_ms: paired
     }
 

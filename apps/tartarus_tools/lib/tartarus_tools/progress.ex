@@ -15,7 +15,8 @@ defmodule TartarusTools.Progress do
   (`force/1`: a mix task's `--progress`, `TartarusTools.CLI`). Redraws are throttled to one
   per `:interval_ms` (default 200). On a device that is not a terminal (a log file, a pipe)
   a forced line is written as a plain line of its own, at most one every 10 s, so the log
-  of a long run holds a readable line every 10 s rather than thousands of redraws. `finish/1` draws the final line and a newline.
+  of a long run holds a readable line every 10 s rather than thousands of redraws.
+  `finish/1` draws the final line and a newline.
   `render/2` is the pure formatting function, for tests.
 
   Nothing is printed while the VM runs in virtual time (`Tartarus.Clock.virtual?/0`): a

@@ -46,8 +46,9 @@ defmodule TartarusWarehouse.Rack do
     case Enum.find(tasks, fn {_task, program} -> not loadable?(program) end) do
       nil ->
         Tartarus.Agent.reply(from, :ok)
-        new = for {task, program} <- tasks, do: {agent, task, program}
-        {:stay, %{s | received: s.received ++ new}}
+        # Newest first here; `:received` answers oldest first.
+        new = for {task, program} <- Enum.reverse(tasks), do: {agent, task, program}
+        {:stay, %{s | received: new ++ s.received}}
 
       {_task, program} ->
         Tartarus.Agent.reply(from, {:error, {:no_code, program}})
@@ -56,7 +57,7 @@ defmodule TartarusWarehouse.Rack do
   end
 
   def handle_message(:received, from, s) when from != nil do
-    Tartarus.Agent.reply(from, s.received)
+    Tartarus.Agent.reply(from, Enum.reverse(s.received))
     {:stay, s}
   end
 
